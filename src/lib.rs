@@ -1,0 +1,1 @@
+//! vkinverse: inverse path tracing on any Vulkan device.
