@@ -1,0 +1,186 @@
+//! Named storage buffers allocated through gpu-allocator and freed on drop.
+//!
+//! A [`Buffer`] is a cheap handle (`Arc` inside): bind groups keep the buffers they bind
+//! alive. Zero-length buffers are legal at this level (a kernel over 0 elements); they
+//! are backed by a 16-byte allocation because Vulkan forbids empty buffers.
+
+use super::{vk_err, CommandBuffer, Context, GpuError, Result};
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// Where a buffer lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MemoryKind {
+    /// Device-local; filled and read through staging copies unless it happens to be mapped.
+    Device,
+    /// Host-visible, written by the host, read by the device.
+    Upload,
+    /// Host-visible, written by the device, read by the host.
+    Readback,
+}
+
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+pub(crate) struct BufferInner {
+    pub(crate) ctx: Arc<Context>,
+    pub(crate) raw: vk::Buffer,
+    pub(crate) id: u64,
+    allocation: Mutex<Option<Allocation>>,
+    name: String,
+    len: u64,
+    kind: MemoryKind,
+}
+
+/// A named GPU buffer. Cloning clones the handle, not the memory.
+#[derive(Clone)]
+pub struct Buffer(pub(crate) Arc<BufferInner>);
+
+impl Buffer {
+    /// Allocates `len` bytes (contents undefined).
+    pub fn new(ctx: &Arc<Context>, name: &str, len: u64, kind: MemoryKind) -> Result<Self> {
+        let max = ctx.info().max_storage_buffer_range;
+        if len > max {
+            return Err(GpuError::BufferTooLarge { name: name.into(), size: len, max });
+        }
+        let physical = len.max(16);
+        let info = vk::BufferCreateInfo::default().size(physical).usage(
+            vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST,
+        );
+        // SAFETY: valid create info on a live device.
+        let raw = unsafe { ctx.device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;
+        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
+        let location = match kind {
+            MemoryKind::Device => MemoryLocation::GpuOnly,
+            MemoryKind::Upload => MemoryLocation::CpuToGpu,
+            MemoryKind::Readback => MemoryLocation::GpuToCpu,
+        };
+        let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        });
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(source) => {
+                // SAFETY: the buffer was never bound or used.
+                unsafe { ctx.device.destroy_buffer(raw, None) };
+                return Err(GpuError::Alloc { name: name.into(), source });
+            }
+        };
+        // SAFETY: the allocation satisfies `requirements` and is not bound elsewhere.
+        if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
+            unsafe { ctx.device.destroy_buffer(raw, None) };
+            let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
+            return Err(vk_err("vkBindBufferMemory")(e));
+        }
+        Ok(Self(Arc::new(BufferInner {
+            ctx: ctx.clone(),
+            raw,
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            allocation: Mutex::new(Some(allocation)),
+            name: name.into(),
+            len,
+            kind,
+        })))
+    }
+
+    /// Allocates a buffer holding `data`.
+    pub fn from_slice<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, data: &[T], kind: MemoryKind) -> Result<Self> {
+        let buf = Self::new(ctx, name, std::mem::size_of_val(data) as u64, kind)?;
+        buf.write(data)?;
+        Ok(buf)
+    }
+
+    /// Allocates a zero-filled buffer of `n` elements of `T`.
+    pub fn zeroed<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, n: usize, kind: MemoryKind) -> Result<Self> {
+        Self::from_slice(ctx, name, &vec![T::zeroed(); n], kind)
+    }
+
+    pub fn name(&self) -> &str {
+        &self.0.name
+    }
+
+    /// Length in bytes as requested.
+    pub fn len(&self) -> u64 {
+        self.0.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.len == 0
+    }
+
+    pub fn kind(&self) -> MemoryKind {
+        self.0.kind
+    }
+
+    fn check_len(&self, bytes: usize) -> Result<()> {
+        if bytes as u64 > self.0.len {
+            return Err(GpuError::BufferAccess {
+                name: self.0.name.clone(),
+                what: format!("{bytes} bytes do not fit in {} bytes", self.0.len),
+            });
+        }
+        Ok(())
+    }
+
+    /// Runs `f` on the mapped bytes, if the memory is host-visible.
+    fn with_mapped<R>(&self, f: impl FnOnce(&mut [u8]) -> R) -> Option<R> {
+        let mut guard = self.0.allocation.lock().unwrap_or_else(|p| p.into_inner());
+        let slice = guard.as_mut()?.mapped_slice_mut()?;
+        Some(f(&mut slice[..self.0.len as usize]))
+    }
+
+    /// Copies `data` to the start of the buffer. The caller must ensure that no submitted
+    /// work uses the buffer (all submissions here are waited for before returning).
+    pub fn write<T: bytemuck::Pod>(&self, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        self.check_len(bytes.len())?;
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        if self.with_mapped(|m| m[..bytes.len()].copy_from_slice(bytes)).is_some() {
+            return Ok(());
+        }
+        let staging = Self::new(&self.0.ctx, &format!("{} (upload)", self.0.name), bytes.len() as u64, MemoryKind::Upload)?;
+        staging.write(bytes)?;
+        let mut cmd = CommandBuffer::new(&self.0.ctx, "upload")?;
+        cmd.record(|rec| rec.copy(&staging, self, bytes.len() as u64))?;
+        cmd.submit_and_wait()
+    }
+
+    /// Reads the first `len() / size_of::<T>()` elements.
+    pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        let n = self.0.len as usize / std::mem::size_of::<T>();
+        let mut out = vec![T::zeroed(); n];
+        let nbytes = n * std::mem::size_of::<T>();
+        if nbytes == 0 {
+            return Ok(out);
+        }
+        let dst: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+        if self.with_mapped(|m| dst.copy_from_slice(&m[..nbytes])).is_some() {
+            return Ok(out);
+        }
+        let staging = Self::new(&self.0.ctx, &format!("{} (readback)", self.0.name), nbytes as u64, MemoryKind::Readback)?;
+        let mut cmd = CommandBuffer::new(&self.0.ctx, "readback")?;
+        cmd.record(|rec| rec.copy(self, &staging, nbytes as u64))?;
+        cmd.submit_and_wait()?;
+        staging.with_mapped(|m| dst.copy_from_slice(&m[..nbytes]));
+        Ok(out)
+    }
+}
+
+impl Drop for BufferInner {
+    fn drop(&mut self) {
+        // SAFETY: the last handle is gone; command buffers that used this buffer hold a
+        // handle through their bind groups, so no pending work references it.
+        unsafe { self.ctx.device.destroy_buffer(self.raw, None) };
+        if let Some(a) = self.allocation.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            let _ = self.ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(a);
+        }
+    }
+}

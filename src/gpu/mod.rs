@@ -1,0 +1,100 @@
+//! The Vulkan compute layer: the only home of raw `ash` calls and `unsafe` in vkinverse.
+//!
+//! Everything above this module speaks in named buffers, reflected pipelines, recorded
+//! command buffers and named profiler scopes:
+//! - [`Context`]: instance, device, one compute queue, the allocator; every other object
+//!   holds an `Arc<Context>`, so the device is destroyed last.
+//! - [`Buffer`]: a named allocation freed on drop.
+//! - [`ComputePipeline`]: built from SPIR-V whose bindings, push-constant size and
+//!   workgroup size are reflected, bound by GLSL name into a [`BindGroup`].
+//! - [`CommandBuffer`] / [`Recorder`]: recorded once, submitted many times; every buffer
+//!   access is tracked, and a read or write after a write with no barrier between is an
+//!   error while recording ([`GpuError::Hazard`]).
+//! - [`Profiler`]: named timestamp scopes.
+
+mod buffer;
+mod commands;
+mod context;
+mod pipeline;
+mod profiler;
+pub mod reflect;
+mod sync;
+
+pub use buffer::{Buffer, MemoryKind};
+pub use commands::{CommandBuffer, Recorder};
+pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
+pub use pipeline::{BindGroup, ComputePipeline, SpecValue};
+pub use profiler::{Profiler, ScopeTime};
+pub use sync::Access;
+
+use ash::vk;
+
+/// Embedded SPIR-V kernels compiled by build.rs from `glsl/*.comp`.
+pub mod shaders {
+    include!(concat!(env!("OUT_DIR"), "/shaders.rs"));
+
+    /// The SPIR-V of kernel `name` (file stem or declared variant).
+    pub fn get(name: &str) -> Option<&'static [u8]> {
+        KERNELS.iter().find(|(n, _)| *n == name).map(|(_, s)| *s)
+    }
+}
+
+/// Errors of the GPU layer. Vulkan failures keep their `vk::Result`.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error("cannot load the Vulkan library: {0} (install libvulkan1 and a driver, e.g. mesa-vulkan-drivers)")]
+    Loader(String),
+    #[error("{what} failed: {result}")]
+    Vk { what: &'static str, result: vk::Result },
+    #[error("no Vulkan device found (install a driver, e.g. mesa-vulkan-drivers for lavapipe)")]
+    NoDevice,
+    #[error("no Vulkan device matches '{0}' (see `vkinverse info`)")]
+    DeviceNotFound(String),
+    #[error("device '{device}' lacks required feature {feature}")]
+    MissingFeature { device: String, feature: &'static str },
+    #[error("validation layer VK_LAYER_KHRONOS_validation requested but not installed (package vulkan-validationlayers)")]
+    NoValidationLayer,
+    #[error("GPU memory allocation for '{name}' failed: {source}")]
+    Alloc { name: String, source: gpu_allocator::AllocationError },
+    #[error("buffer '{name}': {size} bytes exceeds the device's storage-buffer range of {max} bytes")]
+    BufferTooLarge { name: String, size: u64, max: u64 },
+    #[error("buffer '{name}': {what}")]
+    BufferAccess { name: String, what: String },
+    #[error("kernel '{0}' is not among the compiled shaders")]
+    UnknownKernel(String),
+    #[error("reflection of kernel '{kernel}': {msg}")]
+    Reflect { kernel: String, msg: String },
+    #[error("kernel '{kernel}' has no binding named '{name}' (it has: {known})")]
+    UnknownBinding { kernel: String, name: String, known: String },
+    #[error("kernel '{kernel}': binding '{name}' was not bound")]
+    UnboundBinding { kernel: String, name: String },
+    #[error("kernel '{kernel}' has no specialization constant named '{name}'")]
+    UnknownSpecConstant { kernel: String, name: String },
+    #[error("kernel '{kernel}': specialization constant '{name}' is {expected}, got {got}")]
+    SpecConstantType { kernel: String, name: String, expected: String, got: &'static str },
+    #[error("kernel '{kernel}' takes {expected} bytes of push constants, got {got}")]
+    PushConstantSize { kernel: String, expected: u32, got: usize },
+    #[error("hazard in '{pass}': buffer '{buffer}' accessed as {now:?} after {previous:?} with no barrier between")]
+    Hazard { pass: String, buffer: String, previous: Access, now: Access },
+    #[error("barrier on buffer '{buffer}' declares previous access {declared:?}, but the last access was {actual:?}")]
+    BarrierMismatch { buffer: String, declared: Access, actual: Access },
+    #[error("kernel '{kernel}': {groups} workgroups along one axis exceed the device limit of {max}")]
+    DispatchTooLarge { kernel: String, groups: u64, max: u32 },
+    #[error("profiler: {0}")]
+    Profiler(String),
+    #[error("GPU work did not finish within {0} ms (device hung or too much work per submission)")]
+    Timeout(u64),
+    #[error("the Vulkan device was lost")]
+    DeviceLost,
+}
+
+/// Result of the GPU layer.
+pub type Result<T> = std::result::Result<T, GpuError>;
+
+/// Wraps a `vk::Result` with the name of the call that returned it.
+pub(crate) fn vk_err(what: &'static str) -> impl FnOnce(vk::Result) -> GpuError {
+    move |result| match result {
+        vk::Result::ERROR_DEVICE_LOST => GpuError::DeviceLost,
+        result => GpuError::Vk { what, result },
+    }
+}

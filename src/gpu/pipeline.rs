@@ -1,0 +1,302 @@
+//! Compute pipelines built from reflected SPIR-V, and bind groups filled by GLSL name.
+
+use super::reflect::{BindingAccess, LocalSize, Reflection, SpecKind};
+use super::{shaders, vk_err, Access, Buffer, Context, GpuError, Result};
+use ash::vk;
+use std::sync::Arc;
+
+/// A specialization-constant value.
+#[derive(Clone, Copy, Debug)]
+pub enum SpecValue {
+    Bool(bool),
+    U32(u32),
+    I32(i32),
+    F32(f32),
+}
+
+impl SpecValue {
+    fn kind_name(self) -> &'static str {
+        match self {
+            SpecValue::Bool(_) => "bool",
+            SpecValue::U32(_) => "uint",
+            SpecValue::I32(_) => "int",
+            SpecValue::F32(_) => "float",
+        }
+    }
+
+    fn bytes(self) -> [u8; 4] {
+        match self {
+            // VkBool32 is 4 bytes.
+            SpecValue::Bool(b) => (b as u32).to_le_bytes(),
+            SpecValue::U32(v) => v.to_le_bytes(),
+            SpecValue::I32(v) => v.to_le_bytes(),
+            SpecValue::F32(v) => v.to_le_bytes(),
+        }
+    }
+}
+
+/// A compute pipeline and the layouts it created; destroyed when the last handle goes
+/// (recordings that use it hold one).
+#[derive(Clone)]
+pub struct ComputePipeline(Arc<PipelineInner>);
+
+pub(crate) struct PipelineInner {
+    ctx: Arc<Context>,
+    reflection: Reflection,
+    local_size: [u32; 3],
+    set_layout: vk::DescriptorSetLayout,
+    layout: vk::PipelineLayout,
+    pipeline: vk::Pipeline,
+}
+
+impl ComputePipeline {
+    /// Builds kernel `kernel` (a `glsl/*.comp` file stem or declared variant) with the
+    /// given specialization constants, by name.
+    pub fn new(ctx: &Arc<Context>, kernel: &str, spec: &[(&str, SpecValue)]) -> Result<Self> {
+        let spirv = shaders::get(kernel).ok_or_else(|| GpuError::UnknownKernel(kernel.into()))?;
+        Self::from_spirv(ctx, kernel, spirv, spec)
+    }
+
+    /// Builds a pipeline from SPIR-V bytes.
+    pub fn from_spirv(ctx: &Arc<Context>, kernel: &str, spirv: &[u8], spec: &[(&str, SpecValue)]) -> Result<Self> {
+        let reflection = Reflection::new(kernel, spirv)?;
+        let mut entries = Vec::new();
+        let mut data = Vec::new();
+        for (name, value) in spec {
+            let info = reflection
+                .spec_constants
+                .iter()
+                .find(|s| s.name == *name)
+                .ok_or_else(|| GpuError::UnknownSpecConstant { kernel: kernel.into(), name: name.to_string() })?;
+            let ok = matches!(
+                (info.kind, value),
+                (SpecKind::Bool, SpecValue::Bool(_))
+                    | (SpecKind::U32, SpecValue::U32(_))
+                    | (SpecKind::I32, SpecValue::I32(_))
+                    | (SpecKind::F32, SpecValue::F32(_))
+            );
+            if !ok {
+                return Err(GpuError::SpecConstantType {
+                    kernel: kernel.into(),
+                    name: name.to_string(),
+                    expected: format!("{:?}", info.kind),
+                    got: value.kind_name(),
+                });
+            }
+            entries.push(vk::SpecializationMapEntry { constant_id: info.id, offset: data.len() as u32, size: 4 });
+            data.extend_from_slice(&value.bytes());
+        }
+        let local_size = reflection.local_size.map(|d| match d {
+            LocalSize::Fixed(v) => v,
+            LocalSize::Spec { id, default } => reflection
+                .spec_constants
+                .iter()
+                .find(|s| s.id == id)
+                .and_then(|s| spec.iter().find(|(n, _)| *n == s.name))
+                .map(|(_, v)| match v {
+                    SpecValue::U32(v) => *v,
+                    _ => default,
+                })
+                .unwrap_or(default),
+        });
+
+        let layout_bindings: Vec<_> = reflection
+            .bindings
+            .iter()
+            .map(|b| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b.binding)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        let dev = &ctx.device;
+        // SAFETY: create infos reference locals alive for each call; on failure every
+        // object made so far is destroyed by `Partial`'s drop.
+        let mut partial = Partial { dev, set_layout: None, layout: None, module: None };
+        let set_layout = unsafe {
+            dev.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings), None)
+        }
+        .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
+        partial.set_layout = Some(set_layout);
+        let ranges = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .size(reflection.push_constant_size)];
+        let set_layouts = [set_layout];
+        let mut layout_info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
+        if reflection.push_constant_size > 0 {
+            layout_info = layout_info.push_constant_ranges(&ranges);
+        }
+        let layout = unsafe { dev.create_pipeline_layout(&layout_info, None) }.map_err(vk_err("vkCreatePipelineLayout"))?;
+        partial.layout = Some(layout);
+        let words: Vec<u32> = spirv.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        let module = unsafe { dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .map_err(vk_err("vkCreateShaderModule"))?;
+        partial.module = Some(module);
+        let spec_info = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(c"main")
+            .specialization_info(&spec_info);
+        let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+        let pipeline = unsafe { dev.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
+            .map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
+        // The module is no longer needed once the pipeline exists.
+        unsafe { dev.destroy_shader_module(module, None) };
+        std::mem::forget(partial);
+        Ok(Self(Arc::new(PipelineInner { ctx: ctx.clone(), reflection, local_size, set_layout, layout, pipeline })))
+    }
+
+    pub fn name(&self) -> &str {
+        &self.0.reflection.kernel
+    }
+
+    pub fn reflection(&self) -> &Reflection {
+        &self.0.reflection
+    }
+
+    /// Workgroup size after specialization.
+    pub fn local_size(&self) -> [u32; 3] {
+        self.0.local_size
+    }
+
+    pub(crate) fn raw(&self) -> (vk::Pipeline, vk::PipelineLayout) {
+        (self.0.pipeline, self.0.layout)
+    }
+
+    /// Binds buffers to this kernel's bindings by GLSL name (block instance or block
+    /// name). Every binding must be given exactly once.
+    pub fn bind(&self, resources: &[(&str, &Buffer)]) -> Result<BindGroup> {
+        let me = &self.0;
+        let kernel = &me.reflection.kernel;
+        let mut slots: Vec<Option<Buffer>> = vec![None; me.reflection.bindings.len()];
+        for (name, buf) in resources {
+            let idx = me
+                .reflection
+                .bindings
+                .iter()
+                .position(|b| b.names.iter().any(|n| n == name))
+                .ok_or_else(|| GpuError::UnknownBinding {
+                    kernel: kernel.clone(),
+                    name: name.to_string(),
+                    known: me.reflection.bindings.iter().map(|b| b.names.join("/")).collect::<Vec<_>>().join(", "),
+                })?;
+            slots[idx] = Some((*buf).clone());
+        }
+        let mut bound = Vec::new();
+        for (info, slot) in me.reflection.bindings.iter().zip(slots) {
+            let buf = slot.ok_or_else(|| GpuError::UnboundBinding { kernel: kernel.clone(), name: info.names[0].clone() })?;
+            let access = match info.access {
+                BindingAccess::Read => Access::ComputeRead,
+                BindingAccess::Write => Access::ComputeWrite,
+                BindingAccess::ReadWrite => Access::ComputeReadWrite,
+            };
+            bound.push((info.binding, buf, access));
+        }
+        BindGroup::new(&me.ctx, me.set_layout, kernel, bound)
+    }
+}
+
+/// Destroys what a half-built pipeline made.
+struct Partial<'a> {
+    dev: &'a ash::Device,
+    set_layout: Option<vk::DescriptorSetLayout>,
+    layout: Option<vk::PipelineLayout>,
+    module: Option<vk::ShaderModule>,
+}
+
+impl Drop for Partial<'_> {
+    fn drop(&mut self) {
+        // SAFETY: reached only on an error path; none of these objects is in use.
+        unsafe {
+            if let Some(m) = self.module {
+                self.dev.destroy_shader_module(m, None);
+            }
+            if let Some(l) = self.layout {
+                self.dev.destroy_pipeline_layout(l, None);
+            }
+            if let Some(s) = self.set_layout {
+                self.dev.destroy_descriptor_set_layout(s, None);
+            }
+        }
+    }
+}
+
+impl Drop for PipelineInner {
+    fn drop(&mut self) {
+        // SAFETY: recordings that use this pipeline hold a handle, so the last handle goes
+        // only once no pending work uses it.
+        unsafe {
+            self.ctx.device.destroy_pipeline(self.pipeline, None);
+            self.ctx.device.destroy_pipeline_layout(self.layout, None);
+            self.ctx.device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+/// A descriptor set with its buffers, owned together: the buffers live as long as the
+/// set, and recordings that use the set hold a handle to it.
+#[derive(Clone)]
+pub struct BindGroup(pub(crate) Arc<BindGroupInner>);
+
+pub(crate) struct BindGroupInner {
+    ctx: Arc<Context>,
+    kernel: String,
+    pool: vk::DescriptorPool,
+    pub(crate) set: vk::DescriptorSet,
+    /// (binding, buffer, how the kernel accesses it)
+    pub(crate) buffers: Vec<(u32, Buffer, Access)>,
+}
+
+impl BindGroup {
+    fn new(ctx: &Arc<Context>, layout: vk::DescriptorSetLayout, kernel: &str, buffers: Vec<(u32, Buffer, Access)>) -> Result<Self> {
+        let dev = &ctx.device;
+        let sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: buffers.len().max(1) as u32 }];
+        // SAFETY: valid create/allocate infos; the pool is destroyed if allocation fails.
+        let pool = unsafe { dev.create_descriptor_pool(&vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes), None) }
+            .map_err(vk_err("vkCreateDescriptorPool"))?;
+        let layouts = [layout];
+        let set = match unsafe {
+            dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts))
+        } {
+            Ok(s) => s[0],
+            Err(e) => {
+                unsafe { dev.destroy_descriptor_pool(pool, None) };
+                return Err(vk_err("vkAllocateDescriptorSets")(e));
+            }
+        };
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+            .iter()
+            .map(|(_, b, _)| [vk::DescriptorBufferInfo { buffer: b.0.raw, offset: 0, range: vk::WHOLE_SIZE }])
+            .collect();
+        let writes: Vec<_> = buffers
+            .iter()
+            .zip(&infos)
+            .map(|((binding, _, _), info)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(*binding)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .buffer_info(info)
+            })
+            .collect();
+        // SAFETY: the set is not in use by any command buffer yet.
+        unsafe { dev.update_descriptor_sets(&writes, &[]) };
+        Ok(Self(Arc::new(BindGroupInner { ctx: ctx.clone(), kernel: kernel.to_string(), pool, set, buffers })))
+    }
+
+    /// The kernel this group was made for.
+    pub fn kernel(&self) -> &str {
+        &self.0.kernel
+    }
+}
+
+impl Drop for BindGroupInner {
+    fn drop(&mut self) {
+        // SAFETY: destroying the pool frees its set; recordings hold a handle, so no
+        // pending work uses it.
+        unsafe { self.ctx.device.destroy_descriptor_pool(self.pool, None) };
+    }
+}

@@ -1,0 +1,130 @@
+//! Buffer kernels every later pass reuses: fill, copy, scale-add and reductions (sum and
+//! sum of squares), recorded into a [`Recorder`].
+
+use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, Result, SpecValue};
+use std::sync::Arc;
+
+/// Elements summed by one reduce workgroup: local size × ITEMS (glsl/reduce.comp).
+fn reduce_chunk(p: &ComputePipeline) -> u64 {
+    // ITEMS is left at its default of 4 by `BufferOps::new`.
+    p.local_size()[0] as u64 * 4
+}
+
+fn push_n(n: u64) -> Vec<u8> {
+    (n as u32).to_le_bytes().to_vec()
+}
+
+/// The pipelines of the buffer kernels.
+pub struct BufferOps {
+    ctx: Arc<Context>,
+    fill: ComputePipeline,
+    copy: ComputePipeline,
+    scale_add: ComputePipeline,
+    reduce_sum: ComputePipeline,
+    reduce_sq: ComputePipeline,
+}
+
+/// A reduction prepared for one input buffer: the partial-sum buffers and the bind groups
+/// of every level, so that it can be recorded into a resubmitted command buffer.
+pub struct Reduction {
+    /// (bind group, input elements, squares?, partial-sum output) per level
+    levels: Vec<(BindGroup, u64, bool, Buffer)>,
+    result: Buffer,
+}
+
+impl Reduction {
+    /// The 1-element buffer that holds the result after the recorded work ran.
+    pub fn result(&self) -> &Buffer {
+        &self.result
+    }
+}
+
+impl BufferOps {
+    pub fn new(ctx: &Arc<Context>) -> Result<Self> {
+        Ok(Self {
+            ctx: ctx.clone(),
+            fill: ComputePipeline::new(ctx, "fill", &[])?,
+            copy: ComputePipeline::new(ctx, "copy", &[])?,
+            scale_add: ComputePipeline::new(ctx, "scale_add", &[])?,
+            reduce_sum: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(false))])?,
+            reduce_sq: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(true))])?,
+        })
+    }
+
+    fn elements(buf: &Buffer) -> u64 {
+        buf.len() / 4
+    }
+
+    /// Records `dst[i] = value` over the whole buffer.
+    pub fn fill(&self, rec: &mut Recorder, dst: &Buffer, value: f32) -> Result<()> {
+        let group = self.fill.bind(&[("Dst", dst)])?;
+        let n = Self::elements(dst);
+        let mut push = push_n(n);
+        push.extend_from_slice(&value.to_le_bytes());
+        rec.dispatch_linear(&self.fill, &group, &push, n)
+    }
+
+    /// Records `dst[i] = src[i]` for the first `min(len)` elements.
+    pub fn copy(&self, rec: &mut Recorder, src: &Buffer, dst: &Buffer) -> Result<()> {
+        let group = self.copy.bind(&[("Src", src), ("Dst", dst)])?;
+        let n = Self::elements(src).min(Self::elements(dst));
+        rec.dispatch_linear(&self.copy, &group, &push_n(n), n)
+    }
+
+    /// Records `x[i] = a * x[i] + b`.
+    pub fn scale_add(&self, rec: &mut Recorder, x: &Buffer, a: f32, b: f32) -> Result<()> {
+        let group = self.scale_add.bind(&[("X", x)])?;
+        let n = Self::elements(x);
+        let mut push = push_n(n);
+        push.extend_from_slice(&a.to_le_bytes());
+        push.extend_from_slice(&b.to_le_bytes());
+        rec.dispatch_linear(&self.scale_add, &group, &push, n)
+    }
+
+    /// Prepares the sum (or, with `square`, the sum of squares) of `src`'s f32 elements.
+    pub fn reduction(&self, src: &Buffer, square: bool) -> Result<Reduction> {
+        let mut levels = Vec::new();
+        let mut n = Self::elements(src);
+        let mut input = src.clone();
+        let mut first = true;
+        loop {
+            let pipe = if first && square { &self.reduce_sq } else { &self.reduce_sum };
+            let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
+            let out = Buffer::new(&self.ctx, &format!("{} partials {}", src.name(), levels.len()), groups * 4, MemoryKind::Device)?;
+            levels.push((pipe.bind(&[("Src", &input), ("Partials", &out)])?, n, first && square, out.clone()));
+            input = out;
+            n = groups;
+            first = false;
+            if groups == 1 {
+                break;
+            }
+        }
+        Ok(Reduction { levels, result: input })
+    }
+
+    /// Records a prepared reduction; afterwards `reduction.result()` holds the value. A
+    /// barrier makes each level's partial sums visible to the next.
+    pub fn record_reduction(&self, rec: &mut Recorder, reduction: &Reduction) -> Result<()> {
+        let mut prev: Option<&Buffer> = None;
+        for (group, n, square, out) in &reduction.levels {
+            if let Some(p) = prev {
+                // The previous level wrote the partials this level reads.
+                rec.barrier(p, Access::ComputeWrite, Access::ComputeRead)?;
+            }
+            let pipe = if *square { &self.reduce_sq } else { &self.reduce_sum };
+            let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
+            rec.dispatch_linear(pipe, group, &push_n(*n), groups * pipe.local_size()[0] as u64)?;
+            prev = Some(out);
+        }
+        Ok(())
+    }
+
+    /// Sums (or sums the squares of) `src` now and returns the value.
+    pub fn sum(&self, src: &Buffer, square: bool) -> Result<f32> {
+        let red = self.reduction(src, square)?;
+        let mut cmd = CommandBuffer::new(&self.ctx, "sum")?;
+        cmd.record(|rec| self.record_reduction(rec, &red))?;
+        cmd.submit_and_wait()?;
+        Ok(red.result().read::<f32>()?[0])
+    }
+}

@@ -1,0 +1,30 @@
+//! Test harness: every GPU test runs on a context with the validation layer and
+//! synchronization validation on; any validation message, or any allocation still alive
+//! at the end, fails the test.
+#![allow(dead_code)]
+
+use std::sync::Arc;
+use vkinverse::gpu::{Context, ContextOptions};
+
+/// A validating context (lavapipe in CI; whatever device `VKINVERSE_TEST_DEVICE` names).
+pub fn context() -> Arc<Context> {
+    let options = ContextOptions {
+        device: std::env::var("VKINVERSE_TEST_DEVICE").ok(),
+        validation: true,
+        timeout: None,
+    };
+    Context::new(&options).expect("Vulkan context with validation (needs mesa-vulkan-drivers and vulkan-validationlayers)")
+}
+
+/// Runs `f` on a fresh validating context, then checks that the validation layer said
+/// nothing and that `f` freed every allocation.
+pub fn with_gpu<R>(f: impl FnOnce(&Arc<Context>) -> R) -> R {
+    let ctx = context();
+    let r = f(&ctx);
+    ctx.wait_idle().expect("wait idle");
+    let messages = ctx.take_validation_messages();
+    assert!(messages.is_empty(), "validation messages:\n{}", messages.join("\n"));
+    let live = ctx.live_allocations();
+    assert!(live.is_empty(), "allocations leaked: {live:?}");
+    r
+}
