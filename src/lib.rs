@@ -1,10 +1,13 @@
 //! vkinverse: inverse path tracing on any Vulkan device.
 //!
 //! Layers, bottom up: [`gpu`] (the only place raw Vulkan appears), [`ops`] (buffer
-//! kernels: fill, copy, reductions), and the command line in `main.rs`.
+//! kernels: fill, copy, reductions), [`scene`] and [`image`] (loading and validating
+//! input, writing output atomically), and the command line in `main.rs`.
 
-pub mod gpu;
-pub mod ops;
-pub mod shared;
 pub mod bench;
+pub mod gpu;
+pub mod image;
+pub mod ops;
 pub mod report;
+pub mod scene;
+pub mod shared;

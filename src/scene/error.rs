@@ -1,0 +1,123 @@
+//! `SceneError`: everything that can be wrong with a scene, each message one line that
+//! names the file and the key (`materials.wall.roughness`) or line (`scene.toml:12:5`).
+
+use std::io;
+use std::path::PathBuf;
+
+use thiserror::Error;
+
+use crate::image::ImageError;
+
+#[derive(Debug, Error)]
+pub enum SceneError {
+    /// The scene file itself cannot be read.
+    #[error("{}: cannot read scene: {source}", path.display())]
+    ReadScene { path: PathBuf, source: io::Error },
+
+    /// TOML syntax, an unknown key, a missing key or a value of the wrong type.
+    #[error("{}:{line}:{column}: {message}", path.display())]
+    Toml {
+        path: PathBuf,
+        line: usize,
+        column: usize,
+        message: String,
+        source: Box<toml::de::Error>,
+    },
+
+    /// A file named by `key` cannot be read.
+    #[error("{}: {key}: cannot read {}: {source}", scene.display(), file.display())]
+    MissingFile {
+        scene: PathBuf,
+        key: String,
+        file: PathBuf,
+        source: io::Error,
+    },
+
+    /// An OBJ file is malformed; `line` is 0 where no single line is at fault.
+    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
+    Obj {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+
+    /// tobj rejected an OBJ file that passed the line checks.
+    #[error("{}: malformed OBJ: {source}", path.display())]
+    ObjParse {
+        path: PathBuf,
+        source: tobj::LoadError,
+    },
+
+    /// An image named by `key` cannot be decoded.
+    #[error("{}: {key}: {source}", scene.display())]
+    Image {
+        scene: PathBuf,
+        key: String,
+        source: ImageError,
+    },
+
+    #[error("{}: {key}: {} has a non-finite value at pixel ({x}, {y})", scene.display(), image.display())]
+    NonFinitePixel {
+        scene: PathBuf,
+        key: String,
+        image: PathBuf,
+        x: u32,
+        y: u32,
+    },
+
+    #[error("{}: {key}: non-finite value", scene.display())]
+    NonFinite { scene: PathBuf, key: String },
+
+    /// A value outside what it may be (film size, field of view, init outside range, ...).
+    #[error("{}: {key}: {message}", scene.display())]
+    OutOfRange {
+        scene: PathBuf,
+        key: String,
+        message: String,
+    },
+
+    /// `key` refers to a material or mesh that the scene does not define.
+    #[error("{}: {key}: no {kind} named \"{name}\"", scene.display())]
+    Undefined {
+        scene: PathBuf,
+        key: String,
+        kind: &'static str,
+        name: String,
+    },
+
+    #[error("{}: {key}: \"{name}\" is defined more than once", scene.display())]
+    Duplicate {
+        scene: PathBuf,
+        key: String,
+        name: String,
+    },
+
+    /// Any other inconsistency between keys.
+    #[error("{}: {key}: {message}", scene.display())]
+    Invalid {
+        scene: PathBuf,
+        key: String,
+        message: String,
+    },
+}
+
+impl SceneError {
+    /// One-line error from toml's, whose own Display spans several lines.
+    pub(crate) fn toml(path: PathBuf, text: &str, source: toml::de::Error) -> Self {
+        let mut offset = source.span().map_or(0, |s| s.start.min(text.len()));
+        while !text.is_char_boundary(offset) {
+            offset -= 1;
+        }
+        let before = &text[..offset];
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+        let message = source.message().trim().replace('\n', "; ");
+        Self::Toml {
+            path,
+            line,
+            column,
+            message,
+            source: Box::new(source),
+        }
+    }
+}

@@ -1,0 +1,507 @@
+//! Scene loading end to end: the bundled scenes load, and every kind of bad input gives its
+//! typed `SceneError` with a one-line message naming the file and the key or line.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use vkinverse::image::{write_exr, Image};
+use vkinverse::scene::{ColorValue, ParamTarget, Reference, Scene, SceneError};
+
+const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
+const BARE_TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+
+const BASE: &str = r#"[film]
+width = 8
+height = 8
+
+[[sensors]]
+origin = [0, 0, 3]
+target = [0, 0, 0]
+fov_y = 40
+
+[[materials]]
+name = "m"
+type = "principled"
+base_color = [0.5, 0.5, 0.5]
+
+[[meshes]]
+file = "tri.obj"
+material = "m"
+"#;
+
+/// A fresh directory holding `tri.obj`, `bare.obj`, `tex.exr` (4x4) and `scene.toml`.
+fn fixture(name: &str, scene: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "vkinverse-scene-tests-{}-{name}",
+        std::process::id()
+    ));
+    let _ = fs::remove_dir_all(&dir);
+    fs::create_dir_all(&dir).unwrap();
+    fs::write(dir.join("tri.obj"), TRIANGLE).unwrap();
+    fs::write(dir.join("bare.obj"), BARE_TRIANGLE).unwrap();
+    write_exr(
+        &dir.join("tex.exr"),
+        &Image::filled(4, 4, [0.25, 0.5, 0.75]),
+    )
+    .unwrap();
+    fs::write(dir.join("scene.toml"), scene).unwrap();
+    dir.join("scene.toml")
+}
+
+fn load_err(name: &str, scene: &str) -> SceneError {
+    match Scene::load(fixture(name, scene)) {
+        Ok(_) => panic!("{name}: scene loaded but should not have"),
+        Err(e) => e,
+    }
+}
+
+/// The message is one line and contains every needle.
+fn assert_message(err: &SceneError, needles: &[&str]) {
+    let msg = err.to_string();
+    assert!(!msg.contains('\n'), "multi-line message: {msg}");
+    for needle in needles {
+        assert!(msg.contains(needle), "{msg:?} lacks {needle:?}");
+    }
+}
+
+fn with_optimise(params: &str) -> String {
+    format!("{BASE}\n[optimise]\n[[optimise.params]]\n{params}\n")
+}
+
+#[test]
+fn bundled_scenes_load() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let cornell = Scene::load(root.join("cornell/scene.toml")).unwrap();
+    assert_eq!(
+        (
+            cornell.film.width,
+            cornell.film.height,
+            cornell.integrator.max_depth
+        ),
+        (64, 64, 4)
+    );
+    assert_eq!(cornell.meshes.len(), 8);
+    assert_eq!(cornell.triangle_count(), 6 * 2 + 2 * 5 * 2);
+    let red = cornell.material_index("red").unwrap();
+    assert_eq!(
+        cornell.meshes[cornell.mesh_index("left").unwrap()].material,
+        red
+    );
+    let p = &cornell.optimise.params[0];
+    assert_eq!(
+        (p.target, p.channels, p.init.as_slice()),
+        (ParamTarget::BaseColor { material: red }, 3, &[0.5; 3][..])
+    );
+    assert!(matches!(&p.reference, Reference::Constant(c) if c == &[0.63, 0.065, 0.05]));
+    let light = &cornell.meshes[cornell.mesh_index("light").unwrap()];
+    assert!(light.emission[0] > 0.0 && light.positions.iter().all(|p| p[1] > 1.9));
+
+    let spiral = Scene::load(root.join("spiral/scene.toml")).unwrap();
+    let channels: Vec<u32> = spiral.optimise.params.iter().map(|p| p.channels).collect();
+    assert_eq!(channels, [3, 1, 1, 1]);
+    assert!(matches!(spiral.environment.value, ColorValue::Constant(c) if c[2] > 0.0));
+    assert!(spiral
+        .meshes
+        .iter()
+        .any(|m| !m.normals.is_empty() && !m.uvs.is_empty()));
+
+    for scene in [&cornell, &spiral] {
+        let g = scene.flatten();
+        let n = g.positions.len();
+        assert_eq!((g.normals.len(), g.uvs.len()), (n, n));
+        assert_eq!(g.indices.len(), scene.triangle_count());
+        assert_eq!(g.triangle_material.len(), g.indices.len());
+        assert_eq!(g.triangle_emission.len(), g.indices.len());
+        assert!(g.indices.iter().flatten().all(|&i| (i as usize) < n));
+        assert!(g
+            .triangle_material
+            .iter()
+            .all(|&m| (m as usize) < scene.materials.len()));
+        // Emission follows the mesh a triangle came from.
+        for (t, &mesh) in g.triangle_mesh.iter().enumerate() {
+            assert_eq!(g.triangle_emission[t], scene.meshes[mesh as usize].emission);
+        }
+    }
+    assert_ne!(cornell.content_hash(), spiral.content_hash());
+}
+
+#[test]
+fn defaults_and_resolved_parameters() {
+    let text = format!(
+        "{BASE}\n[[materials]]\nname = \"glow\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n\
+         [[meshes]]\nname = \"lamp\"\nfile = \"bare.obj\"\nmaterial = \"glow\"\nemission = [2, 2, 2]\n\
+         [environment]\nfile = \"tex.exr\"\nscale = 2\n\n[optimise]\noptimiser = \"adam\"\n\
+         [[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.25\nrange = [0, 1]\ntexture = [16, 8]\n\
+         [[optimise.params]]\ntarget = \"meshes.lamp.emission\"\ninit = 1\nrange = [0, 10]\nlr = 0.5\n\
+         [[optimise.params]]\ntarget = \"environment\"\ninit = [1, 2, 3]\nrange = [0, 4]\ntexture = [8, 4]\n"
+    );
+    let scene = Scene::load(fixture("defaults", &text)).unwrap();
+    assert_eq!(
+        (scene.integrator.max_depth, scene.integrator.rr_depth),
+        (6, 5)
+    );
+    let o = &scene.optimise;
+    assert_eq!(
+        (o.iterations, o.spp, o.fd_spp, o.primal_spp, o.lr, o.seed),
+        (500, 2, 1, 4, 0.02, 0)
+    );
+    assert_eq!(o.optimiser.as_str(), "adam");
+    assert_eq!(o.loss.as_str(), "l2");
+    let [rough, emission, env] = &o.params[..] else {
+        panic!("three params expected")
+    };
+    assert_eq!(
+        (rough.target, rough.channels, rough.texture),
+        (ParamTarget::Roughness { material: 0 }, 1, Some([16, 8]))
+    );
+    assert!(matches!(&rough.reference, Reference::Constant(v) if v == &[0.5]));
+    assert_eq!(
+        (emission.target, emission.init.as_slice(), emission.lr),
+        (ParamTarget::Emission { mesh: 1 }, &[1.0; 3][..], Some(0.5))
+    );
+    assert!(matches!(&emission.reference, Reference::Constant(v) if v == &[2.0; 3]));
+    assert_eq!(env.target, ParamTarget::Environment);
+    assert!(
+        matches!(&env.reference, Reference::Texture(t) if t.image.get(3, 3) == [0.25, 0.5, 0.75])
+    );
+    assert_eq!(scene.environment.scale, 2.0);
+}
+
+#[test]
+fn content_hash_follows_the_reference_scene_only() {
+    let base = Scene::load(fixture("hash-a", BASE)).unwrap().content_hash();
+    assert_eq!(
+        base,
+        Scene::load(fixture("hash-a", BASE)).unwrap().content_hash()
+    );
+    let optimise = format!("# comment\n{BASE}\n[optimise]\nlr = 0.5\n");
+    assert_eq!(
+        base,
+        Scene::load(fixture("hash-b", &optimise))
+            .unwrap()
+            .content_hash()
+    );
+    let film = BASE.replace("height = 8", "height = 9");
+    assert_ne!(
+        base,
+        Scene::load(fixture("hash-c", &film))
+            .unwrap()
+            .content_hash()
+    );
+    let path = fixture("hash-d", BASE);
+    fs::write(
+        path.with_file_name("tri.obj"),
+        TRIANGLE.replace("v 0 1 0", "v 0 2 0"),
+    )
+    .unwrap();
+    assert_ne!(base, Scene::load(&path).unwrap().content_hash());
+}
+
+#[test]
+fn toml_syntax_error_names_the_line() {
+    let err = load_err("syntax", &BASE.replace("height = 8", "height = = 8"));
+    assert!(matches!(err, SceneError::Toml { line: 3, .. }), "{err:?}");
+    assert_message(&err, &["scene.toml:3:"]);
+}
+
+#[test]
+fn unknown_key_is_named() {
+    let err = load_err(
+        "unknown",
+        &BASE.replace("fov_y = 40", "fov_y = 40\nfocus = 2"),
+    );
+    assert!(matches!(err, SceneError::Toml { line: 9, .. }), "{err:?}");
+    assert_message(&err, &["scene.toml:9:", "unknown field `focus`"]);
+    let err = load_err(
+        "bad-type",
+        &BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = \"red\""),
+    );
+    assert_message(&err, &["scene.toml:13:", "texture"]);
+}
+
+#[test]
+fn missing_files_name_key_and_path() {
+    let err = load_err("missing-obj", &BASE.replace("tri.obj", "nope.obj"));
+    assert!(matches!(err, SceneError::MissingFile { .. }), "{err:?}");
+    assert_message(&err, &["scene.toml", "meshes.nope.file", "nope.obj"]);
+
+    let tex = BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"absent.exr\" }");
+    let err = load_err("missing-tex", &tex);
+    assert!(matches!(err, SceneError::MissingFile { .. }), "{err:?}");
+    assert_message(
+        &err,
+        &["scene.toml", "materials.m.base_color.texture", "absent.exr"],
+    );
+
+    let err = load_err(
+        "missing-target",
+        &BASE.replace("fov_y = 40", "fov_y = 40\ntarget_image = \"t.exr\""),
+    );
+    assert_message(&err, &["sensors[0].target_image", "t.exr"]);
+    assert!(matches!(
+        Scene::load("/nonexistent/scene.toml"),
+        Err(SceneError::ReadScene { .. })
+    ));
+}
+
+#[test]
+fn malformed_obj_names_file_and_line() {
+    for (name, obj, line, needle) in [
+        (
+            "obj-index",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
+            4,
+            "vertex index 4",
+        ),
+        (
+            "obj-nan",
+            "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n",
+            2,
+            "non-finite",
+        ),
+        ("obj-nofaces", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", 0, "no faces"),
+    ] {
+        let path = fixture(name, BASE);
+        fs::write(path.with_file_name("tri.obj"), obj).unwrap();
+        let err = Scene::load(&path).unwrap_err();
+        assert!(
+            matches!(err, SceneError::Obj { line: l, .. } if l == line),
+            "{err:?}"
+        );
+        let located = if line > 0 {
+            format!("tri.obj:{line}:")
+        } else {
+            "tri.obj:".into()
+        };
+        assert_message(&err, &[&located, needle]);
+    }
+}
+
+#[test]
+fn exr_without_rgb_is_named() {
+    use exr::prelude::{SpecificChannels, WritableImage};
+    let path = fixture(
+        "exr-y",
+        &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"y.exr\" }"),
+    );
+    let channels = SpecificChannels::build()
+        .with_channel("Y")
+        .with_pixel_fn(|_| (0.5f32,));
+    exr::prelude::Image::from_channels((2, 2), channels)
+        .write()
+        .to_file(path.with_file_name("y.exr"))
+        .unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            SceneError::Image {
+                source: vkinverse::image::ImageError::MissingRgb { .. },
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    assert_message(
+        &err,
+        &["scene.toml", "materials.m.base_color.texture", "y.exr", "Y"],
+    );
+}
+
+#[test]
+fn non_finite_values_are_rejected() {
+    let path = fixture(
+        "nan-pixel",
+        &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"nan.exr\" }"),
+    );
+    let mut img = Image::filled(3, 2, [0.1; 3]);
+    img.data[4][1] = f32::INFINITY;
+    write_exr(&path.with_file_name("nan.exr"), &img).unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(
+        matches!(err, SceneError::NonFinitePixel { x: 1, y: 1, .. }),
+        "{err:?}"
+    );
+    assert_message(
+        &err,
+        &["materials.m.base_color.texture", "nan.exr", "(1, 1)"],
+    );
+
+    let err = load_err(
+        "nan-color",
+        &BASE.replace("[0.5, 0.5, 0.5]", "[0.5, nan, 0.5]"),
+    );
+    assert!(matches!(err, SceneError::NonFinite { .. }), "{err:?}");
+    assert_message(&err, &["scene.toml", "materials.m.base_color"]);
+
+    let err = load_err(
+        "nan-init",
+        &with_optimise("target = \"materials.m.base_color\"\ninit = nan\nrange = [0, 1]"),
+    );
+    assert!(matches!(err, SceneError::NonFinite { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[0].init"]);
+}
+
+#[test]
+fn film_size_and_fov_are_bounded() {
+    for (name, from, to, key) in [
+        ("film-zero", "width = 8", "width = 0", "film.width"),
+        ("film-huge", "height = 8", "height = 20000", "film.height"),
+        ("fov-zero", "fov_y = 40", "fov_y = 0", "sensors[0].fov_y"),
+        ("fov-180", "fov_y = 40", "fov_y = 180", "sensors[0].fov_y"),
+        (
+            "roughness",
+            "type = \"principled\"",
+            "type = \"principled\"\nroughness = 1.5",
+            "materials.m.roughness",
+        ),
+    ] {
+        let err = load_err(name, &BASE.replace(from, to));
+        assert!(
+            matches!(err, SceneError::OutOfRange { .. }),
+            "{name}: {err:?}"
+        );
+        assert_message(&err, &["scene.toml", key]);
+    }
+}
+
+#[test]
+fn names_must_be_defined_and_unique() {
+    let err = load_err(
+        "undefined-material",
+        &BASE.replace("material = \"m\"", "material = \"wall\""),
+    );
+    assert!(
+        matches!(
+            err,
+            SceneError::Undefined {
+                kind: "material",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    assert_message(&err, &["scene.toml", "meshes.tri.material", "\"wall\""]);
+
+    let dup = BASE.replace(
+        "[[meshes]]",
+        "[[materials]]\nname = \"m\"\ntype = \"diffuse\"\nbase_color = [1, 1, 1]\n\n[[meshes]]",
+    );
+    let err = load_err("duplicate-material", &dup);
+    assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
+    assert_message(&err, &["materials[1].name", "\"m\""]);
+
+    let err = load_err(
+        "duplicate-mesh",
+        &format!("{BASE}\n[[meshes]]\nfile = \"tri.obj\"\nmaterial = \"m\"\n"),
+    );
+    assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
+    assert_message(&err, &["meshes[1]", "\"tri\""]);
+}
+
+#[test]
+fn optimise_targets_must_exist() {
+    let err = load_err(
+        "target-material",
+        &with_optimise("target = \"materials.wall.base_color\"\ninit = 0.5\nrange = [0, 1]"),
+    );
+    assert!(
+        matches!(
+            err,
+            SceneError::Undefined {
+                kind: "material",
+                ..
+            }
+        ),
+        "{err:?}"
+    );
+    assert_message(&err, &["optimise.params[0].target", "\"wall\""]);
+
+    let err = load_err(
+        "target-mesh",
+        &with_optimise("target = \"meshes.lamp.emission\"\ninit = 0.5\nrange = [0, 1]"),
+    );
+    assert!(
+        matches!(err, SceneError::Undefined { kind: "mesh", .. }),
+        "{err:?}"
+    );
+    assert_message(&err, &["optimise.params[0].target", "\"lamp\""]);
+
+    let err = load_err(
+        "target-property",
+        &with_optimise("target = \"materials.m.colour\"\ninit = 0.5\nrange = [0, 1]"),
+    );
+    assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[0].target", "materials.m.colour"]);
+
+    let twice =
+        "target = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n[[optimise.params]]\n\
+                 target = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]";
+    let err = load_err("target-twice", &with_optimise(twice));
+    assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[1].target"]);
+}
+
+#[test]
+fn init_and_range_are_checked() {
+    let err = load_err(
+        "init-outside",
+        &with_optimise(
+            "target = \"materials.m.base_color\"\ninit = [0.5, 1.5, 0.5]\nrange = [0, 1]",
+        ),
+    );
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[0].init", "1.5"]);
+
+    let err = load_err(
+        "range-empty",
+        &with_optimise("target = \"materials.m.base_color\"\ninit = 0.5\nrange = [1, 1]"),
+    );
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[0].range"]);
+
+    let err = load_err(
+        "init-channels",
+        &with_optimise(
+            "target = \"materials.m.roughness\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]",
+        ),
+    );
+    assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
+    assert_message(&err, &["optimise.params[0].init"]);
+}
+
+#[test]
+fn inconsistent_scenes_are_rejected() {
+    let no_uvs = BASE
+        .replace("tri.obj", "bare.obj")
+        .replace("[0.5, 0.5, 0.5]", "{ texture = \"tex.exr\" }");
+    let err = load_err("no-uvs", &no_uvs);
+    assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
+    assert_message(&err, &["meshes.bare", "texture coordinates"]);
+
+    let textured = BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"tex.exr\" }");
+    let needs_texture = format!("{textured}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = 0.5\nrange = [0, 1]\n");
+    let err = load_err("param-texture", &needs_texture);
+    assert_message(&err, &["optimise.params[0]", "texture = [w, h]"]);
+
+    let err = load_err(
+        "env-both",
+        &format!("{BASE}\n[environment]\nconstant = [1, 1, 1]\nfile = \"tex.exr\"\n"),
+    );
+    assert_message(&err, &["scene.toml", "environment", "exactly one"]);
+
+    let err = load_err(
+        "diffuse-roughness",
+        &BASE.replace("\"principled\"", "\"diffuse\"\nroughness = 0.3"),
+    );
+    assert_message(&err, &["materials.m", "diffuse"]);
+
+    let sized = BASE.replace("fov_y = 40", "fov_y = 40\ntarget_image = \"tex.exr\"");
+    let err = load_err("target-size", &sized);
+    assert_message(&err, &["sensors[0].target_image", "4x4", "8x8"]);
+    assert!(Scene::load(fixture(
+        "target-ok",
+        &sized.replace("width = 8\nheight = 8", "width = 4\nheight = 4")
+    ))
+    .is_ok());
+}
