@@ -91,6 +91,12 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     let tiny = Buffer::new(ctx, "bench tiny", 4, MemoryKind::Device)?;
     let copy4 = ComputePipeline::new(ctx, "copy_vec4", &[])?;
     let copy4_group = copy4.bind(&[("Src", &a), ("Dst", &b)])?;
+    let wide_items = [4u32, 16, 64];
+    let wide_pipes = wide_items
+        .iter()
+        .map(|&k| ComputePipeline::new(ctx, "copy_wide", &[("ITEMS", SpecValue::U32(k))]))
+        .collect::<Result<Vec<_>>>()?;
+    let wide_groups = wide_pipes.iter().map(|p| p.bind(&[("Src", &a), ("Dst", &b)])).collect::<Result<Vec<_>>>()?;
     let wg_sizes = [64u32, 128, 512, 1024];
     let wg_pipes = wg_sizes
         .iter()
@@ -101,7 +107,7 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         .map(|_| Ok((ops.reduction(&a, false)?, ops.reduction(&a, true)?)))
         .collect::<Result<Vec<_>>>()?;
 
-    let mut profiler = Profiler::new(ctx, 16 * iterations + 4)?;
+    let mut profiler = Profiler::new(ctx, 20 * iterations + 4)?;
     let mut cmd = CommandBuffer::new(ctx, "buffer bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
@@ -126,6 +132,13 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
             profiler.begin(rec, "copy_vec4")?;
             rec.dispatch_linear(&copy4, &copy4_group, &n4_push, n / 4)?;
             profiler.end(rec)?;
+            for ((k, p), g) in wide_items.iter().zip(&wide_pipes).zip(&wide_groups) {
+                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
+                profiler.begin(rec, &format!("copy_vec4_x{k}"))?;
+                // One thread per ITEMS float4s.
+                rec.dispatch_linear(p, g, &n4_push, (n / 4).div_ceil(*k as u64))?;
+                profiler.end(rec)?;
+            }
             for ((w, p), g) in wg_sizes.iter().zip(&wg_pipes).zip(&wg_groups) {
                 rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
                 profiler.begin(rec, &format!("copy_wg{w}"))?;
@@ -159,6 +172,7 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         _ => 8 * n,
     };
     let mut names: Vec<String> = ["copy", "copy_vec4"].iter().map(|s| s.to_string()).collect();
+    names.extend(wide_items.iter().map(|k| format!("copy_vec4_x{k}")));
     names.extend(wg_sizes.iter().map(|w| format!("copy_wg{w}")));
     names.extend(["fill", "scale_add", "reduce_sum", "reduce_sumsq"].iter().map(|s| s.to_string()));
     let gbps = |name: &str| bytes(name) as f64 / (median_of(name) * 1e-3).max(1e-12) / 1e9;
