@@ -2,12 +2,15 @@
 //!
 //! Layers, bottom up: [`gpu`] (the only place raw Vulkan appears), [`ops`] (buffer
 //! kernels: fill, copy, reductions), [`scene`] and [`image`] (loading and validating
-//! input, writing output atomically), and the command line in `main.rs`.
+//! input, writing output atomically), [`optim`] (the optimisers' reference and host
+//! side), [`npy`], and the command line in `main.rs`.
 
 pub mod bench;
 pub mod gpu;
 pub mod image;
+pub mod npy;
 pub mod ops;
+pub mod optim;
 pub mod report;
 pub mod scene;
 pub mod shared;

@@ -1,0 +1,202 @@
+// Unidirectional path tracer with next-event estimation and multiple importance sampling,
+// written once for the primal and the adjoint pass (path replay backpropagation, Vicini
+// et al. 2021; the bookkeeping follows Mitsuba 3's prb integrator): the adjoint pass
+// replays each path from its seed knowing the path's total radiance L, subtracts what
+// each vertex emits or gathers directly, and attributes the remainder to the BSDF that
+// scattered it. Sampling, MIS weights and Russian roulette are detached (constants with
+// respect to the parameters), which keeps the material and emission gradients unbiased.
+//
+// Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
+#ifndef INTEGRATOR_GLSL
+#define INTEGRATOR_GLSL
+#include "lib/rng.glsl"
+#include "lib/sampling.glsl"
+#include "lib/bsdf.glsl"
+#include "lib/bvh_traverse.glsl"
+#include "lib/scene_access.glsl"
+
+layout(constant_id = 1) const uint MAX_DEPTH = 6;
+layout(constant_id = 2) const uint RR_DEPTH = 5;
+// 0: no emissive triangles, light sampling is compiled out.
+layout(constant_id = 3) const uint NUM_EMITTERS = 0;
+layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
+
+// Offsets of ray origins from surfaces, relative to the scene scale (the kernels' scenes
+// are a few units across; this is ~1e-4 of that).
+const float RAY_EPSILON = 1e-4;
+
+// Emitted radiance of mesh `mesh_id` towards wo from a point whose geometric normal is ng.
+vec3 emitted(uint mesh_id, vec3 ng, vec3 wo) {
+    if (dot(ng, wo) <= 0.0) return vec3(0.0);
+    return fetch3(meshes[mesh_id].emission, vec2(0.0));
+}
+
+// Picks an emissive triangle by its probability and a point on it.
+// Returns the emitter index (for the emission lookup), the point and the pdf (area measure).
+uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
+    // Binary search for the first triangle whose inclusive cdf exceeds u.x.
+    uint lo = 0u, hi = NUM_EMITTERS - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (emitters[mid].cdf > u.x) hi = mid; else lo = mid + 1u;
+    }
+    EmitterTri e = emitters[lo];
+    vec2 b = sample_triangle_barycentrics(u.yz);
+    p = e.p0 + b.x * e.e1 + b.y * e.e2;
+    pdf_area = e.pdf;
+    return e.prim;
+}
+
+// Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on.
+// Primal: returns its radiance. ADJOINT: `L` is that radiance (from a primal replay),
+// `delta` the adjoint of the pixel (dLoss/dPixel times the sample weight); gradients are
+// accumulated into grad[] and the returned value is meaningless.
+vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
+    vec3 radiance = vec3(0.0);
+    vec3 beta = vec3(1.0);
+    float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
+    vec3 prev_p = o;
+#ifdef ADJOINT
+    vec3 remaining = L;          // radiance still to be accounted for along the path
+    // The first (primal) replay of a sample passes delta = 0 and skips gradient work.
+    bool grad_pass = any(notEqual(delta, vec3(0.0)));
+#endif
+    for (uint depth = 1u; ; ++depth) {
+        rng_seek_bounce(rng, depth);
+        Hit hit;
+        if (!trace_closest(o, d, 1e30, hit)) {
+            if (HAS_ENVIRONMENT) {
+                vec3 e = beta * environment_radiance(d);
+                radiance += e;
+#ifdef ADJOINT
+                remaining -= e;
+                // Emission parameters enter linearly: d(beta * E)/dE = beta.
+                if (globals.environment.width == 0u)
+                    scatter3(globals.environment, vec2(0.0), delta * beta * globals.environment_scale);
+#endif
+            }
+            break;
+        }
+        vec3 p = o + hit.t * d;
+        TriShading sh = shading[hit.prim];
+        vec3 wo = -d;
+        float w_bary = 1.0 - hit.u - hit.v;
+        vec2 uv = w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2;
+        vec3 ng = sh.ng;
+
+        // Emission reached by the previous BSDF sample (or seen by the camera).
+        if (sh.emitter_pdf > 0.0) {
+            vec3 le = emitted(sh.mesh, ng, wo);
+            if (any(greaterThan(le, vec3(0.0)))) {
+                float mis = 1.0;
+                if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS > 0u) {
+                    // Convert the light-sampling pdf of this point to solid angle at prev_p.
+                    float cos_l = abs(dot(ng, wo));
+                    float pdf_light = sh.emitter_pdf * hit.t * hit.t / max(cos_l, 1e-8);
+                    mis = power_heuristic(prev_bsdf_pdf, pdf_light);
+                }
+                vec3 e = beta * le * mis;
+                radiance += e;
+#ifdef ADJOINT
+                remaining -= e;
+                scatter3(meshes[sh.mesh].emission, vec2(0.0), delta * beta * mis);
+#endif
+            }
+        }
+        if (depth >= MAX_DEPTH) break;
+
+        // Shading frame: interpolated normal if the mesh has normals, flipped to the side
+        // of wo; the geometric normal likewise.
+        vec3 ns = w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2;
+        ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
+        if (dot(ng, wo) < 0.0) ng = -ng;
+        if (dot(ns, ng) < 0.0) ns = -ns;
+        Material mat = fetch_material(shading[hit.prim].material, uv);
+        vec3 p_off = p + RAY_EPSILON * ng;
+
+        // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling.
+        // Always draws 3 numbers, so replays stay in step (lib/rng.glsl).
+        vec3 u_light = rng_next3(rng);
+        if (NUM_EMITTERS > 0u) {
+            vec3 pl;
+            float pdf_area;
+            uint lprim = sample_emitter(u_light, pl, pdf_area);
+            vec3 to_l = pl - p_off;
+            float dist2 = dot(to_l, to_l);
+            float dist = sqrt(dist2);
+            vec3 wi = to_l / dist;
+            TriShading lsh = shading[lprim];
+            float cos_l = dot(lsh.ng, -wi);
+            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0) {
+                vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0));
+                vec3 f = bsdf_eval(mat, ns, wo, wi);
+                if (any(greaterThan(le * f, vec3(0.0))) && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
+                    float pdf_light = pdf_area * dist2 / cos_l;
+                    float mis = power_heuristic(pdf_light, bsdf_pdf(mat, ns, wo, wi));
+                    vec3 c = beta * f * le * (mis / pdf_light);
+                    radiance += c;
+#ifdef ADJOINT
+                    remaining -= c;
+                    if (grad_pass) {
+                    vec3 d_base, d_rough, d_metal;
+                    bsdf_eval_grad(mat, ns, wo, wi, d_base, d_rough, d_metal);
+                    vec3 k = delta * beta * le * (mis / pdf_light);
+                    MaterialRecord mr = materials[shading[hit.prim].material];
+                    scatter3(mr.base_color, uv, k * d_base);
+                    scatter1(mr.roughness, uv, dot(k, d_rough));
+                    scatter1(mr.metallic, uv, dot(k, d_metal));
+                    scatter3(meshes[lsh.mesh].emission, vec2(0.0), delta * beta * f * (mis / pdf_light));
+                    }
+#endif
+                }
+            }
+        }
+
+        // Continue by sampling the BSDF.
+        vec3 wi, weight;
+        float pdf;
+        vec3 u_bsdf = rng_next3(rng);
+        if (!bsdf_sample(mat, ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
+#ifdef ADJOINT
+        if (grad_pass) {
+            // Everything the path gathers from here on is proportional to f(wo, wi): its
+            // derivative is remaining * (df/dtheta) / f, per channel.
+            vec3 f = weight * pdf;
+            vec3 d_base, d_rough, d_metal;
+            bsdf_eval_grad(mat, ns, wo, wi, d_base, d_rough, d_metal);
+            vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
+            vec3 k = delta * remaining * inv_f;
+            MaterialRecord mr = materials[shading[hit.prim].material];
+            scatter3(mr.base_color, uv, k * d_base);
+            scatter1(mr.roughness, uv, dot(k, d_rough));
+            scatter1(mr.metallic, uv, dot(k, d_metal));
+        }
+#endif
+        beta *= weight;
+        prev_bsdf_pdf = pdf;
+        prev_p = p;
+
+        // Russian roulette (Mitsuba's rule): survive with probability min(max(beta), 0.95).
+        float u_rr = rng_next(rng);
+        if (depth + 1u >= RR_DEPTH) {
+            float q = min(max_component(beta), 0.95);
+            if (u_rr >= q) break;
+            beta /= q;
+        }
+        if (all(equal(beta, vec3(0.0)))) break;
+        o = p_off;
+        d = wi;
+    }
+    return radiance;
+}
+
+// The camera ray of a pixel sample (block 0 of the RNG); pixel (0, 0) is the top left.
+void camera_ray(SensorRecord s, uvec2 pixel, uvec2 size, inout Rng rng, out vec3 o, out vec3 d) {
+    rng_seek_bounce(rng, 0u);
+    vec2 jitter = rng_next2(rng);
+    vec2 ndc = (vec2(pixel) + jitter) / vec2(size) * 2.0 - 1.0;
+    ndc.y = -ndc.y;
+    o = s.origin;
+    d = normalize(s.forward + ndc.x * s.tan_half_fov_y * s.aspect * s.right + ndc.y * s.tan_half_fov_y * s.up);
+}
+#endif

@@ -1,0 +1,49 @@
+// Counter-based random numbers: every number is a hash of (pixel, sample, seed, index).
+//
+// THE REPLAY INVARIANT. A path is a pure function of its (pixel, sample index, seed) and
+// of the parameters. The adjoint pass and the finite-difference pass re-trace paths
+// instead of storing them (path replay backpropagation, Vicini et al. 2021), so a
+// replayed path must draw exactly the same numbers in exactly the same order as the
+// primal one: every branch that draws in one pass draws the same count in the other,
+// and nothing draws a data-dependent number of values. Each path vertex therefore takes
+// a fixed block of RNG_DIMS_PER_BOUNCE numbers starting at a fixed index, whether it
+// uses them or not, so even a divergent replay re-synchronises at the next vertex.
+//
+// Hash: pcg4d (Jarzynski and Olano, "Hash Functions for GPU Rendering", JCGT 2020).
+#ifndef RNG_GLSL
+#define RNG_GLSL
+
+#define RNG_DIMS_PER_BOUNCE 8u
+
+struct Rng {
+    uvec3 key;   // pixel, sample, seed
+    uint index;  // next dimension
+};
+
+uvec4 pcg4d(uvec4 v) {
+    v = v * 1664525u + 1013904223u;
+    v.x += v.y * v.w; v.y += v.z * v.x; v.z += v.x * v.y; v.w += v.y * v.z;
+    v ^= v >> 16u;
+    v.x += v.y * v.w; v.y += v.z * v.x; v.z += v.x * v.y; v.w += v.y * v.z;
+    return v;
+}
+
+Rng rng_init(uint pixel, uint sample_index, uint seed) {
+    return Rng(uvec3(pixel, sample_index, seed), 0u);
+}
+
+// Moves to the start of the block of path vertex `bounce` (camera sample = block 0).
+void rng_seek_bounce(inout Rng rng, uint bounce) {
+    rng.index = bounce * RNG_DIMS_PER_BOUNCE;
+}
+
+// A float in [0, 1): the top 24 bits, so 1.0 is never returned.
+float rng_next(inout Rng rng) {
+    uint bits = pcg4d(uvec4(rng.key, rng.index)).x;
+    rng.index += 1u;
+    return float(bits >> 8u) * (1.0 / 16777216.0);
+}
+
+vec2 rng_next2(inout Rng rng) { return vec2(rng_next(rng), rng_next(rng)); }
+vec3 rng_next3(inout Rng rng) { return vec3(rng_next(rng), rng_next(rng), rng_next(rng)); }
+#endif

@@ -1,0 +1,116 @@
+// Scene buffers (bindings 20-26) and the parameter buffers (30-31), with the lookups that
+// read a material or emission value from a constant, a texture, or the parameters being
+// optimised, and (ADJOINT) scatter gradients back through the same lookup.
+#ifndef SCENE_ACCESS_GLSL
+#define SCENE_ACCESS_GLSL
+#include "shared/scene.glsl"
+#include "shared/material.glsl"
+
+layout(set = 0, binding = 20, scalar) readonly buffer Materials { MaterialRecord materials[]; };
+layout(set = 0, binding = 21, scalar) readonly buffer Shading { TriShading shading[]; };
+layout(set = 0, binding = 22, scalar) readonly buffer Meshes { MeshRecord meshes[]; };
+layout(set = 0, binding = 23, scalar) readonly buffer Emitters { EmitterTri emitters[]; };
+layout(set = 0, binding = 24, scalar) readonly buffer Sensors { SensorRecord sensors[]; };
+layout(set = 0, binding = 25, scalar) readonly buffer SceneGlobals { Globals globals; };
+layout(set = 0, binding = 26, scalar) readonly buffer MaterialData { float material_data[]; };
+layout(set = 0, binding = 30, scalar) readonly buffer Theta { float theta[]; };
+#ifdef ADJOINT
+#extension GL_EXT_shader_atomic_float : require
+layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
+#endif
+
+float value_at(ValueRef r, int index) {
+    return r.in_theta != 0u ? theta[r.offset + index] : material_data[r.offset + index];
+}
+
+// Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
+// A constant is one "texel" with weight 1 in slot 0.
+void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
+    if (r.width == 0u) {
+        texel = ivec4(0);
+        weight = vec4(1.0, 0.0, 0.0, 0.0);
+        return;
+    }
+    // uv (0,0) is the bottom-left of the image (OBJ convention); rows are stored top first.
+    vec2 p = vec2(uv.x, 1.0 - uv.y) * vec2(r.width, r.height) - 0.5;
+    vec2 f = floor(p);
+    vec2 t = p - f;
+    ivec2 size = ivec2(r.width, r.height);
+    ivec2 a = ivec2(mod(f, vec2(size)));
+    ivec2 b = (a + 1) % size;
+    texel = ivec4(a.y * size.x + a.x, a.y * size.x + b.x, b.y * size.x + a.x, b.y * size.x + b.x);
+    weight = vec4((1.0 - t.x) * (1.0 - t.y), t.x * (1.0 - t.y), (1.0 - t.x) * t.y, t.x * t.y);
+}
+
+vec3 fetch3(ValueRef r, vec2 uv) {
+    ivec4 texel;
+    vec4 w;
+    footprint(r, uv, texel, w);
+    vec3 v = vec3(0.0);
+    for (int k = 0; k < 4; ++k) {
+        if (w[k] == 0.0) continue;
+        int base = texel[k] * 3;
+        v += w[k] * vec3(value_at(r, base), value_at(r, base + 1), value_at(r, base + 2));
+    }
+    return v;
+}
+
+float fetch1(ValueRef r, vec2 uv) {
+    ivec4 texel;
+    vec4 w;
+    footprint(r, uv, texel, w);
+    float v = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        if (w[k] != 0.0) v += w[k] * value_at(r, texel[k]);
+    }
+    return v;
+}
+
+#ifdef ADJOINT
+// Adds g (the gradient of the loss with respect to the looked-up value) to the gradients
+// of the parameters the lookup read, if they are being optimised.
+void scatter3(ValueRef r, vec2 uv, vec3 g) {
+    if (r.in_theta == 0u || all(equal(g, vec3(0.0)))) return;
+    ivec4 texel;
+    vec4 w;
+    footprint(r, uv, texel, w);
+    for (int k = 0; k < 4; ++k) {
+        if (w[k] == 0.0) continue;
+        int base = r.offset + texel[k] * 3;
+        atomicAdd(grad[base], w[k] * g.x);
+        atomicAdd(grad[base + 1], w[k] * g.y);
+        atomicAdd(grad[base + 2], w[k] * g.z);
+    }
+}
+
+void scatter1(ValueRef r, vec2 uv, float g) {
+    if (r.in_theta == 0u || g == 0.0) return;
+    ivec4 texel;
+    vec4 w;
+    footprint(r, uv, texel, w);
+    for (int k = 0; k < 4; ++k) {
+        if (w[k] != 0.0) atomicAdd(grad[r.offset + texel[k]], w[k] * g);
+    }
+}
+#endif
+
+// The material at a surface point.
+Material fetch_material(uint id, vec2 uv) {
+    MaterialRecord r = materials[id];
+    Material m;
+    m.base_color = fetch3(r.base_color, uv);
+    m.roughness = fetch1(r.roughness, uv);
+    m.metallic = fetch1(r.metallic, uv);
+    m.kind = r.kind;
+    return m;
+}
+
+// Radiance emitted by the environment towards -dir.
+vec3 environment_radiance(vec3 dir) {
+    ValueRef r = globals.environment;
+    // Lat-long: u = azimuth around +y, v = polar angle from +y (top row = up).
+    float u = atan(dir.x, -dir.z) * (0.5 / 3.14159265358979) + 0.5;
+    float v = 1.0 - acos(clamp(dir.y, -1.0, 1.0)) / 3.14159265358979;
+    return globals.environment_scale * fetch3(r, vec2(u, v));
+}
+#endif

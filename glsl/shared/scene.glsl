@@ -1,0 +1,70 @@
+// Scene records shared by the host (src/shared.rs mirrors them; a reflection test checks
+// every member offset) and the integrator kernels. Scalar block layout throughout.
+#ifndef SCENE_GLSL
+#define SCENE_GLSL
+
+// Where a material or emission value comes from. 16 bytes.
+// width == 0: a constant of `channels` floats at `offset`; otherwise a width x height
+// texture of `channels` floats per texel, row-major from the top row, at `offset`.
+// in_theta != 0: the floats live in the parameter buffer (they are being optimised),
+// otherwise in the constant MaterialData buffer.
+struct ValueRef {
+    int offset;
+    uint width;
+    uint height;
+    uint in_theta;
+};
+
+// One material. 52 bytes.
+struct MaterialRecord {
+    ValueRef base_color;
+    ValueRef roughness;
+    ValueRef metallic;
+    uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
+};
+
+// Per-triangle shading data, indexed by the original triangle id. 84 bytes.
+struct TriShading {
+    vec3 n0;          // vertex normals; all zero when the mesh has none
+    vec3 n1;
+    vec3 n2;
+    vec3 ng;          // unit geometric normal (front side = counter-clockwise winding)
+    vec2 uv0;
+    vec2 uv1;
+    vec2 uv2;
+    uint material;
+    uint mesh;
+    float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
+};
+
+// One mesh. 16 bytes.
+struct MeshRecord {
+    ValueRef emission;  // 3 channels, radiance emitted from the front side
+};
+
+// An emissive triangle for light sampling. 48 bytes.
+struct EmitterTri {
+    vec3 p0;
+    vec3 e1;
+    vec3 e2;
+    uint prim;   // original triangle id
+    float cdf;   // inclusive cumulative probability of picking triangles 0..this one
+    float pdf;   // probability density (area measure) of a point sampled on it
+};
+
+// A pinhole camera. 56 bytes.
+struct SensorRecord {
+    vec3 origin;
+    vec3 right;
+    vec3 up;
+    vec3 forward;
+    float tan_half_fov_y;
+    float aspect;
+};
+
+// Scene-wide values. 20 bytes.
+struct Globals {
+    ValueRef environment;  // constant (width 0) or lat-long map; 3 channels
+    float environment_scale;
+};
+#endif

@@ -1,0 +1,239 @@
+//! Optimisers: Adam and the gradient meta-estimator of Bálint et al., "Joint Sampling and
+//! Optimisation for Inverse Rendering" (SIGGRAPH Asia 2023), as CPU references of the GPU
+//! passes `glsl/optim_adam.comp` and `glsl/optim_meta.comp`.
+//!
+//! An optimiser step is a pure function of (parameters, gradients, state), element by element,
+//! in the style of Dr.Jit's `opt.py`. One parameter buffer is one group: Meta's ‖Δπ‖² (`dpi2`)
+//! is the squared L2 norm of the buffer's previous step.
+//!
+//! - [`reference`]: the float32-safe formulation, generic over [`Real`] (f64 as the reference,
+//!   f32 to reproduce the GPU's arithmetic). `glsl/lib/optim.glsl` is the same code in GLSL.
+//! - [`literal`]: the seed pseudocode (Moment2 + Meta) and textbook Adam transcribed in plain
+//!   f64; tests show that [`reference`] equals it on ordinary gradient streams.
+//! - [`replay`]: batch driver over recorded gradient streams (`vkinverse replay`).
+//! - [`push`]: the kernels' push-constant blocks.
+//!
+//! # Float32 safety
+//! Where the pseudocode would overflow, underflow or divide by zero in f32, the formulation
+//! (identical in [`reference`] and GLSL) does instead:
+//! 1. Second moments and variances are stored as their square roots (RMS, standard deviation)
+//!    and combined by a scaled `hypot`: the squares of gradients in 1e-30..1e30 leave f32.
+//! 2. EMAs are stored bias-corrected and updated as convex combinations with weight
+//!    k = (1−β)/(1−β^t), the seed's `w / w_sum`; 1−β^t is evaluated without cancellation
+//!    ([`reference::one_minus_pow`]), since `1 - pow(0.999, t)` in f32 loses 4 digits.
+//! 3. α = VF/(VF + var + 1e-30) is evaluated on standard deviations divided by the largest of
+//!    them, so neither a square nor the denominator can overflow or vanish.
+//! 4. α is carried as the gain g = 1 − α, accurate as α → 1; the clip α ≤ 1/(2 − α_prev)
+//!    becomes g ≥ 1/(1 + n_eff) with n_eff = 1/(1 − α_prev), the effective number of averaged
+//!    samples. n_eff = 0 (zero-initialised state) is α_prev = −∞, so the first α is 0.
+//! 5. The mean update α·(M + ΔF) + (1−α)·F is computed as h + g·(F/2 − h/2) + g·(F/2 − h/2)
+//!    with h = M + ΔF: a convex combination at every stage, so it cannot overflow.
+//! 6. The ΔF Moment2 (of ΔF/‖Δπ‖) is updated through the current step's standard deviation
+//!    sd_D = hypot(√(1−k)·rms_D·‖Δπ‖, √k·|ΔF|), never through ΔF/‖Δπ‖ itself (which overflows
+//!    for tiny steps); the stored rms_D = sd_D/‖Δπ‖ saturates.
+//! 7. ‖Δπ‖² = 0 (the first iteration, or a buffer that did not move, e.g. pinned at its range)
+//!    or non-finite: the ΔF terms are skipped — ΔF is taken as 0 with variance 0 and the ΔF
+//!    Moment2 is not stepped. A common-random-number finite difference over a zero step is
+//!    exactly zero, so this is the limit, not an approximation.
+//! 8. The ΔF Moment2 counts its own samples per element (`wsum_d` = 1 − β^count), because its
+//!    samples are missing at the first iteration and whenever (7) applies.
+//! 9. A non-finite F or ΔF skips the element: θ and its state are unchanged, its step is 0,
+//!    and it is counted (Adam reads no ΔF). The F Moment2 keeps the global count t, so after
+//!    a skip its bias correction is slightly low until the EMA forgets (the step bounds below
+//!    still hold).
+//! 10. Results that can leave the f32 range (M + ΔF, rms_D·‖Δπ‖, lr·ratio, θ + step) saturate
+//!     at ±MAX; the ratio M/(sd + ε) is taken before multiplying by lr.
+//!
+//! The seed's constants are absolute: ε = 1e-8 makes steps shrink in proportion for
+//! gradients below ~1e-8 (as in Adam), and the 1e-30 in the α denominator makes Meta stop
+//! averaging gradients below ~1e-15 (α → 0). Both are kept for fidelity to the seed.
+//!
+//! # Step bounds
+//! With these choices the step is bounded for any finite input (Cauchy–Schwarz on the EMA
+//! weights): Adam |Δθ| ≤ lr·[`ADAM_STEP_BOUND`] for the default betas; Meta
+//! |Δθ_t| ≤ lr·√(1 + (t−1)(1/(1−β_F) + 1/(1−β_D))), which grows like √t because a confident
+//! meta-estimate takes larger steps by design: with Var[M] ≈ VF/n_eff the step is about
+//! lr·√n_eff·M/√VF.
+
+pub mod literal;
+pub mod push;
+pub mod reference;
+pub mod replay;
+#[cfg(test)]
+mod tests;
+
+pub use reference::{AdamElem, BufferOptimiser, MetaElem, Real};
+pub use replay::{replay_cpu, replay_cpu_f32, Replay};
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// Adam's |Δθ|/lr bound for β1 = 0.9, β2 = 0.999: the sup over t of
+/// √((1−β1)²(1−β2^t)/((1−β1^t)²(1−β2)) · Σ_{j<t} (β1²/β2)^j), which tends to 7.27.
+pub const ADAM_STEP_BOUND: f64 = 7.3;
+
+/// The seed's regulariser in the α denominator, VF/(VF + var + 1e-30) (supplementary B).
+pub const ALPHA_REG: f64 = 1e-30;
+
+/// Errors of the optimiser layer.
+#[derive(Debug, thiserror::Error)]
+pub enum OptimError {
+    #[error("unknown optimiser '{0}' (expected meta or adam)")]
+    UnknownOptimiser(String),
+    #[error("invalid range '{0}' (expected LO,HI with LO <= HI)")]
+    BadRange(String),
+    #[error("invalid hyperparameter: {0}")]
+    BadHyper(String),
+    #[error("{what} has length {found}, expected {expected}")]
+    Length {
+        what: &'static str,
+        expected: usize,
+        found: usize,
+    },
+    #[error("the meta optimiser needs finite-difference gradients")]
+    MissingFd,
+}
+
+/// Closed parameter range; ±infinity for an open side.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Range {
+    pub lo: f64,
+    pub hi: f64,
+}
+
+impl Range {
+    pub const UNBOUNDED: Range = Range {
+        lo: f64::NEG_INFINITY,
+        hi: f64::INFINITY,
+    };
+
+    pub fn new(lo: f64, hi: f64) -> Result<Self, OptimError> {
+        if lo <= hi {
+            Ok(Range { lo, hi })
+        } else {
+            Err(OptimError::BadRange(format!("{lo},{hi}")))
+        }
+    }
+}
+
+impl Default for Range {
+    fn default() -> Self {
+        Range::UNBOUNDED
+    }
+}
+
+/// Parses `LO,HI` as given to `--range`.
+impl FromStr for Range {
+    type Err = OptimError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = || OptimError::BadRange(s.to_string());
+        let (lo, hi) = s.split_once(',').ok_or_else(bad)?;
+        let lo = lo.trim().parse().map_err(|_| bad())?;
+        let hi = hi.trim().parse().map_err(|_| bad())?;
+        Range::new(lo, hi).map_err(|_| bad())
+    }
+}
+
+/// Adam (Kingma & Ba 2015) hyperparameters; the learning rate is given per run.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AdamHyper {
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+}
+
+impl Default for AdamHyper {
+    fn default() -> Self {
+        AdamHyper {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        }
+    }
+}
+
+/// Meta-estimator hyperparameters: the decays of the two Moment2 EMAs (0.9 in the seed's
+/// Moment2) and the ε of the step (1e-8, supplementary B).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetaHyper {
+    pub decay_f: f64,
+    pub decay_d: f64,
+    pub eps: f64,
+}
+
+impl Default for MetaHyper {
+    fn default() -> Self {
+        MetaHyper {
+            decay_f: 0.9,
+            decay_d: 0.9,
+            eps: 1e-8,
+        }
+    }
+}
+
+/// An optimiser and its hyperparameters.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum Optimiser {
+    Adam(AdamHyper),
+    Meta(MetaHyper),
+}
+
+impl Optimiser {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Optimiser::Adam(_) => "adam",
+            Optimiser::Meta(_) => "meta",
+        }
+    }
+
+    /// Whether each iteration needs a finite-difference sample ⟨ΔF_i⟩.
+    pub fn needs_fd(&self) -> bool {
+        matches!(self, Optimiser::Meta(_))
+    }
+
+    /// Checks that decays lie in [0, 1) and ε is positive and finite.
+    pub fn validate(&self) -> Result<(), OptimError> {
+        let decay = |name: &str, b: f64| {
+            if (0.0..1.0).contains(&b) {
+                Ok(())
+            } else {
+                Err(OptimError::BadHyper(format!(
+                    "{name} = {b} is outside [0, 1)"
+                )))
+            }
+        };
+        let (a, b, eps) = match *self {
+            Optimiser::Adam(h) => (("beta1", h.beta1), ("beta2", h.beta2), h.eps),
+            Optimiser::Meta(h) => (("decay_f", h.decay_f), ("decay_d", h.decay_d), h.eps),
+        };
+        decay(a.0, a.1)?;
+        decay(b.0, b.1)?;
+        if eps > 0.0 && eps.is_finite() {
+            Ok(())
+        } else {
+            Err(OptimError::BadHyper(format!(
+                "eps = {eps} must be positive and finite"
+            )))
+        }
+    }
+}
+
+impl fmt::Display for Optimiser {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Parses `meta` or `adam` with default hyperparameters.
+impl FromStr for Optimiser {
+    type Err = OptimError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "adam" => Ok(Optimiser::Adam(AdamHyper::default())),
+            "meta" => Ok(Optimiser::Meta(MetaHyper::default())),
+            _ => Err(OptimError::UnknownOptimiser(s.to_string())),
+        }
+    }
+}

@@ -1,0 +1,151 @@
+//! One gradient estimate of the image loss: primal render → loss and adjoint image →
+//! adjoint pass (path replay backpropagation) accumulating into the gradient buffer, for
+//! every sensor, recorded once and resubmitted with a fresh iteration counter.
+//!
+//! The primal image of the loss and the adjoint pass use different seeds, so for the l2
+//! loss the gradient is unbiased: E[2 (I − T) ∂I] = 2 (E[I] − T) E[∂I] when I and ∂I are
+//! independent.
+
+use super::{GpuScene, TracePush};
+use crate::gpu::{self, Access, Buffer, ComputePipeline, MemoryKind, Recorder, SpecValue};
+use crate::image::Image;
+use crate::ops::{BufferOps, Reduction};
+use crate::scene::Loss;
+
+/// Seed offsets of the passes within an iteration: independent streams.
+pub const SEED_PRIMAL: u32 = 0x1000_0000;
+pub const SEED_ADJOINT: u32 = 0x2000_0000;
+
+struct SensorBuffers {
+    rendered: Buffer,
+    target: Buffer,
+    adjoint: Buffer,
+    partials: Buffer,
+    reduction: Reduction,
+    primal_group: gpu::BindGroup,
+    loss_group: gpu::BindGroup,
+    adjoint_group: gpu::BindGroup,
+}
+
+/// The pipelines and buffers of the gradient estimate.
+pub struct GradientPass {
+    primal: ComputePipeline,
+    adjoint: ComputePipeline,
+    loss: ComputePipeline,
+    sensors: Vec<SensorBuffers>,
+    /// dLoss/dθ, accumulated with atomics; `layout.len` floats.
+    pub grad: Buffer,
+    pub spp: u32,
+    pub primal_spp: u32,
+    pub seed: u32,
+}
+
+fn loss_index(loss: Loss) -> u32 {
+    match loss {
+        Loss::L2 => 0,
+        Loss::L1 => 1,
+        Loss::RelativeL2 => 2,
+    }
+}
+
+impl GradientPass {
+    /// `targets`: one image per sensor, of the film's size.
+    pub fn new(scene: &GpuScene, ops: &BufferOps, targets: &[Image], loss: Loss, spp: u32, primal_spp: u32, seed: u32) -> gpu::Result<Self> {
+        let ctx = &scene.ctx;
+        let spec = scene.spec();
+        let primal = ComputePipeline::new(ctx, "trace_primal", &spec)?;
+        let adjoint = ComputePipeline::new(ctx, "trace_adjoint", &spec)?;
+        let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
+        let grad = Buffer::zeroed::<f32>(ctx, "grad", scene.layout.len.max(1), MemoryKind::Device)?;
+        let n = scene.pixels();
+        let groups = (n as u64).div_ceil(loss.local_size()[0] as u64).max(1);
+        let mut sensors = Vec::new();
+        for (s, target) in targets.iter().enumerate() {
+            let rendered = Buffer::zeroed::<[f32; 3]>(ctx, &format!("rendered {s}"), n, MemoryKind::Device)?;
+            let target = Buffer::from_slice(ctx, &format!("target {s}"), &target.data, MemoryKind::Device)?;
+            let adjoint_img = Buffer::zeroed::<[f32; 3]>(ctx, &format!("adjoint image {s}"), n, MemoryKind::Device)?;
+            let partials = Buffer::zeroed::<f32>(ctx, &format!("loss partials {s}"), groups as usize, MemoryKind::Device)?;
+            let reduction = ops.reduction(&partials, false)?;
+            let mut b = scene.bindings();
+            b.push(("Accum", &rendered));
+            let primal_group = primal.bind(&b)?;
+            let loss_group = loss.bind(&[("Rendered", &rendered), ("Target", &target), ("AdjointImage", &adjoint_img), ("LossPartials", &partials)])?;
+            let mut b = scene.bindings();
+            b.push(("AdjointImage", &adjoint_img));
+            b.push(("Grad", &grad));
+            let adjoint_group = adjoint.bind(&b)?;
+            sensors.push(SensorBuffers {
+                rendered,
+                target,
+                adjoint: adjoint_img,
+                partials,
+                reduction,
+                primal_group,
+                loss_group,
+                adjoint_group,
+            });
+        }
+        Ok(Self { primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
+    }
+
+    /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
+    /// whatever it held, and `loss_value(s)` sensor s's loss. `grad` must be visible to
+    /// compute writes when this starts (declared as `grad_prev`).
+    pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, grad_prev: Access) -> gpu::Result<()> {
+        let n = scene.pixels();
+        let mut prev = grad_prev;
+        for (s, b) in self.sensors.iter().enumerate() {
+            let push = |spp: u32, seed: u32, weight: f32| TracePush {
+                width: scene.width,
+                height: scene.height,
+                sensor: s as u32,
+                spp,
+                first_sample: 0,
+                seed,
+                weight,
+            };
+            rec.zero(&b.rendered)?;
+            // The primal pass accumulates into the cleared image.
+            rec.barrier(&b.rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
+            let p = push(self.primal_spp, self.seed.wrapping_add(SEED_PRIMAL), 1.0 / self.primal_spp as f32);
+            rec.dispatch_linear(&self.primal, &b.primal_group, bytemuck::bytes_of(&p), n as u64)?;
+            rec.barrier(&b.rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
+            let lp = [n as u32, (1.0 / (3.0 * n as f64)) as f32];
+            rec.dispatch_linear(&self.loss, &b.loss_group, bytemuck::cast_slice(&lp), n as u64)?;
+            // The adjoint pass reads the adjoint image; the loss partials are reduced.
+            rec.barriers(&[
+                (&b.adjoint, Access::ComputeWrite, Access::ComputeRead),
+                (&b.partials, Access::ComputeWrite, Access::ComputeRead),
+                (&self.grad, prev, Access::ComputeReadWrite),
+            ])?;
+            ops.record_reduction(rec, &b.reduction)?;
+            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
+            rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
+            prev = Access::ComputeReadWrite;
+        }
+        Ok(())
+    }
+
+    /// Sensor s's loss after the recorded work ran.
+    pub fn loss_value(&self, s: usize) -> gpu::Result<f32> {
+        Ok(self.sensors[s].reduction.result().read::<f32>()?[0])
+    }
+
+    /// Total loss over sensors.
+    pub fn total_loss(&self) -> gpu::Result<f64> {
+        (0..self.sensors.len()).map(|s| self.loss_value(s).map(|v| v as f64)).sum()
+    }
+
+    /// Sensor s's primal image of the last estimate.
+    pub fn rendered(&self, s: usize, scene: &GpuScene) -> gpu::Result<Image> {
+        Ok(Image { width: scene.width, height: scene.height, data: self.sensors[s].rendered.read()? })
+    }
+
+    pub fn sensors(&self) -> usize {
+        self.sensors.len()
+    }
+
+    pub fn target(&self, s: usize) -> &Buffer {
+        &self.sensors[s].target
+    }
+}

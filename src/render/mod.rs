@@ -1,0 +1,323 @@
+//! The forward renderer: the scene uploaded once ([`GpuScene`]), the path-tracing kernels
+//! specialised for it, and renders split into short submissions.
+//!
+//! Specialisation: the integrator is built with the scene's max depth, Russian-roulette
+//! depth, emitter count and whether an environment exists as specialization constants, so
+//! a scene without emitters compiles light sampling out, one without an environment
+//! skips its lookup, and a depth ≤ 2 scene has a loop the compiler can bound.
+
+pub mod gradient;
+pub mod params;
+
+use crate::bvh::{self, BvhBuffers};
+use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue};
+use crate::image::Image;
+use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
+use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
+use glam::Vec3;
+pub use params::{ParamLayout, ParamSlot};
+use std::sync::Arc;
+
+/// Material kinds as the kernels number them (glsl/shared/material.glsl).
+const KIND_DIFFUSE: u32 = 0;
+const KIND_PRINCIPLED: u32 = 1;
+
+/// The scene's buffers on the device, and θ.
+pub struct GpuScene {
+    pub ctx: Arc<Context>,
+    pub layout: ParamLayout,
+    pub width: u32,
+    pub height: u32,
+    pub sensors: usize,
+    pub max_depth: u32,
+    pub rr_depth: u32,
+    pub emitters: u32,
+    pub has_environment: bool,
+    pub triangles: usize,
+    bvh: BvhBuffers,
+    buffers: Vec<(&'static str, Buffer)>,
+    /// The parameters (θ), `layout.len` floats (at least one, unused, when empty).
+    pub theta: Buffer,
+    /// The iteration counter the kernels mix into their seeds (host-written).
+    pub frame: Buffer,
+}
+
+/// Appends a constant or texture to the material data and returns its reference.
+fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize)>) -> ValueRef {
+    let offset = data.len() as i32;
+    match texture {
+        None => {
+            data.extend_from_slice(constant);
+            ValueRef { offset, width: 0, height: 0, in_theta: 0 }
+        }
+        Some((img, channels)) => {
+            for px in &img.data {
+                data.extend_from_slice(&px[..channels]);
+            }
+            ValueRef { offset, width: img.width, height: img.height, in_theta: 0 }
+        }
+    }
+}
+
+fn theta_ref(slot: &ParamSlot) -> ValueRef {
+    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], in_theta: 1 }
+}
+
+fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
+    match v {
+        ColorValue::Constant(c) => push_value(data, c, None),
+        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3))),
+    }
+}
+
+fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
+    match v {
+        ScalarValue::Constant(c) => push_value(data, &[*c], None),
+        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1))),
+    }
+}
+
+impl GpuScene {
+    /// Builds the BVH and uploads geometry, materials, lights, sensors and θ (set to the
+    /// parameters' initial values).
+    pub fn new(ctx: &Arc<Context>, scene: &Scene) -> gpu::Result<Self> {
+        let layout = ParamLayout::new(scene);
+        let geo = scene.flatten();
+        let bvh = bvh::build(&geo.positions, &geo.indices).upload(ctx)?;
+
+        let mut data = Vec::new();
+        let materials: Vec<MaterialRecord> = scene
+            .materials
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let pick = |target, fallback: ValueRef| layout.slot(target).map(theta_ref).unwrap_or(fallback);
+                let base = color_ref(&mut data, &m.base_color);
+                let rough = scalar_ref(&mut data, &m.roughness);
+                let metal = scalar_ref(&mut data, &m.metallic);
+                MaterialRecord {
+                    base_color: pick(ParamTarget::BaseColor { material: i }, base),
+                    roughness: pick(ParamTarget::Roughness { material: i }, rough),
+                    metallic: pick(ParamTarget::Metallic { material: i }, metal),
+                    kind: match m.kind {
+                        MaterialKind::Diffuse => KIND_DIFFUSE,
+                        MaterialKind::Principled => KIND_PRINCIPLED,
+                    },
+                }
+            })
+            .collect();
+        let meshes: Vec<MeshRecord> = scene
+            .meshes
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let constant = push_value(&mut data, &m.emission, None);
+                MeshRecord { emission: layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant) }
+            })
+            .collect();
+        let env_value = color_ref(&mut data, &scene.environment.value);
+        let env_slot = layout.slot(ParamTarget::Environment);
+        let environment = env_slot.map(theta_ref).unwrap_or(env_value);
+        let has_environment = env_slot.is_some()
+            || match &scene.environment.value {
+                ColorValue::Constant(c) => c.iter().any(|&v| v > 0.0),
+                ColorValue::Texture(_) => true,
+            } && scene.environment.scale > 0.0;
+        let globals = Globals { environment, environment_scale: scene.environment.scale };
+
+        // Emitters: triangles of meshes that emit or whose emission is optimised. Picked
+        // in proportion to area × luminance, or to area alone when any emission is being
+        // optimised (its current value is not known when the table is built).
+        let optimised_emission = scene.meshes.iter().enumerate().any(|(i, _)| layout.slot(ParamTarget::Emission { mesh: i }).is_some());
+        let mut shading: Vec<TriShading> = Vec::with_capacity(geo.indices.len());
+        let mut emitters: Vec<EmitterTri> = Vec::new();
+        let mut weights = Vec::new();
+        for (t, idx) in geo.indices.iter().enumerate() {
+            let [a, b, c] = idx.map(|i| Vec3::from(geo.positions[i as usize]));
+            let cross = (b - a).cross(c - a);
+            let area = 0.5 * cross.length();
+            let ng = cross.normalize_or_zero();
+            let mesh = geo.triangle_mesh[t] as usize;
+            let e = geo.triangle_emission[t];
+            let emits = layout.slot(ParamTarget::Emission { mesh }).is_some() || e.iter().any(|&v| v > 0.0);
+            if emits && area > 0.0 {
+                let lum = 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2];
+                weights.push(if optimised_emission { area } else { area * lum.max(1e-6) });
+                emitters.push(EmitterTri {
+                    p0: a.into(),
+                    e1: (b - a).into(),
+                    e2: (c - a).into(),
+                    prim: t as u32,
+                    cdf: 0.0,
+                    pdf: area,
+                });
+            }
+            shading.push(TriShading {
+                n0: geo.normals[idx[0] as usize],
+                n1: geo.normals[idx[1] as usize],
+                n2: geo.normals[idx[2] as usize],
+                ng: ng.into(),
+                uv0: geo.uvs[idx[0] as usize],
+                uv1: geo.uvs[idx[1] as usize],
+                uv2: geo.uvs[idx[2] as usize],
+                material: geo.triangle_material[t],
+                mesh: mesh as u32,
+                emitter_pdf: 0.0,
+            });
+        }
+        let total: f64 = weights.iter().map(|&w| w as f64).sum();
+        let mut acc = 0.0f64;
+        for (em, w) in emitters.iter_mut().zip(&weights) {
+            acc += *w as f64;
+            // pmf / area: the area-measure density of a uniform point on this triangle.
+            let pmf = *w as f64 / total;
+            let pdf = (pmf / em.pdf as f64) as f32;
+            em.cdf = (acc / total) as f32;
+            em.pdf = pdf;
+            shading[em.prim as usize].emitter_pdf = pdf;
+        }
+        if let Some(last) = emitters.last_mut() {
+            // Guards the binary search against rounding: the last cdf is exactly 1.
+            last.cdf = 1.0;
+        }
+
+        let aspect = scene.film.width as f32 / scene.film.height as f32;
+        let sensors: Vec<SensorRecord> = scene
+            .sensors
+            .iter()
+            .map(|s| SensorRecord {
+                origin: s.origin.into(),
+                right: s.right.into(),
+                up: s.up.into(),
+                forward: s.forward.into(),
+                tan_half_fov_y: (s.fov_y.to_radians() * 0.5).tan(),
+                aspect,
+            })
+            .collect();
+
+        // Empty arrays still need a buffer to bind; kernels never read them then.
+        fn upload<T: bytemuck::Pod + Default>(ctx: &Arc<Context>, name: &str, v: &[T]) -> gpu::Result<Buffer> {
+            if v.is_empty() {
+                Buffer::from_slice(ctx, name, &[T::default()], MemoryKind::Device)
+            } else {
+                Buffer::from_slice(ctx, name, v, MemoryKind::Device)
+            }
+        }
+        let buffers = vec![
+            ("Materials", upload(ctx, "materials", &materials)?),
+            ("Shading", upload(ctx, "shading", &shading)?),
+            ("Meshes", upload(ctx, "meshes", &meshes)?),
+            ("Emitters", upload(ctx, "emitters", &emitters)?),
+            ("Sensors", upload(ctx, "sensors", &sensors)?),
+            ("SceneGlobals", upload(ctx, "globals", &[globals])?),
+            ("MaterialData", upload(ctx, "material data", &data)?),
+        ];
+        let theta = upload(ctx, "theta", &layout.initial())?;
+        let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
+        Ok(Self {
+            ctx: ctx.clone(),
+            width: scene.film.width,
+            height: scene.film.height,
+            sensors: scene.sensors.len(),
+            max_depth: scene.integrator.max_depth,
+            rr_depth: scene.integrator.rr_depth,
+            emitters: emitters.len() as u32,
+            has_environment,
+            triangles: geo.indices.len(),
+            layout,
+            bvh,
+            buffers,
+            theta,
+            frame,
+        })
+    }
+
+    /// (GLSL block name, buffer) of every scene buffer and θ, for a kernel's bind list.
+    pub fn bindings(&self) -> Vec<(&'static str, &Buffer)> {
+        let mut v: Vec<(&'static str, &Buffer)> = self.bvh.bindings().into_iter().collect();
+        v.extend(self.buffers.iter().map(|(n, b)| (*n, b)));
+        v.push(("Theta", &self.theta));
+        v.push(("Frame", &self.frame));
+        v
+    }
+
+    /// Sets the iteration counter that the next submissions mix into their seeds.
+    pub fn set_frame(&self, iteration: u32) -> gpu::Result<()> {
+        self.frame.write(&[iteration])
+    }
+
+    /// The specialization constants of the integrator kernels for this scene.
+    pub fn spec(&self) -> Vec<(&'static str, SpecValue)> {
+        vec![
+            ("MAX_DEPTH", SpecValue::U32(self.max_depth)),
+            ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
+            ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
+            ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
+        ]
+    }
+
+    /// Pixels of one sensor image.
+    pub fn pixels(&self) -> usize {
+        (self.width * self.height) as usize
+    }
+}
+
+/// Push constants of trace_primal / trace_adjoint (glsl/trace_primal.comp).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct TracePush {
+    pub width: u32,
+    pub height: u32,
+    pub sensor: u32,
+    pub spp: u32,
+    pub first_sample: u32,
+    pub seed: u32,
+    pub weight: f32,
+}
+
+/// Samples per pixel per submission: keeps each submission short on slow devices.
+pub const SPP_PER_SUBMISSION: u32 = 4;
+
+/// Renders images of a [`GpuScene`] with the primal kernel.
+pub struct Renderer {
+    pub scene: GpuScene,
+    primal: ComputePipeline,
+}
+
+impl Renderer {
+    pub fn new(scene: GpuScene) -> gpu::Result<Self> {
+        let primal = ComputePipeline::new(&scene.ctx, "trace_primal", &scene.spec())?;
+        Ok(Self { scene, primal })
+    }
+
+    /// Renders sensor `sensor` with `spp` samples per pixel, in submissions of at most
+    /// [`SPP_PER_SUBMISSION`] samples; `progress(done, total)` is called after each.
+    pub fn render(&self, sensor: u32, spp: u32, seed: u32, mut progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+        let ctx = &self.scene.ctx;
+        let n = self.scene.pixels();
+        let accum = Buffer::zeroed::<[f32; 3]>(ctx, "accum", n, MemoryKind::Device)?;
+        let mut binds = self.scene.bindings();
+        binds.push(("Accum", &accum));
+        let group = self.primal.bind(&binds)?;
+        let mut cmd = CommandBuffer::new(ctx, "render")?;
+        let mut done = 0;
+        while done < spp {
+            let chunk = SPP_PER_SUBMISSION.min(spp - done);
+            let push = TracePush {
+                width: self.scene.width,
+                height: self.scene.height,
+                sensor,
+                spp: chunk,
+                first_sample: done,
+                seed,
+                weight: 1.0 / spp as f32,
+            };
+            cmd.record(|rec| rec.dispatch_linear(&self.primal, &group, bytemuck::bytes_of(&push), n as u64))?;
+            cmd.submit_and_wait()?;
+            done += chunk;
+            progress(done, spp);
+        }
+        let data: Vec<[f32; 3]> = accum.read()?;
+        Ok(Image { width: self.scene.width, height: self.scene.height, data })
+    }
+}

@@ -1,0 +1,114 @@
+//! The optimised parameters laid out in one flat float buffer θ.
+//!
+//! Each `[[optimise.params]]` entry becomes a [`ParamSlot`]: `channels` floats per texel,
+//! `texels` texels (1 for a constant), starting at `offset` in θ. Kernels read a slot
+//! through a `ValueRef` with `in_theta = 1`; the optimiser updates slots in place.
+
+use crate::image::Image;
+use crate::scene::{ParamTarget, Reference, Scene};
+
+/// One optimised parameter.
+#[derive(Clone, Debug)]
+pub struct ParamSlot {
+    pub name: String,
+    pub target: ParamTarget,
+    pub channels: u32,
+    /// Texture size, or `[0, 0]` for a constant.
+    pub size: [u32; 2],
+    pub offset: usize,
+    pub len: usize,
+    pub range: [f32; 2],
+    pub lr: f32,
+    /// Start values (`len` floats).
+    pub init: Vec<f32>,
+    /// The scene's own values resampled to this slot's layout (`len` floats).
+    pub reference: Vec<f32>,
+}
+
+/// All parameter slots and the total length of θ.
+#[derive(Clone, Debug, Default)]
+pub struct ParamLayout {
+    pub slots: Vec<ParamSlot>,
+    pub len: usize,
+}
+
+/// Nearest-texel resampling of `image`'s first `channels` channels to `w` × `h`.
+fn resample(image: &Image, channels: u32, w: u32, h: u32) -> Vec<f32> {
+    let mut out = Vec::with_capacity((w * h * channels) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let sx = ((x as f64 + 0.5) * image.width as f64 / w as f64) as u32;
+            let sy = ((y as f64 + 0.5) * image.height as f64 / h as f64) as u32;
+            let px = image.get(sx.min(image.width - 1), sy.min(image.height - 1));
+            out.extend_from_slice(&px[..channels as usize]);
+        }
+    }
+    out
+}
+
+impl ParamLayout {
+    pub fn new(scene: &Scene) -> Self {
+        let mut layout = ParamLayout::default();
+        for p in &scene.optimise.params {
+            let size = p.texture.unwrap_or([0, 0]);
+            let texels = if p.texture.is_some() { (size[0] * size[1]) as usize } else { 1 };
+            let len = texels * p.channels as usize;
+            let init: Vec<f32> = p.init.iter().copied().cycle().take(len).collect();
+            let reference = match &p.reference {
+                Reference::Constant(v) => v.iter().copied().cycle().take(len).collect(),
+                Reference::Texture(t) => {
+                    let (w, h) = if p.texture.is_some() { (size[0], size[1]) } else { (1, 1) };
+                    resample(&t.image, p.channels, w, h)
+                }
+            };
+            layout.slots.push(ParamSlot {
+                name: p.name.clone(),
+                target: p.target,
+                channels: p.channels,
+                size,
+                offset: layout.len,
+                len,
+                range: p.range,
+                lr: p.lr.unwrap_or(scene.optimise.lr),
+                init,
+                reference,
+            });
+            layout.len += len;
+        }
+        layout
+    }
+
+    /// The slot optimising `target`, if any.
+    pub fn slot(&self, target: ParamTarget) -> Option<&ParamSlot> {
+        self.slots.iter().find(|s| s.target == target)
+    }
+
+    /// θ at the start of an optimisation.
+    pub fn initial(&self) -> Vec<f32> {
+        self.slots.iter().flat_map(|s| s.init.iter().copied()).collect()
+    }
+
+    /// θ at the scene's own (reference) values.
+    pub fn reference(&self) -> Vec<f32> {
+        self.slots.iter().flat_map(|s| s.reference.iter().copied()).collect()
+    }
+
+    /// Root-mean-square error of θ against the reference, overall and per slot.
+    pub fn errors(&self, theta: &[f32]) -> (f64, Vec<f64>) {
+        let mut total = 0.0;
+        let per = self
+            .slots
+            .iter()
+            .map(|s| {
+                let se: f64 = theta[s.offset..s.offset + s.len]
+                    .iter()
+                    .zip(&s.reference)
+                    .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
+                    .sum();
+                total += se;
+                (se / s.len.max(1) as f64).sqrt()
+            })
+            .collect();
+        ((total / self.len.max(1) as f64).sqrt(), per)
+    }
+}
