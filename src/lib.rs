@@ -6,6 +6,7 @@
 //! side), [`npy`], and the command line in `main.rs`.
 
 pub mod bench;
+pub mod bsdf;
 pub mod gpu;
 pub mod image;
 pub mod npy;

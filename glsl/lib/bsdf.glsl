@@ -1,0 +1,310 @@
+// BSDFs of the materials in glsl/shared/material.glsl: evaluation, pdf, importance
+// sampling and the parameter derivatives the adjoint pass needs. Pure functions, no
+// bindings. src/bsdf.rs mirrors every function in f64 and tests/bsdf.rs holds the two
+// to each other, to finite differences and to a chi-square test of the sampling.
+//
+// Conventions (pbrt-v4): wo and wi are unit vectors pointing away from the surface; n is
+// the unit shading normal. The BSDF is one-sided: eval and pdf are 0 when wo or wi lies on
+// or below the surface (dot with n <= 0); a caller that wants the back side flips n.
+// bsdf_eval returns f(wo, wi) |cos theta_i|, the integrand of the rendering equation.
+//
+// "principled" is the glTF 2.0 metallic-roughness model:
+//   f = (1 - metallic) base_color / pi (1 - F_d(cos_o)) (1 - F_d(cos_i))
+//     + F(wo.h) D(h) G2(wo, wi) / (4 cos_o cos_i)
+//   F0 = mix(0.04, base_color, metallic); F = Schlick with F0; F_d = Schlick with 0.04;
+//   alpha = max(roughness^2, BSDF_ALPHA_MIN); D = GGX (Walter et al. 2007, eq. 33);
+//   G2 = height-correlated Smith, 1 / (1 + Lambda(wo) + Lambda(wi)) (Heitz 2014, eq. 99).
+// The diffuse Fresnel factor (1 - F_d(cos_o)) (1 - F_d(cos_i)) is the energy term: without
+// it a white dielectric reflects more than it receives (Lambert alone already has albedo
+// 1). glTF's sample implementation weights the diffuse lobe by 1 - F_d(wo.h) instead,
+// which still gains energy at grazing angles, where the specular lobe reflects most and
+// wo.h stays large for most wi; with the separable factor a white dielectric's albedo
+// stays below 0.99 (tests/bsdf.rs, white furnace). The factor is symmetric in wo and wi,
+// so the whole BSDF stays reciprocal, and it depends on no parameter, so the derivatives
+// stay simple. It uses the dielectric F0 because only the dielectric part (weight
+// 1 - metallic) has a diffuse lobe.
+#ifndef BSDF_GLSL
+#define BSDF_GLSL
+#include "shared/material.glsl"
+
+const float BSDF_PI = 3.14159265358979;
+// Smallest GGX alpha: keeps D (peak 1 / (pi alpha^2) = 3.2e5) and its derivatives finite
+// in float32 for roughness 0. Below roughness sqrt(BSDF_ALPHA_MIN) ~ 0.032 the model does
+// not change with roughness, so its roughness derivative is 0 there. Mirrored in
+// src/bsdf.rs (ALPHA_MIN); the GPU/CPU comparison at roughness 0 checks that they agree.
+const float BSDF_ALPHA_MIN = 1e-3;
+// Normal-incidence reflectance of dielectrics in glTF 2.0 (index of refraction 1.5).
+const float BSDF_F0_DIELECTRIC = 0.04;
+// Rec. 709 luminance, used only to choose between lobes.
+const vec3 BSDF_LUMINANCE = vec3(0.2126, 0.7152, 0.0722);
+
+// ---------------------------------------------------------------------------------------
+// Local shading frame
+// ---------------------------------------------------------------------------------------
+
+// An orthonormal basis (t, b, n); local coordinates are (x, y, z) = (t, b, n) components.
+struct ShadingFrame {
+    vec3 t;
+    vec3 b;
+    vec3 n;
+};
+
+// Branchless orthonormal basis from a unit normal: Duff et al. 2017, "Building an
+// Orthonormal Basis, Revisited" (JCGT 6(1)), listing 3. The sign must be +1 at n.z = 0
+// (GLSL's sign() returns 0 there).
+ShadingFrame shading_frame(vec3 n) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float b = n.x * n.y * a;
+    ShadingFrame f;
+    f.t = vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+    f.b = vec3(b, s + n.y * n.y * a, -n.y);
+    f.n = n;
+    return f;
+}
+
+vec3 shading_to_local(ShadingFrame f, vec3 v) { return vec3(dot(v, f.t), dot(v, f.b), dot(v, f.n)); }
+
+vec3 shading_to_world(ShadingFrame f, vec3 v) { return v.x * f.t + v.y * f.b + v.z * f.n; }
+
+// ---------------------------------------------------------------------------------------
+// Building blocks (local frame)
+// ---------------------------------------------------------------------------------------
+
+float bsdf_alpha(float roughness) { return max(roughness * roughness, BSDF_ALPHA_MIN); }
+
+// d alpha / d roughness; 0 where the clamp holds alpha at BSDF_ALPHA_MIN.
+float bsdf_dalpha_droughness(float roughness) {
+    return roughness * roughness > BSDF_ALPHA_MIN ? 2.0 * roughness : 0.0;
+}
+
+// (1 - c)^5, the Schlick (1994) Fresnel weight.
+float bsdf_schlick_weight(float c) {
+    float m = clamp(1.0 - c, 0.0, 1.0);
+    float m2 = m * m;
+    return m2 * m2 * m;
+}
+
+float bsdf_fresnel_dielectric(float c) {
+    return BSDF_F0_DIELECTRIC + (1.0 - BSDF_F0_DIELECTRIC) * bsdf_schlick_weight(c);
+}
+
+// Everything the principled model needs at one (wo, wi), both above the surface.
+struct PrincipledTerms {
+    float alpha;
+    vec3 h;           // unit half vector
+    float k;          // alpha^2 h.z^2 + h.x^2 + h.y^2: D = alpha^2 / (pi k^2)
+    float s;          // Schlick weight at wo.h
+    float q_o;        // sqrt(cos_o^2 + alpha^2 sin_o^2)
+    float q_i;        // sqrt(cos_i^2 + alpha^2 sin_i^2)
+    float denom_o;    // cos_o (1 + Lambda(wo)): the VNDF pdf is D / (4 denom_o)
+    float denom;      // cos_o (1 + Lambda(wo) + Lambda(wi)): D G2 / (4 cos_o) = D / (4 denom)
+    float d;          // GGX D(h)
+    float specular;   // D G2 / (4 cos_o), the specular value per unit Fresnel
+    float diffuse;    // (1 - F_d(cos_o)) (1 - F_d(cos_i)) cos_i / pi, per unit (1 - metallic) base_color
+};
+
+// D is written as alpha^2 / (pi (alpha^2 h.z^2 + h.x^2 + h.y^2)^2), which equals Walter et
+// al.'s alpha^2 / (pi (h.z^2 (alpha^2 - 1) + 1)^2) for unit h without the cancellation in
+// 1 - h.z^2 that float32 cannot afford near the peak at small alpha. Likewise
+// cos Lambda = (q - cos) / 2 (Heitz 2014, eq. 72, times cos) is computed as
+// alpha^2 sin^2 / (2 (q + cos)), which stays finite for grazing directions.
+//
+// h is normalize(wo + wi), passed in so that bsdf_sample can use the microfacet normal it
+// sampled (as pbrt-v4 and Mitsuba 3 do): recomputing it from the float32 reflected wi
+// moves its tangential part by ~1e-7, which changes D by up to ~1% at alpha = 1e-3, and
+// the sample's weight and pdf should describe the microfacet that was drawn.
+PrincipledTerms principled_terms(float roughness, vec3 wo, vec3 wi, vec3 h) {
+    PrincipledTerms t;
+    t.alpha = bsdf_alpha(roughness);
+    float a2 = t.alpha * t.alpha;
+    t.h = h;
+    t.k = a2 * t.h.z * t.h.z + t.h.x * t.h.x + t.h.y * t.h.y;
+    t.s = bsdf_schlick_weight(dot(wo, t.h));
+    float sin2_o = wo.x * wo.x + wo.y * wo.y;
+    float sin2_i = wi.x * wi.x + wi.y * wi.y;
+    t.q_o = sqrt(wo.z * wo.z + a2 * sin2_o);
+    t.q_i = sqrt(wi.z * wi.z + a2 * sin2_i);
+    float cos_lambda_o = a2 * sin2_o / (2.0 * (t.q_o + wo.z));
+    float cos_o_lambda_i = (wo.z / wi.z) * a2 * sin2_i / (2.0 * (t.q_i + wi.z));
+    t.denom_o = wo.z + cos_lambda_o;
+    t.denom = t.denom_o + cos_o_lambda_i;
+    t.d = a2 / (BSDF_PI * t.k * t.k);
+    t.specular = t.d / (4.0 * t.denom);
+    t.diffuse = (1.0 - bsdf_fresnel_dielectric(wo.z)) * (1.0 - bsdf_fresnel_dielectric(wi.z)) * wi.z / BSDF_PI;
+    return t;
+}
+
+// Probabilities of sampling the (diffuse, specular) lobe: their shares of the luminance of
+// the two lobes' weights at the viewing angle, Schlick F(cos_o) against (1 - metallic)
+// base_color (1 - F_d(cos_o)). They depend on wo only, so bsdf_pdf can recompute them;
+// (0, 1) when both weights are 0 (a black metal seen head-on), (1, 0) for the diffuse
+// kind. Both are returned, not p and 1 - p: when one is near 1 the other would lose its
+// digits to cancellation, and the mixture pdf needs it to full relative precision.
+vec2 bsdf_lobe_probabilities(Material m, float cos_o) {
+    if (m.kind != MATERIAL_PRINCIPLED) return vec2(1.0, 0.0);
+    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    float s = bsdf_schlick_weight(cos_o);
+    float spec = max(dot(BSDF_LUMINANCE, f0 + (1.0 - f0) * s), 0.0);
+    float diff = max((1.0 - m.metallic) * dot(BSDF_LUMINANCE, m.base_color) * (1.0 - bsdf_fresnel_dielectric(cos_o)), 0.0);
+    float total = spec + diff;
+    return total > 0.0 ? vec2(diff, spec) / total : vec2(0.0, 1.0);
+}
+
+// f cos_i of the principled model from its terms.
+vec3 principled_value(Material m, PrincipledTerms t) {
+    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    vec3 fresnel = f0 + (1.0 - f0) * t.s;
+    return (1.0 - m.metallic) * t.diffuse * m.base_color + fresnel * t.specular;
+}
+
+// Mixture pdf of the principled model from its terms and the lobe probabilities p.
+float principled_pdf(vec2 p, float cos_i, PrincipledTerms t) {
+    // Cosine-weighted hemisphere for the diffuse lobe. Visible normals for the specular
+    // one: D_wo(h) = G1(wo) max(0, wo.h) D(h) / cos_o (Heitz 2018, eq. 1), times the
+    // reflection Jacobian 1 / (4 wo.h) (Walter et al. 2007, eq. 14).
+    return p.x * (cos_i / BSDF_PI) + p.y * (t.d / (4.0 * t.denom_o));
+}
+
+vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
+    if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
+    if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
+    return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
+}
+
+float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
+    if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
+    if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
+    vec2 p = bsdf_lobe_probabilities(m, wo.z);
+    return principled_pdf(p, wi.z, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
+}
+
+// Cosine-weighted hemisphere by Malley's method (pbrt-v4 SampleCosineHemisphere, with the
+// polar disk mapping).
+vec3 bsdf_sample_cosine_hemisphere(vec2 u) {
+    float r = sqrt(u.x);
+    float phi = 2.0 * BSDF_PI * u.y;
+    return vec3(r * cos(phi), r * sin(phi), sqrt(max(0.0, 1.0 - u.x)));
+}
+
+// A GGX normal distributed as the visible normals seen from wo (local, wo.z > 0): Heitz
+// 2018, "Sampling the GGX Distribution of Visible Normals" (JCGT 7(4)), listing 1, for an
+// isotropic alpha.
+vec3 ggx_sample_visible_normal(vec3 wo, float alpha, vec2 u) {
+    // Section 3.2: stretch to the hemisphere configuration.
+    vec3 vh = normalize(vec3(alpha * wo.x, alpha * wo.y, wo.z));
+    // Section 4.1: basis around vh (any basis when vh is the pole).
+    float lensq = vh.x * vh.x + vh.y * vh.y;
+    vec3 t1 = lensq > 0.0 ? vec3(-vh.y, vh.x, 0.0) * inversesqrt(lensq) : vec3(1.0, 0.0, 0.0);
+    vec3 t2 = cross(vh, t1);
+    // Section 4.2: uniform point on the projected half disk.
+    float r = sqrt(u.x);
+    float phi = 2.0 * BSDF_PI * u.y;
+    float p1 = r * cos(phi);
+    float p2 = r * sin(phi);
+    float s = 0.5 * (1.0 + vh.z);
+    p2 = (1.0 - s) * sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2;
+    // Section 4.3: back onto the hemisphere; section 3.4: unstretch.
+    vec3 nh = p1 * t1 + p2 * t2 + sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2)) * vh;
+    return normalize(vec3(alpha * nh.x, alpha * nh.y, max(0.0, nh.z)));
+}
+
+// ---------------------------------------------------------------------------------------
+// Interface (world space)
+// ---------------------------------------------------------------------------------------
+
+// f(wo, wi) |cos theta_i|; 0 when wo or wi is on or below the surface.
+vec3 bsdf_eval(Material m, vec3 n, vec3 wo, vec3 wi) {
+    ShadingFrame f = shading_frame(n);
+    return bsdf_eval_local(m, shading_to_local(f, wo), shading_to_local(f, wi));
+}
+
+// Solid-angle density of the wi that bsdf_sample returns: the mixture of both lobes with
+// the selection probabilities of bsdf_lobe_probabilities, as MIS needs.
+float bsdf_pdf(Material m, vec3 n, vec3 wo, vec3 wi) {
+    ShadingFrame f = shading_frame(n);
+    return bsdf_pdf_local(m, shading_to_local(f, wo), shading_to_local(f, wi));
+}
+
+// Draws wi from u in [0, 1)^3: u.x selects the specular lobe with probability
+// bsdf_lobe_probabilities(m, cos_o).y, u.yz place the direction (GGX visible normals
+// reflected about wo, or cosine-weighted). Returns false (weight 0) when wo is below the
+// surface or the reflected direction falls below it; the lost probability is what makes
+// bsdf_pdf integrate to less than 1. weight = bsdf_eval / pdf and pdf = bsdf_pdf at wi,
+// both evaluated at the sampled microfacet normal (see principled_terms).
+bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weight, out float pdf) {
+    wi = vec3(0.0);
+    weight = vec3(0.0);
+    pdf = 0.0;
+    ShadingFrame f = shading_frame(n);
+    vec3 wo_l = shading_to_local(f, wo);
+    if (wo_l.z <= 0.0) return false;
+    if (m.kind != MATERIAL_PRINCIPLED) {
+        // Lambert: pdf cos_i / pi, weight base_color exactly.
+        vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
+        if (wi_l.z <= 0.0) return false;
+        wi = shading_to_world(f, wi_l);
+        pdf = wi_l.z / BSDF_PI;
+        weight = m.base_color;
+        return true;
+    }
+    vec2 p = bsdf_lobe_probabilities(m, wo_l.z);
+    vec3 wi_l;
+    vec3 h;
+    if (u.x < p.y) {
+        h = ggx_sample_visible_normal(wo_l, bsdf_alpha(m.roughness), u.yz);
+        wi_l = 2.0 * dot(wo_l, h) * h - wo_l;
+    } else {
+        wi_l = bsdf_sample_cosine_hemisphere(u.yz);
+        h = normalize(wo_l + wi_l);
+    }
+    if (wi_l.z <= 0.0) return false;
+    PrincipledTerms t = principled_terms(m.roughness, wo_l, wi_l, h);
+    pdf = principled_pdf(p, wi_l.z, t);
+    if (!(pdf > 0.0)) {
+        pdf = 0.0;
+        return false;
+    }
+    wi = shading_to_world(f, wi_l);
+    weight = principled_value(m, t) / pdf;
+    return true;
+}
+
+// Derivatives of bsdf_eval's value v (per colour channel c) with respect to the material
+// parameters: d_base_color[c] = dv_c / dbase_color_c (the Jacobian is diagonal),
+// d_roughness[c] = dv_c / droughness, d_metallic[c] = dv_c / dmetallic. With
+// F_c = F0_c (1 - s) + s, F0_c = 0.04 (1 - metallic) + metallic base_color_c and
+// v_c = (1 - metallic) base_color_c diffuse + F_c specular:
+//   dv_c/dbase_color_c = (1 - metallic) diffuse + metallic (1 - s) specular
+//   dv_c/dmetallic     = -base_color_c diffuse + (base_color_c - 0.04) (1 - s) specular
+//   dv_c/droughness    = F_c specular (dln D/dalpha - d ln(denom)/dalpha) dalpha/droughness
+// with dln D/dalpha = 2 / alpha - 4 alpha h.z^2 / k and, from cos Lambda = (q - cos) / 2,
+// d denom/dalpha = alpha sin_o^2 / (2 q_o) + (cos_o / cos_i) alpha sin_i^2 / (2 q_i).
+void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color, out vec3 d_roughness, out vec3 d_metallic) {
+    d_base_color = vec3(0.0);
+    d_roughness = vec3(0.0);
+    d_metallic = vec3(0.0);
+    ShadingFrame f = shading_frame(n);
+    vec3 wo_l = shading_to_local(f, wo);
+    vec3 wi_l = shading_to_local(f, wi);
+    if (wo_l.z <= 0.0 || wi_l.z <= 0.0) return;
+    if (m.kind != MATERIAL_PRINCIPLED) {
+        d_base_color = vec3(wi_l.z / BSDF_PI);
+        return;
+    }
+    PrincipledTerms t = principled_terms(m.roughness, wo_l, wi_l, normalize(wo_l + wi_l));
+    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    vec3 fresnel = f0 + (1.0 - f0) * t.s;
+    d_base_color = vec3((1.0 - m.metallic) * t.diffuse + m.metallic * (1.0 - t.s) * t.specular);
+    d_metallic = -m.base_color * t.diffuse + (m.base_color - BSDF_F0_DIELECTRIC) * ((1.0 - t.s) * t.specular);
+    float dalpha = bsdf_dalpha_droughness(m.roughness);
+    if (dalpha != 0.0) {
+        float a = t.alpha;
+        float dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
+        float sin2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
+        float sin2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
+        float ddenom = a * sin2_o / (2.0 * t.q_o) + (wo_l.z / wi_l.z) * a * sin2_i / (2.0 * t.q_i);
+        d_roughness = fresnel * (t.specular * (dln_d - ddenom / t.denom) * dalpha);
+    }
+}
+#endif

@@ -1,0 +1,19 @@
+// Material parameters shared by host and kernels, mirrored by `Material` in src/shared.rs
+// (the offsets are compared with the reflected SPIR-V by tests/bsdf.rs). The model each
+// kind selects is defined in glsl/lib/bsdf.glsl.
+#ifndef MATERIAL_GLSL
+#define MATERIAL_GLSL
+
+// Lambertian: f = base_color / pi; roughness and metallic are ignored.
+const uint MATERIAL_DIFFUSE = 0u;
+// glTF 2.0 metallic-roughness: Lambert diffuse + GGX/Smith specular.
+const uint MATERIAL_PRINCIPLED = 1u;
+
+// 24 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20.
+struct Material {
+    vec3 base_color;
+    float roughness;
+    float metallic;
+    uint kind;
+};
+#endif

@@ -1,0 +1,321 @@
+//! f64 mirror of glsl/lib/bsdf.glsl: the reference the GPU functions are tested against,
+//! and the place where the model is checked for energy conservation, reciprocity and
+//! correct derivatives (tests/bsdf.rs).
+//!
+//! Invariant: every function here computes, step for step, what its GLSL namesake
+//! computes, only in f64 (the same frame construction, the same lobe-selection rule, the
+//! same sampling warps), so that a GPU result differs from the mirror by float32 rounding
+//! alone. The model and its conventions are documented at the top of the GLSL file:
+//! directions point away from the surface, the BSDF is one-sided, and [`eval`] returns
+//! f(wo, wi) |cos theta_i|.
+
+use crate::shared::{Material, MATERIAL_PRINCIPLED};
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// Smallest GGX alpha (`BSDF_ALPHA_MIN`).
+pub const ALPHA_MIN: f64 = 1e-3;
+/// Normal-incidence reflectance of dielectrics in glTF 2.0 (`BSDF_F0_DIELECTRIC`).
+pub const F0_DIELECTRIC: f64 = 0.04;
+/// Rec. 709 luminance, used only for lobe selection (`BSDF_LUMINANCE`).
+pub const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
+
+/// Material parameters in f64, so that finite differences of the mirror are not limited
+/// by the f32 storage of [`Material`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MaterialF64 {
+    pub base_color: DVec3,
+    pub roughness: f64,
+    pub metallic: f64,
+    pub kind: u32,
+}
+
+impl From<Material> for MaterialF64 {
+    fn from(m: Material) -> Self {
+        Self {
+            base_color: DVec3::new(m.base_color[0] as f64, m.base_color[1] as f64, m.base_color[2] as f64),
+            roughness: m.roughness as f64,
+            metallic: m.metallic as f64,
+            kind: m.kind,
+        }
+    }
+}
+
+impl MaterialF64 {
+    fn principled(&self) -> bool {
+        self.kind == MATERIAL_PRINCIPLED
+    }
+
+    /// mix(0.04, base_color, metallic)
+    fn f0(&self) -> DVec3 {
+        DVec3::splat(F0_DIELECTRIC) * (1.0 - self.metallic) + self.base_color * self.metallic
+    }
+}
+
+/// Orthonormal basis (t, b, n) of Duff et al. 2017, "Building an Orthonormal Basis,
+/// Revisited" (`ShadingFrame`).
+#[derive(Clone, Copy, Debug)]
+pub struct ShadingFrame {
+    pub t: DVec3,
+    pub b: DVec3,
+    pub n: DVec3,
+}
+
+impl ShadingFrame {
+    pub fn new(n: DVec3) -> Self {
+        let s = if n.z >= 0.0 { 1.0 } else { -1.0 };
+        let a = -1.0 / (s + n.z);
+        let b = n.x * n.y * a;
+        Self { t: DVec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x), b: DVec3::new(b, s + n.y * n.y * a, -n.y), n }
+    }
+
+    pub fn to_local(&self, v: DVec3) -> DVec3 {
+        DVec3::new(v.dot(self.t), v.dot(self.b), v.dot(self.n))
+    }
+
+    pub fn to_world(&self, v: DVec3) -> DVec3 {
+        v.x * self.t + v.y * self.b + v.z * self.n
+    }
+}
+
+/// max(roughness^2, ALPHA_MIN)
+pub fn alpha(roughness: f64) -> f64 {
+    (roughness * roughness).max(ALPHA_MIN)
+}
+
+/// d alpha / d roughness (0 where the clamp holds).
+pub fn dalpha_droughness(roughness: f64) -> f64 {
+    if roughness * roughness > ALPHA_MIN {
+        2.0 * roughness
+    } else {
+        0.0
+    }
+}
+
+/// (1 - c)^5, Schlick's Fresnel weight.
+pub fn schlick_weight(c: f64) -> f64 {
+    let m = (1.0 - c).clamp(0.0, 1.0);
+    let m2 = m * m;
+    m2 * m2 * m
+}
+
+pub fn fresnel_dielectric(c: f64) -> f64 {
+    F0_DIELECTRIC + (1.0 - F0_DIELECTRIC) * schlick_weight(c)
+}
+
+/// `PrincipledTerms`: see the GLSL for what each term is and why it is written so.
+struct PrincipledTerms {
+    alpha: f64,
+    h: DVec3,
+    k: f64,
+    s: f64,
+    q_o: f64,
+    q_i: f64,
+    denom_o: f64,
+    denom: f64,
+    d: f64,
+    specular: f64,
+    diffuse: f64,
+}
+
+/// `principled_terms`; `h` is normalize(wo + wi), or the sampled microfacet normal.
+fn principled_terms(roughness: f64, wo: DVec3, wi: DVec3, h: DVec3) -> PrincipledTerms {
+    let alpha = alpha(roughness);
+    let a2 = alpha * alpha;
+    let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
+    let s = schlick_weight(wo.dot(h));
+    let sin2_o = wo.x * wo.x + wo.y * wo.y;
+    let sin2_i = wi.x * wi.x + wi.y * wi.y;
+    let q_o = (wo.z * wo.z + a2 * sin2_o).sqrt();
+    let q_i = (wi.z * wi.z + a2 * sin2_i).sqrt();
+    let cos_lambda_o = a2 * sin2_o / (2.0 * (q_o + wo.z));
+    let cos_o_lambda_i = (wo.z / wi.z) * a2 * sin2_i / (2.0 * (q_i + wi.z));
+    let denom_o = wo.z + cos_lambda_o;
+    let denom = denom_o + cos_o_lambda_i;
+    let d = a2 / (PI * k * k);
+    PrincipledTerms {
+        alpha,
+        h,
+        k,
+        s,
+        q_o,
+        q_i,
+        denom_o,
+        denom,
+        d,
+        specular: d / (4.0 * denom),
+        diffuse: (1.0 - fresnel_dielectric(wo.z)) * (1.0 - fresnel_dielectric(wi.z)) * wi.z / PI,
+    }
+}
+
+/// Probabilities that [`sample`] picks the (diffuse, specular) lobe
+/// (`bsdf_lobe_probabilities`).
+pub fn lobe_probabilities(m: &MaterialF64, cos_o: f64) -> [f64; 2] {
+    if !m.principled() {
+        return [1.0, 0.0];
+    }
+    let f0 = m.f0();
+    let s = schlick_weight(cos_o);
+    let spec = LUMINANCE.dot(f0 + (DVec3::ONE - f0) * s).max(0.0);
+    let diff = ((1.0 - m.metallic) * LUMINANCE.dot(m.base_color) * (1.0 - fresnel_dielectric(cos_o))).max(0.0);
+    let total = spec + diff;
+    if total > 0.0 {
+        [diff / total, spec / total]
+    } else {
+        [0.0, 1.0]
+    }
+}
+
+/// `principled_value`
+fn principled_value(m: &MaterialF64, t: &PrincipledTerms) -> DVec3 {
+    let f0 = m.f0();
+    let fresnel = f0 + (DVec3::ONE - f0) * t.s;
+    (1.0 - m.metallic) * t.diffuse * m.base_color + fresnel * t.specular
+}
+
+/// `principled_pdf`: cosine-weighted diffuse lobe, visible-normal specular lobe.
+fn principled_pdf(p: [f64; 2], cos_i: f64, t: &PrincipledTerms) -> f64 {
+    p[0] * (cos_i / PI) + p[1] * (t.d / (4.0 * t.denom_o))
+}
+
+/// f cos theta_i in the local frame (`bsdf_eval_local`).
+pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
+    if wo.z <= 0.0 || wi.z <= 0.0 {
+        return DVec3::ZERO;
+    }
+    if !m.principled() {
+        return m.base_color * (wi.z / PI);
+    }
+    principled_value(m, &principled_terms(m.roughness, wo, wi, (wo + wi).normalize()))
+}
+
+/// Mixture pdf in the local frame (`bsdf_pdf_local`).
+pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
+    if wo.z <= 0.0 || wi.z <= 0.0 {
+        return 0.0;
+    }
+    if !m.principled() {
+        return wi.z / PI;
+    }
+    let p = lobe_probabilities(m, wo.z);
+    principled_pdf(p, wi.z, &principled_terms(m.roughness, wo, wi, (wo + wi).normalize()))
+}
+
+/// Malley's method with the polar disk mapping (`bsdf_sample_cosine_hemisphere`).
+pub fn sample_cosine_hemisphere(u: [f64; 2]) -> DVec3 {
+    let r = u[0].sqrt();
+    let phi = 2.0 * PI * u[1];
+    DVec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u[0]).max(0.0).sqrt())
+}
+
+/// GGX visible-normal sample, Heitz 2018 listing 1 (`ggx_sample_visible_normal`).
+pub fn ggx_sample_visible_normal(wo: DVec3, alpha: f64, u: [f64; 2]) -> DVec3 {
+    let vh = DVec3::new(alpha * wo.x, alpha * wo.y, wo.z).normalize();
+    let lensq = vh.x * vh.x + vh.y * vh.y;
+    let t1 = if lensq > 0.0 { DVec3::new(-vh.y, vh.x, 0.0) / lensq.sqrt() } else { DVec3::X };
+    let t2 = vh.cross(t1);
+    let r = u[0].sqrt();
+    let phi = 2.0 * PI * u[1];
+    let p1 = r * phi.cos();
+    let mut p2 = r * phi.sin();
+    let s = 0.5 * (1.0 + vh.z);
+    p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * p2;
+    let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
+    DVec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).normalize()
+}
+
+/// f(wo, wi) |cos theta_i| (`bsdf_eval`).
+pub fn eval(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3 {
+    let f = ShadingFrame::new(n);
+    eval_local(m, f.to_local(wo), f.to_local(wi))
+}
+
+/// Solid-angle pdf of [`sample`] (`bsdf_pdf`).
+pub fn pdf(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
+    let f = ShadingFrame::new(n);
+    pdf_local(m, f.to_local(wo), f.to_local(wi))
+}
+
+/// A direction drawn by [`sample`].
+#[derive(Clone, Copy, Debug)]
+pub struct BsdfSample {
+    pub wi: DVec3,
+    /// eval / pdf
+    pub weight: DVec3,
+    pub pdf: f64,
+}
+
+/// `bsdf_sample`: `None` where the GLSL returns false.
+pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSample> {
+    let f = ShadingFrame::new(n);
+    let wo_l = f.to_local(wo);
+    if wo_l.z <= 0.0 {
+        return None;
+    }
+    if !m.principled() {
+        let wi_l = sample_cosine_hemisphere([u.y, u.z]);
+        if wi_l.z <= 0.0 {
+            return None;
+        }
+        return Some(BsdfSample { wi: f.to_world(wi_l), weight: m.base_color, pdf: wi_l.z / PI });
+    }
+    let p = lobe_probabilities(m, wo_l.z);
+    let (wi_l, h) = if u.x < p[1] {
+        let h = ggx_sample_visible_normal(wo_l, alpha(m.roughness), [u.y, u.z]);
+        (2.0 * wo_l.dot(h) * h - wo_l, h)
+    } else {
+        let wi_l = sample_cosine_hemisphere([u.y, u.z]);
+        (wi_l, (wo_l + wi_l).normalize())
+    };
+    if wi_l.z <= 0.0 {
+        return None;
+    }
+    let t = principled_terms(m.roughness, wo_l, wi_l, h);
+    let pdf = principled_pdf(p, wi_l.z, &t);
+    // A zero or NaN pdf (possible only through extreme inputs) yields no sample.
+    if pdf.is_nan() || pdf <= 0.0 {
+        return None;
+    }
+    Some(BsdfSample { wi: f.to_world(wi_l), weight: principled_value(m, &t) / pdf, pdf })
+}
+
+/// Derivatives of [`eval`]'s value per colour channel (`bsdf_eval_grad`): `d_base_color[c]`
+/// = dv_c/dbase_color_c (the Jacobian is diagonal), `d_roughness[c]` = dv_c/droughness,
+/// `d_metallic[c]` = dv_c/dmetallic.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct EvalGrad {
+    pub d_base_color: DVec3,
+    pub d_roughness: DVec3,
+    pub d_metallic: DVec3,
+}
+
+/// `bsdf_eval_grad`; the formulas are derived in the GLSL comment.
+pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
+    let mut g = EvalGrad::default();
+    let f = ShadingFrame::new(n);
+    let wo_l = f.to_local(wo);
+    let wi_l = f.to_local(wi);
+    if wo_l.z <= 0.0 || wi_l.z <= 0.0 {
+        return g;
+    }
+    if !m.principled() {
+        g.d_base_color = DVec3::splat(wi_l.z / PI);
+        return g;
+    }
+    let t = principled_terms(m.roughness, wo_l, wi_l, (wo_l + wi_l).normalize());
+    let f0 = m.f0();
+    let fresnel = f0 + (DVec3::ONE - f0) * t.s;
+    g.d_base_color = DVec3::splat((1.0 - m.metallic) * t.diffuse + m.metallic * (1.0 - t.s) * t.specular);
+    g.d_metallic =
+        -m.base_color * t.diffuse + (m.base_color - DVec3::splat(F0_DIELECTRIC)) * ((1.0 - t.s) * t.specular);
+    let dalpha = dalpha_droughness(m.roughness);
+    if dalpha != 0.0 {
+        let a = t.alpha;
+        let dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
+        let sin2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
+        let sin2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
+        let ddenom = a * sin2_o / (2.0 * t.q_o) + (wo_l.z / wi_l.z) * a * sin2_i / (2.0 * t.q_i);
+        g.d_roughness = fresnel * (t.specular * (dln_d - ddenom / t.denom) * dalpha);
+    }
+    g
+}

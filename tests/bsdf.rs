@@ -1,0 +1,891 @@
+//! The BSDFs of glsl/lib/bsdf.glsl against their f64 mirror (src/bsdf.rs), and the
+//! mirror against the properties the model must have: samples distributed as the pdf says
+//! (chi-square), no energy gain (white furnace), derivatives equal to finite differences,
+//! reciprocity. Every threshold is derived in a comment next to it.
+
+mod common;
+
+use bytemuck::{Pod, Zeroable};
+use common::with_gpu;
+use glam::DVec3;
+use std::f64::consts::PI;
+use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
+use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
+use vkinverse::shared::{Material, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+
+// ---------------------------------------------------------------------------------------
+// Mirrors of the test kernel's structs (glsl/bsdf_test.comp), checked by reflection below.
+// ---------------------------------------------------------------------------------------
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct BsdfCase {
+    n: [f32; 3],
+    wo: [f32; 3],
+    wi: [f32; 3],
+    u: [f32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct BsdfResult {
+    value: [f32; 3],
+    pdf: f32,
+    sample_wi: [f32; 3],
+    sample_weight: [f32; 3],
+    sample_pdf: f32,
+    sample_ok: u32,
+    d_base_color: [f32; 3],
+    d_roughness: [f32; 3],
+    d_metallic: [f32; 3],
+}
+
+/// Push constants of the bsdf_sample_test variant.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+struct SamplePush {
+    material: Material,
+    n: [f32; 3],
+    wo: [f32; 3],
+    count: u32,
+    seed: u32,
+}
+
+fn check_layout(kernel: &str, name: &str, rust: &[(&str, usize)], size: usize) {
+    let spirv = vkinverse::gpu::shaders::get(kernel).unwrap();
+    let r = vkinverse::gpu::reflect::Reflection::new(kernel, spirv).unwrap();
+    let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected in {kernel}"));
+    assert_eq!(layout.len(), rust.len(), "{name}: member count");
+    for ((gname, goff), (rname, roff)) in layout.iter().zip(rust) {
+        assert_eq!(gname, rname, "{name}: member order");
+        assert_eq!(goff, roff, "{name}.{rname}: offset");
+    }
+    assert_eq!(r.struct_size(name), Some(size), "{name}: size");
+}
+
+#[test]
+fn struct_layouts_match_reflection() {
+    use std::mem::{offset_of, size_of};
+    let material = [
+        ("base_color", offset_of!(Material, base_color)),
+        ("roughness", offset_of!(Material, roughness)),
+        ("metallic", offset_of!(Material, metallic)),
+        ("kind", offset_of!(Material, kind)),
+    ];
+    check_layout("bsdf_test", "Material", &material, size_of::<Material>());
+    // The sampling variant passes Material in its push constants.
+    check_layout("bsdf_sample_test", "Material", &material, size_of::<Material>());
+    check_layout(
+        "bsdf_test",
+        "BsdfCase",
+        &[
+            ("n", offset_of!(BsdfCase, n)),
+            ("wo", offset_of!(BsdfCase, wo)),
+            ("wi", offset_of!(BsdfCase, wi)),
+            ("u", offset_of!(BsdfCase, u)),
+        ],
+        size_of::<BsdfCase>(),
+    );
+    check_layout(
+        "bsdf_test",
+        "BsdfResult",
+        &[
+            ("value", offset_of!(BsdfResult, value)),
+            ("pdf", offset_of!(BsdfResult, pdf)),
+            ("sample_wi", offset_of!(BsdfResult, sample_wi)),
+            ("sample_weight", offset_of!(BsdfResult, sample_weight)),
+            ("sample_pdf", offset_of!(BsdfResult, sample_pdf)),
+            ("sample_ok", offset_of!(BsdfResult, sample_ok)),
+            ("d_base_color", offset_of!(BsdfResult, d_base_color)),
+            ("d_roughness", offset_of!(BsdfResult, d_roughness)),
+            ("d_metallic", offset_of!(BsdfResult, d_metallic)),
+        ],
+        size_of::<BsdfResult>(),
+    );
+    let spirv = vkinverse::gpu::shaders::get("bsdf_sample_test").unwrap();
+    let r = vkinverse::gpu::reflect::Reflection::new("bsdf_sample_test", spirv).unwrap();
+    assert_eq!(r.push_constant_size as usize, size_of::<SamplePush>());
+}
+
+// ---------------------------------------------------------------------------------------
+// Helpers: random numbers, directions, statistics
+// ---------------------------------------------------------------------------------------
+
+/// SplitMix64 (Steele et al. 2014): deterministic, and good enough for test inputs and
+/// the CPU Monte Carlo estimates.
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e3779b97f4a7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58476d1ce4e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d049bb133111eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.f64()
+    }
+
+    fn pick<T: Copy>(&mut self, items: &[T]) -> T {
+        items[(self.next_u64() % items.len() as u64) as usize]
+    }
+
+    fn unit_vector(&mut self) -> DVec3 {
+        let z = self.range(-1.0, 1.0);
+        let phi = self.range(0.0, 2.0 * PI);
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        DVec3::new(r * phi.cos(), r * phi.sin(), z)
+    }
+}
+
+/// The direction at cos theta = `cos` and azimuth `phi` about `n`.
+fn direction(n: DVec3, cos: f64, phi: f64) -> DVec3 {
+    let f = ShadingFrame::new(n);
+    let sin = (1.0 - cos * cos).max(0.0).sqrt();
+    f.to_world(DVec3::new(sin * phi.cos(), sin * phi.sin(), cos))
+}
+
+fn v3(v: [f32; 3]) -> DVec3 {
+    DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+}
+
+fn f3(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// ln Gamma(x) for x > 0: Lanczos approximation (g = 7, 9 terms), relative error < 1e-14.
+fn ln_gamma(x: f64) -> f64 {
+    const C: [f64; 9] = [
+        0.999_999_999_999_809_9,
+        676.520_368_121_885_1,
+        -1_259.139_216_722_402_8,
+        771.323_428_777_653_1,
+        -176.615_029_162_140_6,
+        12.507_343_278_686_905,
+        -0.138_571_095_265_720_12,
+        9.984_369_578_019_572e-6,
+        1.505_632_735_149_311_6e-7,
+    ];
+    if x < 0.5 {
+        return (PI / (PI * x).sin()).ln() - ln_gamma(1.0 - x);
+    }
+    let x = x - 1.0;
+    let mut a = C[0];
+    let t = x + 7.5;
+    for (i, c) in C.iter().enumerate().skip(1) {
+        a += c / (x + i as f64);
+    }
+    0.5 * (2.0 * PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
+}
+
+/// Regularised upper incomplete gamma Q(a, x): series below a + 1, Lentz continued
+/// fraction above (Numerical Recipes, 3rd ed., section 6.2).
+fn gamma_q(a: f64, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 1.0;
+    }
+    let ln_prefix = a * x.ln() - x - ln_gamma(a);
+    if x < a + 1.0 {
+        let (mut ap, mut del) = (a, 1.0 / a);
+        let mut sum = del;
+        for _ in 0..10_000 {
+            ap += 1.0;
+            del *= x / ap;
+            sum += del;
+            if del.abs() < sum.abs() * 1e-16 {
+                break;
+            }
+        }
+        1.0 - sum * ln_prefix.exp()
+    } else {
+        let tiny = 1e-300;
+        let mut b = x + 1.0 - a;
+        let mut c = 1.0 / tiny;
+        let mut d = 1.0 / b;
+        let mut h = d;
+        for i in 1..10_000 {
+            let an = -(i as f64) * (i as f64 - a);
+            b += 2.0;
+            d = an * d + b;
+            if d.abs() < tiny {
+                d = tiny;
+            }
+            c = b + an / c;
+            if c.abs() < tiny {
+                c = tiny;
+            }
+            d = 1.0 / d;
+            let del = d * c;
+            h *= del;
+            if (del - 1.0).abs() < 1e-16 {
+                break;
+            }
+        }
+        ln_prefix.exp() * h
+    }
+}
+
+/// Upper tail of the standard normal distribution, P(Z > z) = Q(1/2, z^2/2) / 2 for z >= 0.
+fn normal_upper_tail(z: f64) -> f64 {
+    0.5 * gamma_q(0.5, 0.5 * z * z)
+}
+
+/// The z with P(Z > z) = p (bisection; p in (0, 1/2)).
+fn normal_quantile_upper(p: f64) -> f64 {
+    let (mut lo, mut hi) = (0.0, 40.0);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if normal_upper_tail(mid) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Per-test significance for a family of `m` tests at family-wise level `alpha`
+/// (Šidák correction).
+fn sidak(alpha: f64, m: usize) -> f64 {
+    1.0 - (1.0 - alpha).powf(1.0 / m as f64)
+}
+
+#[test]
+fn statistics_helpers_are_right() {
+    // Known values: Q(1, x) = e^-x, P(Z > 1.959963985) = 0.025, and Q(a, x) from mpmath's
+    // gammainc(a, x, regularized=True) on both sides of the series/fraction switch.
+    for x in [0.1, 1.0, 3.0, 30.0] {
+        assert!((gamma_q(1.0, x) - (-x).exp()).abs() < 1e-13 * (-x).exp().max(1e-300) + 1e-15, "Q(1, {x})");
+    }
+    assert!((gamma_q(5.0, 2.0) - 0.947_346_982_656_289).abs() < 1e-12);
+    assert!((gamma_q(50.0, 60.0) - 0.084_406_681_093_691_8).abs() < 1e-12);
+    assert!((gamma_q(200.0, 150.0) - 0.999_942_903_114_258).abs() < 1e-12);
+    assert!((normal_quantile_upper(0.025) - 1.959_963_985).abs() < 1e-8);
+    assert!((ln_gamma(10.0) - 362_880f64.ln()).abs() < 1e-12);
+}
+
+// ---------------------------------------------------------------------------------------
+// (a) + (d, GPU part): the GLSL functions agree with the f64 mirror
+// ---------------------------------------------------------------------------------------
+
+/// Everything the test kernel returns for one case, from the mirror: 21 numbers in the
+/// order of `BsdfResult`.
+fn mirror_outputs(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3, u: DVec3) -> [f64; 21] {
+    let value = bsdf::eval(m, n, wo, wi);
+    let pdf = bsdf::pdf(m, n, wo, wi);
+    let s = bsdf::sample(m, n, wo, u);
+    let (swi, sweight, spdf, ok) = match s {
+        Some(s) => (s.wi, s.weight, s.pdf, 1.0),
+        None => (DVec3::ZERO, DVec3::ZERO, 0.0, 0.0),
+    };
+    let g = bsdf::eval_grad(m, n, wo, wi);
+    let mut out = [0.0; 21];
+    let parts: [&[f64]; 9] = [
+        &value.to_array(),
+        &[pdf],
+        &swi.to_array(),
+        &sweight.to_array(),
+        &[spdf],
+        &[ok],
+        &g.d_base_color.to_array(),
+        &g.d_roughness.to_array(),
+        &g.d_metallic.to_array(),
+    ];
+    let mut k = 0;
+    for p in parts {
+        out[k..k + p.len()].copy_from_slice(p);
+        k += p.len();
+    }
+    out
+}
+
+fn result_outputs(r: &BsdfResult) -> [f64; 21] {
+    let mut out = [0.0; 21];
+    let f: Vec<f64> = [
+        &r.value[..],
+        &[r.pdf],
+        &r.sample_wi,
+        &r.sample_weight,
+        &[r.sample_pdf],
+        &[r.sample_ok as f32],
+        &r.d_base_color,
+        &r.d_roughness,
+        &r.d_metallic,
+    ]
+    .concat()
+    .into_iter()
+    .map(|x| x as f64)
+    .collect();
+    out.copy_from_slice(&f);
+    out
+}
+
+const OUTPUT_NAMES: [&str; 21] = [
+    "value.r",
+    "value.g",
+    "value.b",
+    "pdf",
+    "sample_wi.x",
+    "sample_wi.y",
+    "sample_wi.z",
+    "sample_weight.r",
+    "sample_weight.g",
+    "sample_weight.b",
+    "sample_pdf",
+    "sample_ok",
+    "d_base_color.r",
+    "d_base_color.g",
+    "d_base_color.b",
+    "d_roughness.r",
+    "d_roughness.g",
+    "d_roughness.b",
+    "d_metallic.r",
+    "d_metallic.g",
+    "d_metallic.b",
+];
+
+/// Random cases that cover what the GPU must get right: both kinds, roughness 0 (the
+/// alpha clamp), 1 and in between, metallic 0/1/between, normals at the poles and on the
+/// equator (the two branches of the frame), grazing and below-surface directions, wi near
+/// the mirror direction (the specular peak) and lobe-selection numbers at the ends.
+fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
+    let mut rng = Rng(seed);
+    (0..count)
+        .map(|i| {
+            let kind = if i % 5 == 0 { MATERIAL_DIFFUSE } else { MATERIAL_PRINCIPLED };
+            let mut base = [0f32; 3];
+            for b in &mut base {
+                let x = rng.f64();
+                *b = rng.pick(&[0.0, 1.0, x, x, x]) as f32;
+            }
+            let (r, m) = (rng.f64(), rng.f64());
+            let material = Material {
+                base_color: base,
+                roughness: rng.pick(&[0.0, 1.0, 0.05, r, r, r]) as f32,
+                metallic: rng.pick(&[0.0, 1.0, m, m]) as f32,
+                kind,
+            };
+            let n = match i % 16 {
+                0 => DVec3::Z,
+                1 => -DVec3::Z,
+                2 => DVec3::new(0.6, -0.8, 0.0),
+                _ => rng.unit_vector(),
+            };
+            let cosine = |rng: &mut Rng| match rng.next_u64() % 8 {
+                0 => 10f64.powf(rng.range(-3.0, -1.0)),
+                1 => -rng.f64(),
+                2 => 1.0,
+                _ => rng.f64(),
+            };
+            let wo = direction(n, cosine(&mut rng), rng.range(0.0, 2.0 * PI));
+            let wi = if rng.f64() < 0.25 {
+                // Near the mirror direction of wo, within 10^-3 to 10^-0.5 radians.
+                let mirror = 2.0 * wo.dot(n) * n - wo;
+                let tilt = 10f64.powf(rng.range(-3.0, -0.5));
+                (mirror + tilt * rng.unit_vector()).normalize()
+            } else {
+                direction(n, cosine(&mut rng), rng.range(0.0, 2.0 * PI))
+            };
+            let ux = rng.f64();
+            let u = [rng.pick(&[0.0, 0.999_999, ux, ux]), rng.f64(), rng.f64()];
+            let case = BsdfCase { n: f3(n), wo: f3(wo), wi: f3(wi), u: u.map(|x| x as f32) };
+            (material, case)
+        })
+        .collect()
+}
+
+fn run_bsdf_test(ctx: &std::sync::Arc<vkinverse::gpu::Context>, cases: &[(Material, BsdfCase)]) -> Vec<BsdfResult> {
+    let pipe = ComputePipeline::new(ctx, "bsdf_test", &[]).unwrap();
+    let materials: Vec<Material> = cases.iter().map(|c| c.0).collect();
+    let inputs: Vec<BsdfCase> = cases.iter().map(|c| c.1).collect();
+    let mbuf = Buffer::from_slice(ctx, "materials", &materials, MemoryKind::Upload).unwrap();
+    let cbuf = Buffer::from_slice(ctx, "cases", &inputs, MemoryKind::Upload).unwrap();
+    let rbuf = Buffer::zeroed::<BsdfResult>(ctx, "results", cases.len(), MemoryKind::Readback).unwrap();
+    let group = pipe.bind(&[("Materials", &mbuf), ("Cases", &cbuf), ("Results", &rbuf)]).unwrap();
+    let mut cmd = CommandBuffer::new(ctx, "bsdf_test").unwrap();
+    let push = (cases.len() as u32).to_le_bytes();
+    cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, cases.len() as u64)).unwrap();
+    cmd.submit_and_wait().unwrap();
+    rbuf.read().unwrap()
+}
+
+#[test]
+fn gpu_matches_cpu_mirror() {
+    // Not a multiple of the workgroup size (64), so the kernel's bounds check is exercised.
+    let cases = random_cases(4099, 1);
+    let results = with_gpu(|ctx| run_bsdf_test(ctx, &cases));
+
+    // Tolerance. The kernel computes in float32 and the mirror in f64 from the same
+    // float32 inputs. Float32 evaluation of these formulas is backward stable: the GPU's
+    // result is the exact function at inputs perturbed by a few ulps, plus a relative
+    // error of a few ulps in the result. The second part is bounded by 1e-4 (about 1700
+    // float32 ulps, ample for the ~50 operations in a row). The first part depends on the
+    // conditioning of each case, which is extreme near the GGX peak at alpha = 1e-3 (D
+    // changes by 4 (dt/t) when h's tangential part t changes) or at a lobe-selection or
+    // below-surface boundary (the output jumps). It is measured: the mirror is evaluated
+    // at inputs perturbed by up to 16 ulps (2^-20 relative, more than the GPU's rounding
+    // of the frame, dot products and normalisations), and 4x the largest change over 8
+    // random perturbations is allowed on top.
+    const REL: f64 = 1e-4;
+    const PERTURB: f64 = 1.0 / (1u64 << 20) as f64;
+    let mut rng = Rng(99);
+    let mut ill_conditioned = 0;
+    let mut max_err: f64 = 0.0;
+    let mut max_ratio: f64 = 0.0;
+    let mut failures = Vec::new();
+    for (i, ((mat, case), r)) in cases.iter().zip(&results).enumerate() {
+        let m = MaterialF64::from(*mat);
+        let (n, wo, wi, u) = (v3(case.n), v3(case.wo), v3(case.wi), v3(case.u));
+        let mut cpu = mirror_outputs(&m, n, wo, wi, u);
+        let mut gpu = result_outputs(r);
+        // With wo along n the VNDF basis is arbitrary (Heitz 2018, section 4.1), so within
+        // rounding of the pole the GPU and the mirror may rotate the sample differently
+        // about n: compare its cosine only, which that rotation leaves alone.
+        let wo_local = ShadingFrame::new(n).to_local(wo);
+        if wo_local.x.hypot(wo_local.y) < 1e-5 {
+            for out in [&mut cpu, &mut gpu] {
+                let cos = DVec3::new(out[4], out[5], out[6]).dot(n);
+                out[4..7].copy_from_slice(&[cos, 0.0, 0.0]);
+            }
+        }
+        let mut sens = [0.0f64; 21];
+        for _ in 0..8 {
+            let p = |x: f64, rng: &mut Rng| x * (1.0 + PERTURB * rng.range(-1.0, 1.0));
+            let pv = |v: DVec3, rng: &mut Rng| DVec3::new(p(v.x, rng), p(v.y, rng), p(v.z, rng));
+            let mp = MaterialF64 {
+                base_color: pv(m.base_color, &mut rng),
+                roughness: p(m.roughness, &mut rng),
+                metallic: p(m.metallic, &mut rng),
+                kind: m.kind,
+            };
+            let (pn, pwo) = (pv(n, &mut rng), pv(wo, &mut rng));
+            let mut out = mirror_outputs(&mp, pn, pwo, pv(wi, &mut rng), pv(u, &mut rng));
+            if wo_local.x.hypot(wo_local.y) < 1e-5 {
+                let cos = DVec3::new(out[4], out[5], out[6]).dot(pn);
+                out[4..7].copy_from_slice(&[cos, 0.0, 0.0]);
+            }
+            for k in 0..21 {
+                sens[k] = sens[k].max((out[k] - cpu[k]).abs());
+            }
+        }
+        if (0..21).any(|k| sens[k] > 1e-3 * cpu[k].abs().max(1e-3)) {
+            ill_conditioned += 1;
+        }
+        for k in 0..21 {
+            let err = (gpu[k] - cpu[k]).abs();
+            let tol = REL * cpu[k].abs() + 4.0 * sens[k];
+            if tol > 0.0 {
+                max_ratio = max_ratio.max(err / tol);
+            }
+            if err.is_nan() || err > tol {
+                failures.push(format!(
+                    "case {i} {}: gpu {} cpu {} (tol {tol:e}); {mat:?} {case:?}",
+                    OUTPUT_NAMES[k], gpu[k], cpu[k]
+                ));
+            }
+            if sens[k] <= 1e-6 * cpu[k].abs() && cpu[k] != 0.0 {
+                max_err = max_err.max(err / cpu[k].abs());
+            }
+        }
+    }
+    println!(
+        "{ill_conditioned} of {} cases ill-conditioned; largest relative error where well conditioned: {max_err:.2e}; \
+         largest error / tolerance: {max_ratio:.3}",
+        cases.len()
+    );
+    assert!(failures.is_empty(), "{} mismatches:\n{}", failures.len(), failures[..failures.len().min(20)].join("\n"));
+    // The perturbation allowance must not make the comparison vacuous: most cases are well
+    // conditioned (the generator puts at most ~1/4 of them near a peak or a boundary).
+    assert!(ill_conditioned * 4 < cases.len(), "{ill_conditioned} ill-conditioned cases");
+}
+
+// ---------------------------------------------------------------------------------------
+// (b) chi-square goodness of fit of the GPU samples against bsdf_pdf
+// ---------------------------------------------------------------------------------------
+
+/// Adaptive Simpson quadrature of `f` over [a, b] to absolute error `eps` (the usual
+/// Richardson criterion |S2 - S1| <= 15 eps, eps halved per level), subdividing at least
+/// `min_depth` times so that a peak narrower than the interval cannot fall between nodes.
+fn simpson(f: &dyn Fn(f64) -> f64, a: f64, b: f64, eps: f64, min_depth: u32) -> f64 {
+    fn rec(f: &dyn Fn(f64) -> f64, [a, b]: [f64; 2], fab: [f64; 3], whole: f64, eps: f64, depth: [u32; 2]) -> f64 {
+        let [fa, fm, fb] = fab;
+        let [depth, min_depth] = depth;
+        let m = 0.5 * (a + b);
+        let (flm, frm) = (f(0.5 * (a + m)), f(0.5 * (m + b)));
+        let left = (m - a) / 6.0 * (fa + 4.0 * flm + fm);
+        let right = (b - m) / 6.0 * (fm + 4.0 * frm + fb);
+        let delta = left + right - whole;
+        if depth >= 24 || (depth >= min_depth && delta.abs() <= 15.0 * eps) {
+            return left + right + delta / 15.0;
+        }
+        rec(f, [a, m], [fa, flm, fm], left, 0.5 * eps, [depth + 1, min_depth])
+            + rec(f, [m, b], [fm, frm, fb], right, 0.5 * eps, [depth + 1, min_depth])
+    }
+    let (fa, fm, fb) = (f(a), f(0.5 * (a + b)), f(b));
+    rec(f, [a, b], [fa, fm, fb], (b - a) / 6.0 * (fa + 4.0 * fm + fb), eps, [0, min_depth])
+}
+
+/// Pearson's chi-square statistic and p-value of `observed` against `expected` counts
+/// (same total), pooling the categories with expected count below 5 (smallest first) as
+/// pbrt's and Mitsuba's BSDF tests do, so that the chi-square approximation holds.
+fn chi2_test(observed: &[f64], expected: &[f64]) -> (f64, usize, f64) {
+    let mut order: Vec<usize> = (0..expected.len()).collect();
+    order.sort_by(|&a, &b| expected[a].total_cmp(&expected[b]));
+    let (mut pooled_obs, mut pooled_exp) = (0.0, 0.0);
+    let (mut stat, mut cells) = (0.0, 0usize);
+    for i in order {
+        if expected[i] <= 0.0 && observed[i] > 0.0 {
+            // A sample where the pdf says none can be: certain failure.
+            return (f64::INFINITY, 0, 0.0);
+        }
+        if expected[i] < 5.0 || (pooled_exp > 0.0 && pooled_exp < 5.0) {
+            pooled_obs += observed[i];
+            pooled_exp += expected[i];
+        } else {
+            stat += (observed[i] - expected[i]).powi(2) / expected[i];
+            cells += 1;
+        }
+    }
+    if pooled_exp > 0.0 {
+        stat += (pooled_obs - pooled_exp).powi(2) / pooled_exp;
+        cells += 1;
+    }
+    // The counts sum to the sample count: one constraint.
+    let dof = cells.saturating_sub(1).max(1);
+    (stat, dof, gamma_q(0.5 * dof as f64, 0.5 * stat))
+}
+
+const THETA_BINS: usize = 16;
+const PHI_BINS: usize = 32;
+
+/// Expected fraction of samples per (theta, phi) cell of the local upper hemisphere:
+/// the integral of pdf sin(theta) over the cell, by nested adaptive Simpson.
+fn expected_fractions(m: &MaterialF64, wo_local: DVec3) -> Vec<f64> {
+    let dt = 0.5 * PI / THETA_BINS as f64;
+    let dp = 2.0 * PI / PHI_BINS as f64;
+    // Node spacing at most alpha (the specular peak's angular half-width in wi is about
+    // 1.3 alpha), so that adaptive refinement always sees the peak.
+    let width = if m.kind == MATERIAL_PRINCIPLED { bsdf::alpha(m.roughness) } else { 1.0 };
+    let depth = |extent: f64| ((extent / width).log2().ceil().max(2.0)) as u32;
+    // 1e-9 per cell: the 512 cells add at most 5e-7 of the probability, under one expected
+    // sample in 10^6, far below the chi-square's resolution (sqrt(5) at the pooling limit).
+    let eps = 1e-9;
+    let mut out = Vec::with_capacity(THETA_BINS * PHI_BINS);
+    for it in 0..THETA_BINS {
+        for ip in 0..PHI_BINS {
+            let (p0, p1) = (ip as f64 * dp, (ip + 1) as f64 * dp);
+            let inner = |theta: f64| {
+                let (st, ct) = theta.sin_cos();
+                let f = |phi: f64| {
+                    let (sp, cp) = phi.sin_cos();
+                    bsdf::pdf_local(m, wo_local, DVec3::new(st * cp, st * sp, ct))
+                };
+                st * simpson(&f, p0, p1, eps / dt, depth(dp * st.max(1e-3)))
+            };
+            out.push(simpson(&inner, it as f64 * dt, (it + 1) as f64 * dt, eps, depth(dt)));
+        }
+    }
+    out
+}
+
+#[test]
+fn gpu_samples_follow_bsdf_pdf() {
+    const SAMPLES: u32 = 1_000_000;
+    let base_color = [0.9, 0.6, 0.3];
+    let mut materials = vec![Material { base_color, roughness: 0.5, metallic: 0.0, kind: MATERIAL_DIFFUSE }];
+    for roughness in [0.1, 0.3, 0.7, 1.0] {
+        for metallic in [0.0, 0.5, 1.0] {
+            materials.push(Material { base_color, roughness, metallic, kind: MATERIAL_PRINCIPLED });
+        }
+    }
+    // A tilted normal, so that the sampled frame is not the world frame.
+    let n = DVec3::new(0.3, -0.5, 0.8).normalize();
+    let theta_o_degrees = [5.0f64, 45.0, 80.0];
+    let cases: Vec<(Material, f64)> =
+        materials.iter().flat_map(|m| theta_o_degrees.iter().map(move |&t| (*m, t))).collect();
+    // Family-wise significance 1 %, Šidák-corrected over the cases.
+    let level = sidak(0.01, cases.len());
+
+    let frame = ShadingFrame::new(n);
+    let p_values = with_gpu(|ctx| {
+        let pipe = ComputePipeline::new(ctx, "bsdf_sample_test", &[]).unwrap();
+        let out = Buffer::zeroed::<[f32; 3]>(ctx, "samples", SAMPLES as usize, MemoryKind::Readback).unwrap();
+        let group = pipe.bind(&[("Samples", &out)]).unwrap();
+        let mut cmd = CommandBuffer::new(ctx, "bsdf_sample_test").unwrap();
+        let mut p_values = Vec::new();
+        for (case, (material, theta_o)) in cases.iter().enumerate() {
+            let wo = direction(n, theta_o.to_radians().cos(), 0.7);
+            let push =
+                SamplePush { material: *material, n: f3(n), wo: f3(wo), count: SAMPLES, seed: case as u32 * 7919 + 1 };
+            cmd.record(|rec| rec.dispatch_linear(&pipe, &group, bytemuck::bytes_of(&push), SAMPLES as u64)).unwrap();
+            cmd.submit_and_wait().unwrap();
+            let samples: Vec<[f32; 3]> = out.read().unwrap();
+
+            // Observed counts per cell, plus one category for failed samples.
+            let mut observed = vec![0.0; THETA_BINS * PHI_BINS + 1];
+            for s in &samples {
+                let w = v3(*s);
+                if w == DVec3::ZERO {
+                    observed[THETA_BINS * PHI_BINS] += 1.0;
+                    continue;
+                }
+                let l = frame.to_local(w.normalize());
+                assert!(l.z > 0.0, "a sample below the surface was returned as valid: {l}");
+                let theta = l.z.clamp(-1.0, 1.0).acos();
+                let phi = l.y.atan2(l.x).rem_euclid(2.0 * PI);
+                let it = ((theta / (0.5 * PI) * THETA_BINS as f64) as usize).min(THETA_BINS - 1);
+                let ip = ((phi / (2.0 * PI) * PHI_BINS as f64) as usize).min(PHI_BINS - 1);
+                observed[it * PHI_BINS + ip] += 1.0;
+            }
+            let m = MaterialF64::from(*material);
+            let fractions = expected_fractions(&m, frame.to_local(v3(f3(wo))));
+            let total: f64 = fractions.iter().sum();
+            assert!(total <= 1.0 + 1e-6, "pdf integrates to {total} > 1");
+            let mut expected: Vec<f64> = fractions.iter().map(|f| f * SAMPLES as f64).collect();
+            expected.push((1.0 - total).max(0.0) * SAMPLES as f64);
+            let (stat, dof, p) = chi2_test(&observed, &expected);
+            println!(
+                "kind {} roughness {} metallic {} theta_o {theta_o}: chi2 {stat:.1} dof {dof} p {p:.4} (pdf mass {total:.5}, failed {})",
+                material.kind, material.roughness, material.metallic, observed[THETA_BINS * PHI_BINS]
+            );
+            p_values.push((p, format!("{material:?} theta_o {theta_o}: chi2 {stat:.1}, {dof} dof")));
+        }
+        p_values
+    });
+    let min = p_values.iter().map(|p| p.0).fold(1.0, f64::min);
+    let max = p_values.iter().map(|p| p.0).fold(0.0, f64::max);
+    println!("p-values in [{min:.4}, {max:.4}], per-case level {level:.2e}");
+    let rejected: Vec<_> =
+        p_values.iter().filter(|p| p.0 < level).map(|p| format!("p = {:.2e}: {}", p.0, p.1)).collect();
+    assert!(rejected.is_empty(), "samples do not follow bsdf_pdf:\n{}", rejected.join("\n"));
+}
+
+// ---------------------------------------------------------------------------------------
+// (c) energy: the BSDF alone in a white furnace reflects at most what it receives
+// ---------------------------------------------------------------------------------------
+
+#[test]
+fn white_furnace_albedo_is_at_most_one() {
+    // Albedo(wo) = integral of f cos over wi, estimated as the mean weight of bsdf_sample
+    // (the chi-square test shows that the samples follow bsdf_pdf, and the weights are
+    // eval / pdf). base_color = 1 is the worst case: every term grows with it.
+    const SAMPLES: usize = 100_000;
+    let mut cases = vec![MaterialF64 { base_color: DVec3::ONE, roughness: 0.5, metallic: 0.0, kind: MATERIAL_DIFFUSE }];
+    for roughness in [0.0, 0.1, 0.3, 0.5, 0.7, 1.0] {
+        for metallic in [0.0, 0.5, 1.0] {
+            cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, metallic, kind: MATERIAL_PRINCIPLED });
+        }
+    }
+    let cos_o = [1.0, 0.7, 0.3, 0.1, 0.01];
+    // One-sided test of "albedo <= 1" per case at family-wise level 1 % (Šidák): reject
+    // when the mean exceeds 1 by more than z standard errors. A smooth white metal has
+    // weight G2 / G1 <= 1 for every sample (standard error 0), so f64 rounding of the
+    // weights (~1e-15 relative) gets its own allowance of 1e-12.
+    let z = normal_quantile_upper(sidak(0.01, cases.len() * cos_o.len()));
+    let n = DVec3::new(-0.2, 0.4, 0.9).normalize();
+    let mut rng = Rng(5);
+    let mut worst = (0.0f64, String::new());
+    for m in &cases {
+        for &c in &cos_o {
+            let wo = direction(n, c, 1.3);
+            let (mut sum, mut sum2) = (0.0, 0.0);
+            for _ in 0..SAMPLES {
+                let u = DVec3::new(rng.f64(), rng.f64(), rng.f64());
+                if let Some(s) = bsdf::sample(m, n, wo, u) {
+                    // Grey material: the three channels are equal.
+                    assert!((s.weight.x - s.weight.z).abs() <= 1e-12 * s.weight.x.abs());
+                    sum += s.weight.x;
+                    sum2 += s.weight.x * s.weight.x;
+                }
+            }
+            let mean = sum / SAMPLES as f64;
+            let se = ((sum2 / SAMPLES as f64 - mean * mean).max(0.0) / (SAMPLES as f64 - 1.0)).sqrt();
+            let label = format!(
+                "kind {} roughness {} metallic {} cos_o {c}: albedo {mean:.4} +- {se:.4}",
+                m.kind, m.roughness, m.metallic
+            );
+            if m.kind == MATERIAL_PRINCIPLED && mean > worst.0 {
+                worst = (mean, label.clone());
+            }
+            assert!(mean - z * se <= 1.0 + 1e-12, "energy gain: {label} (z = {z:.2})");
+        }
+    }
+    println!("largest principled albedo: {}", worst.1);
+}
+
+// ---------------------------------------------------------------------------------------
+// (d) eval_grad against central finite differences of eval (the GPU's eval_grad is
+// compared with the mirror's in gpu_matches_cpu_mirror)
+// ---------------------------------------------------------------------------------------
+
+#[test]
+fn eval_grad_matches_finite_differences() {
+    let mut rng = Rng(11);
+    let h = 1e-5;
+    let mut checked = 0;
+    let mut worst: f64 = 0.0;
+    for i in 0..3000 {
+        let r = rng.f64();
+        let mt = rng.f64();
+        let m = MaterialF64 {
+            base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
+            roughness: rng.pick(&[0.0, 0.01, 0.05, 1.0, r, r, r]),
+            metallic: rng.pick(&[0.0, 1.0, mt, mt]),
+            kind: if i % 10 == 0 { MATERIAL_DIFFUSE } else { MATERIAL_PRINCIPLED },
+        };
+        let n = rng.unit_vector();
+        let wo = direction(n, rng.range(0.01, 1.0), rng.range(0.0, 2.0 * PI));
+        let wi = if rng.f64() < 0.3 {
+            let mirror = 2.0 * wo.dot(n) * n - wo;
+            (mirror + 0.1 * rng.unit_vector()).normalize()
+        } else {
+            direction(n, rng.range(0.01, 1.0), rng.range(0.0, 2.0 * PI))
+        };
+        if ShadingFrame::new(n).to_local(wi).z <= 0.0 {
+            continue;
+        }
+        // The stencil must not straddle the kink of alpha = max(r^2, ALPHA_MIN).
+        let (lo, hi) = (m.roughness - 2.0 * h, m.roughness + 2.0 * h);
+        let straddles = lo > 0.0 && lo * lo < ALPHA_MIN && hi * hi > ALPHA_MIN;
+        let g = bsdf::eval_grad(&m, n, wo, wi);
+        type Shifted = Box<dyn Fn(f64) -> MaterialF64>;
+        // (parameter, analytic derivative of the three channels, material with it shifted)
+        let params: [(&str, DVec3, Shifted); 5] = [
+            (
+                "base_color.r",
+                DVec3::new(g.d_base_color.x, 0.0, 0.0),
+                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::X * d, ..m }),
+            ),
+            (
+                "base_color.g",
+                DVec3::new(0.0, g.d_base_color.y, 0.0),
+                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Y * d, ..m }),
+            ),
+            (
+                "base_color.b",
+                DVec3::new(0.0, 0.0, g.d_base_color.z),
+                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Z * d, ..m }),
+            ),
+            ("roughness", g.d_roughness, Box::new(move |d| MaterialF64 { roughness: m.roughness + d, ..m })),
+            ("metallic", g.d_metallic, Box::new(move |d| MaterialF64 { metallic: m.metallic + d, ..m })),
+        ];
+        for (name, analytic, at) in params {
+            if name == "roughness" && straddles {
+                continue;
+            }
+            let v = |d: f64| bsdf::eval(&at(d), n, wo, wi);
+            let (p1, m1, p2, m2) = (v(h), v(-h), v(2.0 * h), v(-2.0 * h));
+            let fd1 = (p1 - m1) / (2.0 * h);
+            let fd2 = (p2 - m2) / (4.0 * h);
+            for c in 0..3 {
+                // Central differences err by c h^2 + O(h^4): fd2 - fd1 ~ 3 c h^2 estimates
+                // that error, and 2 |fd2 - fd1| bounds it with margin. Rounding adds about
+                // (f64 epsilon x the ~100 operations of eval) |v| / h.
+                let scale = p1[c].abs().max(m1[c].abs()).max(p2[c].abs()).max(m2[c].abs());
+                let tol = 2.0 * (fd2[c] - fd1[c]).abs() + 100.0 * f64::EPSILON * scale / h;
+                let err = (analytic[c] - fd1[c]).abs();
+                assert!(
+                    err <= tol,
+                    "d value[{c}] / d {name}: analytic {} vs finite difference {} (tol {tol:e}); {m:?} n {n} wo {wo} wi {wi}",
+                    analytic[c],
+                    fd1[c]
+                );
+                if fd1[c] != 0.0 {
+                    worst = worst.max(err / fd1[c].abs());
+                }
+                checked += 1;
+            }
+        }
+    }
+    println!("{checked} derivatives checked; largest relative difference {worst:.2e}");
+    assert!(checked > 30_000);
+}
+
+// ---------------------------------------------------------------------------------------
+// (e) reciprocity, and the sample's pdf and weight against bsdf_pdf and bsdf_eval
+// ---------------------------------------------------------------------------------------
+
+#[test]
+fn principled_is_reciprocal() {
+    // The diffuse Fresnel factor (1 - F_d(cos_o)) (1 - F_d(cos_i)) is symmetric, so the
+    // whole model, not only its specular part, must be reciprocal. Both orders use the
+    // same half vector (wo + wi is commutative) and sums and products of positive terms,
+    // so they differ by rounding: ~30 operations, under 100 epsilons. One term is computed
+    // differently: the Fresnel cosine, wo.h against wi.h. They are equal for the exact h,
+    // but the rounded h is off by ~2 eps / |wo + wi| per component, which changes
+    // (wo - wi).h by up to ~4 eps / |wo + wi|, and the fifth power in Schlick's weight
+    // multiplies that by 5 (near retro-reflection, where it matters, 1 - wo.h ~ 1).
+    // Allowed: eps (100 + 50 / |wo + wi|).
+    let mut rng = Rng(3);
+    let mut worst: f64 = 0.0;
+    for _ in 0..20_000 {
+        let (r, mt) = (rng.f64(), rng.f64());
+        let m = MaterialF64 {
+            base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
+            roughness: rng.pick(&[0.0, 0.05, 1.0, r, r]),
+            metallic: rng.pick(&[0.0, 1.0, mt]),
+            kind: MATERIAL_PRINCIPLED,
+        };
+        let n = rng.unit_vector();
+        let cos = |rng: &mut Rng| if rng.f64() < 0.2 { 10f64.powf(rng.range(-3.0, -1.0)) } else { rng.f64() };
+        let wo = direction(n, cos(&mut rng), rng.range(0.0, 2.0 * PI));
+        let wi = direction(n, cos(&mut rng), rng.range(0.0, 2.0 * PI));
+        let frame = ShadingFrame::new(n);
+        let (co, ci) = (frame.to_local(wo).z, frame.to_local(wi).z);
+        if co <= 0.0 || ci <= 0.0 {
+            continue;
+        }
+        let f_oi = bsdf::eval(&m, n, wo, wi) / ci;
+        let f_io = bsdf::eval(&m, n, wi, wo) / co;
+        let tol = f64::EPSILON * (100.0 + 50.0 / (wo + wi).length());
+        for c in 0..3 {
+            let rel = (f_oi[c] - f_io[c]).abs() / f_oi[c].abs();
+            worst = worst.max(rel / tol);
+            assert!(rel <= tol, "f(wo, wi) = {f_oi} but f(wi, wo) = {f_io}: {m:?} n {n} wo {wo} wi {wi}");
+        }
+    }
+    println!("largest relative asymmetry / tolerance: {worst:.3}");
+}
+
+#[test]
+fn sample_pdf_and_weight_match_pdf_and_eval() {
+    // bsdf_sample evaluates at the microfacet normal it drew, bsdf_pdf and bsdf_eval at
+    // normalize(wo + wi); in f64 the two normals differ by ~1e-16, which moves D by at
+    // most 4 (1e-16 / t) relative for a tangential part t >= 1e-4 of h (alpha >= 1e-3 and
+    // samples within a few alpha of the peak): 1e-11, so 1e-9 is a safe bound.
+    let mut rng = Rng(17);
+    let mut count = 0;
+    for i in 0..20_000 {
+        let (r, mt) = (rng.f64(), rng.f64());
+        let m = MaterialF64 {
+            base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
+            roughness: rng.pick(&[0.0, 0.05, 1.0, r, r]),
+            metallic: rng.pick(&[0.0, 1.0, mt]),
+            kind: if i % 10 == 0 { MATERIAL_DIFFUSE } else { MATERIAL_PRINCIPLED },
+        };
+        let n = rng.unit_vector();
+        let wo = direction(n, rng.range(0.0, 1.0), rng.range(0.0, 2.0 * PI));
+        let u = DVec3::new(rng.f64(), rng.f64(), rng.f64());
+        let Some(s) = bsdf::sample(&m, n, wo, u) else { continue };
+        let pdf = bsdf::pdf(&m, n, wo, s.wi);
+        let value = bsdf::eval(&m, n, wo, s.wi);
+        assert!((s.pdf - pdf).abs() <= 1e-9 * pdf, "sample pdf {} vs bsdf_pdf {pdf}: {m:?}", s.pdf);
+        let w = value / pdf;
+        for c in 0..3 {
+            assert!(
+                (s.weight[c] - w[c]).abs() <= 1e-9 * w[c].abs() + 1e-300,
+                "weight {} vs eval / pdf {w}: {m:?}",
+                s.weight
+            );
+        }
+        count += 1;
+    }
+    assert!(count > 15_000);
+}
