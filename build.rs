@@ -1,7 +1,8 @@
 //! Compiles every `glsl/*.comp` kernel to SPIR-V with shaderc (glslang) and generates
 //! `$OUT_DIR/shaders.rs`, a table of the embedded SPIR-V by kernel name.
 //!
-//! A kernel may declare structural variants on its first lines:
+//! A kernel may declare structural variants in its header comment (the comment lines
+//! before and after `#version`):
 //! `// variant: NAME DEFINE[=VALUE] [DEFINE...]` compiles the file once more as kernel
 //! `NAME` with those macros defined (e.g. the adjoint pass from the primal source).
 //! Every file reached through `#include` is tracked with `rerun-if-changed`, and a
@@ -37,7 +38,9 @@ fn main() {
         println!("cargo:rerun-if-changed={}", path.display());
         let stem = path.file_stem().unwrap().to_str().unwrap().to_string();
         let mut variants = vec![(stem, Vec::<(String, Option<String>)>::new())];
-        for line in source.lines().take_while(|l| l.starts_with("//") || l.trim().is_empty()) {
+        // The header: `#version` and the comment lines around it, up to the first other line.
+        let header = source.lines().take_while(|l| l.starts_with("//") || l.starts_with("#version") || l.trim().is_empty());
+        for line in header {
             if let Some(rest) = line.strip_prefix("// variant:") {
                 let mut words = rest.split_whitespace();
                 let name = words.next().expect("variant needs a name").to_string();

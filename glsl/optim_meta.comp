@@ -1,19 +1,15 @@
+#version 460
 // Fused meta-estimator pass over one parameter buffer (Balint et al. 2023): one invocation per
 // element loads its state, steps both Moment2 EMAs and the meta-estimate, takes the step,
 // clamps to [lo, hi], records theta_prev <- theta and clears both gradient buffers for the
 // next iteration's accumulation. Each workgroup writes the sum of its elements' squared
-// steps to dpi2_partial[gl_WorkGroupID.x]; the host sums the partials into `dpi2` before
+// steps to dpi2_partial[workgroup_index()]; the host sums the partials into `dpi2` before
 // the next pass. Non-finite inputs leave the element unchanged (step 0) and are counted in
 // `nonfinite` (never reset here).
-#version 460
-#extension GL_EXT_scalar_block_layout : require
-#extension GL_GOOGLE_include_directive : require
-#extension GL_KHR_shader_subgroup_basic : require
-#extension GL_KHR_shader_subgroup_arithmetic : require
-
-#include "lib/optim.glsl"
 
 layout(local_size_x = 256) in;
+#include "lib/common.glsl"
+#include "lib/optim.glsl"
 
 layout(set = 0, binding = 0, scalar) buffer Theta { float theta[]; };
 layout(set = 0, binding = 1, scalar) writeonly buffer ThetaPrev { float theta_prev[]; };
@@ -29,9 +25,13 @@ layout(set = 0, binding = 10, scalar) readonly buffer Dpi2 { float dpi2; };
 layout(set = 0, binding = 11, scalar) writeonly buffer Dpi2Partial { float dpi2_partial[]; };
 layout(set = 0, binding = 12, scalar) buffer NonFinite { uint nonfinite; };
 
+// The iteration counter (host-written before each submission): step t = iteration + 1,
+// so a recording resubmitted every iteration needs no new push constants.
+layout(set = 0, binding = 13, scalar) readonly buffer Frame { uint frame_iteration; };
+
 layout(push_constant, scalar) uniform Push {
     uint n;
-    uint t;      // step number, from 1
+    uint offset; // first element of this parameter group in every array
     float lr;
     float decay_f;
     float decay_d;
@@ -45,11 +45,12 @@ layout(push_constant, scalar) uniform Push {
 shared float subgroup_sums[gl_WorkGroupSize.x];
 
 void main() {
-    uint i = gl_GlobalInvocationID.x;
+    uint j = thread_index();
+    uint i = pc.offset + j;
     // Every invocation joins the reduction below; out-of-range and skipped ones add 0.
     float step2 = 0.0;
-    if (i < pc.n) {
-        MetaParams p = MetaParams(pc.t, pc.lr, pc.decay_f, pc.decay_d, pc.eps, pc.lo, pc.hi);
+    if (j < pc.n) {
+        MetaParams p = MetaParams(frame_iteration + 1u, pc.lr, pc.decay_f, pc.decay_d, pc.eps, pc.lo, pc.hi);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i],
                               meta_wsum_d[i], meta_n_eff[i]);
         float th = theta[i];
@@ -83,6 +84,6 @@ void main() {
             acc += subgroup_sums[k];
         }
         acc = subgroupAdd(acc);
-        if (subgroupElect()) dpi2_partial[gl_WorkGroupID.x] = acc;
+        if (subgroupElect()) dpi2_partial[workgroup_index()] = acc;
     }
 }

@@ -3,7 +3,7 @@
 # CPU Vulkan driver, so no GPU is needed), the validation layers used by the tests, and
 # the shader compiler libraries that build.rs links (shaderc, glslang, SPIRV-Tools).
 set -euo pipefail
-packages=(mesa-vulkan-drivers libvulkan1 vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools)
+packages=(mesa-vulkan-drivers libvulkan1 vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools fonts-dejavu-core)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

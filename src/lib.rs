@@ -7,11 +7,15 @@
 
 pub mod bench;
 pub mod bsdf;
+pub mod bvh;
+pub mod error;
 pub mod gpu;
 pub mod image;
 pub mod npy;
 pub mod ops;
 pub mod optim;
+pub mod optimise;
+pub mod render;
 pub mod report;
 pub mod scene;
 pub mod shared;

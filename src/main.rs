@@ -27,6 +27,68 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Render one sensor of a scene to EXR (linear) or PNG (tone-mapped sRGB).
+    Render {
+        scene: std::path::PathBuf,
+        #[arg(long, default_value_t = 64)]
+        spp: u32,
+        #[arg(long, default_value_t = 0)]
+        seed: u32,
+        #[arg(long, default_value_t = 0)]
+        sensor: u32,
+        #[arg(short = 'o', long = "output")]
+        output: std::path::PathBuf,
+    },
+    /// Recover the scene's optimised parameters from its target images.
+    Optimise {
+        scene: std::path::PathBuf,
+        /// meta or adam (default: the scene's `[optimise] optimiser`)
+        #[arg(long)]
+        optimiser: Option<String>,
+        #[arg(long)]
+        iterations: Option<u32>,
+        /// Stop after this many seconds of optimisation (instead of, or on top of, --iterations).
+        #[arg(long)]
+        time_budget: Option<f64>,
+        #[arg(long)]
+        spp: Option<u32>,
+        #[arg(long)]
+        fd_spp: Option<u32>,
+        #[arg(long)]
+        primal_spp: Option<u32>,
+        #[arg(long)]
+        lr: Option<f32>,
+        #[arg(long)]
+        seed: Option<u32>,
+        /// Write a checkpoint every N iterations.
+        #[arg(long)]
+        checkpoint_every: Option<u32>,
+        /// Continue the run in OUTDIR from its checkpoint.
+        #[arg(long)]
+        resume: bool,
+        #[arg(short = 'o', long = "output")]
+        output: std::path::PathBuf,
+    },
+    /// Run the GPU optimiser passes on gradient streams from .npy files.
+    Replay {
+        /// meta or adam
+        #[arg(long)]
+        optimiser: String,
+        #[arg(long, default_value_t = 0.02)]
+        lr: f64,
+        /// Parameter bounds, e.g. `--range 0,1` (unbounded by default).
+        #[arg(long, allow_hyphen_values = true)]
+        range: Option<String>,
+        /// Start values (shape [n]); zeros by default.
+        #[arg(long)]
+        init: Option<std::path::PathBuf>,
+        /// Proportional gradients, float32 [iterations, n].
+        grads: std::path::PathBuf,
+        /// Finite-difference samples, float32 [iterations, n] (meta only).
+        fd_grads: Option<std::path::PathBuf>,
+        #[arg(short = 'o', long = "output")]
+        output: std::path::PathBuf,
+    },
     /// Measure GPU passes with timestamps. Without a scene: the buffer kernels' bandwidth.
     Bench {
         /// Scene to benchmark (the buffer kernels are measured when absent).
@@ -46,6 +108,65 @@ fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuErro
     Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
 }
 
+/// A progress bar on stderr, hidden with --quiet or when stderr is not a terminal.
+fn progress_bar(quiet: bool, len: u64, unit: &str) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(len);
+    let style = indicatif::ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {unit} ({{elapsed}}, eta {{eta}}) {{msg}}"))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
+    bar.set_style(style);
+    bar
+}
+
+fn run_optimise(
+    cli: &Cli,
+    scene: &vkinverse::scene::Scene,
+    st: &vkinverse::optimise::Settings,
+    output: &std::path::Path,
+    resume: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let ctx = context(cli)?;
+    let total = if st.iterations > 0 { st.iterations as u64 } else { 0 };
+    let bar = progress_bar(cli.quiet, total, "iterations");
+    let target_bar = progress_bar(cli.quiet, 0, "target samples");
+    let summary = vkinverse::optimise::optimise(
+        &ctx,
+        scene,
+        st,
+        output,
+        resume,
+        |p| {
+            bar.set_position(p.iteration as u64);
+            let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
+            bar.set_message(format!("loss {:.3e}{err}", p.loss));
+        },
+        |_, done, total| {
+            target_bar.set_length(total as u64);
+            target_bar.set_position(done as u64);
+        },
+    )?;
+    target_bar.finish_and_clear();
+    bar.finish_and_clear();
+    if !cli.quiet {
+        let err = |e: Option<f64>| e.map(|v| format!("{v:.4e}")).unwrap_or_else(|| "n/a".into());
+        println!(
+            "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
+            summary.scene,
+            summary.iterations,
+            summary.optimiser,
+            summary.total_time_s,
+            summary.total_gpu_time_s,
+            summary.final_loss,
+            err(summary.initial_param_error),
+            err(summary.final_param_error)
+        );
+        println!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", output.display());
+    }
+    Ok(())
+}
+
 fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
     match &cli.command {
         Command::Info { json } => {
@@ -54,6 +175,126 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 println!("{}", vkinverse::report::info_json(&ctx));
             } else {
                 print!("{}", vkinverse::report::info_text(&ctx));
+            }
+        }
+        Command::Render { scene, spp, seed, sensor, output } => {
+            let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+            if !matches!(ext.as_deref(), Some("exr" | "png")) {
+                return Err(format!("{}: output must end in .exr or .png", output.display()).into());
+            }
+            if *spp == 0 {
+                return Err("--spp must be at least 1".into());
+            }
+            let scene = vkinverse::scene::Scene::load(scene)?;
+            if *sensor as usize >= scene.sensors.len() {
+                return Err(format!("--sensor {sensor}: the scene has {} sensor(s)", scene.sensors.len()).into());
+            }
+            let ctx = context(cli)?;
+            let start = std::time::Instant::now();
+            let renderer = vkinverse::render::Renderer::new(vkinverse::render::GpuScene::new(&ctx, &scene)?)?;
+            // The scene as written: optimised parameters at their reference values.
+            renderer.scene.set_theta(renderer.scene.layout.reference())?;
+            let bar = progress_bar(cli.quiet, *spp as u64, "samples");
+            let image = renderer.render(*sensor, *spp, *seed, |done, _| bar.set_position(done as u64))?;
+            bar.finish_and_clear();
+            if ext.as_deref() == Some("png") {
+                vkinverse::image::write_png(output, &image)?;
+            } else {
+                vkinverse::image::write_exr(output, &image)?;
+            }
+            if !cli.quiet {
+                eprintln!(
+                    "rendered {}x{} at {spp} spp in {:.2} s -> {}",
+                    image.width,
+                    image.height,
+                    start.elapsed().as_secs_f64(),
+                    output.display()
+                );
+            }
+        }
+        Command::Optimise {
+            scene,
+            optimiser,
+            iterations,
+            time_budget,
+            spp,
+            fd_spp,
+            primal_spp,
+            lr,
+            seed,
+            checkpoint_every,
+            resume,
+            output,
+        } => {
+            let scene = vkinverse::scene::Scene::load(scene)?;
+            let mut st = vkinverse::optimise::Settings::from_scene(&scene);
+            if let Some(o) = optimiser {
+                st.optimiser = o.parse()?;
+            }
+            if let Some(t) = time_budget {
+                st.time_budget = Some(*t);
+                if iterations.is_none() {
+                    st.iterations = 0;
+                }
+            }
+            st.iterations = iterations.unwrap_or(st.iterations);
+            st.spp = spp.unwrap_or(st.spp);
+            st.fd_spp = fd_spp.unwrap_or(st.fd_spp);
+            st.primal_spp = primal_spp.unwrap_or(st.primal_spp);
+            st.lr = lr.unwrap_or(st.lr);
+            st.seed = seed.unwrap_or(st.seed);
+            st.checkpoint_every = checkpoint_every.unwrap_or(st.checkpoint_every);
+            if lr.is_some() {
+                // A command-line learning rate applies to every parameter.
+                let mut scene = scene.clone();
+                for p in &mut scene.optimise.params {
+                    p.lr = None;
+                }
+                return run_optimise(cli, &scene, &st, output, *resume);
+            }
+            run_optimise(cli, &scene, &st, output, *resume)?;
+        }
+        Command::Replay { optimiser, lr, range, init, grads, fd_grads, output } => {
+            use vkinverse::{npy, optim};
+            let opt: optim::Optimiser = optimiser.parse()?;
+            let range = match range {
+                Some(r) => r.parse()?,
+                None => optim::Range::UNBOUNDED,
+            };
+            let g = npy::read(grads)?;
+            if g.shape.len() != 2 {
+                return Err(format!("{}: expected shape [iterations, n], got {:?}", grads.display(), g.shape).into());
+            }
+            let n = g.shape[1];
+            let fd = match (fd_grads, opt.needs_fd()) {
+                (Some(p), _) => {
+                    let a = npy::read(p)?;
+                    if a.shape != g.shape {
+                        return Err(format!("{}: shape {:?} differs from the gradients' {:?}", p.display(), a.shape, g.shape).into());
+                    }
+                    Some(a.rows())
+                }
+                (None, true) => return Err("the meta optimiser needs FD_GRADS.npy (finite-difference samples)".into()),
+                (None, false) => None,
+            };
+            let init = match init {
+                Some(p) => {
+                    let a = npy::read(p)?;
+                    if a.data.len() != n {
+                        return Err(format!("{}: {} values, the gradients have {n} per row", p.display(), a.data.len()).into());
+                    }
+                    a.data
+                }
+                None => vec![0.0; n],
+            };
+            let ctx = context(cli)?;
+            let (trajectory, skipped) = optim::gpu::replay_gpu(&ctx, &opt, &g.rows(), fd.as_deref(), &init, range, *lr)?;
+            npy::write_rows(output, &trajectory)?;
+            if !cli.quiet {
+                eprintln!("replayed {} iterations of {n} parameters -> {}", g.shape[0], output.display());
+            }
+            if skipped > 0 {
+                eprintln!("warning: {skipped} non-finite gradient elements were skipped (theta left unchanged there)");
             }
         }
         Command::Bench { scene, iterations, elements, json } => {

@@ -20,6 +20,7 @@ pub struct BufferOps {
     fill: ComputePipeline,
     copy: ComputePipeline,
     scale_add: ComputePipeline,
+    sub: ComputePipeline,
     reduce_sum: ComputePipeline,
     reduce_sq: ComputePipeline,
 }
@@ -46,6 +47,7 @@ impl BufferOps {
             fill: ComputePipeline::new(ctx, "fill", &[])?,
             copy: ComputePipeline::new(ctx, "copy", &[])?,
             scale_add: ComputePipeline::new(ctx, "scale_add", &[])?,
+            sub: ComputePipeline::new(ctx, "sub", &[])?,
             reduce_sum: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(false))])?,
             reduce_sq: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(true))])?,
         })
@@ -81,6 +83,13 @@ impl BufferOps {
         rec.dispatch_linear(&self.scale_add, &group, &push, n)
     }
 
+    /// Records `dst[i] = a[i] - b[i]`.
+    pub fn sub(&self, rec: &mut Recorder, a: &Buffer, b: &Buffer, dst: &Buffer) -> Result<()> {
+        let group = self.sub.bind(&[("A", a), ("B", b), ("Dst", dst)])?;
+        let n = Self::elements(dst);
+        rec.dispatch_linear(&self.sub, &group, &push_n(n), n)
+    }
+
     /// Prepares the sum (or, with `square`, the sum of squares) of `src`'s f32 elements.
     pub fn reduction(&self, src: &Buffer, square: bool) -> Result<Reduction> {
         let mut levels = Vec::new();
@@ -90,7 +99,8 @@ impl BufferOps {
         loop {
             let pipe = if first && square { &self.reduce_sq } else { &self.reduce_sum };
             let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
-            let out = Buffer::new(&self.ctx, &format!("{} partials {}", src.name(), levels.len()), groups * 4, MemoryKind::Device)?;
+            // Zeroed: a result read before the first reduction ran reads 0.
+            let out = Buffer::zeroed::<f32>(&self.ctx, &format!("{} partials {}", src.name(), levels.len()), groups as usize, MemoryKind::Device)?;
             levels.push((pipe.bind(&[("Src", &input), ("Partials", &out)])?, n, first && square, out.clone()));
             input = out;
             n = groups;
@@ -102,19 +112,18 @@ impl BufferOps {
         Ok(Reduction { levels, result: input })
     }
 
-    /// Records a prepared reduction; afterwards `reduction.result()` holds the value. A
-    /// barrier makes each level's partial sums visible to the next.
+    /// Records a prepared reduction; afterwards `reduction.result()` holds the value.
+    /// Barriers order each level after whatever last touched its input and output (the
+    /// previous level's partial sums, or earlier passes in the same recording).
     pub fn record_reduction(&self, rec: &mut Recorder, reduction: &Reduction) -> Result<()> {
-        let mut prev: Option<&Buffer> = None;
         for (group, n, square, out) in &reduction.levels {
-            if let Some(p) = prev {
-                // The previous level wrote the partials this level reads.
-                rec.barrier(p, Access::ComputeWrite, Access::ComputeRead)?;
+            let input = group.buffers().find(|b| !b.same(out));
+            if let Some(input) = input {
+                rec.transition(&[(input, Access::ComputeRead), (out, Access::ComputeWrite)])?;
             }
             let pipe = if *square { &self.reduce_sq } else { &self.reduce_sum };
             let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
             rec.dispatch_linear(pipe, group, &push_n(*n), groups * pipe.local_size()[0] as u64)?;
-            prev = Some(out);
         }
         Ok(())
     }

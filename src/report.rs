@@ -54,3 +54,95 @@ pub fn info_json(ctx: &Context) -> String {
     });
     serde_json::to_string_pretty(&v).unwrap_or_default()
 }
+
+/// One curve of an error-against-time plot.
+pub struct Curve {
+    pub name: String,
+    /// (seconds, error) points; non-positive errors are skipped on the log axis.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Registers a system sans-serif font for plot labels once; false if none is installed
+/// (plots are then drawn without text).
+fn register_font() -> bool {
+    static FONT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FONT.get_or_init(|| {
+        let candidates = [
+            "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+            "/usr/share/fonts/TTF/DejaVuSans.ttf",
+            "/System/Library/Fonts/Supplemental/Arial.ttf",
+            "C:\\Windows\\Fonts\\arial.ttf",
+        ];
+        candidates.iter().find_map(|p| std::fs::read(p).ok()).is_some_and(|bytes| {
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, bytes).is_ok()
+        })
+    })
+}
+
+/// Writes a PNG plot of `curves` (log-scale error against time), atomically.
+pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, curves: &[Curve]) -> Result<(), String> {
+    use plotters::prelude::*;
+    let text = register_font();
+    let pts = curves.iter().flat_map(|c| c.points.iter().filter(|p| p.1 > 0.0 && p.1.is_finite()));
+    let (mut tmax, mut ymin, mut ymax) = (0.0f64, f64::MAX, f64::MIN);
+    for &(t, y) in pts {
+        tmax = tmax.max(t);
+        ymin = ymin.min(y);
+        ymax = ymax.max(y);
+    }
+    if ymin > ymax {
+        (ymin, ymax) = (1e-6, 1.0);
+    }
+    if ymax <= ymin * 1.0001 {
+        ymax = ymin * 10.0;
+    }
+    let tmax = if tmax > 0.0 { tmax * 1.02 } else { 1.0 };
+    let (w, h) = (800u32, 500u32);
+    let mut pixels = vec![0u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        let mut builder = ChartBuilder::on(&root);
+        builder.margin(15);
+        if text {
+            builder.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
+        }
+        let mut chart = builder
+            .build_cartesian_2d(0.0..tmax, (ymin * 0.9..ymax * 1.1).log_scale())
+            .map_err(|e| e.to_string())?;
+        let mut mesh = chart.configure_mesh();
+        if text {
+            mesh.x_desc("time (s)").y_desc(y_label).y_label_formatter(&|v| format!("{v:.1e}"));
+        } else {
+            mesh.disable_x_axis().disable_y_axis();
+        }
+        mesh.draw().map_err(|e| e.to_string())?;
+        for (k, c) in curves.iter().enumerate() {
+            let color = Palette99::pick(k).to_rgba();
+            let series = LineSeries::new(c.points.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), color.stroke_width(2));
+            let drawn = chart.draw_series(series).map_err(|e| e.to_string())?;
+            if text {
+                drawn.label(c.name.clone()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+            }
+        }
+        if text {
+            chart
+                .configure_series_labels()
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()
+                .map_err(|e| e.to_string())?;
+        }
+        root.present().map_err(|e| e.to_string())?;
+    }
+    let mut png_bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut png_bytes, w, h);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut writer = enc.write_header().map_err(|e| e.to_string())?;
+        writer.write_image_data(&pixels).map_err(|e| e.to_string())?;
+    }
+    crate::image::write_bytes_atomic(path, &png_bytes).map_err(|e| format!("{}: {e}", path.display()))
+}

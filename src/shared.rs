@@ -34,3 +34,78 @@ pub struct Material {
     /// [`MATERIAL_DIFFUSE`] or [`MATERIAL_PRINCIPLED`]; any other value behaves as diffuse.
     pub kind: u32,
 }
+
+/// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ValueRef {
+    pub offset: i32,
+    pub width: u32,
+    pub height: u32,
+    pub in_theta: u32,
+}
+
+/// Mirror of `MaterialRecord`: 52 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct MaterialRecord {
+    pub base_color: ValueRef,
+    pub roughness: ValueRef,
+    pub metallic: ValueRef,
+    pub kind: u32,
+}
+
+/// Mirror of `TriShading`: 84 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct TriShading {
+    pub n0: [f32; 3],
+    pub n1: [f32; 3],
+    pub n2: [f32; 3],
+    pub ng: [f32; 3],
+    pub uv0: [f32; 2],
+    pub uv1: [f32; 2],
+    pub uv2: [f32; 2],
+    pub material: u32,
+    pub mesh: u32,
+    pub emitter_pdf: f32,
+}
+
+/// Mirror of `MeshRecord`: 16 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct MeshRecord {
+    pub emission: ValueRef,
+}
+
+/// Mirror of `EmitterTri`: 48 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct EmitterTri {
+    pub p0: [f32; 3],
+    pub e1: [f32; 3],
+    pub e2: [f32; 3],
+    pub prim: u32,
+    pub cdf: f32,
+    pub pdf: f32,
+}
+
+/// Mirror of `SensorRecord`: 56 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct SensorRecord {
+    pub origin: [f32; 3],
+    pub right: [f32; 3],
+    pub up: [f32; 3],
+    pub forward: [f32; 3],
+    pub tan_half_fov_y: f32,
+    pub aspect: f32,
+}
+
+/// Mirror of `Globals`: 20 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Globals {
+    pub environment: ValueRef,
+    pub environment_scale: f32,
+}

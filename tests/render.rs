@@ -18,7 +18,7 @@ width = 24
 height = 20
 [integrator]
 max_depth = {max_depth}
-rr_depth = 2
+rr_depth = 10
 [[sensors]]
 origin = [0, 0, 4]
 target = [0, 0, 0]
@@ -42,7 +42,8 @@ constant = [{}, {}, {}]
 /// White furnace, outside: a convex diffuse object in a constant environment. Every
 /// camera sample either misses (exactly L) or hits, and a cosine-sampled Lambertian
 /// bounce weighs exactly ρ and escapes (the object is convex), so a pixel is exactly
-/// L (depth 1 sees no light on the object: 0) mixed by coverage: no Monte Carlo noise.
+/// L (depth 1 sees no light on the object: 0) mixed by coverage: no Monte Carlo noise
+/// (Russian roulette, the only other random choice, starts deeper than these paths).
 #[test]
 fn white_furnace_convex_object_is_exact() {
     with_gpu(|ctx| {

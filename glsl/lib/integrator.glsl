@@ -17,7 +17,9 @@
 
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;
-// 0: no emissive triangles, light sampling is compiled out.
+// 0: no emissive triangles, light sampling is compiled out. (Tests on specialization
+// constants use == and != only: spirq, which reflects the SPIR-V, cannot fold other
+// comparisons of them.)
 layout(constant_id = 3) const uint NUM_EMITTERS = 0;
 layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
 
@@ -89,7 +91,7 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
             vec3 le = emitted(sh.mesh, ng, wo);
             if (any(greaterThan(le, vec3(0.0)))) {
                 float mis = 1.0;
-                if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS > 0u) {
+                if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
                     // Convert the light-sampling pdf of this point to solid angle at prev_p.
                     float cos_l = abs(dot(ng, wo));
                     float pdf_light = sh.emitter_pdf * hit.t * hit.t / max(cos_l, 1e-8);
@@ -117,7 +119,7 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
         // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling.
         // Always draws 3 numbers, so replays stay in step (lib/rng.glsl).
         vec3 u_light = rng_next3(rng);
-        if (NUM_EMITTERS > 0u) {
+        if (NUM_EMITTERS != 0u) {
             vec3 pl;
             float pdf_area;
             uint lprim = sample_emitter(u_light, pl, pdf_area);
@@ -176,9 +178,10 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
         prev_bsdf_pdf = pdf;
         prev_p = p;
 
-        // Russian roulette (Mitsuba's rule): survive with probability min(max(beta), 0.95).
+        // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
+        // min(max(beta), 0.95).
         float u_rr = rng_next(rng);
-        if (depth + 1u >= RR_DEPTH) {
+        if (depth >= RR_DEPTH) {
             float q = min(max_component(beta), 0.95);
             if (u_rr >= q) break;
             beta /= q;

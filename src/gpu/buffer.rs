@@ -105,6 +105,11 @@ impl Buffer {
         &self.0.name
     }
 
+    /// Whether both handles refer to the same buffer.
+    pub fn same(&self, other: &Buffer) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
+
     /// Length in bytes as requested.
     pub fn len(&self) -> u64 {
         self.0.len

@@ -107,6 +107,26 @@ impl Recorder<'_> {
         Ok(())
     }
 
+    /// Makes `buf` ready for `to`, taking the previous access from what this recording
+    /// last did with it (nothing is needed for a buffer this recording has not touched:
+    /// the recording's opening barrier covers earlier submissions). For passes that are
+    /// composed without knowing what ran before them.
+    pub fn transition(&mut self, list: &[(&Buffer, Access)]) -> Result<()> {
+        let mut pending = Vec::new();
+        for (buf, to) in list {
+            if let Some(t) = self.tracked.get(&buf.0.id) {
+                let needed = (t.last.writes() || to.writes()) && !t.visible_to.is_some_and(|v| v.covers(*to));
+                if needed {
+                    pending.push((*buf, t.last, *to));
+                }
+            }
+        }
+        if pending.is_empty() {
+            return Ok(());
+        }
+        self.barriers(&pending)
+    }
+
     /// Records one barrier on one buffer.
     pub fn barrier(&mut self, buf: &Buffer, from: Access, to: Access) -> Result<()> {
         self.barriers(&[(buf, from, to)])

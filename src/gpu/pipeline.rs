@@ -287,6 +287,11 @@ impl BindGroup {
         Ok(Self(Arc::new(BindGroupInner { ctx: ctx.clone(), kernel: kernel.to_string(), pool, set, buffers })))
     }
 
+    /// The buffers bound, in binding order.
+    pub fn buffers(&self) -> impl Iterator<Item = &Buffer> {
+        self.0.buffers.iter().map(|(_, b, _)| b)
+    }
+
     /// The kernel this group was made for.
     pub fn kernel(&self) -> &str {
         &self.0.kernel

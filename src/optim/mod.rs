@@ -55,6 +55,7 @@
 //! meta-estimate takes larger steps by design: with Var[M] ≈ VF/n_eff the step is about
 //! lr·√n_eff·M/√VF.
 
+pub mod gpu;
 pub mod literal;
 pub mod push;
 pub mod reference;

@@ -11,12 +11,13 @@ fn range_f32(range: Range) -> (f32, f32) {
     (side(range.lo), side(range.hi))
 }
 
-/// `optim_adam.comp`'s `Push` block. `t` counts steps from 1.
+/// `optim_adam.comp`'s `Push` block. `offset` is the group's first element; the step
+/// number comes from the `Frame` buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct AdamPush {
     pub n: u32,
-    pub t: u32,
+    pub offset: u32,
     pub lr: f32,
     pub beta1: f32,
     pub beta2: f32,
@@ -26,11 +27,11 @@ pub struct AdamPush {
 }
 
 impl AdamPush {
-    pub fn new(h: &AdamHyper, n: u32, t: u32, lr: f64, range: Range) -> Self {
+    pub fn new(h: &AdamHyper, n: u32, offset: u32, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
         AdamPush {
             n,
-            t,
+            offset,
             lr: lr as f32,
             beta1: h.beta1 as f32,
             beta2: h.beta2 as f32,
@@ -41,12 +42,13 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block. `t` counts steps from 1.
+/// `optim_meta.comp`'s `Push` block. `offset` is the group's first element; the step
+/// number comes from the `Frame` buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MetaPush {
     pub n: u32,
-    pub t: u32,
+    pub offset: u32,
     pub lr: f32,
     pub decay_f: f32,
     pub decay_d: f32,
@@ -56,11 +58,11 @@ pub struct MetaPush {
 }
 
 impl MetaPush {
-    pub fn new(h: &MetaHyper, n: u32, t: u32, lr: f64, range: Range) -> Self {
+    pub fn new(h: &MetaHyper, n: u32, offset: u32, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
         MetaPush {
             n,
-            t,
+            offset,
             lr: lr as f32,
             decay_f: h.decay_f as f32,
             decay_d: h.decay_d as f32,

@@ -548,50 +548,45 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
 fn glsl_mirrors_constants_and_push_blocks() {
     let lib = include_str!("../../glsl/lib/optim.glsl");
     assert!(lib.contains("const float META_ALPHA_REG = 1e-30;") && ALPHA_REG == 1e-30);
-    let members = |src: &str| -> Vec<String> {
-        let start = src.find("uniform Push {").unwrap();
-        let end = src[start..].find("} pc;").unwrap() + start;
-        src[start..end]
-            .lines()
-            .skip(1)
-            .filter_map(|l| {
-                l.split("//")
-                    .next()?
-                    .trim()
-                    .strip_suffix(';')
-                    .map(str::to_string)
-            })
-            .collect()
+    // The push blocks as compiled: member names and offsets reflected from the SPIR-V.
+    let reflected = |kernel: &str| {
+        let spirv = crate::gpu::shaders::get(kernel).unwrap();
+        let r = crate::gpu::reflect::Reflection::new(kernel, spirv).unwrap();
+        assert_eq!(r.push_constant_size, 32, "{kernel}");
+        r.struct_layout("Push").unwrap()
     };
-    let adam = members(include_str!("../../glsl/optim_adam.comp"));
-    let meta = members(include_str!("../../glsl/optim_meta.comp"));
-    let expect = |names: &[&str]| -> Vec<String> {
-        names
-            .iter()
-            .enumerate()
-            .map(|(i, n)| format!("{} {n}", if i < 2 { "uint" } else { "float" }))
-            .collect()
-    };
+    let owned = |v: &[(&str, usize)]| v.iter().map(|(n, o)| (n.to_string(), *o)).collect::<Vec<_>>();
+    use std::mem::offset_of;
     assert_eq!(
-        adam,
-        expect(&["n", "t", "lr", "beta1", "beta2", "eps", "lo", "hi"])
+        reflected("optim_adam"),
+        owned(&[
+            ("n", offset_of!(AdamPush, n)),
+            ("offset", offset_of!(AdamPush, offset)),
+            ("lr", offset_of!(AdamPush, lr)),
+            ("beta1", offset_of!(AdamPush, beta1)),
+            ("beta2", offset_of!(AdamPush, beta2)),
+            ("eps", offset_of!(AdamPush, eps)),
+            ("lo", offset_of!(AdamPush, lo)),
+            ("hi", offset_of!(AdamPush, hi)),
+        ])
     );
     assert_eq!(
-        meta,
-        expect(&["n", "t", "lr", "decay_f", "decay_d", "eps", "lo", "hi"])
+        reflected("optim_meta"),
+        owned(&[
+            ("n", offset_of!(MetaPush, n)),
+            ("offset", offset_of!(MetaPush, offset)),
+            ("lr", offset_of!(MetaPush, lr)),
+            ("decay_f", offset_of!(MetaPush, decay_f)),
+            ("decay_d", offset_of!(MetaPush, decay_d)),
+            ("eps", offset_of!(MetaPush, eps)),
+            ("lo", offset_of!(MetaPush, lo)),
+            ("hi", offset_of!(MetaPush, hi)),
+        ])
     );
     assert_eq!(std::mem::size_of::<AdamPush>(), 32);
     assert_eq!(std::mem::size_of::<MetaPush>(), 32);
     let p = MetaPush::new(&MetaHyper::default(), 5, 1, 0.1, Range::UNBOUNDED);
-    assert_eq!((p.lo, p.hi, p.t), (f32::MIN, f32::MAX, 1));
-    let p = AdamPush::new(
-        &AdamHyper::default(),
-        5,
-        2,
-        0.1,
-        Range::new(0.0, 1.0).unwrap(),
-    );
-    assert_eq!((p.lo, p.hi, p.beta2), (0.0, 1.0, 0.999));
+    assert_eq!((p.lo, p.hi, p.offset), (f32::MIN, f32::MAX, 1));
 }
 
 #[test]

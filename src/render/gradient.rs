@@ -33,7 +33,7 @@ pub struct GradientPass {
     adjoint: ComputePipeline,
     loss: ComputePipeline,
     sensors: Vec<SensorBuffers>,
-    /// dLoss/dθ, accumulated with atomics; `layout.len` floats.
+    /// dLoss/dθ, accumulated with atomics.
     pub grad: Buffer,
     pub spp: u32,
     pub primal_spp: u32,
@@ -49,14 +49,26 @@ fn loss_index(loss: Loss) -> u32 {
 }
 
 impl GradientPass {
-    /// `targets`: one image per sensor, of the film's size.
-    pub fn new(scene: &GpuScene, ops: &BufferOps, targets: &[Image], loss: Loss, spp: u32, primal_spp: u32, seed: u32) -> gpu::Result<Self> {
+    /// `targets`: one image per sensor, of the film's size. The passes read parameters
+    /// from `theta` (the scene's θ or another state of it) and add into `grad`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        scene: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: Loss,
+        spp: u32,
+        primal_spp: u32,
+        seed: u32,
+        theta: &Buffer,
+        grad: &Buffer,
+    ) -> gpu::Result<Self> {
         let ctx = &scene.ctx;
         let spec = scene.spec();
         let primal = ComputePipeline::new(ctx, "trace_primal", &spec)?;
         let adjoint = ComputePipeline::new(ctx, "trace_adjoint", &spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
-        let grad = Buffer::zeroed::<f32>(ctx, "grad", scene.layout.len.max(1), MemoryKind::Device)?;
+        let grad = grad.clone();
         let n = scene.pixels();
         let groups = (n as u64).div_ceil(loss.local_size()[0] as u64).max(1);
         let mut sensors = Vec::new();
@@ -66,11 +78,11 @@ impl GradientPass {
             let adjoint_img = Buffer::zeroed::<[f32; 3]>(ctx, &format!("adjoint image {s}"), n, MemoryKind::Device)?;
             let partials = Buffer::zeroed::<f32>(ctx, &format!("loss partials {s}"), groups as usize, MemoryKind::Device)?;
             let reduction = ops.reduction(&partials, false)?;
-            let mut b = scene.bindings();
+            let mut b = scene.bindings_with(theta);
             b.push(("Accum", &rendered));
             let primal_group = primal.bind(&b)?;
             let loss_group = loss.bind(&[("Rendered", &rendered), ("Target", &target), ("AdjointImage", &adjoint_img), ("LossPartials", &partials)])?;
-            let mut b = scene.bindings();
+            let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
             b.push(("Grad", &grad));
             let adjoint_group = adjoint.bind(&b)?;
@@ -89,11 +101,9 @@ impl GradientPass {
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
-    /// whatever it held, and `loss_value(s)` sensor s's loss. `grad` must be visible to
-    /// compute writes when this starts (declared as `grad_prev`).
-    pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, grad_prev: Access) -> gpu::Result<()> {
+    /// whatever it held, and `loss_value(s)` sensor s's loss.
+    pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
         let n = scene.pixels();
-        let mut prev = grad_prev;
         for (s, b) in self.sensors.iter().enumerate() {
             let push = |spp: u32, seed: u32, weight: f32| TracePush {
                 width: scene.width,
@@ -104,24 +114,26 @@ impl GradientPass {
                 seed,
                 weight,
             };
+            rec.transition(&[(&b.rendered, Access::TransferWrite)])?;
             rec.zero(&b.rendered)?;
             // The primal pass accumulates into the cleared image.
             rec.barrier(&b.rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
             let p = push(self.primal_spp, self.seed.wrapping_add(SEED_PRIMAL), 1.0 / self.primal_spp as f32);
             rec.dispatch_linear(&self.primal, &b.primal_group, bytemuck::bytes_of(&p), n as u64)?;
             rec.barrier(&b.rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
-            let lp = [n as u32, (1.0 / (3.0 * n as f64)) as f32];
-            rec.dispatch_linear(&self.loss, &b.loss_group, bytemuck::cast_slice(&lp), n as u64)?;
+            rec.transition(&[(&b.adjoint, Access::ComputeWrite), (&b.partials, Access::ComputeWrite)])?;
+            let mut lp = (n as u32).to_le_bytes().to_vec();
+            lp.extend_from_slice(&((1.0 / (3.0 * n as f64)) as f32).to_le_bytes());
+            rec.dispatch_linear(&self.loss, &b.loss_group, &lp, n as u64)?;
             // The adjoint pass reads the adjoint image; the loss partials are reduced.
-            rec.barriers(&[
-                (&b.adjoint, Access::ComputeWrite, Access::ComputeRead),
-                (&b.partials, Access::ComputeWrite, Access::ComputeRead),
-                (&self.grad, prev, Access::ComputeReadWrite),
+            rec.transition(&[
+                (&b.adjoint, Access::ComputeRead),
+                (&b.partials, Access::ComputeRead),
+                (&self.grad, Access::ComputeReadWrite),
             ])?;
             ops.record_reduction(rec, &b.reduction)?;
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
             rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
-            prev = Access::ComputeReadWrite;
         }
         Ok(())
     }

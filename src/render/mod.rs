@@ -8,6 +8,7 @@
 
 pub mod gradient;
 pub mod params;
+pub mod targets;
 
 use crate::bvh::{self, BvhBuffers};
 use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue};
@@ -234,11 +235,21 @@ impl GpuScene {
 
     /// (GLSL block name, buffer) of every scene buffer and θ, for a kernel's bind list.
     pub fn bindings(&self) -> Vec<(&'static str, &Buffer)> {
+        self.bindings_with(&self.theta)
+    }
+
+    /// The scene's bindings with `theta` as the parameters (e.g. the previous iterate).
+    pub fn bindings_with<'a>(&'a self, theta: &'a Buffer) -> Vec<(&'static str, &'a Buffer)> {
         let mut v: Vec<(&'static str, &Buffer)> = self.bvh.bindings().into_iter().collect();
         v.extend(self.buffers.iter().map(|(n, b)| (*n, b)));
-        v.push(("Theta", &self.theta));
+        v.push(("Theta", theta));
         v.push(("Frame", &self.frame));
         v
+    }
+
+    /// Writes θ (padded to the buffer's length).
+    pub fn set_theta(&self, values: Vec<f32>) -> gpu::Result<()> {
+        self.theta.write(&targets::padded(self, values))
     }
 
     /// Sets the iteration counter that the next submissions mix into their seeds.

@@ -3,6 +3,8 @@
 //! at the end, fails the test.
 #![allow(dead_code)]
 
+pub mod scenes;
+
 use std::sync::Arc;
 use vkinverse::gpu::{Context, ContextOptions};
 
