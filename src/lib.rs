@@ -10,6 +10,7 @@ pub mod bsdf;
 pub mod bvh;
 pub mod error;
 pub mod gpu;
+pub mod gradcheck;
 pub mod image;
 pub mod npy;
 pub mod ops;

@@ -69,6 +69,16 @@ enum Command {
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
+    /// Check the adjoint gradient against finite differences of the loss.
+    Gradcheck {
+        scene: std::path::PathBuf,
+        #[arg(long, default_value_t = 16)]
+        spp: u32,
+        #[arg(long, default_value_t = 4)]
+        rounds: u32,
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the GPU optimiser passes on gradient streams from .npy files.
     Replay {
         /// meta or adam
@@ -253,6 +263,31 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 return run_optimise(cli, &scene, &st, output, *resume);
             }
             run_optimise(cli, &scene, &st, output, *resume)?;
+        }
+        Command::Gradcheck { scene, spp, rounds, json } => {
+            let scene = vkinverse::scene::Scene::load(scene)?;
+            if scene.optimise.params.is_empty() {
+                return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
+            }
+            let ctx = context(cli)?;
+            let opts = vkinverse::gradcheck::Options { spp: *spp, primal_spp: *spp, rounds: (*rounds).max(2), ..Default::default() };
+            let rows = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
+            if *json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                println!("{:<36} {:>4} {:>14} {:>11} {:>14} {:>11} {:>9}  verdict", "parameter", "el", "adjoint", "± se", "finite diff", "± se", "rel err");
+                for r in &rows {
+                    println!(
+                        "{:<36} {:>4} {:>14.6e} {:>11.2e} {:>14.6e} {:>11.2e} {:>9.3}  {}",
+                        r.param, r.element, r.adjoint, r.adjoint_se, r.finite_difference, r.finite_difference_se, r.relative_error,
+                        if r.pass { "pass" } else { "FAIL" }
+                    );
+                }
+            }
+            let failed = rows.iter().filter(|r| !r.pass).count();
+            if failed > 0 {
+                return Err(format!("gradcheck: {failed} of {} elements disagree", rows.len()).into());
+            }
         }
         Command::Replay { optimiser, lr, range, init, grads, fd_grads, output } => {
             use vkinverse::{npy, optim};

@@ -224,13 +224,30 @@ pub fn optimise(
             let at_cur = Buffer::zeroed::<f32>(ctx, "fd grad at theta", n, MemoryKind::Device)?;
             let at_prev = Buffer::zeroed::<f32>(ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
             let seed = settings.seed.wrapping_add(SEED_FD);
-            let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.primal_spp, seed, &gs.theta, &at_cur)?;
-            let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.primal_spp, seed, prev, &at_prev)?;
+            // The primal images of the difference use fd_spp samples too: with common random
+            // numbers most of their noise cancels in the difference.
+            let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, &gs.theta, &at_cur)?;
+            let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, prev, &at_prev)?;
             prev.write(&padded(gs, gs.layout.initial()))?;
             Some((cur, prv, at_cur, at_prev))
         }
         None => None,
     };
+
+    // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch, which
+    // would land in the first timed iteration. Run the rendering passes once, untimed,
+    // and clear what they accumulated.
+    let mut warm = CommandBuffer::new(ctx, "warm-up")?;
+    warm.record(|rec| {
+        proportional.record(rec, gs, &ops)?;
+        if let Some((cur, prv, _, _)) = &fd {
+            cur.record(rec, gs, &ops)?;
+            prv.record(rec, gs, &ops)?;
+        }
+        rec.transition(&[(&grad, Access::TransferWrite)])?;
+        rec.zero(&grad)
+    })?;
+    warm.submit_and_wait()?;
 
     let mut profiler = Profiler::new(ctx, 8)?;
     let mut cmd = CommandBuffer::new(ctx, "iteration")?;

@@ -103,6 +103,15 @@ impl GradientPass {
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
     /// whatever it held, and `loss_value(s)` sensor s's loss.
     pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
+        self.record_passes(rec, scene, ops, true)
+    }
+
+    /// Records only the primal renders and the loss (for finite differences of the loss).
+    pub fn record_loss(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
+        self.record_passes(rec, scene, ops, false)
+    }
+
+    fn record_passes(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, adjoint: bool) -> gpu::Result<()> {
         let n = scene.pixels();
         for (s, b) in self.sensors.iter().enumerate() {
             let push = |spp: u32, seed: u32, weight: f32| TracePush {
@@ -132,6 +141,9 @@ impl GradientPass {
                 (&self.grad, Access::ComputeReadWrite),
             ])?;
             ops.record_reduction(rec, &b.reduction)?;
+            if !adjoint {
+                continue;
+            }
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
             rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
         }
