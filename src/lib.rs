@@ -5,6 +5,7 @@
 //! input, writing output atomically), and the command line in `main.rs`.
 
 pub mod bench;
+pub mod bvh;
 pub mod gpu;
 pub mod image;
 pub mod ops;

@@ -1,0 +1,73 @@
+// Scene-geometry structs shared by the host BVH builder (src/bvh/mod.rs) and the kernels.
+// Each is mirrored by a #[repr(C)] Pod struct in src/bvh/mod.rs; tests/bvh.rs compares the
+// reflected member offsets and sizes with the Rust ones. Scalar block layout: members are
+// packed at their scalar alignment, so a vec3 takes 12 bytes.
+#ifndef SHARED_BVH_GLSL
+#define SHARED_BVH_GLSL
+
+// Entries of the traversal stack in lib/bvh_traverse.glsl. The builder keeps every inner
+// node at depth < BVH_STACK_SIZE (root at depth 0), which bounds the stack; tests/bvh.rs
+// checks that this value equals vkinverse::bvh::STACK_SIZE.
+#define BVH_STACK_SIZE 64
+
+// Hits at t <= BVH_T_MIN (in units of |dir|) are ignored, so that a ray leaving a surface
+// does not find that surface again. Absolute, sized for scenes of unit scale (1 to 100
+// units across); tests/bvh.rs checks that it equals vkinverse::bvh::T_MIN.
+#define BVH_T_MIN 1e-4
+
+// A child reference whose count is BVH_INNER is an inner node; any other count, including
+// 0 (an empty child), is a leaf of that many triangles.
+#define BVH_INNER 0xFFFFFFFFu
+
+// Prim of a Hit that found nothing.
+#define BVH_NO_HIT 0xFFFFFFFFu
+
+// 64 bytes: an inner node of a binary BVH holding the boxes of its two children, as in
+// Aila & Laine 2009, so that one node fetch tests both children. A child is an inner node
+// (count == BVH_INNER, index into the node array) or a leaf (count triangles starting at
+// index in the triangle array). Nodes are in depth-first order: the root is node 0 and an
+// inner child has a larger index than its parent.
+struct BvhNode {
+    vec3 left_min;
+    uint left_index;
+    vec3 left_max;
+    uint left_count;
+    vec3 right_min;
+    uint right_index;
+    vec3 right_max;
+    uint right_count;
+};
+
+// 40 bytes: a triangle in Möller–Trumbore form (v0 and the edges v1 - v0, v2 - v0), in leaf
+// order, with the index of the triangle in the scene's triangle list.
+struct BvhTriangle {
+    vec3 v0;
+    vec3 e1;
+    vec3 e2;
+    uint prim;
+};
+
+// 16 bytes: the closest hit of a ray. prim is the scene's triangle index (BVH_NO_HIT for a
+// miss); u and v are the barycentric weights of v1 and v2, so the hit point is
+// v0 + u * (v1 - v0) + v * (v2 - v0).
+struct Hit {
+    float t;
+    uint prim;
+    float u;
+    float v;
+};
+
+// 28 bytes: one ray of the trace_test kernel.
+struct TraceRay {
+    vec3 origin;
+    float tmax;
+    vec3 dir;
+};
+
+// 20 bytes: what trace_test writes per ray: the closest hit, and whether trace_any found
+// any hit within tmax (1) or not (0).
+struct TraceResult {
+    Hit hit;
+    uint any_hit;
+};
+#endif

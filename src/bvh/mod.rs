@@ -1,0 +1,536 @@
+//! The scene BVH: built on the CPU with obvhs (PLOC, Meister & Bittner 2018, plus
+//! reinsertion and SAH leaf collapsing), flattened into the GPU layout of
+//! `glsl/shared/bvh.glsl` and traced by `glsl/lib/bvh_traverse.glsl`.
+//!
+//! The layout is a binary BVH whose inner nodes hold the boxes of both children (Aila &
+//! Laine 2009): one node fetch tests two boxes, and leaves live in their parent's child
+//! slot instead of in nodes of their own. Invariants of a [`Bvh`] from [`build`]:
+//! - there is at least one node; node 0 is the root, and every inner child has a larger
+//!   index than its parent (depth-first order, left subtree first);
+//! - every inner node is at depth `<= STACK_SIZE` (root at depth 0), which bounds the
+//!   traversal stack; deeper subtrees of the obvhs tree are rebuilt as balanced trees over
+//!   their leaves;
+//! - every input triangle is in exactly one leaf; `triangles` is in leaf order, and a leaf
+//!   is the range `index .. index + count` of it;
+//! - a child's box contains everything below it, boxes coming straight from the input
+//!   vertices (min/max are exact in f32);
+//! - an empty child (count 0) has the box min = max = +inf, which no ray enters. Only the
+//!   root can have one: when the scene has fewer than two leaves.
+
+use std::ops::Range;
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+use obvhs::aabb::Aabb;
+use obvhs::bvh2::leaf_collapser::collapse;
+use obvhs::bvh2::node::Bvh2Node;
+use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
+use obvhs::bvh2::Bvh2;
+use obvhs::ploc::PlocBuilder;
+use obvhs::BvhBuildParams;
+
+use crate::gpu::{self, Buffer, Context, MemoryKind};
+
+/// Entries of the GPU traversal stack (`BVH_STACK_SIZE` in glsl/shared/bvh.glsl, compared
+/// by a test): [`build`] keeps every inner node at depth `<= STACK_SIZE`.
+pub const STACK_SIZE: u32 = 64;
+
+/// Hits at `t <= T_MIN` are ignored (`BVH_T_MIN` in glsl/shared/bvh.glsl, compared by a
+/// test); see the policy in glsl/lib/bvh_traverse.glsl.
+pub const T_MIN: f32 = 1e-4;
+
+/// Child count marking an inner node (`BVH_INNER`).
+pub const INNER: u32 = u32::MAX;
+
+/// `Hit::prim` of a miss (`BVH_NO_HIT`).
+pub const NO_HIT: u32 = u32::MAX;
+
+/// Mirror of `BvhNode` (glsl/shared/bvh.glsl): 64 bytes, an inner node holding both
+/// children's boxes. A child with count [`INNER`] is the node at `index`; any other count
+/// is a leaf of that many triangles from `index`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BvhNode {
+    pub left_min: [f32; 3],
+    pub left_index: u32,
+    pub left_max: [f32; 3],
+    pub left_count: u32,
+    pub right_min: [f32; 3],
+    pub right_index: u32,
+    pub right_max: [f32; 3],
+    pub right_count: u32,
+}
+
+/// One child slot of a [`BvhNode`], as read by [`BvhNode::children`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BvhChild {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+    pub index: u32,
+    pub count: u32,
+}
+
+impl BvhChild {
+    pub fn is_inner(&self) -> bool {
+        self.count == INNER
+    }
+}
+
+impl BvhNode {
+    /// The left and right child slots.
+    pub fn children(&self) -> [BvhChild; 2] {
+        [
+            BvhChild { min: self.left_min, max: self.left_max, index: self.left_index, count: self.left_count },
+            BvhChild { min: self.right_min, max: self.right_max, index: self.right_index, count: self.right_count },
+        ]
+    }
+
+    fn set_child(&mut self, side: usize, index: u32, count: u32) {
+        if side == 0 {
+            self.left_index = index;
+            self.left_count = count;
+        } else {
+            self.right_index = index;
+            self.right_count = count;
+        }
+    }
+
+    fn set_box(&mut self, side: usize, b: &Bounds) {
+        if side == 0 {
+            self.left_min = b.min;
+            self.left_max = b.max;
+        } else {
+            self.right_min = b.min;
+            self.right_max = b.max;
+        }
+    }
+}
+
+/// Mirror of `BvhTriangle`: 40 bytes, a triangle as `v0`, `e1 = v1 - v0`, `e2 = v2 - v0`
+/// (Möller & Trumbore 1997) and its index in the input triangle list.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BvhTriangle {
+    pub v0: [f32; 3],
+    pub e1: [f32; 3],
+    pub e2: [f32; 3],
+    pub prim: u32,
+}
+
+/// Mirror of `Hit`: 16 bytes. `prim` is the input triangle index ([`NO_HIT`] for a miss),
+/// `u` and `v` the barycentric weights of v1 and v2.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// Mirror of `TraceRay`: 28 bytes, one ray of the `trace_test` kernel.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TraceRay {
+    pub origin: [f32; 3],
+    pub tmax: f32,
+    pub dir: [f32; 3],
+}
+
+/// Mirror of `TraceResult`: 20 bytes, what `trace_test` writes per ray (`any_hit` is 0/1).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TraceResult {
+    pub hit: Hit,
+    pub any_hit: u32,
+}
+
+/// A flattened BVH; see the module documentation for its invariants.
+#[derive(Clone, Debug, Default)]
+pub struct Bvh {
+    pub nodes: Vec<BvhNode>,
+    pub triangles: Vec<BvhTriangle>,
+}
+
+/// The device buffers of a [`Bvh`].
+pub struct BvhBuffers {
+    pub nodes: Buffer,
+    pub triangles: Buffer,
+}
+
+impl BvhBuffers {
+    /// (GLSL block name, buffer) of each buffer that glsl/lib/bvh_traverse.glsl declares, to
+    /// add to the bind list of any kernel that includes it.
+    pub fn bindings(&self) -> [(&'static str, &Buffer); 2] {
+        [("BvhNodes", &self.nodes), ("BvhTriangles", &self.triangles)]
+    }
+}
+
+impl Bvh {
+    /// Copies the nodes and triangles to device-local buffers.
+    pub fn upload(&self, ctx: &Arc<Context>) -> gpu::Result<BvhBuffers> {
+        Ok(BvhBuffers {
+            nodes: Buffer::from_slice(ctx, "bvh nodes", &self.nodes, MemoryKind::Device)?,
+            triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
+        })
+    }
+}
+
+/// Builds the BVH of the triangles `indices` over `positions` (finite coordinates).
+///
+/// # Panics
+/// If an index is out of bounds of `positions`.
+pub fn build(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Bvh {
+    build_with_depth_limit(positions, indices, STACK_SIZE)
+}
+
+/// [`build`] with inner nodes at depth `<= max_depth` instead of [`STACK_SIZE`], for
+/// kernels with a smaller stack. Subtrees too deep for the limit are rebuilt as balanced
+/// trees over their leaves; when even that does not fit (leaves hang at depth
+/// `<= max_depth + 1`, so there is room for `2^(max_depth + 1)` of them), the lowest leaves
+/// are merged.
+///
+/// # Panics
+/// If an index is out of bounds of `positions`.
+pub fn build_with_depth_limit(positions: &[[f32; 3]], indices: &[[u32; 3]], max_depth: u32) -> Bvh {
+    let boxes: Vec<Aabb> = indices
+        .iter()
+        .map(|tri| {
+            let b = triangle_bounds(positions, tri);
+            Aabb::new(b.min.into(), b.max.into())
+        })
+        .collect();
+    let bvh2 = build_bvh2(&boxes);
+    Flattener::new(&bvh2, positions, indices, max_depth).run()
+}
+
+/// PLOC, reinsertion and leaf collapsing with obvhs's medium preset (its `build_bvh2`
+/// without the debug-build validation, which panics on trees deeper than its own limit;
+/// the depth is handled by the flattening here).
+fn build_bvh2(boxes: &[Aabb]) -> Bvh2 {
+    let params = BvhBuildParams::medium_build();
+    let mut bvh2 = PlocBuilder::with_capacity(boxes.len()).build(
+        params.ploc_search_distance,
+        boxes,
+        (0..boxes.len() as u32).collect(),
+        params.sort_precision,
+        params.search_depth_threshold,
+    );
+    let mut reinsertion = ReinsertionOptimizer::default();
+    reinsertion.run(&mut bvh2, params.reinsertion_batch_ratio, None);
+    collapse(&mut bvh2, params.max_prims_per_leaf.clamp(1, 255), params.collapse_traversal_cost);
+    reinsertion.run(
+        &mut bvh2,
+        params.reinsertion_batch_ratio * params.post_collapse_reinsertion_batch_ratio_multiplier,
+        None,
+    );
+    bvh2
+}
+
+/// An axis-aligned box; empty when min > max.
+#[derive(Clone, Copy, Debug)]
+struct Bounds {
+    min: [f32; 3],
+    max: [f32; 3],
+}
+
+impl Bounds {
+    const EMPTY: Self = Self { min: [f32::INFINITY; 3], max: [f32::NEG_INFINITY; 3] };
+
+    fn grow(&mut self, p: [f32; 3]) {
+        self.min = std::array::from_fn(|k| self.min[k].min(p[k]));
+        self.max = std::array::from_fn(|k| self.max[k].max(p[k]));
+    }
+
+    fn union(&mut self, other: &Bounds) {
+        self.grow(other.min);
+        self.grow(other.max);
+    }
+
+    fn is_empty(&self) -> bool {
+        self.min[0] > self.max[0]
+    }
+
+    /// What an empty child stores: a point at +inf, whose slab interval is empty or starts
+    /// at +inf for every ray, so the traversal never enters it.
+    const NEVER_HIT: Self = Self { min: [f32::INFINITY; 3], max: [f32::INFINITY; 3] };
+}
+
+fn triangle_bounds(positions: &[[f32; 3]], tri: &[u32; 3]) -> Bounds {
+    let mut b = Bounds::EMPTY;
+    for &i in tri {
+        b.grow(positions[i as usize]);
+    }
+    b
+}
+
+/// What a child slot is filled from.
+enum Source {
+    /// The subtree of an obvhs node.
+    Node(u32),
+    /// A balanced tree over `Flattener::leaves[range]` (obvhs leaf node ids, in order).
+    Leaves(Range<usize>),
+}
+
+/// A child slot to fill: slot `side` of output node `parent`, at depth `depth`.
+struct Task {
+    source: Source,
+    parent: usize,
+    side: usize,
+    depth: u32,
+}
+
+/// Turns an obvhs tree into the output layout, depth-first.
+struct Flattener<'a> {
+    src: &'a [Bvh2Node],
+    prim_indices: &'a [u32],
+    positions: &'a [[f32; 3]],
+    indices: &'a [[u32; 3]],
+    max_depth: u32,
+    /// Leaves below each obvhs node.
+    leaf_counts: Vec<u64>,
+    /// Obvhs leaf ids referenced by `Source::Leaves` ranges.
+    leaves: Vec<u32>,
+    out: Bvh,
+}
+
+impl<'a> Flattener<'a> {
+    fn new(bvh2: &'a Bvh2, positions: &'a [[f32; 3]], indices: &'a [[u32; 3]], max_depth: u32) -> Self {
+        Self {
+            src: &bvh2.nodes,
+            prim_indices: &bvh2.primitive_indices,
+            positions,
+            indices,
+            max_depth,
+            leaf_counts: leaf_counts(&bvh2.nodes),
+            leaves: Vec::new(),
+            out: Bvh::default(),
+        }
+    }
+
+    fn run(mut self) -> Bvh {
+        let mut tasks = Vec::new();
+        match self.src.first() {
+            Some(root) if !root.is_leaf() => {
+                // The obvhs root becomes node 0.
+                let source = self.restructure(Source::Node(0), 0);
+                self.inner(source, 0, &mut tasks);
+            }
+            root => {
+                // The root is always an inner node: a single leaf (or none) hangs below it,
+                // next to an empty child. Both children start as empty leaves (count 0).
+                self.out.nodes.push(BvhNode::default());
+                if root.is_some() {
+                    tasks.push(Task { source: Source::Node(0), parent: 0, side: 0, depth: 1 });
+                }
+            }
+        }
+        // LIFO with the left child pushed last: each subtree is emitted whole before its
+        // right sibling, so nodes and leaves come out in depth-first order.
+        while let Some(task) = tasks.pop() {
+            self.fill(task, &mut tasks);
+        }
+        self.compute_boxes();
+        self.out
+    }
+
+    /// Fills one child slot: a leaf, or a new inner node whose children are queued.
+    fn fill(&mut self, task: Task, tasks: &mut Vec<Task>) {
+        let Task { source, parent, side, depth } = task;
+        let source = self.restructure(source, depth);
+        let (index, count) = match source {
+            Source::Node(n) if self.src[n as usize].is_leaf() => {
+                let first = self.out.triangles.len() as u32;
+                self.append_leaf(n);
+                (first, self.out.triangles.len() as u32 - first)
+            }
+            // One leaf, or no room for another inner node: the leaves become one leaf.
+            Source::Leaves(range) if range.len() == 1 || depth > self.max_depth => {
+                let first = self.out.triangles.len() as u32;
+                for i in range {
+                    self.append_leaf(self.leaves[i]);
+                }
+                (first, self.out.triangles.len() as u32 - first)
+            }
+            source => (self.inner(source, depth, tasks), INNER),
+        };
+        self.out.nodes[parent].set_child(side, index, count);
+    }
+
+    /// Keeps an obvhs inner node if both its children fit below `depth` (a leaf always
+    /// does; an inner child fits if a balanced tree over its leaves would); otherwise its
+    /// subtree becomes a balanced tree over its leaves. Top-down, this keeps the obvhs
+    /// structure everywhere except in subtrees that are too deep.
+    fn restructure(&mut self, source: Source, depth: u32) -> Source {
+        let Source::Node(n) = source else { return source };
+        let src = self.src;
+        let node = &src[n as usize];
+        if node.is_leaf() {
+            return source;
+        }
+        let fits = |c: u32| {
+            src[c as usize].is_leaf()
+                || u64::from(depth) + u64::from(ceil_log2(self.leaf_counts[c as usize])) <= u64::from(self.max_depth)
+        };
+        if depth <= self.max_depth && fits(node.first_index) && fits(node.first_index + 1) {
+            return source;
+        }
+        let start = self.leaves.len();
+        let mut stack = vec![n];
+        while let Some(m) = stack.pop() {
+            let node = &src[m as usize];
+            if node.is_leaf() {
+                self.leaves.push(m);
+            } else {
+                stack.push(node.first_index + 1);
+                stack.push(node.first_index);
+            }
+        }
+        Source::Leaves(start..self.leaves.len())
+    }
+
+    /// Adds an inner node at `depth` built from `source` (an obvhs inner node or at least
+    /// two leaves) and queues its children; returns its index.
+    fn inner(&mut self, source: Source, depth: u32, tasks: &mut Vec<Task>) -> u32 {
+        let at = self.out.nodes.len();
+        self.out.nodes.push(BvhNode::default());
+        let (left, right) = match source {
+            Source::Node(n) => {
+                let first = self.src[n as usize].first_index;
+                (Source::Node(first), Source::Node(first + 1))
+            }
+            Source::Leaves(range) => {
+                let mid = range.start + range.len() / 2;
+                (Source::Leaves(range.start..mid), Source::Leaves(mid..range.end))
+            }
+        };
+        tasks.push(Task { source: right, parent: at, side: 1, depth: depth + 1 });
+        tasks.push(Task { source: left, parent: at, side: 0, depth: depth + 1 });
+        at as u32
+    }
+
+    /// Appends the triangles of obvhs leaf `n`.
+    fn append_leaf(&mut self, n: u32) {
+        let node = &self.src[n as usize];
+        let range = node.first_index as usize..(node.first_index + node.prim_count) as usize;
+        let prim_indices = self.prim_indices;
+        for &prim in &prim_indices[range] {
+            let [a, b, c] = self.indices[prim as usize].map(|i| glam::Vec3::from(self.positions[i as usize]));
+            self.out.triangles.push(BvhTriangle {
+                v0: a.to_array(),
+                e1: (b - a).to_array(),
+                e2: (c - a).to_array(),
+                prim,
+            });
+        }
+    }
+
+    /// Sets every child box, bottom-up: children have larger indices than their parents.
+    /// Leaf boxes come from the input vertices, not from v0 + e1 (which rounds).
+    fn compute_boxes(&mut self) {
+        for at in (0..self.out.nodes.len()).rev() {
+            for (side, child) in self.out.nodes[at].children().into_iter().enumerate() {
+                let mut b = Bounds::EMPTY;
+                if child.is_inner() {
+                    for grandchild in self.out.nodes[child.index as usize].children() {
+                        if grandchild.count != 0 {
+                            b.union(&Bounds { min: grandchild.min, max: grandchild.max });
+                        }
+                    }
+                } else {
+                    for tri in &self.out.triangles[child.index as usize..(child.index + child.count) as usize] {
+                        b.union(&triangle_bounds(self.positions, &self.indices[tri.prim as usize]));
+                    }
+                }
+                let b = if b.is_empty() { Bounds::NEVER_HIT } else { b };
+                self.out.nodes[at].set_box(side, &b);
+            }
+        }
+    }
+}
+
+/// ceil(log2(n)) for n >= 1: the depth of a balanced binary tree over n leaves.
+fn ceil_log2(n: u64) -> u32 {
+    if n <= 1 {
+        0
+    } else {
+        64 - (n - 1).leading_zeros()
+    }
+}
+
+/// Number of leaves below every node of an obvhs tree, without recursion (a PLOC tree of a
+/// pathological scene can be deeper than the thread's stack allows).
+fn leaf_counts(nodes: &[Bvh2Node]) -> Vec<u64> {
+    if nodes.is_empty() {
+        return Vec::new();
+    }
+    let mut order = Vec::with_capacity(nodes.len());
+    let mut stack = vec![0u32];
+    while let Some(n) = stack.pop() {
+        order.push(n);
+        let node = &nodes[n as usize];
+        if !node.is_leaf() {
+            stack.push(node.first_index);
+            stack.push(node.first_index + 1);
+        }
+    }
+    let mut counts = vec![0u64; nodes.len()];
+    // Children come after their parent in pre-order, so the reverse visits them first.
+    for &n in order.iter().rev() {
+        let node = &nodes[n as usize];
+        counts[n as usize] =
+            if node.is_leaf() { 1 } else { counts[node.first_index as usize] + counts[node.first_index as usize + 1] };
+    }
+    counts
+}
+
+/// Möller–Trumbore in f64 for the CPU reference: (t, u, v) of the ray's intersection with
+/// the triangle's plane, or `None` when the ray is parallel to it or the triangle is
+/// degenerate. Whether the point lies inside is left to the caller.
+pub fn moller_trumbore(v: [DVec3; 3], origin: DVec3, dir: DVec3) -> Option<(f64, f64, f64)> {
+    let e1 = v[1] - v[0];
+    let e2 = v[2] - v[0];
+    let p = dir.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 {
+        return None;
+    }
+    let inv_det = 1.0 / det;
+    let s = origin - v[0];
+    let u = s.dot(p) * inv_det;
+    let q = s.cross(e1);
+    let w = dir.dot(q) * inv_det;
+    let t = e2.dot(q) * inv_det;
+    Some((t, u, w))
+}
+
+/// The closest hit of the ray among all triangles, by testing every one of them in f64
+/// (no BVH): the reference the GPU traversal is checked against. Same policy as the GPU:
+/// hits with `T_MIN < t < tmax` count, edges and vertices belong to the triangle, and a
+/// tie goes to the lower triangle index.
+///
+/// # Panics
+/// If an index is out of bounds of `positions`.
+pub fn intersect_brute_force(
+    positions: &[[f32; 3]],
+    indices: &[[u32; 3]],
+    origin: [f32; 3],
+    dir: [f32; 3],
+    tmax: f32,
+) -> Option<Hit> {
+    let o = DVec3::from(origin.map(f64::from));
+    let d = DVec3::from(dir.map(f64::from));
+    let mut best: Option<Hit> = None;
+    let mut t_best = f64::from(tmax);
+    for (prim, tri) in indices.iter().enumerate() {
+        let v = tri.map(|i| DVec3::from(positions[i as usize].map(f64::from)));
+        if let Some((t, u, w)) = moller_trumbore(v, o, d) {
+            if u >= 0.0 && w >= 0.0 && u + w <= 1.0 && t > f64::from(T_MIN) && t < t_best {
+                t_best = t;
+                best = Some(Hit { t: t as f32, prim: prim as u32, u: u as f32, v: w as f32 });
+            }
+        }
+    }
+    best
+}
