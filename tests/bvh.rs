@@ -704,6 +704,70 @@ fn depth_limited_trees_trace_the_same() {
     });
 }
 
+/// A tree that fills the traversal stack: a left spine from the root down to depth
+/// STACK_SIZE, every spine node's right child an inner node of two one-triangle leaves,
+/// all boxes equal (ties go left, so the spine is always "near" and each right child is
+/// pushed): the stack holds STACK_SIZE entries at the bottom of the spine.
+#[test]
+fn deepest_tree_fills_the_stack() {
+    let depth = STACK_SIZE as usize;
+    // Triangle i lies in the plane z = 1 + (n - 1 - i) / 100, covering the square
+    // [-1, 1]^2 and more.
+    let n = 2 * (depth + 1);
+    let mut mesh = Mesh::default();
+    for i in 0..n {
+        let z = 1.0 + (n - 1 - i) as f32 / 100.0;
+        mesh.push([[-1.0, -1.0, z], [3.0, -1.0, z], [-1.0, 3.0, z]]);
+    }
+    let (lo, hi) = ([-1.0, -1.0, 1.0], [3.0, 3.0, 1.0 + (n - 1) as f32 / 100.0]);
+    let leaf = |first: usize| (first as u32, 1);
+    let node = |left: (u32, u32), right: (u32, u32)| bvh::BvhNode {
+        left_min: lo,
+        left_index: left.0,
+        left_max: hi,
+        left_count: left.1,
+        right_min: lo,
+        right_index: right.0,
+        right_max: hi,
+        right_count: right.1,
+    };
+    // Depth-first: the spine 0..=depth, then the right children bottom-up (the deepest
+    // one's triangles first).
+    let mut nodes = Vec::new();
+    for d in 0..depth {
+        nodes.push(node((d as u32 + 1, INNER), ((2 * depth - d) as u32, INNER)));
+    }
+    nodes.push(node(leaf(0), leaf(1)));
+    for d in (0..depth).rev() {
+        let first = 2 * (depth - d);
+        nodes.push(node(leaf(first), leaf(first + 1)));
+    }
+    let triangles = (0..n)
+        .map(|i| {
+            let [a, b, c] = mesh.indices[i].map(|k| glam::Vec3::from(mesh.positions[k as usize]));
+            bvh::BvhTriangle { v0: a.to_array(), e1: (b - a).to_array(), e2: (c - a).to_array(), prim: i as u32 }
+        })
+        .collect();
+    let tree = Bvh { nodes, triangles };
+    assert_eq!(check_well_formed(&mesh, &tree, STACK_SIZE).depth, STACK_SIZE);
+
+    // For every triangle, rays starting just below and just above its plane: each one's
+    // closest hit is that triangle, so a lost stack entry shows as a wrong hit.
+    let mut rng = Rng::new(12);
+    let mut rays = Vec::new();
+    for i in 0..n {
+        let z = 1.0 + (n - 1 - i) as f32 / 100.0;
+        let [x, y, _] = rng.point([-0.9; 3], [0.9; 3]);
+        rays.push(ray([x, y, z - 0.005], [0.0, 0.0, 1.0], f32::INFINITY));
+        rays.push(ray([x, y, z + 0.005], normalize([rng.range(-0.2, 0.2), rng.range(-0.2, 0.2), -1.0]), f32::INFINITY));
+    }
+    let results = with_gpu(|ctx| trace(ctx, &tree, &rays));
+    check_against_cpu("deepest tree", &mesh, &rays, &results);
+    for (k, g) in results.iter().enumerate() {
+        assert_eq!(g.hit.prim, k as u32 / 2, "ray {k}: {:?}", rays[k]);
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // Throughput (run with --ignored --nocapture)
 // ---------------------------------------------------------------------------------------
