@@ -23,7 +23,7 @@
 // depth <= BVH_STACK_SIZE, and the stack never overflows.
 //
 // Slab test (Kay & Kajiya 1986) with a precomputed inverse direction. Direction components
-// that are zero (rays parallel to box faces) are replaced by +-1e-20, which keeps every
+// below 1e-20 in magnitude (zero: rays parallel to box faces) become +-1e-20, which keeps every
 // product finite (no 0 * inf = NaN when the origin lies on a face plane) and, for an origin
 // inside the slab, an interval covering every reachable t. The exit distance is widened by
 // 1 + 2 gamma(3) (Ize 2013, "Robust BVH ray traversal") so that rounding never culls a box
@@ -40,18 +40,22 @@
 layout(set = 0, binding = 10, scalar) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
 layout(set = 0, binding = 11, scalar) readonly buffer BvhTriangles { BvhTriangle bvh_triangles[]; };
 
-// 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24 (Ize 2013).
-const float BVH_EXIT_SCALE = 1.0000004;
+// The float just above 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24: the
+// widening of Ize 2013 that covers the rounding of the slab distances.
+const float BVH_EXIT_SCALE = 1.00000048;
 
-// Entry distance of the ray into the box [lo, hi] within [0, tmax], or +inf if it misses.
-float bvh_box_entry(vec3 lo, vec3 hi, vec3 origin, vec3 inv_dir, float tmax, float inf) {
+// The entry distance of a missed box.
+const float BVH_MISS = 1.0 / 0.0;
+
+// Entry distance of the ray into the box [lo, hi] within [0, tmax], or BVH_MISS (+inf).
+float bvh_box_entry(vec3 lo, vec3 hi, vec3 origin, vec3 inv_dir, float tmax) {
     vec3 t0 = (lo - origin) * inv_dir;
     vec3 t1 = (hi - origin) * inv_dir;
     vec3 tn = min(t0, t1);
     vec3 tf = max(t0, t1);
     float enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
     float exit = min(min(tf.x, tf.y), min(tf.z, tmax)) * BVH_EXIT_SCALE;
-    return enter <= exit ? enter : inf;
+    return enter <= exit ? enter : BVH_MISS;
 }
 
 // Möller & Trumbore 1997, "Fast, minimum storage ray-triangle intersection", with the
@@ -88,7 +92,6 @@ bool bvh_hit_leaf(uint first, uint count, vec3 origin, vec3 dir, inout Hit hit) 
 // The traversal behind trace_closest (any_hit false) and trace_any (any_hit true: returns
 // at the first hit). Callers pass a constant any_hit, so each copy is specialised.
 bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) {
-    const float inf = uintBitsToFloat(0x7F800000u);
     hit = Hit(tmax, BVH_NO_HIT, 0.0, 0.0);
     vec3 safe_dir = mix(dir, mix(vec3(-1e-20), vec3(1e-20), greaterThanEqual(dir, vec3(0.0))),
                         lessThan(abs(dir), vec3(1e-20)));
@@ -100,9 +103,9 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     uint node = 0u;
     while (true) {
         BvhNode n = bvh_nodes[node];
-        float t_left = bvh_box_entry(n.left_min, n.left_max, origin, inv_dir, hit.t, inf);
-        float t_right = bvh_box_entry(n.right_min, n.right_max, origin, inv_dir, hit.t, inf);
-        // Nearer child first; a missed child has t = inf and sorts last.
+        float t_left = bvh_box_entry(n.left_min, n.left_max, origin, inv_dir, hit.t);
+        float t_right = bvh_box_entry(n.right_min, n.right_max, origin, inv_dir, hit.t);
+        // Nearer child first; a missed child sorts last.
         bool swap = t_right < t_left;
         float t_near = swap ? t_right : t_left;
         float t_far = swap ? t_left : t_right;
@@ -112,7 +115,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
         uint far_count = swap ? n.left_count : n.right_count;
 
         uint next = 0u;
-        if (t_near < inf) {
+        if (t_near != BVH_MISS) {
             if (near_count == BVH_INNER) {
                 next = near_index;
             } else if (bvh_hit_leaf(near_index, near_count, origin, dir, hit) && any_hit) {
@@ -120,7 +123,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
             }
         }
         // The near leaf may have shortened the ray past the far child's entry.
-        if (t_far < inf && t_far <= hit.t) {
+        if (t_far != BVH_MISS && t_far <= hit.t) {
             if (far_count != BVH_INNER) {
                 if (bvh_hit_leaf(far_index, far_count, origin, dir, hit) && any_hit) {
                     return true;

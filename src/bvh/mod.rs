@@ -187,8 +187,9 @@ pub fn build(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Bvh {
 
 /// [`build`] with inner nodes at depth `<= max_depth` instead of [`STACK_SIZE`], for
 /// kernels with a smaller stack. Subtrees too deep for the limit are rebuilt as balanced
-/// trees over their leaves; when even that does not fit (more than `2^max_depth` leaves),
-/// the lowest leaves are merged.
+/// trees over their leaves; when even that does not fit (leaves hang at depth
+/// `<= max_depth + 1`, so there is room for `2^(max_depth + 1)` of them), the lowest leaves
+/// are merged.
 ///
 /// # Panics
 /// If an index is out of bounds of `positions`.
@@ -208,9 +209,7 @@ pub fn build_with_depth_limit(positions: &[[f32; 3]], indices: &[[u32; 3]], max_
 /// without the debug-build validation, which panics on trees deeper than its own limit;
 /// the depth is handled by the flattening here).
 fn build_bvh2(boxes: &[Aabb]) -> Bvh2 {
-    let mut params = BvhBuildParams::medium_build();
-    if let Ok(v) = std::env::var("VKI_LEAF") { params.max_prims_per_leaf = v.parse().unwrap(); }
-    if let Ok(v) = std::env::var("VKI_COST") { params.collapse_traversal_cost = v.parse().unwrap(); }
+    let params = BvhBuildParams::medium_build();
     let mut bvh2 = PlocBuilder::with_capacity(boxes.len()).build(
         params.ploc_search_distance,
         boxes,
@@ -240,10 +239,8 @@ impl Bounds {
     const EMPTY: Self = Self { min: [f32::INFINITY; 3], max: [f32::NEG_INFINITY; 3] };
 
     fn grow(&mut self, p: [f32; 3]) {
-        for k in 0..3 {
-            self.min[k] = self.min[k].min(p[k]);
-            self.max[k] = self.max[k].max(p[k]);
-        }
+        self.min = std::array::from_fn(|k| self.min[k].min(p[k]));
+        self.max = std::array::from_fn(|k| self.max[k].max(p[k]));
     }
 
     fn union(&mut self, other: &Bounds) {
@@ -322,10 +319,8 @@ impl<'a> Flattener<'a> {
             }
             root => {
                 // The root is always an inner node: a single leaf (or none) hangs below it,
-                // next to an empty child.
-                let mut node = BvhNode { left_count: 0, right_count: 0, ..Default::default() };
-                node.set_box(1, &Bounds::NEVER_HIT);
-                self.out.nodes.push(node);
+                // next to an empty child. Both children start as empty leaves (count 0).
+                self.out.nodes.push(BvhNode::default());
                 if root.is_some() {
                     tasks.push(Task { source: Source::Node(0), parent: 0, side: 0, depth: 1 });
                 }
@@ -484,11 +479,8 @@ fn leaf_counts(nodes: &[Bvh2Node]) -> Vec<u64> {
     // Children come after their parent in pre-order, so the reverse visits them first.
     for &n in order.iter().rev() {
         let node = &nodes[n as usize];
-        counts[n as usize] = if node.is_leaf() {
-            1
-        } else {
-            counts[node.first_index as usize] + counts[node.first_index as usize + 1]
-        };
+        counts[n as usize] =
+            if node.is_leaf() { 1 } else { counts[node.first_index as usize] + counts[node.first_index as usize + 1] };
     }
     counts
 }
