@@ -1,17 +1,29 @@
 #version 460
 // trace_primal: renders `spp` samples per pixel of one sensor and adds their mean times
 // `weight` to accum (so that a render split into several submissions sums correctly).
-// trace_adjoint (same source, ADJOINT): replays every sample twice, once for its
-// radiance and once to scatter dLoss/dPixel into the parameter gradients.
+// trace_adjoint (ADJOINT): replays every sample twice, once for its radiance and once to
+// scatter dLoss/dPixel into the parameter gradients.
+// trace_fd_primal (FD): renders the same samples in both parameter states (θ_i into
+// accum, θ_{i-1} into accum_prev), paths sampled with θ_i.
+// trace_fd_adjoint (FD, ADJOINT): the gradient at θ_i minus the gradient at θ_{i-1}
+// along the same paths, scattered into grad.
 // variant: trace_adjoint ADJOINT
+// variant: trace_fd_primal FD
+// variant: trace_fd_adjoint FD ADJOINT
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/integrator.glsl"
 
 #ifdef ADJOINT
 layout(set = 0, binding = 1, scalar) readonly buffer AdjointImage { vec3 adjoint_image[]; };
+#ifdef FD
+layout(set = 0, binding = 4, scalar) readonly buffer AdjointImagePrev { vec3 adjoint_image_prev[]; };
+#endif
 #else
 layout(set = 0, binding = 0, scalar) buffer Accum { vec3 accum[]; };
+#ifdef FD
+layout(set = 0, binding = 3, scalar) buffer AccumPrev { vec3 accum_prev[]; };
+#endif
 #endif
 
 // Iteration counter written by the host before each submission, so that a recording
@@ -33,25 +45,40 @@ void main() {
     if (i >= pc.width * pc.height) return;
     uvec2 pixel = uvec2(i % pc.width, i / pc.width);
     SensorRecord s = sensors[pc.sensor];
+    vec3 zero[NSTATES];
+    vec3 delta[NSTATES];
+    for (int k = 0; k < NSTATES; ++k) zero[k] = vec3(0.0);
 #ifdef ADJOINT
-    vec3 delta = adjoint_image[i] * pc.weight;
-    if (all(equal(delta, vec3(0.0)))) return;
+    delta[0] = adjoint_image[i] * pc.weight;
+#ifdef FD
+    delta[1] = adjoint_image_prev[i] * pc.weight;
 #endif
-    vec3 sum = vec3(0.0);
+    bool any_delta = false;
+    for (int k = 0; k < NSTATES; ++k) any_delta = any_delta || any(notEqual(delta[k], vec3(0.0)));
+    if (!any_delta) return;
+#endif
+    vec3 sum[NSTATES];
+    for (int k = 0; k < NSTATES; ++k) sum[k] = vec3(0.0);
     for (uint k = 0u; k < pc.spp; ++k) {
         // 0x9E3779B9: the golden-ratio increment spreads iterations over the seed space.
         Rng rng = rng_init(i, pc.first_sample + k, pc.seed + frame_iteration * 0x9E3779B9u);
         vec3 o, d;
         camera_ray(s, pixel, uvec2(pc.width, pc.height), rng, o, d);
+        vec3 radiance[NSTATES];
 #ifdef ADJOINT
         Rng replay = rng;
-        vec3 L = trace_path(rng, o, d, vec3(0.0), vec3(0.0));
-        trace_path(replay, o, d, L, delta);
+        trace_path(rng, o, d, zero, zero, radiance);
+        vec3 unused[NSTATES];
+        trace_path(replay, o, d, radiance, delta, unused);
 #else
-        sum += trace_path(rng, o, d, vec3(0.0), vec3(0.0));
+        trace_path(rng, o, d, zero, zero, radiance);
+        for (int j = 0; j < NSTATES; ++j) sum[j] += radiance[j];
 #endif
     }
 #ifndef ADJOINT
-    accum[i] += pc.weight * sum;
+    accum[i] += pc.weight * sum[0];
+#ifdef FD
+    accum_prev[i] += pc.weight * sum[1];
+#endif
 #endif
 }

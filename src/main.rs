@@ -66,6 +66,10 @@ enum Command {
         /// Continue the run in OUTDIR from its checkpoint.
         #[arg(long)]
         resume: bool,
+        /// Meta: trace each parameter state separately for the finite-difference sample
+        /// instead of the fused single trace (for comparison).
+        #[arg(long)]
+        fd_two_trace: bool,
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
@@ -234,6 +238,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             seed,
             checkpoint_every,
             resume,
+            fd_two_trace,
             output,
         } => {
             let scene = vkinverse::scene::Scene::load(scene)?;
@@ -254,6 +259,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             st.lr = lr.unwrap_or(st.lr);
             st.seed = seed.unwrap_or(st.seed);
             st.checkpoint_every = checkpoint_every.unwrap_or(st.checkpoint_every);
+            st.fd_two_trace = *fd_two_trace;
             if lr.is_some() {
                 // A command-line learning rate applies to every parameter.
                 let mut scene = scene.clone();

@@ -42,6 +42,9 @@ pub struct Settings {
     pub seed: u32,
     pub checkpoint_every: u32,
     pub loss: String,
+    /// Meta only: compute ⟨ΔF⟩ by tracing each state separately (two gradient estimates
+    /// with the same seeds) instead of the fused single trace.
+    pub fd_two_trace: bool,
 }
 
 impl Settings {
@@ -62,6 +65,7 @@ impl Settings {
             seed: o.seed as u32,
             checkpoint_every: o.checkpoint_every.unwrap_or(50),
             loss: o.loss.as_str().to_string(),
+            fd_two_trace: false,
         }
     }
 
@@ -85,6 +89,32 @@ pub struct Progress {
     pub time_s: f64,
     pub loss: f64,
     pub param_error: Option<f64>,
+}
+
+/// The meta-estimator's finite-difference sample.
+pub enum FdSample {
+    /// One trace evaluates both parameter states (the default).
+    Fused(GradientPass),
+    /// One gradient estimate per state with the same seeds, then their difference.
+    TwoTrace { cur: GradientPass, prv: GradientPass, at_cur: Buffer, at_prev: Buffer },
+}
+
+impl FdSample {
+    /// Records ⟨ΔF⟩ into `fd_grad` (which the optimiser pass reads and clears).
+    pub fn record(&self, rec: &mut crate::gpu::Recorder, gs: &GpuScene, ops: &BufferOps, fd_grad: &Buffer) -> crate::gpu::Result<()> {
+        match self {
+            FdSample::Fused(pass) => pass.record(rec, gs, ops),
+            FdSample::TwoTrace { cur, prv, at_cur, at_prev } => {
+                rec.transition(&[(at_cur, Access::TransferWrite), (at_prev, Access::TransferWrite)])?;
+                rec.zero(at_cur)?;
+                rec.zero(at_prev)?;
+                cur.record(rec, gs, ops)?;
+                prv.record(rec, gs, ops)?;
+                rec.transition(&[(at_cur, Access::ComputeRead), (at_prev, Access::ComputeRead), (fd_grad, Access::ComputeWrite)])?;
+                ops.sub(rec, at_cur, at_prev, fd_grad)
+            }
+        }
+    }
 }
 
 /// What `summary.json` holds.
@@ -217,19 +247,24 @@ pub fn optimise(
         .map(|s| Group { offset: s.offset, len: s.len, lr: s.lr as f64, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } })
         .collect();
     let opt = GpuOptimiser::new(ctx, &ops, &settings.optimiser, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
-    // Finite differences (meta): two gradient estimates with the same seeds, at θ_i and
-    // at θ_{i−1}; their difference is ⟨ΔF_i⟩.
+    // Finite differences (meta): the gradient at θ_i minus the gradient at θ_{i−1} with
+    // common random numbers, from the fused single trace, or (fd_two_trace) from two
+    // gradient estimates with the same seeds, one per state.
     let fd = match &opt.theta_prev {
         Some(prev) => {
-            let at_cur = Buffer::zeroed::<f32>(ctx, "fd grad at theta", n, MemoryKind::Device)?;
-            let at_prev = Buffer::zeroed::<f32>(ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
-            let seed = settings.seed.wrapping_add(SEED_FD);
-            // The primal images of the difference use fd_spp samples too: with common random
-            // numbers most of their noise cancels in the difference.
-            let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, &gs.theta, &at_cur)?;
-            let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, prev, &at_prev)?;
             prev.write(&padded(gs, gs.layout.initial()))?;
-            Some((cur, prv, at_cur, at_prev))
+            let seed = settings.seed.wrapping_add(SEED_FD);
+            if settings.fd_two_trace {
+                let at_cur = Buffer::zeroed::<f32>(ctx, "fd grad at theta", n, MemoryKind::Device)?;
+                let at_prev = Buffer::zeroed::<f32>(ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
+                // The primal images of the difference use fd_spp samples too: with common
+                // random numbers most of their noise cancels in the difference.
+                let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, &gs.theta, &at_cur)?;
+                let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, prev, &at_prev)?;
+                Some(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
+            } else {
+                Some(FdSample::Fused(GradientPass::new_fd(gs, &ops, &target_images, loss, settings.fd_spp, seed, prev, &fd_grad)?))
+            }
         }
         None => None,
     };
@@ -240,12 +275,12 @@ pub fn optimise(
     let mut warm = CommandBuffer::new(ctx, "warm-up")?;
     warm.record(|rec| {
         proportional.record(rec, gs, &ops)?;
-        if let Some((cur, prv, _, _)) = &fd {
-            cur.record(rec, gs, &ops)?;
-            prv.record(rec, gs, &ops)?;
+        if let Some(fd) = &fd {
+            fd.record(rec, gs, &ops, &fd_grad)?;
         }
-        rec.transition(&[(&grad, Access::TransferWrite)])?;
-        rec.zero(&grad)
+        rec.transition(&[(&grad, Access::TransferWrite), (&fd_grad, Access::TransferWrite)])?;
+        rec.zero(&grad)?;
+        rec.zero(&fd_grad)
     })?;
     warm.submit_and_wait()?;
 
@@ -254,16 +289,8 @@ pub fn optimise(
     cmd.record(|rec| {
         profiler.reset(rec);
         profiler.scope(rec, "gradient", |rec, _| proportional.record(rec, gs, &ops))?;
-        if let Some((cur, prv, at_cur, at_prev)) = &fd {
-            profiler.scope(rec, "finite_difference", |rec, _| {
-                rec.transition(&[(at_cur, Access::TransferWrite), (at_prev, Access::TransferWrite)])?;
-                rec.zero(at_cur)?;
-                rec.zero(at_prev)?;
-                cur.record(rec, gs, &ops)?;
-                prv.record(rec, gs, &ops)?;
-                rec.transition(&[(at_cur, Access::ComputeRead), (at_prev, Access::ComputeRead), (&fd_grad, Access::ComputeWrite)])?;
-                ops.sub(rec, at_cur, at_prev, &fd_grad)
-            })?;
+        if let Some(fd) = &fd {
+            profiler.scope(rec, "finite_difference", |rec, _| fd.record(rec, gs, &ops, &fd_grad))?;
         }
         profiler.scope(rec, "optimiser", |rec, _| opt.record(rec, &ops))
     })?;

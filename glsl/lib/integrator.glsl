@@ -6,6 +6,15 @@
 // scattered it. Sampling, MIS weights and Russian roulette are detached (constants with
 // respect to the parameters), which keeps the material and emission gradients unbiased.
 //
+// FD (the fused finite-difference sample of the meta-estimator, Bálint et al. 2023):
+// each path is sampled once with θ_i (state 0) and evaluated in both states. State 1
+// (θ_{i-1}) follows the same vertices; at each BSDF sample its throughput is multiplied
+// by f_{i-1}(wo, wi) / pdf_i(wi) instead of f_i / pdf_i: a shift that accounts for BSDF
+// sampling, unbiased for θ_{i-1} wherever pdf_i > 0. Light sampling, MIS weights and
+// Russian roulette come from state 0 and are shared, so every random choice is common.
+// The adjoint variant scatters +gradient of state 0 and −gradient of state 1: the
+// difference of gradients with common random numbers, ⟨ΔF_i⟩.
+//
 // Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
 #ifndef INTEGRATOR_GLSL
 #define INTEGRATOR_GLSL
@@ -27,14 +36,8 @@ layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
 // are a few units across; this is ~1e-4 of that).
 const float RAY_EPSILON = 1e-4;
 
-// Emitted radiance of mesh `mesh_id` towards wo from a point whose geometric normal is ng.
-vec3 emitted(uint mesh_id, vec3 ng, vec3 wo) {
-    if (dot(ng, wo) <= 0.0) return vec3(0.0);
-    return fetch3(meshes[mesh_id].emission, vec2(0.0));
-}
-
 // Picks an emissive triangle by its probability and a point on it.
-// Returns the emitter index (for the emission lookup), the point and the pdf (area measure).
+// Returns the triangle's id, the point and the pdf (area measure).
 uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
     // Binary search for the first triangle whose inclusive cdf exceeds u.x.
     uint lo = 0u, hi = NUM_EMITTERS - 1u;
@@ -49,33 +52,45 @@ uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
     return e.prim;
 }
 
-// Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on.
-// Primal: returns its radiance. ADJOINT: `L` is that radiance (from a primal replay),
-// `delta` the adjoint of the pixel (dLoss/dPixel times the sample weight); gradients are
-// accumulated into grad[] and the returned value is meaningless.
-vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
-    vec3 radiance = vec3(0.0);
-    vec3 beta = vec3(1.0);
-    float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
-    vec3 prev_p = o;
 #ifdef ADJOINT
-    vec3 remaining = L;          // radiance still to be accounted for along the path
-    // The first (primal) replay of a sample passes delta = 0 and skips gradient work.
-    bool grad_pass = any(notEqual(delta, vec3(0.0)));
+// Gradient contributions of one state carry its sign: + for θ_i, − for θ_{i-1} (FD).
+float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
 #endif
+
+// Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
+// parameter state. Primal: returns each state's radiance in `radiance`. ADJOINT: `L` is
+// that radiance (from a primal replay) and `delta` each state's pixel adjoint (dLoss/dI
+// times the sample weight); gradients go into grad[] (delta all zero: primal replay).
+void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTATES], out vec3 radiance[NSTATES]) {
+    vec3 beta[NSTATES];
+#ifdef ADJOINT
+    vec3 remaining[NSTATES];   // radiance still to be accounted for along the path
+    bool grad_pass = false;
+#endif
+    for (int s = 0; s < NSTATES; ++s) {
+        radiance[s] = vec3(0.0);
+        beta[s] = vec3(1.0);
+#ifdef ADJOINT
+        remaining[s] = L[s];
+        grad_pass = grad_pass || any(notEqual(delta[s], vec3(0.0)));
+#endif
+    }
+    float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
         if (!trace_closest(o, d, 1e30, hit)) {
             if (HAS_ENVIRONMENT) {
-                vec3 e = beta * environment_radiance(d);
-                radiance += e;
+                for (int s = 0; s < NSTATES; ++s) {
+                    vec3 e = beta[s] * environment_radiance(d, s);
+                    radiance[s] += e;
 #ifdef ADJOINT
-                remaining -= e;
-                // Emission parameters enter linearly: d(beta * E)/dE = beta.
-                if (globals.environment.width == 0u)
-                    scatter3(globals.environment, vec2(0.0), delta * beta * globals.environment_scale);
+                    remaining[s] -= e;
+                    // Emission enters linearly: d(beta * scale * E)/dE = beta * scale.
+                    if (grad_pass && globals.environment.width == 0u)
+                        scatter3(globals.environment, vec2(0.0), state_sign(s) * delta[s] * beta[s] * globals.environment_scale);
 #endif
+                }
             }
             break;
         }
@@ -86,22 +101,21 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
         vec2 uv = w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2;
         vec3 ng = sh.ng;
 
-        // Emission reached by the previous BSDF sample (or seen by the camera).
-        if (sh.emitter_pdf > 0.0) {
-            vec3 le = emitted(sh.mesh, ng, wo);
-            if (any(greaterThan(le, vec3(0.0)))) {
-                float mis = 1.0;
-                if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
-                    // Convert the light-sampling pdf of this point to solid angle at prev_p.
-                    float cos_l = abs(dot(ng, wo));
-                    float pdf_light = sh.emitter_pdf * hit.t * hit.t / max(cos_l, 1e-8);
-                    mis = power_heuristic(prev_bsdf_pdf, pdf_light);
-                }
-                vec3 e = beta * le * mis;
-                radiance += e;
+        // Emission reached by the previous BSDF sample (or seen by the camera). One-sided:
+        // emitters shine from their front (counter-clockwise) side.
+        if (sh.emitter_pdf > 0.0 && dot(ng, wo) > 0.0) {
+            float mis = 1.0;
+            if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
+                // The light-sampling pdf of this point, in solid angle at the previous vertex.
+                float pdf_light = sh.emitter_pdf * hit.t * hit.t / max(dot(ng, wo), 1e-8);
+                mis = power_heuristic(prev_bsdf_pdf, pdf_light);
+            }
+            for (int s = 0; s < NSTATES; ++s) {
+                vec3 e = beta[s] * fetch3(meshes[sh.mesh].emission, vec2(0.0), s) * mis;
+                radiance[s] += e;
 #ifdef ADJOINT
-                remaining -= e;
-                scatter3(meshes[sh.mesh].emission, vec2(0.0), delta * beta * mis);
+                remaining[s] -= e;
+                if (grad_pass) scatter3(meshes[sh.mesh].emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
 #endif
             }
         }
@@ -113,11 +127,12 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
         ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
         if (dot(ng, wo) < 0.0) ng = -ng;
         if (dot(ns, ng) < 0.0) ns = -ns;
-        Material mat = fetch_material(shading[hit.prim].material, uv);
+        Material mat[NSTATES];
+        for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
         vec3 p_off = p + RAY_EPSILON * ng;
 
-        // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling.
-        // Always draws 3 numbers, so replays stay in step (lib/rng.glsl).
+        // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
+        // (pdfs of state 0). Always draws 3 numbers, so replays stay in step (lib/rng.glsl).
         vec3 u_light = rng_next3(rng);
         if (NUM_EMITTERS != 0u) {
             vec3 pl;
@@ -129,68 +144,72 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
             vec3 wi = to_l / dist;
             TriShading lsh = shading[lprim];
             float cos_l = dot(lsh.ng, -wi);
-            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0) {
-                vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0));
-                vec3 f = bsdf_eval(mat, ns, wo, wi);
-                if (any(greaterThan(le * f, vec3(0.0))) && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
-                    float pdf_light = pdf_area * dist2 / cos_l;
-                    float mis = power_heuristic(pdf_light, bsdf_pdf(mat, ns, wo, wi));
-                    vec3 c = beta * f * le * (mis / pdf_light);
-                    radiance += c;
+            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
+                float pdf_light = pdf_area * dist2 / cos_l;
+                float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
+                for (int s = 0; s < NSTATES; ++s) {
+                    vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0), s);
+                    vec3 f = bsdf_eval(mat[s], ns, wo, wi);
+                    vec3 c = beta[s] * f * le * (mis / pdf_light);
+                    radiance[s] += c;
 #ifdef ADJOINT
-                    remaining -= c;
+                    remaining[s] -= c;
                     if (grad_pass) {
-                    vec3 d_base, d_rough, d_metal;
-                    bsdf_eval_grad(mat, ns, wo, wi, d_base, d_rough, d_metal);
-                    vec3 k = delta * beta * le * (mis / pdf_light);
-                    MaterialRecord mr = materials[shading[hit.prim].material];
-                    scatter3(mr.base_color, uv, k * d_base);
-                    scatter1(mr.roughness, uv, dot(k, d_rough));
-                    scatter1(mr.metallic, uv, dot(k, d_metal));
-                    scatter3(meshes[lsh.mesh].emission, vec2(0.0), delta * beta * f * (mis / pdf_light));
+                        vec3 d_base, d_rough, d_metal;
+                        bsdf_eval_grad(mat[s], ns, wo, wi, d_base, d_rough, d_metal);
+                        vec3 k = state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light);
+                        MaterialRecord mr = materials[sh.material];
+                        scatter3(mr.base_color, uv, k * d_base);
+                        scatter1(mr.roughness, uv, dot(k, d_rough));
+                        scatter1(mr.metallic, uv, dot(k, d_metal));
+                        scatter3(meshes[lsh.mesh].emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * f * (mis / pdf_light));
                     }
 #endif
                 }
             }
         }
 
-        // Continue by sampling the BSDF.
+        // Continue by sampling the BSDF of state 0.
         vec3 wi, weight;
         float pdf;
         vec3 u_bsdf = rng_next3(rng);
-        if (!bsdf_sample(mat, ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
+        if (!bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
+        for (int s = 0; s < NSTATES; ++s) {
+            // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over
+            // state 0's pdf (the shift).
+            vec3 f = s == 0 ? weight * pdf : bsdf_eval(mat[s], ns, wo, wi);
 #ifdef ADJOINT
-        if (grad_pass) {
-            // Everything the path gathers from here on is proportional to f(wo, wi): its
-            // derivative is remaining * (df/dtheta) / f, per channel.
-            vec3 f = weight * pdf;
-            vec3 d_base, d_rough, d_metal;
-            bsdf_eval_grad(mat, ns, wo, wi, d_base, d_rough, d_metal);
-            vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
-            vec3 k = delta * remaining * inv_f;
-            MaterialRecord mr = materials[shading[hit.prim].material];
-            scatter3(mr.base_color, uv, k * d_base);
-            scatter1(mr.roughness, uv, dot(k, d_rough));
-            scatter1(mr.metallic, uv, dot(k, d_metal));
-        }
+            if (grad_pass) {
+                // Everything the path gathers from here on is proportional to f(wo, wi):
+                // its derivative is remaining * (df/dθ) / f, per channel.
+                vec3 d_base, d_rough, d_metal;
+                bsdf_eval_grad(mat[s], ns, wo, wi, d_base, d_rough, d_metal);
+                vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
+                vec3 k = state_sign(s) * delta[s] * remaining[s] * inv_f;
+                MaterialRecord mr = materials[sh.material];
+                scatter3(mr.base_color, uv, k * d_base);
+                scatter1(mr.roughness, uv, dot(k, d_rough));
+                scatter1(mr.metallic, uv, dot(k, d_metal));
+            }
 #endif
-        beta *= weight;
+            beta[s] *= f / pdf;
+        }
         prev_bsdf_pdf = pdf;
-        prev_p = p;
 
         // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
-        // min(max(beta), 0.95).
+        // min(max(beta), 0.95) of state 0; every state divides by it.
         float u_rr = rng_next(rng);
         if (depth >= RR_DEPTH) {
-            float q = min(max_component(beta), 0.95);
+            float q = min(max_component(beta[0]), 0.95);
             if (u_rr >= q) break;
-            beta /= q;
+            for (int s = 0; s < NSTATES; ++s) beta[s] /= q;
         }
-        if (all(equal(beta, vec3(0.0)))) break;
+        bool alive = false;
+        for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
+        if (!alive) break;
         o = p_off;
         d = wi;
     }
-    return radiance;
 }
 
 // The camera ray of a pixel sample (block 0 of the RNG); pixel (0, 0) is the top left.

@@ -14,13 +14,26 @@ layout(set = 0, binding = 24, scalar) readonly buffer Sensors { SensorRecord sen
 layout(set = 0, binding = 25, scalar) readonly buffer SceneGlobals { Globals globals; };
 layout(set = 0, binding = 26, scalar) readonly buffer MaterialData { float material_data[]; };
 layout(set = 0, binding = 30, scalar) readonly buffer Theta { float theta[]; };
+
+// Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
+// difference (state 0 = θ_i, which samples the path; state 1 = θ_{i-1}).
+#ifdef FD
+#define NSTATES 2
+layout(set = 0, binding = 32, scalar) readonly buffer ThetaPrev { float theta_prev[]; };
+#else
+#define NSTATES 1
+#endif
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
 #endif
 
-float value_at(ValueRef r, int index) {
-    return r.in_theta != 0u ? theta[r.offset + index] : material_data[r.offset + index];
+float value_at(ValueRef r, int index, int state) {
+    if (r.in_theta == 0u) return material_data[r.offset + index];
+#ifdef FD
+    if (state == 1) return theta_prev[r.offset + index];
+#endif
+    return theta[r.offset + index];
 }
 
 // Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
@@ -42,7 +55,7 @@ void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
     weight = vec4((1.0 - t.x) * (1.0 - t.y), t.x * (1.0 - t.y), (1.0 - t.x) * t.y, t.x * t.y);
 }
 
-vec3 fetch3(ValueRef r, vec2 uv) {
+vec3 fetch3(ValueRef r, vec2 uv, int state) {
     ivec4 texel;
     vec4 w;
     footprint(r, uv, texel, w);
@@ -50,18 +63,18 @@ vec3 fetch3(ValueRef r, vec2 uv) {
     for (int k = 0; k < 4; ++k) {
         if (w[k] == 0.0) continue;
         int base = texel[k] * 3;
-        v += w[k] * vec3(value_at(r, base), value_at(r, base + 1), value_at(r, base + 2));
+        v += w[k] * vec3(value_at(r, base, state), value_at(r, base + 1, state), value_at(r, base + 2, state));
     }
     return v;
 }
 
-float fetch1(ValueRef r, vec2 uv) {
+float fetch1(ValueRef r, vec2 uv, int state) {
     ivec4 texel;
     vec4 w;
     footprint(r, uv, texel, w);
     float v = 0.0;
     for (int k = 0; k < 4; ++k) {
-        if (w[k] != 0.0) v += w[k] * value_at(r, texel[k]);
+        if (w[k] != 0.0) v += w[k] * value_at(r, texel[k], state);
     }
     return v;
 }
@@ -94,23 +107,23 @@ void scatter1(ValueRef r, vec2 uv, float g) {
 }
 #endif
 
-// The material at a surface point.
-Material fetch_material(uint id, vec2 uv) {
+// The material at a surface point, in parameter state `state`.
+Material fetch_material(uint id, vec2 uv, int state) {
     MaterialRecord r = materials[id];
     Material m;
-    m.base_color = fetch3(r.base_color, uv);
-    m.roughness = fetch1(r.roughness, uv);
-    m.metallic = fetch1(r.metallic, uv);
+    m.base_color = fetch3(r.base_color, uv, state);
+    m.roughness = fetch1(r.roughness, uv, state);
+    m.metallic = fetch1(r.metallic, uv, state);
     m.kind = r.kind;
     return m;
 }
 
-// Radiance emitted by the environment towards -dir.
-vec3 environment_radiance(vec3 dir) {
+// Radiance emitted by the environment towards -dir, in parameter state `state`.
+vec3 environment_radiance(vec3 dir, int state) {
     ValueRef r = globals.environment;
     // Lat-long: u = azimuth around +y, v = polar angle from +y (top row = up).
     float u = atan(dir.x, -dir.z) * (0.5 / 3.14159265358979) + 0.5;
     float v = 1.0 - acos(clamp(dir.y, -1.0, 1.0)) / 3.14159265358979;
-    return globals.environment_scale * fetch3(r, vec2(u, v));
+    return globals.environment_scale * fetch3(r, vec2(u, v), state);
 }
 #endif

@@ -25,6 +25,15 @@ struct SensorBuffers {
     primal_group: gpu::BindGroup,
     loss_group: gpu::BindGroup,
     adjoint_group: gpu::BindGroup,
+    /// The θ_{i-1} image, adjoint image and loss of the fused finite difference.
+    prev: Option<PrevBuffers>,
+}
+
+struct PrevBuffers {
+    rendered: Buffer,
+    adjoint: Buffer,
+    partials: Buffer,
+    loss_group: gpu::BindGroup,
 }
 
 /// The pipelines and buffers of the gradient estimate.
@@ -63,10 +72,46 @@ impl GradientPass {
         theta: &Buffer,
         grad: &Buffer,
     ) -> gpu::Result<Self> {
+        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad)
+    }
+
+    /// The fused finite-difference sample ⟨ΔF⟩: every path is sampled once at θ (the
+    /// scene's) and evaluated at θ and at `theta_prev`; both primal images, both losses'
+    /// adjoint images and the difference of the two gradients (+θ, −θ_prev) are computed
+    /// in one trace per pass (glsl/lib/integrator.glsl, FD). Adds ⟨ΔF⟩ into `grad`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new_fd(
+        scene: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: Loss,
+        spp: u32,
+        seed: u32,
+        theta_prev: &Buffer,
+        grad: &Buffer,
+    ) -> gpu::Result<Self> {
+        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        scene: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: Loss,
+        spp: u32,
+        primal_spp: u32,
+        seed: u32,
+        theta: &Buffer,
+        theta_prev: Option<&Buffer>,
+        grad: &Buffer,
+    ) -> gpu::Result<Self> {
         let ctx = &scene.ctx;
         let spec = scene.spec();
-        let primal = ComputePipeline::new(ctx, "trace_primal", &spec)?;
-        let adjoint = ComputePipeline::new(ctx, "trace_adjoint", &spec)?;
+        let (primal_name, adjoint_name) =
+            if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };
+        let primal = ComputePipeline::new(ctx, primal_name, &spec)?;
+        let adjoint = ComputePipeline::new(ctx, adjoint_name, &spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
         let n = scene.pixels();
@@ -78,13 +123,31 @@ impl GradientPass {
             let adjoint_img = Buffer::zeroed::<[f32; 3]>(ctx, &format!("adjoint image {s}"), n, MemoryKind::Device)?;
             let partials = Buffer::zeroed::<f32>(ctx, &format!("loss partials {s}"), groups as usize, MemoryKind::Device)?;
             let reduction = ops.reduction(&partials, false)?;
+            let prev = match theta_prev {
+                Some(_) => {
+                    let rendered = Buffer::zeroed::<[f32; 3]>(ctx, &format!("rendered prev {s}"), n, MemoryKind::Device)?;
+                    let adjoint = Buffer::zeroed::<[f32; 3]>(ctx, &format!("adjoint image prev {s}"), n, MemoryKind::Device)?;
+                    let partials = Buffer::zeroed::<f32>(ctx, &format!("loss partials prev {s}"), groups as usize, MemoryKind::Device)?;
+                    let loss_group = loss.bind(&[("Rendered", &rendered), ("Target", &target), ("AdjointImage", &adjoint), ("LossPartials", &partials)])?;
+                    Some(PrevBuffers { rendered, adjoint, partials, loss_group })
+                }
+                None => None,
+            };
             let mut b = scene.bindings_with(theta);
             b.push(("Accum", &rendered));
+            if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
+                b.push(("ThetaPrev", tp));
+                b.push(("AccumPrev", &pb.rendered));
+            }
             let primal_group = primal.bind(&b)?;
             let loss_group = loss.bind(&[("Rendered", &rendered), ("Target", &target), ("AdjointImage", &adjoint_img), ("LossPartials", &partials)])?;
             let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
             b.push(("Grad", &grad));
+            if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
+                b.push(("ThetaPrev", tp));
+                b.push(("AdjointImagePrev", &pb.adjoint));
+            }
             let adjoint_group = adjoint.bind(&b)?;
             sensors.push(SensorBuffers {
                 rendered,
@@ -95,6 +158,7 @@ impl GradientPass {
                 primal_group,
                 loss_group,
                 adjoint_group,
+                prev,
             });
         }
         Ok(Self { primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
@@ -123,23 +187,31 @@ impl GradientPass {
                 seed,
                 weight,
             };
-            rec.transition(&[(&b.rendered, Access::TransferWrite)])?;
-            rec.zero(&b.rendered)?;
-            // The primal pass accumulates into the cleared image.
-            rec.barrier(&b.rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
+            // Images and their loss: (rendered, adjoint image, partials, loss bind group) per
+            // parameter state.
+            let mut states = vec![(&b.rendered, &b.adjoint, &b.partials, &b.loss_group)];
+            if let Some(pb) = &b.prev {
+                states.push((&pb.rendered, &pb.adjoint, &pb.partials, &pb.loss_group));
+            }
+            for (rendered, _, _, _) in &states {
+                rec.transition(&[(rendered, Access::TransferWrite)])?;
+                rec.zero(rendered)?;
+                // The primal pass accumulates into the cleared image.
+                rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
+            }
             let p = push(self.primal_spp, self.seed.wrapping_add(SEED_PRIMAL), 1.0 / self.primal_spp as f32);
             rec.dispatch_linear(&self.primal, &b.primal_group, bytemuck::bytes_of(&p), n as u64)?;
-            rec.barrier(&b.rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
-            rec.transition(&[(&b.adjoint, Access::ComputeWrite), (&b.partials, Access::ComputeWrite)])?;
             let mut lp = (n as u32).to_le_bytes().to_vec();
             lp.extend_from_slice(&((1.0 / (3.0 * n as f64)) as f32).to_le_bytes());
-            rec.dispatch_linear(&self.loss, &b.loss_group, &lp, n as u64)?;
-            // The adjoint pass reads the adjoint image; the loss partials are reduced.
-            rec.transition(&[
-                (&b.adjoint, Access::ComputeRead),
-                (&b.partials, Access::ComputeRead),
-                (&self.grad, Access::ComputeReadWrite),
-            ])?;
+            for (rendered, adjoint, partials, group) in &states {
+                rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
+                rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
+                rec.dispatch_linear(&self.loss, group, &lp, n as u64)?;
+                // The adjoint pass reads the adjoint image.
+                rec.transition(&[(adjoint, Access::ComputeRead)])?;
+            }
+            // The loss partials (of θ, the reported loss) are reduced.
+            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite)])?;
             ops.record_reduction(rec, &b.reduction)?;
             if !adjoint {
                 continue;
