@@ -48,7 +48,7 @@ enum Command {
         #[arg(long)]
         iterations: Option<u32>,
         /// Stop after this many seconds of optimisation (instead of, or on top of, --iterations).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         time_budget: Option<f64>,
         #[arg(long)]
         spp: Option<u32>,
@@ -56,7 +56,7 @@ enum Command {
         fd_spp: Option<u32>,
         #[arg(long)]
         primal_spp: Option<u32>,
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         lr: Option<f32>,
         #[arg(long)]
         seed: Option<u32>,
@@ -88,7 +88,7 @@ enum Command {
         /// meta or adam
         #[arg(long)]
         optimiser: String,
-        #[arg(long, default_value_t = 0.02)]
+        #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
         lr: f64,
         /// Parameter bounds, e.g. `--range 0,1` (unbounded by default).
         #[arg(long, allow_hyphen_values = true)]
@@ -116,6 +116,37 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// Writes to stdout. A reader that closed the pipe early (`vkinverse info | head -1`) has
+/// what it wanted, so that is not an error; `println!` would panic there instead.
+fn out(text: std::fmt::Arguments) -> std::io::Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_fmt(text) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => r,
+    }
+}
+
+macro_rules! outln {
+    ($($arg:tt)*) => { out(format_args!("{}\n", format_args!($($arg)*))) };
+}
+
+/// `Err` naming `flag` unless `value` is finite and positive.
+fn positive(flag: &str, value: f64) -> Result<(), String> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("{flag} {value}: must be positive and finite"))
+    }
+}
+
+/// `Err` naming `flag` when a sample count is 0.
+fn at_least_one(flag: &str, value: Option<u32>) -> Result<(), String> {
+    match value {
+        Some(0) => Err(format!("{flag} must be at least 1")),
+        _ => Ok(()),
+    }
 }
 
 fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
@@ -165,7 +196,7 @@ fn run_optimise(
     bar.finish_and_clear();
     if !cli.quiet {
         let err = |e: Option<f64>| e.map(|v| format!("{v:.4e}")).unwrap_or_else(|| "n/a".into());
-        println!(
+        outln!(
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             summary.scene,
             summary.iterations,
@@ -175,8 +206,8 @@ fn run_optimise(
             summary.final_loss,
             err(summary.initial_param_error),
             err(summary.final_param_error)
-        );
-        println!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", output.display());
+        )?;
+        outln!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", output.display())?;
     }
     Ok(())
 }
@@ -186,9 +217,9 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
         Command::Info { json } => {
             let ctx = context(cli)?;
             if *json {
-                println!("{}", vkinverse::report::info_json(&ctx));
+                outln!("{}", vkinverse::report::info_json(&ctx))?;
             } else {
-                print!("{}", vkinverse::report::info_text(&ctx));
+                out(format_args!("{}", vkinverse::report::info_text(&ctx)))?;
             }
         }
         Command::Render { scene, spp, seed, sensor, output } => {
@@ -241,10 +272,22 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             fd_two_trace,
             output,
         } => {
+            // Flags first: a typo on the command line is reported before the scene is read.
+            let optimiser: Option<vkinverse::optim::Optimiser> =
+                optimiser.as_deref().map(|o| o.parse().map_err(|e| format!("--optimiser {o}: {e}"))).transpose()?;
+            if let Some(x) = lr {
+                positive("--lr", *x as f64)?;
+            }
+            if let Some(t) = time_budget {
+                positive("--time-budget", *t)?;
+            }
+            at_least_one("--spp", *spp)?;
+            at_least_one("--fd-spp", *fd_spp)?;
+            at_least_one("--primal-spp", *primal_spp)?;
             let scene = vkinverse::scene::Scene::load(scene)?;
             let mut st = vkinverse::optimise::Settings::from_scene(&scene);
             if let Some(o) = optimiser {
-                st.optimiser = o.parse()?;
+                st.optimiser = o;
             }
             if let Some(t) = time_budget {
                 st.time_budget = Some(*t);
@@ -260,9 +303,11 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             st.seed = seed.unwrap_or(st.seed);
             st.checkpoint_every = checkpoint_every.unwrap_or(st.checkpoint_every);
             st.fd_two_trace = *fd_two_trace;
-            if lr.is_some() {
-                // A command-line learning rate applies to every parameter.
+            if let Some(lr) = lr {
+                // A command-line learning rate applies to every parameter; the parameter
+                // layout reads it from the scene, not from the settings.
                 let mut scene = scene.clone();
+                scene.optimise.lr = *lr;
                 for p in &mut scene.optimise.params {
                     p.lr = None;
                 }
@@ -271,6 +316,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             run_optimise(cli, &scene, &st, output, *resume)?;
         }
         Command::Gradcheck { scene, spp, rounds, json } => {
+            at_least_one("--spp", Some(*spp))?;
             let scene = vkinverse::scene::Scene::load(scene)?;
             if scene.optimise.params.is_empty() {
                 return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
@@ -279,15 +325,15 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             let opts = vkinverse::gradcheck::Options { spp: *spp, primal_spp: *spp, rounds: (*rounds).max(2), ..Default::default() };
             let rows = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
             if *json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
+                outln!("{}", serde_json::to_string_pretty(&rows)?)?;
             } else {
-                println!("{:<36} {:>4} {:>14} {:>11} {:>14} {:>11} {:>9}  verdict", "parameter", "el", "adjoint", "± se", "finite diff", "± se", "rel err");
+                outln!("{:<36} {:>4} {:>14} {:>11} {:>14} {:>11} {:>9}  verdict", "parameter", "el", "adjoint", "± se", "finite diff", "± se", "rel err")?;
                 for r in &rows {
-                    println!(
+                    outln!(
                         "{:<36} {:>4} {:>14.6e} {:>11.2e} {:>14.6e} {:>11.2e} {:>9.3}  {}",
                         r.param, r.element, r.adjoint, r.adjoint_se, r.finite_difference, r.finite_difference_se, r.relative_error,
                         if r.pass { "pass" } else { "FAIL" }
-                    );
+                    )?;
                 }
             }
             let failed = rows.iter().filter(|r| !r.pass).count();
@@ -297,11 +343,12 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
         }
         Command::Replay { optimiser, lr, range, init, grads, fd_grads, output } => {
             use vkinverse::{npy, optim};
-            let opt: optim::Optimiser = optimiser.parse()?;
+            let opt: optim::Optimiser = optimiser.parse().map_err(|e| format!("--optimiser {optimiser}: {e}"))?;
             let range = match range {
-                Some(r) => r.parse()?,
+                Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
                 None => optim::Range::UNBOUNDED,
             };
+            positive("--lr", *lr)?;
             let g = npy::read(grads)?;
             if g.shape.len() != 2 {
                 return Err(format!("{}: expected shape [iterations, n], got {:?}", grads.display(), g.shape).into());
@@ -315,7 +362,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                     }
                     Some(a.rows())
                 }
-                (None, true) => return Err("the meta optimiser needs FD_GRADS.npy (finite-difference samples)".into()),
+                (None, true) => return Err("--optimiser meta needs FD_GRADS.npy (finite-difference samples) after GRADS.npy".into()),
                 (None, false) => None,
             };
             let init = match init {
@@ -342,24 +389,56 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             if scene.is_some() {
                 return Err("scene benchmarks need the path tracer, which this build does not have yet".into());
             }
+            // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
+            if *elements < 4 {
+                return Err(format!("--elements {elements}: must be at least 4").into());
+            }
             let ctx = context(cli)?;
             let result = vkinverse::bench::buffer_bench(&ctx, *elements, *iterations)?;
             if *json {
-                println!("{}", serde_json::to_string_pretty(&result)?);
+                outln!("{}", serde_json::to_string_pretty(&result)?)?;
             } else {
-                print!("{}", result.table());
+                out(format_args!("{}", result.table()))?;
             }
         }
     }
     Ok(())
 }
 
+/// The error and its causes as one line. The library's errors quote their cause already;
+/// a `source()` they do not quote is appended after a colon. A multi-line cause (toml's
+/// annotated snippet) is left out: the layer above has put its gist on its own line.
+fn one_line(e: &dyn std::error::Error) -> String {
+    let mut msg = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !text.contains('\n') && !msg.contains(&text) {
+            msg = format!("{msg}: {text}");
+        }
+        cause = c.source();
+    }
+    msg.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join("; ")
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        // Help and version, and the help shown for a bare `vkinverse`, as clap prints them.
+        Err(e) if !e.use_stderr() || e.kind() == clap::error::ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => e.exit(),
+        // Usage errors get the same one-line form as every other error; clap's usual exit
+        // status for them (2) is kept.
+        Err(e) => {
+            let text = e.render().to_string();
+            let first = text.lines().next().unwrap_or_default();
+            eprintln!("vkinverse: error: {} (see --help)", first.strip_prefix("error: ").unwrap_or(first));
+            return ExitCode::from(2);
+        }
+    };
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vkinverse: error: {e}");
+            eprintln!("vkinverse: error: {}", one_line(e.as_ref()));
             ExitCode::FAILURE
         }
     }

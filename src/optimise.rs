@@ -76,6 +76,10 @@ impl Settings {
         if !(self.lr.is_finite() && self.lr > 0.0) {
             return Err(Error::Invalid(format!("learning rate {} must be positive", self.lr)));
         }
+        // A NaN budget would never be reached and a negative one ends before the first step.
+        if let Some(t) = self.time_budget.filter(|t| !(t.is_finite() && *t > 0.0)) {
+            return Err(Error::Invalid(format!("time budget {t} s must be positive")));
+        }
         if self.iterations == 0 && self.time_budget.is_none() {
             return Err(Error::Invalid("nothing to do: 0 iterations and no time budget".into()));
         }
@@ -320,8 +324,9 @@ pub fn optimise(
         }
         log.push('\n');
     }
+    // The error at the start of the run, also when resuming from a later θ.
+    let initial_error = has_reference.then(|| gs.layout.errors(&gs.layout.initial()).0);
     let theta0: Vec<f32> = gs.theta.read()?;
-    let initial_error = has_reference.then(|| gs.layout.errors(&theta0).0);
     if !resume {
         // Row 0: the start, before any step.
         let (e, per) = gs.layout.errors(&theta0);
@@ -333,12 +338,15 @@ pub fn optimise(
     }
 
     let start = Instant::now();
+    // Wall time spent on logging and checkpoints, which `time_s` leaves out.
+    let mut untimed = 0.0;
+    let timed = |untimed: f64| time_offset + start.elapsed().as_secs_f64() - untimed;
     let mut pass_samples: std::collections::BTreeMap<String, Vec<f64>> = Default::default();
     let mut last_loss = f64::NAN;
     let mut last_error = initial_error;
     let mut it = first;
     loop {
-        let elapsed = time_offset + start.elapsed().as_secs_f64();
+        let elapsed = timed(untimed);
         if settings.time_budget.is_some_and(|b| elapsed >= b) || (settings.time_budget.is_none() && it >= settings.iterations) {
             break;
         }
@@ -347,7 +355,7 @@ pub fn optimise(
         }
         gs.set_frame(it)?;
         cmd.submit_and_wait()?;
-        let time_s = time_offset + start.elapsed().as_secs_f64();
+        let time_s = timed(untimed);
         let times = profiler.results()?;
         let gpu_ms: f64 = times.iter().filter(|t| t.depth == 0).map(|t| t.ms).sum();
         for t in times.iter().filter(|t| t.depth == 0) {
@@ -371,8 +379,9 @@ pub fn optimise(
             let meta = CheckpointMeta { iteration: it, time_s, gpu_time_s: gpu_total, optimiser: settings.optimiser.name().into() };
             save_checkpoint(out_dir, &gs.theta, &opt, &meta)?;
         }
+        untimed += timed(untimed) - time_s;
     }
-    let total_time_s = time_offset + start.elapsed().as_secs_f64();
+    let total_time_s = timed(untimed);
     image::write_bytes_atomic(&log_path, log.as_bytes()).map_err(io_err(&log_path))?;
     let meta = CheckpointMeta { iteration: it, time_s: total_time_s, gpu_time_s: gpu_total, optimiser: settings.optimiser.name().into() };
     save_checkpoint(out_dir, &gs.theta, &opt, &meta)?;

@@ -1,0 +1,562 @@
+//! The command line end to end: the built binary on tiny scenes, with the validation layer on
+//! (`VKINVERSE_VALIDATION=1`), its outputs read back and checked against DESIGN.md's formats,
+//! and bad input checked to give one `vkinverse: error:` line, a non-zero exit and no output.
+
+mod common;
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use common::scenes::temp_dir;
+use vkinverse::npy::{self, Array};
+use vkinverse::optim::{self, Optimiser, Range};
+
+/// Longest any one invocation may take before the test fails instead of hanging.
+const DEADLINE: Duration = Duration::from_secs(120);
+
+/// What the validation layer's messages start with on stderr.
+const VALIDATION: &str = "vulkan validation:";
+
+const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+
+struct Output {
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+    wall: Duration,
+}
+
+impl Output {
+    fn ok(&self) -> bool {
+        self.code == Some(0)
+    }
+}
+
+/// Runs the binary with the validation layer on (and on the test device, where one is named)
+/// and fails the test if it outlives [`DEADLINE`], panics, or the layer reports anything.
+fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
+    cmd.args(args).env("VKINVERSE_VALIDATION", "1");
+    if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
+        cmd.args(["--device", &device]);
+    }
+    let start = Instant::now();
+    let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("run vkinverse");
+    // Drained on threads so that a chatty child never blocks on a full pipe.
+    let drain = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut s = String::new();
+            r.read_to_string(&mut s).expect("read child output");
+            s
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > DEADLINE {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("vkinverse {:?} still running after {DEADLINE:?}", cmd.get_args().collect::<Vec<_>>());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let output = Output { code: status.code(), stdout: out.join().unwrap(), stderr: err.join().unwrap(), wall: start.elapsed() };
+    let args: Vec<_> = cmd.get_args().collect();
+    assert!(!output.stderr.contains(VALIDATION), "{args:?}: validation messages:\n{}", output.stderr);
+    assert!(!output.stderr.contains("panicked"), "{args:?}: panic:\n{}", output.stderr);
+    output
+}
+
+/// Runs and requires exit status 0.
+fn vkinverse_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    let out = vkinverse(args);
+    let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy().into_owned()).collect();
+    assert!(out.ok(), "vkinverse {shown:?} failed ({:?}):\n{}", out.code, out.stderr);
+    out
+}
+
+/// Runs, requires a non-zero exit and stderr of exactly one `vkinverse: error:` line that
+/// contains every needle; returns that line.
+fn vkinverse_err<S: AsRef<std::ffi::OsStr>>(args: &[S], needles: &[&str]) -> String {
+    let out = vkinverse(args);
+    let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy().into_owned()).collect();
+    assert!(!out.ok() && out.code.is_some(), "vkinverse {shown:?} should fail, exited {:?}", out.code);
+    let lines: Vec<&str> = out.stderr.lines().collect();
+    assert!(lines.len() == 1 && lines[0].starts_with("vkinverse: error: "), "{shown:?}: stderr is not one error line:\n{}", out.stderr);
+    for needle in needles {
+        assert!(lines[0].contains(needle), "{shown:?}: {:?} lacks {needle:?}", lines[0]);
+    }
+    lines[0].to_string()
+}
+
+fn bundled_cornell() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell/scene.toml")
+}
+
+/// `scenes/cornell` with the film cut to 16×16 and direct light only, in a directory of its
+/// own holding copies of the meshes.
+fn cornell_copy(name: &str) -> PathBuf {
+    let src = bundled_cornell();
+    let dir = temp_dir(name);
+    let meshes = dir.join("meshes");
+    std::fs::create_dir_all(&meshes).unwrap();
+    for entry in std::fs::read_dir(src.parent().unwrap().join("meshes")).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), meshes.join(entry.file_name())).unwrap();
+    }
+    let mut text = std::fs::read_to_string(&src).unwrap();
+    for (from, to) in [("width = 64", "width = 16"), ("height = 64", "height = 16"), ("max_depth = 4", "max_depth = 2")] {
+        assert!(text.contains(from), "scenes/cornell/scene.toml no longer has `{from}`");
+        text = text.replacen(from, to, 1);
+    }
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// One tiny Cornell box per test process, so that its rendered target (cached beside the
+/// scene) is rendered once, not by every test.
+fn tiny_cornell() -> &'static Path {
+    static SCENE: OnceLock<PathBuf> = OnceLock::new();
+    SCENE.get_or_init(|| cornell_copy("cornell16"))
+}
+
+/// A tiny Cornell box whose scene text is edited by `edit`, in its own directory.
+fn edited_cornell(name: &str, edit: impl FnOnce(&str) -> String) -> PathBuf {
+    let path = cornell_copy(name);
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, edit(&text)).unwrap();
+    path
+}
+
+fn replace_once(text: &str, from: &str, to: &str) -> String {
+    assert!(text.contains(from), "scene text lacks {from:?}");
+    text.replacen(from, to, 1)
+}
+
+fn s(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+fn dir_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    names
+}
+
+/// log.csv as a header and rows of fields.
+fn read_log(dir: &Path) -> (String, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(dir.join("log.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().expect("log.csv is empty").to_string();
+    let rows = lines.map(|l| l.split(',').map(str::to_string).collect()).collect();
+    (header, rows)
+}
+
+fn field(row: &[String], i: usize) -> f64 {
+    row[i].parse().unwrap_or_else(|_| panic!("log.csv field {i} of {row:?} is not a number"))
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Checks the bytes are a decodable PNG and returns its size.
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap();
+    assert!(bytes.starts_with(PNG_SIGNATURE), "{} lacks the PNG signature", path.display());
+    let info = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    (info.info().width, info.info().height)
+}
+
+const LOG_HEADER: &str = "iteration,time_s,gpu_time_s,loss,param_error,param_error.materials.red.base_color";
+
+#[test]
+fn info_lists_lavapipe_and_features() {
+    let text = vkinverse_ok(&["info"]).stdout;
+    assert!(text.contains("llvmpipe"), "lavapipe missing from:\n{text}");
+    // Without this line the absence of validation messages would prove nothing.
+    assert!(text.contains("validation layer: on"), "VKINVERSE_VALIDATION=1 did not turn the layer on:\n{text}");
+
+    let info = json(&{
+        let dir = temp_dir("info");
+        let path = dir.join("info.json");
+        std::fs::write(&path, vkinverse_ok(&["info", "--json"]).stdout).unwrap();
+        path
+    });
+    let chosen = info["chosen"].as_u64().expect("chosen device index") as usize;
+    let device = &info["devices"][chosen];
+    let features = device["features"].as_object().expect("features map");
+    assert!(features.len() >= 7, "{features:?}");
+    for (name, has) in features {
+        assert_eq!(has, &serde_json::Value::Bool(true), "{name}: vkinverse runs only on devices that have it");
+        let line = text.lines().find(|l| l.trim_start().starts_with(name.as_str()));
+        assert!(line.is_some_and(|l| l.trim_end().ends_with("yes")), "no `{name} ... yes` line in:\n{text}");
+    }
+    assert!(text.contains(device["name"].as_str().unwrap()));
+
+    // A reader that stops early closes the pipe: that is not an error and not a panic.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_vkinverse"))
+        .args(["info", "--json"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && stderr.is_empty(), "closed stdout: {:?}\n{stderr}", out.status);
+}
+
+#[test]
+fn render_writes_exr_and_png() {
+    let dir = temp_dir("render");
+    let scene = bundled_cornell();
+    let film = vkinverse::scene::Scene::load(&scene).unwrap().film;
+    let exr = dir.join("cornell.exr");
+    let png = dir.join("cornell.png");
+    vkinverse_ok(&["render", &s(&scene), "--spp", "2", "-o", &s(&exr)]);
+    vkinverse_ok(&["render", &s(&scene), "--spp", "1", "--seed", "3", "-o", &s(&png)]);
+
+    let image = vkinverse::image::read_exr(&exr).unwrap();
+    assert_eq!((image.width, image.height), (film.width, film.height));
+    assert!(image.data.iter().flatten().all(|c| c.is_finite() && *c >= 0.0), "negative or non-finite radiance");
+    // The area light faces the camera's side of the box: some pixels must be lit.
+    assert!(image.data.iter().flatten().any(|c| *c > 0.1), "the render is black");
+    assert_eq!(png_size(&png), (film.width, film.height));
+    assert_eq!(dir_names(&dir), ["cornell.exr", "cornell.png"]);
+
+    // Each bad argument is one error line, and nothing new appears in the directory.
+    let bad = dir.join("bad.exr");
+    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("bad.jpg"))], &["bad.jpg", ".exr or .png"]);
+    vkinverse_err(&["render", &s(&scene), "--spp", "0", "-o", &s(&bad)], &["--spp"]);
+    vkinverse_err(&["render", &s(&scene), "--spp", "1", "--sensor", "5", "-o", &s(&bad)], &["--sensor 5", "1 sensor"]);
+    vkinverse_err(&["render", &s(&scene), "--spp", "abc", "-o", &s(&bad)], &["--spp", "abc"]);
+    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("no/such/dir/x.exr"))], &["no/such/dir/x.exr"]);
+    assert_eq!(dir_names(&dir), ["cornell.exr", "cornell.png"]);
+}
+
+/// Runs `optimise` on the tiny Cornell box and checks every output against DESIGN.md;
+/// returns log.csv's param_error column.
+fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
+    let out_dir = temp_dir(&format!("optimise-{optimiser}"));
+    let out = vkinverse_ok(&[
+        "optimise",
+        &s(tiny_cornell()),
+        "--optimiser",
+        optimiser,
+        "--iterations",
+        &iterations.to_string(),
+        "--lr",
+        "0.05",
+        "-o",
+        &s(&out_dir),
+    ]);
+    assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
+    assert_eq!(dir_names(&out_dir), ["checkpoint", "error_vs_time.png", "final.exr", "log.csv", "params", "summary.json"]);
+
+    let (header, rows) = read_log(&out_dir);
+    assert_eq!(header, LOG_HEADER);
+    assert_eq!(rows.len(), iterations + 1, "row 0 plus one per iteration");
+    let mut last_time = (0.0, 0.0);
+    for (i, row) in rows.iter().enumerate() {
+        assert_eq!(row.len(), 6, "{row:?}");
+        assert_eq!(row[0], i.to_string());
+        let time = (field(row, 1), field(row, 2));
+        assert!(time.0 >= last_time.0 && time.1 >= last_time.1, "time went backwards at row {i}");
+        last_time = time;
+        // Row 0 is the start: no image has been rendered, so no loss.
+        if i == 0 {
+            assert_eq!(row[3], "");
+        } else {
+            let loss = field(row, 3);
+            assert!(loss.is_finite() && loss >= 0.0, "loss {loss}");
+        }
+        // One parameter: its error is the total error.
+        assert!((field(row, 4) - field(row, 5)).abs() < 1e-12);
+    }
+    let errors: Vec<f64> = rows.iter().map(|r| field(r, 4)).collect();
+    // init 0.5 grey against the reference red (0.63, 0.065, 0.05).
+    let expected0 = ((0.13f64.powi(2) + 0.435f64.powi(2) + 0.45f64.powi(2)) / 3.0).sqrt();
+    assert!((errors[0] - expected0).abs() < 1e-6, "initial error {} (expected {expected0})", errors[0]);
+
+    let summary = json(&out_dir.join("summary.json"));
+    assert_eq!(summary["iterations"], iterations);
+    assert_eq!(summary["optimiser"], optimiser);
+    assert!((summary["final_param_error"].as_f64().unwrap() - errors[iterations]).abs() < 1e-9);
+    assert!((summary["initial_param_error"].as_f64().unwrap() - errors[0]).abs() < 1e-9);
+    assert!((summary["settings"]["lr"].as_f64().unwrap() - 0.05).abs() < 1e-6);
+
+    let params = json(&out_dir.join("params/params.json"));
+    let red = params["materials.red.base_color"].as_array().expect("red wall colour in params.json");
+    assert_eq!(red.len(), 3);
+    let red: Vec<f64> = red.iter().map(|v| v.as_f64().unwrap()).collect();
+    assert!(red.iter().all(|v| (0.0..=1.0).contains(v)), "{red:?} outside the range [0, 1]");
+    // The saved colour is the last logged θ.
+    let rmse = (red.iter().zip([0.63, 0.065, 0.05]).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / 3.0).sqrt();
+    assert!((rmse - errors[iterations]).abs() < 1e-4, "params.json error {rmse}, log {}", errors[iterations]);
+
+    let final_image = vkinverse::image::read_exr(&out_dir.join("final.exr")).unwrap();
+    assert_eq!((final_image.width, final_image.height), (16, 16));
+    png_size(&out_dir.join("error_vs_time.png"));
+    let state = json(&out_dir.join("checkpoint/state.json"));
+    assert_eq!(state["iteration"], iterations);
+    assert_eq!(state["optimiser"], optimiser);
+    errors
+}
+
+#[test]
+fn optimise_adam_outputs_and_progress() {
+    let errors = optimise_and_check("adam", 8);
+    assert!(errors[8] < 0.8 * errors[0], "adam did not approach the reference: {errors:?}");
+}
+
+#[test]
+fn optimise_meta_outputs_and_progress() {
+    let errors = optimise_and_check("meta", 8);
+    assert!(errors[8] < 0.8 * errors[0], "meta did not approach the reference: {errors:?}");
+}
+
+#[test]
+fn command_line_lr_overrides_the_scene() {
+    // Adam's first step moves every element by lr (|m̂/√v̂| = 1), whatever the gradient's
+    // size, so one step from 0.5 lands on 0.5 ± lr, not 0.5 ± the scene's 0.02.
+    let out_dir = temp_dir("lr");
+    vkinverse_ok(&["optimise", &s(tiny_cornell()), "--optimiser", "adam", "--iterations", "1", "--lr", "0.1", "--quiet", "-o", &s(&out_dir)]);
+    let params = json(&out_dir.join("params/params.json"));
+    for v in params["materials.red.base_color"].as_array().unwrap() {
+        let step = (v.as_f64().unwrap() - 0.5).abs();
+        assert!((step - 0.1).abs() < 1e-3, "first step {step}, expected the --lr of 0.1");
+    }
+}
+
+#[test]
+fn resume_continues_from_the_checkpoint() {
+    let out_dir = temp_dir("resume");
+    let base = ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "--quiet", "-o", &s(&out_dir)].map(String::from);
+    let with = |extra: &[&str]| base.iter().cloned().chain(extra.iter().map(|a| a.to_string())).collect::<Vec<_>>();
+    vkinverse_ok(&with(&["--iterations", "6", "--checkpoint-every", "3"]));
+    let state = json(&out_dir.join("checkpoint/state.json"));
+    assert_eq!(state["iteration"], 6);
+    let (_, first) = read_log(&out_dir);
+    assert_eq!(first.len(), 7);
+    // The clock resumes where the last row left it: writing the log and checkpoints is not
+    // optimisation time (generous slack for a preempted process).
+    let saved = state["time_s"].as_f64().unwrap() - field(&first[6], 1);
+    assert!((-1e-6..0.05).contains(&saved), "checkpoint time {saved} s after the last row");
+    // Atomic checkpoints leave no staging directories behind.
+    assert!(!out_dir.join("checkpoint.tmp").exists() && !out_dir.join("checkpoint.old").exists());
+
+    vkinverse_ok(&with(&["--iterations", "10", "--resume"]));
+    let (header, rows) = read_log(&out_dir);
+    assert_eq!(header, LOG_HEADER);
+    let iterations: Vec<String> = rows.iter().map(|r| r[0].clone()).collect();
+    assert_eq!(iterations, (0..=10).map(|i| i.to_string()).collect::<Vec<_>>(), "iterations 0..=10, each once");
+    // The first six rows are kept as they were.
+    assert_eq!(rows[..7], first[..]);
+    let times: Vec<f64> = rows.iter().map(|r| field(r, 1)).collect();
+    assert!(times.windows(2).all(|w| w[0] <= w[1]), "time_s restarted on resume: {times:?}");
+    // θ continues: the step after the checkpoint starts near the checkpoint's error, far
+    // from the initial one.
+    let e = |i: usize| field(&rows[i], 4);
+    assert!((e(7) - e(6)).abs() < 0.05 && (e(7) - e(6)).abs() < 0.5 * (e(7) - e(0)).abs(), "errors {:?}", (e(0), e(6), e(7)));
+    assert!(e(10) < e(6), "no progress after resuming: {:?}", (e(6), e(10)));
+
+    let summary = json(&out_dir.join("summary.json"));
+    assert_eq!(summary["iterations"], 10);
+    assert!((summary["initial_param_error"].as_f64().unwrap() - e(0)).abs() < 1e-9, "the initial error is the run's, not the checkpoint's");
+    assert!((summary["final_param_error"].as_f64().unwrap() - e(10)).abs() < 1e-9);
+    assert_eq!(json(&out_dir.join("checkpoint/state.json"))["iteration"], 10);
+
+    // Resuming with the other optimiser cannot use this state.
+    let mut adam = with(&["--iterations", "12", "--resume"]);
+    adam[3] = "adam".into();
+    vkinverse_err(&adam, &["checkpoint", "meta"]);
+}
+
+#[test]
+fn time_budget_stops_the_run() {
+    let out_dir = temp_dir("budget");
+    let out = vkinverse_ok(&["optimise", &s(tiny_cornell()), "--optimiser", "adam", "--time-budget", "2", "--quiet", "-o", &s(&out_dir)]);
+    let summary = json(&out_dir.join("summary.json"));
+    let total = summary["total_time_s"].as_f64().unwrap();
+    // The loop stops at the first check past the budget: one iteration over it at most.
+    assert!((2.0..10.0).contains(&total), "optimised for {total} s on a 2 s budget");
+    let (_, rows) = read_log(&out_dir);
+    assert!(rows.len() > 2, "only {} rows", rows.len());
+    // log.csv rounds to microseconds.
+    assert!(field(rows.last().unwrap(), 1) <= total + 1e-6, "{:?} after {total} s", rows.last());
+    // Set-up (target, pipelines, final render) comes on top and is slow on a busy CPU.
+    assert!(out.wall < Duration::from_secs(60), "the run took {:?}", out.wall);
+}
+
+#[test]
+fn bad_scenes_are_one_line_errors_and_write_nothing() {
+    let check = |name: &str, scene: &Path, needles: &[&str]| {
+        let out_dir = scene.parent().unwrap().join("out");
+        let line = vkinverse_err(&["optimise", &s(scene), "--iterations", "2", "-o", &s(&out_dir)], needles);
+        assert!(!out_dir.exists(), "{name}: output directory created");
+        line
+    };
+
+    let toml = edited_cornell("bad-toml", |t| replace_once(t, "height = 16", "height = = 16"));
+    let line = check("toml", &toml, &["scene.toml:7:"]);
+    // toml's own multi-line snippet (`7 | height = = 16` and a caret) is not squeezed in.
+    assert!(!line.contains('^') && !line.contains(" | "), "{line}");
+
+    let missing = edited_cornell("missing-obj", |t| replace_once(t, "meshes/floor.obj", "meshes/no_floor.obj"));
+    check("missing obj", &missing, &["scene.toml", "no_floor.obj"]);
+
+    let broken = cornell_copy("broken-obj");
+    std::fs::write(broken.parent().unwrap().join("meshes/floor.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n").unwrap();
+    check("broken obj", &broken, &["floor.obj:4", "7"]);
+
+    let target = edited_cornell("bad-target", |t| replace_once(t, "fov_y = 39.3", "fov_y = 39.3\ntarget_image = \"target.exr\""));
+    std::fs::write(target.parent().unwrap().join("target.exr"), "P6 16 16 255\n").unwrap();
+    check("target", &target, &["target_image", "target.exr"]);
+
+    let nothing = temp_dir("no-scene").join("scene.toml");
+    check("no scene", &nothing, &["scene.toml"]);
+}
+
+#[test]
+fn bad_optimise_flags_are_one_line_errors() {
+    let scene = s(tiny_cornell());
+    let out_dir = temp_dir("bad-flags").join("out");
+    let run = |extra: &[&str], needles: &[&str]| {
+        let args: Vec<&str> = ["optimise", scene.as_str(), "-o", out_dir.to_str().unwrap()].iter().chain(extra).copied().collect();
+        vkinverse_err(&args, needles);
+        assert!(!out_dir.exists(), "{extra:?}: output directory created");
+    };
+    run(&["--lr", "-1"], &["--lr", "-1"]);
+    run(&["--lr", "0"], &["--lr"]);
+    run(&["--optimiser", "foo"], &["--optimiser", "foo"]);
+    run(&["--time-budget", "-1"], &["--time-budget"]);
+    run(&["--time-budget", "nan"], &["--time-budget"]);
+    run(&["--spp", "0"], &["--spp"]);
+    run(&["--fd-spp", "0"], &["--fd-spp"]);
+    run(&["--iterations", "0"], &["0 iterations"]);
+    run(&["--unknown-flag"], &["--unknown-flag"]);
+    let resume_dir = temp_dir("resume-nothing");
+    vkinverse_err(&["optimise", &scene, "--iterations", "2", "--resume", "-o", &s(&resume_dir)], &["state.json"]);
+    vkinverse_err(&["gradcheck", &scene, "--spp", "0"], &["--spp"]);
+    vkinverse_err(&["bench", "--elements", "0"], &["--elements"]);
+}
+
+/// Gradient streams with magnitudes from 1e-3 to 1e2 and both signs.
+fn streams(iterations: usize, n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
+    let value = |i: usize, j: usize, salt: f32| ((i * 7 + j * 13) as f32 * 0.37 + salt).sin() * 10f32.powi((j % 6) as i32 - 3);
+    let g = (0..iterations).map(|i| (0..n).map(|j| value(i, j, 0.0)).collect()).collect();
+    let fd = (0..iterations).map(|i| (0..n).map(|j| 0.1 * value(i, j, 1.3)).collect()).collect();
+    (g, fd)
+}
+
+#[test]
+fn replay_matches_the_cpu_reference() {
+    let dir = temp_dir("replay");
+    let (iterations, n) = (12, 5);
+    let (g, fd) = streams(iterations, n);
+    let grads = dir.join("grads.npy");
+    let fd_grads = dir.join("fd_grads.npy");
+    npy::write_rows(&grads, &g).unwrap();
+    npy::write_rows(&fd_grads, &fd).unwrap();
+    let init: Vec<f32> = (0..n).map(|j| 0.2 + 0.1 * j as f32).collect();
+    let init_path = dir.join("init.npy");
+    npy::write(&init_path, &Array { shape: vec![n], data: init.clone() }).unwrap();
+
+    let cases: [(&str, Option<&[f32]>, Option<&str>); 4] =
+        [("adam", None, None), ("meta", None, None), ("adam", Some(&init), Some("0,1")), ("meta", Some(&init), Some("0.1,0.7"))];
+    for (name, start, range) in cases {
+        let traj = dir.join(format!("traj-{name}-{}.npy", start.is_some()));
+        let mut args = vec!["replay".to_string(), "--optimiser".into(), name.into(), "--lr".into(), "0.05".into()];
+        if start.is_some() {
+            args.extend(["--init".into(), s(&init_path)]);
+        }
+        if let Some(r) = range {
+            args.extend(["--range".into(), r.into()]);
+        }
+        args.extend([s(&grads), s(&fd_grads), "-o".into(), s(&traj)]);
+        vkinverse_ok(&args);
+
+        let got = npy::read(&traj).unwrap();
+        assert_eq!(got.shape, [iterations + 1, n]);
+        let zeros = vec![0.0; n];
+        let start = start.unwrap_or(&zeros);
+        let rows = got.rows();
+        assert_eq!(rows[0], start, "{name}: row 0 is the start");
+        let optimiser: Optimiser = name.parse().unwrap();
+        let range: Range = range.map_or(Range::UNBOUNDED, |r| r.parse().unwrap());
+        let cpu = optim::replay_cpu(&optimiser, &g, Some(&fd), start, range, 0.05).unwrap();
+        for (i, (gpu_row, cpu_row)) in rows.iter().zip(&cpu.theta).enumerate() {
+            for (j, (a, b)) in gpu_row.iter().zip(cpu_row).enumerate() {
+                assert!((*a as f64 - b).abs() < 1e-5, "{name} {range:?}: θ[{i}][{j}] GPU {a} CPU {b}");
+                assert!(range.lo <= *a as f64 && *a as f64 <= range.hi);
+            }
+        }
+        // The trajectory moved: a replay that ignored the gradients would also start right.
+        assert!(rows[iterations] != rows[0], "{name}: θ never moved");
+    }
+}
+
+#[test]
+fn bad_replay_inputs_are_one_line_errors() {
+    let dir = temp_dir("replay-bad");
+    let (g, fd) = streams(4, 3);
+    let grads = dir.join("grads.npy");
+    npy::write_rows(&grads, &g).unwrap();
+    let fd_grads = dir.join("fd_grads.npy");
+    npy::write_rows(&fd_grads, &fd).unwrap();
+
+    let bytes = std::fs::read(&grads).unwrap();
+    let truncated = dir.join("truncated.npy");
+    std::fs::write(&truncated, &bytes[..bytes.len() - 6]).unwrap();
+    // Same header length, so only the dtype is wrong.
+    let f8 = dir.join("float64.npy");
+    let mut f8_bytes = bytes.clone();
+    let descr = f8_bytes.windows(5).position(|w| w == b"'<f4'").expect("dtype in the header");
+    f8_bytes[descr + 3] = b'8';
+    std::fs::write(&f8, f8_bytes).unwrap();
+    let narrow = dir.join("narrow.npy");
+    npy::write_rows(&narrow, &fd.iter().map(|r| r[..2].to_vec()).collect::<Vec<_>>()).unwrap();
+    let one_d = dir.join("one_d.npy");
+    npy::write(&one_d, &Array { shape: vec![3], data: vec![0.0; 3] }).unwrap();
+    let bad_init = dir.join("init4.npy");
+    npy::write(&bad_init, &Array { shape: vec![4], data: vec![0.0; 4] }).unwrap();
+
+    let before = dir_names(&dir);
+    let traj = s(&dir.join("traj.npy"));
+    let run = |args: &[&str], needles: &[&str]| {
+        let mut all = vec!["replay"];
+        all.extend_from_slice(args);
+        all.extend_from_slice(&["-o", &traj]);
+        vkinverse_err(&all, needles);
+    };
+    let (grads, fd_grads) = (s(&grads), s(&fd_grads));
+    run(&["--optimiser", "adam", &s(&dir.join("missing.npy"))], &["missing.npy", "not found"]);
+    run(&["--optimiser", "adam", &s(&truncated)], &["truncated.npy", "truncated"]);
+    run(&["--optimiser", "adam", &s(&f8)], &["float64.npy", "<f8"]);
+    run(&["--optimiser", "adam", &s(&one_d)], &["one_d.npy", "[iterations, n]"]);
+    run(&["--optimiser", "meta", &grads, &s(&narrow)], &["narrow.npy", "[4, 2]", "[4, 3]"]);
+    run(&["--optimiser", "meta", &grads], &["meta", "FD_GRADS"]);
+    run(&["--optimiser", "adam", "--range", "1,0", &grads], &["--range", "1,0"]);
+    run(&["--optimiser", "adam", "--range", "0", &grads], &["--range"]);
+    run(&["--optimiser", "adam", "--lr", "-1", &grads], &["--lr"]);
+    run(&["--optimiser", "foo", &grads, &fd_grads], &["--optimiser", "foo"]);
+    run(&["--optimiser", "adam", "--init", &s(&bad_init), &grads], &["init4.npy", "4 values"]);
+    assert_eq!(dir_names(&dir), before, "a failed replay left files behind");
+}
+
+#[test]
+fn gradcheck_passes_on_the_cornell_box() {
+    let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell())]);
+    let rows: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("materials.red.base_color")).collect();
+    assert_eq!(rows.len(), 3, "one row per colour channel:\n{}", out.stdout);
+    assert!(rows.iter().all(|r| r.trim_end().ends_with("pass")), "{}", out.stdout);
+}
