@@ -72,9 +72,9 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
                 radiance += e;
 #ifdef ADJOINT
                 remaining -= e;
-                // Emission parameters enter linearly: d(beta * E)/dE = beta.
-                if (globals.environment.width == 0u)
-                    scatter3(globals.environment, vec2(0.0), delta * beta * globals.environment_scale);
+                // Emission parameters enter linearly: d(beta * E)/dE = beta, at the texel(s)
+                // of the lookup for an environment map.
+                scatter3(globals.environment, environment_uv(d), delta * beta * globals.environment_scale);
 #endif
             }
             break;
@@ -89,7 +89,8 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
         // Emission reached by the previous BSDF sample (or seen by the camera).
         if (sh.emitter_pdf > 0.0) {
             vec3 le = emitted(sh.mesh, ng, wo);
-            if (any(greaterThan(le, vec3(0.0)))) {
+            // The front side, not le > 0: an optimised emission at 0 still has a derivative.
+            if (dot(ng, wo) > 0.0) {
                 float mis = 1.0;
                 if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
                     // Convert the light-sampling pdf of this point to solid angle at prev_p.
@@ -132,7 +133,9 @@ vec3 trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L, vec3 delta) {
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0) {
                 vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0));
                 vec3 f = bsdf_eval(mat, ns, wo, wi);
-                if (any(greaterThan(le * f, vec3(0.0))) && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
+                // f > 0, not le * f > 0: the emission derivative f * mis / pdf_light does not
+                // vanish where an optimised emission channel is 0.
+                if (any(greaterThan(f, vec3(0.0))) && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
                     float pdf_light = pdf_area * dist2 / cos_l;
                     float mis = power_heuristic(pdf_light, bsdf_pdf(mat, ns, wo, wi));
                     vec3 c = beta * f * le * (mis / pdf_light);
