@@ -86,9 +86,10 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     radiance[s] += e;
 #ifdef ADJOINT
                     remaining[s] -= e;
-                    // Emission enters linearly: d(beta * scale * E)/dE = beta * scale.
-                    if (grad_pass && globals.environment.width == 0u)
-                        scatter3(globals.environment, vec2(0.0), state_sign(s) * delta[s] * beta[s] * globals.environment_scale);
+                    // Emission enters linearly: d(beta * scale * E)/dE = beta * scale, at the
+                    // texel(s) of the lookup for an environment map.
+                    if (grad_pass)
+                        scatter3(globals.environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * globals.environment_scale);
 #endif
                 }
             }

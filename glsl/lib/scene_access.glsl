@@ -118,12 +118,16 @@ Material fetch_material(uint id, vec2 uv, int state) {
     return m;
 }
 
-// Radiance emitted by the environment towards -dir, in parameter state `state`.
-vec3 environment_radiance(vec3 dir, int state) {
-    ValueRef r = globals.environment;
-    // Lat-long: u = azimuth around +y, v = polar angle from +y (top row = up).
+// Lat-long coordinates of direction dir: u = azimuth around +y, v = polar angle from +y
+// (top row = up).
+vec2 environment_uv(vec3 dir) {
     float u = atan(dir.x, -dir.z) * (0.5 / 3.14159265358979) + 0.5;
     float v = 1.0 - acos(clamp(dir.y, -1.0, 1.0)) / 3.14159265358979;
-    return globals.environment_scale * fetch3(r, vec2(u, v), state);
+    return vec2(u, v);
+}
+
+// Radiance emitted by the environment towards -dir, in parameter state `state`.
+vec3 environment_radiance(vec3 dir, int state) {
+    return globals.environment_scale * fetch3(globals.environment, environment_uv(dir), state);
 }
 #endif
