@@ -11,7 +11,7 @@
 //! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`.
 
 use crate::error::{Error, Result};
-use crate::gpu::{Access, Buffer, CommandBuffer, Context, MemoryKind, Profiler};
+use crate::gpu::{Access, Buffer, CommandBuffer, Context, MemoryKind, Profiler, Recorder};
 use crate::image::{self, Image};
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
@@ -184,6 +184,64 @@ fn write_params(dir: &Path, scene: &GpuScene, theta: &[f32]) -> Result<()> {
     image::write_bytes_atomic(&pdir.join("params.json"), text.as_bytes()).map_err(io_err(&pdir))
 }
 
+/// One optimiser group per optimised parameter, with its learning rate and range.
+pub fn param_groups(gs: &GpuScene) -> Vec<Group> {
+    gs.layout
+        .slots
+        .iter()
+        .map(|s| Group { offset: s.offset, len: s.len, lr: s.lr as f64, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } })
+        .collect()
+}
+
+/// The meta-estimator's finite-difference sample ⟨ΔF_i⟩: two gradient estimates with the
+/// same seeds (common random numbers), at θ_i and at θ_{i−1}, and their difference.
+pub struct FiniteDifference {
+    cur: GradientPass,
+    prev: GradientPass,
+    at_cur: Buffer,
+    at_prev: Buffer,
+    fd_grad: Buffer,
+}
+
+impl FiniteDifference {
+    /// Estimates at `fd_spp` samples reading θ from the scene and from `theta_prev`
+    /// (which is set to the initial values); [`Self::record`] writes the difference to
+    /// `fd_grad`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        gs: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: crate::scene::Loss,
+        fd_spp: u32,
+        seed: u32,
+        theta_prev: &Buffer,
+        fd_grad: &Buffer,
+    ) -> Result<Self> {
+        let n = gs.layout.len.max(1);
+        let at_cur = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta", n, MemoryKind::Device)?;
+        let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
+        let seed = seed.wrapping_add(SEED_FD);
+        // The primal images of the difference use fd_spp samples too: with common random
+        // numbers most of their noise cancels in the difference.
+        let cur = GradientPass::new(gs, ops, targets, loss, fd_spp, fd_spp, seed, &gs.theta, &at_cur)?;
+        let prev = GradientPass::new(gs, ops, targets, loss, fd_spp, fd_spp, seed, theta_prev, &at_prev)?;
+        theta_prev.write(&padded(gs, gs.layout.initial()))?;
+        Ok(Self { cur, prev, at_cur, at_prev, fd_grad: fd_grad.clone() })
+    }
+
+    /// Records both estimates and writes their difference to `fd_grad`.
+    pub fn record(&self, rec: &mut Recorder, gs: &GpuScene, ops: &BufferOps) -> crate::gpu::Result<()> {
+        rec.transition(&[(&self.at_cur, Access::TransferWrite), (&self.at_prev, Access::TransferWrite)])?;
+        rec.zero(&self.at_cur)?;
+        rec.zero(&self.at_prev)?;
+        self.cur.record(rec, gs, ops)?;
+        self.prev.record(rec, gs, ops)?;
+        rec.transition(&[(&self.at_cur, Access::ComputeRead), (&self.at_prev, Access::ComputeRead), (&self.fd_grad, Access::ComputeWrite)])?;
+        ops.sub(rec, &self.at_cur, &self.at_prev, &self.fd_grad)
+    }
+}
+
 /// Runs the optimisation of `scene` into `out_dir` (resuming from its checkpoint if
 /// `resume`), calling `progress` after each iteration.
 pub fn optimise(
@@ -210,27 +268,10 @@ pub fn optimise(
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
     let proportional = GradientPass::new(gs, &ops, &target_images, loss, settings.spp, settings.primal_spp, settings.seed, &gs.theta, &grad)?;
     let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
-    let groups: Vec<Group> = gs
-        .layout
-        .slots
-        .iter()
-        .map(|s| Group { offset: s.offset, len: s.len, lr: s.lr as f64, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } })
-        .collect();
+    let groups = param_groups(gs);
     let opt = GpuOptimiser::new(ctx, &ops, &settings.optimiser, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
-    // Finite differences (meta): two gradient estimates with the same seeds, at θ_i and
-    // at θ_{i−1}; their difference is ⟨ΔF_i⟩.
     let fd = match &opt.theta_prev {
-        Some(prev) => {
-            let at_cur = Buffer::zeroed::<f32>(ctx, "fd grad at theta", n, MemoryKind::Device)?;
-            let at_prev = Buffer::zeroed::<f32>(ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
-            let seed = settings.seed.wrapping_add(SEED_FD);
-            // The primal images of the difference use fd_spp samples too: with common random
-            // numbers most of their noise cancels in the difference.
-            let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, &gs.theta, &at_cur)?;
-            let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, prev, &at_prev)?;
-            prev.write(&padded(gs, gs.layout.initial()))?;
-            Some((cur, prv, at_cur, at_prev))
-        }
+        Some(prev) => Some(FiniteDifference::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.seed, prev, &fd_grad)?),
         None => None,
     };
 
@@ -240,9 +281,8 @@ pub fn optimise(
     let mut warm = CommandBuffer::new(ctx, "warm-up")?;
     warm.record(|rec| {
         proportional.record(rec, gs, &ops)?;
-        if let Some((cur, prv, _, _)) = &fd {
-            cur.record(rec, gs, &ops)?;
-            prv.record(rec, gs, &ops)?;
+        if let Some(fd) = &fd {
+            fd.record(rec, gs, &ops)?;
         }
         rec.transition(&[(&grad, Access::TransferWrite)])?;
         rec.zero(&grad)
@@ -254,16 +294,8 @@ pub fn optimise(
     cmd.record(|rec| {
         profiler.reset(rec);
         profiler.scope(rec, "gradient", |rec, _| proportional.record(rec, gs, &ops))?;
-        if let Some((cur, prv, at_cur, at_prev)) = &fd {
-            profiler.scope(rec, "finite_difference", |rec, _| {
-                rec.transition(&[(at_cur, Access::TransferWrite), (at_prev, Access::TransferWrite)])?;
-                rec.zero(at_cur)?;
-                rec.zero(at_prev)?;
-                cur.record(rec, gs, &ops)?;
-                prv.record(rec, gs, &ops)?;
-                rec.transition(&[(at_cur, Access::ComputeRead), (at_prev, Access::ComputeRead), (&fd_grad, Access::ComputeWrite)])?;
-                ops.sub(rec, at_cur, at_prev, &fd_grad)
-            })?;
+        if let Some(fd) = &fd {
+            profiler.scope(rec, "finite_difference", |rec, _| fd.record(rec, gs, &ops))?;
         }
         profiler.scope(rec, "optimiser", |rec, _| opt.record(rec, &ops))
     })?;
