@@ -10,6 +10,10 @@
 // variant: trace_adjoint ADJOINT
 // variant: trace_fd_primal FD
 // variant: trace_fd_adjoint FD ADJOINT
+// trace_primal_count (COUNT_RAYS) counts the rays it casts and trace_primal_generic
+// (GENERIC) reads the integrator's limits at run time: both for `vkinverse bench`.
+// variant: trace_primal_count COUNT_RAYS
+// variant: trace_primal_generic GENERIC
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/integrator.glsl"

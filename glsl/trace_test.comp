@@ -1,6 +1,7 @@
 #version 460
 // trace_test: one ray per thread through trace_closest and trace_any, both results
-// written; tests/bvh.rs compares them with the CPU reference and times the traversal.
+// written; tests/bvh.rs compares them with the CPU reference and `vkinverse bench SCENE`
+// times the traversal.
 // TRACE_CLOSEST / TRACE_ANY switch either trace off (a skipped one writes a miss / 0), so
 // that each can be timed alone.
 layout(local_size_x = 64, local_size_x_id = 0) in;

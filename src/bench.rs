@@ -2,10 +2,18 @@
 //!
 //! The buffer bench measures the bandwidth of the buffer kernels next to the plain copy
 //! kernel's, in one run, plus the costs that bound small workloads: a minimal dispatch
-//! and a submit + fence round trip. A host memcpy of the same size is the ceiling.
+//! and a submit + fence round trip. A host memcpy of the same size is the ceiling. The
+//! fused optimiser passes are measured the same way ([`optimiser_bandwidth`]), on a
+//! synthetic θ, for both benches. The scene bench is in [`scene`].
+
+mod scene;
+
+pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain};
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
 use crate::ops::BufferOps;
+use crate::optim::gpu::{GpuOptimiser, Group};
+use crate::optim::{Optimiser, Range};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -38,6 +46,126 @@ pub struct BufferBench {
     pub tiny_dispatch_us: f64,
     /// Host wall time of submitting an empty command buffer and waiting for its fence.
     pub submit_roundtrip_us: f64,
+    /// The fused optimiser passes over `elements` parameters.
+    pub optimisers: OptimiserBandwidth,
+}
+
+/// One fused optimiser pass (or the copy kernel) over a synthetic parameter buffer.
+#[derive(Clone, Debug, Serialize)]
+pub struct OptimiserPass {
+    pub name: String,
+    /// Bytes of the state arrays the pass reads plus those it writes, per parameter.
+    pub bytes_per_param: u64,
+    pub median_ms: f64,
+    pub gb_per_s: f64,
+    pub params_per_s: f64,
+    /// GB/s relative to the `copy` kernel in the same submissions.
+    pub ratio_to_copy: f64,
+}
+
+/// The optimiser passes (`optim_meta`, `optim_adam`) and `copy` over `elements` floats.
+#[derive(Clone, Debug, Serialize)]
+pub struct OptimiserBandwidth {
+    pub elements: u64,
+    pub iterations: u32,
+    pub passes: Vec<OptimiserPass>,
+}
+
+/// Bytes per parameter of each pass: the arrays of glsl/optim_meta.comp and
+/// glsl/optim_adam.comp, each read or written once per element (the per-workgroup ‖Δπ‖²
+/// partial sums, one float per 256 parameters, are left out).
+const OPTIMISER_BYTES: [(&str, u64); 3] = [
+    // reads θ, grad, fd_grad and the 6 meta arrays; writes θ_prev, θ, the 6 meta arrays
+    // and clears grad and fd_grad: 9 + 10 floats.
+    ("optim_meta", 4 * 19),
+    // reads θ, grad, m, r; writes θ, m, r and clears grad: 4 + 4 floats.
+    ("optim_adam", 4 * 8),
+    ("copy", 4 * 2),
+];
+
+/// Times the fused meta and Adam passes (default hyperparameters, unbounded range, zero
+/// gradients) and the copy kernel over `elements` parameters, `iterations` times each.
+pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<OptimiserBandwidth> {
+    let n = elements.max(1) as usize;
+    let iterations = iterations.max(1);
+    let ops = BufferOps::new(ctx)?;
+    let theta = Buffer::zeroed::<f32>(ctx, "bench theta", n, MemoryKind::Device)?;
+    // Zero gradients: every element takes the full update path (a finite gradient) and
+    // the values stay put, so each iteration does the same work.
+    let grad = Buffer::zeroed::<f32>(ctx, "bench grad", n, MemoryKind::Device)?;
+    let fd_grad = Buffer::zeroed::<f32>(ctx, "bench fd grad", n, MemoryKind::Device)?;
+    let copy_dst = Buffer::new(ctx, "bench theta copy", n as u64 * 4, MemoryKind::Device)?;
+    let frame = Buffer::from_slice(ctx, "bench frame", &[0u32], MemoryKind::Upload)?;
+    let groups = [Group { offset: 0, len: n, lr: 0.02, range: Range::UNBOUNDED }];
+    let meta = GpuOptimiser::new(ctx, &ops, &Optimiser::Meta(Default::default()), &theta, &grad, Some(&fd_grad), &frame, &groups)?;
+    let adam = GpuOptimiser::new(ctx, &ops, &Optimiser::Adam(Default::default()), &theta, &grad, None, &frame, &groups)?;
+
+    let mut profiler = Profiler::new(ctx, 3 * iterations)?;
+    let record = |cmd: &mut CommandBuffer, profiler: &mut Profiler, rounds: u32| {
+        cmd.record(|rec| {
+            profiler.reset(rec);
+            for _ in 0..rounds {
+                profiler.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
+                profiler.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
+                // copy reads θ, which both passes wrote.
+                rec.transition(&[(&theta, Access::ComputeRead), (&copy_dst, Access::ComputeWrite)])?;
+                profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
+            }
+            Ok(())
+        })
+    };
+    // Warm-up: lavapipe compiles a pipeline on its first dispatch.
+    let mut warm = CommandBuffer::new(ctx, "optimiser warm-up")?;
+    record(&mut warm, &mut profiler, 1)?;
+    warm.submit_and_wait()?;
+    let mut cmd = CommandBuffer::new(ctx, "optimiser bench")?;
+    record(&mut cmd, &mut profiler, iterations)?;
+    cmd.submit_and_wait()?;
+    let times = profiler.results()?;
+    let median_of = |name: &str| {
+        let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
+        median(&mut v)
+    };
+    let gbps = |name: &str, bytes: u64| bytes as f64 * n as f64 / (median_of(name) * 1e-3).max(1e-12) / 1e9;
+    let copy_gbps = gbps("copy", 8);
+    let passes = OPTIMISER_BYTES
+        .iter()
+        .map(|&(name, bytes)| OptimiserPass {
+            name: name.into(),
+            bytes_per_param: bytes,
+            median_ms: median_of(name),
+            gb_per_s: gbps(name, bytes),
+            params_per_s: n as f64 / (median_of(name) * 1e-3).max(1e-12),
+            ratio_to_copy: gbps(name, bytes) / copy_gbps,
+        })
+        .collect();
+    Ok(OptimiserBandwidth { elements: n as u64, iterations, passes })
+}
+
+impl OptimiserBandwidth {
+    /// A fixed-width table of the passes.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "optimiser passes on {} parameters (zero gradients), median of {} runs; bytes = state arrays read + written",
+            self.elements, self.iterations
+        );
+        let _ = writeln!(s, "{:<16} {:>12} {:>10} {:>10} {:>12} {:>10}", "pass", "bytes/param", "median ms", "GB/s", "Mparams/s", "vs copy");
+        for p in &self.passes {
+            let _ = writeln!(
+                s,
+                "{:<16} {:>12} {:>10.3} {:>10.2} {:>12.1} {:>10.2}",
+                p.name,
+                p.bytes_per_param,
+                p.median_ms,
+                p.gb_per_s,
+                p.params_per_s * 1e-6,
+                p.ratio_to_copy
+            );
+        }
+        s
+    }
 }
 
 /// Median of a non-empty list (0 for an empty one).
@@ -74,6 +202,7 @@ impl BufferBench {
         let _ = writeln!(s, "host memcpy      {:>23.2} GB/s", self.host_memcpy_gb_per_s);
         let _ = writeln!(s, "tiny dispatch    {:>23.1} us (GPU time)", self.tiny_dispatch_us);
         let _ = writeln!(s, "submit + wait    {:>23.1} us (host time, empty command buffer)", self.submit_roundtrip_us);
+        s.push_str(&self.optimisers.table());
         s
     }
 }
@@ -218,5 +347,6 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         host_memcpy_gb_per_s,
         tiny_dispatch_us: median_of("tiny_dispatch") * 1e3,
         submit_roundtrip_us: median(&mut rt),
+        optimisers: optimiser_bandwidth(ctx, n, iterations)?,
     })
 }

@@ -103,14 +103,16 @@ enum Command {
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
-    /// Measure GPU passes with timestamps. Without a scene: the buffer kernels' bandwidth.
+    /// Measure GPU passes with timestamps: a scene's iteration pass by pass, or without a
+    /// scene the buffer kernels' bandwidth; both time the optimiser passes on a synthetic θ.
     Bench {
         /// Scene to benchmark (the buffer kernels are measured when absent).
         scene: Option<std::path::PathBuf>,
-        /// Repetitions of each kernel (the median is reported).
+        /// Repetitions of each kernel or iteration (the median is reported).
         #[arg(long, default_value_t = 9)]
         iterations: u32,
-        /// Elements (f32) per buffer for the buffer kernels.
+        /// Elements (f32) per buffer for the buffer kernels, and parameters of the synthetic
+        /// θ of the optimiser passes.
         #[arg(long, default_value_t = 16 << 20)]
         elements: u64,
         #[arg(long)]
@@ -386,8 +388,16 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         Command::Bench { scene, iterations, elements, json } => {
-            if scene.is_some() {
-                return Err("scene benchmarks need the path tracer, which this build does not have yet".into());
+            if let Some(path) = scene {
+                let scene = vkinverse::scene::Scene::load(path)?;
+                let ctx = context(cli)?;
+                let result = vkinverse::bench::scene_bench(&ctx, &scene, *iterations, *elements)?;
+                if *json {
+                    println!("{}", serde_json::to_string_pretty(&result)?);
+                } else {
+                    print!("{}", result.table());
+                }
+                return Ok(());
             }
             // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
             if *elements < 4 {

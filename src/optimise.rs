@@ -95,6 +95,15 @@ pub struct Progress {
     pub param_error: Option<f64>,
 }
 
+/// One optimiser group per optimised parameter, with its learning rate and range.
+pub fn param_groups(gs: &GpuScene) -> Vec<Group> {
+    gs.layout
+        .slots
+        .iter()
+        .map(|s| Group { offset: s.offset, len: s.len, lr: s.lr as f64, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } })
+        .collect()
+}
+
 /// The meta-estimator's finite-difference sample.
 pub enum FdSample {
     /// One trace evaluates both parameter states (the default).
@@ -104,6 +113,33 @@ pub enum FdSample {
 }
 
 impl FdSample {
+    /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at
+    /// `settings.fd_spp` samples, with seeds independent of the proportional sample's.
+    pub fn new(
+        gs: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: crate::scene::Loss,
+        settings: &Settings,
+        theta_prev: &Buffer,
+        fd_grad: &Buffer,
+    ) -> Result<Self> {
+        theta_prev.write(&padded(gs, gs.layout.initial()))?;
+        let seed = settings.seed.wrapping_add(SEED_FD);
+        let spp = settings.fd_spp;
+        if !settings.fd_two_trace {
+            return Ok(FdSample::Fused(GradientPass::new_fd(gs, ops, targets, loss, spp, seed, theta_prev, fd_grad)?));
+        }
+        let n = gs.layout.len.max(1);
+        let at_cur = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta", n, MemoryKind::Device)?;
+        let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
+        // The primal images of the difference use fd_spp samples too: with common random
+        // numbers most of their noise cancels in the difference.
+        let cur = GradientPass::new(gs, ops, targets, loss, spp, spp, seed, &gs.theta, &at_cur)?;
+        let prv = GradientPass::new(gs, ops, targets, loss, spp, spp, seed, theta_prev, &at_prev)?;
+        Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
+    }
+
     /// Records ⟨ΔF⟩ into `fd_grad` (which the optimiser pass reads and clears).
     pub fn record(&self, rec: &mut crate::gpu::Recorder, gs: &GpuScene, ops: &BufferOps, fd_grad: &Buffer) -> crate::gpu::Result<()> {
         match self {
@@ -244,32 +280,13 @@ pub fn optimise(
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
     let proportional = GradientPass::new(gs, &ops, &target_images, loss, settings.spp, settings.primal_spp, settings.seed, &gs.theta, &grad)?;
     let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
-    let groups: Vec<Group> = gs
-        .layout
-        .slots
-        .iter()
-        .map(|s| Group { offset: s.offset, len: s.len, lr: s.lr as f64, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } })
-        .collect();
+    let groups = param_groups(gs);
     let opt = GpuOptimiser::new(ctx, &ops, &settings.optimiser, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
     // Finite differences (meta): the gradient at θ_i minus the gradient at θ_{i−1} with
     // common random numbers, from the fused single trace, or (fd_two_trace) from two
     // gradient estimates with the same seeds, one per state.
     let fd = match &opt.theta_prev {
-        Some(prev) => {
-            prev.write(&padded(gs, gs.layout.initial()))?;
-            let seed = settings.seed.wrapping_add(SEED_FD);
-            if settings.fd_two_trace {
-                let at_cur = Buffer::zeroed::<f32>(ctx, "fd grad at theta", n, MemoryKind::Device)?;
-                let at_prev = Buffer::zeroed::<f32>(ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
-                // The primal images of the difference use fd_spp samples too: with common
-                // random numbers most of their noise cancels in the difference.
-                let cur = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, &gs.theta, &at_cur)?;
-                let prv = GradientPass::new(gs, &ops, &target_images, loss, settings.fd_spp, settings.fd_spp, seed, prev, &at_prev)?;
-                Some(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
-            } else {
-                Some(FdSample::Fused(GradientPass::new_fd(gs, &ops, &target_images, loss, settings.fd_spp, seed, prev, &fd_grad)?))
-            }
-        }
+        Some(prev) => Some(FdSample::new(gs, &ops, &target_images, loss, settings, prev, &fd_grad)?),
         None => None,
     };
 

@@ -14,7 +14,7 @@ use glam::DVec3;
 use std::sync::Arc;
 use vkinverse::bvh::{self, Bvh, BvhBuffers, TraceRay, TraceResult, INNER, NO_HIT, STACK_SIZE, T_MIN};
 use vkinverse::gpu::Buffer;
-use vkinverse::gpu::{CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
+use vkinverse::gpu::{CommandBuffer, ComputePipeline, Context, MemoryKind};
 
 // ---------------------------------------------------------------------------------------
 // Inputs
@@ -180,15 +180,8 @@ fn pipeline(ctx: &Arc<Context>) -> ComputePipeline {
     ComputePipeline::new(ctx, "trace_test", &[]).unwrap()
 }
 
-/// Runs trace_test over `rays`; returns the results, and the GPU time when a profiler is
-/// given.
-fn run_trace(
-    ctx: &Arc<Context>,
-    pipe: &ComputePipeline,
-    bufs: &BvhBuffers,
-    rays: &[TraceRay],
-    profiler: Option<&mut Profiler>,
-) -> (Vec<TraceResult>, f64) {
+/// Runs trace_test over `rays` and returns the results.
+fn run_trace(ctx: &Arc<Context>, pipe: &ComputePipeline, bufs: &BvhBuffers, rays: &[TraceRay]) -> Vec<TraceResult> {
     let ray_buf = Buffer::from_slice(ctx, "rays", rays, MemoryKind::Device).unwrap();
     let out = Buffer::zeroed::<TraceResult>(ctx, "results", rays.len(), MemoryKind::Device).unwrap();
     let mut binds = vec![("Rays", &ray_buf), ("Results", &out)];
@@ -196,28 +189,14 @@ fn run_trace(
     let group = pipe.bind(&binds).unwrap();
     let push = (rays.len() as u32).to_le_bytes();
     let mut cmd = CommandBuffer::new(ctx, "trace_test").unwrap();
-    let mut ms = 0.0;
-    match profiler {
-        Some(prof) => {
-            cmd.record(|rec| {
-                prof.reset(rec);
-                prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(pipe, &group, &push, rays.len() as u64))
-            })
-            .unwrap();
-            cmd.submit_and_wait().unwrap();
-            ms = Profiler::total_ms(&prof.results().unwrap(), "trace_test");
-        }
-        None => {
-            cmd.record(|rec| rec.dispatch_linear(pipe, &group, &push, rays.len() as u64)).unwrap();
-            cmd.submit_and_wait().unwrap();
-        }
-    }
-    (out.read().unwrap(), ms)
+    cmd.record(|rec| rec.dispatch_linear(pipe, &group, &push, rays.len() as u64)).unwrap();
+    cmd.submit_and_wait().unwrap();
+    out.read().unwrap()
 }
 
 fn trace(ctx: &Arc<Context>, bvh: &Bvh, rays: &[TraceRay]) -> Vec<TraceResult> {
     let bufs = bvh.upload(ctx).unwrap();
-    run_trace(ctx, &pipeline(ctx), &bufs, rays, None).0
+    run_trace(ctx, &pipeline(ctx), &bufs, rays)
 }
 
 // ---------------------------------------------------------------------------------------
@@ -697,7 +676,7 @@ fn depth_limited_trees_trace_the_same() {
         for limit in [0, 2, 5] {
             let bvh = bvh::build_with_depth_limit(&mesh.positions, &mesh.indices, limit);
             let bufs = bvh.upload(ctx).unwrap();
-            let results = run_trace(ctx, &pipe, &bufs, &rays, None).0;
+            let results = run_trace(ctx, &pipe, &bufs, &rays);
             let borderline = check_against_cpu(&format!("depth limit {limit}"), &mesh, &rays, &results);
             assert!(borderline * 50 < rays.len(), "{borderline} borderline rays");
         }
@@ -765,76 +744,5 @@ fn deepest_tree_fills_the_stack() {
     check_against_cpu("deepest tree", &mesh, &rays, &results);
     for (k, g) in results.iter().enumerate() {
         assert_eq!(g.hit.prim, k as u32 / 2, "ray {k}: {:?}", rays[k]);
-    }
-}
-
-// ---------------------------------------------------------------------------------------
-// Throughput (run with --ignored --nocapture)
-// ---------------------------------------------------------------------------------------
-
-/// Rays/s of trace_test on the bundled scenes (the Cornell box first), 64 x 64 x 16 rays,
-/// timed by a profiler scope: camera rays through jittered pixel positions, and rays
-/// leaving random surface points in random directions; closest hit, any hit, and both.
-/// Prints the fastest and the median of 9 runs (other processes on the machine slow some).
-#[test]
-#[ignore]
-fn trace_throughput() {
-    for name in ["cornell", "spiral"] {
-        let scene =
-            vkinverse::scene::Scene::load(format!("{}/scenes/{name}/scene.toml", env!("CARGO_MANIFEST_DIR"))).unwrap();
-        let g = scene.flatten();
-        let mesh = Mesh { positions: g.positions, indices: g.indices };
-        let (w, h, spp) = (64usize, 64usize, 16usize);
-        let mut rng = Rng::new(11);
-        let sensor = &scene.sensors[0];
-        let aspect = scene.film.width as f32 / scene.film.height as f32;
-        let mut camera = Vec::with_capacity(w * h * spp);
-        for y in 0..h {
-            for x in 0..w {
-                for _ in 0..spp {
-                    let ndc = glam::Vec2::new(
-                        (x as f32 + rng.f32()) / w as f32 * 2.0 - 1.0,
-                        1.0 - (y as f32 + rng.f32()) / h as f32 * 2.0,
-                    );
-                    camera.push(ray(
-                        sensor.origin.to_array(),
-                        sensor.ray_direction(ndc, aspect).to_array(),
-                        f32::INFINITY,
-                    ));
-                }
-            }
-        }
-        let bounce: Vec<TraceRay> = (0..w * h * spp)
-            .map(|_| {
-                let prim = rng.next_u32() as usize % mesh.indices.len();
-                ray(mesh.point_on(prim, &mut rng), rng.direction(), f32::INFINITY)
-            })
-            .collect();
-        let bvh = bvh::build(&mesh.positions, &mesh.indices);
-        println!("{name}: {} triangles, {} nodes, {} rays per set", mesh.indices.len(), bvh.nodes.len(), camera.len());
-        with_gpu(|ctx| {
-            let bufs = bvh.upload(ctx).unwrap();
-            let mut prof = Profiler::new(ctx, 1).unwrap();
-            for (mode, closest, any) in [("closest", true, false), ("any", false, true), ("both", true, true)] {
-                let pipe = ComputePipeline::new(
-                    ctx,
-                    "trace_test",
-                    &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(any))],
-                )
-                .unwrap();
-                for (set, rays) in [("camera", &camera), ("bounce", &bounce)] {
-                    let mut times: Vec<f64> =
-                        (0..9).map(|_| run_trace(ctx, &pipe, &bufs, rays, Some(&mut prof)).1).collect();
-                    let best = times.iter().copied().fold(f64::INFINITY, f64::min);
-                    let median = vkinverse::bench::median(&mut times);
-                    let mrays = |ms: f64| rays.len() as f64 / ms * 1e-3;
-                    println!(
-                        "  {set:>6} {mode:>7}: best {best:7.2} ms {:6.2} Mrays/s, median {median:7.2} ms {:6.2} Mrays/s",
-                        mrays(best),
-                        mrays(median)
-                    );
-                }
-            }
-        });
     }
 }

@@ -24,6 +24,21 @@
 #include "lib/bvh_traverse.glsl"
 #include "lib/scene_access.glsl"
 
+#ifdef GENERIC
+// The unspecialised build (variant trace_primal_generic) that `vkinverse bench` times
+// against the specialised one: the same four values, read at run time as a pipeline
+// shared by every scene would read them, so both render the same image.
+layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
+    uint limit_max_depth;
+    uint limit_rr_depth;
+    uint limit_num_emitters;
+    uint limit_has_environment;
+};
+#define MAX_DEPTH limit_max_depth
+#define RR_DEPTH limit_rr_depth
+#define NUM_EMITTERS limit_num_emitters
+#define HAS_ENVIRONMENT (limit_has_environment != 0u)
+#else
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;
 // 0: no emissive triangles, light sampling is compiled out. (Tests on specialization
@@ -31,6 +46,28 @@ layout(constant_id = 2) const uint RR_DEPTH = 5;
 // comparisons of them.)
 layout(constant_id = 3) const uint NUM_EMITTERS = 0;
 layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
+#endif
+
+#ifdef COUNT_RAYS
+// Variant trace_primal_count: every ray cast is counted, one counter per workgroup so that
+// the atomics spread over many addresses; `vkinverse bench` sums them for its rays/s.
+layout(set = 0, binding = 40, scalar) buffer RayCount { uint ray_count[]; };
+#endif
+
+// trace_closest and trace_any as the integrator casts them (counted in COUNT_RAYS).
+bool cast_closest(vec3 o, vec3 d, float tmax, out Hit hit) {
+#ifdef COUNT_RAYS
+    atomicAdd(ray_count[workgroup_index()], 1u);
+#endif
+    return trace_closest(o, d, tmax, hit);
+}
+
+bool cast_any(vec3 o, vec3 d, float tmax) {
+#ifdef COUNT_RAYS
+    atomicAdd(ray_count[workgroup_index()], 1u);
+#endif
+    return trace_any(o, d, tmax);
+}
 
 // Offsets of ray origins from surfaces, relative to the scene scale (the kernels' scenes
 // are a few units across; this is ~1e-4 of that).
@@ -79,7 +116,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
-        if (!trace_closest(o, d, 1e30, hit)) {
+        if (!cast_closest(o, d, 1e30, hit)) {
             if (HAS_ENVIRONMENT) {
                 for (int s = 0; s < NSTATES; ++s) {
                     vec3 e = beta[s] * environment_radiance(d, s);
@@ -145,7 +182,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec3 wi = to_l / dist;
             TriShading lsh = shading[lprim];
             float cos_l = dot(lsh.ng, -wi);
-            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !trace_any(p_off, wi, dist * (1.0 - 1e-4))) {
+            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4))) {
                 float pdf_light = pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 for (int s = 0; s < NSTATES; ++s) {

@@ -7,7 +7,7 @@
 //! independent.
 
 use super::{GpuScene, TracePush};
-use crate::gpu::{self, Access, Buffer, ComputePipeline, MemoryKind, Recorder, SpecValue};
+use crate::gpu::{self, Access, Buffer, ComputePipeline, MemoryKind, Profiler, Recorder, SpecValue};
 use crate::image::Image;
 use crate::ops::{BufferOps, Reduction};
 use crate::scene::Loss;
@@ -47,6 +47,16 @@ pub struct GradientPass {
     pub spp: u32,
     pub primal_spp: u32,
     pub seed: u32,
+}
+
+/// Opens scope `name` when profiling.
+fn begin(rec: &mut Recorder, profiler: &mut Option<&mut Profiler>, name: &str) -> gpu::Result<()> {
+    profiler.as_deref_mut().map_or(Ok(()), |p| p.begin(rec, name))
+}
+
+/// Closes the scope [`begin`] opened.
+fn end(rec: &mut Recorder, profiler: &mut Option<&mut Profiler>) -> gpu::Result<()> {
+    profiler.as_deref_mut().map_or(Ok(()), |p| p.end(rec))
 }
 
 fn loss_index(loss: Loss) -> u32 {
@@ -167,15 +177,28 @@ impl GradientPass {
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
     /// whatever it held, and `loss_value(s)` sensor s's loss.
     pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
-        self.record_passes(rec, scene, ops, true)
+        self.record_passes(rec, scene, ops, true, None)
+    }
+
+    /// [`Self::record`] with each pass in a profiler scope of its name: `trace_primal`,
+    /// `loss` (with its reduction) and `trace_adjoint`, once per sensor.
+    pub fn record_profiled(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, profiler: &mut Profiler) -> gpu::Result<()> {
+        self.record_passes(rec, scene, ops, true, Some(profiler))
     }
 
     /// Records only the primal renders and the loss (for finite differences of the loss).
     pub fn record_loss(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
-        self.record_passes(rec, scene, ops, false)
+        self.record_passes(rec, scene, ops, false, None)
     }
 
-    fn record_passes(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, adjoint: bool) -> gpu::Result<()> {
+    fn record_passes(
+        &self,
+        rec: &mut Recorder,
+        scene: &GpuScene,
+        ops: &BufferOps,
+        adjoint: bool,
+        mut profiler: Option<&mut Profiler>,
+    ) -> gpu::Result<()> {
         let n = scene.pixels();
         for (s, b) in self.sensors.iter().enumerate() {
             let push = |spp: u32, seed: u32, weight: f32| TracePush {
@@ -199,10 +222,13 @@ impl GradientPass {
                 // The primal pass accumulates into the cleared image.
                 rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
             }
-            let p = push(self.primal_spp, self.seed.wrapping_add(SEED_PRIMAL), 1.0 / self.primal_spp as f32);
+            let p = self.primal_push(scene, s as u32);
+            begin(rec, &mut profiler, "trace_primal")?;
             rec.dispatch_linear(&self.primal, &b.primal_group, bytemuck::bytes_of(&p), n as u64)?;
+            end(rec, &mut profiler)?;
             let mut lp = (n as u32).to_le_bytes().to_vec();
             lp.extend_from_slice(&((1.0 / (3.0 * n as f64)) as f32).to_le_bytes());
+            begin(rec, &mut profiler, "loss")?;
             for (rendered, adjoint, partials, group) in &states {
                 rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
                 rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
@@ -213,13 +239,30 @@ impl GradientPass {
             // The loss partials (of θ, the reported loss) are reduced.
             rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite)])?;
             ops.record_reduction(rec, &b.reduction)?;
+            end(rec, &mut profiler)?;
             if !adjoint {
                 continue;
             }
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
+            begin(rec, &mut profiler, "trace_adjoint")?;
             rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
+            end(rec, &mut profiler)?;
         }
         Ok(())
+    }
+
+    /// The push constants of sensor `sensor`'s primal render: another primal kernel given
+    /// them (e.g. a variant of trace_primal) traces the same paths.
+    pub fn primal_push(&self, scene: &GpuScene, sensor: u32) -> TracePush {
+        TracePush {
+            width: scene.width,
+            height: scene.height,
+            sensor,
+            spp: self.primal_spp,
+            first_sample: 0,
+            seed: self.seed.wrapping_add(SEED_PRIMAL),
+            weight: 1.0 / self.primal_spp as f32,
+        }
     }
 
     /// Sensor s's loss after the recorded work ran.

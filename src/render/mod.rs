@@ -267,6 +267,17 @@ impl GpuScene {
         ]
     }
 
+    /// The run-time values of the integrator's limits that the unspecialised variant
+    /// `trace_primal_generic` reads (binding `IntegratorLimits`): the same as [`Self::spec`].
+    pub fn integrator_limits(&self) -> [u32; 4] {
+        [self.max_depth, self.rr_depth, self.emitters, self.has_environment as u32]
+    }
+
+    /// The scene's BVH on the device.
+    pub fn bvh(&self) -> &BvhBuffers {
+        &self.bvh
+    }
+
     /// Pixels of one sensor image.
     pub fn pixels(&self) -> usize {
         (self.width * self.height) as usize

@@ -1,0 +1,543 @@
+//! `vkinverse bench SCENE.toml`: the GPU passes of a scene's optimisation iteration, timed
+//! with profiler scopes over N submissions and reported as medians.
+//!
+//! One recording, resubmitted with a fresh iteration counter, holds three profilers so that
+//! everything compared is timed in the same submission, under the same load:
+//! - `passes`: scope `iteration` around one scope per pass, as `optimise` records them:
+//!   `trace_primal`, `loss`, `trace_adjoint` (each once per sensor), `finite_difference`
+//!   (the meta-estimator's two-trace sample), `optim_meta` and `optim_adam` (both
+//!   optimisers step θ, so that both are timed on the scene's parameter groups), and `copy`
+//!   over θ as the reference kernel;
+//! - `equal_spp`: the proportional gradient (`gradient`, with the same three pass scopes)
+//!   at fd_spp samples for primal and adjoint, for the cost ratios at equal sample counts;
+//! - `generic`: `trace_primal` built from the unspecialised variant trace_primal_generic
+//!   (the integrator's limits read at run time), for the specialisation gain.
+//!
+//! Rays are counted once, untimed, by the variant trace_primal_count, which traces the
+//! same paths as the primal pass with the same push constants and counts every ray cast;
+//! rays/s is that count over the median time of the uncounted primal pass. The same
+//! submission renders the specialised and generic variants too and compares the images,
+//! which must agree: the comparison is of speed only.
+//!
+//! The BVH throughput is trace_test (closest hit only, any hit only) on jittered camera
+//! rays of the first sensor.
+
+use super::{median, optimiser_bandwidth, OptimiserBandwidth};
+use crate::bvh::TraceRay;
+use crate::error::{Error, Result};
+use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, ScopeTime, SpecValue};
+use crate::ops::BufferOps;
+use crate::optim::gpu::GpuOptimiser;
+use crate::optim::Optimiser;
+use crate::optimise::{param_groups, FdSample, Settings};
+use crate::render::gradient::GradientPass;
+use crate::render::targets::{targets, TARGET_SPP};
+use crate::render::{GpuScene, Renderer};
+use crate::scene::{Loss, Scene};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+/// Camera rays per pixel of the BVH throughput measurement: enough work per dispatch that
+/// the dispatch overhead does not dominate on small films.
+const BVH_RAYS_PER_PIXEL: u32 = 16;
+
+/// One pass's median GPU time per iteration (summed over sensors).
+#[derive(Clone, Debug, Serialize)]
+pub struct PassTime {
+    pub name: String,
+    /// Samples per pixel of a rendering pass.
+    pub spp: Option<u32>,
+    pub median_ms: f64,
+    /// trace_primal: the counted rays over its time.
+    pub rays_per_s: Option<f64>,
+    /// Optimiser passes: the scene's parameters over the pass time (none without parameters).
+    pub params_per_s: Option<f64>,
+    /// copy: bytes read plus written over its time.
+    pub gb_per_s: Option<f64>,
+}
+
+/// Rays cast by one primal pass (every sensor, primal_spp samples), counted on the GPU.
+#[derive(Clone, Debug, Serialize)]
+pub struct RayCount {
+    pub spp: u32,
+    /// Primary, extension and shadow rays.
+    pub rays: u64,
+    pub rays_per_sample: f64,
+    /// `rays` over the median time of the (uncounted) trace_primal pass.
+    pub rays_per_s: f64,
+}
+
+/// A specialization constant of the integrator kernels as chosen for the scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpecConstant {
+    pub name: String,
+    pub value: String,
+}
+
+/// trace_primal specialised for the scene against the generic build on the same scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpecialisationGain {
+    pub spp: u32,
+    pub specialised_ms: f64,
+    pub generic_ms: f64,
+    /// generic_ms / specialised_ms.
+    pub gain: f64,
+    /// Σ|generic − specialised| / Σ|specialised| over the pixels of both renders (same seed).
+    pub generic_image_rel_diff: f64,
+    /// The same for the ray-counting variant.
+    pub count_image_rel_diff: f64,
+}
+
+/// Cost ratios at equal samples per pixel.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ratios {
+    /// The samples per pixel of both sides (the scene's fd_spp).
+    pub spp: u32,
+    /// The proportional gradient estimate (primal, loss, adjoint).
+    pub proportional_ms: f64,
+    /// The finite-difference sample as `optimise` records it (fused: one trace, both states).
+    pub finite_difference_ms: f64,
+    pub fd_over_proportional: f64,
+    /// The straightforward finite-difference sample (one gradient estimate per state).
+    pub finite_difference_two_trace_ms: f64,
+    pub fd_two_trace_over_proportional: f64,
+    pub primal_ms: f64,
+    pub adjoint_ms: f64,
+    /// The project's goal is at most 2.
+    pub adjoint_over_primal: f64,
+}
+
+/// trace_test on camera rays of the first sensor.
+#[derive(Clone, Debug, Serialize)]
+pub struct BvhThroughput {
+    pub rays: u64,
+    pub triangles: usize,
+    pub closest_ms: f64,
+    pub closest_mrays_per_s: f64,
+    pub any_ms: f64,
+    pub any_mrays_per_s: f64,
+}
+
+/// The scene bench's results.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneBench {
+    pub scene: String,
+    pub device: String,
+    pub iterations: u32,
+    /// `LP_NUM_THREADS` as set for lavapipe (unset: Mesa's default, one per core).
+    pub lp_num_threads: Option<String>,
+    pub validation: bool,
+    pub width: u32,
+    pub height: u32,
+    pub sensors: usize,
+    pub triangles: usize,
+    pub parameters: usize,
+    pub spp: u32,
+    pub primal_spp: u32,
+    pub fd_spp: u32,
+    /// GpuScene::spec(): the integrator's specialization constants.
+    pub specialisation: Vec<SpecConstant>,
+    /// Per-pass medians, in iteration order.
+    pub passes: Vec<PassTime>,
+    /// Median of the whole timed iteration (every pass above and the barriers between).
+    pub iteration_ms: f64,
+    pub rays: RayCount,
+    pub specialisation_gain: SpecialisationGain,
+    pub ratios: Ratios,
+    pub bvh: BvhThroughput,
+    /// Bytes of device allocations alive for the iteration's passes (scene, gradient and
+    /// finite-difference buffers, both optimisers' state).
+    pub memory_bytes: u64,
+    pub memory_allocations: usize,
+    /// The fused optimiser passes on a synthetic θ.
+    pub optimisers: OptimiserBandwidth,
+}
+
+/// Per-submission sums of the scopes of each name, collected over submissions.
+#[derive(Default)]
+struct Samples(BTreeMap<String, Vec<f64>>);
+
+impl Samples {
+    fn add(&mut self, times: &[ScopeTime]) {
+        let mut sums: BTreeMap<&str, f64> = BTreeMap::new();
+        for t in times {
+            *sums.entry(&t.name).or_default() += t.ms;
+        }
+        for (name, ms) in sums {
+            self.0.entry(name.to_string()).or_default().push(ms);
+        }
+    }
+
+    fn median(&self, name: &str) -> f64 {
+        median(&mut self.0.get(name).cloned().unwrap_or_default())
+    }
+}
+
+fn spec_value(v: SpecValue) -> String {
+    match v {
+        SpecValue::Bool(b) => b.to_string(),
+        SpecValue::U32(x) => x.to_string(),
+        SpecValue::I32(x) => x.to_string(),
+        SpecValue::F32(x) => x.to_string(),
+    }
+}
+
+/// Σ|a − b| / Σ|a| over every channel of two images.
+fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (p, q) in a.iter().zip(b) {
+        for c in 0..3 {
+            num += (p[c] as f64 - q[c] as f64).abs();
+            den += (p[c] as f64).abs();
+        }
+    }
+    num / den.max(f64::MIN_POSITIVE)
+}
+
+/// Benchmarks `scene`'s iteration over `iterations` submissions, and the optimiser
+/// passes on a synthetic θ of `optimiser_elements` parameters.
+pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser_elements: u64) -> Result<SceneBench> {
+    let iterations = iterations.max(1);
+    // First, so that its buffers (large at 16M parameters) are gone before the scene's.
+    let optimisers = optimiser_bandwidth(ctx, optimiser_elements, iterations)?;
+    measure_scene(ctx, scene, iterations, optimisers)
+}
+
+fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth) -> Result<SceneBench> {
+    let st = Settings::from_scene(scene);
+    if st.spp == 0 || st.primal_spp == 0 || st.fd_spp == 0 {
+        return Err(Error::Invalid(format!("{}: spp, primal_spp and fd_spp must be at least 1", scene.path.display())));
+    }
+    let loss: Loss = st.loss.parse().map_err(|_| Error::Invalid(format!("unknown loss '{}'", st.loss)))?;
+    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
+    let gs = &renderer.scene;
+    let target_images = targets(&renderer, scene, TARGET_SPP, |_, _, _| {})?;
+    let ops = BufferOps::new(ctx)?;
+    let n = gs.layout.len.max(1);
+    let pixels = gs.pixels() as u64;
+
+    // The iteration's passes, built as `optimise` builds them, with both optimisers.
+    let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
+    let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
+    let proportional = GradientPass::new(gs, &ops, &target_images, loss, st.spp, st.primal_spp, st.seed, &gs.theta, &grad)?;
+    let (meta_kind, adam_kind) = match st.optimiser {
+        Optimiser::Meta(h) => (Optimiser::Meta(h), Optimiser::Adam(Default::default())),
+        Optimiser::Adam(h) => (Optimiser::Meta(Default::default()), Optimiser::Adam(h)),
+    };
+    let groups = param_groups(gs);
+    let meta = GpuOptimiser::new(ctx, &ops, &meta_kind, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
+    let adam = GpuOptimiser::new(ctx, &ops, &adam_kind, &gs.theta, &grad, None, &gs.frame, &groups)?;
+    let theta_prev = meta.theta_prev.as_ref().ok_or_else(|| Error::Invalid("the meta optimiser has no previous θ".into()))?;
+    let fd = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: false, ..st.clone() }, theta_prev, &fd_grad)?;
+    let fd_two = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: true, ..st.clone() }, theta_prev, &fd_grad)?;
+    let live = ctx.live_allocations();
+    let memory_bytes = live.iter().map(|(_, size)| size).sum();
+    let memory_allocations = live.len();
+
+    // What the bench adds: the reference copy, the gradient at equal spp, the generic build.
+    let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
+    let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", n, MemoryKind::Device)?;
+    let equal = GradientPass::new(gs, &ops, &target_images, loss, st.fd_spp, st.fd_spp, st.seed, &gs.theta, &eq_grad)?;
+    let specialised = ComputePipeline::new(ctx, "trace_primal", &gs.spec())?;
+    let generic = ComputePipeline::new(ctx, "trace_primal_generic", &[])?;
+    let counting = ComputePipeline::new(ctx, "trace_primal_count", &gs.spec())?;
+    let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
+    let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels as usize, MemoryKind::Device);
+    let (img_specialised, img_generic, img_count) = (accum("image specialised")?, accum("image generic")?, accum("image counted")?);
+    let generic_timed = accum("generic accum")?;
+    let counters = Buffer::zeroed::<u32>(ctx, "ray count", pixels.div_ceil(counting.local_size()[0] as u64) as usize, MemoryKind::Device)?;
+    let bind = |p: &ComputePipeline, extra: &[(&'static str, &Buffer)]| {
+        let mut b = gs.bindings();
+        b.extend_from_slice(extra);
+        p.bind(&b)
+    };
+    let specialised_group = bind(&specialised, &[("Accum", &img_specialised)])?;
+    let generic_check_group = bind(&generic, &[("Accum", &img_generic), ("IntegratorLimits", &limits)])?;
+    let count_group = bind(&counting, &[("Accum", &img_count), ("RayCount", &counters)])?;
+    let generic_group = bind(&generic, &[("Accum", &generic_timed), ("IntegratorLimits", &limits)])?;
+    let sensors = gs.sensors as u32;
+
+    // Count rays and render the three variants once, at θ and the iteration counter of the
+    // first iteration, with the primal pass's push constants.
+    gs.set_frame(0)?;
+    let mut check = CommandBuffer::new(ctx, "ray count")?;
+    check.record(|rec| {
+        for s in 0..sensors {
+            let push = proportional.primal_push(gs, s);
+            for (pipe, group, img) in [
+                (&specialised, &specialised_group, &img_specialised),
+                (&generic, &generic_check_group, &img_generic),
+                (&counting, &count_group, &img_count),
+            ] {
+                // Each sensor's render (and ray count) accumulates onto the previous one's.
+                rec.transition(&[(img, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
+                rec.dispatch_linear(pipe, group, bytemuck::bytes_of(&push), pixels)?;
+            }
+        }
+        Ok(())
+    })?;
+    check.submit_and_wait()?;
+    let rays: u64 = counters.read::<u32>()?.iter().map(|&c| c as u64).sum();
+    let reference: Vec<[f32; 3]> = img_specialised.read()?;
+    let generic_image_rel_diff = rel_diff(&reference, &img_generic.read()?);
+    let count_image_rel_diff = rel_diff(&reference, &img_count.read()?);
+
+    let per_sensor = 3 * sensors;
+    let mut passes = Profiler::new(ctx, 6 + per_sensor)?;
+    let mut equal_spp = Profiler::new(ctx, 1 + per_sensor)?;
+    let mut generic_prof = Profiler::new(ctx, sensors)?;
+    let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
+    cmd.record(|rec| {
+        passes.reset(rec);
+        equal_spp.reset(rec);
+        generic_prof.reset(rec);
+        passes.scope(rec, "iteration", |rec, p| {
+            proportional.record_profiled(rec, gs, &ops, p)?;
+            p.scope(rec, "finite_difference", |rec, _| fd.record(rec, gs, &ops, &fd_grad))?;
+            p.scope(rec, "finite_difference_two_trace", |rec, _| fd_two.record(rec, gs, &ops, &fd_grad))?;
+            p.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
+            p.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
+            // The copy reads θ, which the optimisers wrote.
+            rec.transition(&[(&gs.theta, Access::ComputeRead), (&theta_copy, Access::ComputeWrite)])?;
+            p.scope(rec, "copy", |rec, _| ops.copy(rec, &gs.theta, &theta_copy))
+        })?;
+        equal_spp.scope(rec, "gradient", |rec, p| equal.record_profiled(rec, gs, &ops, p))?;
+        for s in 0..sensors {
+            // The renders accumulate into one image.
+            rec.transition(&[(&generic_timed, Access::ComputeReadWrite)])?;
+            let push = proportional.primal_push(gs, s);
+            generic_prof.scope(rec, "trace_primal", |rec, _| rec.dispatch_linear(&generic, &generic_group, bytemuck::bytes_of(&push), pixels))?;
+        }
+        Ok(())
+    })?;
+    // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch.
+    cmd.submit_and_wait()?;
+    let (mut main, mut eq, mut generic_samples) = (Samples::default(), Samples::default(), Samples::default());
+    for i in 0..iterations {
+        gs.set_frame(i + 1)?;
+        cmd.submit_and_wait()?;
+        main.add(&passes.results()?);
+        eq.add(&equal_spp.results()?);
+        generic_samples.add(&generic_prof.results()?);
+    }
+
+    let parameters = gs.layout.len;
+    let primal_ms = main.median("trace_primal");
+    let rays_per_s = rays as f64 / (primal_ms * 1e-3).max(1e-12);
+    let per_s = |ms: f64, items: f64| (items > 0.0).then(|| items / (ms * 1e-3).max(1e-12));
+    let pass = |name: &str, spp: Option<u32>| PassTime {
+        name: name.into(),
+        spp,
+        median_ms: main.median(name),
+        rays_per_s: (name == "trace_primal").then_some(rays_per_s),
+        params_per_s: if name.starts_with("optim_") { per_s(main.median(name), parameters as f64) } else { None },
+        gb_per_s: (name == "copy").then(|| gs.theta.len() as f64 * 2.0 / (main.median(name) * 1e-3).max(1e-12) / 1e9),
+    };
+    let pass_list = vec![
+        pass("trace_primal", Some(st.primal_spp)),
+        pass("loss", None),
+        pass("trace_adjoint", Some(st.spp)),
+        pass("finite_difference", Some(st.fd_spp)),
+        pass("finite_difference_two_trace", Some(st.fd_spp)),
+        pass("optim_meta", None),
+        pass("optim_adam", None),
+        pass("copy", None),
+    ];
+    let generic_ms = generic_samples.median("trace_primal");
+    let ratios = Ratios {
+        spp: st.fd_spp,
+        proportional_ms: eq.median("gradient"),
+        finite_difference_ms: main.median("finite_difference"),
+        fd_over_proportional: main.median("finite_difference") / eq.median("gradient").max(1e-12),
+        finite_difference_two_trace_ms: main.median("finite_difference_two_trace"),
+        fd_two_trace_over_proportional: main.median("finite_difference_two_trace") / eq.median("gradient").max(1e-12),
+        primal_ms: eq.median("trace_primal"),
+        adjoint_ms: eq.median("trace_adjoint"),
+        adjoint_over_primal: eq.median("trace_adjoint") / eq.median("trace_primal").max(1e-12),
+    };
+    let bvh = bvh_throughput(ctx, scene, gs, iterations)?;
+    Ok(SceneBench {
+        scene: scene.path.display().to_string(),
+        device: ctx.info().name.clone(),
+        iterations,
+        lp_num_threads: std::env::var("LP_NUM_THREADS").ok(),
+        validation: ctx.validation_enabled(),
+        width: gs.width,
+        height: gs.height,
+        sensors: gs.sensors,
+        triangles: gs.triangles,
+        parameters,
+        spp: st.spp,
+        primal_spp: st.primal_spp,
+        fd_spp: st.fd_spp,
+        specialisation: gs.spec().into_iter().map(|(name, v)| SpecConstant { name: name.into(), value: spec_value(v) }).collect(),
+        passes: pass_list,
+        iteration_ms: main.median("iteration"),
+        rays: RayCount {
+            spp: st.primal_spp,
+            rays,
+            rays_per_sample: rays as f64 / (pixels * sensors as u64 * st.primal_spp as u64) as f64,
+            rays_per_s,
+        },
+        specialisation_gain: SpecialisationGain {
+            spp: st.primal_spp,
+            specialised_ms: primal_ms,
+            generic_ms,
+            gain: generic_ms / primal_ms.max(1e-12),
+            generic_image_rel_diff,
+            count_image_rel_diff,
+        },
+        ratios,
+        bvh,
+        memory_bytes,
+        memory_allocations,
+        optimisers,
+    })
+}
+
+/// trace_test over BVH_RAYS_PER_PIXEL jittered camera rays per pixel of the first sensor,
+/// closest hit only and any hit only, `iterations` times each.
+fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: u32) -> Result<BvhThroughput> {
+    let sensor = &scene.sensors[0];
+    let (w, h) = (gs.width, gs.height);
+    let aspect = w as f32 / h as f32;
+    // A fixed integer hash (lowbias32) as the jitter: the same rays in every run.
+    let hash = |mut x: u32| {
+        x ^= x >> 16;
+        x = x.wrapping_mul(0x7feb_352d);
+        x ^= x >> 15;
+        x = x.wrapping_mul(0x846c_a68b);
+        x ^= x >> 16;
+        (x >> 8) as f32 / (1u32 << 24) as f32
+    };
+    let mut rays = Vec::with_capacity((w * h * BVH_RAYS_PER_PIXEL) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            for k in 0..BVH_RAYS_PER_PIXEL {
+                let id = ((y * w + x) * BVH_RAYS_PER_PIXEL + k) * 2;
+                let ndc = glam::Vec2::new(
+                    (x as f32 + hash(id)) / w as f32 * 2.0 - 1.0,
+                    1.0 - (y as f32 + hash(id + 1)) / h as f32 * 2.0,
+                );
+                let dir = sensor.ray_direction(ndc, aspect);
+                rays.push(TraceRay { origin: sensor.origin.to_array(), tmax: f32::INFINITY, dir: dir.to_array() });
+            }
+        }
+    }
+    let n = rays.len() as u64;
+    let ray_buf = Buffer::from_slice(ctx, "bvh bench rays", &rays, MemoryKind::Device)?;
+    let results = Buffer::zeroed::<crate::bvh::TraceResult>(ctx, "bvh bench results", rays.len(), MemoryKind::Device)?;
+    let pipe = |closest: bool| {
+        ComputePipeline::new(ctx, "trace_test", &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(!closest))])
+    };
+    let (closest, any) = (pipe(true)?, pipe(false)?);
+    let bind = |p: &ComputePipeline| {
+        let mut b = vec![("Rays", &ray_buf), ("Results", &results)];
+        b.extend(gs.bvh().bindings());
+        p.bind(&b)
+    };
+    let (closest_group, any_group) = (bind(&closest)?, bind(&any)?);
+    let push = (n as u32).to_le_bytes();
+    // Two profilers, so that both scopes carry the kernel's name.
+    let mut closest_prof = Profiler::new(ctx, 1)?;
+    let mut any_prof = Profiler::new(ctx, 1)?;
+    let mut cmd = CommandBuffer::new(ctx, "bvh bench")?;
+    cmd.record(|rec| {
+        closest_prof.reset(rec);
+        any_prof.reset(rec);
+        rec.transition(&[(&results, Access::ComputeWrite)])?;
+        closest_prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(&closest, &closest_group, &push, n))?;
+        // Both kernels write the results.
+        rec.barrier(&results, Access::ComputeWrite, Access::ComputeWrite)?;
+        any_prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(&any, &any_group, &push, n))
+    })?;
+    // The first submission is the warm-up (pipeline compilation on lavapipe).
+    cmd.submit_and_wait()?;
+    let (mut c, mut a) = (Vec::new(), Vec::new());
+    for _ in 0..iterations {
+        cmd.submit_and_wait()?;
+        c.push(Profiler::total_ms(&closest_prof.results()?, "trace_test"));
+        a.push(Profiler::total_ms(&any_prof.results()?, "trace_test"));
+    }
+    let (closest_ms, any_ms) = (median(&mut c), median(&mut a));
+    let mrays = |ms: f64| n as f64 / (ms * 1e-3).max(1e-12) * 1e-6;
+    Ok(BvhThroughput {
+        rays: n,
+        triangles: gs.triangles,
+        closest_ms,
+        closest_mrays_per_s: mrays(closest_ms),
+        any_ms,
+        any_mrays_per_s: mrays(any_ms),
+    })
+}
+
+impl SceneBench {
+    /// The results as fixed-width tables.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "scene bench: {} on {}: {}x{}, {} sensor(s), {} triangles, {} parameters; median of {} iterations, LP_NUM_THREADS={}",
+            self.scene,
+            self.device,
+            self.width,
+            self.height,
+            self.sensors,
+            self.triangles,
+            self.parameters,
+            self.iterations,
+            self.lp_num_threads.as_deref().unwrap_or("unset")
+        );
+        let spec: Vec<String> = self.specialisation.iter().map(|c| format!("{}={}", c.name, c.value)).collect();
+        let _ = writeln!(s, "specialisation: {}", spec.join(" "));
+        let _ = writeln!(s, "{:<18} {:>4} {:>11}  rate", "pass", "spp", "median ms");
+        for p in &self.passes {
+            let spp = p.spp.map(|v| v.to_string()).unwrap_or_default();
+            let rate = match (p.rays_per_s, p.params_per_s, p.gb_per_s) {
+                (Some(r), _, _) => format!("{:.2} Mrays/s", r * 1e-6),
+                (_, Some(r), _) => format!("{:.3e} params/s", r),
+                (_, _, Some(g)) => format!("{:.4} GB/s", g),
+                _ => String::new(),
+            };
+            let _ = writeln!(s, "{:<18} {:>4} {:>11.3}  {}", p.name, spp, p.median_ms, rate);
+        }
+        let _ = writeln!(s, "{:<18} {:>4} {:>11.3}  (all passes and barriers)", "iteration", "", self.iteration_ms);
+        let r = &self.rays;
+        let _ = writeln!(
+            s,
+            "rays: {} counted in trace_primal_count ({} spp, {:.2} per sample) / trace_primal time = {:.2} Mrays/s",
+            r.rays,
+            r.spp,
+            r.rays_per_sample,
+            r.rays_per_s * 1e-6
+        );
+        let g = &self.specialisation_gain;
+        let _ = writeln!(
+            s,
+            "specialisation gain: trace_primal {} spp specialised {:.3} ms, generic {:.3} ms: {:.3}x (image difference generic {:.1e}, counted {:.1e})",
+            g.spp, g.specialised_ms, g.generic_ms, g.gain, g.generic_image_rel_diff, g.count_image_rel_diff
+        );
+        let q = &self.ratios;
+        let _ = writeln!(
+            s,
+            "at {} spp: finite_difference (fused) / gradient = {:.3} ms / {:.3} ms = {:.2} (goal <= 1.3); two-trace: {:.2}; trace_adjoint / trace_primal = {:.3} ms / {:.3} ms = {:.2} (goal <= 2)",
+            q.spp, q.finite_difference_ms, q.proportional_ms, q.fd_over_proportional, q.fd_two_trace_over_proportional, q.adjoint_ms, q.primal_ms, q.adjoint_over_primal
+        );
+        let b = &self.bvh;
+        let _ = writeln!(
+            s,
+            "BVH (trace_test, {} camera rays, {} triangles): closest hit {:.3} ms = {:.2} Mrays/s, any hit {:.3} ms = {:.2} Mrays/s",
+            b.rays, b.triangles, b.closest_ms, b.closest_mrays_per_s, b.any_ms, b.any_mrays_per_s
+        );
+        let _ = writeln!(
+            s,
+            "memory: {:.2} MiB in {} allocations (scene, gradient and finite-difference passes, both optimisers)",
+            self.memory_bytes as f64 / (1 << 20) as f64,
+            self.memory_allocations
+        );
+        s.push_str(&self.optimisers.table());
+        s
+    }
+}

@@ -1,0 +1,82 @@
+//! The scene bench on the Cornell box: every reported figure is finite and positive, and the
+//! figures agree with each other and with the scene.
+
+mod common;
+
+use common::with_gpu;
+use vkinverse::scene::Scene;
+
+fn finite_positive(what: &str, v: f64) {
+    assert!(v.is_finite() && v > 0.0, "{what} = {v}");
+}
+
+#[test]
+fn scene_bench_on_cornell_is_consistent() {
+    let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
+    // Two iterations: the medians are means, so per-pass sums compare with the total.
+    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(ctx, &scene, 2, 1 << 16).unwrap());
+
+    let names: Vec<&str> = b.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["trace_primal", "loss", "trace_adjoint", "finite_difference", "finite_difference_two_trace", "optim_meta", "optim_adam", "copy"]);
+    for p in &b.passes {
+        finite_positive(&p.name, p.median_ms);
+        for rate in [p.rays_per_s, p.params_per_s, p.gb_per_s].into_iter().flatten() {
+            finite_positive(&p.name, rate);
+        }
+    }
+    let sum: f64 = b.passes.iter().map(|p| p.median_ms).sum();
+    assert!(sum <= b.iteration_ms * (1.0 + 1e-9), "passes sum to {sum} ms, the iteration took {} ms", b.iteration_ms);
+    assert_eq!(b.passes[0].rays_per_s, Some(b.rays.rays_per_s));
+    assert_eq!(b.passes[5].params_per_s.is_some(), b.parameters > 0);
+
+    // Each sample casts a camera ray and at most one extension and one shadow ray per
+    // further vertex.
+    let samples = (b.width * b.height) as u64 * b.sensors as u64 * b.rays.spp as u64;
+    let max_depth: u64 = b.specialisation.iter().find(|c| c.name == "MAX_DEPTH").unwrap().value.parse().unwrap();
+    assert!(b.rays.rays >= samples, "{} rays for {samples} samples", b.rays.rays);
+    assert!(b.rays.rays <= samples * (2 * max_depth - 1), "{} rays for {samples} samples", b.rays.rays);
+    finite_positive("rays/s", b.rays.rays_per_s);
+
+    let spec: Vec<&str> = b.specialisation.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(spec, ["MAX_DEPTH", "RR_DEPTH", "NUM_EMITTERS", "HAS_ENVIRONMENT"]);
+    let g = &b.specialisation_gain;
+    finite_positive("generic trace_primal", g.generic_ms);
+    finite_positive("specialisation gain", g.gain);
+    assert_eq!(g.specialised_ms, b.passes[0].median_ms);
+    // Same paths, same radiance: the variants differ in speed only.
+    assert!(g.generic_image_rel_diff < 1e-4, "generic build renders a different image: {}", g.generic_image_rel_diff);
+    assert!(g.count_image_rel_diff < 1e-4, "counting build renders a different image: {}", g.count_image_rel_diff);
+
+    let r = &b.ratios;
+    assert_eq!(r.spp, b.fd_spp);
+    for (what, v) in [
+        ("proportional", r.proportional_ms),
+        ("finite difference", r.finite_difference_ms),
+        ("primal", r.primal_ms),
+        ("adjoint", r.adjoint_ms),
+        ("fd / proportional", r.fd_over_proportional),
+        ("adjoint / primal", r.adjoint_over_primal),
+    ] {
+        finite_positive(what, v);
+    }
+    assert!(r.primal_ms + r.adjoint_ms <= r.proportional_ms * (1.0 + 1e-9));
+
+    assert_eq!(b.bvh.rays, (b.width * b.height * 16) as u64);
+    finite_positive("closest hit Mrays/s", b.bvh.closest_mrays_per_s);
+    finite_positive("any hit Mrays/s", b.bvh.any_mrays_per_s);
+    finite_positive("memory", b.memory_bytes as f64);
+
+    assert_eq!(b.optimisers.elements, 1 << 16);
+    let opt: Vec<&str> = b.optimisers.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(opt, ["optim_meta", "optim_adam", "copy"]);
+    for p in &b.optimisers.passes {
+        finite_positive(&p.name, p.gb_per_s);
+        finite_positive(&p.name, p.params_per_s);
+        finite_positive(&p.name, p.ratio_to_copy);
+    }
+
+    let json = serde_json::to_value(&b).unwrap();
+    for key in ["passes", "rays", "specialisation", "specialisation_gain", "ratios", "bvh", "memory_bytes", "optimisers"] {
+        assert!(json.get(key).is_some(), "JSON lacks {key}");
+    }
+}
