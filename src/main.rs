@@ -73,6 +73,58 @@ enum Command {
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
+    /// Run several optimisers on one scene at equal cost and seed; plot and tabulate their
+    /// error against run time.
+    #[command(after_help = COMPARE_HELP)]
+    Compare {
+        scene: std::path::PathBuf,
+        /// Comma-separated optimiser specs NAME[@KEY=VALUE]..., e.g.
+        /// `meta,adam,adam@beta1=0.5@beta2=0.99`; the first is the baseline.
+        #[arg(long, allow_hyphen_values = true)]
+        optimisers: String,
+        /// Iterations of every run (with --time-budget: at most this many).
+        #[arg(long)]
+        iterations: Option<u32>,
+        /// Seconds of optimisation for every run (equal wall time).
+        #[arg(long, allow_negative_numbers = true)]
+        time_budget: Option<f64>,
+        #[arg(long)]
+        spp: Option<u32>,
+        #[arg(long)]
+        fd_spp: Option<u32>,
+        #[arg(long)]
+        primal_spp: Option<u32>,
+        #[arg(long, allow_negative_numbers = true)]
+        lr: Option<f32>,
+        /// Seed of every run.
+        #[arg(long)]
+        seed: Option<u32>,
+        /// Print compare.json instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Output directory.
+        #[arg(short = 'o', long = "output")]
+        output: std::path::PathBuf,
+    },
+    /// Run a list of optimisation jobs (or one shard of it) on one device, with one results
+    /// table; or merge the tables of shards.
+    #[command(after_help = BATCH_HELP)]
+    Batch {
+        /// Job file (TOML, format below).
+        jobs: Option<std::path::PathBuf>,
+        /// Run shard I of N: jobs I, I+N, I+2N, ... (jobs and shards count from 1).
+        #[arg(long, value_name = "I/N", allow_hyphen_values = true)]
+        shard: Option<String>,
+        /// Join the results tables in these output directories (of shards) into one.
+        #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
+        merge: Vec<std::path::PathBuf>,
+        /// Print results.json instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Output directory (of the batch, the shard or the merged table).
+        #[arg(short = 'o', long = "output")]
+        output: std::path::PathBuf,
+    },
     /// Check the adjoint gradient against finite differences of the loss.
     Gradcheck {
         scene: std::path::PathBuf,
@@ -119,6 +171,41 @@ enum Command {
         json: bool,
     },
 }
+
+const COMPARE_HELP: &str = "\
+Optimiser specs: NAME[@KEY=VALUE]... with NAME adam (keys beta1, beta2, eps) or meta (keys
+decay_f, decay_d, eps); unset keys keep their defaults. `@` separates keys so that specs
+hold no comma.
+
+Every run gets the same settings and seed: the same --time-budget (wall time, set-up
+excluded) when given, else the same --iterations (the scene's by default). Outputs in OUTDIR:
+  <label>/            each run's optimise outputs (log.csv, summary.json, ...)
+  error_vs_time.png   all runs, log-scale error against wall time
+  curves.csv          label,time_s,error: the points of the plot
+  compare.csv, .json  per run: final error; time_to_2x, time_to_1x, time_to_0.5x: the wall
+                      time at which its error first reached 2, 1 and 0.5 times the first
+                      run's final error; speedup: the first run's time to its final error
+                      over this run's (empty when never reached)
+The error is the parameter RMSE when the reference is known, else the image loss.";
+
+const BATCH_HELP: &str = "\
+Job file (TOML); paths are relative to it:
+  iterations = 100                 # shared settings (optional): iterations, time_budget,
+  lr = 0.05                        #   spp, fd_spp, primal_spp, lr, seed, checkpoint_every
+  scenes = [\"cornell/scene.toml\"]  # product: one job per scene x optimiser x seed x spp
+  optimisers = [\"meta\", \"adam\"]    # optional axes; the scene's value when absent
+  seeds = [0, 1]
+  spp = [1, 4]                     # a list is an axis; a number is a shared setting
+  [[jobs]]                         # single jobs after the product, in file order
+  scene = \"spiral/scene.toml\"    # with optimiser, seed, spp and any shared setting
+  optimiser = \"adam@beta1=0.5\"
+Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --shard I/N
+runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
+Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
+per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, iterations,
+time_s, final_loss, final_error, dir). A failed job does not stop the batch; the exit status
+is non-zero if any failed. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
+refusing a job found twice and warning about jobs found nowhere.";
 
 /// Writes to stdout. A reader that closed the pipe early (`vkinverse info | head -1`) has
 /// what it wanted, so that is not an error; `println!` would panic there instead.
@@ -317,6 +404,123 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
             run_optimise(cli, &scene, &st, output, *resume)?;
         }
+        Command::Compare { scene, optimisers, iterations, time_budget, spp, fd_spp, primal_spp, lr, seed, json, output } => {
+            // Flags first: a typo on the command line is reported before the scene is read.
+            let specs = vkinverse::optim::spec::parse_list(optimisers).map_err(|e| format!("--optimisers: {e}"))?;
+            if let Some(x) = lr {
+                positive("--lr", *x as f64)?;
+            }
+            if let Some(t) = time_budget {
+                positive("--time-budget", *t)?;
+            }
+            at_least_one("--spp", *spp)?;
+            at_least_one("--fd-spp", *fd_spp)?;
+            at_least_one("--primal-spp", *primal_spp)?;
+            if *iterations == Some(0) {
+                return Err("--iterations must be at least 1".into());
+            }
+            let scene = vkinverse::scene::Scene::load(scene)?;
+            let overrides = vkinverse::overrides::Overrides {
+                iterations: *iterations,
+                time_budget: *time_budget,
+                spp: *spp,
+                fd_spp: *fd_spp,
+                primal_spp: *primal_spp,
+                lr: *lr,
+                seed: *seed,
+                checkpoint_every: None,
+            };
+            let ctx = context(cli)?;
+            let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
+            let comparison = vkinverse::compare::compare(
+                &ctx,
+                &scene,
+                &overrides,
+                &specs,
+                output,
+                |spec, st| {
+                    bar.borrow().finish_and_clear();
+                    let b = progress_bar(cli.quiet, st.iterations as u64, "iterations");
+                    b.set_message(spec.label.clone());
+                    *bar.borrow_mut() = b;
+                },
+                |spec, p| {
+                    let b = bar.borrow();
+                    b.set_position(p.iteration as u64);
+                    let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
+                    b.set_message(format!("{}: loss {:.3e}{err}", spec.label, p.loss));
+                },
+            )?;
+            bar.borrow().finish_and_clear();
+            if *json {
+                outln!("{}", serde_json::to_string_pretty(&comparison)?)?;
+            } else {
+                out(format_args!("{}", comparison.table()))?;
+                if !cli.quiet {
+                    outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", output.display())?;
+                }
+            }
+        }
+        Command::Batch { jobs, shard, merge, json, output } => {
+            use vkinverse::batch;
+            let print = |results: &batch::Results| -> std::io::Result<()> {
+                if *json {
+                    outln!("{}", serde_json::to_string_pretty(results).unwrap_or_default())
+                } else {
+                    out(format_args!("{}", results.table()))
+                }
+            };
+            if !merge.is_empty() {
+                let (merged, missing) = batch::merge(merge, output)?;
+                if !missing.is_empty() {
+                    let list: Vec<String> = missing.iter().map(usize::to_string).collect();
+                    eprintln!("warning: job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs);
+                }
+                print(&merged)?;
+                return Ok(());
+            }
+            let shard: Option<batch::Shard> = shard.as_deref().map(|s| s.parse().map_err(|e| format!("--shard {e}"))).transpose()?;
+            let Some(jobs_file) = jobs else {
+                return Err("give a job file, or --merge with the shards' output directories".into());
+            };
+            let all = batch::load_jobs(jobs_file)?;
+            let mine: Vec<batch::Job> = all.iter().filter(|j| shard.iter().all(|s| s.has(j.index))).cloned().collect();
+            // One context for every job: device set-up is paid once per batch.
+            let ctx = context(cli)?;
+            let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
+            let results = batch::run(
+                &ctx,
+                jobs_file,
+                all.len(),
+                shard,
+                &mine,
+                output,
+                |job| {
+                    let total = job.overrides.iterations.unwrap_or(0) as u64;
+                    *bar.borrow_mut() = progress_bar(cli.quiet, total, "iterations");
+                    bar.borrow().set_message(format!("job {} {}", job.index, job.label));
+                },
+                |job, p| {
+                    let b = bar.borrow();
+                    b.set_position(p.iteration as u64);
+                    b.set_message(format!("job {} {}: loss {:.3e}", job.index, job.label, p.loss));
+                },
+                |row| {
+                    bar.borrow().finish_and_clear();
+                    if !cli.quiet {
+                        match row.status {
+                            batch::Status::Ok => eprintln!("job {} {}: ok", row.job, row.label),
+                            batch::Status::Failed => eprintln!("job {} {}: failed: {}", row.job, row.label, row.message),
+                        }
+                    }
+                },
+            )?;
+            print(&results)?;
+            let failed = results.failed();
+            if failed > 0 {
+                return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), output.join("results.csv").display()).into());
+            }
+        }
         Command::Gradcheck { scene, spp, rounds, json } => {
             at_least_one("--spp", Some(*spp))?;
             let scene = vkinverse::scene::Scene::load(scene)?;
@@ -415,22 +619,6 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-/// The error and its causes as one line. The library's errors quote their cause already;
-/// a `source()` they do not quote is appended after a colon. A multi-line cause (toml's
-/// annotated snippet) is left out: the layer above has put its gist on its own line.
-fn one_line(e: &dyn std::error::Error) -> String {
-    let mut msg = e.to_string();
-    let mut cause = e.source();
-    while let Some(c) = cause {
-        let text = c.to_string();
-        if !text.contains('\n') && !msg.contains(&text) {
-            msg = format!("{msg}: {text}");
-        }
-        cause = c.source();
-    }
-    msg.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join("; ")
-}
-
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
@@ -448,7 +636,7 @@ fn main() -> ExitCode {
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("vkinverse: error: {}", one_line(e.as_ref()));
+            eprintln!("vkinverse: error: {}", vkinverse::error::one_line(e.as_ref()));
             ExitCode::FAILURE
         }
     }

@@ -146,3 +146,13 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
     }
     crate::image::write_bytes_atomic(path, &png_bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
+
+/// `text` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma,
+/// a quote or a line break, so that error messages keep a table's columns aligned.
+pub fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_string()
+    }
+}

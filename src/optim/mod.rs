@@ -60,6 +60,7 @@ pub mod literal;
 pub mod push;
 pub mod reference;
 pub mod replay;
+pub mod spec;
 #[cfg(test)]
 mod tests;
 
@@ -86,6 +87,8 @@ pub enum OptimError {
     BadRange(String),
     #[error("invalid hyperparameter: {0}")]
     BadHyper(String),
+    #[error("optimiser spec {0}")]
+    BadSpec(String),
     #[error("{what} has length {found}, expected {expected}")]
     Length {
         what: &'static str,

@@ -1,0 +1,541 @@
+//! `vkinverse batch`: a list of optimisation jobs, run one after another on one Vulkan
+//! context, split into shards for schedulers, with one results table.
+//!
+//! # Job file (TOML)
+//! ```toml
+//! # Shared settings, for every job (each optional; the scene's [optimise] value otherwise).
+//! iterations = 100      # also: time_budget, spp, fd_spp, primal_spp, lr, seed, checkpoint_every
+//!
+//! # The product: one job per (scene, optimiser, seed, spp); scenes vary slowest, spp fastest.
+//! scenes = ["cornell/scene.toml", "spiral/scene.toml"]   # relative to the job file
+//! optimisers = ["meta", "adam", "adam@beta1=0.5"]        # optional, like seeds and spp
+//! seeds = [0, 1]
+//! spp = [1, 4]          # a list is an axis of the product; a number is a shared setting
+//!
+//! # Single jobs, numbered after the product, in file order; any shared setting may be set.
+//! [[jobs]]
+//! scene = "cornell/scene.toml"
+//! optimiser = "meta@decay_f=0.99"
+//! seed = 7
+//! ```
+//! A value comes from, most specific first: the job (its `[[jobs]]` entry or its point of
+//! the product), the shared settings, the scene. Jobs are numbered from 1 in that order,
+//! which depends only on the file, so every shard of a batch sees the same numbering.
+//!
+//! # Shards
+//! `--shard I/N` (1 ≤ I ≤ N) runs the jobs I, I + N, I + 2N, …: shard numbers start at 1 like
+//! job numbers, so a Slurm array `--array=1-N` passes `$SLURM_ARRAY_TASK_ID/N` as it is
+//! (a 0-based index such as Kubernetes' `$JOB_COMPLETION_INDEX` needs `+1`).
+//!
+//! # Outputs
+//! Each job writes the outputs of `optimise` into `OUTDIR/job-<k>-<label>/`. The table
+//! `results.csv` / `results.json` has one row per job run; it is rewritten after every job,
+//! so an interrupted batch leaves the rows it finished. `merge` joins the tables of shards.
+
+use crate::error::{one_line, Error, Result};
+use crate::gpu::Context;
+use crate::image::write_bytes_atomic;
+use crate::optim::spec::{file_safe, Spec};
+use crate::optimise::{optimise, Progress};
+use crate::overrides::Overrides;
+use crate::report::csv_field;
+use crate::scene::{Scene, SceneError};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// A number or a list of numbers (`spp`).
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum OneOrMany {
+    One(u32),
+    Many(Vec<u32>),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JobFile {
+    #[serde(default)]
+    scenes: Vec<PathBuf>,
+    optimisers: Option<Vec<String>>,
+    seeds: Option<Vec<u32>>,
+    spp: Option<OneOrMany>,
+    iterations: Option<u32>,
+    time_budget: Option<f64>,
+    fd_spp: Option<u32>,
+    primal_spp: Option<u32>,
+    lr: Option<f32>,
+    seed: Option<u32>,
+    checkpoint_every: Option<u32>,
+    #[serde(default)]
+    jobs: Vec<JobEntry>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JobEntry {
+    scene: PathBuf,
+    optimiser: Option<String>,
+    seed: Option<u32>,
+    spp: Option<u32>,
+    iterations: Option<u32>,
+    time_budget: Option<f64>,
+    fd_spp: Option<u32>,
+    primal_spp: Option<u32>,
+    lr: Option<f32>,
+    checkpoint_every: Option<u32>,
+}
+
+/// One job of a batch.
+#[derive(Clone, Debug)]
+pub struct Job {
+    /// Its number, from 1.
+    pub index: usize,
+    /// Scene name and the values the job sets, for its directory and table row.
+    pub label: String,
+    pub scene: PathBuf,
+    /// None: the scene's optimiser.
+    pub optimiser: Option<Spec>,
+    /// Shared settings with the job's own on top.
+    pub overrides: Overrides,
+}
+
+impl Job {
+    /// The job's output directory under OUTDIR.
+    pub fn dir_name(&self) -> String {
+        format!("job-{}-{}", self.index, self.label)
+    }
+}
+
+/// A scene's short name: its file's stem, or its directory's name for `…/NAME/scene.toml`.
+fn scene_name(path: &Path) -> String {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    match path.parent().and_then(Path::file_name) {
+        Some(dir) if stem == "scene" => dir.to_string_lossy().into_owned(),
+        _ => stem,
+    }
+}
+
+fn make_job(index: usize, scene: PathBuf, optimiser: Option<Spec>, overrides: Overrides, own: (Option<u32>, Option<u32>)) -> Job {
+    let mut label = scene_name(&scene);
+    if let Some(o) = &optimiser {
+        label = format!("{label}-{}", o.label);
+    }
+    if let Some(s) = own.0 {
+        label = format!("{label}-seed{s}");
+    }
+    if let Some(s) = own.1 {
+        label = format!("{label}-spp{s}");
+    }
+    Job { index, label: file_safe(&label), scene, optimiser, overrides }
+}
+
+/// Reads and expands a job file; every setting and optimiser spec is checked here, before
+/// any job runs (scenes are loaded by their jobs, so a broken one fails only its job).
+pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+    let file: JobFile = toml::from_str(&text).map_err(|e| SceneError::toml(path.to_path_buf(), &text, e))?;
+    let bad = |what: String| Error::Invalid(format!("{}: {what}", path.display()));
+    let dir = path.parent().unwrap_or(Path::new(""));
+    let (spp_axis, spp_shared) = match file.spp {
+        Some(OneOrMany::Many(v)) => (Some(v), None),
+        Some(OneOrMany::One(n)) => (None, Some(n)),
+        None => (None, None),
+    };
+    let shared = Overrides {
+        iterations: file.iterations,
+        time_budget: file.time_budget,
+        spp: spp_shared,
+        fd_spp: file.fd_spp,
+        primal_spp: file.primal_spp,
+        lr: file.lr,
+        seed: file.seed,
+        checkpoint_every: file.checkpoint_every,
+    };
+    shared.check().map_err(bad)?;
+    let parse_spec = |s: &str, at: &str| s.parse::<Spec>().map_err(|e| bad(format!("{at}: {e}")));
+
+    let mut jobs = Vec::new();
+    let axes = [("optimisers", file.optimisers.as_ref().map(Vec::len)), ("seeds", file.seeds.as_ref().map(Vec::len)), ("spp", spp_axis.as_ref().map(Vec::len))];
+    for (key, len) in axes {
+        if len == Some(0) {
+            return Err(bad(format!("{key} is an empty list")));
+        }
+        if len.is_some() && file.scenes.is_empty() {
+            return Err(bad(format!("{key} is given without scenes = [...]")));
+        }
+    }
+    let optimisers: Vec<Option<Spec>> = match &file.optimisers {
+        Some(list) => list.iter().map(|s| parse_spec(s, "optimisers").map(Some)).collect::<Result<_>>()?,
+        None => vec![None],
+    };
+    let seeds: Vec<Option<u32>> = file.seeds.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
+    let spps: Vec<Option<u32>> = spp_axis.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
+    for scene in &file.scenes {
+        for optimiser in &optimisers {
+            for &seed in &seeds {
+                for &spp in &spps {
+                    let own = Overrides { seed, spp, ..Default::default() };
+                    let overrides = shared.then(&own);
+                    overrides.check().map_err(bad)?;
+                    jobs.push(make_job(jobs.len() + 1, dir.join(scene), optimiser.clone(), overrides, (seed, spp)));
+                }
+            }
+        }
+    }
+    for (i, entry) in file.jobs.into_iter().enumerate() {
+        let at = format!("jobs[{i}]");
+        let optimiser = entry.optimiser.as_deref().map(|s| parse_spec(s, &at)).transpose()?;
+        let own = Overrides {
+            iterations: entry.iterations,
+            time_budget: entry.time_budget,
+            spp: entry.spp,
+            fd_spp: entry.fd_spp,
+            primal_spp: entry.primal_spp,
+            lr: entry.lr,
+            seed: entry.seed,
+            checkpoint_every: entry.checkpoint_every,
+        };
+        own.check().map_err(|e| bad(format!("{at}: {e}")))?;
+        jobs.push(make_job(jobs.len() + 1, dir.join(entry.scene), optimiser, shared.then(&own), (entry.seed, entry.spp)));
+    }
+    if jobs.is_empty() {
+        return Err(bad("no jobs (give scenes = [...] or [[jobs]] entries)".into()));
+    }
+    Ok(jobs)
+}
+
+/// Shard I of N, both counted from 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    /// Whether job `index` (from 1) belongs to this shard.
+    pub fn has(&self, job: usize) -> bool {
+        (job - 1) % self.count == self.index - 1
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let form = || format!("'{s}' is not I/N (shard I of N, 1 <= I <= N, e.g. 1/4)");
+        let (i, n) = s.split_once('/').ok_or_else(form)?;
+        let index: usize = i.trim().parse().map_err(|_| form())?;
+        let count: usize = n.trim().parse().map_err(|_| form())?;
+        if count == 0 {
+            return Err(format!("'{s}': N must be at least 1"));
+        }
+        if index == 0 || index > count {
+            return Err(format!("'{s}': shards are numbered 1 to {count}"));
+        }
+        Ok(Shard { index, count })
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    Ok,
+    Failed,
+}
+
+/// One row of the results table. Values that a job did not get far enough to know are
+/// `None` (empty in the CSV).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct JobResult {
+    pub job: usize,
+    pub label: String,
+    pub scene: String,
+    /// The spec that named it, or the scene's optimiser.
+    pub optimiser: Option<String>,
+    pub seed: Option<u32>,
+    pub spp: Option<u32>,
+    pub status: Status,
+    /// The one-line error of a failed job; empty when ok.
+    pub message: String,
+    pub iterations: Option<u32>,
+    /// Optimisation wall time (as `time_s` in log.csv).
+    pub time_s: Option<f64>,
+    pub final_loss: Option<f64>,
+    /// Final parameter RMSE (None when the reference is unknown).
+    pub final_error: Option<f64>,
+    /// The job's output directory, relative to the table's directory (in a merged table,
+    /// the shard's directory as given to `--merge` joined with it); empty when a failed job
+    /// wrote nothing.
+    pub dir: String,
+}
+
+/// What `results.json` holds.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Results {
+    pub jobs_file: String,
+    /// Jobs in the whole batch, not only in this table.
+    pub total_jobs: usize,
+    /// The shard this table is from; None for a whole batch or a merge.
+    pub shard: Option<String>,
+    #[serde(default)]
+    pub merged_from: Vec<String>,
+    pub results: Vec<JobResult>,
+}
+
+const CSV_HEADER: &str = "job,label,scene,optimiser,seed,spp,status,message,iterations,time_s,final_loss,final_error,dir";
+
+impl Results {
+    pub fn failed(&self) -> usize {
+        self.results.iter().filter(|r| r.status == Status::Failed).count()
+    }
+
+    /// `results.csv`: [`CSV_HEADER`], one row per job, unknown values empty.
+    pub fn csv(&self) -> String {
+        fn opt<T: ToString>(v: Option<T>) -> String {
+            v.map(|x| x.to_string()).unwrap_or_default()
+        }
+        let mut s = format!("{CSV_HEADER}\n");
+        for r in &self.results {
+            let status = match r.status {
+                Status::Ok => "ok",
+                Status::Failed => "failed",
+            };
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{},{status},{},{},{},{},{},{}",
+                r.job,
+                csv_field(&r.label),
+                csv_field(&r.scene),
+                csv_field(&opt(r.optimiser.as_deref())),
+                opt(r.seed),
+                opt(r.spp),
+                csv_field(&r.message),
+                opt(r.iterations),
+                opt(r.time_s),
+                opt(r.final_loss),
+                opt(r.final_error),
+                csv_field(&r.dir)
+            );
+        }
+        s
+    }
+
+    /// The table printed at the end of a batch or merge.
+    pub fn table(&self) -> String {
+        let width = self.results.iter().map(|r| r.label.len()).max().unwrap_or(0).max(5);
+        let mut s = format!("{:>4} {:<width$} {:<6} {:>6} {:>9} {:>11} {:>11}  message\n", "job", "label", "status", "iters", "time (s)", "final loss", "final error");
+        let num = |v: Option<f64>| v.map(|x| format!("{x:.4e}")).unwrap_or_else(|| "-".into());
+        for r in &self.results {
+            let _ = writeln!(
+                s,
+                "{:>4} {:<width$} {:<6} {:>6} {:>9} {:>11} {:>11}  {}",
+                r.job,
+                r.label,
+                if r.status == Status::Ok { "ok" } else { "failed" },
+                r.iterations.map(|i| i.to_string()).unwrap_or_else(|| "-".into()),
+                r.time_s.map(|t| format!("{t:.2}")).unwrap_or_else(|| "-".into()),
+                num(r.final_loss),
+                num(r.final_error),
+                r.message
+            );
+        }
+        s
+    }
+
+    /// Writes `results.csv` and `results.json` into `dir`, each atomically.
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        let json = serde_json::to_string_pretty(self).map_err(|e| Error::Invalid(e.to_string()))?;
+        for (name, bytes) in [("results.csv", self.csv().into_bytes()), ("results.json", json.into_bytes())] {
+            let path = dir.join(name);
+            write_bytes_atomic(&path, &bytes).map_err(|source| Error::Io { path, source })?;
+        }
+        Ok(())
+    }
+}
+
+/// Runs one job into `dir`, filling `row` as it learns the job's settings and results.
+fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, row: &mut JobResult, progress: &mut dyn FnMut(&Job, &Progress)) -> Result<()> {
+    let scene = Scene::load(&job.scene)?;
+    let (scene, st) = job.overrides.apply(&scene, job.optimiser.as_ref().map(|s| s.optimiser));
+    row.optimiser = Some(job.optimiser.as_ref().map_or_else(|| st.optimiser.name().to_string(), |s| s.label.clone()));
+    row.seed = Some(st.seed);
+    row.spp = Some(st.spp);
+    let summary = optimise(ctx, &scene, &st, dir, false, |p| progress(job, p), |_, _, _| {})?;
+    row.iterations = Some(summary.iterations);
+    row.time_s = Some(summary.total_time_s);
+    row.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
+    row.final_error = summary.final_param_error;
+    Ok(())
+}
+
+/// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`. A job that
+/// fails is recorded with its one-line error and the batch goes on; only failing to write
+/// the table stops it. `on_start` and `on_done` bracket each job; `progress` follows its
+/// iterations.
+#[allow(clippy::too_many_arguments)]
+pub fn run(
+    ctx: &Arc<Context>,
+    jobs_file: &Path,
+    total_jobs: usize,
+    shard: Option<Shard>,
+    jobs: &[Job],
+    out_dir: &Path,
+    mut on_start: impl FnMut(&Job),
+    mut progress: impl FnMut(&Job, &Progress),
+    mut on_done: impl FnMut(&JobResult),
+) -> Result<Results> {
+    std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
+    let mut results = Results {
+        jobs_file: jobs_file.display().to_string(),
+        total_jobs,
+        shard: shard.map(|s| s.to_string()),
+        merged_from: Vec::new(),
+        results: Vec::new(),
+    };
+    for job in jobs {
+        on_start(job);
+        let mut row = JobResult {
+            job: job.index,
+            label: job.label.clone(),
+            scene: job.scene.display().to_string(),
+            optimiser: job.optimiser.as_ref().map(|s| s.label.clone()),
+            seed: job.overrides.seed,
+            spp: job.overrides.spp,
+            status: Status::Ok,
+            message: String::new(),
+            iterations: None,
+            time_s: None,
+            final_loss: None,
+            final_error: None,
+            dir: job.dir_name(),
+        };
+        let dir = out_dir.join(job.dir_name());
+        if let Err(e) = run_job(ctx, job, &dir, &mut row, &mut progress) {
+            row.status = Status::Failed;
+            row.message = one_line(&e);
+            if !dir.exists() {
+                // Failed before writing anything (e.g. a broken scene): no directory to name.
+                row.dir.clear();
+            }
+        }
+        on_done(&row);
+        results.results.push(row);
+        results.write(out_dir)?;
+    }
+    Ok(results)
+}
+
+/// Joins the tables in `dirs` (shards of one batch) into one sorted by job number and
+/// writes it to `out_dir`. Returns it and the numbers of the batch's jobs that no table has.
+pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> {
+    let mut merged: Option<Results> = None;
+    // Where each job's row came from, to name both tables of a duplicate.
+    let mut origin: std::collections::BTreeMap<usize, &Path> = Default::default();
+    for dir in dirs {
+        let path = dir.join("results.json");
+        let text = std::fs::read_to_string(&path).map_err(|source| Error::Io { path: path.clone(), source })?;
+        let table: Results = serde_json::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        let m = merged.get_or_insert_with(|| Results { shard: None, merged_from: Vec::new(), results: Vec::new(), ..table.clone() });
+        if table.total_jobs != m.total_jobs {
+            let first = dirs[0].display();
+            return Err(Error::Invalid(format!(
+                "{}: a batch of {} jobs, but {first} is from one of {} (not shards of one job file?)",
+                path.display(),
+                table.total_jobs,
+                m.total_jobs
+            )));
+        }
+        for mut row in table.results {
+            if let Some(other) = origin.insert(row.job, dir) {
+                return Err(Error::Invalid(format!("job {} is in both {} and {}", row.job, other.display(), dir.display())));
+            }
+            if !row.dir.is_empty() {
+                row.dir = dir.join(&row.dir).display().to_string();
+            }
+            m.results.push(row);
+        }
+        m.merged_from.push(dir.display().to_string());
+    }
+    let mut merged = merged.ok_or_else(|| Error::Invalid("nothing to merge: give the shards' output directories".into()))?;
+    merged.results.sort_by_key(|r| r.job);
+    let missing = (1..=merged.total_jobs).filter(|k| !origin.contains_key(k)).collect();
+    std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
+    merged.write(out_dir)?;
+    Ok((merged, missing))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn jobs_from(text: &str) -> Result<Vec<Job>> {
+        static COUNTER: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("vkinverse-batch-unit-{}-{n}", std::process::id()));
+        std::fs::create_dir_all(&dir).map_err(|source| Error::Io { path: dir.clone(), source })?;
+        let path = dir.join("jobs.toml");
+        std::fs::write(&path, text).map_err(|source| Error::Io { path: path.clone(), source })?;
+        load_jobs(&path)
+    }
+
+    #[test]
+    fn product_then_single_jobs_in_order() {
+        let jobs = jobs_from(
+            "iterations = 5\nspp = [1, 2]\nscenes = ['a/scene.toml', 'b.toml']\noptimisers = ['meta', 'adam@beta1=0.5']\n\
+             [[jobs]]\nscene = 'c/scene.toml'\nseed = 3\niterations = 9\n",
+        )
+        .unwrap();
+        let labels: Vec<String> = jobs.iter().map(Job::dir_name).collect();
+        assert_eq!(
+            labels,
+            [
+                "job-1-a-meta-spp1",
+                "job-2-a-meta-spp2",
+                "job-3-a-adam@beta1=0.5-spp1",
+                "job-4-a-adam@beta1=0.5-spp2",
+                "job-5-b-meta-spp1",
+                "job-6-b-meta-spp2",
+                "job-7-b-adam@beta1=0.5-spp1",
+                "job-8-b-adam@beta1=0.5-spp2",
+                "job-9-c-seed3",
+            ]
+        );
+        assert_eq!(jobs[1].overrides.iterations, Some(5));
+        assert_eq!(jobs[1].overrides.spp, Some(2));
+        assert_eq!(jobs[8].overrides.iterations, Some(9));
+        assert_eq!(jobs[8].overrides.spp, None, "a list of spp is an axis of the product only");
+    }
+
+    #[test]
+    fn bad_job_files_name_the_problem() {
+        let err = |text: &str| jobs_from(text).unwrap_err().to_string();
+        assert!(err("scenes = ['a.toml']\noptimisers = ['sgd']").contains("optimisers: unknown optimiser 'sgd'"));
+        assert!(err("scenes = ['a.toml']\nlr = -1").contains("lr = -1"));
+        assert!(err("seeds = [1]").contains("seeds is given without scenes"));
+        assert!(err("scenes = ['a.toml']\nseeds = []").contains("seeds is an empty list"));
+        assert!(err("scenes = ['a.toml']\nspp = [0]").contains("spp must be at least 1"));
+        assert!(err("").contains("no jobs"));
+        assert!(err("scenes = ['a.toml']\nitterations = 3").contains(":2:1: unknown field `itterations`"), "{}", err("scenes = ['a.toml']\nitterations = 3"));
+        assert!(err("[[jobs]]\nscene = 'a.toml'\noptimiser = 'adam@beta3=1'").contains("jobs[0]: optimiser spec 'adam@beta3=1': unknown key 'beta3'"));
+    }
+
+    #[test]
+    fn shards_partition_the_jobs() {
+        let s: Shard = "2/3".parse().unwrap();
+        assert_eq!((1..=8).filter(|&k| s.has(k)).collect::<Vec<_>>(), [2, 5, 8]);
+        for bad in ["0/2", "3/2", "x", "1/0", "1/", "-1/2"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+        let all: Vec<usize> = (1..=4).flat_map(|i| (1..=10).filter(move |&k| Shard { index: i, count: 4 }.has(k))).collect();
+        let mut sorted = all.clone();
+        sorted.sort();
+        assert_eq!(sorted, (1..=10).collect::<Vec<_>>());
+    }
+}

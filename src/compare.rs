@@ -1,0 +1,251 @@
+//! `vkinverse compare`: several optimisers on one scene at equal cost, on one plot.
+//!
+//! Every optimiser runs with the same settings and seed — the same wall-time budget when one
+//! is given, else the same iteration count — into `OUTDIR/<label>/` (the outputs of
+//! `optimise`). The error is the parameter RMSE when the reference is known (every run logs
+//! it), else the image loss. OUTDIR then receives:
+//! - `error_vs_time.png`: every run's error against wall time, log scale;
+//! - `curves.csv`: `label,time_s,error`, the points behind the plot;
+//! - `compare.csv` and `compare.json`: per run the final error, the wall time at which the
+//!   error first reached each of [`LEVELS`] times the first run's final error, and the
+//!   speed-up over the first run.
+//!
+//! The levels are relative to the first run (the baseline): 2× its final error is where the
+//! runs are well under way, 1× is where the baseline ends, ½× is where only a faster
+//! optimiser gets within the budget. The speed-up of a run is the baseline's time to reach
+//! its own final error divided by the run's time to reach that error; it is empty when the
+//! run never reaches it, or when either time is 0 (the error started below the level).
+
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::image::write_bytes_atomic;
+use crate::optim::spec::Spec;
+use crate::optim::Optimiser;
+use crate::optimise::{log_curves, optimise, Progress, Settings};
+use crate::overrides::Overrides;
+use crate::report::{csv_field, plot_error_vs_time, Curve};
+use crate::scene::Scene;
+use serde::Serialize;
+use std::fmt::Write as _;
+use std::path::Path;
+use std::sync::Arc;
+
+/// Error levels, as multiples of the first run's final error.
+pub const LEVELS: [f64; 3] = [2.0, 1.0, 0.5];
+
+/// What the error of a comparison is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Metric {
+    /// RMSE between the parameters and the scene's reference values.
+    ParamError,
+    /// Image loss against the targets (when a target image makes the reference unknown).
+    Loss,
+}
+
+impl Metric {
+    pub fn describe(self) -> &'static str {
+        match self {
+            Metric::ParamError => "parameter RMSE",
+            Metric::Loss => "image loss",
+        }
+    }
+}
+
+/// One error level.
+#[derive(Clone, Debug, Serialize)]
+pub struct Level {
+    /// Multiple of the first run's final error.
+    pub factor: f64,
+    pub error: f64,
+}
+
+/// One optimiser's result.
+#[derive(Clone, Debug, Serialize)]
+pub struct Run {
+    pub label: String,
+    pub optimiser: Optimiser,
+    /// Its directory under OUTDIR.
+    pub dir: String,
+    pub iterations: u32,
+    pub time_s: f64,
+    pub final_error: Option<f64>,
+    /// Wall time at which the error first reached each level (None: never).
+    pub time_to_level: Vec<Option<f64>>,
+    pub speedup: Option<f64>,
+}
+
+/// What `compare.json` holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct Comparison {
+    pub scene: String,
+    pub metric: Metric,
+    /// The label of the first run, which the levels and speed-ups refer to.
+    pub baseline: String,
+    pub settings: serde_json::Value,
+    pub levels: Vec<Level>,
+    pub runs: Vec<Run>,
+}
+
+/// The first time at which `curve` is at or below `level`.
+fn time_to_reach(curve: &[(f64, f64)], level: f64) -> Option<f64> {
+    curve.iter().find(|p| p.1 <= level).map(|p| p.0)
+}
+
+fn factor_name(f: f64) -> String {
+    format!("{f}x")
+}
+
+/// Runs every spec on `scene` into `out_dir` and writes the comparison. `on_start` is
+/// called before each run, `progress` after each iteration.
+pub fn compare(
+    ctx: &Arc<Context>,
+    scene: &Scene,
+    overrides: &Overrides,
+    specs: &[Spec],
+    out_dir: &Path,
+    mut on_start: impl FnMut(&Spec, &Settings),
+    mut progress: impl FnMut(&Spec, &Progress),
+) -> Result<Comparison> {
+    if specs.is_empty() {
+        return Err(Error::Invalid("no optimisers to compare".into()));
+    }
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| Error::Io { path, source }
+    };
+    std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
+    let mut settings_json = serde_json::Value::Null;
+    // Per run: (summary, parameter-error curve, loss curve).
+    let mut results = Vec::new();
+    for spec in specs {
+        let (run_scene, st) = overrides.apply(scene, Some(spec.optimiser));
+        on_start(spec, &st);
+        let dir = out_dir.join(spec.dir_name());
+        let summary = optimise(ctx, &run_scene, &st, &dir, false, |p| progress(spec, p), |_, _, _| {})?;
+        let log_path = dir.join("log.csv");
+        let log = std::fs::read_to_string(&log_path).map_err(io(&log_path))?;
+        let (err, loss) = log_curves(&log);
+        if settings_json.is_null() {
+            settings_json = summary.settings.clone();
+            if let Some(map) = settings_json.as_object_mut() {
+                // Each run's optimiser is in its row.
+                map.remove("optimiser");
+            }
+        }
+        results.push((summary, err, loss));
+    }
+
+    let metric = if results.iter().all(|r| !r.1.is_empty()) { Metric::ParamError } else { Metric::Loss };
+    let curves: Vec<Curve> = specs
+        .iter()
+        .zip(&results)
+        .map(|(spec, (_, err, loss))| Curve { name: spec.label.clone(), points: if metric == Metric::ParamError { err.clone() } else { loss.clone() } })
+        .collect();
+    let baseline_final = curves[0].points.last().map(|p| p.1);
+    let levels: Vec<Level> = match baseline_final {
+        Some(e) => LEVELS.iter().map(|&factor| Level { factor, error: factor * e }).collect(),
+        None => Vec::new(),
+    };
+    // The baseline's time to its own final error; the speed-ups divide it.
+    let baseline_time = baseline_final.and_then(|e| time_to_reach(&curves[0].points, e));
+    let runs: Vec<Run> = specs
+        .iter()
+        .zip(&results)
+        .zip(&curves)
+        .map(|((spec, (summary, _, _)), curve)| {
+            let own = baseline_final.and_then(|e| time_to_reach(&curve.points, e));
+            let speedup = match (baseline_time, own) {
+                (Some(b), Some(t)) if b > 0.0 && t > 0.0 => Some(b / t),
+                _ => None,
+            };
+            Run {
+                label: spec.label.clone(),
+                optimiser: spec.optimiser,
+                dir: spec.dir_name(),
+                iterations: summary.iterations,
+                time_s: summary.total_time_s,
+                final_error: curve.points.last().map(|p| p.1),
+                time_to_level: levels.iter().map(|l| time_to_reach(&curve.points, l.error)).collect(),
+                speedup,
+            }
+        })
+        .collect();
+    let comparison = Comparison {
+        scene: scene.path.display().to_string(),
+        metric,
+        baseline: specs[0].label.clone(),
+        settings: settings_json,
+        levels,
+        runs,
+    };
+
+    let mut csv = String::from("label,time_s,error\n");
+    for c in &curves {
+        for (t, e) in &c.points {
+            let _ = writeln!(csv, "{},{t},{e}", csv_field(&c.name));
+        }
+    }
+    let path = out_dir.join("curves.csv");
+    write_bytes_atomic(&path, csv.as_bytes()).map_err(io(&path))?;
+    let path = out_dir.join("compare.csv");
+    write_bytes_atomic(&path, comparison.csv().as_bytes()).map_err(io(&path))?;
+    let json = serde_json::to_string_pretty(&comparison).map_err(|e| Error::Invalid(e.to_string()))?;
+    let path = out_dir.join("compare.json");
+    write_bytes_atomic(&path, json.as_bytes()).map_err(io(&path))?;
+    let path = out_dir.join("error_vs_time.png");
+    let title = format!("{}: {} vs time", comparison.scene, metric.describe());
+    plot_error_vs_time(&path, &title, metric.describe(), &curves).map_err(Error::Invalid)?;
+    Ok(comparison)
+}
+
+fn opt_num(v: Option<f64>) -> String {
+    v.map(|x| x.to_string()).unwrap_or_default()
+}
+
+impl Comparison {
+    /// `compare.csv`: one row per run; a time or speed-up that does not exist is empty.
+    pub fn csv(&self) -> String {
+        let mut s = String::from("label,optimiser,iterations,time_s,final_error");
+        for l in &self.levels {
+            let _ = write!(s, ",time_to_{}", factor_name(l.factor));
+        }
+        s.push_str(",speedup\n");
+        for r in &self.runs {
+            let _ = write!(s, "{},{},{},{},{}", csv_field(&r.label), r.optimiser.name(), r.iterations, r.time_s, opt_num(r.final_error));
+            for t in &r.time_to_level {
+                let _ = write!(s, ",{}", opt_num(*t));
+            }
+            let _ = writeln!(s, ",{}", opt_num(r.speedup));
+        }
+        s
+    }
+
+    /// The table printed by `vkinverse compare`.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        match self.levels.iter().find(|l| l.factor == 1.0) {
+            Some(l) => {
+                let _ = writeln!(s, "{}; levels are multiples of {}'s final error {:.4e}", self.metric.describe(), self.baseline, l.error);
+            }
+            None => {
+                let _ = writeln!(s, "{}", self.metric.describe());
+            }
+        }
+        let width = self.runs.iter().map(|r| r.label.len()).max().unwrap_or(0).max(5);
+        let _ = write!(s, "{:<width$} {:>6} {:>9} {:>11}", "label", "iters", "time (s)", "final error");
+        for l in &self.levels {
+            let _ = write!(s, " {:>10}", format!("t({})", factor_name(l.factor)));
+        }
+        let _ = writeln!(s, " {:>8}", "speed-up");
+        let cell = |v: Option<f64>, f: &dyn Fn(f64) -> String| v.map(f).unwrap_or_else(|| "-".into());
+        for r in &self.runs {
+            let _ = write!(s, "{:<width$} {:>6} {:>9.2} {:>11}", r.label, r.iterations, r.time_s, cell(r.final_error, &|e| format!("{e:.4e}")));
+            for t in &r.time_to_level {
+                let _ = write!(s, " {:>10}", cell(*t, &|t| format!("{t:.3}")));
+            }
+            let _ = writeln!(s, " {:>8}", cell(r.speedup, &|x| format!("{x:.2}x")));
+        }
+        s
+    }
+}

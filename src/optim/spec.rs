@@ -1,0 +1,118 @@
+//! Optimiser specs as `compare --optimisers` and job files name them:
+//! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@decay_f=0.99`.
+//!
+//! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
+//! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
+//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`); the rest keep their
+//! defaults. The learning rate is a run setting (`--lr`), not a hyperparameter.
+
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser};
+use std::str::FromStr;
+
+/// An optimiser with its hyperparameters and the text that named it, which labels its
+/// results (output directory, plot legend, table row).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Spec {
+    pub label: String,
+    pub optimiser: Optimiser,
+}
+
+impl Spec {
+    /// The label with every character that is awkward in a file name replaced by `_`.
+    pub fn dir_name(&self) -> String {
+        file_safe(&self.label)
+    }
+}
+
+/// `text` with characters outside `[A-Za-z0-9._@=-]` replaced by `_`.
+pub fn file_safe(text: &str) -> String {
+    text.chars().map(|c| if c.is_ascii_alphanumeric() || "._@=-".contains(c) { c } else { '_' }).collect()
+}
+
+/// The keys each optimiser accepts, for error messages.
+fn keys(o: &Optimiser) -> &'static str {
+    match o {
+        Optimiser::Adam(_) => "beta1, beta2, eps",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps",
+    }
+}
+
+impl FromStr for Spec {
+    type Err = OptimError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let label = s.trim();
+        let bad = |why: String| OptimError::BadSpec(format!("'{label}': {why}"));
+        let mut parts = label.split('@');
+        let name = parts.next().unwrap_or_default();
+        let mut optimiser: Optimiser = name.parse()?;
+        let mut seen: Vec<&str> = Vec::new();
+        for part in parts {
+            let (key, value) = part.split_once('=').ok_or_else(|| bad(format!("'{part}' is not KEY=VALUE")))?;
+            let (key, value) = (key.trim(), value.trim());
+            if seen.contains(&key) {
+                return Err(bad(format!("{key} given twice")));
+            }
+            seen.push(key);
+            let v: f64 = value.parse().map_err(|_| bad(format!("{key} = '{value}' is not a number")))?;
+            let slot = match (&mut optimiser, key) {
+                (Optimiser::Adam(AdamHyper { beta1, .. }), "beta1") => beta1,
+                (Optimiser::Adam(AdamHyper { beta2, .. }), "beta2") => beta2,
+                (Optimiser::Adam(AdamHyper { eps, .. }), "eps") => eps,
+                (Optimiser::Meta(MetaHyper { decay_f, .. }), "decay_f") => decay_f,
+                (Optimiser::Meta(MetaHyper { decay_d, .. }), "decay_d") => decay_d,
+                (Optimiser::Meta(MetaHyper { eps, .. }), "eps") => eps,
+                (o, _) => return Err(bad(format!("unknown key '{key}' for {name} (expected {})", keys(o)))),
+            };
+            *slot = v;
+        }
+        optimiser.validate().map_err(|e| bad(e.to_string()))?;
+        Ok(Spec { label: label.to_string(), optimiser })
+    }
+}
+
+/// Parses a comma-separated list of specs; labels must be distinct, since each names an
+/// output directory.
+pub fn parse_list(list: &str) -> Result<Vec<Spec>, OptimError> {
+    let mut specs: Vec<Spec> = Vec::new();
+    for item in list.split(',') {
+        if item.trim().is_empty() {
+            return Err(OptimError::BadSpec(format!("list '{list}' has an empty entry")));
+        }
+        let spec: Spec = item.parse()?;
+        if specs.iter().any(|s| s.dir_name() == spec.dir_name()) {
+            return Err(OptimError::BadSpec(format!("'{}' is listed twice", spec.label)));
+        }
+        specs.push(spec);
+    }
+    Ok(specs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_names_and_keys() {
+        let s: Spec = "adam@beta1=0.5@beta2=0.99".parse().unwrap();
+        assert_eq!(s.optimiser, Optimiser::Adam(AdamHyper { beta1: 0.5, beta2: 0.99, ..Default::default() }));
+        assert_eq!(s.label, "adam@beta1=0.5@beta2=0.99");
+        let m: Spec = "meta@decay_f=0.99".parse().unwrap();
+        assert_eq!(m.optimiser, Optimiser::Meta(MetaHyper { decay_f: 0.99, ..Default::default() }));
+        assert_eq!("meta".parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
+        let list = parse_list("meta,adam,adam@beta1=0.5").unwrap();
+        assert_eq!(list.iter().map(|s| s.label.as_str()).collect::<Vec<_>>(), ["meta", "adam", "adam@beta1=0.5"]);
+    }
+
+    #[test]
+    fn errors_name_the_problem() {
+        let msg = |s: &str| s.parse::<Spec>().unwrap_err().to_string();
+        assert!(msg("adam@decay_f=0.5").contains("unknown key 'decay_f' for adam"), "{}", msg("adam@decay_f=0.5"));
+        assert!(msg("adam@beta1").contains("'beta1' is not KEY=VALUE"));
+        assert!(msg("adam@beta1=x").contains("beta1 = 'x' is not a number"));
+        assert!(msg("adam@beta1=1.5").contains("beta1 = 1.5"));
+        assert!(msg("adam@eps=1@eps=2").contains("eps given twice"));
+        assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
+        assert!(parse_list("meta,,adam").unwrap_err().to_string().contains("empty entry"));
+        assert!(parse_list("adam,adam").unwrap_err().to_string().contains("listed twice"));
+    }
+}

@@ -1,0 +1,286 @@
+//! `compare` and `batch` end to end: the built binary on the tiny Cornell box with the
+//! validation layer on, their tables read back, and bad input checked to give one
+//! `vkinverse: error:` line.
+
+mod common;
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use common::scenes::temp_dir;
+
+/// What the validation layer's messages start with on stderr.
+const VALIDATION: &str = "vulkan validation:";
+
+struct Output {
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+}
+
+/// Runs the binary with the validation layer on (and on the test device, where one is named);
+/// fails the test on a panic or a validation message.
+fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
+    cmd.args(args).env("VKINVERSE_VALIDATION", "1");
+    if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
+        cmd.args(["--device", &device]);
+    }
+    let out = cmd.output().expect("run vkinverse");
+    let out = Output {
+        code: out.status.code(),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    };
+    let shown: Vec<_> = cmd.get_args().collect();
+    assert!(!out.stderr.contains(VALIDATION), "{shown:?}: validation messages:\n{}", out.stderr);
+    assert!(!out.stderr.contains("panicked"), "{shown:?}: panic:\n{}", out.stderr);
+    out
+}
+
+fn vkinverse_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    let out = vkinverse(args);
+    assert_eq!(out.code, Some(0), "failed:\n{}", out.stderr);
+    out
+}
+
+/// Runs, requires a non-zero exit and stderr of exactly one `vkinverse: error:` line that
+/// contains every needle; returns that line.
+fn vkinverse_err<S: AsRef<std::ffi::OsStr>>(args: &[S], needles: &[&str]) -> String {
+    let out = vkinverse(args);
+    assert!(out.code.is_some_and(|c| c != 0), "should fail, exited {:?}", out.code);
+    let lines: Vec<&str> = out.stderr.lines().collect();
+    assert!(lines.len() == 1 && lines[0].starts_with("vkinverse: error: "), "stderr is not one error line:\n{}", out.stderr);
+    for needle in needles {
+        assert!(lines[0].contains(needle), "{:?} lacks {needle:?}", lines[0]);
+    }
+    lines[0].to_string()
+}
+
+fn s(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+/// One directory per test process with `cornell/` (scenes/cornell at 16×16, direct light
+/// only, so its target is rendered once) and `broken/` (a scene file that does not parse).
+fn scenes() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = temp_dir("compare-batch-scenes");
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell");
+        let meshes = dir.join("cornell/meshes");
+        std::fs::create_dir_all(&meshes).unwrap();
+        for entry in std::fs::read_dir(src.join("meshes")).unwrap() {
+            let entry = entry.unwrap();
+            std::fs::copy(entry.path(), meshes.join(entry.file_name())).unwrap();
+        }
+        let mut text = std::fs::read_to_string(src.join("scene.toml")).unwrap();
+        for (from, to) in [("width = 64", "width = 16"), ("height = 64", "height = 16"), ("max_depth = 4", "max_depth = 2")] {
+            assert!(text.contains(from), "scenes/cornell/scene.toml no longer has `{from}`");
+            text = text.replacen(from, to, 1);
+        }
+        std::fs::write(dir.join("cornell/scene.toml"), text).unwrap();
+        std::fs::create_dir_all(dir.join("broken")).unwrap();
+        std::fs::write(dir.join("broken/scene.toml"), "[film]\nwidth = \"wide\"\n").unwrap();
+        dir
+    })
+}
+
+/// Splits one CSV line (RFC 4180 quoting, no line breaks inside fields).
+fn csv_line(line: &str) -> Vec<String> {
+    let mut fields = vec![String::new()];
+    let mut quoted = false;
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                chars.next();
+                fields.last_mut().unwrap().push('"');
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => fields.push(String::new()),
+            _ => fields.last_mut().unwrap().push(c),
+        }
+    }
+    fields
+}
+
+/// A CSV file as its header and rows; every row has the header's number of fields.
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut lines = text.lines();
+    let header = csv_line(lines.next().expect("empty CSV"));
+    let rows: Vec<Vec<String>> = lines.map(csv_line).collect();
+    for r in &rows {
+        assert_eq!(r.len(), header.len(), "{}: row {r:?}", path.display());
+    }
+    (header, rows)
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn num(field: &str) -> f64 {
+    field.parse().unwrap_or_else(|_| panic!("{field:?} is not a number"))
+}
+
+#[test]
+fn compare_two_optimisers() {
+    let out = temp_dir("compare");
+    let cornell = scenes().join("cornell/scene.toml");
+    let printed = vkinverse_ok(&[
+        "compare",
+        &s(&cornell),
+        "--optimisers",
+        "meta,adam@beta1=0.5",
+        "--iterations",
+        "4",
+        "--lr",
+        "0.05",
+        "--seed",
+        "3",
+        "-o",
+        &s(&out),
+    ])
+    .stdout;
+    assert!(printed.contains("meta") && printed.contains("adam@beta1=0.5") && printed.contains("speed-up"), "{printed}");
+    for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png"] {
+        assert!(out.join(name).exists(), "{name} missing");
+    }
+    // Each run is a full optimise run with the same settings and seed.
+    for (dir, optimiser) in [("meta", "meta"), ("adam@beta1=0.5", "adam")] {
+        let summary = json(&out.join(dir).join("summary.json"));
+        assert_eq!(summary["optimiser"], optimiser);
+        assert_eq!(summary["iterations"], 4);
+        assert_eq!(summary["settings"]["seed"], 3);
+        assert!(out.join(dir).join("log.csv").exists());
+    }
+    assert_eq!(json(&out.join("adam@beta1=0.5/summary.json"))["settings"]["optimiser"]["beta1"], 0.5);
+
+    let (header, rows) = read_csv(&out.join("compare.csv"));
+    assert_eq!(header, ["label", "optimiser", "iterations", "time_s", "final_error", "time_to_2x", "time_to_1x", "time_to_0.5x", "speedup"]);
+    assert_eq!(rows.len(), 2);
+    assert_eq!((rows[0][0].as_str(), rows[1][0].as_str()), ("meta", "adam@beta1=0.5"));
+    for r in &rows {
+        assert_eq!(r[2], "4");
+        assert!(num(&r[3]) > 0.0 && num(&r[4]) > 0.0, "{r:?}");
+        // Empty (never reached) or a time within the run.
+        for t in &r[5..8] {
+            assert!(t.is_empty() || (0.0..=num(&r[3]) + 1e-6).contains(&num(t)), "{r:?}");
+        }
+    }
+    // The baseline reaches its own final error (at the latest at its end): speed-up 1.
+    assert!((num(&rows[0][8]) - 1.0).abs() < 1e-12, "{:?}", rows[0]);
+
+    let (header, points) = read_csv(&out.join("curves.csv"));
+    assert_eq!(header, ["label", "time_s", "error"]);
+    let labels: BTreeSet<&str> = points.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(labels, BTreeSet::from(["meta", "adam@beta1=0.5"]));
+    for label in labels {
+        let curve: Vec<(f64, f64)> = points.iter().filter(|r| r[0] == label).map(|r| (num(&r[1]), num(&r[2]))).collect();
+        // The reference is known: the parameter error, from the start (row 0) on.
+        assert_eq!(curve.len(), 5, "{label}: {curve:?}");
+        assert!(curve.windows(2).all(|w| w[0].0 <= w[1].0), "{label}: time goes backwards");
+        let final_error = rows.iter().find(|r| r[0] == label).map(|r| num(&r[4]));
+        assert_eq!(final_error, Some(curve[4].1), "{label}: compare.csv's final error is the curve's last point");
+    }
+
+    let summary = json(&out.join("compare.json"));
+    assert_eq!(summary["metric"], "param_error");
+    assert_eq!(summary["baseline"], "meta");
+    assert_eq!(summary["runs"].as_array().map(Vec::len), Some(2));
+
+    let bytes = std::fs::read(out.join("error_vs_time.png")).unwrap();
+    let info = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("error_vs_time.png decodes");
+    assert!(info.info().width > 0 && info.info().height > 0);
+
+    // A bad spec is refused before anything runs.
+    let bad = temp_dir("compare-bad").join("out");
+    vkinverse_err(&["compare", &s(&cornell), "--optimisers", "meta,adam@beta3=0.5", "-o", &s(&bad)], &["beta3", "adam"]);
+    vkinverse_err(&["compare", &s(&cornell), "--optimisers", "meta,meta", "-o", &s(&bad)], &["meta", "twice"]);
+    assert!(!bad.exists());
+}
+
+/// The job file of the batch tests: the product gives jobs 1 and 2, job 3 names a scene
+/// that does not parse, job 4 sets its own optimiser spec and spp.
+fn jobs_file(name: &str) -> PathBuf {
+    let path = scenes().join(name);
+    let text = "iterations = 2\nlr = 0.05\nscenes = [\"cornell/scene.toml\"]\noptimisers = [\"meta\", \"adam\"]\n\n\
+                [[jobs]]\nscene = \"broken/scene.toml\"\n\n\
+                [[jobs]]\nscene = \"cornell/scene.toml\"\noptimiser = \"adam@beta1=0.5\"\nspp = 1\n";
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// results.json's rows with what does not depend on timing or location: job, label,
+/// optimiser, seed, spp, status, message, iterations.
+fn rows_of(dir: &Path) -> Vec<Vec<String>> {
+    let results = json(&dir.join("results.json"));
+    let rows = results["results"].as_array().expect("results array");
+    let (header, csv_rows) = read_csv(&dir.join("results.csv"));
+    assert_eq!(header.join(","), "job,label,scene,optimiser,seed,spp,status,message,iterations,time_s,final_loss,final_error,dir");
+    assert_eq!(csv_rows.len(), rows.len(), "results.csv and results.json differ");
+    rows.iter()
+        .zip(&csv_rows)
+        .map(|(r, c)| {
+            let keys = ["job", "label", "optimiser", "seed", "spp", "status", "message", "iterations"];
+            let fields: Vec<String> = keys.iter().map(|k| if r[k].is_string() { r[k].as_str().unwrap().to_string() } else if r[k].is_null() { String::new() } else { r[k].to_string() }).collect();
+            // The CSV holds the same values.
+            let from_csv: Vec<&String> = [0, 1, 3, 4, 5, 6, 7, 8].iter().map(|&i| &c[i]).collect();
+            assert_eq!(from_csv, fields.iter().collect::<Vec<_>>());
+            fields
+        })
+        .collect()
+}
+
+#[test]
+fn batch_records_failures_and_shards_merge() {
+    let jobs = jobs_file("jobs.toml");
+    let all = temp_dir("batch-all");
+    let line = vkinverse_err(&["--quiet", "batch", &s(&jobs), "-o", &s(&all)], &["1 of 4 jobs failed", "results.csv"]);
+    assert!(line.contains(&s(&all)), "{line}");
+    let rows = rows_of(&all);
+    assert_eq!(rows.iter().map(|r| r[0].as_str()).collect::<Vec<_>>(), ["1", "2", "3", "4"]);
+    assert_eq!(rows.iter().map(|r| r[5].as_str()).collect::<Vec<_>>(), ["ok", "ok", "failed", "ok"]);
+    assert_eq!(rows.iter().map(|r| r[2].as_str()).collect::<Vec<_>>(), ["meta", "adam", "", "adam@beta1=0.5"]);
+    assert!(rows[2][6].contains("broken") && rows[2][6].contains("scene.toml:2:"), "the failure names the file and line: {:?}", rows[2][6]);
+    for ok in [&rows[0], &rows[1], &rows[3]] {
+        assert_eq!((ok[6].as_str(), ok[7].as_str()), ("", "2"), "{ok:?}");
+    }
+    assert_eq!(rows[3][4], "1", "job 4's own spp");
+    for (k, label) in [(1, "cornell-meta"), (2, "cornell-adam"), (4, "cornell-adam@beta1=0.5-spp1")] {
+        assert_eq!(rows[k - 1][1], label);
+        assert!(all.join(format!("job-{k}-{label}/summary.json")).exists(), "job {k}'s outputs");
+    }
+
+    // Shards 1/2 (jobs 1, 3) and 2/2 (jobs 2, 4), merged, give the same rows.
+    let shard1 = temp_dir("batch-shard1");
+    let shard2 = temp_dir("batch-shard2");
+    vkinverse_err(&["--quiet", "batch", &s(&jobs), "--shard", "1/2", "-o", &s(&shard1)], &["1 of 2 jobs failed"]);
+    vkinverse_ok(&["--quiet", "batch", &s(&jobs), "--shard", "2/2", "-o", &s(&shard2)]);
+    assert_eq!(rows_of(&shard1).iter().map(|r| r[0].as_str()).collect::<Vec<_>>(), ["1", "3"]);
+    let merged = temp_dir("batch-merged");
+    // Shard 2 first: the merge sorts by job.
+    vkinverse_ok(&["--quiet", "batch", "--merge", &s(&shard2), &s(&shard1), "-o", &s(&merged)]);
+    assert_eq!(rows_of(&merged), rows);
+    assert_eq!(json(&merged.join("results.json"))["total_jobs"], 4);
+
+    // A job in two tables is refused.
+    let twice = temp_dir("batch-twice").join("out");
+    vkinverse_err(&["batch", "--merge", &s(&shard1), &s(&shard1), "-o", &s(&twice)], &["job 1", "both"]);
+    assert!(!twice.exists());
+}
+
+#[test]
+fn bad_shards_are_refused() {
+    let jobs = jobs_file("jobs-bad-shard.toml");
+    let out = temp_dir("batch-bad-shard").join("out");
+    for (shard, needle) in [("0/2", "numbered 1 to 2"), ("3/2", "numbered 1 to 2"), ("x", "not I/N"), ("1/0", "at least 1")] {
+        vkinverse_err(&["batch", &s(&jobs), "--shard", shard, "-o", &s(&out)], &["--shard", shard, needle]);
+    }
+    assert!(!out.exists(), "a refused batch wrote {}", out.display());
+}
