@@ -60,6 +60,7 @@ void main() {
     bool any_delta = false;
     for (int k = 0; k < NSTATES; ++k) any_delta = any_delta || any(notEqual(delta[k], vec3(0.0)));
     if (!any_delta) return;
+    grad_init();
 #endif
     vec3 sum[NSTATES];
     for (int k = 0; k < NSTATES; ++k) sum[k] = vec3(0.0);
@@ -79,7 +80,9 @@ void main() {
         for (int j = 0; j < NSTATES; ++j) sum[j] += radiance[j];
 #endif
     }
-#ifndef ADJOINT
+#ifdef ADJOINT
+    grad_flush();
+#else
     accum[i] += pc.weight * sum[0];
 #ifdef FD
     accum_prev[i] += pc.weight * sum[1];

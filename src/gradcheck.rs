@@ -4,9 +4,10 @@
 //!
 //! Both sides are Monte Carlo estimates, so each is averaged over `rounds` independent
 //! seeds and compared within their combined standard error: an element passes when
-//! |adjoint − fd| ≤ 4·√(se_adj² + se_fd²) + rel_tol·|fd| + abs_tol. The finite difference
-//! of the (noisy) loss also carries the derivative of the image variance, which shrinks
-//! with `primal_spp`; `rel_tol` covers it.
+//! |adjoint − fd| ≤ 4·√(se_adj² + se_fd²) + rel_tol·|fd| + abs_tol. For l2 and relative_l2
+//! the finite difference is of the unbiased loss (I1 − T)(I2 − T) over two independent
+//! renders; for l1 it is of the plain loss, whose finite difference also carries the
+//! derivative of the image noise (shrinking with `primal_spp`); `rel_tol` covers that.
 
 use crate::error::Result;
 use crate::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
@@ -72,8 +73,35 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Ve
     let pass = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed, &gs.theta, &grad)?;
     let mut grad_cmd = CommandBuffer::new(ctx, "gradient")?;
     grad_cmd.record(|rec| pass.record(rec, gs, &ops))?;
+    // Two independent primal renders per evaluation: for l2 and relative_l2 the product
+    // (I1 − T)(I2 − T) has expectation (E[I] − T)², so the finite difference does not also
+    // pick up the derivative of the image variance, which the plain loss (I − T)² carries.
+    let second = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed ^ 0x5A5A_5A5A, &gs.theta, &grad)?;
     let mut loss_cmd = CommandBuffer::new(ctx, "loss")?;
-    loss_cmd.record(|rec| pass.record_loss(rec, gs, &ops))?;
+    loss_cmd.record(|rec| {
+        pass.record_loss(rec, gs, &ops)?;
+        second.record_loss(rec, gs, &ops)
+    })?;
+    let loss_kind = scene.optimise.loss;
+    let unbiased_loss = |a: &GradientPass, b: &GradientPass| -> Result<f64> {
+        if loss_kind == crate::scene::Loss::L1 {
+            return Ok(a.total_loss()?);
+        }
+        let mut total = 0.0;
+        for (s, t) in target_images.iter().enumerate() {
+            let (i1, i2) = (a.rendered(s, gs)?, b.rendered(s, gs)?);
+            let mut sum = 0.0f64;
+            for ((p1, p2), pt) in i1.data.iter().zip(&i2.data).zip(&t.data) {
+                for c in 0..3 {
+                    let tc = pt[c] as f64;
+                    let w = if loss_kind == crate::scene::Loss::RelativeL2 { 1.0 / (tc * tc + 0.01) } else { 1.0 };
+                    sum += (p1[c] as f64 - tc) * (p2[c] as f64 - tc) * w;
+                }
+            }
+            total += sum / (3.0 * i1.data.len() as f64);
+        }
+        Ok(total)
+    };
     let theta0 = gs.layout.initial();
 
     // Adjoint: `rounds` independent estimates.
@@ -107,7 +135,7 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Ve
                     t[k] = x;
                     gs.set_theta(t)?;
                     loss_cmd.submit_and_wait()?;
-                    Ok(pass.total_loss()?)
+                    unbiased_loss(&pass, &second)
                 };
                 let (lp, lm) = (at(hi)?, at(lo)?);
                 fd.push((lp - lm) / (hi - lo) as f64);

@@ -16,6 +16,18 @@ use crate::scene::Loss;
 pub const SEED_PRIMAL: u32 = 0x1000_0000;
 pub const SEED_ADJOINT: u32 = 0x2000_0000;
 
+/// Samples per pixel of one adjoint dispatch; more are split into several dispatches. On
+/// lavapipe (Mesa 22.3) one adjoint dispatch looping over more than ~64 samples per thread
+/// returned gradients that shrank with the sample count (−38 % at 256 spp on the spiral
+/// scene's ribbon colour, against central differences), while the same samples split into
+/// short dispatches agree; tests/gradients.rs keeps spp small, `vkinverse gradcheck` at
+/// high spp exercises the split.
+const SPP_PER_DISPATCH: u32 = 4;
+
+/// Parameters whose gradients the adjoint kernels sum in registers (LOCAL_GRADS_CAPACITY
+/// in glsl/lib/scene_access.glsl).
+const LOCAL_GRADS_CAPACITY: usize = 32;
+
 struct SensorBuffers {
     rendered: Buffer,
     target: Buffer,
@@ -121,7 +133,11 @@ impl GradientPass {
         let (primal_name, adjoint_name) =
             if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };
         let primal = ComputePipeline::new(ctx, primal_name, &spec)?;
-        let adjoint = ComputePipeline::new(ctx, adjoint_name, &spec)?;
+        // Small θ is accumulated per thread before the atomics (glsl/lib/scene_access.glsl).
+        let mut adjoint_spec = spec.clone();
+        let local = if (1..=LOCAL_GRADS_CAPACITY).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
+        adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
+        let adjoint = ComputePipeline::new(ctx, adjoint_name, &adjoint_spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
         let n = scene.pixels();
@@ -243,9 +259,18 @@ impl GradientPass {
             if !adjoint {
                 continue;
             }
-            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
             begin(rec, &mut profiler, "trace_adjoint")?;
-            rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
+            let mut first = 0;
+            while first < self.spp {
+                let chunk = SPP_PER_DISPATCH.min(self.spp - first);
+                let mut p = push(chunk, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
+                p.first_sample = first;
+                if first > 0 {
+                    rec.transition(&[(&self.grad, Access::ComputeReadWrite)])?;
+                }
+                rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
+                first += chunk;
+            }
             end(rec, &mut profiler)?;
         }
         Ok(())
