@@ -1,0 +1,561 @@
+#!/usr/bin/env python3
+"""Compares vkinverse with Mitsuba 3 (variant llvm_ad_rgb) on one scene file:
+
+  a. images: `vkinverse render` against Mitsuba's `path` integrator at the same
+     resolution, samples and depth; wall-time ratio and mean relative error, set against
+     the Monte Carlo noise of each renderer (two independent renders of each);
+  b. the gradient of the l2 loss with respect to the scene's first optimised colour at
+     its `init` value: `vkinverse gradcheck --json` (adjoint column) against Mitsuba's
+     `prb` integrator, each as a mean ± standard error over independent rounds;
+  c. time per Adam iteration: `vkinverse optimise --optimiser adam` against Mitsuba
+     prb + mi.ad.Adam with the scene's learning rate and sample counts.
+
+Mitsuba is a peer to measure against, not a dependency of vkinverse: this script is the
+only place it is imported, and it stops with a message when it is missing.
+
+    python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --spp 1024 --out /tmp/cmp
+
+Only what has an exact Mitsuba counterpart is translated: diffuse (Lambert) materials
+with constant colours, OBJ meshes, one-sided area lights, a constant environment, pinhole
+sensors. Anything else is refused rather than approximated, since an approximate peer
+would turn every difference into noise.
+"""
+
+import argparse
+import csv
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+VARIANT = "llvm_ad_rgb"
+# Debian's LLVM 19, which Dr.Jit's LLVM backend loads at run time; an explicit
+# DRJIT_LIBLLVM_PATH in the environment wins.
+DEBIAN_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+# vkinverse's defaults where the scene file leaves a table out (src/scene/file.rs).
+DEFAULT_MAX_DEPTH = 6
+DEFAULT_RR_DEPTH = 5
+# Relative errors are taken against max(mean of the two pixels, REL_FLOOR), so that
+# nearly black pixels (shadowed corners) do not dominate the mean.
+REL_FLOOR = 1e-2
+# Side of the pixel blocks in which systematic differences are located.
+BLOCK = 8
+
+
+def fail(msg, code=2):
+    print(f"mitsuba_compare: {msg}", file=sys.stderr)
+    sys.exit(code)
+
+
+def import_mitsuba():
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(DEBIAN_LIBLLVM):
+        os.environ["DRJIT_LIBLLVM_PATH"] = DEBIAN_LIBLLVM
+    try:
+        import numpy as np
+        import drjit as dr
+        import mitsuba as mi
+    except ImportError as e:
+        fail(
+            f"Mitsuba 3 is not installed ({e}).\n"
+            "  It is needed only by this comparison script, not by vkinverse: "
+            "pip install mitsuba numpy"
+        )
+    try:
+        mi.set_variant(VARIANT)
+    except Exception as e:  # noqa: BLE001 - any failure here means the variant is unusable
+        fail(
+            f"Mitsuba's {VARIANT} variant is unavailable ({e}).\n"
+            "  It needs libLLVM: apt-get install libllvm19 and set "
+            f"DRJIT_LIBLLVM_PATH={DEBIAN_LIBLLVM}"
+        )
+    return np, dr, mi
+
+
+# ---------------------------------------------------------------------------------------
+# Scene translation
+# ---------------------------------------------------------------------------------------
+
+
+def load_toml(path):
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        fail(f"{path}: {e}")
+
+
+def obj_has_normals(path):
+    with open(path) as f:
+        return any(line.split()[:1] == ["vn"] for line in f)
+
+
+def mitsuba_key(name):
+    return "mat_" + "".join(c if c.isalnum() else "_" for c in name)
+
+
+def color_param(scene):
+    """(material name, init, range, lr) of the first optimised material colour."""
+    opt = scene.get("optimise", {})
+    for p in opt.get("params", []):
+        parts = p["target"].split(".")
+        if len(parts) == 3 and parts[0] == "materials" and parts[2] == "base_color" and "texture" not in p:
+            init = p["init"] if isinstance(p["init"], list) else [p["init"]] * 3
+            return parts[1], [float(v) for v in init], p.get("range", [0.0, 1.0]), p.get("lr", opt.get("lr", 0.02))
+    fail("the scene optimises no constant materials.NAME.base_color; parts b and c need one")
+
+
+def scene_dict(scene, scene_dir, integrator, spp, sensor=0, overrides=None):
+    """Mitsuba scene dict of a vkinverse scene file; `overrides` maps material names to
+    base colours that replace the written (reference) ones."""
+    overrides = overrides or {}
+    film = scene.get("film", {})
+    width, height = film.get("width", 256), film.get("height", 256)
+    integ = scene.get("integrator", {})
+    s = scene["sensors"][sensor]
+    d = {
+        "type": "scene",
+        "integrator": {
+            "type": integrator,
+            "max_depth": integ.get("max_depth", DEFAULT_MAX_DEPTH),
+            "rr_depth": integ.get("rr_depth", DEFAULT_RR_DEPTH),
+        },
+        "sensor": {
+            "type": "perspective",
+            # vkinverse's fov_y is the full vertical angle whatever the aspect ratio.
+            "fov_axis": "y",
+            "fov": s["fov_y"],
+            "to_world": _look_at(s["origin"], s["target"], s.get("up", [0, 1, 0])),
+            "sampler": {"type": "independent", "sample_count": spp},
+            "film": {
+                "type": "hdrfilm",
+                "width": width,
+                "height": height,
+                "pixel_format": "rgb",
+                # vkinverse averages uniformly jittered samples inside each pixel.
+                "rfilter": {"type": "box"},
+            },
+        },
+    }
+    for m in scene.get("materials", []):
+        if m.get("type") != "diffuse":
+            fail(f"material {m['name']!r} is {m.get('type')!r}: only diffuse materials have an exact Mitsuba counterpart")
+        c = overrides.get(m["name"], m["base_color"])
+        if not isinstance(c, list):
+            fail(f"material {m['name']!r}: textured base colours are not translated")
+        # vkinverse shades both sides of every surface (it flips the normal towards the
+        # viewer); Mitsuba's diffuse is one-sided unless wrapped.
+        d[mitsuba_key(m["name"])] = {
+            "type": "twosided",
+            "id": mitsuba_key(m["name"]),
+            "brdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(v) for v in c]}},
+        }
+    for i, mesh in enumerate(scene.get("meshes", [])):
+        path = (scene_dir / mesh["file"]).resolve()
+        shape = {
+            "type": "obj",
+            "filename": str(path),
+            # Without normals in the file vkinverse shades with the geometric normal;
+            # Mitsuba would otherwise smooth normals across the blocks' edges.
+            "face_normals": not obj_has_normals(path),
+            "bsdf": {"type": "ref", "id": mitsuba_key(mesh["material"])},
+        }
+        e = mesh.get("emission", [0, 0, 0])
+        if any(v > 0 for v in e):
+            # Both emit on the counter-clockwise front side only.
+            shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": [float(v) for v in e]}}
+        d[f"mesh{i}"] = shape
+    env = scene.get("environment")
+    if env is not None:
+        if env.get("file"):
+            fail("environment maps are not translated (only `constant`)")
+        c = [float(v) * float(env.get("scale", 1.0)) for v in env.get("constant", [0, 0, 0])]
+        d["environment"] = {"type": "constant", "radiance": {"type": "rgb", "value": c}}
+    return d
+
+
+def _look_at(origin, target, up):
+    import mitsuba as mi
+
+    return mi.ScalarTransform4f().look_at(origin=origin, target=target, up=up)
+
+
+# ---------------------------------------------------------------------------------------
+# Running vkinverse
+# ---------------------------------------------------------------------------------------
+
+
+def find_vkinverse(arg):
+    candidates = []
+    if arg:
+        candidates.append(Path(arg))
+    if os.environ.get("CARGO_TARGET_DIR"):
+        candidates.append(Path(os.environ["CARGO_TARGET_DIR"]) / "release" / "vkinverse")
+    candidates.append(Path(__file__).resolve().parent.parent / "target" / "release" / "vkinverse")
+    for c in candidates:
+        if c.is_file() and os.access(c, os.X_OK):
+            return c
+    on_path = shutil.which("vkinverse")
+    if on_path:
+        return Path(on_path)
+    fail("no vkinverse release binary found: cargo build --release, or pass --vkinverse PATH")
+
+
+def run_vk(binary, args, check=True):
+    """Runs vkinverse; returns (seconds of wall time, stdout, stderr)."""
+    t = time.perf_counter()
+    p = subprocess.run([str(binary), *map(str, args)], capture_output=True, text=True)
+    dt = time.perf_counter() - t
+    if check and p.returncode != 0:
+        fail(f"vkinverse {' '.join(map(str, args))} failed ({p.returncode}):\n{p.stderr.strip()}")
+    return dt, p.stdout, p.stderr
+
+
+def reported_render_time(stderr):
+    # "rendered WxH at N spp in T s -> OUT"
+    for line in stderr.splitlines():
+        if line.startswith("rendered ") and " in " in line:
+            try:
+                return float(line.split(" in ")[1].split()[0])
+            except (IndexError, ValueError):
+                pass
+    return float("nan")
+
+
+def per_iteration_time(log_csv):
+    """Median wall time between consecutive logged iterations of `vkinverse optimise`."""
+    with open(log_csv) as f:
+        t = [float(r["time_s"]) for r in csv.DictReader(f)]
+    steps = [b - a for a, b in zip(t, t[1:])]
+    return statistics.median(steps) if steps else (t[0] if t else float("nan"))
+
+
+# ---------------------------------------------------------------------------------------
+# Statistics
+# ---------------------------------------------------------------------------------------
+
+
+def mean_se(values):
+    n = len(values)
+    m = sum(values) / n
+    if n < 2:
+        return m, float("nan")
+    var = sum((v - m) ** 2 for v in values) / (n - 1)
+    return m, (var / n) ** 0.5
+
+
+def mre(np, a, b):
+    """Mean relative error between two images (symmetric, floored denominator)."""
+    return float(np.mean(np.abs(a - b) / np.maximum(0.5 * (np.abs(a) + np.abs(b)), REL_FLOOR)))
+
+
+def image_comparison(np, m1, m2, v1, v2):
+    """Differences between the renderers against their own noise. Each renderer's
+    per-pixel variance is estimated from its two independent renders."""
+    out = {
+        "mre_mitsuba_vs_vkinverse": mre(np, m1, v1),
+        "mre_mitsuba_noise": mre(np, m1, m2),
+        "mre_vkinverse_noise": mre(np, v1, v2),
+    }
+    # If the two agree in expectation, |M1 - V1| has the variance of the two renderers'
+    # combined, so its MRE sits between the two noise MREs, near their quadratic mean.
+    out["mre_expected_if_equal"] = float(np.sqrt(0.5 * (out["mre_mitsuba_noise"] ** 2 + out["mre_vkinverse_noise"] ** 2)))
+    ma, va = 0.5 * (m1 + m2), 0.5 * (v1 + v2)
+    var_ma, var_va = 0.25 * (m1 - m2) ** 2, 0.25 * (v1 - v2) ** 2  # unbiased per pixel
+    n = m1.shape[0] * m1.shape[1]
+    # Image-mean ratio per channel with its standard error (first-order).
+    chans = []
+    for c in range(3):
+        mm, vm = float(ma[..., c].mean()), float(va[..., c].mean())
+        se = float(np.sqrt(var_ma[..., c].sum() + var_va[..., c].sum())) / n
+        chans.append({"mitsuba": mm, "vkinverse": vm, "diff": mm - vm, "se": se, "z": (mm - vm) / se if se > 0 else float("nan")})
+    out["channel_means"] = chans
+    # Block z-scores locate systematic differences (the light, shadows, the edges).
+    h, w = (m1.shape[0] // BLOCK) * BLOCK, (m1.shape[1] // BLOCK) * BLOCK
+
+    def blocks(x):
+        return x[:h, :w].reshape(h // BLOCK, BLOCK, w // BLOCK, BLOCK, 3).sum(axis=(1, 3))
+
+    diff = blocks(ma - va)
+    se = np.sqrt(blocks(var_ma + var_va))
+    z = np.where(se > 0, diff / np.where(se > 0, se, 1), 0.0)
+    worst = np.unravel_index(int(np.argmax(np.abs(z))), z.shape)
+    rel = blocks(ma - va) / np.maximum(blocks(va), 1e-12)
+    out["blocks"] = {
+        "size": BLOCK,
+        "count": int(z.shape[0] * z.shape[1] * 3),
+        "abs_z_over_4": int((np.abs(z) > 4).sum()),
+        "max_abs_z": float(np.abs(z).max()),
+        "worst": {"row": int(worst[0]) * BLOCK, "col": int(worst[1]) * BLOCK, "channel": "rgb"[worst[2]],
+                  "z": float(z[worst]), "relative_diff": float(rel[worst])},
+    }
+    out["_z"] = z
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# The three comparisons
+# ---------------------------------------------------------------------------------------
+
+
+def compare_images(np, mi, scene, scene_path, vk, args, out):
+    spp = args.spp
+    mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "path", spp))
+
+    def mitsuba_render(seed):
+        t = time.perf_counter()
+        img = np.array(mi.render(mscene, spp=spp, seed=seed))
+        return time.perf_counter() - t, img
+
+    # The first render compiles the kernels (Dr.Jit caches them for later calls).
+    cold, _ = mitsuba_render(0)
+    m_times, m_imgs = [], []
+    for r in range(args.runs):
+        dt, img = mitsuba_render(r + 1)
+        m_times.append(dt)
+        m_imgs.append(img)
+        mi.util.write_bitmap(str(out / f"mitsuba_{spp}spp_seed{r + 1}.exr"), img)
+
+    # The first vkinverse run fills the driver's shader cache and the file cache.
+    v_cold, _, _ = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", 0, "-o", out / "vk_warmup.exr"])
+    v_times, v_reported, v_imgs = [], [], []
+    for r in range(args.runs):
+        path = out / f"vkinverse_{spp}spp_seed{r + 1}.exr"
+        dt, _, err = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", r + 1, "-o", path])
+        v_times.append(dt)
+        v_reported.append(reported_render_time(err))
+        v_imgs.append(np.array(mi.Bitmap(str(path)))[..., :3].astype(np.float64))
+    # Fixed costs: a 1-spp render of each (Vulkan start-up, pipeline creation, BVH).
+    v_one, _, _ = run_vk(vk, ["render", scene_path, "--spp", 1, "--seed", 9, "-o", out / "vk_1spp.exr"])
+    m_one = statistics.median(mitsuba_render(9 + r)[0] for r in range(3))
+
+    m_imgs = [x.astype(np.float64) for x in m_imgs]
+    cmp = image_comparison(np, m_imgs[0], m_imgs[1], v_imgs[0], v_imgs[1])
+    z = cmp.pop("_z")
+    np.save(out / "block_z.npy", z)
+    return {
+        "spp": spp,
+        "mitsuba_s": statistics.median(m_times),
+        "mitsuba_cold_s": cold,
+        "mitsuba_1spp_s": m_one,
+        "vkinverse_process_s": statistics.median(v_times),
+        "vkinverse_reported_s": statistics.median(v_reported),
+        "vkinverse_cold_s": v_cold,
+        "vkinverse_1spp_process_s": v_one,
+        "mitsuba_runs_s": m_times,
+        "vkinverse_runs_s": v_times,
+        "images": cmp,
+        "mitsuba_target": sum(m_imgs) / len(m_imgs),
+    }
+
+
+def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
+    name, init, _, _ = color_param(scene)
+    spp = args.grad_spp
+    mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", spp, overrides={name: init}))
+    params = mi.traverse(mscene)
+    key = f"{mitsuba_key(name)}.brdf_0.reflectance.value"
+    dr.enable_grad(params[key])
+    params.update()
+    target_t = mi.TensorXf(target.astype(np.float32))
+
+    def estimate(seed):
+        t = time.perf_counter()
+        img = mi.render(mscene, params, spp=spp, spp_grad=spp, seed=seed)
+        loss = dr.mean(dr.square(img - target_t), axis=None)
+        dr.backward(loss)
+        g = np.array(dr.grad(params[key])).ravel()[:3].astype(np.float64)
+        dt = time.perf_counter() - t
+        dr.set_grad(params[key], 0)
+        return dt, g
+
+    estimate(10_000)  # kernel compilation
+    m_times, m_grads = [], []
+    for r in range(args.rounds):
+        dt, g = estimate(1 + r)
+        m_times.append(dt)
+        m_grads.append(g)
+
+    v_time, stdout, _ = run_vk(vk, ["gradcheck", scene_path, "--spp", spp, "--rounds", args.rounds, "--json"], check=False)
+    try:
+        rows = json.loads(stdout)
+    except json.JSONDecodeError:
+        fail(f"vkinverse gradcheck printed no JSON:\n{stdout}")
+    target_name = f"materials.{name}.base_color"
+    rows = sorted((r for r in rows if r["param"] == target_name), key=lambda r: r["element"])
+    if len(rows) != 3:
+        fail(f"vkinverse gradcheck reported {len(rows)} elements of {target_name}, expected 3")
+    (out / "vkinverse_gradcheck.json").write_text(json.dumps(rows, indent=2))
+
+    # One gradient estimate at the same sample counts: an Adam iteration's time, which is
+    # primal + loss + adjoint and an optimiser pass of three floats.
+    est_dir = out / "vk_grad_timing"
+    shutil.rmtree(est_dir, ignore_errors=True)
+    run_vk(vk, ["optimise", scene_path, "--optimiser", "adam", "--iterations", args.rounds + 2,
+                "--spp", spp, "--primal-spp", spp, "--quiet", "-o", est_dir])
+    v_est = per_iteration_time(est_dir / "log.csv")
+
+    result = {"param": target_name, "init": init, "spp": spp, "rounds": args.rounds, "channels": []}
+    for c in range(3):
+        mm, ms = mean_se([g[c] for g in m_grads])
+        result["channels"].append({
+            "mitsuba": mm, "mitsuba_se": ms,
+            "vkinverse": rows[c]["adjoint"], "vkinverse_se": rows[c]["adjoint_se"],
+            "vkinverse_fd": rows[c]["finite_difference"], "vkinverse_fd_se": rows[c]["finite_difference_se"],
+        })
+    result["mitsuba_per_estimate_s"] = statistics.median(m_times)
+    result["vkinverse_per_estimate_s"] = v_est
+    result["vkinverse_gradcheck_process_s"] = v_time
+    return result
+
+
+def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
+    name, init, rng, lr = color_param(scene)
+    opt_cfg = scene.get("optimise", {})
+    spp = args.opt_spp or opt_cfg.get("spp", 2)
+    primal_spp = args.opt_primal_spp or opt_cfg.get("primal_spp", 4)
+    iters = args.iterations
+    mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", primal_spp, overrides={name: init}))
+    params = mi.traverse(mscene)
+    key = f"{mitsuba_key(name)}.brdf_0.reflectance.value"
+    target_t = mi.TensorXf(target.astype(np.float32))
+    opt = mi.ad.Adam(lr=lr)
+    opt[key] = params[key]
+    params.update(opt)
+
+    times = []
+    for it in range(iters):
+        t = time.perf_counter()
+        # Primal image at primal_spp; the adjoint pass replays spp samples per pixel, as
+        # vkinverse's primal_spp / spp do.
+        img = mi.render(mscene, params, spp=primal_spp, spp_grad=spp, seed=it)
+        loss = dr.mean(dr.square(img - target_t), axis=None)
+        dr.backward(loss)
+        opt.step()
+        opt[key] = dr.clip(opt[key], rng[0], rng[1])
+        params.update(opt)
+        loss_value = float(np.array(loss).ravel()[0])  # vkinverse reads its loss back too
+        times.append(time.perf_counter() - t)
+        del loss_value
+    m_final = np.array(params[key]).ravel()[:3].tolist()
+
+    opt_dir = out / "vk_adam"
+    shutil.rmtree(opt_dir, ignore_errors=True)
+    wall, _, _ = run_vk(vk, ["optimise", scene_path, "--optimiser", "adam", "--iterations", iters, "--spp", spp,
+                             "--primal-spp", primal_spp, "--lr", lr, "--quiet", "-o", opt_dir])
+    summary = json.loads((opt_dir / "summary.json").read_text())
+    v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.base_color")
+    reference = next(m["base_color"] for m in scene["materials"] if m["name"] == name)
+    return {
+        "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
+        # The first iterations compile Dr.Jit's kernels; the median leaves them out.
+        "mitsuba_per_iter_s": statistics.median(times[min(3, iters - 1):]),
+        "mitsuba_first_iter_s": times[0],
+        "vkinverse_per_iter_s": per_iteration_time(opt_dir / "log.csv"),
+        "vkinverse_mean_iter_s": summary["total_time_s"] / max(summary["iterations"], 1),
+        "vkinverse_process_s": wall,
+        "reference": reference, "init": init, "mitsuba_final": m_final, "vkinverse_final": v_final,
+    }
+
+
+# ---------------------------------------------------------------------------------------
+# Report
+# ---------------------------------------------------------------------------------------
+
+
+def fmt_vec(v):
+    return "[" + ", ".join(f"{x:.4f}" for x in v) + "]" if v else "n/a"
+
+
+def print_tables(a, b, c):
+    print(f"\n(a) images at {a['spp']} spp" if a else "")
+    if a:
+        im = a["images"]
+        print(f"  {'':34} {'Mitsuba':>10} {'vkinverse':>10} {'ratio vk/mi':>12}")
+        print(f"  {'render, median wall s (warm)':34} {a['mitsuba_s']:10.3f} {a['vkinverse_process_s']:10.3f} {a['vkinverse_process_s'] / a['mitsuba_s']:12.2f}")
+        print(f"  {'  vkinverse self-reported s':34} {'':10} {a['vkinverse_reported_s']:10.3f} {a['vkinverse_reported_s'] / a['mitsuba_s']:12.2f}")
+        print(f"  {'1 spp (fixed costs) s':34} {a['mitsuba_1spp_s']:10.3f} {a['vkinverse_1spp_process_s']:10.3f}")
+        print(f"  {'first (cold) render s':34} {a['mitsuba_cold_s']:10.3f} {a['vkinverse_cold_s']:10.3f}")
+        print(f"  mean relative error: Mitsuba vs vkinverse {im['mre_mitsuba_vs_vkinverse']:.4f}; "
+              f"noise: Mitsuba {im['mre_mitsuba_noise']:.4f}, vkinverse {im['mre_vkinverse_noise']:.4f} "
+              f"(expected if equal {im['mre_expected_if_equal']:.4f})")
+        for ch, cm in zip("RGB", im["channel_means"]):
+            print(f"  mean {ch}: Mitsuba {cm['mitsuba']:.5f}  vkinverse {cm['vkinverse']:.5f}  "
+                  f"diff {cm['diff']:+.5f} ± {cm['se']:.5f} (z {cm['z']:+.1f})")
+        bl = im["blocks"]
+        w = bl["worst"]
+        print(f"  {bl['size']}x{bl['size']} blocks with |z| > 4: {bl['abs_z_over_4']} of {bl['count']}; worst at "
+              f"row {w['row']} col {w['col']} {w['channel']}: z {w['z']:+.1f}, {100 * w['relative_diff']:+.2f}%")
+    if b:
+        print(f"\n(b) d(l2 loss)/d {b['param']} at {fmt_vec(b['init'])}, {b['spp']} spp, mean ± se of {b['rounds']} rounds")
+        print(f"  {'ch':3} {'Mitsuba prb':>24} {'vkinverse adjoint':>24} {'diff/se':>8} {'vkinverse FD':>24}")
+        for ch, g in zip("RGB", b["channels"]):
+            se = (g["mitsuba_se"] ** 2 + g["vkinverse_se"] ** 2) ** 0.5
+            print(f"  {ch:3} {g['mitsuba']:+12.5e} ± {g['mitsuba_se']:9.2e} {g['vkinverse']:+12.5e} ± {g['vkinverse_se']:9.2e} "
+                  f"{(g['mitsuba'] - g['vkinverse']) / se if se > 0 else float('nan'):+8.1f} "
+                  f"{g['vkinverse_fd']:+12.5e} ± {g['vkinverse_fd_se']:9.2e}")
+        print(f"  time per gradient estimate: Mitsuba {b['mitsuba_per_estimate_s']:.3f} s, vkinverse "
+              f"{b['vkinverse_per_estimate_s']:.3f} s (ratio vk/mi {b['vkinverse_per_estimate_s'] / b['mitsuba_per_estimate_s']:.2f}); "
+              f"whole vkinverse gradcheck process {b['vkinverse_gradcheck_process_s']:.2f} s")
+    if c:
+        print(f"\n(c) Adam, {c['iterations']} iterations, spp {c['spp']} (primal {c['primal_spp']}), lr {c['lr']}")
+        print(f"  time per iteration: Mitsuba {c['mitsuba_per_iter_s']:.4f} s (first {c['mitsuba_first_iter_s']:.2f} s), "
+              f"vkinverse {c['vkinverse_per_iter_s']:.4f} s (mean {c['vkinverse_mean_iter_s']:.4f} s); "
+              f"ratio vk/mi {c['vkinverse_per_iter_s'] / c['mitsuba_per_iter_s']:.2f}")
+        print(f"  colour: reference {fmt_vec(c['reference'])}, init {fmt_vec(c['init'])}, "
+              f"Mitsuba {fmt_vec(c['mitsuba_final'])}, vkinverse {fmt_vec(c['vkinverse_final'])}")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("scene", type=Path, help="vkinverse scene.toml")
+    ap.add_argument("--spp", type=int, default=1024, help="samples per pixel of the image comparison")
+    ap.add_argument("--runs", type=int, default=3, help="timed renders of each (at least 2: the noise needs two)")
+    ap.add_argument("--grad-spp", type=int, default=16, help="samples per pixel of each gradient estimate")
+    ap.add_argument("--rounds", type=int, default=8, help="independent gradient estimates of each")
+    ap.add_argument("--iterations", type=int, default=50, help="Adam iterations of each")
+    ap.add_argument("--opt-spp", type=int, help="adjoint spp per iteration (default: the scene's)")
+    ap.add_argument("--opt-primal-spp", type=int, help="primal spp per iteration (default: the scene's)")
+    ap.add_argument("--parts", default="abc", help="which comparisons to run (subset of abc)")
+    ap.add_argument("--vkinverse", help="vkinverse binary (default: $CARGO_TARGET_DIR or target/ release build)")
+    ap.add_argument("--out", type=Path, required=True, help="directory for images, logs and results.json")
+    args = ap.parse_args()
+    if args.runs < 2:
+        fail("--runs must be at least 2")
+    if args.rounds < 2:
+        fail("--rounds must be at least 2")
+
+    np, dr, mi = import_mitsuba()
+    scene_path = args.scene.resolve()
+    scene = load_toml(scene_path)
+    vk = find_vkinverse(args.vkinverse)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+
+    a = b = c = None
+    target = None
+    if "a" in args.parts:
+        a = compare_images(np, mi, scene, scene_path, vk, args, out)
+        target = a.pop("mitsuba_target")
+    if target is None and ("b" in args.parts or "c" in args.parts):
+        # Mitsuba's own high-spp render of the reference scene is its target, as
+        # vkinverse renders its own.
+        ms = mi.load_dict(scene_dict(scene, scene_path.parent, "path", args.spp))
+        target = np.array(mi.render(ms, spp=args.spp, seed=12345)).astype(np.float64)
+    if "b" in args.parts:
+        b = compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out)
+    if "c" in args.parts:
+        c = compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out)
+
+    print(f"Mitsuba {mi.__version__} ({VARIANT}) vs {vk}; scene {args.scene}")
+    print_tables(a, b, c)
+    (out / "results.json").write_text(json.dumps({"images": a, "gradient": b, "optimisation": c}, indent=2))
+    print(f"\nresults.json and images in {out}")
+
+
+if __name__ == "__main__":
+    main()
