@@ -30,15 +30,17 @@
 //! # Outputs
 //! Each job writes the outputs of `optimise` into `OUTDIR/job-<k>-<label>/`. The table
 //! `results.csv` / `results.json` has one row per job run; it is rewritten after every job,
-//! so an interrupted batch leaves the rows it finished. `merge` joins the tables of shards.
+//! so an interrupted batch leaves the rows it finished, and so are, per scene,
+//! `error_vs_time-<scene>.png` (every finished job's curve) and `curves-<scene>.csv` (the
+//! points behind it). `merge` joins the tables of shards.
 
 use crate::error::{one_line, Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{optimise, Progress};
+use crate::optimise::{log_curves, optimise, Progress};
 use crate::overrides::Overrides;
-use crate::report::csv_field;
+use crate::report::{csv_field, write_curves, Curve};
 use crate::scene::{Scene, SceneError};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -428,8 +430,37 @@ pub fn run(
         on_done(&row);
         results.results.push(row);
         results.write(out_dir)?;
+        write_plots(out_dir, &results)?;
     }
     Ok(results)
+}
+
+/// Writes, for each scene of the table, `error_vs_time-<scene>.png` with the curve of every
+/// finished job of that scene and `curves-<scene>.csv` with the points behind it: the
+/// parameter error when every such job has one, else the image loss.
+fn write_plots(out_dir: &Path, results: &Results) -> Result<()> {
+    let mut by_scene: std::collections::BTreeMap<String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>> = Default::default();
+    for r in results.results.iter().filter(|r| r.status == Status::Ok) {
+        let path = out_dir.join(&r.dir).join("log.csv");
+        let log = std::fs::read_to_string(&path).map_err(|source| Error::Io { path, source })?;
+        let (err, loss) = log_curves(&log);
+        by_scene.entry(scene_name(Path::new(&r.scene))).or_default().push((r.label.clone(), err, loss));
+    }
+    for (scene, runs) in by_scene {
+        let param_error = runs.iter().all(|r| !r.1.is_empty());
+        let label = if param_error { "parameter RMSE" } else { "image loss" };
+        let curves: Vec<Curve> = runs.into_iter().map(|(name, err, loss)| Curve { name, points: if param_error { err } else { loss } }).collect();
+        let name = file_safe(&scene);
+        write_curves(
+            &out_dir.join(format!("curves-{name}.csv")),
+            &out_dir.join(format!("error_vs_time-{name}.png")),
+            &format!("{scene}: {label} vs time"),
+            label,
+            &curves,
+        )
+        .map_err(Error::Invalid)?;
+    }
+    Ok(())
 }
 
 /// Joins the tables in `dirs` (shards of one batch) into one sorted by job number and

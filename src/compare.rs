@@ -23,7 +23,7 @@ use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
 use crate::optimise::{log_curves, optimise, Progress, Settings};
 use crate::overrides::Overrides;
-use crate::report::{csv_field, plot_error_vs_time, Curve};
+use crate::report::{csv_field, write_curves, Curve};
 use crate::scene::Scene;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -180,22 +180,13 @@ pub fn compare(
         runs,
     };
 
-    let mut csv = String::from("label,time_s,error\n");
-    for c in &curves {
-        for (t, e) in &c.points {
-            let _ = writeln!(csv, "{},{t},{e}", csv_field(&c.name));
-        }
-    }
-    let path = out_dir.join("curves.csv");
-    write_bytes_atomic(&path, csv.as_bytes()).map_err(io(&path))?;
     let path = out_dir.join("compare.csv");
     write_bytes_atomic(&path, comparison.csv().as_bytes()).map_err(io(&path))?;
     let json = serde_json::to_string_pretty(&comparison).map_err(|e| Error::Invalid(e.to_string()))?;
     let path = out_dir.join("compare.json");
     write_bytes_atomic(&path, json.as_bytes()).map_err(io(&path))?;
-    let path = out_dir.join("error_vs_time.png");
     let title = format!("{}: {} vs time", comparison.scene, metric.describe());
-    plot_error_vs_time(&path, &title, metric.describe(), &curves).map_err(Error::Invalid)?;
+    write_curves(&out_dir.join("curves.csv"), &out_dir.join("error_vs_time.png"), &title, metric.describe(), &curves).map_err(Error::Invalid)?;
     Ok(comparison)
 }
 

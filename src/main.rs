@@ -203,7 +203,9 @@ Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --sh
 runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
 per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, iterations,
-time_s, final_loss, final_error, dir). A failed job does not stop the batch; the exit status
+time_s, final_loss, final_error, dir); per scene, error_vs_time-<scene>.png plots every
+finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
+points. A failed job does not stop the batch; the exit status
 is non-zero if any failed. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
 refusing a job found twice and warning about jobs found nowhere.";
 

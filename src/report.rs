@@ -147,6 +147,20 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
     crate::image::write_bytes_atomic(path, &png_bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Writes `curves` as `label,time_s,error` rows to `csv_path` and plots them (log-scale
+/// error against time) to `png_path`, each file atomically.
+pub fn write_curves(csv_path: &std::path::Path, png_path: &std::path::Path, title: &str, y_label: &str, curves: &[Curve]) -> Result<(), String> {
+    use std::fmt::Write as _;
+    let mut csv = String::from("label,time_s,error\n");
+    for c in curves {
+        for (t, e) in &c.points {
+            let _ = writeln!(csv, "{},{t},{e}", csv_field(&c.name));
+        }
+    }
+    crate::image::write_bytes_atomic(csv_path, csv.as_bytes()).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    plot_error_vs_time(png_path, title, y_label, curves)
+}
+
 /// `text` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma,
 /// a quote or a line break, so that error messages keep a table's columns aligned.
 pub fn csv_field(text: &str) -> String {

@@ -256,6 +256,15 @@ fn batch_records_failures_and_shards_merge() {
         assert_eq!(rows[k - 1][1], label);
         assert!(all.join(format!("job-{k}-{label}/summary.json")).exists(), "job {k}'s outputs");
     }
+    // One plot for the scene with the three finished jobs' curves (row 0 plus 2 iterations
+    // each), and the data behind it.
+    let (header, points) = read_csv(&all.join("curves-cornell.csv"));
+    assert_eq!(header, ["label", "time_s", "error"]);
+    let labels: BTreeSet<&str> = points.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!(labels, BTreeSet::from(["cornell-meta", "cornell-adam", "cornell-adam@beta1=0.5-spp1"]));
+    assert_eq!(points.len(), 9);
+    let bytes = std::fs::read(all.join("error_vs_time-cornell.png")).unwrap();
+    png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("error_vs_time-cornell.png decodes");
 
     // Shards 1/2 (jobs 1, 3) and 2/2 (jobs 2, 4), merged, give the same rows.
     let shard1 = temp_dir("batch-shard1");

@@ -9,7 +9,7 @@ use crate::scene::Scene;
 use std::path::PathBuf;
 
 /// Samples per pixel of rendered targets.
-pub const TARGET_SPP: u32 = 256;
+pub const TARGET_SPP: u32 = 1024;
 
 /// Seed of rendered targets: far from the optimisation's seeds.
 const TARGET_SEED: u32 = 0x7A46_E701;
