@@ -102,10 +102,13 @@ pub struct SensorRecord {
     pub aspect: f32,
 }
 
-/// Mirror of `Globals`: 20 bytes.
+/// Mirror of `Globals`: 24 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct Globals {
     pub environment: ValueRef,
     pub environment_scale: f32,
+    /// Probability that next-event estimation samples the environment map rather than an
+    /// emissive triangle; 0: the environment is not light-sampled.
+    pub environment_sample_prob: f32,
 }

@@ -245,6 +245,55 @@ constant = [0.3, 0.35, 0.4]
     load(name, &toml, &[("quad.obj", QUAD_OBJ), ("light.obj", GLOSSY_LIGHT_OBJ)])
 }
 
+/// A diffuse quad lit by the area light of [`glossy`] and by a 16 × 8 lat-long map with one
+/// bright texel (over the quad, about 34° from the zenith) on a dim sky: next-event
+/// estimation picks the light or the map with probability ½ each, and the map by its
+/// (non-uniform) distribution.
+fn env_lit(name: &str, film: u32, optimise: &str) -> Scene {
+    let dir = temp_dir(&format!("gradients-{name}"));
+    let mut sky = Image::filled(16, 8, [0.05, 0.06, 0.08]);
+    sky.data[2 * 16 + 8] = [60.0, 50.0, 30.0];
+    vkinverse::image::write_exr(&dir.join("sky.exr"), &sky).unwrap();
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("light.obj"), GLOSSY_LIGHT_OBJ).unwrap();
+    let toml = format!(
+        r#"
+[film]
+width = {film}
+height = {film}
+[integrator]
+max_depth = 3
+rr_depth = 5
+[[sensors]]
+origin = [0, 1.2, 1.8]
+target = [0, 0, -0.1]
+up = [0, 1, 0]
+fov_y = 50
+[[materials]]
+name = "floor"
+type = "diffuse"
+base_color = [0.7, 0.4, 0.2]
+[[materials]]
+name = "black"
+type = "diffuse"
+base_color = [0, 0, 0]
+[[meshes]]
+file = "quad.obj"
+material = "floor"
+[[meshes]]
+file = "light.obj"
+material = "black"
+emission = [6, 6, 6]
+[environment]
+file = "sky.exr"
+[optimise]
+{optimise}
+"#
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    Scene::load(dir.join("scene.toml")).unwrap()
+}
+
 // ---------------------------------------------------------------------------------------
 // Adjoint against finite differences
 // ---------------------------------------------------------------------------------------
@@ -625,8 +674,14 @@ texture = [4, 4]
 }
 
 /// The environment: a constant sky (spiral scene) and a 4 × 2 lat-long map (the glossy
-/// quad). Environment lookups are continuous in the parameter and nothing samples by it,
-/// so the adjoint is exact per sample (4 rounds). The spiral's ribbon colour adds a
+/// quad; the map is light-sampled, from a distribution built from θ's start value and
+/// fixed after, half of the next-event samples besides the area light's). Environment
+/// lookups are continuous in the parameter and nothing samples by it, so the adjoint is
+/// exact per sample (4 rounds). Then a fixed, non-uniform map (a bright texel, [`env_lit`])
+/// sampled beside an area light: the diffuse colour it lights through next-event
+/// estimation, MIS-weighted escapes and emitter hits, and the light's emission, are exact
+/// per sample too (cosine sampling, the light choice and both light distributions do not
+/// depend on them; max depth 3 < rr_depth 5). The spiral's ribbon colour adds a
 /// principled material with smooth shading normals that sees itself; its lobe choice
 /// moves with the colour, so it is statistical (32 rounds of 8 spp, standard error of the
 /// difference 0.3–0.5 % of fd; the image is a polynomial in the colour dominated by its
@@ -660,6 +715,21 @@ texture = [4, 2]
         let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
         let texels: Vec<Probe> = (0..8).map(|t| probe(3 * t..3 * t + 3, 0.05)).collect();
         check("l2", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+
+        let optimise = r#"
+[[optimise.params]]
+target = "materials.floor.base_color"
+init = [0.4, 0.6, 0.5]
+range = [0.0, 1.0]
+[[optimise.params]]
+target = "meshes.light.emission"
+init = [3.0, 9.0, 5.0]
+range = [0.0, 50.0]
+"#;
+        let scene = env_lit("environment-nee", 16, optimise);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        assert!(b.scene().environment_sampling(), "the map is light-sampled");
+        check("l2", &measure(&mut b, &[probe(0..3, 0.01), probe(3..6, 0.5)], 4), EPS_EXACT, 0.01);
     });
 }
 

@@ -15,6 +15,14 @@
 // The adjoint variant scatters +gradient of state 0 and −gradient of state 1: the
 // difference of gradients with common random numbers, ⟨ΔF_i⟩.
 //
+// Next-event estimation samples either an emissive triangle or (HAS_ENVIRONMENT and
+// globals.environment_sample_prob > 0) a direction from the environment map, picked by the
+// bounce's eighth random number with probability environment_sample_prob for the map.
+// Emission found by BSDF sampling (an emitter hit or an escaped ray) is MIS-weighted
+// against the light-sampling density of the strategy that could have produced it, times
+// the probability of picking that strategy. The map's distribution is built once on the
+// host and does not depend on θ (src/render/envmap.rs), so it is detached like the rest.
+//
 // Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
 #ifndef INTEGRATOR_GLSL
 #define INTEGRATOR_GLSL
@@ -92,6 +100,17 @@ uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
 #ifdef ADJOINT
 // Gradient contributions of one state carry its sign: + for θ_i, − for θ_{i-1} (FD).
 float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
+
+// Scatters k · d bsdf_eval(m; ns, wo, wi) / d(material parameters) into the gradients of
+// material `id`'s parameters at texture coordinate uv.
+void scatter_bsdf(uint id, vec2 uv, Material m, vec3 ns, vec3 wo, vec3 wi, vec3 k) {
+    vec3 d_base, d_rough, d_metal;
+    bsdf_eval_grad(m, ns, wo, wi, d_base, d_rough, d_metal);
+    MaterialRecord mr = materials[id];
+    scatter3(mr.base_color, uv, k * d_base);
+    scatter1(mr.roughness, uv, dot(k, d_rough));
+    scatter1(mr.metallic, uv, dot(k, d_metal));
+}
 #endif
 
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
@@ -113,20 +132,26 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
     }
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
+    // Probability that next-event estimation samples the environment map.
+    float p_env = HAS_ENVIRONMENT ? globals.environment_sample_prob : 0.0;
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
         if (!cast_closest(o, d, 1e30, hit)) {
             if (HAS_ENVIRONMENT) {
+                float mis = 1.0;
+                // The map's light-sampling density of this direction (it was reached by a
+                // BSDF sample unless the previous vertex is the camera).
+                if (prev_bsdf_pdf > 0.0 && p_env > 0.0) mis = power_heuristic(prev_bsdf_pdf, p_env * environment_density(d));
                 for (int s = 0; s < NSTATES; ++s) {
-                    vec3 e = beta[s] * environment_radiance(d, s);
+                    vec3 e = beta[s] * environment_radiance(d, s) * mis;
                     radiance[s] += e;
 #ifdef ADJOINT
                     remaining[s] -= e;
-                    // Emission enters linearly: d(beta * scale * E)/dE = beta * scale, at the
-                    // texel(s) of the lookup for an environment map.
+                    // Emission enters linearly: d(beta * mis * scale * E)/dE = beta * mis *
+                    // scale, at the texel(s) of the lookup for an environment map.
                     if (grad_pass)
-                        scatter3(globals.environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * globals.environment_scale);
+                        scatter3(globals.environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * (mis * globals.environment_scale));
 #endif
                 }
             }
@@ -145,7 +170,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float mis = 1.0;
             if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
                 // The light-sampling pdf of this point, in solid angle at the previous vertex.
-                float pdf_light = sh.emitter_pdf * hit.t * hit.t / max(dot(ng, wo), 1e-8);
+                float pdf_light = (1.0 - p_env) * sh.emitter_pdf * hit.t * hit.t / max(dot(ng, wo), 1e-8);
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
             for (int s = 0; s < NSTATES; ++s) {
@@ -169,10 +194,18 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
         vec3 p_off = p + RAY_EPSILON * ng;
 
-        // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
-        // (pdfs of state 0). Always draws 3 numbers, so replays stay in step (lib/rng.glsl).
+        // The bounce's random numbers, drawn up front in a fixed order whatever the branches
+        // below use, so replays stay in step (lib/rng.glsl): light sample (3), BSDF sample
+        // (3), Russian roulette (1), light strategy (1).
         vec3 u_light = rng_next3(rng);
-        if (NUM_EMITTERS != 0u) {
+        vec3 u_bsdf = rng_next3(rng);
+        float u_rr = rng_next(rng);
+        float u_select = rng_next(rng);
+        bool env_nee = u_select < p_env;
+
+        // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
+        // (pdfs of state 0).
+        if (NUM_EMITTERS != 0u && !env_nee) {
             vec3 pl;
             float pdf_area;
             uint lprim = sample_emitter(u_light, pl, pdf_area);
@@ -183,7 +216,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             TriShading lsh = shading[lprim];
             float cos_l = dot(lsh.ng, -wi);
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4))) {
-                float pdf_light = pdf_area * dist2 / cos_l;
+                float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 for (int s = 0; s < NSTATES; ++s) {
                     vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0), s);
@@ -193,14 +226,31 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #ifdef ADJOINT
                     remaining[s] -= c;
                     if (grad_pass) {
-                        vec3 d_base, d_rough, d_metal;
-                        bsdf_eval_grad(mat[s], ns, wo, wi, d_base, d_rough, d_metal);
-                        vec3 k = state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light);
-                        MaterialRecord mr = materials[sh.material];
-                        scatter3(mr.base_color, uv, k * d_base);
-                        scatter1(mr.roughness, uv, dot(k, d_rough));
-                        scatter1(mr.metallic, uv, dot(k, d_metal));
+                        scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
                         scatter3(meshes[lsh.mesh].emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * f * (mis / pdf_light));
+                    }
+#endif
+                }
+            }
+        }
+        // Or a direction from the environment map, MIS with BSDF sampling likewise.
+        if (HAS_ENVIRONMENT && env_nee) {
+            float density;
+            vec3 wi = environment_sample(u_light.xy, density);
+            float pdf_light = p_env * density;
+            if (pdf_light > 0.0 && dot(wi, ng) > 0.0 && !cast_any(p_off, wi, 1e30)) {
+                float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
+                vec2 env_uv = environment_uv(wi);
+                for (int s = 0; s < NSTATES; ++s) {
+                    vec3 le = environment_radiance(wi, s);
+                    vec3 f = bsdf_eval(mat[s], ns, wo, wi);
+                    vec3 c = beta[s] * f * le * (mis / pdf_light);
+                    radiance[s] += c;
+#ifdef ADJOINT
+                    remaining[s] -= c;
+                    if (grad_pass) {
+                        scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
+                        scatter3(globals.environment, env_uv, state_sign(s) * delta[s] * beta[s] * f * (mis * globals.environment_scale / pdf_light));
                     }
 #endif
                 }
@@ -210,7 +260,6 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // Continue by sampling the BSDF of state 0.
         vec3 wi, weight;
         float pdf;
-        vec3 u_bsdf = rng_next3(rng);
         if (!bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
         for (int s = 0; s < NSTATES; ++s) {
             // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over
@@ -220,14 +269,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             if (grad_pass) {
                 // Everything the path gathers from here on is proportional to f(wo, wi):
                 // its derivative is remaining * (df/dθ) / f, per channel.
-                vec3 d_base, d_rough, d_metal;
-                bsdf_eval_grad(mat[s], ns, wo, wi, d_base, d_rough, d_metal);
                 vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
-                vec3 k = state_sign(s) * delta[s] * remaining[s] * inv_f;
-                MaterialRecord mr = materials[sh.material];
-                scatter3(mr.base_color, uv, k * d_base);
-                scatter1(mr.roughness, uv, dot(k, d_rough));
-                scatter1(mr.metallic, uv, dot(k, d_metal));
+                scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * remaining[s] * inv_f);
             }
 #endif
             beta[s] *= f / pdf;
@@ -236,7 +279,6 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 
         // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
         // min(max(beta), 0.95) of state 0; every state divides by it.
-        float u_rr = rng_next(rng);
         if (depth >= RR_DEPTH) {
             float q = min(max_component(beta[0]), 0.95);
             if (u_rr >= q) break;

@@ -13,6 +13,8 @@
 #ifndef RNG_GLSL
 #define RNG_GLSL
 
+// Path vertices use all eight: light sample (3), BSDF sample (3), Russian roulette (1) and
+// the light-sampling strategy (1), in that order (lib/integrator.glsl).
 #define RNG_DIMS_PER_BOUNCE 8u
 
 struct Rng {

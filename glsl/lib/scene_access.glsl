@@ -1,4 +1,4 @@
-// Scene buffers (bindings 20-26) and the parameter buffers (30-31), with the lookups that
+// Scene buffers (bindings 20-27) and the parameter buffers (30-31), with the lookups that
 // read a material or emission value from a constant, a texture, or the parameters being
 // optimised, and (ADJOINT) scatter gradients back through the same lookup.
 #ifndef SCENE_ACCESS_GLSL
@@ -13,6 +13,9 @@ layout(set = 0, binding = 23, scalar) readonly buffer Emitters { EmitterTri emit
 layout(set = 0, binding = 24, scalar) readonly buffer Sensors { SensorRecord sensors[]; };
 layout(set = 0, binding = 25, scalar) readonly buffer SceneGlobals { Globals globals; };
 layout(set = 0, binding = 26, scalar) readonly buffer MaterialData { float material_data[]; };
+// The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
+// column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
+layout(set = 0, binding = 27, scalar) readonly buffer EnvDistribution { float env_dist[]; };
 layout(set = 0, binding = 30, scalar) readonly buffer Theta { float theta[]; };
 
 // Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
@@ -159,5 +162,68 @@ vec2 environment_uv(vec3 dir) {
 // Radiance emitted by the environment towards -dir, in parameter state `state`.
 vec3 environment_radiance(vec3 dir, int state) {
     return globals.environment_scale * fetch3(globals.environment, environment_uv(dir), state);
+}
+
+// Environment-map light sampling (src/render/envmap.rs describes the distribution). The
+// map's texel cells are picked by a piecewise-constant distribution and a direction is
+// uniform in solid angle inside its cell, so the density is constant per cell. Sampling
+// is by cell while the radiance is the bilinear lookup; both stay consistent because
+// the density is positive everywhere (the distribution's uniform share).
+
+// Density in solid angle of sampling direction dir, given that the environment is sampled.
+float environment_density(vec3 dir) {
+    uint w = globals.environment.width;
+    uint h = globals.environment.height;
+    vec2 uv = environment_uv(dir);
+    uint c = min(uint(max(uv.x, 0.0) * float(w)), w - 1u);
+    uint r = min(uint(max(1.0 - uv.y, 0.0) * float(h)), h - 1u);
+    return env_dist[h + h * w + r * w + c];
+}
+
+// Index of the first entry of the inclusive cdf env_dist[base .. base + n) that exceeds x,
+// and x rescaled to [0, 1] within that entry's interval.
+uint environment_pick(uint base, uint n, float x, out float rescaled) {
+    uint lo = 0u, hi = n - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (env_dist[base + mid] > x) hi = mid; else lo = mid + 1u;
+    }
+    float c0 = lo == 0u ? 0.0 : env_dist[base + lo - 1u];
+    rescaled = clamp((x - c0) / max(env_dist[base + lo] - c0, 1e-30), 0.0, 1.0);
+    return lo;
+}
+
+// A direction from two uniform numbers (each picks a row or column, then places the
+// direction inside the cell) and its density in solid angle. Inside row r, cos θ is
+// uniform between the row's bounds θ0 = πr/H and θ1 = π(r+1)/H; it is interpolated as
+// 1 − cos θ = 2 sin²(θ/2) in the upper half and 1 + cos θ = 2 cos²(θ/2) in the lower, which
+// keeps rows near the poles free of cancellation.
+vec3 environment_sample(vec2 u, out float pdf) {
+    const float PI = 3.14159265358979;
+    uint w = globals.environment.width;
+    uint h = globals.environment.height;
+    float ur, uc;
+    uint r = environment_pick(0u, h, u.x, ur);
+    uint c = environment_pick(h + r * w, w, u.y, uc);
+    float a0 = 0.5 * PI * float(r) / float(h);
+    float a1 = 0.5 * PI * float(r + 1u) / float(h);
+    float ct, st;
+    if (2u * (r + 1u) <= h) {
+        float s0 = sin(a0), s1 = sin(a1);
+        float m = 2.0 * mix(s0 * s0, s1 * s1, ur);  // 1 − cos θ
+        ct = 1.0 - m;
+        st = sqrt(max(m * (2.0 - m), 0.0));
+    } else if (2u * r >= h) {
+        float k0 = cos(a0), k1 = cos(a1);
+        float p = 2.0 * mix(k0 * k0, k1 * k1, ur);  // 1 + cos θ
+        ct = p - 1.0;
+        st = sqrt(max(p * (2.0 - p), 0.0));
+    } else {
+        ct = mix(cos(2.0 * a0), cos(2.0 * a1), ur);
+        st = sqrt(max(1.0 - ct * ct, 0.0));
+    }
+    float phi = 2.0 * PI * ((float(c) + uc) / float(w) - 0.5);
+    pdf = env_dist[h + h * w + r * w + c];
+    return vec3(st * sin(phi), ct, -st * cos(phi));
 }
 #endif

@@ -62,9 +62,13 @@ struct SensorRecord {
     float aspect;
 };
 
-// Scene-wide values. 20 bytes.
+// Scene-wide values. 24 bytes.
 struct Globals {
     ValueRef environment;  // constant (width 0) or lat-long map; 3 channels
     float environment_scale;
+    // Probability that next-event estimation samples the environment map (its
+    // distribution: binding EnvDistribution, src/render/envmap.rs) rather than an emissive
+    // triangle; 0: the environment is found by BSDF sampling only.
+    float environment_sample_prob;
 };
 #endif

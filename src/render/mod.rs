@@ -5,7 +5,15 @@
 //! depth, emitter count and whether an environment exists as specialization constants, so
 //! a scene without emitters compiles light sampling out, one without an environment
 //! skips its lookup, and a depth ≤ 2 scene has a loop the compiler can bound.
+//!
+//! Light sampling: next-event estimation picks a point on an emissive triangle (in
+//! proportion to area × luminance) or a direction from a lat-long environment map
+//! ([`envmap`]), each with probability ½ when the scene has both. A constant environment
+//! is not light-sampled: its radiance is the same in every direction, so BSDF sampling
+//! already samples its integrand's directional factor (exactly, for a Lambertian surface)
+//! and a second strategy would only add variance.
 
+pub mod envmap;
 pub mod gradient;
 pub mod params;
 pub mod targets;
@@ -34,7 +42,10 @@ pub struct GpuScene {
     pub rr_depth: u32,
     pub emitters: u32,
     pub has_environment: bool,
+    /// The environment map's sampling distribution, when it is light-sampled.
+    pub environment_distribution: Option<envmap::EnvDistribution>,
     pub triangles: usize,
+    globals: Globals,
     bvh: BvhBuffers,
     buffers: Vec<(&'static str, Buffer)>,
     /// The parameters (θ), `layout.len` floats (at least one, unused, when empty).
@@ -124,7 +135,20 @@ impl GpuScene {
                 ColorValue::Constant(c) => c.iter().any(|&v| v > 0.0),
                 ColorValue::Texture(_) => true,
             } && scene.environment.scale > 0.0;
-        let globals = Globals { environment, environment_scale: scene.environment.scale };
+        // The environment map's texels as the kernels first see them: θ's start value for
+        // an optimised map, the scene's map otherwise. A constant has no distribution.
+        let env_texels: Option<(Vec<f32>, u32, u32)> = match env_slot {
+            Some(slot) if slot.size[0] > 0 && slot.size[1] > 0 => Some((slot.init.clone(), slot.size[0], slot.size[1])),
+            Some(_) => None,
+            None => match &scene.environment.value {
+                ColorValue::Texture(t) => Some((t.image.data.iter().flatten().copied().collect(), t.image.width, t.image.height)),
+                ColorValue::Constant(_) => None,
+            },
+        };
+        let environment_distribution = match env_texels {
+            Some((texels, w, h)) if has_environment && scene.environment.scale > 0.0 => Some(envmap::EnvDistribution::new(&texels, w, h)),
+            _ => None,
+        };
 
         // Emitters: triangles of meshes that emit or whose emission is optimised. Picked
         // in proportion to area × luminance, or to area alone when any emission is being
@@ -181,6 +205,12 @@ impl GpuScene {
             // Guards the binary search against rounding: the last cdf is exactly 1.
             last.cdf = 1.0;
         }
+        let globals = Globals {
+            environment,
+            environment_scale: scene.environment.scale,
+            environment_sample_prob: Self::environment_sample_prob(environment_distribution.is_some(), emitters.len()),
+        };
+        let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
         let sensors: Vec<SensorRecord> = scene
@@ -212,6 +242,7 @@ impl GpuScene {
             ("Sensors", upload(ctx, "sensors", &sensors)?),
             ("SceneGlobals", upload(ctx, "globals", &[globals])?),
             ("MaterialData", upload(ctx, "material data", &data)?),
+            ("EnvDistribution", upload(ctx, "environment distribution", &env_data)?),
         ];
         let theta = upload(ctx, "theta", &layout.initial())?;
         let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
@@ -224,13 +255,41 @@ impl GpuScene {
             rr_depth: scene.integrator.rr_depth,
             emitters: emitters.len() as u32,
             has_environment,
+            environment_distribution,
             triangles: geo.indices.len(),
+            globals,
             layout,
             bvh,
             buffers,
             theta,
             frame,
         })
+    }
+
+    /// Probability that next-event estimation samples the environment map: 1 without
+    /// emissive triangles, ½ with (0 when the environment is not light-sampled).
+    fn environment_sample_prob(sampled: bool, emitters: usize) -> f32 {
+        match (sampled, emitters) {
+            (false, _) => 0.0,
+            (true, 0) => 1.0,
+            (true, _) => 0.5,
+        }
+    }
+
+    /// Whether next-event estimation samples the environment map (a scene with a lat-long
+    /// map does by default). Turned off, the map is reached by BSDF sampling only, the
+    /// baseline that tests and benchmarks compare against; the image's expectation is
+    /// the same. Has no effect on a scene whose environment is not a map.
+    pub fn set_environment_sampling(&mut self, enabled: bool) -> gpu::Result<()> {
+        let sampled = enabled && self.environment_distribution.is_some();
+        self.globals.environment_sample_prob = Self::environment_sample_prob(sampled, self.emitters as usize);
+        let buffer = &self.buffers.iter().find(|(n, _)| *n == "SceneGlobals").expect("globals buffer").1;
+        buffer.write(&[self.globals])
+    }
+
+    /// Whether next-event estimation currently samples the environment map.
+    pub fn environment_sampling(&self) -> bool {
+        self.globals.environment_sample_prob > 0.0
     }
 
     /// (GLSL block name, buffer) of every scene buffer and θ, for a kernel's bind list.
