@@ -119,7 +119,8 @@ fn scene_name(path: &Path) -> String {
     }
 }
 
-fn make_job(index: usize, scene: PathBuf, optimiser: Option<Spec>, overrides: Overrides, own: (Option<u32>, Option<u32>)) -> Job {
+/// The label names what the job sets itself: optimiser, seed, spp and learning rate.
+fn make_job(index: usize, scene: PathBuf, optimiser: Option<Spec>, overrides: Overrides, own: (Option<u32>, Option<u32>, Option<f32>)) -> Job {
     let mut label = scene_name(&scene);
     if let Some(o) = &optimiser {
         label = format!("{label}-{}", o.label);
@@ -129,6 +130,9 @@ fn make_job(index: usize, scene: PathBuf, optimiser: Option<Spec>, overrides: Ov
     }
     if let Some(s) = own.1 {
         label = format!("{label}-spp{s}");
+    }
+    if let Some(lr) = own.2 {
+        label = format!("{label}-lr{lr}");
     }
     Job { index, label: file_safe(&label), scene, optimiser, overrides }
 }
@@ -181,7 +185,7 @@ pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
                     let own = Overrides { seed, spp, ..Default::default() };
                     let overrides = shared.then(&own);
                     overrides.check().map_err(bad)?;
-                    jobs.push(make_job(jobs.len() + 1, dir.join(scene), optimiser.clone(), overrides, (seed, spp)));
+                    jobs.push(make_job(jobs.len() + 1, dir.join(scene), optimiser.clone(), overrides, (seed, spp, None)));
                 }
             }
         }
@@ -200,7 +204,7 @@ pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
             checkpoint_every: entry.checkpoint_every,
         };
         own.check().map_err(|e| bad(format!("{at}: {e}")))?;
-        jobs.push(make_job(jobs.len() + 1, dir.join(entry.scene), optimiser, shared.then(&own), (entry.seed, entry.spp)));
+        jobs.push(make_job(jobs.len() + 1, dir.join(entry.scene), optimiser, shared.then(&own), (entry.seed, entry.spp, entry.lr)));
     }
     if jobs.is_empty() {
         return Err(bad("no jobs (give scenes = [...] or [[jobs]] entries)".into()));
@@ -520,7 +524,7 @@ mod tests {
     fn product_then_single_jobs_in_order() {
         let jobs = jobs_from(
             "iterations = 5\nspp = [1, 2]\nscenes = ['a/scene.toml', 'b.toml']\noptimisers = ['meta', 'adam@beta1=0.5']\n\
-             [[jobs]]\nscene = 'c/scene.toml'\nseed = 3\niterations = 9\n",
+             [[jobs]]\nscene = 'c/scene.toml'\nseed = 3\niterations = 9\n\n[[jobs]]\nscene = 'c/scene.toml'\nlr = 0.002\n",
         )
         .unwrap();
         let labels: Vec<String> = jobs.iter().map(Job::dir_name).collect();
@@ -536,6 +540,7 @@ mod tests {
                 "job-7-b-adam@beta1=0.5-spp1",
                 "job-8-b-adam@beta1=0.5-spp2",
                 "job-9-c-seed3",
+                "job-10-c-lr0.002",
             ]
         );
         assert_eq!(jobs[1].overrides.iterations, Some(5));
