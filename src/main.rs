@@ -45,21 +45,8 @@ enum Command {
         /// meta or adam (default: the scene's `[optimise] optimiser`)
         #[arg(long)]
         optimiser: Option<String>,
-        #[arg(long)]
-        iterations: Option<u32>,
-        /// Stop after this many seconds of optimisation (instead of, or on top of, --iterations).
-        #[arg(long, allow_negative_numbers = true)]
-        time_budget: Option<f64>,
-        #[arg(long)]
-        spp: Option<u32>,
-        #[arg(long)]
-        fd_spp: Option<u32>,
-        #[arg(long)]
-        primal_spp: Option<u32>,
-        #[arg(long, allow_negative_numbers = true)]
-        lr: Option<f32>,
-        #[arg(long)]
-        seed: Option<u32>,
+        #[command(flatten)]
+        run: RunFlags,
         /// Write a checkpoint every N iterations.
         #[arg(long)]
         checkpoint_every: Option<u32>,
@@ -82,23 +69,8 @@ enum Command {
         /// `meta,adam,adam@beta1=0.5@beta2=0.99`; the first is the baseline.
         #[arg(long, allow_hyphen_values = true)]
         optimisers: String,
-        /// Iterations of every run (with --time-budget: at most this many).
-        #[arg(long)]
-        iterations: Option<u32>,
-        /// Seconds of optimisation for every run (equal wall time).
-        #[arg(long, allow_negative_numbers = true)]
-        time_budget: Option<f64>,
-        #[arg(long)]
-        spp: Option<u32>,
-        #[arg(long)]
-        fd_spp: Option<u32>,
-        #[arg(long)]
-        primal_spp: Option<u32>,
-        #[arg(long, allow_negative_numbers = true)]
-        lr: Option<f32>,
-        /// Seed of every run.
-        #[arg(long)]
-        seed: Option<u32>,
+        #[command(flatten)]
+        run: RunFlags,
         /// Print compare.json instead of the table.
         #[arg(long)]
         json: bool,
@@ -240,6 +212,54 @@ fn at_least_one(flag: &str, value: Option<u32>) -> Result<(), String> {
     }
 }
 
+/// Run settings shared by `optimise` and `compare`; each replaces the scene's
+/// `[optimise]` value (see `vkinverse::overrides`).
+#[derive(clap::Args, Debug)]
+struct RunFlags {
+    /// Iterations (with --time-budget: at most this many).
+    #[arg(long)]
+    iterations: Option<u32>,
+    /// Stop after this many seconds of optimisation (instead of, or on top of, --iterations).
+    #[arg(long, allow_negative_numbers = true)]
+    time_budget: Option<f64>,
+    #[arg(long)]
+    spp: Option<u32>,
+    #[arg(long)]
+    fd_spp: Option<u32>,
+    #[arg(long)]
+    primal_spp: Option<u32>,
+    /// Learning rate of every parameter (replaces the scene's per-parameter rates).
+    #[arg(long, allow_negative_numbers = true)]
+    lr: Option<f32>,
+    #[arg(long)]
+    seed: Option<u32>,
+}
+
+impl RunFlags {
+    /// The flags as overrides, after checking their ranges (named as flags).
+    fn overrides(&self, checkpoint_every: Option<u32>) -> Result<vkinverse::overrides::Overrides, String> {
+        if let Some(x) = self.lr {
+            positive("--lr", x as f64)?;
+        }
+        if let Some(t) = self.time_budget {
+            positive("--time-budget", t)?;
+        }
+        at_least_one("--spp", self.spp)?;
+        at_least_one("--fd-spp", self.fd_spp)?;
+        at_least_one("--primal-spp", self.primal_spp)?;
+        Ok(vkinverse::overrides::Overrides {
+            iterations: self.iterations,
+            time_budget: self.time_budget,
+            spp: self.spp,
+            fd_spp: self.fd_spp,
+            primal_spp: self.primal_spp,
+            lr: self.lr,
+            seed: self.seed,
+            checkpoint_every,
+        })
+    }
+}
+
 fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
     Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
 }
@@ -348,90 +368,24 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
         }
-        Command::Optimise {
-            scene,
-            optimiser,
-            iterations,
-            time_budget,
-            spp,
-            fd_spp,
-            primal_spp,
-            lr,
-            seed,
-            checkpoint_every,
-            resume,
-            fd_two_trace,
-            output,
-        } => {
+        Command::Optimise { scene, optimiser, run, checkpoint_every, resume, fd_two_trace, output } => {
             // Flags first: a typo on the command line is reported before the scene is read.
             let optimiser: Option<vkinverse::optim::Optimiser> =
                 optimiser.as_deref().map(|o| o.parse().map_err(|e| format!("--optimiser {o}: {e}"))).transpose()?;
-            if let Some(x) = lr {
-                positive("--lr", *x as f64)?;
-            }
-            if let Some(t) = time_budget {
-                positive("--time-budget", *t)?;
-            }
-            at_least_one("--spp", *spp)?;
-            at_least_one("--fd-spp", *fd_spp)?;
-            at_least_one("--primal-spp", *primal_spp)?;
+            let overrides = run.overrides(*checkpoint_every)?;
             let scene = vkinverse::scene::Scene::load(scene)?;
-            let mut st = vkinverse::optimise::Settings::from_scene(&scene);
-            if let Some(o) = optimiser {
-                st.optimiser = o;
-            }
-            if let Some(t) = time_budget {
-                st.time_budget = Some(*t);
-                if iterations.is_none() {
-                    st.iterations = 0;
-                }
-            }
-            st.iterations = iterations.unwrap_or(st.iterations);
-            st.spp = spp.unwrap_or(st.spp);
-            st.fd_spp = fd_spp.unwrap_or(st.fd_spp);
-            st.primal_spp = primal_spp.unwrap_or(st.primal_spp);
-            st.lr = lr.unwrap_or(st.lr);
-            st.seed = seed.unwrap_or(st.seed);
-            st.checkpoint_every = checkpoint_every.unwrap_or(st.checkpoint_every);
+            let (scene, mut st) = overrides.apply(&scene, optimiser);
             st.fd_two_trace = *fd_two_trace;
-            if let Some(lr) = lr {
-                // A command-line learning rate applies to every parameter; the parameter
-                // layout reads it from the scene, not from the settings.
-                let mut scene = scene.clone();
-                scene.optimise.lr = *lr;
-                for p in &mut scene.optimise.params {
-                    p.lr = None;
-                }
-                return run_optimise(cli, &scene, &st, output, *resume);
-            }
             run_optimise(cli, &scene, &st, output, *resume)?;
         }
-        Command::Compare { scene, optimisers, iterations, time_budget, spp, fd_spp, primal_spp, lr, seed, json, output } => {
+        Command::Compare { scene, optimisers, run, json, output } => {
             // Flags first: a typo on the command line is reported before the scene is read.
             let specs = vkinverse::optim::spec::parse_list(optimisers).map_err(|e| format!("--optimisers: {e}"))?;
-            if let Some(x) = lr {
-                positive("--lr", *x as f64)?;
-            }
-            if let Some(t) = time_budget {
-                positive("--time-budget", *t)?;
-            }
-            at_least_one("--spp", *spp)?;
-            at_least_one("--fd-spp", *fd_spp)?;
-            at_least_one("--primal-spp", *primal_spp)?;
-            if *iterations == Some(0) {
+            if run.iterations == Some(0) {
                 return Err("--iterations must be at least 1".into());
             }
+            let overrides = run.overrides(None)?;
             let scene = vkinverse::scene::Scene::load(scene)?;
-            let overrides = vkinverse::overrides::Overrides {
-                iterations: *iterations,
-                time_budget: *time_budget,
-                spp: *spp,
-                fd_spp: *fd_spp,
-                primal_spp: *primal_spp,
-                lr: *lr,
-                seed: *seed,
-                checkpoint_every: None,
-            };
             let ctx = context(cli)?;
             let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
             let comparison = vkinverse::compare::compare(

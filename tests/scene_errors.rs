@@ -98,14 +98,25 @@ fn bundled_scenes_load() {
 
     let spiral = Scene::load(root.join("spiral/scene.toml")).unwrap();
     let channels: Vec<u32> = spiral.optimise.params.iter().map(|p| p.channels).collect();
-    assert_eq!(channels, [3, 1, 1, 1]);
+    assert_eq!(channels, [3, 1, 1]);
+    let lrs: Vec<Option<f32>> = spiral.optimise.params.iter().map(|p| p.lr).collect();
+    assert_eq!(lrs, [None, Some(0.01), Some(0.01)]);
     assert!(matches!(spiral.environment.value, ColorValue::Constant(c) if c[2] > 0.0));
     assert!(spiral
         .meshes
         .iter()
         .any(|m| !m.normals.is_empty() && !m.uvs.is_empty()));
 
-    for scene in [&cornell, &spiral] {
+    // The paper's texture scenes: each optimises one texture.
+    let ajar = Scene::load(root.join("ajar/scene.toml")).unwrap();
+    let glossy = Scene::load(root.join("glossy/scene.toml")).unwrap();
+    let textures: Vec<_> = [&ajar, &glossy]
+        .iter()
+        .map(|s| (s.optimise.params.len(), s.optimise.params[0].channels, s.optimise.params[0].texture))
+        .collect();
+    assert_eq!(textures, [(1, 3, Some([32, 32])), (1, 1, Some([8, 8]))]);
+
+    for scene in [&cornell, &spiral, &ajar, &glossy] {
         let g = scene.flatten();
         let n = g.positions.len();
         assert_eq!((g.normals.len(), g.uvs.len()), (n, n));
