@@ -6,8 +6,10 @@
 //! fused optimiser passes are measured the same way ([`optimiser_bandwidth`]), on a
 //! synthetic θ, for both benches. The scene bench is in [`scene`].
 
+mod layouts;
 mod scene;
 
+pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain};
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};

@@ -139,6 +139,10 @@ enum Command {
         /// θ of the optimiser passes.
         #[arg(long, default_value_t = 16 << 20)]
         elements: u64,
+        /// With a scene: compare the BVH layouts (binary, wide) instead, alternating them
+        /// over `--iterations` rounds.
+        #[arg(long)]
+        bvh_layouts: bool,
         #[arg(long)]
         json: bool,
     },
@@ -547,10 +551,19 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 eprintln!("warning: {skipped} non-finite gradient elements were skipped (theta left unchanged there)");
             }
         }
-        Command::Bench { scene, iterations, elements, json } => {
+        Command::Bench { scene, iterations, elements, bvh_layouts, json } => {
             if let Some(path) = scene {
                 let scene = vkinverse::scene::Scene::load(path)?;
                 let ctx = context(cli)?;
+                if *bvh_layouts {
+                    let result = vkinverse::bench::layout_bench(&ctx, &scene, *iterations)?;
+                    if *json {
+                        println!("{}", serde_json::to_string_pretty(&result)?);
+                    } else {
+                        print!("{}", result.table());
+                    }
+                    return Ok(());
+                }
                 let result = vkinverse::bench::scene_bench(&ctx, &scene, *iterations, *elements)?;
                 if *json {
                     println!("{}", serde_json::to_string_pretty(&result)?);

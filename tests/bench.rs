@@ -80,3 +80,23 @@ fn scene_bench_on_cornell_is_consistent() {
         assert!(json.get(key).is_some(), "JSON lacks {key}");
     }
 }
+
+#[test]
+fn bvh_layout_bench_on_cornell_is_consistent() {
+    let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
+    let b = with_gpu(|ctx| vkinverse::bench::layout_bench(ctx, &scene, 2).unwrap());
+    let names: Vec<&str> = b.layouts.iter().map(|l| l.layout.as_str()).collect();
+    assert_eq!(names, ["binary", "wide"]);
+    for l in &b.layouts {
+        for (what, v) in [("closest", l.closest_mrays_per_s), ("any", l.any_mrays_per_s), ("primal", l.primal_ms)] {
+            finite_positive(&format!("{} {what}", l.layout), v);
+        }
+    }
+    for v in [b.closest_wide_over_binary, b.any_wide_over_binary, b.primal_wide_over_binary] {
+        finite_positive("ratio", v);
+    }
+    // Both layouts trace the same rays to the same hits.
+    assert_eq!(b.any_hit_disagreements, 0);
+    assert!(b.primal_image_rel_diff <= 1e-4, "primal images differ by {}", b.primal_image_rel_diff);
+    assert!(b.table().contains("wide/binary"));
+}

@@ -1,6 +1,7 @@
 //! The scene BVH: the flattened layout is well-formed, its structs match the kernels'
 //! reflection, and the GPU traversal (glsl/lib/bvh_traverse.glsl, run by
-//! glsl/trace_test.comp) agrees ray by ray with the brute-force CPU reference.
+//! glsl/trace_test.comp) agrees ray by ray with the brute-force CPU reference, in both
+//! node layouts (binary, and wide: trace_test_wide).
 //!
 //! A ray is compared exactly (hit or miss, triangle, t to 1e-4 relative) unless it is
 //! *borderline*: some triangle's hit lies within rounding distance of an edge, of T_MIN or
@@ -12,7 +13,9 @@ mod common;
 use common::with_gpu;
 use glam::DVec3;
 use std::sync::Arc;
-use vkinverse::bvh::{self, Bvh, BvhBuffers, TraceRay, TraceResult, INNER, NO_HIT, STACK_SIZE, T_MIN};
+use vkinverse::bvh::{
+    self, Bvh, BvhBuffers, BvhLayout, TraceRay, TraceResult, WideBvh, INNER, NO_HIT, STACK_SIZE, T_MIN, WIDE_STACK_SIZE,
+};
 use vkinverse::gpu::Buffer;
 use vkinverse::gpu::{CommandBuffer, ComputePipeline, Context, MemoryKind};
 
@@ -175,9 +178,9 @@ fn random_rays(mesh: &Mesh, lo: [f32; 3], hi: [f32; 3], n: usize, seed: u64) -> 
 // GPU
 // ---------------------------------------------------------------------------------------
 
-/// The trace_test pipeline, both traces on.
-fn pipeline(ctx: &Arc<Context>) -> ComputePipeline {
-    ComputePipeline::new(ctx, "trace_test", &[]).unwrap()
+/// The trace_test pipeline for `layout`, both traces on.
+fn pipeline(ctx: &Arc<Context>, layout: BvhLayout) -> ComputePipeline {
+    ComputePipeline::new(ctx, &layout.kernel("trace_test"), &[]).unwrap()
 }
 
 /// Runs trace_test over `rays` and returns the results.
@@ -194,9 +197,14 @@ fn run_trace(ctx: &Arc<Context>, pipe: &ComputePipeline, bufs: &BvhBuffers, rays
     out.read().unwrap()
 }
 
-fn trace(ctx: &Arc<Context>, bvh: &Bvh, rays: &[TraceRay]) -> Vec<TraceResult> {
-    let bufs = bvh.upload(ctx).unwrap();
-    run_trace(ctx, &pipeline(ctx), &bufs, rays)
+fn trace(ctx: &Arc<Context>, layout: BvhLayout, bvh: &Bvh, rays: &[TraceRay]) -> Vec<TraceResult> {
+    let bufs = bvh.upload_as(ctx, layout).unwrap();
+    run_trace(ctx, &pipeline(ctx, layout), &bufs, rays)
+}
+
+/// The results of `rays` in every layout.
+fn trace_layouts(bvh: &Bvh, rays: &[TraceRay]) -> Vec<(BvhLayout, Vec<TraceResult>)> {
+    with_gpu(|ctx| BvhLayout::ALL.iter().map(|&l| (l, trace(ctx, l, bvh, rays))).collect())
 }
 
 // ---------------------------------------------------------------------------------------
@@ -431,6 +439,120 @@ fn flattened_bvh_is_well_formed() {
     }
 }
 
+/// Walks a wide tree from `node` at `depth`: every node reached once, inner children after
+/// their parent, boxes nested, empty slots never entered. Returns the largest depth of an
+/// inner node.
+fn walk_wide(tree: &WideBvh, node: u32, depth: u32, seen: &mut Vec<bool>) -> u32 {
+    assert!(!seen[node as usize], "wide node {node} reached twice");
+    seen[node as usize] = true;
+    let mut max_depth = depth;
+    for c in tree.nodes[node as usize].slots() {
+        if c.is_inner() {
+            assert!(c.index > node && (c.index as usize) < tree.nodes.len(), "child {} of wide node {node}", c.index);
+            for g in tree.nodes[c.index as usize].slots() {
+                if g.count != 0 {
+                    assert!(inside(g.min, g.max, c.min, c.max), "a box of wide node {} sticks out of its parent's", c.index);
+                }
+            }
+            max_depth = max_depth.max(walk_wide(tree, c.index, depth + 1, seen));
+        } else if c.count == 0 {
+            assert_eq!((c.min, c.max), ([f32::INFINITY; 3], [f32::INFINITY; 3]), "an empty slot is never entered");
+        }
+    }
+    max_depth
+}
+
+/// The non-empty leaf children of a binary tree, as (index, count, box).
+fn binary_leaves(bvh: &Bvh) -> Vec<(u32, u32, [f32; 3], [f32; 3])> {
+    let mut out = Vec::new();
+    let mut stack = vec![0u32];
+    while let Some(n) = stack.pop() {
+        let children = bvh.nodes[n as usize].children();
+        for c in children.iter().rev() {
+            if c.is_inner() {
+                stack.push(c.index);
+            }
+        }
+        for c in children {
+            if !c.is_inner() && c.count != 0 {
+                out.push((c.index, c.count, c.min, c.max));
+            }
+        }
+    }
+    out
+}
+
+/// Checks the wide layout of `bvh` (see vkinverse::bvh::WideBvh): well-formed with inner
+/// nodes at depth <= max_depth, and the binary tree's leaves, boxes and triangles. Returns
+/// the largest depth of an inner node.
+fn check_wide_well_formed(mesh: &Mesh, bvh: &Bvh, max_depth: u32) -> u32 {
+    let wide = WideBvh::from_binary(bvh);
+    assert!(!wide.nodes.is_empty(), "there is always a root");
+    assert_eq!(wide.triangles, bvh.triangles, "the binary tree's triangles");
+    assert_eq!(wide.triangles.len(), mesh.indices.len());
+    let mut seen = vec![false; wide.nodes.len()];
+    let depth = walk_wide(&wide, 0, 0, &mut seen);
+    assert!(seen.iter().all(|&s| s), "unreachable wide nodes");
+    assert!(depth <= max_depth, "wide inner node at depth {depth} > {max_depth}");
+    let mut wide_leaves: Vec<_> = wide
+        .nodes
+        .iter()
+        .flat_map(|n| n.slots())
+        .filter(|c| !c.is_inner() && c.count != 0)
+        .map(|c| (c.index, c.count, c.min, c.max))
+        .collect();
+    let mut leaves = binary_leaves(bvh);
+    let key = |l: &(u32, u32, [f32; 3], [f32; 3])| l.0;
+    wide_leaves.sort_by_key(key);
+    leaves.sort_by_key(key);
+    assert_eq!(wide_leaves, leaves, "the wide tree's leaves are the binary tree's");
+    // Every inner slot's box is the union of its node's slots (the binary boxes are tight).
+    for n in &wide.nodes {
+        for c in n.slots().iter().filter(|c| c.is_inner()) {
+            let slots = wide.nodes[c.index as usize].slots();
+            let used: Vec<_> = slots.iter().filter(|g| g.count != 0).collect();
+            for k in 0..3 {
+                assert_eq!(c.min[k], used.iter().map(|g| g.min[k]).fold(f32::INFINITY, f32::min));
+                assert_eq!(c.max[k], used.iter().map(|g| g.max[k]).fold(f32::NEG_INFINITY, f32::max));
+            }
+        }
+    }
+    depth
+}
+
+#[test]
+fn wide_bvh_is_well_formed() {
+    let mut one = Mesh::default();
+    one.push([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let mut two = one.clone();
+    two.push([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]);
+    for (name, mesh) in [
+        ("empty", Mesh::default()),
+        ("one triangle", one),
+        ("two triangles", two),
+        ("soup", soup(3000, 1)),
+        ("cornell", scene_mesh("cornell")),
+        ("spiral", scene_mesh("spiral")),
+    ] {
+        let bvh = bvh::build(&mesh.positions, &mesh.indices);
+        let depth = check_wide_well_formed(&mesh, &bvh, STACK_SIZE / 2);
+        let binary = check_well_formed(&mesh, &bvh, STACK_SIZE).depth;
+        assert!(depth <= binary / 2, "{name}: wide depth {depth}, binary {binary}");
+        let wide = WideBvh::from_binary(&bvh);
+        let slots = wide.nodes.iter().flat_map(|n| n.count).filter(|&c| c != 0).count();
+        if name == "soup" {
+            // Nodes are filled where the tree allows: at least 3 slots of 4 on average
+            // (nodes near the leaves may have fewer than 4 leaves below them).
+            assert!(slots >= 3 * wide.nodes.len(), "soup: {slots} slots used in {} wide nodes", wide.nodes.len());
+        }
+    }
+    let mesh = soup(3000, 2);
+    for limit in [0, 1, 2, 3, 6, 9] {
+        let bvh = bvh::build_with_depth_limit(&mesh.positions, &mesh.indices, limit);
+        assert_eq!(check_wide_well_formed(&mesh, &bvh, limit / 2), limit / 2, "limit {limit}");
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // Layouts and constants
 // ---------------------------------------------------------------------------------------
@@ -446,6 +568,7 @@ fn glsl_define(name: &str) -> String {
 #[test]
 fn glsl_constants_match_rust() {
     assert_eq!(glsl_define("BVH_STACK_SIZE").parse::<u32>().unwrap(), STACK_SIZE);
+    assert_eq!(glsl_define("BVH_WIDE_STACK_SIZE").parse::<u32>().unwrap(), WIDE_STACK_SIZE);
     assert_eq!(glsl_define("BVH_T_MIN").parse::<f32>().unwrap(), T_MIN);
     let hex = |s: String| u32::from_str_radix(s.trim_start_matches("0x").trim_end_matches('u'), 16).unwrap();
     assert_eq!(hex(glsl_define("BVH_INNER")), INNER);
@@ -529,6 +652,34 @@ fn struct_layouts_match_reflection() {
         assert_eq!(b.binding, binding, "{name}");
         assert_eq!(b.access, vkinverse::gpu::reflect::BindingAccess::Read, "{name} is read-only");
     }
+
+    // The wide build: its node struct, and the same bindings.
+    use vkinverse::bvh::BvhWideNode;
+    let spirv = vkinverse::gpu::shaders::get("trace_test_wide").unwrap();
+    let r = vkinverse::gpu::reflect::Reflection::new("trace_test_wide", spirv).unwrap();
+    let layout = r.struct_layout("BvhWideNode").expect("BvhWideNode not reflected");
+    let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
+    assert_eq!(
+        got,
+        [
+            ("min_x", offset_of!(BvhWideNode, min_x)),
+            ("min_y", offset_of!(BvhWideNode, min_y)),
+            ("min_z", offset_of!(BvhWideNode, min_z)),
+            ("max_x", offset_of!(BvhWideNode, max_x)),
+            ("max_y", offset_of!(BvhWideNode, max_y)),
+            ("max_z", offset_of!(BvhWideNode, max_z)),
+            ("index", offset_of!(BvhWideNode, index)),
+            ("count", offset_of!(BvhWideNode, count)),
+        ]
+    );
+    assert_eq!(r.struct_size("BvhWideNode"), Some(size_of::<BvhWideNode>()));
+    assert_eq!(size_of::<BvhWideNode>(), 128);
+    assert_eq!(r.struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
+    for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
+        let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound in trace_test_wide"));
+        assert_eq!(b.binding, binding, "{name}");
+        assert_eq!(b.access, vkinverse::gpu::reflect::BindingAccess::Read, "{name} is read-only");
+    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -540,11 +691,12 @@ fn random_rays_into_a_triangle_soup() {
     let mesh = soup(3000, 3);
     let rays = random_rays(&mesh, [-1.2; 3], [1.2; 3], 6001, 4);
     let bvh = bvh::build(&mesh.positions, &mesh.indices);
-    let results = with_gpu(|ctx| trace(ctx, &bvh, &rays));
-    let borderline = check_against_cpu("soup", &mesh, &rays, &results);
-    let hits = results.iter().filter(|r| r.hit.prim != NO_HIT).count();
-    assert!(hits > rays.len() / 4 && hits < rays.len() * 3 / 4, "a mix of hits and misses: {hits} of {}", rays.len());
-    assert!(borderline * 50 < rays.len(), "{borderline} borderline rays of {}", rays.len());
+    for (layout, results) in trace_layouts(&bvh, &rays) {
+        let borderline = check_against_cpu(&format!("soup {layout:?}"), &mesh, &rays, &results);
+        let hits = results.iter().filter(|r| r.hit.prim != NO_HIT).count();
+        assert!(hits > rays.len() / 4 && hits < rays.len() * 3 / 4, "a mix of hits and misses: {hits} of {}", rays.len());
+        assert!(borderline * 50 < rays.len(), "{borderline} borderline rays of {}", rays.len());
+    }
 }
 
 #[test]
@@ -582,14 +734,16 @@ fn cornell_box_rays() {
         in_plane.push(ray([-1.0, 1.0 + t, 0.0], [0.0, -0.0, 1.0], f32::INFINITY));
         in_plane.push(ray([t, 0.0, t], normalize([1.0, 0.0, -1.0]), f32::INFINITY));
     }
-    let (results, in_plane_results) = with_gpu(|ctx| (trace(ctx, &bvh, &rays), trace(ctx, &bvh, &in_plane)));
-    let borderline = check_against_cpu("cornell", &mesh, &rays, &results);
-    assert!(borderline * 50 < rays.len(), "{borderline} borderline rays of {}", rays.len());
-    check_against_cpu("cornell in-plane", &mesh, &in_plane, &in_plane_results);
-    // The camera looks into the open front of the room and sees it fill the film: only
-    // rays through the top and bottom rows pass above the ceiling or below the floor.
-    let camera_hits = results.iter().take(w * h).filter(|g| g.hit.prim != NO_HIT).count();
-    assert!(camera_hits * 10 > w * h * 9, "{camera_hits} of {} camera rays hit the room", w * h);
+    let in_plane_results = trace_layouts(&bvh, &in_plane);
+    for ((layout, results), (_, in_plane_results)) in trace_layouts(&bvh, &rays).into_iter().zip(in_plane_results) {
+        let borderline = check_against_cpu(&format!("cornell {layout:?}"), &mesh, &rays, &results);
+        assert!(borderline * 50 < rays.len(), "{borderline} borderline rays of {}", rays.len());
+        check_against_cpu(&format!("cornell in-plane {layout:?}"), &mesh, &in_plane, &in_plane_results);
+        // The camera looks into the open front of the room and sees it fill the film: only
+        // rays through the top and bottom rows pass above the ceiling or below the floor.
+        let camera_hits = results.iter().take(w * h).filter(|g| g.hit.prim != NO_HIT).count();
+        assert!(camera_hits * 10 > w * h * 9, "{camera_hits} of {} camera rays hit the room", w * h);
+    }
 }
 
 #[test]
@@ -598,13 +752,14 @@ fn empty_scene_always_misses() {
     let bvh = bvh::build(&[], &[]);
     assert!(bvh.triangles.is_empty());
     let rays = random_rays(&soup(10, 1), [-1.0; 3], [1.0; 3], 131, 7);
-    let results = with_gpu(|ctx| trace(ctx, &bvh, &rays));
-    for (r, g) in rays.iter().zip(&results) {
-        assert_eq!(g.hit.prim, NO_HIT, "{r:?}");
-        assert_eq!(g.any_hit, 0, "{r:?}");
-        assert_eq!(g.hit.t, r.tmax, "{r:?}");
+    for (layout, results) in trace_layouts(&bvh, &rays) {
+        for (r, g) in rays.iter().zip(&results) {
+            assert_eq!(g.hit.prim, NO_HIT, "{layout:?} {r:?}");
+            assert_eq!(g.any_hit, 0, "{layout:?} {r:?}");
+            assert_eq!(g.hit.t, r.tmax, "{layout:?} {r:?}");
+        }
+        check_against_cpu(&format!("empty {layout:?}"), &mesh, &rays, &results);
     }
-    check_against_cpu("empty", &mesh, &rays, &results);
 }
 
 #[test]
@@ -642,26 +797,27 @@ fn single_triangle_policy() {
     ];
     let rays: Vec<TraceRay> = cases.iter().map(|c| c.0).collect();
     let bvh = bvh::build(&mesh.positions, &mesh.indices);
-    let results = with_gpu(|ctx| trace(ctx, &bvh, &rays));
-    for ((r, expected), g) in cases.iter().zip(&results) {
-        let cpu = bvh::intersect_brute_force(&mesh.positions, &mesh.indices, r.origin, r.dir, r.tmax);
-        assert_eq!(cpu.map(|h| h.prim), expected.map(|_| 0), "CPU reference on {r:?}");
-        match expected {
-            None => {
-                assert_eq!(g.hit.prim, NO_HIT, "{r:?}: {g:?}");
-                assert_eq!(g.any_hit, 0, "{r:?}");
-            }
-            Some((t, u, v)) => {
-                assert_eq!(g.hit.prim, 0, "{r:?}: {g:?}");
-                assert_eq!(g.any_hit, 1, "{r:?}");
-                for (got, want) in [(g.hit.t, *t), (g.hit.u, *u), (g.hit.v, *v)] {
-                    assert!((got - want).abs() <= 1e-5 * want.max(1.0), "{r:?}: {g:?}, want {expected:?}");
+    for (layout, results) in trace_layouts(&bvh, &rays) {
+        for ((r, expected), g) in cases.iter().zip(&results) {
+            let cpu = bvh::intersect_brute_force(&mesh.positions, &mesh.indices, r.origin, r.dir, r.tmax);
+            assert_eq!(cpu.map(|h| h.prim), expected.map(|_| 0), "CPU reference on {layout:?} {r:?}");
+            match expected {
+                None => {
+                    assert_eq!(g.hit.prim, NO_HIT, "{layout:?} {r:?}: {g:?}");
+                    assert_eq!(g.any_hit, 0, "{layout:?} {r:?}");
                 }
-                let c = cpu.unwrap();
-                assert!(
-                    (c.t - t).abs() <= 1e-5 * t.max(1.0) && (c.u - u).abs() <= 1e-5 && (c.v - v).abs() <= 1e-5,
-                    "CPU {c:?}"
-                );
+                Some((t, u, v)) => {
+                    assert_eq!(g.hit.prim, 0, "{layout:?} {r:?}: {g:?}");
+                    assert_eq!(g.any_hit, 1, "{layout:?} {r:?}");
+                    for (got, want) in [(g.hit.t, *t), (g.hit.u, *u), (g.hit.v, *v)] {
+                        assert!((got - want).abs() <= 1e-5 * want.max(1.0), "{layout:?} {r:?}: {g:?}, want {expected:?}");
+                    }
+                    let c = cpu.unwrap();
+                    assert!(
+                        (c.t - t).abs() <= 1e-5 * t.max(1.0) && (c.u - u).abs() <= 1e-5 && (c.v - v).abs() <= 1e-5,
+                        "CPU {c:?}"
+                    );
+                }
             }
         }
     }
@@ -672,13 +828,16 @@ fn depth_limited_trees_trace_the_same() {
     let mesh = soup(2000, 8);
     let rays = random_rays(&mesh, [-1.2; 3], [1.2; 3], 1500, 9);
     with_gpu(|ctx| {
-        let pipe = pipeline(ctx);
-        for limit in [0, 2, 5] {
-            let bvh = bvh::build_with_depth_limit(&mesh.positions, &mesh.indices, limit);
-            let bufs = bvh.upload(ctx).unwrap();
-            let results = run_trace(ctx, &pipe, &bufs, &rays);
-            let borderline = check_against_cpu(&format!("depth limit {limit}"), &mesh, &rays, &results);
-            assert!(borderline * 50 < rays.len(), "{borderline} borderline rays");
+        for layout in BvhLayout::ALL {
+            let pipe = pipeline(ctx, layout);
+            // Odd limits too: the wide tree's depth is half the binary one's, rounded down.
+            for limit in [0, 1, 2, 3, 5] {
+                let bvh = bvh::build_with_depth_limit(&mesh.positions, &mesh.indices, limit);
+                let bufs = bvh.upload_as(ctx, layout).unwrap();
+                let results = run_trace(ctx, &pipe, &bufs, &rays);
+                let borderline = check_against_cpu(&format!("{layout:?} depth limit {limit}"), &mesh, &rays, &results);
+                assert!(borderline * 50 < rays.len(), "{borderline} borderline rays");
+            }
         }
     });
 }
@@ -740,8 +899,71 @@ fn deepest_tree_fills_the_stack() {
         rays.push(ray([x, y, z - 0.005], [0.0, 0.0, 1.0], f32::INFINITY));
         rays.push(ray([x, y, z + 0.005], normalize([rng.range(-0.2, 0.2), rng.range(-0.2, 0.2), -1.0]), f32::INFINITY));
     }
-    let results = with_gpu(|ctx| trace(ctx, &tree, &rays));
-    check_against_cpu("deepest tree", &mesh, &rays, &results);
+    // The wide layout of the same tree is a spine of depth STACK_SIZE / 2.
+    assert_eq!(check_wide_well_formed(&mesh, &tree, STACK_SIZE / 2), STACK_SIZE / 2);
+    for (layout, results) in trace_layouts(&tree, &rays) {
+        check_against_cpu(&format!("deepest tree {layout:?}"), &mesh, &rays, &results);
+        for (k, g) in results.iter().enumerate() {
+            assert_eq!(g.hit.prim, k as u32 / 2, "{layout:?} ray {k}: {:?}", rays[k]);
+        }
+    }
+}
+
+/// The wide counterpart: a spine of wide nodes from the root down to depth
+/// STACK_SIZE / 2, every spine node's slot 0 the next spine node and slots 1 to 3 inner
+/// nodes of one one-triangle leaf each, the bottom spine node one leaf; all boxes equal
+/// (ties keep slot order, so the spine is always nearest and slots 1 to 3 are pushed): the
+/// stack holds 3 * STACK_SIZE / 2 = WIDE_STACK_SIZE entries at the bottom of the spine.
+#[test]
+fn deepest_wide_tree_fills_the_stack() {
+    let depth = (STACK_SIZE / 2) as usize;
+    assert_eq!(3 * depth, WIDE_STACK_SIZE as usize);
+    let n = 3 * depth + 1;
+    let mut mesh = Mesh::default();
+    for i in 0..n {
+        let z = 1.0 + (n - 1 - i) as f32 / 100.0;
+        mesh.push([[-1.0, -1.0, z], [3.0, -1.0, z], [-1.0, 3.0, z]]);
+    }
+    let (lo, hi) = ([-1.0, -1.0, 1.0], [3.0, 3.0, 1.0 + (n - 1) as f32 / 100.0]);
+    let slot = |index: u32, count: u32| bvh::BvhChild { min: lo, max: hi, index, count };
+    // Depth-first: spine node d at 4d, followed by its three side nodes; triangles in the
+    // order the leaves are met: the bottom leaf first (triangle 0), then the side leaves
+    // from the bottom up.
+    let mut nodes = vec![bvh::BvhWideNode::default(); 4 * depth + 1];
+    for d in 0..depth {
+        let at = 4 * d;
+        nodes[at].set_slot(0, &slot((at + 4) as u32, INNER));
+        for k in 1..4 {
+            nodes[at].set_slot(k, &slot((at + k) as u32, INNER));
+            let first = 3 * (depth - 1 - d) + k;
+            nodes[at + k].set_slot(0, &slot(first as u32, 1));
+        }
+    }
+    nodes[4 * depth].set_slot(0, &slot(0, 1));
+    let triangles = (0..n)
+        .map(|i| {
+            let [a, b, c] = mesh.indices[i].map(|k| glam::Vec3::from(mesh.positions[k as usize]));
+            bvh::BvhTriangle { v0: a.to_array(), e1: (b - a).to_array(), e2: (c - a).to_array(), prim: i as u32 }
+        })
+        .collect();
+    let tree = WideBvh { nodes, triangles };
+    // Well-formed except for the depth-first order of the triangles, which the traversal
+    // does not rely on.
+    assert_eq!(walk_wide(&tree, 0, 0, &mut vec![false; tree.nodes.len()]), depth as u32);
+
+    let mut rng = Rng::new(13);
+    let mut rays = Vec::new();
+    for i in 0..n {
+        let z = 1.0 + (n - 1 - i) as f32 / 100.0;
+        let [x, y, _] = rng.point([-0.9; 3], [0.9; 3]);
+        rays.push(ray([x, y, z - 0.005], [0.0, 0.0, 1.0], f32::INFINITY));
+        rays.push(ray([x, y, z + 0.005], normalize([rng.range(-0.2, 0.2), rng.range(-0.2, 0.2), -1.0]), f32::INFINITY));
+    }
+    let results = with_gpu(|ctx| {
+        let bufs = tree.upload(ctx).unwrap();
+        run_trace(ctx, &pipeline(ctx, BvhLayout::Wide), &bufs, &rays)
+    });
+    check_against_cpu("deepest wide tree", &mesh, &rays, &results);
     for (k, g) in results.iter().enumerate() {
         assert_eq!(g.hit.prim, k as u32 / 2, "ray {k}: {:?}", rays[k]);
     }

@@ -22,6 +22,18 @@
 // most one entry per level above the current node: the builder keeps every inner node at
 // depth <= BVH_STACK_SIZE, and the stack never overflows.
 //
+// Wide layout (kernels built with BVH_WIDE, nodes of BvhWideNode): each node's four slots
+// are tested at once and sorted by entry distance (a five-comparator sorting network).
+// The triangles of the hit leaf slots are intersected at once, nearest leaf first, in a
+// single loop of one triangle per iteration (on a SIMD device the invocations of a group
+// then test triangles together whichever slots their leaves are in); of the hit inner slots the
+// nearest is visited next and the others are pushed, farthest first, with their entry
+// distance, so that an entry the ray has since been shortened past is dropped when popped
+// without fetching its node. A node pushes at most 3 entries and the stack holds entries
+// of the current node's ancestors only, at most 3 per level; wide inner nodes are at depth
+// <= BVH_STACK_SIZE / 2, so only nodes at depth < BVH_STACK_SIZE / 2 push, and the stack
+// never holds more than 3 * BVH_STACK_SIZE / 2 = BVH_WIDE_STACK_SIZE entries.
+//
 // Slab test (Kay & Kajiya 1986) with a precomputed inverse direction. Direction components
 // below 1e-20 in magnitude (zero: rays parallel to box faces) become +-1e-20, which keeps every
 // product finite (no 0 * inf = NaN when the origin lies on a face plane) and, for an origin
@@ -37,7 +49,11 @@
 #include "lib/common.glsl"
 #include "shared/bvh.glsl"
 
+#ifdef BVH_WIDE
+layout(set = 0, binding = 10, scalar) readonly buffer BvhNodes { BvhWideNode bvh_nodes[]; };
+#else
 layout(set = 0, binding = 10, scalar) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+#endif
 layout(set = 0, binding = 11, scalar) readonly buffer BvhTriangles { BvhTriangle bvh_triangles[]; };
 
 // The float just above 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24: the
@@ -89,13 +105,138 @@ bool bvh_hit_leaf(uint first, uint count, vec3 origin, vec3 dir, inout Hit hit) 
     return found;
 }
 
+// Direction components below 1e-20 in magnitude become +-1e-20 (see the slab test above).
+vec3 bvh_safe_dir(vec3 dir) {
+    return mix(dir, mix(vec3(-1e-20), vec3(1e-20), greaterThanEqual(dir, vec3(0.0))),
+               lessThan(abs(dir), vec3(1e-20)));
+}
+
+#ifdef BVH_WIDE
+// Sorts the slots a and b (vector components) of (t, index, count) by t; equal distances
+// keep their slot order. Static components only: no dynamic indexing into vectors.
+#define BVH_SORT2(a, b)                          \
+    {                                            \
+        bool swap = t.b < t.a;                   \
+        float t_a = t.a;                         \
+        uint index_a = index.a;                  \
+        uint count_a = count.a;                  \
+        t.a = swap ? t.b : t_a;                  \
+        t.b = swap ? t_a : t.b;                  \
+        index.a = swap ? index.b : index_a;      \
+        index.b = swap ? index_a : index.b;      \
+        count.a = swap ? count.b : count_a;      \
+        count.b = swap ? count_a : count.b;      \
+    }
+
+// Marks slot k (bit k of leaves) if it is a leaf the ray enters before its current end.
+#define BVH_LEAF(k, bit)                                                              \
+    if (t.k != BVH_MISS && t.k <= hit.t && count.k != BVH_INNER) {                   \
+        leaves |= bit;                                                                \
+    }
+
+// Makes slot k the next node if it is an inner node the ray enters before its current
+// end, pushing the previous next node (a farther one).
+#define BVH_INNER_SLOT(k)                                                             \
+    if (t.k != BVH_MISS && t.k <= hit.t && count.k == BVH_INNER) {                   \
+        if (next != 0u) {                                                             \
+            stack_node[sp] = next;                                                    \
+            stack_t[sp] = next_t;                                                     \
+            sp++;                                                                     \
+        }                                                                             \
+        next = index.k;                                                               \
+        next_t = t.k;                                                                 \
+    }
+
 // The traversal behind trace_closest (any_hit false) and trace_any (any_hit true: returns
 // at the first hit). Callers pass a constant any_hit, so each copy is specialised.
 bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) {
     hit = Hit(tmax, BVH_NO_HIT, 0.0, 0.0);
-    vec3 safe_dir = mix(dir, mix(vec3(-1e-20), vec3(1e-20), greaterThanEqual(dir, vec3(0.0))),
-                        lessThan(abs(dir), vec3(1e-20)));
-    vec3 inv_dir = 1.0 / safe_dir;
+    vec3 inv_dir = 1.0 / bvh_safe_dir(dir);
+
+    uint stack_node[BVH_WIDE_STACK_SIZE];
+    float stack_t[BVH_WIDE_STACK_SIZE];
+    uint sp = 0u;
+    // Node 0 is the root and never anyone's child, so 0 also means "no next node".
+    uint node = 0u;
+    while (true) {
+        BvhWideNode n = bvh_nodes[node];
+        // bvh_box_entry on the four slots, with the same operations in the same order.
+        vec4 tx0 = (n.min_x - origin.x) * inv_dir.x;
+        vec4 tx1 = (n.max_x - origin.x) * inv_dir.x;
+        vec4 ty0 = (n.min_y - origin.y) * inv_dir.y;
+        vec4 ty1 = (n.max_y - origin.y) * inv_dir.y;
+        vec4 tz0 = (n.min_z - origin.z) * inv_dir.z;
+        vec4 tz1 = (n.max_z - origin.z) * inv_dir.z;
+        vec4 enter = max(max(min(tx0, tx1), min(ty0, ty1)), max(min(tz0, tz1), vec4(0.0)));
+        vec4 exit = min(min(max(tx0, tx1), max(ty0, ty1)), min(max(tz0, tz1), vec4(hit.t))) * BVH_EXIT_SCALE;
+        vec4 t = mix(vec4(BVH_MISS), enter, lessThanEqual(enter, exit));
+        uvec4 index = n.index;
+        uvec4 count = n.count;
+        // Nearest first (a sorting network of five comparators).
+        BVH_SORT2(x, y)
+        BVH_SORT2(z, w)
+        BVH_SORT2(x, z)
+        BVH_SORT2(y, w)
+        BVH_SORT2(y, z)
+        // The hit leaves' triangles, nearest leaf first, in one loop of one triangle per
+        // iteration, so that the invocations of a SIMD group test triangles together
+        // whichever slots their leaves are in. A leaf the ray has since been shortened
+        // past is skipped.
+        uint leaves = 0u;
+        BVH_LEAF(x, 1u)
+        BVH_LEAF(y, 2u)
+        BVH_LEAF(z, 4u)
+        BVH_LEAF(w, 8u)
+        uint tri = 0u;
+        uint tri_end = 0u;
+        while (true) {
+            if (tri == tri_end) {
+                if (leaves == 0u) {
+                    break;
+                }
+                int k = findLSB(leaves);
+                leaves &= leaves - 1u;
+                tri = index[k];
+                tri_end = t[k] <= hit.t ? tri + count[k] : tri;
+                continue;
+            }
+            BvhTriangle triangle = bvh_triangles[tri];
+            float th, u, v;
+            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
+                hit = Hit(th, triangle.prim, u, v);
+                if (any_hit) {
+                    return true;
+                }
+            }
+            tri++;
+        }
+        // Inner slots, farthest first: the nearest ends up as `next`, the others pushed.
+        uint next = 0u;
+        float next_t = 0.0;
+        BVH_INNER_SLOT(w)
+        BVH_INNER_SLOT(z)
+        BVH_INNER_SLOT(y)
+        BVH_INNER_SLOT(x)
+        while (next == 0u) {
+            if (sp == 0u) {
+                return hit.prim != BVH_NO_HIT;
+            }
+            sp--;
+            // (hit.t stays tmax until an any-hit traversal returns: no distances needed.)
+            if (any_hit || stack_t[sp] <= hit.t) {
+                next = stack_node[sp];
+            }
+        }
+        node = next;
+    }
+    return false;
+}
+#else
+// The traversal behind trace_closest (any_hit false) and trace_any (any_hit true: returns
+// at the first hit). Callers pass a constant any_hit, so each copy is specialised.
+bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) {
+    hit = Hit(tmax, BVH_NO_HIT, 0.0, 0.0);
+    vec3 inv_dir = 1.0 / bvh_safe_dir(dir);
 
     uint stack[BVH_STACK_SIZE];
     uint sp = 0u;
@@ -144,6 +285,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     }
     return hit.prim != BVH_NO_HIT;
 }
+#endif
 
 // The closest hit of the ray in (BVH_T_MIN, tmax). On a miss returns false and sets
 // hit = Hit(tmax, BVH_NO_HIT, 0, 0).

@@ -10,6 +10,12 @@
 // checks that this value equals vkinverse::bvh::STACK_SIZE.
 #define BVH_STACK_SIZE 64
 
+// Entries of the traversal stack of the wide layout (BVH_WIDE): a wide node pushes at
+// most 3 of its 4 children, and wide inner nodes are at depth <= BVH_STACK_SIZE / 2 (see
+// BvhWideNode), so at most 3 entries for each of the BVH_STACK_SIZE / 2 levels that can
+// push; tests/bvh.rs checks that this value equals vkinverse::bvh::WIDE_STACK_SIZE.
+#define BVH_WIDE_STACK_SIZE 96
+
 // Hits at t <= BVH_T_MIN (in units of |dir|) are ignored, so that a ray leaving a surface
 // does not find that surface again. Absolute, sized for scenes of unit scale (1 to 100
 // units across); tests/bvh.rs checks that it equals vkinverse::bvh::T_MIN.
@@ -36,6 +42,26 @@ struct BvhNode {
     uint right_index;
     vec3 right_max;
     uint right_count;
+};
+
+// 128 bytes: an inner node of the wide (4-ary) BVH, the layout of kernels built with
+// BVH_WIDE. It holds the boxes of its four child slots as structure of arrays (component
+// k of each vector is slot k) so that one fetch tests all four. A slot is an inner node
+// (count == BVH_INNER, index into the node array), a leaf (count triangles from index) or
+// empty (count 0, box min = max = +inf, which no ray enters). A wide node is a binary node
+// of BvhNode's layout with descendants pulled up into its slots, every inner slot at least
+// two binary levels below it (vkinverse::bvh::WideBvh), so wide inner nodes are at depth
+// <= BVH_STACK_SIZE / 2; leaves and triangles are the binary tree's. Nodes are in depth-first order: the root is
+// node 0 and an inner child has a larger index than its parent.
+struct BvhWideNode {
+    vec4 min_x;
+    vec4 min_y;
+    vec4 min_z;
+    vec4 max_x;
+    vec4 max_y;
+    vec4 max_z;
+    uvec4 index;
+    uvec4 count;
 };
 
 // 40 bytes: a triangle in Möller–Trumbore form (v0 and the edges v1 - v0, v2 - v0), in leaf

@@ -20,7 +20,8 @@
 //! which must agree: the comparison is of speed only.
 //!
 //! The BVH throughput is trace_test (closest hit only, any hit only) on jittered camera
-//! rays of the first sensor.
+//! rays of the first sensor, in the default node layout (`bench SCENE --bvh-layouts`
+//! compares the layouts: bench/layouts.rs).
 
 use super::{median, optimiser_bandwidth, OptimiserBandwidth};
 use crate::bvh::TraceRay;
@@ -112,6 +113,8 @@ pub struct Ratios {
 /// trace_test on camera rays of the first sensor.
 #[derive(Clone, Debug, Serialize)]
 pub struct BvhThroughput {
+    /// The node layout traced (the default, `binary` or `wide`).
+    pub layout: String,
     pub rays: u64,
     pub triangles: usize,
     pub closest_ms: f64,
@@ -185,7 +188,7 @@ fn spec_value(v: SpecValue) -> String {
 }
 
 /// Σ|a − b| / Σ|a| over every channel of two images.
-fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+pub(super) fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (p, q) in a.iter().zip(b) {
         for c in 0..3 {
@@ -240,9 +243,9 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
     let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", n, MemoryKind::Device)?;
     let equal = GradientPass::new(gs, &ops, &target_images, loss, st.fd_spp, st.fd_spp, st.seed, &gs.theta, &eq_grad)?;
-    let specialised = ComputePipeline::new(ctx, "trace_primal", &gs.spec())?;
-    let generic = ComputePipeline::new(ctx, "trace_primal_generic", &[])?;
-    let counting = ComputePipeline::new(ctx, "trace_primal_count", &gs.spec())?;
+    let specialised = ComputePipeline::new(ctx, &gs.kernel("trace_primal"), &gs.spec())?;
+    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[])?;
+    let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
     let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
     let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels as usize, MemoryKind::Device);
     let (img_specialised, img_generic, img_count) = (accum("image specialised")?, accum("image generic")?, accum("image counted")?);
@@ -397,9 +400,9 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     })
 }
 
-/// trace_test over BVH_RAYS_PER_PIXEL jittered camera rays per pixel of the first sensor,
-/// closest hit only and any hit only, `iterations` times each.
-fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: u32) -> Result<BvhThroughput> {
+/// BVH_RAYS_PER_PIXEL jittered camera rays per pixel of the first sensor, the same in
+/// every run.
+pub(super) fn camera_rays(scene: &Scene, gs: &GpuScene) -> Vec<TraceRay> {
     let sensor = &scene.sensors[0];
     let (w, h) = (gs.width, gs.height);
     let aspect = w as f32 / h as f32;
@@ -426,11 +429,18 @@ fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: 
             }
         }
     }
+    rays
+}
+
+/// trace_test over BVH_RAYS_PER_PIXEL jittered camera rays per pixel of the first sensor,
+/// closest hit only and any hit only, `iterations` times each.
+fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: u32) -> Result<BvhThroughput> {
+    let rays = camera_rays(scene, gs);
     let n = rays.len() as u64;
     let ray_buf = Buffer::from_slice(ctx, "bvh bench rays", &rays, MemoryKind::Device)?;
     let results = Buffer::zeroed::<crate::bvh::TraceResult>(ctx, "bvh bench results", rays.len(), MemoryKind::Device)?;
     let pipe = |closest: bool| {
-        ComputePipeline::new(ctx, "trace_test", &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(!closest))])
+        ComputePipeline::new(ctx, &gs.kernel("trace_test"), &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(!closest))])
     };
     let (closest, any) = (pipe(true)?, pipe(false)?);
     let bind = |p: &ComputePipeline| {
@@ -464,6 +474,7 @@ fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: 
     let (closest_ms, any_ms) = (median(&mut c), median(&mut a));
     let mrays = |ms: f64| n as f64 / (ms * 1e-3).max(1e-12) * 1e-6;
     Ok(BvhThroughput {
+        layout: gs.bvh().layout.name().to_string(),
         rays: n,
         triangles: gs.triangles,
         closest_ms,
@@ -528,8 +539,8 @@ impl SceneBench {
         let b = &self.bvh;
         let _ = writeln!(
             s,
-            "BVH (trace_test, {} camera rays, {} triangles): closest hit {:.3} ms = {:.2} Mrays/s, any hit {:.3} ms = {:.2} Mrays/s",
-            b.rays, b.triangles, b.closest_ms, b.closest_mrays_per_s, b.any_ms, b.any_mrays_per_s
+            "BVH (trace_test, {} layout, {} camera rays, {} triangles): closest hit {:.3} ms = {:.2} Mrays/s, any hit {:.3} ms = {:.2} Mrays/s",
+            b.layout, b.rays, b.triangles, b.closest_ms, b.closest_mrays_per_s, b.any_ms, b.any_mrays_per_s
         );
         let _ = writeln!(
             s,

@@ -16,6 +16,11 @@
 //!   vertices (min/max are exact in f32);
 //! - an empty child (count 0) has the box min = max = +inf, which no ray enters. Only the
 //!   root can have one: when the scene has fewer than two leaves.
+//!
+//! The kernels can also trace a wide layout ([`BvhLayout::Wide`], [`WideBvh`]): 4-ary
+//! nodes made from the binary tree by pulling descendants up into a node's four slots. Leaves and the triangle array are the binary tree's; wide inner nodes are at
+//! depth `<= STACK_SIZE / 2`, which bounds the wide traversal's stack by
+//! [`WIDE_STACK_SIZE`]. [`BvhLayout::default`] is the layout the renderer uses.
 
 use std::ops::Range;
 use std::sync::Arc;
@@ -35,6 +40,10 @@ use crate::gpu::{self, Buffer, Context, MemoryKind};
 /// Entries of the GPU traversal stack (`BVH_STACK_SIZE` in glsl/shared/bvh.glsl, compared
 /// by a test): [`build`] keeps every inner node at depth `<= STACK_SIZE`.
 pub const STACK_SIZE: u32 = 64;
+
+/// Entries of the wide traversal stack (`BVH_WIDE_STACK_SIZE`): a wide node pushes at most
+/// 3 children, and only nodes at depth `< STACK_SIZE / 2` have inner children.
+pub const WIDE_STACK_SIZE: u32 = 3 * (STACK_SIZE / 2);
 
 /// Hits at `t <= T_MIN` are ignored (`BVH_T_MIN` in glsl/shared/bvh.glsl, compared by a
 /// test); see the policy in glsl/lib/bvh_traverse.glsl.
@@ -107,6 +116,56 @@ impl BvhNode {
     }
 }
 
+/// Mirror of `BvhWideNode` (glsl/shared/bvh.glsl): 128 bytes, the four child slots of a
+/// wide node as structure of arrays (element `k` of each array is slot `k`). A slot with
+/// count [`INNER`] is the wide node at `index`, count 0 is empty (box min = max = +inf),
+/// any other count a leaf of that many triangles from `index`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct BvhWideNode {
+    pub min_x: [f32; 4],
+    pub min_y: [f32; 4],
+    pub min_z: [f32; 4],
+    pub max_x: [f32; 4],
+    pub max_y: [f32; 4],
+    pub max_z: [f32; 4],
+    pub index: [u32; 4],
+    pub count: [u32; 4],
+}
+
+impl Default for BvhWideNode {
+    /// Four empty slots.
+    fn default() -> Self {
+        let inf = [f32::INFINITY; 4];
+        Self { min_x: inf, min_y: inf, min_z: inf, max_x: inf, max_y: inf, max_z: inf, index: [0; 4], count: [0; 4] }
+    }
+}
+
+impl BvhWideNode {
+    /// Slot `k`.
+    pub fn slot(&self, k: usize) -> BvhChild {
+        BvhChild {
+            min: [self.min_x[k], self.min_y[k], self.min_z[k]],
+            max: [self.max_x[k], self.max_y[k], self.max_z[k]],
+            index: self.index[k],
+            count: self.count[k],
+        }
+    }
+
+    /// The four slots.
+    pub fn slots(&self) -> [BvhChild; 4] {
+        std::array::from_fn(|k| self.slot(k))
+    }
+
+    /// Sets slot `k`.
+    pub fn set_slot(&mut self, k: usize, c: &BvhChild) {
+        [self.min_x[k], self.min_y[k], self.min_z[k]] = c.min;
+        [self.max_x[k], self.max_y[k], self.max_z[k]] = c.max;
+        self.index[k] = c.index;
+        self.count[k] = c.count;
+    }
+}
+
 /// Mirror of `BvhTriangle`: 40 bytes, a triangle as `v0`, `e1 = v1 - v0`, `e2 = v2 - v0`
 /// (Möller & Trumbore 1997) and its index in the input triangle list.
 #[repr(C)]
@@ -153,8 +212,51 @@ pub struct Bvh {
     pub triangles: Vec<BvhTriangle>,
 }
 
-/// The device buffers of a [`Bvh`].
+/// Node layout of the BVH on the device: which nodes the buffers hold and which build of
+/// the kernels traces them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum BvhLayout {
+    /// [`BvhNode`]: binary, both children's boxes in the parent.
+    Binary,
+    /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`). The default:
+    /// faster on lavapipe (docs/lavapipe.md, `vkinverse bench SCENE --bvh-layouts`).
+    #[default]
+    Wide,
+}
+
+impl BvhLayout {
+    pub const ALL: [BvhLayout; 2] = [BvhLayout::Binary, BvhLayout::Wide];
+
+    /// The name of the build of `kernel` (e.g. `trace_primal`) that traces this layout.
+    pub fn kernel(self, kernel: &str) -> String {
+        match self {
+            BvhLayout::Binary => kernel.to_string(),
+            BvhLayout::Wide => format!("{kernel}_wide"),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            BvhLayout::Binary => "binary",
+            BvhLayout::Wide => "wide",
+        }
+    }
+}
+
+impl std::str::FromStr for BvhLayout {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "binary" => Ok(BvhLayout::Binary),
+            "wide" => Ok(BvhLayout::Wide),
+            _ => Err(format!("unknown BVH layout '{s}' (binary or wide)")),
+        }
+    }
+}
+
+/// The device buffers of a [`Bvh`] or [`WideBvh`].
 pub struct BvhBuffers {
+    pub layout: BvhLayout,
     pub nodes: Buffer,
     pub triangles: Buffer,
 }
@@ -171,7 +273,89 @@ impl Bvh {
     /// Copies the nodes and triangles to device-local buffers.
     pub fn upload(&self, ctx: &Arc<Context>) -> gpu::Result<BvhBuffers> {
         Ok(BvhBuffers {
+            layout: BvhLayout::Binary,
             nodes: Buffer::from_slice(ctx, "bvh nodes", &self.nodes, MemoryKind::Device)?,
+            triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
+        })
+    }
+
+    /// Uploads the tree in `layout`.
+    pub fn upload_as(&self, ctx: &Arc<Context>, layout: BvhLayout) -> gpu::Result<BvhBuffers> {
+        match layout {
+            BvhLayout::Binary => self.upload(ctx),
+            BvhLayout::Wide => WideBvh::from_binary(self).upload(ctx),
+        }
+    }
+}
+
+/// A BVH in the wide layout. Invariants of one from [`WideBvh::from_binary`] of a [`Bvh`]
+/// from [`build`] (or [`build_with_depth_limit`] with limit `L`):
+/// - there is at least one node; node 0 is the root, every inner child has a larger index
+///   than its parent (depth-first order);
+/// - every wide node is a binary inner node `b`. Its slots start as `b`'s two children;
+///   while there are fewer than 4, the shallowest inner slot (of equally deep ones, the
+///   one with the largest box surface) is replaced by its two children; slots left over
+///   are empty. Both of `b`'s children are inner or one is a leaf, so after at most two
+///   replacements every inner slot is at least two binary levels below `b`: a wide node
+///   at depth `d` is a binary inner node at depth `>= 2d`, and every wide inner node is
+///   at depth `<= STACK_SIZE / 2` (`<= L / 2`);
+/// - leaves, boxes and `triangles` are the binary tree's: every leaf child there is a leaf
+///   slot here with the same range and box; only the binary root's empty child is dropped.
+#[derive(Clone, Debug, Default)]
+pub struct WideBvh {
+    pub nodes: Vec<BvhWideNode>,
+    pub triangles: Vec<BvhTriangle>,
+}
+
+impl WideBvh {
+    /// Collapses a binary tree (see the type's invariants).
+    pub fn from_binary(bvh: &Bvh) -> WideBvh {
+        let mut out = WideBvh { nodes: Vec::with_capacity(bvh.nodes.len() / 2 + 1), triangles: bvh.triangles.clone() };
+        let area = |c: &BvhChild| {
+            let e: [f32; 3] = std::array::from_fn(|k| c.max[k] - c.min[k]);
+            e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+        };
+        // (binary node, wide parent and slot to point at it); the root has no parent.
+        // LIFO with the first slot pushed last: depth-first order.
+        let mut tasks: Vec<(u32, Option<(usize, usize)>)> = vec![(0, None)];
+        while let Some((b, parent)) = tasks.pop() {
+            let at = out.nodes.len();
+            if let Some((p, k)) = parent {
+                out.nodes[p].index[k] = at as u32;
+            }
+            // (child, binary levels below b).
+            let mut slots: Vec<(BvhChild, u32)> =
+                bvh.nodes[b as usize].children().into_iter().filter(|c| c.count != 0).map(|c| (c, 1)).collect();
+            while slots.len() < 4 {
+                let Some(open) = (0..slots.len())
+                    .filter(|&i| slots[i].0.is_inner())
+                    .min_by(|&i, &j| slots[i].1.cmp(&slots[j].1).then(area(&slots[j].0).total_cmp(&area(&slots[i].0))))
+                else {
+                    break;
+                };
+                let (c, level) = slots[open];
+                let children = bvh.nodes[c.index as usize].children().into_iter().filter(|g| g.count != 0).map(|g| (g, level + 1));
+                slots.splice(open..=open, children);
+            }
+            let mut node = BvhWideNode::default();
+            for (k, (c, _)) in slots.iter().enumerate() {
+                node.set_slot(k, c);
+            }
+            out.nodes.push(node);
+            for (k, (c, _)) in slots.iter().enumerate().rev() {
+                if c.is_inner() {
+                    tasks.push((c.index, Some((at, k))));
+                }
+            }
+        }
+        out
+    }
+
+    /// Copies the nodes and triangles to device-local buffers.
+    pub fn upload(&self, ctx: &Arc<Context>) -> gpu::Result<BvhBuffers> {
+        Ok(BvhBuffers {
+            layout: BvhLayout::Wide,
+            nodes: Buffer::from_slice(ctx, "bvh wide nodes", &self.nodes, MemoryKind::Device)?,
             triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
         })
     }

@@ -132,12 +132,12 @@ impl GradientPass {
         let spec = scene.spec();
         let (primal_name, adjoint_name) =
             if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };
-        let primal = ComputePipeline::new(ctx, primal_name, &spec)?;
+        let primal = ComputePipeline::new(ctx, &scene.kernel(primal_name), &spec)?;
         // Small θ is accumulated per thread before the atomics (glsl/lib/scene_access.glsl).
         let mut adjoint_spec = spec.clone();
         let local = if (1..=LOCAL_GRADS_CAPACITY).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
-        let adjoint = ComputePipeline::new(ctx, adjoint_name, &adjoint_spec)?;
+        let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
         let n = scene.pixels();

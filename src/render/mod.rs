@@ -18,7 +18,7 @@ pub mod gradient;
 pub mod params;
 pub mod targets;
 
-use crate::bvh::{self, BvhBuffers};
+use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue};
 use crate::image::Image;
 use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
@@ -93,9 +93,15 @@ impl GpuScene {
     /// Builds the BVH and uploads geometry, materials, lights, sensors and θ (set to the
     /// parameters' initial values).
     pub fn new(ctx: &Arc<Context>, scene: &Scene) -> gpu::Result<Self> {
+        Self::with_bvh_layout(ctx, scene, BvhLayout::default())
+    }
+
+    /// [`Self::new`] with the BVH in `bvh_layout`; the scene's kernels are then the builds
+    /// for that layout ([`Self::kernel`]).
+    pub fn with_bvh_layout(ctx: &Arc<Context>, scene: &Scene, bvh_layout: BvhLayout) -> gpu::Result<Self> {
         let layout = ParamLayout::new(scene);
         let geo = scene.flatten();
-        let bvh = bvh::build(&geo.positions, &geo.indices).upload(ctx)?;
+        let bvh = bvh::build(&geo.positions, &geo.indices).upload_as(ctx, bvh_layout)?;
 
         let mut data = Vec::new();
         let materials: Vec<MaterialRecord> = scene
@@ -337,6 +343,12 @@ impl GpuScene {
         &self.bvh
     }
 
+    /// The build of a kernel that traces the scene's BVH (e.g. `trace_primal`) for the
+    /// BVH's layout.
+    pub fn kernel(&self, kernel: &str) -> String {
+        self.bvh.layout.kernel(kernel)
+    }
+
     /// Pixels of one sensor image.
     pub fn pixels(&self) -> usize {
         (self.width * self.height) as usize
@@ -367,7 +379,7 @@ pub struct Renderer {
 
 impl Renderer {
     pub fn new(scene: GpuScene) -> gpu::Result<Self> {
-        let primal = ComputePipeline::new(&scene.ctx, "trace_primal", &scene.spec())?;
+        let primal = ComputePipeline::new(&scene.ctx, &scene.kernel("trace_primal"), &scene.spec())?;
         Ok(Self { scene, primal })
     }
 
