@@ -434,18 +434,19 @@ pub fn run(
         on_done(&row);
         results.results.push(row);
         results.write(out_dir)?;
-        write_plots(out_dir, &results)?;
+        write_plots(out_dir, out_dir, &results)?;
     }
     Ok(results)
 }
 
 /// Writes, for each scene of the table, `error_vs_time-<scene>.png` with the curve of every
 /// finished job of that scene and `curves-<scene>.csv` with the points behind it: the
-/// parameter error when every such job has one, else the image loss.
-fn write_plots(out_dir: &Path, results: &Results) -> Result<()> {
+/// parameter error when every such job has one, else the image loss. Job directories are
+/// read relative to `jobs_base`.
+fn write_plots(out_dir: &Path, jobs_base: &Path, results: &Results) -> Result<()> {
     let mut by_scene: std::collections::BTreeMap<String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>> = Default::default();
     for r in results.results.iter().filter(|r| r.status == Status::Ok) {
-        let path = out_dir.join(&r.dir).join("log.csv");
+        let path = jobs_base.join(&r.dir).join("log.csv");
         let log = std::fs::read_to_string(&path).map_err(|source| Error::Io { path, source })?;
         let (err, loss) = log_curves(&log);
         by_scene.entry(scene_name(Path::new(&r.scene))).or_default().push((r.label.clone(), err, loss));
@@ -468,7 +469,7 @@ fn write_plots(out_dir: &Path, results: &Results) -> Result<()> {
 }
 
 /// Joins the tables in `dirs` (shards of one batch) into one sorted by job number and
-/// writes it to `out_dir`. Returns it and the numbers of the batch's jobs that no table has.
+/// writes it to `out_dir` with the per-scene plots of the whole batch. Returns it and the numbers of the batch's jobs that no table has.
 pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> {
     let mut merged: Option<Results> = None;
     // Where each job's row came from, to name both tables of a duplicate.
@@ -503,6 +504,8 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> 
     let missing = (1..=merged.total_jobs).filter(|k| !origin.contains_key(k)).collect();
     std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
     merged.write(out_dir)?;
+    // The merged rows name their job directories as the shards were given.
+    write_plots(out_dir, Path::new(""), &merged)?;
     Ok((merged, missing))
 }
 

@@ -98,6 +98,9 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
         ymax = ymin * 10.0;
     }
     let tmax = if tmax > 0.0 { tmax * 1.02 } else { 1.0 };
+    // The axis spans at least a decade, from a power of ten, so that errors within one
+    // decade still get labelled ticks.
+    let ylo = 10f64.powf((ymin * 0.9).log10().floor()).min(ymax * 0.11);
     let (w, h) = (800u32, 500u32);
     let mut pixels = vec![0u8; (w * h * 3) as usize];
     {
@@ -109,7 +112,7 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
             builder.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
         }
         let mut chart = builder
-            .build_cartesian_2d(0.0..tmax, (ymin * 0.9..ymax * 1.1).log_scale())
+            .build_cartesian_2d(0.0..tmax, (ylo..ymax * 1.1).log_scale())
             .map_err(|e| e.to_string())?;
         let mut mesh = chart.configure_mesh();
         if text {

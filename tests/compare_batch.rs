@@ -277,6 +277,11 @@ fn batch_records_failures_and_shards_merge() {
     vkinverse_ok(&["--quiet", "batch", "--merge", &s(&shard2), &s(&shard1), "-o", &s(&merged)]);
     assert_eq!(rows_of(&merged), rows);
     assert_eq!(json(&merged.join("results.json"))["total_jobs"], 4);
+    // The merge plots the whole batch: the same curves as the unsharded run.
+    let (_, merged_points) = read_csv(&merged.join("curves-cornell.csv"));
+    let merged_labels: BTreeSet<&str> = merged_points.iter().map(|r| r[0].as_str()).collect();
+    assert_eq!((merged_labels, merged_points.len()), (labels, points.len()));
+    assert!(merged.join("error_vs_time-cornell.png").exists());
 
     // A job in two tables is refused.
     let twice = temp_dir("batch-twice").join("out");
