@@ -318,7 +318,7 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
         dt, img = mitsuba_render(r + 1)
         m_times.append(dt)
         m_imgs.append(img)
-        mi.util.write_bitmap(str(out / f"mitsuba_{spp}spp_seed{r + 1}.exr"), img)
+        mi.util.write_bitmap(str(out / f"mitsuba_{spp}spp_seed{r + 1}.exr"), img, write_async=False)
 
     # The first vkinverse run fills the driver's shader cache and the file cache.
     v_cold, _, _ = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", 0, "-o", out / "vk_warmup.exr"])
