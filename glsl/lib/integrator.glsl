@@ -62,19 +62,55 @@ layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
 layout(set = 0, binding = 40, scalar) buffer RayCount { uint ray_count[]; };
 #endif
 
-// trace_closest and trace_any as the integrator casts them (counted in COUNT_RAYS).
-bool cast_closest(vec3 o, vec3 d, float tmax, out Hit hit) {
+#ifdef ADJOINT
+// The adjoint kernels replay every path twice: once to learn its radiance L, once to
+// scatter gradients. Both replays draw the same numbers and so cast the same rays; the
+// second takes the results of the first path vertices' casts from this cache instead of
+// traversing the BVH again, which leaves the gradient pass about one trace instead of two.
+// Memory stays constant per thread (path replay's point): vertices past the cache are
+// traced again as before. Depth d's closest hit is cached_hits[d - 1]; bit d - 1 of
+// cached_shadow says whether depth d's shadow ray was blocked.
+#define CACHED_BOUNCES 8u
+Hit cached_hits[CACHED_BOUNCES];
+uint cached_shadow;
+#endif
+
+// trace_closest and trace_any as the integrator casts them at path depth `depth` (counted
+// in COUNT_RAYS). `replay` (adjoint kernels only): take the result of the first replay's
+// cast from the cache; otherwise cast, and cache the result in the adjoint kernels.
+bool cast_closest(vec3 o, vec3 d, float tmax, uint depth, bool replay, out Hit hit) {
+#ifdef ADJOINT
+    if (depth <= CACHED_BOUNCES) {
+        if (replay) {
+            hit = cached_hits[depth - 1u];
+            return hit.prim != BVH_NO_HIT;
+        }
+    }
+#endif
 #ifdef COUNT_RAYS
     atomicAdd(ray_count[workgroup_index()], 1u);
 #endif
-    return trace_closest(o, d, tmax, hit);
+    bool found = trace_closest(o, d, tmax, hit);
+#ifdef ADJOINT
+    if (depth <= CACHED_BOUNCES) cached_hits[depth - 1u] = hit;
+#endif
+    return found;
 }
 
-bool cast_any(vec3 o, vec3 d, float tmax) {
+bool cast_any(vec3 o, vec3 d, float tmax, uint depth, bool replay) {
+#ifdef ADJOINT
+    uint bit = depth <= CACHED_BOUNCES ? 1u << (depth - 1u) : 0u;
+    if (replay && bit != 0u) return (cached_shadow & bit) != 0u;
+#endif
 #ifdef COUNT_RAYS
     atomicAdd(ray_count[workgroup_index()], 1u);
 #endif
-    return trace_any(o, d, tmax);
+    bool blocked = trace_any(o, d, tmax);
+#ifdef ADJOINT
+    if (blocked) cached_shadow |= bit;
+    else cached_shadow &= ~bit;
+#endif
+    return blocked;
 }
 
 // Offsets of ray origins from surfaces, relative to the scene scale (the kernels' scenes
@@ -131,13 +167,20 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         grad_pass = grad_pass || any(notEqual(delta[s], vec3(0.0)));
 #endif
     }
+#ifdef ADJOINT
+    // The gradient replay follows the primal replay that just ran for the same sample, so
+    // its ray casts are in the cache.
+    bool replay = grad_pass;
+#else
+    bool replay = false;
+#endif
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
     // Probability that next-event estimation samples the environment map.
     float p_env = HAS_ENVIRONMENT ? globals.environment_sample_prob : 0.0;
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
-        if (!cast_closest(o, d, 1e30, hit)) {
+        if (!cast_closest(o, d, 1e30, depth, replay, hit)) {
             if (HAS_ENVIRONMENT) {
                 float mis = 1.0;
                 // The map's light-sampling density of this direction (it was reached by a
@@ -215,7 +258,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec3 wi = to_l / dist;
             TriShading lsh = shading[lprim];
             float cos_l = dot(lsh.ng, -wi);
-            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4))) {
+            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 for (int s = 0; s < NSTATES; ++s) {
@@ -238,7 +281,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float density;
             vec3 wi = environment_sample(u_light.xy, density);
             float pdf_light = p_env * density;
-            if (pdf_light > 0.0 && dot(wi, ng) > 0.0 && !cast_any(p_off, wi, 1e30)) {
+            if (pdf_light > 0.0 && dot(wi, ng) > 0.0 && !cast_any(p_off, wi, 1e30, depth, replay)) {
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 vec2 env_uv = environment_uv(wi);
                 for (int s = 0; s < NSTATES; ++s) {
