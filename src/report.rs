@@ -16,6 +16,7 @@ pub fn info_text(ctx: &Context) -> String {
     let _ = writeln!(s, "chosen device: [{}] {}", d.index, d.name);
     let _ = writeln!(s, "limits:");
     let _ = writeln!(s, "  max storage buffer range   {} bytes", d.max_storage_buffer_range);
+    let _ = writeln!(s, "  max texel buffer elements  {}", d.max_texel_buffer_elements);
     let _ = writeln!(s, "  max workgroup invocations  {}", d.max_workgroup_invocations);
     let _ = writeln!(s, "  max workgroup count        {:?}", d.max_workgroup_count);
     let _ = writeln!(s, "  subgroup size              {}", d.subgroup_size);
@@ -39,6 +40,7 @@ pub fn info_json(ctx: &Context) -> String {
             "api_version": d.api_version,
             "driver": d.driver.trim(),
             "max_storage_buffer_range": d.max_storage_buffer_range,
+            "max_texel_buffer_elements": d.max_texel_buffer_elements,
             "max_workgroup_invocations": d.max_workgroup_invocations,
             "max_workgroup_count": d.max_workgroup_count,
             "subgroup_size": d.subgroup_size,

@@ -1,8 +1,9 @@
 //! `#[repr(C)]` mirrors of the structs in `glsl/shared/*.glsl`.
 //!
 //! Kernels use the scalar block layout, so a mirror needs no padding beyond what the
-//! GLSL struct has; `tests/gpu_layer.rs` compares every mirror's `offset_of!` with the
-//! offsets reflected from the SPIR-V, so a drift on either side fails a test.
+//! GLSL struct has; tests compare every mirror's `offset_of!` with the offsets reflected
+//! from the SPIR-V, so a drift on either side fails a test. Records that kernels read from
+//! texel buffers are a whole number of 16-byte texels ([`TEXEL_RECORDS`]).
 
 use bytemuck::{Pod, Zeroable};
 
@@ -45,19 +46,20 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 52 bytes.
+/// Mirror of `MaterialRecord`: 64 bytes (4 texels; `pad` is zero).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
     pub base_color: ValueRef,
     pub roughness: ValueRef,
     pub metallic: ValueRef,
     pub kind: u32,
+    pub pad: [u32; 3],
 }
 
-/// Mirror of `TriShading`: 84 bytes.
+/// Mirror of `TriShading`: 96 bytes (6 texels; `pad` is zero).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct TriShading {
     pub n0: [f32; 3],
     pub n1: [f32; 3],
@@ -69,18 +71,19 @@ pub struct TriShading {
     pub material: u32,
     pub mesh: u32,
     pub emitter_pdf: f32,
+    pub pad: [u32; 3],
 }
 
 /// Mirror of `MeshRecord`: 16 bytes.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MeshRecord {
     pub emission: ValueRef,
 }
 
 /// Mirror of `EmitterTri`: 48 bytes.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct EmitterTri {
     pub p0: [f32; 3],
     pub e1: [f32; 3],
@@ -112,3 +115,20 @@ pub struct Globals {
     /// emissive triangle; 0: the environment is not light-sampled.
     pub environment_sample_prob: f32,
 }
+
+/// The records kernels read from uniform texel buffers, with their sizes: each a whole
+/// number of 16-byte texels, checked at compile time below and against the GLSL structs
+/// by tests/render.rs.
+pub const TEXEL_RECORDS: [(&str, usize); 4] = [
+    ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
+    ("TriShading", std::mem::size_of::<TriShading>()),
+    ("MeshRecord", std::mem::size_of::<MeshRecord>()),
+    ("EmitterTri", std::mem::size_of::<EmitterTri>()),
+];
+const _: () = {
+    let mut i = 0;
+    while i < TEXEL_RECORDS.len() {
+        assert!(TEXEL_RECORDS[i].1 % 16 == 0, "a texel-buffer record is not a whole number of texels");
+        i += 1;
+    }
+};

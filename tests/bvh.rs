@@ -579,13 +579,23 @@ fn glsl_constants_match_rust() {
 fn struct_layouts_match_reflection() {
     use std::mem::{offset_of, size_of};
     use vkinverse::bvh::{BvhNode, BvhTriangle, Hit};
-    let spirv = vkinverse::gpu::shaders::get("trace_test").unwrap();
-    let r = vkinverse::gpu::reflect::Reflection::new("trace_test", spirv).unwrap();
-    let check = |name: &str, rust: &[(&str, usize)], size: usize| {
+    let reflect = |kernel: &str| {
+        let spirv = vkinverse::gpu::shaders::get(kernel).unwrap();
+        vkinverse::gpu::reflect::Reflection::new(kernel, spirv).unwrap()
+    };
+    let r = reflect("trace_test");
+    // Nodes and triangles are read from texel buffers; records_test writes them out as
+    // structs (and tests/render.rs checks that it reads back what the host wrote).
+    let records = reflect("records_test");
+    let check_in = |r: &vkinverse::gpu::reflect::Reflection, name: &str, rust: &[(&str, usize)], size: usize| {
         let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected"));
         let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
         assert_eq!(got, rust, "{name}");
         assert_eq!(r.struct_size(name), Some(size), "{name} size");
+    };
+    let check = |name: &str, rust: &[(&str, usize)], size: usize| {
+        let in_records = matches!(name, "BvhNode" | "BvhTriangle");
+        check_in(if in_records { &records } else { &r }, name, rust, size)
     };
     check(
         "BvhNode",
@@ -608,6 +618,8 @@ fn struct_layouts_match_reflection() {
             ("e1", offset_of!(BvhTriangle, e1)),
             ("e2", offset_of!(BvhTriangle, e2)),
             ("prim", offset_of!(BvhTriangle, prim)),
+            ("pad0", offset_of!(BvhTriangle, pad)),
+            ("pad1", offset_of!(BvhTriangle, pad) + 4),
         ],
         size_of::<BvhTriangle>(),
     );
@@ -644,7 +656,7 @@ fn struct_layouts_match_reflection() {
             size_of::<TraceRay>(),
             size_of::<TraceResult>()
         ],
-        [64, 40, 16, 28, 20]
+        [64, 48, 16, 28, 20]
     );
     // The geometry bindings sit where bvh_traverse.glsl's convention puts them.
     for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
@@ -655,9 +667,9 @@ fn struct_layouts_match_reflection() {
 
     // The wide build: its node struct, and the same bindings.
     use vkinverse::bvh::BvhWideNode;
-    let spirv = vkinverse::gpu::shaders::get("trace_test_wide").unwrap();
-    let r = vkinverse::gpu::reflect::Reflection::new("trace_test_wide", spirv).unwrap();
-    let layout = r.struct_layout("BvhWideNode").expect("BvhWideNode not reflected");
+    let r = reflect("trace_test_wide");
+    let records_wide = reflect("records_test_wide");
+    let layout = records_wide.struct_layout("BvhWideNode").expect("BvhWideNode not reflected");
     let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
     assert_eq!(
         got,
@@ -672,9 +684,9 @@ fn struct_layouts_match_reflection() {
             ("count", offset_of!(BvhWideNode, count)),
         ]
     );
-    assert_eq!(r.struct_size("BvhWideNode"), Some(size_of::<BvhWideNode>()));
+    assert_eq!(records_wide.struct_size("BvhWideNode"), Some(size_of::<BvhWideNode>()));
     assert_eq!(size_of::<BvhWideNode>(), 128);
-    assert_eq!(r.struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
+    assert_eq!(records_wide.struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
     for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
         let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound in trace_test_wide"));
         assert_eq!(b.binding, binding, "{name}");
@@ -882,8 +894,8 @@ fn deepest_tree_fills_the_stack() {
     }
     let triangles = (0..n)
         .map(|i| {
-            let [a, b, c] = mesh.indices[i].map(|k| glam::Vec3::from(mesh.positions[k as usize]));
-            bvh::BvhTriangle { v0: a.to_array(), e1: (b - a).to_array(), e2: (c - a).to_array(), prim: i as u32 }
+            let [a, b, c] = mesh.indices[i].map(|k| mesh.positions[k as usize]);
+            bvh::BvhTriangle::new(a, b, c, i as u32)
         })
         .collect();
     let tree = Bvh { nodes, triangles };
@@ -942,8 +954,8 @@ fn deepest_wide_tree_fills_the_stack() {
     nodes[4 * depth].set_slot(0, &slot(0, 1));
     let triangles = (0..n)
         .map(|i| {
-            let [a, b, c] = mesh.indices[i].map(|k| glam::Vec3::from(mesh.positions[k as usize]));
-            bvh::BvhTriangle { v0: a.to_array(), e1: (b - a).to_array(), e2: (c - a).to_array(), prim: i as u32 }
+            let [a, b, c] = mesh.indices[i].map(|k| mesh.positions[k as usize]);
+            bvh::BvhTriangle::new(a, b, c, i as u32)
         })
         .collect();
     let tree = WideBvh { nodes, triangles };

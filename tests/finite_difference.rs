@@ -30,7 +30,8 @@ fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f
             }
         }
         gs.set_theta(theta).unwrap();
-        let theta_prev = Buffer::from_slice(ctx, "theta prev", &prev_vals, MemoryKind::Device).unwrap();
+        // Read as texels by the trace kernels, like the scene's θ.
+        let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &prev_vals).unwrap();
         let fused_grad = Buffer::zeroed::<f32>(ctx, "fused", n, MemoryKind::Device).unwrap();
         let g_cur = Buffer::zeroed::<f32>(ctx, "cur", n, MemoryKind::Device).unwrap();
         let g_prev = Buffer::zeroed::<f32>(ctx, "prev", n, MemoryKind::Device).unwrap();

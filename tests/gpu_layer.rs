@@ -321,3 +321,81 @@ fn validation_layer_reports_misuse() {
     let messages = ctx.take_validation_messages();
     assert!(!messages.is_empty(), "the validation layer reported nothing for an invalid module");
 }
+
+/// CPU reference of glsl/gather.comp: thread i's sum of `rounds` dependent lookups.
+fn gather_reference(table: &[[f32; 4]], threads: usize, rounds: u32) -> Vec<[f32; 4]> {
+    let mask = table.len() as u32 - 1;
+    (0..threads as u32)
+        .map(|i| {
+            let mut sum = [0f32; 4];
+            let mut k = i.wrapping_mul(0x9E37_79B9);
+            for _ in 0..rounds {
+                k ^= k >> 16;
+                k = k.wrapping_mul(0x85EB_CA6B);
+                k ^= k >> 13;
+                let v = table[(k & mask) as usize];
+                for c in 0..4 {
+                    sum[c] += v[c];
+                }
+                k = k.wrapping_add(v[0].to_bits());
+            }
+            sum
+        })
+        .collect()
+}
+
+#[test]
+fn texel_buffer_reads_match_storage_buffer_reads_and_cpu() {
+    with_gpu(|ctx| {
+        // A table of exactly representable values, so every order of summation agrees.
+        let table: Vec<[f32; 4]> = (0..4096u32).map(|i| [(i % 97) as f32, (i % 13) as f32 * 0.5, -(i as f32), 1.0]).collect();
+        let (threads, rounds) = (1000usize, 64u32);
+        let want = gather_reference(&table, threads, rounds);
+        let t = Buffer::from_slice(ctx, "table", &table, MemoryKind::Device).unwrap();
+        let mut push = (threads as u32).to_le_bytes().to_vec();
+        push.extend_from_slice(&(table.len() as u32).to_le_bytes());
+        push.extend_from_slice(&rounds.to_le_bytes());
+        let mut profiler = Profiler::new(ctx, 8).unwrap();
+        let mut outs = Vec::new();
+        let mut cmd = CommandBuffer::new(ctx, "gather").unwrap();
+        let kernels = [("gather", "Table"), ("gather_texel", "table_texels")];
+        let mut groups = Vec::new();
+        for (kernel, binding) in kernels {
+            let p = ComputePipeline::new(ctx, kernel, &[]).unwrap();
+            let out = Buffer::zeroed::<[f32; 4]>(ctx, "sums", threads, MemoryKind::Device).unwrap();
+            let g = p.bind(&[(binding, &t), ("Sums", &out)]).unwrap();
+            outs.push(out);
+            groups.push((kernel, p, g));
+        }
+        cmd.record(|rec| {
+            profiler.reset(rec);
+            for (kernel, p, g) in &groups {
+                profiler.begin(rec, kernel)?;
+                rec.dispatch_linear(p, g, &push, threads as u64)?;
+                profiler.end(rec)?;
+            }
+            Ok(())
+        })
+        .unwrap();
+        cmd.submit_and_wait().unwrap();
+        for (out, (kernel, _)) in outs.iter().zip(kernels) {
+            let got: Vec<[f32; 4]> = out.read().unwrap();
+            assert_eq!(got, want, "{kernel}");
+        }
+        for s in profiler.results().unwrap() {
+            eprintln!("{}: {:.3} ms", s.name, s.ms);
+        }
+
+        // A buffer that is not a whole number of 16-byte texels cannot be viewed as one.
+        let p = ComputePipeline::new(ctx, "gather_texel", &[]).unwrap();
+        let odd = Buffer::zeroed::<f32>(ctx, "odd table", 5, MemoryKind::Device).unwrap();
+        match p.bind(&[("table_texels", &odd), ("Sums", &outs[0])]) {
+            Err(GpuError::BufferAccess { name, what }) => {
+                assert_eq!(name, "odd table");
+                assert!(what.contains("table_texels") && what.contains("20 bytes"), "{what}");
+            }
+            Err(e) => panic!("wrong error: {e}"),
+            Ok(_) => panic!("a 20-byte texel buffer was accepted"),
+        }
+    });
+}

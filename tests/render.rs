@@ -415,3 +415,170 @@ fn environment_distribution_matches_its_pdf() {
     eprintln!("χ² = {chi2:.1} over {dof} degrees of freedom");
     assert!(chi2 < dof + 6.0 * (2.0 * dof).sqrt(), "χ² = {chi2} over {dof} degrees of freedom");
 }
+
+/// Every record the kernels read from texel buffers, read through the GLSL accessors by
+/// records_test and written back as storage-buffer structs, equals the buffer's bytes
+/// read through the Rust mirror: materials, shading, meshes, emitters (and the cdf the
+/// light-sampling search reads), BVH nodes of both layouts and triangles, material data,
+/// θ and the environment map's distribution. Scenes: spiral (principled materials, vertex
+/// normals, emitters, three optimised parameters), ajar (an optimised albedo texture) and
+/// a quad under a lat-long map (the distribution).
+#[test]
+fn kernels_read_the_records_the_host_wrote() {
+    use vkinverse::bvh::{BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
+    use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
+    use vkinverse::shared::{EmitterTri, MaterialRecord, MeshRecord, TriShading};
+    fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
+        let bytes: Vec<u8> = b.read().unwrap();
+        bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
+    }
+    fn out<T: bytemuck::Pod>(ctx: &std::sync::Arc<vkinverse::gpu::Context>, name: &str, n: usize) -> Buffer {
+        Buffer::zeroed::<T>(ctx, name, n.max(1), MemoryKind::Device).unwrap()
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scenes = [
+        ("spiral", Scene::load(root.join("scenes/spiral/scene.toml")).unwrap()),
+        ("ajar", Scene::load(root.join("scenes/ajar/scene.toml")).unwrap()),
+        ("env quad", env_lit_quad("records-env", &spot_map())),
+    ];
+    with_gpu(|ctx| {
+        for (name, scene) in &scenes {
+            for layout in [BvhLayout::Binary, BvhLayout::Wide] {
+                let gs = GpuScene::with_bvh_layout(ctx, scene, layout).unwrap();
+                let bound: Vec<(&str, &Buffer)> = gs.bindings();
+                let buffer = |n: &str| bound.iter().find(|(b, _)| *b == n).unwrap_or_else(|| panic!("{n} not bound")).1;
+                let materials: Vec<MaterialRecord> = read(buffer("Materials"));
+                let shading: Vec<TriShading> = read(buffer("Shading"));
+                let meshes: Vec<MeshRecord> = read(buffer("Meshes"));
+                let emitters: Vec<EmitterTri> = read(buffer("Emitters"));
+                let triangles: Vec<BvhTriangle> = read(buffer("BvhTriangles"));
+                let floats = |n: &str| -> Vec<f32> { read(buffer(n)) };
+                let (data, theta, env) = (floats("MaterialData"), floats("Theta"), floats("EnvDistribution"));
+                let (n_nodes, node_bytes) = match layout {
+                    BvhLayout::Binary => (read::<BvhNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhNode>()),
+                    BvhLayout::Wide => (read::<BvhWideNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhWideNode>()),
+                };
+                assert_eq!(shading.len(), triangles.len(), "{name}: one shading record per triangle");
+                assert!(!emitters.is_empty() || *name == "env quad", "{name} has emitters");
+
+                let pipeline = ComputePipeline::new(ctx, &gs.kernel("records_test"), &[]).unwrap();
+                let o_materials = out::<MaterialRecord>(ctx, "out materials", materials.len());
+                let o_shading = out::<TriShading>(ctx, "out shading", shading.len());
+                let o_meshes = out::<MeshRecord>(ctx, "out meshes", meshes.len());
+                let o_emitters = out::<EmitterTri>(ctx, "out emitters", emitters.len());
+                let o_cdfs = out::<f32>(ctx, "out cdfs", emitters.len());
+                let o_nodes = Buffer::zeroed::<u8>(ctx, "out nodes", n_nodes.max(1) * node_bytes, MemoryKind::Device).unwrap();
+                let o_triangles = out::<BvhTriangle>(ctx, "out triangles", triangles.len());
+                let o_floats = out::<f32>(ctx, "out floats", data.len() + theta.len() + env.len());
+                let mut b = bound.clone();
+                b.extend([
+                    ("OutMaterials", &o_materials),
+                    ("OutShading", &o_shading),
+                    ("OutMeshes", &o_meshes),
+                    ("OutEmitters", &o_emitters),
+                    ("OutCdfs", &o_cdfs),
+                    ("OutNodes", &o_nodes),
+                    ("OutTriangles", &o_triangles),
+                    ("OutFloats", &o_floats),
+                ]);
+                // Sensors, globals and the frame counter are the scene's but not read here.
+                b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
+                let group = pipeline.bind(&b).unwrap();
+                let counts = [materials.len(), shading.len(), meshes.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len()];
+                let push: Vec<u8> = counts.iter().flat_map(|&c| (c as u32).to_le_bytes()).collect();
+                let threads = *counts.iter().max().unwrap() as u64;
+                let mut cmd = CommandBuffer::new(ctx, "records").unwrap();
+                cmd.record(|rec| rec.dispatch_linear(&pipeline, &group, &push, threads)).unwrap();
+                cmd.submit_and_wait().unwrap();
+
+                let tag = format!("{name} {layout:?}");
+                assert_eq!(read::<MaterialRecord>(&o_materials)[..materials.len()], materials[..], "{tag}: materials");
+                assert_eq!(read::<TriShading>(&o_shading)[..shading.len()], shading[..], "{tag}: shading");
+                assert_eq!(read::<MeshRecord>(&o_meshes)[..meshes.len()], meshes[..], "{tag}: meshes");
+                assert_eq!(read::<EmitterTri>(&o_emitters)[..emitters.len()], emitters[..], "{tag}: emitters");
+                let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
+                assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
+                assert_eq!(read::<BvhTriangle>(&o_triangles)[..triangles.len()], triangles[..], "{tag}: triangles");
+                let nodes_in: Vec<u8> = buffer("BvhNodes").read().unwrap();
+                let nodes_out: Vec<u8> = o_nodes.read().unwrap();
+                assert_eq!(nodes_out[..nodes_in.len()], nodes_in[..], "{tag}: nodes");
+                let all: Vec<f32> = [data.clone(), theta.clone(), env.clone()].concat();
+                let got: Vec<u32> = read::<f32>(&o_floats)[..all.len()].iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, all.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{tag}: material data, θ, environment");
+                if *name == "env quad" {
+                    assert!(!env.is_empty(), "the lat-long map has a distribution");
+                }
+                if *name != "env quad" {
+                    assert!(theta.iter().any(|&v| v != 0.0), "{tag}: θ holds the start values");
+                }
+            }
+        }
+    });
+}
+
+/// The records kernels read from texel buffers have the layouts of their Rust mirrors
+/// (offsets reflected from records_test's output structs) and are whole texels.
+#[test]
+fn texel_record_layouts_match_reflection() {
+    use std::mem::offset_of;
+    use vkinverse::shared::{EmitterTri, MaterialRecord, MeshRecord, TriShading, TEXEL_RECORDS};
+    let spirv = vkinverse::gpu::shaders::get("records_test").unwrap();
+    let r = vkinverse::gpu::reflect::Reflection::new("records_test", spirv).unwrap();
+    let check = |name: &str, rust: &[(&str, usize)]| {
+        let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected"));
+        let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
+        assert_eq!(got, rust, "{name}");
+    };
+    check(
+        "MaterialRecord",
+        &[
+            ("base_color", offset_of!(MaterialRecord, base_color)),
+            ("roughness", offset_of!(MaterialRecord, roughness)),
+            ("metallic", offset_of!(MaterialRecord, metallic)),
+            ("kind", offset_of!(MaterialRecord, kind)),
+            ("pad0", offset_of!(MaterialRecord, pad)),
+            ("pad1", offset_of!(MaterialRecord, pad) + 4),
+            ("pad2", offset_of!(MaterialRecord, pad) + 8),
+        ],
+    );
+    check(
+        "TriShading",
+        &[
+            ("n0", offset_of!(TriShading, n0)),
+            ("n1", offset_of!(TriShading, n1)),
+            ("n2", offset_of!(TriShading, n2)),
+            ("ng", offset_of!(TriShading, ng)),
+            ("uv0", offset_of!(TriShading, uv0)),
+            ("uv1", offset_of!(TriShading, uv1)),
+            ("uv2", offset_of!(TriShading, uv2)),
+            ("material", offset_of!(TriShading, material)),
+            ("mesh", offset_of!(TriShading, mesh)),
+            ("emitter_pdf", offset_of!(TriShading, emitter_pdf)),
+            ("pad0", offset_of!(TriShading, pad)),
+            ("pad1", offset_of!(TriShading, pad) + 4),
+            ("pad2", offset_of!(TriShading, pad) + 8),
+        ],
+    );
+    check("MeshRecord", &[("emission", offset_of!(MeshRecord, emission))]);
+    check(
+        "EmitterTri",
+        &[
+            ("p0", offset_of!(EmitterTri, p0)),
+            ("e1", offset_of!(EmitterTri, e1)),
+            ("e2", offset_of!(EmitterTri, e2)),
+            ("prim", offset_of!(EmitterTri, prim)),
+            ("cdf", offset_of!(EmitterTri, cdf)),
+            ("pdf", offset_of!(EmitterTri, pdf)),
+        ],
+    );
+    for (name, size) in TEXEL_RECORDS {
+        assert_eq!(r.struct_size(name), Some(size), "{name} size");
+        assert_eq!(size % vkinverse::gpu::TEXEL_BYTES as usize, 0, "{name} is whole texels");
+    }
+    // The scene's bindings sit where lib/scene_access.glsl puts them, as texel buffers.
+    use vkinverse::gpu::reflect::{BindingKind, TexelType};
+    for (name, binding) in [("Materials", 20), ("Shading", 21), ("Meshes", 22), ("Emitters", 23), ("MaterialData", 26), ("EnvDistribution", 27), ("Theta", 30), ("BvhNodes", 10), ("BvhTriangles", 11)] {
+        let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound"));
+        assert_eq!((b.binding, b.kind), (binding, BindingKind::TexelBuffer(TexelType::Uint)), "{name}");
+    }
+}

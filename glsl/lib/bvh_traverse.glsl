@@ -41,20 +41,55 @@
 // 1 + 2 gamma(3) (Ize 2013, "Robust BVH ray traversal") so that rounding never culls a box
 // that the ray grazes.
 //
-// Declares the geometry buffers at bindings 10 and 11 (bindings 10-19 are scene geometry);
-// a kernel that includes this file binds them with BvhBuffers::bindings(). Kernels declare
-// their workgroup size before including this file (see lib/common.glsl).
+// Declares the geometry buffers at bindings 10 and 11 (bindings 10-19 are scene geometry)
+// as uniform texel buffers of 16-byte texels (see lib/scene_access.glsl for why), read
+// through bvh_node and bvh_triangle; a kernel that includes this file binds them with
+// BvhBuffers::bindings(). Kernels declare their workgroup size before including this file
+// (see lib/common.glsl).
 #ifndef BVH_TRAVERSE_GLSL
 #define BVH_TRAVERSE_GLSL
 #include "lib/common.glsl"
 #include "shared/bvh.glsl"
 
+layout(set = 0, binding = 10) uniform usamplerBuffer BvhNodes;
+layout(set = 0, binding = 11) uniform usamplerBuffer BvhTriangles;
+
 #ifdef BVH_WIDE
-layout(set = 0, binding = 10, scalar) readonly buffer BvhNodes { BvhWideNode bvh_nodes[]; };
+// Wide node i: 8 texels, one per member.
+BvhWideNode bvh_node(uint i) {
+    int b = int(i) * 8;
+    BvhWideNode n;
+    n.min_x = uintBitsToFloat(texelFetch(BvhNodes, b));
+    n.min_y = uintBitsToFloat(texelFetch(BvhNodes, b + 1));
+    n.min_z = uintBitsToFloat(texelFetch(BvhNodes, b + 2));
+    n.max_x = uintBitsToFloat(texelFetch(BvhNodes, b + 3));
+    n.max_y = uintBitsToFloat(texelFetch(BvhNodes, b + 4));
+    n.max_z = uintBitsToFloat(texelFetch(BvhNodes, b + 5));
+    n.index = texelFetch(BvhNodes, b + 6);
+    n.count = texelFetch(BvhNodes, b + 7);
+    return n;
+}
 #else
-layout(set = 0, binding = 10, scalar) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+// Binary node i: 4 texels, each a box corner and an index or count.
+BvhNode bvh_node(uint i) {
+    int b = int(i) * 4;
+    uvec4 t0 = texelFetch(BvhNodes, b);
+    uvec4 t1 = texelFetch(BvhNodes, b + 1);
+    uvec4 t2 = texelFetch(BvhNodes, b + 2);
+    uvec4 t3 = texelFetch(BvhNodes, b + 3);
+    return BvhNode(uintBitsToFloat(t0.xyz), t0.w, uintBitsToFloat(t1.xyz), t1.w,
+                   uintBitsToFloat(t2.xyz), t2.w, uintBitsToFloat(t3.xyz), t3.w);
+}
 #endif
-layout(set = 0, binding = 11, scalar) readonly buffer BvhTriangles { BvhTriangle bvh_triangles[]; };
+
+// Triangle i in leaf order: 3 texels (v0 0-2, e1 3-5, e2 6-8, prim 9).
+BvhTriangle bvh_triangle(uint i) {
+    int b = int(i) * 3;
+    uvec4 t0 = texelFetch(BvhTriangles, b);
+    uvec4 t1 = texelFetch(BvhTriangles, b + 1);
+    uvec4 t2 = texelFetch(BvhTriangles, b + 2);
+    return BvhTriangle(uintBitsToFloat(t0.xyz), uintBitsToFloat(uvec3(t0.w, t1.xy)), uintBitsToFloat(uvec3(t1.zw, t2.x)), t2.y, 0u, 0u);
+}
 
 // The float just above 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24: the
 // widening of Ize 2013 that covers the rounding of the slab distances.
@@ -95,7 +130,7 @@ bool bvh_hit_triangle(BvhTriangle tri, vec3 origin, vec3 dir, float tmax, out fl
 bool bvh_hit_leaf(uint first, uint count, vec3 origin, vec3 dir, inout Hit hit) {
     bool found = false;
     for (uint i = first; i < first + count; i++) {
-        BvhTriangle tri = bvh_triangles[i];
+        BvhTriangle tri = bvh_triangle(i);
         float t, u, v;
         if (bvh_hit_triangle(tri, origin, dir, hit.t, t, u, v)) {
             hit = Hit(t, tri.prim, u, v);
@@ -159,7 +194,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     // Node 0 is the root and never anyone's child, so 0 also means "no next node".
     uint node = 0u;
     while (true) {
-        BvhWideNode n = bvh_nodes[node];
+        BvhWideNode n = bvh_node(node);
         // bvh_box_entry on the four slots, with the same operations in the same order.
         vec4 tx0 = (n.min_x - origin.x) * inv_dir.x;
         vec4 tx1 = (n.max_x - origin.x) * inv_dir.x;
@@ -200,7 +235,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
                 tri_end = t[k] <= hit.t ? tri + count[k] : tri;
                 continue;
             }
-            BvhTriangle triangle = bvh_triangles[tri];
+            BvhTriangle triangle = bvh_triangle(tri);
             float th, u, v;
             if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
                 hit = Hit(th, triangle.prim, u, v);
@@ -243,7 +278,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     // Node 0 is the root and never anyone's child, so 0 also means "no next node".
     uint node = 0u;
     while (true) {
-        BvhNode n = bvh_nodes[node];
+        BvhNode n = bvh_node(node);
         float t_left = bvh_box_entry(n.left_min, n.left_max, origin, inv_dir, hit.t);
         float t_right = bvh_box_entry(n.right_min, n.right_max, origin, inv_dir, hit.t);
         // Nearer child first; a missed child sorts last.

@@ -124,9 +124,9 @@ uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
     uint lo = 0u, hi = NUM_EMITTERS - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (emitters[mid].cdf > u.x) hi = mid; else lo = mid + 1u;
+        if (emitter_cdf(mid) > u.x) hi = mid; else lo = mid + 1u;
     }
-    EmitterTri e = emitters[lo];
+    EmitterTri e = emitter_tri(lo);
     vec2 b = sample_triangle_barycentrics(u.yz);
     p = e.p0 + b.x * e.e1 + b.y * e.e2;
     pdf_area = e.pdf;
@@ -142,7 +142,7 @@ float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
 void scatter_bsdf(uint id, vec2 uv, Material m, vec3 ns, vec3 wo, vec3 wi, vec3 k) {
     vec3 d_base, d_rough, d_metal;
     bsdf_eval_grad(m, ns, wo, wi, d_base, d_rough, d_metal);
-    MaterialRecord mr = materials[id];
+    MaterialRecord mr = material_record(id);
     scatter3(mr.base_color, uv, k * d_base);
     scatter1(mr.roughness, uv, dot(k, d_rough));
     scatter1(mr.metallic, uv, dot(k, d_metal));
@@ -201,7 +201,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             break;
         }
         vec3 p = o + hit.t * d;
-        TriShading sh = shading[hit.prim];
+        TriShading sh = tri_shading(hit.prim);
         vec3 wo = -d;
         float w_bary = 1.0 - hit.u - hit.v;
         vec2 uv = w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2;
@@ -217,11 +217,11 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
             for (int s = 0; s < NSTATES; ++s) {
-                vec3 e = beta[s] * fetch3(meshes[sh.mesh].emission, vec2(0.0), s) * mis;
+                vec3 e = beta[s] * fetch3(mesh_record(sh.mesh).emission, vec2(0.0), s) * mis;
                 radiance[s] += e;
 #ifdef ADJOINT
                 remaining[s] -= e;
-                if (grad_pass) scatter3(meshes[sh.mesh].emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
+                if (grad_pass) scatter3(mesh_record(sh.mesh).emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
 #endif
             }
         }
@@ -256,13 +256,13 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float dist2 = dot(to_l, to_l);
             float dist = sqrt(dist2);
             vec3 wi = to_l / dist;
-            TriShading lsh = shading[lprim];
+            TriShading lsh = tri_shading(lprim);
             float cos_l = dot(lsh.ng, -wi);
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 for (int s = 0; s < NSTATES; ++s) {
-                    vec3 le = fetch3(meshes[lsh.mesh].emission, vec2(0.0), s);
+                    vec3 le = fetch3(mesh_record(lsh.mesh).emission, vec2(0.0), s);
                     vec3 f = bsdf_eval(mat[s], ns, wo, wi);
                     vec3 c = beta[s] * f * le * (mis / pdf_light);
                     radiance[s] += c;
@@ -270,7 +270,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     remaining[s] -= c;
                     if (grad_pass) {
                         scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
-                        scatter3(meshes[lsh.mesh].emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * f * (mis / pdf_light));
+                        scatter3(mesh_record(lsh.mesh).emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * f * (mis / pdf_light));
                     }
 #endif
                 }

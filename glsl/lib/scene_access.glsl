@@ -1,42 +1,124 @@
-// Scene buffers (bindings 20-27) and the parameter buffers (30-31), with the lookups that
+// Scene buffers (bindings 20-27) and the parameter buffers (30-32), with the lookups that
 // read a material or emission value from a constant, a texture, or the parameters being
 // optimised, and (ADJOINT) scatter gradients back through the same lookup.
+//
+// What is read per ray or path vertex comes from uniform texel buffers of 16-byte texels
+// (usamplerBuffer, viewed R32G32B32A32_UINT; floats are read by their bits, so no value is
+// converted or flushed): records (shared/scene.glsl, a whole number of texels each) through
+// the accessors below, float arrays through texel_float. A texel fetch is the sampler's
+// vector gather on lavapipe, where a storage-buffer load is a loop over the SIMD lanes
+// with a bounds check per lane, and it reads through the texture cache on GPUs. Sensors and
+// globals, read once per sample at one index, stay storage buffers. The host binds every
+// buffer by the names below (src/render/mod.rs sizes them in whole texels).
 #ifndef SCENE_ACCESS_GLSL
 #define SCENE_ACCESS_GLSL
 #include "shared/scene.glsl"
 #include "shared/material.glsl"
 
-layout(set = 0, binding = 20, scalar) readonly buffer Materials { MaterialRecord materials[]; };
-layout(set = 0, binding = 21, scalar) readonly buffer Shading { TriShading shading[]; };
-layout(set = 0, binding = 22, scalar) readonly buffer Meshes { MeshRecord meshes[]; };
-layout(set = 0, binding = 23, scalar) readonly buffer Emitters { EmitterTri emitters[]; };
+layout(set = 0, binding = 20) uniform usamplerBuffer Materials;
+layout(set = 0, binding = 21) uniform usamplerBuffer Shading;
+layout(set = 0, binding = 22) uniform usamplerBuffer Meshes;
+layout(set = 0, binding = 23) uniform usamplerBuffer Emitters;
 layout(set = 0, binding = 24, scalar) readonly buffer Sensors { SensorRecord sensors[]; };
 layout(set = 0, binding = 25, scalar) readonly buffer SceneGlobals { Globals globals; };
-layout(set = 0, binding = 26, scalar) readonly buffer MaterialData { float material_data[]; };
+layout(set = 0, binding = 26) uniform usamplerBuffer MaterialData;
 // The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
 // column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
-layout(set = 0, binding = 27, scalar) readonly buffer EnvDistribution { float env_dist[]; };
-layout(set = 0, binding = 30, scalar) readonly buffer Theta { float theta[]; };
+layout(set = 0, binding = 27) uniform usamplerBuffer EnvDistribution;
+layout(set = 0, binding = 30) uniform usamplerBuffer Theta;
 
 // Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
 // difference (state 0 = θ_i, which samples the path; state 1 = θ_{i-1}).
 #ifdef FD
 #define NSTATES 2
-layout(set = 0, binding = 32, scalar) readonly buffer ThetaPrev { float theta_prev[]; };
+layout(set = 0, binding = 32) uniform usamplerBuffer ThetaPrev;
 #else
 #define NSTATES 1
 #endif
+
+// ---------------------------------------------------------------------------------------
+// Texel-buffer reads
+// ---------------------------------------------------------------------------------------
+
+// Float i of a texel buffer read as an array of floats.
+float texel_float(usamplerBuffer b, int i) { return uintBitsToFloat(texelFetch(b, i >> 2)[i & 3]); }
+
+ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
+
+// Material `id` (4 texels: three ValueRefs, then kind).
+MaterialRecord material_record(uint id) {
+    int b = int(id) * 4;
+    MaterialRecord r;
+    r.base_color = value_ref(texelFetch(Materials, b));
+    r.roughness = value_ref(texelFetch(Materials, b + 1));
+    r.metallic = value_ref(texelFetch(Materials, b + 2));
+    r.kind = texelFetch(Materials, b + 3).x;
+    r.pad0 = 0u;
+    r.pad1 = 0u;
+    r.pad2 = 0u;
+    return r;
+}
+
+// Shading data of triangle `prim` (6 texels; words in TriShading's scalar layout: n0 0-2,
+// n1 3-5, n2 6-8, ng 9-11, uv0 12-13, uv1 14-15, uv2 16-17, material 18, mesh 19,
+// emitter_pdf 20). Fetches of fields a caller does not use are dead code.
+TriShading tri_shading(uint prim) {
+    int b = int(prim) * 6;
+    uvec4 t0 = texelFetch(Shading, b);
+    uvec4 t1 = texelFetch(Shading, b + 1);
+    uvec4 t2 = texelFetch(Shading, b + 2);
+    uvec4 t3 = texelFetch(Shading, b + 3);
+    uvec4 t4 = texelFetch(Shading, b + 4);
+    uvec4 t5 = texelFetch(Shading, b + 5);
+    TriShading s;
+    s.n0 = uintBitsToFloat(t0.xyz);
+    s.n1 = uintBitsToFloat(uvec3(t0.w, t1.xy));
+    s.n2 = uintBitsToFloat(uvec3(t1.zw, t2.x));
+    s.ng = uintBitsToFloat(t2.yzw);
+    s.uv0 = uintBitsToFloat(t3.xy);
+    s.uv1 = uintBitsToFloat(t3.zw);
+    s.uv2 = uintBitsToFloat(t4.xy);
+    s.material = t4.z;
+    s.mesh = t4.w;
+    s.emitter_pdf = uintBitsToFloat(t5.x);
+    s.pad0 = 0u;
+    s.pad1 = 0u;
+    s.pad2 = 0u;
+    return s;
+}
+
+// Mesh `id` (1 texel).
+MeshRecord mesh_record(uint id) { return MeshRecord(value_ref(texelFetch(Meshes, int(id)))); }
+
+// Emissive triangle `i` (3 texels: p0 0-2, e1 3-5, e2 6-8, prim 9, cdf 10, pdf 11).
+EmitterTri emitter_tri(uint i) {
+    int b = int(i) * 3;
+    uvec4 t0 = texelFetch(Emitters, b);
+    uvec4 t1 = texelFetch(Emitters, b + 1);
+    uvec4 t2 = texelFetch(Emitters, b + 2);
+    EmitterTri e;
+    e.p0 = uintBitsToFloat(t0.xyz);
+    e.e1 = uintBitsToFloat(uvec3(t0.w, t1.xy));
+    e.e2 = uintBitsToFloat(uvec3(t1.zw, t2.x));
+    e.prim = t2.y;
+    e.cdf = uintBitsToFloat(t2.z);
+    e.pdf = uintBitsToFloat(t2.w);
+    return e;
+}
+
+// The cdf of emissive triangle `i` alone (its third texel), for the binary search.
+float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) * 3 + 2).z); }
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
 #endif
 
 float value_at(ValueRef r, int index, int state) {
-    if (r.in_theta == 0u) return material_data[r.offset + index];
+    if (r.in_theta == 0u) return texel_float(MaterialData, r.offset + index);
 #ifdef FD
-    if (state == 1) return theta_prev[r.offset + index];
+    if (state == 1) return texel_float(ThetaPrev, r.offset + index);
 #endif
-    return theta[r.offset + index];
+    return texel_float(Theta, r.offset + index);
 }
 
 // Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
@@ -142,7 +224,7 @@ void scatter1(ValueRef r, vec2 uv, float g) {
 
 // The material at a surface point, in parameter state `state`.
 Material fetch_material(uint id, vec2 uv, int state) {
-    MaterialRecord r = materials[id];
+    MaterialRecord r = material_record(id);
     Material m;
     m.base_color = fetch3(r.base_color, uv, state);
     m.roughness = fetch1(r.roughness, uv, state);
@@ -177,19 +259,19 @@ float environment_density(vec3 dir) {
     vec2 uv = environment_uv(dir);
     uint c = min(uint(max(uv.x, 0.0) * float(w)), w - 1u);
     uint r = min(uint(max(1.0 - uv.y, 0.0) * float(h)), h - 1u);
-    return env_dist[h + h * w + r * w + c];
+    return texel_float(EnvDistribution, int(h + h * w + r * w + c));
 }
 
-// Index of the first entry of the inclusive cdf env_dist[base .. base + n) that exceeds x,
+// Index of the first entry of the inclusive cdf EnvDistribution[base .. base + n) that exceeds x,
 // and x rescaled to [0, 1] within that entry's interval.
 uint environment_pick(uint base, uint n, float x, out float rescaled) {
     uint lo = 0u, hi = n - 1u;
     while (lo < hi) {
         uint mid = (lo + hi) / 2u;
-        if (env_dist[base + mid] > x) hi = mid; else lo = mid + 1u;
+        if (texel_float(EnvDistribution, int(base + mid)) > x) hi = mid; else lo = mid + 1u;
     }
-    float c0 = lo == 0u ? 0.0 : env_dist[base + lo - 1u];
-    rescaled = clamp((x - c0) / max(env_dist[base + lo] - c0, 1e-30), 0.0, 1.0);
+    float c0 = lo == 0u ? 0.0 : texel_float(EnvDistribution, int(base + lo - 1u));
+    rescaled = clamp((x - c0) / max(texel_float(EnvDistribution, int(base + lo)) - c0, 1e-30), 0.0, 1.0);
     return lo;
 }
 
@@ -223,7 +305,7 @@ vec3 environment_sample(vec2 u, out float pdf) {
         st = sqrt(max(1.0 - ct * ct, 0.0));
     }
     float phi = 2.0 * PI * ((float(c) + uc) / float(w) - 0.5);
-    pdf = env_dist[h + h * w + r * w + c];
+    pdf = texel_float(EnvDistribution, int(h + h * w + r * w + c));
     return vec3(st * sin(phi), ct, -st * cos(phi));
 }
 #endif

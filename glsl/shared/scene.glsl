@@ -1,5 +1,10 @@
 // Scene records shared by the host (src/shared.rs mirrors them; a reflection test checks
 // every member offset) and the integrator kernels. Scalar block layout throughout.
+//
+// Records read per ray or path vertex (MaterialRecord, TriShading, MeshRecord, EmitterTri)
+// are a whole number of 16-byte texels: kernels read them from uniform texel buffers
+// (lib/scene_access.glsl), padded where needed. SensorRecord and Globals, read once per
+// sample at one index for all threads, stay in storage buffers.
 #ifndef SCENE_GLSL
 #define SCENE_GLSL
 
@@ -15,15 +20,18 @@ struct ValueRef {
     uint in_theta;
 };
 
-// One material. 52 bytes.
+// One material. 64 bytes (4 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
     ValueRef metallic;
     uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
+    uint pad0;
+    uint pad1;
+    uint pad2;
 };
 
-// Per-triangle shading data, indexed by the original triangle id. 84 bytes.
+// Per-triangle shading data, indexed by the original triangle id. 96 bytes (6 texels).
 struct TriShading {
     vec3 n0;          // vertex normals; all zero when the mesh has none
     vec3 n1;
@@ -35,14 +43,17 @@ struct TriShading {
     uint material;
     uint mesh;
     float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
+    uint pad0;
+    uint pad1;
+    uint pad2;
 };
 
-// One mesh. 16 bytes.
+// One mesh. 16 bytes (1 texel).
 struct MeshRecord {
     ValueRef emission;  // 3 channels, radiance emitted from the front side
 };
 
-// An emissive triangle for light sampling. 48 bytes.
+// An emissive triangle for light sampling. 48 bytes (3 texels).
 struct EmitterTri {
     vec3 p0;
     vec3 e1;

@@ -166,7 +166,7 @@ impl BvhWideNode {
     }
 }
 
-/// Mirror of `BvhTriangle`: 40 bytes, a triangle as `v0`, `e1 = v1 - v0`, `e2 = v2 - v0`
+/// Mirror of `BvhTriangle`: 48 bytes, a triangle as `v0`, `e1 = v1 - v0`, `e2 = v2 - v0`
 /// (Möller & Trumbore 1997) and its index in the input triangle list.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -175,6 +175,16 @@ pub struct BvhTriangle {
     pub e1: [f32; 3],
     pub e2: [f32; 3],
     pub prim: u32,
+    /// Zero: pads the record to three 16-byte texels (kernels read it from a texel buffer).
+    pub pad: [u32; 2],
+}
+
+impl BvhTriangle {
+    /// The triangle (a, b, c) with input index `prim`.
+    pub fn new(a: [f32; 3], b: [f32; 3], c: [f32; 3], prim: u32) -> Self {
+        let sub = |p: [f32; 3], q: [f32; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+        BvhTriangle { v0: a, e1: sub(b, a), e2: sub(c, a), prim, pad: [0; 2] }
+    }
 }
 
 /// Mirror of `Hit`: 16 bytes. `prim` is the input triangle index ([`NO_HIT`] for a miss),
@@ -600,13 +610,8 @@ impl<'a> Flattener<'a> {
         let range = node.first_index as usize..(node.first_index + node.prim_count) as usize;
         let prim_indices = self.prim_indices;
         for &prim in &prim_indices[range] {
-            let [a, b, c] = self.indices[prim as usize].map(|i| glam::Vec3::from(self.positions[i as usize]));
-            self.out.triangles.push(BvhTriangle {
-                v0: a.to_array(),
-                e1: (b - a).to_array(),
-                e2: (c - a).to_array(),
-                prim,
-            });
+            let [a, b, c] = self.indices[prim as usize].map(|i| self.positions[i as usize]);
+            self.out.triangles.push(BvhTriangle::new(a, b, c, prim));
         }
     }
 

@@ -46,8 +46,12 @@ impl Buffer {
             return Err(GpuError::BufferTooLarge { name: name.into(), size: len, max });
         }
         let physical = len.max(16);
+        // Any buffer may also be bound as a uniform texel buffer (read through texel fetches).
         let info = vk::BufferCreateInfo::default().size(physical).usage(
-            vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC | vk::BufferUsageFlags::TRANSFER_DST,
+            vk::BufferUsageFlags::STORAGE_BUFFER
+                | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
+                | vk::BufferUsageFlags::TRANSFER_SRC
+                | vk::BufferUsageFlags::TRANSFER_DST,
         );
         // SAFETY: valid create info on a live device.
         let raw = unsafe { ctx.device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;

@@ -69,6 +69,8 @@ pub struct DeviceInfo {
     pub api_version: String,
     pub driver: String,
     pub max_storage_buffer_range: u64,
+    /// Texels a texel-buffer view may span.
+    pub max_texel_buffer_elements: u64,
     pub max_workgroup_invocations: u32,
     pub max_workgroup_count: [u32; 3],
     pub subgroup_size: u32,
@@ -340,6 +342,7 @@ impl Context {
                 api_version: version_string(props.api_version),
                 driver: format!("{} {}", cstr(driver.driver_name_as_c_str()), cstr(driver.driver_info_as_c_str())),
                 max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+                max_texel_buffer_elements: props.limits.max_texel_buffer_elements as u64,
                 max_workgroup_invocations: props.limits.max_compute_work_group_invocations,
                 max_workgroup_count: props.limits.max_compute_work_group_count,
                 subgroup_size: subgroup.subgroup_size,

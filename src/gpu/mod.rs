@@ -23,7 +23,7 @@ mod sync;
 pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
-pub use pipeline::{BindGroup, ComputePipeline, SpecValue};
+pub use pipeline::{BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
 pub use profiler::{Profiler, ScopeTime};
 pub use sync::Access;
 

@@ -1,6 +1,6 @@
 //! Compute pipelines built from reflected SPIR-V, and bind groups filled by GLSL name.
 
-use super::reflect::{BindingAccess, LocalSize, Reflection, SpecKind};
+use super::reflect::{BindingAccess, BindingKind, LocalSize, Reflection, SpecKind, TexelType};
 use super::{shaders, vk_err, Access, Buffer, Context, GpuError, Result};
 use ash::vk;
 use std::sync::Arc;
@@ -106,7 +106,7 @@ impl ComputePipeline {
             .map(|b| {
                 vk::DescriptorSetLayoutBinding::default()
                     .binding(b.binding)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_type(descriptor_type(b.kind))
                     .descriptor_count(1)
                     .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })
@@ -193,10 +193,38 @@ impl ComputePipeline {
                 BindingAccess::Write => Access::ComputeWrite,
                 BindingAccess::ReadWrite => Access::ComputeReadWrite,
             };
-            bound.push((info.binding, buf, access));
+            bound.push(Bound { binding: info.binding, buffer: buf, access, kind: info.kind, name: info.names[0].clone() });
         }
         BindGroup::new(&me.ctx, me.set_layout, kernel, bound)
     }
+}
+
+fn descriptor_type(kind: BindingKind) -> vk::DescriptorType {
+    match kind {
+        BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
+        BindingKind::TexelBuffer(_) => vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
+    }
+}
+
+/// Bytes of one texel of a texel-buffer view: four 32-bit components.
+pub const TEXEL_BYTES: u64 = 16;
+
+fn texel_format(t: TexelType) -> vk::Format {
+    match t {
+        TexelType::Float => vk::Format::R32G32B32A32_SFLOAT,
+        TexelType::Uint => vk::Format::R32G32B32A32_UINT,
+        TexelType::Int => vk::Format::R32G32B32A32_SINT,
+    }
+}
+
+/// One buffer of a bind group.
+pub(crate) struct Bound {
+    binding: u32,
+    buffer: Buffer,
+    access: Access,
+    kind: BindingKind,
+    /// The kernel's name for the binding (for errors).
+    name: String,
 }
 
 /// Destroys what a half-built pipeline made.
@@ -248,43 +276,101 @@ pub(crate) struct BindGroupInner {
     pub(crate) set: vk::DescriptorSet,
     /// (binding, buffer, how the kernel accesses it)
     pub(crate) buffers: Vec<(u32, Buffer, Access)>,
+    /// Views of the buffers bound as texel buffers.
+    views: Vec<vk::BufferView>,
 }
 
 impl BindGroup {
-    fn new(ctx: &Arc<Context>, layout: vk::DescriptorSetLayout, kernel: &str, buffers: Vec<(u32, Buffer, Access)>) -> Result<Self> {
+    fn new(ctx: &Arc<Context>, layout: vk::DescriptorSetLayout, kernel: &str, bound: Vec<Bound>) -> Result<Self> {
         let dev = &ctx.device;
-        let sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: buffers.len().max(1) as u32 }];
+        // Texel buffers are viewed whole, as 16-byte texels; the view must fit the
+        // device's limit and cannot end in a partial texel.
+        let max_texels = ctx.info().max_texel_buffer_elements;
+        for b in &bound {
+            if let BindingKind::TexelBuffer(_) = b.kind {
+                let len = b.buffer.len();
+                if len % TEXEL_BYTES != 0 || len / TEXEL_BYTES > max_texels {
+                    return Err(GpuError::BufferAccess {
+                        name: b.buffer.name().to_string(),
+                        what: format!(
+                            "bound to texel buffer '{}' of kernel '{kernel}': {len} bytes is not a whole number of \
+                             {TEXEL_BYTES}-byte texels within the device's {max_texels}",
+                            b.name
+                        ),
+                    });
+                }
+            }
+        }
+        let mut sizes: Vec<vk::DescriptorPoolSize> = Vec::new();
+        for b in &bound {
+            let ty = descriptor_type(b.kind);
+            match sizes.iter_mut().find(|s| s.ty == ty) {
+                Some(s) => s.descriptor_count += 1,
+                None => sizes.push(vk::DescriptorPoolSize { ty, descriptor_count: 1 }),
+            }
+        }
+        if sizes.is_empty() {
+            sizes.push(vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: 1 });
+        }
         // SAFETY: valid create/allocate infos; the pool is destroyed if allocation fails.
         let pool = unsafe { dev.create_descriptor_pool(&vk::DescriptorPoolCreateInfo::default().max_sets(1).pool_sizes(&sizes), None) }
             .map_err(vk_err("vkCreateDescriptorPool"))?;
-        let layouts = [layout];
-        let set = match unsafe {
-            dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts))
-        } {
-            Ok(s) => s[0],
-            Err(e) => {
-                unsafe { dev.destroy_descriptor_pool(pool, None) };
-                return Err(vk_err("vkAllocateDescriptorSets")(e));
-            }
+        // From here on, the group owns the pool and the views made so far: its drop frees
+        // them on any error below.
+        let mut group = BindGroupInner {
+            ctx: ctx.clone(),
+            kernel: kernel.to_string(),
+            pool,
+            set: vk::DescriptorSet::null(),
+            buffers: bound.iter().map(|b| (b.binding, b.buffer.clone(), b.access)).collect(),
+            views: Vec::new(),
         };
-        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+        let layouts = [layout];
+        group.set = unsafe {
+            dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts))
+        }
+        .map_err(vk_err("vkAllocateDescriptorSets"))?[0];
+        let mut view_of = Vec::with_capacity(bound.len());
+        for b in &bound {
+            view_of.push(match b.kind {
+                BindingKind::StorageBuffer => vk::BufferView::null(),
+                BindingKind::TexelBuffer(t) => {
+                    let info = vk::BufferViewCreateInfo::default()
+                        .buffer(b.buffer.0.raw)
+                        .format(texel_format(t))
+                        .offset(0)
+                        .range(vk::WHOLE_SIZE);
+                    // SAFETY: the buffer has UNIFORM_TEXEL_BUFFER usage and a whole number of
+                    // texels (checked above); the group destroys the view.
+                    let view = unsafe { dev.create_buffer_view(&info, None) }.map_err(vk_err("vkCreateBufferView"))?;
+                    group.views.push(view);
+                    view
+                }
+            });
+        }
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = bound
             .iter()
-            .map(|(_, b, _)| [vk::DescriptorBufferInfo { buffer: b.0.raw, offset: 0, range: vk::WHOLE_SIZE }])
+            .map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: vk::WHOLE_SIZE }])
             .collect();
-        let writes: Vec<_> = buffers
+        let views: Vec<[vk::BufferView; 1]> = view_of.iter().map(|v| [*v]).collect();
+        let writes: Vec<_> = bound
             .iter()
-            .zip(&infos)
-            .map(|((binding, _, _), info)| {
-                vk::WriteDescriptorSet::default()
-                    .dst_set(set)
-                    .dst_binding(*binding)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .buffer_info(info)
+            .zip(infos.iter().zip(&views))
+            .map(|(b, (info, view))| {
+                let w = vk::WriteDescriptorSet::default()
+                    .dst_set(group.set)
+                    .dst_binding(b.binding)
+                    .descriptor_type(descriptor_type(b.kind));
+                match b.kind {
+                    BindingKind::StorageBuffer => w.buffer_info(info),
+                    BindingKind::TexelBuffer(_) => w.texel_buffer_view(view),
+                }
             })
             .collect();
-        // SAFETY: the set is not in use by any command buffer yet.
+        // SAFETY: the set is not in use by any command buffer yet; the views live as long
+        // as the group.
         unsafe { dev.update_descriptor_sets(&writes, &[]) };
-        Ok(Self(Arc::new(BindGroupInner { ctx: ctx.clone(), kernel: kernel.to_string(), pool, set, buffers })))
+        Ok(Self(Arc::new(group)))
     }
 
     /// The buffers bound, in binding order.
@@ -301,7 +387,12 @@ impl BindGroup {
 impl Drop for BindGroupInner {
     fn drop(&mut self) {
         // SAFETY: destroying the pool frees its set; recordings hold a handle, so no
-        // pending work uses it.
-        unsafe { self.ctx.device.destroy_descriptor_pool(self.pool, None) };
+        // pending work uses it or the views.
+        unsafe {
+            for v in &self.views {
+                self.ctx.device.destroy_buffer_view(*v, None);
+            }
+            self.ctx.device.destroy_descriptor_pool(self.pool, None);
+        }
     }
 }

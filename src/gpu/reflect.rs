@@ -16,6 +16,26 @@ pub struct BindingInfo {
     /// Instance name and block name, both usable to bind it.
     pub names: Vec<String>,
     pub access: BindingAccess,
+    pub kind: BindingKind,
+}
+
+/// What a binding is: a storage buffer (`buffer` block), or a buffer read through 4-component
+/// 32-bit texels (`samplerBuffer`, `usamplerBuffer`, `isamplerBuffer`: a uniform texel buffer).
+/// Texel fetches take the sampler path: on lavapipe that is a vector gather where a
+/// storage-buffer load is a loop over the SIMD lanes, and on GPUs it goes through the texture
+/// cache.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BindingKind {
+    StorageBuffer,
+    TexelBuffer(TexelType),
+}
+
+/// Component type of a texel buffer; the host views the buffer as R32G32B32A32 of this type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TexelType {
+    Float,
+    Uint,
+    Int,
 }
 
 /// How a kernel accesses a storage buffer, from its `readonly`/`writeonly` qualifiers.
@@ -102,12 +122,29 @@ impl Reflection {
         for var in &entry.vars {
             match var {
                 Variable::Descriptor { name, desc_bind, desc_ty, ty, .. } => {
-                    let access = match desc_ty {
-                        DescriptorType::StorageBuffer(a) => match a {
-                            AccessType::ReadOnly => BindingAccess::Read,
-                            AccessType::WriteOnly => BindingAccess::Write,
-                            AccessType::ReadWrite => BindingAccess::ReadWrite,
-                        },
+                    let (access, kind) = match desc_ty {
+                        DescriptorType::StorageBuffer(a) => (
+                            match a {
+                                AccessType::ReadOnly => BindingAccess::Read,
+                                AccessType::WriteOnly => BindingAccess::Write,
+                                AccessType::ReadWrite => BindingAccess::ReadWrite,
+                            },
+                            BindingKind::StorageBuffer,
+                        ),
+                        DescriptorType::UniformTexelBuffer() => {
+                            let scalar = match ty {
+                                Type::CombinedImageSampler(t) => &t.sampled_image_ty.scalar_ty,
+                                Type::SampledImage(t) => &t.scalar_ty,
+                                other => return Err(err(kernel, format!("texel buffer of unexpected type {other:?}"))),
+                            };
+                            let texel = match scalar {
+                                ScalarType::Float { bits: 32 } => TexelType::Float,
+                                ScalarType::Integer { bits: 32, is_signed: false } => TexelType::Uint,
+                                ScalarType::Integer { bits: 32, is_signed: true } => TexelType::Int,
+                                other => return Err(err(kernel, format!("texel buffer of unsupported component type {other:?}"))),
+                            };
+                            (BindingAccess::Read, BindingKind::TexelBuffer(texel))
+                        }
                         other => return Err(err(kernel, format!("unsupported descriptor type {other:?}"))),
                     };
                     let mut names = Vec::new();
@@ -123,7 +160,7 @@ impl Reflection {
                         return Err(err(kernel, format!("binding {} has no name", desc_bind.bind())));
                     }
                     collect_structs(ty, &mut structs);
-                    bindings.push(BindingInfo { set: desc_bind.set(), binding: desc_bind.bind(), names, access });
+                    bindings.push(BindingInfo { set: desc_bind.set(), binding: desc_bind.bind(), names, access, kind });
                 }
                 Variable::PushConstant { ty, .. } => {
                     push_constant_size = ty.nbyte().ok_or_else(|| err(kernel, "unsized push-constant block"))? as u32;

@@ -42,7 +42,8 @@ impl Access {
 
     pub(crate) fn access(self) -> vk::AccessFlags2 {
         match self {
-            Access::ComputeRead => vk::AccessFlags2::SHADER_STORAGE_READ,
+            // Reads are storage-buffer loads or texel-buffer fetches (sampled reads).
+            Access::ComputeRead => vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_SAMPLED_READ,
             Access::ComputeWrite => vk::AccessFlags2::SHADER_STORAGE_WRITE,
             Access::ComputeReadWrite => vk::AccessFlags2::SHADER_STORAGE_READ | vk::AccessFlags2::SHADER_STORAGE_WRITE,
             Access::TransferRead => vk::AccessFlags2::TRANSFER_READ,

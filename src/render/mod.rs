@@ -19,7 +19,7 @@ pub mod params;
 pub mod targets;
 
 use crate::bvh::{self, BvhBuffers, BvhLayout};
-use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue};
+use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
 use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
@@ -89,6 +89,16 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     }
 }
 
+/// A device buffer holding `v` followed by zeros up to a whole number of 16-byte texels
+/// (at least one), for kernels that read it as a uniform texel buffer.
+pub fn texel_buffer<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, v: &[T]) -> gpu::Result<Buffer> {
+    let bytes: &[u8] = bytemuck::cast_slice(v);
+    let mut padded = bytes.to_vec();
+    let texel = TEXEL_BYTES as usize;
+    padded.resize(bytes.len().div_ceil(texel).max(1) * texel, 0);
+    Buffer::from_slice(ctx, name, &padded, MemoryKind::Device)
+}
+
 impl GpuScene {
     /// Builds the BVH and uploads geometry, materials, lights, sensors and θ (set to the
     /// parameters' initial values).
@@ -121,6 +131,7 @@ impl GpuScene {
                         MaterialKind::Diffuse => KIND_DIFFUSE,
                         MaterialKind::Principled => KIND_PRINCIPLED,
                     },
+                    pad: [0; 3],
                 }
             })
             .collect();
@@ -194,6 +205,7 @@ impl GpuScene {
                 material: geo.triangle_material[t],
                 mesh: mesh as u32,
                 emitter_pdf: 0.0,
+                pad: [0; 3],
             });
         }
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
@@ -241,16 +253,18 @@ impl GpuScene {
             }
         }
         let buffers = vec![
-            ("Materials", upload(ctx, "materials", &materials)?),
-            ("Shading", upload(ctx, "shading", &shading)?),
-            ("Meshes", upload(ctx, "meshes", &meshes)?),
-            ("Emitters", upload(ctx, "emitters", &emitters)?),
+            ("Materials", texel_buffer(ctx, "materials", &materials)?),
+            ("Shading", texel_buffer(ctx, "shading", &shading)?),
+            ("Meshes", texel_buffer(ctx, "meshes", &meshes)?),
+            ("Emitters", texel_buffer(ctx, "emitters", &emitters)?),
             ("Sensors", upload(ctx, "sensors", &sensors)?),
             ("SceneGlobals", upload(ctx, "globals", &[globals])?),
-            ("MaterialData", upload(ctx, "material data", &data)?),
-            ("EnvDistribution", upload(ctx, "environment distribution", &env_data)?),
+            ("MaterialData", texel_buffer(ctx, "material data", &data)?),
+            ("EnvDistribution", texel_buffer(ctx, "environment distribution", &env_data)?),
         ];
-        let theta = upload(ctx, "theta", &layout.initial())?;
+        // θ is read as texels by the integrator kernels and as floats by the optimisers;
+        // its length is a whole number of texels (the padding is never read or moved).
+        let theta = texel_buffer(ctx, "theta", &layout.initial())?;
         let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
         Ok(Self {
             ctx: ctx.clone(),
