@@ -25,6 +25,8 @@ layout(set = 0, binding = 5, scalar) writeonly buffer OutTriangles { BvhTriangle
 layout(set = 0, binding = 6, scalar) writeonly buffer OutFloats { float out_floats[]; };
 // The emitters' cdfs as the light-sampling search reads them.
 layout(set = 0, binding = 7, scalar) writeonly buffer OutCdfs { float out_cdfs[]; };
+layout(set = 0, binding = 8, scalar) writeonly buffer OutSensors { SensorRecord out_sensors[]; };
+layout(set = 0, binding = 9, scalar) writeonly buffer OutGlobals { Globals out_globals; };
 
 layout(push_constant, scalar) uniform Push {
     uint materials;
@@ -35,6 +37,7 @@ layout(push_constant, scalar) uniform Push {
     uint material_data;
     uint theta;
     uint env_dist;
+    uint sensors;
 } pc;
 
 void main() {
@@ -53,4 +56,6 @@ void main() {
     if (i < pc.material_data) out_floats[i] = texel_float(MaterialData, int(i));
     if (i < pc.theta) out_floats[pc.material_data + i] = texel_float(Theta, int(i));
     if (i < pc.env_dist) out_floats[pc.material_data + pc.theta + i] = texel_float(EnvDistribution, int(i));
+    if (i < pc.sensors) out_sensors[i] = sensor_record(i);
+    if (i == 0u) out_globals = scene_globals();
 }

@@ -56,7 +56,7 @@ void main() {
     uint i = thread_index();
     if (i >= pc.width * pc.height) return;
     uvec2 pixel = uvec2(i % pc.width, i / pc.width);
-    SensorRecord s = sensors[pc.sensor];
+    SensorRecord s = sensor_record(pc.sensor);
     vec3 zero[NSTATES];
     vec3 delta[NSTATES];
     for (int k = 0; k < NSTATES; ++k) zero[k] = vec3(0.0);

@@ -93,9 +93,9 @@ pub struct EmitterTri {
     pub pdf: f32,
 }
 
-/// Mirror of `SensorRecord`: 56 bytes.
+/// Mirror of `SensorRecord`: 64 bytes (`pad` is zero).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct SensorRecord {
     pub origin: [f32; 3],
     pub right: [f32; 3],
@@ -103,27 +103,31 @@ pub struct SensorRecord {
     pub forward: [f32; 3],
     pub tan_half_fov_y: f32,
     pub aspect: f32,
+    pub pad: [u32; 2],
 }
 
-/// Mirror of `Globals`: 24 bytes.
+/// Mirror of `Globals`: 32 bytes (`pad` is zero).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Globals {
     pub environment: ValueRef,
     pub environment_scale: f32,
     /// Probability that next-event estimation samples the environment map rather than an
     /// emissive triangle; 0: the environment is not light-sampled.
     pub environment_sample_prob: f32,
+    pub pad: [u32; 2],
 }
 
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 4] = [
+pub const TEXEL_RECORDS: [(&str, usize); 6] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
     ("MeshRecord", std::mem::size_of::<MeshRecord>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
+    ("SensorRecord", std::mem::size_of::<SensorRecord>()),
+    ("Globals", std::mem::size_of::<Globals>()),
 ];
 const _: () = {
     let mut i = 0;

@@ -427,7 +427,7 @@ fn environment_distribution_matches_its_pdf() {
 fn kernels_read_the_records_the_host_wrote() {
     use vkinverse::bvh::{BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
     use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
-    use vkinverse::shared::{EmitterTri, MaterialRecord, MeshRecord, TriShading};
+    use vkinverse::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading};
     fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
         let bytes: Vec<u8> = b.read().unwrap();
         bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
@@ -452,6 +452,8 @@ fn kernels_read_the_records_the_host_wrote() {
                 let meshes: Vec<MeshRecord> = read(buffer("Meshes"));
                 let emitters: Vec<EmitterTri> = read(buffer("Emitters"));
                 let triangles: Vec<BvhTriangle> = read(buffer("BvhTriangles"));
+                let sensors: Vec<SensorRecord> = read(buffer("Sensors"));
+                let globals: Vec<Globals> = read(buffer("SceneGlobals"));
                 let floats = |n: &str| -> Vec<f32> { read(buffer(n)) };
                 let (data, theta, env) = (floats("MaterialData"), floats("Theta"), floats("EnvDistribution"));
                 let (n_nodes, node_bytes) = match layout {
@@ -470,6 +472,8 @@ fn kernels_read_the_records_the_host_wrote() {
                 let o_nodes = Buffer::zeroed::<u8>(ctx, "out nodes", n_nodes.max(1) * node_bytes, MemoryKind::Device).unwrap();
                 let o_triangles = out::<BvhTriangle>(ctx, "out triangles", triangles.len());
                 let o_floats = out::<f32>(ctx, "out floats", data.len() + theta.len() + env.len());
+                let o_sensors = out::<SensorRecord>(ctx, "out sensors", sensors.len());
+                let o_globals = out::<Globals>(ctx, "out globals", 1);
                 let mut b = bound.clone();
                 b.extend([
                     ("OutMaterials", &o_materials),
@@ -480,11 +484,13 @@ fn kernels_read_the_records_the_host_wrote() {
                     ("OutNodes", &o_nodes),
                     ("OutTriangles", &o_triangles),
                     ("OutFloats", &o_floats),
+                    ("OutSensors", &o_sensors),
+                    ("OutGlobals", &o_globals),
                 ]);
-                // Sensors, globals and the frame counter are the scene's but not read here.
+                // The frame counter is the scene's but not read here.
                 b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
                 let group = pipeline.bind(&b).unwrap();
-                let counts = [materials.len(), shading.len(), meshes.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len()];
+                let counts = [materials.len(), shading.len(), meshes.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len()];
                 let push: Vec<u8> = counts.iter().flat_map(|&c| (c as u32).to_le_bytes()).collect();
                 let threads = *counts.iter().max().unwrap() as u64;
                 let mut cmd = CommandBuffer::new(ctx, "records").unwrap();
@@ -496,6 +502,8 @@ fn kernels_read_the_records_the_host_wrote() {
                 assert_eq!(read::<TriShading>(&o_shading)[..shading.len()], shading[..], "{tag}: shading");
                 assert_eq!(read::<MeshRecord>(&o_meshes)[..meshes.len()], meshes[..], "{tag}: meshes");
                 assert_eq!(read::<EmitterTri>(&o_emitters)[..emitters.len()], emitters[..], "{tag}: emitters");
+                assert_eq!(read::<SensorRecord>(&o_sensors)[..sensors.len()], sensors[..], "{tag}: sensors");
+                assert_eq!(read::<Globals>(&o_globals), globals, "{tag}: globals");
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
                 assert_eq!(read::<BvhTriangle>(&o_triangles)[..triangles.len()], triangles[..], "{tag}: triangles");
@@ -521,7 +529,7 @@ fn kernels_read_the_records_the_host_wrote() {
 #[test]
 fn texel_record_layouts_match_reflection() {
     use std::mem::offset_of;
-    use vkinverse::shared::{EmitterTri, MaterialRecord, MeshRecord, TriShading, TEXEL_RECORDS};
+    use vkinverse::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, TEXEL_RECORDS};
     let spirv = vkinverse::gpu::shaders::get("records_test").unwrap();
     let r = vkinverse::gpu::reflect::Reflection::new("records_test", spirv).unwrap();
     let check = |name: &str, rust: &[(&str, usize)]| {
@@ -571,13 +579,49 @@ fn texel_record_layouts_match_reflection() {
             ("pdf", offset_of!(EmitterTri, pdf)),
         ],
     );
+    check(
+        "SensorRecord",
+        &[
+            ("origin", offset_of!(SensorRecord, origin)),
+            ("right", offset_of!(SensorRecord, right)),
+            ("up", offset_of!(SensorRecord, up)),
+            ("forward", offset_of!(SensorRecord, forward)),
+            ("tan_half_fov_y", offset_of!(SensorRecord, tan_half_fov_y)),
+            ("aspect", offset_of!(SensorRecord, aspect)),
+            ("pad0", offset_of!(SensorRecord, pad)),
+            ("pad1", offset_of!(SensorRecord, pad) + 4),
+        ],
+    );
+    check(
+        "Globals",
+        &[
+            ("environment", offset_of!(Globals, environment)),
+            ("environment_scale", offset_of!(Globals, environment_scale)),
+            ("environment_sample_prob", offset_of!(Globals, environment_sample_prob)),
+            ("pad0", offset_of!(Globals, pad)),
+            ("pad1", offset_of!(Globals, pad) + 4),
+        ],
+    );
     for (name, size) in TEXEL_RECORDS {
         assert_eq!(r.struct_size(name), Some(size), "{name} size");
         assert_eq!(size % vkinverse::gpu::TEXEL_BYTES as usize, 0, "{name} is whole texels");
     }
     // The scene's bindings sit where lib/scene_access.glsl puts them, as texel buffers.
     use vkinverse::gpu::reflect::{BindingKind, TexelType};
-    for (name, binding) in [("Materials", 20), ("Shading", 21), ("Meshes", 22), ("Emitters", 23), ("MaterialData", 26), ("EnvDistribution", 27), ("Theta", 30), ("BvhNodes", 10), ("BvhTriangles", 11)] {
+    let bindings = [
+        ("Materials", 20),
+        ("Shading", 21),
+        ("Meshes", 22),
+        ("Emitters", 23),
+        ("Sensors", 24),
+        ("SceneGlobals", 25),
+        ("MaterialData", 26),
+        ("EnvDistribution", 27),
+        ("Theta", 30),
+        ("BvhNodes", 10),
+        ("BvhTriangles", 11),
+    ];
+    for (name, binding) in bindings {
         let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound"));
         assert_eq!((b.binding, b.kind), (binding, BindingKind::TexelBuffer(TexelType::Uint)), "{name}");
     }

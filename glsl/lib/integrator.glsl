@@ -16,7 +16,7 @@
 // difference of gradients with common random numbers, ⟨ΔF_i⟩.
 //
 // Next-event estimation samples either an emissive triangle or (HAS_ENVIRONMENT and
-// globals.environment_sample_prob > 0) a direction from the environment map, picked by the
+// scene_globals().environment_sample_prob > 0) a direction from the environment map, picked by the
 // bounce's eighth random number with probability environment_sample_prob for the map.
 // Emission found by BSDF sampling (an emitter hit or an escaped ray) is MIS-weighted
 // against the light-sampling density of the strategy that could have produced it, times
@@ -176,7 +176,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
     // Probability that next-event estimation samples the environment map.
-    float p_env = HAS_ENVIRONMENT ? globals.environment_sample_prob : 0.0;
+    float p_env = HAS_ENVIRONMENT ? scene_globals().environment_sample_prob : 0.0;
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
@@ -194,7 +194,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     // Emission enters linearly: d(beta * mis * scale * E)/dE = beta * mis *
                     // scale, at the texel(s) of the lookup for an environment map.
                     if (grad_pass)
-                        scatter3(globals.environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * (mis * globals.environment_scale));
+                        scatter3(scene_globals().environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * (mis * scene_globals().environment_scale));
 #endif
                 }
             }
@@ -293,7 +293,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     remaining[s] -= c;
                     if (grad_pass) {
                         scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
-                        scatter3(globals.environment, env_uv, state_sign(s) * delta[s] * beta[s] * f * (mis * globals.environment_scale / pdf_light));
+                        scatter3(scene_globals().environment, env_uv, state_sign(s) * delta[s] * beta[s] * f * (mis * scene_globals().environment_scale / pdf_light));
                     }
 #endif
                 }

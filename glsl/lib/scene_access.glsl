@@ -7,9 +7,8 @@
 // converted or flushed): records (shared/scene.glsl, a whole number of texels each) through
 // the accessors below, float arrays through texel_float. A texel fetch is the sampler's
 // vector gather on lavapipe, where a storage-buffer load is a loop over the SIMD lanes
-// with a bounds check per lane, and it reads through the texture cache on GPUs. Sensors and
-// globals, read once per sample at one index, stay storage buffers. The host binds every
-// buffer by the names below (src/render/mod.rs sizes them in whole texels).
+// with a bounds check per lane, and it reads through the texture cache on GPUs. The host
+// binds every buffer by the names below (src/render/mod.rs sizes them in whole texels).
 #ifndef SCENE_ACCESS_GLSL
 #define SCENE_ACCESS_GLSL
 #include "shared/scene.glsl"
@@ -19,8 +18,8 @@ layout(set = 0, binding = 20) uniform usamplerBuffer Materials;
 layout(set = 0, binding = 21) uniform usamplerBuffer Shading;
 layout(set = 0, binding = 22) uniform usamplerBuffer Meshes;
 layout(set = 0, binding = 23) uniform usamplerBuffer Emitters;
-layout(set = 0, binding = 24, scalar) readonly buffer Sensors { SensorRecord sensors[]; };
-layout(set = 0, binding = 25, scalar) readonly buffer SceneGlobals { Globals globals; };
+layout(set = 0, binding = 24) uniform usamplerBuffer Sensors;
+layout(set = 0, binding = 25) uniform usamplerBuffer SceneGlobals;
 layout(set = 0, binding = 26) uniform usamplerBuffer MaterialData;
 // The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
 // column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
@@ -104,6 +103,26 @@ EmitterTri emitter_tri(uint i) {
     e.cdf = uintBitsToFloat(t2.z);
     e.pdf = uintBitsToFloat(t2.w);
     return e;
+}
+
+// Sensor `i` (4 texels: origin 0-2, right 3-5, up 6-8, forward 9-11, tan_half_fov_y 12,
+// aspect 13).
+SensorRecord sensor_record(uint i) {
+    int b = int(i) * 4;
+    uvec4 t0 = texelFetch(Sensors, b);
+    uvec4 t1 = texelFetch(Sensors, b + 1);
+    uvec4 t2 = texelFetch(Sensors, b + 2);
+    uvec4 t3 = texelFetch(Sensors, b + 3);
+    return SensorRecord(uintBitsToFloat(t0.xyz), uintBitsToFloat(uvec3(t0.w, t1.xy)), uintBitsToFloat(uvec3(t1.zw, t2.x)),
+                        uintBitsToFloat(t2.yzw), uintBitsToFloat(t3.x), uintBitsToFloat(t3.y), 0u, 0u);
+}
+
+// The scene-wide values (2 texels: environment 0-3, environment_scale 4,
+// environment_sample_prob 5).
+Globals scene_globals() {
+    uvec4 t0 = texelFetch(SceneGlobals, 0);
+    uvec4 t1 = texelFetch(SceneGlobals, 1);
+    return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), 0u, 0u);
 }
 
 // The cdf of emissive triangle `i` alone (its third texel), for the binary search.
@@ -243,7 +262,8 @@ vec2 environment_uv(vec3 dir) {
 
 // Radiance emitted by the environment towards -dir, in parameter state `state`.
 vec3 environment_radiance(vec3 dir, int state) {
-    return globals.environment_scale * fetch3(globals.environment, environment_uv(dir), state);
+    Globals g = scene_globals();
+    return g.environment_scale * fetch3(g.environment, environment_uv(dir), state);
 }
 
 // Environment-map light sampling (src/render/envmap.rs describes the distribution). The
@@ -254,8 +274,8 @@ vec3 environment_radiance(vec3 dir, int state) {
 
 // Density in solid angle of sampling direction dir, given that the environment is sampled.
 float environment_density(vec3 dir) {
-    uint w = globals.environment.width;
-    uint h = globals.environment.height;
+    uint w = scene_globals().environment.width;
+    uint h = scene_globals().environment.height;
     vec2 uv = environment_uv(dir);
     uint c = min(uint(max(uv.x, 0.0) * float(w)), w - 1u);
     uint r = min(uint(max(1.0 - uv.y, 0.0) * float(h)), h - 1u);
@@ -282,8 +302,8 @@ uint environment_pick(uint base, uint n, float x, out float rescaled) {
 // keeps rows near the poles free of cancellation.
 vec3 environment_sample(vec2 u, out float pdf) {
     const float PI = 3.14159265358979;
-    uint w = globals.environment.width;
-    uint h = globals.environment.height;
+    uint w = scene_globals().environment.width;
+    uint h = scene_globals().environment.height;
     float ur, uc;
     uint r = environment_pick(0u, h, u.x, ur);
     uint c = environment_pick(h + r * w, w, u.y, uc);

@@ -1,10 +1,8 @@
 // Scene records shared by the host (src/shared.rs mirrors them; a reflection test checks
 // every member offset) and the integrator kernels. Scalar block layout throughout.
 //
-// Records read per ray or path vertex (MaterialRecord, TriShading, MeshRecord, EmitterTri)
-// are a whole number of 16-byte texels: kernels read them from uniform texel buffers
-// (lib/scene_access.glsl), padded where needed. SensorRecord and Globals, read once per
-// sample at one index for all threads, stay in storage buffers.
+// Every record is a whole number of 16-byte texels, padded where needed: kernels read them
+// from uniform texel buffers (lib/scene_access.glsl).
 #ifndef SCENE_GLSL
 #define SCENE_GLSL
 
@@ -63,7 +61,7 @@ struct EmitterTri {
     float pdf;   // probability density (area measure) of a point sampled on it
 };
 
-// A pinhole camera. 56 bytes.
+// A pinhole camera. 64 bytes (4 texels).
 struct SensorRecord {
     vec3 origin;
     vec3 right;
@@ -71,9 +69,11 @@ struct SensorRecord {
     vec3 forward;
     float tan_half_fov_y;
     float aspect;
+    uint pad0;
+    uint pad1;
 };
 
-// Scene-wide values. 24 bytes.
+// Scene-wide values. 32 bytes (2 texels).
 struct Globals {
     ValueRef environment;  // constant (width 0) or lat-long map; 3 channels
     float environment_scale;
@@ -81,5 +81,7 @@ struct Globals {
     // distribution: binding EnvDistribution, src/render/envmap.rs) rather than an emissive
     // triangle; 0: the environment is found by BSDF sampling only.
     float environment_sample_prob;
+    uint pad0;
+    uint pad1;
 };
 #endif

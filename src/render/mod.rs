@@ -90,7 +90,8 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
 }
 
 /// A device buffer holding `v` followed by zeros up to a whole number of 16-byte texels
-/// (at least one), for kernels that read it as a uniform texel buffer.
+/// (at least one, so that an empty array still has a buffer to bind), for kernels that read
+/// it as a uniform texel buffer.
 pub fn texel_buffer<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, v: &[T]) -> gpu::Result<Buffer> {
     let bytes: &[u8] = bytemuck::cast_slice(v);
     let mut padded = bytes.to_vec();
@@ -227,6 +228,7 @@ impl GpuScene {
             environment,
             environment_scale: scene.environment.scale,
             environment_sample_prob: Self::environment_sample_prob(environment_distribution.is_some(), emitters.len()),
+            pad: [0; 2],
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
@@ -241,24 +243,17 @@ impl GpuScene {
                 forward: s.forward.into(),
                 tan_half_fov_y: (s.fov_y.to_radians() * 0.5).tan(),
                 aspect,
+                pad: [0; 2],
             })
             .collect();
 
-        // Empty arrays still need a buffer to bind; kernels never read them then.
-        fn upload<T: bytemuck::Pod + Default>(ctx: &Arc<Context>, name: &str, v: &[T]) -> gpu::Result<Buffer> {
-            if v.is_empty() {
-                Buffer::from_slice(ctx, name, &[T::default()], MemoryKind::Device)
-            } else {
-                Buffer::from_slice(ctx, name, v, MemoryKind::Device)
-            }
-        }
         let buffers = vec![
             ("Materials", texel_buffer(ctx, "materials", &materials)?),
             ("Shading", texel_buffer(ctx, "shading", &shading)?),
             ("Meshes", texel_buffer(ctx, "meshes", &meshes)?),
             ("Emitters", texel_buffer(ctx, "emitters", &emitters)?),
-            ("Sensors", upload(ctx, "sensors", &sensors)?),
-            ("SceneGlobals", upload(ctx, "globals", &[globals])?),
+            ("Sensors", texel_buffer(ctx, "sensors", &sensors)?),
+            ("SceneGlobals", texel_buffer(ctx, "globals", &[globals])?),
             ("MaterialData", texel_buffer(ctx, "material data", &data)?),
             ("EnvDistribution", texel_buffer(ctx, "environment distribution", &env_data)?),
         ];
