@@ -6,7 +6,9 @@
      the Monte Carlo noise of each renderer (two independent renders of each);
   b. the gradient of the l2 loss with respect to the scene's first optimised colour at
      its `init` value: `vkinverse gradcheck --json` (adjoint column) against Mitsuba's
-     `prb` integrator, each as a mean ± standard error over independent rounds;
+     `prb` integrator, each as a mean ± standard error over independent rounds, both
+     against the same target image (Mitsuba's high-spp render, given to vkinverse as the
+     target image of a copy of the scene);
   c. time per Adam iteration: `vkinverse optimise --optimiser adam` against Mitsuba
      prb + mi.ad.Adam with the scene's learning rate and sample counts.
 
@@ -353,9 +355,43 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
     }
 
 
+def scene_with_target(np, mi, scene_path, target, out):
+    """A copy of the scene's folder under `out` whose first sensor names `target` (written
+    there as an EXR) as its target image, so that vkinverse and Mitsuba differentiate
+    against the same image."""
+    copy = out / "gradient-scene"
+    shutil.rmtree(copy, ignore_errors=True)
+    shutil.copytree(scene_path.parent, copy, ignore=shutil.ignore_patterns(".vkinverse-cache"))
+    mi.util.write_bitmap(str(copy / "compare_target.exr"), target.astype(np.float32), write_async=False)
+    lines = (copy / scene_path.name).read_text().splitlines()
+    first = next((k for k, l in enumerate(lines) if l.strip() == "[[sensors]]"), None)
+    if first is None:
+        fail(f"{scene_path}: no [[sensors]] table")
+    end = next((k for k in range(first + 1, len(lines)) if lines[k].lstrip().startswith("[")), len(lines))
+    body = [l for l in lines[first + 1:end] if not l.strip().startswith("target_image")]
+    lines[first + 1:end] = body + ['target_image = "compare_target.exr"']
+    (copy / scene_path.name).write_text("\n".join(lines) + "\n")
+    return copy / scene_path.name
+
+
 def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
     name, init, _, _ = color_param(scene)
     spp = args.grad_spp
+    # One target for both: it enters the gradient as 2 (I - T) dI, and its own Monte Carlo
+    # noise does not average out over rounds, so two renderers with targets of their own
+    # would differ by that noise however many rounds each ran.
+    compare_scene = scene_with_target(np, mi, scene_path, target, out)
+    v_time, stdout, _ = run_vk(vk, ["gradcheck", compare_scene, "--spp", spp, "--rounds", args.rounds, "--json"], check=False)
+    try:
+        rows = json.loads(stdout)
+    except json.JSONDecodeError:
+        fail(f"vkinverse gradcheck printed no JSON:\n{stdout}")
+    target_name = f"materials.{name}.base_color"
+    rows = sorted((r for r in rows if r["param"] == target_name), key=lambda r: r["element"])
+    if len(rows) != 3:
+        fail(f"vkinverse gradcheck reported {len(rows)} elements of {target_name}, expected 3")
+    (out / "vkinverse_gradcheck.json").write_text(json.dumps(rows, indent=2))
+
     mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", spp, overrides={name: init}))
     params = mi.traverse(mscene)
     key = f"{mitsuba_key(name)}.brdf_0.reflectance.value"
@@ -375,21 +411,12 @@ def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
 
     estimate(10_000)  # kernel compilation
     m_times, m_grads = [], []
-    for r in range(args.rounds):
-        dt, g = estimate(1 + r)
+    # Seeds far apart: Mitsuba derives the adjoint phase's seed from the primal one, and
+    # rounds on neighbouring seeds could share samples (and understate the spread).
+    for r in range(args.mitsuba_rounds):
+        dt, g = estimate(7919 * (r + 1))
         m_times.append(dt)
         m_grads.append(g)
-
-    v_time, stdout, _ = run_vk(vk, ["gradcheck", scene_path, "--spp", spp, "--rounds", args.rounds, "--json"], check=False)
-    try:
-        rows = json.loads(stdout)
-    except json.JSONDecodeError:
-        fail(f"vkinverse gradcheck printed no JSON:\n{stdout}")
-    target_name = f"materials.{name}.base_color"
-    rows = sorted((r for r in rows if r["param"] == target_name), key=lambda r: r["element"])
-    if len(rows) != 3:
-        fail(f"vkinverse gradcheck reported {len(rows)} elements of {target_name}, expected 3")
-    (out / "vkinverse_gradcheck.json").write_text(json.dumps(rows, indent=2))
 
     # One gradient estimate at the same sample counts: an Adam iteration's time, which is
     # primal + loss + adjoint and an optimiser pass of three floats.
@@ -399,7 +426,7 @@ def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
                 "--spp", spp, "--primal-spp", spp, "--quiet", "-o", est_dir])
     v_est = per_iteration_time(est_dir / "log.csv")
 
-    result = {"param": target_name, "init": init, "spp": spp, "rounds": args.rounds, "channels": []}
+    result = {"param": target_name, "init": init, "spp": spp, "rounds": args.rounds, "mitsuba_rounds": args.mitsuba_rounds, "channels": []}
     for c in range(3):
         mm, ms = mean_se([g[c] for g in m_grads])
         result["channels"].append({
@@ -491,7 +518,8 @@ def print_tables(a, b, c):
         print(f"  {bl['size']}x{bl['size']} blocks with |z| > 4: {bl['abs_z_over_4']} of {bl['count']}; worst at "
               f"row {w['row']} col {w['col']} {w['channel']}: z {w['z']:+.1f}, {100 * w['relative_diff']:+.2f}%")
     if b:
-        print(f"\n(b) d(l2 loss)/d {b['param']} at {fmt_vec(b['init'])}, {b['spp']} spp, mean ± se of {b['rounds']} rounds")
+        print(f"\n(b) d(l2 loss)/d {b['param']} at {fmt_vec(b['init'])}, {b['spp']} spp, mean ± se of "
+              f"{b['mitsuba_rounds']} (Mitsuba) and {b['rounds']} (vkinverse) rounds, one target")
         print(f"  {'ch':3} {'Mitsuba prb':>24} {'vkinverse adjoint':>24} {'diff/se':>8} {'vkinverse FD':>24}")
         for ch, g in zip("RGB", b["channels"]):
             se = (g["mitsuba_se"] ** 2 + g["vkinverse_se"] ** 2) ** 0.5
@@ -516,7 +544,8 @@ def main():
     ap.add_argument("--spp", type=int, default=1024, help="samples per pixel of the image comparison")
     ap.add_argument("--runs", type=int, default=3, help="timed renders of each (at least 2: the noise needs two)")
     ap.add_argument("--grad-spp", type=int, default=16, help="samples per pixel of each gradient estimate")
-    ap.add_argument("--rounds", type=int, default=8, help="independent gradient estimates of each")
+    ap.add_argument("--rounds", type=int, default=8, help="independent gradient estimates of vkinverse (gradcheck rounds)")
+    ap.add_argument("--mitsuba-rounds", type=int, default=128, help="independent gradient estimates of Mitsuba (cheap)")
     ap.add_argument("--iterations", type=int, default=50, help="Adam iterations of each")
     ap.add_argument("--opt-spp", type=int, help="adjoint spp per iteration (default: the scene's)")
     ap.add_argument("--opt-primal-spp", type=int, help="primal spp per iteration (default: the scene's)")
