@@ -209,8 +209,15 @@ impl BufferBench {
     }
 }
 
-/// Measures fill, copy (scalar and vec4, several workgroup sizes), scale-add and the two
-/// reductions over `elements` floats, `iterations` times each, in one command buffer.
+/// Threads and dependent float4 reads per thread of the gather kernels in [`buffer_bench`].
+const GATHER_THREADS: u64 = 65536;
+const GATHER_ROUNDS: u32 = 64;
+const GATHER_TABLE: u64 = 4096;
+
+/// Measures fill, copy (scalar and vec4, several workgroup sizes), scale-add, the two
+/// reductions over `elements` floats and incoherent float4 reads through a storage buffer
+/// and a texel buffer (`gather`, `gather_texel`), `iterations` times each, in one command
+/// buffer.
 pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<BufferBench> {
     let n = elements - elements % 4;
     let iterations = iterations.max(1);
@@ -237,8 +244,25 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     let reductions = (0..iterations)
         .map(|_| Ok((ops.reduction(&a, false)?, ops.reduction(&a, true)?)))
         .collect::<Result<Vec<_>>>()?;
+    // Incoherent float4 reads (glsl/gather.comp): GATHER_THREADS threads, GATHER_ROUNDS
+    // dependent reads each, from a table of GATHER_TABLE float4 at the start of `a` (64 KiB:
+    // cache-resident, as a small scene's BVH and records are), through a storage buffer and
+    // through a texel buffer.
+    let table_len = GATHER_TABLE.min(1u64 << (63 - (n / 4).max(1).leading_zeros()));
+    let gather_push: Vec<u8> = [GATHER_THREADS as u32, table_len as u32, GATHER_ROUNDS]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let gathers = [("gather", "Table"), ("gather_texel", "table_texels")]
+        .iter()
+        .map(|&(kernel, binding)| {
+            let p = ComputePipeline::new(ctx, kernel, &[])?;
+            let g = p.bind(&[(binding, &a), ("Sums", &b)])?;
+            Ok((kernel, p, g))
+        })
+        .collect::<Result<Vec<_>>>()?;
 
-    let mut profiler = Profiler::new(ctx, 20 * iterations + 4)?;
+    let mut profiler = Profiler::new(ctx, 24 * iterations + 4)?;
     let mut cmd = CommandBuffer::new(ctx, "buffer bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
@@ -288,6 +312,12 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
             profiler.begin(rec, "tiny_dispatch")?;
             ops.fill(rec, &tiny, 0.0)?;
             profiler.end(rec)?;
+            for (kernel, p, g) in &gathers {
+                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
+                profiler.begin(rec, kernel)?;
+                rec.dispatch_linear(p, g, &gather_push, GATHER_THREADS)?;
+                profiler.end(rec)?;
+            }
         }
         Ok(())
     })?;
@@ -300,12 +330,13 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     };
     let bytes = |name: &str| match name {
         "fill" | "reduce_sum" | "reduce_sumsq" => 4 * n,
+        "gather" | "gather_texel" => GATHER_THREADS * GATHER_ROUNDS as u64 * 16,
         _ => 8 * n,
     };
     let mut names: Vec<String> = ["copy", "copy_vec4"].iter().map(|s| s.to_string()).collect();
     names.extend(wide_items.iter().map(|k| format!("copy_vec4_x{k}")));
     names.extend(wg_sizes.iter().map(|w| format!("copy_wg{w}")));
-    names.extend(["fill", "scale_add", "reduce_sum", "reduce_sumsq"].iter().map(|s| s.to_string()));
+    names.extend(["fill", "scale_add", "reduce_sum", "reduce_sumsq", "gather", "gather_texel"].iter().map(|s| s.to_string()));
     let gbps = |name: &str| bytes(name) as f64 / (median_of(name) * 1e-3).max(1e-12) / 1e9;
     let copy_gbps = gbps("copy");
     let kernels = names

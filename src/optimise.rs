@@ -172,6 +172,12 @@ pub struct Summary {
     /// Median GPU milliseconds per iteration of each pass.
     pub pass_ms: std::collections::BTreeMap<String, f64>,
     pub nonfinite_gradients: u32,
+    /// Meta only: per optimised parameter, the mean over its elements of the
+    /// meta-estimator's effective number of averaged gradient samples at the last step,
+    /// n_eff = 1/(1 − α). Near 1 the estimator is using little history (its
+    /// finite-difference samples are too noisy to carry the past forward).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meta_n_eff: Option<std::collections::BTreeMap<String, f64>>,
     pub device: String,
 }
 
@@ -422,6 +428,16 @@ pub fn optimise(
         initial_param_error: initial_error,
         pass_ms,
         nonfinite_gradients: opt.nonfinite_count()?,
+        meta_n_eff: opt.meta_n_eff()?.map(|n_eff| {
+            gs.layout
+                .slots
+                .iter()
+                .map(|s| {
+                    let v = &n_eff[s.offset..s.offset + s.len];
+                    (s.name.clone(), v.iter().map(|&x| x as f64).sum::<f64>() / s.len.max(1) as f64)
+                })
+                .collect()
+        }),
         device: ctx.info().name.clone(),
     };
     let text = serde_json::to_string_pretty(&summary).map_err(|e| Error::Invalid(e.to_string()))?;

@@ -100,3 +100,20 @@ fn bvh_layout_bench_on_cornell_is_consistent() {
     assert!(b.primal_image_rel_diff <= 1e-4, "primal images differ by {}", b.primal_image_rel_diff);
     assert!(b.table().contains("wide/binary"));
 }
+
+/// The buffer bench at a small size: every kernel it reports, the gathers through a storage
+/// buffer and a texel buffer among them, has a finite positive time and rate.
+#[test]
+fn buffer_bench_reports_every_kernel() {
+    let b = with_gpu(|ctx| vkinverse::bench::buffer_bench(ctx, 1 << 14, 1).unwrap());
+    let names: Vec<&str> = b.kernels.iter().map(|k| k.name.as_str()).collect();
+    for wanted in ["copy", "copy_vec4", "fill", "scale_add", "reduce_sum", "gather", "gather_texel"] {
+        assert!(names.contains(&wanted), "{wanted} missing from {names:?}");
+    }
+    for k in &b.kernels {
+        finite_positive(&k.name, k.median_ms);
+        finite_positive(&k.name, k.gb_per_s);
+    }
+    let copy = b.kernels.iter().find(|k| k.name == "copy").unwrap();
+    assert!((copy.ratio_to_copy - 1.0).abs() < 1e-12);
+}

@@ -293,6 +293,15 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     assert!((summary["final_param_error"].as_f64().unwrap() - errors[iterations]).abs() < 1e-9);
     assert!((summary["initial_param_error"].as_f64().unwrap() - errors[0]).abs() < 1e-9);
     assert!((summary["settings"]["lr"].as_f64().unwrap() - 0.05).abs() < 1e-6);
+    // The meta-estimator reports how many samples it averages (n_eff = 1/(1 - α), at least
+    // 1 after its first step, at most one more per iteration); Adam has no such state.
+    match optimiser {
+        "meta" => {
+            let n_eff = summary["meta_n_eff"]["materials.red.base_color"].as_f64().expect("meta_n_eff of the red wall");
+            assert!((1.0..=iterations as f64 + 1e-3).contains(&n_eff), "n_eff {n_eff} after {iterations} iterations");
+        }
+        _ => assert!(summary.get("meta_n_eff").is_none(), "{summary}"),
+    }
 
     let params = json(&out_dir.join("params/params.json"));
     let red = params["materials.red.base_color"].as_array().expect("red wall colour in params.json");

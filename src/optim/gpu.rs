@@ -161,6 +161,15 @@ impl GpuOptimiser {
     pub fn nonfinite_count(&self) -> gpu::Result<u32> {
         Ok(self.nonfinite.read::<u32>()?[0])
     }
+
+    /// The meta-estimator's effective number of averaged samples per element,
+    /// n_eff = 1/(1 − α) of its last step (None for Adam): how much history it is using.
+    pub fn meta_n_eff(&self) -> gpu::Result<Option<Vec<f32>>> {
+        match self.state.iter().find(|b| b.name() == "meta n eff") {
+            Some(b) => Ok(Some(b.read()?)),
+            None => Ok(None),
+        }
+    }
 }
 
 /// Runs the GPU optimiser passes on recorded gradient streams (`vkinverse replay`):
