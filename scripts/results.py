@@ -13,7 +13,9 @@ the last fifth of the iterations, where noisy runs wander around their optimum),
 at equal time (at the wall time of the first meta-estimator run, or the job's last point if
 it ran shorter), and the time from which each job stays at or below the goal, 1.1 × the
 settled error of Adam at the largest spp (a run hovers around its own settled error, hence
-the margin), with the goal run's own time divided by it (the speed-up).
+the margin), with the goal run's own time divided by it (the speed-up). For meta-estimator
+runs, the last column is the effective number of gradient samples it averaged at the end,
+n_eff = 1/(1 - alpha), per parameter (summary.json's meta_n_eff).
 
 Noisy runs cross a level by chance long before they stay below it, so errors at a given
 iteration or time and the times to reach the goal are read off each curve smoothed by a
@@ -79,6 +81,15 @@ def error_at(points, time):
     return best
 
 
+def n_eff(job_dir):
+    """The meta-estimator's final n_eff per parameter, as "name n, ..." (short names)."""
+    try:
+        values = json.loads((job_dir / "summary.json").read_text()).get("meta_n_eff") or {}
+    except (OSError, json.JSONDecodeError):
+        return "-"
+    return ", ".join(f"{name.split('.')[-1]} {v:.1f}" for name, v in values.items()) or "-"
+
+
 def main():
     if len(sys.argv) < 2:
         sys.exit("usage: results.py OUTDIR [OUTDIR ...]")
@@ -112,9 +123,9 @@ def main():
             reached = f"reached at {goal_time:.1f} s" if goal_time is not None else "not reached by its smoothed curve"
             print(f"Goal: {GOAL_MARGIN} × the settled error of Adam at {largest['spp']} spp, {goal:.4f}, {reached}.", end="")
         print("\n")
-        print("| run | spp | iterations | ms / iteration | error at iteration %d | final error | settled error | error at %s s | time to goal (s) | speed-up |"
+        print("| run | spp | iterations | ms / iteration | error at iteration %d | final error | settled error | error at %s s | time to goal (s) | speed-up | meta n_eff |"
               % (equal_iterations, f"{equal_time:.0f}" if equal_time else "equal time"))
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             pts = curves[r["label"]]
             spp = f"{r['spp']}+1 FD" if r["optimiser"] == "meta" else str(r["spp"])
@@ -126,7 +137,8 @@ def main():
                 + f"| {raw[r['label']][-1][1]:.4f} | {settled(raw[r['label']]):.4f} | "
                 + (f"{at:.4f}" if at is not None else "-")
                 + " | " + (f"{reach:.1f}" if reach is not None else "not reached")
-                + " | " + (f"{speedup:.1f}×" if speedup else "-") + " |"
+                + " | " + (f"{speedup:.1f}×" if speedup else "-")
+                + " | " + (n_eff(r["dir"]) if r["optimiser"] == "meta" else "-") + " |"
             )
         print()
 

@@ -6,7 +6,7 @@
 mod common;
 
 use bytemuck::{Pod, Zeroable};
-use common::with_gpu;
+use common::{check_layout, with_gpu};
 use glam::DVec3;
 use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
@@ -51,17 +51,6 @@ struct SamplePush {
     seed: u32,
 }
 
-fn check_layout(kernel: &str, name: &str, rust: &[(&str, usize)], size: usize) {
-    let spirv = vkinverse::gpu::shaders::get(kernel).unwrap();
-    let r = vkinverse::gpu::reflect::Reflection::new(kernel, spirv).unwrap();
-    let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected in {kernel}"));
-    assert_eq!(layout.len(), rust.len(), "{name}: member count");
-    for ((gname, goff), (rname, roff)) in layout.iter().zip(rust) {
-        assert_eq!(gname, rname, "{name}: member order");
-        assert_eq!(goff, roff, "{name}.{rname}: offset");
-    }
-    assert_eq!(r.struct_size(name), Some(size), "{name}: size");
-}
 
 #[test]
 fn struct_layouts_match_reflection() {

@@ -586,16 +586,9 @@ fn struct_layouts_match_reflection() {
     let r = reflect("trace_test");
     // Nodes and triangles are read from texel buffers; records_test writes them out as
     // structs (and tests/render.rs checks that it reads back what the host wrote).
-    let records = reflect("records_test");
-    let check_in = |r: &vkinverse::gpu::reflect::Reflection, name: &str, rust: &[(&str, usize)], size: usize| {
-        let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected"));
-        let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
-        assert_eq!(got, rust, "{name}");
-        assert_eq!(r.struct_size(name), Some(size), "{name} size");
-    };
     let check = |name: &str, rust: &[(&str, usize)], size: usize| {
-        let in_records = matches!(name, "BvhNode" | "BvhTriangle");
-        check_in(if in_records { &records } else { &r }, name, rust, size)
+        let kernel = if matches!(name, "BvhNode" | "BvhTriangle") { "records_test" } else { "trace_test" };
+        common::check_layout(kernel, name, rust, size)
     };
     check(
         "BvhNode",
@@ -668,12 +661,10 @@ fn struct_layouts_match_reflection() {
     // The wide build: its node struct, and the same bindings.
     use vkinverse::bvh::BvhWideNode;
     let r = reflect("trace_test_wide");
-    let records_wide = reflect("records_test_wide");
-    let layout = records_wide.struct_layout("BvhWideNode").expect("BvhWideNode not reflected");
-    let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
-    assert_eq!(
-        got,
-        [
+    common::check_layout(
+        "records_test_wide",
+        "BvhWideNode",
+        &[
             ("min_x", offset_of!(BvhWideNode, min_x)),
             ("min_y", offset_of!(BvhWideNode, min_y)),
             ("min_z", offset_of!(BvhWideNode, min_z)),
@@ -682,11 +673,11 @@ fn struct_layouts_match_reflection() {
             ("max_z", offset_of!(BvhWideNode, max_z)),
             ("index", offset_of!(BvhWideNode, index)),
             ("count", offset_of!(BvhWideNode, count)),
-        ]
+        ],
+        size_of::<BvhWideNode>(),
     );
-    assert_eq!(records_wide.struct_size("BvhWideNode"), Some(size_of::<BvhWideNode>()));
     assert_eq!(size_of::<BvhWideNode>(), 128);
-    assert_eq!(records_wide.struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
+    assert_eq!(reflect("records_test_wide").struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
     for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
         let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound in trace_test_wide"));
         assert_eq!(b.binding, binding, "{name}");

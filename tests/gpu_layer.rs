@@ -114,21 +114,14 @@ fn resubmitting_a_recording_repeats_its_work() {
 
 #[test]
 fn struct_layouts_match_reflection() {
-    let spirv = vkinverse::gpu::shaders::get("layout_probe").unwrap();
-    let r = vkinverse::gpu::reflect::Reflection::new("layout_probe", spirv).unwrap();
-    let layout = r.struct_layout("ProbeStruct").expect("ProbeStruct reflected");
+    use vkinverse::shared::ProbeStruct;
     let rust = [
-        ("a", std::mem::offset_of!(vkinverse::shared::ProbeStruct, a)),
-        ("b", std::mem::offset_of!(vkinverse::shared::ProbeStruct, b)),
-        ("c", std::mem::offset_of!(vkinverse::shared::ProbeStruct, c)),
-        ("d", std::mem::offset_of!(vkinverse::shared::ProbeStruct, d)),
+        ("a", std::mem::offset_of!(ProbeStruct, a)),
+        ("b", std::mem::offset_of!(ProbeStruct, b)),
+        ("c", std::mem::offset_of!(ProbeStruct, c)),
+        ("d", std::mem::offset_of!(ProbeStruct, d)),
     ];
-    assert_eq!(layout.len(), rust.len());
-    for ((gname, goff), (rname, roff)) in layout.iter().zip(rust) {
-        assert_eq!(gname, rname);
-        assert_eq!(*goff, roff, "member {rname}");
-    }
-    assert_eq!(r.struct_size("ProbeStruct"), Some(std::mem::size_of::<vkinverse::shared::ProbeStruct>()));
+    common::check_layout("layout_probe", "ProbeStruct", &rust, std::mem::size_of::<ProbeStruct>());
 }
 
 #[test]

@@ -49,6 +49,7 @@
 #ifndef BVH_TRAVERSE_GLSL
 #define BVH_TRAVERSE_GLSL
 #include "lib/common.glsl"
+#include "lib/texels.glsl"
 #include "shared/bvh.glsl"
 
 layout(set = 0, binding = 10) uniform usamplerBuffer BvhNodes;
@@ -84,11 +85,13 @@ BvhNode bvh_node(uint i) {
 
 // Triangle i in leaf order: 3 texels (v0 0-2, e1 3-5, e2 6-8, prim 9).
 BvhTriangle bvh_triangle(uint i) {
-    int b = int(i) * 3;
-    uvec4 t0 = texelFetch(BvhTriangles, b);
-    uvec4 t1 = texelFetch(BvhTriangles, b + 1);
-    uvec4 t2 = texelFetch(BvhTriangles, b + 2);
-    return BvhTriangle(uintBitsToFloat(t0.xyz), uintBitsToFloat(uvec3(t0.w, t1.xy)), uintBitsToFloat(uvec3(t1.zw, t2.x)), t2.y, 0u, 0u);
+    BvhTriangle t;
+    uvec3 rest;
+    texel_vec3x3(BvhTriangles, int(i) * 3, t.v0, t.e1, t.e2, rest);
+    t.prim = rest.x;
+    t.pad0 = 0u;
+    t.pad1 = 0u;
+    return t;
 }
 
 // The float just above 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24: the

@@ -13,6 +13,7 @@
 #define SCENE_ACCESS_GLSL
 #include "shared/scene.glsl"
 #include "shared/material.glsl"
+#include "lib/texels.glsl"
 
 layout(set = 0, binding = 20) uniform usamplerBuffer Materials;
 layout(set = 0, binding = 21) uniform usamplerBuffer Shading;
@@ -39,9 +40,6 @@ layout(set = 0, binding = 32) uniform usamplerBuffer ThetaPrev;
 // Texel-buffer reads
 // ---------------------------------------------------------------------------------------
 
-// Float i of a texel buffer read as an array of floats.
-float texel_float(usamplerBuffer b, int i) { return uintBitsToFloat(texelFetch(b, i >> 2)[i & 3]); }
-
 ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 
 // Material `id` (4 texels: three ValueRefs, then kind).
@@ -63,17 +61,13 @@ MaterialRecord material_record(uint id) {
 // emitter_pdf 20). Fetches of fields a caller does not use are dead code.
 TriShading tri_shading(uint prim) {
     int b = int(prim) * 6;
-    uvec4 t0 = texelFetch(Shading, b);
-    uvec4 t1 = texelFetch(Shading, b + 1);
-    uvec4 t2 = texelFetch(Shading, b + 2);
+    TriShading s;
+    uvec3 ng;
+    texel_vec3x3(Shading, b, s.n0, s.n1, s.n2, ng);
+    s.ng = uintBitsToFloat(ng);
     uvec4 t3 = texelFetch(Shading, b + 3);
     uvec4 t4 = texelFetch(Shading, b + 4);
     uvec4 t5 = texelFetch(Shading, b + 5);
-    TriShading s;
-    s.n0 = uintBitsToFloat(t0.xyz);
-    s.n1 = uintBitsToFloat(uvec3(t0.w, t1.xy));
-    s.n2 = uintBitsToFloat(uvec3(t1.zw, t2.x));
-    s.ng = uintBitsToFloat(t2.yzw);
     s.uv0 = uintBitsToFloat(t3.xy);
     s.uv1 = uintBitsToFloat(t3.zw);
     s.uv2 = uintBitsToFloat(t4.xy);
@@ -91,17 +85,12 @@ MeshRecord mesh_record(uint id) { return MeshRecord(value_ref(texelFetch(Meshes,
 
 // Emissive triangle `i` (3 texels: p0 0-2, e1 3-5, e2 6-8, prim 9, cdf 10, pdf 11).
 EmitterTri emitter_tri(uint i) {
-    int b = int(i) * 3;
-    uvec4 t0 = texelFetch(Emitters, b);
-    uvec4 t1 = texelFetch(Emitters, b + 1);
-    uvec4 t2 = texelFetch(Emitters, b + 2);
     EmitterTri e;
-    e.p0 = uintBitsToFloat(t0.xyz);
-    e.e1 = uintBitsToFloat(uvec3(t0.w, t1.xy));
-    e.e2 = uintBitsToFloat(uvec3(t1.zw, t2.x));
-    e.prim = t2.y;
-    e.cdf = uintBitsToFloat(t2.z);
-    e.pdf = uintBitsToFloat(t2.w);
+    uvec3 rest;
+    texel_vec3x3(Emitters, int(i) * 3, e.p0, e.e1, e.e2, rest);
+    e.prim = rest.x;
+    e.cdf = uintBitsToFloat(rest.y);
+    e.pdf = uintBitsToFloat(rest.z);
     return e;
 }
 
@@ -109,12 +98,16 @@ EmitterTri emitter_tri(uint i) {
 // aspect 13).
 SensorRecord sensor_record(uint i) {
     int b = int(i) * 4;
-    uvec4 t0 = texelFetch(Sensors, b);
-    uvec4 t1 = texelFetch(Sensors, b + 1);
-    uvec4 t2 = texelFetch(Sensors, b + 2);
+    SensorRecord s;
+    uvec3 forward;
+    texel_vec3x3(Sensors, b, s.origin, s.right, s.up, forward);
+    s.forward = uintBitsToFloat(forward);
     uvec4 t3 = texelFetch(Sensors, b + 3);
-    return SensorRecord(uintBitsToFloat(t0.xyz), uintBitsToFloat(uvec3(t0.w, t1.xy)), uintBitsToFloat(uvec3(t1.zw, t2.x)),
-                        uintBitsToFloat(t2.yzw), uintBitsToFloat(t3.x), uintBitsToFloat(t3.y), 0u, 0u);
+    s.tan_half_fov_y = uintBitsToFloat(t3.x);
+    s.aspect = uintBitsToFloat(t3.y);
+    s.pad0 = 0u;
+    s.pad1 = 0u;
+    return s;
 }
 
 // The scene-wide values (2 texels: environment 0-3, environment_scale 4,

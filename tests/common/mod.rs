@@ -30,3 +30,15 @@ pub fn with_gpu<R>(f: impl FnOnce(&Arc<Context>) -> R) -> R {
     assert!(live.is_empty(), "allocations leaked: {live:?}");
     r
 }
+
+/// Asserts that kernel `kernel` declares struct `name` with exactly the members `rust`
+/// (name, byte offset of the Rust mirror's field), in order, and `size` bytes: the host and
+/// GPU layouts agree.
+pub fn check_layout(kernel: &str, name: &str, rust: &[(&str, usize)], size: usize) {
+    let spirv = vkinverse::gpu::shaders::get(kernel).unwrap_or_else(|| panic!("no kernel {kernel}"));
+    let r = vkinverse::gpu::reflect::Reflection::new(kernel, spirv).unwrap();
+    let layout = r.struct_layout(name).unwrap_or_else(|| panic!("{name} not reflected in {kernel}"));
+    let got: Vec<(&str, usize)> = layout.iter().map(|(n, o)| (n.as_str(), *o)).collect();
+    assert_eq!(got, rust, "{name} in {kernel}: members and offsets");
+    assert_eq!(r.struct_size(name), Some(size), "{name} in {kernel}: size");
+}
