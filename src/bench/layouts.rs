@@ -16,7 +16,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
 use crate::optimise::Settings;
 use crate::render::gradient::SEED_PRIMAL;
-use crate::render::{GpuScene, TracePush};
+use crate::render::{record_samples, GpuScene, TracePush};
 use crate::scene::Scene;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -99,7 +99,6 @@ impl Setup {
         b.push(("Accum", &image));
         let primal_group = primal.bind(&b)?;
         let push = (n as u32).to_le_bytes();
-        let pixels = gs.pixels() as u64;
         let sensors = gs.sensors as u32;
         let (mut closest_prof, mut any_prof, mut primal_prof) =
             (Profiler::new(ctx, 1)?, Profiler::new(ctx, 1)?, Profiler::new(ctx, sensors)?);
@@ -126,7 +125,7 @@ impl Setup {
                     weight: 1.0 / st.primal_spp as f32,
                 };
                 primal_prof.scope(rec, "trace_primal", |rec, _| {
-                    rec.dispatch_linear(&primal, &primal_group, bytemuck::bytes_of(&push), pixels)
+                    record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image])
                 })?;
             }
             Ok(())

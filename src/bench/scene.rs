@@ -33,7 +33,7 @@ use crate::optim::Optimiser;
 use crate::optimise::{param_groups, FdSample, Settings};
 use crate::render::gradient::GradientPass;
 use crate::render::targets::{targets, TARGET_SPP};
-use crate::render::{GpuScene, Renderer};
+use crate::render::{record_samples, GpuScene, Renderer};
 use crate::scene::{Loss, Scene};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -276,7 +276,7 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
             ] {
                 // Each sensor's render (and ray count) accumulates onto the previous one's.
                 rec.transition(&[(img, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
-                rec.dispatch_linear(pipe, group, bytemuck::bytes_of(&push), pixels)?;
+                record_samples(rec, gs, pipe, group, push, push.spp, &[img, &counters])?;
             }
         }
         Ok(())
@@ -311,7 +311,7 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
             // The renders accumulate into one image.
             rec.transition(&[(&generic_timed, Access::ComputeReadWrite)])?;
             let push = proportional.primal_push(gs, s);
-            generic_prof.scope(rec, "trace_primal", |rec, _| rec.dispatch_linear(&generic, &generic_group, bytemuck::bytes_of(&push), pixels))?;
+            generic_prof.scope(rec, "trace_primal", |rec, _| record_samples(rec, gs, &generic, &generic_group, push, push.spp, &[&generic_timed]))?;
         }
         Ok(())
     })?;

@@ -6,7 +6,7 @@
 //! loss the gradient is unbiased: E[2 (I − T) ∂I] = 2 (E[I] − T) E[∂I] when I and ∂I are
 //! independent.
 
-use super::{GpuScene, TracePush};
+use super::{record_samples, GpuScene, TracePush};
 use crate::gpu::{self, Access, Buffer, ComputePipeline, MemoryKind, Profiler, Recorder, SpecValue};
 use crate::image::Image;
 use crate::ops::{BufferOps, Reduction};
@@ -15,14 +15,6 @@ use crate::scene::Loss;
 /// Seed offsets of the passes within an iteration: independent streams.
 pub const SEED_PRIMAL: u32 = 0x1000_0000;
 pub const SEED_ADJOINT: u32 = 0x2000_0000;
-
-/// Samples per pixel of one adjoint dispatch; more are split into several dispatches. On
-/// lavapipe (Mesa 22.3) one adjoint dispatch looping over more than ~64 samples per thread
-/// returned gradients that shrank with the sample count (−38 % at 256 spp on the spiral
-/// scene's ribbon colour, against central differences), while the same samples split into
-/// short dispatches agree; tests/gradients.rs keeps spp small, `vkinverse gradcheck` at
-/// high spp exercises the split.
-const SPP_PER_DISPATCH: u32 = 4;
 
 /// Parameters whose gradients the adjoint kernels sum in registers (LOCAL_GRADS_CAPACITY
 /// in glsl/lib/scene_access.glsl).
@@ -240,7 +232,9 @@ impl GradientPass {
             }
             let p = self.primal_push(scene, s as u32);
             begin(rec, &mut profiler, "trace_primal")?;
-            rec.dispatch_linear(&self.primal, &b.primal_group, bytemuck::bytes_of(&p), n as u64)?;
+            // Short dispatches (see render::spp_per_dispatch), each adding to the images.
+            let images: Vec<&Buffer> = states.iter().map(|(rendered, _, _, _)| *rendered).collect();
+            record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp, &images)?;
             end(rec, &mut profiler)?;
             let mut lp = (n as u32).to_le_bytes().to_vec();
             lp.extend_from_slice(&((1.0 / (3.0 * n as f64)) as f32).to_le_bytes());
@@ -260,17 +254,8 @@ impl GradientPass {
                 continue;
             }
             begin(rec, &mut profiler, "trace_adjoint")?;
-            let mut first = 0;
-            while first < self.spp {
-                let chunk = SPP_PER_DISPATCH.min(self.spp - first);
-                let mut p = push(chunk, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
-                p.first_sample = first;
-                if first > 0 {
-                    rec.transition(&[(&self.grad, Access::ComputeReadWrite)])?;
-                }
-                rec.dispatch_linear(&self.adjoint, &b.adjoint_group, bytemuck::bytes_of(&p), n as u64)?;
-                first += chunk;
-            }
+            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
+            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad])?;
             end(rec, &mut profiler)?;
         }
         Ok(())

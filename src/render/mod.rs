@@ -19,7 +19,7 @@ pub mod params;
 pub mod targets;
 
 use crate::bvh::{self, BvhBuffers, BvhLayout};
-use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, SpecValue, TEXEL_BYTES};
+use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
 use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
@@ -380,6 +380,51 @@ pub struct TracePush {
 /// Samples per pixel per submission: keeps each submission short on slow devices.
 pub const SPP_PER_SUBMISSION: u32 = 4;
 
+/// Samples per pixel that one trace dispatch takes at most, for paths of up to
+/// `max_depth` vertices.
+///
+/// lavapipe's shader compiler (gallivm) caps the loop iterations of one shader invocation
+/// (a SIMD batch of 8 threads) at 65535 (`LP_MAX_TGSI_LOOP_ITERATIONS`): one counter,
+/// decremented by every iteration of every loop of the kernel and never reset, and once
+/// it reaches zero every loop exits after its current iteration. A thread that loops over
+/// too many samples therefore returns truncated paths, silently (1024 spp of the Cornell
+/// box in one dispatch lose 61 % of the image: tests/render.rs). A path vertex costs up to
+/// a few hundred iterations on the bundled scenes (the traversal's node and triangle loops,
+/// twice in the adjoint kernels), so every pass splits its samples into dispatches of at
+/// most 16 / max_depth samples (at least 1, at most 4), well inside the cap.
+pub fn spp_per_dispatch(max_depth: u32) -> u32 {
+    (16 / max_depth.max(1)).clamp(1, 4)
+}
+
+/// Records `pipeline` (a trace kernel taking [`TracePush`]) over `spp` samples per pixel
+/// starting at `push.first_sample`, in dispatches of at most
+/// [`spp_per_dispatch`]`(scene.max_depth)` samples, with a barrier between dispatches on
+/// each buffer of `accumulated` (what every dispatch reads and adds to).
+pub fn record_samples(
+    rec: &mut Recorder,
+    scene: &GpuScene,
+    pipeline: &ComputePipeline,
+    group: &BindGroup,
+    push: TracePush,
+    spp: u32,
+    accumulated: &[&Buffer],
+) -> gpu::Result<()> {
+    let step = spp_per_dispatch(scene.max_depth);
+    let mut done = 0;
+    while done < spp {
+        if done > 0 {
+            // The previous dispatch added into these; the next adds to its sums.
+            let ready: Vec<(&Buffer, Access)> = accumulated.iter().map(|b| (*b, Access::ComputeReadWrite)).collect();
+            rec.transition(&ready)?;
+        }
+        let chunk = step.min(spp - done);
+        let p = TracePush { spp: chunk, first_sample: push.first_sample + done, ..push };
+        rec.dispatch_linear(pipeline, group, bytemuck::bytes_of(&p), scene.pixels() as u64)?;
+        done += chunk;
+    }
+    Ok(())
+}
+
 /// Renders images of a [`GpuScene`] with the primal kernel.
 pub struct Renderer {
     pub scene: GpuScene,
@@ -414,7 +459,7 @@ impl Renderer {
                 seed,
                 weight: 1.0 / spp as f32,
             };
-            cmd.record(|rec| rec.dispatch_linear(&self.primal, &group, bytemuck::bytes_of(&push), n as u64))?;
+            cmd.record(|rec| record_samples(rec, &self.scene, &self.primal, &group, push, chunk, &[&accum]))?;
             cmd.submit_and_wait()?;
             done += chunk;
             progress(done, spp);
