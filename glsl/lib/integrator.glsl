@@ -80,11 +80,9 @@ uint cached_shadow;
 // cast from the cache; otherwise cast, and cache the result in the adjoint kernels.
 bool cast_closest(vec3 o, vec3 d, float tmax, uint depth, bool replay, out Hit hit) {
 #ifdef ADJOINT
-    if (depth <= CACHED_BOUNCES) {
-        if (replay) {
-            hit = cached_hits[depth - 1u];
-            return hit.prim != BVH_NO_HIT;
-        }
+    if (replay && depth <= CACHED_BOUNCES) {
+        hit = cached_hits[depth - 1u];
+        return hit.prim != BVH_NO_HIT;
     }
 #endif
 #ifdef COUNT_RAYS
