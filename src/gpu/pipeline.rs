@@ -330,9 +330,10 @@ impl BindGroup {
             dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts))
         }
         .map_err(vk_err("vkAllocateDescriptorSets"))?[0];
-        let mut view_of = Vec::with_capacity(bound.len());
+        // One view slot per binding (null for storage buffers), for the descriptor writes.
+        let mut views: Vec<[vk::BufferView; 1]> = Vec::with_capacity(bound.len());
         for b in &bound {
-            view_of.push(match b.kind {
+            views.push([match b.kind {
                 BindingKind::StorageBuffer => vk::BufferView::null(),
                 BindingKind::TexelBuffer(t) => {
                     let info = vk::BufferViewCreateInfo::default()
@@ -346,13 +347,12 @@ impl BindGroup {
                     group.views.push(view);
                     view
                 }
-            });
+            }]);
         }
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = bound
             .iter()
             .map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: vk::WHOLE_SIZE }])
             .collect();
-        let views: Vec<[vk::BufferView; 1]> = view_of.iter().map(|v| [*v]).collect();
         let writes: Vec<_> = bound
             .iter()
             .zip(infos.iter().zip(&views))
