@@ -42,7 +42,7 @@ enum Command {
     /// Recover the scene's optimised parameters from its target images.
     Optimise {
         scene: std::path::PathBuf,
-        /// meta or adam (default: the scene's `[optimise] optimiser`)
+        /// An optimiser spec, meta or adam[@KEY=VALUE]... (default: the scene's `[optimise] optimiser`)
         #[arg(long)]
         optimiser: Option<String>,
         #[command(flatten)]
@@ -109,7 +109,7 @@ enum Command {
     },
     /// Run the GPU optimiser passes on gradient streams from .npy files.
     Replay {
-        /// meta or adam
+        /// An optimiser spec: meta or adam with optional @KEY=VALUE hyperparameters.
         #[arg(long)]
         optimiser: String,
         #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
@@ -124,6 +124,13 @@ enum Command {
         grads: std::path::PathBuf,
         /// Finite-difference samples, float32 [iterations, n] (meta only).
         fd_grads: Option<std::path::PathBuf>,
+        /// The sums of half of the samples of GRADS and of FD_GRADS, `GH.npy,FH.npy`, each
+        /// [iterations, n] (meta with var=centred only).
+        #[arg(long)]
+        halves: Option<String>,
+        /// Writes each step's optimiser diagnostics to this CSV file.
+        #[arg(long)]
+        diagnostics: Option<std::path::PathBuf>,
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
@@ -374,8 +381,10 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
         }
         Command::Optimise { scene, optimiser, run, checkpoint_every, resume, fd_two_trace, output } => {
             // Flags first: a typo on the command line is reported before the scene is read.
-            let optimiser: Option<vkinverse::optim::Optimiser> =
-                optimiser.as_deref().map(|o| o.parse().map_err(|e| format!("--optimiser {o}: {e}"))).transpose()?;
+            let optimiser: Option<vkinverse::optim::Optimiser> = optimiser
+                .as_deref()
+                .map(|o| o.parse::<vkinverse::optim::spec::Spec>().map(|s| s.optimiser).map_err(|e| format!("--optimiser {o}: {e}")))
+                .transpose()?;
             let overrides = run.overrides(*checkpoint_every)?;
             let scene = vkinverse::scene::Scene::load(scene)?;
             let (scene, mut st) = overrides.apply(&scene, optimiser);
@@ -507,9 +516,10 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 return Err(format!("gradcheck: {failed} of {} elements disagree", rows.len()).into());
             }
         }
-        Command::Replay { optimiser, lr, range, init, grads, fd_grads, output } => {
+        Command::Replay { optimiser, lr, range, init, grads, fd_grads, halves, diagnostics, output } => {
             use vkinverse::{npy, optim};
-            let opt: optim::Optimiser = optimiser.parse().map_err(|e| format!("--optimiser {optimiser}: {e}"))?;
+            let spec: optim::spec::Spec = optimiser.parse().map_err(|e| format!("--optimiser {optimiser}: {e}"))?;
+            let opt = spec.optimiser.resolve(0);
             let range = match range {
                 Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
                 None => optim::Range::UNBOUNDED,
@@ -531,6 +541,21 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 (None, true) => return Err("--optimiser meta needs FD_GRADS.npy (finite-difference samples) after GRADS.npy".into()),
                 (None, false) => None,
             };
+            let read_like = |p: &std::path::Path| -> Result<Vec<Vec<f32>>, Box<dyn std::error::Error>> {
+                let a = npy::read(p)?;
+                if a.shape != g.shape {
+                    return Err(format!("{}: shape {:?} differs from the gradients' {:?}", p.display(), a.shape, g.shape).into());
+                }
+                Ok(a.rows())
+            };
+            let halves = match (halves, opt.needs_halves()) {
+                (Some(list), _) => {
+                    let (a, b) = list.split_once(',').ok_or_else(|| format!("--halves {list}: expected GH.npy,FH.npy"))?;
+                    Some((read_like(a.as_ref())?, read_like(b.as_ref())?))
+                }
+                (None, true) => return Err("--optimiser with var=centred needs --halves GH.npy,FH.npy (half-sample sums)".into()),
+                (None, false) => None,
+            };
             let init = match init {
                 Some(p) => {
                     let a = npy::read(p)?;
@@ -542,8 +567,21 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 None => vec![0.0; n],
             };
             let ctx = context(cli)?;
-            let (trajectory, skipped) = optim::gpu::replay_gpu(&ctx, &opt, &g.rows(), fd.as_deref(), &init, range, *lr)?;
+            let rows = g.rows();
+            let streams = optim::Streams {
+                grads: &rows,
+                fd_grads: fd.as_deref(),
+                grad_halves: halves.as_ref().map(|h| h.0.as_slice()),
+                fd_halves: halves.as_ref().map(|h| h.1.as_slice()),
+            };
+            let replay = optim::gpu::replay_gpu_streams(&ctx, &opt, &streams, &init, range, *lr)?;
+            let (trajectory, skipped) = (replay.theta, replay.nonfinite);
             npy::write_rows(output, &trajectory)?;
+            if let Some(path) = diagnostics {
+                let steps: Vec<Vec<(String, optim::Diagnostics)>> =
+                    replay.diagnostics.iter().map(|d| d.iter().map(|d| ("theta".to_string(), *d)).collect()).collect();
+                optim::csv::write(path, &steps)?;
+            }
             if !cli.quiet {
                 eprintln!("replayed {} iterations of {n} parameters -> {}", g.shape[0], output.display());
             }

@@ -105,6 +105,7 @@ pub fn param_groups(gs: &GpuScene) -> Vec<Group> {
 }
 
 /// The meta-estimator's finite-difference sample.
+#[allow(clippy::large_enum_variant)]
 pub enum FdSample {
     /// One trace evaluates both parameter states (the default).
     Fused(GradientPass),
@@ -123,12 +124,16 @@ impl FdSample {
         settings: &Settings,
         theta_prev: &Buffer,
         fd_grad: &Buffer,
+        fd_half: Option<&Buffer>,
     ) -> Result<Self> {
         theta_prev.write(&padded(gs, gs.layout.initial()))?;
         let seed = settings.seed.wrapping_add(SEED_FD);
         let spp = settings.fd_spp;
         if !settings.fd_two_trace {
-            return Ok(FdSample::Fused(GradientPass::new_fd(gs, ops, targets, loss, spp, seed, theta_prev, fd_grad)?));
+            return Ok(FdSample::Fused(GradientPass::new_fd_split(gs, ops, targets, loss, spp, seed, theta_prev, fd_grad, fd_half)?));
+        }
+        if fd_half.is_some() {
+            return Err(Error::Invalid("the centred variance estimate (var=centred) needs the fused finite difference, not fd_two_trace".into()));
         }
         let n = gs.layout.len.max(1);
         let at_cur = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta", n, MemoryKind::Device)?;
@@ -284,15 +289,28 @@ pub fn optimise(
     let loss: crate::scene::Loss = settings.loss.parse().map_err(|_| Error::Invalid(format!("unknown loss '{}'", settings.loss)))?;
 
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
-    let proportional = GradientPass::new(gs, &ops, &target_images, loss, settings.spp, settings.primal_spp, settings.seed, &gs.theta, &grad)?;
     let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
     let groups = param_groups(gs);
-    let opt = GpuOptimiser::new(ctx, &ops, &settings.optimiser, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
+    let optimiser = settings.optimiser.resolve(settings.iterations);
+    let opt = GpuOptimiser::new(ctx, &ops, &optimiser, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
+    let halves = opt.halves.as_ref();
+    let proportional = GradientPass::new_split(
+        gs,
+        &ops,
+        &target_images,
+        loss,
+        settings.spp,
+        settings.primal_spp,
+        settings.seed,
+        &gs.theta,
+        &grad,
+        halves.map(|h| &h.grad),
+    )?;
     // Finite differences (meta): the gradient at θ_i minus the gradient at θ_{i−1} with
     // common random numbers, from the fused single trace, or (fd_two_trace) from two
     // gradient estimates with the same seeds, one per state.
     let fd = match &opt.theta_prev {
-        Some(prev) => Some(FdSample::new(gs, &ops, &target_images, loss, settings, prev, &fd_grad)?),
+        Some(prev) => Some(FdSample::new(gs, &ops, &target_images, loss, settings, prev, &fd_grad, halves.map(|h| &h.fd_grad))?),
         None => None,
     };
 
@@ -327,6 +345,9 @@ pub fn optimise(
     let mut gpu_total = 0.0;
     let log_path = out_dir.join("log.csv");
     let mut log = String::new();
+    // Per step and parameter group: the optimiser's diagnostics (optimiser.csv).
+    let diag_path = out_dir.join("optimiser.csv");
+    let mut diag_log = crate::optim::csv::header();
     let has_reference = scene.sensors.iter().all(|s| s.target_image.is_none());
     if resume {
         let meta = load_checkpoint(out_dir, &gs.theta, &opt, settings.optimiser.name())?;
@@ -338,6 +359,13 @@ pub fn optimise(
         for line in old.lines().take(first as usize + 2) {
             log.push_str(line);
             log.push('\n');
+        }
+        if let Ok(old) = std::fs::read_to_string(&diag_path) {
+            let rows = old.lines().skip(1).filter(|l| l.split(',').next().and_then(|i| i.parse::<u32>().ok()).is_some_and(|i| i <= first));
+            for line in rows {
+                diag_log.push_str(line);
+                diag_log.push('\n');
+            }
         }
     } else {
         let _ = std::fs::remove_dir_all(out_dir.join("checkpoint"));
@@ -396,9 +424,13 @@ pub fn optimise(
             let _ = write!(log, ",{}", if has_reference { p.to_string() } else { String::new() });
         }
         log.push('\n');
+        for (d, slot) in opt.diagnostics(it)?.iter().zip(&gs.layout.slots) {
+            crate::optim::csv::push_row(&mut diag_log, it, &slot.name, d);
+        }
         progress(&Progress { iteration: it, time_s, loss: last_loss, param_error: last_error });
         if settings.checkpoint_every > 0 && it % settings.checkpoint_every == 0 {
             image::write_bytes_atomic(&log_path, log.as_bytes()).map_err(io_err(&log_path))?;
+            image::write_bytes_atomic(&diag_path, diag_log.as_bytes()).map_err(io_err(&diag_path))?;
             let meta = CheckpointMeta { iteration: it, time_s, gpu_time_s: gpu_total, optimiser: settings.optimiser.name().into() };
             save_checkpoint(out_dir, &gs.theta, &opt, &meta)?;
         }
@@ -406,6 +438,7 @@ pub fn optimise(
     }
     let total_time_s = timed(untimed);
     image::write_bytes_atomic(&log_path, log.as_bytes()).map_err(io_err(&log_path))?;
+    image::write_bytes_atomic(&diag_path, diag_log.as_bytes()).map_err(io_err(&diag_path))?;
     let meta = CheckpointMeta { iteration: it, time_s: total_time_s, gpu_time_s: gpu_total, optimiser: settings.optimiser.name().into() };
     save_checkpoint(out_dir, &gs.theta, &opt, &meta)?;
 

@@ -233,8 +233,8 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     let meta = GpuOptimiser::new(ctx, &ops, &meta_kind, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
     let adam = GpuOptimiser::new(ctx, &ops, &adam_kind, &gs.theta, &grad, None, &gs.frame, &groups)?;
     let theta_prev = meta.theta_prev.as_ref().ok_or_else(|| Error::Invalid("the meta optimiser has no previous θ".into()))?;
-    let fd = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: false, ..st.clone() }, theta_prev, &fd_grad)?;
-    let fd_two = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: true, ..st.clone() }, theta_prev, &fd_grad)?;
+    let fd = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: false, ..st.clone() }, theta_prev, &fd_grad, None)?;
+    let fd_two = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: true, ..st.clone() }, theta_prev, &fd_grad, None)?;
     let live = ctx.live_allocations();
     let memory_bytes = live.iter().map(|(_, size)| size).sum();
     let memory_allocations = live.len();

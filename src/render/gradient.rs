@@ -48,6 +48,9 @@ pub struct GradientPass {
     sensors: Vec<SensorBuffers>,
     /// dLoss/dθ, accumulated with atomics.
     pub grad: Buffer,
+    /// The part of `grad` from half of the samples (see [`Self::new_split`]), or an unused
+    /// one-float buffer.
+    grad_half: Buffer,
     pub spp: u32,
     pub primal_spp: u32,
     pub seed: u32,
@@ -86,7 +89,27 @@ impl GradientPass {
         theta: &Buffer,
         grad: &Buffer,
     ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad)
+        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, None)
+    }
+
+    /// [`Self::new`] adding the contributions of half of its samples also into `grad_half`
+    /// when given: with two or more samples per pixel alternate samples of each pixel, with
+    /// one a random half of the pixels per iteration. The two halves are independent
+    /// estimates, whose difference gives the optimiser's centred variance estimate.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new_split(
+        scene: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: Loss,
+        spp: u32,
+        primal_spp: u32,
+        seed: u32,
+        theta: &Buffer,
+        grad: &Buffer,
+        grad_half: Option<&Buffer>,
+    ) -> gpu::Result<Self> {
+        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, grad_half)
     }
 
     /// The fused finite-difference sample ⟨ΔF⟩: every path is sampled once at θ (the
@@ -104,7 +127,23 @@ impl GradientPass {
         theta_prev: &Buffer,
         grad: &Buffer,
     ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad)
+        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad, None)
+    }
+
+    /// [`Self::new_fd`] with an optional half-sample buffer (see [`Self::new_split`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new_fd_split(
+        scene: &GpuScene,
+        ops: &BufferOps,
+        targets: &[Image],
+        loss: Loss,
+        spp: u32,
+        seed: u32,
+        theta_prev: &Buffer,
+        grad: &Buffer,
+        grad_half: Option<&Buffer>,
+    ) -> gpu::Result<Self> {
+        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad, grad_half)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -119,6 +158,7 @@ impl GradientPass {
         theta: &Buffer,
         theta_prev: Option<&Buffer>,
         grad: &Buffer,
+        grad_half: Option<&Buffer>,
     ) -> gpu::Result<Self> {
         let ctx = &scene.ctx;
         let spec = scene.spec();
@@ -129,6 +169,11 @@ impl GradientPass {
         let mut adjoint_spec = spec.clone();
         let local = if (1..=LOCAL_GRADS_CAPACITY).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
+        adjoint_spec.push(("SPLIT", SpecValue::Bool(grad_half.is_some())));
+        let grad_half = match grad_half {
+            Some(b) => b.clone(),
+            None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,
+        };
         let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
@@ -162,6 +207,7 @@ impl GradientPass {
             let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
             b.push(("Grad", &grad));
+            b.push(("GradHalf", &grad_half));
             if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
                 b.push(("ThetaPrev", tp));
                 b.push(("AdjointImagePrev", &pb.adjoint));
@@ -179,7 +225,7 @@ impl GradientPass {
                 prev,
             });
         }
-        Ok(Self { primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
+        Ok(Self { primal, adjoint, loss, sensors, grad, grad_half, spp, primal_spp, seed })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -247,7 +293,7 @@ impl GradientPass {
                 rec.transition(&[(adjoint, Access::ComputeRead)])?;
             }
             // The loss partials (of θ, the reported loss) are reduced.
-            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite)])?;
+            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (&self.grad_half, Access::ComputeReadWrite)])?;
             ops.record_reduction(rec, &b.reduction)?;
             end(rec, &mut profiler)?;
             if !adjoint {
@@ -255,7 +301,7 @@ impl GradientPass {
             }
             begin(rec, &mut profiler, "trace_adjoint")?;
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
-            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad])?;
+            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
             end(rec, &mut profiler)?;
         }
         Ok(())
