@@ -5,7 +5,8 @@
 // records theta_prev <- theta and clears the gradient buffers for the next iteration's
 // accumulation. Each workgroup writes the diagnostics record of its elements to
 // partials[first_partial + workgroup]; optim_diag merges them into diag[group], whose sum
-// of squared steps is the |dpi|^2 this pass reads at the next iteration. Non-finite inputs
+// of squared steps is the |dpi|^2 this pass reads at the next iteration (or the sum over
+// all groups' slots, global_dpi). Non-finite inputs
 // leave the element unchanged (step 0) and are counted in `nonfinite` (never reset here).
 
 layout(local_size_x = 256) in;
@@ -50,6 +51,8 @@ layout(push_constant, scalar) uniform Push {
     float grow_f;
     uint step_rule;
     uint centred;
+    uint groups;      // number of parameter groups (slots of diag)
+    uint global_dpi;  // nonzero: |dpi|^2 of all groups' steps, else of this group's
     uint sched_decay;
     uint sched_warmup;
     uint sched_horizon;
@@ -78,8 +81,13 @@ void main() {
         // theta_prev is the previous iterate for the next finite-difference pass, so it is
         // written for skipped elements too (their step is 0).
         theta_prev[i] = th;
+        Ssq dpi = diag[pc.group].step;
+        if (pc.global_dpi != 0u) {
+            dpi = Ssq(0.0, 0.0);
+            for (uint g = 0u; g < pc.groups; ++g) dpi = ssq_merge(dpi, diag[g].step);
+        }
         ElemDiag d;
-        if (meta_update(p, th, x, ssq_total(diag[pc.group].step), s, d)) {
+        if (meta_update(p, th, x, ssq_total(dpi), s, d)) {
             theta[i] = th;
             meta_mean[i] = s.mean;
             meta_sd[i] = s.sd;

@@ -73,15 +73,13 @@ void main() {
     vec3 sum[NSTATES];
     for (int k = 0; k < NSTATES; ++k) sum[k] = vec3(0.0);
 #ifdef ADJOINT
-    // SPLIT (lib/scene_access.glsl): sample k of this pixel is in the second half when
-    // k + half_bit is odd, half_bit a hash of (pixel, seed, iteration): with two samples per
-    // pixel each half has one of each pixel's, with one sample a random half of the pixels.
-    uint half_bit = pcg4d(uvec4(i, pc.seed, frame_iteration, 0x4841u)).x & 1u;
+    // SPLIT (lib/scene_access.glsl): a random half of the pixels, drawn per iteration from a
+    // hash of (pixel, seed, iteration). Whole pixels, not samples: a pixel's adjoint weight
+    // comes from its primal image, which all of its samples share, so only halves of the
+    // pixels are independent estimates.
+    grad_in_half = (pcg4d(uvec4(i, pc.seed, frame_iteration, 0x4841u)).x & 1u) == 1u;
 #endif
     for (uint k = 0u; k < pc.spp; ++k) {
-#ifdef ADJOINT
-        grad_in_half = ((pc.first_sample + k + half_bit) & 1u) == 1u;
-#endif
         // 0x9E3779B9: the golden-ratio increment spreads iterations over the seed space.
         Rng rng = rng_init(i, pc.first_sample + k, pc.seed + frame_iteration * 0x9E3779B9u);
         vec3 o, d;

@@ -4,8 +4,8 @@ mod common;
 
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
-use vkinverse::optim::reference::{BufferOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, MetaHyper, Optimiser, Range, Schedule, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
+use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, MetaHyper, Optimiser, Range, Schedule, StepNorm, StepRule, Streams, VarianceEstimate};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -17,7 +17,7 @@ fn variants() -> Vec<Optimiser> {
             ..Default::default()
         }),
     ];
-    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded] {
+    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener] {
         for variance in [VarianceEstimate::Zero, VarianceEstimate::Centred] {
             v.push(Optimiser::Meta(MetaHyper { step, variance, ..MetaHyper::seed() }));
         }
@@ -122,9 +122,10 @@ fn gpu_trajectories_match_the_f64_reference() {
 
 #[test]
 fn parameter_groups_step_independently() {
-    // Three groups of one buffer with their own rates and ranges, one of 600 elements
-    // (several workgroups, a partial last one) and one empty: each must follow a CPU
-    // optimiser of its own, and report its own diagnostics.
+    // Four groups of one buffer with their own rates and ranges, one of 600 elements
+    // (several workgroups, a partial last one) and one empty: each must follow the CPU
+    // reference's group, report its own diagnostics, and with the global step norm read
+    // every group's ‖Δπ‖².
     with_gpu(|ctx| {
         let groups = [
             Group { offset: 0, len: 5, lr: 0.02, range: Range::new(0.0, 1.0).unwrap() },
@@ -137,27 +138,33 @@ fn parameter_groups_step_independently() {
         let (gh, fh) = (halves_of(&g, 700), halves_of(&fd, 800));
         let streams = Streams { grads: &g, fd_grads: Some(&fd), grad_halves: Some(&gh), fd_halves: Some(&fh) };
         let init = vec![0.5f32; n];
-        for opt in [variants()[0], variants()[5], variants()[8]] {
+        let global = Optimiser::Meta(MetaHyper { step: StepRule::Adam, variance: VarianceEstimate::Centred, dpi: StepNorm::Global, ..MetaHyper::seed() });
+        for opt in [variants()[0], variants()[5], variants()[9], *variants().last().unwrap(), global] {
             let gpu = replay_gpu_groups(ctx, &opt, &streams, &init, &groups).unwrap();
-            for (k, grp) in groups.iter().enumerate() {
-                let r = grp.offset..grp.offset + grp.len;
-                let mut cpu = BufferOptimiser::<f64>::new(&opt, grp.len, grp.lr, grp.range).unwrap();
-                let mut theta: Vec<f64> = init[r.clone()].iter().map(|&x| x as f64).collect();
-                let rows = |s: &[Vec<f32>], i: usize| s[i][r.clone()].iter().map(|&x| x as f64).collect::<Vec<f64>>();
-                for i in 0..g.len() {
-                    let (a, b, c, d) = (rows(&g, i), rows(&fd, i), rows(&gh, i), rows(&fh, i));
-                    cpu.step_with(&mut theta, StepInput { grad: &a, fd: Some(&b), grad_half: Some(&c), fd_half: Some(&d) }).unwrap();
-                    let got = &gpu.theta[i + 1][r.clone()];
-                    for (x, y) in got.iter().zip(&theta) {
-                        assert!((*x as f64 - y).abs() < 1e-5, "{opt:?} group {k} step {i}: {x} vs {y}");
-                    }
-                    let (dg, dc) = (gpu.diagnostics[i][k], cpu.diagnostics());
-                    assert_eq!(dg.elements, grp.len as u64, "{opt:?} group {k}");
+            let spec: Vec<_> = groups.iter().map(|g| (g.offset, g.len, g.lr, g.range)).collect();
+            let mut cpu = GroupedOptimiser::<f64>::new(&opt, &spec).unwrap();
+            let mut theta: Vec<f64> = init.iter().map(|&x| x as f64).collect();
+            let row = |s: &[Vec<f32>], i: usize| s[i].iter().map(|&x| x as f64).collect::<Vec<f64>>();
+            for i in 0..g.len() {
+                let (a, b, c, d) = (row(&g, i), row(&fd, i), row(&gh, i), row(&fh, i));
+                cpu.step_with(&mut theta, StepInput { grad: &a, fd: Some(&b), grad_half: Some(&c), fd_half: Some(&d) }).unwrap();
+                for (k, (x, y)) in gpu.theta[i + 1].iter().zip(&theta).enumerate() {
+                    assert!((*x as f64 - y).abs() < 1e-5, "{opt:?} step {i} element {k}: {x} vs {y}");
+                }
+                for (k, (dg, dc)) in gpu.diagnostics[i].iter().zip(cpu.diagnostics()).enumerate() {
+                    assert_eq!(dg.elements, groups[k].len as u64, "{opt:?} group {k}");
                     assert!(close(dg.rms_f, dc.rms_f, 1e-4, 1e-9) && close(dg.n_eff_mean, dc.n_eff_mean, 1e-4, 0.0), "{opt:?} group {k}: {dg:?} vs {dc:?}");
                     assert!(close(dg.lr, dc.lr, 1e-6, 0.0));
                 }
             }
         }
+        // The global norm changes the trajectory (the groups' steps differ in size).
+        let group_norm = Optimiser::Meta(MetaHyper { dpi: StepNorm::Group, ..match global { Optimiser::Meta(h) => h, _ => unreachable!() } });
+        let (a, b) = (
+            replay_gpu_groups(ctx, &global, &streams, &init, &groups).unwrap(),
+            replay_gpu_groups(ctx, &group_norm, &streams, &init, &groups).unwrap(),
+        );
+        assert_ne!(a.theta.last(), b.theta.last());
     });
 }
 
@@ -243,10 +250,10 @@ fn mean_var(xs: &[f64]) -> (f64, f64) {
 
 #[test]
 fn half_sample_sums_estimate_the_gradient_variance() {
-    // The gradient passes that also sum half of their samples (the centred variance
-    // estimate): the full sum is unchanged, and (F − 2·half)² is a sample of Var[F] — exactly
-    // so with two samples per pixel (one of each pixel's in each half), an over-estimate by
-    // the per-pixel squared means with one (random halves of the pixels).
+    // The gradient passes that also sum a random half of their pixels (the centred variance
+    // estimate): the full sum is unchanged, and (F − 2·half)² is a sample of Var[F] plus the
+    // per-pixel squared means (small against the variance for a parameter seen by many
+    // pixels), whatever the samples per pixel.
     use vkinverse::ops::BufferOps;
     use vkinverse::render::gradient::GradientPass;
     use vkinverse::render::{GpuScene, Renderer};
@@ -259,29 +266,40 @@ fn half_sample_sums_estimate_the_gradient_variance() {
         let ops = BufferOps::new(ctx).unwrap();
         let n = gs.layout.len;
         let zeros = |name: &str| vkinverse::gpu::Buffer::zeroed::<f32>(ctx, name, n, vkinverse::gpu::MemoryKind::Device).unwrap();
-        for spp in [2u32, 1] {
+        for (spp, rounds) in [(2u32, 48u32), (1, 256)] {
             let (grad, half, plain) = (zeros("grad"), zeros("half"), zeros("plain"));
             let split = GradientPass::new_split(gs, &ops, &[target.clone()], Loss::L2, spp, 4, 3, &gs.theta, &grad, Some(&half)).unwrap();
             let unsplit = GradientPass::new(gs, &ops, &[target.clone()], Loss::L2, spp, 4, 3, &gs.theta, &plain).unwrap();
+            use vkinverse::gpu::Access;
             let mut cmd = vkinverse::gpu::CommandBuffer::new(ctx, "halves").unwrap();
             cmd.record(|rec| {
-                use vkinverse::gpu::Access;
-                rec.transition(&[(&grad, Access::TransferWrite), (&half, Access::TransferWrite), (&plain, Access::TransferWrite)])?;
+                rec.transition(&[(&grad, Access::TransferWrite), (&half, Access::TransferWrite)])?;
                 rec.zero(&grad)?;
                 rec.zero(&half)?;
-                rec.zero(&plain)?;
-                split.record(rec, gs, &ops)?;
-                unsplit.record(rec, gs, &ops)
+                split.record(rec, gs, &ops)
             })
             .unwrap();
-            let rounds = 96;
+            let mut cmd_plain = vkinverse::gpu::CommandBuffer::new(ctx, "plain").unwrap();
+            cmd_plain
+                .record(|rec| {
+                    rec.transition(&[(&plain, Access::TransferWrite)])?;
+                    rec.zero(&plain)?;
+                    unsplit.record(rec, gs, &ops)
+                })
+                .unwrap();
             let (mut f, mut d) = (vec![Vec::new(); n], vec![Vec::new(); n]);
             for r in 0..rounds {
                 gs.set_frame(r).unwrap();
                 cmd.submit_and_wait().unwrap();
-                let (g, h, p): (Vec<f32>, Vec<f32>, Vec<f32>) = (grad.read().unwrap(), half.read().unwrap(), plain.read().unwrap());
+                let (g, h): (Vec<f32>, Vec<f32>) = (grad.read().unwrap(), half.read().unwrap());
+                if r < 3 {
+                    cmd_plain.submit_and_wait().unwrap();
+                    let p: Vec<f32> = plain.read().unwrap();
+                    for k in 0..n {
+                        assert!((g[k] - p[k]).abs() <= 1e-5 * p[k].abs() + 1e-12, "spp {spp} round {r}: {} vs {}", g[k], p[k]);
+                    }
+                }
                 for k in 0..n {
-                    assert!((g[k] - p[k]).abs() <= 1e-5 * p[k].abs() + 1e-12, "spp {spp} round {r}: {} vs {}", g[k], p[k]);
                     f[k].push(g[k] as f64);
                     d[k].push(g[k] as f64 - 2.0 * h[k] as f64);
                 }
@@ -292,11 +310,12 @@ fn half_sample_sums_estimate_the_gradient_variance() {
                 let d2 = d[k].iter().map(|x| x * x).sum::<f64>() / rounds as f64;
                 // The halves have equal expectations: the difference has mean 0.
                 assert!(dm.abs() < 4.0 * (dv / rounds as f64).sqrt(), "spp {spp} element {k}: mean {dm}, sd {}", dv.sqrt());
-                // E[(F − 2h)²] = Var[F] (spp 2) or a little more (spp 1); the sampling error of
-                // a variance over 96 rounds is ~15 %.
+                // E[(F − 2h)²] is Var[F] or a little more; the sampling error of the ratio of two
+                // variances over 256 rounds is ~13 % (over 48, ~30 %: a looser check). Halves
+                // of the samples, which share their pixels' primal noise, give about 0.7 here.
                 let ratio = d2 / fv;
-                let (lo, hi) = if spp == 2 { (0.6, 1.6) } else { (0.6, 2.5) };
-                assert!(ratio > lo && ratio < hi, "spp {spp} element {k}: E[d²] {d2} vs Var[F] {fv} (mean {fm})");
+                let lo = if rounds >= 256 { 0.8 } else { 0.5 };
+                assert!(ratio > lo && ratio < 2.0, "spp {spp} element {k}: E[d²] {d2} vs Var[F] {fv} (mean {fm})");
             }
         }
     });

@@ -43,6 +43,7 @@ const float PI = 3.14159265358979;
 const uint STEP_SNR = 0u;
 const uint STEP_ADAM = 1u;
 const uint STEP_BOUNDED = 2u;
+const uint STEP_WIENER = 3u;
 // Decay::code, src/optim/schedule.rs.
 const uint SCHEDULE_CONSTANT = 0u;
 const uint SCHEDULE_COSINE = 1u;
@@ -298,6 +299,8 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float ratio;
     if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
     else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd) + p.eps);
+    else if (p.step_rule == STEP_WIENER)
+        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd);
     else ratio = mean / (sd + p.eps);
     float step = sat(-p.lr * ratio);
     float next = min(max(sat(theta + step), p.lo), p.hi);

@@ -123,9 +123,9 @@ float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) *
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
-// SPLIT: the contributions of half of the samples are also summed into grad_half, so that
+// SPLIT: the contributions of half of the pixels are also summed into grad_half, so that
 // the optimiser can estimate the gradient's variance from two independent halves
-// (the centred variance estimate, src/optim/mod.rs). The kernel sets grad_in_half per sample.
+// (the centred variance estimate, src/optim/mod.rs). The kernel sets grad_in_half per pixel.
 layout(set = 0, binding = 33, scalar) buffer GradHalf { float grad_half[]; };
 layout(constant_id = 6) const bool SPLIT = false;
 bool grad_in_half = false;

@@ -171,7 +171,7 @@ impl GpuOptimiser {
                         ("NonFinite", &nonfinite),
                         ("Frame", frame),
                     ])?;
-                    let push = MetaPush::new(h, s.0, g.lr, g.range);
+                    let push = MetaPush::new(h, s.0, groups.len() as u32, g.lr, g.range);
                     passes.push(Pass { group, push: bytemuck::bytes_of(&push).to_vec(), n: g.len as u64, diag_push: diag_push(*s) });
                 }
                 (pipeline, Some(theta_prev), halves)

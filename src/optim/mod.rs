@@ -66,7 +66,7 @@ pub mod spec;
 #[cfg(test)]
 mod tests;
 
-pub use reference::{AdamElem, BufferOptimiser, Diagnostics, MetaElem, Real};
+pub use reference::{AdamElem, BufferOptimiser, Diagnostics, GroupedOptimiser, MetaElem, Real};
 pub use replay::{replay_cpu, replay_cpu_f32, Replay, Streams};
 pub use schedule::{Decay, Schedule};
 
@@ -181,6 +181,13 @@ pub enum StepRule {
     Adam,
     /// −lr·⟨F⟩_M/(√(⟨F⟩_M² + V_M) + ε): the seed's rule for a noisy estimate, at most lr.
     Bounded,
+    /// Adam's normalisation of the estimate shrunk by its own significance:
+    /// −lr·⟨F⟩_M/(√v̂ + ε)·⟨F⟩_M²/(⟨F⟩_M² + V_M), the Wiener gain of the estimate. Where the
+    /// estimate is far larger than its noise this is `adam`; where it is mostly noise (near
+    /// the optimum) the step shrinks, so the iterate stops wandering on the estimate's noise,
+    /// the steps and with them the finite-difference variance fall, and the estimate
+    /// averages more.
+    Wiener,
 }
 
 impl StepRule {
@@ -190,6 +197,7 @@ impl StepRule {
             StepRule::Snr => 0,
             StepRule::Adam => 1,
             StepRule::Bounded => 2,
+            StepRule::Wiener => 3,
         }
     }
 }
@@ -202,10 +210,10 @@ pub enum VarianceEstimate {
     /// E[⟨ΔF⟩²] the squared expected change H·Δπ.
     #[default]
     Zero,
-    /// Centred: each pass sums half of its samples into a second buffer, and the two
-    /// independent halves A, B of an estimate give (A − B)²/4, an unbiased sample of its
-    /// variance (for one sample per pixel the halves are random halves of the pixels, which
-    /// adds only the per-pixel squared means). No extra samples.
+    /// Centred: each gradient pass also sums a random half of its pixels into a second
+    /// buffer, and the two independent halves A, B of an estimate give (A − B)²/4, a sample
+    /// of its variance that counts the per-pixel squared means (which vanish at the
+    /// optimum) instead of the squared total mean. No extra samples.
     Centred,
 }
 
@@ -216,6 +224,20 @@ impl VarianceEstimate {
             VarianceEstimate::Centred => 1,
         }
     }
+}
+
+/// Which step length normalises the finite-difference samples' variance (‖Δπ‖ of
+/// supplementary B: Var[⟨ΔF⟩] ≈ Moment2(⟨ΔF⟩/‖Δπ‖)·‖Δπ‖²).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StepNorm {
+    /// The parameter group's own step.
+    #[default]
+    Group,
+    /// The step of all groups together: the paths of a finite-difference sample are
+    /// reweighted for every parameter that changes how they are sampled (roughness,
+    /// metallic), so every group's ⟨ΔF⟩ varies with every group's step.
+    Global,
 }
 
 /// Meta-estimator hyperparameters. `decay_f`, `decay_d` are the decays of the two Moment2
@@ -233,6 +255,8 @@ pub struct MetaHyper {
     pub beta2: f64,
     pub variance: VarianceEstimate,
     pub grow_f: f64,
+    /// The step length the ⟨ΔF⟩ variance scales with.
+    pub dpi: StepNorm,
     pub schedule: Schedule,
 }
 
@@ -248,6 +272,7 @@ impl MetaHyper {
             beta2: 0.999,
             variance: VarianceEstimate::Zero,
             grow_f: 0.0,
+            dpi: StepNorm::Group,
             schedule: Schedule::default(),
         }
     }
@@ -263,6 +288,7 @@ impl Default for MetaHyper {
             beta2: 0.999,
             variance: VarianceEstimate::Zero,
             grow_f: 0.0,
+            dpi: StepNorm::Group,
             schedule: Schedule::default(),
         }
     }

@@ -2,7 +2,7 @@
 //! `glsl/optim_diag.comp` (scalar layout, 4-byte members). Field names and order are those of
 //! the GLSL `Push` blocks; a test checks the offsets against the reflected SPIR-V.
 
-use super::{AdamHyper, MetaHyper, Range, Schedule, VarianceEstimate};
+use super::{AdamHyper, MetaHyper, Range, Schedule, StepNorm, VarianceEstimate};
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
 
@@ -84,7 +84,7 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block: 80 bytes. The step number comes from the `Frame`
+/// `optim_meta.comp`'s `Push` block: 88 bytes. The step number comes from the `Frame`
 /// buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -103,11 +103,14 @@ pub struct MetaPush {
     pub grow_f: f32,
     pub step_rule: u32,
     pub centred: u32,
+    /// Number of groups; with `global_dpi` the pass reads all their steps.
+    pub groups: u32,
+    pub global_dpi: u32,
     pub schedule: SchedulePush,
 }
 
 impl MetaPush {
-    pub fn new(h: &MetaHyper, g: GroupSlots, lr: f64, range: Range) -> Self {
+    pub fn new(h: &MetaHyper, g: GroupSlots, groups: u32, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
         MetaPush {
             n: g.n,
@@ -124,6 +127,8 @@ impl MetaPush {
             grow_f: h.grow_f as f32,
             step_rule: h.step.code(),
             centred: u32::from(h.variance == VarianceEstimate::Centred),
+            groups,
+            global_dpi: u32::from(h.dpi == StepNorm::Global),
             schedule: (&h.schedule).into(),
         }
     }

@@ -538,6 +538,8 @@ pub fn meta_update<R: Real>(
         StepRule::Snr => mean / (sd + p.eps),
         StepRule::Adam => mean / (v + p.eps),
         StepRule::Bounded => mean / (hypot(mean, sd) + p.eps),
+        StepRule::Wiener if mean == R::ZERO => R::ZERO,
+        StepRule::Wiener => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
     };
     let step = sat(-p.lr * ratio);
     let next = sat(theta + step).max(p.lo).min(p.hi);
@@ -610,6 +612,13 @@ impl<R: Real> BufferOptimiser<R> {
 
     /// [`Self::step`] with every input, the half-sample sums included.
     pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
+        self.step_at(theta, input, None)
+    }
+
+    /// [`Self::step_with`] with the ‖Δπ‖² of the previous step given (the global norm of a
+    /// [`GroupedOptimiser`]) instead of the buffer's own.
+    fn step_at(&mut self, theta: &mut [R], input: StepInput<R>, dpi2: Option<R>) -> Result<u64, OptimError> {
+        let dpi2_prev = dpi2.unwrap_or(self.dpi2);
         let n = self.len();
         check_len("theta", n, theta.len())?;
         check_len("gradient", n, input.grad.len())?;
@@ -647,7 +656,7 @@ impl<R: Real> BufferOptimiser<R> {
                 for (i, (th, s)) in theta.iter_mut().zip(state.iter_mut()).enumerate() {
                     let (f_half, df_half) = halves.map_or((R::ZERO, R::ZERO), |(gh, fh)| (gh[i], fh[i]));
                     let x = MetaInput { f: input.grad[i], df: fd[i], f_half, df_half };
-                    match meta_update(&p, *th, x, self.dpi2, *s) {
+                    match meta_update(&p, *th, x, dpi2_prev, *s) {
                         Some((t2, s2, d)) => {
                             (*th, *s) = (t2, s2);
                             record = record.merge(DiagRecord::of(&d));
@@ -713,6 +722,53 @@ impl<R: Real> BufferOptimiser<R> {
             Elems::Meta(_, s) => Some(s),
             Elems::Adam(..) => None,
         }
+    }
+}
+
+/// The parameter groups of one θ buffer as the GPU passes run them: each group (a range of
+/// the buffer) has its own state, rate and range; with the global step norm
+/// ([`super::StepNorm::Global`]) every group's ΔF terms scale with the ‖Δπ‖² of all groups'
+/// previous steps together.
+#[derive(Clone, Debug)]
+pub struct GroupedOptimiser<R> {
+    groups: Vec<(usize, BufferOptimiser<R>)>,
+    global: bool,
+    dpi2: R,
+}
+
+impl<R: Real> GroupedOptimiser<R> {
+    /// `groups`: (offset, length, learning rate, range) of each group.
+    pub fn new(optimiser: &Optimiser, groups: &[(usize, usize, f64, Range)]) -> Result<Self, OptimError> {
+        let global = matches!(optimiser, Optimiser::Meta(h) if h.dpi == super::StepNorm::Global);
+        let groups = groups
+            .iter()
+            .map(|&(offset, len, lr, range)| Ok((offset, BufferOptimiser::new(optimiser, len, lr, range)?)))
+            .collect::<Result<_, OptimError>>()?;
+        Ok(GroupedOptimiser { groups, global, dpi2: R::ZERO })
+    }
+
+    /// One step of every group over the whole buffer; returns the elements skipped.
+    pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
+        let mut skipped = 0;
+        let mut all = Ssq::default();
+        for (offset, o) in &mut self.groups {
+            let r = *offset..*offset + o.len();
+            let input = StepInput {
+                grad: &input.grad[r.clone()],
+                fd: input.fd.map(|s| &s[r.clone()]),
+                grad_half: input.grad_half.map(|s| &s[r.clone()]),
+                fd_half: input.fd_half.map(|s| &s[r.clone()]),
+            };
+            skipped += o.step_at(&mut theta[r.clone()], input, self.global.then_some(self.dpi2))?;
+            all = all.merge(o.record().step);
+        }
+        self.dpi2 = all.total();
+        Ok(skipped)
+    }
+
+    /// The last step's diagnostics, per group.
+    pub fn diagnostics(&self) -> Vec<Diagnostics> {
+        self.groups.iter().map(|(_, o)| *o.diagnostics()).collect()
     }
 }
 

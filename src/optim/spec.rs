@@ -4,12 +4,12 @@
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded,
-//! `beta2`, `var` = zero|centred, `grow_f`), and for both the learning-rate schedule's
+//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser, StepRule, VarianceEstimate};
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -36,7 +36,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi",
     }
 }
 
@@ -52,7 +52,8 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
                 "snr" => StepRule::Snr,
                 "adam" => StepRule::Adam,
                 "bounded" => StepRule::Bounded,
-                _ => return Err(OptimError::BadHyper(format!("step = '{value}' (expected snr, adam or bounded)"))),
+                "wiener" => StepRule::Wiener,
+                _ => return Err(OptimError::BadHyper(format!("step = '{value}' (expected snr, adam, bounded or wiener)"))),
             };
             return Ok(true);
         }
@@ -61,6 +62,14 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
                 "zero" => VarianceEstimate::Zero,
                 "centred" => VarianceEstimate::Centred,
                 _ => return Err(OptimError::BadHyper(format!("var = '{value}' (expected zero or centred)"))),
+            };
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "dpi") => {
+            h.dpi = match value {
+                "group" => StepNorm::Group,
+                "global" => StepNorm::Global,
+                _ => return Err(OptimError::BadHyper(format!("dpi = '{value}' (expected group or global)"))),
             };
             return Ok(true);
         }
@@ -155,8 +164,11 @@ mod tests {
         assert!(msg("adam@beta1=1.5").contains("beta1 = 1.5"));
         assert!(msg("adam@eps=1@eps=2").contains("eps given twice"));
         assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
-        assert!(msg("meta@step=newton").contains("expected snr, adam or bounded"));
+        assert!(msg("meta@step=newton").contains("expected snr, adam, bounded or wiener"));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
+        assert!(msg("meta@dpi=all").contains("expected group or global"));
+        let Optimiser::Meta(h) = "meta@dpi=global".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h.dpi, StepNorm::Global);
         assert!(msg("adam@step=adam").contains("unknown key 'step' for adam"));
         assert!(msg("meta@grow_f=2").contains("grow_f = 2"));
         assert!(msg("meta@schedule=cosine@floor=2").contains("floor = 2"));

@@ -38,7 +38,7 @@ fn meta_with(step: StepRule, variance: VarianceEstimate, grow_f: f64) -> Optimis
 /// estimate, β_F growth, and a schedule.
 fn meta_variants() -> Vec<Optimiser> {
     let mut v = Vec::new();
-    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded] {
+    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener] {
         for var in [VarianceEstimate::Zero, VarianceEstimate::Centred] {
             v.push(meta_with(step, var, 0.0));
         }
@@ -72,7 +72,7 @@ fn step_bound(opt: &Optimiser, t: u32) -> Option<f64> {
                 (1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt(),
             ),
             StepRule::Bounded => Some(1.0),
-            StepRule::Adam => None,
+            StepRule::Adam | StepRule::Wiener => None,
         },
     }
 }
@@ -605,7 +605,12 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
 fn glsl_mirrors_constants_and_push_blocks() {
     let lib = include_str!("../../glsl/lib/optim.glsl");
     assert!(lib.contains("const float META_ALPHA_REG = 1e-30;") && ALPHA_REG == 1e-30);
-    for (name, code) in [("STEP_SNR", StepRule::Snr.code()), ("STEP_ADAM", StepRule::Adam.code()), ("STEP_BOUNDED", StepRule::Bounded.code())] {
+    for (name, code) in [
+        ("STEP_SNR", StepRule::Snr.code()),
+        ("STEP_ADAM", StepRule::Adam.code()),
+        ("STEP_BOUNDED", StepRule::Bounded.code()),
+        ("STEP_WIENER", StepRule::Wiener.code()),
+    ] {
         assert!(lib.contains(&format!("const uint {name} = {code}u;")), "{name}");
     }
     for (name, d) in [("SCHEDULE_CONSTANT", Decay::Constant), ("SCHEDULE_COSINE", Decay::Cosine), ("SCHEDULE_STEP", Decay::Step)] {
@@ -659,6 +664,8 @@ fn glsl_mirrors_constants_and_push_blocks() {
         ("grow_f", offset_of!(MetaPush, grow_f)),
         ("step_rule", offset_of!(MetaPush, step_rule)),
         ("centred", offset_of!(MetaPush, centred)),
+        ("groups", offset_of!(MetaPush, groups)),
+        ("global_dpi", offset_of!(MetaPush, global_dpi)),
     ];
     meta_members.extend(sched(offset_of!(MetaPush, schedule)));
     assert_eq!(reflected("optim_meta", std::mem::size_of::<MetaPush>()), owned(&meta_members));
@@ -666,7 +673,7 @@ fn glsl_mirrors_constants_and_push_blocks() {
         reflected("optim_diag", std::mem::size_of::<DiagPush>()),
         owned(&[("first", offset_of!(DiagPush, first)), ("count", offset_of!(DiagPush, count)), ("group", offset_of!(DiagPush, group))])
     );
-    assert_eq!((std::mem::size_of::<AdamPush>(), std::mem::size_of::<MetaPush>()), (64, 80));
+    assert_eq!((std::mem::size_of::<AdamPush>(), std::mem::size_of::<MetaPush>()), (64, 88));
     // The diagnostics record, as every kernel that writes or reads it declares it.
     use crate::shared::{DiagRecord as Rec, Ssq as S};
     for kernel in ["optim_adam", "optim_meta", "optim_diag"] {
@@ -693,7 +700,7 @@ fn glsl_mirrors_constants_and_push_blocks() {
         assert_eq!(r.struct_layout("Ssq").unwrap(), owned(&[("scale", offset_of!(S, scale)), ("sum", offset_of!(S, sum))]));
     }
     let g = GroupSlots { n: 5, offset: 1, group: 2, first_partial: 3 };
-    let p = MetaPush::new(&MetaHyper::default(), g, 0.1, Range::UNBOUNDED);
+    let p = MetaPush::new(&MetaHyper::default(), g, 4, 0.1, Range::UNBOUNDED);
     assert_eq!((p.lo, p.hi, p.offset, p.group, p.first_partial), (f32::MIN, f32::MAX, 1, 2, 3));
 }
 
@@ -823,10 +830,30 @@ fn step_rules_set_the_step_size() {
         assert!(close(adam_step, -0.01, 2e-5, 0.0) && close(n, 50.0, 1e-9, 0.0), "{adam_step} {n}");
         let (bounded, _) = run(StepRule::Bounded, c, 50);
         assert!(bounded < 0.0 && bounded > -0.01 && close(bounded, -0.01, 0.01, 0.0), "{bounded}");
+        // Wiener: the Adam-normalised step times ⟨F⟩_M²/(⟨F⟩_M² + V_M) = n/(n + 1).
+        let (wiener, _) = run(StepRule::Wiener, c, 50);
+        assert!(close(wiener, -0.01 * 50.0 / 51.0, 1e-4, 0.0), "{wiener}");
         let (snr, _) = run(StepRule::Snr, c, 50);
         // √V_M = rms_f/√n (all samples equal): the seed's step is lr·√50.
         assert!(close(snr, -0.01 * 50f64.sqrt(), 1e-4, 0.0), "{snr}");
     }
+    // Pure noise around a zero gradient: the Wiener step is a fraction of the Adam one.
+    let noisy = |step: StepRule| {
+        let mut rng = Rng(9);
+        let n = 400;
+        let mut o = BufferOptimiser::<f64>::new(&meta_with(step, VarianceEstimate::Zero, 0.0), n, 0.01, Range::UNBOUNDED).unwrap();
+        let mut theta = vec![0.0; n];
+        let mut total = 0.0;
+        for _ in 0..100 {
+            let f: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+            let before = theta.clone();
+            o.step(&mut theta, &f, Some(&vec![0.0; n])).unwrap();
+            total += theta.iter().zip(&before).map(|(a, b)| (a - b).abs()).sum::<f64>();
+        }
+        total
+    };
+    let (adam_path, wiener_path) = (noisy(StepRule::Adam), noisy(StepRule::Wiener));
+    assert!(wiener_path < 0.6 * adam_path, "wiener {wiener_path} vs adam {adam_path}");
     // The bounded step never exceeds lr, whatever the input.
     let input = |t: u32, i: usize| (1e20 * noise(t, i, 30), 1e25 * noise(t, i, 31));
     let case = Case { n: 8, iters: 40, lr: 0.05, range: Range::UNBOUNDED, init: 0.0, input: &input };

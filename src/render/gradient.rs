@@ -48,7 +48,7 @@ pub struct GradientPass {
     sensors: Vec<SensorBuffers>,
     /// dLoss/dθ, accumulated with atomics.
     pub grad: Buffer,
-    /// The part of `grad` from half of the samples (see [`Self::new_split`]), or an unused
+    /// The part of `grad` from half of the pixels (see [`Self::new_split`]), or an unused
     /// one-float buffer.
     grad_half: Buffer,
     pub spp: u32,
@@ -92,10 +92,11 @@ impl GradientPass {
         Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, None)
     }
 
-    /// [`Self::new`] adding the contributions of half of its samples also into `grad_half`
-    /// when given: with two or more samples per pixel alternate samples of each pixel, with
-    /// one a random half of the pixels per iteration. The two halves are independent
-    /// estimates, whose difference gives the optimiser's centred variance estimate.
+    /// [`Self::new`] adding the contributions of a random half of the pixels (drawn anew
+    /// every iteration) also into `grad_half` when given. The two halves are independent
+    /// estimates, whose difference gives the optimiser's centred variance estimate. Halves of
+    /// the samples would not be: every sample of a pixel shares its primal image, and so the
+    /// image's noise.
     #[allow(clippy::too_many_arguments)]
     pub fn new_split(
         scene: &GpuScene,
