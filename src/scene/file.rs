@@ -2,54 +2,46 @@
 //! path is resolved or any value is checked. Unknown keys are rejected here so that a typo
 //! is an error with a line number rather than a silently ignored setting.
 
+use std::str::FromStr;
+
 use serde::Deserialize;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
+    /// A glTF or Mitsuba XML file whose sensors, materials, meshes and lights the scene
+    /// starts from (relative to the scene file).
+    pub import: Option<String>,
     #[serde(default)]
     pub film: FilmFile,
     #[serde(default)]
     pub integrator: IntegratorFile,
+    #[serde(default)]
     pub sensors: Vec<SensorFile>,
     #[serde(default)]
     pub materials: Vec<MaterialFile>,
     #[serde(default)]
     pub meshes: Vec<MeshFile>,
+    #[serde(default)]
+    pub lights: Vec<LightFile>,
     pub environment: Option<EnvironmentFile>,
     pub optimise: Option<OptimiseFile>,
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+/// Unset values come from the imported file, else from the defaults (256 × 256, depth 6,
+/// roulette from depth 5).
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
 pub struct FilmFile {
-    pub width: u32,
-    pub height: u32,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
 }
 
-impl Default for FilmFile {
-    fn default() -> Self {
-        Self {
-            width: 256,
-            height: 256,
-        }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
 pub struct IntegratorFile {
-    pub max_depth: u32,
-    pub rr_depth: u32,
-}
-
-impl Default for IntegratorFile {
-    fn default() -> Self {
-        Self {
-            max_depth: 6,
-            rr_depth: 5,
-        }
-    }
+    pub max_depth: Option<u32>,
+    pub rr_depth: Option<u32>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -72,6 +64,15 @@ fn default_up() -> [f32; 3] {
 pub enum MaterialType {
     Principled,
     Diffuse,
+}
+
+impl MaterialType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Principled => "principled",
+            Self::Diffuse => "diffuse",
+        }
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -120,6 +121,65 @@ pub struct MeshFile {
     pub material: String,
     #[serde(default)]
     pub emission: [f32; 3],
+    /// Emit from both sides instead of the counter-clockwise front only.
+    #[serde(default)]
+    pub two_sided: bool,
+}
+
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum LightType {
+    Point,
+    Spot,
+    Directional,
+}
+
+impl LightType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Point => "point",
+            Self::Spot => "spot",
+            Self::Directional => "directional",
+        }
+    }
+}
+
+/// A delta light: `color × intensity` is a radiant intensity (point, spot) or an
+/// irradiance (directional).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightFile {
+    pub name: String,
+    #[serde(rename = "type")]
+    pub kind: LightType,
+    /// Point and spot lights.
+    pub position: Option<[f32; 3]>,
+    /// Spot and directional lights: the direction the light travels.
+    pub direction: Option<[f32; 3]>,
+    #[serde(default = "white")]
+    pub color: [f32; 3],
+    #[serde(default = "one")]
+    pub intensity: f32,
+    /// Spot lights: full intensity within `inner_angle` degrees of the axis, none beyond
+    /// `outer_angle`, and `falloff` in between.
+    pub inner_angle: Option<f32>,
+    pub outer_angle: Option<f32>,
+    #[serde(default)]
+    pub falloff: FalloffType,
+}
+
+fn white() -> [f32; 3] {
+    [1.0; 3]
+}
+
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FalloffType {
+    /// glTF's: the square of a linear ramp in cos θ.
+    #[default]
+    Smooth,
+    /// Mitsuba's: linear in θ.
+    Linear,
 }
 
 #[derive(Debug, Deserialize)]
@@ -201,4 +261,43 @@ pub struct ParamFile {
     pub range: [f32; 2],
     pub texture: Option<[u32; 2]>,
     pub lr: Option<f32>,
+}
+
+impl Loss {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::L2 => "l2",
+            Self::L1 => "l1",
+            Self::RelativeL2 => "relative_l2",
+        }
+    }
+}
+
+impl FromStr for Loss {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Self::L2, Self::L1, Self::RelativeL2]
+            .into_iter()
+            .find(|l| l.as_str() == s)
+            .ok_or_else(|| format!("unknown loss \"{s}\" (expected l2, l1 or relative_l2)"))
+    }
+}
+
+impl OptimiserKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Meta => "meta",
+            Self::Adam => "adam",
+        }
+    }
+}
+
+impl FromStr for OptimiserKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Self::Meta, Self::Adam]
+            .into_iter()
+            .find(|o| o.as_str() == s)
+            .ok_or_else(|| format!("unknown optimiser \"{s}\" (expected meta or adam)"))
+    }
 }
