@@ -92,6 +92,16 @@ pub enum SceneError {
         name: String,
     },
 
+    /// A glTF or Mitsuba file that cannot be imported: `location` is a JSON path
+    /// (`materials[2].normalTexture`) or an XML line and element (`line 14: <bsdf
+    /// type="plastic">`), or empty when the whole file is at fault.
+    #[error("{}: {}{message}", path.display(), if location.is_empty() { String::new() } else { format!("{location}: ") })]
+    Import {
+        path: PathBuf,
+        location: String,
+        message: String,
+    },
+
     /// Any other inconsistency between keys.
     #[error("{}: {key}: {message}", scene.display())]
     Invalid {
