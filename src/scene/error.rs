@@ -33,7 +33,7 @@ pub enum SceneError {
         source: io::Error,
     },
 
-    /// An OBJ file is malformed; `line` is 0 where no single line is at fault.
+    /// A mesh file (OBJ or PLY) is malformed; `line` is 0 where no single line is at fault.
     #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
     Obj {
         path: PathBuf,
