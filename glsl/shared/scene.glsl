@@ -41,7 +41,7 @@ struct TriShading {
     uint material;
     uint mesh;
     float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
-    uint pad0;
+    uint two_sided;     // 1: an emitter that shines from both sides; 0: from its front only
     uint pad1;
     uint pad2;
 };
@@ -59,6 +59,30 @@ struct EmitterTri {
     uint prim;   // original triangle id
     float cdf;   // inclusive cumulative probability of picking triangles 0..this one
     float pdf;   // probability density (area measure) of a point sampled on it
+};
+
+// Delta lights (lib/delta_lights.glsl).
+#define LIGHT_POINT 0u
+#define LIGHT_SPOT 1u
+#define LIGHT_DIRECTIONAL 2u
+// Spot falloff between the inner and the outer cone: glTF's square of a linear ramp in
+// cos θ, or Mitsuba's linear ramp in θ.
+#define FALLOFF_SMOOTH 0u
+#define FALLOFF_LINEAR 1u
+
+// A point, spot or directional light. 80 bytes (5 texels). Its emitted quantity (radiant
+// intensity; irradiance for a directional light) is color × intensity × the spot falloff.
+struct LightRecord {
+    vec3 position;
+    uint kind;        // LIGHT_*
+    vec3 direction;   // unit: the spot's axis, or the direction a directional light travels
+    uint falloff;     // FALLOFF_*
+    ValueRef color;      // 3 channels
+    ValueRef intensity;  // 1 channel
+    float cos_inner;  // spot: full intensity where cos θ >= cos_inner
+    float cos_outer;  // spot: none where cos θ <= cos_outer
+    float inner;      // the same two angles in radians
+    float outer;
 };
 
 // A pinhole camera. 64 bytes (4 texels).
@@ -81,7 +105,7 @@ struct Globals {
     // distribution: binding EnvDistribution, src/render/envmap.rs) rather than an emissive
     // triangle; 0: the environment is found by BSDF sampling only.
     float environment_sample_prob;
-    uint pad0;
+    uint num_lights;  // delta lights (binding Lights), all sampled at every path vertex
     uint pad1;
 };
 #endif
