@@ -36,6 +36,8 @@ enum Command {
         seed: u32,
         #[arg(long, default_value_t = 0)]
         sensor: u32,
+        #[command(flatten)]
+        scene_flags: SceneFlags,
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
@@ -57,6 +59,8 @@ enum Command {
         /// instead of the fused single trace (for comparison).
         #[arg(long)]
         fd_two_trace: bool,
+        #[command(flatten)]
+        scene_flags: SceneFlags,
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
     },
@@ -74,6 +78,8 @@ enum Command {
         /// Print compare.json instead of the table.
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        scene_flags: SceneFlags,
         /// Output directory.
         #[arg(short = 'o', long = "output")]
         output: std::path::PathBuf,
@@ -106,6 +112,8 @@ enum Command {
         rounds: u32,
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        scene_flags: SceneFlags,
     },
     /// Run the GPU optimiser passes on gradient streams from .npy files.
     Replay {
@@ -145,6 +153,8 @@ enum Command {
         bvh_layouts: bool,
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        scene_flags: SceneFlags,
     },
 }
 
@@ -264,6 +274,49 @@ impl RunFlags {
     }
 }
 
+/// Settings that change what a scene renders, over the scene file's (any format).
+#[derive(clap::Args, Debug)]
+struct SceneFlags {
+    /// Film size, e.g. `--film 640x480` (a bare glTF scene has 512 on the camera's longer
+    /// side).
+    #[arg(long, value_name = "WxH")]
+    film: Option<String>,
+    /// Longest path in segments (1: emitters only, 2: direct light); a bare glTF scene has 8.
+    #[arg(long, value_name = "N")]
+    max_depth: Option<u32>,
+}
+
+impl SceneFlags {
+    fn options(&self) -> Result<vkinverse::scene::LoadOptions, String> {
+        use vkinverse::scene::{Film, MAX_DEPTH, MAX_IMAGE_SIDE};
+        let film = match &self.film {
+            None => None,
+            Some(f) => {
+                let bad = || format!("--film {f}: expected WIDTHxHEIGHT, each in 1..={MAX_IMAGE_SIDE}");
+                let (w, h) = f.split_once(['x', 'X']).ok_or_else(bad)?;
+                let side = |v: &str| v.trim().parse::<u32>().ok().filter(|v| (1..=MAX_IMAGE_SIDE).contains(v)).ok_or_else(bad);
+                Some(Film { width: side(w)?, height: side(h)? })
+            }
+        };
+        if let Some(d) = self.max_depth.filter(|d| !(1..=MAX_DEPTH).contains(d)) {
+            return Err(format!("--max-depth {d}: must be in 1..={MAX_DEPTH}"));
+        }
+        Ok(vkinverse::scene::LoadOptions { film, max_depth: self.max_depth })
+    }
+}
+
+/// Loads a scene file of any format with the command line's scene flags, printing what the
+/// import approximated or left out (one line each) unless --quiet.
+fn load_scene(cli: &Cli, path: &std::path::Path, flags: &SceneFlags) -> Result<vkinverse::scene::Scene, Box<dyn std::error::Error>> {
+    let scene = vkinverse::scene::Scene::load_with(path, &flags.options()?)?;
+    if !cli.quiet {
+        for w in &scene.warnings {
+            eprintln!("vkinverse: warning: {w}");
+        }
+    }
+    Ok(scene)
+}
+
 fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
     Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
 }
@@ -322,7 +375,7 @@ fn run_optimise(
             err(summary.initial_param_error),
             err(summary.final_param_error)
         )?;
-        outln!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", output.display())?;
+        outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png checkpoint/", output.display())?;
     }
     Ok(())
 }
@@ -337,7 +390,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 out(format_args!("{}", vkinverse::report::info_text(&ctx)))?;
             }
         }
-        Command::Render { scene, spp, seed, sensor, output } => {
+        Command::Render { scene, spp, seed, sensor, scene_flags, output } => {
             let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
             if !matches!(ext.as_deref(), Some("exr" | "png")) {
                 return Err(format!("{}: output must end in .exr or .png", output.display()).into());
@@ -345,7 +398,7 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
             if *spp == 0 {
                 return Err("--spp must be at least 1".into());
             }
-            let scene = vkinverse::scene::Scene::load(scene)?;
+            let scene = load_scene(cli, scene, scene_flags)?;
             if *sensor as usize >= scene.sensors.len() {
                 return Err(format!("--sensor {sensor}: the scene has {} sensor(s)", scene.sensors.len()).into());
             }
@@ -372,24 +425,24 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
         }
-        Command::Optimise { scene, optimiser, run, checkpoint_every, resume, fd_two_trace, output } => {
+        Command::Optimise { scene, optimiser, run, checkpoint_every, resume, fd_two_trace, scene_flags, output } => {
             // Flags first: a typo on the command line is reported before the scene is read.
             let optimiser: Option<vkinverse::optim::Optimiser> =
                 optimiser.as_deref().map(|o| o.parse().map_err(|e| format!("--optimiser {o}: {e}"))).transpose()?;
             let overrides = run.overrides(*checkpoint_every)?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
+            let scene = load_scene(cli, scene, scene_flags)?;
             let (scene, mut st) = overrides.apply(&scene, optimiser);
             st.fd_two_trace = *fd_two_trace;
             run_optimise(cli, &scene, &st, output, *resume)?;
         }
-        Command::Compare { scene, optimisers, run, json, output } => {
+        Command::Compare { scene, optimisers, run, json, scene_flags, output } => {
             // Flags first: a typo on the command line is reported before the scene is read.
             let specs = vkinverse::optim::spec::parse_list(optimisers).map_err(|e| format!("--optimisers: {e}"))?;
             if run.iterations == Some(0) {
                 return Err("--iterations must be at least 1".into());
             }
             let overrides = run.overrides(None)?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
+            let scene = load_scene(cli, scene, scene_flags)?;
             let ctx = context(cli)?;
             let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
             let comparison = vkinverse::compare::compare(
@@ -481,9 +534,9 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), output.join("results.csv").display()).into());
             }
         }
-        Command::Gradcheck { scene, spp, rounds, json } => {
+        Command::Gradcheck { scene, spp, rounds, json, scene_flags } => {
             at_least_one("--spp", Some(*spp))?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
+            let scene = load_scene(cli, scene, scene_flags)?;
             if scene.optimise.params.is_empty() {
                 return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
             }
@@ -551,9 +604,9 @@ fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
                 eprintln!("warning: {skipped} non-finite gradient elements were skipped (theta left unchanged there)");
             }
         }
-        Command::Bench { scene, iterations, elements, bvh_layouts, json } => {
+        Command::Bench { scene, iterations, elements, bvh_layouts, json, scene_flags } => {
             if let Some(path) = scene {
-                let scene = vkinverse::scene::Scene::load(path)?;
+                let scene = load_scene(cli, path, scene_flags)?;
                 let ctx = context(cli)?;
                 if *bvh_layouts {
                     let result = vkinverse::bench::layout_bench(&ctx, &scene, *iterations)?;

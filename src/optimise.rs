@@ -8,7 +8,8 @@
 //! parameter error).
 //!
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
-//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`.
+//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, and the
+//! recovered scene in `final/` (`crate::scene::write`).
 
 use crate::error::{Error, Result};
 use crate::gpu::{Access, Buffer, CommandBuffer, Context, MemoryKind, Profiler};
@@ -411,6 +412,7 @@ pub fn optimise(
 
     let theta: Vec<f32> = gs.theta.read()?;
     write_params(out_dir, gs, &theta)?;
+    crate::scene::write::write_final(out_dir, scene, &gs.layout.recovered(&theta))?;
     let final_img = renderer.render(0, settings.primal_spp.max(64), settings.seed ^ 0x5EED, |_, _| {})?;
     image::write_exr(&out_dir.join("final.exr"), &final_img)?;
     write_plot(out_dir, &log, &scene.path.display().to_string(), settings.optimiser.name())?;

@@ -102,6 +102,10 @@ pub enum SceneError {
         message: String,
     },
 
+    /// The recovered scene could not be written.
+    #[error("{}: cannot write the recovered scene: {message}", path.display())]
+    Write { path: PathBuf, message: String },
+
     /// Any other inconsistency between keys.
     #[error("{}: {key}: {message}", scene.display())]
     Invalid {

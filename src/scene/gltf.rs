@@ -47,6 +47,7 @@ struct Importer<'a> {
     /// Model material index of each glTF material used so far (`None`: the default).
     materials: HashMap<Option<usize>, usize>,
     out: Imported,
+    sources: GltfSource,
 }
 
 fn err(path: &Path, location: impl Into<String>, message: impl Into<String>) -> SceneError {
@@ -83,7 +84,8 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         buffers,
         images: HashMap::new(),
         materials: HashMap::new(),
-        out: Imported { source: Source::Gltf(path.to_path_buf()), warnings, max_depth: Some(GLTF_MAX_DEPTH), ..Default::default() },
+        out: Imported { warnings, max_depth: Some(GLTF_MAX_DEPTH), ..Default::default() },
+        sources: GltfSource { path: path.to_path_buf(), materials: Vec::new(), lights: Vec::new() },
     };
     let doc = imp.doc.clone();
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).ok_or_else(|| err(path, "scenes", "the file has no scene"))?;
@@ -91,6 +93,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         imp.node(&node, Mat4::IDENTITY)?;
     }
     imp.uniquify();
+    imp.out.source = Source::Gltf(imp.sources);
     Ok(imp.out)
 }
 
@@ -296,6 +299,7 @@ impl Importer<'_> {
             (None, None) => "default".to_string(),
         };
         self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic });
+        self.sources.materials.push(m.index());
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);
         Ok(index)
@@ -370,6 +374,7 @@ impl Importer<'_> {
             None => format!("light{}", light.index()),
         };
         self.out.lights.push(Light { name, kind, position: world.transform_point3(Vec3::ZERO), direction, color: light.color(), intensity: light.intensity() });
+        self.sources.lights.push(light.index());
         Ok(())
     }
 

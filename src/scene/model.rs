@@ -259,13 +259,24 @@ pub struct Optimise {
     pub params: Vec<Param>,
 }
 
-/// Where a scene came from, for writing it back: the scene file and, when it is or imports
-/// a glTF or Mitsuba file, that file.
+/// Where a scene came from, for writing it back: the TOML alone, or the glTF or Mitsuba
+/// file it is or imports.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Source {
     Toml,
-    Gltf(PathBuf),
+    Gltf(GltfSource),
     Mitsuba(PathBuf),
+}
+
+/// An imported glTF file and where the model's imported materials and lights are in it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GltfSource {
+    pub path: PathBuf,
+    /// glTF material index of each imported material, in model order (`None`: glTF's
+    /// default material); materials after these came from the TOML.
+    pub materials: Vec<Option<usize>>,
+    /// `KHR_lights_punctual` index of each imported light, in model order.
+    pub lights: Vec<usize>,
 }
 
 /// A loaded, validated scene; see the module documentation for its invariants.
