@@ -111,11 +111,6 @@ fn check_extensions(path: &Path, bytes: &[u8]) -> Result<Vec<String>, SceneError
         root.get("extensionsRequired").and_then(|v| v.as_array()).map(|a| a.iter().filter_map(|v| v.as_str()).collect()).unwrap_or_default();
     let mut found = Vec::new();
     walk_extensions(&root, String::new(), &mut found);
-    for (i, name) in root.get("extensionsRequired").and_then(|v| v.as_array()).into_iter().flatten().enumerate() {
-        if let Some(name) = name.as_str().filter(|n| !SUPPORTED_EXTENSIONS.contains(n)) {
-            return Err(err(path, format!("extensionsRequired[{i}]"), format!("extension {name} is not supported")));
-        }
-    }
     let mut warnings = Vec::new();
     for (location, name) in found {
         if SUPPORTED_EXTENSIONS.contains(&name.as_str()) {
@@ -125,6 +120,12 @@ fn check_extensions(path: &Path, bytes: &[u8]) -> Result<Vec<String>, SceneError
             return Err(err(path, location, format!("extension {name} is not supported")));
         }
         warnings.push(format!("{}: {location}: optional extension {name} is ignored", path.display()));
+    }
+    // A required extension that no object uses (one that changes how the file is read).
+    for (i, name) in root.get("extensionsRequired").and_then(|v| v.as_array()).into_iter().flatten().enumerate() {
+        if let Some(name) = name.as_str().filter(|n| !SUPPORTED_EXTENSIONS.contains(n)) {
+            return Err(err(path, format!("extensionsRequired[{i}]"), format!("extension {name} is not supported")));
+        }
     }
     Ok(warnings)
 }

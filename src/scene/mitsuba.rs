@@ -112,13 +112,18 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// Attribute `name` of `node` with `$default` references substituted.
     fn attr(&self, node: Node, name: &str) -> Result<Option<String>, SceneError> {
         let Some(raw) = node.attribute(name) else { return Ok(None) };
-        let mut v = raw.to_string();
-        for (k, val) in &self.defaults {
-            v = v.replace(&format!("${k}"), val);
+        let mut v = String::with_capacity(raw.len());
+        let mut rest = raw;
+        while let Some(i) = rest.find('$') {
+            v.push_str(&rest[..i]);
+            let after = &rest[i + 1..];
+            let len = after.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_')).unwrap_or(after.len());
+            let key = &after[..len];
+            let value = self.defaults.iter().find(|(k, _)| k == key).map(|(_, val)| val);
+            v.push_str(value.ok_or_else(|| self.err(node, format!("undefined parameter ${key} in {name}=\"{raw}\"")))?);
+            rest = &after[len..];
         }
-        if let Some(i) = v.find('$') {
-            return Err(self.err(node, format!("undefined parameter {} in {name}=\"{raw}\"", &v[i..])));
-        }
+        v.push_str(rest);
         Ok(Some(v))
     }
 
@@ -312,8 +317,6 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.defaults.push((name, value));
             }
         }
-        // Longest names first, so that `$spp` does not eat the start of `$spp_max`.
-        self.defaults.sort_by_key(|(k, _)| std::cmp::Reverse(k.len()));
         let mut shapes = 0;
         let mut lights = 0;
         for n in children {
@@ -699,10 +702,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(e, "a shape's emitter must be an area light"));
                 }
                 let mut em = elements(e);
-                let radiance = match self.color_param(&mut em, "radiance", [1.0; 3])? {
-                    ColorValue::Constant(c) => c,
-                    ColorValue::Texture(_) => return Err(self.err(e, "textured area lights are not supported")),
-                };
+                if em.iter().any(|n| n.attribute("name") == Some("radiance") && matches!(n.tag_name().name(), "texture" | "ref")) {
+                    return Err(self.err(e, "textured area lights are not supported"));
+                }
+                let radiance = self.take_rgb(&mut em, "radiance", [1.0; 3])?;
                 self.rest(&em, e)?;
                 radiance
             }
