@@ -658,6 +658,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                 };
                 if face_normals {
                     n.clear();
+                } else if n.is_empty() {
+                    // Mitsuba smooths a mesh without normals unless told not to.
+                    n = vertex_normals(&p, &i);
                 }
                 if t.len() != p.len() {
                     t.clear();
@@ -831,6 +834,21 @@ pub fn envmap_from_mitsuba(map: &Image) -> Image {
         }
     }
     Image { width: map.width, height: map.height, data }
+}
+
+/// Mitsuba's vertex normals of a mesh that has none: each face's unit normal weighted by
+/// the face's angle at the vertex, summed over the faces sharing the vertex.
+fn vertex_normals(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Vec<[f32; 3]> {
+    let mut n = vec![Vec3::ZERO; positions.len()];
+    for t in indices {
+        let p = t.map(|i| Vec3::from(positions[i as usize]));
+        let Some(face) = (p[1] - p[0]).cross(p[2] - p[0]).try_normalize() else { continue };
+        for k in 0..3 {
+            let (a, b) = ((p[(k + 1) % 3] - p[k]).normalize_or_zero(), (p[(k + 2) % 3] - p[k]).normalize_or_zero());
+            n[t[k] as usize] += face * a.dot(b).clamp(-1.0, 1.0).acos();
+        }
+    }
+    n.into_iter().map(|v| v.normalize_or_zero().to_array()).collect()
 }
 
 type Geometry = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>);
