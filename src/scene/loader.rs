@@ -38,12 +38,6 @@ pub(super) struct Imported {
     pub warnings: Vec<String>,
 }
 
-impl Default for Source {
-    fn default() -> Self {
-        Source::Toml
-    }
-}
-
 /// Loads the TOML scene at `path` (text `text`), with the file it imports.
 pub(super) fn load(path: &Path, text: &str, options: &LoadOptions) -> Result<Scene, SceneError> {
     let raw: SceneFile = toml::from_str(text).map_err(|e| SceneError::toml(path.to_path_buf(), text, e))?;

@@ -261,8 +261,9 @@ pub struct Optimise {
 
 /// Where a scene came from, for writing it back: the TOML alone, or the glTF or Mitsuba
 /// file it is or imports.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub enum Source {
+    #[default]
     Toml,
     Gltf(GltfSource),
     Mitsuba(PathBuf),

@@ -8,25 +8,18 @@ use std::path::Path;
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Property};
 
+use super::obj::ObjData;
 use super::SceneError;
 
-/// Triangles of one PLY file; `normals` and `uvs` are empty or one per position, and
-/// `uvs` are as stored (v pointing down the image, Mitsuba's convention for PLY).
-#[derive(Debug, Default)]
-pub struct PlyData {
-    pub positions: Vec<[f32; 3]>,
-    pub normals: Vec<[f32; 3]>,
-    pub uvs: Vec<[f32; 2]>,
-    pub indices: Vec<[u32; 3]>,
-}
-
-pub fn load(path: &Path, bytes: &[u8]) -> Result<PlyData, SceneError> {
+/// Triangles of one PLY file (as an OBJ's: `normals` and `uvs` empty or one per
+/// position), `uvs` as stored: v pointing down the image, Mitsuba's convention for PLY.
+pub fn load(path: &Path, bytes: &[u8]) -> Result<ObjData, SceneError> {
     let err = |message: String| SceneError::Obj { path: path.to_path_buf(), line: 0, message };
     let ply = Parser::<DefaultElement>::new().read_ply(&mut std::io::Cursor::new(bytes)).map_err(|e| err(format!("malformed PLY: {e}")))?;
     let vertices = ply.payload.get("vertex").ok_or_else(|| err("no `vertex` element".into()))?;
     let faces = ply.payload.get("face").ok_or_else(|| err("no `face` element".into()))?;
     let scalar = |e: &DefaultElement, names: &[&str]| -> Option<f32> { names.iter().find_map(|n| e.get(*n)).and_then(Property::to_f32_lossy) };
-    let mut out = PlyData::default();
+    let mut out = ObjData::default();
     let has = |names: &[&str]| vertices.first().is_some_and(|v| names.iter().any(|n| v.get(*n).is_some()));
     let with_normals = has(&["nx"]);
     let uv_names: [(&[&str], &[&str]); 1] = [(&["u", "s", "texture_u", "texture_s"], &["v", "t", "texture_v", "texture_t"])];
