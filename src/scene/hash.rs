@@ -17,7 +17,7 @@ use xxhash_rust::xxh3::Xxh3;
 use super::model::*;
 
 /// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
-const VERSION: &[u8] = b"vkinverse-scene-hash-v2";
+const VERSION: &str = "vkinverse-scene-hash-v2";
 
 struct Hasher(Xxh3);
 
@@ -80,7 +80,7 @@ impl Hasher {
 /// The content hash of `scene` (see the module documentation).
 pub fn content_hash(scene: &Scene) -> u64 {
     let mut h = Hasher(Xxh3::new());
-    h.tag(std::str::from_utf8(VERSION).unwrap_or_default());
+    h.tag(VERSION);
     h.tag("film");
     h.u32s(&[scene.film.width, scene.film.height]);
     h.tag("integrator");
