@@ -54,7 +54,9 @@ pub struct MaterialRecord {
     pub roughness: ValueRef,
     pub metallic: ValueRef,
     pub kind: u32,
-    pub pad: [u32; 3],
+    /// 1: the material reflects nothing from behind (its triangles' clockwise side).
+    pub one_sided: u32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `TriShading`: 96 bytes (6 texels; `pad` is zero).

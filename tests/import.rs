@@ -397,3 +397,39 @@ fn optimise_from_gltf_comes_back_as_gltf() {
     let (ok, err) = run(&["render", data("box/box.glb").to_str().unwrap(), "--film", "10by6", "-o", png.to_str().unwrap()]);
     assert!(!ok && err.trim().lines().count() == 1 && err.contains("--film 10by6"), "{err}");
 }
+
+/// A Mitsuba BSDF not wrapped in `twosided` is black from behind, as in Mitsuba: a card
+/// turned away from the camera under a white sky shows black where its twosided twin
+/// shows the sky reflected (and the TOML's `one_sided` says the same).
+#[test]
+fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
+    let dir = temp_dir("one-sided");
+    let xml = |bsdf: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle" id="card"><transform name="to_world"><rotate y="1" angle="180"/></transform>{bsdf}</shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+</scene>"#
+        )
+    };
+    let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>"#;
+    std::fs::write(dir.join("one.xml"), xml(diffuse)).unwrap();
+    std::fs::write(dir.join("two.xml"), xml(&format!(r#"<bsdf type="twosided">{diffuse}</bsdf>"#))).unwrap();
+    let one = Scene::load(dir.join("one.xml")).unwrap();
+    let two = Scene::load(dir.join("two.xml")).unwrap();
+    assert!(one.materials[0].one_sided && !two.materials[0].one_sided);
+    let (a, b) = with_gpu(|ctx| (render(ctx, &one, 0, 4, 1), render(ctx, &two, 0, 4, 1)));
+    // The centre pixels see the card's back: black, or for the twosided card albedo 0.5 ×
+    // the sky's 1 (a flat card sees nothing but the sky).
+    for (x, y) in [(3, 3), (4, 4), (3, 4), (4, 3)] {
+        assert_eq!(a.get(x, y), [0.0; 3], "one-sided from behind at ({x}, {y})");
+        assert!(b.get(x, y).iter().all(|&c| (c - 0.5).abs() < 1e-3), "twosided at ({x}, {y}): {:?}", b.get(x, y));
+    }
+    // A corner sees the sky past the card.
+    assert_eq!(a.get(0, 0), [1.0; 3]);
+}

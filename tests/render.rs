@@ -554,9 +554,9 @@ fn texel_record_layouts_match_reflection() {
             ("roughness", offset_of!(MaterialRecord, roughness)),
             ("metallic", offset_of!(MaterialRecord, metallic)),
             ("kind", offset_of!(MaterialRecord, kind)),
-            ("pad0", offset_of!(MaterialRecord, pad)),
-            ("pad1", offset_of!(MaterialRecord, pad) + 4),
-            ("pad2", offset_of!(MaterialRecord, pad) + 8),
+            ("one_sided", offset_of!(MaterialRecord, one_sided)),
+            ("pad1", offset_of!(MaterialRecord, pad)),
+            ("pad2", offset_of!(MaterialRecord, pad) + 4),
         ],
     );
     check(

@@ -226,6 +226,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             }
         }
         if (depth >= MAX_DEPTH) break;
+        // A one-sided material seen from behind reflects nothing.
+        if (dot(ng, wo) < 0.0 && material_record(sh.material).one_sided != 0u) break;
 
         // Shading frame: interpolated normal if the mesh has normals, flipped to the side
         // of wo; the geometric normal likewise.

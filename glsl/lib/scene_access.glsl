@@ -51,8 +51,9 @@ MaterialRecord material_record(uint id) {
     r.base_color = value_ref(texelFetch(Materials, b));
     r.roughness = value_ref(texelFetch(Materials, b + 1));
     r.metallic = value_ref(texelFetch(Materials, b + 2));
-    r.kind = texelFetch(Materials, b + 3).x;
-    r.pad0 = 0u;
+    uvec4 t3 = texelFetch(Materials, b + 3);
+    r.kind = t3.x;
+    r.one_sided = t3.y;
     r.pad1 = 0u;
     r.pad2 = 0u;
     return r;

@@ -24,7 +24,7 @@ struct MaterialRecord {
     ValueRef roughness;
     ValueRef metallic;
     uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
-    uint pad0;
+    uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     uint pad1;
     uint pad2;
 };

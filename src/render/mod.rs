@@ -134,7 +134,8 @@ impl GpuScene {
                         MaterialKind::Diffuse => KIND_DIFFUSE,
                         MaterialKind::Principled => KIND_PRINCIPLED,
                     },
-                    pad: [0; 3],
+                    one_sided: m.one_sided as u32,
+                    pad: [0; 2],
                 }
             })
             .collect();

@@ -84,6 +84,9 @@ pub struct MaterialFile {
     pub base_color: ColorInput,
     pub roughness: Option<ScalarInput>,
     pub metallic: Option<ScalarInput>,
+    /// Black from behind (the clockwise side of its triangles).
+    #[serde(default)]
+    pub one_sided: bool,
 }
 
 #[derive(Debug, Deserialize)]

@@ -98,6 +98,7 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.color(&m.base_color);
         h.scalar(&m.roughness);
         h.scalar(&m.metallic);
+        h.u64(m.one_sided as u64);
     }
     h.tag("meshes");
     h.u64(scene.meshes.len() as u64);

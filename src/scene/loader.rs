@@ -414,6 +414,7 @@ impl Loader {
                 base_color,
                 roughness,
                 metallic,
+                one_sided: m.one_sided,
             });
         }
         Ok(out)

@@ -11,16 +11,17 @@
 //! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
-//! Exact: diffuse, twosided, area lights, the constant environment, point and directional
-//! lights, the film and camera. Approximate, each with a one-line warning: `principled`
+//! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
+//! area lights, the constant environment, point and directional lights, the film and
+//! camera. Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
 //! material's normal-incidence reflectance; a Beckmann distribution becomes GGX), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
 //! (tessellated into 96 × 48 quads with exact normals), `envmap` (resampled from
 //! Mitsuba's corner-aligned rows to the renderer's centred rows), reconstruction filters
-//! other than `box`, and one-sided BSDFs, which the renderer shades on both sides. Every
-//! other element, plugin type or parameter is an error naming its line.
+//! other than `box`. Every other element, plugin type or parameter is an error naming its
+//! line.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -535,13 +536,14 @@ impl<'a, 'i> Importer<'a, 'i> {
         if kind == "twosided" {
             let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, "twosided needs one nested <bsdf>"))?;
             self.rest(&items, node)?;
-            return self.bsdf_material(inner, name);
+            return self.bsdf_material(inner, name, false);
         }
-        self.warn(node, "one-sided in Mitsuba (black from behind), shaded on both sides here; wrap it in twosided to match");
-        self.bsdf_material(node, name)
+        self.bsdf_material(node, name, true)
     }
 
-    fn bsdf_material(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
+    /// Adds the material of BSDF `node` (any type but twosided) named `name`; `one_sided`
+    /// when it is not wrapped in a twosided: black from behind, as in Mitsuba.
+    fn bsdf_material(&mut self, node: Node<'a, 'i>, name: &str, one_sided: bool) -> Result<usize, SceneError> {
         let kind = self.plugin_type(node)?;
         let mut items = elements(node);
         let material = match kind.as_str() {
@@ -551,6 +553,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 base_color: self.color_param(&mut items, "reflectance", [0.5; 3])?,
                 roughness: ScalarValue::Constant(1.0),
                 metallic: ScalarValue::Constant(0.0),
+                one_sided,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -572,7 +575,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided }
             }
             "roughconductor" => {
                 let alpha = self.take_float(&mut items, "alpha", 0.1)?;
@@ -605,6 +608,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     base_color: ColorValue::Constant(std::array::from_fn(|c| (f0[c] * tint[c]).min(1.0))),
                     roughness: ScalarValue::Constant(alpha.sqrt()),
                     metallic: ScalarValue::Constant(1.0),
+                    one_sided,
                 }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, principled and roughconductor BSDFs are supported")),
@@ -614,7 +618,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(self.out.materials.len() - 1)
     }
 
-    /// The default material of a shape without a BSDF: Mitsuba's diffuse 0.5.
+    /// The default material of a shape without a BSDF: Mitsuba's (one-sided) diffuse 0.5.
     fn default_material(&mut self) -> usize {
         if let Some(i) = self.out.materials.iter().position(|m| m.name == "default") {
             return i;
@@ -625,6 +629,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             base_color: ColorValue::Constant([0.5; 3]),
             roughness: ScalarValue::Constant(1.0),
             metallic: ScalarValue::Constant(0.0),
+            one_sided: true,
         });
         self.out.materials.len() - 1
     }

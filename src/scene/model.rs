@@ -93,6 +93,9 @@ pub struct Material {
     pub base_color: ColorValue,
     pub roughness: ScalarValue,
     pub metallic: ScalarValue,
+    /// Reflects nothing from behind (the clockwise side of its triangles), as Mitsuba's
+    /// BSDFs not wrapped in `twosided`; otherwise both sides shade alike.
+    pub one_sided: bool,
 }
 
 impl Material {

@@ -157,6 +157,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 ColorValue::Texture(t) => tex("base_color", t)?,
             },
         ));
+        if m.one_sided {
+            pairs.push(("one_sided", Value::Boolean(true)));
+        }
         if m.kind == MaterialKind::Principled {
             for (key, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
                 pairs.push((
