@@ -585,7 +585,7 @@ mod tests {
     fn bad_job_files_name_the_problem() {
         let err = |text: &str| jobs_from(text).unwrap_err().to_string();
         assert!(err("scenes = ['a.toml']\noptimisers = ['sgd']").contains(":2:14: unknown optimiser 'sgd'"));
-        assert!(err("scenes = ['a.toml']\nlr = -1").contains("lr = -1"));
+        assert!(err("scenes = ['a.toml']\nlr = -1").contains("lr -1 is not positive"));
         assert!(err("seeds = [1]").contains("seeds is given without scenes"));
         assert!(err("scenes = ['a.toml']\nseeds = []").contains("seeds is an empty list"));
         assert!(err("scenes = ['a.toml']\nspp = [0]").contains("spp must be at least 1"));

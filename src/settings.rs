@@ -228,7 +228,7 @@ impl Settings {
         for (key, v) in [("lr", self.lr), ("time_budget", self.time_budget)] {
             // A NaN budget would never be reached and a negative one ends before the first step.
             if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
-                return bad(key, format!("{v} must be positive and finite"));
+                return bad(key, format!("{v} is not positive and finite"));
             }
         }
         Ok(())

@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 use glam::{Vec2, Vec3};
 
 pub use error::SceneError;
+pub use crate::settings::Loss;
 pub use file::MaterialType as MaterialKind;
 
 use crate::image::{self, Image};
@@ -452,9 +453,27 @@ impl Loader {
         Ok(match input {
             ColorInput::Constant(c) => ColorValue::Constant(self.color(key, c)?),
             ColorInput::Texture(t) => {
-                ColorValue::Texture(self.texture(&format!("{key}.texture"), &t.texture, true)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture, true)?;
+                self.texels_in(&k, &tex, 3, 0.0, f32::INFINITY)?;
+                ColorValue::Texture(tex)
             }
         })
+    }
+
+    /// Checks the first `channels` channels of every texel against [lo, hi]: the rule a
+    /// constant of the same property obeys.
+    fn texels_in(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32) -> Result<(), SceneError> {
+        for (i, px) in t.image.data.iter().enumerate() {
+            if let Some(v) = px[..channels].iter().find(|v| !(lo..=hi).contains(*v)) {
+                let (x, y) = (i as u32 % t.image.width, i as u32 / t.image.width);
+                return Err(self.out_of_range(
+                    key,
+                    format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]", t.path.display()),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn scalar_value(&mut self, key: &str, input: ScalarInput) -> Result<ScalarValue, SceneError> {
@@ -464,7 +483,10 @@ impl Loader {
                 ScalarValue::Constant(self.in_range(key, v, 0.0, 1.0)?)
             }
             ScalarInput::Texture(t) => {
-                ScalarValue::Texture(self.texture(&format!("{key}.texture"), &t.texture, true)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture, true)?;
+                self.texels_in(&k, &tex, 1, 0.0, 1.0)?;
+                ScalarValue::Texture(tex)
             }
         })
     }
