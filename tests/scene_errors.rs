@@ -544,9 +544,9 @@ fn optimise_settings_are_checked_by_the_one_validate() {
     let err = load_err("checkpoint-zero", &format!("{BASE}\n[optimise]\ncheckpoint_every = 0\n"));
     assert_message(&err, &["optimise.checkpoint_every", "at least 1"]);
     let err = load_err("seed-type", &format!("{BASE}\n[optimise]\nseed = 'x'\n"));
-    assert_message(&err, &["scene.toml:19:"]);
+    assert_message(&err, &["scene.toml:20:8", "expected u64"]);
     let err = load_err("unknown-setting", &format!("{BASE}\n[optimise]\nsppp = 2\n"));
-    assert_message(&err, &["scene.toml:19:1", "unknown field `sppp`"]);
+    assert_message(&err, &["scene.toml:20:1", "unknown field `sppp`"]);
     // A seed beyond 32 bits is kept whole.
     let scene = Scene::load(fixture("seed-u64", &format!("{BASE}\n[optimise]\nseed = 4294967296\noptimiser = 'adam@beta1=0.5'\n"))).unwrap();
     let run = vkinverse::settings::RunSettings::of_scene(&scene);
