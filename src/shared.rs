@@ -17,14 +17,11 @@ pub struct ProbeStruct {
     pub d: u32,
 }
 
-/// `Material::kind` of a Lambertian material (`MATERIAL_DIFFUSE`, glsl/shared/material.glsl).
-pub const MATERIAL_DIFFUSE: u32 = 0;
-/// `Material::kind` of the glTF metallic-roughness model (`MATERIAL_PRINCIPLED`).
-pub const MATERIAL_PRINCIPLED: u32 = 1;
+pub use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 24 bytes, offsets checked against the
-/// reflected SPIR-V in tests/bsdf.rs (the kind constants are checked there too, by the
-/// GPU/CPU comparison of both kinds). The model is defined in glsl/lib/bsdf.glsl and
+/// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
+/// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -96,14 +93,6 @@ pub struct EmitterTri {
     pub cdf: f32,
     pub pdf: f32,
 }
-
-/// `LightRecord::kind` (`LIGHT_*`, glsl/shared/scene.glsl).
-pub const LIGHT_POINT: u32 = 0;
-pub const LIGHT_SPOT: u32 = 1;
-pub const LIGHT_DIRECTIONAL: u32 = 2;
-/// `LightRecord::falloff` (`FALLOFF_*`).
-pub const FALLOFF_SMOOTH: u32 = 0;
-pub const FALLOFF_LINEAR: u32 = 1;
 
 /// Mirror of `LightRecord`: 80 bytes (5 texels).
 #[repr(C)]

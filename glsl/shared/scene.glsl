@@ -61,14 +61,9 @@ struct EmitterTri {
     float pdf;   // probability density (area measure) of a point sampled on it
 };
 
-// Delta lights (lib/delta_lights.glsl).
-#define LIGHT_POINT 0u
-#define LIGHT_SPOT 1u
-#define LIGHT_DIRECTIONAL 2u
-// Spot falloff between the inner and the outer cone: glTF's square of a linear ramp in
-// cos θ, or Mitsuba's linear ramp in θ.
-#define FALLOFF_SMOOTH 0u
-#define FALLOFF_LINEAR 1u
+// Delta lights (lib/delta_lights.glsl): kinds LIGHT_* and spot falloffs FALLOFF_*,
+// defined in src/constants.rs.
+#include "vkinverse_constants.glsl"
 
 // A point, spot or directional light. 80 bytes (5 texels). Its emitted quantity (radiant
 // intensity; irradiance for a directional light) is color × intensity × the spot falloff.

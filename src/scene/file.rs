@@ -2,8 +2,6 @@
 //! path is resolved or any value is checked. Unknown keys are rejected here so that a typo
 //! is an error with a line number rather than a silently ignored setting.
 
-use std::str::FromStr;
-
 use serde::Deserialize;
 
 #[derive(Debug, Deserialize, Default)]
@@ -25,7 +23,7 @@ pub struct SceneFile {
     #[serde(default)]
     pub lights: Vec<LightFile>,
     pub environment: Option<EnvironmentFile>,
-    pub optimise: Option<OptimiseFile>,
+    pub optimise: Option<crate::settings::OptimiseTable<ParamFile>>,
 }
 
 /// Unset values come from the imported file, else from the defaults (256 × 256, depth 6,
@@ -198,57 +196,6 @@ fn one() -> f32 {
     1.0
 }
 
-#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Loss {
-    #[default]
-    L2,
-    L1,
-    RelativeL2,
-}
-
-#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum OptimiserKind {
-    #[default]
-    Meta,
-    Adam,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct OptimiseFile {
-    pub loss: Loss,
-    pub optimiser: OptimiserKind,
-    pub iterations: u32,
-    pub spp: u32,
-    pub fd_spp: u32,
-    pub primal_spp: u32,
-    pub lr: f32,
-    pub seed: u64,
-    pub time_budget: Option<f64>,
-    pub checkpoint_every: Option<u32>,
-    pub params: Vec<ParamFile>,
-}
-
-impl Default for OptimiseFile {
-    fn default() -> Self {
-        Self {
-            loss: Loss::L2,
-            optimiser: OptimiserKind::Meta,
-            iterations: 500,
-            spp: 2,
-            fd_spp: 1,
-            primal_spp: 4,
-            lr: 0.02,
-            seed: 0,
-            time_budget: None,
-            checkpoint_every: None,
-            params: Vec::new(),
-        }
-    }
-}
-
 #[derive(Debug, Deserialize)]
 #[serde(untagged, expecting = "expected a number or [r, g, b]")]
 pub enum InitInput {
@@ -266,41 +213,3 @@ pub struct ParamFile {
     pub lr: Option<f32>,
 }
 
-impl Loss {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::L2 => "l2",
-            Self::L1 => "l1",
-            Self::RelativeL2 => "relative_l2",
-        }
-    }
-}
-
-impl FromStr for Loss {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        [Self::L2, Self::L1, Self::RelativeL2]
-            .into_iter()
-            .find(|l| l.as_str() == s)
-            .ok_or_else(|| format!("unknown loss \"{s}\" (expected l2, l1 or relative_l2)"))
-    }
-}
-
-impl OptimiserKind {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Meta => "meta",
-            Self::Adam => "adam",
-        }
-    }
-}
-
-impl FromStr for OptimiserKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        [Self::Meta, Self::Adam]
-            .into_iter()
-            .find(|o| o.as_str() == s)
-            .ok_or_else(|| format!("unknown optimiser \"{s}\" (expected meta or adam)"))
-    }
-}

@@ -149,9 +149,27 @@ impl Loader {
         Ok(match input {
             ColorInput::Constant(c) => ColorValue::Constant(self.color(key, c)?),
             ColorInput::Texture(t) => {
-                ColorValue::Texture(self.texture(&format!("{key}.texture"), &t.texture)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, 3, 0.0, f32::INFINITY)?;
+                ColorValue::Texture(tex)
             }
         })
+    }
+
+    /// Checks the first `channels` channels of every texel against [lo, hi]: the rule a
+    /// constant of the same property obeys.
+    fn texels_in(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32) -> Result<(), SceneError> {
+        for (i, px) in t.image.data.iter().enumerate() {
+            if let Some(v) = px[..channels].iter().find(|v| !(lo..=hi).contains(*v)) {
+                let (x, y) = (i as u32 % t.image.width, i as u32 / t.image.width);
+                return Err(self.out_of_range(
+                    key,
+                    format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]", t.path.display()),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn scalar_value(&self, key: &str, input: ScalarInput) -> Result<ScalarValue, SceneError> {
@@ -161,7 +179,10 @@ impl Loader {
                 ScalarValue::Constant(self.in_range(key, v, 0.0, 1.0)?)
             }
             ScalarInput::Texture(t) => {
-                ScalarValue::Texture(self.texture(&format!("{key}.texture"), &t.texture)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, 1, 0.0, 1.0)?;
+                ScalarValue::Texture(tex)
             }
         })
     }
@@ -508,35 +529,15 @@ impl Loader {
 
     fn optimise(
         &self,
-        raw: file::OptimiseFile,
+        raw: crate::settings::OptimiseTable<file::ParamFile>,
         materials: &[Material],
         meshes: &[Mesh],
         lights: &[Light],
         environment: &Environment,
     ) -> Result<Optimise, SceneError> {
-        for (key, v) in [
-            ("optimise.iterations", raw.iterations),
-            ("optimise.spp", raw.spp),
-            ("optimise.fd_spp", raw.fd_spp),
-            ("optimise.primal_spp", raw.primal_spp),
-            (
-                "optimise.checkpoint_every",
-                raw.checkpoint_every.unwrap_or(1),
-            ),
-        ] {
-            if v == 0 {
-                return Err(self.out_of_range(key, "must be at least 1".into()));
-            }
-        }
-        self.positive("optimise.lr", raw.lr)?;
-        if let Some(t) = raw.time_budget {
-            if !(t.is_finite() && t > 0.0) {
-                return Err(self.out_of_range(
-                    "optimise.time_budget",
-                    format!("{t} is not a positive number of seconds"),
-                ));
-            }
-        }
+        raw.settings
+            .validate()
+            .map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
         let mut seen = HashSet::new();
         let mut params = Vec::with_capacity(raw.params.len());
         for (i, p) in raw.params.into_iter().enumerate() {
@@ -545,16 +546,7 @@ impl Loader {
             params.push(self.param(&key, p, materials, meshes, lights, environment)?);
         }
         Ok(Optimise {
-            loss: raw.loss,
-            optimiser: raw.optimiser,
-            iterations: raw.iterations,
-            spp: raw.spp,
-            fd_spp: raw.fd_spp,
-            primal_spp: raw.primal_spp,
-            lr: raw.lr,
-            seed: raw.seed,
-            time_budget: raw.time_budget,
-            checkpoint_every: raw.checkpoint_every,
+            settings: raw.settings,
             params,
         })
     }

@@ -36,7 +36,8 @@ use std::fs;
 use std::path::Path;
 
 pub use error::SceneError;
-pub use file::{Loss, MaterialType as MaterialKind, OptimiserKind};
+pub use crate::settings::Loss;
+pub use file::MaterialType as MaterialKind;
 pub use model::*;
 
 /// Settings given outside the scene file that change what is rendered (the command line's

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{Vec2, Vec3};
 
-use super::file::{Loss, MaterialType as MaterialKind, OptimiserKind};
+use super::file::MaterialType as MaterialKind;
 use crate::image::Image;
 
 /// Largest film and texture side accepted; larger values are typos, not scenes.
@@ -238,27 +238,17 @@ pub struct Param {
     pub range: [f32; 2],
     /// Optimise as a texture of this width and height instead of one constant.
     pub texture: Option<[u32; 2]>,
-    /// Learning rate for this parameter instead of `Optimise::lr`.
+    /// Learning rate for this parameter instead of the run's `lr` (unless a rate given
+    /// outside the scene replaces it).
     pub lr: Option<f32>,
     pub reference: Reference,
 }
 
-#[derive(Clone, Debug)]
+/// The scene's `[optimise]` table: its layer of run settings (checked, not resolved: the
+/// command line and job files may override them) and the optimised parameters.
+#[derive(Clone, Debug, Default)]
 pub struct Optimise {
-    pub loss: Loss,
-    pub optimiser: OptimiserKind,
-    pub iterations: u32,
-    /// Samples per pixel of the primal and adjoint passes of each gradient estimate.
-    pub spp: u32,
-    /// Samples per pixel of the meta-estimator's finite-difference pass.
-    pub fd_spp: u32,
-    /// Samples per pixel of evaluation renders.
-    pub primal_spp: u32,
-    pub lr: f32,
-    pub seed: u64,
-    /// Seconds of wall time after which the optimisation stops.
-    pub time_budget: Option<f64>,
-    pub checkpoint_every: Option<u32>,
+    pub settings: crate::settings::Settings,
     pub params: Vec<Param>,
 }
 
