@@ -5,9 +5,9 @@
 //! and covers what the files refer to (meshes, images, imported glTF and Mitsuba files,
 //! command-line film and depth overrides) by construction: two scenes with equal hashes
 //! render equal reference images. Left out, because the reference render does not read
-//! them: names, target images, and the `[optimise]` settings, except each parameter's
-//! target and texture size (the reference of a texture parameter is the scene's value
-//! resampled to that size, and the reference render uses it).
+//! them: names, target images, and the `[optimise]` table, except the size of a texture
+//! parameter whose scene value is a texture (its reference is that texture resampled to
+//! the parameter's size, and the reference render uses it).
 //!
 //! Every field is written in little-endian with a tag and, for arrays, a length, so that
 //! fields cannot run into each other and the key is the same on every platform.
@@ -125,11 +125,15 @@ pub fn content_hash(scene: &Scene) -> u64 {
     h.tag("environment");
     h.color(&scene.environment.value);
     h.f32s(&[scene.environment.scale]);
-    h.tag("params");
-    h.u64(scene.optimise.params.len() as u64);
+    // Only a texture optimised at another resolution than the scene's changes the
+    // reference render (its reference is resampled); every other parameter renders its
+    // scene value as it is.
+    h.tag("resampled");
     for p in &scene.optimise.params {
-        h.tag(&p.name);
-        h.u32s(&p.texture.unwrap_or([0, 0]));
+        if let (Some(size), Reference::Texture(_)) = (p.texture, &p.reference) {
+            h.tag(&p.name);
+            h.u32s(&size);
+        }
     }
     h.0.digest()
 }
