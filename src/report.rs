@@ -1,7 +1,81 @@
-//! Text and JSON reports for the command line.
+//! Text and JSON reports for the command line: device information, plots and CSV tables,
+//! progress on stderr and warnings.
 
 use crate::gpu::Context;
 use std::fmt::Write as _;
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Silences [`warn`] (the command line's `--quiet`).
+pub fn set_quiet(quiet: bool) {
+    QUIET.store(quiet, Ordering::Relaxed);
+}
+
+/// Prints `vkinverse: warning: MESSAGE` on stderr unless quiet.
+pub fn warn(message: &str) {
+    if !QUIET.load(Ordering::Relaxed) {
+        eprintln!("vkinverse: warning: {message}");
+    }
+}
+
+/// Progress of a long task on stderr: a bar on a terminal; elsewhere (a log file, a batch
+/// scheduler's output) one line every `VKINVERSE_PROGRESS_SECS` seconds (default 10), so
+/// that a long render is not silent for minutes. Nothing with `quiet`.
+pub struct ProgressReport {
+    bar: Option<indicatif::ProgressBar>,
+    lines: Option<(Duration, Instant)>,
+    label: String,
+    unit: String,
+    start: Instant,
+    total: u64,
+}
+
+impl ProgressReport {
+    pub fn new(quiet: bool, label: &str, total: u64, unit: &str) -> Self {
+        let terminal = std::io::stderr().is_terminal();
+        let bar = (!quiet && terminal).then(|| {
+            let bar = indicatif::ProgressBar::new(total);
+            let template = format!("{{bar:40}} {{pos}}/{{len}} {unit} ({{elapsed}}, eta {{eta}}) {{msg}}");
+            bar.set_style(indicatif::ProgressStyle::with_template(&template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+            bar
+        });
+        let every = std::env::var("VKINVERSE_PROGRESS_SECS").ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s >= 0.0).unwrap_or(10.0);
+        let lines = (!quiet && !terminal).then(|| (Duration::from_secs_f64(every), Instant::now()));
+        ProgressReport { bar, lines, label: label.into(), unit: unit.into(), start: Instant::now(), total }
+    }
+
+    pub fn set_total(&mut self, total: u64) {
+        self.total = total;
+        if let Some(b) = &self.bar {
+            b.set_length(total);
+        }
+    }
+
+    /// Reports `position` of the total, with `message` (e.g. the current loss).
+    pub fn set(&mut self, position: u64, message: &str) {
+        if let Some(b) = &self.bar {
+            b.set_position(position);
+            b.set_message(message.to_string());
+        }
+        if let Some((every, last)) = &mut self.lines {
+            if last.elapsed() >= *every {
+                *last = Instant::now();
+                let of = if self.total > 0 { format!("/{} ({:.0} %)", self.total, 100.0 * position as f64 / self.total as f64) } else { String::new() };
+                let sep = if message.is_empty() { "" } else { "; " };
+                eprintln!("{}: {position}{of} {} after {:.0} s{sep}{message}", self.label, self.unit, self.start.elapsed().as_secs_f64());
+            }
+        }
+    }
+
+    pub fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
 
 /// `vkinverse info` as text: every device, the chosen one marked, its limits and features.
 pub fn info_text(ctx: &Context) -> String {
@@ -84,12 +158,23 @@ fn register_font() -> bool {
 
 /// Writes a PNG plot of `curves` (log-scale error against time), atomically.
 pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, curves: &[Curve]) -> Result<(), String> {
-    use plotters::prelude::*;
-    let text = register_font();
+    plot_panels(path, title, "time (s)", &[Panel { y_label: y_label.to_string(), curves }], (800, 500))
+}
+
+/// One chart of a [`plot_panels`] figure: log-scale values against a shared x axis.
+pub struct Panel<'a> {
+    pub y_label: String,
+    pub curves: &'a [Curve],
+}
+
+/// The log-scale y range of `curves` (positive finite values), spanning at least a decade
+/// from a power of ten so that values within one decade still get labelled ticks, and the
+/// x range.
+fn chart_ranges(curves: &[Curve]) -> (f64, f64, f64) {
     let pts = curves.iter().flat_map(|c| c.points.iter().filter(|p| p.1 > 0.0 && p.1.is_finite()));
-    let (mut tmax, mut ymin, mut ymax) = (0.0f64, f64::MAX, f64::MIN);
-    for &(t, y) in pts {
-        tmax = tmax.max(t);
+    let (mut xmax, mut ymin, mut ymax) = (0.0f64, f64::MAX, f64::MIN);
+    for &(x, y) in pts {
+        xmax = xmax.max(x);
         ymin = ymin.min(y);
         ymax = ymax.max(y);
     }
@@ -99,45 +184,56 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
     if ymax <= ymin * 1.0001 {
         ymax = ymin * 10.0;
     }
-    let tmax = if tmax > 0.0 { tmax * 1.02 } else { 1.0 };
-    // The axis spans at least a decade, from a power of ten, so that errors within one
-    // decade still get labelled ticks.
+    let xmax = if xmax > 0.0 { xmax * 1.02 } else { 1.0 };
     let ylo = 10f64.powf((ymin * 0.9).log10().floor()).min(ymax * 0.11);
-    let (w, h) = (800u32, 500u32);
+    (xmax, ylo, ymax * 1.1)
+}
+
+/// Writes a PNG of `panels` stacked vertically (the title over the first), `size` pixels in
+/// all, atomically.
+pub fn plot_panels(path: &std::path::Path, title: &str, x_label: &str, panels: &[Panel], size: (u32, u32)) -> Result<(), String> {
+    use plotters::prelude::*;
+    let text = register_font();
+    let (w, h) = size;
     let mut pixels = vec![0u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| e.to_string())?;
-        let mut builder = ChartBuilder::on(&root);
-        builder.margin(15);
-        if text {
-            builder.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
-        }
-        let mut chart = builder
-            .build_cartesian_2d(0.0..tmax, (ylo..ymax * 1.1).log_scale())
-            .map_err(|e| e.to_string())?;
-        let mut mesh = chart.configure_mesh();
-        if text {
-            mesh.x_desc("time (s)").y_desc(y_label).y_label_formatter(&|v| format!("{v:.1e}"));
-        } else {
-            mesh.disable_x_axis().disable_y_axis();
-        }
-        mesh.draw().map_err(|e| e.to_string())?;
-        for (k, c) in curves.iter().enumerate() {
-            let color = Palette99::pick(k).to_rgba();
-            let series = LineSeries::new(c.points.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), color.stroke_width(2));
-            let drawn = chart.draw_series(series).map_err(|e| e.to_string())?;
+        let areas = root.split_evenly((panels.len().max(1), 1));
+        for (k, (panel, area)) in panels.iter().zip(&areas).enumerate() {
+            let (xmax, ylo, yhi) = chart_ranges(panel.curves);
+            let mut builder = ChartBuilder::on(area);
+            builder.margin(15);
             if text {
-                drawn.label(c.name.clone()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                if k == 0 {
+                    builder.caption(title, ("sans-serif", 22));
+                }
+                builder.x_label_area_size(40).y_label_area_size(70);
             }
-        }
-        if text {
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()
-                .map_err(|e| e.to_string())?;
+            let mut chart = builder.build_cartesian_2d(0.0..xmax, (ylo..yhi).log_scale()).map_err(|e| e.to_string())?;
+            let mut mesh = chart.configure_mesh();
+            if text {
+                mesh.x_desc(x_label).y_desc(panel.y_label.as_str()).y_label_formatter(&|v| format!("{v:.1e}"));
+            } else {
+                mesh.disable_x_axis().disable_y_axis();
+            }
+            mesh.draw().map_err(|e| e.to_string())?;
+            for (j, c) in panel.curves.iter().enumerate() {
+                let color = Palette99::pick(j).to_rgba();
+                let series = LineSeries::new(c.points.iter().copied().filter(|p| p.1 > 0.0 && p.1.is_finite()), color.stroke_width(2));
+                let drawn = chart.draw_series(series).map_err(|e| e.to_string())?;
+                if text {
+                    drawn.label(c.name.clone()).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+                }
+            }
+            if text && !panel.curves.is_empty() {
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .draw()
+                    .map_err(|e| e.to_string())?;
+            }
         }
         root.present().map_err(|e| e.to_string())?;
     }
@@ -155,23 +251,19 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
 /// Writes `curves` as `label,time_s,error` rows to `csv_path` and plots them (log-scale
 /// error against time) to `png_path`, each file atomically.
 pub fn write_curves(csv_path: &std::path::Path, png_path: &std::path::Path, title: &str, y_label: &str, curves: &[Curve]) -> Result<(), String> {
-    use std::fmt::Write as _;
-    let mut csv = String::from("label,time_s,error\n");
-    for c in curves {
-        for (t, e) in &c.points {
-            let _ = writeln!(csv, "{},{t},{e}", csv_field(&c.name));
-        }
-    }
-    crate::image::write_bytes_atomic(csv_path, csv.as_bytes()).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    let header = ["label", "time_s", "error"].map(String::from);
+    let rows = curves.iter().flat_map(|c| c.points.iter().map(|(t, e)| vec![c.name.clone(), t.to_string(), e.to_string()]));
+    let csv = csv_bytes(&header, rows)?;
+    crate::image::write_bytes_atomic(csv_path, &csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
     plot_error_vs_time(png_path, title, y_label, curves)
 }
 
-/// `text` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma,
-/// a quote or a line break, so that error messages keep a table's columns aligned.
-pub fn csv_field(text: &str) -> String {
-    if text.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", text.replace('"', "\"\""))
-    } else {
-        text.to_string()
+/// A CSV table (RFC 4180: a field holding a comma, quote or line break is quoted).
+pub fn csv_bytes(header: &[String], rows: impl IntoIterator<Item = Vec<String>>) -> Result<Vec<u8>, String> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.write_record(header).map_err(|e| e.to_string())?;
+    for row in rows {
+        w.write_record(&row).map_err(|e| e.to_string())?;
     }
+    w.into_inner().map_err(|e| e.to_string())
 }

@@ -17,14 +17,11 @@ pub struct ProbeStruct {
     pub d: u32,
 }
 
-/// `Material::kind` of a Lambertian material (`MATERIAL_DIFFUSE`, glsl/shared/material.glsl).
-pub const MATERIAL_DIFFUSE: u32 = 0;
-/// `Material::kind` of the glTF metallic-roughness model (`MATERIAL_PRINCIPLED`).
-pub const MATERIAL_PRINCIPLED: u32 = 1;
+pub use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 24 bytes, offsets checked against the
-/// reflected SPIR-V in tests/bsdf.rs (the kind constants are checked there too, by the
-/// GPU/CPU comparison of both kinds). The model is defined in glsl/lib/bsdf.glsl and
+/// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
+/// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -54,7 +51,9 @@ pub struct MaterialRecord {
     pub roughness: ValueRef,
     pub metallic: ValueRef,
     pub kind: u32,
-    pub pad: [u32; 3],
+    /// 1: the material reflects nothing from behind (its triangles' clockwise side).
+    pub one_sided: u32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `TriShading`: 96 bytes (6 texels; `pad` is zero).
@@ -71,7 +70,9 @@ pub struct TriShading {
     pub material: u32,
     pub mesh: u32,
     pub emitter_pdf: f32,
-    pub pad: [u32; 3],
+    /// 1: an emitter that shines from both sides; 0: from its front only.
+    pub two_sided: u32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `MeshRecord`: 16 bytes.
@@ -91,6 +92,22 @@ pub struct EmitterTri {
     pub prim: u32,
     pub cdf: f32,
     pub pdf: f32,
+}
+
+/// Mirror of `LightRecord`: 80 bytes (5 texels).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct LightRecord {
+    pub position: [f32; 3],
+    pub kind: u32,
+    pub direction: [f32; 3],
+    pub falloff: u32,
+    pub color: ValueRef,
+    pub intensity: ValueRef,
+    pub cos_inner: f32,
+    pub cos_outer: f32,
+    pub inner: f32,
+    pub outer: f32,
 }
 
 /// Mirror of `SensorRecord`: 64 bytes (`pad` is zero).
@@ -115,18 +132,21 @@ pub struct Globals {
     /// Probability that next-event estimation samples the environment map rather than an
     /// emissive triangle; 0: the environment is not light-sampled.
     pub environment_sample_prob: f32,
-    pub pad: [u32; 2],
+    /// Delta lights in the `Lights` buffer.
+    pub num_lights: u32,
+    pub pad: u32,
 }
 
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 6] = [
+pub const TEXEL_RECORDS: [(&str, usize); 7] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
     ("MeshRecord", std::mem::size_of::<MeshRecord>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
     ("SensorRecord", std::mem::size_of::<SensorRecord>()),
+    ("LightRecord", std::mem::size_of::<LightRecord>()),
     ("Globals", std::mem::size_of::<Globals>()),
 ];
 const _: () = {

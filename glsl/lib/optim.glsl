@@ -39,15 +39,7 @@
 const float FLT_MAX = 3.40282347e38;
 const float PI = 3.14159265358979;
 
-// StepRule::code, src/optim/mod.rs.
-const uint STEP_SNR = 0u;
-const uint STEP_ADAM = 1u;
-const uint STEP_BOUNDED = 2u;
-const uint STEP_WIENER = 3u;
-// Decay::code, src/optim/schedule.rs.
-const uint SCHEDULE_CONSTANT = 0u;
-const uint SCHEDULE_COSINE = 1u;
-const uint SCHEDULE_STEP = 2u;
+#include "vkinverse_constants.glsl"  // STEP_*, SCHEDULE_*
 // The seed's regulariser in the alpha denominator: alpha = VF / (VF + var + 1e-30).
 const float META_ALPHA_REG = 1e-30;
 

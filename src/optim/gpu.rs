@@ -31,11 +31,17 @@ pub struct Group {
     pub range: Range,
 }
 
+/// A group's push constants, of the optimiser's kernel.
+enum Push {
+    Adam(AdamPush),
+    Meta(MetaPush),
+}
+
 struct Pass {
     group: BindGroup,
-    push: Vec<u8>,
+    push: Push,
     n: u64,
-    diag_push: Vec<u8>,
+    diag_push: DiagPush,
 }
 
 /// The sums of half of the samples of the gradient and of the finite-difference sample.
@@ -96,9 +102,7 @@ impl GpuOptimiser {
         let diag = Buffer::zeroed::<shared::DiagRecord>(ctx, "optimiser diagnostics", groups.len().max(1), MemoryKind::Device)?;
         let diag_pipeline = ComputePipeline::new(ctx, "optim_diag", &[])?;
         let diag_group = diag_pipeline.bind(&[("DiagPartial", &partials), ("Diag", &diag)])?;
-        let diag_push = |(g, count): (GroupSlots, u32)| {
-            bytemuck::bytes_of(&DiagPush { first: g.first_partial, count, group: g.group }).to_vec()
-        };
+        let diag_push = |(g, count): (GroupSlots, u32)| DiagPush { first: g.first_partial, count, group: g.group };
         let mut written = vec![theta.clone(), grad.clone(), nonfinite.clone(), partials.clone()];
         let mut passes = Vec::new();
         let mut state = Vec::new();
@@ -119,7 +123,7 @@ impl GpuOptimiser {
                         ("Frame", frame),
                     ])?;
                     let push = AdamPush::new(h, s.0, g.lr, g.range);
-                    passes.push(Pass { group, push: bytemuck::bytes_of(&push).to_vec(), n: g.len as u64, diag_push: diag_push(*s) });
+                    passes.push(Pass { group, push: Push::Adam(push), n: g.len as u64, diag_push: diag_push(*s) });
                 }
                 (pipeline, None, None)
             }
@@ -172,7 +176,7 @@ impl GpuOptimiser {
                         ("Frame", frame),
                     ])?;
                     let push = MetaPush::new(h, s.0, groups.len() as u32, g.lr, g.range);
-                    passes.push(Pass { group, push: bytemuck::bytes_of(&push).to_vec(), n: g.len as u64, diag_push: diag_push(*s) });
+                    passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, diag_push: diag_push(*s) });
                 }
                 (pipeline, Some(theta_prev), halves)
             }
@@ -208,7 +212,10 @@ impl GpuOptimiser {
                 // Groups touch disjoint ranges, but the tracker sees whole buffers: order them.
                 rec.transition(&ready)?;
             }
-            rec.dispatch_linear(&self.pipeline, &p.group, &p.push, p.n)?;
+            match &p.push {
+                Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
+                Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
+            }
         }
         // Every pass has read its ‖Δπ‖² and written its records before the merge.
         rec.transition(&[(&self.partials, Access::ComputeRead), (&self.diag, Access::ComputeWrite)])?;
@@ -220,6 +227,12 @@ impl GpuOptimiser {
             rec.dispatch_groups(&self.diag_pipeline, &self.diag_group, &p.diag_push, [1, 1, 1])?;
         }
         Ok(())
+    }
+
+    /// The kernel of the passes (`optim_adam` or `optim_meta`), which names their profiler
+    /// scope.
+    pub fn kernel(&self) -> &str {
+        self.pipeline.name()
     }
 
     /// The state arrays a checkpoint saves (with θ), each with a stable name.

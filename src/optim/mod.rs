@@ -191,13 +191,14 @@ pub enum StepRule {
 }
 
 impl StepRule {
-    /// The kernels' number for it (`STEP_*` in glsl/lib/optim.glsl).
+    /// The kernels' number for it (`STEP_*`, src/constants.rs).
     pub fn code(self) -> u32 {
+        use crate::constants::*;
         match self {
-            StepRule::Snr => 0,
-            StepRule::Adam => 1,
-            StepRule::Bounded => 2,
-            StepRule::Wiener => 3,
+            StepRule::Snr => STEP_SNR,
+            StepRule::Adam => STEP_ADAM,
+            StepRule::Bounded => STEP_BOUNDED,
+            StepRule::Wiener => STEP_WIENER,
         }
     }
 }

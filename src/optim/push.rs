@@ -1,6 +1,7 @@
 //! Push-constant blocks of `glsl/optim_adam.comp`, `glsl/optim_meta.comp` and
 //! `glsl/optim_diag.comp` (scalar layout, 4-byte members). Field names and order are those of
-//! the GLSL `Push` blocks; a test checks the offsets against the reflected SPIR-V.
+//! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
+//! (`crate::push`).
 
 use super::{AdamHyper, MetaHyper, Range, Schedule, StepNorm, VarianceEstimate};
 use crate::shared;
@@ -22,28 +23,19 @@ pub struct GroupSlots {
     pub first_partial: u32,
 }
 
-/// The schedule's members of a `Push` block, in order.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct SchedulePush {
-    pub sched_decay: u32,
-    pub sched_warmup: u32,
-    pub sched_horizon: u32,
-    pub sched_every: u32,
-    pub sched_floor: f32,
-    pub sched_gamma: f32,
+/// The schedule's members of a `Push` block, in order (flattened into each block).
+struct SchedulePush {
+    decay: u32,
+    warmup: u32,
+    horizon: u32,
+    every: u32,
+    floor: f32,
+    gamma: f32,
 }
 
 impl From<&Schedule> for SchedulePush {
     fn from(s: &Schedule) -> Self {
-        SchedulePush {
-            sched_decay: s.decay.code(),
-            sched_warmup: s.warmup,
-            sched_horizon: s.horizon,
-            sched_every: s.every,
-            sched_floor: s.floor as f32,
-            sched_gamma: s.gamma as f32,
-        }
+        SchedulePush { decay: s.decay.code(), warmup: s.warmup, horizon: s.horizon, every: s.every, floor: s.floor as f32, gamma: s.gamma as f32 }
     }
 }
 
@@ -62,12 +54,18 @@ pub struct AdamPush {
     pub eps: f32,
     pub lo: f32,
     pub hi: f32,
-    pub schedule: SchedulePush,
+    pub sched_decay: u32,
+    pub sched_warmup: u32,
+    pub sched_horizon: u32,
+    pub sched_every: u32,
+    pub sched_floor: f32,
+    pub sched_gamma: f32,
 }
 
 impl AdamPush {
     pub fn new(h: &AdamHyper, g: GroupSlots, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
+        let sc = SchedulePush::from(&h.schedule);
         AdamPush {
             n: g.n,
             offset: g.offset,
@@ -79,7 +77,12 @@ impl AdamPush {
             eps: h.eps as f32,
             lo,
             hi,
-            schedule: (&h.schedule).into(),
+            sched_decay: sc.decay,
+            sched_warmup: sc.warmup,
+            sched_horizon: sc.horizon,
+            sched_every: sc.every,
+            sched_floor: sc.floor,
+            sched_gamma: sc.gamma,
         }
     }
 }
@@ -106,12 +109,18 @@ pub struct MetaPush {
     /// Number of groups; with `global_dpi` the pass reads all their steps.
     pub groups: u32,
     pub global_dpi: u32,
-    pub schedule: SchedulePush,
+    pub sched_decay: u32,
+    pub sched_warmup: u32,
+    pub sched_horizon: u32,
+    pub sched_every: u32,
+    pub sched_floor: f32,
+    pub sched_gamma: f32,
 }
 
 impl MetaPush {
     pub fn new(h: &MetaHyper, g: GroupSlots, groups: u32, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
+        let sc = SchedulePush::from(&h.schedule);
         MetaPush {
             n: g.n,
             offset: g.offset,
@@ -129,7 +138,12 @@ impl MetaPush {
             centred: u32::from(h.variance == VarianceEstimate::Centred),
             groups,
             global_dpi: u32::from(h.dpi == StepNorm::Global),
-            schedule: (&h.schedule).into(),
+            sched_decay: sc.decay,
+            sched_warmup: sc.warmup,
+            sched_horizon: sc.horizon,
+            sched_every: sc.every,
+            sched_floor: sc.floor,
+            sched_gamma: sc.gamma,
         }
     }
 }
@@ -163,3 +177,4 @@ impl From<shared::DiagRecord> for super::reference::DiagRecord<f32> {
         }
     }
 }
+

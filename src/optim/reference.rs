@@ -344,6 +344,26 @@ impl Diagnostics {
         }
     }
 
+    /// The diagnostics from values in the order of [`Diagnostics::COLUMNS`].
+    pub fn from_values(v: &[f64; 14]) -> Self {
+        Diagnostics {
+            lr: v[0],
+            elements: v[1] as u64,
+            n_eff_mean: v[2],
+            n_eff_min: v[3],
+            n_eff_max: v[4],
+            clipped: v[5],
+            rms_f: v[6],
+            rms_df: v[7],
+            sd_fd: v[8],
+            rms_mean: v[9],
+            sd_mean: v[10],
+            sd_f: v[11],
+            step_norm: v[12],
+            rms_step: v[13],
+        }
+    }
+
     /// The values in the order of [`Diagnostics::COLUMNS`].
     pub fn values(&self) -> [f64; 14] {
         [

@@ -11,7 +11,7 @@
 //! when the run starts; a run with only a time budget needs an explicit horizon.
 
 use super::OptimError;
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::fmt;
 use std::str::FromStr;
 
@@ -26,12 +26,13 @@ pub enum Decay {
 }
 
 impl Decay {
-    /// The kernels' number for it (`SCHEDULE_*` in glsl/lib/optim.glsl).
+    /// The kernels' number for it (`SCHEDULE_*`, src/constants.rs).
     pub fn code(self) -> u32 {
+        use crate::constants::*;
         match self {
-            Decay::Constant => 0,
-            Decay::Cosine => 1,
-            Decay::Step => 2,
+            Decay::Constant => SCHEDULE_CONSTANT,
+            Decay::Cosine => SCHEDULE_COSINE,
+            Decay::Step => SCHEDULE_STEP,
         }
     }
 }
@@ -58,9 +59,9 @@ impl fmt::Display for Decay {
     }
 }
 
-/// A learning-rate schedule; the default is constant with no warm-up.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+/// A learning-rate schedule; the default is constant with no warm-up. Written
+/// `DECAY[@KEY=VALUE]...` (`cosine@floor=0.05@warmup=10`) in settings and job files.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Schedule {
     pub decay: Decay,
     /// Iterations of the linear warm-up (0: none).
@@ -141,6 +142,53 @@ impl Schedule {
     pub const KEYS: &'static str = "schedule, warmup, horizon, floor, every, gamma";
 }
 
+/// Parses `DECAY[@KEY=VALUE]...` (the keys of [`Schedule::set`] but `schedule`).
+impl FromStr for Schedule {
+    type Err = OptimError;
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        let mut parts = text.trim().split('@');
+        let mut s = Schedule { decay: parts.next().unwrap_or_default().parse()?, ..Schedule::default() };
+        for part in parts {
+            let (key, value) = part
+                .split_once('=')
+                .ok_or_else(|| OptimError::BadHyper(format!("schedule '{text}': '{part}' is not KEY=VALUE")))?;
+            if key == "schedule" || !s.set(key.trim(), value.trim())? {
+                return Err(OptimError::BadHyper(format!("schedule '{text}': unknown key '{key}' (expected warmup, horizon, floor, every or gamma)")));
+            }
+        }
+        s.validate()?;
+        Ok(s)
+    }
+}
+
+/// The canonical text: the decay and the keys it uses, and the warm-up when there is one.
+impl fmt::Display for Schedule {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.decay)?;
+        match self.decay {
+            Decay::Constant => {}
+            Decay::Cosine => write!(f, "@horizon={}@floor={}", self.horizon, self.floor)?,
+            Decay::Step => write!(f, "@every={}@gamma={}", self.every, self.gamma)?,
+        }
+        if self.warmup > 0 {
+            write!(f, "@warmup={}", self.warmup)?;
+        }
+        Ok(())
+    }
+}
+
+impl Serialize for Schedule {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for Schedule {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?.parse().map_err(serde::de::Error::custom)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -174,5 +222,12 @@ mod tests {
         assert!(Schedule { floor: 1.5, ..s }.validate().is_err());
         assert!(Schedule { gamma: 0.0, ..s }.validate().is_err());
         assert!(Schedule { decay: Decay::Step, every: 0, ..s }.validate().is_err());
+        let text: Schedule = "cosine@floor=0.05@warmup=10".parse().unwrap();
+        assert_eq!((text.decay, text.floor, text.warmup, text.horizon), (Decay::Cosine, 0.05, 10, 0));
+        assert_eq!(text.to_string().parse::<Schedule>().unwrap(), text);
+        assert_eq!("step@every=50".parse::<Schedule>().unwrap().to_string(), "step@every=50@gamma=0.5");
+        assert!("cosine@lr=2".parse::<Schedule>().unwrap_err().to_string().contains("unknown key 'lr'"));
+        assert!("cosine@floor".parse::<Schedule>().unwrap_err().to_string().contains("not KEY=VALUE"));
+        assert!("linear".parse::<Schedule>().is_err());
     }
 }

@@ -21,15 +21,13 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
-use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
+use crate::scene::{ColorValue, LightKind, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
 use glam::Vec3;
+pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
 use std::sync::Arc;
-
-/// Material kinds as the kernels number them (glsl/shared/material.glsl).
-const KIND_DIFFUSE: u32 = 0;
-const KIND_PRINCIPLED: u32 = 1;
 
 /// The scene's buffers on the device, and θ.
 pub struct GpuScene {
@@ -42,6 +40,8 @@ pub struct GpuScene {
     pub rr_depth: u32,
     pub emitters: u32,
     pub has_environment: bool,
+    /// Point, spot and directional lights (all sampled at every path vertex).
+    pub lights: u32,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     pub triangles: usize,
@@ -89,6 +89,25 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     }
 }
 
+/// Warns about a scene that renders black or has lights that give none: no emitting
+/// triangle of non-zero area and no environment, or an emitting mesh whose triangles all
+/// have zero area (an emitter table cannot sample them, so they give no light).
+fn warn_about_light(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &ParamLayout, emitters: usize, has_environment: bool) {
+    for (i, mesh) in scene.meshes.iter().enumerate() {
+        let emits = layout.slot(ParamTarget::Emission { mesh: i }).is_some() || mesh.emission.iter().any(|&v| v > 0.0);
+        let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
+            let [a, b, c] = idx.map(|k| Vec3::from(geo.positions[k as usize]));
+            (b - a).cross(c - a).length() > 0.0
+        });
+        if emits && !has_area {
+            crate::report::warn(&format!("{}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", scene.path.display(), mesh.name));
+        }
+    }
+    if emitters == 0 && !has_environment {
+        crate::report::warn(&format!("{}: no light (no emitting mesh of non-zero area and no environment): the scene renders black", scene.path.display()));
+    }
+}
+
 /// A device buffer holding `v` followed by zeros up to a whole number of 16-byte texels
 /// (at least one, so that an empty array still has a buffer to bind), for kernels that read
 /// it as a uniform texel buffer.
@@ -129,10 +148,11 @@ impl GpuScene {
                     roughness: pick(ParamTarget::Roughness { material: i }, rough),
                     metallic: pick(ParamTarget::Metallic { material: i }, metal),
                     kind: match m.kind {
-                        MaterialKind::Diffuse => KIND_DIFFUSE,
-                        MaterialKind::Principled => KIND_PRINCIPLED,
+                        MaterialKind::Diffuse => MATERIAL_DIFFUSE,
+                        MaterialKind::Principled => MATERIAL_PRINCIPLED,
                     },
-                    pad: [0; 3],
+                    one_sided: m.one_sided as u32,
+                    pad: [0; 2],
                 }
             })
             .collect();
@@ -143,6 +163,35 @@ impl GpuScene {
             .map(|(i, m)| {
                 let constant = push_value(&mut data, &m.emission, None);
                 MeshRecord { emission: layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant) }
+            })
+            .collect();
+        let lights: Vec<LightRecord> = scene
+            .lights
+            .iter()
+            .enumerate()
+            .map(|(i, l)| {
+                let color = push_value(&mut data, &l.color, None);
+                let intensity = push_value(&mut data, &[l.intensity], None);
+                let (kind, inner, outer, falloff) = match l.kind {
+                    LightKind::Point => (crate::constants::LIGHT_POINT, 0.0, 0.0, SpotFalloff::Smooth),
+                    LightKind::Spot { inner, outer, falloff } => (crate::constants::LIGHT_SPOT, inner, outer, falloff),
+                    LightKind::Directional => (crate::constants::LIGHT_DIRECTIONAL, 0.0, 0.0, SpotFalloff::Smooth),
+                };
+                LightRecord {
+                    position: l.position.into(),
+                    kind,
+                    direction: l.direction.into(),
+                    falloff: match falloff {
+                        SpotFalloff::Smooth => crate::constants::FALLOFF_SMOOTH,
+                        SpotFalloff::Linear => crate::constants::FALLOFF_LINEAR,
+                    },
+                    color: layout.slot(ParamTarget::LightColor { light: i }).map(theta_ref).unwrap_or(color),
+                    intensity: layout.slot(ParamTarget::LightIntensity { light: i }).map(theta_ref).unwrap_or(intensity),
+                    cos_inner: inner.cos(),
+                    cos_outer: outer.cos(),
+                    inner,
+                    outer,
+                }
             })
             .collect();
         let env_value = color_ref(&mut data, &scene.environment.value);
@@ -206,9 +255,11 @@ impl GpuScene {
                 material: geo.triangle_material[t],
                 mesh: mesh as u32,
                 emitter_pdf: 0.0,
-                pad: [0; 3],
+                two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                pad: [0; 2],
             });
         }
+        warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -228,7 +279,8 @@ impl GpuScene {
             environment,
             environment_scale: scene.environment.scale,
             environment_sample_prob: Self::environment_sample_prob(environment_distribution.is_some(), emitters.len()),
-            pad: [0; 2],
+            num_lights: lights.len() as u32,
+            pad: 0,
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
@@ -256,6 +308,7 @@ impl GpuScene {
             ("SceneGlobals", texel_buffer(ctx, "globals", &[globals])?),
             ("MaterialData", texel_buffer(ctx, "material data", &data)?),
             ("EnvDistribution", texel_buffer(ctx, "environment distribution", &env_data)?),
+            ("Lights", texel_buffer(ctx, "lights", &lights)?),
         ];
         // θ is read as texels by the integrator kernels and as floats by the optimisers;
         // its length is a whole number of texels (the padding is never read or moved).
@@ -270,6 +323,7 @@ impl GpuScene {
             rr_depth: scene.integrator.rr_depth,
             emitters: emitters.len() as u32,
             has_environment,
+            lights: lights.len() as u32,
             environment_distribution,
             triangles: geo.indices.len(),
             globals,
@@ -338,6 +392,7 @@ impl GpuScene {
             ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
             ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
+            ("HAS_DELTA_LIGHTS", SpecValue::Bool(self.lights > 0)),
         ]
     }
 
@@ -362,19 +417,6 @@ impl GpuScene {
     pub fn pixels(&self) -> usize {
         (self.width * self.height) as usize
     }
-}
-
-/// Push constants of trace_primal / trace_adjoint (glsl/trace_primal.comp).
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct TracePush {
-    pub width: u32,
-    pub height: u32,
-    pub sensor: u32,
-    pub spp: u32,
-    pub first_sample: u32,
-    pub seed: u32,
-    pub weight: f32,
 }
 
 /// Samples per pixel per submission: keeps each submission short on slow devices.
@@ -419,10 +461,18 @@ pub fn record_samples(
         }
         let chunk = step.min(spp - done);
         let p = TracePush { spp: chunk, first_sample: push.first_sample + done, ..push };
-        rec.dispatch_linear(pipeline, group, bytemuck::bytes_of(&p), scene.pixels() as u64)?;
+        rec.dispatch_linear(pipeline, group, &p, scene.pixels() as u64)?;
         done += chunk;
     }
     Ok(())
+}
+
+/// Renders sensor `sensor` of `scene` as written (optimised parameters at their reference
+/// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions.
+pub fn render_reference(ctx: &Arc<Context>, scene: &Scene, sensor: u32, spp: u32, seed: u64, progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
+    renderer.scene.set_theta(renderer.scene.layout.reference())?;
+    renderer.render(sensor, spp, crate::settings::gpu_seed(seed), progress)
 }
 
 /// Renders images of a [`GpuScene`] with the primal kernel.
@@ -435,6 +485,11 @@ impl Renderer {
     pub fn new(scene: GpuScene) -> gpu::Result<Self> {
         let primal = ComputePipeline::new(&scene.ctx, &scene.kernel("trace_primal"), &scene.spec())?;
         Ok(Self { scene, primal })
+    }
+
+    /// The kernel that renders (trace_primal's build for the scene's BVH layout).
+    pub fn kernel(&self) -> &str {
+        self.primal.name()
     }
 
     /// Renders sensor `sensor` with `spp` samples per pixel, in submissions of at most

@@ -5,6 +5,7 @@
 //! through a `ValueRef` with `in_theta = 1`; the optimiser updates slots in place.
 
 use crate::image::Image;
+use crate::scene::write::Recovered;
 use crate::scene::{ParamTarget, Reference, Scene};
 
 /// One optimised parameter.
@@ -18,7 +19,8 @@ pub struct ParamSlot {
     pub offset: usize,
     pub len: usize,
     pub range: [f32; 2],
-    pub lr: f32,
+    /// The scene's learning rate for this parameter, if it sets one.
+    pub lr: Option<f32>,
     /// Start values (`len` floats).
     pub init: Vec<f32>,
     /// The scene's own values resampled to this slot's layout (`len` floats).
@@ -69,7 +71,7 @@ impl ParamLayout {
                 offset: layout.len,
                 len,
                 range: p.range,
-                lr: p.lr.unwrap_or(scene.optimise.lr),
+                lr: p.lr,
                 init,
                 reference,
             });
@@ -91,6 +93,22 @@ impl ParamLayout {
     /// θ at the scene's own (reference) values.
     pub fn reference(&self) -> Vec<f32> {
         self.slots.iter().flat_map(|s| s.reference.iter().copied()).collect()
+    }
+
+    /// Every slot's values in θ as a recovered parameter, for writing the scene back.
+    pub fn recovered(&self, theta: &[f32]) -> Vec<(ParamTarget, Recovered)> {
+        self.slots
+            .iter()
+            .map(|s| {
+                let v = theta[s.offset..s.offset + s.len].to_vec();
+                let r = if s.size == [0, 0] {
+                    Recovered::Constant(v)
+                } else {
+                    Recovered::Texture { width: s.size[0], height: s.size[1], channels: s.channels, data: v }
+                };
+                (s.target, r)
+            })
+            .collect()
     }
 
     /// Root-mean-square error of θ against the reference, overall and per slot.

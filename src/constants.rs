@@ -1,0 +1,49 @@
+//! Constants shared by the host and the kernels, defined here only: build.rs reads this
+//! file and writes each constant into the kernels' header `vkinverse_constants.glsl` as a
+//! GLSL `const uint`, so the two sides cannot disagree. Every item is a line
+//! `pub const NAME: u32 = VALUE;` (build.rs refuses anything else).
+
+/// `Material::kind` of a Lambertian material: f = base_color / π.
+pub const MATERIAL_DIFFUSE: u32 = 0;
+/// `Material::kind` of the glTF 2.0 metallic-roughness model (Lambert diffuse + GGX/Smith
+/// specular).
+pub const MATERIAL_PRINCIPLED: u32 = 1;
+
+/// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
+pub const LIGHT_POINT: u32 = 0;
+/// A spot light.
+pub const LIGHT_SPOT: u32 = 1;
+/// A directional light.
+pub const LIGHT_DIRECTIONAL: u32 = 2;
+/// `LightRecord::falloff` of glTF's spot falloff: the square of a linear ramp in cos θ.
+pub const FALLOFF_SMOOTH: u32 = 0;
+/// Mitsuba's spot falloff: linear in θ.
+pub const FALLOFF_LINEAR: u32 = 1;
+
+/// Parameters whose gradients the adjoint kernels sum per thread in registers before the
+/// atomics (glsl/lib/scene_access.glsl); a larger θ takes the direct atomics.
+pub const LOCAL_GRADS_CAPACITY: u32 = 32;
+
+/// The `LOSS` specialization constant of glsl/loss.comp: mean squared difference.
+pub const LOSS_L2: u32 = 0;
+/// Mean absolute difference.
+pub const LOSS_L1: u32 = 1;
+/// Squared difference over (target² + 0.01).
+pub const LOSS_RELATIVE_L2: u32 = 2;
+
+/// `StepRule::code` (src/optim/mod.rs) of the meta-estimator's step rules, as the fused pass
+/// (glsl/lib/optim.glsl) numbers them: the seed's −lr·⟨F⟩_M/√V_M.
+pub const STEP_SNR: u32 = 0;
+/// Adam's normalisation of the meta-estimate.
+pub const STEP_ADAM: u32 = 1;
+/// The seed's rule bounded by lr.
+pub const STEP_BOUNDED: u32 = 2;
+/// Adam's normalisation times the estimate's Wiener gain.
+pub const STEP_WIENER: u32 = 3;
+
+/// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
+pub const SCHEDULE_CONSTANT: u32 = 0;
+/// Cosine decay to a floor.
+pub const SCHEDULE_COSINE: u32 = 1;
+/// Step decay.
+pub const SCHEDULE_STEP: u32 = 2;
