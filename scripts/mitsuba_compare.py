@@ -12,10 +12,19 @@
   c. time per Adam iteration: `vkinverse optimise --optimiser adam` against Mitsuba
      prb + mi.ad.Adam with the scene's learning rate and sample counts.
 
+`--res 64,256` runs everything once per film resolution (a copy of the scene's folder
+with its [film] size replaced, in OUT/res-N/) and ends with a table of the time ratios
+(vkinverse / Mitsuba) per resolution: render, gradient estimate, Adam iteration. Every
+Mitsuba timing ends with its kernels finished: Dr.Jit launches them asynchronously, so
+each timed span evaluates what it computed and waits (`dr.sync_thread()`) or reads a
+value back before the clock stops.
+
 Mitsuba is a peer to measure against, not a dependency of vkinverse: this script is the
 only place it is imported, and it stops with a message when it is missing.
 
     python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --spp 1024 --out /tmp/cmp
+    python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --res 64,256 --spp 256 \
+        --parts ac --out /tmp/cmp
 
 Only what has an exact Mitsuba counterpart is translated: diffuse (Lambert) materials
 with constant colours, OBJ meshes, one-sided area lights, a constant environment, pinhole
@@ -310,6 +319,7 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
 
     def mitsuba_render(seed):
         t = time.perf_counter()
+        # Reading the image back waits for the render's kernels.
         img = np.array(mi.render(mscene, spp=spp, seed=seed))
         return time.perf_counter() - t, img
 
@@ -404,7 +414,9 @@ def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
         img = mi.render(mscene, params, spp=spp, spp_grad=spp, seed=seed)
         loss = dr.mean(dr.square(img - target_t), axis=None)
         dr.backward(loss)
+        # Reading the gradient back waits for the adjoint pass's kernels.
         g = np.array(dr.grad(params[key])).ravel()[:3].astype(np.float64)
+        dr.sync_thread()
         dt = time.perf_counter() - t
         dr.set_grad(params[key], 0)
         return dt, g
@@ -465,7 +477,12 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         opt.step()
         opt[key] = dr.clip(opt[key], rng[0], rng[1])
         params.update(opt)
-        loss_value = float(np.array(loss).ravel()[0])  # vkinverse reads its loss back too
+        # The step and the optimiser state are evaluated inside the iteration (else their
+        # kernels would run lazily in the next one), and the loss is read back as
+        # vkinverse's is; then every launched kernel is waited for.
+        dr.eval(params[key], opt[key])
+        loss_value = float(np.array(loss).ravel()[0])
+        dr.sync_thread()
         times.append(time.perf_counter() - t)
         del loss_value
     m_final = np.array(params[key]).ravel()[:3].tolist()
@@ -550,6 +567,8 @@ def main():
     ap.add_argument("--opt-spp", type=int, help="adjoint spp per iteration (default: the scene's)")
     ap.add_argument("--opt-primal-spp", type=int, help="primal spp per iteration (default: the scene's)")
     ap.add_argument("--parts", default="abc", help="which comparisons to run (subset of abc)")
+    ap.add_argument("--res", help="comma-separated film sizes (square) to run everything at, e.g. 64,256 "
+                    "(default: the scene's own film)")
     ap.add_argument("--vkinverse", help="vkinverse binary (default: $CARGO_TARGET_DIR or target/ release build)")
     ap.add_argument("--out", type=Path, required=True, help="directory for images, logs and results.json")
     args = ap.parse_args()
@@ -559,12 +578,53 @@ def main():
         fail("--rounds must be at least 2")
 
     np, dr, mi = import_mitsuba()
-    scene_path = args.scene.resolve()
-    scene = load_toml(scene_path)
     vk = find_vkinverse(args.vkinverse)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
+    if not args.res:
+        scene_path = args.scene.resolve()
+        results = run_all(np, dr, mi, scene_path, vk, args, out)
+        (out / "results.json").write_text(json.dumps(results, indent=2))
+        print(f"\nresults.json and images in {out}")
+        return
+    try:
+        sizes = [int(r) for r in args.res.split(",")]
+    except ValueError:
+        fail(f"--res {args.res!r}: expected comma-separated integers, e.g. 64,256")
+    if any(r < 8 for r in sizes):
+        fail("--res: sizes must be at least 8")
+    by_res = {}
+    for r in sizes:
+        res_out = out / f"res-{r}"
+        res_out.mkdir(parents=True, exist_ok=True)
+        scene_path = scene_at_resolution(args.scene.resolve(), r, res_out)
+        by_res[r] = run_all(np, dr, mi, scene_path, vk, args, res_out)
+        (res_out / "results.json").write_text(json.dumps(by_res[r], indent=2))
+    print_ratios(args.scene, by_res)
+    (out / "results.json").write_text(json.dumps({str(r): v for r, v in by_res.items()}, indent=2))
+    print(f"\nresults.json per resolution in {out}/res-N/, all in {out}/results.json")
 
+
+def scene_at_resolution(scene_path, res, out):
+    """A copy of the scene's folder under `out` whose [film] is res x res."""
+    copy = out / "scene"
+    shutil.rmtree(copy, ignore_errors=True)
+    shutil.copytree(scene_path.parent, copy, ignore=shutil.ignore_patterns(".vkinverse-cache"))
+    lines = (copy / scene_path.name).read_text().splitlines()
+    film = next((k for k, l in enumerate(lines) if l.strip() == "[film]"), None)
+    if film is None:
+        lines[:0] = ["[film]", f"width = {res}", f"height = {res}", ""]
+    else:
+        end = next((k for k in range(film + 1, len(lines)) if lines[k].lstrip().startswith("[")), len(lines))
+        body = [l for l in lines[film + 1:end] if l.split("=")[0].strip() not in ("width", "height")]
+        lines[film + 1:end] = [f"width = {res}", f"height = {res}"] + body
+    (copy / scene_path.name).write_text("\n".join(lines) + "\n")
+    return copy / scene_path.name
+
+
+def run_all(np, dr, mi, scene_path, vk, args, out):
+    """Parts a, b and c (as selected) on one scene file; prints their tables."""
+    scene = load_toml(scene_path)
     a = b = c = None
     target = None
     if "a" in args.parts:
@@ -580,10 +640,26 @@ def main():
     if "c" in args.parts:
         c = compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out)
 
-    print(f"Mitsuba {mi.__version__} ({VARIANT}) vs {vk}; scene {args.scene}")
+    film = scene.get("film", {})
+    print(f"Mitsuba {mi.__version__} ({VARIANT}) vs {vk}; scene {scene_path} "
+          f"({film.get('width', 256)}x{film.get('height', 256)})")
     print_tables(a, b, c)
-    (out / "results.json").write_text(json.dumps({"images": a, "gradient": b, "optimisation": c}, indent=2))
-    print(f"\nresults.json and images in {out}")
+    return {"images": a, "gradient": b, "optimisation": c}
+
+
+def print_ratios(scene, by_res):
+    """One line per resolution: the time ratios vkinverse / Mitsuba."""
+    print(f"\ntime ratios vkinverse / Mitsuba ({VARIANT}), {scene}")
+    print(f"  {'res':>5} {'render (reported)':>18} {'render (process)':>17} {'gradient':>9} {'Adam iter':>10} "
+          f"{'Adam ms vk / mi':>16}")
+    for r, v in by_res.items():
+        a, b, c = v["images"], v["gradient"], v["optimisation"]
+        ra = a["vkinverse_reported_s"] / a["mitsuba_s"] if a else float("nan")
+        rp = a["vkinverse_process_s"] / a["mitsuba_s"] if a else float("nan")
+        rb = b["vkinverse_per_estimate_s"] / b["mitsuba_per_estimate_s"] if b else float("nan")
+        rc = c["vkinverse_per_iter_s"] / c["mitsuba_per_iter_s"] if c else float("nan")
+        ms = f"{1e3 * c['vkinverse_per_iter_s']:.1f} / {1e3 * c['mitsuba_per_iter_s']:.1f}" if c else "n/a"
+        print(f"  {r:>5} {ra:>18.2f} {rp:>17.2f} {rb:>9.2f} {rc:>10.2f} {ms:>16}")
 
 
 if __name__ == "__main__":

@@ -265,7 +265,7 @@ impl RunFlags {
 }
 
 fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
-    Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
+    Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, ..Default::default() })
 }
 
 /// A progress bar on stderr, hidden with --quiet or when stderr is not a terminal.
