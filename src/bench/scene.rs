@@ -154,8 +154,26 @@ pub struct SceneBench {
     /// finite-difference buffers, both optimisers' state).
     pub memory_bytes: u64,
     pub memory_allocations: usize,
+    /// Host↔device traffic per timed iteration: the frame counter written, the loss and θ
+    /// read back (as `optimise` does for its log).
+    pub transfer: TransferPerIteration,
     /// The fused optimiser passes on a synthetic θ.
     pub optimisers: OptimiserBandwidth,
+}
+
+/// Means per iteration of [`crate::gpu::TransferStats`] over the timed iterations.
+#[derive(Clone, Debug, Serialize)]
+pub struct TransferPerIteration {
+    /// False when device memory is read and written through the staging buffers (a
+    /// discrete GPU, or `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1`).
+    pub device_memory_mappable: bool,
+    pub upload_bytes: f64,
+    pub readback_bytes: f64,
+    pub staged_bytes: f64,
+    pub staged_submissions: f64,
+    /// Buffers and staging buffers created during the timed iterations (0: an iteration
+    /// allocates nothing).
+    pub buffers_created: u64,
 }
 
 /// Per-submission sums of the scopes of each name, collected over submissions.
@@ -318,13 +336,27 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch.
     cmd.submit_and_wait()?;
     let (mut main, mut eq, mut generic_samples) = (Samples::default(), Samples::default(), Samples::default());
+    let before = ctx.transfer_stats();
     for i in 0..iterations {
         gs.set_frame(i + 1)?;
         cmd.submit_and_wait()?;
+        // The host's side of an optimisation iteration: the loss and θ for the log.
+        proportional.total_loss()?;
+        gs.theta.read::<f32>()?;
         main.add(&passes.results()?);
         eq.add(&equal_spp.results()?);
         generic_samples.add(&generic_prof.results()?);
     }
+    let moved = ctx.transfer_stats().since(&before);
+    let per = |v: u64| v as f64 / f64::from(iterations.max(1));
+    let transfer = TransferPerIteration {
+        device_memory_mappable: ctx.device_memory_mappable(),
+        upload_bytes: per(moved.upload_bytes),
+        readback_bytes: per(moved.readback_bytes),
+        staged_bytes: per(moved.staged_upload_bytes + moved.staged_readback_bytes),
+        staged_submissions: per(moved.staged_submissions),
+        buffers_created: moved.buffers_created + moved.staging_allocations,
+    };
 
     let parameters = gs.layout.len;
     let primal_ms = main.median("trace_primal");
@@ -396,6 +428,7 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
         bvh,
         memory_bytes,
         memory_allocations,
+        transfer,
         optimisers,
     })
 }
@@ -547,6 +580,17 @@ impl SceneBench {
             "memory: {:.2} MiB in {} allocations (scene, gradient and finite-difference passes, both optimisers)",
             self.memory_bytes as f64 / (1 << 20) as f64,
             self.memory_allocations
+        );
+        let t = &self.transfer;
+        let _ = writeln!(
+            s,
+            "host<->device per iteration: {:.0} B up, {:.0} B down ({}; {:.0} B staged in {:.1} copy submissions); buffers created while iterating: {}",
+            t.upload_bytes,
+            t.readback_bytes,
+            if t.device_memory_mappable { "device memory mapped" } else { "device memory unmappable: staging" },
+            t.staged_bytes,
+            t.staged_submissions,
+            t.buffers_created
         );
         s.push_str(&self.optimisers.table());
         s
