@@ -113,7 +113,7 @@ pub struct Ratios {
 /// trace_test on camera rays of the first sensor.
 #[derive(Clone, Debug, Serialize)]
 pub struct BvhThroughput {
-    /// The node layout traced (the default, `binary` or `wide`).
+    /// The node layout traced (the default unless `VKINVERSE_BVH_LAYOUT` names another).
     pub layout: String,
     pub rays: u64,
     pub triangles: usize,

@@ -18,7 +18,8 @@
 //!   root can have one: when the scene has fewer than two leaves.
 //!
 //! The kernels can also trace a wide layout ([`BvhLayout::Wide`], [`WideBvh`]): 4-ary
-//! nodes made from the binary tree by pulling descendants up into a node's four slots. Leaves and the triangle array are the binary tree's; wide inner nodes are at
+//! nodes made from the binary tree by pulling descendants up into a node's four slots;
+//! and a compressed 8-wide layout ([`BvhLayout::Cw8`], [`CwBvh`], module `cw`). Leaves and the triangle array are the binary tree's; wide inner nodes are at
 //! depth `<= STACK_SIZE / 2`, which bounds the wide traversal's stack by
 //! [`WIDE_STACK_SIZE`]. [`BvhLayout::default`] is the layout the renderer uses.
 
@@ -231,12 +232,12 @@ pub struct Bvh {
 pub enum BvhLayout {
     /// [`BvhNode`]: binary, both children's boxes in the parent.
     Binary,
-    /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`). The default:
-    /// faster on lavapipe (docs/lavapipe.md, `vkinverse bench SCENE --bvh-layouts`).
-    #[default]
+    /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`).
     Wide,
     /// [`BvhCwNode`]: compressed 8-ary (Ylitie et al. 2017), kernels built with `BVH_CW8`
-    /// (suffix `_cw8`).
+    /// (suffix `_cw8`). The default: the fastest on lavapipe at 256x256 (docs/lavapipe.md,
+    /// `vkinverse bench SCENE --bvh-layouts`).
+    #[default]
     Cw8,
 }
 
