@@ -139,7 +139,7 @@ enum Command {
         /// θ of the optimiser passes.
         #[arg(long, default_value_t = 16 << 20)]
         elements: u64,
-        /// With a scene: compare the BVH layouts (binary, wide) instead, alternating them
+        /// With a scene: compare the BVH layouts (binary, wide, cw8) instead, rotating them
         /// over `--iterations` rounds.
         #[arg(long)]
         bvh_layouts: bool,
