@@ -120,15 +120,7 @@ impl Setup {
             for s in 0..sensors {
                 // Each submission accumulates every sensor's render onto the image.
                 rec.transition(&[(&image, Access::ComputeReadWrite)])?;
-                let push = TracePush {
-                    width: gs.width,
-                    height: gs.height,
-                    sensor: s,
-                    spp: st.primal_spp,
-                    first_sample: 0,
-                    seed: st.seed.wrapping_add(SEED_PRIMAL),
-                    weight: 1.0 / st.primal_spp as f32,
-                };
+                let push = primal_push(&gs, st, s);
                 primal_prof.scope(rec, "trace_primal", |rec, _| {
                     record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image])
                 })?;
@@ -162,6 +154,19 @@ impl Setup {
     }
 }
 
+/// The push constants of sensor `s`'s primal pass: primal_spp samples, the primal seed.
+fn primal_push(gs: &GpuScene, st: &Settings, s: u32) -> TracePush {
+    TracePush {
+        width: gs.width,
+        height: gs.height,
+        sensor: s,
+        spp: st.primal_spp,
+        first_sample: 0,
+        seed: st.seed.wrapping_add(SEED_PRIMAL),
+        weight: 1.0 / st.primal_spp as f32,
+    }
+}
+
 /// Rays one primal pass of `gs` casts (every sensor at `st.primal_spp`), counted by
 /// trace_primal_count.
 fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &Settings) -> Result<u64> {
@@ -178,15 +183,7 @@ fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &Settings) -> Result
         for s in 0..gs.sensors as u32 {
             // Each sensor's render and count accumulate onto the previous one's.
             rec.transition(&[(&image, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
-            let push = TracePush {
-                width: gs.width,
-                height: gs.height,
-                sensor: s,
-                spp: st.primal_spp,
-                first_sample: 0,
-                seed: st.seed.wrapping_add(SEED_PRIMAL),
-                weight: 1.0 / st.primal_spp as f32,
-            };
+            let push = primal_push(gs, st, s);
             record_samples(rec, gs, &counting, &group, push, push.spp, &[&image, &counters])?;
         }
         Ok(())

@@ -55,35 +55,12 @@ impl Buffer {
                 | vk::BufferUsageFlags::TRANSFER_SRC
                 | vk::BufferUsageFlags::TRANSFER_DST,
         );
-        // SAFETY: valid create info on a live device.
-        let raw = unsafe { ctx.device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;
-        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
         let location = match kind {
             MemoryKind::Device => MemoryLocation::GpuOnly,
             MemoryKind::Upload => MemoryLocation::CpuToGpu,
             MemoryKind::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location,
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
-        let allocation = match allocation {
-            Ok(a) => a,
-            Err(source) => {
-                // SAFETY: the buffer was never bound or used.
-                unsafe { ctx.device.destroy_buffer(raw, None) };
-                return Err(GpuError::Alloc { name: name.into(), source });
-            }
-        };
-        // SAFETY: the allocation satisfies `requirements` and is not bound elsewhere.
-        if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
-            unsafe { ctx.device.destroy_buffer(raw, None) };
-            let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
-            return Err(vk_err("vkBindBufferMemory")(e));
-        }
+        let (raw, allocation) = allocate_bound(ctx, name, &info, location)?;
         Counters::add(&ctx.counters.buffers, 1);
         Ok(Self(Arc::new(BufferInner {
             ctx: ctx.clone(),
@@ -184,6 +161,41 @@ impl Buffer {
         ctx.staging.lock().unwrap_or_else(|p| p.into_inner()).readback(ctx, self.0.raw, dst)?;
         Ok(out)
     }
+}
+
+/// Creates a buffer and binds a new allocation of `location` memory to it; on failure
+/// nothing is left behind.
+pub(crate) fn allocate_bound(
+    ctx: &Context,
+    name: &str,
+    info: &vk::BufferCreateInfo,
+    location: MemoryLocation,
+) -> Result<(vk::Buffer, Allocation)> {
+    // SAFETY: valid create info on a live device.
+    let raw = unsafe { ctx.device.create_buffer(info, None) }.map_err(vk_err("vkCreateBuffer"))?;
+    let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
+    let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
+        name,
+        requirements,
+        location,
+        linear: true,
+        allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+    });
+    let allocation = match allocation {
+        Ok(a) => a,
+        Err(source) => {
+            // SAFETY: the buffer was never bound or used.
+            unsafe { ctx.device.destroy_buffer(raw, None) };
+            return Err(GpuError::Alloc { name: name.into(), source });
+        }
+    };
+    // SAFETY: the allocation satisfies `requirements` and is not bound elsewhere.
+    if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
+        unsafe { ctx.device.destroy_buffer(raw, None) };
+        let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
+        return Err(vk_err("vkBindBufferMemory")(e));
+    }
+    Ok((raw, allocation))
 }
 
 impl Drop for BufferInner {

@@ -18,7 +18,9 @@
 
 use super::{vk_err, Context, GpuError, Result};
 use ash::vk;
-use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use super::buffer::allocate_bound;
+use super::commands::create_pool_and_fence;
+use gpu_allocator::vulkan::Allocation;
 use gpu_allocator::MemoryLocation;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -121,38 +123,14 @@ pub(crate) enum Direction {
 
 fn host_buffer(ctx: &Context, name: &str, location: MemoryLocation, usage: vk::BufferUsageFlags) -> Result<HostBuffer> {
     let info = vk::BufferCreateInfo::default().size(STAGING_BYTES).usage(usage);
-    // SAFETY: valid create info on a live device.
-    let raw = unsafe { ctx.device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;
-    let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
-    let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
-        name,
-        requirements,
-        location,
-        linear: true,
-        allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-    });
-    let allocation = match allocation {
-        Ok(a) if a.mapped_ptr().is_some() => a,
-        Ok(a) => {
-            let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(a);
-            // SAFETY: never bound or used.
-            unsafe { ctx.device.destroy_buffer(raw, None) };
-            return Err(GpuError::BufferAccess { name: name.into(), what: "host-visible memory could not be mapped".into() });
-        }
-        Err(source) => {
-            // SAFETY: never bound or used.
-            unsafe { ctx.device.destroy_buffer(raw, None) };
-            return Err(GpuError::Alloc { name: name.into(), source });
-        }
-    };
-    // SAFETY: the allocation satisfies the requirements and is bound nowhere else.
-    if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
-        unsafe { ctx.device.destroy_buffer(raw, None) };
-        let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
-        return Err(vk_err("vkBindBufferMemory")(e));
+    let (raw, allocation) = allocate_bound(ctx, name, &info, location)?;
+    let b = HostBuffer { raw, allocation };
+    if b.allocation.mapped_ptr().is_none() {
+        free_host_buffer(ctx, b);
+        return Err(GpuError::BufferAccess { name: name.into(), what: "host-visible memory could not be mapped".into() });
     }
     Counters::add(&ctx.counters.staging_allocations, 1);
-    Ok(HostBuffer { raw, allocation })
+    Ok(b)
 }
 
 fn free_host_buffer(ctx: &Context, b: HostBuffer) {
@@ -171,35 +149,7 @@ impl Parts {
                 return Err(e);
             }
         };
-        let dev = &ctx.device;
-        let made = (|| -> Result<(vk::CommandPool, vk::CommandBuffer, vk::Fence)> {
-            // SAFETY: valid create infos; partial objects are destroyed below on error.
-            let pool = unsafe {
-                dev.create_command_pool(
-                    &vk::CommandPoolCreateInfo::default()
-                        .queue_family_index(ctx.queue_family)
-                        .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                    None,
-                )
-            }
-            .map_err(vk_err("vkCreateCommandPool"))?;
-            let alloc = vk::CommandBufferAllocateInfo::default().command_pool(pool).level(vk::CommandBufferLevel::PRIMARY).command_buffer_count(1);
-            let cmd = match unsafe { dev.allocate_command_buffers(&alloc) } {
-                Ok(c) => c[0],
-                Err(e) => {
-                    unsafe { dev.destroy_command_pool(pool, None) };
-                    return Err(vk_err("vkAllocateCommandBuffers")(e));
-                }
-            };
-            let fence = match unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) } {
-                Ok(f) => f,
-                Err(e) => {
-                    unsafe { dev.destroy_command_pool(pool, None) };
-                    return Err(vk_err("vkCreateFence")(e));
-                }
-            };
-            Ok((pool, cmd, fence))
-        })();
+        let made = create_pool_and_fence(ctx);
         match made {
             Ok((pool, cmd, fence)) => Ok(Parts { upload, readback, pool, cmd, fence }),
             Err(e) => {
