@@ -9,13 +9,12 @@
 //! renders; for l1 it is of the plain loss, whose finite difference also carries the
 //! derivative of the image noise (shrinking with `primal_spp`); `rel_tol` covers that.
 
+use crate::engine::Engine;
 use crate::error::Result;
-use crate::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
-use crate::ops::BufferOps;
+use crate::gpu::{CommandBuffer, Context};
 use crate::render::gradient::GradientPass;
-use crate::render::targets::{targets, TARGET_SPP};
-use crate::render::{GpuScene, Renderer};
 use crate::scene::Scene;
+use crate::settings::RunSettings;
 use serde::Serialize;
 use std::sync::Arc;
 
@@ -64,27 +63,26 @@ fn mean_se(v: &[f64]) -> (f64, f64) {
 
 /// Checks every optimised parameter of `scene` at its initial values.
 pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Vec<Row>> {
-    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
-    let gs = &renderer.scene;
-    let target_images = targets(&renderer, scene, TARGET_SPP, |_, _, _| {})?;
-    let ops = BufferOps::new(ctx)?;
+    // The gradient estimate of an optimisation iteration at the options' sample counts.
+    let mut settings = RunSettings::of_scene(scene);
+    (settings.spp, settings.primal_spp, settings.seed) = (opts.spp, opts.primal_spp, opts.seed as u64);
+    let engine = Engine::gradient_only(ctx, scene, &settings)?;
+    let (gs, ops, grad, pass, target_images) = (engine.scene(), &engine.ops, &engine.grad, &engine.gradient, &engine.targets);
     let n = gs.layout.len.max(1);
-    let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
-    let pass = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed, &gs.theta, &grad)?;
     let mut grad_cmd = CommandBuffer::new(ctx, "gradient")?;
-    grad_cmd.record(|rec| pass.record(rec, gs, &ops))?;
+    grad_cmd.record(|rec| engine.record_gradient(rec, None))?;
     // Two independent primal renders per evaluation: for l2 and relative_l2 the product
     // (I1 − T)(I2 − T) has expectation (E[I] − T)², so the finite difference does not also
     // pick up the derivative of the image variance, which the plain loss (I − T)² carries.
-    let second = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed ^ 0x5A5A_5A5A, &gs.theta, &grad)?;
+    let second = engine.extra_gradient(opts.spp, opts.primal_spp, opts.seed ^ 0x5A5A_5A5A, grad)?;
     let mut loss_cmd = CommandBuffer::new(ctx, "loss")?;
     loss_cmd.record(|rec| {
-        pass.record_loss(rec, gs, &ops)?;
-        second.record_loss(rec, gs, &ops)
+        pass.record_loss(rec, gs, ops)?;
+        second.record_loss(rec, gs, ops)
     })?;
-    let loss_kind = scene.optimise.loss;
+    let loss_kind = engine.loss();
     let unbiased_loss = |a: &GradientPass, b: &GradientPass| -> Result<f64> {
-        if loss_kind == crate::scene::Loss::L1 {
+        if loss_kind == crate::settings::Loss::L1 {
             return Ok(a.total_loss()?);
         }
         let mut total = 0.0;
@@ -94,7 +92,7 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Ve
             for ((p1, p2), pt) in i1.data.iter().zip(&i2.data).zip(&t.data) {
                 for c in 0..3 {
                     let tc = pt[c] as f64;
-                    let w = if loss_kind == crate::scene::Loss::RelativeL2 { 1.0 / (tc * tc + 0.01) } else { 1.0 };
+                    let w = if loss_kind == crate::settings::Loss::RelativeL2 { 1.0 / (tc * tc + 0.01) } else { 1.0 };
                     sum += (p1[c] as f64 - tc) * (p2[c] as f64 - tc) * w;
                 }
             }

@@ -12,9 +12,10 @@
 use super::median;
 use super::scene::camera_rays;
 use crate::bvh::{BvhLayout, TraceResult};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
-use crate::optimise::Settings;
+use crate::push::CountPush;
+use crate::settings::{gpu_seed, RunSettings};
 use crate::render::gradient::SEED_PRIMAL;
 use crate::render::{record_samples, GpuScene, TracePush};
 use crate::scene::Scene;
@@ -78,7 +79,7 @@ struct Setup {
 }
 
 impl Setup {
-    fn new(ctx: &Arc<Context>, scene: &Scene, st: &Settings, layout: BvhLayout) -> Result<Self> {
+    fn new(ctx: &Arc<Context>, scene: &Scene, st: &RunSettings, layout: BvhLayout) -> Result<Self> {
         let gs = GpuScene::with_bvh_layout(ctx, scene, layout)?;
         let rays = camera_rays(scene, &gs);
         let n = rays.len() as u64;
@@ -103,7 +104,7 @@ impl Setup {
         let mut b = gs.bindings();
         b.push(("Accum", &image));
         let primal_group = primal.bind(&b)?;
-        let push = (n as u32).to_le_bytes();
+        let push = CountPush::new(n);
         let sensors = gs.sensors as u32;
         let (mut closest_prof, mut any_prof, mut primal_prof) =
             (Profiler::new(ctx, 1)?, Profiler::new(ctx, 1)?, Profiler::new(ctx, sensors)?);
@@ -155,21 +156,21 @@ impl Setup {
 }
 
 /// The push constants of sensor `s`'s primal pass: primal_spp samples, the primal seed.
-fn primal_push(gs: &GpuScene, st: &Settings, s: u32) -> TracePush {
+fn primal_push(gs: &GpuScene, st: &RunSettings, s: u32) -> TracePush {
     TracePush {
         width: gs.width,
         height: gs.height,
         sensor: s,
         spp: st.primal_spp,
         first_sample: 0,
-        seed: st.seed.wrapping_add(SEED_PRIMAL),
+        seed: gpu_seed(st.seed).wrapping_add(SEED_PRIMAL),
         weight: 1.0 / st.primal_spp as f32,
     }
 }
 
 /// Rays one primal pass of `gs` casts (every sensor at `st.primal_spp`), counted by
 /// trace_primal_count.
-fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &Settings) -> Result<u64> {
+fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &RunSettings) -> Result<u64> {
     let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
     let image = Buffer::zeroed::<[f32; 3]>(ctx, "layout bench counted image", gs.pixels(), MemoryKind::Device)?;
     let counters =
@@ -195,10 +196,7 @@ fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &Settings) -> Result
 /// Runs the comparison over `rounds` rounds.
 pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
     let rounds = rounds.max(1);
-    let st = Settings::from_scene(scene);
-    if st.primal_spp == 0 {
-        return Err(Error::Invalid(format!("{}: primal_spp must be at least 1", scene.path.display())));
-    }
+    let st = RunSettings::of_scene(scene);
     let mut setups = BvhLayout::ALL.map(|layout| Setup::new(ctx, scene, &st, layout)).into_iter().collect::<Result<Vec<_>>>()?;
     let n_layouts = setups.len();
     // Warm-up (lavapipe compiles a pipeline on its first dispatch); its results (the
