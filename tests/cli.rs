@@ -275,7 +275,25 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         &s(&out_dir),
     ]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
-    assert_eq!(dir_names(&out_dir), [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "params", "summary.json"]);
+    assert_eq!(
+        dir_names(&out_dir),
+        [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"]
+    );
+    // The optimiser's diagnostics: one row per iteration and parameter group, the step's
+    // learning rate and size consistent with θ's movement, n_eff (meta) counting up.
+    let diag = vkinverse::optim::csv::DiagLog::parse(&std::fs::read_to_string(out_dir.join("optimiser.csv")).unwrap()).unwrap();
+    assert_eq!(diag.rows.len(), iterations);
+    for (k, (it, group, d)) in diag.rows.iter().enumerate() {
+        assert_eq!((*it as usize, group.as_str(), d.elements), (k + 1, "materials.red.base_color", 3));
+        assert!((d.lr - 0.05).abs() < 1e-6, "lr {}", d.lr);
+        assert!((d.step_norm - d.rms_step * 3f64.sqrt()).abs() <= 1e-5 * d.step_norm.max(1e-30), "{d:?}");
+        assert!(d.rms_f > 0.0 && d.rms_step > 0.0 && d.rms_step <= 0.05 * 8.0, "{d:?}");
+        match optimiser {
+            "meta" => assert!(d.n_eff_min >= 1.0 && d.n_eff_max <= (k + 1) as f64 + 1e-3 && d.n_eff_min <= d.n_eff_mean && d.n_eff_mean <= d.n_eff_max, "{d:?}"),
+            _ => assert_eq!((d.n_eff_mean, d.sd_fd), (0.0, 0.0)),
+        }
+    }
+    png_size(&out_dir.join("optimiser.png"));
 
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
@@ -387,6 +405,13 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(iterations, (0..=10).map(|i| i.to_string()).collect::<Vec<_>>(), "iterations 0..=10, each once");
     // The first six rows are kept as they were.
     assert_eq!(rows[..7], first[..]);
+    // So are the first six steps' diagnostics, and the resumed steps follow them.
+    let diag = |dir: &Path| std::fs::read_to_string(dir.join("optimiser.csv")).unwrap();
+    let (before, after) = (diag(&committed(&out_dir)), diag(&out_dir));
+    assert_eq!(after.lines().count(), 11, "header and ten steps");
+    assert_eq!(after, before, "the last checkpoint holds the whole diagnostics log");
+    let iters: Vec<&str> = after.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(iters, (1..=10).map(|i| i.to_string()).collect::<Vec<_>>());
     let times: Vec<f64> = rows.iter().map(|r| field(r, 1)).collect();
     assert!(times.windows(2).all(|w| w[0] <= w[1]), "time_s restarted on resume: {times:?}");
     // θ continues: the step after the checkpoint starts near the checkpoint's error, far
@@ -669,7 +694,7 @@ fn a_killed_overwrite_never_mixes_two_runs() {
     // Killed before its first checkpoint is committed: none of the old run's files remain
     // beside the new run's, and there is no checkpoint to resume.
     killed_at(&optimise_args(&dir, &["--iterations", "3", "--checkpoint-every", "1", "--overwrite", "--quiet"]), "checkpoint.written:1");
-    for old in ["summary.json", "params", "final.exr", "error_vs_time.png", "log.csv"] {
+    for old in ["summary.json", "params", "final.exr", "error_vs_time.png", "log.csv", "optimiser.csv", "optimiser.png"] {
         assert!(!dir.join(old).exists(), "{old} left beside the new run");
     }
     assert!(!dir.join("checkpoint/current").exists());
