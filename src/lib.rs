@@ -24,3 +24,4 @@ pub mod render;
 pub mod report;
 pub mod scene;
 pub mod shared;
+pub mod stats;
