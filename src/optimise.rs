@@ -27,7 +27,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// Seed offsets of the finite-difference sample: independent of the proportional one.
-const SEED_FD: u32 = 0x4000_0000;
+pub const SEED_FD: u32 = 0x4000_0000;
 
 /// What to run; command-line values override the scene's `[optimise]` table.
 #[derive(Clone, Debug, Serialize)]

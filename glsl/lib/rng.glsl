@@ -54,6 +54,12 @@ uint rng_hash_seed(uint x) {
     return x;
 }
 
+// The seed of a pass's samples in iteration `frame`: the pass's seed, moved by the
+// golden-ratio increment per iteration so that iterations spread over the seed space.
+uint rng_pass_seed(uint pass_seed, uint frame) {
+    return pass_seed + frame * 0x9E3779B9u;
+}
+
 Rng rng_init(uint pixel, uint sample_index, uint seed) {
     return Rng(uvec3(pixel, sample_index, rng_hash_seed(seed)), 0u);
 }
