@@ -8,7 +8,8 @@
 //                constant: relative MSE in the spirit of Lehtinen et al. 2018)
 layout(local_size_x = 256, local_size_x_id = 0) in;
 #include "lib/reduce.glsl"
-layout(constant_id = 1) const uint LOSS = 0;  // 0 l2, 1 l1, 2 relative_l2
+#include "vkinverse_constants.glsl"
+layout(constant_id = 1) const uint LOSS = LOSS_L2;  // LOSS_L2, LOSS_L1 or LOSS_RELATIVE_L2
 layout(set = 0, binding = 0, scalar) readonly buffer Rendered { vec3 rendered[]; };
 layout(set = 0, binding = 1, scalar) readonly buffer Target { vec3 target[]; };
 layout(set = 0, binding = 2, scalar) writeonly buffer AdjointImage { vec3 adjoint_image[]; };
@@ -24,10 +25,10 @@ void main() {
     if (i < pc.n) {
         vec3 d = rendered[i] - target[i];
         vec3 g;
-        if (LOSS == 1u) {
+        if (LOSS == LOSS_L1) {
             value = abs(d.x) + abs(d.y) + abs(d.z);
             g = sign(d);
-        } else if (LOSS == 2u) {
+        } else if (LOSS == LOSS_RELATIVE_L2) {
             vec3 w = 1.0 / (target[i] * target[i] + 0.01);
             value = dot(d * d, w);
             g = 2.0 * d * w;

@@ -3,8 +3,8 @@
 // element loads its state, steps both Moment2 EMAs and the meta-estimate, takes the step,
 // clamps to [lo, hi], records theta_prev <- theta and clears both gradient buffers for the
 // next iteration's accumulation. Each workgroup writes the sum of its elements' squared
-// steps to dpi2_partial[workgroup_index()]; the host sums the partials into `dpi2` before
-// the next pass. Non-finite inputs leave the element unchanged (step 0) and are counted in
+// steps to dpi2_partial[workgroup_index()]; a reduction recorded after the pass sums the
+// partials into `dpi2` on the GPU for the next pass (src/optim/gpu.rs). Non-finite inputs leave the element unchanged (step 0) and are counted in
 // `nonfinite` (never reset here).
 
 layout(local_size_x = 256) in;

@@ -4,7 +4,8 @@
 //! # Job file (TOML)
 //! ```toml
 //! # Shared settings, for every job (each optional; the scene's [optimise] value otherwise).
-//! iterations = 100      # also: time_budget, spp, fd_spp, primal_spp, lr, seed, checkpoint_every
+//! iterations = 100      # any run setting: time_budget, spp, fd_spp, primal_spp, lr, seed,
+//!                       # loss, optimiser, checkpoint_every, fd_two_trace (crate::settings)
 //!
 //! # The product: one job per (scene, optimiser, seed, spp); scenes vary slowest, spp fastest.
 //! scenes = ["cornell/scene.toml", "spiral/scene.toml"]   # relative to the job file
@@ -19,7 +20,7 @@
 //! seed = 7
 //! ```
 //! A value comes from, most specific first: the job (its `[[jobs]]` entry or its point of
-//! the product), the shared settings, the scene. Jobs are numbered from 1 in that order,
+//! the product), the shared settings, the scene (layered as [`crate::settings`] says). Jobs are numbered from 1 in that order,
 //! which depends only on the file, so every shard of a batch sees the same numbering.
 //!
 //! # Shards
@@ -38,12 +39,15 @@ use crate::error::{one_line, Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{log_curves, optimise, Progress};
-use crate::overrides::Overrides;
-use crate::report::{csv_field, write_curves, Curve};
+use crate::optimise::{optimise, Log, Observer, Outcome, Progress};
+use crate::report::{csv_bytes, write_curves, Curve};
+use crate::rundir::Mode;
 use crate::scene::{Scene, SceneError};
-use serde::{Deserialize, Serialize};
+use crate::settings::{deserialize_table, Settings, SettingsTable};
+use serde::de::MapAccess;
+use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt::Write as _;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -55,38 +59,72 @@ enum OneOrMany {
     Many(Vec<u32>),
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The job file: shared settings, the product's axes, single jobs.
+#[derive(Default)]
 struct JobFile {
-    #[serde(default)]
+    settings: Settings,
     scenes: Vec<PathBuf>,
-    optimisers: Option<Vec<String>>,
-    seeds: Option<Vec<u32>>,
-    spp: Option<OneOrMany>,
-    iterations: Option<u32>,
-    time_budget: Option<f64>,
-    fd_spp: Option<u32>,
-    primal_spp: Option<u32>,
-    lr: Option<f32>,
-    seed: Option<u32>,
-    checkpoint_every: Option<u32>,
-    #[serde(default)]
+    optimisers: Option<Vec<Spec>>,
+    seeds: Option<Vec<u64>>,
+    /// A list is an axis of the product (a number is a shared setting, in `settings`).
+    spp_axis: Option<Vec<u32>>,
     jobs: Vec<JobEntry>,
 }
 
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
+impl SettingsTable for JobFile {
+    const OWN_KEYS: &'static [&'static str] = &["scenes", "optimisers", "seeds", "spp", "jobs"];
+    fn read_own<'de, A: MapAccess<'de>>(&mut self, key: &'static str, map: &mut A) -> std::result::Result<(), A::Error> {
+        match key {
+            "scenes" => self.scenes = map.next_value()?,
+            "optimisers" => self.optimisers = Some(map.next_value()?),
+            "seeds" => self.seeds = Some(map.next_value()?),
+            "spp" => match map.next_value()? {
+                OneOrMany::One(n) => self.settings.spp = Some(n),
+                OneOrMany::Many(v) => self.spp_axis = Some(v),
+            },
+            _ => self.jobs = map.next_value()?,
+        }
+        Ok(())
+    }
+    fn settings_mut(&mut self) -> &mut Settings {
+        &mut self.settings
+    }
+}
+
+impl<'de> Deserialize<'de> for JobFile {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        deserialize_table(d)
+    }
+}
+
+/// A `[[jobs]]` entry: a scene and its own settings.
+#[derive(Default)]
 struct JobEntry {
-    scene: PathBuf,
-    optimiser: Option<String>,
-    seed: Option<u32>,
-    spp: Option<u32>,
-    iterations: Option<u32>,
-    time_budget: Option<f64>,
-    fd_spp: Option<u32>,
-    primal_spp: Option<u32>,
-    lr: Option<f32>,
-    checkpoint_every: Option<u32>,
+    scene: Option<PathBuf>,
+    settings: Settings,
+}
+
+impl SettingsTable for JobEntry {
+    const OWN_KEYS: &'static [&'static str] = &["scene"];
+    fn read_own<'de, A: MapAccess<'de>>(&mut self, _key: &'static str, map: &mut A) -> std::result::Result<(), A::Error> {
+        self.scene = Some(map.next_value()?);
+        Ok(())
+    }
+    fn settings_mut(&mut self) -> &mut Settings {
+        &mut self.settings
+    }
+    fn finish<E: serde::de::Error>(self) -> std::result::Result<Self, E> {
+        match self.scene {
+            Some(_) => Ok(self),
+            None => Err(E::missing_field("scene")),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for JobEntry {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        deserialize_table(d)
+    }
 }
 
 /// One job of a batch.
@@ -97,10 +135,8 @@ pub struct Job {
     /// Scene name and the values the job sets, for its directory and table row.
     pub label: String,
     pub scene: PathBuf,
-    /// None: the scene's optimiser.
-    pub optimiser: Option<Spec>,
     /// Shared settings with the job's own on top.
-    pub overrides: Overrides,
+    pub settings: Settings,
 }
 
 impl Job {
@@ -120,21 +156,21 @@ fn scene_name(path: &Path) -> String {
 }
 
 /// The label names what the job sets itself: optimiser, seed, spp and learning rate.
-fn make_job(index: usize, scene: PathBuf, optimiser: Option<Spec>, overrides: Overrides, own: (Option<u32>, Option<u32>, Option<f32>)) -> Job {
+fn make_job(index: usize, scene: PathBuf, shared: &Settings, own: &Settings) -> Job {
     let mut label = scene_name(&scene);
-    if let Some(o) = &optimiser {
+    if let Some(o) = &own.optimiser {
         label = format!("{label}-{}", o.label);
     }
-    if let Some(s) = own.0 {
+    if let Some(s) = own.seed {
         label = format!("{label}-seed{s}");
     }
-    if let Some(s) = own.1 {
+    if let Some(s) = own.spp {
         label = format!("{label}-spp{s}");
     }
-    if let Some(lr) = own.2 {
+    if let Some(lr) = own.lr {
         label = format!("{label}-lr{lr}");
     }
-    Job { index, label: file_safe(&label), scene, optimiser, overrides }
+    Job { index, label: file_safe(&label), scene, settings: shared.then(own) }
 }
 
 /// Reads and expands a job file; every setting and optimiser spec is checked here, before
@@ -143,27 +179,10 @@ pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     let file: JobFile = toml::from_str(&text).map_err(|e| SceneError::toml(path.to_path_buf(), &text, e))?;
     let bad = |what: String| Error::Invalid(format!("{}: {what}", path.display()));
+    let check = |at: &str, s: &Settings| s.validate().map_err(|e| bad(format!("{at}{} {}", e.key, e.message)));
+    check("", &file.settings)?;
     let dir = path.parent().unwrap_or(Path::new(""));
-    let (spp_axis, spp_shared) = match file.spp {
-        Some(OneOrMany::Many(v)) => (Some(v), None),
-        Some(OneOrMany::One(n)) => (None, Some(n)),
-        None => (None, None),
-    };
-    let shared = Overrides {
-        iterations: file.iterations,
-        time_budget: file.time_budget,
-        spp: spp_shared,
-        fd_spp: file.fd_spp,
-        primal_spp: file.primal_spp,
-        lr: file.lr,
-        seed: file.seed,
-        checkpoint_every: file.checkpoint_every,
-    };
-    shared.check().map_err(bad)?;
-    let parse_spec = |s: &str, at: &str| s.parse::<Spec>().map_err(|e| bad(format!("{at}: {e}")));
-
-    let mut jobs = Vec::new();
-    let axes = [("optimisers", file.optimisers.as_ref().map(Vec::len)), ("seeds", file.seeds.as_ref().map(Vec::len)), ("spp", spp_axis.as_ref().map(Vec::len))];
+    let axes = [("optimisers", file.optimisers.as_ref().map(Vec::len)), ("seeds", file.seeds.as_ref().map(Vec::len)), ("spp", file.spp_axis.as_ref().map(Vec::len))];
     for (key, len) in axes {
         if len == Some(0) {
             return Err(bad(format!("{key} is an empty list")));
@@ -172,39 +191,25 @@ pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
             return Err(bad(format!("{key} is given without scenes = [...]")));
         }
     }
-    let optimisers: Vec<Option<Spec>> = match &file.optimisers {
-        Some(list) => list.iter().map(|s| parse_spec(s, "optimisers").map(Some)).collect::<Result<_>>()?,
-        None => vec![None],
-    };
-    let seeds: Vec<Option<u32>> = file.seeds.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
-    let spps: Vec<Option<u32>> = spp_axis.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
+    let optimisers: Vec<Option<Spec>> = file.optimisers.as_ref().map_or(vec![None], |v| v.iter().cloned().map(Some).collect());
+    let seeds: Vec<Option<u64>> = file.seeds.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
+    let spps: Vec<Option<u32>> = file.spp_axis.as_ref().map_or(vec![None], |v| v.iter().copied().map(Some).collect());
+    let mut jobs = Vec::new();
     for scene in &file.scenes {
         for optimiser in &optimisers {
             for &seed in &seeds {
                 for &spp in &spps {
-                    let own = Overrides { seed, spp, ..Default::default() };
-                    let overrides = shared.then(&own);
-                    overrides.check().map_err(bad)?;
-                    jobs.push(make_job(jobs.len() + 1, dir.join(scene), optimiser.clone(), overrides, (seed, spp, None)));
+                    let own = Settings { optimiser: optimiser.clone(), seed, spp, ..Default::default() };
+                    check("spp: ", &own)?;
+                    jobs.push(make_job(jobs.len() + 1, dir.join(scene), &file.settings, &own));
                 }
             }
         }
     }
     for (i, entry) in file.jobs.into_iter().enumerate() {
-        let at = format!("jobs[{i}]");
-        let optimiser = entry.optimiser.as_deref().map(|s| parse_spec(s, &at)).transpose()?;
-        let own = Overrides {
-            iterations: entry.iterations,
-            time_budget: entry.time_budget,
-            spp: entry.spp,
-            fd_spp: entry.fd_spp,
-            primal_spp: entry.primal_spp,
-            lr: entry.lr,
-            seed: entry.seed,
-            checkpoint_every: entry.checkpoint_every,
-        };
-        own.check().map_err(|e| bad(format!("{at}: {e}")))?;
-        jobs.push(make_job(jobs.len() + 1, dir.join(entry.scene), optimiser, shared.then(&own), (entry.seed, entry.spp, entry.lr)));
+        check(&format!("jobs[{i}]: "), &entry.settings)?;
+        let scene = dir.join(entry.scene.unwrap_or_default());
+        jobs.push(make_job(jobs.len() + 1, scene, &file.settings, &entry.settings));
     }
     if jobs.is_empty() {
         return Err(bad("no jobs (give scenes = [...] or [[jobs]] entries)".into()));
@@ -265,7 +270,7 @@ pub struct JobResult {
     pub scene: String,
     /// The spec that named it, or the scene's optimiser.
     pub optimiser: Option<String>,
-    pub seed: Option<u32>,
+    pub seed: Option<u64>,
     pub spp: Option<u32>,
     pub status: Status,
     /// The one-line error of a failed job; empty when ok.
@@ -295,7 +300,7 @@ pub struct Results {
     pub results: Vec<JobResult>,
 }
 
-const CSV_HEADER: &str = "job,label,scene,optimiser,seed,spp,status,message,iterations,time_s,final_loss,final_error,dir";
+const CSV_HEADER: [&str; 13] = ["job", "label", "scene", "optimiser", "seed", "spp", "status", "message", "iterations", "time_s", "final_loss", "final_error", "dir"];
 
 impl Results {
     pub fn failed(&self) -> usize {
@@ -303,34 +308,29 @@ impl Results {
     }
 
     /// `results.csv`: [`CSV_HEADER`], one row per job, unknown values empty.
-    pub fn csv(&self) -> String {
+    pub fn csv(&self) -> Result<Vec<u8>> {
         fn opt<T: ToString>(v: Option<T>) -> String {
             v.map(|x| x.to_string()).unwrap_or_default()
         }
-        let mut s = format!("{CSV_HEADER}\n");
-        for r in &self.results {
-            let status = match r.status {
-                Status::Ok => "ok",
-                Status::Failed => "failed",
-            };
-            let _ = writeln!(
-                s,
-                "{},{},{},{},{},{},{status},{},{},{},{},{},{}",
-                r.job,
-                csv_field(&r.label),
-                csv_field(&r.scene),
-                csv_field(&opt(r.optimiser.as_deref())),
+        let rows = self.results.iter().map(|r| {
+            let status = if r.status == Status::Ok { "ok" } else { "failed" };
+            vec![
+                r.job.to_string(),
+                r.label.clone(),
+                r.scene.clone(),
+                opt(r.optimiser.as_deref()),
                 opt(r.seed),
                 opt(r.spp),
-                csv_field(&r.message),
+                status.to_string(),
+                r.message.clone(),
                 opt(r.iterations),
                 opt(r.time_s),
                 opt(r.final_loss),
                 opt(r.final_error),
-                csv_field(&r.dir)
-            );
-        }
-        s
+                r.dir.clone(),
+            ]
+        });
+        csv_bytes(&CSV_HEADER.map(String::from), rows).map_err(Error::Invalid)
     }
 
     /// The table printed at the end of a batch or merge.
@@ -358,7 +358,7 @@ impl Results {
     /// Writes `results.csv` and `results.json` into `dir`, each atomically.
     pub fn write(&self, dir: &Path) -> Result<()> {
         let json = serde_json::to_string_pretty(self).map_err(|e| Error::Invalid(e.to_string()))?;
-        for (name, bytes) in [("results.csv", self.csv().into_bytes()), ("results.json", json.into_bytes())] {
+        for (name, bytes) in [("results.csv", self.csv()?), ("results.json", json.into_bytes())] {
             let path = dir.join(name);
             write_bytes_atomic(&path, &bytes).map_err(|source| Error::Io { path, source })?;
         }
@@ -366,25 +366,42 @@ impl Results {
     }
 }
 
-/// Runs one job into `dir`, filling `row` as it learns the job's settings and results.
-fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, row: &mut JobResult, progress: &mut dyn FnMut(&Job, &Progress)) -> Result<()> {
+/// Forwards a job's progress to the batch's callback with its job.
+struct JobObserver<'a> {
+    job: &'a Job,
+    progress: &'a mut dyn FnMut(&Job, &Progress),
+}
+
+impl Observer for JobObserver<'_> {
+    fn iteration(&mut self, p: &Progress) {
+        (self.progress)(self.job, p)
+    }
+}
+
+/// Runs one job into `dir`, filling `row` as it learns the job's settings and results;
+/// returns its log.
+fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobResult, progress: &mut dyn FnMut(&Job, &Progress)) -> Result<Log> {
     let scene = Scene::load(&job.scene)?;
-    let (scene, st) = job.overrides.apply(&scene, job.optimiser.as_ref().map(|s| s.optimiser));
-    row.optimiser = Some(job.optimiser.as_ref().map_or_else(|| st.optimiser.name().to_string(), |s| s.label.clone()));
+    let st = Settings::resolve(&scene.optimise.settings, &job.settings);
+    row.optimiser = Some(job.settings.optimiser.as_ref().map_or_else(|| st.optimiser.label.clone(), |s| s.label.clone()));
     row.seed = Some(st.seed);
     row.spp = Some(st.spp);
-    let summary = optimise(ctx, &scene, &st, dir, false, |p| progress(job, p), |_, _, _| {})?;
+    let run = match optimise(ctx, &scene, &st, dir, mode, &mut JobObserver { job, progress })? {
+        Outcome::Finished(run) => run,
+        Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
+    };
+    let summary = &run.summary;
     row.iterations = Some(summary.iterations);
     row.time_s = Some(summary.total_time_s);
     row.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
     row.final_error = summary.final_param_error;
-    Ok(())
+    Ok(run.log)
 }
 
-/// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`. A job that
-/// fails is recorded with its one-line error and the batch goes on; only failing to write
-/// the table stops it. `on_start` and `on_done` bracket each job; `progress` follows its
-/// iterations.
+/// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`, each job's
+/// directory treated as `mode` says. A job that fails is recorded with its one-line error
+/// and the batch goes on; only failing to write the table stops it. `on_start` and
+/// `on_done` bracket each job; `progress` follows its iterations.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     ctx: &Arc<Context>,
@@ -393,6 +410,7 @@ pub fn run(
     shard: Option<Shard>,
     jobs: &[Job],
     out_dir: &Path,
+    mode: Mode,
     mut on_start: impl FnMut(&Job),
     mut progress: impl FnMut(&Job, &Progress),
     mut on_done: impl FnMut(&JobResult),
@@ -405,15 +423,16 @@ pub fn run(
         merged_from: Vec::new(),
         results: Vec::new(),
     };
+    let mut logs = BTreeMap::new();
     for job in jobs {
         on_start(job);
         let mut row = JobResult {
             job: job.index,
             label: job.label.clone(),
             scene: job.scene.display().to_string(),
-            optimiser: job.optimiser.as_ref().map(|s| s.label.clone()),
-            seed: job.overrides.seed,
-            spp: job.overrides.spp,
+            optimiser: job.settings.optimiser.as_ref().map(|s| s.label.clone()),
+            seed: job.settings.seed,
+            spp: job.settings.spp,
             status: Status::Ok,
             message: String::new(),
             iterations: None,
@@ -423,32 +442,35 @@ pub fn run(
             dir: job.dir_name(),
         };
         let dir = out_dir.join(job.dir_name());
-        if let Err(e) = run_job(ctx, job, &dir, &mut row, &mut progress) {
-            row.status = Status::Failed;
-            row.message = one_line(&e);
-            if !dir.exists() {
-                // Failed before writing anything (e.g. a broken scene): no directory to name.
-                row.dir.clear();
+        match run_job(ctx, job, &dir, mode, &mut row, &mut progress) {
+            Ok(log) => {
+                logs.insert(row.dir.clone(), log);
+            }
+            Err(e) => {
+                row.status = Status::Failed;
+                row.message = one_line(&e);
+                if !dir.exists() {
+                    // Failed before writing anything (e.g. a broken scene): no directory to name.
+                    row.dir.clear();
+                }
             }
         }
         on_done(&row);
         results.results.push(row);
         results.write(out_dir)?;
-        write_plots(out_dir, out_dir, &results)?;
+        write_plots(out_dir, &results, &logs)?;
     }
     Ok(results)
 }
 
 /// Writes, for each scene of the table, `error_vs_time-<scene>.png` with the curve of every
 /// finished job of that scene and `curves-<scene>.csv` with the points behind it: the
-/// parameter error when every such job has one, else the image loss. Job directories are
-/// read relative to `jobs_base`.
-fn write_plots(out_dir: &Path, jobs_base: &Path, results: &Results) -> Result<()> {
-    let mut by_scene: std::collections::BTreeMap<String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>> = Default::default();
+/// parameter error when every such job has one, else the image loss. `logs` holds each
+/// job's log by its row's `dir`.
+fn write_plots(out_dir: &Path, results: &Results, logs: &BTreeMap<String, Log>) -> Result<()> {
+    let mut by_scene: BTreeMap<String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>> = Default::default();
     for r in results.results.iter().filter(|r| r.status == Status::Ok) {
-        let path = jobs_base.join(&r.dir).join("log.csv");
-        let log = std::fs::read_to_string(&path).map_err(|source| Error::Io { path, source })?;
-        let (err, loss) = log_curves(&log);
+        let (err, loss) = logs.get(&r.dir).map(Log::curves).unwrap_or_default();
         by_scene.entry(scene_name(Path::new(&r.scene))).or_default().push((r.label.clone(), err, loss));
     }
     for (scene, runs) in by_scene {
@@ -504,8 +526,13 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> 
     let missing = (1..=merged.total_jobs).filter(|k| !origin.contains_key(k)).collect();
     std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
     merged.write(out_dir)?;
-    // The merged rows name their job directories as the shards were given.
-    write_plots(out_dir, Path::new(""), &merged)?;
+    // The shards ran in other processes: their logs are read back, from the job
+    // directories as the shards were given.
+    let mut logs = BTreeMap::new();
+    for r in merged.results.iter().filter(|r| r.status == Status::Ok) {
+        logs.insert(r.dir.clone(), Log::read(&Path::new(&r.dir).join("log.csv"))?);
+    }
+    write_plots(out_dir, &merged, &logs)?;
     Ok((merged, missing))
 }
 
@@ -546,23 +573,25 @@ mod tests {
                 "job-10-c-lr0.002",
             ]
         );
-        assert_eq!(jobs[1].overrides.iterations, Some(5));
-        assert_eq!(jobs[1].overrides.spp, Some(2));
-        assert_eq!(jobs[8].overrides.iterations, Some(9));
-        assert_eq!(jobs[8].overrides.spp, None, "a list of spp is an axis of the product only");
+        assert_eq!(jobs[1].settings.iterations, Some(5));
+        assert_eq!(jobs[1].settings.spp, Some(2));
+        assert_eq!(jobs[8].settings.iterations, Some(9));
+        assert_eq!(jobs[8].settings.spp, None, "a list of spp is an axis of the product only");
+        assert_eq!(jobs[8].settings.seed, Some(3));
+        assert_eq!(jobs[2].settings.optimiser.as_ref().map(|s| s.label.as_str()), Some("adam@beta1=0.5"));
     }
 
     #[test]
     fn bad_job_files_name_the_problem() {
         let err = |text: &str| jobs_from(text).unwrap_err().to_string();
-        assert!(err("scenes = ['a.toml']\noptimisers = ['sgd']").contains("optimisers: unknown optimiser 'sgd'"));
-        assert!(err("scenes = ['a.toml']\nlr = -1").contains("lr = -1"));
+        assert!(err("scenes = ['a.toml']\noptimisers = ['sgd']").contains(":2:14: unknown optimiser 'sgd'"));
+        assert!(err("scenes = ['a.toml']\nlr = -1").contains("lr -1 is not positive"));
         assert!(err("seeds = [1]").contains("seeds is given without scenes"));
         assert!(err("scenes = ['a.toml']\nseeds = []").contains("seeds is an empty list"));
         assert!(err("scenes = ['a.toml']\nspp = [0]").contains("spp must be at least 1"));
         assert!(err("").contains("no jobs"));
         assert!(err("scenes = ['a.toml']\nitterations = 3").contains(":2:1: unknown field `itterations`"), "{}", err("scenes = ['a.toml']\nitterations = 3"));
-        assert!(err("[[jobs]]\nscene = 'a.toml'\noptimiser = 'adam@beta3=1'").contains("jobs[0]: optimiser spec 'adam@beta3=1': unknown key 'beta3'"));
+        assert!(err("[[jobs]]\nscene = 'a.toml'\noptimiser = 'adam@beta3=1'").contains(":3:13: optimiser spec 'adam@beta3=1': unknown key 'beta3'"));
     }
 
     #[test]

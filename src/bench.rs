@@ -14,6 +14,7 @@ pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBen
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
 use crate::ops::BufferOps;
+use crate::push::{Count4Push, CountPush, GatherPush};
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{Optimiser, Range};
 use serde::Serialize;
@@ -249,10 +250,7 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     // cache-resident, as a small scene's BVH and records are), through a storage buffer and
     // through a texel buffer.
     let table_len = GATHER_TABLE.min(1u64 << (63 - (n / 4).max(1).leading_zeros()));
-    let gather_push: Vec<u8> = [GATHER_THREADS as u32, table_len as u32, GATHER_ROUNDS]
-        .iter()
-        .flat_map(|v| v.to_le_bytes())
-        .collect();
+    let gather_push = GatherPush { threads: GATHER_THREADS as u32, table_len: table_len as u32, rounds: GATHER_ROUNDS };
     let gathers = [("gather", "Table"), ("gather_texel", "table_texels")]
         .iter()
         .map(|&(kernel, binding)| {
@@ -266,8 +264,8 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     let mut cmd = CommandBuffer::new(ctx, "buffer bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
-        let n_push = (n as u32).to_le_bytes();
-        let n4_push = ((n / 4) as u32).to_le_bytes();
+        let n_push = CountPush::new(n);
+        let n4_push = Count4Push { n4: (n / 4) as u32 };
         for (r, (sum, sq)) in reductions.iter().enumerate() {
             if r > 0 {
                 // b was written by the last kernel of the previous round; x by scale_add.

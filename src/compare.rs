@@ -21,10 +21,11 @@ use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
-use crate::optimise::{log_curves, optimise, Progress, Settings};
-use crate::overrides::Overrides;
-use crate::report::{csv_field, write_curves, Curve};
+use crate::optimise::{optimise, Observer, Outcome, Progress};
+use crate::report::{write_curves, Curve};
+use crate::rundir::Mode;
 use crate::scene::Scene;
+use crate::settings::{RunSettings, Settings};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -96,15 +97,30 @@ fn factor_name(f: f64) -> String {
     format!("{f}x")
 }
 
-/// Runs every spec on `scene` into `out_dir` and writes the comparison. `on_start` is
-/// called before each run, `progress` after each iteration.
+/// Forwards a run's progress to the comparison's callback with its spec.
+struct SpecObserver<'a, F: FnMut(&Spec, &Progress)> {
+    spec: &'a Spec,
+    progress: &'a mut F,
+}
+
+impl<F: FnMut(&Spec, &Progress)> Observer for SpecObserver<'_, F> {
+    fn iteration(&mut self, p: &Progress) {
+        (self.progress)(self.spec, p)
+    }
+}
+
+/// Runs every spec on `scene` with `over` (the settings given outside the scene) into
+/// `out_dir`, each run's directory treated as `mode` says, and writes the comparison.
+/// `on_start` is called before each run, `progress` after each iteration.
+#[allow(clippy::too_many_arguments)]
 pub fn compare(
     ctx: &Arc<Context>,
     scene: &Scene,
-    overrides: &Overrides,
+    over: &Settings,
     specs: &[Spec],
     out_dir: &Path,
-    mut on_start: impl FnMut(&Spec, &Settings),
+    mode: Mode,
+    mut on_start: impl FnMut(&Spec, &RunSettings),
     mut progress: impl FnMut(&Spec, &Progress),
 ) -> Result<Comparison> {
     if specs.is_empty() {
@@ -119,21 +135,23 @@ pub fn compare(
     // Per run: (summary, parameter-error curve, loss curve).
     let mut results = Vec::new();
     for spec in specs {
-        let (run_scene, st) = overrides.apply(scene, Some(spec.optimiser));
+        let own = Settings { optimiser: Some(spec.clone()), ..Default::default() };
+        let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
         on_start(spec, &st);
         let dir = out_dir.join(spec.dir_name());
-        let summary = optimise(ctx, &run_scene, &st, &dir, false, |p| progress(spec, p), |_, _, _| {})?;
-        let log_path = dir.join("log.csv");
-        let log = std::fs::read_to_string(&log_path).map_err(io(&log_path))?;
-        let (err, loss) = log_curves(&log);
+        let run = match optimise(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress })? {
+            Outcome::Finished(run) => run,
+            Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
+        };
+        let (err, loss) = run.log.curves();
         if settings_json.is_null() {
-            settings_json = summary.settings.clone();
+            settings_json = serde_json::to_value(&run.summary.settings).unwrap_or_default();
             if let Some(map) = settings_json.as_object_mut() {
                 // Each run's optimiser is in its row.
                 map.remove("optimiser");
             }
         }
-        results.push((summary, err, loss));
+        results.push((run.summary, err, loss));
     }
 
     let metric = if results.iter().all(|r| !r.1.is_empty()) { Metric::ParamError } else { Metric::Loss };
@@ -181,7 +199,7 @@ pub fn compare(
     };
 
     let path = out_dir.join("compare.csv");
-    write_bytes_atomic(&path, comparison.csv().as_bytes()).map_err(io(&path))?;
+    write_bytes_atomic(&path, &comparison.csv()?).map_err(io(&path))?;
     let json = serde_json::to_string_pretty(&comparison).map_err(|e| Error::Invalid(e.to_string()))?;
     let path = out_dir.join("compare.json");
     write_bytes_atomic(&path, json.as_bytes()).map_err(io(&path))?;
@@ -196,20 +214,17 @@ fn opt_num(v: Option<f64>) -> String {
 
 impl Comparison {
     /// `compare.csv`: one row per run; a time or speed-up that does not exist is empty.
-    pub fn csv(&self) -> String {
-        let mut s = String::from("label,optimiser,iterations,time_s,final_error");
-        for l in &self.levels {
-            let _ = write!(s, ",time_to_{}", factor_name(l.factor));
-        }
-        s.push_str(",speedup\n");
-        for r in &self.runs {
-            let _ = write!(s, "{},{},{},{},{}", csv_field(&r.label), r.optimiser.name(), r.iterations, r.time_s, opt_num(r.final_error));
-            for t in &r.time_to_level {
-                let _ = write!(s, ",{}", opt_num(*t));
-            }
-            let _ = writeln!(s, ",{}", opt_num(r.speedup));
-        }
-        s
+    pub fn csv(&self) -> Result<Vec<u8>> {
+        let mut header: Vec<String> = ["label", "optimiser", "iterations", "time_s", "final_error"].map(String::from).to_vec();
+        header.extend(self.levels.iter().map(|l| format!("time_to_{}", factor_name(l.factor))));
+        header.push("speedup".into());
+        let rows = self.runs.iter().map(|r| {
+            let mut row = vec![r.label.clone(), r.optimiser.name().to_string(), r.iterations.to_string(), r.time_s.to_string(), opt_num(r.final_error)];
+            row.extend(r.time_to_level.iter().map(|t| opt_num(*t)));
+            row.push(opt_num(r.speedup));
+            row
+        });
+        crate::report::csv_bytes(&header, rows).map_err(Error::Invalid)
     }
 
     /// The table printed by `vkinverse compare`.

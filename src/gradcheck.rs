@@ -33,13 +33,12 @@
 //! 640 at 1 spp held most of the mean), where a standard error over a few hundred rounds
 //! does not describe the spread.
 
+use crate::engine::Engine;
 use crate::error::Result;
-use crate::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
-use crate::ops::BufferOps;
+use crate::gpu::{CommandBuffer, Context};
 use crate::render::gradient::GradientPass;
-use crate::render::targets::{targets, TARGET_SPP};
-use crate::render::{GpuScene, Renderer};
-use crate::scene::{Loss, Scene};
+use crate::scene::Scene;
+use crate::settings::{Loss, RunSettings};
 use crate::stats::{hotelling, mean_se, Hotelling};
 use serde::Serialize;
 use std::sync::Arc;
@@ -187,25 +186,24 @@ struct Element {
 
 /// Checks every optimised parameter of `scene` at its initial values.
 pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Report> {
-    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
-    let gs = &renderer.scene;
-    let target_images = targets(&renderer, scene, TARGET_SPP, |_, _, _| {})?;
-    let ops = BufferOps::new(ctx)?;
+    // The gradient estimate of an optimisation iteration at the options' sample counts.
+    let mut settings = RunSettings::of_scene(scene);
+    (settings.spp, settings.primal_spp, settings.seed) = (opts.spp, opts.primal_spp, opts.seed as u64);
+    let engine = Engine::gradient_only(ctx, scene, &settings)?;
+    let (gs, ops, grad, pass, target_images) = (engine.scene(), &engine.ops, &engine.grad, &engine.gradient, &engine.targets);
     let n = gs.layout.len.max(1);
-    let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
-    let pass = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed, &gs.theta, &grad)?;
     let mut grad_cmd = CommandBuffer::new(ctx, "gradient")?;
-    grad_cmd.record(|rec| pass.record(rec, gs, &ops))?;
+    grad_cmd.record(|rec| engine.record_gradient(rec, None))?;
     // Two independent primal renders per evaluation: for l2 and relative_l2 the product
     // (I1 − T)(I2 − T) has expectation (E[I] − T)², so the finite difference does not also
     // pick up the derivative of the image variance, which the plain loss (I − T)² carries.
-    let second = GradientPass::new(gs, &ops, &target_images, scene.optimise.loss, opts.spp, opts.primal_spp, opts.seed ^ 0x5A5A_5A5A, &gs.theta, &grad)?;
+    let second = engine.extra_gradient(opts.spp, opts.primal_spp, opts.seed ^ 0x5A5A_5A5A, grad)?;
     let mut loss_cmd = CommandBuffer::new(ctx, "loss")?;
     loss_cmd.record(|rec| {
-        pass.record_loss(rec, gs, &ops)?;
-        second.record_loss(rec, gs, &ops)
+        pass.record_loss(rec, gs, ops)?;
+        second.record_loss(rec, gs, ops)
     })?;
-    let loss_kind = scene.optimise.loss;
+    let loss_kind = engine.loss();
     let unbiased_loss = |a: &GradientPass, b: &GradientPass| -> Result<f64> {
         if loss_kind == Loss::L1 {
             return Ok(a.total_loss()?);
@@ -256,7 +254,7 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Re
                 t[el.k] = x;
                 gs.set_theta(t)?;
                 loss_cmd.submit_and_wait()?;
-                unbiased_loss(&pass, &second)
+                unbiased_loss(pass, &second)
             };
             let (lp, lm) = (at(hi)?, at(lo)?);
             el.fd.push((lp - lm) / (hi - lo) as f64);
@@ -350,4 +348,95 @@ fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
         Verdict::Inconclusive
     };
     Report { loss: loss.as_str(), spp: 0, primal_spp: 0, rounds, typical_gradient: typical, combined, verdict, rounds_needed, rows }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples `mean + spread · u_r` with a fixed zero-mean sequence u (|u| ≤ 1, sd ≈ 0.58).
+    fn samples(mean: f64, spread: f64, rounds: usize, phase: usize) -> Vec<f64> {
+        (0..rounds).map(|r| mean + spread * (((r * 7 + phase * 3) % 11) as f64 / 5.0 - 1.0)).collect()
+    }
+
+    fn element(k: usize, adjoint: Vec<f64>, fd: Vec<f64>) -> Element {
+        Element { param: "p".into(), element: k, k, adjoint, fd }
+    }
+
+    #[test]
+    fn verdicts_follow_z_power_and_the_combined_statistic() {
+        let r = 44;
+        // Agreement with standard errors well under 1/53 of the gradient: pass.
+        let tight = [element(0, samples(1.0, 0.01, r, 0), samples(1.0, 0.01, r, 5)), element(1, samples(0.5, 0.01, r, 1), samples(0.5, 0.01, r, 7))];
+        let rep = assess(&tight, Loss::L2, r as u32);
+        assert_eq!(rep.verdict, Verdict::Pass, "{}", rep.table());
+        assert!(rep.rows.iter().all(|row| row.verdict == Verdict::Pass && row.z.abs() < 4.0));
+        assert!(rep.combined.is_some_and(|h| h.p_value > P_FAIL));
+        // The same with a 5 % bias of the first element: its z is far beyond 4.
+        let biased = [element(0, samples(1.05, 0.01, r, 0), samples(1.0, 0.01, r, 5)), element(1, samples(0.5, 0.01, r, 1), samples(0.5, 0.01, r, 7))];
+        let rep = assess(&biased, Loss::L2, r as u32);
+        assert_eq!(rep.verdict, Verdict::Fail);
+        assert_eq!(rep.rows[0].verdict, Verdict::Fail);
+        assert!(rep.rows[0].z > 4.0);
+        // Agreement but spread too wide to see a 10 % bias: inconclusive, never pass, with
+        // the standard error needed and more rounds asked for.
+        let loose = [element(0, samples(1.0, 0.5, r, 0), samples(1.0, 0.5, r, 5)), element(1, samples(0.5, 0.01, r, 1), samples(0.5, 0.01, r, 7))];
+        let rep = assess(&loose, Loss::L2, r as u32);
+        assert_eq!(rep.verdict, Verdict::Inconclusive, "{}", rep.table());
+        assert_eq!(rep.rows[0].verdict, Verdict::Inconclusive);
+        assert!(rep.rows[0].se > rep.rows[0].se_needed && rep.rounds_needed > r as u32);
+        assert!(rep.table().contains("verdict: inconclusive"));
+        // A zero gradient on both sides, exactly: z 0, and resolved against the typical size.
+        let zero = [element(0, vec![0.0; r], vec![0.0; r]), element(1, samples(0.5, 0.01, r, 1), samples(0.5, 0.01, r, 7))];
+        let rep = assess(&zero, Loss::L2, r as u32);
+        assert_eq!(rep.rows[0].z, 0.0);
+        assert_eq!(rep.rows[0].verdict, Verdict::Pass);
+        // Exact values that differ: infinite z, fail.
+        let exact = [element(0, vec![1.0; r], vec![1.1; r])];
+        assert_eq!(assess(&exact, Loss::L2, r as u32).rows[0].verdict, Verdict::Fail);
+    }
+
+    /// Three elements each 2.8 standard errors off in the same direction pass one by one
+    /// but not together, when their noise is independent.
+    #[test]
+    fn a_common_bias_below_the_element_threshold_fails_the_combined_test() {
+        let r = 60;
+        let noise = |phase: u64| -> Vec<f64> {
+            // A deterministic pseudo-random sequence per element (splitmix64), roughly uniform on [−1, 1).
+            let mut s = phase.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+            (0..r)
+                .map(|_| {
+                    s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
+                    let mut z = s;
+                    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                    ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+                })
+                .collect()
+        };
+        let elements: Vec<Element> = (0..3)
+            .map(|k| {
+                let a: Vec<f64> = noise(10 + k as u64).iter().map(|u| 1.0 + u).collect();
+                let f: Vec<f64> = noise(20 + k as u64).iter().map(|u| 1.0 + u).collect();
+                element(k, a, f)
+            })
+            .collect();
+        let shifted: Vec<Element> = elements
+            .iter()
+            .map(|e| {
+                let (_, sa) = mean_se(&e.adjoint);
+                let (_, sf) = mean_se(&e.fd);
+                let (ma, _) = mean_se(&e.adjoint);
+                let (mf, _) = mean_se(&e.fd);
+                // Move the adjoint's mean to exactly 2.8 combined standard errors above fd.
+                let shift = mf + 2.8 * (sa * sa + sf * sf).sqrt() - ma;
+                element(e.k, e.adjoint.iter().map(|a| a + shift).collect(), e.fd.clone())
+            })
+            .collect();
+        let rep = assess(&shifted, Loss::L2, r as u32);
+        assert!(rep.rows.iter().all(|row| (row.z - 2.8).abs() < 1e-9 && row.verdict != Verdict::Fail), "{}", rep.table());
+        let h = rep.combined.unwrap();
+        assert!(h.p_value < P_FAIL, "combined p {}", h.p_value);
+        assert_eq!(rep.verdict, Verdict::Fail);
+    }
 }

@@ -1,8 +1,15 @@
 //! The vkinverse command line: parse, call the library, print.
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use vkinverse::gpu::{Context, ContextOptions};
+use vkinverse::optimise::{Observer, Outcome, Progress};
+use vkinverse::report::ProgressReport;
+use vkinverse::rundir::Mode;
+use vkinverse::settings::Settings;
+
+type Result<T = ()> = std::result::Result<T, Box<dyn std::error::Error>>;
 
 #[derive(Parser)]
 #[command(name = "vkinverse", version, about = "Inverse path tracing on any Vulkan device")]
@@ -28,130 +35,162 @@ enum Command {
         json: bool,
     },
     /// Render one sensor of a scene to EXR (linear) or PNG (tone-mapped sRGB).
-    Render {
-        scene: std::path::PathBuf,
-        #[arg(long, default_value_t = 64)]
-        spp: u32,
-        #[arg(long, default_value_t = 0)]
-        seed: u32,
-        #[arg(long, default_value_t = 0)]
-        sensor: u32,
-        #[arg(short = 'o', long = "output")]
-        output: std::path::PathBuf,
-    },
+    Render(RenderArgs),
     /// Recover the scene's optimised parameters from its target images.
-    Optimise {
-        scene: std::path::PathBuf,
-        /// meta or adam (default: the scene's `[optimise] optimiser`)
-        #[arg(long)]
-        optimiser: Option<String>,
-        #[command(flatten)]
-        run: RunFlags,
-        /// Write a checkpoint every N iterations.
-        #[arg(long)]
-        checkpoint_every: Option<u32>,
-        /// Continue the run in OUTDIR from its checkpoint.
-        #[arg(long)]
-        resume: bool,
-        /// Meta: trace each parameter state separately for the finite-difference sample
-        /// instead of the fused single trace (for comparison).
-        #[arg(long)]
-        fd_two_trace: bool,
-        #[arg(short = 'o', long = "output")]
-        output: std::path::PathBuf,
-    },
+    #[command(after_help = OPTIMISE_HELP)]
+    Optimise(OptimiseArgs),
     /// Run several optimisers on one scene at equal cost and seed; plot and tabulate their
     /// error against run time.
     #[command(after_help = COMPARE_HELP)]
-    Compare {
-        scene: std::path::PathBuf,
-        /// Comma-separated optimiser specs NAME[@KEY=VALUE]..., e.g.
-        /// `meta,adam,adam@beta1=0.5@beta2=0.99`; the first is the baseline.
-        #[arg(long, allow_hyphen_values = true)]
-        optimisers: String,
-        #[command(flatten)]
-        run: RunFlags,
-        /// Print compare.json instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Output directory.
-        #[arg(short = 'o', long = "output")]
-        output: std::path::PathBuf,
-    },
+    Compare(CompareArgs),
     /// Run a list of optimisation jobs (or one shard of it) on one device, with one results
     /// table; or merge the tables of shards.
     #[command(after_help = BATCH_HELP)]
-    Batch {
-        /// Job file (TOML, format below).
-        jobs: Option<std::path::PathBuf>,
-        /// Run shard I of N: jobs I, I+N, I+2N, ... (jobs and shards count from 1).
-        #[arg(long, value_name = "I/N", allow_hyphen_values = true)]
-        shard: Option<String>,
-        /// Join the results tables in these output directories (of shards) into one.
-        #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
-        merge: Vec<std::path::PathBuf>,
-        /// Print results.json instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Output directory (of the batch, the shard or the merged table).
-        #[arg(short = 'o', long = "output")]
-        output: std::path::PathBuf,
-    },
+    Batch(BatchArgs),
     /// Check the adjoint gradient against finite differences of the loss. Exits non-zero
     /// unless the verdict is "pass" (a failed or an inconclusive check).
-    Gradcheck {
-        scene: std::path::PathBuf,
-        #[arg(long, default_value_t = 16)]
-        spp: u32,
-        /// Rounds (independent estimates of each side); by default sized from a pilot so
-        /// that a 10 % bias of a typical gradient would be detected, up to --max-rounds.
-        #[arg(long)]
-        rounds: Option<u32>,
-        #[arg(long, default_value_t = 200)]
-        max_rounds: u32,
-        #[arg(long)]
-        json: bool,
-    },
+    Gradcheck(GradcheckArgs),
     /// Run the GPU optimiser passes on gradient streams from .npy files.
-    Replay {
-        /// meta or adam
-        #[arg(long)]
-        optimiser: String,
-        #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
-        lr: f64,
-        /// Parameter bounds, e.g. `--range 0,1` (unbounded by default).
-        #[arg(long, allow_hyphen_values = true)]
-        range: Option<String>,
-        /// Start values (shape [n]); zeros by default.
-        #[arg(long)]
-        init: Option<std::path::PathBuf>,
-        /// Proportional gradients, float32 [iterations, n].
-        grads: std::path::PathBuf,
-        /// Finite-difference samples, float32 [iterations, n] (meta only).
-        fd_grads: Option<std::path::PathBuf>,
-        #[arg(short = 'o', long = "output")]
-        output: std::path::PathBuf,
-    },
+    Replay(ReplayArgs),
     /// Measure GPU passes with timestamps: a scene's iteration pass by pass, or without a
     /// scene the buffer kernels' bandwidth; both time the optimiser passes on a synthetic θ.
-    Bench {
-        /// Scene to benchmark (the buffer kernels are measured when absent).
-        scene: Option<std::path::PathBuf>,
-        /// Repetitions of each kernel or iteration (the median is reported).
-        #[arg(long, default_value_t = 9)]
-        iterations: u32,
-        /// Elements (f32) per buffer for the buffer kernels, and parameters of the synthetic
-        /// θ of the optimiser passes.
-        #[arg(long, default_value_t = 16 << 20)]
-        elements: u64,
-        /// With a scene: compare the BVH layouts (binary, wide) instead, alternating them
-        /// over `--iterations` rounds.
-        #[arg(long)]
-        bvh_layouts: bool,
-        #[arg(long)]
-        json: bool,
-    },
+    Bench(BenchArgs),
 }
+
+#[derive(Args)]
+struct RenderArgs {
+    scene: PathBuf,
+    #[arg(long, default_value_t = 64)]
+    spp: u32,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value_t = 0)]
+    sensor: u32,
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+struct OptimiseArgs {
+    scene: PathBuf,
+    #[command(flatten)]
+    settings: Settings,
+    /// Continue the run in OUTDIR from its committed checkpoint (same scene and parameters).
+    #[arg(long, conflicts_with = "overwrite")]
+    resume: bool,
+    /// Replace the run in OUTDIR.
+    #[arg(long)]
+    overwrite: bool,
+    /// Output directory.
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+struct CompareArgs {
+    scene: PathBuf,
+    /// Comma-separated optimiser specs NAME[@KEY=VALUE]..., e.g.
+    /// `meta,adam,adam@beta1=0.5@beta2=0.99`; the first is the baseline.
+    #[arg(long, allow_hyphen_values = true)]
+    optimisers: String,
+    #[command(flatten)]
+    settings: Settings,
+    /// Replace runs found in OUTDIR's run directories.
+    #[arg(long)]
+    overwrite: bool,
+    /// Print compare.json instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Output directory.
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+struct BatchArgs {
+    /// Job file (TOML, format below).
+    jobs: Option<PathBuf>,
+    /// Run shard I of N: jobs I, I+N, I+2N, ... (jobs and shards count from 1).
+    #[arg(long, value_name = "I/N", allow_hyphen_values = true)]
+    shard: Option<String>,
+    /// Join the results tables in these output directories (of shards) into one.
+    #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
+    merge: Vec<PathBuf>,
+    /// Replace runs found in the jobs' directories.
+    #[arg(long)]
+    overwrite: bool,
+    /// Print results.json instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Output directory (of the batch, the shard or the merged table).
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+struct GradcheckArgs {
+    scene: PathBuf,
+    #[arg(long, default_value_t = 16)]
+    spp: u32,
+    /// Rounds (independent estimates of each side); by default sized from a pilot so that
+    /// a 10 % bias of a typical gradient would be detected, up to --max-rounds.
+    #[arg(long)]
+    rounds: Option<u32>,
+    #[arg(long, default_value_t = 200)]
+    max_rounds: u32,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// meta or adam
+    #[arg(long)]
+    optimiser: String,
+    #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
+    lr: f64,
+    /// Parameter bounds, e.g. `--range 0,1` (unbounded by default).
+    #[arg(long, allow_hyphen_values = true)]
+    range: Option<String>,
+    /// Start values (shape [n]); zeros by default.
+    #[arg(long)]
+    init: Option<PathBuf>,
+    /// Proportional gradients, float32 [iterations, n].
+    grads: PathBuf,
+    /// Finite-difference samples, float32 [iterations, n] (meta only).
+    fd_grads: Option<PathBuf>,
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Scene to benchmark (the buffer kernels are measured when absent).
+    scene: Option<PathBuf>,
+    /// Repetitions of each kernel or iteration (the median is reported).
+    #[arg(long, default_value_t = 9)]
+    iterations: u32,
+    /// Elements (f32) per buffer for the buffer kernels, and parameters of the synthetic
+    /// θ of the optimiser passes.
+    #[arg(long, default_value_t = 16 << 20)]
+    elements: u64,
+    /// With a scene: compare the BVH layouts (binary, wide) instead, alternating them
+    /// over `--iterations` rounds.
+    #[arg(long)]
+    bvh_layouts: bool,
+    #[arg(long)]
+    json: bool,
+}
+
+const OPTIMISE_HELP: &str = "\
+Settings given here replace the scene's [optimise] values; --lr replaces its per-parameter
+rates too. A --time-budget without --iterations runs for the budget alone.
+
+OUTDIR holds one run at a time: a second run into it is refused at once, and a directory
+that holds a run is refused unless --resume (continue it: the scene and its parameters
+must be those of the checkpoint; changed settings are listed) or --overwrite (replace
+it). A checkpoint is committed every --checkpoint-every iterations and at the end; a
+kill at any instant leaves the last committed one resumable.";
 
 const COMPARE_HELP: &str = "\
 Optimiser specs: NAME[@KEY=VALUE]... with NAME adam (keys beta1, beta2, eps) or meta (keys
@@ -159,7 +198,8 @@ decay_f, decay_d, eps); unset keys keep their defaults. `@` separates keys so th
 hold no comma.
 
 Every run gets the same settings and seed: the same --time-budget (wall time, set-up
-excluded) when given, else the same --iterations (the scene's by default). Outputs in OUTDIR:
+excluded) when given, else the same --iterations (the scene's by default). Each run's
+directory follows optimise's rules (--overwrite replaces earlier runs). Outputs in OUTDIR:
   <label>/            each run's optimise outputs (log.csv, summary.json, ...)
   error_vs_time.png   all runs, log-scale error against wall time
   curves.csv          label,time_s,error: the points of the plot
@@ -171,8 +211,8 @@ The error is the parameter RMSE when the reference is known, else the image loss
 
 const BATCH_HELP: &str = "\
 Job file (TOML); paths are relative to it:
-  iterations = 100                 # shared settings (optional): iterations, time_budget,
-  lr = 0.05                        #   spp, fd_spp, primal_spp, lr, seed, checkpoint_every
+  iterations = 100                 # shared settings (optional): any run setting, as in a
+  lr = 0.05                        #   scene's [optimise] (iterations, time_budget, spp, ...)
   scenes = [\"cornell/scene.toml\"]  # product: one job per scene x optimiser x seed x spp
   optimisers = [\"meta\", \"adam\"]    # optional axes; the scene's value when absent
   seeds = [0, 1]
@@ -204,400 +244,332 @@ macro_rules! outln {
     ($($arg:tt)*) => { out(format_args!("{}\n", format_args!($($arg)*))) };
 }
 
-/// `Err` naming `flag` unless `value` is finite and positive.
-fn positive(flag: &str, value: f64) -> Result<(), String> {
-    if value.is_finite() && value > 0.0 {
-        Ok(())
+/// Prints `value` as pretty JSON, or `table` as text.
+fn print_result(json: bool, value: &impl serde::Serialize, table: impl FnOnce() -> String) -> Result {
+    if json {
+        outln!("{}", serde_json::to_string_pretty(value)?)?;
     } else {
-        Err(format!("{flag} {value}: must be positive and finite"))
+        out(format_args!("{}", table()))?;
     }
+    Ok(())
 }
 
-/// `Err` naming `flag` when a sample count is 0.
-fn at_least_one(flag: &str, value: Option<u32>) -> Result<(), String> {
-    match value {
-        Some(0) => Err(format!("{flag} must be at least 1")),
-        _ => Ok(()),
-    }
+/// Checks a layer of settings given as flags, naming the flag.
+fn check_flags(settings: &Settings) -> Result {
+    settings.validate().map_err(|e| format!("{} {}", e.flag(), e.message))?;
+    Ok(())
 }
 
-/// Run settings shared by `optimise` and `compare`; each replaces the scene's
-/// `[optimise]` value (see `vkinverse::overrides`).
-#[derive(clap::Args, Debug)]
-struct RunFlags {
-    /// Iterations (with --time-budget: at most this many).
-    #[arg(long)]
-    iterations: Option<u32>,
-    /// Stop after this many seconds of optimisation (instead of, or on top of, --iterations).
-    #[arg(long, allow_negative_numbers = true)]
-    time_budget: Option<f64>,
-    #[arg(long)]
-    spp: Option<u32>,
-    #[arg(long)]
-    fd_spp: Option<u32>,
-    #[arg(long)]
-    primal_spp: Option<u32>,
-    /// Learning rate of every parameter (replaces the scene's per-parameter rates).
-    #[arg(long, allow_negative_numbers = true)]
-    lr: Option<f32>,
-    #[arg(long)]
-    seed: Option<u32>,
-}
-
-impl RunFlags {
-    /// The flags as overrides, after checking their ranges (named as flags).
-    fn overrides(&self, checkpoint_every: Option<u32>) -> Result<vkinverse::overrides::Overrides, String> {
-        if let Some(x) = self.lr {
-            positive("--lr", x as f64)?;
-        }
-        if let Some(t) = self.time_budget {
-            positive("--time-budget", t)?;
-        }
-        at_least_one("--spp", self.spp)?;
-        at_least_one("--fd-spp", self.fd_spp)?;
-        at_least_one("--primal-spp", self.primal_spp)?;
-        Ok(vkinverse::overrides::Overrides {
-            iterations: self.iterations,
-            time_budget: self.time_budget,
-            spp: self.spp,
-            fd_spp: self.fd_spp,
-            primal_spp: self.primal_spp,
-            lr: self.lr,
-            seed: self.seed,
-            checkpoint_every,
-        })
-    }
-}
-
-fn context(cli: &Cli) -> Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
+fn context(cli: &Cli) -> std::result::Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
     Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
 }
 
-/// A progress bar on stderr, hidden with --quiet or when stderr is not a terminal.
-fn progress_bar(quiet: bool, len: u64, unit: &str) -> indicatif::ProgressBar {
-    if quiet {
-        return indicatif::ProgressBar::hidden();
+fn mode(resume: bool, overwrite: bool) -> Mode {
+    match (resume, overwrite) {
+        (true, _) => Mode::Resume,
+        (_, true) => Mode::Overwrite,
+        _ => Mode::New,
     }
-    let bar = indicatif::ProgressBar::new(len);
-    let style = indicatif::ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {unit} ({{elapsed}}, eta {{eta}}) {{msg}}"))
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar());
-    bar.set_style(style);
-    bar
 }
 
-fn run_optimise(
-    cli: &Cli,
-    scene: &vkinverse::scene::Scene,
-    st: &vkinverse::optimise::Settings,
-    output: &std::path::Path,
-    resume: bool,
-) -> Result<(), Box<dyn std::error::Error>> {
+fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
+    let ext = a.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("exr" | "png")) {
+        return Err(format!("{}: output must end in .exr or .png", a.output.display()).into());
+    }
+    if a.spp == 0 {
+        return Err("--spp must be at least 1".into());
+    }
+    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    if a.sensor as usize >= scene.sensors.len() {
+        return Err(format!("--sensor {}: the scene has {} sensor(s)", a.sensor, scene.sensors.len()).into());
+    }
+    // The directory first: a render is not thrown away for want of it.
+    if let Some(dir) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
     let ctx = context(cli)?;
-    let total = if st.iterations > 0 { st.iterations as u64 } else { 0 };
-    let bar = progress_bar(cli.quiet, total, "iterations");
-    let target_bar = progress_bar(cli.quiet, 0, "target samples");
-    let summary = vkinverse::optimise::optimise(
-        &ctx,
-        scene,
-        st,
-        output,
-        resume,
-        |p| {
-            bar.set_position(p.iteration as u64);
-            let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
-            bar.set_message(format!("loss {:.3e}{err}", p.loss));
-        },
-        |_, done, total| {
-            target_bar.set_length(total as u64);
-            target_bar.set_position(done as u64);
-        },
-    )?;
-    target_bar.finish_and_clear();
-    bar.finish_and_clear();
+    let start = std::time::Instant::now();
+    let image = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, {
+        let mut progress = ProgressReport::new(cli.quiet, "render", a.spp as u64, "samples");
+        move |done, _| progress.set(done as u64, "")
+    })?;
+    if ext.as_deref() == Some("png") {
+        vkinverse::image::write_png(&a.output, &image)?;
+    } else {
+        vkinverse::image::write_exr(&a.output, &image)?;
+    }
     if !cli.quiet {
+        let secs = start.elapsed().as_secs_f64();
+        eprintln!("rendered {}x{} at {} spp in {secs:.2} s -> {}", image.width, image.height, a.spp, a.output.display());
+    }
+    Ok(())
+}
+
+/// What `optimise` shows while it runs: target rendering, iterations, a resume.
+struct RunProgress {
+    quiet: bool,
+    targets: ProgressReport,
+    iterations: ProgressReport,
+}
+
+impl RunProgress {
+    fn new(quiet: bool, label: &str, iterations: Option<u32>) -> Self {
+        RunProgress {
+            quiet,
+            targets: ProgressReport::new(quiet, "target", 0, "samples"),
+            iterations: ProgressReport::new(quiet, label, iterations.unwrap_or(0) as u64, "iterations"),
+        }
+    }
+
+    fn finish(&self) {
+        self.targets.finish();
+        self.iterations.finish();
+    }
+}
+
+fn progress_message(p: &Progress) -> String {
+    let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
+    format!("loss {:.3e}{err}", p.loss)
+}
+
+impl Observer for RunProgress {
+    fn target_progress(&mut self, _sensor: usize, done: u32, total: u32) {
+        self.targets.set_total(total as u64);
+        self.targets.set(done as u64, "");
+    }
+    fn iteration(&mut self, p: &Progress) {
+        self.iterations.set(p.iteration as u64, &progress_message(p));
+    }
+    fn resumed(&mut self, iteration: u32, changes: &[String]) {
+        if !self.quiet {
+            let changed = if changes.is_empty() { "no settings changed".to_string() } else { format!("changed settings: {}", changes.join(", ")) };
+            eprintln!("resuming from the checkpoint at iteration {iteration}; {changed}");
+        }
+    }
+}
+
+fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
+    // Flags first: a typo on the command line is reported before the scene is read.
+    check_flags(&a.settings)?;
+    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let st = Settings::resolve(&scene.optimise.settings, &a.settings);
+    let ctx = context(cli)?;
+    let mut progress = RunProgress::new(cli.quiet, "optimise", st.iterations);
+    let outcome = vkinverse::optimise::optimise(&ctx, &scene, &st, &a.output, mode(a.resume, a.overwrite), &mut progress);
+    progress.finish();
+    let run = match outcome? {
+        Outcome::Finished(run) => run,
+        Outcome::AlreadyDone { iteration } => {
+            outln!("{}: the run finished at iteration {iteration}; nothing to do, nothing changed (give more --iterations or a longer --time-budget to continue it)", a.output.display())?;
+            return Ok(());
+        }
+    };
+    if !cli.quiet {
+        let s = &run.summary;
         let err = |e: Option<f64>| e.map(|v| format!("{v:.4e}")).unwrap_or_else(|| "n/a".into());
         outln!(
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
-            summary.scene,
-            summary.iterations,
-            summary.optimiser,
-            summary.total_time_s,
-            summary.total_gpu_time_s,
-            summary.final_loss,
-            err(summary.initial_param_error),
-            err(summary.final_param_error)
+            s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
-        outln!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", output.display())?;
+        outln!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", a.output.display())?;
     }
     Ok(())
 }
 
-fn run(cli: &Cli) -> Result<(), Box<dyn std::error::Error>> {
+fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
+    // Flags first: a typo on the command line is reported before the scene is read.
+    let specs = vkinverse::optim::spec::parse_list(&a.optimisers).map_err(|e| format!("--optimisers: {e}"))?;
+    if a.settings.optimiser.is_some() {
+        return Err("compare takes --optimisers (a list), not --optimiser".into());
+    }
+    check_flags(&a.settings)?;
+    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let ctx = context(cli)?;
+    let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
+    let comparison = vkinverse::compare::compare(
+        &ctx,
+        &scene,
+        &a.settings,
+        &specs,
+        &a.output,
+        mode(false, a.overwrite),
+        |spec, st| {
+            bar.borrow().finish();
+            *bar.borrow_mut() = ProgressReport::new(cli.quiet, &spec.label, st.iterations.unwrap_or(0) as u64, "iterations");
+        },
+        |spec, p| bar.borrow_mut().set(p.iteration as u64, &format!("{}: {}", spec.label, progress_message(p))),
+    )?;
+    bar.borrow().finish();
+    print_result(a.json, &comparison, || comparison.table())?;
+    if !a.json && !cli.quiet {
+        outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", a.output.display())?;
+    }
+    Ok(())
+}
+
+fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
+    use vkinverse::batch;
+    if !a.merge.is_empty() {
+        let (merged, missing) = batch::merge(&a.merge, &a.output)?;
+        if !missing.is_empty() {
+            let list: Vec<String> = missing.iter().map(usize::to_string).collect();
+            vkinverse::report::warn(&format!("job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs));
+        }
+        return print_result(a.json, &merged, || merged.table());
+    }
+    let shard: Option<batch::Shard> = a.shard.as_deref().map(|s| s.parse().map_err(|e| format!("--shard {e}"))).transpose()?;
+    let Some(jobs_file) = &a.jobs else {
+        return Err("give a job file, or --merge with the shards' output directories".into());
+    };
+    let all = batch::load_jobs(jobs_file)?;
+    let mine: Vec<batch::Job> = all.iter().filter(|j| shard.iter().all(|s| s.has(j.index))).cloned().collect();
+    // One context for every job: device set-up is paid once per batch.
+    let ctx = context(cli)?;
+    let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
+    let results = batch::run(
+        &ctx,
+        jobs_file,
+        all.len(),
+        shard,
+        &mine,
+        &a.output,
+        mode(false, a.overwrite),
+        |job| *bar.borrow_mut() = ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations"),
+        |_, p| bar.borrow_mut().set(p.iteration as u64, &progress_message(p)),
+        |row| {
+            bar.borrow().finish();
+            if !cli.quiet {
+                match row.status {
+                    batch::Status::Ok => eprintln!("job {} {}: ok", row.job, row.label),
+                    batch::Status::Failed => eprintln!("job {} {}: failed: {}", row.job, row.label, row.message),
+                }
+            }
+        },
+    )?;
+    print_result(a.json, &results, || results.table())?;
+    let failed = results.failed();
+    if failed > 0 {
+        return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), a.output.join("results.csv").display()).into());
+    }
+    Ok(())
+}
+
+fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
+    use vkinverse::gradcheck::{Verdict, Z_FAIL};
+    if a.spp == 0 {
+        return Err("--spp must be at least 1".into());
+    }
+    if a.max_rounds == 0 {
+        return Err("--max-rounds must be at least 1".into());
+    }
+    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    if scene.optimise.params.is_empty() {
+        return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
+    }
+    let ctx = context(cli)?;
+    let opts = vkinverse::gradcheck::Options {
+        spp: a.spp,
+        primal_spp: a.spp,
+        rounds: a.rounds.map(|r| r.max(2)),
+        max_rounds: a.max_rounds,
+        ..Default::default()
+    };
+    let report = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
+    if a.json {
+        outln!("{}", serde_json::to_string_pretty(&report)?)?;
+    } else {
+        out(format_args!("{}", report.table()))?;
+    }
+    match report.verdict {
+        Verdict::Pass => Ok(()),
+        Verdict::Fail => {
+            let failed = report.rows.iter().filter(|r| r.verdict == Verdict::Fail).count();
+            let p = report.combined.map_or("n/a".to_string(), |h| format!("{:.2e}", h.p_value));
+            Err(format!("gradcheck failed: {failed} of {} elements beyond {Z_FAIL} standard errors, combined p = {p}", report.rows.len()).into())
+        }
+        Verdict::Inconclusive => Err(format!(
+            "gradcheck inconclusive: too noisy to see a 10 % bias in {} rounds; about {} rounds at {} spp would",
+            report.rounds, report.rounds_needed, a.spp
+        )
+        .into()),
+    }
+}
+
+fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
+    use vkinverse::optim;
+    let opt: optim::Optimiser = a.optimiser.parse().map_err(|e| format!("--optimiser {}: {e}", a.optimiser))?;
+    let range = match &a.range {
+        Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
+        None => optim::Range::UNBOUNDED,
+    };
+    if !(a.lr.is_finite() && a.lr > 0.0) {
+        return Err(format!("--lr {}: must be positive and finite", a.lr).into());
+    }
+    let input = optim::replay::ReplayInput::load(&a.grads, a.fd_grads.as_deref(), a.init.as_deref(), opt.needs_fd())?;
+    let ctx = context(cli)?;
+    let (trajectory, skipped) = optim::gpu::replay_gpu(&ctx, &opt, &input.grads, input.fd_grads.as_deref(), &input.init, range, a.lr)?;
+    vkinverse::npy::write_rows(&a.output, &trajectory)?;
+    if !cli.quiet {
+        eprintln!("replayed {} iterations of {} parameters -> {}", input.grads.len(), input.init.len(), a.output.display());
+    }
+    if skipped > 0 {
+        vkinverse::report::warn(&format!("{skipped} non-finite gradient elements were skipped (theta left unchanged there)"));
+    }
+    Ok(())
+}
+
+fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
+    let Some(path) = &a.scene else {
+        // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
+        if a.elements < 4 {
+            return Err(format!("--elements {}: must be at least 4", a.elements).into());
+        }
+        let result = vkinverse::bench::buffer_bench(&context(cli)?, a.elements, a.iterations)?;
+        return print_result(a.json, &result, || result.table());
+    };
+    let scene = vkinverse::scene::Scene::load(path)?;
+    let ctx = context(cli)?;
+    if a.bvh_layouts {
+        let result = vkinverse::bench::layout_bench(&ctx, &scene, a.iterations)?;
+        return print_result(a.json, &result, || result.table());
+    }
+    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements)?;
+    print_result(a.json, &result, || result.table())
+}
+
+fn run(cli: &Cli) -> Result {
+    vkinverse::report::set_quiet(cli.quiet);
     match &cli.command {
         Command::Info { json } => {
             let ctx = context(cli)?;
-            if *json {
-                outln!("{}", vkinverse::report::info_json(&ctx))?;
-            } else {
-                out(format_args!("{}", vkinverse::report::info_text(&ctx)))?;
-            }
+            let text = if *json { format!("{}\n", vkinverse::report::info_json(&ctx)) } else { vkinverse::report::info_text(&ctx) };
+            out(format_args!("{text}"))?;
+            Ok(())
         }
-        Command::Render { scene, spp, seed, sensor, output } => {
-            let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-            if !matches!(ext.as_deref(), Some("exr" | "png")) {
-                return Err(format!("{}: output must end in .exr or .png", output.display()).into());
-            }
-            if *spp == 0 {
-                return Err("--spp must be at least 1".into());
-            }
-            let scene = vkinverse::scene::Scene::load(scene)?;
-            if *sensor as usize >= scene.sensors.len() {
-                return Err(format!("--sensor {sensor}: the scene has {} sensor(s)", scene.sensors.len()).into());
-            }
-            let ctx = context(cli)?;
-            let start = std::time::Instant::now();
-            let renderer = vkinverse::render::Renderer::new(vkinverse::render::GpuScene::new(&ctx, &scene)?)?;
-            // The scene as written: optimised parameters at their reference values.
-            renderer.scene.set_theta(renderer.scene.layout.reference())?;
-            let bar = progress_bar(cli.quiet, *spp as u64, "samples");
-            let image = renderer.render(*sensor, *spp, *seed, |done, _| bar.set_position(done as u64))?;
-            bar.finish_and_clear();
-            if ext.as_deref() == Some("png") {
-                vkinverse::image::write_png(output, &image)?;
-            } else {
-                vkinverse::image::write_exr(output, &image)?;
-            }
-            if !cli.quiet {
-                eprintln!(
-                    "rendered {}x{} at {spp} spp in {:.2} s -> {}",
-                    image.width,
-                    image.height,
-                    start.elapsed().as_secs_f64(),
-                    output.display()
-                );
-            }
-        }
-        Command::Optimise { scene, optimiser, run, checkpoint_every, resume, fd_two_trace, output } => {
-            // Flags first: a typo on the command line is reported before the scene is read.
-            let optimiser: Option<vkinverse::optim::Optimiser> =
-                optimiser.as_deref().map(|o| o.parse().map_err(|e| format!("--optimiser {o}: {e}"))).transpose()?;
-            let overrides = run.overrides(*checkpoint_every)?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
-            let (scene, mut st) = overrides.apply(&scene, optimiser);
-            st.fd_two_trace = *fd_two_trace;
-            run_optimise(cli, &scene, &st, output, *resume)?;
-        }
-        Command::Compare { scene, optimisers, run, json, output } => {
-            // Flags first: a typo on the command line is reported before the scene is read.
-            let specs = vkinverse::optim::spec::parse_list(optimisers).map_err(|e| format!("--optimisers: {e}"))?;
-            if run.iterations == Some(0) {
-                return Err("--iterations must be at least 1".into());
-            }
-            let overrides = run.overrides(None)?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
-            let ctx = context(cli)?;
-            let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
-            let comparison = vkinverse::compare::compare(
-                &ctx,
-                &scene,
-                &overrides,
-                &specs,
-                output,
-                |spec, st| {
-                    bar.borrow().finish_and_clear();
-                    let b = progress_bar(cli.quiet, st.iterations as u64, "iterations");
-                    b.set_message(spec.label.clone());
-                    *bar.borrow_mut() = b;
-                },
-                |spec, p| {
-                    let b = bar.borrow();
-                    b.set_position(p.iteration as u64);
-                    let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
-                    b.set_message(format!("{}: loss {:.3e}{err}", spec.label, p.loss));
-                },
-            )?;
-            bar.borrow().finish_and_clear();
-            if *json {
-                outln!("{}", serde_json::to_string_pretty(&comparison)?)?;
-            } else {
-                out(format_args!("{}", comparison.table()))?;
-                if !cli.quiet {
-                    outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", output.display())?;
-                }
-            }
-        }
-        Command::Batch { jobs, shard, merge, json, output } => {
-            use vkinverse::batch;
-            let print = |results: &batch::Results| -> std::io::Result<()> {
-                if *json {
-                    outln!("{}", serde_json::to_string_pretty(results).unwrap_or_default())
-                } else {
-                    out(format_args!("{}", results.table()))
-                }
-            };
-            if !merge.is_empty() {
-                let (merged, missing) = batch::merge(merge, output)?;
-                if !missing.is_empty() {
-                    let list: Vec<String> = missing.iter().map(usize::to_string).collect();
-                    eprintln!("warning: job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs);
-                }
-                print(&merged)?;
-                return Ok(());
-            }
-            let shard: Option<batch::Shard> = shard.as_deref().map(|s| s.parse().map_err(|e| format!("--shard {e}"))).transpose()?;
-            let Some(jobs_file) = jobs else {
-                return Err("give a job file, or --merge with the shards' output directories".into());
-            };
-            let all = batch::load_jobs(jobs_file)?;
-            let mine: Vec<batch::Job> = all.iter().filter(|j| shard.iter().all(|s| s.has(j.index))).cloned().collect();
-            // One context for every job: device set-up is paid once per batch.
-            let ctx = context(cli)?;
-            let bar = std::cell::RefCell::new(indicatif::ProgressBar::hidden());
-            let results = batch::run(
-                &ctx,
-                jobs_file,
-                all.len(),
-                shard,
-                &mine,
-                output,
-                |job| {
-                    let total = job.overrides.iterations.unwrap_or(0) as u64;
-                    *bar.borrow_mut() = progress_bar(cli.quiet, total, "iterations");
-                    bar.borrow().set_message(format!("job {} {}", job.index, job.label));
-                },
-                |job, p| {
-                    let b = bar.borrow();
-                    b.set_position(p.iteration as u64);
-                    b.set_message(format!("job {} {}: loss {:.3e}", job.index, job.label, p.loss));
-                },
-                |row| {
-                    bar.borrow().finish_and_clear();
-                    if !cli.quiet {
-                        match row.status {
-                            batch::Status::Ok => eprintln!("job {} {}: ok", row.job, row.label),
-                            batch::Status::Failed => eprintln!("job {} {}: failed: {}", row.job, row.label, row.message),
-                        }
-                    }
-                },
-            )?;
-            print(&results)?;
-            let failed = results.failed();
-            if failed > 0 {
-                return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), output.join("results.csv").display()).into());
-            }
-        }
-        Command::Gradcheck { scene, spp, rounds, max_rounds, json } => {
-            at_least_one("--spp", Some(*spp))?;
-            at_least_one("--max-rounds", Some(*max_rounds))?;
-            let scene = vkinverse::scene::Scene::load(scene)?;
-            if scene.optimise.params.is_empty() {
-                return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
-            }
-            let ctx = context(cli)?;
-            let opts = vkinverse::gradcheck::Options {
-                spp: *spp,
-                primal_spp: *spp,
-                rounds: rounds.map(|r| r.max(2)),
-                max_rounds: *max_rounds,
-                ..Default::default()
-            };
-            let report = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
-            if *json {
-                outln!("{}", serde_json::to_string_pretty(&report)?)?;
-            } else {
-                out(format_args!("{}", report.table()))?;
-            }
-            use vkinverse::gradcheck::Verdict;
-            match report.verdict {
-                Verdict::Pass => {}
-                Verdict::Fail => {
-                    let failed = report.rows.iter().filter(|r| r.verdict == Verdict::Fail).count();
-                    return Err(format!("gradcheck failed: {failed} of {} elements beyond {} standard errors, combined p = {}", report.rows.len(), vkinverse::gradcheck::Z_FAIL, report.combined.map_or("n/a".to_string(), |h| format!("{:.2e}", h.p_value))).into());
-                }
-                Verdict::Inconclusive => {
-                    return Err(format!("gradcheck inconclusive: too noisy to detect a 10 % bias in {} rounds; about {} rounds at {spp} spp would", report.rounds, report.rounds_needed).into());
-                }
-            }
-        }
-        Command::Replay { optimiser, lr, range, init, grads, fd_grads, output } => {
-            use vkinverse::{npy, optim};
-            let opt: optim::Optimiser = optimiser.parse().map_err(|e| format!("--optimiser {optimiser}: {e}"))?;
-            let range = match range {
-                Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
-                None => optim::Range::UNBOUNDED,
-            };
-            positive("--lr", *lr)?;
-            let g = npy::read(grads)?;
-            if g.shape.len() != 2 {
-                return Err(format!("{}: expected shape [iterations, n], got {:?}", grads.display(), g.shape).into());
-            }
-            let n = g.shape[1];
-            let fd = match (fd_grads, opt.needs_fd()) {
-                (Some(p), _) => {
-                    let a = npy::read(p)?;
-                    if a.shape != g.shape {
-                        return Err(format!("{}: shape {:?} differs from the gradients' {:?}", p.display(), a.shape, g.shape).into());
-                    }
-                    Some(a.rows())
-                }
-                (None, true) => return Err("--optimiser meta needs FD_GRADS.npy (finite-difference samples) after GRADS.npy".into()),
-                (None, false) => None,
-            };
-            let init = match init {
-                Some(p) => {
-                    let a = npy::read(p)?;
-                    if a.data.len() != n {
-                        return Err(format!("{}: {} values, the gradients have {n} per row", p.display(), a.data.len()).into());
-                    }
-                    a.data
-                }
-                None => vec![0.0; n],
-            };
-            let ctx = context(cli)?;
-            let (trajectory, skipped) = optim::gpu::replay_gpu(&ctx, &opt, &g.rows(), fd.as_deref(), &init, range, *lr)?;
-            npy::write_rows(output, &trajectory)?;
-            if !cli.quiet {
-                eprintln!("replayed {} iterations of {n} parameters -> {}", g.shape[0], output.display());
-            }
-            if skipped > 0 {
-                eprintln!("warning: {skipped} non-finite gradient elements were skipped (theta left unchanged there)");
-            }
-        }
-        Command::Bench { scene, iterations, elements, bvh_layouts, json } => {
-            if let Some(path) = scene {
-                let scene = vkinverse::scene::Scene::load(path)?;
-                let ctx = context(cli)?;
-                if *bvh_layouts {
-                    let result = vkinverse::bench::layout_bench(&ctx, &scene, *iterations)?;
-                    if *json {
-                        println!("{}", serde_json::to_string_pretty(&result)?);
-                    } else {
-                        print!("{}", result.table());
-                    }
-                    return Ok(());
-                }
-                let result = vkinverse::bench::scene_bench(&ctx, &scene, *iterations, *elements)?;
-                if *json {
-                    println!("{}", serde_json::to_string_pretty(&result)?);
-                } else {
-                    print!("{}", result.table());
-                }
-                return Ok(());
-            }
-            // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
-            if *elements < 4 {
-                return Err(format!("--elements {elements}: must be at least 4").into());
-            }
-            let ctx = context(cli)?;
-            let result = vkinverse::bench::buffer_bench(&ctx, *elements, *iterations)?;
-            if *json {
-                outln!("{}", serde_json::to_string_pretty(&result)?)?;
-            } else {
-                out(format_args!("{}", result.table()))?;
-            }
-        }
+        Command::Render(a) => run_render(cli, a),
+        Command::Optimise(a) => run_optimise(cli, a),
+        Command::Compare(a) => run_compare(cli, a),
+        Command::Batch(a) => run_batch(cli, a),
+        Command::Gradcheck(a) => run_gradcheck(cli, a),
+        Command::Replay(a) => run_replay(cli, a),
+        Command::Bench(a) => run_bench(cli, a),
     }
-    Ok(())
+}
+
+/// A usage error as one line: clap's first line, with the arguments it lists below it (a
+/// missing required argument's name) joined on.
+fn usage_error(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let mut lines = text.lines().map(str::trim).take_while(|l| !l.is_empty() && !l.starts_with("Usage:"));
+    let first = lines.next().unwrap_or_default();
+    let first = first.strip_prefix("error: ").unwrap_or(first);
+    let listed: Vec<&str> = lines.collect();
+    if listed.is_empty() {
+        first.to_string()
+    } else {
+        format!("{first} {}", listed.join(", "))
+    }
 }
 
 fn main() -> ExitCode {
@@ -608,9 +580,7 @@ fn main() -> ExitCode {
         // Usage errors get the same one-line form as every other error; clap's usual exit
         // status for them (2) is kept.
         Err(e) => {
-            let text = e.render().to_string();
-            let first = text.lines().next().unwrap_or_default();
-            eprintln!("vkinverse: error: {} (see --help)", first.strip_prefix("error: ").unwrap_or(first));
+            eprintln!("vkinverse: error: {} (see --help)", usage_error(&e));
             return ExitCode::from(2);
         }
     };

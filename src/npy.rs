@@ -1,14 +1,12 @@
-//! `.npy` float32 arrays: the gradient streams `vkinverse replay` reads and the trajectories
-//! it writes. Only what those need: format versions 1.0 and 2.0, dtype `'<f4'`, C order,
-//! shapes `(n,)` and `(rows, cols)`.
+//! `.npy` float32 arrays (through the `npyz` crate): the gradient streams `vkinverse
+//! replay` reads and the trajectories it writes, and checkpoints. Only what those need:
+//! format versions 1.0 and 2.0, dtype `'<f4'`, C order, shapes `(n,)` and `(rows, cols)`.
 //!
 //! Reading validates everything before returning (magic, version, header, dtype, order,
-//! shape, exact data length) and every error is one line naming the file. Writing is atomic:
-//! the bytes go to a temporary file in the target's directory, which is then renamed over the
-//! target, so a reader never sees a half-written array.
+//! shape, exact data length) and every error is one line naming the file. Writing is atomic
+//! ([`crate::image::write_atomic`]), so a reader never sees a half-written array.
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 const MAGIC: &[u8] = b"\x93NUMPY";
@@ -85,40 +83,21 @@ pub fn read(path: &Path) -> Result<Array, NpyError> {
     parse(&bytes).map_err(|e| e.at(path))
 }
 
-/// Writes a `.npy` float32 array atomically (version 1.0, or 2.0 for a header over 64 KiB).
+/// Writes a `.npy` float32 array atomically (npyz picks version 1.0, or 2.0 for a header
+/// over 64 KiB).
 pub fn write(path: &Path, array: &Array) -> Result<(), NpyError> {
-    let at = |e| io_error(path, e);
     let len: usize = array.shape.iter().product();
     if !(1..=2).contains(&array.shape.len()) || len != array.data.len() {
-        return Err(NpyError::BadShape {
-            path: path.into(),
-            found: array.shape.clone(),
-        });
+        return Err(NpyError::BadShape { path: path.into(), found: array.shape.clone() });
     }
-    let bytes = encode(array);
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| at(std::io::ErrorKind::InvalidInput.into()))?;
-    let tmp = dir.join(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| {
-        let mut file = fs::File::create(&tmp)?;
-        file.write_all(&bytes)?;
-        file.sync_all()?;
-        fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        // Best effort: the temporary file is garbage whether or not it can be removed.
-        let _ = fs::remove_file(&tmp);
-    }
-    result.map_err(at)
+    let shape: Vec<u64> = array.shape.iter().map(|&d| d as u64).collect();
+    crate::image::write_atomic(path, |tmp| {
+        use npyz::WriterBuilder;
+        let mut w = npyz::WriteOptions::<f32>::new().default_dtype().shape(&shape).writer(std::io::BufWriter::new(fs::File::create(tmp)?)).begin_nd()?;
+        w.extend(array.data.iter().copied())?;
+        w.finish()
+    })
+    .map_err(|e| io_error(path, e))
 }
 
 /// Writes 2-D rows atomically.
@@ -126,11 +105,7 @@ pub fn write_rows(path: &Path, rows: &[Vec<f32>]) -> Result<(), NpyError> {
     let array = Array::from_rows(rows).ok_or_else(|| NpyError::Ragged {
         path: path.into(),
         first: rows[0].len(),
-        other: rows
-            .iter()
-            .map(Vec::len)
-            .find(|&l| l != rows[0].len())
-            .unwrap_or(0),
+        other: rows.iter().map(Vec::len).find(|&l| l != rows[0].len()).unwrap_or(0),
     })?;
     write(path, &array)
 }
@@ -139,50 +114,8 @@ fn io_error(path: &Path, e: std::io::Error) -> NpyError {
     if e.kind() == std::io::ErrorKind::NotFound {
         NpyError::NotFound(path.into())
     } else {
-        NpyError::Io {
-            path: path.into(),
-            source: e,
-        }
+        NpyError::Io { path: path.into(), source: e }
     }
-}
-
-fn encode(array: &Array) -> Vec<u8> {
-    let shape = match array.shape[..] {
-        [n] => format!("({n},)"),
-        ref dims => format!(
-            "({})",
-            dims.iter()
-                .map(usize::to_string)
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
-    // The header ends in '\n' and the data starts on a 64-byte boundary (the format's rule);
-    // version 2.0 only where the padded header outgrows version 1.0's 16-bit length.
-    let padded_v1 = (10 + header.len() + 1).div_ceil(64) * 64;
-    let (version, prefix) = if padded_v1 - 10 <= u16::MAX as usize {
-        (1u8, 10)
-    } else {
-        (2u8, 12)
-    };
-    let padded = (prefix + header.len() + 1).div_ceil(64) * 64;
-    header.extend(std::iter::repeat_n(' ', padded - prefix - header.len() - 1));
-    header.push('\n');
-
-    let mut out = Vec::with_capacity(padded + 4 * array.data.len());
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&[version, 0]);
-    if version == 1 {
-        out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    } else {
-        out.extend_from_slice(&(header.len() as u32).to_le_bytes());
-    }
-    out.extend_from_slice(header.as_bytes());
-    for x in &array.data {
-        out.extend_from_slice(&x.to_le_bytes());
-    }
-    out
 }
 
 /// A parse error before the path is known.
@@ -207,137 +140,47 @@ impl Malformed {
             Malformed::Dtype(found) => NpyError::WrongDtype { path, found },
             Malformed::Fortran => NpyError::FortranOrder(path),
             Malformed::Shape(found) => NpyError::BadShape { path, found },
-            Malformed::Truncated(expected, found) => NpyError::Truncated {
-                path,
-                expected,
-                found,
-            },
+            Malformed::Truncated(expected, found) => NpyError::Truncated { path, expected, found },
             Malformed::Trailing(extra) => NpyError::TrailingData { path, extra },
         }
     }
 }
 
+/// Parses the file's bytes: npyz reads the header; this checks what vkinverse needs
+/// (versions 1.0 and 2.0, '<f4', C order, 1-D or 2-D, the exact data length) and puts
+/// npyz's messages on one line.
 fn parse(bytes: &[u8]) -> Result<Array, Malformed> {
     if bytes.len() < 8 || &bytes[..6] != MAGIC {
         return Err(Malformed::BadMagic);
     }
-    let (header_len, start) = match (bytes[6], bytes[7]) {
-        (1, 0) if bytes.len() >= 10 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        (2, 0) if bytes.len() >= 12 => (
-            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
-            12,
-        ),
-        (1, 0) | (2, 0) => {
-            return Err(Malformed::Header(
-                "file ends inside the header length".into(),
-            ))
-        }
-        (major, minor) => return Err(Malformed::Version(major, minor)),
-    };
-    let header = bytes
-        .get(start..start + header_len)
-        .ok_or_else(|| Malformed::Header("file ends inside the header".into()))?;
-    let header =
-        std::str::from_utf8(header).map_err(|_| Malformed::Header("header is not ASCII".into()))?;
-    let (descr, fortran, shape) = parse_header(header)?;
-    if descr != "<f4" {
-        return Err(Malformed::Dtype(format!("'{descr}'")));
+    if !matches!((bytes[6], bytes[7]), (1, 0) | (2, 0)) {
+        return Err(Malformed::Version(bytes[6], bytes[7]));
     }
-    if fortran {
+    let npy = npyz::NpyFile::new(bytes).map_err(|e| match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => Malformed::Header("the file ends inside the header".into()),
+        _ => Malformed::Header(e.to_string().lines().map(str::trim).collect::<Vec<_>>().join(" ")),
+    })?;
+    match npy.dtype() {
+        npyz::DType::Plain(t) if t.to_string() == "<f4" => {}
+        other => return Err(Malformed::Dtype(other.descr())),
+    }
+    if npy.order() == npyz::Order::Fortran {
         return Err(Malformed::Fortran);
     }
+    let shape: Vec<usize> = npy.shape().iter().map(|&d| d as usize).collect();
     if !(1..=2).contains(&shape.len()) {
         return Err(Malformed::Shape(shape));
     }
-    let expected = shape
-        .iter()
-        .try_fold(4usize, |acc, &d| acc.checked_mul(d))
-        .ok_or_else(|| Malformed::Shape(shape.clone()))?;
-    let data = &bytes[start + header_len..];
+    let expected = shape.iter().try_fold(4usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| Malformed::Shape(shape.clone()))?;
+    let data = npy.into_inner();
     if data.len() < expected {
         return Err(Malformed::Truncated(expected, data.len()));
     }
     if data.len() > expected {
         return Err(Malformed::Trailing(data.len() - expected));
     }
-    let data = data
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let data = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
     Ok(Array { shape, data })
-}
-
-/// Parses the header's Python dict literal, e.g.
-/// `{'descr': '<f4', 'fortran_order': False, 'shape': (3, 4), }`.
-fn parse_header(header: &str) -> Result<(String, bool, Vec<usize>), Malformed> {
-    let bad = |reason: &str| Malformed::Header(reason.to_string());
-    let body = header
-        .trim()
-        .strip_prefix('{')
-        .and_then(|h| h.strip_suffix('}'))
-        .ok_or_else(|| bad("not a dict"))?;
-    let (mut descr, mut fortran, mut shape) = (None, None, None);
-    // Split at top-level commas: the shape tuple has commas of its own.
-    let mut depth = 0;
-    let mut items = vec![];
-    let mut from = 0;
-    for (i, c) in body.char_indices() {
-        match c {
-            '(' => depth += 1,
-            ')' => depth -= 1,
-            ',' if depth == 0 => {
-                items.push(&body[from..i]);
-                from = i + 1;
-            }
-            _ => {}
-        }
-    }
-    items.push(&body[from..]);
-    for item in items.iter().map(|s| s.trim()).filter(|s| !s.is_empty()) {
-        let (key, value) = item
-            .split_once(':')
-            .ok_or_else(|| bad("entry without ':'"))?;
-        let value = value.trim();
-        match unquote(key.trim()) {
-            Some("descr") => {
-                descr = Some(
-                    unquote(value)
-                        .ok_or_else(|| bad("descr is not a string"))?
-                        .to_string(),
-                )
-            }
-            Some("fortran_order") => {
-                fortran = Some(match value {
-                    "True" => true,
-                    "False" => false,
-                    _ => return Err(bad("fortran_order is not True or False")),
-                })
-            }
-            Some("shape") => {
-                let inner = value
-                    .strip_prefix('(')
-                    .and_then(|v| v.strip_suffix(')'))
-                    .ok_or_else(|| bad("shape is not a tuple"))?;
-                let dims = inner.split(',').map(str::trim).filter(|d| !d.is_empty());
-                shape = Some(
-                    dims.map(|d| d.trim_end_matches('L').parse::<usize>())
-                        .collect::<Result<Vec<_>, _>>()
-                        .map_err(|_| bad("shape has a non-integer dimension"))?,
-                );
-            }
-            _ => return Err(bad(&format!("unexpected key {}", key.trim()))),
-        }
-    }
-    match (descr, fortran, shape) {
-        (Some(d), Some(f), Some(s)) => Ok((d, f, s)),
-        _ => Err(bad("missing descr, fortran_order or shape")),
-    }
-}
-
-fn unquote(s: &str) -> Option<&str> {
-    s.strip_prefix('\'')
-        .and_then(|s| s.strip_suffix('\''))
-        .or_else(|| s.strip_prefix('"').and_then(|s| s.strip_suffix('"')))
 }
 
 #[cfg(test)]
@@ -413,6 +256,13 @@ mod tests {
     fn reads_numpy_headers() {
         let data = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
         let parsed = parse(&numpy_bytes(GOOD, &data)).ok().unwrap();
+        // What npyz writes has numpy's layout: the data starts on a 64-byte boundary, after
+        // a header that ends in a line break.
+        let p = scratch("numpy.npy");
+        write(&p, &Array { shape: vec![2, 3], data: data.to_vec() }).unwrap();
+        let bytes = fs::read(&p).unwrap();
+        assert_eq!(bytes.len() % 64, 24);
+        assert_eq!(bytes[bytes.len() - 25], b'\n');
         assert_eq!(parsed.shape, vec![2, 3]);
         assert_eq!(parsed.data, data);
         let one_d = "{'descr': '<f4', 'fortran_order': False, 'shape': (6,), }";
@@ -464,7 +314,7 @@ mod tests {
         extra.extend_from_slice(&[0; 4]);
         assert!(error_of(&extra).contains("4 bytes after"));
         assert!(error_of(&numpy_bytes("{'descr': '<f4'}", &data)).contains("missing"));
-        assert!(error_of(&numpy_bytes("[1, 2]", &data)).contains("not a dict"));
+        assert!(error_of(&numpy_bytes("[1, 2]", &data)).contains("dict"));
     }
 
     #[test]

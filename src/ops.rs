@@ -2,16 +2,13 @@
 //! sum of squares), recorded into a [`Recorder`].
 
 use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, Result, SpecValue};
+use crate::push::{CountPush, FillPush, ScaleAddPush};
 use std::sync::Arc;
 
 /// Elements summed by one reduce workgroup: local size × ITEMS (glsl/reduce.comp).
 fn reduce_chunk(p: &ComputePipeline) -> u64 {
     // ITEMS is left at its default of 4 by `BufferOps::new`.
     p.local_size()[0] as u64 * 4
-}
-
-fn push_n(n: u64) -> Vec<u8> {
-    (n as u32).to_le_bytes().to_vec()
 }
 
 /// The pipelines of the buffer kernels.
@@ -61,33 +58,28 @@ impl BufferOps {
     pub fn fill(&self, rec: &mut Recorder, dst: &Buffer, value: f32) -> Result<()> {
         let group = self.fill.bind(&[("Dst", dst)])?;
         let n = Self::elements(dst);
-        let mut push = push_n(n);
-        push.extend_from_slice(&value.to_le_bytes());
-        rec.dispatch_linear(&self.fill, &group, &push, n)
+        rec.dispatch_linear(&self.fill, &group, &FillPush { n: n as u32, value }, n)
     }
 
     /// Records `dst[i] = src[i]` for the first `min(len)` elements.
     pub fn copy(&self, rec: &mut Recorder, src: &Buffer, dst: &Buffer) -> Result<()> {
         let group = self.copy.bind(&[("Src", src), ("Dst", dst)])?;
         let n = Self::elements(src).min(Self::elements(dst));
-        rec.dispatch_linear(&self.copy, &group, &push_n(n), n)
+        rec.dispatch_linear(&self.copy, &group, &CountPush::new(n), n)
     }
 
     /// Records `x[i] = a * x[i] + b`.
     pub fn scale_add(&self, rec: &mut Recorder, x: &Buffer, a: f32, b: f32) -> Result<()> {
         let group = self.scale_add.bind(&[("X", x)])?;
         let n = Self::elements(x);
-        let mut push = push_n(n);
-        push.extend_from_slice(&a.to_le_bytes());
-        push.extend_from_slice(&b.to_le_bytes());
-        rec.dispatch_linear(&self.scale_add, &group, &push, n)
+        rec.dispatch_linear(&self.scale_add, &group, &ScaleAddPush { n: n as u32, a, b }, n)
     }
 
     /// Records `dst[i] = a[i] - b[i]`.
     pub fn sub(&self, rec: &mut Recorder, a: &Buffer, b: &Buffer, dst: &Buffer) -> Result<()> {
         let group = self.sub.bind(&[("A", a), ("B", b), ("Dst", dst)])?;
         let n = Self::elements(dst);
-        rec.dispatch_linear(&self.sub, &group, &push_n(n), n)
+        rec.dispatch_linear(&self.sub, &group, &CountPush::new(n), n)
     }
 
     /// Prepares the sum (or, with `square`, the sum of squares) of `src`'s f32 elements.
@@ -123,7 +115,7 @@ impl BufferOps {
             }
             let pipe = if *square { &self.reduce_sq } else { &self.reduce_sum };
             let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
-            rec.dispatch_linear(pipe, group, &push_n(*n), groups * pipe.local_size()[0] as u64)?;
+            rec.dispatch_linear(pipe, group, &CountPush::new(*n), groups * pipe.local_size()[0] as u64)?;
         }
         Ok(())
     }

@@ -1,7 +1,81 @@
-//! Text and JSON reports for the command line.
+//! Text and JSON reports for the command line: device information, plots and CSV tables,
+//! progress on stderr and warnings.
 
 use crate::gpu::Context;
 use std::fmt::Write as _;
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Silences [`warn`] (the command line's `--quiet`).
+pub fn set_quiet(quiet: bool) {
+    QUIET.store(quiet, Ordering::Relaxed);
+}
+
+/// Prints `vkinverse: warning: MESSAGE` on stderr unless quiet.
+pub fn warn(message: &str) {
+    if !QUIET.load(Ordering::Relaxed) {
+        eprintln!("vkinverse: warning: {message}");
+    }
+}
+
+/// Progress of a long task on stderr: a bar on a terminal; elsewhere (a log file, a batch
+/// scheduler's output) one line every `VKINVERSE_PROGRESS_SECS` seconds (default 10), so
+/// that a long render is not silent for minutes. Nothing with `quiet`.
+pub struct ProgressReport {
+    bar: Option<indicatif::ProgressBar>,
+    lines: Option<(Duration, Instant)>,
+    label: String,
+    unit: String,
+    start: Instant,
+    total: u64,
+}
+
+impl ProgressReport {
+    pub fn new(quiet: bool, label: &str, total: u64, unit: &str) -> Self {
+        let terminal = std::io::stderr().is_terminal();
+        let bar = (!quiet && terminal).then(|| {
+            let bar = indicatif::ProgressBar::new(total);
+            let template = format!("{{bar:40}} {{pos}}/{{len}} {unit} ({{elapsed}}, eta {{eta}}) {{msg}}");
+            bar.set_style(indicatif::ProgressStyle::with_template(&template).unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+            bar
+        });
+        let every = std::env::var("VKINVERSE_PROGRESS_SECS").ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s >= 0.0).unwrap_or(10.0);
+        let lines = (!quiet && !terminal).then(|| (Duration::from_secs_f64(every), Instant::now()));
+        ProgressReport { bar, lines, label: label.into(), unit: unit.into(), start: Instant::now(), total }
+    }
+
+    pub fn set_total(&mut self, total: u64) {
+        self.total = total;
+        if let Some(b) = &self.bar {
+            b.set_length(total);
+        }
+    }
+
+    /// Reports `position` of the total, with `message` (e.g. the current loss).
+    pub fn set(&mut self, position: u64, message: &str) {
+        if let Some(b) = &self.bar {
+            b.set_position(position);
+            b.set_message(message.to_string());
+        }
+        if let Some((every, last)) = &mut self.lines {
+            if last.elapsed() >= *every {
+                *last = Instant::now();
+                let of = if self.total > 0 { format!("/{} ({:.0} %)", self.total, 100.0 * position as f64 / self.total as f64) } else { String::new() };
+                let sep = if message.is_empty() { "" } else { "; " };
+                eprintln!("{}: {position}{of} {} after {:.0} s{sep}{message}", self.label, self.unit, self.start.elapsed().as_secs_f64());
+            }
+        }
+    }
+
+    pub fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+        }
+    }
+}
 
 /// `vkinverse info` as text: every device, the chosen one marked, its limits and features.
 pub fn info_text(ctx: &Context) -> String {
@@ -155,23 +229,19 @@ pub fn plot_error_vs_time(path: &std::path::Path, title: &str, y_label: &str, cu
 /// Writes `curves` as `label,time_s,error` rows to `csv_path` and plots them (log-scale
 /// error against time) to `png_path`, each file atomically.
 pub fn write_curves(csv_path: &std::path::Path, png_path: &std::path::Path, title: &str, y_label: &str, curves: &[Curve]) -> Result<(), String> {
-    use std::fmt::Write as _;
-    let mut csv = String::from("label,time_s,error\n");
-    for c in curves {
-        for (t, e) in &c.points {
-            let _ = writeln!(csv, "{},{t},{e}", csv_field(&c.name));
-        }
-    }
-    crate::image::write_bytes_atomic(csv_path, csv.as_bytes()).map_err(|e| format!("{}: {e}", csv_path.display()))?;
+    let header = ["label", "time_s", "error"].map(String::from);
+    let rows = curves.iter().flat_map(|c| c.points.iter().map(|(t, e)| vec![c.name.clone(), t.to_string(), e.to_string()]));
+    let csv = csv_bytes(&header, rows)?;
+    crate::image::write_bytes_atomic(csv_path, &csv).map_err(|e| format!("{}: {e}", csv_path.display()))?;
     plot_error_vs_time(png_path, title, y_label, curves)
 }
 
-/// `text` as one CSV field (RFC 4180): quoted, with quotes doubled, when it holds a comma,
-/// a quote or a line break, so that error messages keep a table's columns aligned.
-pub fn csv_field(text: &str) -> String {
-    if text.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", text.replace('"', "\"\""))
-    } else {
-        text.to_string()
+/// A CSV table (RFC 4180: a field holding a comma, quote or line break is quoted).
+pub fn csv_bytes(header: &[String], rows: impl IntoIterator<Item = Vec<String>>) -> Result<Vec<u8>, String> {
+    let mut w = csv::Writer::from_writer(Vec::new());
+    w.write_record(header).map_err(|e| e.to_string())?;
+    for row in rows {
+        w.write_record(&row).map_err(|e| e.to_string())?;
     }
+    w.into_inner().map_err(|e| e.to_string())
 }

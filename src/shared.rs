@@ -17,14 +17,11 @@ pub struct ProbeStruct {
     pub d: u32,
 }
 
-/// `Material::kind` of a Lambertian material (`MATERIAL_DIFFUSE`, glsl/shared/material.glsl).
-pub const MATERIAL_DIFFUSE: u32 = 0;
-/// `Material::kind` of the glTF metallic-roughness model (`MATERIAL_PRINCIPLED`).
-pub const MATERIAL_PRINCIPLED: u32 = 1;
+pub use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 24 bytes, offsets checked against the
-/// reflected SPIR-V in tests/bsdf.rs (the kind constants are checked there too, by the
-/// GPU/CPU comparison of both kinds). The model is defined in glsl/lib/bsdf.glsl and
+/// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
+/// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

@@ -16,8 +16,26 @@ fn scene_bench_on_cornell_is_consistent() {
     // Two iterations: the medians are means, so per-pass sums compare with the total.
     let b = with_gpu(|ctx| vkinverse::bench::scene_bench(ctx, &scene, 2, 1 << 16).unwrap());
 
-    let names: Vec<&str> = b.passes.iter().map(|p| p.name.as_str()).collect();
-    assert_eq!(names, ["trace_primal", "loss", "trace_adjoint", "finite_difference", "finite_difference_two_trace", "optim_meta", "optim_adam", "copy"]);
+    // Every scope is named after its kernel, within its group of passes.
+    let names: Vec<String> = b.passes.iter().map(|p| format!("{}/{}", p.group, p.name)).collect();
+    assert_eq!(
+        names,
+        [
+            "gradient/trace_primal",
+            "gradient/loss",
+            "gradient/trace_adjoint",
+            "finite_difference/trace_fd_primal",
+            "finite_difference/loss",
+            "finite_difference/trace_fd_adjoint",
+            "finite_difference_two_trace/trace_primal",
+            "finite_difference_two_trace/loss",
+            "finite_difference_two_trace/trace_adjoint",
+            "finite_difference_two_trace/sub",
+            "optimiser/optim_meta",
+            "optimiser/optim_adam",
+            "optimiser/copy",
+        ]
+    );
     for p in &b.passes {
         finite_positive(&p.name, p.median_ms);
         for rate in [p.rays_per_s, p.params_per_s, p.gb_per_s].into_iter().flatten() {
@@ -27,7 +45,10 @@ fn scene_bench_on_cornell_is_consistent() {
     let sum: f64 = b.passes.iter().map(|p| p.median_ms).sum();
     assert!(sum <= b.iteration_ms * (1.0 + 1e-9), "passes sum to {sum} ms, the iteration took {} ms", b.iteration_ms);
     assert_eq!(b.passes[0].rays_per_s, Some(b.rays.rays_per_s));
-    assert_eq!(b.passes[5].params_per_s.is_some(), b.parameters > 0);
+    assert_eq!(b.passes[10].params_per_s.is_some(), b.parameters > 0);
+    // The fused finite-difference sample is the sum of its passes.
+    let fd: f64 = b.passes[3..6].iter().map(|p| p.median_ms).sum();
+    assert!((b.ratios.finite_difference_ms - fd).abs() <= 0.5 * fd, "{} ms against passes summing to {fd} ms", b.ratios.finite_difference_ms);
 
     // Each sample casts a camera ray and at most one extension and one shadow ray per
     // further vertex.

@@ -40,16 +40,7 @@ struct BsdfResult {
     d_metallic: [f32; 3],
 }
 
-/// Push constants of the bsdf_sample_test variant.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
-struct SamplePush {
-    material: Material,
-    n: [f32; 3],
-    wo: [f32; 3],
-    count: u32,
-    seed: u32,
-}
+use vkinverse::push::BsdfSamplePush as SamplePush;
 
 
 #[test]
@@ -399,7 +390,7 @@ fn run_bsdf_test(ctx: &std::sync::Arc<vkinverse::gpu::Context>, cases: &[(Materi
     let rbuf = Buffer::zeroed::<BsdfResult>(ctx, "results", cases.len(), MemoryKind::Readback).unwrap();
     let group = pipe.bind(&[("Materials", &mbuf), ("Cases", &cbuf), ("Results", &rbuf)]).unwrap();
     let mut cmd = CommandBuffer::new(ctx, "bsdf_test").unwrap();
-    let push = (cases.len() as u32).to_le_bytes();
+    let push = vkinverse::push::CountPush::new(cases.len() as u64);
     cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, cases.len() as u64)).unwrap();
     cmd.submit_and_wait().unwrap();
     rbuf.read().unwrap()
@@ -613,7 +604,7 @@ fn gpu_samples_follow_bsdf_pdf() {
             let wo = direction(n, theta_o.to_radians().cos(), 0.7);
             let push =
                 SamplePush { material: *material, n: f3(n), wo: f3(wo), count: SAMPLES, seed: case as u32 * 7919 + 1 };
-            cmd.record(|rec| rec.dispatch_linear(&pipe, &group, bytemuck::bytes_of(&push), SAMPLES as u64)).unwrap();
+            cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, SAMPLES as u64)).unwrap();
             cmd.submit_and_wait().unwrap();
             let samples: Vec<[f32; 3]> = out.read().unwrap();
 

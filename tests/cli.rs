@@ -38,8 +38,13 @@ impl Output {
 /// Runs the binary with the validation layer on (and on the test device, where one is named)
 /// and fails the test if it outlives [`DEADLINE`], panics, or the layer reports anything.
 fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    vkinverse_env(args, &[])
+}
+
+/// [`vkinverse`] with extra environment variables (the debug build's stopping points).
+fn vkinverse_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)]) -> Output {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
-    cmd.args(args).env("VKINVERSE_VALIDATION", "1");
+    cmd.args(args).env("VKINVERSE_VALIDATION", "1").envs(envs.iter().copied());
     if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
         cmd.args(["--device", &device]);
     }
@@ -150,6 +155,12 @@ fn dir_names(dir: &Path) -> Vec<String> {
     names
 }
 
+/// The committed checkpoint's directory: the one `checkpoint/current` names.
+fn committed(dir: &Path) -> PathBuf {
+    let name = std::fs::read_to_string(dir.join("checkpoint/current")).expect("checkpoint/current");
+    dir.join("checkpoint").join(name.trim())
+}
+
 /// log.csv as a header and rows of fields.
 fn read_log(dir: &Path) -> (String, Vec<Vec<String>>) {
     let text = std::fs::read_to_string(dir.join("log.csv")).unwrap();
@@ -239,8 +250,12 @@ fn render_writes_exr_and_png() {
     vkinverse_err(&["render", &s(&scene), "--spp", "0", "-o", &s(&bad)], &["--spp"]);
     vkinverse_err(&["render", &s(&scene), "--spp", "1", "--sensor", "5", "-o", &s(&bad)], &["--sensor 5", "1 sensor"]);
     vkinverse_err(&["render", &s(&scene), "--spp", "abc", "-o", &s(&bad)], &["--spp", "abc"]);
-    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("no/such/dir/x.exr"))], &["no/such/dir/x.exr"]);
+    // An output directory that cannot be made fails before rendering.
+    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("cornell.exr/x.exr"))], &["cornell.exr"]);
     assert_eq!(dir_names(&dir), ["cornell.exr", "cornell.png"]);
+    // A missing one is made first.
+    vkinverse_ok(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("new/dir/x.exr"))]);
+    assert!(dir.join("new/dir/x.exr").exists());
 }
 
 /// Runs `optimise` on the tiny Cornell box and checks every output against DESIGN.md;
@@ -260,7 +275,7 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         &s(&out_dir),
     ]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
-    assert_eq!(dir_names(&out_dir), ["checkpoint", "error_vs_time.png", "final.exr", "log.csv", "params", "summary.json"]);
+    assert_eq!(dir_names(&out_dir), [".lock", "checkpoint", "error_vs_time.png", "final.exr", "log.csv", "params", "summary.json"]);
 
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
@@ -315,9 +330,11 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     let final_image = vkinverse::image::read_exr(&out_dir.join("final.exr")).unwrap();
     assert_eq!((final_image.width, final_image.height), (16, 16));
     png_size(&out_dir.join("error_vs_time.png"));
-    let state = json(&out_dir.join("checkpoint/state.json"));
+    let state = json(&committed(&out_dir).join("state.json"));
     assert_eq!(state["iteration"], iterations);
-    assert_eq!(state["optimiser"], optimiser);
+    assert_eq!(state["settings"]["optimiser"], optimiser);
+    // The checkpoint holds the log as it was at its iteration: here, all of it.
+    assert_eq!(std::fs::read(committed(&out_dir).join("log.csv")).unwrap(), std::fs::read(out_dir.join("log.csv")).unwrap());
     errors
 }
 
@@ -352,7 +369,7 @@ fn resume_continues_from_the_checkpoint() {
     let base = ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "--quiet", "-o", &s(&out_dir)].map(String::from);
     let with = |extra: &[&str]| base.iter().cloned().chain(extra.iter().map(|a| a.to_string())).collect::<Vec<_>>();
     vkinverse_ok(&with(&["--iterations", "6", "--checkpoint-every", "3"]));
-    let state = json(&out_dir.join("checkpoint/state.json"));
+    let state = json(&committed(&out_dir).join("state.json"));
     assert_eq!(state["iteration"], 6);
     let (_, first) = read_log(&out_dir);
     assert_eq!(first.len(), 7);
@@ -360,8 +377,8 @@ fn resume_continues_from_the_checkpoint() {
     // optimisation time (generous slack for a preempted process).
     let saved = state["time_s"].as_f64().unwrap() - field(&first[6], 1);
     assert!((-1e-6..0.05).contains(&saved), "checkpoint time {saved} s after the last row");
-    // Atomic checkpoints leave no staging directories behind.
-    assert!(!out_dir.join("checkpoint.tmp").exists() && !out_dir.join("checkpoint.old").exists());
+    // A commit removes the checkpoints before it: the pointer and one directory are left.
+    assert_eq!(dir_names(&out_dir.join("checkpoint")), ["0000000006", "current"]);
 
     vkinverse_ok(&with(&["--iterations", "10", "--resume"]));
     let (header, rows) = read_log(&out_dir);
@@ -382,7 +399,7 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(summary["iterations"], 10);
     assert!((summary["initial_param_error"].as_f64().unwrap() - e(0)).abs() < 1e-9, "the initial error is the run's, not the checkpoint's");
     assert!((summary["final_param_error"].as_f64().unwrap() - e(10)).abs() < 1e-9);
-    assert_eq!(json(&out_dir.join("checkpoint/state.json"))["iteration"], 10);
+    assert_eq!(json(&committed(&out_dir).join("state.json"))["iteration"], 10);
 
     // Resuming with the other optimiser cannot use this state.
     let mut adam = with(&["--iterations", "12", "--resume"]);
@@ -451,10 +468,14 @@ fn bad_optimise_flags_are_one_line_errors() {
     run(&["--time-budget", "nan"], &["--time-budget"]);
     run(&["--spp", "0"], &["--spp"]);
     run(&["--fd-spp", "0"], &["--fd-spp"]);
-    run(&["--iterations", "0"], &["0 iterations"]);
+    run(&["--iterations", "0"], &["--iterations", "at least 1"]);
+    run(&["--checkpoint-every", "0"], &["--checkpoint-every", "at least 1"]);
+    run(&["--resume", "--overwrite"], &["--resume", "--overwrite"]);
     run(&["--unknown-flag"], &["--unknown-flag"]);
     let resume_dir = temp_dir("resume-nothing");
-    vkinverse_err(&["optimise", &scene, "--iterations", "2", "--resume", "-o", &s(&resume_dir)], &["state.json"]);
+    vkinverse_err(&["optimise", &scene, "--iterations", "2", "--resume", "-o", &s(&resume_dir)], &["no committed checkpoint"]);
+    // A missing required argument is named.
+    vkinverse_err(&["optimise", &scene], &["--output"]);
     vkinverse_err(&["gradcheck", &scene, "--spp", "0"], &["--spp"]);
     vkinverse_err(&["bench", "--elements", "0"], &["--elements"]);
 }
@@ -562,10 +583,203 @@ fn bad_replay_inputs_are_one_line_errors() {
     assert_eq!(dir_names(&dir), before, "a failed replay left files behind");
 }
 
+/// The tiny Cornell box (16², depth 2) is resolved by the automatic rounds in a few
+/// seconds: every element "pass", exit 0; the JSON report carries each element's z and the
+/// standard error the 10 % bias needs, and the combined statistic.
 #[test]
 fn gradcheck_passes_on_the_cornell_box() {
     let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell())]);
     let rows: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("materials.red.base_color")).collect();
     assert_eq!(rows.len(), 3, "one row per colour channel:\n{}", out.stdout);
     assert!(rows.iter().all(|r| r.trim_end().ends_with("pass")), "{}", out.stdout);
+    assert!(out.stdout.lines().any(|l| l == "verdict: pass"), "{}", out.stdout);
+    let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell()), "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&out.stdout).unwrap();
+    assert_eq!(report["verdict"], "pass");
+    assert!(report["rounds"].as_u64().unwrap() >= 8, "at least the pilot's rounds");
+    let p = report["combined"]["p_value"].as_f64().unwrap();
+    assert!((1e-3..=1.0).contains(&p), "combined p {p}");
+    for row in report["rows"].as_array().unwrap() {
+        let (z, se, needed) = (row["z"].as_f64().unwrap(), row["se"].as_f64().unwrap(), row["se_needed"].as_f64().unwrap());
+        assert!(z.abs() <= 4.0 && se > 0.0 && se <= needed, "{row}");
+        assert_eq!(row["verdict"], "pass");
+    }
+}
+
+/// Four rounds cannot resolve the gap scene (light through a 2 cm gap): the verdict is
+/// "inconclusive", no element says "pass", and the exit status is non-zero.
+#[test]
+fn gradcheck_too_noisy_to_decide_is_inconclusive_and_fails_the_command() {
+    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/gap");
+    let dir = temp_dir("gradcheck-gap");
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for entry in std::fs::read_dir(src.join("meshes")).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), dir.join("meshes").join(entry.file_name())).unwrap();
+    }
+    let text = std::fs::read_to_string(src.join("scene.toml")).unwrap().replacen("width = 64", "width = 16", 1).replacen("height = 64", "height = 16", 1);
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let scene = s(&dir.join("scene.toml"));
+    let out = vkinverse(&["gradcheck", &scene, "--rounds", "4", "--spp", "4"]);
+    assert!(!out.ok(), "an inconclusive check must not exit 0:\n{}", out.stdout);
+    assert!(out.stderr.contains("gradcheck inconclusive") && out.stderr.contains("rounds"), "{}", out.stderr);
+    assert!(out.stdout.lines().any(|l| l.starts_with("verdict: inconclusive")), "{}", out.stdout);
+    let rows: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("materials.")).collect();
+    assert_eq!(rows.len(), 6, "{}", out.stdout);
+    assert!(rows.iter().all(|r| !r.trim_end().ends_with("pass")), "{}", out.stdout);
+}
+
+// ---------------------------------------------------------------------------------------
+// The run directory (src/rundir.rs): lock, used directories, crash-safe checkpoints, resume.
+
+/// `optimise` of the tiny Cornell box with the meta-estimator into `dir`, with `extra`.
+fn optimise_args(dir: &Path, extra: &[&str]) -> Vec<String> {
+    let mut args: Vec<String> = ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "-o", &s(dir)].map(String::from).to_vec();
+    args.extend(extra.iter().map(|a| a.to_string()));
+    args
+}
+
+/// Every file under `dir` (but the lock) with its bytes, to show that nothing changed.
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_dir() {
+            out.extend(snapshot(&p));
+        } else if p.file_name().is_some_and(|n| n != ".lock") {
+            out.push((p.clone(), std::fs::read(&p).unwrap()));
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Runs with the debug build's `VKINVERSE_DEBUG_ABORT_AT=step` and checks that it stopped
+/// there.
+fn killed_at(args: &[String], step: &str) {
+    let out = vkinverse_env(args, &[("VKINVERSE_DEBUG_ABORT_AT", step)]);
+    let name = step.split(':').next().unwrap();
+    assert!(!out.ok() && out.stderr.contains(&format!("aborting at {name}")), "{args:?} did not stop at {step}: {:?}\n{}", out.code, out.stderr);
+}
+
+#[test]
+fn a_busy_directory_is_refused_at_once() {
+    let dir = temp_dir("busy");
+    let mut first = Command::new(env!("CARGO_BIN_EXE_vkinverse"))
+        .args(optimise_args(&dir, &["--iterations", "2", "--quiet"]))
+        .env("VKINVERSE_DEBUG_PAUSE_AT", "run.locked")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut std::io::BufReader::new(first.stderr.take().unwrap()), &mut line).unwrap();
+    assert!(line.contains("paused at run.locked"), "{line}");
+    let second = vkinverse_err(&optimise_args(&dir, &["--iterations", "2", "--overwrite"]), &[&s(&dir), "another run"]);
+    let _ = first.kill();
+    let _ = first.wait();
+    assert!(second.contains(".lock"), "{second}");
+    // The lock goes with its process, however it ends: the directory holds no run.
+    vkinverse_ok(&optimise_args(&dir, &["--iterations", "1", "--quiet"]));
+}
+
+#[test]
+fn a_used_directory_needs_resume_or_overwrite() {
+    let dir = temp_dir("used");
+    vkinverse_ok(&optimise_args(&dir, &["--iterations", "2", "--quiet"]));
+    let before = snapshot(&dir);
+    vkinverse_err(&optimise_args(&dir, &["--iterations", "2"]), &[&s(&dir), "holds a run", "--resume", "--overwrite"]);
+    assert_eq!(snapshot(&dir), before, "a refusal deletes or changes nothing");
+    vkinverse_ok(&optimise_args(&dir, &["--iterations", "3", "--seed", "5", "--overwrite", "--quiet"]));
+    let summary = json(&dir.join("summary.json"));
+    assert_eq!((summary["iterations"].as_u64(), summary["settings"]["seed"].as_u64()), (Some(3), Some(5)));
+    assert_eq!(read_log(&dir).1.len(), 4);
+}
+
+#[test]
+fn a_killed_overwrite_never_mixes_two_runs() {
+    let dir = temp_dir("overwrite-kill");
+    vkinverse_ok(&optimise_args(&dir, &["--iterations", "3", "--quiet"]));
+    // Killed after the old run's pointer went: nothing of it is resumable any more.
+    killed_at(&optimise_args(&dir, &["--iterations", "3", "--overwrite", "--quiet"]), "overwrite.cleared");
+    vkinverse_err(&optimise_args(&dir, &["--iterations", "3", "--resume"]), &["no committed checkpoint"]);
+    // Killed before its first checkpoint is committed: none of the old run's files remain
+    // beside the new run's, and there is no checkpoint to resume.
+    killed_at(&optimise_args(&dir, &["--iterations", "3", "--checkpoint-every", "1", "--overwrite", "--quiet"]), "checkpoint.written:1");
+    for old in ["summary.json", "params", "final.exr", "error_vs_time.png", "log.csv"] {
+        assert!(!dir.join(old).exists(), "{old} left beside the new run");
+    }
+    assert!(!dir.join("checkpoint/current").exists());
+}
+
+#[test]
+fn the_checkpoint_swap_survives_a_kill_at_each_step() {
+    // (step of the second commit, iteration of the checkpoint a resume finds)
+    for (step, resumed_from) in [("checkpoint.written:2", 2), ("checkpoint.committed:2", 4)] {
+        let dir = temp_dir(&format!("swap-{}", step.replace([':', '.'], "-")));
+        killed_at(&optimise_args(&dir, &["--iterations", "6", "--checkpoint-every", "2", "--quiet"]), step);
+        assert_eq!(json(&committed(&dir).join("state.json"))["iteration"], resumed_from, "{step}");
+        let out = vkinverse_ok(&optimise_args(&dir, &["--iterations", "6", "--checkpoint-every", "2", "--resume"]));
+        assert!(out.stderr.contains(&format!("resuming from the checkpoint at iteration {resumed_from}")), "{}", out.stderr);
+        let (_, rows) = read_log(&dir);
+        let iterations: Vec<String> = rows.iter().map(|r| r[0].clone()).collect();
+        assert_eq!(iterations, (0..=6).map(|i| i.to_string()).collect::<Vec<_>>(), "{step}: iterations 0..=6, each once");
+        assert_eq!(json(&dir.join("summary.json"))["iterations"], 6);
+        assert_eq!(dir_names(&dir.join("checkpoint")), ["0000000006", "current"], "{step}");
+    }
+}
+
+#[test]
+fn resume_checks_the_scene_and_reports_changed_settings() {
+    let dir = temp_dir("resume-checks");
+    vkinverse_ok(&optimise_args(&dir, &["--iterations", "2", "--quiet"]));
+    let before = snapshot(&dir);
+    // Another parameter set: named, refused, nothing changed.
+    let other = edited_cornell("resume-other-param", |t| replace_once(t, "target = \"materials.red.base_color\"", "target = \"materials.green.base_color\""));
+    let args = |scene: &Path, extra: &[&str]| {
+        let mut a = vec!["optimise".to_string(), s(scene), "--optimiser".into(), "meta".into(), "-o".into(), s(&dir), "--resume".into()];
+        a.extend(extra.iter().map(|x| x.to_string()));
+        a
+    };
+    vkinverse_err(&args(&other, &["--iterations", "4"]), &["cannot resume", "materials.red.base_color", "materials.green.base_color"]);
+    // Another scene: its content hash differs.
+    let moved = edited_cornell("resume-other-scene", |t| replace_once(t, "fov_y = 39.3", "fov_y = 45"));
+    vkinverse_err(&args(&moved, &["--iterations", "4"]), &["cannot resume", "content differs"]);
+    assert_eq!(snapshot(&dir), before);
+    // A finished run with nothing left to do: said so, nothing changed.
+    let out = vkinverse_ok(&args(tiny_cornell(), &["--iterations", "2"]));
+    assert!(out.stdout.contains("nothing to do"), "{}", out.stdout);
+    assert_eq!(snapshot(&dir), before, "resuming a finished run changed its files");
+    // Changed settings are allowed and listed.
+    let out = vkinverse_ok(&args(tiny_cornell(), &["--iterations", "3", "--spp", "3"]));
+    assert!(out.stderr.contains("iterations: 2 -> 3") && out.stderr.contains("spp: 2 -> 3"), "{}", out.stderr);
+    assert_eq!(json(&dir.join("summary.json"))["iterations"], 3);
+}
+
+#[test]
+fn progress_lines_and_light_warnings_on_a_pipe() {
+    let dir = temp_dir("progress");
+    // stderr is a pipe here: periodic lines instead of a bar (every update at 0 s).
+    let out = vkinverse_env(&["render", &s(tiny_cornell()), "--spp", "8", "-o", &s(&dir.join("x.exr"))], &[("VKINVERSE_PROGRESS_SECS", "0")]);
+    assert!(out.ok(), "{}", out.stderr);
+    assert!(out.stderr.contains("render: 4/8 (50 %) samples") && out.stderr.contains("render: 8/8 (100 %) samples"), "{}", out.stderr);
+    // A scene without light says so.
+    let dark = edited_cornell("dark", |t| {
+        let lit = t.lines().find(|l| l.trim_start().starts_with("emission")).expect("the light's emission").to_string();
+        replace_once(t, &lit, "emission = [0, 0, 0]")
+    });
+    let out = vkinverse_ok(&["render", &s(&dark), "--spp", "1", "-o", &s(&dir.join("dark.exr"))]);
+    assert!(out.stderr.contains("warning") && out.stderr.contains("no light"), "{}", out.stderr);
+}
+
+#[test]
+fn replay_refuses_non_finite_start_values() {
+    let dir = temp_dir("replay-nan");
+    let (g, _) = streams(3, 2);
+    let grads = dir.join("grads.npy");
+    npy::write_rows(&grads, &g).unwrap();
+    let init = dir.join("init.npy");
+    npy::write(&init, &Array { shape: vec![2], data: vec![0.5, f32::NAN] }).unwrap();
+    vkinverse_err(&["replay", "--optimiser", "adam", "--init", &s(&init), &s(&grads), "-o", &s(&dir.join("t.npy"))], &["init.npy", "value 1 is NaN"]);
 }

@@ -12,9 +12,20 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use vkinverse::optim::Optimiser;
-use vkinverse::optimise::{optimise, Settings};
+use vkinverse::optim::spec::Spec;
+use vkinverse::optimise::{optimise, Observer, Outcome, Progress};
+use vkinverse::rundir::Mode;
 use vkinverse::scene::Scene;
+use vkinverse::settings::RunSettings;
+
+/// Collects the parameter error after every iteration.
+struct Errors(Vec<f64>);
+
+impl Observer for Errors {
+    fn iteration(&mut self, p: &Progress) {
+        self.0.push(p.param_error.expect("reference scene"));
+    }
+}
 
 fn bundled(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name).join("scene.toml")
@@ -23,23 +34,20 @@ fn bundled(name: &str) -> PathBuf {
 /// Runs `optimiser` on the bundled scene and returns (initial error, settled error).
 fn run(scene_name: &str, optimiser: &str) -> (f64, f64) {
     let scene = Scene::load(bundled(scene_name)).expect("bundled scene");
-    let mut settings = Settings::from_scene(&scene);
-    match optimiser {
-        "meta" => settings.optimiser = Optimiser::Meta(Default::default()),
-        _ => {
-            settings.optimiser = Optimiser::Adam(Default::default());
-            settings.spp += settings.fd_spp;
-        }
+    let mut settings = RunSettings::of_scene(&scene);
+    settings.optimiser = optimiser.parse::<Spec>().unwrap();
+    if optimiser == "adam" {
+        settings.spp += settings.fd_spp;
     }
     let out = std::env::temp_dir().join(format!("vkinverse-convergence-{scene_name}-{optimiser}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let mut errors = Vec::new();
-    let summary = common::with_gpu(|ctx| {
-        optimise(ctx, &scene, &settings, &out, false, |p| errors.push(p.param_error.expect("reference scene")), |_, _, _| {})
-            .expect("optimisation runs")
-    });
+    let mut errors = Errors(Vec::new());
+    let outcome = common::with_gpu(|ctx| optimise(ctx, &scene, &settings, &out, Mode::New, &mut errors).expect("optimisation runs"));
+    let Outcome::Finished(run) = outcome else { panic!("a new run finishes") };
+    let (summary, errors) = (run.summary, errors.0);
     let _ = std::fs::remove_dir_all(&out);
-    assert_eq!(errors.len(), settings.iterations as usize);
+    assert_eq!(Some(errors.len() as u32), settings.iterations);
+    assert_eq!(run.log.rows.len(), errors.len() + 1, "the returned log: row 0 and one per iteration");
     assert_eq!(summary.nonfinite_gradients, 0);
     let initial = summary.initial_param_error.expect("reference scene");
     let tail = &errors[errors.len() - errors.len() / 5..];

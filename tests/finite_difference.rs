@@ -35,7 +35,7 @@ fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f
         let fused_grad = Buffer::zeroed::<f32>(ctx, "fused", n, MemoryKind::Device).unwrap();
         let g_cur = Buffer::zeroed::<f32>(ctx, "cur", n, MemoryKind::Device).unwrap();
         let g_prev = Buffer::zeroed::<f32>(ctx, "prev", n, MemoryKind::Device).unwrap();
-        let loss = scene.optimise.loss;
+        let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
         let seed = 77;
         let fused = GradientPass::new_fd(gs, &ops, &imgs, loss, spp, seed, &theta_prev, &fused_grad).unwrap();
         let cur = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, &g_cur).unwrap();

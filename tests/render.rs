@@ -491,7 +491,18 @@ fn kernels_read_the_records_the_host_wrote() {
                 b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
                 let group = pipeline.bind(&b).unwrap();
                 let counts = [materials.len(), shading.len(), meshes.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len()];
-                let push: Vec<u8> = counts.iter().flat_map(|&c| (c as u32).to_le_bytes()).collect();
+                let c = counts.map(|c| c as u32);
+                let push = vkinverse::push::RecordsPush {
+                    materials: c[0],
+                    triangles: c[1],
+                    meshes: c[2],
+                    emitters: c[3],
+                    nodes: c[4],
+                    material_data: c[5],
+                    theta: c[6],
+                    env_dist: c[7],
+                    sensors: c[8],
+                };
                 let threads = *counts.iter().max().unwrap() as u64;
                 let mut cmd = CommandBuffer::new(ctx, "records").unwrap();
                 cmd.record(|rec| rec.dispatch_linear(&pipeline, &group, &push, threads)).unwrap();
@@ -647,7 +658,7 @@ fn many_samples_per_pixel_in_one_pass_render_the_same_image() {
         let ops = BufferOps::new(ctx).unwrap();
         let zero = Image { width: gs.width, height: gs.height, data: vec![[0.0; 3]; gs.pixels()] };
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &[zero], scene.optimise.loss, 1, spp, 9, &gs.theta, &grad).unwrap();
+        let pass = GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, &grad).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "primal").unwrap();
         cmd.record(|rec| pass.record_loss(rec, gs, &ops)).unwrap();
         cmd.submit_and_wait().unwrap();

@@ -17,8 +17,10 @@ mod common;
 use common::with_gpu;
 use std::sync::Arc;
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind};
-use vkinverse::optimise::SEED_FD;
+use vkinverse::engine::SEED_FD;
+use vkinverse::push::RngTestPush;
 use vkinverse::render::gradient::{SEED_ADJOINT, SEED_PRIMAL};
+use vkinverse::settings::gpu_seed;
 
 /// Pixels, samples, iterations and numbers per key drawn for each stream.
 const PIXELS: u32 = 4096;
@@ -34,7 +36,7 @@ const Z_MAX: f64 = 5.0;
 fn numbers(ctx: &Arc<Context>, pipe: &ComputePipeline, seed: u32, frame: u32, sample: u32) -> Vec<f32> {
     let out = Buffer::zeroed::<f32>(ctx, "numbers", (PIXELS * DIMS) as usize, MemoryKind::Device).unwrap();
     let group = pipe.bind(&[("Numbers", &out)]).unwrap();
-    let push: Vec<u8> = [PIXELS, sample, seed, frame, DIMS].iter().flat_map(|v| v.to_le_bytes()).collect();
+    let push = RngTestPush { n: PIXELS, sample_index: sample, seed, frame, dims: DIMS };
     let mut cmd = CommandBuffer::new(ctx, "rng_test").unwrap();
     cmd.record(|rec| rec.dispatch_linear(pipe, &group, &push, PIXELS as u64)).unwrap();
     cmd.submit_and_wait().unwrap();
@@ -76,7 +78,8 @@ fn streams_of_passes_and_iterations_are_independent() {
         let pipe = ComputePipeline::new(ctx, "rng_test", &[]).unwrap();
         // The user's seed (0: the scene default; 1: gradcheck's) plus each pass's offset;
         // the meta-estimator's finite-difference sample adds SEED_FD to the user's seed.
-        for seed in [0u32, 1] {
+        for user in [0u64, 1] {
+            let seed = gpu_seed(user);
             let primal = |f: u32| (seed.wrapping_add(SEED_PRIMAL), f);
             let adjoint = |f: u32| (seed.wrapping_add(SEED_ADJOINT), f);
             let fd_primal = |f: u32| (seed.wrapping_add(SEED_FD).wrapping_add(SEED_PRIMAL), f);

@@ -152,12 +152,15 @@ fn defaults_and_resolved_parameters() {
         (6, 5)
     );
     let o = &scene.optimise;
+    // The scene's settings layer holds what it sets; the rest are the defaults.
+    let run = vkinverse::settings::RunSettings::of_scene(&scene);
     assert_eq!(
-        (o.iterations, o.spp, o.fd_spp, o.primal_spp, o.lr, o.seed),
-        (500, 2, 1, 4, 0.02, 0)
+        (run.iterations, run.spp, run.fd_spp, run.primal_spp, run.lr, run.seed),
+        (Some(500), 2, 1, 4, 0.02, 0)
     );
-    assert_eq!(o.optimiser.as_str(), "adam");
-    assert_eq!(o.loss.as_str(), "l2");
+    assert_eq!(o.settings.optimiser.as_ref().map(|s| s.label.as_str()), Some("adam"));
+    assert_eq!(o.settings.loss, None);
+    assert_eq!(run.loss.as_str(), "l2");
     let [rough, emission, env] = &o.params[..] else {
         panic!("three params expected")
     };
@@ -515,4 +518,38 @@ fn inconsistent_scenes_are_rejected() {
         &sized.replace("width = 8\nheight = 8", "width = 4\nheight = 4")
     ))
     .is_ok());
+}
+
+#[test]
+fn texture_values_obey_the_rules_of_constants() {
+    // A roughness texture is held to [0, 1] as a roughness constant is.
+    let rough = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nroughness = { texture = \"rough.exr\" }");
+    let path = fixture("rough-range", &rough);
+    let mut img = Image::filled(3, 2, [0.5; 3]);
+    img.data[5][0] = 1.5;
+    write_exr(&path.with_file_name("rough.exr"), &img).unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["materials.m.roughness.texture", "rough.exr", "1.5", "(2, 1)", "[0, 1]"]);
+    // A colour texture, like a colour, is non-negative.
+    let path = fixture("color-range", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"neg.exr\" }"));
+    let mut img = Image::filled(2, 2, [0.5; 3]);
+    img.data[1][2] = -0.25;
+    write_exr(&path.with_file_name("neg.exr"), &img).unwrap();
+    assert_message(&Scene::load(&path).unwrap_err(), &["materials.m.base_color.texture", "-0.25", "(1, 0)"]);
+}
+
+#[test]
+fn optimise_settings_are_checked_by_the_one_validate() {
+    let err = load_err("checkpoint-zero", &format!("{BASE}\n[optimise]\ncheckpoint_every = 0\n"));
+    assert_message(&err, &["optimise.checkpoint_every", "at least 1"]);
+    let err = load_err("seed-type", &format!("{BASE}\n[optimise]\nseed = 'x'\n"));
+    assert_message(&err, &["scene.toml:20:8", "expected u64"]);
+    let err = load_err("unknown-setting", &format!("{BASE}\n[optimise]\nsppp = 2\n"));
+    assert_message(&err, &["scene.toml:20:1", "unknown field `sppp`"]);
+    // A seed beyond 32 bits is kept whole.
+    let scene = Scene::load(fixture("seed-u64", &format!("{BASE}\n[optimise]\nseed = 4294967296\noptimiser = 'adam@beta1=0.5'\n"))).unwrap();
+    let run = vkinverse::settings::RunSettings::of_scene(&scene);
+    assert_eq!(run.seed, 1 << 32);
+    assert_eq!(run.optimiser.label, "adam@beta1=0.5");
 }

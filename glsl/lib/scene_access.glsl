@@ -185,7 +185,7 @@ float fetch1(ValueRef r, vec2 uv, int state) {
 // hundred spp. LOCAL_GRADS is θ's length when it fits (set by the host), else 0: large θ
 // (textures) has few contributions per element and keeps the direct atomics.
 layout(constant_id = 5) const uint LOCAL_GRADS = 0;
-const uint LOCAL_GRADS_CAPACITY = 32u;
+#include "vkinverse_constants.glsl"  // LOCAL_GRADS_CAPACITY
 float local_grads[LOCAL_GRADS_CAPACITY];
 
 void grad_init() {

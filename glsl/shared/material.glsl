@@ -4,10 +4,9 @@
 #ifndef MATERIAL_GLSL
 #define MATERIAL_GLSL
 
-// Lambertian: f = base_color / pi; roughness and metallic are ignored.
-const uint MATERIAL_DIFFUSE = 0u;
-// glTF 2.0 metallic-roughness: Lambert diffuse + GGX/Smith specular.
-const uint MATERIAL_PRINCIPLED = 1u;
+// The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED),
+// defined in src/constants.rs.
+#include "vkinverse_constants.glsl"
 
 // 24 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20.
 struct Material {

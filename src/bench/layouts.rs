@@ -12,9 +12,10 @@
 use super::median;
 use super::scene::camera_rays;
 use crate::bvh::{BvhLayout, TraceResult};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
-use crate::optimise::Settings;
+use crate::push::CountPush;
+use crate::settings::{gpu_seed, RunSettings};
 use crate::render::gradient::SEED_PRIMAL;
 use crate::render::{record_samples, GpuScene, TracePush};
 use crate::scene::Scene;
@@ -73,7 +74,7 @@ struct Setup {
 }
 
 impl Setup {
-    fn new(ctx: &Arc<Context>, scene: &Scene, st: &Settings, layout: BvhLayout) -> Result<Self> {
+    fn new(ctx: &Arc<Context>, scene: &Scene, st: &RunSettings, layout: BvhLayout) -> Result<Self> {
         let gs = GpuScene::with_bvh_layout(ctx, scene, layout)?;
         let rays = camera_rays(scene, &gs);
         let n = rays.len() as u64;
@@ -98,7 +99,7 @@ impl Setup {
         let mut b = gs.bindings();
         b.push(("Accum", &image));
         let primal_group = primal.bind(&b)?;
-        let push = (n as u32).to_le_bytes();
+        let push = CountPush::new(n);
         let sensors = gs.sensors as u32;
         let (mut closest_prof, mut any_prof, mut primal_prof) =
             (Profiler::new(ctx, 1)?, Profiler::new(ctx, 1)?, Profiler::new(ctx, sensors)?);
@@ -121,7 +122,7 @@ impl Setup {
                     sensor: s,
                     spp: st.primal_spp,
                     first_sample: 0,
-                    seed: st.seed.wrapping_add(SEED_PRIMAL),
+                    seed: gpu_seed(st.seed).wrapping_add(SEED_PRIMAL),
                     weight: 1.0 / st.primal_spp as f32,
                 };
                 primal_prof.scope(rec, "trace_primal", |rec, _| {
@@ -160,10 +161,7 @@ impl Setup {
 /// Runs the comparison over `rounds` rounds.
 pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
     let rounds = rounds.max(1);
-    let st = Settings::from_scene(scene);
-    if st.primal_spp == 0 {
-        return Err(Error::Invalid(format!("{}: primal_spp must be at least 1", scene.path.display())));
-    }
+    let st = RunSettings::of_scene(scene);
     let mut setups = BvhLayout::ALL.map(|layout| Setup::new(ctx, scene, &st, layout)).into_iter().collect::<Result<Vec<_>>>()?;
     // Warm-up (lavapipe compiles a pipeline on its first dispatch); its results (the
     // any-hit trace's, written last, and the primal image) are compared.

@@ -1,15 +1,20 @@
 //! `vkinverse bench SCENE.toml`: the GPU passes of a scene's optimisation iteration, timed
 //! with profiler scopes over N submissions and reported as medians.
 //!
-//! One recording, resubmitted with a fresh iteration counter, holds three profilers so that
-//! everything compared is timed in the same submission, under the same load:
-//! - `passes`: scope `iteration` around one scope per pass, as `optimise` records them:
-//!   `trace_primal`, `loss`, `trace_adjoint` (each once per sensor), `finite_difference`
-//!   (the meta-estimator's two-trace sample), `optim_meta` and `optim_adam` (both
-//!   optimisers step θ, so that both are timed on the scene's parameter groups), and `copy`
-//!   over θ as the reference kernel;
-//! - `equal_spp`: the proportional gradient (`gradient`, with the same three pass scopes)
-//!   at fd_spp samples for primal and adjoint, for the cost ratios at equal sample counts;
+//! The iteration's passes are the [`Engine`]'s, as `optimise` builds them (with the
+//! meta-estimator), plus what the bench compares them with. One recording, resubmitted with
+//! a fresh iteration counter, times everything in the same submission, under the same
+//! load, in one profiler per group of passes (every scope named after its kernel, once per
+//! sensor where a pass is per sensor):
+//! - `gradient`: the proportional estimate (`trace_primal`, `loss`, `trace_adjoint`);
+//! - `finite_difference`: the fused finite-difference sample (`trace_fd_primal`, `loss`,
+//!   `trace_fd_adjoint`), and `finite_difference_two_trace`: the straightforward one (two
+//!   gradient estimates and `sub`);
+//! - `optimiser`: `optim_meta` and `optim_adam` (both step θ, so that both are timed on the
+//!   scene's parameter groups), and `copy` over θ as the reference kernel;
+//! - `iteration`: one scope around all of the above;
+//! - `equal_spp`: the proportional estimate at fd_spp samples for primal and adjoint, for
+//!   the cost ratios at equal sample counts;
 //! - `generic`: `trace_primal` built from the unspecialised variant trace_primal_generic
 //!   (the integrator's limits read at run time), for the specialisation gain.
 //!
@@ -25,16 +30,17 @@
 
 use super::{median, optimiser_bandwidth, OptimiserBandwidth};
 use crate::bvh::TraceRay;
+use crate::engine::{Engine, FdSample};
 use crate::error::{Error, Result};
-use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, ScopeTime, SpecValue};
-use crate::ops::BufferOps;
+use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, ScopeTime, SpecValue};
 use crate::optim::gpu::GpuOptimiser;
+use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
-use crate::optimise::{param_groups, FdSample, Settings};
+use crate::push::CountPush;
 use crate::render::gradient::GradientPass;
-use crate::render::targets::{targets, TARGET_SPP};
-use crate::render::{record_samples, GpuScene, Renderer};
-use crate::scene::{Loss, Scene};
+use crate::render::{record_samples, GpuScene};
+use crate::scene::Scene;
+use crate::settings::{gpu_seed, RunSettings};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -47,6 +53,10 @@ const BVH_RAYS_PER_PIXEL: u32 = 16;
 /// One pass's median GPU time per iteration (summed over sensors).
 #[derive(Clone, Debug, Serialize)]
 pub struct PassTime {
+    /// The group of passes: gradient, finite_difference, finite_difference_two_trace,
+    /// optimiser.
+    pub group: String,
+    /// The kernel.
     pub name: String,
     /// Samples per pixel of a rendering pass.
     pub spp: Option<u32>,
@@ -111,7 +121,7 @@ pub struct Ratios {
 }
 
 /// trace_test on camera rays of the first sensor.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct BvhThroughput {
     /// The node layout traced (the default, `binary` or `wide`).
     pub layout: String,
@@ -176,6 +186,13 @@ impl Samples {
     fn median(&self, name: &str) -> f64 {
         median(&mut self.0.get(name).cloned().unwrap_or_default())
     }
+
+    /// The median over submissions of the sum of every scope.
+    fn total(&self) -> f64 {
+        let n = self.0.values().map(Vec::len).max().unwrap_or(0);
+        let mut sums: Vec<f64> = (0..n).map(|i| self.0.values().filter_map(|v| v.get(i)).sum()).collect();
+        median(&mut sums)
+    }
 }
 
 fn spec_value(v: SpecValue) -> String {
@@ -208,196 +225,264 @@ pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser
     measure_scene(ctx, scene, iterations, optimisers)
 }
 
-fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth) -> Result<SceneBench> {
-    let st = Settings::from_scene(scene);
-    if st.spp == 0 || st.primal_spp == 0 || st.fd_spp == 0 {
-        return Err(Error::Invalid(format!("{}: spp, primal_spp and fd_spp must be at least 1", scene.path.display())));
-    }
-    let loss: Loss = st.loss.parse().map_err(|_| Error::Invalid(format!("unknown loss '{}'", st.loss)))?;
-    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
-    let gs = &renderer.scene;
-    let target_images = targets(&renderer, scene, TARGET_SPP, |_, _, _| {})?;
-    let ops = BufferOps::new(ctx)?;
-    let n = gs.layout.len.max(1);
-    let pixels = gs.pixels() as u64;
+/// The bench's own passes beside the engine's: the other optimiser, the two-trace
+/// finite-difference sample, the gradient at equal spp, the unspecialised and counting
+/// builds of the primal kernel.
+struct Extras {
+    adam: GpuOptimiser,
+    fd_two: FdSample,
+    theta_copy: Buffer,
+    _eq_grad: Buffer,
+    equal: GradientPass,
+    generic: ComputePipeline,
+    generic_group: BindGroup,
+    generic_image: Buffer,
+    memory_bytes: u64,
+    memory_allocations: usize,
+}
 
-    // The iteration's passes, built as `optimise` builds them, with both optimisers.
-    let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
-    let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
-    let proportional = GradientPass::new(gs, &ops, &target_images, loss, st.spp, st.primal_spp, st.seed, &gs.theta, &grad)?;
-    let (meta_kind, adam_kind) = match st.optimiser {
-        Optimiser::Meta(h) => (Optimiser::Meta(h), Optimiser::Adam(Default::default())),
-        Optimiser::Adam(h) => (Optimiser::Meta(Default::default()), Optimiser::Adam(h)),
+fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
+    let gs = engine.scene();
+    let st = &engine.settings;
+    let adam_kind = match &engine.settings.optimiser.optimiser {
+        Optimiser::Adam(h) => Optimiser::Adam(*h),
+        Optimiser::Meta(_) => Optimiser::Adam(Default::default()),
     };
-    let groups = param_groups(gs);
-    let meta = GpuOptimiser::new(ctx, &ops, &meta_kind, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?;
-    let adam = GpuOptimiser::new(ctx, &ops, &adam_kind, &gs.theta, &grad, None, &gs.frame, &groups)?;
-    let theta_prev = meta.theta_prev.as_ref().ok_or_else(|| Error::Invalid("the meta optimiser has no previous θ".into()))?;
-    let fd = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: false, ..st.clone() }, theta_prev, &fd_grad)?;
-    let fd_two = FdSample::new(gs, &ops, &target_images, loss, &Settings { fd_two_trace: true, ..st.clone() }, theta_prev, &fd_grad)?;
+    let adam = engine.extra_optimiser(&adam_kind)?;
+    let theta_prev = engine.optimiser()?.theta_prev.as_ref().ok_or_else(|| Error::Invalid("the meta optimiser has no previous θ".into()))?;
+    let fd_two = engine.fd_sample(theta_prev, true)?;
     let live = ctx.live_allocations();
-    let memory_bytes = live.iter().map(|(_, size)| size).sum();
-    let memory_allocations = live.len();
-
-    // What the bench adds: the reference copy, the gradient at equal spp, the generic build.
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
-    let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", n, MemoryKind::Device)?;
-    let equal = GradientPass::new(gs, &ops, &target_images, loss, st.fd_spp, st.fd_spp, st.seed, &gs.theta, &eq_grad)?;
+    let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", gs.layout.len.max(1), MemoryKind::Device)?;
+    let equal = engine.extra_gradient(st.fd_spp, st.fd_spp, gpu_seed(st.seed), &eq_grad)?;
+    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[])?;
+    let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
+    let image = Buffer::zeroed::<[f32; 3]>(ctx, "generic accum", gs.pixels(), MemoryKind::Device)?;
+    let mut b = gs.bindings();
+    b.extend([("Accum", &image), ("IntegratorLimits", &limits)]);
+    let generic_group = generic.bind(&b)?;
+    Ok(Extras {
+        adam,
+        fd_two,
+        theta_copy,
+        _eq_grad: eq_grad,
+        equal,
+        generic,
+        generic_group,
+        generic_image: image,
+        memory_bytes: live.iter().map(|(_, size)| size).sum(),
+        memory_allocations: live.len(),
+    })
+}
+
+/// Rays cast by one primal pass (counted by trace_primal_count) and the relative image
+/// differences of the generic and counting builds against the specialised one: each
+/// renders every sensor once, at θ and the first iteration's counter, with the primal
+/// pass's push constants.
+fn count_rays(ctx: &Arc<Context>, engine: &Engine) -> Result<(u64, f64, f64)> {
+    let gs = engine.scene();
+    let pixels = gs.pixels();
     let specialised = ComputePipeline::new(ctx, &gs.kernel("trace_primal"), &gs.spec())?;
     let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[])?;
     let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
     let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
-    let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels as usize, MemoryKind::Device);
-    let (img_specialised, img_generic, img_count) = (accum("image specialised")?, accum("image generic")?, accum("image counted")?);
-    let generic_timed = accum("generic accum")?;
-    let counters = Buffer::zeroed::<u32>(ctx, "ray count", pixels.div_ceil(counting.local_size()[0] as u64) as usize, MemoryKind::Device)?;
+    let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device);
+    let images = [accum("image specialised")?, accum("image generic")?, accum("image counted")?];
+    let counters = Buffer::zeroed::<u32>(ctx, "ray count", (pixels as u64).div_ceil(counting.local_size()[0] as u64) as usize, MemoryKind::Device)?;
     let bind = |p: &ComputePipeline, extra: &[(&'static str, &Buffer)]| {
         let mut b = gs.bindings();
         b.extend_from_slice(extra);
         p.bind(&b)
     };
-    let specialised_group = bind(&specialised, &[("Accum", &img_specialised)])?;
-    let generic_check_group = bind(&generic, &[("Accum", &img_generic), ("IntegratorLimits", &limits)])?;
-    let count_group = bind(&counting, &[("Accum", &img_count), ("RayCount", &counters)])?;
-    let generic_group = bind(&generic, &[("Accum", &generic_timed), ("IntegratorLimits", &limits)])?;
-    let sensors = gs.sensors as u32;
-
-    // Count rays and render the three variants once, at θ and the iteration counter of the
-    // first iteration, with the primal pass's push constants.
+    let groups = [
+        bind(&specialised, &[("Accum", &images[0])])?,
+        bind(&generic, &[("Accum", &images[1]), ("IntegratorLimits", &limits)])?,
+        bind(&counting, &[("Accum", &images[2]), ("RayCount", &counters)])?,
+    ];
+    let pipes = [&specialised, &generic, &counting];
     gs.set_frame(0)?;
     let mut check = CommandBuffer::new(ctx, "ray count")?;
     check.record(|rec| {
-        for s in 0..sensors {
-            let push = proportional.primal_push(gs, s);
-            for (pipe, group, img) in [
-                (&specialised, &specialised_group, &img_specialised),
-                (&generic, &generic_check_group, &img_generic),
-                (&counting, &count_group, &img_count),
-            ] {
+        for s in 0..gs.sensors as u32 {
+            let push = engine.gradient.primal_push(gs, s);
+            for k in 0..3 {
                 // Each sensor's render (and ray count) accumulates onto the previous one's.
-                rec.transition(&[(img, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
-                record_samples(rec, gs, pipe, group, push, push.spp, &[img, &counters])?;
+                rec.transition(&[(&images[k], Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
+                record_samples(rec, gs, pipes[k], &groups[k], push, push.spp, &[&images[k], &counters])?;
             }
         }
         Ok(())
     })?;
     check.submit_and_wait()?;
     let rays: u64 = counters.read::<u32>()?.iter().map(|&c| c as u64).sum();
-    let reference: Vec<[f32; 3]> = img_specialised.read()?;
-    let generic_image_rel_diff = rel_diff(&reference, &img_generic.read()?);
-    let count_image_rel_diff = rel_diff(&reference, &img_count.read()?);
+    let reference: Vec<[f32; 3]> = images[0].read()?;
+    Ok((rays, rel_diff(&reference, &images[1].read()?), rel_diff(&reference, &images[2].read()?)))
+}
 
-    let per_sensor = 3 * sensors;
-    let mut passes = Profiler::new(ctx, 6 + per_sensor)?;
-    let mut equal_spp = Profiler::new(ctx, 1 + per_sensor)?;
-    let mut generic_prof = Profiler::new(ctx, sensors)?;
-    let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
+/// The profilers of the timed recording, one per group of passes.
+const GROUPS: [&str; 7] = ["gradient", "finite_difference", "finite_difference_two_trace", "optimiser", "iteration", "equal_spp", "generic"];
+
+/// Records the timed iteration: the engine's passes and the extras, each group in its own
+/// profiler (see the module documentation).
+fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine, x: &Extras) -> Result<()> {
+    let gs = engine.scene();
+    let ops = &engine.ops;
     cmd.record(|rec| {
-        passes.reset(rec);
-        equal_spp.reset(rec);
-        generic_prof.reset(rec);
-        passes.scope(rec, "iteration", |rec, p| {
-            proportional.record_profiled(rec, gs, &ops, p)?;
-            p.scope(rec, "finite_difference", |rec, _| fd.record(rec, gs, &ops, &fd_grad))?;
-            p.scope(rec, "finite_difference_two_trace", |rec, _| fd_two.record(rec, gs, &ops, &fd_grad))?;
-            p.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
-            p.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
-            // The copy reads θ, which the optimisers wrote.
-            rec.transition(&[(&gs.theta, Access::ComputeRead), (&theta_copy, Access::ComputeWrite)])?;
-            p.scope(rec, "copy", |rec, _| ops.copy(rec, &gs.theta, &theta_copy))
-        })?;
-        equal_spp.scope(rec, "gradient", |rec, p| equal.record_profiled(rec, gs, &ops, p))?;
-        for s in 0..sensors {
+        for p in profs.iter_mut() {
+            p.reset(rec);
+        }
+        let [grad, fd, fd_two, opt, iter, eq, generic] = profs else { unreachable!("one profiler per group") };
+        iter.begin(rec, "iteration")?;
+        engine.record_gradient(rec, Some(grad))?;
+        engine.record_fd(rec, Some(fd))?;
+        x.fd_two.record(rec, gs, ops, &engine.fd_grad, Some(fd_two))?;
+        engine.record_step(rec, engine.optimiser.as_ref().expect("the engine's optimiser"), Some(opt))?;
+        engine.record_step(rec, &x.adam, Some(opt))?;
+        // The copy reads θ, which the optimisers wrote.
+        rec.transition(&[(&gs.theta, Access::ComputeRead), (&x.theta_copy, Access::ComputeWrite)])?;
+        opt.scope(rec, "copy", |rec, _| ops.copy(rec, &gs.theta, &x.theta_copy))?;
+        iter.end(rec)?;
+        x.equal.record_passes(rec, gs, ops, true, Some(eq))?;
+        for s in 0..gs.sensors as u32 {
             // The renders accumulate into one image.
-            rec.transition(&[(&generic_timed, Access::ComputeReadWrite)])?;
-            let push = proportional.primal_push(gs, s);
-            generic_prof.scope(rec, "trace_primal", |rec, _| record_samples(rec, gs, &generic, &generic_group, push, push.spp, &[&generic_timed]))?;
+            rec.transition(&[(&x.generic_image, Access::ComputeReadWrite)])?;
+            let push = engine.gradient.primal_push(gs, s);
+            generic.scope(rec, "trace_primal", |rec, _| record_samples(rec, gs, &x.generic, &x.generic_group, push, push.spp, &[&x.generic_image]))?;
         }
         Ok(())
     })?;
+    Ok(())
+}
+
+fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth) -> Result<SceneBench> {
+    let mut st = RunSettings::of_scene(scene);
+    if !st.optimiser.optimiser.needs_fd() {
+        st.optimiser = Spec::default();
+    }
+    st.fd_two_trace = false;
+    let engine = Engine::new(ctx, scene, &st, |_, _, _| {})?;
+    let x = extras(ctx, &engine)?;
+    let (rays, generic_image_rel_diff, count_image_rel_diff) = count_rays(ctx, &engine)?;
+    let sensors = engine.scene().sensors as u32;
+    let sizes = [3 * sensors, 3 * sensors, 6 * sensors + 1, 3, 1, 3 * sensors, sensors];
+    let mut profs = sizes.iter().map(|&n| Profiler::new(ctx, n)).collect::<gpu::Result<Vec<_>>>()?;
+    let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
+    record_timed(&mut cmd, &mut profs, &engine, &x)?;
     // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch.
     cmd.submit_and_wait()?;
-    let (mut main, mut eq, mut generic_samples) = (Samples::default(), Samples::default(), Samples::default());
+    let mut samples: Vec<Samples> = GROUPS.iter().map(|_| Samples::default()).collect();
     for i in 0..iterations {
-        gs.set_frame(i + 1)?;
+        engine.scene().set_frame(i + 1)?;
         cmd.submit_and_wait()?;
-        main.add(&passes.results()?);
-        eq.add(&equal_spp.results()?);
-        generic_samples.add(&generic_prof.results()?);
+        for (s, p) in samples.iter_mut().zip(&profs) {
+            s.add(&p.results()?);
+        }
+    }
+    let measured = Measured { engine: &engine, samples: &samples, rays, generic_image_rel_diff, count_image_rel_diff };
+    let mut bench = measured.report(scene, iterations, &x, optimisers);
+    bench.bvh = bvh_throughput(ctx, scene, engine.scene(), iterations)?;
+    Ok(bench)
+}
+
+/// The medians of a bench run and what they are of.
+struct Measured<'a> {
+    engine: &'a Engine,
+    samples: &'a [Samples],
+    rays: u64,
+    generic_image_rel_diff: f64,
+    count_image_rel_diff: f64,
+}
+
+impl Measured<'_> {
+    fn group(&self, name: &str) -> &Samples {
+        &self.samples[GROUPS.iter().position(|g| *g == name).expect("a bench group")]
     }
 
-    let parameters = gs.layout.len;
-    let primal_ms = main.median("trace_primal");
-    let rays_per_s = rays as f64 / (primal_ms * 1e-3).max(1e-12);
-    let per_s = |ms: f64, items: f64| (items > 0.0).then(|| items / (ms * 1e-3).max(1e-12));
-    let pass = |name: &str, spp: Option<u32>| PassTime {
-        name: name.into(),
-        spp,
-        median_ms: main.median(name),
-        rays_per_s: (name == "trace_primal").then_some(rays_per_s),
-        params_per_s: if name.starts_with("optim_") { per_s(main.median(name), parameters as f64) } else { None },
-        gb_per_s: (name == "copy").then(|| gs.theta.len() as f64 * 2.0 / (main.median(name) * 1e-3).max(1e-12) / 1e9),
-    };
-    let pass_list = vec![
-        pass("trace_primal", Some(st.primal_spp)),
-        pass("loss", None),
-        pass("trace_adjoint", Some(st.spp)),
-        pass("finite_difference", Some(st.fd_spp)),
-        pass("finite_difference_two_trace", Some(st.fd_spp)),
-        pass("optim_meta", None),
-        pass("optim_adam", None),
-        pass("copy", None),
-    ];
-    let generic_ms = generic_samples.median("trace_primal");
-    let ratios = Ratios {
-        spp: st.fd_spp,
-        proportional_ms: eq.median("gradient"),
-        finite_difference_ms: main.median("finite_difference"),
-        fd_over_proportional: main.median("finite_difference") / eq.median("gradient").max(1e-12),
-        finite_difference_two_trace_ms: main.median("finite_difference_two_trace"),
-        fd_two_trace_over_proportional: main.median("finite_difference_two_trace") / eq.median("gradient").max(1e-12),
-        primal_ms: eq.median("trace_primal"),
-        adjoint_ms: eq.median("trace_adjoint"),
-        adjoint_over_primal: eq.median("trace_adjoint") / eq.median("trace_primal").max(1e-12),
-    };
-    let bvh = bvh_throughput(ctx, scene, gs, iterations)?;
-    Ok(SceneBench {
-        scene: scene.path.display().to_string(),
-        device: ctx.info().name.clone(),
-        iterations,
-        lp_num_threads: std::env::var("LP_NUM_THREADS").ok(),
-        validation: ctx.validation_enabled(),
-        width: gs.width,
-        height: gs.height,
-        sensors: gs.sensors,
-        triangles: gs.triangles,
-        parameters,
-        spp: st.spp,
-        primal_spp: st.primal_spp,
-        fd_spp: st.fd_spp,
-        specialisation: gs.spec().into_iter().map(|(name, v)| SpecConstant { name: name.into(), value: spec_value(v) }).collect(),
-        passes: pass_list,
-        iteration_ms: main.median("iteration"),
-        rays: RayCount {
-            spp: st.primal_spp,
-            rays,
-            rays_per_sample: rays as f64 / (pixels * sensors as u64 * st.primal_spp as u64) as f64,
-            rays_per_s,
-        },
-        specialisation_gain: SpecialisationGain {
-            spp: st.primal_spp,
-            specialised_ms: primal_ms,
-            generic_ms,
-            gain: generic_ms / primal_ms.max(1e-12),
-            generic_image_rel_diff,
-            count_image_rel_diff,
-        },
-        ratios,
-        bvh,
-        memory_bytes,
-        memory_allocations,
-        optimisers,
-    })
+    fn report(&self, scene: &Scene, iterations: u32, x: &Extras, optimisers: OptimiserBandwidth) -> SceneBench {
+        let (gs, st) = (self.engine.scene(), &self.engine.settings);
+        let pixels = gs.pixels() as u64;
+        let primal_ms = self.group("gradient").median("trace_primal");
+        let rays_per_s = self.rays as f64 / (primal_ms * 1e-3).max(1e-12);
+        let per_s = |ms: f64, items: f64| (items > 0.0).then(|| items / (ms * 1e-3).max(1e-12));
+        let pass = |group: &str, name: &str, spp: Option<u32>| {
+            let ms = self.group(group).median(name);
+            PassTime {
+                group: group.into(),
+                name: name.into(),
+                spp,
+                median_ms: ms,
+                rays_per_s: (group == "gradient" && name == "trace_primal").then_some(rays_per_s),
+                params_per_s: if name.starts_with("optim_") { per_s(ms, gs.layout.len as f64) } else { None },
+                gb_per_s: (name == "copy").then(|| gs.theta.len() as f64 * 2.0 / (ms * 1e-3).max(1e-12) / 1e9),
+            }
+        };
+        let passes = vec![
+            pass("gradient", "trace_primal", Some(st.primal_spp)),
+            pass("gradient", "loss", None),
+            pass("gradient", "trace_adjoint", Some(st.spp)),
+            pass("finite_difference", "trace_fd_primal", Some(st.fd_spp)),
+            pass("finite_difference", "loss", None),
+            pass("finite_difference", "trace_fd_adjoint", Some(st.fd_spp)),
+            pass("finite_difference_two_trace", "trace_primal", Some(st.fd_spp)),
+            pass("finite_difference_two_trace", "loss", None),
+            pass("finite_difference_two_trace", "trace_adjoint", Some(st.fd_spp)),
+            pass("finite_difference_two_trace", "sub", None),
+            pass("optimiser", "optim_meta", None),
+            pass("optimiser", "optim_adam", None),
+            pass("optimiser", "copy", None),
+        ];
+        let eq = self.group("equal_spp");
+        let proportional_ms = eq.total();
+        let (fd_ms, fd_two_ms) = (self.group("finite_difference").total(), self.group("finite_difference_two_trace").total());
+        let generic_ms = self.group("generic").median("trace_primal");
+        SceneBench {
+            scene: scene.path.display().to_string(),
+            device: gs.ctx.info().name.clone(),
+            iterations,
+            lp_num_threads: std::env::var("LP_NUM_THREADS").ok(),
+            validation: gs.ctx.validation_enabled(),
+            width: gs.width,
+            height: gs.height,
+            sensors: gs.sensors,
+            triangles: gs.triangles,
+            parameters: gs.layout.len,
+            spp: st.spp,
+            primal_spp: st.primal_spp,
+            fd_spp: st.fd_spp,
+            specialisation: gs.spec().into_iter().map(|(name, v)| SpecConstant { name: name.into(), value: spec_value(v) }).collect(),
+            passes,
+            iteration_ms: self.group("iteration").median("iteration"),
+            rays: RayCount {
+                spp: st.primal_spp,
+                rays: self.rays,
+                rays_per_sample: self.rays as f64 / (pixels * gs.sensors as u64 * st.primal_spp as u64) as f64,
+                rays_per_s,
+            },
+            specialisation_gain: SpecialisationGain {
+                spp: st.primal_spp,
+                specialised_ms: primal_ms,
+                generic_ms,
+                gain: generic_ms / primal_ms.max(1e-12),
+                generic_image_rel_diff: self.generic_image_rel_diff,
+                count_image_rel_diff: self.count_image_rel_diff,
+            },
+            ratios: Ratios {
+                spp: st.fd_spp,
+                proportional_ms,
+                finite_difference_ms: fd_ms,
+                fd_over_proportional: fd_ms / proportional_ms.max(1e-12),
+                finite_difference_two_trace_ms: fd_two_ms,
+                fd_two_trace_over_proportional: fd_two_ms / proportional_ms.max(1e-12),
+                primal_ms: eq.median("trace_primal"),
+                adjoint_ms: eq.median("trace_adjoint"),
+                adjoint_over_primal: eq.median("trace_adjoint") / eq.median("trace_primal").max(1e-12),
+            },
+            bvh: BvhThroughput::default(),
+            memory_bytes: x.memory_bytes,
+            memory_allocations: x.memory_allocations,
+            optimisers,
+        }
+    }
 }
 
 /// BVH_RAYS_PER_PIXEL jittered camera rays per pixel of the first sensor, the same in
@@ -449,7 +534,7 @@ fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: 
         p.bind(&b)
     };
     let (closest_group, any_group) = (bind(&closest)?, bind(&any)?);
-    let push = (n as u32).to_le_bytes();
+    let push = CountPush::new(n);
     // Two profilers, so that both scopes carry the kernel's name.
     let mut closest_prof = Profiler::new(ctx, 1)?;
     let mut any_prof = Profiler::new(ctx, 1)?;
@@ -503,7 +588,7 @@ impl SceneBench {
         );
         let spec: Vec<String> = self.specialisation.iter().map(|c| format!("{}={}", c.name, c.value)).collect();
         let _ = writeln!(s, "specialisation: {}", spec.join(" "));
-        let _ = writeln!(s, "{:<18} {:>4} {:>11}  rate", "pass", "spp", "median ms");
+        let _ = writeln!(s, "{:<46} {:>4} {:>11}  rate", "group / pass", "spp", "median ms");
         for p in &self.passes {
             let spp = p.spp.map(|v| v.to_string()).unwrap_or_default();
             let rate = match (p.rays_per_s, p.params_per_s, p.gb_per_s) {
@@ -512,9 +597,9 @@ impl SceneBench {
                 (_, _, Some(g)) => format!("{:.4} GB/s", g),
                 _ => String::new(),
             };
-            let _ = writeln!(s, "{:<18} {:>4} {:>11.3}  {}", p.name, spp, p.median_ms, rate);
+            let _ = writeln!(s, "{:<46} {:>4} {:>11.3}  {}", format!("{} / {}", p.group, p.name), spp, p.median_ms, rate);
         }
-        let _ = writeln!(s, "{:<18} {:>4} {:>11.3}  (all passes and barriers)", "iteration", "", self.iteration_ms);
+        let _ = writeln!(s, "{:<46} {:>4} {:>11.3}  (all passes and barriers)", "iteration", "", self.iteration_ms);
         let r = &self.rays;
         let _ = writeln!(
             s,

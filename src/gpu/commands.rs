@@ -10,7 +10,7 @@
 //! submission) and ends with one (this submission → host reads), so state never has to
 //! be tracked across submissions.
 
-use super::{vk_err, Access, BindGroup, Buffer, ComputePipeline, Context, GpuError, Result};
+use super::{vk_err, Access, BindGroup, Buffer, ComputePipeline, Context, GpuError, PushBlock, Result};
 use ash::vk;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -144,12 +144,10 @@ impl Recorder<'_> {
 
     /// Dispatches `groups` workgroups of `pipeline` with `group` bound and `push` as push
     /// constants (which must have exactly the reflected size).
-    pub fn dispatch_groups(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &[u8], groups: [u32; 3]) -> Result<()> {
+    pub fn dispatch_groups<P: PushBlock>(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &P, groups: [u32; 3]) -> Result<()> {
         let kernel = pipeline.name();
-        let expected = pipeline.reflection().push_constant_size;
-        if push.len() != expected as usize {
-            return Err(GpuError::PushConstantSize { kernel: kernel.into(), expected, got: push.len() });
-        }
+        pipeline.check_push::<P>()?;
+        let push = bytemuck::bytes_of(push);
         let max = self.ctx.info().max_workgroup_count;
         for (g, m) in groups.iter().zip(max) {
             if *g > m {
@@ -175,7 +173,8 @@ impl Recorder<'_> {
         self.keep.groups.push(group.clone());
         let (raw, layout) = pipeline.raw();
         // SAFETY: pipeline, layout and set are alive and compatible (the set was made from
-        // this kernel's reflected layout); the push range matches the reflected size.
+        // this kernel's reflected layout); the push block matches the reflected one (checked
+        // above), so the push range matches the reflected size.
         unsafe {
             let d = &self.ctx.device;
             d.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, raw);
@@ -190,7 +189,7 @@ impl Recorder<'_> {
 
     /// Dispatches enough workgroups to cover `threads` (rounded up by the reflected
     /// workgroup size); kernels bounds-check.
-    pub fn dispatch(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &[u8], threads: [u32; 3]) -> Result<()> {
+    pub fn dispatch<P: PushBlock>(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &P, threads: [u32; 3]) -> Result<()> {
         let ls = pipeline.local_size();
         let groups = [0, 1, 2].map(|i| threads[i].div_ceil(ls[i]));
         self.dispatch_groups(pipeline, group, push, groups)
@@ -198,7 +197,7 @@ impl Recorder<'_> {
 
     /// Dispatches `n` threads of a 1-D kernel. More than 65535 workgroups are folded into
     /// a second axis; kernels index with `thread_index()` from glsl/lib/common.glsl.
-    pub fn dispatch_linear(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &[u8], n: u64) -> Result<()> {
+    pub fn dispatch_linear<P: PushBlock>(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &P, n: u64) -> Result<()> {
         let groups = n.div_ceil(pipeline.local_size()[0] as u64);
         let x = groups.min(MAX_GROUPS_X as u64) as u32;
         let y = if x == 0 { 0 } else { groups.div_ceil(x as u64) };

@@ -24,7 +24,7 @@ pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
 pub use pipeline::{BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
-pub use profiler::{Profiler, ScopeTime};
+pub use profiler::{MaybeProfiler, Profiler, ScopeTime};
 pub use sync::Access;
 
 use ash::vk;
@@ -37,6 +37,31 @@ pub mod shaders {
     pub fn get(name: &str) -> Option<&'static [u8]> {
         KERNELS.iter().find(|(n, _)| *n == name).map(|(_, s)| *s)
     }
+}
+
+/// A kernel's push-constant block mirrored in Rust: a `#[repr(C)]` Pod struct whose
+/// members (names and byte offsets, from `offset_of!`) are those of the GLSL block, in
+/// order. Every dispatch checks them against the kernel's reflected block
+/// ([`ComputePipeline::check_push`]), so a drift on either side is an error naming the
+/// kernel rather than garbage pushed. Implement it with [`push_block!`]; `()` is the empty
+/// block of a kernel without push constants.
+pub trait PushBlock: bytemuck::Pod {
+    const MEMBERS: &'static [(&'static str, usize)];
+}
+
+impl PushBlock for () {
+    const MEMBERS: &'static [(&'static str, usize)] = &[];
+}
+
+/// Implements [`PushBlock`] for a `#[repr(C)]` struct from its field names, in order:
+/// `push_block!(TracePush { width, height, ... });`.
+#[macro_export]
+macro_rules! push_block {
+    ($ty:ty { $($field:ident),* $(,)? }) => {
+        impl $crate::gpu::PushBlock for $ty {
+            const MEMBERS: &'static [(&'static str, usize)] = &[$((stringify!($field), std::mem::offset_of!($ty, $field))),*];
+        }
+    };
 }
 
 /// Errors of the GPU layer. Vulkan failures keep their `vk::Result`.
@@ -74,6 +99,8 @@ pub enum GpuError {
     SpecConstantType { kernel: String, name: String, expected: String, got: &'static str },
     #[error("kernel '{kernel}' takes {expected} bytes of push constants, got {got}")]
     PushConstantSize { kernel: String, expected: u32, got: usize },
+    #[error("kernel '{kernel}': push block members {reflected} do not match the host's {host}")]
+    PushLayout { kernel: String, reflected: String, host: String },
     #[error("hazard in '{pass}': buffer '{buffer}' accessed as {now:?} after {previous:?} with no barrier between")]
     Hazard { pass: String, buffer: String, previous: Access, now: Access },
     #[error("barrier on buffer '{buffer}' declares previous access {declared:?}, but the last access was {actual:?}")]

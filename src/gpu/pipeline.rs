@@ -1,7 +1,7 @@
 //! Compute pipelines built from reflected SPIR-V, and bind groups filled by GLSL name.
 
 use super::reflect::{BindingAccess, BindingKind, LocalSize, Reflection, SpecKind, TexelType};
-use super::{shaders, vk_err, Access, Buffer, Context, GpuError, Result};
+use super::{shaders, vk_err, Access, Buffer, Context, GpuError, PushBlock, Result};
 use ash::vk;
 use std::sync::Arc;
 
@@ -155,6 +155,26 @@ impl ComputePipeline {
 
     pub fn reflection(&self) -> &Reflection {
         &self.0.reflection
+    }
+
+    /// Checks that `P` mirrors this kernel's push block: its size and every member's name
+    /// and byte offset, in order.
+    pub fn check_push<P: PushBlock>(&self) -> Result<()> {
+        let r = &self.0.reflection;
+        let size = std::mem::size_of::<P>();
+        if size != r.push_constant_size as usize {
+            return Err(GpuError::PushConstantSize { kernel: r.kernel.clone(), expected: r.push_constant_size, got: size });
+        }
+        let same = r.push_members.len() == P::MEMBERS.len() && r.push_members.iter().zip(P::MEMBERS).all(|((a, x), (b, y))| a == b && x == y);
+        if !same {
+            let show = |m: &mut dyn Iterator<Item = (&str, usize)>| m.map(|(n, o)| format!("{n}@{o}")).collect::<Vec<_>>().join(" ");
+            return Err(GpuError::PushLayout {
+                kernel: r.kernel.clone(),
+                reflected: show(&mut r.push_members.iter().map(|(n, o)| (n.as_str(), *o))),
+                host: show(&mut P::MEMBERS.iter().copied()),
+            });
+        }
+        Ok(())
     }
 
     /// Workgroup size after specialization.

@@ -131,6 +131,24 @@ impl Profiler {
     }
 }
 
+/// A profiler that may be absent: a pass records its scopes only when it is given one.
+pub trait MaybeProfiler {
+    /// Opens scope `name` when there is a profiler.
+    fn begin_scope(&mut self, rec: &mut Recorder, name: &str) -> Result<()>;
+    /// Closes the scope `begin_scope` opened.
+    fn end_scope(&mut self, rec: &mut Recorder) -> Result<()>;
+}
+
+impl MaybeProfiler for Option<&mut Profiler> {
+    fn begin_scope(&mut self, rec: &mut Recorder, name: &str) -> Result<()> {
+        self.as_deref_mut().map_or(Ok(()), |p| p.begin(rec, name))
+    }
+
+    fn end_scope(&mut self, rec: &mut Recorder) -> Result<()> {
+        self.as_deref_mut().map_or(Ok(()), |p| p.end(rec))
+    }
+}
+
 impl Drop for Profiler {
     fn drop(&mut self) {
         // SAFETY: the owner waits for submissions that write these queries before dropping.

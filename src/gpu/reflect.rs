@@ -76,6 +76,8 @@ pub struct Reflection {
     pub kernel: String,
     pub bindings: Vec<BindingInfo>,
     pub push_constant_size: u32,
+    /// Names and byte offsets of the push block's top-level members, in order.
+    pub push_members: Vec<(String, usize)>,
     pub local_size: [LocalSize; 3],
     pub spec_constants: Vec<SpecInfo>,
     structs: Vec<spirq::ty::StructType>,
@@ -117,6 +119,7 @@ impl Reflection {
 
         let mut bindings: Vec<BindingInfo> = Vec::new();
         let mut push_constant_size = 0;
+        let mut push_members = Vec::new();
         let mut spec_constants = Vec::new();
         let mut structs = Vec::new();
         for var in &entry.vars {
@@ -164,6 +167,9 @@ impl Reflection {
                 }
                 Variable::PushConstant { ty, .. } => {
                     push_constant_size = ty.nbyte().ok_or_else(|| err(kernel, "unsized push-constant block"))? as u32;
+                    if let Type::Struct(s) = ty {
+                        push_members = s.members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset.unwrap_or(usize::MAX))).collect();
+                    }
                     collect_structs(ty, &mut structs);
                 }
                 Variable::SpecConstant { name, spec_id, ty } => {
@@ -211,7 +217,7 @@ impl Reflection {
                 spec_constants.push(SpecInfo { name: axis.to_string(), id, kind: SpecKind::U32 });
             }
         }
-        Ok(Self { kernel: kernel.to_string(), bindings, push_constant_size, local_size, spec_constants, structs })
+        Ok(Self { kernel: kernel.to_string(), bindings, push_constant_size, push_members, local_size, spec_constants, structs })
     }
 
     /// The binding called `name` (instance or block name).

@@ -22,9 +22,15 @@ pub struct Group {
     pub range: Range,
 }
 
+/// A group's push constants, of the optimiser's kernel.
+enum Push {
+    Adam(AdamPush),
+    Meta(MetaPush),
+}
+
 struct Pass {
     group: BindGroup,
-    push: Vec<u8>,
+    push: Push,
     n: u64,
     dpi2: Option<Reduction>,
 }
@@ -79,7 +85,7 @@ impl GpuOptimiser {
                         ("Frame", frame),
                     ])?;
                     let push = AdamPush::new(h, g.len as u32, g.offset as u32, g.lr, g.range);
-                    passes.push(Pass { group, push: bytemuck::bytes_of(&push).to_vec(), n: g.len as u64, dpi2: None });
+                    passes.push(Pass { group, push: Push::Adam(push), n: g.len as u64, dpi2: None });
                 }
                 (pipeline, None)
             }
@@ -122,7 +128,7 @@ impl GpuOptimiser {
                     written.push(partials);
                     state.push(reduction.result().clone());
                     let push = MetaPush::new(h, g.len as u32, g.offset as u32, g.lr, g.range);
-                    passes.push(Pass { group, push: bytemuck::bytes_of(&push).to_vec(), n: g.len as u64, dpi2: Some(reduction) });
+                    passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, dpi2: Some(reduction) });
                 }
                 (pipeline, Some(theta_prev))
             }
@@ -142,7 +148,10 @@ impl GpuOptimiser {
             if let Some(red) = &p.dpi2 {
                 rec.transition(&[(red.result(), Access::ComputeRead)])?;
             }
-            rec.dispatch_linear(&self.pipeline, &p.group, &p.push, p.n)?;
+            match &p.push {
+                Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
+                Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
+            }
         }
         for p in &self.passes {
             if let Some(red) = &p.dpi2 {
@@ -150,6 +159,12 @@ impl GpuOptimiser {
             }
         }
         Ok(())
+    }
+
+    /// The kernel of the passes (`optim_adam` or `optim_meta`), which names their profiler
+    /// scope.
+    pub fn kernel(&self) -> &str {
+        self.pipeline.name()
     }
 
     /// The state arrays a checkpoint saves (with θ), each with a stable name.

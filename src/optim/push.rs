@@ -1,6 +1,6 @@
 //! Push-constant blocks of `glsl/optim_adam.comp` and `glsl/optim_meta.comp` (scalar layout:
 //! eight 4-byte members, 32 bytes). Field names and order are those of the GLSL `Push`
-//! blocks; the Vulkan layer checks the offsets against the reflected SPIR-V.
+//! blocks; every dispatch checks them against the reflected SPIR-V (`crate::push`).
 
 use super::{AdamHyper, MetaHyper, Range};
 use bytemuck::{Pod, Zeroable};

@@ -17,6 +17,13 @@ pub struct Spec {
     pub optimiser: Optimiser,
 }
 
+/// The meta-estimator with its default hyperparameters.
+impl Default for Spec {
+    fn default() -> Self {
+        Spec { label: "meta".into(), optimiser: Optimiser::Meta(MetaHyper::default()) }
+    }
+}
+
 impl Spec {
     /// The label with every character that is awkward in a file name replaced by `_`.
     pub fn dir_name(&self) -> String {

@@ -7,18 +7,16 @@
 //! independent.
 
 use super::{record_samples, GpuScene, TracePush};
-use crate::gpu::{self, Access, Buffer, ComputePipeline, MemoryKind, Profiler, Recorder, SpecValue};
+use crate::constants::{LOCAL_GRADS_CAPACITY, LOSS_L1, LOSS_L2, LOSS_RELATIVE_L2};
+use crate::gpu::{self, Access, Buffer, ComputePipeline, MaybeProfiler, MemoryKind, Profiler, Recorder, SpecValue};
 use crate::image::Image;
 use crate::ops::{BufferOps, Reduction};
-use crate::scene::Loss;
+use crate::push::LossPush;
+use crate::settings::Loss;
 
 /// Seed offsets of the passes within an iteration: independent streams.
 pub const SEED_PRIMAL: u32 = 0x1000_0000;
 pub const SEED_ADJOINT: u32 = 0x2000_0000;
-
-/// Parameters whose gradients the adjoint kernels sum in registers (LOCAL_GRADS_CAPACITY
-/// in glsl/lib/scene_access.glsl).
-const LOCAL_GRADS_CAPACITY: usize = 32;
 
 struct SensorBuffers {
     rendered: Buffer,
@@ -42,6 +40,9 @@ struct PrevBuffers {
 
 /// The pipelines and buffers of the gradient estimate.
 pub struct GradientPass {
+    /// The kernels' names, which name their profiler scopes.
+    primal_kernel: &'static str,
+    adjoint_kernel: &'static str,
     primal: ComputePipeline,
     adjoint: ComputePipeline,
     loss: ComputePipeline,
@@ -53,21 +54,11 @@ pub struct GradientPass {
     pub seed: u32,
 }
 
-/// Opens scope `name` when profiling.
-fn begin(rec: &mut Recorder, profiler: &mut Option<&mut Profiler>, name: &str) -> gpu::Result<()> {
-    profiler.as_deref_mut().map_or(Ok(()), |p| p.begin(rec, name))
-}
-
-/// Closes the scope [`begin`] opened.
-fn end(rec: &mut Recorder, profiler: &mut Option<&mut Profiler>) -> gpu::Result<()> {
-    profiler.as_deref_mut().map_or(Ok(()), |p| p.end(rec))
-}
-
 fn loss_index(loss: Loss) -> u32 {
     match loss {
-        Loss::L2 => 0,
-        Loss::L1 => 1,
-        Loss::RelativeL2 => 2,
+        Loss::L2 => LOSS_L2,
+        Loss::L1 => LOSS_L1,
+        Loss::RelativeL2 => LOSS_RELATIVE_L2,
     }
 }
 
@@ -127,7 +118,7 @@ impl GradientPass {
         let primal = ComputePipeline::new(ctx, &scene.kernel(primal_name), &spec)?;
         // Small θ is accumulated per thread before the atomics (glsl/lib/scene_access.glsl).
         let mut adjoint_spec = spec.clone();
-        let local = if (1..=LOCAL_GRADS_CAPACITY).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
+        let local = if (1..=LOCAL_GRADS_CAPACITY as usize).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
         let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
@@ -179,7 +170,7 @@ impl GradientPass {
                 prev,
             });
         }
-        Ok(Self { primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
+        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -188,8 +179,9 @@ impl GradientPass {
         self.record_passes(rec, scene, ops, true, None)
     }
 
-    /// [`Self::record`] with each pass in a profiler scope of its name: `trace_primal`,
-    /// `loss` (with its reduction) and `trace_adjoint`, once per sensor.
+    /// [`Self::record`] with each pass in a profiler scope named after its kernel
+    /// (`trace_primal` or `trace_fd_primal`, `loss` with its reduction, `trace_adjoint` or
+    /// `trace_fd_adjoint`), once per sensor.
     pub fn record_profiled(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, profiler: &mut Profiler) -> gpu::Result<()> {
         self.record_passes(rec, scene, ops, true, Some(profiler))
     }
@@ -199,7 +191,9 @@ impl GradientPass {
         self.record_passes(rec, scene, ops, false, None)
     }
 
-    fn record_passes(
+    /// Records the primal renders and the loss, and with `adjoint` the adjoint pass, each
+    /// in a profiler scope named after its kernel when a profiler is given.
+    pub fn record_passes(
         &self,
         rec: &mut Recorder,
         scene: &GpuScene,
@@ -231,14 +225,13 @@ impl GradientPass {
                 rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
             }
             let p = self.primal_push(scene, s as u32);
-            begin(rec, &mut profiler, "trace_primal")?;
+            profiler.begin_scope(rec, self.primal_kernel)?;
             // Short dispatches (see render::spp_per_dispatch), each adding to the images.
             let images: Vec<&Buffer> = states.iter().map(|(rendered, _, _, _)| *rendered).collect();
             record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp, &images)?;
-            end(rec, &mut profiler)?;
-            let mut lp = (n as u32).to_le_bytes().to_vec();
-            lp.extend_from_slice(&((1.0 / (3.0 * n as f64)) as f32).to_le_bytes());
-            begin(rec, &mut profiler, "loss")?;
+            profiler.end_scope(rec)?;
+            let lp = LossPush { n: n as u32, scale: (1.0 / (3.0 * n as f64)) as f32 };
+            profiler.begin_scope(rec, "loss")?;
             for (rendered, adjoint, partials, group) in &states {
                 rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
                 rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
@@ -249,14 +242,14 @@ impl GradientPass {
             // The loss partials (of θ, the reported loss) are reduced.
             rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite)])?;
             ops.record_reduction(rec, &b.reduction)?;
-            end(rec, &mut profiler)?;
+            profiler.end_scope(rec)?;
             if !adjoint {
                 continue;
             }
-            begin(rec, &mut profiler, "trace_adjoint")?;
+            profiler.begin_scope(rec, self.adjoint_kernel)?;
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
             record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad])?;
-            end(rec, &mut profiler)?;
+            profiler.end_scope(rec)?;
         }
         Ok(())
     }

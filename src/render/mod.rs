@@ -22,14 +22,12 @@ use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
+use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
 use glam::Vec3;
+pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
 use std::sync::Arc;
-
-/// Material kinds as the kernels number them (glsl/shared/material.glsl).
-const KIND_DIFFUSE: u32 = 0;
-const KIND_PRINCIPLED: u32 = 1;
 
 /// The scene's buffers on the device, and θ.
 pub struct GpuScene {
@@ -89,6 +87,25 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     }
 }
 
+/// Warns about a scene that renders black or has lights that give none: no emitting
+/// triangle of non-zero area and no environment, or an emitting mesh whose triangles all
+/// have zero area (an emitter table cannot sample them, so they give no light).
+fn warn_about_light(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &ParamLayout, emitters: usize, has_environment: bool) {
+    for (i, mesh) in scene.meshes.iter().enumerate() {
+        let emits = layout.slot(ParamTarget::Emission { mesh: i }).is_some() || mesh.emission.iter().any(|&v| v > 0.0);
+        let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
+            let [a, b, c] = idx.map(|k| Vec3::from(geo.positions[k as usize]));
+            (b - a).cross(c - a).length() > 0.0
+        });
+        if emits && !has_area {
+            crate::report::warn(&format!("{}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", scene.path.display(), mesh.name));
+        }
+    }
+    if emitters == 0 && !has_environment {
+        crate::report::warn(&format!("{}: no light (no emitting mesh of non-zero area and no environment): the scene renders black", scene.path.display()));
+    }
+}
+
 /// A device buffer holding `v` followed by zeros up to a whole number of 16-byte texels
 /// (at least one, so that an empty array still has a buffer to bind), for kernels that read
 /// it as a uniform texel buffer.
@@ -129,8 +146,8 @@ impl GpuScene {
                     roughness: pick(ParamTarget::Roughness { material: i }, rough),
                     metallic: pick(ParamTarget::Metallic { material: i }, metal),
                     kind: match m.kind {
-                        MaterialKind::Diffuse => KIND_DIFFUSE,
-                        MaterialKind::Principled => KIND_PRINCIPLED,
+                        MaterialKind::Diffuse => MATERIAL_DIFFUSE,
+                        MaterialKind::Principled => MATERIAL_PRINCIPLED,
                     },
                     pad: [0; 3],
                 }
@@ -209,6 +226,7 @@ impl GpuScene {
                 pad: [0; 3],
             });
         }
+        warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -364,19 +382,6 @@ impl GpuScene {
     }
 }
 
-/// Push constants of trace_primal / trace_adjoint (glsl/trace_primal.comp).
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-pub struct TracePush {
-    pub width: u32,
-    pub height: u32,
-    pub sensor: u32,
-    pub spp: u32,
-    pub first_sample: u32,
-    pub seed: u32,
-    pub weight: f32,
-}
-
 /// Samples per pixel per submission: keeps each submission short on slow devices.
 pub const SPP_PER_SUBMISSION: u32 = 4;
 
@@ -419,10 +424,18 @@ pub fn record_samples(
         }
         let chunk = step.min(spp - done);
         let p = TracePush { spp: chunk, first_sample: push.first_sample + done, ..push };
-        rec.dispatch_linear(pipeline, group, bytemuck::bytes_of(&p), scene.pixels() as u64)?;
+        rec.dispatch_linear(pipeline, group, &p, scene.pixels() as u64)?;
         done += chunk;
     }
     Ok(())
+}
+
+/// Renders sensor `sensor` of `scene` as written (optimised parameters at their reference
+/// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions.
+pub fn render_reference(ctx: &Arc<Context>, scene: &Scene, sensor: u32, spp: u32, seed: u64, progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
+    renderer.scene.set_theta(renderer.scene.layout.reference())?;
+    renderer.render(sensor, spp, crate::settings::gpu_seed(seed), progress)
 }
 
 /// Renders images of a [`GpuScene`] with the primal kernel.
@@ -435,6 +448,11 @@ impl Renderer {
     pub fn new(scene: GpuScene) -> gpu::Result<Self> {
         let primal = ComputePipeline::new(&scene.ctx, &scene.kernel("trace_primal"), &scene.spec())?;
         Ok(Self { scene, primal })
+    }
+
+    /// The kernel that renders (trace_primal's build for the scene's BVH layout).
+    pub fn kernel(&self) -> &str {
+        self.primal.name()
     }
 
     /// Renders sensor `sensor` with `spp` samples per pixel, in submissions of at most

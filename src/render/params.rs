@@ -18,7 +18,8 @@ pub struct ParamSlot {
     pub offset: usize,
     pub len: usize,
     pub range: [f32; 2],
-    pub lr: f32,
+    /// The scene's learning rate for this parameter, if it sets one.
+    pub lr: Option<f32>,
     /// Start values (`len` floats).
     pub init: Vec<f32>,
     /// The scene's own values resampled to this slot's layout (`len` floats).
@@ -69,7 +70,7 @@ impl ParamLayout {
                 offset: layout.len,
                 len,
                 range: p.range,
-                lr: p.lr.unwrap_or(scene.optimise.lr),
+                lr: p.lr,
                 init,
                 reference,
             });

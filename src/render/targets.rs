@@ -1,9 +1,15 @@
 //! Target images: a sensor's `target_image`, or the reference scene rendered at high spp
-//! and cached beside the scene (`.vkinverse-cache/`), keyed by the scene's content hash,
-//! the sensor and the sample count, so that editing the scene invalidates the cache.
+//! and cached beside the scene (`.vkinverse-cache/`), or in the user's cache directory
+//! (`$XDG_CACHE_HOME/vkinverse`, `~/.cache/vkinverse`; `VKINVERSE_CACHE_DIR` replaces it)
+//! when the scene's directory cannot be written. The cache is optional: when neither can be
+//! written the target is used uncached, with a warning.
+//!
+//! A cached target is keyed by the scene's content hash, the SPIR-V of the kernel that
+//! renders it, the sensor and the sample count: editing the scene or changing the renderer
+//! (a new build, another BVH layout) renders it anew.
 
 use super::{GpuScene, Renderer};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::image::{self, Image};
 use crate::scene::Scene;
 use std::path::PathBuf;
@@ -14,8 +20,34 @@ pub const TARGET_SPP: u32 = 1024;
 /// Seed of rendered targets: far from the optimisation's seeds.
 const TARGET_SEED: u32 = 0x7A46_E701;
 
-fn cache_path(scene: &Scene, sensor: usize, spp: u32) -> PathBuf {
-    scene.dir().join(".vkinverse-cache").join(format!("target-{:016x}-s{sensor}-{spp}spp.exr", scene.content_hash()))
+/// FNV-1a 64 of the renderer's kernel: part of the cache key.
+fn kernel_hash(renderer: &Renderer) -> u64 {
+    let spirv = crate::gpu::shaders::get(renderer.kernel()).unwrap_or_default();
+    spirv.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3))
+}
+
+/// The cache file's name for `sensor` at `spp` samples.
+pub fn cache_name(scene: &Scene, renderer: &Renderer, sensor: usize, spp: u32) -> String {
+    format!("target-{:016x}-{:016x}-s{sensor}-{spp}spp.exr", scene.content_hash(), kernel_hash(renderer))
+}
+
+/// Where cached targets may live, in order: beside the scene, then the user's cache.
+pub fn cache_dirs(scene: &Scene) -> Vec<PathBuf> {
+    let user = std::env::var_os("VKINVERSE_CACHE_DIR").map(PathBuf::from).or_else(|| dirs::cache_dir().map(|d| d.join("vkinverse")));
+    std::iter::once(scene.dir().join(".vkinverse-cache")).chain(user).collect()
+}
+
+/// Writes `img` as `name` into the first cache directory that takes it.
+fn store(scene: &Scene, name: &str, img: &Image) {
+    let mut failures = Vec::new();
+    for dir in cache_dirs(scene) {
+        let written = std::fs::create_dir_all(&dir).map_err(|e| e.to_string()).and_then(|()| image::write_exr(&dir.join(name), img).map_err(|e| e.to_string()));
+        match written {
+            Ok(()) => return,
+            Err(e) => failures.push(format!("{}: {e}", dir.display())),
+        }
+    }
+    crate::report::warn(&format!("the rendered target is not cached ({})", failures.join("; ")));
 }
 
 /// One target image per sensor. `progress(sensor, done, total)` reports rendering.
@@ -27,22 +59,18 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
             out.push(t.image.clone());
             continue;
         }
-        let path = cache_path(scene, s, spp);
-        if let Ok(img) = image::read_exr(&path) {
-            if img.width == scene.film.width && img.height == scene.film.height {
-                out.push(img);
-                continue;
-            }
+        let name = cache_name(scene, renderer, s, spp);
+        let cached = cache_dirs(scene).iter().find_map(|d| image::read_exr(&d.join(&name)).ok());
+        if let Some(img) = cached.filter(|img| img.width == scene.film.width && img.height == scene.film.height) {
+            out.push(img);
+            continue;
         }
         if !reference_set {
             renderer.scene.theta.write(&padded(&renderer.scene, renderer.scene.layout.reference()))?;
             reference_set = true;
         }
         let img = renderer.render(s as u32, spp, TARGET_SEED, |d, t| progress(s, d, t))?;
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|source| Error::Io { path: dir.to_path_buf(), source })?;
-        }
-        image::write_exr(&path, &img)?;
+        store(scene, &name, &img);
         out.push(img);
     }
     if reference_set {

@@ -17,7 +17,7 @@ pub struct SceneFile {
     #[serde(default)]
     pub meshes: Vec<MeshFile>,
     pub environment: Option<EnvironmentFile>,
-    pub optimise: Option<OptimiseFile>,
+    pub optimise: Option<crate::settings::OptimiseTable<ParamFile>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -133,57 +133,6 @@ pub struct EnvironmentFile {
 
 fn one() -> f32 {
     1.0
-}
-
-#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Loss {
-    #[default]
-    L2,
-    L1,
-    RelativeL2,
-}
-
-#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum OptimiserKind {
-    #[default]
-    Meta,
-    Adam,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct OptimiseFile {
-    pub loss: Loss,
-    pub optimiser: OptimiserKind,
-    pub iterations: u32,
-    pub spp: u32,
-    pub fd_spp: u32,
-    pub primal_spp: u32,
-    pub lr: f32,
-    pub seed: u64,
-    pub time_budget: Option<f64>,
-    pub checkpoint_every: Option<u32>,
-    pub params: Vec<ParamFile>,
-}
-
-impl Default for OptimiseFile {
-    fn default() -> Self {
-        Self {
-            loss: Loss::L2,
-            optimiser: OptimiserKind::Meta,
-            iterations: 500,
-            spp: 2,
-            fd_spp: 1,
-            primal_spp: 4,
-            lr: 0.02,
-            seed: 0,
-            time_budget: None,
-            checkpoint_every: None,
-            params: Vec::new(),
-        }
-    }
 }
 
 #[derive(Debug, Deserialize)]

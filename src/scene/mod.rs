@@ -20,12 +20,12 @@ mod obj;
 use std::collections::HashSet;
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
 use glam::{Vec2, Vec3};
 
 pub use error::SceneError;
-pub use file::{Loss, MaterialType as MaterialKind, OptimiserKind};
+pub use crate::settings::Loss;
+pub use file::MaterialType as MaterialKind;
 
 use crate::image::{self, Image};
 use file::{ColorInput, InitInput, ScalarInput, SceneFile};
@@ -184,27 +184,17 @@ pub struct Param {
     pub range: [f32; 2],
     /// Optimise as a texture of this width and height instead of one constant.
     pub texture: Option<[u32; 2]>,
-    /// Learning rate for this parameter instead of `Optimise::lr`.
+    /// Learning rate for this parameter instead of the run's `lr` (unless a rate given
+    /// outside the scene replaces it).
     pub lr: Option<f32>,
     pub reference: Reference,
 }
 
-#[derive(Clone, Debug)]
+/// The scene's `[optimise]` table: its layer of run settings (checked, not resolved: the
+/// command line and job files may override them) and the optimised parameters.
+#[derive(Clone, Debug, Default)]
 pub struct Optimise {
-    pub loss: Loss,
-    pub optimiser: OptimiserKind,
-    pub iterations: u32,
-    /// Samples per pixel of the primal and adjoint passes of each gradient estimate.
-    pub spp: u32,
-    /// Samples per pixel of the meta-estimator's finite-difference pass.
-    pub fd_spp: u32,
-    /// Samples per pixel of evaluation renders.
-    pub primal_spp: u32,
-    pub lr: f32,
-    pub seed: u64,
-    /// Seconds of wall time after which the optimisation stops.
-    pub time_budget: Option<f64>,
-    pub checkpoint_every: Option<u32>,
+    pub settings: crate::settings::Settings,
     pub params: Vec<Param>,
 }
 
@@ -312,45 +302,6 @@ impl Scene {
                 .extend(std::iter::repeat_n(mesh.emission, count));
         }
         g
-    }
-}
-
-impl Loss {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::L2 => "l2",
-            Self::L1 => "l1",
-            Self::RelativeL2 => "relative_l2",
-        }
-    }
-}
-
-impl FromStr for Loss {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        [Self::L2, Self::L1, Self::RelativeL2]
-            .into_iter()
-            .find(|l| l.as_str() == s)
-            .ok_or_else(|| format!("unknown loss \"{s}\" (expected l2, l1 or relative_l2)"))
-    }
-}
-
-impl OptimiserKind {
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Meta => "meta",
-            Self::Adam => "adam",
-        }
-    }
-}
-
-impl FromStr for OptimiserKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        [Self::Meta, Self::Adam]
-            .into_iter()
-            .find(|o| o.as_str() == s)
-            .ok_or_else(|| format!("unknown optimiser \"{s}\" (expected meta or adam)"))
     }
 }
 
@@ -502,9 +453,27 @@ impl Loader {
         Ok(match input {
             ColorInput::Constant(c) => ColorValue::Constant(self.color(key, c)?),
             ColorInput::Texture(t) => {
-                ColorValue::Texture(self.texture(&format!("{key}.texture"), &t.texture, true)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture, true)?;
+                self.texels_in(&k, &tex, 3, 0.0, f32::INFINITY)?;
+                ColorValue::Texture(tex)
             }
         })
+    }
+
+    /// Checks the first `channels` channels of every texel against [lo, hi]: the rule a
+    /// constant of the same property obeys.
+    fn texels_in(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32) -> Result<(), SceneError> {
+        for (i, px) in t.image.data.iter().enumerate() {
+            if let Some(v) = px[..channels].iter().find(|v| !(lo..=hi).contains(*v)) {
+                let (x, y) = (i as u32 % t.image.width, i as u32 / t.image.width);
+                return Err(self.out_of_range(
+                    key,
+                    format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]", t.path.display()),
+                ));
+            }
+        }
+        Ok(())
     }
 
     fn scalar_value(&mut self, key: &str, input: ScalarInput) -> Result<ScalarValue, SceneError> {
@@ -514,7 +483,10 @@ impl Loader {
                 ScalarValue::Constant(self.in_range(key, v, 0.0, 1.0)?)
             }
             ScalarInput::Texture(t) => {
-                ScalarValue::Texture(self.texture(&format!("{key}.texture"), &t.texture, true)?)
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture, true)?;
+                self.texels_in(&k, &tex, 1, 0.0, 1.0)?;
+                ScalarValue::Texture(tex)
             }
         })
     }
@@ -788,34 +760,14 @@ impl Loader {
 
     fn optimise(
         &mut self,
-        raw: file::OptimiseFile,
+        raw: crate::settings::OptimiseTable<file::ParamFile>,
         materials: &[Material],
         meshes: &[Mesh],
         environment: &Environment,
     ) -> Result<Optimise, SceneError> {
-        for (key, v) in [
-            ("optimise.iterations", raw.iterations),
-            ("optimise.spp", raw.spp),
-            ("optimise.fd_spp", raw.fd_spp),
-            ("optimise.primal_spp", raw.primal_spp),
-            (
-                "optimise.checkpoint_every",
-                raw.checkpoint_every.unwrap_or(1),
-            ),
-        ] {
-            if v == 0 {
-                return Err(self.out_of_range(key, "must be at least 1".into()));
-            }
-        }
-        self.positive("optimise.lr", raw.lr)?;
-        if let Some(t) = raw.time_budget {
-            if !(t.is_finite() && t > 0.0) {
-                return Err(self.out_of_range(
-                    "optimise.time_budget",
-                    format!("{t} is not a positive number of seconds"),
-                ));
-            }
-        }
+        raw.settings
+            .validate()
+            .map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
         let mut seen = HashSet::new();
         let mut params = Vec::with_capacity(raw.params.len());
         for (i, p) in raw.params.into_iter().enumerate() {
@@ -824,16 +776,7 @@ impl Loader {
             params.push(self.param(&key, p, materials, meshes, environment)?);
         }
         Ok(Optimise {
-            loss: raw.loss,
-            optimiser: raw.optimiser,
-            iterations: raw.iterations,
-            spp: raw.spp,
-            fd_spp: raw.fd_spp,
-            primal_spp: raw.primal_spp,
-            lr: raw.lr,
-            seed: raw.seed,
-            time_budget: raw.time_budget,
-            checkpoint_every: raw.checkpoint_every,
+            settings: raw.settings,
             params,
         })
     }

@@ -1,0 +1,21 @@
+//! Constants shared by the host and the kernels, defined here only: build.rs reads this
+//! file and writes each constant into the kernels' header `vkinverse_constants.glsl` as a
+//! GLSL `const uint`, so the two sides cannot disagree. Every item is a line
+//! `pub const NAME: u32 = VALUE;` (build.rs refuses anything else).
+
+/// `Material::kind` of a Lambertian material: f = base_color / π.
+pub const MATERIAL_DIFFUSE: u32 = 0;
+/// `Material::kind` of the glTF 2.0 metallic-roughness model (Lambert diffuse + GGX/Smith
+/// specular).
+pub const MATERIAL_PRINCIPLED: u32 = 1;
+
+/// Parameters whose gradients the adjoint kernels sum per thread in registers before the
+/// atomics (glsl/lib/scene_access.glsl); a larger θ takes the direct atomics.
+pub const LOCAL_GRADS_CAPACITY: u32 = 32;
+
+/// The `LOSS` specialization constant of glsl/loss.comp: mean squared difference.
+pub const LOSS_L2: u32 = 0;
+/// Mean absolute difference.
+pub const LOSS_L1: u32 = 1;
+/// Squared difference over (target² + 0.01).
+pub const LOSS_RELATIVE_L2: u32 = 2;

@@ -1,0 +1,296 @@
+//! The iteration engine: the passes of one optimisation iteration, built once for a scene
+//! and its run settings, for `optimise`, the scene `bench` and `gradcheck` alike.
+//!
+//! An [`Engine`] owns the scene on the device and its target images, the gradient buffers,
+//! the proportional gradient estimate ⟨F_i⟩ (primal → loss → adjoint), for the
+//! meta-estimator the finite-difference sample ⟨ΔF_i⟩ ([`FdSample`]), and the fused
+//! optimiser passes. [`Engine::record`] records them in that order, each pass in a
+//! profiler scope named after its kernel (`trace_primal`, `loss` with its reduction,
+//! `trace_adjoint`, `trace_fd_primal`, `trace_fd_adjoint`, `sub`, `optim_meta`,
+//! `optim_adam`), once per sensor where a pass is per sensor. [`Iteration`] is that
+//! recording resubmitted with a fresh iteration counter; [`Step`] is what one submission
+//! reports (the place for further per-iteration diagnostics of an optimiser).
+//!
+//! Seeds: the run's `u64` seed is hashed down to the GPU's 32 bits by
+//! [`crate::settings::gpu_seed`]; the finite-difference sample adds [`SEED_FD`] so that its
+//! random numbers are independent of the proportional sample's.
+
+use crate::error::{Error, Result};
+use crate::gpu::{self, Access, Buffer, CommandBuffer, Context, MaybeProfiler, MemoryKind, Profiler, Recorder, ScopeTime};
+use crate::image::Image;
+use crate::ops::BufferOps;
+use crate::optim::gpu::{GpuOptimiser, Group};
+use crate::optim::{Optimiser, Range};
+use crate::render::gradient::GradientPass;
+use crate::render::targets::{padded, targets, TARGET_SPP};
+use crate::render::{GpuScene, Renderer};
+use crate::scene::Scene;
+use crate::settings::{gpu_seed, Loss, RunSettings};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// Seed offset of the finite-difference sample: independent of the proportional one.
+pub const SEED_FD: u32 = 0x4000_0000;
+
+/// The meta-estimator's finite-difference sample.
+pub enum FdSample {
+    /// One trace evaluates both parameter states (the default).
+    Fused(GradientPass),
+    /// One gradient estimate per state with the same seeds, then their difference.
+    TwoTrace { cur: GradientPass, prv: GradientPass, at_cur: Buffer, at_prev: Buffer },
+}
+
+impl FdSample {
+    /// Records ⟨ΔF⟩ into `fd_grad` (which the optimiser pass reads and clears).
+    pub fn record(&self, rec: &mut Recorder, gs: &GpuScene, ops: &BufferOps, fd_grad: &Buffer, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        match self {
+            FdSample::Fused(pass) => pass.record_passes(rec, gs, ops, true, profiler),
+            FdSample::TwoTrace { cur, prv, at_cur, at_prev } => {
+                rec.transition(&[(at_cur, Access::TransferWrite), (at_prev, Access::TransferWrite)])?;
+                rec.zero(at_cur)?;
+                rec.zero(at_prev)?;
+                cur.record_passes(rec, gs, ops, true, profiler.as_deref_mut())?;
+                prv.record_passes(rec, gs, ops, true, profiler.as_deref_mut())?;
+                rec.transition(&[(at_cur, Access::ComputeRead), (at_prev, Access::ComputeRead), (fd_grad, Access::ComputeWrite)])?;
+                profiler.begin_scope(rec, "sub")?;
+                ops.sub(rec, at_cur, at_prev, fd_grad)?;
+                profiler.end_scope(rec)
+            }
+        }
+    }
+
+    /// Profiler scopes one recording opens for `sensors` sensors.
+    fn scopes(&self, sensors: u32) -> u32 {
+        match self {
+            FdSample::Fused(_) => 3 * sensors,
+            FdSample::TwoTrace { .. } => 6 * sensors + 1,
+        }
+    }
+}
+
+/// One optimiser group per optimised parameter, with its learning rate and range: the
+/// scene's per-parameter rate where it has one, unless the settings' rate replaces it.
+pub fn param_groups(gs: &GpuScene, settings: &RunSettings) -> Vec<Group> {
+    gs.layout
+        .slots
+        .iter()
+        .map(|s| {
+            let lr = match s.lr {
+                Some(lr) if !settings.lr_replaces_param_rates => lr as f64,
+                _ => settings.lr,
+            };
+            Group { offset: s.offset, len: s.len, lr, range: Range { lo: s.range[0] as f64, hi: s.range[1] as f64 } }
+        })
+        .collect()
+}
+
+/// The passes of one iteration, on one scene; see the module documentation.
+pub struct Engine {
+    pub renderer: Renderer,
+    pub ops: BufferOps,
+    /// One target image per sensor.
+    pub targets: Vec<Image>,
+    pub settings: RunSettings,
+    /// dLoss/dθ of the proportional estimate (read and cleared by the optimiser pass).
+    pub grad: Buffer,
+    /// ⟨ΔF⟩ (read and cleared by the meta optimiser pass).
+    pub fd_grad: Buffer,
+    pub gradient: GradientPass,
+    pub fd: Option<FdSample>,
+    pub optimiser: Option<GpuOptimiser>,
+}
+
+impl Engine {
+    /// Uploads `scene`, renders or loads its targets (`on_targets(sensor, done, total)`
+    /// reports rendering) and builds every pass the settings' optimiser needs.
+    pub fn new(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, on_targets: impl FnMut(usize, u32, u32)) -> Result<Self> {
+        Self::build(ctx, scene, settings, true, on_targets)
+    }
+
+    /// The gradient estimate alone, without finite-difference sample or optimiser (for
+    /// checking gradients).
+    pub fn gradient_only(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings) -> Result<Self> {
+        Self::build(ctx, scene, settings, false, |_, _, _| {})
+    }
+
+    fn build(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, optimise: bool, on_targets: impl FnMut(usize, u32, u32)) -> Result<Self> {
+        let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
+        let targets = targets(&renderer, scene, TARGET_SPP, on_targets)?;
+        let ops = BufferOps::new(ctx)?;
+        let gs = &renderer.scene;
+        let n = gs.layout.len.max(1);
+        let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
+        let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
+        let seed = gpu_seed(settings.seed);
+        let gradient = GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, &grad)?;
+        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: None };
+        if optimise {
+            let opt = engine.extra_optimiser(&settings.optimiser.optimiser)?;
+            if let Some(prev) = &opt.theta_prev {
+                engine.fd = Some(engine.fd_sample(prev, settings.fd_two_trace)?);
+            }
+            engine.optimiser = Some(opt);
+        }
+        Ok(engine)
+    }
+
+    pub fn scene(&self) -> &GpuScene {
+        &self.renderer.scene
+    }
+
+    pub fn loss(&self) -> Loss {
+        self.settings.loss
+    }
+
+    /// A fused optimiser pass of `optimiser` over the scene's θ and this engine's gradients,
+    /// with the run's parameter groups.
+    pub fn extra_optimiser(&self, optimiser: &Optimiser) -> Result<GpuOptimiser> {
+        let gs = self.scene();
+        let groups = param_groups(gs, &self.settings);
+        Ok(GpuOptimiser::new(&gs.ctx, &self.ops, optimiser, &gs.theta, &self.grad, Some(&self.fd_grad), &gs.frame, &groups)?)
+    }
+
+    /// Another gradient estimate on this scene and its targets, adding into `grad`.
+    pub fn extra_gradient(&self, spp: u32, primal_spp: u32, seed: u32, grad: &Buffer) -> Result<GradientPass> {
+        let gs = self.scene();
+        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, grad)?)
+    }
+
+    /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at the
+    /// settings' fd_spp, into this engine's `fd_grad`: fused, or from two traces.
+    pub fn fd_sample(&self, theta_prev: &Buffer, two_trace: bool) -> Result<FdSample> {
+        let gs = self.scene();
+        theta_prev.write(&padded(gs, gs.layout.initial()))?;
+        let seed = gpu_seed(self.settings.seed).wrapping_add(SEED_FD);
+        let spp = self.settings.fd_spp;
+        let loss = self.loss();
+        if !two_trace {
+            return Ok(FdSample::Fused(GradientPass::new_fd(gs, &self.ops, &self.targets, loss, spp, seed, theta_prev, &self.fd_grad)?));
+        }
+        let n = gs.layout.len.max(1);
+        let at_cur = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta", n, MemoryKind::Device)?;
+        let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
+        // The primal images of the difference use fd_spp samples too: with common random
+        // numbers most of their noise cancels in the difference.
+        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, &at_cur)?;
+        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, &at_prev)?;
+        Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
+    }
+
+    /// Records the proportional gradient estimate.
+    pub fn record_gradient(&self, rec: &mut Recorder, profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        self.gradient.record_passes(rec, self.scene(), &self.ops, true, profiler)
+    }
+
+    /// Records the finite-difference sample, if the optimiser takes one.
+    pub fn record_fd(&self, rec: &mut Recorder, profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        match &self.fd {
+            Some(fd) => fd.record(rec, self.scene(), &self.ops, &self.fd_grad, profiler),
+            None => Ok(()),
+        }
+    }
+
+    /// Records `optimiser`'s pass in a scope named after its kernel.
+    pub fn record_step(&self, rec: &mut Recorder, optimiser: &GpuOptimiser, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        profiler.begin_scope(rec, optimiser.kernel())?;
+        optimiser.record(rec, &self.ops)?;
+        profiler.end_scope(rec)
+    }
+
+    /// Records the whole iteration: gradient, finite-difference sample, optimiser step.
+    pub fn record(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        self.record_gradient(rec, profiler.as_deref_mut())?;
+        self.record_fd(rec, profiler.as_deref_mut())?;
+        match &self.optimiser {
+            Some(opt) => self.record_step(rec, opt, profiler),
+            None => Ok(()),
+        }
+    }
+
+    /// Profiler scopes that [`Self::record`] opens.
+    pub fn scopes(&self) -> u32 {
+        let sensors = self.scene().sensors as u32;
+        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + 1
+    }
+
+    /// Runs the rendering passes once, untimed, and clears what they accumulated: lavapipe
+    /// (and some drivers) compile a pipeline on its first dispatch, which would otherwise
+    /// land in the first timed iteration.
+    pub fn warm_up(&self) -> Result<()> {
+        let mut warm = CommandBuffer::new(&self.scene().ctx, "warm-up")?;
+        warm.record(|rec| {
+            self.record_gradient(rec, None)?;
+            self.record_fd(rec, None)?;
+            rec.transition(&[(&self.grad, Access::TransferWrite), (&self.fd_grad, Access::TransferWrite)])?;
+            rec.zero(&self.grad)?;
+            rec.zero(&self.fd_grad)
+        })?;
+        warm.submit_and_wait()?;
+        Ok(())
+    }
+
+    /// The iteration recorded once, with a profiler scope per pass, to be resubmitted.
+    pub fn iteration(&self) -> Result<Iteration> {
+        let ctx = &self.scene().ctx;
+        let mut profiler = Profiler::new(ctx, self.scopes())?;
+        let mut cmd = CommandBuffer::new(ctx, "iteration")?;
+        cmd.record(|rec| {
+            profiler.reset(rec);
+            self.record(rec, Some(&mut profiler))
+        })?;
+        Ok(Iteration { cmd, profiler })
+    }
+
+    /// Runs iteration `index` (its counter seeds the passes' random numbers) and reads back
+    /// what it reports.
+    pub fn step(&self, iteration: &mut Iteration, index: u32) -> Result<Step> {
+        self.scene().set_frame(index)?;
+        iteration.cmd.submit_and_wait()?;
+        let times = iteration.profiler.results()?;
+        Ok(Step { loss: self.gradient.total_loss()?, pass_ms: pass_totals(&times) })
+    }
+
+    /// θ as the host sees it after the last submission.
+    pub fn theta(&self) -> Result<Vec<f32>> {
+        let gs = self.scene();
+        let mut theta: Vec<f32> = gs.theta.read()?;
+        theta.truncate(gs.layout.len);
+        Ok(theta)
+    }
+
+    /// The optimiser's pass, for its state.
+    pub fn optimiser(&self) -> Result<&GpuOptimiser> {
+        self.optimiser.as_ref().ok_or_else(|| Error::Invalid("the engine was built without an optimiser".into()))
+    }
+}
+
+/// Sums the times of the scopes of each name (a pass recorded once per sensor is one entry).
+pub fn pass_totals(times: &[ScopeTime]) -> BTreeMap<String, f64> {
+    let mut sums = BTreeMap::new();
+    for t in times {
+        *sums.entry(t.name.clone()).or_default() += t.ms;
+    }
+    sums
+}
+
+/// The iteration's recording and its profiler.
+pub struct Iteration {
+    cmd: CommandBuffer,
+    profiler: Profiler,
+}
+
+/// What one iteration reports.
+#[derive(Clone, Debug)]
+pub struct Step {
+    /// The image loss of the proportional estimate's primal render (summed over sensors).
+    pub loss: f64,
+    /// GPU milliseconds of each pass (by kernel name).
+    pub pass_ms: BTreeMap<String, f64>,
+}
+
+impl Step {
+    /// GPU milliseconds of the whole iteration.
+    pub fn gpu_ms(&self) -> f64 {
+        self.pass_ms.values().sum()
+    }
+}

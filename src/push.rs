@@ -1,0 +1,169 @@
+//! `#[repr(C)]` mirrors of every kernel's push-constant block (scalar layout), each a
+//! [`PushBlock`] whose members every dispatch checks against the reflected SPIR-V.
+//! [`mirror`] names the block of each kernel; a test checks every kernel against it, so a
+//! new kernel without a mirror, or a drift on either side, fails.
+
+use crate::gpu::PushBlock;
+use crate::optim::push::{AdamPush, MetaPush};
+use crate::push_block;
+use crate::shared::Material;
+use bytemuck::{Pod, Zeroable};
+
+/// `Push { uint n; }` of copy, sub, reduce and trace_test: the element (or ray) count.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct CountPush {
+    pub n: u32,
+}
+push_block!(CountPush { n });
+
+impl CountPush {
+    /// A count of elements; the kernels index with 32 bits.
+    pub fn new(n: u64) -> Self {
+        CountPush { n: n as u32 }
+    }
+}
+
+/// `Push { uint n4; }` of copy_vec4 and copy_wide: the count of float4s.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Count4Push {
+    pub n4: u32,
+}
+push_block!(Count4Push { n4 });
+
+/// fill.comp's block.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct FillPush {
+    pub n: u32,
+    pub value: f32,
+}
+push_block!(FillPush { n, value });
+
+/// scale_add.comp's block: `x = a x + b`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ScaleAddPush {
+    pub n: u32,
+    pub a: f32,
+    pub b: f32,
+}
+push_block!(ScaleAddPush { n, a, b });
+
+/// gather.comp's block.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GatherPush {
+    pub threads: u32,
+    /// A power of two.
+    pub table_len: u32,
+    pub rounds: u32,
+}
+push_block!(GatherPush { threads, table_len, rounds });
+
+/// loss.comp's block.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct LossPush {
+    /// Pixels.
+    pub n: u32,
+    /// 1 / (3 n): the mean over pixels and channels.
+    pub scale: f32,
+}
+push_block!(LossPush { n, scale });
+
+/// The block of trace_primal.comp and all its variants (trace_adjoint, trace_fd_*, ...).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TracePush {
+    pub width: u32,
+    pub height: u32,
+    pub sensor: u32,
+    /// Samples per pixel in this dispatch.
+    pub spp: u32,
+    /// Index of the first of them (for the random numbers).
+    pub first_sample: u32,
+    /// Combined with the iteration counter.
+    pub seed: u32,
+    /// Primal: added value = weight × sum of samples; adjoint: the adjoint's scale.
+    pub weight: f32,
+}
+push_block!(TracePush { width, height, sensor, spp, first_sample, seed, weight });
+
+/// records_test.comp's block: the element count of every record array.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RecordsPush {
+    pub materials: u32,
+    pub triangles: u32,
+    pub meshes: u32,
+    pub emitters: u32,
+    pub nodes: u32,
+    pub material_data: u32,
+    pub theta: u32,
+    pub env_dist: u32,
+    pub sensors: u32,
+}
+push_block!(RecordsPush { materials, triangles, meshes, emitters, nodes, material_data, theta, env_dist, sensors });
+
+/// The bsdf_sample_test variant's block: one material and direction per dispatch.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BsdfSamplePush {
+    pub material: Material,
+    pub n: [f32; 3],
+    pub wo: [f32; 3],
+    pub count: u32,
+    pub seed: u32,
+}
+push_block!(BsdfSamplePush { material, n, wo, count, seed });
+
+/// rng_test.comp's block: the keys of the numbers drawn.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RngTestPush {
+    /// Threads (pixels).
+    pub n: u32,
+    pub sample_index: u32,
+    /// The pass's seed.
+    pub seed: u32,
+    /// The iteration counter.
+    pub frame: u32,
+    /// Numbers per thread.
+    pub dims: u32,
+}
+push_block!(RngTestPush { n, sample_index, seed, frame, dims });
+
+push_block!(AdamPush { n, offset, lr, beta1, beta2, eps, lo, hi });
+push_block!(MetaPush { n, offset, lr, decay_f, decay_d, eps, lo, hi });
+
+/// A push block's members (name, byte offset) and size.
+pub type Layout = (&'static [(&'static str, usize)], usize);
+
+fn layout<P: PushBlock>() -> Layout {
+    (P::MEMBERS, std::mem::size_of::<P>())
+}
+
+/// The host mirror of kernel `kernel`'s push block (`()` for none); None for a kernel
+/// that has no mirror.
+pub fn mirror(kernel: &str) -> Option<Layout> {
+    // A kernel's BVH-layout builds (`_wide`) share its block; copy_wide is a kernel of its own.
+    let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").unwrap_or(kernel) };
+    Some(match base {
+        "copy" | "sub" | "reduce" | "trace_test" | "bsdf_test" => layout::<CountPush>(),
+        "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
+        "fill" => layout::<FillPush>(),
+        "scale_add" => layout::<ScaleAddPush>(),
+        "gather" | "gather_texel" => layout::<GatherPush>(),
+        "loss" => layout::<LossPush>(),
+        "records_test" => layout::<RecordsPush>(),
+        "bsdf_sample_test" => layout::<BsdfSamplePush>(),
+        "rng_test" => layout::<RngTestPush>(),
+        "optim_adam" => layout::<AdamPush>(),
+        "optim_meta" => layout::<MetaPush>(),
+        "layout_probe" => layout::<()>(),
+        k if k.starts_with("trace_") => layout::<TracePush>(),
+        _ => return None,
+    })
+}

@@ -1,0 +1,453 @@
+//! Run settings: what an optimisation run does, given in layers.
+//!
+//! Every setting is declared once, in the [`settings!`] invocation below: its name, type,
+//! default and documentation. From that one declaration come
+//! - [`Settings`], one layer of settings, every value optional: the same struct is the
+//!   command line's flags (clap, flattened into `optimise`, `compare`), the scene's
+//!   `[optimise]` table and a job file's shared settings and `[[jobs]]` entries (serde,
+//!   through [`SettingsTable`], which keeps toml's line numbers in errors);
+//! - [`RunSettings`], the settings of one run with every value resolved;
+//! - the per-setting plumbing: layering ([`Settings::then`]), key lists, table
+//!   deserialization, the list of changed settings reported on `--resume`.
+//!
+//! A new setting is one entry in the invocation (and its range in [`Settings::validate`]
+//! if it has one). Layers, lowest first: defaults, the scene's `[optimise]`, a job file's
+//! shared settings, a job's own, the command line. Two rules join layers:
+//! - a layer that gives `time_budget` without `iterations` drops the iteration count of
+//!   the layers below it (the run then lasts for the budget alone), and the default of
+//!   500 iterations applies only to a run without a budget;
+//! - a learning rate given outside the scene replaces the scene's per-parameter rates.
+
+use crate::optim::spec::Spec;
+use serde::de::{self, DeserializeSeed, MapAccess, Visitor};
+use serde::{Deserialize, Deserializer, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// The image loss.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Loss {
+    /// Mean squared difference.
+    #[default]
+    L2,
+    /// Mean absolute difference.
+    L1,
+    /// Squared difference over (target² + 0.01).
+    RelativeL2,
+}
+
+impl Loss {
+    pub const ALL: [Loss; 3] = [Loss::L2, Loss::L1, Loss::RelativeL2];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::L2 => "l2",
+            Self::L1 => "l1",
+            Self::RelativeL2 => "relative_l2",
+        }
+    }
+}
+
+impl fmt::Display for Loss {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Loss {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL.into_iter().find(|l| l.as_str() == s).ok_or_else(|| format!("unknown loss \"{s}\" (expected l2, l1 or relative_l2)"))
+    }
+}
+
+/// Seeds are `u64` everywhere; the GPU's random-number streams take 32 bits, so this hashes
+/// a seed down explicitly: the low 32 bits xor the high 32 bits times the 32-bit golden
+/// ratio. Seeds below 2³² are used as they are, and seeds that differ only in their high
+/// bits give different streams.
+pub fn gpu_seed(seed: u64) -> u32 {
+    (seed as u32) ^ ((seed >> 32) as u32).wrapping_mul(0x9E37_79B9)
+}
+
+/// The first type of a list: the resolved type of a setting, which is its layer type unless
+/// the declaration names another.
+macro_rules! first_type {
+    ($t:ty) => { $t };
+    ($t:ty, $u:ty) => { $t };
+}
+
+/// Declares every setting: `NAME: LAYER_TYPE [=> RESOLVED_TYPE] = DEFAULT,` with its doc
+/// comment and its clap attributes. The resolved type must be `From` the layer type.
+macro_rules! settings {
+    ($(
+        $(#[doc = $doc:literal])*
+        #[arg($($arg:tt)*)]
+        $name:ident : $ty:ty $(=> $resolved:ty)? = $default:expr;
+    )*) => {
+        /// One layer of run settings (command line, scene `[optimise]`, job file); `None`
+        /// leaves the value to the layers below.
+        #[derive(Clone, Debug, Default, PartialEq, clap::Args, Serialize, Deserialize)]
+        #[serde(deny_unknown_fields)]
+        pub struct Settings {
+            $(
+                $(#[doc = $doc])*
+                #[arg($($arg)*)]
+                #[serde(default, skip_serializing_if = "Option::is_none")]
+                pub $name: Option<$ty>,
+            )*
+        }
+
+        /// The settings of one run, every value resolved.
+        #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+        pub struct RunSettings {
+            $( $(#[doc = $doc])* pub $name: first_type!($($resolved,)? $ty), )*
+            /// Whether a learning rate was given outside the scene, replacing the scene's
+            /// per-parameter rates.
+            pub lr_replaces_param_rates: bool,
+        }
+
+        impl Settings {
+            /// Every setting's key, as in TOML; on the command line `_` is `-`.
+            pub const KEYS: &'static [&'static str] = &[$(stringify!($name)),*];
+
+            /// `self` with every value that `over` sets replaced by `over`'s.
+            fn overlay(&self, over: &Settings) -> Settings {
+                Settings { $( $name: over.$name.clone().or_else(|| self.$name.clone()), )* }
+            }
+
+            /// Every value, the default where none is set.
+            fn fill(&self, lr_replaces_param_rates: bool) -> RunSettings {
+                RunSettings {
+                    $( $name: self.$name.clone().map_or_else(|| $default, Into::into), )*
+                    lr_replaces_param_rates,
+                }
+            }
+
+            /// Reads the value of setting `key` from `map`; false if `key` is no setting.
+            fn read_value<'de, A: MapAccess<'de>>(&mut self, key: &str, map: &mut A) -> Result<bool, A::Error> {
+                match key {
+                    $( stringify!($name) => self.$name = Some(map.next_value()?), )*
+                    _ => return Ok(false),
+                }
+                Ok(true)
+            }
+        }
+
+        impl RunSettings {
+            /// `key: old -> new` for every setting that differs between `self` and `new`.
+            pub fn changes(&self, new: &RunSettings) -> Vec<String> {
+                let show = |v: serde_json::Value| match v {
+                    serde_json::Value::Null => "unset".to_string(),
+                    serde_json::Value::String(s) => s,
+                    other => other.to_string(),
+                };
+                let mut out = Vec::new();
+                $(
+                    if self.$name != new.$name {
+                        let (a, b) = (serde_json::to_value(&self.$name), serde_json::to_value(&new.$name));
+                        out.push(format!("{}: {} -> {}", stringify!($name), show(a.unwrap_or_default()), show(b.unwrap_or_default())));
+                    }
+                )*
+                out
+            }
+        }
+    };
+}
+
+settings! {
+    /// Optimiser spec NAME[@KEY=VALUE]...: meta or adam, with hyperparameters
+    /// (`adam@beta1=0.5`).
+    #[arg(long, value_name = "SPEC", allow_hyphen_values = true)]
+    optimiser: Spec = Spec::default();
+    /// Image loss: l2, l1 or relative_l2.
+    #[arg(long, value_name = "LOSS")]
+    loss: Loss = Loss::L2;
+    /// Iterations (with a time budget: at most this many).
+    #[arg(long, value_name = "N")]
+    iterations: u32 => Option<u32> = Some(500);
+    /// Stop after this many seconds of optimisation (instead of, or on top of, iterations).
+    #[arg(long, value_name = "SEC", allow_negative_numbers = true)]
+    time_budget: f64 => Option<f64> = None;
+    /// Samples per pixel of the gradient estimate's adjoint pass.
+    #[arg(long, value_name = "N")]
+    spp: u32 = 2;
+    /// Samples per pixel of the meta-estimator's finite-difference sample.
+    #[arg(long, value_name = "N")]
+    fd_spp: u32 = 1;
+    /// Samples per pixel of the gradient estimate's primal render.
+    #[arg(long, value_name = "N")]
+    primal_spp: u32 = 4;
+    /// Learning rate: the typical parameter change per iteration (given here, it replaces
+    /// the scene's per-parameter rates).
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    lr: f64 = 0.02;
+    /// Seed of every random-number stream of the run.
+    #[arg(long, value_name = "S")]
+    seed: u64 = 0;
+    /// Commit a checkpoint every N iterations (and at the end).
+    #[arg(long, value_name = "N")]
+    checkpoint_every: u32 = 50;
+    /// Meta: trace each parameter state separately for the finite-difference sample instead
+    /// of the fused single trace (for comparison).
+    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL")]
+    fd_two_trace: bool = false;
+}
+
+/// A bad setting: its key (as in TOML) and what is wrong.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Invalid {
+    pub key: &'static str,
+    pub message: String,
+}
+
+impl Invalid {
+    /// The key as a command-line flag: `--fd-spp`.
+    pub fn flag(&self) -> String {
+        format!("--{}", self.key.replace('_', "-"))
+    }
+}
+
+impl Settings {
+    /// Checks the range of every value this layer sets: counts at least 1, rates and budgets
+    /// positive and finite. The only check of settings: the command line, the scene and job
+    /// files all call it, each naming the key its own way.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        let bad = |key, message: String| Err(Invalid { key, message });
+        for (key, v) in [
+            ("iterations", self.iterations),
+            ("spp", self.spp),
+            ("fd_spp", self.fd_spp),
+            ("primal_spp", self.primal_spp),
+            ("checkpoint_every", self.checkpoint_every),
+        ] {
+            if v == Some(0) {
+                return bad(key, "must be at least 1".into());
+            }
+        }
+        for (key, v) in [("lr", self.lr), ("time_budget", self.time_budget)] {
+            // A NaN budget would never be reached and a negative one ends before the first step.
+            if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return bad(key, format!("{v} is not positive and finite"));
+            }
+        }
+        Ok(())
+    }
+
+    /// `self` with `over` on top, by the rules of the module documentation.
+    pub fn then(&self, over: &Settings) -> Settings {
+        let mut merged = self.overlay(over);
+        if over.time_budget.is_some() && over.iterations.is_none() {
+            merged.iterations = None;
+        }
+        merged
+    }
+
+    /// The run's settings: `scene` (its `[optimise]` table) with `over` (everything given
+    /// outside the scene, already layered) on top, defaults below.
+    pub fn resolve(scene: &Settings, over: &Settings) -> RunSettings {
+        let all = scene.then(over);
+        let mut run = all.fill(over.lr.is_some());
+        if all.time_budget.is_some() && all.iterations.is_none() {
+            run.iterations = None;
+        }
+        run
+    }
+}
+
+impl RunSettings {
+    /// The settings of a scene alone.
+    pub fn of_scene(scene: &crate::scene::Scene) -> RunSettings {
+        Settings::resolve(&scene.optimise.settings, &Settings::default())
+    }
+
+    /// Whether the run is over after `iteration` iterations and `time_s` seconds.
+    pub fn done(&self, iteration: u32, time_s: f64) -> bool {
+        self.iterations.is_some_and(|n| iteration >= n) || self.time_budget.is_some_and(|b| time_s >= b)
+    }
+}
+
+impl Serialize for Spec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.label)
+    }
+}
+
+impl<'de> Deserialize<'de> for Spec {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        text.parse().map_err(de::Error::custom)
+    }
+}
+
+/// A TOML table that holds the run settings beside keys of its own (the scene's
+/// `[optimise]`, a job file, a job entry). serde's `flatten` would lose toml's line
+/// numbers and could not reject unknown keys; [`deserialize_table`] keeps both.
+pub trait SettingsTable: Default {
+    /// The table's own keys; a key that is both (a job file's `spp`) is its own.
+    const OWN_KEYS: &'static [&'static str];
+    /// Reads the value of own key `key` from `map`.
+    fn read_own<'de, A: MapAccess<'de>>(&mut self, key: &'static str, map: &mut A) -> Result<(), A::Error>;
+    fn settings_mut(&mut self) -> &mut Settings;
+    /// Checks what a table must have (required keys) once every key is read.
+    fn finish<E: de::Error>(self) -> Result<Self, E> {
+        Ok(self)
+    }
+}
+
+/// A key of a [`SettingsTable`]: one of its own or a setting, else an unknown-field error
+/// (which toml places at the key).
+struct KeySeed<'a> {
+    own: &'static [&'static str],
+    expected: &'a str,
+}
+
+impl<'de> DeserializeSeed<'de> for KeySeed<'_> {
+    type Value = &'static str;
+    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
+        d.deserialize_str(self)
+    }
+}
+
+impl<'de> Visitor<'de> for KeySeed<'_> {
+    type Value = &'static str;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a key")
+    }
+    fn visit_str<E: de::Error>(self, v: &str) -> Result<Self::Value, E> {
+        self.own
+            .iter()
+            .chain(Settings::KEYS)
+            .find(|k| **k == v)
+            .copied()
+            .ok_or_else(|| E::custom(format!("unknown field `{v}`, expected one of {}", self.expected)))
+    }
+}
+
+/// Deserializes a [`SettingsTable`] (call it from the table's `Deserialize`).
+pub fn deserialize_table<'de, D: Deserializer<'de>, T: SettingsTable>(d: D) -> Result<T, D::Error> {
+    struct TableVisitor<T>(std::marker::PhantomData<T>);
+    impl<'de, T: SettingsTable> Visitor<'de> for TableVisitor<T> {
+        type Value = T;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("a table")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<T, A::Error> {
+            let expected = T::OWN_KEYS.iter().chain(Settings::KEYS).map(|k| format!("`{k}`")).collect::<Vec<_>>().join(", ");
+            let mut table = T::default();
+            while let Some(key) = map.next_key_seed(KeySeed { own: T::OWN_KEYS, expected: &expected })? {
+                if T::OWN_KEYS.contains(&key) {
+                    table.read_own(key, &mut map)?;
+                } else {
+                    table.settings_mut().read_value(key, &mut map)?;
+                }
+            }
+            table.finish()
+        }
+    }
+    d.deserialize_map(TableVisitor(std::marker::PhantomData))
+}
+
+/// The scene's `[optimise]` table: the scene's layer of settings and its
+/// `[[optimise.params]]` (of the scene file's type `P`).
+#[derive(Debug)]
+pub struct OptimiseTable<P> {
+    pub settings: Settings,
+    pub params: Vec<P>,
+}
+
+impl<P> Default for OptimiseTable<P> {
+    fn default() -> Self {
+        Self { settings: Settings::default(), params: Vec::new() }
+    }
+}
+
+impl<P: for<'de> Deserialize<'de>> SettingsTable for OptimiseTable<P> {
+    const OWN_KEYS: &'static [&'static str] = &["params"];
+    fn read_own<'de, A: MapAccess<'de>>(&mut self, _key: &'static str, map: &mut A) -> Result<(), A::Error> {
+        self.params = map.next_value()?;
+        Ok(())
+    }
+    fn settings_mut(&mut self) -> &mut Settings {
+        &mut self.settings
+    }
+}
+
+impl<'de, P: for<'a> Deserialize<'a>> Deserialize<'de> for OptimiseTable<P> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        deserialize_table(d)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layer(text: &str) -> Settings {
+        toml::from_str(text).unwrap()
+    }
+
+    #[test]
+    fn layers_resolve_with_defaults_and_the_budget_rule() {
+        let scene = layer("iterations = 200\nspp = 3\nlr = 0.1");
+        let run = Settings::resolve(&scene, &Settings::default());
+        assert_eq!((run.iterations, run.spp, run.lr, run.fd_spp), (Some(200), 3, 0.1, 1));
+        assert!(!run.lr_replaces_param_rates);
+        // A budget from above drops the scene's iteration count; with its own count it keeps both.
+        let budget = layer("time_budget = 2.5");
+        assert_eq!(Settings::resolve(&scene, &budget).iterations, None);
+        let both = layer("time_budget = 2.5\niterations = 7");
+        assert_eq!(Settings::resolve(&scene, &both).iterations, Some(7));
+        // A scene with a budget alone runs for the budget; without either, 500 iterations.
+        assert_eq!(Settings::resolve(&budget, &Settings::default()).iterations, None);
+        assert_eq!(Settings::resolve(&Settings::default(), &Settings::default()).iterations, Some(500));
+        // A rate from outside the scene replaces the per-parameter rates.
+        assert!(Settings::resolve(&scene, &layer("lr = 0.5")).lr_replaces_param_rates);
+    }
+
+    #[test]
+    fn seeds_are_u64_and_hashed_down_explicitly() {
+        let s = layer("seed = 4294967296");
+        assert_eq!(s.seed, Some(1 << 32));
+        assert_eq!(gpu_seed(7), 7, "small seeds are used as they are");
+        assert_ne!(gpu_seed(1 << 32), gpu_seed(0), "high bits are not dropped");
+        assert_ne!(gpu_seed((1 << 32) + 5), gpu_seed(5));
+    }
+
+    #[test]
+    fn one_validate_names_the_key() {
+        for (text, key) in [("spp = 0", "spp"), ("checkpoint_every = 0", "checkpoint_every"), ("lr = -1", "lr"), ("time_budget = nan", "time_budget"), ("iterations = 0", "iterations")] {
+            assert_eq!(layer(text).validate().unwrap_err().key, key, "{text}");
+        }
+        assert!(layer("spp = 1\nlr = 0.5\noptimiser = 'adam@beta1=0.5'\nloss = 'l1'").validate().is_ok());
+        assert_eq!(Invalid { key: "fd_spp", message: String::new() }.flag(), "--fd-spp");
+        let err = toml::from_str::<Settings>("spp = 1\nsppp = 2").unwrap_err().to_string();
+        assert!(err.contains("sppp"), "{err}");
+        let err = toml::from_str::<Settings>("optimiser = 'sgd'").unwrap_err().to_string();
+        assert!(err.contains("unknown optimiser 'sgd'"), "{err}");
+    }
+
+    #[test]
+    fn changes_name_each_setting() {
+        let a = Settings::resolve(&layer("spp = 2"), &Settings::default());
+        let b = Settings::resolve(&layer("spp = 4\nseed = 3"), &Settings::default());
+        assert_eq!(a.changes(&b), ["spp: 2 -> 4", "seed: 0 -> 3"]);
+        assert!(a.changes(&a).is_empty());
+    }
+
+    #[test]
+    fn tables_keep_line_numbers() {
+        #[derive(Deserialize)]
+        struct File {
+            #[allow(dead_code)]
+            t: OptimiseTable<u32>,
+        }
+        let ok: File = toml::from_str("[t]\nparams = [1, 2]\nspp = 3\n").unwrap();
+        assert_eq!((ok.t.params, ok.t.settings.spp), (vec![1, 2], Some(3)));
+        let unknown = toml::from_str::<File>("[t]\nparams = []\nsppp = 3\n").err().unwrap();
+        assert!(unknown.to_string().contains("line 3, column 1"), "{unknown}");
+        assert!(unknown.message().contains("unknown field `sppp`"), "{unknown}");
+        let wrong_type = toml::from_str::<File>("[t]\nspp = 'x'\n").err().unwrap();
+        assert!(wrong_type.to_string().contains("line 2, column 7"), "{wrong_type}");
+    }
+}
