@@ -115,7 +115,7 @@ pub fn f_survival(f: f64, d1: f64, d2: f64) -> f64 {
 
 /// ln Γ(x) for x > 0 (Lanczos approximation, g = 7, nine coefficients; relative error
 /// below 1e-15 over the range used here).
-fn ln_gamma(x: f64) -> f64 {
+pub fn ln_gamma(x: f64) -> f64 {
     const G: f64 = 7.0;
     const C: [f64; 9] = [
         0.999_999_999_999_809_9,
