@@ -27,6 +27,7 @@ layout(set = 0, binding = 6, scalar) writeonly buffer OutFloats { float out_floa
 layout(set = 0, binding = 7, scalar) writeonly buffer OutCdfs { float out_cdfs[]; };
 layout(set = 0, binding = 8, scalar) writeonly buffer OutSensors { SensorRecord out_sensors[]; };
 layout(set = 0, binding = 9, scalar) writeonly buffer OutGlobals { Globals out_globals; };
+layout(set = 0, binding = 15, scalar) writeonly buffer OutLights { LightRecord out_lights[]; };
 
 layout(push_constant, scalar) uniform Push {
     uint materials;
@@ -38,6 +39,7 @@ layout(push_constant, scalar) uniform Push {
     uint theta;
     uint env_dist;
     uint sensors;
+    uint lights;
 } pc;
 
 void main() {
@@ -57,5 +59,6 @@ void main() {
     if (i < pc.theta) out_floats[pc.material_data + i] = texel_float(Theta, int(i));
     if (i < pc.env_dist) out_floats[pc.material_data + pc.theta + i] = texel_float(EnvDistribution, int(i));
     if (i < pc.sensors) out_sensors[i] = sensor_record(i);
+    if (i < pc.lights) out_lights[i] = light_record(i);
     if (i == 0u) out_globals = scene_globals();
 }

@@ -9,6 +9,17 @@ pub const MATERIAL_DIFFUSE: u32 = 0;
 /// specular).
 pub const MATERIAL_PRINCIPLED: u32 = 1;
 
+/// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
+pub const LIGHT_POINT: u32 = 0;
+/// A spot light.
+pub const LIGHT_SPOT: u32 = 1;
+/// A directional light.
+pub const LIGHT_DIRECTIONAL: u32 = 2;
+/// `LightRecord::falloff` of glTF's spot falloff: the square of a linear ramp in cos θ.
+pub const FALLOFF_SMOOTH: u32 = 0;
+/// Mitsuba's spot falloff: linear in θ.
+pub const FALLOFF_LINEAR: u32 = 1;
+
 /// Parameters whose gradients the adjoint kernels sum per thread in registers before the
 /// atomics (glsl/lib/scene_access.glsl); a larger θ takes the direct atomics.
 pub const LOCAL_GRADS_CAPACITY: u32 = 32;

@@ -28,6 +28,8 @@ pub enum ImageError {
         path: PathBuf,
         source: png::EncodingError,
     },
+    #[error("{}: not a readable PNG or JPEG image: {message}", path.display())]
+    Decode { path: PathBuf, message: String },
     #[error("{}: image is {width}x{height} but holds {len} pixels", path.display())]
     Size {
         path: PathBuf,
@@ -186,6 +188,25 @@ pub fn write_png(path: &Path, image: &Image) -> Result<(), ImageError> {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// An sRGB-encoded value in [0, 1] to linear (IEC 61966-2-1 EOTF), the inverse of the
+/// encoding [`write_png`] applies.
+pub fn srgb_decode(encoded: f32) -> f32 {
+    if encoded <= 0.040_45 {
+        encoded / 12.92
+    } else {
+        ((encoded + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Decodes a PNG or JPEG file already in memory into values in [0, 1] as stored (no
+/// transfer function applied; grey images are repeated into R, G and B, alpha is dropped).
+/// `path` is only used in error messages.
+pub fn decode_ldr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
+    let img = ::image::load_from_memory(bytes).map_err(|e| ImageError::Decode { path: path.to_path_buf(), message: e.to_string() })?;
+    let rgb = img.to_rgb32f();
+    Ok(Image { width: rgb.width(), height: rgb.height(), data: rgb.pixels().map(|p| p.0).collect() })
 }
 
 /// Linear [0, 1] to 8-bit sRGB (IEC 61966-2-1 OETF).

@@ -66,6 +66,8 @@ struct RenderArgs {
     seed: u64,
     #[arg(long, default_value_t = 0)]
     sensor: u32,
+    #[command(flatten)]
+    scene_flags: SceneFlags,
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
 }
@@ -75,6 +77,8 @@ struct OptimiseArgs {
     scene: PathBuf,
     #[command(flatten)]
     settings: Settings,
+    #[command(flatten)]
+    scene_flags: SceneFlags,
     /// Continue the run in OUTDIR from its committed checkpoint (same scene and parameters).
     #[arg(long, conflicts_with = "overwrite")]
     resume: bool,
@@ -95,6 +99,8 @@ struct CompareArgs {
     optimisers: String,
     #[command(flatten)]
     settings: Settings,
+    #[command(flatten)]
+    scene_flags: SceneFlags,
     /// Replace runs found in OUTDIR's run directories.
     #[arg(long)]
     overwrite: bool,
@@ -140,6 +146,8 @@ struct GradcheckArgs {
     max_rounds: u32,
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    scene_flags: SceneFlags,
 }
 
 #[derive(Args)]
@@ -180,6 +188,51 @@ struct BenchArgs {
     bvh_layouts: bool,
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    scene_flags: SceneFlags,
+}
+
+/// Settings that change what a scene renders, over the scene file's (any format).
+#[derive(Args)]
+struct SceneFlags {
+    /// Film size, e.g. `--film 640x480` (a bare glTF scene has 512 on the camera's longer
+    /// side).
+    #[arg(long, value_name = "WxH")]
+    film: Option<String>,
+    /// Longest path in segments (1: emitters only, 2: direct light); a bare glTF scene has 8.
+    #[arg(long, value_name = "N")]
+    max_depth: Option<u32>,
+}
+
+impl SceneFlags {
+    fn options(&self) -> std::result::Result<vkinverse::scene::LoadOptions, String> {
+        use vkinverse::scene::{Film, MAX_DEPTH, MAX_IMAGE_SIDE};
+        let film = match &self.film {
+            None => None,
+            Some(f) => {
+                let bad = || format!("--film {f}: expected WIDTHxHEIGHT, each in 1..={MAX_IMAGE_SIDE}");
+                let (w, h) = f.split_once(['x', 'X']).ok_or_else(bad)?;
+                let side = |v: &str| v.trim().parse::<u32>().ok().filter(|v| (1..=MAX_IMAGE_SIDE).contains(v)).ok_or_else(bad);
+                Some(Film { width: side(w)?, height: side(h)? })
+            }
+        };
+        if let Some(d) = self.max_depth.filter(|d| !(1..=MAX_DEPTH).contains(d)) {
+            return Err(format!("--max-depth {d}: must be in 1..={MAX_DEPTH}"));
+        }
+        Ok(vkinverse::scene::LoadOptions { film, max_depth: self.max_depth })
+    }
+}
+
+/// Loads a scene file of any format with the command line's scene flags, printing what the
+/// import approximated or left out (one line each) unless --quiet.
+fn load_scene(cli: &Cli, path: &std::path::Path, flags: &SceneFlags) -> std::result::Result<vkinverse::scene::Scene, Box<dyn std::error::Error>> {
+    let scene = vkinverse::scene::Scene::load_with(path, &flags.options()?)?;
+    if !cli.quiet {
+        for w in &scene.warnings {
+            eprintln!("vkinverse: warning: {w}");
+        }
+    }
+    Ok(scene)
 }
 
 const OPTIMISE_HELP: &str = "\
@@ -280,7 +333,7 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     if a.spp == 0 {
         return Err("--spp must be at least 1".into());
     }
-    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     if a.sensor as usize >= scene.sensors.len() {
         return Err(format!("--sensor {}: the scene has {} sensor(s)", a.sensor, scene.sensors.len()).into());
     }
@@ -352,7 +405,7 @@ impl Observer for RunProgress {
 fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
     // Flags first: a typo on the command line is reported before the scene is read.
     check_flags(&a.settings)?;
-    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     let st = Settings::resolve(&scene.optimise.settings, &a.settings);
     let ctx = context(cli)?;
     let mut progress = RunProgress::new(cli.quiet, "optimise", st.iterations);
@@ -372,7 +425,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
-        outln!("outputs in {}: log.csv summary.json params/ final.exr error_vs_time.png checkpoint/", a.output.display())?;
+        outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png checkpoint/", a.output.display())?;
     }
     Ok(())
 }
@@ -384,7 +437,7 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
         return Err("compare takes --optimisers (a list), not --optimiser".into());
     }
     check_flags(&a.settings)?;
-    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     let ctx = context(cli)?;
     let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
     let comparison = vkinverse::compare::compare(
@@ -463,7 +516,7 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
     if a.max_rounds == 0 {
         return Err("--max-rounds must be at least 1".into());
     }
-    let scene = vkinverse::scene::Scene::load(&a.scene)?;
+    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     if scene.optimise.params.is_empty() {
         return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
     }
@@ -528,7 +581,7 @@ fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
         let result = vkinverse::bench::buffer_bench(&context(cli)?, a.elements, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     };
-    let scene = vkinverse::scene::Scene::load(path)?;
+    let scene = load_scene(cli, path, &a.scene_flags)?;
     let ctx = context(cli)?;
     if a.bvh_layouts {
         let result = vkinverse::bench::layout_bench(&ctx, &scene, a.iterations)?;

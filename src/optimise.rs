@@ -8,7 +8,8 @@
 //! needs (the loss, and θ for the parameter error).
 //!
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
-//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`. The
+//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, and the
+//! recovered scene in `final/` (`crate::scene::write`). The
 //! directory's rules (lock, refusal of a used directory, crash-safe checkpoints, what
 //! `--resume` checks) are those of [`crate::rundir`]. The log rows are also returned in
 //! memory ([`Run::log`]).
@@ -399,6 +400,7 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
     let settings = &engine.settings;
     let theta = engine.theta()?;
     write_params(out_dir, engine, &theta)?;
+    crate::scene::write::write_final(out_dir, scene, &engine.scene().layout.recovered(&theta))?;
     let final_img = engine.renderer.render(0, settings.primal_spp.max(64), gpu_seed(settings.seed) ^ 0x5EED, |_, _| {})?;
     image::write_exr(&out_dir.join("final.exr"), &final_img)?;
     write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;

@@ -104,8 +104,9 @@ pub struct RecordsPush {
     pub theta: u32,
     pub env_dist: u32,
     pub sensors: u32,
+    pub lights: u32,
 }
-push_block!(RecordsPush { materials, triangles, meshes, emitters, nodes, material_data, theta, env_dist, sensors });
+push_block!(RecordsPush { materials, triangles, meshes, emitters, nodes, material_data, theta, env_dist, sensors, lights });
 
 /// The bsdf_sample_test variant's block: one material and direction per dispatch.
 #[repr(C)]

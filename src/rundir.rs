@@ -32,7 +32,7 @@ use std::fs::{self, File};
 use std::path::{Path, PathBuf};
 
 /// What a run writes into its directory; a directory holding any of them holds a run.
-pub const RUN_FILES: [&str; 6] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "error_vs_time.png"];
+pub const RUN_FILES: [&str; 7] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png"];
 
 /// How a run treats a directory that already holds a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -51,7 +51,9 @@ pub struct MaterialRecord {
     pub roughness: ValueRef,
     pub metallic: ValueRef,
     pub kind: u32,
-    pub pad: [u32; 3],
+    /// 1: the material reflects nothing from behind (its triangles' clockwise side).
+    pub one_sided: u32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `TriShading`: 96 bytes (6 texels; `pad` is zero).
@@ -68,7 +70,9 @@ pub struct TriShading {
     pub material: u32,
     pub mesh: u32,
     pub emitter_pdf: f32,
-    pub pad: [u32; 3],
+    /// 1: an emitter that shines from both sides; 0: from its front only.
+    pub two_sided: u32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `MeshRecord`: 16 bytes.
@@ -88,6 +92,22 @@ pub struct EmitterTri {
     pub prim: u32,
     pub cdf: f32,
     pub pdf: f32,
+}
+
+/// Mirror of `LightRecord`: 80 bytes (5 texels).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct LightRecord {
+    pub position: [f32; 3],
+    pub kind: u32,
+    pub direction: [f32; 3],
+    pub falloff: u32,
+    pub color: ValueRef,
+    pub intensity: ValueRef,
+    pub cos_inner: f32,
+    pub cos_outer: f32,
+    pub inner: f32,
+    pub outer: f32,
 }
 
 /// Mirror of `SensorRecord`: 64 bytes (`pad` is zero).
@@ -112,18 +132,21 @@ pub struct Globals {
     /// Probability that next-event estimation samples the environment map rather than an
     /// emissive triangle; 0: the environment is not light-sampled.
     pub environment_sample_prob: f32,
-    pub pad: [u32; 2],
+    /// Delta lights in the `Lights` buffer.
+    pub num_lights: u32,
+    pub pad: u32,
 }
 
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 6] = [
+pub const TEXEL_RECORDS: [(&str, usize); 7] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
     ("MeshRecord", std::mem::size_of::<MeshRecord>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
     ("SensorRecord", std::mem::size_of::<SensorRecord>()),
+    ("LightRecord", std::mem::size_of::<LightRecord>()),
     ("Globals", std::mem::size_of::<Globals>()),
 ];
 const _: () = {

@@ -275,7 +275,7 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         &s(&out_dir),
     ]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
-    assert_eq!(dir_names(&out_dir), [".lock", "checkpoint", "error_vs_time.png", "final.exr", "log.csv", "params", "summary.json"]);
+    assert_eq!(dir_names(&out_dir), [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "params", "summary.json"]);
 
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);

@@ -973,3 +973,56 @@ range = [0.0, 1.0]
         assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0), "the loop must have computed gradients: {g:?}");
     });
 }
+
+/// Delta lights' colour and intensity (a point light and a spot light in the Cornell box,
+/// with its area light on) and the red wall's colour, now also lit by them: light
+/// sampling of delta lights draws nothing random and does not depend on θ, nor does
+/// anything else at depth 4 < rr_depth 5, so each replayed sample's adjoint must be the
+/// exact derivative of that sample (as in the test above). The image is linear in each
+/// light's colour and intensity and at most quadratic in the wall's colour. The colour
+/// starts far below the reference in every channel so that each channel's gradient is
+/// significant.
+#[test]
+fn delta_light_gradients_are_exact() {
+    shared(|ctx| {
+        let lights = r#"
+[[lights]]
+name = "bulb"
+type = "point"
+position = [0.3, 1.2, 0.4]
+color = [1.0, 0.9, 0.7]
+intensity = 1.5
+[[lights]]
+name = "spot"
+type = "spot"
+position = [-0.5, 1.7, 0.5]
+direction = [-0.4, -1, -0.3]
+color = [0.6, 0.8, 1.0]
+intensity = 2.0
+inner_angle = 10
+outer_angle = 40
+"#;
+        let optimise = r#"
+[[optimise.params]]
+target = "lights.bulb.color"
+init = [0.3, 0.3, 0.1]
+range = [0.0, 2.0]
+[[optimise.params]]
+target = "lights.bulb.intensity"
+init = 1.0
+range = [0.0, 5.0]
+[[optimise.params]]
+target = "lights.spot.intensity"
+init = 3.0
+range = [0.0, 5.0]
+[[optimise.params]]
+target = "materials.red.base_color"
+init = [0.5, 0.5, 0.5]
+range = [0.0, 1.0]
+"#;
+        let scene = cornell("delta-lights", 16, 4, lights, &[], optimise);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        let samples = measure(&mut b, &[probe(0..3, 0.05), probe([3], 0.1), probe([4], 0.1), probe(5..8, 0.01)], 8);
+        check("l2", &samples, EPS_EXACT, 0.01);
+    });
+}

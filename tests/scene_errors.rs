@@ -521,6 +521,32 @@ fn inconsistent_scenes_are_rejected() {
 }
 
 #[test]
+fn lights_and_imports_are_checked() {
+    let light = |body: &str| format!("{BASE}\n[[lights]]\nname = \"key\"\n{body}\n");
+    let cases: [(&str, String, &[&str]); 6] = [
+        ("spot-direction", light("type = \"spot\"\nposition = [0, 1, 0]"), &["lights.key", "needs `direction`"]),
+        ("point-position", light("type = \"point\""), &["lights.key", "needs `position`"]),
+        ("cone", light("type = \"spot\"\nposition = [0, 1, 0]\ndirection = [0, -1, 0]\ninner_angle = 40\nouter_angle = 30"), &["lights.key", "cone angles"]),
+        ("point-cone", light("type = \"point\"\nposition = [0, 1, 0]\nouter_angle = 30"), &["lights.key", "only spot lights"]),
+        ("negative", light("type = \"directional\"\ndirection = [0, -1, 0]\nintensity = -1"), &["lights.key.intensity", "negative"]),
+        ("zero-direction", light("type = \"directional\"\ndirection = [0, 0, 0]"), &["lights.key.direction", "zero"]),
+    ];
+    for (name, text, needles) in &cases {
+        assert_message(&load_err(name, text), needles);
+    }
+    let twice = format!("{}[[lights]]\nname = \"key\"\ntype = \"point\"\nposition = [0, 2, 0]\n", light("type = \"point\"\nposition = [0, 1, 0]"));
+    assert_message(&load_err("light-twice", &twice), &["lights[1].name", "\"key\" is defined more than once"]);
+    let target = |t: &str| format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"{t}\"\ninit = 1\nrange = [0, 2]\n", light("type = \"point\"\nposition = [0, 1, 0]"));
+    assert_message(&load_err("light-property", &target("lights.key.radius")), &["optimise.params[0].target", "lights.NAME.color|intensity"]);
+    assert_message(&load_err("light-undefined", &target("lights.fill.intensity")), &["no light named \"fill\""]);
+    let ok = Scene::load(fixture("light-ok", &target("lights.key.intensity"))).unwrap();
+    assert_eq!(ok.optimise.params[0].target, ParamTarget::LightIntensity { light: 0 });
+    // An imported file must be glTF or Mitsuba XML, and readable.
+    assert_message(&load_err("import-ext", &format!("import = \"tri.obj\"\n{BASE}")), &["scene.toml", "import", "tri.obj", ".gltf, .glb or .xml"]);
+    assert_message(&load_err("import-missing", &format!("import = \"none.gltf\"\n{BASE}")), &["none.gltf", "cannot read scene"]);
+}
+
+#[test]
 fn texture_values_obey_the_rules_of_constants() {
     // A roughness texture is held to [0, 1] as a roughness constant is.
     let rough = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nroughness = { texture = \"rough.exr\" }");

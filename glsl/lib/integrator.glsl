@@ -147,6 +147,8 @@ void scatter_bsdf(uint id, vec2 uv, Material m, vec3 ns, vec3 wo, vec3 wi, vec3 
 }
 #endif
 
+#include "lib/delta_lights.glsl"
+
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
 // parameter state. Primal: returns each state's radiance in `radiance`. ADJOINT: `L` is
 // that radiance (from a primal replay) and `delta` each state's pixel adjoint (dLoss/dI
@@ -205,13 +207,13 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         vec2 uv = w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2;
         vec3 ng = sh.ng;
 
-        // Emission reached by the previous BSDF sample (or seen by the camera). One-sided:
-        // emitters shine from their front (counter-clockwise) side.
-        if (sh.emitter_pdf > 0.0 && dot(ng, wo) > 0.0) {
+        // Emission reached by the previous BSDF sample (or seen by the camera). Emitters
+        // shine from their front (counter-clockwise) side, two-sided ones from both.
+        if (sh.emitter_pdf > 0.0 && (dot(ng, wo) > 0.0 || sh.two_sided != 0u)) {
             float mis = 1.0;
             if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
                 // The light-sampling pdf of this point, in solid angle at the previous vertex.
-                float pdf_light = (1.0 - p_env) * sh.emitter_pdf * hit.t * hit.t / max(dot(ng, wo), 1e-8);
+                float pdf_light = (1.0 - p_env) * sh.emitter_pdf * hit.t * hit.t / max(abs(dot(ng, wo)), 1e-8);
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
             for (int s = 0; s < NSTATES; ++s) {
@@ -224,6 +226,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             }
         }
         if (depth >= MAX_DEPTH) break;
+        // A one-sided material seen from behind reflects nothing.
+        if (dot(ng, wo) < 0.0 && material_record(sh.material).one_sided != 0u) break;
 
         // Shading frame: interpolated normal if the mesh has normals, flipped to the side
         // of wo; the geometric normal likewise.
@@ -256,6 +260,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec3 wi = to_l / dist;
             TriShading lsh = tri_shading(lprim);
             float cos_l = dot(lsh.ng, -wi);
+            if (lsh.two_sided != 0u) cos_l = abs(cos_l);
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
@@ -296,6 +301,15 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
                 }
             }
+        }
+
+        // Delta lights: each sampled once, without MIS (BSDF sampling never reaches one).
+        if (HAS_DELTA_LIGHTS) {
+            delta_lights_nee(p_off, ng, ns, wo, sh.material, uv, mat, beta, radiance
+#ifdef ADJOINT
+                             , remaining, delta, grad_pass
+#endif
+            );
         }
 
         // Continue by sampling the BSDF of state 0.

@@ -25,6 +25,8 @@ layout(set = 0, binding = 26) uniform usamplerBuffer MaterialData;
 // The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
 // column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
 layout(set = 0, binding = 27) uniform usamplerBuffer EnvDistribution;
+// Delta lights: scene_globals().num_lights LightRecords.
+layout(set = 0, binding = 28) uniform usamplerBuffer Lights;
 layout(set = 0, binding = 30) uniform usamplerBuffer Theta;
 
 // Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
@@ -49,8 +51,9 @@ MaterialRecord material_record(uint id) {
     r.base_color = value_ref(texelFetch(Materials, b));
     r.roughness = value_ref(texelFetch(Materials, b + 1));
     r.metallic = value_ref(texelFetch(Materials, b + 2));
-    r.kind = texelFetch(Materials, b + 3).x;
-    r.pad0 = 0u;
+    uvec4 t3 = texelFetch(Materials, b + 3);
+    r.kind = t3.x;
+    r.one_sided = t3.y;
     r.pad1 = 0u;
     r.pad2 = 0u;
     return r;
@@ -58,7 +61,7 @@ MaterialRecord material_record(uint id) {
 
 // Shading data of triangle `prim` (6 texels; words in TriShading's scalar layout: n0 0-2,
 // n1 3-5, n2 6-8, ng 9-11, uv0 12-13, uv1 14-15, uv2 16-17, material 18, mesh 19,
-// emitter_pdf 20). Fetches of fields a caller does not use are dead code.
+// emitter_pdf 20, two_sided 21). Fetches of fields a caller does not use are dead code.
 TriShading tri_shading(uint prim) {
     int b = int(prim) * 6;
     TriShading s;
@@ -74,7 +77,7 @@ TriShading tri_shading(uint prim) {
     s.material = t4.z;
     s.mesh = t4.w;
     s.emitter_pdf = uintBitsToFloat(t5.x);
-    s.pad0 = 0u;
+    s.two_sided = t5.y;
     s.pad1 = 0u;
     s.pad2 = 0u;
     return s;
@@ -111,11 +114,32 @@ SensorRecord sensor_record(uint i) {
 }
 
 // The scene-wide values (2 texels: environment 0-3, environment_scale 4,
-// environment_sample_prob 5).
+// environment_sample_prob 5, num_lights 6).
 Globals scene_globals() {
     uvec4 t0 = texelFetch(SceneGlobals, 0);
     uvec4 t1 = texelFetch(SceneGlobals, 1);
-    return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), 0u, 0u);
+    return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), t1.z, 0u);
+}
+
+// Delta light `i` (5 texels: position 0-2, kind 3, direction 4-6, falloff 7, color 8-11,
+// intensity 12-15, cos_inner 16, cos_outer 17, inner 18, outer 19).
+LightRecord light_record(uint i) {
+    int b = int(i) * 5;
+    uvec4 t0 = texelFetch(Lights, b);
+    uvec4 t1 = texelFetch(Lights, b + 1);
+    uvec4 t4 = texelFetch(Lights, b + 4);
+    LightRecord l;
+    l.position = uintBitsToFloat(t0.xyz);
+    l.kind = t0.w;
+    l.direction = uintBitsToFloat(t1.xyz);
+    l.falloff = t1.w;
+    l.color = value_ref(texelFetch(Lights, b + 2));
+    l.intensity = value_ref(texelFetch(Lights, b + 3));
+    l.cos_inner = uintBitsToFloat(t4.x);
+    l.cos_outer = uintBitsToFloat(t4.y);
+    l.inner = uintBitsToFloat(t4.z);
+    l.outer = uintBitsToFloat(t4.w);
+    return l;
 }
 
 // The cdf of emissive triangle `i` alone (its third texel), for the binary search.

@@ -24,7 +24,7 @@ struct MaterialRecord {
     ValueRef roughness;
     ValueRef metallic;
     uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
-    uint pad0;
+    uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     uint pad1;
     uint pad2;
 };
@@ -41,7 +41,7 @@ struct TriShading {
     uint material;
     uint mesh;
     float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
-    uint pad0;
+    uint two_sided;     // 1: an emitter that shines from both sides; 0: from its front only
     uint pad1;
     uint pad2;
 };
@@ -59,6 +59,25 @@ struct EmitterTri {
     uint prim;   // original triangle id
     float cdf;   // inclusive cumulative probability of picking triangles 0..this one
     float pdf;   // probability density (area measure) of a point sampled on it
+};
+
+// Delta lights (lib/delta_lights.glsl): kinds LIGHT_* and spot falloffs FALLOFF_*,
+// defined in src/constants.rs.
+#include "vkinverse_constants.glsl"
+
+// A point, spot or directional light. 80 bytes (5 texels). Its emitted quantity (radiant
+// intensity; irradiance for a directional light) is color × intensity × the spot falloff.
+struct LightRecord {
+    vec3 position;
+    uint kind;        // LIGHT_*
+    vec3 direction;   // unit: the spot's axis, or the direction a directional light travels
+    uint falloff;     // FALLOFF_*
+    ValueRef color;      // 3 channels
+    ValueRef intensity;  // 1 channel
+    float cos_inner;  // spot: full intensity where cos θ >= cos_inner
+    float cos_outer;  // spot: none where cos θ <= cos_outer
+    float inner;      // the same two angles in radians
+    float outer;
 };
 
 // A pinhole camera. 64 bytes (4 texels).
@@ -81,7 +100,7 @@ struct Globals {
     // distribution: binding EnvDistribution, src/render/envmap.rs) rather than an emissive
     // triangle; 0: the environment is found by BSDF sampling only.
     float environment_sample_prob;
-    uint pad0;
+    uint num_lights;  // delta lights (binding Lights), all sampled at every path vertex
     uint pad1;
 };
 #endif

@@ -21,9 +21,9 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{ColorValue, MaterialKind, ParamTarget, ScalarValue, Scene};
+use crate::scene::{ColorValue, LightKind, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
-use crate::shared::{EmitterTri, Globals, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
+use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
 use glam::Vec3;
 pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
@@ -40,6 +40,8 @@ pub struct GpuScene {
     pub rr_depth: u32,
     pub emitters: u32,
     pub has_environment: bool,
+    /// Point, spot and directional lights (all sampled at every path vertex).
+    pub lights: u32,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     pub triangles: usize,
@@ -149,7 +151,8 @@ impl GpuScene {
                         MaterialKind::Diffuse => MATERIAL_DIFFUSE,
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                     },
-                    pad: [0; 3],
+                    one_sided: m.one_sided as u32,
+                    pad: [0; 2],
                 }
             })
             .collect();
@@ -160,6 +163,35 @@ impl GpuScene {
             .map(|(i, m)| {
                 let constant = push_value(&mut data, &m.emission, None);
                 MeshRecord { emission: layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant) }
+            })
+            .collect();
+        let lights: Vec<LightRecord> = scene
+            .lights
+            .iter()
+            .enumerate()
+            .map(|(i, l)| {
+                let color = push_value(&mut data, &l.color, None);
+                let intensity = push_value(&mut data, &[l.intensity], None);
+                let (kind, inner, outer, falloff) = match l.kind {
+                    LightKind::Point => (crate::constants::LIGHT_POINT, 0.0, 0.0, SpotFalloff::Smooth),
+                    LightKind::Spot { inner, outer, falloff } => (crate::constants::LIGHT_SPOT, inner, outer, falloff),
+                    LightKind::Directional => (crate::constants::LIGHT_DIRECTIONAL, 0.0, 0.0, SpotFalloff::Smooth),
+                };
+                LightRecord {
+                    position: l.position.into(),
+                    kind,
+                    direction: l.direction.into(),
+                    falloff: match falloff {
+                        SpotFalloff::Smooth => crate::constants::FALLOFF_SMOOTH,
+                        SpotFalloff::Linear => crate::constants::FALLOFF_LINEAR,
+                    },
+                    color: layout.slot(ParamTarget::LightColor { light: i }).map(theta_ref).unwrap_or(color),
+                    intensity: layout.slot(ParamTarget::LightIntensity { light: i }).map(theta_ref).unwrap_or(intensity),
+                    cos_inner: inner.cos(),
+                    cos_outer: outer.cos(),
+                    inner,
+                    outer,
+                }
             })
             .collect();
         let env_value = color_ref(&mut data, &scene.environment.value);
@@ -223,7 +255,8 @@ impl GpuScene {
                 material: geo.triangle_material[t],
                 mesh: mesh as u32,
                 emitter_pdf: 0.0,
-                pad: [0; 3],
+                two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                pad: [0; 2],
             });
         }
         warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
@@ -246,7 +279,8 @@ impl GpuScene {
             environment,
             environment_scale: scene.environment.scale,
             environment_sample_prob: Self::environment_sample_prob(environment_distribution.is_some(), emitters.len()),
-            pad: [0; 2],
+            num_lights: lights.len() as u32,
+            pad: 0,
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
@@ -274,6 +308,7 @@ impl GpuScene {
             ("SceneGlobals", texel_buffer(ctx, "globals", &[globals])?),
             ("MaterialData", texel_buffer(ctx, "material data", &data)?),
             ("EnvDistribution", texel_buffer(ctx, "environment distribution", &env_data)?),
+            ("Lights", texel_buffer(ctx, "lights", &lights)?),
         ];
         // θ is read as texels by the integrator kernels and as floats by the optimisers;
         // its length is a whole number of texels (the padding is never read or moved).
@@ -288,6 +323,7 @@ impl GpuScene {
             rr_depth: scene.integrator.rr_depth,
             emitters: emitters.len() as u32,
             has_environment,
+            lights: lights.len() as u32,
             environment_distribution,
             triangles: geo.indices.len(),
             globals,
@@ -356,6 +392,7 @@ impl GpuScene {
             ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
             ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
+            ("HAS_DELTA_LIGHTS", SpecValue::Bool(self.lights > 0)),
         ]
     }
 

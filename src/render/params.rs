@@ -5,6 +5,7 @@
 //! through a `ValueRef` with `in_theta = 1`; the optimiser updates slots in place.
 
 use crate::image::Image;
+use crate::scene::write::Recovered;
 use crate::scene::{ParamTarget, Reference, Scene};
 
 /// One optimised parameter.
@@ -92,6 +93,22 @@ impl ParamLayout {
     /// θ at the scene's own (reference) values.
     pub fn reference(&self) -> Vec<f32> {
         self.slots.iter().flat_map(|s| s.reference.iter().copied()).collect()
+    }
+
+    /// Every slot's values in θ as a recovered parameter, for writing the scene back.
+    pub fn recovered(&self, theta: &[f32]) -> Vec<(ParamTarget, Recovered)> {
+        self.slots
+            .iter()
+            .map(|s| {
+                let v = theta[s.offset..s.offset + s.len].to_vec();
+                let r = if s.size == [0, 0] {
+                    Recovered::Constant(v)
+                } else {
+                    Recovered::Texture { width: s.size[0], height: s.size[1], channels: s.channels, data: v }
+                };
+                (s.target, r)
+            })
+            .collect()
     }
 
     /// Root-mean-square error of θ against the reference, overall and per slot.

@@ -33,7 +33,7 @@ pub enum SceneError {
         source: io::Error,
     },
 
-    /// An OBJ file is malformed; `line` is 0 where no single line is at fault.
+    /// A mesh file (OBJ or PLY) is malformed; `line` is 0 where no single line is at fault.
     #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
     Obj {
         path: PathBuf,
@@ -91,6 +91,20 @@ pub enum SceneError {
         key: String,
         name: String,
     },
+
+    /// A glTF or Mitsuba file that cannot be imported: `location` is a JSON path
+    /// (`materials[2].normalTexture`) or an XML line and element (`line 14: <bsdf
+    /// type="plastic">`), or empty when the whole file is at fault.
+    #[error("{}: {}{message}", path.display(), if location.is_empty() { String::new() } else { format!("{location}: ") })]
+    Import {
+        path: PathBuf,
+        location: String,
+        message: String,
+    },
+
+    /// The recovered scene could not be written.
+    #[error("{}: cannot write the recovered scene: {message}", path.display())]
+    Write { path: PathBuf, message: String },
 
     /// Any other inconsistency between keys.
     #[error("{}: {key}: {message}", scene.display())]

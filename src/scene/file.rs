@@ -4,52 +4,42 @@
 
 use serde::Deserialize;
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
+    /// A glTF or Mitsuba XML file whose sensors, materials, meshes and lights the scene
+    /// starts from (relative to the scene file).
+    pub import: Option<String>,
     #[serde(default)]
     pub film: FilmFile,
     #[serde(default)]
     pub integrator: IntegratorFile,
+    #[serde(default)]
     pub sensors: Vec<SensorFile>,
     #[serde(default)]
     pub materials: Vec<MaterialFile>,
     #[serde(default)]
     pub meshes: Vec<MeshFile>,
+    #[serde(default)]
+    pub lights: Vec<LightFile>,
     pub environment: Option<EnvironmentFile>,
     pub optimise: Option<crate::settings::OptimiseTable<ParamFile>>,
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+/// Unset values come from the imported file, else from the defaults (256 × 256, depth 6,
+/// roulette from depth 5).
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
 pub struct FilmFile {
-    pub width: u32,
-    pub height: u32,
+    pub width: Option<u32>,
+    pub height: Option<u32>,
 }
 
-impl Default for FilmFile {
-    fn default() -> Self {
-        Self {
-            width: 256,
-            height: 256,
-        }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
 pub struct IntegratorFile {
-    pub max_depth: u32,
-    pub rr_depth: u32,
-}
-
-impl Default for IntegratorFile {
-    fn default() -> Self {
-        Self {
-            max_depth: 6,
-            rr_depth: 5,
-        }
-    }
+    pub max_depth: Option<u32>,
+    pub rr_depth: Option<u32>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -74,6 +64,15 @@ pub enum MaterialType {
     Diffuse,
 }
 
+impl MaterialType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Principled => "principled",
+            Self::Diffuse => "diffuse",
+        }
+    }
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MaterialFile {
@@ -83,6 +82,9 @@ pub struct MaterialFile {
     pub base_color: ColorInput,
     pub roughness: Option<ScalarInput>,
     pub metallic: Option<ScalarInput>,
+    /// Black from behind (the clockwise side of its triangles).
+    #[serde(default)]
+    pub one_sided: bool,
 }
 
 #[derive(Debug, Deserialize)]
@@ -120,6 +122,65 @@ pub struct MeshFile {
     pub material: String,
     #[serde(default)]
     pub emission: [f32; 3],
+    /// Emit from both sides instead of the counter-clockwise front only.
+    #[serde(default)]
+    pub two_sided: bool,
+}
+
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum LightType {
+    Point,
+    Spot,
+    Directional,
+}
+
+impl LightType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Point => "point",
+            Self::Spot => "spot",
+            Self::Directional => "directional",
+        }
+    }
+}
+
+/// A delta light: `color × intensity` is a radiant intensity (point, spot) or an
+/// irradiance (directional).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightFile {
+    pub name: String,
+    #[serde(rename = "type")]
+    pub kind: LightType,
+    /// Point and spot lights.
+    pub position: Option<[f32; 3]>,
+    /// Spot and directional lights: the direction the light travels.
+    pub direction: Option<[f32; 3]>,
+    #[serde(default = "white")]
+    pub color: [f32; 3],
+    #[serde(default = "one")]
+    pub intensity: f32,
+    /// Spot lights: full intensity within `inner_angle` degrees of the axis, none beyond
+    /// `outer_angle`, and `falloff` in between.
+    pub inner_angle: Option<f32>,
+    pub outer_angle: Option<f32>,
+    #[serde(default)]
+    pub falloff: FalloffType,
+}
+
+fn white() -> [f32; 3] {
+    [1.0; 3]
+}
+
+#[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FalloffType {
+    /// glTF's: the square of a linear ramp in cos θ.
+    #[default]
+    Smooth,
+    /// Mitsuba's: linear in θ.
+    Linear,
 }
 
 #[derive(Debug, Deserialize)]
@@ -151,3 +212,4 @@ pub struct ParamFile {
     pub texture: Option<[u32; 2]>,
     pub lr: Option<f32>,
 }
+

@@ -59,3 +59,113 @@ pub fn write_scene(name: &str, toml: &str, obj: &str) -> PathBuf {
     std::fs::write(&path, toml).unwrap();
     path
 }
+
+/// An 8 × 8 plane at y = 0 facing +y, with texture coordinates.
+pub const PLANE_OBJ: &str = "v -4 0 -4\nv 4 0 -4\nv 4 0 4\nv -4 0 4\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n";
+
+/// A diffuse plane seen from above, lit only by delta lights: a point light, a spot light
+/// of each falloff and a directional light; depth 2 (direct light only), so the image has
+/// a closed form ([`delta_lit_radiance`]). `optimise` is the `[optimise]` body.
+pub fn delta_lit_toml(film: (u32, u32), optimise: &str) -> String {
+    format!(
+        r#"[film]
+width = {}
+height = {}
+[integrator]
+max_depth = 2
+[[sensors]]
+origin = [0.3, 3, 0.2]
+target = [0, 0, 0]
+up = [0, 0, -1]
+fov_y = 60
+[[materials]]
+name = "floor"
+type = "diffuse"
+base_color = [0.5, 0.6, 0.7]
+[[meshes]]
+file = "plane.obj"
+material = "floor"
+[[lights]]
+name = "bulb"
+type = "point"
+position = [0.4, 1.0, 0.3]
+color = [1.0, 0.8, 0.6]
+intensity = 2.0
+[[lights]]
+name = "spot"
+type = "spot"
+position = [-0.8, 1.5, -0.5]
+direction = [0.2, -1, 0.1]
+color = [0.3, 0.6, 1.0]
+intensity = 4.0
+inner_angle = 15
+outer_angle = 35
+[[lights]]
+name = "stage"
+type = "spot"
+position = [0.9, 1.2, -0.6]
+direction = [0, -1, 0.3]
+color = [1.0, 0.5, 0.5]
+intensity = 3.0
+inner_angle = 10
+outer_angle = 30
+falloff = "linear"
+[[lights]]
+name = "sun"
+type = "directional"
+direction = [0.3, -1, 0.5]
+color = [0.2, 0.2, 0.1]
+intensity = 1.0
+[optimise]
+{optimise}
+"#,
+        film.0, film.1
+    )
+}
+
+/// Writes [`delta_lit_toml`] and its plane into a temp dir and returns the scene path.
+pub fn write_delta_lit(name: &str, film: (u32, u32), optimise: &str) -> PathBuf {
+    let dir = temp_dir(name);
+    std::fs::write(dir.join("plane.obj"), PLANE_OBJ).unwrap();
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, delta_lit_toml(film, optimise)).unwrap();
+    path
+}
+
+/// Radiance leaving the point `x` of the plane of [`delta_lit_toml`] towards the camera
+/// (albedo / π × the irradiance of every light), in f64, from the scene's own values.
+pub fn delta_lit_radiance(scene: &vkinverse::scene::Scene, x: [f64; 3]) -> [f64; 3] {
+    use vkinverse::scene::{ColorValue, LightKind, SpotFalloff};
+    let ColorValue::Constant(albedo) = scene.materials[0].base_color else { panic!("constant albedo") };
+    let mut l = [0.0f64; 3];
+    for light in &scene.lights {
+        let p = light.position.to_array().map(f64::from);
+        let axis = light.direction.to_array().map(f64::from);
+        let (wi, g) = match light.kind {
+            LightKind::Directional => (axis.map(|c| -c), 1.0),
+            kind => {
+                let d = [p[0] - x[0], p[1] - x[1], p[2] - x[2]];
+                let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                let r = r2.sqrt();
+                let wi = d.map(|c| c / r);
+                let mut g = 1.0 / r2;
+                if let LightKind::Spot { inner, outer, falloff } = kind {
+                    let cos = -(wi[0] * axis[0] + wi[1] * axis[1] + wi[2] * axis[2]);
+                    let (ci, co) = ((inner as f64).cos(), (outer as f64).cos());
+                    g *= match falloff {
+                        SpotFalloff::Smooth => ((cos - co) / (ci - co).max(0.001)).clamp(0.0, 1.0).powi(2),
+                        SpotFalloff::Linear if cos <= co => 0.0,
+                        SpotFalloff::Linear if cos >= ci => 1.0,
+                        SpotFalloff::Linear => (outer as f64 - cos.acos()) / (outer as f64 - inner as f64),
+                    };
+                }
+                (wi, g)
+            }
+        };
+        let cos = wi[1].max(0.0);
+        for c in 0..3 {
+            l[c] += albedo[c] as f64 / std::f64::consts::PI * cos * g * light.color[c] as f64 * light.intensity as f64;
+        }
+    }
+    l
+}

@@ -1,0 +1,103 @@
+// Delta lights (point, spot, directional) in next-event estimation. A delta light has no
+// area, so BSDF sampling never reaches it and its light sample needs no MIS weight; every
+// light is sampled at every path vertex, which draws no random numbers (the replay
+// invariant of lib/rng.glsl is untouched) and costs one shadow ray per light.
+//
+// A light's emitted quantity E = color × intensity × falloff(θ) is a radiant intensity
+// for point and spot lights, so the radiance it contributes at a point at distance r is
+// f(wo, wi) E / r² with f the BSDF times cos θ_i (bsdf_eval); for a directional light E is
+// an irradiance and the contribution f E. E is linear in color and in intensity, which
+// are the optimisable parameters (their ValueRefs may point into θ).
+//
+// Included by lib/integrator.glsl after the functions it uses (bsdf_eval, fetch3/fetch1,
+// trace_any and, ADJOINT, scatter_bsdf, scatter3/scatter1, state_sign).
+#ifndef DELTA_LIGHTS_GLSL
+#define DELTA_LIGHTS_GLSL
+
+#ifdef GENERIC
+#define HAS_DELTA_LIGHTS true
+#else
+// false: the scene has no delta lights and this pass is compiled out.
+layout(constant_id = 6) const bool HAS_DELTA_LIGHTS = false;
+#endif
+
+// Spot falloff at cos θ from the axis: glTF's (KHR_lights_punctual's recommended
+// attenuation: the square of a clamped linear ramp in cos θ, with its 0.001 guard) or
+// Mitsuba's (linear in θ between the beam width and the cutoff angle).
+float spot_falloff(LightRecord l, float cos_theta) {
+    if (l.falloff == FALLOFF_SMOOTH) {
+        float t = clamp((cos_theta - l.cos_outer) / max(l.cos_inner - l.cos_outer, 0.001), 0.0, 1.0);
+        return t * t;
+    }
+    if (cos_theta <= l.cos_outer) return 0.0;
+    if (cos_theta >= l.cos_inner) return 1.0;
+    return (l.outer - acos(clamp(cos_theta, -1.0, 1.0))) / (l.outer - l.inner);
+}
+
+// Direction wi from p towards light l, the shadow ray's length, and the geometric factor
+// G (falloff / r² for point and spot lights, 1 for a directional light) by which E is
+// scaled. G = 0: the light does not reach p.
+void delta_light_incidence(LightRecord l, vec3 p, out vec3 wi, out float tmax, out float g) {
+    if (l.kind == LIGHT_DIRECTIONAL) {
+        wi = -l.direction;
+        tmax = 1e30;
+        g = 1.0;
+        return;
+    }
+    vec3 to_l = l.position - p;
+    float d2 = dot(to_l, to_l);
+    float dist = sqrt(d2);
+    wi = to_l / max(dist, 1e-30);
+    tmax = dist * (1.0 - 1e-4);
+    g = d2 > 0.0 ? 1.0 / d2 : 0.0;
+    if (l.kind == LIGHT_SPOT) g *= spot_falloff(l, dot(l.direction, -wi));
+}
+
+// A shadow ray towards a delta light. Not taken from or written to the adjoint kernels'
+// hit cache, whose shadow slot per depth belongs to the emitter sample.
+bool delta_light_blocked(vec3 o, vec3 d, float tmax) {
+#ifdef COUNT_RAYS
+    atomicAdd(ray_count[workgroup_index()], 1u);
+#endif
+    return trace_any(o, d, tmax);
+}
+
+// Adds every delta light's direct contribution at a path vertex (offset point p_off,
+// geometric and shading normals ng and ns on wo's side, material `material` with values
+// mat[] at uv) to radiance[] of each state, weighted by beta[]. ADJOINT: also takes it off
+// remaining[] and, in the gradient replay, scatters delta[] × its derivatives into the
+// material's, the lights' colour and the lights' intensity gradients.
+void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2 uv, Material mat[NSTATES], vec3 beta[NSTATES],
+                      inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+#endif
+) {
+    uint n = scene_globals().num_lights;
+    for (uint i = 0u; i < n; ++i) {
+        LightRecord l = light_record(i);
+        vec3 wi;
+        float tmax, g;
+        delta_light_incidence(l, p_off, wi, tmax, g);
+        if (g <= 0.0 || dot(wi, ng) <= 0.0 || delta_light_blocked(p_off, wi, tmax)) continue;
+        for (int s = 0; s < NSTATES; ++s) {
+            vec3 color = fetch3(l.color, vec2(0.0), s);
+            float intensity = fetch1(l.intensity, vec2(0.0), s);
+            vec3 le = color * (intensity * g);
+            vec3 f = bsdf_eval(mat[s], ns, wo, wi);
+            vec3 c = beta[s] * f * le;
+            radiance[s] += c;
+#ifdef ADJOINT
+            remaining[s] -= c;
+            if (grad_pass) {
+                vec3 k = state_sign(s) * delta[s] * beta[s];
+                scatter_bsdf(material, uv, mat[s], ns, wo, wi, k * le);
+                vec3 dle = k * f * g;  // d(loss)/d(color × intensity), per channel
+                scatter3(l.color, vec2(0.0), dle * intensity);
+                scatter1(l.intensity, vec2(0.0), dot(dle, color));
+            }
+#endif
+        }
+    }
+}
+#endif

@@ -1,0 +1,429 @@
+//! glTF 2.0 import (`.gltf` with external or data-URI buffers and images, `.glb`) through
+//! the `gltf` crate.
+//!
+//! What is read: the default scene's node hierarchy with its transforms; every indexed or
+//! non-indexed triangle primitive (positions, normals, TEXCOORD_0) as one mesh in world
+//! space; metallic-roughness materials with their factors and textures (base colour decoded
+//! from sRGB, roughness from the metallic-roughness texture's G channel and metallic from
+//! its B, each multiplied by its factor); `emissiveFactor` × `KHR_materials_emissive_strength`
+//! as the mesh's area emission, on both sides when the material is `doubleSided`; every
+//! perspective camera as a sensor (looking down its node's −Z, in node order); and
+//! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
+//! intensity (point, spot) and irradiance (directional) with no photometric conversion.
+//!
+//! Names: a mesh is its node's name (else the glTF mesh's, else `node<i>`), with
+//! `.primitive<j>` added when the mesh has several primitives; materials and lights keep
+//! their names (else `material<i>`, `light<i>`). A name that repeats gets `#<index>`
+//! added, the glTF index of what it names.
+//!
+//! Anything that would change the image and is not read is an error naming its JSON path
+//! (normal and emissive textures, texture sets other than 0, non-triangle primitives,
+//! orthographic cameras, required extensions other than the two above); what does not
+//! change a path-traced image, or only as an approximation the user should know of
+//! (occlusion textures, alpha, non-repeating samplers, optional extensions, animation),
+//! is a one-line warning.
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Mat4, Vec3};
+use gltf::texture::WrappingMode;
+
+use super::loader::Imported;
+use super::model::*;
+use super::{MaterialKind, SceneError, GLTF_FILM_SIDE, GLTF_MAX_DEPTH};
+use crate::image::{srgb_decode, Image};
+
+/// Extensions whose content is read.
+pub const SUPPORTED_EXTENSIONS: [&str; 2] = ["KHR_lights_punctual", "KHR_materials_emissive_strength"];
+
+struct Importer<'a> {
+    path: &'a Path,
+    base: PathBuf,
+    doc: gltf::Document,
+    buffers: Vec<gltf::buffer::Data>,
+    /// Decoded images by index, values in [0, 1] as stored.
+    images: HashMap<usize, Image>,
+    /// Model material index of each glTF material used so far (`None`: the default).
+    materials: HashMap<Option<usize>, usize>,
+    out: Imported,
+    sources: GltfSource,
+}
+
+fn err(path: &Path, location: impl Into<String>, message: impl Into<String>) -> SceneError {
+    SceneError::Import { path: path.to_path_buf(), location: location.into(), message: message.into() }
+}
+
+/// Imports the glTF or GLB file at `path`.
+pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
+    let bytes = std::fs::read(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+    let mut warnings = check_extensions(path, &bytes)?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let mut blob = gltf.blob;
+    let doc = gltf.document;
+    let mut buffers = Vec::new();
+    for b in doc.buffers() {
+        let location = format!("buffers[{}]", b.index());
+        let data = gltf::buffer::Data::from_source_and_blob(b.source(), Some(&base), &mut blob).map_err(|e| err(path, &location, e.to_string()))?;
+        if data.len() < b.length() {
+            return Err(err(path, location, format!("holds {} bytes, {} declared", data.len(), b.length())));
+        }
+        buffers.push(data);
+    }
+    if doc.animations().next().is_some() {
+        warnings.push("animations are ignored: the scene is rendered at rest".into());
+    }
+    if doc.skins().next().is_some() {
+        warnings.push("skins are ignored: meshes are rendered in their bind pose".into());
+    }
+    let mut imp = Importer {
+        path,
+        base,
+        doc,
+        buffers,
+        images: HashMap::new(),
+        materials: HashMap::new(),
+        out: Imported { warnings, max_depth: Some(GLTF_MAX_DEPTH), ..Default::default() },
+        sources: GltfSource { path: path.to_path_buf(), materials: Vec::new(), lights: Vec::new() },
+    };
+    let doc = imp.doc.clone();
+    let scene = doc.default_scene().or_else(|| doc.scenes().next()).ok_or_else(|| err(path, "scenes", "the file has no scene"))?;
+    for node in scene.nodes() {
+        imp.node(&node, Mat4::IDENTITY)?;
+    }
+    imp.uniquify();
+    imp.out.source = Source::Gltf(imp.sources);
+    Ok(imp.out)
+}
+
+/// Finds every `extensions` object in the document: an extension this importer does not
+/// read is an error (at its JSON path) when the file lists it in `extensionsRequired`,
+/// else a warning.
+fn check_extensions(path: &Path, bytes: &[u8]) -> Result<Vec<String>, SceneError> {
+    let json: std::borrow::Cow<[u8]> = if bytes.starts_with(b"glTF") {
+        gltf::binary::Glb::from_slice(bytes).map_err(|e| err(path, "", format!("not a valid GLB file: {e}")))?.json
+    } else {
+        bytes.into()
+    };
+    let root: serde_json::Value = serde_json::from_slice(&json).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+    let required: HashSet<&str> =
+        root.get("extensionsRequired").and_then(|v| v.as_array()).map(|a| a.iter().filter_map(|v| v.as_str()).collect()).unwrap_or_default();
+    let mut found = Vec::new();
+    walk_extensions(&root, String::new(), &mut found);
+    let mut warnings = Vec::new();
+    for (location, name) in found {
+        if SUPPORTED_EXTENSIONS.contains(&name.as_str()) {
+            continue;
+        }
+        if required.contains(name.as_str()) {
+            return Err(err(path, location, format!("extension {name} is not supported")));
+        }
+        warnings.push(format!("{}: {location}: optional extension {name} is ignored", path.display()));
+    }
+    // A required extension that no object uses (one that changes how the file is read).
+    for (i, name) in root.get("extensionsRequired").and_then(|v| v.as_array()).into_iter().flatten().enumerate() {
+        if let Some(name) = name.as_str().filter(|n| !SUPPORTED_EXTENSIONS.contains(n)) {
+            return Err(err(path, format!("extensionsRequired[{i}]"), format!("extension {name} is not supported")));
+        }
+    }
+    Ok(warnings)
+}
+
+fn walk_extensions(v: &serde_json::Value, at: String, found: &mut Vec<(String, String)>) {
+    match v {
+        serde_json::Value::Object(map) => {
+            for (k, child) in map {
+                let here = if at.is_empty() { k.clone() } else { format!("{at}.{k}") };
+                if k == "extensions" {
+                    if let Some(exts) = child.as_object() {
+                        for name in exts.keys() {
+                            found.push((format!("{here}.{name}"), name.clone()));
+                        }
+                    }
+                }
+                walk_extensions(child, here, found);
+            }
+        }
+        serde_json::Value::Array(items) => {
+            for (i, child) in items.iter().enumerate() {
+                walk_extensions(child, format!("{at}[{i}]"), found);
+            }
+        }
+        _ => {}
+    }
+}
+
+impl Importer<'_> {
+    fn err(&self, location: impl Into<String>, message: impl Into<String>) -> SceneError {
+        err(self.path, location, message)
+    }
+
+    fn warn(&mut self, location: impl std::fmt::Display, message: impl std::fmt::Display) {
+        self.out.warnings.push(format!("{}: {location}: {message}", self.path.display()));
+    }
+
+    fn node(&mut self, node: &gltf::Node, parent: Mat4) -> Result<(), SceneError> {
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if !world.is_finite() {
+            return Err(self.err(format!("nodes[{}]", node.index()), "non-finite transform"));
+        }
+        let node_name = node.name().map(str::to_owned);
+        if let Some(mesh) = node.mesh() {
+            let name = node_name.clone().or_else(|| mesh.name().map(str::to_owned)).unwrap_or_else(|| format!("node{}", node.index()));
+            let several = mesh.primitives().len() > 1;
+            for prim in mesh.primitives() {
+                let name = if several { format!("{name}.primitive{}", prim.index()) } else { name.clone() };
+                self.primitive(&mesh, &prim, world, name, node.index())?;
+            }
+        }
+        if let Some(camera) = node.camera() {
+            self.camera(&camera, world)?;
+        }
+        if let Some(light) = node.light() {
+            self.light(&light, world, node.index())?;
+        }
+        for child in node.children() {
+            self.node(&child, world)?;
+        }
+        Ok(())
+    }
+
+    fn primitive(&mut self, mesh: &gltf::Mesh, prim: &gltf::Primitive, world: Mat4, name: String, node: usize) -> Result<(), SceneError> {
+        let at = format!("meshes[{}].primitives[{}]", mesh.index(), prim.index());
+        if prim.mode() != gltf::mesh::Mode::Triangles {
+            return Err(self.err(format!("{at}.mode"), format!("{:?} primitives are not supported (triangles only)", prim.mode())));
+        }
+        if prim.morph_targets().next().is_some() {
+            self.warn(&at, "morph targets are ignored");
+        }
+        let buffers = &self.buffers;
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let positions: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| self.err(format!("{at}.attributes"), "no POSITION"))?.collect();
+        let normals: Vec<[f32; 3]> = reader.read_normals().map(|n| n.collect()).unwrap_or_default();
+        // glTF's v points down from the image's top row; the model's points up.
+        let uvs: Vec<[f32; 2]> = reader.read_tex_coords(0).map(|t| t.into_f32().map(|[u, v]| [u, 1.0 - v]).collect()).unwrap_or_default();
+        let flat: Vec<u32> = match reader.read_indices() {
+            Some(i) => i.into_u32().collect(),
+            None => (0..positions.len() as u32).collect(),
+        };
+        if flat.len() % 3 != 0 {
+            return Err(self.err(format!("{at}.indices"), format!("{} indices are not whole triangles", flat.len())));
+        }
+        let n = positions.len();
+        if flat.iter().any(|&i| i as usize >= n) {
+            return Err(self.err(format!("{at}.indices"), format!("an index is out of bounds ({n} vertices)")));
+        }
+        for (what, len) in [("NORMAL", normals.len()), ("TEXCOORD_0", uvs.len())] {
+            if len != 0 && len != n {
+                return Err(self.err(format!("{at}.attributes.{what}"), format!("{len} values for {n} vertices")));
+            }
+        }
+        let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
+        // A mirroring transform turns counter-clockwise triangles clockwise.
+        let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
+        let indices = flat
+            .chunks_exact(3)
+            .map(|t| if mirrored { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] })
+            .collect();
+        let material = self.material(prim.material(), &at)?;
+        let m = prim.material();
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let emission = m.emissive_factor().map(|e| e * strength);
+        self.out.meshes.push(Mesh {
+            name: if self.out.meshes.iter().any(|x| x.name == name) { format!("{name}#{node}") } else { name },
+            path: self.path.to_path_buf(),
+            positions: positions.iter().map(|&p| world.transform_point3(Vec3::from(p)).to_array()).collect(),
+            normals: normals.iter().map(|&v| (normal_matrix * Vec3::from(v)).normalize_or_zero().to_array()).collect(),
+            uvs,
+            indices,
+            material,
+            emission,
+            two_sided_emission: m.double_sided(),
+        });
+        Ok(())
+    }
+
+    /// The model index of glTF material `m` (`index() == None`: glTF's default material),
+    /// created on first use.
+    fn material(&mut self, m: gltf::Material, used_at: &str) -> Result<usize, SceneError> {
+        if let Some(&i) = self.materials.get(&m.index()) {
+            return Ok(i);
+        }
+        let at = match m.index() {
+            Some(i) => format!("materials[{i}]"),
+            None => format!("{used_at}.material"),
+        };
+        if m.normal_texture().is_some() {
+            return Err(self.err(format!("{at}.normalTexture"), "normal maps are not supported"));
+        }
+        if m.emissive_texture().is_some() {
+            return Err(self.err(format!("{at}.emissiveTexture"), "emissive textures are not supported (emission is one colour per mesh)"));
+        }
+        if m.occlusion_texture().is_some() {
+            self.warn(format!("{at}.occlusionTexture"), "ignored: the path tracer computes occlusion itself");
+        }
+        if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
+            self.warn(format!("{at}.alphaMode"), "ignored: surfaces are rendered opaque");
+        }
+        let pbr = m.pbr_metallic_roughness();
+        let [r, g, b, _] = pbr.base_color_factor();
+        let base_color = match pbr.base_color_texture() {
+            None => ColorValue::Constant([r, g, b]),
+            Some(info) => {
+                let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))?;
+                let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
+                ColorValue::Texture(Texture { path, image: Image { data, ..img } })
+            }
+        };
+        let (metallic_factor, roughness_factor) = (pbr.metallic_factor(), pbr.roughness_factor());
+        let (roughness, metallic) = match pbr.metallic_roughness_texture() {
+            None => (ScalarValue::Constant(roughness_factor), ScalarValue::Constant(metallic_factor)),
+            Some(info) => {
+                let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.metallicRoughnessTexture"))?;
+                let channel = |c: usize, k: f32| Texture {
+                    path: path.clone(),
+                    image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), ..img.clone() },
+                };
+                (ScalarValue::Texture(channel(1, roughness_factor)), ScalarValue::Texture(channel(2, metallic_factor)))
+            }
+        };
+        for (what, v) in [("roughnessFactor", roughness_factor), ("metallicFactor", metallic_factor)] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(self.err(format!("{at}.pbrMetallicRoughness.{what}"), format!("{v} is outside [0, 1]")));
+            }
+        }
+        let name = match (m.name(), m.index()) {
+            (Some(n), Some(i)) if self.out.materials.iter().any(|x| x.name == n) => format!("{n}#{i}"),
+            (Some(n), _) => n.to_string(),
+            (None, Some(i)) => format!("material{i}"),
+            (None, None) => "default".to_string(),
+        };
+        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false });
+        self.sources.materials.push(m.index());
+        let index = self.out.materials.len() - 1;
+        self.materials.insert(m.index(), index);
+        Ok(index)
+    }
+
+    /// The image of a texture reference (values as stored) and the path it is known by.
+    fn texture(&mut self, info: &gltf::texture::Info, at: &str) -> Result<(Image, PathBuf), SceneError> {
+        if info.tex_coord() != 0 {
+            return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {} is not supported (TEXCOORD_0 only)", info.tex_coord())));
+        }
+        let texture = info.texture();
+        let sampler = texture.sampler();
+        if sampler.wrap_s() != WrappingMode::Repeat || sampler.wrap_t() != WrappingMode::Repeat {
+            self.warn(format!("textures[{}].sampler", texture.index()), "wrapping modes other than REPEAT are rendered as REPEAT");
+        }
+        let source = texture.source();
+        let index = source.index();
+        let path = match source.source() {
+            gltf::image::Source::Uri { uri, .. } if !uri.starts_with("data:") => self.base.join(uri),
+            _ => PathBuf::from(format!("{}#images[{index}]", self.path.display())),
+        };
+        if let Some(img) = self.images.get(&index) {
+            return Ok((img.clone(), path));
+        }
+        let data = gltf::image::Data::from_source(source.source(), Some(&self.base), &self.buffers)
+            .map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode: {e}")))?;
+        let img = to_image(&data).ok_or_else(|| self.err(format!("images[{index}]"), format!("pixel format {:?} is not supported", data.format)))?;
+        self.images.insert(index, img.clone());
+        Ok((img, path))
+    }
+
+    fn camera(&mut self, camera: &gltf::Camera, world: Mat4) -> Result<(), SceneError> {
+        let at = format!("cameras[{}]", camera.index());
+        let gltf::camera::Projection::Perspective(p) = camera.projection() else {
+            return Err(self.err(at, "orthographic cameras are not supported"));
+        };
+        let fov_y = p.yfov().to_degrees();
+        if !(fov_y > 0.0 && fov_y < 180.0) {
+            return Err(self.err(format!("{at}.perspective.yfov"), format!("{} radians is outside (0, π)", p.yfov())));
+        }
+        let origin = world.transform_point3(Vec3::ZERO);
+        let forward = world.transform_vector3(Vec3::NEG_Z);
+        let up = world.transform_vector3(Vec3::Y);
+        let sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(&at, format!("its node's transform is degenerate: {e}")))?;
+        if self.out.sensors.is_empty() {
+            let side = GLTF_FILM_SIDE as f32;
+            self.out.film = Some(match p.aspect_ratio() {
+                Some(a) if a.is_finite() && a >= 1.0 => Film { width: GLTF_FILM_SIDE, height: ((side / a).round() as u32).max(1) },
+                Some(a) if a.is_finite() && a > 0.0 => Film { width: ((side * a).round() as u32).max(1), height: GLTF_FILM_SIDE },
+                _ => Film { width: GLTF_FILM_SIDE, height: GLTF_FILM_SIDE },
+            });
+        }
+        self.out.sensors.push(sensor);
+        Ok(())
+    }
+
+    fn light(&mut self, light: &gltf::khr_lights_punctual::Light, world: Mat4, node: usize) -> Result<(), SceneError> {
+        use gltf::khr_lights_punctual::Kind;
+        let at = format!("extensions.KHR_lights_punctual.lights[{}]", light.index());
+        if light.range().is_some() {
+            self.warn(&at, "range is ignored: the light falls off with the inverse square of distance everywhere");
+        }
+        let kind = match light.kind() {
+            Kind::Point => LightKind::Point,
+            Kind::Directional => LightKind::Directional,
+            Kind::Spot { inner_cone_angle, outer_cone_angle } => LightKind::Spot { inner: inner_cone_angle, outer: outer_cone_angle, falloff: SpotFalloff::Smooth },
+        };
+        let direction = world.transform_vector3(Vec3::NEG_Z).try_normalize().ok_or_else(|| self.err(format!("nodes[{node}]"), "degenerate transform of a light"))?;
+        let name = match light.name() {
+            Some(n) if self.out.lights.iter().any(|l| l.name == n) => format!("{n}#{}", light.index()),
+            Some(n) => n.to_string(),
+            None => format!("light{}", light.index()),
+        };
+        self.out.lights.push(Light { name, kind, position: world.transform_point3(Vec3::ZERO), direction, color: light.color(), intensity: light.intensity() });
+        self.sources.lights.push(light.index());
+        Ok(())
+    }
+
+    /// Mesh names made unique where `#<node>` was not enough (a node instanced twice).
+    fn uniquify(&mut self) {
+        let mut seen = HashSet::new();
+        for m in &mut self.out.meshes {
+            let mut k = 1;
+            let base = m.name.clone();
+            while !seen.insert(m.name.clone()) {
+                k += 1;
+                m.name = format!("{base}#{k}");
+            }
+        }
+    }
+}
+
+/// Pixels of a decoded glTF image as RGB values in [0, 1] (grey repeated, alpha dropped).
+fn to_image(d: &gltf::image::Data) -> Option<Image> {
+    use gltf::image::Format::*;
+    let (channels, bytes) = match d.format {
+        R8 => (1, 1),
+        R8G8 => (2, 1),
+        R8G8B8 => (3, 1),
+        R8G8B8A8 => (4, 1),
+        R16 => (1, 2),
+        R16G16 => (2, 2),
+        R16G16B16 => (3, 2),
+        R16G16B16A16 => (4, 2),
+        R32G32B32FLOAT => (3, 4),
+        R32G32B32A32FLOAT => (4, 4),
+    };
+    let value = |b: &[u8]| match bytes {
+        1 => b[0] as f32 / 255.0,
+        2 => u16::from_ne_bytes([b[0], b[1]]) as f32 / 65535.0,
+        _ => f32::from_ne_bytes([b[0], b[1], b[2], b[3]]),
+    };
+    let data: Vec<[f32; 3]> = d
+        .pixels
+        .chunks_exact(channels * bytes)
+        .map(|px| {
+            let c = |k: usize| value(&px[k * bytes..(k + 1) * bytes]);
+            if channels < 3 {
+                [c(0); 3]
+            } else {
+                [c(0), c(1), c(2)]
+            }
+        })
+        .collect();
+    (data.len() == (d.width * d.height) as usize).then_some(Image { width: d.width, height: d.height, data })
+}

@@ -1,0 +1,139 @@
+//! The scene's content hash: XXH3-64 of the loaded model, every value that changes the
+//! reference rendering and nothing else.
+//!
+//! Hashing the model rather than the files makes the key the same for every source format
+//! and covers what the files refer to (meshes, images, imported glTF and Mitsuba files,
+//! command-line film and depth overrides) by construction: two scenes with equal hashes
+//! render equal reference images. Left out, because the reference render does not read
+//! them: names, target images, and the `[optimise]` table, except the size of a texture
+//! parameter whose scene value is a texture (its reference is that texture resampled to
+//! the parameter's size, and the reference render uses it).
+//!
+//! Every field is written in little-endian with a tag and, for arrays, a length, so that
+//! fields cannot run into each other and the key is the same on every platform.
+
+use xxhash_rust::xxh3::Xxh3;
+
+use super::model::*;
+
+/// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
+const VERSION: &str = "vkinverse-scene-hash-v2";
+
+struct Hasher(Xxh3);
+
+impl Hasher {
+    fn tag(&mut self, tag: &str) {
+        self.u64(tag.len() as u64);
+        self.0.update(tag.as_bytes());
+    }
+
+    fn u64(&mut self, v: u64) {
+        self.0.update(&v.to_le_bytes());
+    }
+
+    fn f32s(&mut self, v: &[f32]) {
+        self.u64(v.len() as u64);
+        for x in v {
+            self.0.update(&x.to_bits().to_le_bytes());
+        }
+    }
+
+    fn u32s(&mut self, v: &[u32]) {
+        self.u64(v.len() as u64);
+        for x in v {
+            self.0.update(&x.to_le_bytes());
+        }
+    }
+
+    fn texture(&mut self, t: &Texture) {
+        self.u32s(&[t.image.width, t.image.height]);
+        self.f32s(t.image.data.as_flattened());
+    }
+
+    fn color(&mut self, v: &ColorValue) {
+        match v {
+            ColorValue::Constant(c) => {
+                self.tag("constant");
+                self.f32s(c);
+            }
+            ColorValue::Texture(t) => {
+                self.tag("texture");
+                self.texture(t);
+            }
+        }
+    }
+
+    fn scalar(&mut self, v: &ScalarValue) {
+        match v {
+            ScalarValue::Constant(c) => {
+                self.tag("constant");
+                self.f32s(&[*c]);
+            }
+            ScalarValue::Texture(t) => {
+                self.tag("texture");
+                self.texture(t);
+            }
+        }
+    }
+}
+
+/// The content hash of `scene` (see the module documentation).
+pub fn content_hash(scene: &Scene) -> u64 {
+    let mut h = Hasher(Xxh3::new());
+    h.tag(VERSION);
+    h.tag("film");
+    h.u32s(&[scene.film.width, scene.film.height]);
+    h.tag("integrator");
+    h.u32s(&[scene.integrator.max_depth, scene.integrator.rr_depth]);
+    h.tag("sensors");
+    h.u64(scene.sensors.len() as u64);
+    for s in &scene.sensors {
+        h.f32s(&[s.origin.to_array(), s.forward.to_array(), s.right.to_array(), s.up.to_array()].concat());
+        h.f32s(&[s.fov_y]);
+    }
+    h.tag("materials");
+    h.u64(scene.materials.len() as u64);
+    for m in &scene.materials {
+        h.tag(m.kind.as_str());
+        h.color(&m.base_color);
+        h.scalar(&m.roughness);
+        h.scalar(&m.metallic);
+        h.u64(m.one_sided as u64);
+    }
+    h.tag("meshes");
+    h.u64(scene.meshes.len() as u64);
+    for m in &scene.meshes {
+        h.f32s(m.positions.as_flattened());
+        h.f32s(m.normals.as_flattened());
+        h.f32s(m.uvs.as_flattened());
+        h.u32s(m.indices.as_flattened());
+        h.u64(m.material as u64);
+        h.f32s(&m.emission);
+        h.u64(m.two_sided_emission as u64);
+    }
+    h.tag("lights");
+    h.u64(scene.lights.len() as u64);
+    for l in &scene.lights {
+        h.tag(l.kind.as_str());
+        if let LightKind::Spot { inner, outer, falloff } = l.kind {
+            h.f32s(&[inner, outer]);
+            h.tag(falloff.as_str());
+        }
+        h.f32s(&[l.position.to_array(), l.direction.to_array(), l.color].concat());
+        h.f32s(&[l.intensity]);
+    }
+    h.tag("environment");
+    h.color(&scene.environment.value);
+    h.f32s(&[scene.environment.scale]);
+    // Only a texture optimised at another resolution than the scene's changes the
+    // reference render (its reference is resampled); every other parameter renders its
+    // scene value as it is.
+    h.tag("resampled");
+    for p in &scene.optimise.params {
+        if let (Some(size), Reference::Texture(_)) = (p.texture, &p.reference) {
+            h.tag(&p.name);
+            h.u32s(&size);
+        }
+    }
+    h.0.digest()
+}

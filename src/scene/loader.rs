@@ -1,0 +1,725 @@
+//! The TOML scene loader (`scene.toml`, the format of DESIGN.md), and the validation that
+//! every loader's output passes: the TOML's own tables are resolved here, an imported glTF
+//! or Mitsuba file's contents arrive as [`Imported`], and [`Loader::build`] joins both
+//! into one checked [`Scene`].
+//!
+//! Override rules of `import = "FILE"`: the imported sensors come first and the TOML's
+//! `[[sensors]]` are added after them; materials, meshes and lights likewise (names must
+//! stay unique); `[film]` and `[integrator]` values the TOML sets replace the imported
+//! ones key by key; a TOML `[environment]` replaces the imported one; `[optimise]` is the
+//! TOML's alone. Command-line `--film` and `--max-depth` ([`LoadOptions`]) override both.
+
+use std::collections::HashSet;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+use super::file::{self, ColorInput, InitInput, ScalarInput, SceneFile};
+use super::model::*;
+use super::{obj, LoadOptions, MaterialKind, SceneError};
+use crate::image;
+
+/// What an imported glTF or Mitsuba file contributes: its sensors, materials, meshes
+/// (whose material indices are into `materials`) and lights, all checked by the importer,
+/// and the film, depths and environment it suggests, which the TOML may override.
+#[derive(Default)]
+pub(super) struct Imported {
+    pub source: Source,
+    pub film: Option<Film>,
+    pub max_depth: Option<u32>,
+    pub rr_depth: Option<u32>,
+    pub sensors: Vec<Sensor>,
+    pub materials: Vec<Material>,
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub environment: Option<Environment>,
+    /// One line each: what the import approximated or left out.
+    pub warnings: Vec<String>,
+}
+
+/// Loads the TOML scene at `path` (text `text`), with the file it imports.
+pub(super) fn load(path: &Path, text: &str, options: &LoadOptions) -> Result<Scene, SceneError> {
+    let raw: SceneFile = toml::from_str(text).map_err(|e| SceneError::toml(path.to_path_buf(), text, e))?;
+    let loader = Loader { scene: path.to_path_buf(), dir: path.parent().map(Path::to_path_buf).unwrap_or_default() };
+    let imported = match &raw.import {
+        Some(rel) => {
+            let file = loader.dir.join(rel);
+            let imported = match super::Format::of(&file) {
+                Some(super::Format::Gltf) => super::gltf::import(&file)?,
+                Some(super::Format::Mitsuba) => super::mitsuba::import(&file)?,
+                _ => return Err(loader.invalid("import", &format!("{rel}: expected a .gltf, .glb or .xml file"))),
+            };
+            Some(imported)
+        }
+        None => None,
+    };
+    loader.build(raw, imported, options)
+}
+
+/// State of one load: the scene file (named in errors) and where relative paths start.
+pub(super) struct Loader {
+    pub scene: PathBuf,
+    pub dir: PathBuf,
+}
+
+impl Loader {
+    pub fn out_of_range(&self, key: &str, message: String) -> SceneError {
+        SceneError::OutOfRange {
+            scene: self.scene.clone(),
+            key: key.into(),
+            message,
+        }
+    }
+
+    pub fn invalid(&self, key: &str, message: &str) -> SceneError {
+        SceneError::Invalid {
+            scene: self.scene.clone(),
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+
+    pub fn finite(&self, key: &str, values: &[f32]) -> Result<(), SceneError> {
+        if values.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(SceneError::NonFinite {
+                scene: self.scene.clone(),
+                key: key.into(),
+            })
+        }
+    }
+
+    /// A finite, non-negative colour (reflectance or radiance).
+    pub fn color(&self, key: &str, c: [f32; 3]) -> Result<[f32; 3], SceneError> {
+        self.finite(key, &c)?;
+        if c.iter().any(|&v| v < 0.0) {
+            return Err(self.out_of_range(key, format!("{c:?} has a negative component")));
+        }
+        Ok(c)
+    }
+
+    fn in_range<T: PartialOrd + std::fmt::Display>(
+        &self,
+        key: &str,
+        v: T,
+        lo: T,
+        hi: T,
+    ) -> Result<T, SceneError> {
+        if v >= lo && v <= hi {
+            Ok(v)
+        } else {
+            Err(self.out_of_range(key, format!("{v} is outside [{lo}, {hi}]")))
+        }
+    }
+
+    /// Reads a file named at `key`, relative to the scene's directory.
+    pub fn read(&self, key: &str, rel: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
+        let file = self.dir.join(rel);
+        let bytes = fs::read(&file).map_err(|source| SceneError::MissingFile {
+            scene: self.scene.clone(),
+            key: key.into(),
+            file: file.clone(),
+            source,
+        })?;
+        Ok((file, bytes))
+    }
+
+    pub fn texture(&self, key: &str, rel: &str) -> Result<Texture, SceneError> {
+        let (path, bytes) = self.read(key, rel)?;
+        let image = image::decode_exr(&bytes, &path).map_err(|source| SceneError::Image {
+            scene: self.scene.clone(),
+            key: key.into(),
+            source,
+        })?;
+        if let Some((x, y)) = image.find_non_finite() {
+            return Err(SceneError::NonFinitePixel {
+                scene: self.scene.clone(),
+                key: key.into(),
+                image: path,
+                x,
+                y,
+            });
+        }
+        Ok(Texture { path, image })
+    }
+
+    fn color_value(&self, key: &str, input: ColorInput) -> Result<ColorValue, SceneError> {
+        Ok(match input {
+            ColorInput::Constant(c) => ColorValue::Constant(self.color(key, c)?),
+            ColorInput::Texture(t) => {
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, 3, 0.0, f32::INFINITY)?;
+                ColorValue::Texture(tex)
+            }
+        })
+    }
+
+    /// Checks the first `channels` channels of every texel against [lo, hi]: the rule a
+    /// constant of the same property obeys.
+    fn texels_in(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32) -> Result<(), SceneError> {
+        for (i, px) in t.image.data.iter().enumerate() {
+            if let Some(v) = px[..channels].iter().find(|v| !(lo..=hi).contains(*v)) {
+                let (x, y) = (i as u32 % t.image.width, i as u32 / t.image.width);
+                return Err(self.out_of_range(
+                    key,
+                    format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]", t.path.display()),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn scalar_value(&self, key: &str, input: ScalarInput) -> Result<ScalarValue, SceneError> {
+        Ok(match input {
+            ScalarInput::Constant(v) => {
+                self.finite(key, &[v])?;
+                ScalarValue::Constant(self.in_range(key, v, 0.0, 1.0)?)
+            }
+            ScalarInput::Texture(t) => {
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, 1, 0.0, 1.0)?;
+                ScalarValue::Texture(tex)
+            }
+        })
+    }
+
+    /// The scene of `raw` on top of what `imported` brought (see the module documentation
+    /// for the override rules), with `options` over both.
+    pub fn build(self, raw: SceneFile, imported: Option<Imported>, options: &LoadOptions) -> Result<Scene, SceneError> {
+        let imported = imported.unwrap_or_default();
+        let film = Film {
+            width: options.film.map(|f| f.width).or(raw.film.width).or(imported.film.map(|f| f.width)).unwrap_or(256),
+            height: options.film.map(|f| f.height).or(raw.film.height).or(imported.film.map(|f| f.height)).unwrap_or(256),
+        };
+        self.in_range("film.width", film.width, 1, MAX_IMAGE_SIDE)?;
+        self.in_range("film.height", film.height, 1, MAX_IMAGE_SIDE)?;
+        let integrator = Integrator {
+            max_depth: options.max_depth.or(raw.integrator.max_depth).or(imported.max_depth).unwrap_or(6),
+            rr_depth: raw.integrator.rr_depth.or(imported.rr_depth).unwrap_or(5),
+        };
+        self.in_range("integrator.max_depth", integrator.max_depth, 1, MAX_DEPTH)?;
+        self.in_range("integrator.rr_depth", integrator.rr_depth, 1, MAX_DEPTH)?;
+        let mut sensors = imported.sensors;
+        for (i, s) in raw.sensors.into_iter().enumerate() {
+            sensors.push(self.sensor(&format!("sensors[{i}]"), s, film)?);
+        }
+        if sensors.is_empty() {
+            let what = if imported.source == Source::Toml { "" } else { " (the imported file has no camera)" };
+            return Err(self.invalid("sensors", &format!("at least one sensor is needed{what}")));
+        }
+        let mut materials = imported.materials;
+        materials.extend(self.materials(raw.materials)?);
+        let mut meshes = imported.meshes;
+        meshes.extend(self.meshes(raw.meshes, &materials)?);
+        let mut lights = imported.lights;
+        lights.extend(self.lights(raw.lights)?);
+        for (kind, names) in [
+            ("materials", materials.iter().map(|m| &m.name).collect::<Vec<_>>()),
+            ("meshes", meshes.iter().map(|m| &m.name).collect()),
+            ("lights", lights.iter().map(|l| &l.name).collect()),
+        ] {
+            let mut seen = HashSet::new();
+            for (i, name) in names.into_iter().enumerate() {
+                self.check_name(&format!("{kind}[{i}].name"), name, &mut seen)?;
+            }
+        }
+        for mesh in &meshes {
+            self.check_mesh(mesh)?;
+        }
+        for light in &lights {
+            self.check_light(light)?;
+        }
+        let environment = match raw.environment {
+            Some(env) => self.environment(Some(env))?,
+            None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
+        };
+        let optimise = self.optimise(raw.optimise.unwrap_or_default(), &materials, &meshes, &lights, &environment)?;
+        for mesh in &meshes {
+            let material = &materials[mesh.material];
+            let textured = material.is_textured()
+                || optimise.params.iter().any(|p| p.texture.is_some() && p.target.material() == Some(mesh.material));
+            if textured && mesh.uvs.is_empty() {
+                return Err(self.invalid(
+                    &format!("meshes.{}", mesh.name),
+                    &format!("material \"{}\" is textured but {} has no texture coordinates", material.name, mesh.path.display()),
+                ));
+            }
+        }
+        let mut scene = Scene {
+            path: self.scene,
+            source: imported.source,
+            film,
+            integrator,
+            sensors,
+            materials,
+            meshes,
+            lights,
+            environment,
+            optimise,
+            warnings: imported.warnings,
+            content_hash: 0,
+        };
+        scene.content_hash = super::hash::content_hash(&scene);
+        Ok(scene)
+    }
+
+    /// Checks what every loader must guarantee of a mesh (the module's invariants).
+    fn check_mesh(&self, m: &Mesh) -> Result<(), SceneError> {
+        let key = format!("meshes.{}", m.name);
+        let n = m.positions.len();
+        let problem = if m.indices.is_empty() {
+            Some("has no triangles".to_string())
+        } else if m.positions.iter().flatten().chain(m.normals.iter().flatten()).chain(m.uvs.iter().flatten()).any(|v| !v.is_finite()) {
+            Some("has a non-finite vertex value".into())
+        } else if m.indices.iter().flatten().any(|&i| i as usize >= n) {
+            Some("has a vertex index out of bounds".into())
+        } else if !(m.normals.is_empty() || m.normals.len() == n) || !(m.uvs.is_empty() || m.uvs.len() == n) {
+            Some("has normals or texture coordinates for some vertices only".into())
+        } else {
+            None
+        };
+        match problem {
+            Some(p) => Err(self.invalid(&key, &format!("{} {p}", m.path.display()))),
+            None => Ok(()),
+        }
+    }
+
+    fn check_light(&self, l: &Light) -> Result<(), SceneError> {
+        let key = format!("lights.{}", l.name);
+        self.finite(&key, &[l.position.to_array(), l.direction.to_array(), l.color, [l.intensity, 0.0, 0.0]].concat())?;
+        self.color(&format!("{key}.color"), l.color)?;
+        if l.intensity < 0.0 {
+            return Err(self.out_of_range(&format!("{key}.intensity"), format!("{} is negative", l.intensity)));
+        }
+        if l.kind != LightKind::Point && (l.direction.length() - 1.0).abs() > 1e-3 {
+            return Err(self.invalid(&format!("{key}.direction"), "the direction is zero"));
+        }
+        if let LightKind::Spot { inner, outer, .. } = l.kind {
+            if !(0.0 <= inner && inner <= outer && outer > 0.0 && outer <= std::f32::consts::FRAC_PI_2 + 1e-6) {
+                return Err(self.out_of_range(
+                    &key,
+                    format!("cone angles {}° and {}° are not 0 <= inner <= outer <= 90, outer > 0", inner.to_degrees(), outer.to_degrees()),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn lights(&self, raw: Vec<file::LightFile>) -> Result<Vec<Light>, SceneError> {
+        raw.into_iter()
+            .map(|l| {
+                let key = format!("lights.{}", l.name);
+                let needs = |what: &str, v: Option<[f32; 3]>| -> Result<Vec3, SceneError> {
+                    let v = v.ok_or_else(|| self.invalid(&key, &format!("a {} light needs `{what}`", l.kind.as_str())))?;
+                    self.finite(&format!("{key}.{what}"), &v)?;
+                    Ok(Vec3::from(v))
+                };
+                let direction = |v| -> Result<Vec3, SceneError> {
+                    needs("direction", v)?.try_normalize().ok_or_else(|| self.invalid(&format!("{key}.direction"), "the direction is zero"))
+                };
+                let (kind, position, dir) = match l.kind {
+                    file::LightType::Point => (LightKind::Point, needs("position", l.position)?, Vec3::NEG_Y),
+                    file::LightType::Directional => (LightKind::Directional, Vec3::ZERO, direction(l.direction)?),
+                    file::LightType::Spot => {
+                        let outer = l.outer_angle.unwrap_or(45.0);
+                        let inner = l.inner_angle.unwrap_or(0.0);
+                        self.finite(&key, &[inner, outer])?;
+                        let falloff = match l.falloff {
+                            file::FalloffType::Smooth => SpotFalloff::Smooth,
+                            file::FalloffType::Linear => SpotFalloff::Linear,
+                        };
+                        (LightKind::Spot { inner: inner.to_radians(), outer: outer.to_radians(), falloff }, needs("position", l.position)?, direction(l.direction)?)
+                    }
+                };
+                if l.kind != file::LightType::Spot && (l.inner_angle.is_some() || l.outer_angle.is_some()) {
+                    return Err(self.invalid(&key, "only spot lights have cone angles"));
+                }
+                Ok(Light { name: l.name, kind, position, direction: dir, color: l.color, intensity: l.intensity })
+            })
+            .collect()
+    }
+
+    pub fn sensor(&self, key: &str, s: file::SensorFile, film: Film) -> Result<Sensor, SceneError> {
+        for (name, v) in [("origin", s.origin), ("target", s.target), ("up", s.up)] {
+            self.finite(&format!("{key}.{name}"), &v)?;
+        }
+        self.finite(&format!("{key}.fov_y"), &[s.fov_y])?;
+        if !(s.fov_y > 0.0 && s.fov_y < 180.0) {
+            return Err(self.out_of_range(
+                &format!("{key}.fov_y"),
+                format!("{} is outside (0, 180) degrees", s.fov_y),
+            ));
+        }
+        let mut sensor = Sensor::looking_at(Vec3::from(s.origin), Vec3::from(s.target), Vec3::from(s.up), s.fov_y).map_err(|e| {
+            let k = if e.starts_with("up") { format!("{key}.up") } else { key.to_string() };
+            self.invalid(&k, e)
+        })?;
+        let target_image = match s.target_image {
+            Some(rel) => {
+                let k = format!("{key}.target_image");
+                let t = self.texture(&k, &rel)?;
+                if (t.image.width, t.image.height) != (film.width, film.height) {
+                    return Err(self.invalid(
+                        &k,
+                        &format!(
+                            "{} is {}x{} but the film is {}x{}",
+                            t.path.display(),
+                            t.image.width,
+                            t.image.height,
+                            film.width,
+                            film.height
+                        ),
+                    ));
+                }
+                Some(t)
+            }
+            None => None,
+        };
+        sensor.target_image = target_image;
+        Ok(sensor)
+    }
+
+    pub fn check_name(
+        &self,
+        key: &str,
+        name: &str,
+        seen: &mut HashSet<String>,
+    ) -> Result<(), SceneError> {
+        if name.is_empty() {
+            return Err(self.invalid(key, "name is empty"));
+        }
+        if !seen.insert(name.to_string()) {
+            return Err(SceneError::Duplicate {
+                scene: self.scene.clone(),
+                key: key.into(),
+                name: name.into(),
+            });
+        }
+        Ok(())
+    }
+
+    fn materials(&self, raw: Vec<file::MaterialFile>) -> Result<Vec<Material>, SceneError> {
+        let mut seen = HashSet::new();
+        let mut out = Vec::with_capacity(raw.len());
+        for (i, m) in raw.into_iter().enumerate() {
+            self.check_name(&format!("materials[{i}].name"), &m.name, &mut seen)?;
+            let key = format!("materials.{}", m.name);
+            let base_color = self.color_value(&format!("{key}.base_color"), m.base_color)?;
+            let (roughness, metallic) = match m.kind {
+                MaterialKind::Principled => (
+                    self.scalar_value(
+                        &format!("{key}.roughness"),
+                        m.roughness.unwrap_or(ScalarInput::Constant(0.5)),
+                    )?,
+                    self.scalar_value(
+                        &format!("{key}.metallic"),
+                        m.metallic.unwrap_or(ScalarInput::Constant(0.0)),
+                    )?,
+                ),
+                MaterialKind::Diffuse => {
+                    if m.roughness.is_some() || m.metallic.is_some() {
+                        return Err(
+                            self.invalid(&key, "a diffuse material takes no roughness or metallic")
+                        );
+                    }
+                    (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
+                }
+            };
+            out.push(Material {
+                name: m.name,
+                kind: m.kind,
+                base_color,
+                roughness,
+                metallic,
+                one_sided: m.one_sided,
+            });
+        }
+        Ok(out)
+    }
+
+    fn meshes(
+        &self,
+        raw: Vec<file::MeshFile>,
+        materials: &[Material],
+    ) -> Result<Vec<Mesh>, SceneError> {
+        let mut seen = HashSet::new();
+        let mut out = Vec::with_capacity(raw.len());
+        for (i, m) in raw.into_iter().enumerate() {
+            let name = m.name.unwrap_or_else(|| {
+                Path::new(&m.file)
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            });
+            self.check_name(&format!("meshes[{i}] (\"{name}\")"), &name, &mut seen)?;
+            let key = format!("meshes.{name}");
+            let material = materials
+                .iter()
+                .position(|mat| mat.name == m.material)
+                .ok_or_else(|| SceneError::Undefined {
+                    scene: self.scene.clone(),
+                    key: format!("{key}.material"),
+                    kind: "material",
+                    name: m.material.clone(),
+                })?;
+            let emission = self.color(&format!("{key}.emission"), m.emission)?;
+            let (path, bytes) = self.read(&format!("{key}.file"), &m.file)?;
+            let data = obj::load(&path, &bytes)?;
+            for (what, values) in [
+                ("positions", data.positions.as_flattened()),
+                ("normals", data.normals.as_flattened()),
+            ] {
+                if values.iter().any(|v| !v.is_finite()) {
+                    return Err(SceneError::Obj {
+                        path,
+                        line: 0,
+                        message: format!("non-finite {what}"),
+                    });
+                }
+            }
+            out.push(Mesh {
+                name,
+                path,
+                positions: data.positions,
+                normals: data.normals,
+                uvs: data.uvs,
+                indices: data.indices,
+                material,
+                emission,
+                two_sided_emission: m.two_sided,
+            });
+        }
+        Ok(out)
+    }
+
+    fn environment(
+        &self,
+        raw: Option<file::EnvironmentFile>,
+    ) -> Result<Environment, SceneError> {
+        let Some(env) = raw else {
+            return Ok(Environment {
+                value: ColorValue::Constant([0.0; 3]),
+                scale: 1.0,
+            });
+        };
+        self.finite("environment.scale", &[env.scale])?;
+        if env.scale < 0.0 {
+            return Err(
+                self.out_of_range("environment.scale", format!("{} is negative", env.scale))
+            );
+        }
+        let value = match (env.constant, env.file) {
+            (Some(c), None) => ColorValue::Constant(self.color("environment.constant", c)?),
+            (None, Some(rel)) => {
+                ColorValue::Texture(self.texture("environment.file", &rel)?)
+            }
+            _ => {
+                return Err(self.invalid("environment", "give exactly one of `constant` and `file`"))
+            }
+        };
+        Ok(Environment {
+            value,
+            scale: env.scale,
+        })
+    }
+
+    fn optimise(
+        &self,
+        raw: crate::settings::OptimiseTable<file::ParamFile>,
+        materials: &[Material],
+        meshes: &[Mesh],
+        lights: &[Light],
+        environment: &Environment,
+    ) -> Result<Optimise, SceneError> {
+        raw.settings
+            .validate()
+            .map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
+        let mut seen = HashSet::new();
+        let mut params = Vec::with_capacity(raw.params.len());
+        for (i, p) in raw.params.into_iter().enumerate() {
+            let key = format!("optimise.params[{i}]");
+            self.check_name(&format!("{key}.target"), &p.target, &mut seen)?;
+            params.push(self.param(&key, p, materials, meshes, lights, environment)?);
+        }
+        Ok(Optimise {
+            settings: raw.settings,
+            params,
+        })
+    }
+
+    pub fn positive(&self, key: &str, v: f32) -> Result<(), SceneError> {
+        self.finite(key, &[v])?;
+        if v > 0.0 {
+            Ok(())
+        } else {
+            Err(self.out_of_range(key, format!("{v} is not positive")))
+        }
+    }
+
+    fn param(
+        &self,
+        key: &str,
+        p: file::ParamFile,
+        materials: &[Material],
+        meshes: &[Mesh],
+        lights: &[Light],
+        environment: &Environment,
+    ) -> Result<Param, SceneError> {
+        let target_key = format!("{key}.target");
+        let (target, reference) =
+            self.resolve_target(&target_key, &p.target, materials, meshes, lights, environment)?;
+        let channels = target.channels();
+
+        let range_key = format!("{key}.range");
+        self.finite(&range_key, &p.range)?;
+        let [lo, hi] = p.range;
+        if lo >= hi {
+            return Err(self.out_of_range(
+                &range_key,
+                format!("lower bound {lo} is not below upper bound {hi}"),
+            ));
+        }
+        let init_key = format!("{key}.init");
+        let init = match p.init {
+            InitInput::Scalar(v) => vec![v; channels as usize],
+            InitInput::Color(c) if channels == 3 => c.to_vec(),
+            InitInput::Color(_) => {
+                return Err(self.invalid(
+                    &init_key,
+                    &format!("{} is a scalar; give one number", p.target),
+                ))
+            }
+        };
+        self.finite(&init_key, &init)?;
+        if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
+            return Err(
+                self.out_of_range(&init_key, format!("{v} is outside the range [{lo}, {hi}]"))
+            );
+        }
+        if let Some(lr) = p.lr {
+            self.positive(&format!("{key}.lr"), lr)?;
+        }
+        if let Some([w, h]) = p.texture {
+            let k = format!("{key}.texture");
+            self.in_range(&k, w, 1, MAX_IMAGE_SIDE)?;
+            self.in_range(&k, h, 1, MAX_IMAGE_SIDE)?;
+            if matches!(target, ParamTarget::Emission { .. }) {
+                return Err(
+                    self.invalid(&k, "mesh emission is one constant and cannot be a texture")
+                );
+            }
+            if matches!(target, ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. }) {
+                return Err(self.invalid(&k, "a light's colour and intensity are constants and cannot be textures"));
+            }
+        } else if matches!(reference, Reference::Texture(_)) {
+            return Err(self.invalid(
+                key,
+                &format!(
+                    "{} is a texture in the scene; give `texture = [w, h]`",
+                    p.target
+                ),
+            ));
+        }
+        Ok(Param {
+            name: p.target,
+            target,
+            channels,
+            init,
+            range: p.range,
+            texture: p.texture,
+            lr: p.lr,
+            reference,
+        })
+    }
+
+    fn resolve_target(
+        &self,
+        key: &str,
+        target: &str,
+        materials: &[Material],
+        meshes: &[Mesh],
+        lights: &[Light],
+        environment: &Environment,
+    ) -> Result<(ParamTarget, Reference), SceneError> {
+        let color = |v: &ColorValue| match v {
+            ColorValue::Constant(c) => Reference::Constant(c.to_vec()),
+            ColorValue::Texture(t) => Reference::Texture(t.clone()),
+        };
+        let scalar = |v: &ScalarValue| match v {
+            ScalarValue::Constant(c) => Reference::Constant(vec![*c]),
+            ScalarValue::Texture(t) => Reference::Texture(t.clone()),
+        };
+        let undefined = |kind, name: &str| SceneError::Undefined {
+            scene: self.scene.clone(),
+            key: key.into(),
+            kind,
+            name: name.into(),
+        };
+        if target == "environment" {
+            return Ok((ParamTarget::Environment, color(&environment.value)));
+        }
+        if let Some((name, property)) = target
+            .strip_prefix("materials.")
+            .and_then(|r| r.rsplit_once('.'))
+        {
+            let material = materials.iter().position(|m| m.name == name);
+            let (material, m) = match material {
+                Some(i) if matches!(property, "base_color" | "roughness" | "metallic") => {
+                    (i, &materials[i])
+                }
+                None if matches!(property, "base_color" | "roughness" | "metallic") => {
+                    return Err(undefined("material", name))
+                }
+                _ => return Err(self.bad_target(key, target)),
+            };
+            if property != "base_color" && m.kind == MaterialKind::Diffuse {
+                return Err(self.invalid(
+                    key,
+                    &format!("material \"{name}\" is diffuse and has no {property}"),
+                ));
+            }
+            return Ok(match property {
+                "base_color" => (ParamTarget::BaseColor { material }, color(&m.base_color)),
+                "roughness" => (ParamTarget::Roughness { material }, scalar(&m.roughness)),
+                _ => (ParamTarget::Metallic { material }, scalar(&m.metallic)),
+            });
+        }
+        if let Some(name) = target
+            .strip_prefix("meshes.")
+            .and_then(|r| r.strip_suffix(".emission"))
+        {
+            let mesh = meshes
+                .iter()
+                .position(|m| m.name == name)
+                .ok_or_else(|| undefined("mesh", name))?;
+            return Ok((
+                ParamTarget::Emission { mesh },
+                Reference::Constant(meshes[mesh].emission.to_vec()),
+            ));
+        }
+        if let Some((name, property)) = target.strip_prefix("lights.").and_then(|r| r.rsplit_once('.')) {
+            if !matches!(property, "color" | "intensity") {
+                return Err(self.bad_target(key, target));
+            }
+            let light = lights.iter().position(|l| l.name == name).ok_or_else(|| undefined("light", name))?;
+            let l = &lights[light];
+            return Ok(match property {
+                "color" => (ParamTarget::LightColor { light }, Reference::Constant(l.color.to_vec())),
+                _ => (ParamTarget::LightIntensity { light }, Reference::Constant(vec![l.intensity])),
+            });
+        }
+        Err(self.bad_target(key, target))
+    }
+
+    fn bad_target(&self, key: &str, target: &str) -> SceneError {
+        self.invalid(
+            key,
+            &format!("\"{target}\" is not materials.NAME.base_color|roughness|metallic, meshes.NAME.emission, lights.NAME.color|intensity or environment"),
+        )
+    }
+}
+

@@ -1,0 +1,912 @@
+//! Mitsuba 3 XML import (a subset, parsed with `roxmltree`).
+//!
+//! Read: `<default>` values and `$name` substitution in attributes; `<integrator
+//! type="path|prb">` `max_depth` (−1, unlimited, becomes 64) and `rr_depth`; `<sensor
+//! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
+//! size; `<shape type="obj|ply|rectangle|cube|sphere">` with `to_world`, `face_normals`,
+//! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
+//! type="area">`; `<bsdf type="diffuse|twosided|principled|roughconductor">`; `<emitter
+//! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
+//! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
+//! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
+//! (else `shape<k>`, the enclosing shape's name, `light<k>`).
+//!
+//! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
+//! area lights, the constant environment, point and directional lights, the film and
+//! camera. Approximate, each with a one-line warning: `principled`
+//! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
+//! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
+//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX), spot
+//! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
+//! (tessellated into 96 × 48 quads with exact normals), `envmap` (resampled from
+//! Mitsuba's corner-aligned rows to the renderer's centred rows), reconstruction filters
+//! other than `box`. Every other element, plugin type or parameter is an error naming its
+//! line.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Mat4, Vec3};
+use roxmltree::{Document, Node};
+
+use super::loader::Imported;
+use super::model::*;
+use super::{obj, ply, MaterialKind, SceneError};
+use crate::image::{self, srgb_decode, Image};
+
+/// Depth that Mitsuba's unlimited `max_depth = -1` becomes: Russian roulette ends nearly
+/// every path long before it.
+pub const UNLIMITED_DEPTH: u32 = 64;
+/// Tessellation of a sphere: quads around the equator (half as many from pole to pole).
+const SPHERE_SEGMENTS: u32 = 96;
+
+/// Normal-incidence reflectance (linear RGB) of the conductors Mitsuba names, for the
+/// Schlick approximation of their Fresnel term.
+const CONDUCTORS: [(&str, [f32; 3]); 6] = [
+    ("none", [1.0, 1.0, 1.0]),
+    ("Ag", [0.972, 0.960, 0.915]),
+    ("Al", [0.913, 0.922, 0.924]),
+    ("Au", [1.0, 0.766, 0.336]),
+    ("Cr", [0.549, 0.556, 0.554]),
+    ("Cu", [0.955, 0.638, 0.538]),
+];
+
+type Items<'a, 'i> = Vec<Node<'a, 'i>>;
+
+struct Importer<'a, 'i> {
+    path: &'a Path,
+    dir: PathBuf,
+    doc: &'a Document<'i>,
+    defaults: Vec<(String, String)>,
+    /// Material index of each top-level `<bsdf id>`.
+    bsdfs: HashMap<String, usize>,
+    /// Top-level `<texture id>`s.
+    textures: HashMap<String, ColorValue>,
+    out: Imported,
+    principled_warned: bool,
+}
+
+/// Imports the Mitsuba 3 XML scene at `path`.
+pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
+    let text = std::fs::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+    let doc = Document::parse(&text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })?;
+    let mut imp = Importer {
+        path,
+        dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        doc: &doc,
+        defaults: Vec::new(),
+        bsdfs: HashMap::new(),
+        textures: HashMap::new(),
+        out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
+        principled_warned: false,
+    };
+    imp.scene(doc.root_element())?;
+    Ok(imp.out)
+}
+
+fn elements<'a, 'i>(node: Node<'a, 'i>) -> Items<'a, 'i> {
+    node.children().filter(Node::is_element).collect()
+}
+
+impl<'a, 'i> Importer<'a, 'i> {
+    /// `line N: <tag type=".." name=".." id="..">` of `node`.
+    fn loc(&self, node: Node) -> String {
+        let pos = self.doc.text_pos_at(node.range().start);
+        let mut s = format!("line {}: <{}", pos.row, node.tag_name().name());
+        for a in ["type", "name", "id"] {
+            if let Some(v) = node.attribute(a) {
+                s += &format!(" {a}=\"{v}\"");
+            }
+        }
+        s + ">"
+    }
+
+    fn err(&self, node: Node, message: impl Into<String>) -> SceneError {
+        SceneError::Import { path: self.path.to_path_buf(), location: self.loc(node), message: message.into() }
+    }
+
+    fn warn(&mut self, node: Node, message: impl std::fmt::Display) {
+        let line = format!("{}: {}: {message}", self.path.display(), self.loc(node));
+        self.out.warnings.push(line);
+    }
+
+    /// Attribute `name` of `node` with `$default` references substituted.
+    fn attr(&self, node: Node, name: &str) -> Result<Option<String>, SceneError> {
+        let Some(raw) = node.attribute(name) else { return Ok(None) };
+        let mut v = String::with_capacity(raw.len());
+        let mut rest = raw;
+        while let Some(i) = rest.find('$') {
+            v.push_str(&rest[..i]);
+            let after = &rest[i + 1..];
+            let len = after.find(|c: char| !(c.is_ascii_alphanumeric() || c == '_')).unwrap_or(after.len());
+            let key = &after[..len];
+            let value = self.defaults.iter().find(|(k, _)| k == key).map(|(_, val)| val);
+            v.push_str(value.ok_or_else(|| self.err(node, format!("undefined parameter ${key} in {name}=\"{raw}\"")))?);
+            rest = &after[len..];
+        }
+        v.push_str(rest);
+        Ok(Some(v))
+    }
+
+    fn required(&self, node: Node, name: &str) -> Result<String, SceneError> {
+        self.attr(node, name)?.ok_or_else(|| self.err(node, format!("the `{name}` attribute is missing")))
+    }
+
+    fn plugin_type(&self, node: Node) -> Result<String, SceneError> {
+        self.required(node, "type")
+    }
+
+    /// Removes and returns the parameter child named `name`.
+    fn take(&self, items: &mut Items<'a, 'i>, name: &str) -> Option<Node<'a, 'i>> {
+        let i = items.iter().position(|n| n.attribute("name") == Some(name))?;
+        Some(items.remove(i))
+    }
+
+    /// Removes and returns the first unnamed child element with tag `tag`.
+    fn take_tag(&self, items: &mut Items<'a, 'i>, tag: &str) -> Option<Node<'a, 'i>> {
+        let i = items.iter().position(|n| n.tag_name().name() == tag && n.attribute("name").is_none())?;
+        Some(items.remove(i))
+    }
+
+    /// Errors on the first child that no reader took.
+    fn rest(&self, items: &Items, owner: Node) -> Result<(), SceneError> {
+        match items.first() {
+            Some(n) => Err(self.err(*n, format!("not supported in {}", self.loc(owner)))),
+            None => Ok(()),
+        }
+    }
+
+    fn numbers(&self, node: Node, text: &str) -> Result<Vec<f32>, SceneError> {
+        text.split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|w| !w.is_empty())
+            .map(|w| w.parse::<f32>().ok().filter(|v| v.is_finite()).ok_or_else(|| self.err(node, format!("`{w}` is not a finite number"))))
+            .collect()
+    }
+
+    fn float(&self, node: Node) -> Result<f32, SceneError> {
+        match node.tag_name().name() {
+            "float" | "integer" => {
+                let v = self.numbers(node, &self.required(node, "value")?)?;
+                v.first().copied().filter(|_| v.len() == 1).ok_or_else(|| self.err(node, "expected one number"))
+            }
+            _ => Err(self.err(node, "expected a <float>")),
+        }
+    }
+
+    fn int(&self, node: Node) -> Result<i64, SceneError> {
+        let v = self.required(node, "value")?;
+        match node.tag_name().name() {
+            "integer" => v.trim().parse().map_err(|_| self.err(node, format!("`{v}` is not an integer"))),
+            _ => Err(self.err(node, "expected an <integer>")),
+        }
+    }
+
+    fn boolean(&self, node: Node) -> Result<bool, SceneError> {
+        match (node.tag_name().name(), self.required(node, "value")?.as_str()) {
+            ("boolean", "true") => Ok(true),
+            ("boolean", "false") => Ok(false),
+            _ => Err(self.err(node, "expected <boolean value=\"true|false\">")),
+        }
+    }
+
+    fn string(&self, node: Node) -> Result<String, SceneError> {
+        match node.tag_name().name() {
+            "string" => self.required(node, "value"),
+            _ => Err(self.err(node, "expected a <string>")),
+        }
+    }
+
+    /// `<rgb>`, a uniform `<spectrum>` or a `<float>` as an RGB triple.
+    fn rgb(&self, node: Node) -> Result<[f32; 3], SceneError> {
+        let v = match node.tag_name().name() {
+            "rgb" | "spectrum" | "float" => self.numbers(node, &self.required(node, "value")?)?,
+            _ => return Err(self.err(node, "expected <rgb>, <spectrum> or <float>")),
+        };
+        match (node.tag_name().name(), v.as_slice()) {
+            (_, &[x]) => Ok([x; 3]),
+            ("rgb", &[r, g, b]) => Ok([r, g, b]),
+            ("spectrum", _) => Err(self.err(node, "only uniform spectra (one value) are supported")),
+            _ => Err(self.err(node, "expected one or three numbers")),
+        }
+    }
+
+    fn point(&self, node: Node) -> Result<Vec3, SceneError> {
+        if !matches!(node.tag_name().name(), "point" | "vector") {
+            return Err(self.err(node, "expected <point> or <vector>"));
+        }
+        if let Some(v) = self.attr(node, "value")? {
+            return match self.numbers(node, &v)?.as_slice() {
+                &[x, y, z] => Ok(Vec3::new(x, y, z)),
+                &[x] => Ok(Vec3::splat(x)),
+                _ => Err(self.err(node, "expected three numbers")),
+            };
+        }
+        let c = |a| -> Result<f32, SceneError> { Ok(self.attr(node, a)?.map(|s| self.numbers(node, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(0.0)) };
+        Ok(Vec3::new(c("x")?, c("y")?, c("z")?))
+    }
+
+    /// A `<transform>`: each child is applied after those before it.
+    fn transform(&self, node: Node) -> Result<Mat4, SceneError> {
+        if node.tag_name().name() != "transform" {
+            return Err(self.err(node, "expected a <transform>"));
+        }
+        let mut m = Mat4::IDENTITY;
+        for op in elements(node) {
+            let xyz = |default: f32| -> Result<Vec3, SceneError> {
+                if let Some(v) = self.attr(op, "value")? {
+                    return match self.numbers(op, &v)?.as_slice() {
+                        &[x, y, z] => Ok(Vec3::new(x, y, z)),
+                        &[x] => Ok(Vec3::splat(x)),
+                        _ => Err(self.err(op, "expected one or three numbers")),
+                    };
+                }
+                let c = |a| -> Result<f32, SceneError> { Ok(self.attr(op, a)?.map(|s| self.numbers(op, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(default)) };
+                Ok(Vec3::new(c("x")?, c("y")?, c("z")?))
+            };
+            let step = match op.tag_name().name() {
+                "translate" => Mat4::from_translation(xyz(0.0)?),
+                "scale" => Mat4::from_scale(xyz(1.0)?),
+                "rotate" => {
+                    let axis = xyz(0.0)?.try_normalize().ok_or_else(|| self.err(op, "the rotation axis is zero"))?;
+                    let angle = self.numbers(op, &self.required(op, "angle")?)?;
+                    let &[angle] = angle.as_slice() else { return Err(self.err(op, "expected one angle")) };
+                    Mat4::from_axis_angle(axis, angle.to_radians())
+                }
+                "matrix" => {
+                    let v = self.numbers(op, &self.required(op, "value")?)?;
+                    match v.len() {
+                        // Row-major, as written.
+                        16 => Mat4::from_cols_slice(&v).transpose(),
+                        9 => Mat4::from_mat3(Mat3::from_cols_slice(&v).transpose()),
+                        n => return Err(self.err(op, format!("{n} values (16 or 9 expected)"))),
+                    }
+                }
+                "lookat" => {
+                    let vec = |a| -> Result<Vec3, SceneError> {
+                        match self.numbers(op, &self.required(op, a)?)?.as_slice() {
+                            &[x, y, z] => Ok(Vec3::new(x, y, z)),
+                            _ => Err(self.err(op, format!("`{a}` needs three numbers"))),
+                        }
+                    };
+                    let (origin, target) = (vec("origin")?, vec("target")?);
+                    let up = if op.attribute("up").is_some() { vec("up")? } else { Vec3::Y };
+                    let dir = (target - origin).try_normalize().ok_or_else(|| self.err(op, "origin and target coincide"))?;
+                    let left = up.cross(dir).try_normalize().ok_or_else(|| self.err(op, "up is parallel to the view direction"))?;
+                    let new_up = dir.cross(left);
+                    Mat4::from_cols(left.extend(0.0), new_up.extend(0.0), dir.extend(0.0), origin.extend(1.0))
+                }
+                _ => return Err(self.err(op, format!("not supported in {}", self.loc(node)))),
+            };
+            m = step * m;
+        }
+        if !m.is_finite() {
+            return Err(self.err(node, "non-finite transform"));
+        }
+        Ok(m)
+    }
+
+    fn take_transform(&self, items: &mut Items<'a, 'i>, name: &str) -> Result<Option<Mat4>, SceneError> {
+        self.take(items, name).map(|n| self.transform(n)).transpose()
+    }
+
+    fn take_float(&self, items: &mut Items<'a, 'i>, name: &str, default: f32) -> Result<f32, SceneError> {
+        Ok(self.take(items, name).map(|n| self.float(n)).transpose()?.unwrap_or(default))
+    }
+
+    fn take_bool(&self, items: &mut Items<'a, 'i>, name: &str, default: bool) -> Result<bool, SceneError> {
+        Ok(self.take(items, name).map(|n| self.boolean(n)).transpose()?.unwrap_or(default))
+    }
+
+    fn take_rgb(&self, items: &mut Items<'a, 'i>, name: &str, default: [f32; 3]) -> Result<[f32; 3], SceneError> {
+        Ok(self.take(items, name).map(|n| self.rgb(n)).transpose()?.unwrap_or(default))
+    }
+
+    // -----------------------------------------------------------------------------------
+    // The scene
+    // -----------------------------------------------------------------------------------
+
+    fn scene(&mut self, root: Node<'a, 'i>) -> Result<(), SceneError> {
+        if root.tag_name().name() != "scene" {
+            return Err(self.err(root, "the root element is not <scene>"));
+        }
+        let children = elements(root);
+        // Defaults first: they may be used before they appear.
+        for n in children.iter().filter(|n| n.tag_name().name() == "default") {
+            let name = self.required(*n, "name")?;
+            let value = self.required(*n, "value")?;
+            if !self.defaults.iter().any(|(k, _)| *k == name) {
+                self.defaults.push((name, value));
+            }
+        }
+        let mut shapes = 0;
+        let mut lights = 0;
+        for n in children {
+            match n.tag_name().name() {
+                "default" => {}
+                "integrator" => self.integrator(n)?,
+                "sensor" => self.sensor(n)?,
+                "bsdf" => {
+                    let id = self.required(n, "id")?;
+                    let index = self.bsdf(n, &id)?;
+                    self.bsdfs.insert(id, index);
+                }
+                "texture" => {
+                    let id = self.required(n, "id")?;
+                    let value = self.texture(n)?;
+                    self.textures.insert(id, value);
+                }
+                "shape" => {
+                    shapes += 1;
+                    self.shape(n, shapes)?;
+                }
+                "emitter" => {
+                    lights += 1;
+                    self.emitter(n, lights)?;
+                }
+                _ => return Err(self.err(n, "not supported in <scene>")),
+            }
+        }
+        Ok(())
+    }
+
+    fn integrator(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
+        let kind = self.plugin_type(node)?;
+        if !matches!(kind.as_str(), "path" | "prb") {
+            return Err(self.err(node, "only the path and prb integrators are supported"));
+        }
+        let mut items = elements(node);
+        if let Some(n) = self.take(&mut items, "max_depth") {
+            let d = self.int(n)?;
+            self.out.max_depth = Some(match d {
+                -1 => {
+                    self.warn(n, format!("unlimited depth becomes {UNLIMITED_DEPTH}"));
+                    UNLIMITED_DEPTH
+                }
+                d if d >= 1 && d <= MAX_DEPTH as i64 => d as u32,
+                _ => return Err(self.err(n, format!("{d} is not -1 or in 1..={MAX_DEPTH}"))),
+            });
+        }
+        if let Some(n) = self.take(&mut items, "rr_depth") {
+            let d = self.int(n)?;
+            self.out.rr_depth = Some(u32::try_from(d).ok().filter(|d| (1..=MAX_DEPTH).contains(d)).ok_or_else(|| self.err(n, format!("{d} is not in 1..={MAX_DEPTH}")))?);
+        }
+        if self.take_bool(&mut items, "hide_emitters", false)? {
+            return Err(self.err(node, "hide_emitters = true is not supported"));
+        }
+        self.rest(&items, node)
+    }
+
+    fn sensor(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
+        if self.plugin_type(node)? != "perspective" {
+            return Err(self.err(node, "only perspective sensors are supported"));
+        }
+        let mut items = elements(node);
+        let fov = self.take_float(&mut items, "fov", f32::NAN)?;
+        if fov.is_nan() {
+            return Err(self.err(node, "give the field of view as <float name=\"fov\">"));
+        }
+        let axis = self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "x".into());
+        let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
+        for clip in ["near_clip", "far_clip"] {
+            if let Some(n) = self.take(&mut items, clip) {
+                self.float(n)?;
+                self.warn(n, "ignored: nothing is clipped");
+            }
+        }
+        let film = match self.take_tag(&mut items, "film") {
+            Some(f) => self.film(f)?,
+            None => Film { width: 768, height: 576 },
+        };
+        if let Some(s) = self.take_tag(&mut items, "sampler") {
+            // The sampler's pattern and count do not change the expected image; the
+            // command line sets the sample count.
+            self.plugin_type(s)?;
+        }
+        self.rest(&items, node)?;
+        let film = *self.out.film.get_or_insert(film);
+        let aspect = film.width as f32 / film.height as f32;
+        let t = (fov.to_radians() * 0.5).tan();
+        let tan_y = match axis.as_str() {
+            "x" => t / aspect,
+            "y" => t,
+            "diagonal" => t / (1.0 + aspect * aspect).sqrt(),
+            "smaller" if aspect >= 1.0 => t,
+            "smaller" => t / aspect,
+            "larger" if aspect >= 1.0 => t / aspect,
+            "larger" => t,
+            _ => return Err(self.err(node, format!("fov_axis \"{axis}\" is not x, y, diagonal, smaller or larger"))),
+        };
+        let fov_y = 2.0 * tan_y.atan().to_degrees();
+        if !(fov_y > 0.0 && fov_y < 180.0) {
+            return Err(self.err(node, format!("field of view {fov} is outside (0, 180)")));
+        }
+        // Mitsuba's camera looks along local +z with +y up and +x to the left of the
+        // image; a transform with a negative determinant would mirror the image.
+        if Mat3::from_mat4(to_world).determinant() <= 0.0 {
+            return Err(self.err(node, "a mirroring (or degenerate) to_world is not supported"));
+        }
+        let origin = to_world.transform_point3(Vec3::ZERO);
+        let forward = to_world.transform_vector3(Vec3::Z);
+        let up = to_world.transform_vector3(Vec3::Y);
+        let sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(node, e))?;
+        self.out.sensors.push(sensor);
+        Ok(())
+    }
+
+    fn film(&mut self, node: Node<'a, 'i>) -> Result<Film, SceneError> {
+        if self.plugin_type(node)? != "hdrfilm" {
+            return Err(self.err(node, "only hdrfilm is supported"));
+        }
+        let mut items = elements(node);
+        let mut side = |name: &str, default: u32| -> Result<u32, SceneError> {
+            match self.take(&mut items, name) {
+                Some(n) => {
+                    let v = self.int(n)?;
+                    u32::try_from(v).ok().filter(|v| (1..=MAX_IMAGE_SIDE).contains(v)).ok_or_else(|| self.err(n, format!("{v} is not in 1..={MAX_IMAGE_SIDE}")))
+                }
+                None => Ok(default),
+            }
+        };
+        let film = Film { width: side("width", 768)?, height: side("height", 576)? };
+        // Output settings: the renderer writes its own formats.
+        for name in ["pixel_format", "component_format", "file_format", "banner", "sample_border"] {
+            self.take(&mut items, name);
+        }
+        match self.take_tag(&mut items, "rfilter") {
+            Some(f) if self.plugin_type(f)? == "box" => {}
+            Some(f) => self.warn(f, "rendered with a box filter (uniform samples over each pixel)"),
+            None => self.warn(node, "Mitsuba's default Gaussian reconstruction filter is rendered as a box filter"),
+        }
+        self.rest(&items, node)?;
+        Ok(film)
+    }
+
+    // -----------------------------------------------------------------------------------
+    // Materials and textures
+    // -----------------------------------------------------------------------------------
+
+    /// A `<texture type="bitmap">`.
+    fn texture(&mut self, node: Node<'a, 'i>) -> Result<ColorValue, SceneError> {
+        if self.plugin_type(node)? != "bitmap" {
+            return Err(self.err(node, "only bitmap textures are supported"));
+        }
+        let mut items = elements(node);
+        let file = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+        let raw = self.take_bool(&mut items, "raw", false)?;
+        if let Some(n) = self.take(&mut items, "filter_type") {
+            if self.string(n)? != "bilinear" {
+                self.warn(n, "filtered bilinearly");
+            }
+        }
+        if let Some(n) = self.take(&mut items, "wrap_mode") {
+            if self.string(n)? != "repeat" {
+                self.warn(n, "wrapped with repeat");
+            }
+        }
+        self.rest(&items, node)?;
+        let path = self.dir.join(&file);
+        let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+        let is_exr = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+        let image = if is_exr {
+            image::decode_exr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?
+        } else {
+            let mut img = image::decode_ldr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
+            if !raw {
+                img.data.iter_mut().flatten().for_each(|c| *c = srgb_decode(*c));
+            }
+            img
+        };
+        if image.find_non_finite().is_some() {
+            return Err(self.err(node, format!("{} has non-finite pixels", path.display())));
+        }
+        Ok(ColorValue::Texture(Texture { path, image }))
+    }
+
+    /// A colour parameter: a constant, a nested bitmap or a `<ref>` to a texture.
+    fn color_param(&mut self, items: &mut Items<'a, 'i>, name: &str, default: [f32; 3]) -> Result<ColorValue, SceneError> {
+        let Some(n) = self.take(items, name) else { return Ok(ColorValue::Constant(default)) };
+        match n.tag_name().name() {
+            "texture" => self.texture(n),
+            "ref" => {
+                let id = self.required(n, "id")?;
+                self.textures.get(&id).cloned().ok_or_else(|| self.err(n, format!("no texture with id \"{id}\"")))
+            }
+            _ => Ok(ColorValue::Constant(self.rgb(n)?)),
+        }
+    }
+
+    fn scalar_param(&mut self, items: &mut Items<'a, 'i>, name: &str, default: f32) -> Result<ScalarValue, SceneError> {
+        let node = items.iter().find(|n| n.attribute("name") == Some(name)).copied();
+        Ok(match self.color_param(items, name, [default; 3])? {
+            ColorValue::Constant(c) => {
+                let v = c[0];
+                if !(0.0..=1.0).contains(&v) {
+                    return Err(self.err(node.unwrap_or(self.doc.root_element()), format!("{v} is outside [0, 1]")));
+                }
+                ScalarValue::Constant(v)
+            }
+            ColorValue::Texture(t) => ScalarValue::Texture(t),
+        })
+    }
+
+    /// Adds the material of `<bsdf>` `node` named `name` and returns its index.
+    fn bsdf(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
+        let kind = self.plugin_type(node)?;
+        let mut items = elements(node);
+        if kind == "twosided" {
+            let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, "twosided needs one nested <bsdf>"))?;
+            self.rest(&items, node)?;
+            return self.bsdf_material(inner, name, false);
+        }
+        self.bsdf_material(node, name, true)
+    }
+
+    /// Adds the material of BSDF `node` (any type but twosided) named `name`; `one_sided`
+    /// when it is not wrapped in a twosided: black from behind, as in Mitsuba.
+    fn bsdf_material(&mut self, node: Node<'a, 'i>, name: &str, one_sided: bool) -> Result<usize, SceneError> {
+        let kind = self.plugin_type(node)?;
+        let mut items = elements(node);
+        let material = match kind.as_str() {
+            "diffuse" => Material {
+                name: name.into(),
+                kind: MaterialKind::Diffuse,
+                base_color: self.color_param(&mut items, "reflectance", [0.5; 3])?,
+                roughness: ScalarValue::Constant(1.0),
+                metallic: ScalarValue::Constant(0.0),
+                one_sided,
+            },
+            "principled" => {
+                let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
+                let roughness = self.scalar_param(&mut items, "roughness", 0.5)?;
+                let metallic = self.scalar_param(&mut items, "metallic", 0.0)?;
+                if let Some(n) = self.take(&mut items, "specular") {
+                    if self.float(n)? != 0.5 {
+                        self.warn(n, "rendered with specular 0.5 (a normal-incidence reflectance of 0.04)");
+                    }
+                }
+                for zero in ["spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat", "spec_trans", "flatness"] {
+                    if let Some(n) = self.take(&mut items, zero) {
+                        if self.float(n)? != 0.0 {
+                            return Err(self.err(n, "only 0 is supported"));
+                        }
+                    }
+                }
+                if !self.principled_warned {
+                    self.principled_warned = true;
+                    self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
+                }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided }
+            }
+            "roughconductor" => {
+                let alpha = self.take_float(&mut items, "alpha", 0.1)?;
+                if !(0.0..=1.0).contains(&alpha) {
+                    return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
+                }
+                let distribution = self.take(&mut items, "distribution").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "beckmann".into());
+                if distribution != "ggx" {
+                    self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
+                }
+                let f0 = match (self.take(&mut items, "material"), self.take(&mut items, "eta"), self.take(&mut items, "k")) {
+                    (m, None, None) => {
+                        let name = m.map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "none".into());
+                        CONDUCTORS.iter().find(|(k, _)| *k == name).map(|(_, f)| *f).ok_or_else(|| {
+                            let known: Vec<&str> = CONDUCTORS.iter().map(|(k, _)| *k).collect();
+                            self.err(node, format!("conductor \"{name}\" is not one of {}", known.join(", ")))
+                        })?
+                    }
+                    (None, Some(eta), Some(k)) => {
+                        let (eta, k) = (self.rgb(eta)?, self.rgb(k)?);
+                        std::array::from_fn(|c| ((eta[c] - 1.0).powi(2) + k[c] * k[c]) / ((eta[c] + 1.0).powi(2) + k[c] * k[c]))
+                    }
+                    _ => return Err(self.err(node, "give either `material` or both `eta` and `k`")),
+                };
+                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
+                self.warn(node, format!("approximate: the conductor's Fresnel term is rendered as Schlick's with F0 = {:.3?}", f0));
+                Material {
+                    name: name.into(),
+                    kind: MaterialKind::Principled,
+                    base_color: ColorValue::Constant(std::array::from_fn(|c| (f0[c] * tint[c]).min(1.0))),
+                    roughness: ScalarValue::Constant(alpha.sqrt()),
+                    metallic: ScalarValue::Constant(1.0),
+                    one_sided,
+                }
+            }
+            _ => return Err(self.err(node, "only diffuse, twosided, principled and roughconductor BSDFs are supported")),
+        };
+        self.rest(&items, node)?;
+        self.out.materials.push(material);
+        Ok(self.out.materials.len() - 1)
+    }
+
+    /// The default material of a shape without a BSDF: Mitsuba's (one-sided) diffuse 0.5.
+    fn default_material(&mut self) -> usize {
+        if let Some(i) = self.out.materials.iter().position(|m| m.name == "default") {
+            return i;
+        }
+        self.out.materials.push(Material {
+            name: "default".into(),
+            kind: MaterialKind::Diffuse,
+            base_color: ColorValue::Constant([0.5; 3]),
+            roughness: ScalarValue::Constant(1.0),
+            metallic: ScalarValue::Constant(0.0),
+            one_sided: true,
+        });
+        self.out.materials.len() - 1
+    }
+
+    // -----------------------------------------------------------------------------------
+    // Shapes and emitters
+    // -----------------------------------------------------------------------------------
+
+    fn shape(&mut self, node: Node<'a, 'i>, count: usize) -> Result<(), SceneError> {
+        let kind = self.plugin_type(node)?;
+        let name = self.attr(node, "id")?.unwrap_or_else(|| format!("shape{count}"));
+        let mut items = elements(node);
+        let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
+        let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
+        let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind.as_str() {
+            "obj" | "ply" => {
+                let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+                let path = self.dir.join(&rel);
+                let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                let face_normals = self.take_bool(&mut items, "face_normals", false)?;
+                let (p, mut n, mut t, i) = if kind == "obj" {
+                    // Mitsuba flips OBJ texture coordinates by default, which keeps the
+                    // OBJ convention (v up) that the model uses.
+                    let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
+                    let d = obj::load(&path, &bytes)?;
+                    let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
+                    (d.positions, d.normals, uvs, d.indices)
+                } else {
+                    let d = ply::load(&path, &bytes)?;
+                    (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                };
+                if face_normals {
+                    n.clear();
+                } else if n.is_empty() {
+                    // Mitsuba smooths a mesh without normals unless told not to.
+                    n = vertex_normals(&p, &i);
+                }
+                if t.len() != p.len() {
+                    t.clear();
+                }
+                (p, n, t, i, path)
+            }
+            "rectangle" => (
+                vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
+                vec![[0.0, 0.0, 1.0]; 4],
+                vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+                vec![[0, 1, 2], [2, 3, 0]],
+                self.path.to_path_buf(),
+            ),
+            "cube" => {
+                let (p, n, t, i) = cube();
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            "sphere" => {
+                let center = self.take(&mut items, "center").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                let radius = self.take_float(&mut items, "radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(self.err(node, "the radius is not positive"));
+                }
+                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
+                let (p, n, t, i) = sphere(center, radius);
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            _ => return Err(self.err(node, "only obj, ply, rectangle, cube and sphere shapes are supported")),
+        };
+        let material = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
+            (Some(b), None) => self.bsdf(b, &name)?,
+            (None, Some(r)) => {
+                let id = self.required(r, "id")?;
+                *self.bsdfs.get(&id).ok_or_else(|| self.err(r, format!("no bsdf with id \"{id}\" defined before it")))?
+            }
+            (None, None) => self.default_material(),
+            (Some(_), Some(r)) => return Err(self.err(r, "a shape takes one bsdf")),
+        };
+        let emission = match self.take_tag(&mut items, "emitter") {
+            Some(e) => {
+                if self.plugin_type(e)? != "area" {
+                    return Err(self.err(e, "a shape's emitter must be an area light"));
+                }
+                let mut em = elements(e);
+                if em.iter().any(|n| n.attribute("name") == Some("radiance") && matches!(n.tag_name().name(), "texture" | "ref")) {
+                    return Err(self.err(e, "textured area lights are not supported"));
+                }
+                let radiance = self.take_rgb(&mut em, "radiance", [1.0; 3])?;
+                self.rest(&em, e)?;
+                radiance
+            }
+            None => [0.0; 3],
+        };
+        self.rest(&items, node)?;
+        // Positions and normals to world space (normals by the inverse transpose).
+        let nm = Mat3::from_mat4(to_world).inverse().transpose();
+        for p in &mut positions {
+            *p = to_world.transform_point3(Vec3::from(*p)).to_array();
+        }
+        for n in &mut normals {
+            *n = (nm * Vec3::from(*n)).normalize_or_zero().to_array();
+        }
+        if flip_normals {
+            for t in &mut indices {
+                t.swap(1, 2);
+            }
+            for n in &mut normals {
+                *n = n.map(|c| -c);
+            }
+        }
+        if uvs.len() != positions.len() {
+            uvs.clear();
+        }
+        self.out.meshes.push(Mesh { name, path: file, positions, normals, uvs, indices, material, emission, two_sided_emission: false });
+        Ok(())
+    }
+
+    fn emitter(&mut self, node: Node<'a, 'i>, count: usize) -> Result<(), SceneError> {
+        let kind = self.plugin_type(node)?;
+        let name = self.attr(node, "id")?.unwrap_or_else(|| format!("light{count}"));
+        let mut items = elements(node);
+        let to_world = self.take_transform(&mut items, "to_world")?;
+        let light = |kind, position, direction, color| Light { name: name.clone(), kind, position, direction, color, intensity: 1.0 };
+        match kind.as_str() {
+            "constant" | "envmap" => {
+                if self.out.environment.is_some() {
+                    return Err(self.err(node, "only one environment emitter is supported"));
+                }
+                let value = if kind == "constant" {
+                    if to_world.is_some() {
+                        return Err(self.err(node, "a constant emitter takes no to_world"));
+                    }
+                    self.color_param(&mut items, "radiance", [1.0; 3])?
+                } else {
+                    if to_world.is_some_and(|m| !m.abs_diff_eq(Mat4::IDENTITY, 1e-6)) {
+                        return Err(self.err(node, "a rotated environment map is not supported"));
+                    }
+                    let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+                    let path = self.dir.join(&rel);
+                    let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                    let map = image::decode_exr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
+                    if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
+                        return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));
+                    }
+                    self.warn(node, "approximate: resampled from Mitsuba's pole-to-pole rows to centred rows");
+                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map) })
+                };
+                let scale = self.take_float(&mut items, "scale", 1.0)?;
+                if scale < 0.0 {
+                    return Err(self.err(node, "the scale is negative"));
+                }
+                self.rest(&items, node)?;
+                self.out.environment = Some(Environment { value, scale });
+                return Ok(());
+            }
+            "point" => {
+                let position = match (self.take(&mut items, "position"), to_world) {
+                    (Some(p), None) => self.point(p)?,
+                    (None, m) => m.unwrap_or(Mat4::IDENTITY).transform_point3(Vec3::ZERO),
+                    (Some(_), Some(_)) => return Err(self.err(node, "give position or to_world, not both")),
+                };
+                let intensity = self.take_rgb(&mut items, "intensity", [1.0; 3])?;
+                self.out.lights.push(light(LightKind::Point, position, Vec3::NEG_Y, intensity));
+            }
+            "spot" => {
+                let m = to_world.unwrap_or(Mat4::IDENTITY);
+                let intensity = self.take_rgb(&mut items, "intensity", [1.0; 3])?;
+                let cutoff = self.take_float(&mut items, "cutoff_angle", 20.0)?;
+                let beam = self.take_float(&mut items, "beam_width", cutoff * 0.75)?;
+                if !(0.0 < cutoff && cutoff <= 90.0 && 0.0 <= beam && beam <= cutoff) {
+                    return Err(self.err(node, format!("beam_width {beam} and cutoff_angle {cutoff} are not 0 <= beam_width <= cutoff_angle <= 90")));
+                }
+                let direction = m.transform_vector3(Vec3::Z).try_normalize().ok_or_else(|| self.err(node, "degenerate to_world"))?;
+                let kind = LightKind::Spot { inner: beam.to_radians(), outer: cutoff.to_radians(), falloff: SpotFalloff::Linear };
+                self.out.lights.push(light(kind, m.transform_point3(Vec3::ZERO), direction, intensity));
+            }
+            "directional" => {
+                let direction = match (self.take(&mut items, "direction"), to_world) {
+                    (Some(d), None) => self.point(d)?,
+                    (None, m) => m.unwrap_or(Mat4::IDENTITY).transform_vector3(Vec3::Z),
+                    (Some(_), Some(_)) => return Err(self.err(node, "give direction or to_world, not both")),
+                };
+                let direction = direction.try_normalize().ok_or_else(|| self.err(node, "the direction is zero"))?;
+                let irradiance = self.take_rgb(&mut items, "irradiance", [1.0; 3])?;
+                self.out.lights.push(light(LightKind::Directional, Vec3::ZERO, direction, irradiance));
+            }
+            "area" => return Err(self.err(node, "an area emitter belongs inside a <shape>")),
+            _ => return Err(self.err(node, "only area, constant, envmap, point, spot and directional emitters are supported")),
+        }
+        self.rest(&items, node)
+    }
+}
+
+/// A Mitsuba lat-long map as the renderer's: Mitsuba puts u = 0 at the renderer's u = ½
+/// (its azimuth is measured from −z as well, without the renderer's half-turn offset), and
+/// its rows run from pole to pole (row j at polar angle π j / (H − 1)) where the
+/// renderer's are centred (row k at π (k + ½) / H). Columns are rolled by half the width
+/// and each centred row is Mitsuba's linear interpolation at its angle.
+pub fn envmap_from_mitsuba(map: &Image) -> Image {
+    let (w, h) = (map.width as usize, map.height as usize);
+    let mut data = Vec::with_capacity(w * h);
+    for k in 0..h {
+        let pos = (k as f32 + 0.5) / h as f32 * (h - 1) as f32;
+        let j = (pos.floor() as usize).min(h - 2);
+        let t = pos - j as f32;
+        for x in 0..w {
+            let src = (x + w / 2) % w;
+            let a = map.data[j * w + src];
+            let b = map.data[(j + 1) * w + src];
+            data.push(std::array::from_fn(|c| a[c] * (1.0 - t) + b[c] * t));
+        }
+    }
+    Image { width: map.width, height: map.height, data }
+}
+
+/// Mitsuba's vertex normals of a mesh that has none: each face's unit normal weighted by
+/// the face's angle at the vertex, summed over the faces sharing the vertex.
+fn vertex_normals(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Vec<[f32; 3]> {
+    let mut n = vec![Vec3::ZERO; positions.len()];
+    for t in indices {
+        let p = t.map(|i| Vec3::from(positions[i as usize]));
+        let Some(face) = (p[1] - p[0]).cross(p[2] - p[0]).try_normalize() else { continue };
+        for k in 0..3 {
+            let (a, b) = ((p[(k + 1) % 3] - p[k]).normalize_or_zero(), (p[(k + 2) % 3] - p[k]).normalize_or_zero());
+            n[t[k] as usize] += face * a.dot(b).clamp(-1.0, 1.0).acos();
+        }
+    }
+    n.into_iter().map(|v| v.normalize_or_zero().to_array()).collect()
+}
+
+type Geometry = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>);
+
+/// Mitsuba's cube: [−1, 1]³, each face two counter-clockwise triangles seen from outside,
+/// with flat normals.
+fn cube() -> Geometry {
+    let mut g: Geometry = Default::default();
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            let n = Vec3::from(std::array::from_fn(|i| if i == axis { sign } else { 0.0 }));
+            // Two tangents with t1 × t2 = n.
+            let t1 = Vec3::from(std::array::from_fn(|i| if i == (axis + 1) % 3 { 1.0 } else { 0.0 }));
+            let t2 = n.cross(t1);
+            let base = g.0.len() as u32;
+            for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
+                g.0.push((n + a * t1 + b * t2).to_array());
+                g.1.push(n.to_array());
+                g.2.push([(a + 1.0) / 2.0, (b + 1.0) / 2.0]);
+            }
+            g.3.push([base, base + 1, base + 2]);
+            g.3.push([base + 2, base + 3, base]);
+        }
+    }
+    g
+}
+
+/// A UV sphere of `SPHERE_SEGMENTS` × `SPHERE_SEGMENTS / 2` quads (triangles at the
+/// poles), counter-clockwise from outside, with the exact normals.
+fn sphere(center: Vec3, radius: f32) -> Geometry {
+    let (nu, nv) = (SPHERE_SEGMENTS, SPHERE_SEGMENTS / 2);
+    let mut g: Geometry = Default::default();
+    for j in 0..=nv {
+        let theta = std::f32::consts::PI * j as f32 / nv as f32;
+        for i in 0..=nu {
+            let phi = std::f32::consts::TAU * i as f32 / nu as f32;
+            let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+            g.0.push((center + radius * n).to_array());
+            g.1.push(n.to_array());
+            g.2.push([i as f32 / nu as f32, 1.0 - j as f32 / nv as f32]);
+        }
+    }
+    let at = |i: u32, j: u32| j * (nu + 1) + i;
+    for j in 0..nv {
+        for i in 0..nu {
+            let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+            if j > 0 {
+                g.3.push([a, d, b]);
+            }
+            if j + 1 < nv {
+                g.3.push([b, d, c]);
+            }
+        }
+    }
+    g
+}

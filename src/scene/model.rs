@@ -1,0 +1,362 @@
+//! The scene model: what every loader (TOML, glTF, Mitsuba XML) produces and the renderer,
+//! optimiser and writers consume. Nothing here reads a file.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Vec2, Vec3};
+
+use super::file::MaterialType as MaterialKind;
+use crate::image::Image;
+
+/// Largest film and texture side accepted; larger values are typos, not scenes.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Deepest path accepted; beyond this the GPU's per-path replay state is wasted.
+pub const MAX_DEPTH: u32 = 1024;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Film {
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Integrator {
+    /// Longest path in segments: 1 sees emitters only, 2 adds direct light.
+    pub max_depth: u32,
+    /// Depth from which Russian roulette may end a path.
+    pub rr_depth: u32,
+}
+
+/// A pinhole camera with an orthonormal right-handed basis: it looks along `forward`,
+/// `right = forward × up_hint`, `up = right × forward`.
+#[derive(Clone, Debug)]
+pub struct Sensor {
+    pub origin: Vec3,
+    pub look_at: Vec3,
+    pub forward: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+    /// Vertical field of view in degrees.
+    pub fov_y: f32,
+    pub target_image: Option<Texture>,
+}
+
+impl Sensor {
+    /// The camera at `origin` looking at `target` with `up` as the up hint; `Err` names
+    /// the degenerate input. `fov_y` is checked by the caller.
+    pub fn looking_at(origin: Vec3, target: Vec3, up: Vec3, fov_y: f32) -> Result<Self, &'static str> {
+        let forward = (target - origin).try_normalize().ok_or("origin and target coincide")?;
+        // Nearly parallel vectors would give a basis dominated by rounding error.
+        let right = forward.cross(up.normalize_or_zero());
+        if right.length() < 1e-4 {
+            return Err("up is zero or parallel to the view direction");
+        }
+        let right = right.normalize();
+        Ok(Sensor { origin, look_at: target, forward, right, up: right.cross(forward), fov_y, target_image: None })
+    }
+
+    /// Unit direction through normalised device coordinates `ndc` in [-1, 1]² (x right,
+    /// y up), for a film of aspect ratio `aspect` = width / height.
+    pub fn ray_direction(&self, ndc: Vec2, aspect: f32) -> Vec3 {
+        let t = (self.fov_y.to_radians() * 0.5).tan();
+        (self.forward + ndc.x * t * aspect * self.right + ndc.y * t * self.up).normalize()
+    }
+}
+
+/// An image loaded from a file named in the scene (or embedded in one: then `path` is the
+/// scene file followed by `#` and where in it the image is).
+#[derive(Clone, Debug)]
+pub struct Texture {
+    pub path: PathBuf,
+    pub image: Image,
+}
+
+#[derive(Clone, Debug)]
+pub enum ColorValue {
+    Constant([f32; 3]),
+    Texture(Texture),
+}
+
+/// A scalar property; a texture's R channel holds it.
+#[derive(Clone, Debug)]
+pub enum ScalarValue {
+    Constant(f32),
+    Texture(Texture),
+}
+
+/// A glTF metallic-roughness material. A diffuse one has roughness 1 and metallic 0, which
+/// the file may not set.
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    pub kind: MaterialKind,
+    pub base_color: ColorValue,
+    pub roughness: ScalarValue,
+    pub metallic: ScalarValue,
+    /// Reflects nothing from behind (the clockwise side of its triangles), as Mitsuba's
+    /// BSDFs not wrapped in `twosided`; otherwise both sides shade alike.
+    pub one_sided: bool,
+}
+
+impl Material {
+    pub fn is_textured(&self) -> bool {
+        matches!(self.base_color, ColorValue::Texture(_))
+            || matches!(self.roughness, ScalarValue::Texture(_))
+            || matches!(self.metallic, ScalarValue::Texture(_))
+    }
+}
+
+/// A triangle mesh in world space. UVs follow the OBJ convention (v pointing up, (0, 0)
+/// the bottom left of an image); importers convert theirs.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub name: String,
+    /// The file the triangles came from.
+    pub path: PathBuf,
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Vec<[f32; 3]>,
+    pub uvs: Vec<[f32; 2]>,
+    pub indices: Vec<[u32; 3]>,
+    pub material: usize,
+    /// Radiance emitted from the front (counter-clockwise) side, or both sides when
+    /// `two_sided_emission`.
+    pub emission: [f32; 3],
+    pub two_sided_emission: bool,
+}
+
+/// How a spot light's intensity falls off between its inner and outer cone.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SpotFalloff {
+    /// glTF's (KHR_lights_punctual): the square of a linear ramp in cos θ.
+    Smooth,
+    /// Mitsuba's: linear in the angle θ.
+    Linear,
+}
+
+impl SpotFalloff {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Smooth => "smooth",
+            Self::Linear => "linear",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightKind {
+    /// Radiant intensity `color × intensity` in every direction from `position`.
+    Point,
+    /// A point light restricted to a cone around `direction`: full intensity inside
+    /// `inner` radians of the axis, none beyond `outer`.
+    Spot { inner: f32, outer: f32, falloff: SpotFalloff },
+    /// Irradiance `color × intensity` on a surface facing the light, arriving along
+    /// `direction` from infinitely far away.
+    Directional,
+}
+
+impl LightKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Point => "point",
+            Self::Spot { .. } => "spot",
+            Self::Directional => "directional",
+        }
+    }
+}
+
+/// A delta light (no area, so never hit by a ray): sampled by next-event estimation only.
+/// Its emitted quantity (radiant intensity, or irradiance for a directional light) is
+/// `color × intensity`; both factors can be optimised.
+#[derive(Clone, Debug)]
+pub struct Light {
+    pub name: String,
+    pub kind: LightKind,
+    pub position: Vec3,
+    /// Unit direction the light travels along (spot axis, directional light's rays).
+    pub direction: Vec3,
+    pub color: [f32; 3],
+    pub intensity: f32,
+}
+
+/// Light from infinitely far away: radiance `value * scale`, a texture being a lat-long map.
+/// A scene without `[environment]` has a black one.
+#[derive(Clone, Debug)]
+pub struct Environment {
+    pub value: ColorValue,
+    pub scale: f32,
+}
+
+/// What an optimised parameter stands for. Indices are into `Scene::materials` / `meshes`
+/// / `lights`. An environment parameter replaces the environment's value before `scale`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ParamTarget {
+    BaseColor { material: usize },
+    Roughness { material: usize },
+    Metallic { material: usize },
+    Emission { mesh: usize },
+    Environment,
+    LightColor { light: usize },
+    LightIntensity { light: usize },
+}
+
+impl ParamTarget {
+    /// The material whose property this is, if any.
+    pub fn material(self) -> Option<usize> {
+        match self {
+            Self::BaseColor { material } | Self::Roughness { material } | Self::Metallic { material } => Some(material),
+            _ => None,
+        }
+    }
+
+    /// 3 for colours, emission and environment; 1 for roughness, metallic and intensity.
+    pub fn channels(self) -> u32 {
+        match self {
+            Self::Roughness { .. } | Self::Metallic { .. } | Self::LightIntensity { .. } => 1,
+            _ => 3,
+        }
+    }
+}
+
+/// The scene's own value of a parameter, against which parameter error is measured.
+#[derive(Clone, Debug)]
+pub enum Reference {
+    /// One value per channel.
+    Constant(Vec<f32>),
+    /// A texture in the scene; its resolution may differ from the parameter's.
+    Texture(Texture),
+}
+
+#[derive(Clone, Debug)]
+pub struct Param {
+    /// The target as written, e.g. `materials.wall.base_color`; unique within a scene.
+    pub name: String,
+    pub target: ParamTarget,
+    pub channels: u32,
+    /// Start value, one per channel (a scalar `init` is repeated).
+    pub init: Vec<f32>,
+    /// Inclusive bounds, `range[0] < range[1]`.
+    pub range: [f32; 2],
+    /// Optimise as a texture of this width and height instead of one constant.
+    pub texture: Option<[u32; 2]>,
+    /// Learning rate for this parameter instead of the run's `lr` (unless a rate given
+    /// outside the scene replaces it).
+    pub lr: Option<f32>,
+    pub reference: Reference,
+}
+
+/// The scene's `[optimise]` table: its layer of run settings (checked, not resolved: the
+/// command line and job files may override them) and the optimised parameters.
+#[derive(Clone, Debug, Default)]
+pub struct Optimise {
+    pub settings: crate::settings::Settings,
+    pub params: Vec<Param>,
+}
+
+/// Where a scene came from, for writing it back: the TOML alone, or the glTF or Mitsuba
+/// file it is or imports.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum Source {
+    #[default]
+    Toml,
+    Gltf(GltfSource),
+    Mitsuba(PathBuf),
+}
+
+/// An imported glTF file and where the model's imported materials and lights are in it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GltfSource {
+    pub path: PathBuf,
+    /// glTF material index of each imported material, in model order (`None`: glTF's
+    /// default material); materials after these came from the TOML.
+    pub materials: Vec<Option<usize>>,
+    /// `KHR_lights_punctual` index of each imported light, in model order.
+    pub lights: Vec<usize>,
+}
+
+/// A loaded, validated scene; see the module documentation for its invariants.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// The scene file.
+    pub path: PathBuf,
+    pub source: Source,
+    pub film: Film,
+    pub integrator: Integrator,
+    pub sensors: Vec<Sensor>,
+    pub materials: Vec<Material>,
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub environment: Environment,
+    pub optimise: Optimise,
+    /// What loading approximated or left out, one line each (printed by the command line).
+    pub warnings: Vec<String>,
+    pub(super) content_hash: u64,
+}
+
+/// All meshes as one triangle list, for the BVH builder and the GPU. Vertex arrays are
+/// parallel; a zero normal means "use the face normal", a mesh without UVs gets zeros.
+#[derive(Clone, Debug, Default)]
+pub struct SceneGeometry {
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Vec<[f32; 3]>,
+    pub uvs: Vec<[f32; 2]>,
+    pub indices: Vec<[u32; 3]>,
+    pub triangle_material: Vec<u32>,
+    pub triangle_mesh: Vec<u32>,
+    pub triangle_emission: Vec<[f32; 3]>,
+}
+
+impl Scene {
+    /// Directory that relative paths in the scene file, and cached targets, live in.
+    pub fn dir(&self) -> &Path {
+        self.path.parent().unwrap_or(Path::new(""))
+    }
+
+    /// A hash of everything that determines the reference rendering (see
+    /// [`super::hash`]): stable across runs and platforms, so it can key a cache of
+    /// rendered targets.
+    pub fn content_hash(&self) -> u64 {
+        self.content_hash
+    }
+
+    pub fn material_index(&self, name: &str) -> Option<usize> {
+        self.materials.iter().position(|m| m.name == name)
+    }
+
+    pub fn mesh_index(&self, name: &str) -> Option<usize> {
+        self.meshes.iter().position(|m| m.name == name)
+    }
+
+    pub fn light_index(&self, name: &str) -> Option<usize> {
+        self.lights.iter().position(|l| l.name == name)
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.meshes.iter().map(|m| m.indices.len()).sum()
+    }
+
+    /// Concatenates all meshes, in order, into one [`SceneGeometry`].
+    pub fn flatten(&self) -> SceneGeometry {
+        let mut g = SceneGeometry::default();
+        for (mesh_id, mesh) in self.meshes.iter().enumerate() {
+            let base = g.positions.len() as u32;
+            let n = mesh.positions.len();
+            g.positions.extend_from_slice(&mesh.positions);
+            if mesh.normals.is_empty() {
+                g.normals.resize(g.normals.len() + n, [0.0; 3]);
+            } else {
+                g.normals.extend_from_slice(&mesh.normals);
+            }
+            if mesh.uvs.is_empty() {
+                g.uvs.resize(g.uvs.len() + n, [0.0; 2]);
+            } else {
+                g.uvs.extend_from_slice(&mesh.uvs);
+            }
+            g.indices.extend(mesh.indices.iter().map(|t| t.map(|i| i + base)));
+            let count = mesh.indices.len();
+            g.triangle_material.extend(std::iter::repeat_n(mesh.material as u32, count));
+            g.triangle_mesh.extend(std::iter::repeat_n(mesh_id as u32, count));
+            g.triangle_emission.extend(std::iter::repeat_n(mesh.emission, count));
+        }
+        g
+    }
+}

@@ -1,0 +1,483 @@
+//! The recovered scene written back: `OUTDIR/final/` holds `scene.toml` (the project's
+//! format, self-contained but for the original OBJ files of a TOML scene: imported meshes
+//! as OBJ in `meshes/`, every texture as EXR in `textures/`), and for a glTF scene (or a
+//! TOML that imports one) `scene.gltf`: the source document with the recovered factors,
+//! textures and lights written into it, its buffers and images beside it.
+//!
+//! In the glTF, recovered textures are PNG: base colour sRGB-encoded, roughness and
+//! metallic packed into the G and B channels of a linear metallic-roughness texture (the
+//! other channel from the material's other value); 8 bits per channel, so a texture
+//! round-trips to within 1/255 (the TOML's EXRs hold the exact values). Constant factors,
+//! emission (with `KHR_materials_emissive_strength` above 1) and light values round-trip
+//! exactly. The environment has no glTF counterpart and is written to the TOML only.
+//!
+//! `final/` is written into `final.tmp/` and renamed into place, so it is either the old
+//! directory or the complete new one.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{json, Value};
+
+use super::model::*;
+use super::{MaterialKind, SceneError};
+use crate::image::{self, Image};
+
+/// A recovered parameter value: a constant (one float per channel) or a texture of
+/// `channels` floats per texel, rows from the top.
+#[derive(Clone, Debug)]
+pub enum Recovered {
+    Constant(Vec<f32>),
+    Texture { width: u32, height: u32, channels: u32, data: Vec<f32> },
+}
+
+impl Recovered {
+    fn image(&self) -> Option<Image> {
+        match self {
+            Recovered::Constant(_) => None,
+            Recovered::Texture { width, height, channels, data } => {
+                let c = *channels as usize;
+                let data = data.chunks(c).map(|t| if c == 1 { [t[0]; 3] } else { [t[0], t[1], t[2]] }).collect();
+                Some(Image { width: *width, height: *height, data })
+            }
+        }
+    }
+
+    fn constant3(&self) -> [f32; 3] {
+        match self {
+            Recovered::Constant(v) if v.len() >= 3 => [v[0], v[1], v[2]],
+            Recovered::Constant(v) => [v.first().copied().unwrap_or(0.0); 3],
+            Recovered::Texture { .. } => [0.0; 3],
+        }
+    }
+}
+
+fn write_err(path: &Path, message: impl std::fmt::Display) -> SceneError {
+    SceneError::Write { path: path.to_path_buf(), message: message.to_string() }
+}
+
+/// A name made safe for a file name.
+fn file_name(name: &str) -> String {
+    name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' }).collect()
+}
+
+/// `scene` with every recovered value in place of the scene's own. Recovered textures get
+/// the path `textures/<parameter>.exr` (where [`write_final`] puts them).
+pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
+    let mut out = scene.clone();
+    let texture = |target: ParamTarget, r: &Recovered| {
+        let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
+        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image })
+    };
+    for (target, r) in values {
+        let color = || match texture(*target, r) {
+            Some(t) => ColorValue::Texture(t),
+            None => ColorValue::Constant(r.constant3()),
+        };
+        let scalar = || match texture(*target, r) {
+            Some(t) => ScalarValue::Texture(t),
+            None => ScalarValue::Constant(r.constant3()[0]),
+        };
+        match *target {
+            ParamTarget::BaseColor { material } => out.materials[material].base_color = color(),
+            ParamTarget::Roughness { material } => out.materials[material].roughness = scalar(),
+            ParamTarget::Metallic { material } => out.materials[material].metallic = scalar(),
+            ParamTarget::Emission { mesh } => out.meshes[mesh].emission = r.constant3(),
+            ParamTarget::Environment => out.environment.value = color(),
+            ParamTarget::LightColor { light } => out.lights[light].color = r.constant3(),
+            ParamTarget::LightIntensity { light } => out.lights[light].intensity = r.constant3()[0],
+        }
+    }
+    out
+}
+
+/// Writes `out_dir/final/` for `scene` with the recovered `values` (see the module
+/// documentation).
+pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Result<(), SceneError> {
+    let recovered = apply(scene, values);
+    let tmp = out_dir.join("final.tmp");
+    let _ = std::fs::remove_dir_all(&tmp);
+    for sub in ["meshes", "textures"] {
+        std::fs::create_dir_all(tmp.join(sub)).map_err(|e| write_err(&tmp, e))?;
+    }
+    let toml = toml_text(&recovered, &tmp)?;
+    image::write_bytes_atomic(&tmp.join("scene.toml"), toml.as_bytes()).map_err(|e| write_err(&tmp.join("scene.toml"), e))?;
+    if let Source::Gltf(source) = &scene.source {
+        write_gltf(&tmp, source, &recovered, values)?;
+    }
+    let dst = out_dir.join("final");
+    let old = out_dir.join("final.old");
+    let _ = std::fs::remove_dir_all(&old);
+    if dst.exists() {
+        std::fs::rename(&dst, &old).map_err(|e| write_err(&dst, e))?;
+    }
+    std::fs::rename(&tmp, &dst).map_err(|e| write_err(&dst, e))?;
+    let _ = std::fs::remove_dir_all(&old);
+    Ok(())
+}
+
+/// An f32 as the TOML/JSON number that prints shortest and reads back as the same f32.
+fn num(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(v as f64)
+}
+
+fn arr(v: &[f32]) -> toml::Value {
+    toml::Value::Array(v.iter().map(|&x| toml::Value::Float(num(x))).collect())
+}
+
+/// Writes `t` as `textures/<name>.exr` under `dir` and returns the relative path.
+fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
+    let rel = format!("textures/{}.exr", file_name(name));
+    image::write_exr(&dir.join(&rel), image).map_err(|e| write_err(&dir.join(&rel), e))?;
+    Ok(rel)
+}
+
+fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
+    use toml::{Table, Value};
+    let table = |pairs: Vec<(&str, Value)>| -> Value { Value::Table(pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect::<Table>()) };
+    let mut root = Table::new();
+    root.insert("film".into(), table(vec![("width", Value::Integer(scene.film.width.into())), ("height", Value::Integer(scene.film.height.into()))]));
+    root.insert(
+        "integrator".into(),
+        table(vec![("max_depth", Value::Integer(scene.integrator.max_depth.into())), ("rr_depth", Value::Integer(scene.integrator.rr_depth.into()))]),
+    );
+    let sensors = scene
+        .sensors
+        .iter()
+        .map(|s| table(vec![("origin", arr(&s.origin.to_array())), ("target", arr(&s.look_at.to_array())), ("up", arr(&s.up.to_array())), ("fov_y", Value::Float(num(s.fov_y)))]))
+        .collect();
+    root.insert("sensors".into(), Value::Array(sensors));
+    let mut materials = Vec::new();
+    for m in &scene.materials {
+        let tex = |what: &str, t: &Texture| -> Result<Value, SceneError> { Ok(table(vec![("texture", Value::String(exr(dir, &format!("{}.{what}", m.name), &t.image)?))])) };
+        let mut pairs = vec![("name", Value::String(m.name.clone())), ("type", Value::String(m.kind.as_str().into()))];
+        pairs.push((
+            "base_color",
+            match &m.base_color {
+                ColorValue::Constant(c) => arr(c),
+                ColorValue::Texture(t) => tex("base_color", t)?,
+            },
+        ));
+        if m.one_sided {
+            pairs.push(("one_sided", Value::Boolean(true)));
+        }
+        if m.kind == MaterialKind::Principled {
+            for (key, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
+                pairs.push((
+                    key,
+                    match v {
+                        ScalarValue::Constant(c) => Value::Float(num(*c)),
+                        ScalarValue::Texture(t) => tex(key, t)?,
+                    },
+                ));
+            }
+        }
+        materials.push(table(pairs));
+    }
+    root.insert("materials".into(), Value::Array(materials));
+    let mut meshes = Vec::new();
+    for m in &scene.meshes {
+        let is_obj = m.path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+        let file = if scene.source == Source::Toml && is_obj {
+            // A TOML scene's OBJ files hold its meshes as they are: refer to them.
+            std::fs::canonicalize(&m.path).map_err(|e| write_err(&m.path, e))?.display().to_string()
+        } else {
+            let rel = format!("meshes/{}.obj", file_name(&m.name));
+            image::write_bytes_atomic(&dir.join(&rel), obj_text(m).as_bytes()).map_err(|e| write_err(&dir.join(&rel), e))?;
+            rel
+        };
+        let mut pairs = vec![
+            ("name", Value::String(m.name.clone())),
+            ("file", Value::String(file)),
+            ("material", Value::String(scene.materials[m.material].name.clone())),
+            ("emission", arr(&m.emission)),
+        ];
+        if m.two_sided_emission {
+            pairs.push(("two_sided", Value::Boolean(true)));
+        }
+        meshes.push(table(pairs));
+    }
+    root.insert("meshes".into(), Value::Array(meshes));
+    let lights: Vec<Value> = scene
+        .lights
+        .iter()
+        .map(|l| {
+            let mut pairs = vec![
+                ("name", Value::String(l.name.clone())),
+                ("type", Value::String(l.kind.as_str().into())),
+                ("color", arr(&l.color)),
+                ("intensity", Value::Float(num(l.intensity))),
+            ];
+            if l.kind != LightKind::Directional {
+                pairs.push(("position", arr(&l.position.to_array())));
+            }
+            if l.kind != LightKind::Point {
+                pairs.push(("direction", arr(&l.direction.to_array())));
+            }
+            if let LightKind::Spot { inner, outer, falloff } = l.kind {
+                pairs.push(("inner_angle", Value::Float(num(inner.to_degrees()))));
+                pairs.push(("outer_angle", Value::Float(num(outer.to_degrees()))));
+                pairs.push(("falloff", Value::String(falloff.as_str().into())));
+            }
+            table(pairs)
+        })
+        .collect();
+    if !lights.is_empty() {
+        root.insert("lights".into(), Value::Array(lights));
+    }
+    let env = match &scene.environment.value {
+        ColorValue::Constant(c) => ("constant", arr(c)),
+        ColorValue::Texture(t) => ("file", Value::String(exr(dir, "environment", &t.image)?)),
+    };
+    root.insert("environment".into(), table(vec![env, ("scale", Value::Float(num(scene.environment.scale)))]));
+    let text = toml::to_string(&root).map_err(|e| write_err(dir, e))?;
+    Ok(format!("# The recovered scene: the optimised values in place of the scene's own.\n{text}"))
+}
+
+/// A mesh as OBJ text, positions, texture coordinates and normals shortest-exact.
+fn obj_text(m: &Mesh) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    for p in &m.positions {
+        let _ = writeln!(s, "v {} {} {}", p[0], p[1], p[2]);
+    }
+    for t in &m.uvs {
+        let _ = writeln!(s, "vt {} {}", t[0], t[1]);
+    }
+    for n in &m.normals {
+        let _ = writeln!(s, "vn {} {} {}", n[0], n[1], n[2]);
+    }
+    for tri in &m.indices {
+        let corner = |i: u32| {
+            let k = i + 1;
+            match (m.uvs.is_empty(), m.normals.is_empty()) {
+                (true, true) => format!("{k}"),
+                (false, true) => format!("{k}/{k}"),
+                (true, false) => format!("{k}//{k}"),
+                (false, false) => format!("{k}/{k}/{k}"),
+            }
+        };
+        let _ = writeln!(s, "f {} {} {}", corner(tri[0]), corner(tri[1]), corner(tri[2]));
+    }
+    s
+}
+
+// ---------------------------------------------------------------------------------------
+// glTF
+// ---------------------------------------------------------------------------------------
+
+/// The source glTF's JSON and, for a GLB, its binary chunk.
+fn read_gltf(path: &Path) -> Result<(Value, Option<Vec<u8>>), SceneError> {
+    let bytes = std::fs::read(path).map_err(|e| write_err(path, e))?;
+    let (json, blob) = if bytes.starts_with(b"glTF") {
+        let glb = gltf::binary::Glb::from_slice(&bytes).map_err(|e| write_err(path, e))?;
+        (glb.json.into_owned(), glb.bin.map(|b| b.into_owned()))
+    } else {
+        (bytes, None)
+    };
+    Ok((serde_json::from_slice(&json).map_err(|e| write_err(path, e))?, blob))
+}
+
+/// Copies the file at `uri` (relative to `from`) into `to`, as `prefix` + its file name,
+/// and returns the new relative URI; data URIs stay as they are.
+fn carry(uri: &str, from: &Path, to: &Path, prefix: &str) -> Result<String, SceneError> {
+    if uri.starts_with("data:") {
+        return Ok(uri.to_string());
+    }
+    let decoded = urlencoding_decode(uri);
+    let src = from.join(&decoded);
+    let name = format!("{prefix}{}", file_name(&Path::new(&decoded).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default()));
+    std::fs::copy(&src, to.join(&name)).map_err(|e| write_err(&src, e))?;
+    Ok(name)
+}
+
+/// Percent-decoding of a relative URI (glTF URIs are RFC 3986 references).
+fn urlencoding_decode(uri: &str) -> String {
+    let bytes = uri.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = |b: u8| (b as char).to_digit(16);
+        if bytes[i] == b'%' && i + 2 < bytes.len() {
+            if let (Some(h), Some(l)) = (hex(bytes[i + 1]), hex(bytes[i + 2])) {
+                out.push((h * 16 + l) as u8);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(bytes[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Result<(), SceneError> {
+    let (mut root, blob) = read_gltf(&source.path)?;
+    let from = source.path.parent().map(Path::to_path_buf).unwrap_or_default();
+    // Buffers and images travel with the document.
+    if let Some(buffers) = root.get_mut("buffers").and_then(Value::as_array_mut) {
+        for (i, b) in buffers.iter_mut().enumerate() {
+            let uri = match b.get("uri").and_then(Value::as_str) {
+                Some(uri) => carry(uri, &from, dir, &format!("buffer{i}-"))?,
+                None => {
+                    let data = blob.as_deref().ok_or_else(|| write_err(&source.path, format!("buffers[{i}] has no uri and the file no binary chunk")))?;
+                    let name = "scene.bin".to_string();
+                    image::write_bytes_atomic(&dir.join(&name), data).map_err(|e| write_err(&dir.join(&name), e))?;
+                    name
+                }
+            };
+            b["uri"] = json!(uri);
+        }
+    }
+    if let Some(images) = root.get_mut("images").and_then(Value::as_array_mut) {
+        for (i, img) in images.iter_mut().enumerate() {
+            if let Some(uri) = img.get("uri").and_then(Value::as_str) {
+                let new = carry(uri, &from, dir, &format!("image{i}-"))?;
+                img["uri"] = json!(new);
+            }
+        }
+    }
+    let material_of = |m: usize| source.materials.get(m).copied().flatten();
+    for (target, _) in values {
+        match *target {
+            ParamTarget::BaseColor { material } => {
+                let Some(g) = material_of(material) else { continue };
+                match &scene.materials[material].base_color {
+                    ColorValue::Constant(c) => {
+                        let pbr = pbr(&mut root, g);
+                        let alpha = pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0);
+                        pbr["baseColorFactor"] = json!([num(c[0]), num(c[1]), num(c[2]), alpha]);
+                        if let Some(obj) = pbr.as_object_mut() {
+                            obj.remove("baseColorTexture");
+                        }
+                    }
+                    ColorValue::Texture(t) => {
+                        let index = add_png(&mut root, dir, &format!("{}.base_color", scene.materials[material].name), &t.image, true)?;
+                        let pbr = pbr(&mut root, g);
+                        let alpha = pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0);
+                        pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, alpha]);
+                        pbr["baseColorTexture"] = json!({ "index": index });
+                    }
+                }
+            }
+            ParamTarget::Roughness { material } | ParamTarget::Metallic { material } => {
+                let Some(g) = material_of(material) else { continue };
+                let m = &scene.materials[material];
+                match (&m.roughness, &m.metallic) {
+                    (ScalarValue::Constant(rough), ScalarValue::Constant(metal)) => {
+                        let pbr = pbr(&mut root, g);
+                        pbr["roughnessFactor"] = json!(num(*rough));
+                        pbr["metallicFactor"] = json!(num(*metal));
+                        if let Some(obj) = pbr.as_object_mut() {
+                            obj.remove("metallicRoughnessTexture");
+                        }
+                    }
+                    (rough, metal) => {
+                        let packed = pack_metallic_roughness(rough, metal);
+                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false)?;
+                        let pbr = pbr(&mut root, g);
+                        pbr["roughnessFactor"] = json!(1.0);
+                        pbr["metallicFactor"] = json!(1.0);
+                        pbr["metallicRoughnessTexture"] = json!({ "index": index });
+                    }
+                }
+            }
+            ParamTarget::Emission { mesh } => {
+                let Some(g) = material_of(scene.meshes[mesh].material) else { continue };
+                let e = scene.meshes[mesh].emission;
+                let strength = e.iter().copied().fold(0.0f32, f32::max);
+                let m = &mut root["materials"][g];
+                if strength > 1.0 {
+                    m["emissiveFactor"] = json!([num(e[0] / strength), num(e[1] / strength), num(e[2] / strength)]);
+                    m["extensions"]["KHR_materials_emissive_strength"] = json!({ "emissiveStrength": num(strength) });
+                    used(&mut root, "KHR_materials_emissive_strength");
+                } else {
+                    m["emissiveFactor"] = json!([num(e[0]), num(e[1]), num(e[2])]);
+                    if let Some(ext) = m.get_mut("extensions").and_then(Value::as_object_mut) {
+                        ext.remove("KHR_materials_emissive_strength");
+                    }
+                }
+            }
+            ParamTarget::LightColor { light } | ParamTarget::LightIntensity { light } => {
+                let Some(&g) = source.lights.get(light) else { continue };
+                let l = &scene.lights[light];
+                // glTF colours are in [0, 1]: a brighter recovered colour moves into the
+                // intensity.
+                let peak = l.color.iter().copied().fold(0.0f32, f32::max);
+                let (color, intensity) = if peak > 1.0 { (l.color.map(|c| c / peak), l.intensity * peak) } else { (l.color, l.intensity) };
+                let entry = &mut root["extensions"]["KHR_lights_punctual"]["lights"][g];
+                entry["color"] = json!([num(color[0]), num(color[1]), num(color[2])]);
+                entry["intensity"] = json!(num(intensity));
+            }
+            ParamTarget::Environment => {}
+        }
+    }
+    let text = serde_json::to_string_pretty(&root).map_err(|e| write_err(dir, e))?;
+    let path = dir.join("scene.gltf");
+    image::write_bytes_atomic(&path, text.as_bytes()).map_err(|e| write_err(&path, e))
+}
+
+/// `materials[g].pbrMetallicRoughness`, created if absent.
+fn pbr(root: &mut Value, g: usize) -> &mut Value {
+    let m = &mut root["materials"][g];
+    if !m.get("pbrMetallicRoughness").is_some_and(Value::is_object) {
+        m["pbrMetallicRoughness"] = json!({});
+    }
+    &mut m["pbrMetallicRoughness"]
+}
+
+fn used(root: &mut Value, ext: &str) {
+    if !root.get("extensionsUsed").is_some_and(Value::is_array) {
+        root["extensionsUsed"] = json!([]);
+    }
+    if let Some(list) = root["extensionsUsed"].as_array_mut() {
+        if !list.iter().any(|v| v == ext) {
+            list.push(json!(ext));
+        }
+    }
+}
+
+/// Roughness in G and metallic in B (R is unused, 0) at the larger texture's size, the
+/// other value sampled nearest or constant.
+fn pack_metallic_roughness(rough: &ScalarValue, metal: &ScalarValue) -> Image {
+    let size = |v: &ScalarValue| match v {
+        ScalarValue::Texture(t) => (t.image.width, t.image.height),
+        ScalarValue::Constant(_) => (1, 1),
+    };
+    let (w, h) = {
+        let (a, b) = (size(rough), size(metal));
+        (a.0.max(b.0), a.1.max(b.1))
+    };
+    let at = |v: &ScalarValue, x: u32, y: u32| match v {
+        ScalarValue::Constant(c) => *c,
+        ScalarValue::Texture(t) => t.image.get((x * t.image.width / w).min(t.image.width - 1), (y * t.image.height / h).min(t.image.height - 1))[0],
+    };
+    let data = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| [0.0, at(rough, x, y), at(metal, x, y)]).collect();
+    Image { width: w, height: h, data }
+}
+
+/// Writes `img` as `textures/<name>.png` (sRGB-encoded if `srgb`, else linear 8-bit) and
+/// adds an image and a texture referring to it; returns the texture index.
+fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool) -> Result<usize, SceneError> {
+    let rel = format!("textures/{}.png", file_name(name));
+    let path = dir.join(&rel);
+    let encoded = if srgb { img.clone() } else { Image { data: img.data.iter().map(|p| p.map(image::srgb_decode)).collect(), ..img.clone() } };
+    // write_png encodes with the sRGB curve; a linear texture is pre-decoded so that the
+    // stored bytes are its linear values.
+    image::write_png(&path, &encoded).map_err(|e| write_err(&path, e))?;
+    let image_index = push(root, "images", json!({ "uri": rel }));
+    Ok(push(root, "textures", json!({ "source": image_index })))
+}
+
+/// Appends `v` to the array `root[key]` (created if absent) and returns its index.
+fn push(root: &mut Value, key: &str, v: Value) -> usize {
+    match root.get_mut(key).and_then(Value::as_array_mut) {
+        Some(list) => {
+            list.push(v);
+            list.len() - 1
+        }
+        None => {
+            root[key] = json!([v]);
+            0
+        }
+    }
+}

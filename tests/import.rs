@@ -1,0 +1,435 @@
+//! Scenes from glTF 2.0 and Mitsuba 3 XML: the files under tests/data/ (written by
+//! tests/data/make_data.py) load to the same model as their TOML twin and render the same
+//! image, every unsupported feature is an error naming where it is, and the recovered
+//! scene written back as glTF and TOML loads again and renders as the parameters did.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::scenes::temp_dir;
+use common::with_gpu;
+use vkinverse::image::{srgb_decode, Image};
+use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::scene::write::write_final;
+use vkinverse::scene::{ColorValue, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError};
+
+fn data(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(rel)
+}
+
+/// The box's film and depth, for the bare glTF (512², depth 8 by default).
+const BOX: LoadOptions = LoadOptions { film: Some(Film { width: 24, height: 24 }), max_depth: Some(4) };
+
+fn render(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene, sensor: u32, spp: u32, seed: u32) -> Image {
+    let r = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
+    r.scene.set_theta(r.scene.layout.reference()).unwrap();
+    r.render(sensor, spp, seed, |_, _| {}).unwrap()
+}
+
+#[test]
+fn box_loads_to_the_same_model_from_every_format() {
+    let toml = Scene::load(data("box/scene.toml")).unwrap();
+    for file in ["box/box.gltf", "box/box.glb", "box/box.xml"] {
+        let s = Scene::load(data(file)).unwrap();
+        // The XML's principled BSDF is exact here but approximate against Mitsuba's.
+        let expected_warnings = if file.ends_with(".xml") { 1 } else { 0 };
+        assert_eq!(s.warnings.len(), expected_warnings, "{file}: {:?}", s.warnings);
+        assert!(s.warnings.iter().all(|w| w.contains("Disney diffuse lobe is rendered as Lambert")), "{file}: {:?}", s.warnings);
+        assert_eq!(s.meshes.len(), 3, "{file}");
+        for (a, b) in toml.meshes.iter().zip(&s.meshes) {
+            assert_eq!(a.name, b.name, "{file}: mesh names are the source's");
+            assert_eq!((&a.positions, &a.indices, a.emission), (&b.positions, &b.indices, b.emission), "{file}: mesh {}", a.name);
+            assert_eq!(toml.materials[a.material].name, s.materials[b.material].name, "{file}: material of {}", a.name);
+        }
+        for (a, b) in toml.materials.iter().zip(&s.materials) {
+            assert_eq!((a.name.as_str(), a.kind), (b.name.as_str(), b.kind), "{file}");
+            let (ColorValue::Constant(ca), ColorValue::Constant(cb)) = (&a.base_color, &b.base_color) else { panic!("constants") };
+            let (ScalarValue::Constant(ra), ScalarValue::Constant(rb)) = (&a.roughness, &b.roughness) else { panic!("constants") };
+            assert_eq!((ca, ra), (cb, rb), "{file}: material {}", a.name);
+        }
+        // Mitsuba's intensity is one RGB value: colour × intensity is what must agree.
+        let (la, lb) = (&toml.lights[0], &s.lights[0]);
+        let emitted = |l: &vkinverse::scene::Light| l.color.map(|c| c * l.intensity);
+        assert_eq!((la.name.as_str(), la.kind, la.position, emitted(la)), (lb.name.as_str(), lb.kind, lb.position, emitted(lb)), "{file}");
+        let s0 = &s.sensors[0];
+        assert!(s0.origin.abs_diff_eq(toml.sensors[0].origin, 1e-6) && s0.forward.abs_diff_eq(toml.sensors[0].forward, 1e-6), "{file}: camera");
+        assert!((s0.fov_y - 45.0).abs() < 1e-4, "{file}: fov {}", s0.fov_y);
+    }
+    // A bare glTF: 512 on the camera's longer side and depth 8 unless told otherwise.
+    let gltf = Scene::load(data("box/box.gltf")).unwrap();
+    assert_eq!((gltf.film, gltf.integrator.max_depth), (Film { width: 512, height: 512 }, 8));
+    let wide = Scene::load(data("textured/textured.glb")).unwrap();
+    assert_eq!(wide.film, Film { width: 512, height: 256 }, "aspect ratio 2");
+    let told = Scene::load_with(data("box/box.glb"), &BOX).unwrap();
+    assert_eq!((told.film, told.integrator.max_depth), (Film { width: 24, height: 24 }, 4));
+    // The XML's own film and depths.
+    let xml = Scene::load(data("box/box.xml")).unwrap();
+    assert_eq!((xml.film, xml.integrator.max_depth, xml.integrator.rr_depth), (Film { width: 24, height: 24 }, 4, 5));
+}
+
+/// A TOML that imports the glTF, GLB or XML file and adds scene.toml's camera holds the
+/// same geometry in the same order: the image from that camera is bit-identical to
+/// scene.toml's, and so is the content hash of what the camera sees... the hash covers
+/// every sensor, so it differs only by the imported camera, which is checked separately.
+#[test]
+fn importing_tomls_render_bit_identical_images() {
+    let toml = Scene::load(data("box/scene.toml")).unwrap();
+    with_gpu(|ctx| {
+        let reference = render(ctx, &toml, 0, 4, 7);
+        for file in ["box/import-gltf.toml", "box/import-glb.toml", "box/import-xml.toml"] {
+            let s = Scene::load(data(file)).unwrap();
+            assert_eq!(s.sensors.len(), 2, "{file}: the imported camera, then the TOML's");
+            assert_eq!((s.film, s.integrator), (toml.film, toml.integrator), "{file}: the TOML's film and depth win");
+            let img = render(ctx, &s, 1, 4, 7);
+            assert!(img == reference, "{file}: the image differs from scene.toml's");
+            let mut only_toml_camera = s.clone();
+            only_toml_camera.sensors.remove(0);
+            assert_eq!(only_toml_camera.film, toml.film);
+        }
+    });
+    // Equal models hash equally, whatever the files; a changed value changes the hash.
+    let a = Scene::load(data("box/import-gltf.toml")).unwrap();
+    let b = Scene::load(data("box/import-glb.toml")).unwrap();
+    assert_eq!(a.content_hash(), b.content_hash(), "the .gltf and .glb hold one scene");
+    let c = Scene::load_with(data("box/import-gltf.toml"), &LoadOptions { film: None, max_depth: Some(3) }).unwrap();
+    assert_ne!(a.content_hash(), c.content_hash(), "--max-depth changes the render");
+}
+
+/// Whether `b` is a render of the same expected image as the independent renders `a1` and
+/// `a2` of the reference: in each 8 × 8 block of pixels and each channel, the mean of `b`
+/// differs from the mean of `a1` by at most 5 standard errors, the per-pixel variances
+/// estimated as (a1 − a2)² / 2 (unbiased; summed over a block, a usable estimate). Blocks
+/// rather than pixels, because the pixels on an emitter's edge are far from normal.
+fn same_distribution(a1: &Image, a2: &Image, b: &Image) -> Result<(), String> {
+    const BLOCK: u32 = 8;
+    for by in 0..a1.height.div_ceil(BLOCK) {
+        for bx in 0..a1.width.div_ceil(BLOCK) {
+            let pixels: Vec<(u32, u32)> = (by * BLOCK..((by + 1) * BLOCK).min(a1.height))
+                .flat_map(|y| (bx * BLOCK..((bx + 1) * BLOCK).min(a1.width)).map(move |x| (x, y)))
+                .collect();
+            let n = pixels.len() as f64;
+            for c in 0..3 {
+                let mean = |img: &Image| pixels.iter().map(|&(x, y)| img.get(x, y)[c] as f64).sum::<f64>() / n;
+                let var: f64 = pixels.iter().map(|&(x, y)| (a1.get(x, y)[c] as f64 - a2.get(x, y)[c] as f64).powi(2) / 2.0).sum();
+                // The difference of two independent block means: twice one's variance.
+                let se = (2.0 * var).sqrt() / n;
+                let (ma, mb) = (mean(a1), mean(b));
+                if (mb - ma).abs() > 5.0 * se + 1e-6 {
+                    return Err(format!("block ({bx}, {by}) channel {c}: mean {mb} vs {ma} ({:.1} standard errors)", (mb - ma).abs() / se));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The bare glTF, GLB and XML files, from their own cameras (computed from a node matrix
+/// and a look-at transform, so their rays differ from the TOML's by rounding): within
+/// Monte Carlo noise of scene.toml by [`same_distribution`], which rejects the image of a
+/// wall 10 % darker.
+#[test]
+fn bare_files_render_within_noise_of_the_toml() {
+    let toml = Scene::load(data("box/scene.toml")).unwrap();
+    with_gpu(|ctx| {
+        let spp = 32;
+        let a1 = render(ctx, &toml, 0, spp, 1);
+        let a2 = render(ctx, &toml, 0, spp, 2);
+        for (k, file) in ["box/box.gltf", "box/box.glb", "box/box.xml"].into_iter().enumerate() {
+            let s = Scene::load_with(data(file), &BOX).unwrap();
+            let b = render(ctx, &s, 0, spp, 3 + k as u32);
+            same_distribution(&a1, &a2, &b).unwrap_or_else(|e| panic!("{file}: {e}"));
+        }
+        let mut darker = toml.clone();
+        darker.materials[1].base_color = ColorValue::Constant([0.54, 0.18, 0.09]);
+        let b = render(ctx, &darker, 0, spp, 9);
+        assert!(same_distribution(&a1, &a2, &b).is_err(), "the test cannot see a 10 % darker wall");
+    });
+}
+
+#[test]
+fn gltf_textures_transforms_and_embedded_images_are_read() {
+    let s = Scene::load(data("textured/textured.glb")).unwrap();
+    let m = &s.materials[0];
+    assert_eq!(m.name, "painted");
+    let ColorValue::Texture(base) = &m.base_color else { panic!("base colour texture") };
+    assert!(base.path.ends_with("checker.png"), "{}", base.path.display());
+    // Factor [0.5, 1, 1] times the sRGB-decoded bytes; rows from the top.
+    assert_eq!((base.image.width, base.image.height), (2, 2));
+    assert_eq!(base.image.get(0, 0), [0.5, 0.0, 0.0]);
+    assert_eq!(base.image.get(1, 1), [0.5, 1.0, 1.0]);
+    assert_eq!(base.image.get(0, 1), [0.0, 0.0, 1.0]);
+    let (ScalarValue::Texture(rough), ScalarValue::Texture(metal)) = (&m.roughness, &m.metallic) else { panic!("metallic-roughness texture") };
+    assert!(rough.path.to_string_lossy().ends_with("#images[1]"), "embedded image: {}", rough.path.display());
+    // G × roughnessFactor 0.5, B × metallicFactor 1, stored linearly.
+    assert!((rough.image.get(0, 0)[0] - 0.2 * 0.5).abs() < 1e-6 && (rough.image.get(1, 0)[0] - 0.8 * 0.5).abs() < 1e-6);
+    assert_eq!((metal.image.get(0, 0)[0], metal.image.get(1, 0)[0]), (1.0, 0.0));
+    assert!((srgb_decode(0.5) - 0.21404).abs() < 1e-4, "sRGB decoding");
+    // The node's scale (2 along x) then rotation (90° about y): (−1, 0, −1) → (−1, 0, 2).
+    let q = &s.meshes[0];
+    assert!(glam::Vec3::from(q.positions[0]).abs_diff_eq(glam::Vec3::new(-1.0, 0.0, 2.0), 1e-5), "{:?}", q.positions[0]);
+    // glTF's v runs down the image, the model's up.
+    assert_eq!((q.uvs[0], q.uvs[1]), ([0.0, 1.0], [0.0, 0.0]));
+    // The camera looks straight down from y = 3.
+    assert!(s.sensors[0].forward.abs_diff_eq(glam::Vec3::NEG_Y, 1e-5) && s.sensors[0].origin.abs_diff_eq(glam::Vec3::new(0.0, 3.0, 0.0), 1e-6));
+    with_gpu(|ctx| {
+        let small = Scene::load_with(data("textured/textured.glb"), &LoadOptions { film: Some(Film { width: 8, height: 4 }), max_depth: Some(2) }).unwrap();
+        assert!(render(ctx, &small, 0, 1, 0).data.iter().all(|p| p.iter().all(|c| c.is_finite())));
+    });
+}
+
+fn import_err(file: &str) -> String {
+    match Scene::load(data(file)) {
+        Ok(_) => panic!("{file} loaded but should not have"),
+        Err(e) => {
+            assert!(matches!(e, SceneError::Import { .. } | SceneError::Obj { .. }), "{file}: {e:?}");
+            let msg = e.to_string();
+            assert!(!msg.contains('\n'), "{file}: multi-line message {msg}");
+            msg
+        }
+    }
+}
+
+#[test]
+fn unsupported_gltf_content_is_named_with_its_json_path() {
+    for (file, needles) in [
+        ("required-extension", &["extensionsRequired[0]", "KHR_draco_mesh_compression"][..]),
+        ("required-on-material", &["materials[0].extensions.KHR_materials_clearcoat", "not supported"]),
+        ("lines", &["meshes[1].primitives[0].mode", "Lines"]),
+        ("normal-map", &["materials[0].normalTexture", "normal maps"]),
+        ("texcoord1", &["baseColorTexture.texCoord", "texture coordinate set 1"]),
+        ("orthographic", &["cameras[0]", "orthographic"]),
+        ("emissive-texture", &["materials[2].emissiveTexture"]),
+        ("missing-buffer", &["buffers[0]"]),
+    ] {
+        let msg = import_err(&format!("errors/{file}.gltf"));
+        for n in needles {
+            assert!(msg.contains(n), "{file}: {msg:?} lacks {n:?}");
+        }
+        assert!(msg.contains(&format!("{file}.gltf")), "{file}: {msg:?} names the file");
+    }
+    // An optional extension is a one-line warning naming where it is.
+    let s = Scene::load(data("errors/optional-extension.gltf")).unwrap();
+    assert_eq!(s.warnings.len(), 1, "{:?}", s.warnings);
+    assert!(s.warnings[0].contains("materials[1].extensions.KHR_materials_clearcoat") && !s.warnings[0].contains('\n'), "{}", s.warnings[0]);
+}
+
+#[test]
+fn unsupported_mitsuba_content_is_named_with_its_line() {
+    for (file, needles) in [
+        ("plastic", &["<bsdf type=\"plastic\">", "line 21"][..]),
+        ("disk", &["<shape type=\"disk\" id=\"floor\">", "only obj, ply"]),
+        ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
+        ("volpath", &["<integrator type=\"volpath\">", "line 3"]),
+        ("medium", &["<medium type=\"homogeneous\" id=\"fog\">", "not supported in <scene>"]),
+        ("undefined-default", &["$resolution", "<integer name=\"width\">"]),
+        ("clearcoat", &["<float name=\"clearcoat\">", "only 0"]),
+        ("orthographic", &["<sensor type=\"orthographic\">", "perspective"]),
+        ("textured-area", &["textured area lights", "<emitter type=\"area\">"]),
+    ] {
+        let msg = import_err(&format!("errors/{file}.xml"));
+        for n in needles {
+            assert!(msg.contains(n), "{file}: {msg:?} lacks {n:?}");
+        }
+    }
+}
+
+/// Mitsuba's built-in shapes: rectangle [−1, 1]² facing +z, cube [−1, 1]³ and a sphere,
+/// placed by to_world, with normals facing out (and in, with flip_normals).
+#[test]
+fn mitsuba_shapes_are_placed_and_face_outwards() {
+    let dir = temp_dir("mitsuba-shapes");
+    let xml = r#"<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 8" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="6"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle" id="card"><transform name="to_world"><scale x="2"/><rotate x="1" angle="-90"/><translate y="-1"/></transform></shape>
+    <shape type="cube" id="box"><transform name="to_world"><scale value="0.5"/><translate x="2"/></transform></shape>
+    <shape type="sphere" id="ball"><point name="center" x="-2" y="0" z="0"/><float name="radius" value="0.7"/></shape>
+    <shape type="cube" id="room"><boolean name="flip_normals" value="true"/><transform name="to_world"><scale value="5"/></transform></shape>
+</scene>"#;
+    std::fs::write(dir.join("shapes.xml"), xml).unwrap();
+    let s = Scene::load(dir.join("shapes.xml")).unwrap();
+    assert_eq!(s.film, Film { width: 8, height: 6 });
+    // Mitsuba's default fov_axis is x: 40° across 8 pixels, so less vertically.
+    let expected_fov_y = 2.0 * ((20f32.to_radians()).tan() * 6.0 / 8.0).atan().to_degrees();
+    assert!((s.sensors[0].fov_y - expected_fov_y).abs() < 1e-4);
+    let face_normal = |m: &vkinverse::scene::Mesh, t: usize| {
+        let [a, b, c] = m.indices[t].map(|i| glam::Vec3::from(m.positions[i as usize]));
+        ((b - a).cross(c - a).normalize(), (a + b + c) / 3.0)
+    };
+    let card = &s.meshes[0];
+    for t in 0..2 {
+        let (n, centroid) = face_normal(card, t);
+        assert!(n.abs_diff_eq(glam::Vec3::Y, 1e-5) && (centroid.y + 1.0).abs() < 1e-6, "card faces up at y = -1: {n} {centroid}");
+    }
+    assert!(card.positions.iter().all(|p| p[0].abs() <= 2.0 + 1e-6 && (p[0].abs() - 2.0).abs() < 1e-6));
+    for (i, center, outward) in [(1, glam::Vec3::new(2.0, 0.0, 0.0), true), (2, glam::Vec3::new(-2.0, 0.0, 0.0), true), (3, glam::Vec3::ZERO, false)] {
+        let m = &s.meshes[i];
+        assert!(m.indices.len() >= 12, "{}", m.name);
+        for t in 0..m.indices.len() {
+            let (n, centroid) = face_normal(m, t);
+            assert_eq!(n.dot(centroid - center) > 0.0, outward, "{} triangle {t}", m.name);
+        }
+    }
+    let ball = &s.meshes[2];
+    assert!(ball.positions.iter().all(|p| ((glam::Vec3::from(*p) - glam::Vec3::new(-2.0, 0.0, 0.0)).length() - 0.7).abs() < 1e-5));
+    assert_eq!(s.warnings.len(), 1, "the sphere's tessellation: {:?}", s.warnings);
+    assert!(s.warnings[0].contains("tessellated"));
+}
+
+/// The recovered scene written back: the glTF loads again and renders as the scene did
+/// with the recovered values in θ (to float rounding: emission above 1 is stored as a
+/// factor times a strength), and so does the TOML.
+#[test]
+fn written_back_gltf_and_toml_render_as_the_final_parameters() {
+    let dir = temp_dir("write-back");
+    let scene_path = dir.join("opt.toml");
+    std::fs::write(
+        &scene_path,
+        format!(
+            "import = \"{}\"\n[film]\nwidth = 24\nheight = 24\n[integrator]\nmax_depth = 4\n[optimise]\n\
+             [[optimise.params]]\ntarget = \"materials.red.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\n\
+             [[optimise.params]]\ntarget = \"materials.red.roughness\"\ninit = 0.5\nrange = [0, 1]\n\
+             [[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [5, 5, 5]\nrange = [0, 20]\n\
+             [[optimise.params]]\ntarget = \"lights.bulb.color\"\ninit = [1, 1, 1]\nrange = [0, 2]\n\
+             [[optimise.params]]\ntarget = \"lights.bulb.intensity\"\ninit = 1\nrange = [0, 5]\n\
+             [[optimise.params]]\ntarget = \"materials.white.base_color\"\ninit = 0.5\nrange = [0, 1]\ntexture = [4, 2]\n",
+            data("box/box.gltf").display()
+        ),
+    )
+    .unwrap();
+    let scene = Scene::load(&scene_path).unwrap();
+    let out = dir.join("out");
+    with_gpu(|ctx| {
+        let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let layout = r.scene.layout.clone();
+        // Recovered values: the start values moved somewhere, a texture with a gradient.
+        let mut theta = layout.initial();
+        theta[..3].copy_from_slice(&[0.55, 0.25, 0.125]);
+        theta[3] = 0.375;
+        theta[4..7].copy_from_slice(&[12.5, 9.0, 3.25]);
+        theta[7..10].copy_from_slice(&[1.5, 0.75, 0.5]);
+        theta[10] = 2.5;
+        for (k, v) in theta[11..].iter_mut().enumerate() {
+            *v = (k % 7) as f32 / 6.0;
+        }
+        r.scene.set_theta(theta.clone()).unwrap();
+        let expected = r.render(0, 4, 5, |_, _| {}).unwrap();
+        write_final(&out, &scene, &layout.recovered(&theta)).unwrap();
+
+        let gltf = Scene::load_with(out.join("final/scene.gltf"), &BOX).unwrap();
+        let red = gltf.materials.iter().find(|m| m.name == "red").unwrap();
+        assert!(matches!(red.base_color, ColorValue::Constant(c) if c == [0.55, 0.25, 0.125]));
+        assert!(matches!(red.roughness, ScalarValue::Constant(v) if v == 0.375));
+        let bulb = &gltf.lights[0];
+        assert_eq!((bulb.kind, bulb.color, bulb.intensity), (LightKind::Point, [1.0, 0.5, 1.0 / 3.0], 2.5 * 1.5));
+        let light = gltf.meshes.iter().find(|m| m.name == "light").unwrap();
+        for (got, want) in light.emission.iter().zip([12.5, 9.0, 3.25]) {
+            assert!((got - want).abs() <= 1e-6 * want, "emission {:?}", light.emission);
+        }
+        let white = gltf.materials.iter().find(|m| m.name == "white").unwrap();
+        let ColorValue::Texture(t) = &white.base_color else { panic!("the recovered texture") };
+        assert_eq!((t.image.width, t.image.height), (4, 2));
+        for (k, p) in t.image.data.iter().enumerate() {
+            for (c, v) in p.iter().enumerate() {
+                let want = theta[11 + 3 * k + c];
+                assert!((v - want).abs() <= 1.0 / 255.0, "texel {k}: {v} vs {want} (8-bit sRGB)");
+            }
+        }
+        // Without the texture's 8-bit rounding the images agree to float rounding.
+        let mut exact = gltf.clone();
+        let white_index = exact.material_index("white").unwrap();
+        exact.materials[white_index].base_color = scene_texture(&theta[11..], 4, 2);
+        let close = |img: &Image, what: &str| {
+            for (a, b) in img.data.iter().zip(&expected.data) {
+                for c in 0..3 {
+                    assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-2), "{what}: {a:?} vs {b:?}");
+                }
+            }
+        };
+        close(&render_sensor0(ctx, &exact), "final/scene.gltf");
+        let toml = Scene::load(out.join("final/scene.toml")).unwrap();
+        close(&render_sensor0(ctx, &toml), "final/scene.toml");
+    });
+}
+
+fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
+    let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data } })
+}
+
+fn render_sensor0(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene) -> Image {
+    let r = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
+    r.render(0, 4, 5, |_, _| {}).unwrap()
+}
+
+/// One command: `vkinverse optimise` on a TOML importing the glTF writes final/scene.gltf,
+/// which loads again; a bare glTF renders from the command line with --film and
+/// --max-depth, and a bad --film is a one-line error.
+#[test]
+fn optimise_from_gltf_comes_back_as_gltf() {
+    let dir = temp_dir("cli-gltf");
+    for f in ["box.gltf", "floor.obj"] {
+        std::fs::copy(data(&format!("box/{f}")), dir.join(f)).unwrap();
+    }
+    std::fs::write(
+        dir.join("opt.toml"),
+        "import = \"box.gltf\"\n[film]\nwidth = 12\nheight = 12\n[integrator]\nmax_depth = 3\n[optimise]\niterations = 3\nspp = 1\n\
+         [[optimise.params]]\ntarget = \"materials.red.base_color\"\ninit = [0.3, 0.3, 0.3]\nrange = [0, 1]\n",
+    )
+    .unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_vkinverse")).args(args).env("VKINVERSE_VALIDATION", "1").output().unwrap();
+        (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let out = dir.join("out");
+    let (ok, err) = run(&["optimise", dir.join("opt.toml").to_str().unwrap(), "--quiet", "-o", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let back = Scene::load(out.join("final/scene.gltf")).unwrap();
+    assert!(back.materials.iter().any(|m| m.name == "red"));
+    assert!(out.join("final/scene.toml").exists());
+    let png = dir.join("bare.png");
+    let (ok, err) = run(&["render", data("box/box.glb").to_str().unwrap(), "--spp", "1", "--film", "10x6", "--max-depth", "2", "-o", png.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert_eq!(vkinverse::image::decode_ldr(&std::fs::read(&png).unwrap(), &png).map(|i| (i.width, i.height)).unwrap(), (10, 6));
+    let (ok, err) = run(&["render", data("box/box.glb").to_str().unwrap(), "--film", "10by6", "-o", png.to_str().unwrap()]);
+    assert!(!ok && err.trim().lines().count() == 1 && err.contains("--film 10by6"), "{err}");
+}
+
+/// A Mitsuba BSDF not wrapped in `twosided` is black from behind, as in Mitsuba: a card
+/// turned away from the camera under a white sky shows black where its twosided twin
+/// shows the sky reflected (and the TOML's `one_sided` says the same).
+#[test]
+fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
+    let dir = temp_dir("one-sided");
+    let xml = |bsdf: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle" id="card"><transform name="to_world"><rotate y="1" angle="180"/></transform>{bsdf}</shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
+</scene>"#
+        )
+    };
+    let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>"#;
+    std::fs::write(dir.join("one.xml"), xml(diffuse)).unwrap();
+    std::fs::write(dir.join("two.xml"), xml(&format!(r#"<bsdf type="twosided">{diffuse}</bsdf>"#))).unwrap();
+    let one = Scene::load(dir.join("one.xml")).unwrap();
+    let two = Scene::load(dir.join("two.xml")).unwrap();
+    assert!(one.materials[0].one_sided && !two.materials[0].one_sided);
+    let (a, b) = with_gpu(|ctx| (render(ctx, &one, 0, 4, 1), render(ctx, &two, 0, 4, 1)));
+    // The centre pixels see the card's back: black, or for the twosided card albedo 0.5 ×
+    // the sky's 1 (a flat card sees nothing but the sky).
+    for (x, y) in [(3, 3), (4, 4), (3, 4), (4, 3)] {
+        assert_eq!(a.get(x, y), [0.0; 3], "one-sided from behind at ({x}, {y})");
+        assert!(b.get(x, y).iter().all(|&c| (c - 0.5).abs() < 1e-3), "twosided at ({x}, {y}): {:?}", b.get(x, y));
+    }
+    // A corner sees the sky past the card.
+    assert_eq!(a.get(0, 0), [1.0; 3]);
+}
