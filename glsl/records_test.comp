@@ -6,6 +6,7 @@
 // together they check, member by member, that the host's bytes and the kernels' view of
 // them agree. Thread i copies element i of every array that has one.
 // variant: records_test_wide BVH_WIDE
+// variant: records_test_cw8 BVH_CW8
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/scene_access.glsl"
@@ -15,7 +16,9 @@ layout(set = 0, binding = 0, scalar) writeonly buffer OutMaterials { MaterialRec
 layout(set = 0, binding = 1, scalar) writeonly buffer OutShading { TriShading out_shading[]; };
 layout(set = 0, binding = 2, scalar) writeonly buffer OutMeshes { MeshRecord out_meshes[]; };
 layout(set = 0, binding = 3, scalar) writeonly buffer OutEmitters { EmitterTri out_emitters[]; };
-#ifdef BVH_WIDE
+#if defined(BVH_CW8)
+layout(set = 0, binding = 4, scalar) writeonly buffer OutNodes { BvhCwNode out_nodes[]; };
+#elif defined(BVH_WIDE)
 layout(set = 0, binding = 4, scalar) writeonly buffer OutNodes { BvhWideNode out_nodes[]; };
 #else
 layout(set = 0, binding = 4, scalar) writeonly buffer OutNodes { BvhNode out_nodes[]; };

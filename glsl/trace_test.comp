@@ -4,8 +4,9 @@
 // times the traversal.
 // TRACE_CLOSEST / TRACE_ANY switch either trace off (a skipped one writes a miss / 0), so
 // that each can be timed alone.
-// trace_test_wide (BVH_WIDE) traces the wide BVH layout.
+// trace_test_wide (BVH_WIDE) and trace_test_cw8 (BVH_CW8) trace the other BVH layouts.
 // variant: trace_test_wide BVH_WIDE
+// variant: trace_test_cw8 BVH_CW8
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/bvh_traverse.glsl"

@@ -13,10 +13,19 @@
   c. time per Adam iteration: `vkinverse optimise --optimiser adam` against Mitsuba
      prb + mi.ad.Adam with the scene's learning rate and sample counts.
 
+`--res 64,256` runs everything once per film resolution (a copy of the scene's folder
+with its [film] size replaced, in OUT/res-N/) and ends with a table of the time ratios
+(vkinverse / Mitsuba) per resolution: render, gradient estimate, Adam iteration. Every
+Mitsuba timing ends with its kernels finished: Dr.Jit launches them asynchronously, so
+each timed span evaluates what it computed and waits (`dr.sync_thread()`) or reads a
+value back before the clock stops.
+
 Mitsuba is a peer to measure against, not a dependency of vkinverse: this script is the
 only place it is imported, and it stops with a message when it is missing.
 
     python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --spp 1024 --out /tmp/cmp
+    python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --res 64,256 --spp 256 \
+        --parts ac --out /tmp/cmp
 
 Only what has an exact Mitsuba counterpart is translated: diffuse (Lambert) materials
 with constant colours, OBJ meshes, one-sided area lights, a constant environment, pinhole
@@ -324,22 +333,23 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
 
     def mitsuba_render(seed):
         t = time.perf_counter()
+        # Reading the image back waits for the render's kernels.
         img = np.array(mi.render(mscene, spp=spp, seed=seed))
         return time.perf_counter() - t, img
 
-    # The first render compiles the kernels (Dr.Jit caches them for later calls).
+    # The first render compiles the kernels (Dr.Jit caches them for later calls); the
+    # first vkinverse run fills the driver's shader cache and the file cache.
     cold, _ = mitsuba_render(0)
+    v_cold, _, _ = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", 0, "-o", out / "vk_warmup.exr"])
+    # The timed renders alternate between the two, so that a change in the machine's load
+    # (other processes) affects both alike; the ratio is also taken per pair.
     m_times, m_imgs = [], []
+    v_times, v_reported, v_imgs = [], [], []
     for r in range(args.runs):
         dt, img = mitsuba_render(r + 1)
         m_times.append(dt)
         m_imgs.append(img)
         mi.util.write_bitmap(str(out / f"mitsuba_{spp}spp_seed{r + 1}.exr"), img, write_async=False)
-
-    # The first vkinverse run fills the driver's shader cache and the file cache.
-    v_cold, _, _ = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", 0, "-o", out / "vk_warmup.exr"])
-    v_times, v_reported, v_imgs = [], [], []
-    for r in range(args.runs):
         path = out / f"vkinverse_{spp}spp_seed{r + 1}.exr"
         dt, _, err = run_vk(vk, ["render", scene_path, "--spp", spp, "--seed", r + 1, "-o", path])
         v_times.append(dt)
@@ -364,6 +374,9 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
         "vkinverse_1spp_process_s": v_one,
         "mitsuba_runs_s": m_times,
         "vkinverse_runs_s": v_times,
+        "vkinverse_reported_runs_s": v_reported,
+        # Median over the alternating pairs of vkinverse's reported time / Mitsuba's.
+        "ratio_reported_per_pair": statistics.median(v / m for v, m in zip(v_reported, m_times)),
         "images": cmp,
         "mitsuba_target": sum(m_imgs) / len(m_imgs),
     }
@@ -426,7 +439,9 @@ def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
         img = mi.render(mscene, params, spp=spp, spp_grad=spp, seed=seed)
         loss = dr.mean(dr.square(img - target_t), axis=None)
         dr.backward(loss)
+        # Reading the gradients back waits for the adjoint pass's kernels.
         g = [np.array(dr.grad(params[key])).ravel()[:3].astype(np.float64) for key in keys]
+        dr.sync_thread()
         dt = time.perf_counter() - t
         for key in keys:
             dr.set_grad(params[key], 0)
@@ -496,32 +511,43 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
     params.update(opt)
 
     times = []
-    for it in range(iters):
-        t = time.perf_counter()
-        # Primal image at primal_spp; the adjoint pass replays spp samples per pixel, as
-        # vkinverse's primal_spp / spp do.
-        img = mi.render(mscene, params, spp=primal_spp, spp_grad=spp, seed=it)
-        loss = dr.mean(dr.square(img - target_t), axis=None)
-        dr.backward(loss)
-        opt.step()
-        opt[key] = dr.clip(opt[key], rng[0], rng[1])
-        params.update(opt)
-        loss_value = float(np.array(loss).ravel()[0])  # vkinverse reads its loss back too
-        times.append(time.perf_counter() - t)
-        del loss_value
-    m_final = np.array(params[key]).ravel()[:3].tolist()
 
+    def mitsuba_iterations(first, count):
+        for it in range(first, first + count):
+            t = time.perf_counter()
+            # Primal image at primal_spp; the adjoint pass replays spp samples per pixel,
+            # as vkinverse's primal_spp / spp do.
+            img = mi.render(mscene, params, spp=primal_spp, spp_grad=spp, seed=it)
+            loss = dr.mean(dr.square(img - target_t), axis=None)
+            dr.backward(loss)
+            opt.step()
+            opt[key] = dr.clip(opt[key], rng[0], rng[1])
+            params.update(opt)
+            # The step and the optimiser state are evaluated inside the iteration (else
+            # their kernels would run lazily in the next one), and the loss is read back
+            # as vkinverse's is; then every launched kernel is waited for.
+            dr.eval(params[key], opt[key])
+            loss_value = float(np.array(loss).ravel()[0])
+            dr.sync_thread()
+            times.append(time.perf_counter() - t)
+            del loss_value
+
+    # Half of Mitsuba's iterations before vkinverse's run and half after, so that a change
+    # in the machine's load shows in both medians.
+    mitsuba_iterations(0, iters // 2)
     opt_dir = out / "vk_adam"
     shutil.rmtree(opt_dir, ignore_errors=True)
     wall, _, _ = run_vk(vk, ["optimise", scene_path, "--optimiser", "adam", "--iterations", iters, "--spp", spp,
                              "--primal-spp", primal_spp, "--lr", lr, "--quiet", "-o", opt_dir])
+    mitsuba_iterations(iters // 2, iters - iters // 2)
+    m_final = np.array(params[key]).ravel()[:3].tolist()
     summary = json.loads((opt_dir / "summary.json").read_text())
     v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.base_color")
     reference = next(m["base_color"] for m in scene["materials"] if m["name"] == name)
     return {
         "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
         # The first iterations compile Dr.Jit's kernels; the median leaves them out.
-        "mitsuba_per_iter_s": statistics.median(times[min(3, iters - 1):]),
+        "mitsuba_per_iter_s": statistics.median(times[min(3, iters // 2 - 1):] if iters >= 8 else times),
         "mitsuba_first_iter_s": times[0],
         "vkinverse_per_iter_s": per_iteration_time(opt_dir / "log.csv"),
         "vkinverse_mean_iter_s": summary["total_time_s"] / max(summary["iterations"], 1),
@@ -546,6 +572,7 @@ def print_tables(a, b, c):
         print(f"  {'':34} {'Mitsuba':>10} {'vkinverse':>10} {'ratio vk/mi':>12}")
         print(f"  {'render, median wall s (warm)':34} {a['mitsuba_s']:10.3f} {a['vkinverse_process_s']:10.3f} {a['vkinverse_process_s'] / a['mitsuba_s']:12.2f}")
         print(f"  {'  vkinverse self-reported s':34} {'':10} {a['vkinverse_reported_s']:10.3f} {a['vkinverse_reported_s'] / a['mitsuba_s']:12.2f}")
+        print(f"  {'  per alternating pair, median':34} {'':10} {'':10} {a['ratio_reported_per_pair']:12.2f}")
         print(f"  {'1 spp (fixed costs) s':34} {a['mitsuba_1spp_s']:10.3f} {a['vkinverse_1spp_process_s']:10.3f}")
         print(f"  {'first (cold) render s':34} {a['mitsuba_cold_s']:10.3f} {a['vkinverse_cold_s']:10.3f}")
         print(f"  mean relative error: Mitsuba vs vkinverse {im['mre_mitsuba_vs_vkinverse']:.4f}; "
@@ -595,6 +622,8 @@ def main():
     ap.add_argument("--opt-spp", type=int, help="adjoint spp per iteration (default: the scene's)")
     ap.add_argument("--opt-primal-spp", type=int, help="primal spp per iteration (default: the scene's)")
     ap.add_argument("--parts", default="abc", help="which comparisons to run (subset of abc)")
+    ap.add_argument("--res", help="comma-separated film sizes (square) to run everything at, e.g. 64,256 "
+                    "(default: the scene's own film)")
     ap.add_argument("--vkinverse", help="vkinverse binary (default: $CARGO_TARGET_DIR or target/ release build)")
     ap.add_argument("--out", type=Path, required=True, help="directory for images, logs and results.json")
     args = ap.parse_args()
@@ -604,12 +633,53 @@ def main():
         fail("--rounds must be at least 2")
 
     np, dr, mi = import_mitsuba()
-    scene_path = args.scene.resolve()
-    scene = load_toml(scene_path)
     vk = find_vkinverse(args.vkinverse)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
+    if not args.res:
+        scene_path = args.scene.resolve()
+        results = run_all(np, dr, mi, scene_path, vk, args, out)
+        (out / "results.json").write_text(json.dumps(results, indent=2))
+        print(f"\nresults.json and images in {out}")
+        return
+    try:
+        sizes = [int(r) for r in args.res.split(",")]
+    except ValueError:
+        fail(f"--res {args.res!r}: expected comma-separated integers, e.g. 64,256")
+    if any(r < 8 for r in sizes):
+        fail("--res: sizes must be at least 8")
+    by_res = {}
+    for r in sizes:
+        res_out = out / f"res-{r}"
+        res_out.mkdir(parents=True, exist_ok=True)
+        scene_path = scene_at_resolution(args.scene.resolve(), r, res_out)
+        by_res[r] = run_all(np, dr, mi, scene_path, vk, args, res_out)
+        (res_out / "results.json").write_text(json.dumps(by_res[r], indent=2))
+    print_ratios(args.scene, by_res)
+    (out / "results.json").write_text(json.dumps({str(r): v for r, v in by_res.items()}, indent=2))
+    print(f"\nresults.json per resolution in {out}/res-N/, all in {out}/results.json")
 
+
+def scene_at_resolution(scene_path, res, out):
+    """A copy of the scene's folder under `out` whose [film] is res x res."""
+    copy = out / "scene"
+    shutil.rmtree(copy, ignore_errors=True)
+    shutil.copytree(scene_path.parent, copy, ignore=shutil.ignore_patterns(".vkinverse-cache"))
+    lines = (copy / scene_path.name).read_text().splitlines()
+    film = next((k for k, l in enumerate(lines) if l.strip() == "[film]"), None)
+    if film is None:
+        lines[:0] = ["[film]", f"width = {res}", f"height = {res}", ""]
+    else:
+        end = next((k for k in range(film + 1, len(lines)) if lines[k].lstrip().startswith("[")), len(lines))
+        body = [l for l in lines[film + 1:end] if l.split("=")[0].strip() not in ("width", "height")]
+        lines[film + 1:end] = [f"width = {res}", f"height = {res}"] + body
+    (copy / scene_path.name).write_text("\n".join(lines) + "\n")
+    return copy / scene_path.name
+
+
+def run_all(np, dr, mi, scene_path, vk, args, out):
+    """Parts a, b and c (as selected) on one scene file; prints their tables."""
+    scene = load_toml(scene_path)
     a = b = c = None
     target = None
     if "a" in args.parts:
@@ -625,10 +695,26 @@ def main():
     if "c" in args.parts:
         c = compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out)
 
-    print(f"Mitsuba {mi.__version__} ({VARIANT}) vs {vk}; scene {args.scene}")
+    film = scene.get("film", {})
+    print(f"Mitsuba {mi.__version__} ({VARIANT}) vs {vk}; scene {scene_path} "
+          f"({film.get('width', 256)}x{film.get('height', 256)})")
     print_tables(a, b, c)
-    (out / "results.json").write_text(json.dumps({"images": a, "gradient": b, "optimisation": c}, indent=2))
-    print(f"\nresults.json and images in {out}")
+    return {"images": a, "gradient": b, "optimisation": c}
+
+
+def print_ratios(scene, by_res):
+    """One line per resolution: the time ratios vkinverse / Mitsuba."""
+    print(f"\ntime ratios vkinverse / Mitsuba ({VARIANT}), {scene}")
+    print(f"  {'res':>5} {'render (pairs)':>18} {'render (process)':>17} {'gradient':>9} {'Adam iter':>10} "
+          f"{'Adam ms vk / mi':>16}")
+    for r, v in by_res.items():
+        a, b, c = v["images"], v["gradient"], v["optimisation"]
+        ra = a["ratio_reported_per_pair"] if a else float("nan")
+        rp = a["vkinverse_process_s"] / a["mitsuba_s"] if a else float("nan")
+        rb = b["vkinverse_per_estimate_s"] / b["mitsuba_per_estimate_s"] if b else float("nan")
+        rc = c["vkinverse_per_iter_s"] / c["mitsuba_per_iter_s"] if c else float("nan")
+        ms = f"{1e3 * c['vkinverse_per_iter_s']:.1f} / {1e3 * c['mitsuba_per_iter_s']:.1f}" if c else "n/a"
+        print(f"  {r:>5} {ra:>18.2f} {rp:>17.2f} {rb:>9.2f} {rc:>10.2f} {ms:>16}")
 
 
 if __name__ == "__main__":

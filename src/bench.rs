@@ -10,7 +10,7 @@ mod layouts;
 mod scene;
 
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
-pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain};
+pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
 use crate::ops::BufferOps;

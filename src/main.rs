@@ -182,7 +182,7 @@ struct BenchArgs {
     /// θ of the optimiser passes.
     #[arg(long, default_value_t = 16 << 20)]
     elements: u64,
-    /// With a scene: compare the BVH layouts (binary, wide) instead, alternating them
+    /// With a scene: compare the BVH layouts (binary, wide, cw8) instead, rotating them
     /// over `--iterations` rounds.
     #[arg(long)]
     bvh_layouts: bool,
@@ -314,7 +314,7 @@ fn check_flags(settings: &Settings) -> Result {
 }
 
 fn context(cli: &Cli) -> std::result::Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
-    Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, timeout: None })
+    Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, ..Default::default() })
 }
 
 fn mode(resume: bool, overwrite: bool) -> Mode {

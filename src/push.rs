@@ -149,8 +149,9 @@ fn layout<P: PushBlock>() -> Layout {
 /// The host mirror of kernel `kernel`'s push block (`()` for none); None for a kernel
 /// that has no mirror.
 pub fn mirror(kernel: &str) -> Option<Layout> {
-    // A kernel's BVH-layout builds (`_wide`) share its block; copy_wide is a kernel of its own.
-    let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").unwrap_or(kernel) };
+    // A kernel's BVH-layout builds (`_wide`, `_cw8`) share its block; copy_wide is a kernel
+    // of its own.
+    let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
     Some(match base {
         "copy" | "sub" | "reduce" | "trace_test" | "bsdf_test" => layout::<CountPush>(),
         "copy_vec4" | "copy_wide" => layout::<Count4Push>(),

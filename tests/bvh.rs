@@ -1,7 +1,7 @@
 //! The scene BVH: the flattened layout is well-formed, its structs match the kernels'
 //! reflection, and the GPU traversal (glsl/lib/bvh_traverse.glsl, run by
 //! glsl/trace_test.comp) agrees ray by ray with the brute-force CPU reference, in both
-//! node layouts (binary, and wide: trace_test_wide).
+//! node layouts (binary; wide: trace_test_wide; compressed 8-wide: trace_test_cw8).
 //!
 //! A ray is compared exactly (hit or miss, triangle, t to 1e-4 relative) unless it is
 //! *borderline*: some triangle's hit lies within rounding distance of an edge, of T_MIN or
@@ -14,7 +14,8 @@ use common::with_gpu;
 use glam::DVec3;
 use std::sync::Arc;
 use vkinverse::bvh::{
-    self, Bvh, BvhBuffers, BvhLayout, TraceRay, TraceResult, WideBvh, INNER, NO_HIT, STACK_SIZE, T_MIN, WIDE_STACK_SIZE,
+    self, Bvh, BvhBuffers, BvhLayout, CwBvh, TraceRay, TraceResult, WideBvh, CW_STACK_SIZE, INNER, NO_HIT, STACK_SIZE,
+    T_MIN, WIDE_STACK_SIZE,
 };
 use vkinverse::gpu::Buffer;
 use vkinverse::gpu::{CommandBuffer, ComputePipeline, Context, MemoryKind};
@@ -569,6 +570,7 @@ fn glsl_define(name: &str) -> String {
 fn glsl_constants_match_rust() {
     assert_eq!(glsl_define("BVH_STACK_SIZE").parse::<u32>().unwrap(), STACK_SIZE);
     assert_eq!(glsl_define("BVH_WIDE_STACK_SIZE").parse::<u32>().unwrap(), WIDE_STACK_SIZE);
+    assert_eq!(glsl_define("BVH_CW_STACK_SIZE").parse::<u32>().unwrap(), CW_STACK_SIZE);
     assert_eq!(glsl_define("BVH_T_MIN").parse::<f32>().unwrap(), T_MIN);
     let hex = |s: String| u32::from_str_radix(s.trim_start_matches("0x").trim_end_matches('u'), 16).unwrap();
     assert_eq!(hex(glsl_define("BVH_INNER")), INNER);
@@ -677,6 +679,23 @@ fn struct_layouts_match_reflection() {
         size_of::<BvhWideNode>(),
     );
     assert_eq!(size_of::<BvhWideNode>(), 128);
+    use vkinverse::bvh::BvhCwNode;
+    common::check_layout(
+        "records_test_cw8",
+        "BvhCwNode",
+        &[
+            ("p", offset_of!(BvhCwNode, p)),
+            ("e_imask", offset_of!(BvhCwNode, e_imask)),
+            ("child_base", offset_of!(BvhCwNode, child_base)),
+            ("triangle_base", offset_of!(BvhCwNode, triangle_base)),
+            ("meta", offset_of!(BvhCwNode, meta)),
+            ("quant_x", offset_of!(BvhCwNode, quant_x)),
+            ("quant_y", offset_of!(BvhCwNode, quant_y)),
+            ("quant_z", offset_of!(BvhCwNode, quant_z)),
+        ],
+        size_of::<BvhCwNode>(),
+    );
+    assert_eq!(size_of::<BvhCwNode>(), 80);
     assert_eq!(reflect("records_test_wide").struct_size("BvhTriangle"), Some(size_of::<BvhTriangle>()));
     for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
         let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound in trace_test_wide"));
@@ -970,4 +989,107 @@ fn deepest_wide_tree_fills_the_stack() {
     for (k, g) in results.iter().enumerate() {
         assert_eq!(g.hit.prim, k as u32 / 2, "ray {k}: {:?}", rays[k]);
     }
+}
+
+/// Walks a compressed tree: every node reached once; every child's box (in exact
+/// arithmetic) contains every triangle below it, taken from the input vertices; leaves
+/// of 1 to 3 triangles; every triangle in exactly one leaf. Returns the depth of the
+/// deepest inner node.
+fn check_cw_well_formed(name: &str, mesh: &Mesh, tree: &CwBvh) -> u32 {
+    assert_eq!(tree.triangles.len(), mesh.indices.len(), "{name}: every triangle once");
+    let mut seen_nodes = vec![false; tree.nodes.len()];
+    let mut seen_tris = vec![false; tree.triangles.len()];
+    let mut deepest = 0;
+    let mut stack = vec![(0u32, 0u32)];
+    let inside = |p: [f32; 3], b: &([f64; 3], [f64; 3])| (0..3).all(|k| b.0[k] <= f64::from(p[k]) && f64::from(p[k]) <= b.1[k]);
+    while let Some((n, depth)) = stack.pop() {
+        assert!(!seen_nodes[n as usize], "{name}: node {n} reached twice");
+        seen_nodes[n as usize] = true;
+        deepest = deepest.max(depth);
+        let node = &tree.nodes[n as usize];
+        for c in 0..8 {
+            let Some((index, count)) = node.child(c) else { continue };
+            let b = node.child_box(c);
+            if count == INNER {
+                assert!(index > n, "{name}: inner child {index} after its parent {n}");
+                stack.push((index, depth + 1));
+                // The child's box contains every triangle below it.
+                let mut below = vec![index];
+                while let Some(m) = below.pop() {
+                    let mn = &tree.nodes[m as usize];
+                    for cc in 0..8 {
+                        match mn.child(cc) {
+                            Some((i, INNER)) => below.push(i),
+                            Some((first, count)) => {
+                                for t in &tree.triangles[first as usize..(first + count) as usize] {
+                                    for v in mesh.indices[t.prim as usize] {
+                                        assert!(inside(mesh.positions[v as usize], &b), "{name}: node {n} child {c} misses a vertex below it: {:?} not in {b:?}, node {node:?} sub {m}", mesh.positions[v as usize]);
+                                    }
+                                }
+                            }
+                            None => {}
+                        }
+                    }
+                }
+            } else {
+                assert!((1..=3).contains(&count), "{name}: leaf of {count} triangles");
+                for i in index..index + count {
+                    assert!(!seen_tris[i as usize], "{name}: triangle {i} in two leaves");
+                    seen_tris[i as usize] = true;
+                    let t = &tree.triangles[i as usize];
+                    for v in mesh.indices[t.prim as usize] {
+                        assert!(inside(mesh.positions[v as usize], &b), "{name}: leaf box misses a vertex of triangle {}", t.prim);
+                    }
+                }
+            }
+        }
+    }
+    assert!(seen_tris.iter().all(|&s| s), "{name}: every triangle in a leaf");
+    let mut prims: Vec<u32> = tree.triangles.iter().map(|t| t.prim).collect();
+    prims.sort_unstable();
+    assert!(prims.iter().enumerate().all(|(i, &p)| p == i as u32), "{name}: the input triangles, each once");
+    deepest
+}
+
+#[test]
+fn compressed_bvh_is_well_formed_and_traces_like_the_reference() {
+    let mut one = Mesh::default();
+    one.push([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let cases = [("one triangle", one), ("soup", soup(3000, 21)), ("cornell", scene_mesh("cornell")), ("spiral", scene_mesh("spiral"))];
+    let mut trees = Vec::new();
+    for (name, mesh) in &cases {
+        let tree = CwBvh::build(&mesh.positions, &mesh.indices);
+        let depth = check_cw_well_formed(name, mesh, &tree);
+        assert!(depth <= CW_STACK_SIZE, "{name}: depth {depth}");
+        assert_eq!(depth, tree.depth(), "{name}");
+        // Converted from the flattened binary tree (vertex boxes from the stored edges).
+        check_cw_well_formed(name, mesh, &CwBvh::from_binary(&bvh::build(&mesh.positions, &mesh.indices)));
+        if *name == "soup" {
+            assert!(tree.nodes.len() * 8 < mesh.indices.len() * 2, "soup: {} nodes for {} triangles: wide nodes", tree.nodes.len(), mesh.indices.len());
+        }
+        trees.push(tree);
+    }
+    // A tree whose obvhs build is far deeper than the stack: triangles shrinking
+    // geometrically towards a point. The build retries with smaller binary depth limits.
+    let mut deep = Mesh::default();
+    for i in 0..400 {
+        let s = 0.9f32.powi(i);
+        deep.push([[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, s]]);
+    }
+    let tree = CwBvh::build(&deep.positions, &deep.indices);
+    assert!(check_cw_well_formed("nested", &deep, &tree) <= CW_STACK_SIZE);
+
+    // Built from the input vertices (as the renderer builds it), traced against the
+    // reference.
+    let soup_rays = random_rays(&cases[1].1, [-1.2; 3], [1.2; 3], 3001, 22);
+    let deep_rays = random_rays(&deep, [-0.2; 3], [1.2; 3], 2001, 23);
+    let (soup_results, deep_results) = with_gpu(|ctx| {
+        let pipe = pipeline(ctx, BvhLayout::Cw8);
+        (run_trace(ctx, &pipe, &trees[1].upload(ctx).unwrap(), &soup_rays), run_trace(ctx, &pipe, &tree.upload(ctx).unwrap(), &deep_rays))
+    });
+    let borderline = check_against_cpu("soup cw8 build", &cases[1].1, &soup_rays, &soup_results);
+    assert!(borderline * 50 < soup_rays.len(), "{borderline} borderline rays");
+    check_against_cpu("nested cw8 build", &deep, &deep_rays, &deep_results);
+    let hits = deep_results.iter().filter(|r| r.hit.prim != NO_HIT).count();
+    assert!(hits > deep_rays.len() / 10, "nested: {hits} hits");
 }

@@ -393,3 +393,70 @@ fn texel_buffer_reads_match_storage_buffer_reads_and_cpu() {
         }
     });
 }
+
+/// A context whose device buffers are never mapped moves every write and read of them
+/// through the two persistent staging buffers, in chunks: data arrive intact both ways
+/// (through a kernel in between), the transfers are counted, and once the staging buffers
+/// exist further transfers allocate nothing. Mapped host buffers stay mapped.
+#[test]
+fn unmappable_device_memory_goes_through_the_staging_buffers() {
+    use vkinverse::gpu::STAGING_BYTES;
+    let ctx = Context::new(&ContextOptions { validation: true, unmappable_device_memory: true, ..Default::default() }).unwrap();
+    assert!(!ctx.device_memory_mappable());
+    {
+        let ops = BufferOps::new(&ctx).unwrap();
+        // Two whole chunks and a part of a third.
+        let n = (2 * STAGING_BYTES as usize + 12) / 4;
+        let src = data(n, 5);
+        let before = ctx.transfer_stats();
+        let a = Buffer::from_slice(&ctx, "a", &src, MemoryKind::Device).unwrap();
+        let b = Buffer::new(&ctx, "b", 4 * n as u64, MemoryKind::Device).unwrap();
+        let mut cmd = CommandBuffer::new(&ctx, "t").unwrap();
+        cmd.record(|rec| ops.copy(rec, &a, &b)).unwrap();
+        cmd.submit_and_wait().unwrap();
+        let got: Vec<f32> = b.read().unwrap();
+        assert!(got == src, "the copy of the staged upload, read back through staging");
+        let s = ctx.transfer_stats().since(&before);
+        assert_eq!((s.staged_upload_bytes, s.staged_readback_bytes), (4 * n as u64, 4 * n as u64));
+        assert_eq!((s.upload_bytes, s.readback_bytes), (4 * n as u64, 4 * n as u64));
+        assert_eq!(s.staged_submissions, 6, "three chunks each way");
+        assert_eq!(s.staging_allocations, 2, "one upload and one readback buffer, made on first use");
+
+        // Steady state: small writes and reads of device buffers (an iteration's frame
+        // counter, loss and θ) create no buffers; an Upload buffer is written mapped.
+        let frame = Buffer::from_slice(&ctx, "frame", &[0u32], MemoryKind::Upload).unwrap();
+        let before = ctx.transfer_stats();
+        for i in 0..5u32 {
+            frame.write(&[i]).unwrap();
+            a.write(&[i as f32; 3]).unwrap();
+            let back: Vec<f32> = a.read().unwrap();
+            assert_eq!(back[..3], [i as f32; 3]);
+            assert_eq!(back[3..], src[3..]);
+        }
+        let s = ctx.transfer_stats().since(&before);
+        assert_eq!((s.buffers_created, s.staging_allocations), (0, 0), "{s:?}");
+        assert_eq!(s.staged_upload_bytes, 5 * 12);
+        assert_eq!(s.upload_bytes, 5 * (12 + 4), "the frame counter is counted too, mapped");
+        assert_eq!(s.staged_readback_bytes, 5 * 4 * n as u64);
+    }
+    ctx.wait_idle().unwrap();
+    let messages = ctx.take_validation_messages();
+    assert!(messages.is_empty(), "validation messages:\n{}", messages.join("\n"));
+    assert!(ctx.live_allocations().is_empty(), "{:?}", ctx.live_allocations());
+
+    // The default context maps lavapipe's device memory: nothing staged.
+    with_gpu(|ctx| {
+        if std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1") {
+            assert!(!ctx.device_memory_mappable());
+            return;
+        }
+        let before = ctx.transfer_stats();
+        let a = Buffer::from_slice(ctx, "a", &[1.0f32; 64], MemoryKind::Device).unwrap();
+        let _: Vec<f32> = a.read().unwrap();
+        let s = ctx.transfer_stats().since(&before);
+        assert_eq!((s.upload_bytes, s.readback_bytes), (256, 256));
+        if ctx.info().device_type == "CPU" {
+            assert_eq!((s.staged_upload_bytes, s.staged_readback_bytes, s.staging_allocations), (0, 0, 0), "{s:?}");
+        }
+    });
+}

@@ -144,8 +144,9 @@ fn same_seed_same_image() {
 
 #[test]
 fn bvh_layouts_render_the_same() {
-    // Both layouts trace the same paths: the images agree up to rays that tie or graze an
-    // edge, where the traversal order may pick another of two equally good hits.
+    // Every layout traces the same paths as the binary one: the images agree up to rays
+    // that tie or graze an edge, where the traversal order may pick another of two
+    // equally good hits (the triangle test's arithmetic is the same in every layout).
     for name in ["cornell", "spiral"] {
         let scene = Scene::load(format!("scenes/{name}/scene.toml")).unwrap();
         let images = with_gpu(|ctx| {
@@ -154,15 +155,17 @@ fn bvh_layouts_render_the_same() {
                 r.render(0, 2, 7, |_, _| {}).unwrap()
             })
         });
-        let (mut diff, mut total) = (0.0f64, 0.0f64);
-        for (a, b) in images[0].data.iter().zip(&images[1].data) {
-            for c in 0..3 {
-                diff += (a[c] as f64 - b[c] as f64).abs();
-                total += a[c] as f64;
+        for (layout, other) in vkinverse::bvh::BvhLayout::ALL.iter().zip(&images).skip(1) {
+            let (mut diff, mut total) = (0.0f64, 0.0f64);
+            for (a, b) in images[0].data.iter().zip(&other.data) {
+                for c in 0..3 {
+                    diff += (a[c] as f64 - b[c] as f64).abs();
+                    total += a[c] as f64;
+                }
             }
+            assert!(total > 0.0, "{name}: a lit image");
+            assert!(diff <= 1e-4 * total, "{name} {layout:?}: the image differs from the binary layout's by {:.2e} (relative L1)", diff / total);
         }
-        assert!(total > 0.0, "{name}: a lit image");
-        assert!(diff <= 1e-4 * total, "{name}: the layouts' images differ by {:.2e} (relative L1)", diff / total);
     }
 }
 
@@ -425,7 +428,7 @@ fn environment_distribution_matches_its_pdf() {
 /// a quad under a lat-long map (the distribution).
 #[test]
 fn kernels_read_the_records_the_host_wrote() {
-    use vkinverse::bvh::{BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
+    use vkinverse::bvh::{BvhCwNode, BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
     use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
     use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading};
     fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
@@ -451,7 +454,7 @@ fn kernels_read_the_records_the_host_wrote() {
     ];
     with_gpu(|ctx| {
         for (name, scene) in &scenes {
-            for layout in [BvhLayout::Binary, BvhLayout::Wide] {
+            for layout in BvhLayout::ALL {
                 let gs = GpuScene::with_bvh_layout(ctx, scene, layout).unwrap();
                 let bound: Vec<(&str, &Buffer)> = gs.bindings();
                 let buffer = |n: &str| bound.iter().find(|(b, _)| *b == n).unwrap_or_else(|| panic!("{n} not bound")).1;
@@ -469,6 +472,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 let (n_nodes, node_bytes) = match layout {
                     BvhLayout::Binary => (read::<BvhNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhNode>()),
                     BvhLayout::Wide => (read::<BvhWideNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhWideNode>()),
+                    BvhLayout::Cw8 => (read::<BvhCwNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhCwNode>()),
                 };
                 assert_eq!(shading.len(), triangles.len(), "{name}: one shading record per triangle");
                 assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights"), "{name} has emitters");

@@ -34,6 +34,10 @@
 // <= BVH_STACK_SIZE / 2, so only nodes at depth < BVH_STACK_SIZE / 2 push, and the stack
 // never holds more than 3 * BVH_STACK_SIZE / 2 = BVH_WIDE_STACK_SIZE entries.
 //
+// Compressed layout (kernels built with BVH_CW8, nodes of BvhCwNode): Ylitie, Karras &
+// Laine 2017, eight children per 5-texel node with quantised boxes; see bvh_traverse
+// below.
+//
 // Slab test (Kay & Kajiya 1986) with a precomputed inverse direction. Direction components
 // below 1e-20 in magnitude (zero: rays parallel to box faces) become +-1e-20, which keeps every
 // product finite (no 0 * inf = NaN when the origin lies on a face plane) and, for an origin
@@ -55,7 +59,16 @@
 layout(set = 0, binding = 10) uniform usamplerBuffer BvhNodes;
 layout(set = 0, binding = 11) uniform usamplerBuffer BvhTriangles;
 
-#ifdef BVH_WIDE
+#if defined(BVH_CW8)
+// Compressed node i: 5 texels.
+BvhCwNode bvh_node(uint i) {
+    int b = int(i) * 5;
+    uvec4 t0 = texelFetch(BvhNodes, b);
+    uvec4 t1 = texelFetch(BvhNodes, b + 1);
+    return BvhCwNode(uintBitsToFloat(t0.xyz), t0.w, t1.x, t1.y, t1.zw, texelFetch(BvhNodes, b + 2),
+                     texelFetch(BvhNodes, b + 3), texelFetch(BvhNodes, b + 4));
+}
+#elif defined(BVH_WIDE)
 // Wide node i: 8 texels, one per member.
 BvhWideNode bvh_node(uint i) {
     int b = int(i) * 8;
@@ -149,7 +162,102 @@ vec3 bvh_safe_dir(vec3 dir) {
                lessThan(abs(dir), vec3(1e-20)));
 }
 
-#ifdef BVH_WIDE
+#if defined(BVH_CW8)
+// The grid coordinates in bytes 0-3 (`hi` false) or 4-7 (true) of a pair of words.
+vec4 bvh_cw_bytes(uvec2 w, bool hi) {
+    return vec4((uvec4(hi ? w.y : w.x) >> uvec4(0u, 8u, 16u, 24u)) & 0xFFu);
+}
+
+// The hit bits of children 4h .. 4h + 3 (see bvh_cw_intersect).
+uint bvh_cw_half(BvhCwNode n, bool h, vec3 E, vec3 P, float pad, float tmax, uint oct_inv) {
+    vec4 tx0 = bvh_cw_bytes(n.quant_x.xy, h) * E.x + P.x;
+    vec4 tx1 = bvh_cw_bytes(n.quant_x.zw, h) * E.x + P.x;
+    vec4 ty0 = bvh_cw_bytes(n.quant_y.xy, h) * E.y + P.y;
+    vec4 ty1 = bvh_cw_bytes(n.quant_y.zw, h) * E.y + P.y;
+    vec4 tz0 = bvh_cw_bytes(n.quant_z.xy, h) * E.z + P.z;
+    vec4 tz1 = bvh_cw_bytes(n.quant_z.zw, h) * E.z + P.z;
+    vec4 enter = max(max(min(tx0, tx1), min(ty0, ty1)), max(min(tz0, tz1), vec4(0.0))) - pad;
+    vec4 exit = min(min(min(max(tx0, tx1), max(ty0, ty1)), max(tz0, tz1)) + pad, vec4(tmax));
+    uvec4 meta = (uvec4(h ? n.meta.y : n.meta.x) >> uvec4(0u, 8u, 16u, 24u)) & 0xFFu;
+    bvec4 inner = equal(meta & 0x18u, uvec4(0x18u));
+    // Inner child: one bit at 24 + (slot ^ octant), its traversal priority; leaf: its
+    // count in unary at its triangle offset. An empty slot (meta 0) sets nothing.
+    uvec4 shift = mix(meta & 31u, (meta & 31u) ^ oct_inv, inner);
+    uvec4 bits = mix(meta >> 5, uvec4(1u), inner);
+    uvec4 hits = mix(uvec4(0u), bits << shift, lessThanEqual(enter, exit));
+    return hits.x | hits.y | hits.z | hits.w;
+}
+
+// The children of node n that the ray enters within [0, tmax]: bits 24-31 the inner
+// children by priority (the highest bit first), bits 0-23 the hit leaves' triangles
+// relative to n.triangle_base. The slab test runs on the grid coordinates with the ray
+// moved into the node's frame (t = q * scale / dir + (p - origin) / dir, Ylitie et al.):
+// scale is a power of two, so E is exact, and the rounding of P and of the product and
+// sum is below 2^-21 (|P| + 255 |E|) on each axis; the entry is lowered and the exit
+// raised by that much, so that rounding never culls a box the ray touches.
+uint bvh_cw_intersect(BvhCwNode n, vec3 origin, vec3 inv_dir, float tmax, uint oct_inv) {
+    uvec3 e = (uvec3(n.e_imask) >> uvec3(0u, 8u, 16u)) & 0xFFu;
+    vec3 E = uintBitsToFloat(e << 23) * inv_dir;
+    vec3 P = (n.p - origin) * inv_dir;
+    vec3 slack = (abs(P) + 255.0 * abs(E)) * 4.76837158e-7;
+    float pad = max(max(slack.x, slack.y), slack.z);
+    return bvh_cw_half(n, false, E, P, pad, tmax, oct_inv) | bvh_cw_half(n, true, E, P, pad, tmax, oct_inv);
+}
+
+// The traversal behind trace_closest (any_hit false) and trace_any (any_hit true: returns
+// at the first hit). Callers pass a constant any_hit, so each copy is specialised.
+// Ylitie et al.'s loop: a node group (child base, hit inner children in bits 24-31 and
+// the node's inner-child mask in bits 0-7) and a triangle group (triangle base, hit
+// triangles in bits 0-23). The triangles are tested first, one per iteration; then the
+// highest-priority child of the node group is fetched and intersected, the rest of the
+// group pushed if any; an empty group pops the stack. Each push is one level deeper than
+// the entries below it, so the stack never holds more than the tree's depth.
+bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) {
+    hit = Hit(tmax, BVH_NO_HIT, 0.0, 0.0);
+    vec3 inv_dir = 1.0 / bvh_safe_dir(dir);
+    // obvhs's octant code: XOR-ed into a slot, the front-to-back priority.
+    uint oct_inv = (dir.x < 0.0 ? 0u : 4u) | (dir.y < 0.0 ? 0u : 2u) | (dir.z < 0.0 ? 0u : 1u);
+
+    uvec2 stack[BVH_CW_STACK_SIZE];
+    uint sp = 0u;
+    // The root, as the single hit child of a group at base 0.
+    uvec2 group = uvec2(0u, 0x80000000u);
+    uvec2 tris = uvec2(0u);
+    while (true) {
+        while (tris.y != 0u) {
+            int k = findMSB(tris.y);
+            tris.y &= ~(1u << k);
+            BvhTriangle triangle = bvh_triangle(tris.x + uint(k));
+            float th, u, v;
+            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
+                hit = Hit(th, triangle.prim, u, v);
+                if (any_hit) {
+                    return true;
+                }
+            }
+        }
+        if ((group.y & 0xFF000000u) != 0u) {
+            uint hits = group.y;
+            int k = findMSB(hits);
+            group.y &= ~(1u << k);
+            if ((group.y & 0xFF000000u) != 0u) {
+                stack[sp++] = group;
+            }
+            uint slot = uint(k - 24) ^ oct_inv;
+            uint node = group.x + bitCount(hits & ~(0xFFFFFFFFu << slot));
+            BvhCwNode n = bvh_node(node);
+            uint mask = bvh_cw_intersect(n, origin, inv_dir, hit.t, oct_inv);
+            group = uvec2(n.child_base, (mask & 0xFF000000u) | (n.e_imask >> 24));
+            tris = uvec2(n.triangle_base, mask & 0x00FFFFFFu);
+        } else if (sp > 0u) {
+            group = stack[--sp];
+        } else {
+            break;
+        }
+    }
+    return hit.prim != BVH_NO_HIT;
+}
+#elif defined(BVH_WIDE)
 // Sorts the slots a and b (vector components) of (t, index, count) by t; equal distances
 // keep their slot order. Static components only: no dynamic indexing into vectors.
 #define BVH_SORT2(a, b)                          \

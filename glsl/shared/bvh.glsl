@@ -16,6 +16,11 @@
 // push; tests/bvh.rs checks that this value equals vkinverse::bvh::WIDE_STACK_SIZE.
 #define BVH_WIDE_STACK_SIZE 96
 
+// Entries of the traversal stack of the compressed layout (BVH_CW8): one node group per
+// level, and the builder keeps inner nodes at depth <= BVH_CW_STACK_SIZE (see BvhCwNode);
+// tests/bvh.rs checks that this value equals vkinverse::bvh::CW_STACK_SIZE.
+#define BVH_CW_STACK_SIZE 32
+
 // Hits at t <= BVH_T_MIN (in units of |dir|) are ignored, so that a ray leaving a surface
 // does not find that surface again. Absolute, sized for scenes of unit scale (1 to 100
 // units across); tests/bvh.rs checks that it equals vkinverse::bvh::T_MIN.
@@ -62,6 +67,29 @@ struct BvhWideNode {
     vec4 max_z;
     uvec4 index;
     uvec4 count;
+};
+
+// 80 bytes (5 texels): an inner node of the compressed 8-wide BVH of Ylitie, Karras &
+// Laine 2017, the layout of kernels built with BVH_CW8 (obvhs's CwBvhNode byte for byte;
+// vkinverse::bvh::CwBvh). Child c's box is p + q * scale per axis, with the 8-bit grid
+// coordinates q in byte c (min) and byte 8 + c (max) of quant_x, quant_y, quant_z, and
+// scale the float whose exponent bits are byte k of e_imask for axis k. Byte 3 of
+// e_imask has bit c set when child c is an inner node. Meta byte c (of the 8 in meta):
+// 0 for an empty slot; 001sssss with s = 24 + c for an inner child, which is node
+// child_base + (number of inner children in slots below c); else a leaf of the triangles
+// triangle_base + (low 5 bits) onwards, as many as the high 3 bits hold in unary (1 to
+// 3). Slots are ordered by direction, so that XOR-ing the slot with the ray's octant
+// gives a front-to-back priority. Every child's grid box contains everything below it
+// in exact arithmetic; inner nodes are at depth <= BVH_CW_STACK_SIZE.
+struct BvhCwNode {
+    vec3 p;
+    uint e_imask;
+    uint child_base;
+    uint triangle_base;
+    uvec2 meta;
+    uvec4 quant_x;
+    uvec4 quant_y;
+    uvec4 quant_z;
 };
 
 // 48 bytes (3 texels): a triangle in Möller–Trumbore form (v0 and the edges v1 - v0,

@@ -1,13 +1,13 @@
-//! `vkinverse bench SCENE.toml --bvh-layouts`: the BVH layouts (binary and wide) against
-//! each other on one scene, in one process, alternating.
+//! `vkinverse bench SCENE.toml --bvh-layouts`: the BVH layouts (binary, wide, cw8)
+//! against each other on one scene, in one process, alternating.
 //!
 //! Each layout gets its own scene upload, trace_test (closest hit only, any hit only, on
 //! the camera rays of `bench`'s BVH measurement) and primal pass (every sensor at the
 //! scene's primal_spp), recorded once with a profiler scope per kernel. A round submits
-//! every layout's recording once, in alternating order from round to round (binary first
-//! in even rounds), so that a slow drift of the machine's load affects both alike. Reported
-//! are per-layout medians over the rounds and the median over rounds of each round's
-//! wide/binary time ratio.
+//! every layout's recording once, in an order rotated from round to round, so that a slow
+//! drift of the machine's load affects all alike. Reported are per-layout medians over the
+//! rounds and the median over rounds of each round's time ratio to the binary layout. The
+//! primal pass's rays are counted once per layout, untimed, by trace_primal_count.
 
 use super::median;
 use super::scene::camera_rays;
@@ -34,6 +34,16 @@ pub struct LayoutTimes {
     pub any_mrays_per_s: f64,
     /// The primal pass over every sensor at primal_spp.
     pub primal_ms: f64,
+    /// Rays the primal pass casts (counted by trace_primal_count) over `primal_ms`.
+    pub primal_mrays_per_s: f64,
+    /// Medians over rounds of this layout's time / the binary layout's time.
+    pub closest_over_binary: f64,
+    pub any_over_binary: f64,
+    pub primal_over_binary: f64,
+    /// Rays on which this layout's any-hit result differs from the binary layout's.
+    pub any_hit_disagreements: u64,
+    /// Σ|this − binary| / Σ|binary| over the pixels of the first round's primal images.
+    pub primal_image_rel_diff: f64,
 }
 
 /// The comparison's results.
@@ -46,15 +56,10 @@ pub struct LayoutBench {
     pub rays: u64,
     pub triangles: usize,
     pub primal_spp: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Per layout, the first one binary.
     pub layouts: Vec<LayoutTimes>,
-    /// Median over rounds of wide time / binary time: below 1, the wide layout is faster.
-    pub closest_wide_over_binary: f64,
-    pub any_wide_over_binary: f64,
-    pub primal_wide_over_binary: f64,
-    /// Rays on which the layouts' any-hit results disagree, of `rays`.
-    pub any_hit_disagreements: u64,
-    /// Σ|wide − binary| / Σ|binary| over the pixels of the first round's primal images.
-    pub primal_image_rel_diff: f64,
 }
 
 /// One layout's scene, kernels and recording. Everything the recording uses lives here.
@@ -116,15 +121,7 @@ impl Setup {
             for s in 0..sensors {
                 // Each submission accumulates every sensor's render onto the image.
                 rec.transition(&[(&image, Access::ComputeReadWrite)])?;
-                let push = TracePush {
-                    width: gs.width,
-                    height: gs.height,
-                    sensor: s,
-                    spp: st.primal_spp,
-                    first_sample: 0,
-                    seed: gpu_seed(st.seed).wrapping_add(SEED_PRIMAL),
-                    weight: 1.0 / st.primal_spp as f32,
-                };
+                let push = primal_push(&gs, st, s);
                 primal_prof.scope(rec, "trace_primal", |rec, _| {
                     record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image])
                 })?;
@@ -158,11 +155,50 @@ impl Setup {
     }
 }
 
+/// The push constants of sensor `s`'s primal pass: primal_spp samples, the primal seed.
+fn primal_push(gs: &GpuScene, st: &RunSettings, s: u32) -> TracePush {
+    TracePush {
+        width: gs.width,
+        height: gs.height,
+        sensor: s,
+        spp: st.primal_spp,
+        first_sample: 0,
+        seed: gpu_seed(st.seed).wrapping_add(SEED_PRIMAL),
+        weight: 1.0 / st.primal_spp as f32,
+    }
+}
+
+/// Rays one primal pass of `gs` casts (every sensor at `st.primal_spp`), counted by
+/// trace_primal_count.
+fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &RunSettings) -> Result<u64> {
+    let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
+    let image = Buffer::zeroed::<[f32; 3]>(ctx, "layout bench counted image", gs.pixels(), MemoryKind::Device)?;
+    let counters =
+        Buffer::zeroed::<u32>(ctx, "layout bench ray count", (gs.pixels() as u64).div_ceil(counting.local_size()[0] as u64) as usize, MemoryKind::Device)?;
+    let mut b = gs.bindings();
+    b.push(("Accum", &image));
+    b.push(("RayCount", &counters));
+    let group = counting.bind(&b)?;
+    let mut cmd = CommandBuffer::new(ctx, "layout bench ray count")?;
+    cmd.record(|rec| {
+        for s in 0..gs.sensors as u32 {
+            // Each sensor's render and count accumulate onto the previous one's.
+            rec.transition(&[(&image, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
+            let push = primal_push(gs, st, s);
+            record_samples(rec, gs, &counting, &group, push, push.spp, &[&image, &counters])?;
+        }
+        Ok(())
+    })?;
+    cmd.submit_and_wait()?;
+    Ok(counters.read::<u32>()?.iter().map(|&c| u64::from(c)).sum())
+}
+
 /// Runs the comparison over `rounds` rounds.
 pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
     let rounds = rounds.max(1);
     let st = RunSettings::of_scene(scene);
     let mut setups = BvhLayout::ALL.map(|layout| Setup::new(ctx, scene, &st, layout)).into_iter().collect::<Result<Vec<_>>>()?;
+    let n_layouts = setups.len();
     // Warm-up (lavapipe compiles a pipeline on its first dispatch); its results (the
     // any-hit trace's, written last, and the primal image) are compared.
     for s in &mut setups {
@@ -170,45 +206,51 @@ pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<La
         s.run()?;
     }
     let images: Vec<Vec<[f32; 3]>> = setups.iter().map(|s| s.image.read()).collect::<std::result::Result<_, _>>()?;
-    let primal_image_rel_diff = super::scene::rel_diff(&images[0], &images[1]);
     let hits: Vec<Vec<TraceResult>> = setups.iter().map(|s| s.results.read()).collect::<std::result::Result<_, _>>()?;
-    let any_hit_disagreements = hits[0].iter().zip(&hits[1]).filter(|(a, b)| a.any_hit != b.any_hit).count() as u64;
+    let primal_rays: Vec<u64> = setups.iter().map(|s| count_primal_rays(ctx, &s.gs, &st)).collect::<Result<_>>()?;
 
+    // times[layout][kind], ratios[layout][kind] to the binary layout (index 0).
     let mut times: Vec<[Vec<f64>; 3]> = setups.iter().map(|_| Default::default()).collect();
-    let mut ratios: [Vec<f64>; 3] = Default::default();
-    for round in 0..rounds {
-        let mut this = [[0.0; 3]; 2];
-        let order: [usize; 2] = if round % 2 == 0 { [0, 1] } else { [1, 0] };
-        for i in order {
+    let mut ratios: Vec<[Vec<f64>; 3]> = setups.iter().map(|_| Default::default()).collect();
+    for round in 0..rounds as usize {
+        let mut this = vec![[0.0; 3]; n_layouts];
+        for k in 0..n_layouts {
+            let i = (round + k) % n_layouts;
             this[i] = setups[i].run()?;
         }
-        for k in 0..3 {
-            for i in 0..2 {
+        for i in 0..n_layouts {
+            for k in 0..3 {
                 times[i][k].push(this[i][k]);
+                ratios[i][k].push(this[i][k] / this[0][k].max(1e-12));
             }
-            ratios[k].push(this[1][k] / this[0][k].max(1e-12));
         }
     }
     let n = setups[0].rays;
-    let mrays = |ms: f64| n as f64 / (ms * 1e-3).max(1e-12) * 1e-6;
+    let mrays = |rays: u64, ms: f64| rays as f64 / (ms * 1e-3).max(1e-12) * 1e-6;
     let layouts = setups
         .iter()
-        .zip(times.iter_mut())
-        .map(|(s, t)| {
-            let [c, a, p] = t;
+        .enumerate()
+        .map(|(i, s)| {
+            let [c, a, p] = &mut times[i];
+            let [rc, ra, rp] = &mut ratios[i];
             let (closest_ms, any_ms, primal_ms) = (median(c), median(a), median(p));
             LayoutTimes {
                 layout: s.layout.name().to_string(),
                 nodes_bytes: s.gs.bvh().nodes.len(),
                 closest_ms,
-                closest_mrays_per_s: mrays(closest_ms),
+                closest_mrays_per_s: mrays(n, closest_ms),
                 any_ms,
-                any_mrays_per_s: mrays(any_ms),
+                any_mrays_per_s: mrays(n, any_ms),
                 primal_ms,
+                primal_mrays_per_s: mrays(primal_rays[i], primal_ms),
+                closest_over_binary: median(rc),
+                any_over_binary: median(ra),
+                primal_over_binary: median(rp),
+                any_hit_disagreements: hits[0].iter().zip(&hits[i]).filter(|(a, b)| a.any_hit != b.any_hit).count() as u64,
+                primal_image_rel_diff: super::scene::rel_diff(&images[0], &images[i]),
             }
         })
         .collect();
-    let [rc, ra, rp] = &mut ratios;
     Ok(LayoutBench {
         scene: scene.path.display().to_string(),
         device: ctx.info().name.clone(),
@@ -217,12 +259,9 @@ pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<La
         rays: n,
         triangles: setups[0].gs.triangles,
         primal_spp: st.primal_spp,
+        width: setups[0].gs.width,
+        height: setups[0].gs.height,
         layouts,
-        closest_wide_over_binary: median(rc),
-        any_wide_over_binary: median(ra),
-        primal_wide_over_binary: median(rp),
-        any_hit_disagreements,
-        primal_image_rel_diff,
     })
 }
 
@@ -232,8 +271,10 @@ impl LayoutBench {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "{} on {} (LP_NUM_THREADS {}), {} rounds alternating, medians; trace_test: {} camera rays, {} triangles; trace_primal: every sensor at {} spp",
+            "{} ({}x{}) on {} (LP_NUM_THREADS {}), {} rounds rotating, medians; trace_test: {} camera rays, {} triangles; trace_primal: every sensor at {} spp",
             self.scene,
+            self.width,
+            self.height,
             self.device,
             self.lp_num_threads.as_deref().unwrap_or("unset"),
             self.rounds,
@@ -241,29 +282,33 @@ impl LayoutBench {
             self.triangles,
             self.primal_spp
         );
-        let _ = writeln!(s, "{:<8} {:>10} {:>12} {:>10} {:>10} {:>10} {:>12}", "layout", "nodes KiB", "closest ms", "Mrays/s", "any ms", "Mrays/s", "primal ms");
+        let _ = writeln!(
+            s,
+            "{:<8} {:>9} {:>10} {:>8} {:>9} {:>8} {:>10} {:>8} {:>21} {:>9} {:>9}",
+            "layout", "nodes KiB", "closest ms", "Mrays/s", "any ms", "Mrays/s", "primal ms", "Mrays/s", "/binary clo/any/pri", "any diff", "image diff"
+        );
         for l in &self.layouts {
             let _ = writeln!(
                 s,
-                "{:<8} {:>10.1} {:>12.3} {:>10.2} {:>10.3} {:>10.2} {:>12.3}",
+                "{:<8} {:>9.1} {:>10.3} {:>8.2} {:>9.3} {:>8.2} {:>10.3} {:>8.2} {:>7.3}/{:>6.3}/{:>6.3} {:>9} {:>9.1e}",
                 l.layout,
                 l.nodes_bytes as f64 / 1024.0,
                 l.closest_ms,
                 l.closest_mrays_per_s,
                 l.any_ms,
                 l.any_mrays_per_s,
-                l.primal_ms
+                l.primal_ms,
+                l.primal_mrays_per_s,
+                l.closest_over_binary,
+                l.any_over_binary,
+                l.primal_over_binary,
+                l.any_hit_disagreements,
+                l.primal_image_rel_diff
             );
         }
         let _ = writeln!(
             s,
-            "wide/binary time, median of per-round ratios: closest {:.3}, any {:.3}, primal {:.3}",
-            self.closest_wide_over_binary, self.any_wide_over_binary, self.primal_wide_over_binary
-        );
-        let _ = writeln!(
-            s,
-            "agreement: any hit differs on {} of {} rays; primal images differ by {:.1e} (relative L1)",
-            self.any_hit_disagreements, self.rays, self.primal_image_rel_diff
+            "/binary: median over rounds of the layout's time / the binary layout's; any diff: rays whose any-hit result differs from binary's; image diff: relative L1 of the primal image to binary's"
         );
         s
     }

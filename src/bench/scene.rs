@@ -123,7 +123,7 @@ pub struct Ratios {
 /// trace_test on camera rays of the first sensor.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct BvhThroughput {
-    /// The node layout traced (the default, `binary` or `wide`).
+    /// The node layout traced (the default unless `VKINVERSE_BVH_LAYOUT` names another).
     pub layout: String,
     pub rays: u64,
     pub triangles: usize,
@@ -164,8 +164,26 @@ pub struct SceneBench {
     /// finite-difference buffers, both optimisers' state).
     pub memory_bytes: u64,
     pub memory_allocations: usize,
+    /// Host↔device traffic per timed iteration: the frame counter written, the loss and θ
+    /// read back (as `optimise` does for its log).
+    pub transfer: TransferPerIteration,
     /// The fused optimiser passes on a synthetic θ.
     pub optimisers: OptimiserBandwidth,
+}
+
+/// Means per iteration of [`crate::gpu::TransferStats`] over the timed iterations.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TransferPerIteration {
+    /// False when device memory is read and written through the staging buffers (a
+    /// discrete GPU, or `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1`).
+    pub device_memory_mappable: bool,
+    pub upload_bytes: f64,
+    pub readback_bytes: f64,
+    pub staged_bytes: f64,
+    pub staged_submissions: f64,
+    /// Buffers and staging buffers created during the timed iterations (0: an iteration
+    /// allocates nothing).
+    pub buffers_created: u64,
 }
 
 /// Per-submission sums of the scopes of each name, collected over submissions.
@@ -371,16 +389,31 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch.
     cmd.submit_and_wait()?;
     let mut samples: Vec<Samples> = GROUPS.iter().map(|_| Samples::default()).collect();
+    let before = ctx.transfer_stats();
     for i in 0..iterations {
         engine.scene().set_frame(i + 1)?;
         cmd.submit_and_wait()?;
+        // The host's side of an optimisation iteration: the loss and θ for the log.
+        engine.gradient.total_loss()?;
+        engine.theta()?;
         for (s, p) in samples.iter_mut().zip(&profs) {
             s.add(&p.results()?);
         }
     }
+    let moved = ctx.transfer_stats().since(&before);
+    let per = |v: u64| v as f64 / f64::from(iterations.max(1));
+    let transfer = TransferPerIteration {
+        device_memory_mappable: ctx.device_memory_mappable(),
+        upload_bytes: per(moved.upload_bytes),
+        readback_bytes: per(moved.readback_bytes),
+        staged_bytes: per(moved.staged_upload_bytes + moved.staged_readback_bytes),
+        staged_submissions: per(moved.staged_submissions),
+        buffers_created: moved.buffers_created + moved.staging_allocations,
+    };
     let measured = Measured { engine: &engine, samples: &samples, rays, generic_image_rel_diff, count_image_rel_diff };
     let mut bench = measured.report(scene, iterations, &x, optimisers);
     bench.bvh = bvh_throughput(ctx, scene, engine.scene(), iterations)?;
+    bench.transfer = transfer;
     Ok(bench)
 }
 
@@ -478,6 +511,7 @@ impl Measured<'_> {
                 adjoint_over_primal: eq.median("trace_adjoint") / eq.median("trace_primal").max(1e-12),
             },
             bvh: BvhThroughput::default(),
+            transfer: TransferPerIteration::default(),
             memory_bytes: x.memory_bytes,
             memory_allocations: x.memory_allocations,
             optimisers,
@@ -632,6 +666,17 @@ impl SceneBench {
             "memory: {:.2} MiB in {} allocations (scene, gradient and finite-difference passes, both optimisers)",
             self.memory_bytes as f64 / (1 << 20) as f64,
             self.memory_allocations
+        );
+        let t = &self.transfer;
+        let _ = writeln!(
+            s,
+            "host<->device per iteration: {:.0} B up, {:.0} B down ({}; {:.0} B staged in {:.1} copy submissions); buffers created while iterating: {}",
+            t.upload_bytes,
+            t.readback_bytes,
+            if t.device_memory_mappable { "device memory mapped" } else { "device memory unmappable: staging" },
+            t.staged_bytes,
+            t.staged_submissions,
+            t.buffers_created
         );
         s.push_str(&self.optimisers.table());
         s

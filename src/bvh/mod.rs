@@ -18,7 +18,8 @@
 //!   root can have one: when the scene has fewer than two leaves.
 //!
 //! The kernels can also trace a wide layout ([`BvhLayout::Wide`], [`WideBvh`]): 4-ary
-//! nodes made from the binary tree by pulling descendants up into a node's four slots. Leaves and the triangle array are the binary tree's; wide inner nodes are at
+//! nodes made from the binary tree by pulling descendants up into a node's four slots;
+//! and a compressed 8-wide layout ([`BvhLayout::Cw8`], [`CwBvh`], module `cw`). Leaves and the triangle array are the binary tree's; wide inner nodes are at
 //! depth `<= STACK_SIZE / 2`, which bounds the wide traversal's stack by
 //! [`WIDE_STACK_SIZE`]. [`BvhLayout::default`] is the layout the renderer uses.
 
@@ -36,6 +37,9 @@ use obvhs::ploc::PlocBuilder;
 use obvhs::BvhBuildParams;
 
 use crate::gpu::{self, Buffer, Context, MemoryKind};
+
+mod cw;
+pub use cw::{BvhCwNode, CwBvh, CW_STACK_SIZE};
 
 /// Entries of the GPU traversal stack (`BVH_STACK_SIZE` in glsl/shared/bvh.glsl, compared
 /// by a test): [`build`] keeps every inner node at depth `<= STACK_SIZE`.
@@ -228,20 +232,37 @@ pub struct Bvh {
 pub enum BvhLayout {
     /// [`BvhNode`]: binary, both children's boxes in the parent.
     Binary,
-    /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`). The default:
-    /// faster on lavapipe (docs/lavapipe.md, `vkinverse bench SCENE --bvh-layouts`).
-    #[default]
+    /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`).
     Wide,
+    /// [`BvhCwNode`]: compressed 8-ary (Ylitie et al. 2017), kernels built with `BVH_CW8`
+    /// (suffix `_cw8`). The default: the fastest on lavapipe at 256x256 (docs/lavapipe.md,
+    /// `vkinverse bench SCENE --bvh-layouts`).
+    #[default]
+    Cw8,
 }
 
 impl BvhLayout {
-    pub const ALL: [BvhLayout; 2] = [BvhLayout::Binary, BvhLayout::Wide];
+    /// The layout named by the environment variable `VKINVERSE_BVH_LAYOUT` (`binary`,
+    /// `wide` or `cw8`: a device where another layout measures faster picks it there),
+    /// else [`BvhLayout::default`]. An unknown name is ignored with a warning.
+    pub fn from_env() -> BvhLayout {
+        match std::env::var("VKINVERSE_BVH_LAYOUT") {
+            Ok(name) => name.parse().unwrap_or_else(|e| {
+                eprintln!("warning: VKINVERSE_BVH_LAYOUT: {e}; using {}", BvhLayout::default().name());
+                BvhLayout::default()
+            }),
+            Err(_) => BvhLayout::default(),
+        }
+    }
+
+    pub const ALL: [BvhLayout; 3] = [BvhLayout::Binary, BvhLayout::Wide, BvhLayout::Cw8];
 
     /// The name of the build of `kernel` (e.g. `trace_primal`) that traces this layout.
     pub fn kernel(self, kernel: &str) -> String {
         match self {
             BvhLayout::Binary => kernel.to_string(),
             BvhLayout::Wide => format!("{kernel}_wide"),
+            BvhLayout::Cw8 => format!("{kernel}_cw8"),
         }
     }
 
@@ -249,6 +270,7 @@ impl BvhLayout {
         match self {
             BvhLayout::Binary => "binary",
             BvhLayout::Wide => "wide",
+            BvhLayout::Cw8 => "cw8",
         }
     }
 }
@@ -259,7 +281,8 @@ impl std::str::FromStr for BvhLayout {
         match s {
             "binary" => Ok(BvhLayout::Binary),
             "wide" => Ok(BvhLayout::Wide),
-            _ => Err(format!("unknown BVH layout '{s}' (binary or wide)")),
+            "cw8" => Ok(BvhLayout::Cw8),
+            _ => Err(format!("unknown BVH layout '{s}' (binary, wide or cw8)")),
         }
     }
 }
@@ -289,12 +312,35 @@ impl Bvh {
         })
     }
 
-    /// Uploads the tree in `layout`.
+    /// Uploads the tree in `layout`. The compressed layout fails if its tree is deeper than
+    /// its traversal stack ([`CW_STACK_SIZE`]); [`build_as`] avoids that.
     pub fn upload_as(&self, ctx: &Arc<Context>, layout: BvhLayout) -> gpu::Result<BvhBuffers> {
         match layout {
             BvhLayout::Binary => self.upload(ctx),
             BvhLayout::Wide => WideBvh::from_binary(self).upload(ctx),
+            BvhLayout::Cw8 => {
+                let cw = CwBvh::from_binary(self);
+                if cw.depth() > CW_STACK_SIZE {
+                    return Err(gpu::GpuError::BufferAccess {
+                        name: "bvh cw8 nodes".into(),
+                        what: format!("tree depth {} exceeds the traversal stack ({CW_STACK_SIZE})", cw.depth()),
+                    });
+                }
+                cw.upload(ctx)
+            }
         }
+    }
+}
+
+/// Builds the BVH of the triangles `indices` over `positions` (finite coordinates) in
+/// `layout` and uploads it.
+///
+/// # Panics
+/// If an index is out of bounds of `positions`.
+pub fn build_as(ctx: &Arc<Context>, positions: &[[f32; 3]], indices: &[[u32; 3]], layout: BvhLayout) -> gpu::Result<BvhBuffers> {
+    match layout {
+        BvhLayout::Cw8 => CwBvh::build(positions, indices).upload(ctx),
+        _ => build(positions, indices).upload_as(ctx, layout),
     }
 }
 

@@ -4,7 +4,8 @@
 //! alive. Zero-length buffers are legal at this level (a kernel over 0 elements); they
 //! are backed by a 16-byte allocation because Vulkan forbids empty buffers.
 
-use super::{vk_err, CommandBuffer, Context, GpuError, Result};
+use super::staging::Counters;
+use super::{vk_err, Context, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
 use gpu_allocator::MemoryLocation;
@@ -14,7 +15,8 @@ use std::sync::{Arc, Mutex};
 /// Where a buffer lives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MemoryKind {
-    /// Device-local; filled and read through staging copies unless it happens to be mapped.
+    /// Device-local; filled and read through the context's staging buffers unless it
+    /// happens to be mapped (and the context allows mapping it).
     Device,
     /// Host-visible, written by the host, read by the device.
     Upload,
@@ -53,35 +55,13 @@ impl Buffer {
                 | vk::BufferUsageFlags::TRANSFER_SRC
                 | vk::BufferUsageFlags::TRANSFER_DST,
         );
-        // SAFETY: valid create info on a live device.
-        let raw = unsafe { ctx.device.create_buffer(&info, None) }.map_err(vk_err("vkCreateBuffer"))?;
-        let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
         let location = match kind {
             MemoryKind::Device => MemoryLocation::GpuOnly,
             MemoryKind::Upload => MemoryLocation::CpuToGpu,
             MemoryKind::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location,
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
-        let allocation = match allocation {
-            Ok(a) => a,
-            Err(source) => {
-                // SAFETY: the buffer was never bound or used.
-                unsafe { ctx.device.destroy_buffer(raw, None) };
-                return Err(GpuError::Alloc { name: name.into(), source });
-            }
-        };
-        // SAFETY: the allocation satisfies `requirements` and is not bound elsewhere.
-        if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
-            unsafe { ctx.device.destroy_buffer(raw, None) };
-            let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
-            return Err(vk_err("vkBindBufferMemory")(e));
-        }
+        let (raw, allocation) = allocate_bound(ctx, name, &info, location)?;
+        Counters::add(&ctx.counters.buffers, 1);
         Ok(Self(Arc::new(BufferInner {
             ctx: ctx.clone(),
             raw,
@@ -137,8 +117,12 @@ impl Buffer {
         Ok(())
     }
 
-    /// Runs `f` on the mapped bytes, if the memory is host-visible.
+    /// Runs `f` on the mapped bytes, if the memory is host-visible (and, for a device
+    /// buffer, the context allows mapping it).
     fn with_mapped<R>(&self, f: impl FnOnce(&mut [u8]) -> R) -> Option<R> {
+        if self.0.kind == MemoryKind::Device && !self.0.ctx.device_mappable {
+            return None;
+        }
         let mut guard = self.0.allocation.lock().unwrap_or_else(|p| p.into_inner());
         let slice = guard.as_mut()?.mapped_slice_mut()?;
         Some(f(&mut slice[..self.0.len as usize]))
@@ -152,14 +136,12 @@ impl Buffer {
         if bytes.is_empty() {
             return Ok(());
         }
+        let ctx = &self.0.ctx;
+        Counters::add(&ctx.counters.upload, bytes.len() as u64);
         if self.with_mapped(|m| m[..bytes.len()].copy_from_slice(bytes)).is_some() {
             return Ok(());
         }
-        let staging = Self::new(&self.0.ctx, &format!("{} (upload)", self.0.name), bytes.len() as u64, MemoryKind::Upload)?;
-        staging.write(bytes)?;
-        let mut cmd = CommandBuffer::new(&self.0.ctx, "upload")?;
-        cmd.record(|rec| rec.copy(&staging, self, bytes.len() as u64))?;
-        cmd.submit_and_wait()
+        ctx.staging.lock().unwrap_or_else(|p| p.into_inner()).upload(ctx, self.0.raw, bytes)
     }
 
     /// Reads the first `len() / size_of::<T>()` elements.
@@ -171,16 +153,49 @@ impl Buffer {
             return Ok(out);
         }
         let dst: &mut [u8] = bytemuck::cast_slice_mut(&mut out);
+        let ctx = &self.0.ctx;
+        Counters::add(&ctx.counters.readback, nbytes as u64);
         if self.with_mapped(|m| dst.copy_from_slice(&m[..nbytes])).is_some() {
             return Ok(out);
         }
-        let staging = Self::new(&self.0.ctx, &format!("{} (readback)", self.0.name), nbytes as u64, MemoryKind::Readback)?;
-        let mut cmd = CommandBuffer::new(&self.0.ctx, "readback")?;
-        cmd.record(|rec| rec.copy(self, &staging, nbytes as u64))?;
-        cmd.submit_and_wait()?;
-        staging.with_mapped(|m| dst.copy_from_slice(&m[..nbytes]));
+        ctx.staging.lock().unwrap_or_else(|p| p.into_inner()).readback(ctx, self.0.raw, dst)?;
         Ok(out)
     }
+}
+
+/// Creates a buffer and binds a new allocation of `location` memory to it; on failure
+/// nothing is left behind.
+pub(crate) fn allocate_bound(
+    ctx: &Context,
+    name: &str,
+    info: &vk::BufferCreateInfo,
+    location: MemoryLocation,
+) -> Result<(vk::Buffer, Allocation)> {
+    // SAFETY: valid create info on a live device.
+    let raw = unsafe { ctx.device.create_buffer(info, None) }.map_err(vk_err("vkCreateBuffer"))?;
+    let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };
+    let allocation = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).allocate(&AllocationCreateDesc {
+        name,
+        requirements,
+        location,
+        linear: true,
+        allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+    });
+    let allocation = match allocation {
+        Ok(a) => a,
+        Err(source) => {
+            // SAFETY: the buffer was never bound or used.
+            unsafe { ctx.device.destroy_buffer(raw, None) };
+            return Err(GpuError::Alloc { name: name.into(), source });
+        }
+    };
+    // SAFETY: the allocation satisfies `requirements` and is not bound elsewhere.
+    if let Err(e) = unsafe { ctx.device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
+        unsafe { ctx.device.destroy_buffer(raw, None) };
+        let _ = ctx.allocator.lock().unwrap_or_else(|p| p.into_inner()).free(allocation);
+        return Err(vk_err("vkBindBufferMemory")(e));
+    }
+    Ok((raw, allocation))
 }
 
 impl Drop for BufferInner {

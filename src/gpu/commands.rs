@@ -242,6 +242,38 @@ impl Recorder<'_> {
     }
 }
 
+/// A resettable command pool with one primary command buffer, and an unsignalled fence;
+/// on failure nothing is left behind.
+pub(crate) fn create_pool_and_fence(ctx: &Context) -> Result<(vk::CommandPool, vk::CommandBuffer, vk::Fence)> {
+    let dev = &ctx.device;
+    // SAFETY: valid create infos; partial objects are destroyed on error.
+    let pool = unsafe {
+        dev.create_command_pool(
+            &vk::CommandPoolCreateInfo::default()
+                .queue_family_index(ctx.queue_family)
+                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+            None,
+        )
+    }
+    .map_err(vk_err("vkCreateCommandPool"))?;
+    let alloc = vk::CommandBufferAllocateInfo::default().command_pool(pool).level(vk::CommandBufferLevel::PRIMARY).command_buffer_count(1);
+    let cmd = match unsafe { dev.allocate_command_buffers(&alloc) } {
+        Ok(c) => c[0],
+        Err(e) => {
+            unsafe { dev.destroy_command_pool(pool, None) };
+            return Err(vk_err("vkAllocateCommandBuffers")(e));
+        }
+    };
+    let fence = match unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) } {
+        Ok(f) => f,
+        Err(e) => {
+            unsafe { dev.destroy_command_pool(pool, None) };
+            return Err(vk_err("vkCreateFence")(e));
+        }
+    };
+    Ok((pool, cmd, fence))
+}
+
 /// A primary command buffer with its own pool and fence; recorded once, submitted often.
 pub struct CommandBuffer {
     ctx: Arc<Context>,
@@ -255,35 +287,7 @@ pub struct CommandBuffer {
 
 impl CommandBuffer {
     pub fn new(ctx: &Arc<Context>, name: &str) -> Result<Self> {
-        let dev = &ctx.device;
-        // SAFETY: valid create infos; partial objects are destroyed on error.
-        let pool = unsafe {
-            dev.create_command_pool(
-                &vk::CommandPoolCreateInfo::default()
-                    .queue_family_index(ctx.queue_family)
-                    .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
-                None,
-            )
-        }
-        .map_err(vk_err("vkCreateCommandPool"))?;
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        let cmd = match unsafe { dev.allocate_command_buffers(&alloc) } {
-            Ok(c) => c[0],
-            Err(e) => {
-                unsafe { dev.destroy_command_pool(pool, None) };
-                return Err(vk_err("vkAllocateCommandBuffers")(e));
-            }
-        };
-        let fence = match unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) } {
-            Ok(f) => f,
-            Err(e) => {
-                unsafe { dev.destroy_command_pool(pool, None) };
-                return Err(vk_err("vkCreateFence")(e));
-            }
-        };
+        let (pool, cmd, fence) = create_pool_and_fence(ctx)?;
         Ok(Self { ctx: ctx.clone(), name: name.into(), pool, cmd, fence, pending: false, keep: Kept::default() })
     }
 

@@ -3,6 +3,7 @@
 //! Invariant: every GPU object holds an `Arc<Context>`, so the device (and the allocator,
 //! which must go before it) is destroyed only after the last object using it.
 
+use super::staging::{Counters, Staging, TransferStats, STAGING_NAME};
 use super::{vk_err, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
@@ -23,6 +24,14 @@ pub struct ContextOptions {
     pub validation: bool,
     /// Longest wait for one submission; `None` means 120 s (lavapipe is slow).
     pub timeout: Option<Duration>,
+    /// Never map device-local buffers, even where the driver makes them host-visible (as
+    /// lavapipe does): every write and read of a [`MemoryKind::Device`] buffer then goes
+    /// through the staging buffers, as on a discrete GPU. Also turned on by the
+    /// environment variable `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1` (CI runs the tests
+    /// once so).
+    ///
+    /// [`MemoryKind::Device`]: super::MemoryKind::Device
+    pub unmappable_device_memory: bool,
 }
 
 /// The features vkinverse needs, as read from a device.
@@ -91,6 +100,10 @@ pub struct Context {
     pub(crate) allocator: ManuallyDrop<Mutex<Allocator>>,
     pub(crate) timeout: Duration,
     pub(crate) timestamp_mask: u64,
+    /// Whether device-local buffers may be read and written through a mapping.
+    pub(crate) device_mappable: bool,
+    pub(crate) staging: Mutex<Staging>,
+    pub(crate) counters: Counters,
     info: DeviceInfo,
     devices: Vec<DeviceInfo>,
     // Boxed so that its address, handed to the debug callback, stays fixed.
@@ -286,6 +299,10 @@ impl Context {
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             timeout: options.timeout.unwrap_or(Duration::from_secs(120)),
             timestamp_mask,
+            device_mappable: !(options.unmappable_device_memory
+                || std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1")),
+            staging: Mutex::new(Staging::default()),
+            counters: Counters::default(),
             info,
             devices,
             messages,
@@ -401,10 +418,23 @@ impl Context {
         self.messages.lock().map(|mut m| std::mem::take(&mut *m)).unwrap_or_default()
     }
 
-    /// Names and sizes of the allocations still alive (the leak report).
+    /// Names and sizes of the allocations still alive (the leak report), less the
+    /// context's own staging buffers.
     pub fn live_allocations(&self) -> Vec<(String, u64)> {
         let alloc = self.allocator.lock().unwrap_or_else(|p| p.into_inner());
-        alloc.generate_report().allocations.into_iter().map(|a| (a.name, a.size)).collect()
+        alloc.generate_report().allocations.into_iter().filter(|a| !a.name.starts_with(STAGING_NAME)).map(|a| (a.name, a.size)).collect()
+    }
+
+    /// Whether device-local buffers are read and written through a mapping where the
+    /// memory allows it (false: always through the staging buffers; see
+    /// [`ContextOptions::unmappable_device_memory`]).
+    pub fn device_memory_mappable(&self) -> bool {
+        self.device_mappable
+    }
+
+    /// Host↔device transfers so far.
+    pub fn transfer_stats(&self) -> TransferStats {
+        self.counters.snapshot()
     }
 
     /// Waits until the device is idle.
@@ -439,6 +469,8 @@ impl Drop for Context {
         // allocator frees its memory blocks before the device is destroyed.
         unsafe {
             let _ = self.device.device_wait_idle();
+            let mut staging = std::mem::take(self.staging.get_mut().unwrap_or_else(|p| p.into_inner()));
+            staging.destroy(self);
             ManuallyDrop::drop(&mut self.allocator);
             self.device.destroy_device(None);
             if let Some((loader, m)) = &self.debug {

@@ -18,6 +18,7 @@ mod context;
 mod pipeline;
 mod profiler;
 pub mod reflect;
+mod staging;
 mod sync;
 
 pub use buffer::{Buffer, MemoryKind};
@@ -25,6 +26,7 @@ pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
 pub use pipeline::{BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
 pub use profiler::{MaybeProfiler, Profiler, ScopeTime};
+pub use staging::{TransferStats, STAGING_BYTES};
 pub use sync::Access;
 
 use ash::vk;

@@ -121,9 +121,9 @@ pub fn texel_buffer<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, v: &[T]) -
 
 impl GpuScene {
     /// Builds the BVH and uploads geometry, materials, lights, sensors and θ (set to the
-    /// parameters' initial values).
+    /// parameters' initial values). The BVH layout is [`BvhLayout::from_env`].
     pub fn new(ctx: &Arc<Context>, scene: &Scene) -> gpu::Result<Self> {
-        Self::with_bvh_layout(ctx, scene, BvhLayout::default())
+        Self::with_bvh_layout(ctx, scene, BvhLayout::from_env())
     }
 
     /// [`Self::new`] with the BVH in `bvh_layout`; the scene's kernels are then the builds
@@ -131,7 +131,7 @@ impl GpuScene {
     pub fn with_bvh_layout(ctx: &Arc<Context>, scene: &Scene, bvh_layout: BvhLayout) -> gpu::Result<Self> {
         let layout = ParamLayout::new(scene);
         let geo = scene.flatten();
-        let bvh = bvh::build(&geo.positions, &geo.indices).upload_as(ctx, bvh_layout)?;
+        let bvh = bvh::build_as(ctx, &geo.positions, &geo.indices, bvh_layout)?;
 
         let mut data = Vec::new();
         let materials: Vec<MaterialRecord> = scene

@@ -9,12 +9,10 @@ use std::sync::Arc;
 use vkinverse::gpu::{Context, ContextOptions};
 
 /// A validating context (lavapipe in CI; whatever device `VKINVERSE_TEST_DEVICE` names).
+/// With `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1` in the environment its device buffers are
+/// never mapped (the staging path of a discrete GPU; CI runs the suite once so).
 pub fn context() -> Arc<Context> {
-    let options = ContextOptions {
-        device: std::env::var("VKINVERSE_TEST_DEVICE").ok(),
-        validation: true,
-        timeout: None,
-    };
+    let options = ContextOptions { device: std::env::var("VKINVERSE_TEST_DEVICE").ok(), validation: true, ..Default::default() };
     Context::new(&options).expect("Vulkan context with validation (needs mesa-vulkan-drivers and vulkan-validationlayers)")
 }
 
