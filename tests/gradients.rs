@@ -980,7 +980,8 @@ range = [0.0, 1.0]
 /// anything else at depth 4 < rr_depth 5, so each replayed sample's adjoint must be the
 /// exact derivative of that sample (as in the test above). The image is linear in each
 /// light's colour and intensity and at most quadratic in the wall's colour. The colour
-/// starts far below the reference in every channel so that each channel's gradient is
+/// starts far below the reference in every channel, and both lights below their
+/// intensities, so that the residual has one sign where they shine and each gradient is
 /// significant.
 #[test]
 fn delta_light_gradients_are_exact() {
@@ -1013,11 +1014,11 @@ init = 1.0
 range = [0.0, 5.0]
 [[optimise.params]]
 target = "lights.spot.intensity"
-init = 3.0
+init = 0.5
 range = [0.0, 5.0]
 [[optimise.params]]
 target = "materials.red.base_color"
-init = [0.5, 0.5, 0.5]
+init = [0.1, 0.01, 0.01]
 range = [0.0, 1.0]
 "#;
         let scene = cornell("delta-lights", 16, 4, lights, &[], optimise);
