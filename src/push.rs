@@ -120,6 +120,22 @@ pub struct BsdfSamplePush {
 }
 push_block!(BsdfSamplePush { material, n, wo, count, seed });
 
+/// rng_test.comp's block: the keys of the numbers drawn.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RngTestPush {
+    /// Threads (pixels).
+    pub n: u32,
+    pub sample_index: u32,
+    /// The pass's seed.
+    pub seed: u32,
+    /// The iteration counter.
+    pub frame: u32,
+    /// Numbers per thread.
+    pub dims: u32,
+}
+push_block!(RngTestPush { n, sample_index, seed, frame, dims });
+
 push_block!(AdamPush { n, offset, lr, beta1, beta2, eps, lo, hi });
 push_block!(MetaPush { n, offset, lr, decay_f, decay_d, eps, lo, hi });
 
@@ -145,6 +161,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
         "loss" => layout::<LossPush>(),
         "records_test" => layout::<RecordsPush>(),
         "bsdf_sample_test" => layout::<BsdfSamplePush>(),
+        "rng_test" => layout::<RngTestPush>(),
         "optim_adam" => layout::<AdamPush>(),
         "optim_meta" => layout::<MetaPush>(),
         "layout_probe" => layout::<()>(),
