@@ -87,8 +87,7 @@ void main() {
     grad_in_half = (pcg4d(uvec4(i, pc.seed, frame_iteration, 0x4841u)).x & 1u) == 1u;
 #endif
     for (uint k = 0u; k < pc.spp; ++k) {
-        // 0x9E3779B9: the golden-ratio increment spreads iterations over the seed space.
-        Rng rng = rng_init(i, pc.first_sample + k, pc.seed + frame_iteration * 0x9E3779B9u);
+        Rng rng = rng_init(i, pc.first_sample + k, rng_pass_seed(pc.seed, frame_iteration));
         vec3 o, d;
         camera_ray(s, pixel, uvec2(pc.width, pc.height), rng, o, d);
         vec3 radiance[NSTATES];

@@ -6,7 +6,12 @@
           the textured back wall receives almost only indirect light (the situation of the
           "Veach Ajar" texture experiment of Bálint et al. 2023);
   glossy: a metal sphere whose roughness varies over its surface, a roughness texture to
-          recover (the case where roughness gradients are hard to estimate).
+          recover (the case where roughness gradients are hard to estimate);
+  gap:    a closed box whose only light is a small one-sided area light 2 cm under the
+          ceiling, facing the ceiling: light reaches the room only off the ceiling through
+          that gap, so the image is carried by rare bright paths (a gradient check where
+          variance is large and any correlation between the residual image and the
+          adjoint's paths shows as bias).
 
 The outputs are committed; the script documents how they were made and regenerates them
 bit for bit.
@@ -161,6 +166,37 @@ def glossy(root):
     write_exr(root / "textures" / "roughness.exr", 8, 8, roughness)
 
 
+def box(path, comment, lo, hi):
+    """An axis-aligned box standing on the floor, its five visible faces facing outwards
+    (no bottom face)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    positions = [(x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1), (x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)]
+    faces = [
+        [5, 8, 7, 6],  # top, facing +y
+        [4, 3, 7, 8],  # front, facing +z
+        [2, 1, 5, 6],  # back, facing -z
+        [3, 2, 6, 7],  # right, facing +x
+        [1, 4, 8, 5],  # left, facing -x
+    ]
+    write_obj(path, comment, positions, faces)
+
+
+def gap(root):
+    m = root / "meshes"
+    # The room spans x, z in [-1, 1], y in [0, 2]; every wall faces inwards; the camera
+    # stands inside, in front of the front wall.
+    quad(m / "floor.obj", "floor, y = 0, facing +y", (-1, 0, 1), (1, 0, 1), (1, 0, -1), (-1, 0, -1))
+    quad(m / "ceiling.obj", "ceiling, y = 2, facing -y", (-1, 2, -1), (1, 2, -1), (1, 2, 1), (-1, 2, 1))
+    quad(m / "back.obj", "back wall, z = -1, facing +z", (-1, 0, -1), (1, 0, -1), (1, 2, -1), (-1, 2, -1))
+    quad(m / "front.obj", "front wall behind the camera, z = 1, facing -z", (1, 0, 1), (-1, 0, 1), (-1, 2, 1), (1, 2, 1))
+    quad(m / "left.obj", "left wall, x = -1, facing +x", (-1, 0, 1), (-1, 0, -1), (-1, 2, -1), (-1, 2, 1))
+    quad(m / "right.obj", "right wall, x = 1, facing -x", (1, 0, -1), (1, 0, 1), (1, 2, 1), (1, 2, -1))
+    box(m / "block.obj", "grey block on the floor, x in [0.15, 0.65], z in [-0.7, -0.2], 0.6 high", (0.15, 0, -0.7), (0.65, 0.6, -0.2))
+    # The light: 0.3 x 0.3, 2 cm under the ceiling, emitting upwards only.
+    quad(m / "light.obj", "area light 2 cm under the ceiling, y = 1.98, facing +y", (-0.15, 1.98, 0.15), (0.15, 1.98, 0.15), (0.15, 1.98, -0.15), (-0.15, 1.98, -0.15))
+
+
 if __name__ == "__main__":
     ajar(Path("scenes/ajar"))
     glossy(Path("scenes/glossy"))
+    gap(Path("scenes/gap"))

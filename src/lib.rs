@@ -38,3 +38,4 @@ pub mod rundir;
 pub mod scene;
 pub mod settings;
 pub mod shared;
+pub mod stats;

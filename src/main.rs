@@ -47,7 +47,8 @@ enum Command {
     /// table; or merge the tables of shards.
     #[command(after_help = BATCH_HELP)]
     Batch(BatchArgs),
-    /// Check the adjoint gradient against finite differences of the loss.
+    /// Check the adjoint gradient against finite differences of the loss. Exits non-zero
+    /// unless the verdict is "pass" (a failed or an inconclusive check).
     Gradcheck(GradcheckArgs),
     /// Run the GPU optimiser passes on gradient streams from .npy files.
     Replay(ReplayArgs),
@@ -137,8 +138,12 @@ struct GradcheckArgs {
     scene: PathBuf,
     #[arg(long, default_value_t = 16)]
     spp: u32,
-    #[arg(long, default_value_t = 4)]
-    rounds: u32,
+    /// Rounds (independent estimates of each side); by default sized from a pilot so that
+    /// a 10 % bias of a typical gradient would be detected, up to --max-rounds.
+    #[arg(long)]
+    rounds: Option<u32>,
+    #[arg(long, default_value_t = 200)]
+    max_rounds: u32,
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -511,33 +516,44 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
 }
 
 fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
+    use vkinverse::gradcheck::{Verdict, Z_FAIL};
     if a.spp == 0 {
         return Err("--spp must be at least 1".into());
+    }
+    if a.max_rounds == 0 {
+        return Err("--max-rounds must be at least 1".into());
     }
     let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     if scene.optimise.params.is_empty() {
         return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
     }
     let ctx = context(cli)?;
-    let opts = vkinverse::gradcheck::Options { spp: a.spp, primal_spp: a.spp, rounds: a.rounds.max(2), ..Default::default() };
-    let rows = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
+    let opts = vkinverse::gradcheck::Options {
+        spp: a.spp,
+        primal_spp: a.spp,
+        rounds: a.rounds.map(|r| r.max(2)),
+        max_rounds: a.max_rounds,
+        ..Default::default()
+    };
+    let report = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
     if a.json {
-        outln!("{}", serde_json::to_string_pretty(&rows)?)?;
+        outln!("{}", serde_json::to_string_pretty(&report)?)?;
     } else {
-        outln!("{:<36} {:>4} {:>14} {:>11} {:>14} {:>11} {:>9}  verdict", "parameter", "el", "adjoint", "± se", "finite diff", "± se", "rel err")?;
-        for r in &rows {
-            outln!(
-                "{:<36} {:>4} {:>14.6e} {:>11.2e} {:>14.6e} {:>11.2e} {:>9.3}  {}",
-                r.param, r.element, r.adjoint, r.adjoint_se, r.finite_difference, r.finite_difference_se, r.relative_error,
-                if r.pass { "pass" } else { "FAIL" }
-            )?;
+        out(format_args!("{}", report.table()))?;
+    }
+    match report.verdict {
+        Verdict::Pass => Ok(()),
+        Verdict::Fail => {
+            let failed = report.rows.iter().filter(|r| r.verdict == Verdict::Fail).count();
+            let p = report.combined.map_or("n/a".to_string(), |h| format!("{:.2e}", h.p_value));
+            Err(format!("gradcheck failed: {failed} of {} elements beyond {Z_FAIL} standard errors, combined p = {p}", report.rows.len()).into())
         }
+        Verdict::Inconclusive => Err(format!(
+            "gradcheck inconclusive: too noisy to see a 10 % bias in {} rounds; about {} rounds at {} spp would",
+            report.rounds, report.rounds_needed, a.spp
+        )
+        .into()),
     }
-    let failed = rows.iter().filter(|r| !r.pass).count();
-    if failed > 0 {
-        return Err(format!("gradcheck: {failed} of {} elements disagree", rows.len()).into());
-    }
-    Ok(())
 }
 
 fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {

@@ -120,6 +120,22 @@ pub struct BsdfSamplePush {
 }
 push_block!(BsdfSamplePush { material, n, wo, count, seed });
 
+/// rng_test.comp's block: the keys of the numbers drawn.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RngTestPush {
+    /// Threads (pixels).
+    pub n: u32,
+    pub sample_index: u32,
+    /// The pass's seed.
+    pub seed: u32,
+    /// The iteration counter.
+    pub frame: u32,
+    /// Numbers per thread.
+    pub dims: u32,
+}
+push_block!(RngTestPush { n, sample_index, seed, frame, dims });
+
 push_block!(AdamPush {
     n, offset, group, first_partial, lr, beta1, beta2, eps, lo, hi,
     sched_decay, sched_warmup, sched_horizon, sched_every, sched_floor, sched_gamma,
@@ -152,6 +168,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
         "loss" => layout::<LossPush>(),
         "records_test" => layout::<RecordsPush>(),
         "bsdf_sample_test" => layout::<BsdfSamplePush>(),
+        "rng_test" => layout::<RngTestPush>(),
         "optim_adam" => layout::<AdamPush>(),
         "optim_meta" => layout::<MetaPush>(),
         "optim_diag" => layout::<DiagPush>(),

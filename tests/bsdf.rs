@@ -12,6 +12,7 @@ use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
 use vkinverse::shared::{Material, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+use vkinverse::stats::ln_gamma;
 
 // ---------------------------------------------------------------------------------------
 // Mirrors of the test kernel's structs (glsl/bsdf_test.comp), checked by reflection below.
@@ -138,31 +139,6 @@ fn v3(v: [f32; 3]) -> DVec3 {
 
 fn f3(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
-}
-
-/// ln Gamma(x) for x > 0: Lanczos approximation (g = 7, 9 terms), relative error < 1e-14.
-fn ln_gamma(x: f64) -> f64 {
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        return (PI / (PI * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = C[0];
-    let t = x + 7.5;
-    for (i, c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
 }
 
 /// Regularised upper incomplete gamma Q(a, x): series below a + 1, Lentz continued

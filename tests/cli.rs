@@ -608,12 +608,50 @@ fn bad_replay_inputs_are_one_line_errors() {
     assert_eq!(dir_names(&dir), before, "a failed replay left files behind");
 }
 
+/// The tiny Cornell box (16², depth 2) is resolved by the automatic rounds in a few
+/// seconds: every element "pass", exit 0; the JSON report carries each element's z and the
+/// standard error the 10 % bias needs, and the combined statistic.
 #[test]
 fn gradcheck_passes_on_the_cornell_box() {
     let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell())]);
     let rows: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("materials.red.base_color")).collect();
     assert_eq!(rows.len(), 3, "one row per colour channel:\n{}", out.stdout);
     assert!(rows.iter().all(|r| r.trim_end().ends_with("pass")), "{}", out.stdout);
+    assert!(out.stdout.lines().any(|l| l == "verdict: pass"), "{}", out.stdout);
+    let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell()), "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&out.stdout).unwrap();
+    assert_eq!(report["verdict"], "pass");
+    assert!(report["rounds"].as_u64().unwrap() >= 8, "at least the pilot's rounds");
+    let p = report["combined"]["p_value"].as_f64().unwrap();
+    assert!((1e-3..=1.0).contains(&p), "combined p {p}");
+    for row in report["rows"].as_array().unwrap() {
+        let (z, se, needed) = (row["z"].as_f64().unwrap(), row["se"].as_f64().unwrap(), row["se_needed"].as_f64().unwrap());
+        assert!(z.abs() <= 4.0 && se > 0.0 && se <= needed, "{row}");
+        assert_eq!(row["verdict"], "pass");
+    }
+}
+
+/// Four rounds cannot resolve the gap scene (light through a 2 cm gap): the verdict is
+/// "inconclusive", no element says "pass", and the exit status is non-zero.
+#[test]
+fn gradcheck_too_noisy_to_decide_is_inconclusive_and_fails_the_command() {
+    let src = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/gap");
+    let dir = temp_dir("gradcheck-gap");
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for entry in std::fs::read_dir(src.join("meshes")).unwrap() {
+        let entry = entry.unwrap();
+        std::fs::copy(entry.path(), dir.join("meshes").join(entry.file_name())).unwrap();
+    }
+    let text = std::fs::read_to_string(src.join("scene.toml")).unwrap().replacen("width = 64", "width = 16", 1).replacen("height = 64", "height = 16", 1);
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let scene = s(&dir.join("scene.toml"));
+    let out = vkinverse(&["gradcheck", &scene, "--rounds", "4", "--spp", "4"]);
+    assert!(!out.ok(), "an inconclusive check must not exit 0:\n{}", out.stdout);
+    assert!(out.stderr.contains("gradcheck inconclusive") && out.stderr.contains("rounds"), "{}", out.stderr);
+    assert!(out.stdout.lines().any(|l| l.starts_with("verdict: inconclusive")), "{}", out.stdout);
+    let rows: Vec<&str> = out.stdout.lines().filter(|l| l.starts_with("materials.")).collect();
+    assert_eq!(rows.len(), 6, "{}", out.stdout);
+    assert!(rows.iter().all(|r| !r.trim_end().ends_with("pass")), "{}", out.stdout);
 }
 
 // ---------------------------------------------------------------------------------------
