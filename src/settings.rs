@@ -195,7 +195,8 @@ settings! {
     #[arg(long, value_name = "N")]
     checkpoint_every: u32 = 50;
     /// Meta: trace each parameter state separately for the finite-difference sample instead
-    /// of the fused single trace (for comparison).
+    /// of the fused single trace (for comparison; with `var=zero`, since two traces cannot
+    /// split their pixels for the centred variance estimate).
     #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL")]
     fd_two_trace: bool = false;
 }
