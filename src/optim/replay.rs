@@ -157,7 +157,7 @@ pub fn replay_cpu(
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
-    replay_in::<f64>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
+    replay_streams::<f64>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
 }
 
 /// Replays in f32 with the same formulation: what the GPU computes, up to the order of the
@@ -170,21 +170,11 @@ pub fn replay_cpu_f32(
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
-    replay_in::<f32>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
+    replay_streams::<f32>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
 }
 
 /// Replays every stream in the arithmetic `R` (f64: the reference; f32: the GPU's).
 pub fn replay_streams<R: Real>(
-    optimiser: &Optimiser,
-    streams: &Streams,
-    init: &[f32],
-    range: Range,
-    lr: f64,
-) -> Result<Replay, OptimError> {
-    replay_in::<R>(optimiser, streams, init, range, lr)
-}
-
-fn replay_in<R: Real>(
     optimiser: &Optimiser,
     streams: &Streams,
     init: &[f32],

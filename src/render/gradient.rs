@@ -49,7 +49,7 @@ pub struct GradientPass {
     sensors: Vec<SensorBuffers>,
     /// dLoss/dθ, accumulated with atomics.
     pub grad: Buffer,
-    /// The part of `grad` from half of the pixels (see [`Self::new_split`]), or an unused
+    /// The part of `grad` from half of the pixels (see [`Self::new`]), or an unused
     /// one-float buffer.
     grad_half: Buffer,
     pub spp: u32,
@@ -68,28 +68,13 @@ fn loss_index(loss: Loss) -> u32 {
 impl GradientPass {
     /// `targets`: one image per sensor, of the film's size. The passes read parameters
     /// from `theta` (the scene's θ or another state of it) and add into `grad`.
-    #[allow(clippy::too_many_arguments)]
-    pub fn new(
-        scene: &GpuScene,
-        ops: &BufferOps,
-        targets: &[Image],
-        loss: Loss,
-        spp: u32,
-        primal_spp: u32,
-        seed: u32,
-        theta: &Buffer,
-        grad: &Buffer,
-    ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, None)
-    }
-
-    /// [`Self::new`] adding the contributions of a random half of the pixels (drawn anew
-    /// every iteration) also into `grad_half` when given. The two halves are independent
+    /// Also adds the contributions of a random half of the pixels (drawn anew every
+    /// iteration) into `grad_half` when given. The two halves are independent
     /// estimates, whose difference gives the optimiser's centred variance estimate. Halves of
     /// the samples would not be: every sample of a pixel shares its primal image, and so the
     /// image's noise.
     #[allow(clippy::too_many_arguments)]
-    pub fn new_split(
+    pub fn new(
         scene: &GpuScene,
         ops: &BufferOps,
         targets: &[Image],
@@ -108,23 +93,9 @@ impl GradientPass {
     /// scene's) and evaluated at θ and at `theta_prev`; both primal images, both losses'
     /// adjoint images and the difference of the two gradients (+θ, −θ_prev) are computed
     /// in one trace per pass (glsl/lib/integrator.glsl, FD). Adds ⟨ΔF⟩ into `grad`.
+    /// `grad_half` as for [`Self::new`].
     #[allow(clippy::too_many_arguments)]
     pub fn new_fd(
-        scene: &GpuScene,
-        ops: &BufferOps,
-        targets: &[Image],
-        loss: Loss,
-        spp: u32,
-        seed: u32,
-        theta_prev: &Buffer,
-        grad: &Buffer,
-    ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad, None)
-    }
-
-    /// [`Self::new_fd`] with an optional half-sample buffer (see [`Self::new_split`]).
-    #[allow(clippy::too_many_arguments)]
-    pub fn new_fd_split(
         scene: &GpuScene,
         ops: &BufferOps,
         targets: &[Image],
