@@ -150,7 +150,7 @@ def protocol(by_scene):
         metas = [r for r in rows if r["optimiser"].startswith("meta")]
         # The default: spec `meta` at the scene's own settings (other meta rows are shown too).
         meta = next((r for r in metas if r["optimiser"] == "meta" and r["rate"] == "scene"), metas[0] if metas else None)
-        grid = [r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3]
+        grid = sorted((r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3), key=lambda r: float(r["rate"]) if r["rate"] != "scene" else 0.0)
         best = min(grid, key=lambda r: r["settled"]) if grid else None
         adam64 = max((r for r in rows if r["optimiser"] == "adam" and r["spp"] > 3), key=lambda r: r["spp"], default=None)
         goal3 = GOAL_MARGIN * best["settled"] if best else None
