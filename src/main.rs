@@ -101,15 +101,8 @@ struct CompareArgs {
     settings: Settings,
     #[command(flatten)]
     scene_flags: SceneFlags,
-    /// Replace runs found in OUTDIR's run directories.
-    #[arg(long)]
-    overwrite: bool,
-    /// Print compare.json instead of the table.
-    #[arg(long)]
-    json: bool,
-    /// Output directory.
-    #[arg(short = 'o', long = "output")]
-    output: PathBuf,
+    #[command(flatten)]
+    out: TableOutput,
 }
 
 #[derive(Args)]
@@ -122,13 +115,20 @@ struct BatchArgs {
     /// Join the results tables in these output directories (of shards) into one.
     #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
     merge: Vec<PathBuf>,
-    /// Replace runs found in the jobs' directories.
+    #[command(flatten)]
+    out: TableOutput,
+}
+
+/// The output of the commands that run many optimisations and print one table.
+#[derive(Args)]
+struct TableOutput {
+    /// Replace runs found in OUTDIR's run directories.
     #[arg(long)]
     overwrite: bool,
-    /// Print results.json instead of the table.
+    /// Print the table as JSON (compare.json, results.json).
     #[arg(long)]
     json: bool,
-    /// Output directory (of the batch, the shard or the merged table).
+    /// Output directory (of the comparison, the batch, a shard or the merged table).
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
 }
@@ -452,8 +452,8 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
         &scene,
         &a.settings,
         &specs,
-        &a.output,
-        mode(false, a.overwrite),
+        &a.out.output,
+        mode(false, a.out.overwrite),
         |spec, st| {
             bar.borrow().finish();
             *bar.borrow_mut() = ProgressReport::new(cli.quiet, &spec.label, st.iterations.unwrap_or(0) as u64, "iterations");
@@ -461,9 +461,9 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
         |spec, p| bar.borrow_mut().set(p.iteration as u64, &format!("{}: {}", spec.label, progress_message(p))),
     )?;
     bar.borrow().finish();
-    print_result(a.json, &comparison, || comparison.table())?;
-    if !a.json && !cli.quiet {
-        outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", a.output.display())?;
+    print_result(a.out.json, &comparison, || comparison.table())?;
+    if !a.out.json && !cli.quiet {
+        outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", a.out.output.display())?;
     }
     Ok(())
 }
@@ -471,12 +471,12 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
 fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     use vkinverse::batch;
     if !a.merge.is_empty() {
-        let (merged, missing) = batch::merge(&a.merge, &a.output)?;
+        let (merged, missing) = batch::merge(&a.merge, &a.out.output)?;
         if !missing.is_empty() {
             let list: Vec<String> = missing.iter().map(usize::to_string).collect();
             vkinverse::report::warn(&format!("job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs));
         }
-        return print_result(a.json, &merged, || merged.table());
+        return print_result(a.out.json, &merged, || merged.table());
     }
     let shard: Option<batch::Shard> = a.shard.as_deref().map(|s| s.parse().map_err(|e| format!("--shard {e}"))).transpose()?;
     let Some(jobs_file) = &a.jobs else {
@@ -493,8 +493,8 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         all.len(),
         shard,
         &mine,
-        &a.output,
-        mode(false, a.overwrite),
+        &a.out.output,
+        mode(false, a.out.overwrite),
         |job| *bar.borrow_mut() = ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations"),
         |_, p| bar.borrow_mut().set(p.iteration as u64, &progress_message(p)),
         |row| {
@@ -507,10 +507,10 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
             }
         },
     )?;
-    print_result(a.json, &results, || results.table())?;
+    print_result(a.out.json, &results, || results.table())?;
     let failed = results.failed();
     if failed > 0 {
-        return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), a.output.join("results.csv").display()).into());
+        return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), a.out.output.join("results.csv").display()).into());
     }
     Ok(())
 }

@@ -356,7 +356,7 @@ impl Loop<'_> {
             let row = self.row(time_s, Some(step.loss))?;
             observer.iteration(&Progress { iteration: self.iteration, time_s, loss: step.loss, param_error: row.param_error });
             self.log.rows.push(row);
-            if self.iteration % settings.checkpoint_every == 0 {
+            if self.iteration.is_multiple_of(settings.checkpoint_every) {
                 self.checkpoint(time_s)?;
             }
             untimed += timed(untimed) - time_s;

@@ -264,12 +264,18 @@ mod tests {
         let path = scratch("commit");
         let dir = RunDir::open(&path, Mode::New).unwrap();
         assert_eq!(dir.committed().unwrap(), None);
-        dir.commit(&checkpoint_name(3), |d| Ok(fs::write(d.join("x"), "3").unwrap())).unwrap();
+        dir.commit(&checkpoint_name(3), |d| {
+            fs::write(d.join("x"), "3").unwrap();
+            Ok(())
+        }).unwrap();
         // A leftover of an interrupted commit is not the committed checkpoint.
         fs::create_dir_all(path.join("checkpoint").join(checkpoint_name(9))).unwrap();
         let cp = dir.committed().unwrap().unwrap();
         assert_eq!(fs::read_to_string(cp.join("x")).unwrap(), "3");
-        dir.commit(&checkpoint_name(6), |d| Ok(fs::write(d.join("x"), "6").unwrap())).unwrap();
+        dir.commit(&checkpoint_name(6), |d| {
+            fs::write(d.join("x"), "6").unwrap();
+            Ok(())
+        }).unwrap();
         let mut names: Vec<_> = fs::read_dir(path.join("checkpoint")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
         names.sort();
         assert_eq!(names, [checkpoint_name(6), "current".into()]);

@@ -152,7 +152,7 @@ pub const TEXEL_RECORDS: [(&str, usize); 7] = [
 const _: () = {
     let mut i = 0;
     while i < TEXEL_RECORDS.len() {
-        assert!(TEXEL_RECORDS[i].1 % 16 == 0, "a texel-buffer record is not a whole number of texels");
+        assert!(TEXEL_RECORDS[i].1.is_multiple_of(16), "a texel-buffer record is not a whole number of texels");
         i += 1;
     }
 };

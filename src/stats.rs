@@ -62,21 +62,17 @@ fn cholesky_solve(mut s: Vec<Vec<f64>>, b: &[f64]) -> Option<Vec<f64>> {
     let k = b.len();
     for j in 0..k {
         let diag = s[j][j];
-        let mut d = diag;
-        for p in 0..j {
-            d -= s[j][p] * s[j][p];
-        }
-        // A pivot that lost all but ~1e-12 of its diagonal is a dependent column.
-        if !(d > 1e-12 * diag) || !d.is_finite() {
+        let d = diag - s[j][..j].iter().map(|x| x * x).sum::<f64>();
+        // A pivot that lost all but ~1e-12 of its diagonal is a dependent column (NaN fails
+        // the comparison too).
+        let independent = d > 1e-12 * diag && d.is_finite();
+        if !independent {
             return None;
         }
         let d = d.sqrt();
         s[j][j] = d;
         for i in j + 1..k {
-            let mut v = s[i][j];
-            for p in 0..j {
-                v -= s[i][p] * s[j][p];
-            }
+            let v = s[i][j] - s[i][..j].iter().zip(&s[j][..j]).map(|(a, b)| a * b).sum::<f64>();
             s[i][j] = v / d;
         }
     }

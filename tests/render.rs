@@ -318,8 +318,8 @@ fn environment_map_sampling_is_unbiased_and_reduces_variance() {
             }
             stats.push(s);
         }
-        for c in 0..3 {
-            let ratio = stats[1][c].2 / stats[0][c].2;
+        for (c, (without, with)) in stats[1].iter().zip(&stats[0]).enumerate() {
+            let ratio = without.2 / with.2;
             eprintln!("channel {c}: variance without / with light sampling = {ratio:.1}");
             assert!(ratio >= 16.0, "channel {c}: light sampling reduces the variance by only {ratio:.2}×");
         }

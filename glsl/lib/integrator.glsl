@@ -147,6 +147,33 @@ void scatter_bsdf(uint id, vec2 uv, Material m, vec3 ns, vec3 wo, vec3 wi, vec3 
 }
 #endif
 
+// One light sample arriving along wi with radiance le[s] in each state and weight w (its
+// MIS weight over its pdf): adds beta·f·le·w to each state's radiance. ADJOINT: also takes
+// it off remaining[] and, in the gradient replay, scatters its derivative into the
+// material's gradients; dle[s] is then the factor of the derivative with respect to the
+// emitted radiance (state sign × δ × beta × f × w), zero outside the gradient replay.
+void add_light_sample(uint material, vec2 uv, Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[NSTATES], float w,
+                      vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, out vec3 dle[NSTATES]
+#endif
+) {
+    for (int s = 0; s < NSTATES; ++s) {
+        vec3 f = bsdf_eval(mat[s], ns, wo, wi);
+        vec3 c = beta[s] * f * le[s] * w;
+        radiance[s] += c;
+#ifdef ADJOINT
+        remaining[s] -= c;
+        dle[s] = vec3(0.0);
+        if (grad_pass) {
+            vec3 k = state_sign(s) * delta[s] * beta[s];
+            scatter_bsdf(material, uv, mat[s], ns, wo, wi, k * le[s] * w);
+            dle[s] = k * f * w;
+        }
+#endif
+    }
+}
+
 #include "lib/delta_lights.glsl"
 
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
@@ -264,19 +291,18 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
-                for (int s = 0; s < NSTATES; ++s) {
-                    vec3 le = fetch3(mesh_record(lsh.mesh).emission, vec2(0.0), s);
-                    vec3 f = bsdf_eval(mat[s], ns, wo, wi);
-                    vec3 c = beta[s] * f * le * (mis / pdf_light);
-                    radiance[s] += c;
+                ValueRef emission = mesh_record(lsh.mesh).emission;
+                vec3 le[NSTATES];
+                for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, vec2(0.0), s);
 #ifdef ADJOINT
-                    remaining[s] -= c;
-                    if (grad_pass) {
-                        scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
-                        scatter3(mesh_record(lsh.mesh).emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * f * (mis / pdf_light));
-                    }
-#endif
+                vec3 dle[NSTATES];
+                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle);
+                if (grad_pass) {
+                    for (int s = 0; s < NSTATES; ++s) scatter3(emission, vec2(0.0), dle[s]);
                 }
+#else
+                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
+#endif
             }
         }
         // Or a direction from the environment map, MIS with BSDF sampling likewise.
@@ -286,20 +312,19 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float pdf_light = p_env * density;
             if (pdf_light > 0.0 && dot(wi, ng) > 0.0 && !cast_any(p_off, wi, 1e30, depth, replay)) {
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
-                vec2 env_uv = environment_uv(wi);
-                for (int s = 0; s < NSTATES; ++s) {
-                    vec3 le = environment_radiance(wi, s);
-                    vec3 f = bsdf_eval(mat[s], ns, wo, wi);
-                    vec3 c = beta[s] * f * le * (mis / pdf_light);
-                    radiance[s] += c;
+                vec3 le[NSTATES];
+                for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s);
 #ifdef ADJOINT
-                    remaining[s] -= c;
-                    if (grad_pass) {
-                        scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * beta[s] * le * (mis / pdf_light));
-                        scatter3(scene_globals().environment, env_uv, state_sign(s) * delta[s] * beta[s] * f * (mis * scene_globals().environment_scale / pdf_light));
-                    }
-#endif
+                vec3 dle[NSTATES];
+                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle);
+                if (grad_pass) {
+                    vec2 env_uv = environment_uv(wi);
+                    float scale = scene_globals().environment_scale;
+                    for (int s = 0; s < NSTATES; ++s) scatter3(scene_globals().environment, env_uv, dle[s] * scale);
                 }
+#else
+                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
+#endif
             }
         }
 

@@ -103,7 +103,7 @@ fn collect_structs(ty: &Type, out: &mut Vec<spirq::ty::StructType>) {
 impl Reflection {
     /// Reflects the single compute entry point `main` of `spirv`.
     pub fn new(kernel: &str, spirv: &[u8]) -> Result<Self> {
-        if spirv.len() % 4 != 0 {
+        if !spirv.len().is_multiple_of(4) {
             return Err(err(kernel, "SPIR-V length is not a multiple of 4"));
         }
         let words: Vec<u32> = spirv.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();

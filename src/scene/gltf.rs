@@ -207,7 +207,7 @@ impl Importer<'_> {
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
         };
-        if flat.len() % 3 != 0 {
+        if !flat.len().is_multiple_of(3) {
             return Err(self.err(format!("{at}.indices"), format!("{} indices are not whole triangles", flat.len())));
         }
         let n = positions.len();

@@ -215,9 +215,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             return Err(self.err(node, "expected <point> or <vector>"));
         }
         if let Some(v) = self.attr(node, "value")? {
-            return match self.numbers(node, &v)?.as_slice() {
-                &[x, y, z] => Ok(Vec3::new(x, y, z)),
-                &[x] => Ok(Vec3::splat(x)),
+            return match *self.numbers(node, &v)?.as_slice() {
+                [x, y, z] => Ok(Vec3::new(x, y, z)),
+                [x] => Ok(Vec3::splat(x)),
                 _ => Err(self.err(node, "expected three numbers")),
             };
         }
@@ -234,9 +234,9 @@ impl<'a, 'i> Importer<'a, 'i> {
         for op in elements(node) {
             let xyz = |default: f32| -> Result<Vec3, SceneError> {
                 if let Some(v) = self.attr(op, "value")? {
-                    return match self.numbers(op, &v)?.as_slice() {
-                        &[x, y, z] => Ok(Vec3::new(x, y, z)),
-                        &[x] => Ok(Vec3::splat(x)),
+                    return match *self.numbers(op, &v)?.as_slice() {
+                        [x, y, z] => Ok(Vec3::new(x, y, z)),
+                        [x] => Ok(Vec3::splat(x)),
                         _ => Err(self.err(op, "expected one or three numbers")),
                     };
                 }
