@@ -1,89 +1,114 @@
 #version 460
-// Fused meta-estimator pass over one parameter buffer (Balint et al. 2023): one invocation per
-// element loads its state, steps both Moment2 EMAs and the meta-estimate, takes the step,
-// clamps to [lo, hi], records theta_prev <- theta and clears both gradient buffers for the
-// next iteration's accumulation. Each workgroup writes the sum of its elements' squared
-// steps to dpi2_partial[workgroup_index()]; a reduction recorded after the pass sums the
-// partials into `dpi2` on the GPU for the next pass (src/optim/gpu.rs). Non-finite inputs leave the element unchanged (step 0) and are counted in
-// `nonfinite` (never reset here).
+// Fused meta-estimator pass over one parameter group (Balint et al. 2023): one invocation
+// per element loads its state, steps both Moment2 EMAs, Adam's second moment and the
+// meta-estimate, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
+// records theta_prev <- theta and clears the gradient buffers for the next iteration's
+// accumulation. Each workgroup writes the diagnostics record of its elements to
+// partials[first_partial + workgroup]; optim_diag merges them into diag[group], whose sum
+// of squared steps is the |dpi|^2 this pass reads at the next iteration (or the sum over
+// all groups' slots, global_dpi). Non-finite inputs
+// leave the element unchanged (step 0) and are counted in `nonfinite` (never reset here).
 
 layout(local_size_x = 256) in;
 #include "lib/common.glsl"
 #include "lib/optim.glsl"
+#include "lib/optim_reduce.glsl"
 
 layout(set = 0, binding = 0, scalar) buffer Theta { float theta[]; };
 layout(set = 0, binding = 1, scalar) writeonly buffer ThetaPrev { float theta_prev[]; };
 layout(set = 0, binding = 2, scalar) buffer Grad { float grad[]; };
 layout(set = 0, binding = 3, scalar) buffer FdGrad { float fd_grad[]; };
-layout(set = 0, binding = 4, scalar) buffer MetaMean { float meta_mean[]; };
-layout(set = 0, binding = 5, scalar) buffer MetaSd { float meta_sd[]; };
-layout(set = 0, binding = 6, scalar) buffer MetaRmsF { float meta_rms_f[]; };
-layout(set = 0, binding = 7, scalar) buffer MetaRmsD { float meta_rms_d[]; };
-layout(set = 0, binding = 8, scalar) buffer MetaWsumD { float meta_wsum_d[]; };
-layout(set = 0, binding = 9, scalar) buffer MetaNEff { float meta_n_eff[]; };
-layout(set = 0, binding = 10, scalar) readonly buffer Dpi2 { float dpi2; };
-layout(set = 0, binding = 11, scalar) writeonly buffer Dpi2Partial { float dpi2_partial[]; };
-layout(set = 0, binding = 12, scalar) buffer NonFinite { uint nonfinite; };
+// The sums of half of the samples of grad and fd_grad (read and cleared when centred).
+layout(set = 0, binding = 4, scalar) buffer GradHalf { float grad_half[]; };
+layout(set = 0, binding = 5, scalar) buffer FdGradHalf { float fd_grad_half[]; };
+layout(set = 0, binding = 6, scalar) buffer MetaMean { float meta_mean[]; };
+layout(set = 0, binding = 7, scalar) buffer MetaSd { float meta_sd[]; };
+layout(set = 0, binding = 8, scalar) buffer MetaRmsF { float meta_rms_f[]; };
+layout(set = 0, binding = 9, scalar) buffer MetaRmsD { float meta_rms_d[]; };
+layout(set = 0, binding = 10, scalar) buffer MetaWsumD { float meta_wsum_d[]; };
+layout(set = 0, binding = 11, scalar) buffer MetaNEff { float meta_n_eff[]; };
+layout(set = 0, binding = 12, scalar) buffer MetaV { float meta_v[]; };
+layout(set = 0, binding = 13, scalar) readonly buffer Diag { DiagRecord diag[]; };
+layout(set = 0, binding = 14, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
+layout(set = 0, binding = 15, scalar) buffer NonFinite { uint nonfinite; };
 
 // The iteration counter (host-written before each submission): step t = iteration + 1,
 // so a recording resubmitted every iteration needs no new push constants.
-layout(set = 0, binding = 13, scalar) readonly buffer Frame { uint frame_iteration; };
+layout(set = 0, binding = 16, scalar) readonly buffer Frame { uint frame_iteration; };
 
 layout(push_constant, scalar) uniform Push {
     uint n;
-    uint offset; // first element of this parameter group in every array
+    uint offset;        // first element of this parameter group in every array
+    uint group;         // its slot in diag
+    uint first_partial; // its first record in partials
     float lr;
     float decay_f;
     float decay_d;
     float eps;
     float lo;
     float hi;
+    float beta2;
+    float grow_f;
+    uint step_rule;
+    uint centred;
+    uint groups;      // number of parameter groups (slots of diag)
+    uint global_dpi;  // nonzero: |dpi|^2 of all groups' steps, else of this group's
+    uint sched_decay;
+    uint sched_warmup;
+    uint sched_horizon;
+    uint sched_every;
+    float sched_floor;
+    float sched_gamma;
 } pc;
-
-// One slot per subgroup; a workgroup has at most as many subgroups as invocations, whatever
-// the device's subgroup size.
-shared float subgroup_sums[gl_WorkGroupSize.x];
 
 void main() {
     uint j = thread_index();
     uint i = pc.offset + j;
-    // Every invocation joins the reduction below; out-of-range and skipped ones add 0.
-    float step2 = 0.0;
+    uint t = frame_iteration + 1u;
+    // Every invocation joins the reduction below; out-of-range and skipped ones add nothing.
+    DiagRecord rec = diag_empty();
     if (j < pc.n) {
-        MetaParams p = MetaParams(frame_iteration + 1u, pc.lr, pc.decay_f, pc.decay_d, pc.eps, pc.lo, pc.hi);
-        MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i],
-                              meta_wsum_d[i], meta_n_eff[i]);
+        Schedule sched = Schedule(pc.sched_decay, pc.sched_warmup, pc.sched_horizon, pc.sched_every,
+                                  pc.sched_floor, pc.sched_gamma);
+        bool centred = pc.centred != 0u;
+        MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
+                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f);
+        MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
+                              meta_n_eff[i], meta_v[i]);
+        MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
+                                centred ? fd_grad_half[i] : 0.0);
         float th = theta[i];
-        float th_new = th;
         // theta_prev is the previous iterate for the next finite-difference pass, so it is
         // written for skipped elements too (their step is 0).
         theta_prev[i] = th;
-        if (meta_update(p, th_new, grad[i], fd_grad[i], dpi2, s)) {
-            theta[i] = th_new;
+        Ssq dpi = diag[pc.group].step;
+        if (pc.global_dpi != 0u) {
+            dpi = Ssq(0.0, 0.0);
+            for (uint g = 0u; g < pc.groups; ++g) dpi = ssq_merge(dpi, diag[g].step);
+        }
+        ElemDiag d;
+        if (meta_update(p, th, x, ssq_total(dpi), s, d)) {
+            theta[i] = th;
             meta_mean[i] = s.mean;
             meta_sd[i] = s.sd;
             meta_rms_f[i] = s.rms_f;
             meta_rms_d[i] = s.rms_d;
             meta_wsum_d[i] = s.wsum_d;
             meta_n_eff[i] = s.n_eff;
-            float d = th_new - th;
-            step2 = d * d;
+            meta_v[i] = s.v;
+            rec = diag_of(d);
         } else {
             atomicAdd(nonfinite, 1u);
         }
         grad[i] = 0.0;
         fd_grad[i] = 0.0;
-    }
-
-    float sum = subgroupAdd(step2);
-    if (subgroupElect()) subgroup_sums[gl_SubgroupID] = sum;
-    barrier();
-    if (gl_SubgroupID == 0u) {
-        float acc = 0.0;
-        for (uint k = gl_SubgroupInvocationID; k < gl_NumSubgroups; k += gl_SubgroupSize) {
-            acc += subgroup_sums[k];
+        if (centred) {
+            grad_half[i] = 0.0;
+            fd_grad_half[i] = 0.0;
         }
-        acc = subgroupAdd(acc);
-        if (subgroupElect()) dpi2_partial[workgroup_index()] = acc;
     }
+    rec = diag_workgroup(rec);
+    // A dispatch folded into two dimensions may have workgroups past the group's last one.
+    if (gl_LocalInvocationID.x == 0u && workgroup_index() * gl_WorkGroupSize.x < pc.n)
+        partials[pc.first_partial + workgroup_index()] = rec;
 }

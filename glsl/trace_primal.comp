@@ -79,6 +79,13 @@ void main() {
 #endif
     vec3 sum[NSTATES];
     for (int k = 0; k < NSTATES; ++k) sum[k] = vec3(0.0);
+#ifdef ADJOINT
+    // SPLIT (lib/scene_access.glsl): a random half of the pixels, drawn per iteration from a
+    // hash of (pixel, seed, iteration). Whole pixels, not samples: a pixel's adjoint weight
+    // comes from its primal image, which all of its samples share, so only halves of the
+    // pixels are independent estimates.
+    grad_in_half = (pcg4d(uvec4(i, pc.seed, frame_iteration, 0x4841u)).x & 1u) == 1u;
+#endif
     for (uint k = 0u; k < pc.spp; ++k) {
         Rng rng = rng_init(i, pc.first_sample + k, rng_pass_seed(pc.seed, frame_iteration));
         vec3 o, d;

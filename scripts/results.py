@@ -1,43 +1,50 @@
 #!/usr/bin/env python3
-"""Tables of docs/results.md from the output directory of `vkinverse batch` (standard
+"""Tables of docs/results.md from the output directories of `vkinverse batch` (standard
 library only):
 
-    python3 scripts/results.py OUTDIR [OUTDIR ...] > tables.md
+    python3 scripts/results.py OUTDIR [OUTDIR ...] > tables.md          # the protocol
+    python3 scripts/results.py --pilot OUTDIR [OUTDIR ...] > pilot.md   # candidate configurations
 
-(several output directories, e.g. the shards of one batch, are read as one).
+Several output directories (e.g. the shards of one batch) are read as one.
 
-Per scene, one row per finished job: samples per pixel, iterations, milliseconds per
-iteration, the parameter error at equal iterations (the shortest run's count, as in the
-equal-iteration plots of Bálint et al. 2023), the final error, the settled error (mean over
-the last fifth of the iterations, where noisy runs wander around their optimum), the error
-at equal time (at the wall time of the first meta-estimator run, or the job's last point if
-it ran shorter), and the time from which each job stays at or below the goal, 1.1 × the
-settled error of Adam at the largest spp (a run hovers around its own settled error, hence
-the margin), with the goal run's own time divided by it (the speed-up). For meta-estimator
-runs, the last column is the effective number of gradient samples it averaged at the end,
-n_eff = 1/(1 - alpha), per parameter (summary.json's meta_n_eff).
+The protocol (scenes/experiments.toml) runs per scene: Adam at 3 spp at each rate of a grid,
+Adam at 32 and 64 spp, and the meta-estimator (spec `meta`, its defaults) at 2 + 1
+finite-difference spp with the scene's own settings. Per scene this prints
+- one row per run: spp, rate, iterations, ms per iteration, the settled error (the mean
+  over the last fifth of the run, where a noisy run wanders around its optimum), the error at
+  equal iterations and at equal time, and the times at which the run reaches two goals: the
+  settled error of the best-rate Adam at 3 spp ("Adam-3"), and that of Adam at 64 spp
+  ("Adam-64"), each with a margin of GOAL_MARGIN;
+- a verdict line: whether meta settles at or below Adam-3, its speed-up to Adam-3's goal
+  (Adam-3's own time to it over meta's), and its speed-up to Adam-64's.
 
 Noisy runs cross a level by chance long before they stay below it, so errors at a given
-iteration or time and the times to reach the goal are read off each curve smoothed by a
-trailing mean over a twentieth of its iterations.
+iteration or time, and the times to a goal, are read off each curve smoothed by a trailing
+mean over a twentieth of its iterations; the time to a goal is the first time from which
+the smoothed curve stays at or below it to the run's end.
+
+The pilot table has one row per meta configuration and one column per scene: its settled
+error relative to the best Adam run of the pilot on that scene, and their geometric mean.
 """
 
 import csv
 import json
+import math
 import sys
 from pathlib import Path
 
-# The goal is this multiple of the settled error of Adam at the largest spp.
+# A goal is this multiple of a run's settled error: a run hovers around its own settled
+# error, so the run itself only stays below a level a little above it.
 GOAL_MARGIN = 1.1
 
 
 def curve(job_dir):
-    """(time_s, param_error) points of a job's log.csv, row 0 (the start) first."""
+    """(iteration, time_s, param_error) of a job's log.csv, row 0 (the start) first."""
     points = []
     with open(job_dir / "log.csv", newline="") as f:
         for row in csv.DictReader(f):
             if row["param_error"]:
-                points.append((float(row["time_s"]), float(row["param_error"])))
+                points.append((int(row["iteration"]), float(row["time_s"]), float(row["param_error"])))
     return points
 
 
@@ -48,15 +55,15 @@ def smoothed(points):
     out = [points[0]]
     for i in range(1, len(points)):
         lo = max(1, i - window + 1)
-        errors = [e for _, e in points[lo : i + 1]]
-        out.append((points[i][0], sum(errors) / len(errors)))
+        errors = [p[2] for p in points[lo : i + 1]]
+        out.append((points[i][0], points[i][1], sum(errors) / len(errors)))
     return out
 
 
 def time_to_reach(points, level):
     """The first time from which the curve stays at or below `level` to its end."""
     reached = None
-    for t, e in points:
+    for _, t, e in points:
         if e > level:
             reached = None
         elif reached is None:
@@ -66,35 +73,42 @@ def time_to_reach(points, level):
 
 def settled(points):
     """Mean error over the last fifth of the iterations."""
-    errors = [e for _, e in points[1:]]
+    errors = [p[2] for p in points[1:]]
     tail = errors[len(errors) - max(1, len(errors) // 5) :]
     return sum(tail) / len(tail)
 
 
-def error_at(points, time):
-    """The last logged error at or before `time`."""
-    best = points[0][1]
-    for t, e in points:
+def error_at_time(points, time):
+    """The last error logged at or before `time`."""
+    best = points[0][2]
+    for _, t, e in points:
         if t > time:
             break
         best = e
     return best
 
 
-def n_eff(job_dir):
-    """The meta-estimator's final n_eff per parameter, as "name n, ..." (short names)."""
+def error_at_iteration(points, iteration):
+    """The error at `iteration`, or None if the run is shorter."""
+    return next((e for i, _, e in points if i == iteration), None)
+
+
+def summary(job_dir):
     try:
-        values = json.loads((job_dir / "summary.json").read_text()).get("meta_n_eff") or {}
+        return json.loads((job_dir / "summary.json").read_text())
     except (OSError, json.JSONDecodeError):
-        return "-"
-    return ", ".join(f"{name.split('.')[-1]} {v:.1f}" for name, v in values.items()) or "-"
+        return {}
 
 
-def main():
-    if len(sys.argv) < 2:
-        sys.exit("usage: results.py OUTDIR [OUTDIR ...]")
+def rate(job_dir):
+    """The run's learning rate as given: a number, or "scene" for the scene's own rates."""
+    st = summary(job_dir).get("settings", {})
+    return f"{st['lr']:g}" if st.get("lr_replaces_param_rates") else "scene"
+
+
+def load(args):
     results = []
-    for arg in sys.argv[1:]:
+    for arg in args:
         for r in json.loads((Path(arg) / "results.json").read_text())["results"]:
             results.append(dict(r, dir=Path(arg) / r["dir"]))
     by_scene = {}
@@ -102,45 +116,131 @@ def main():
         if r["status"] != "ok":
             print(f"<!-- job {r['job']} {r['label']} failed: {r['message']} -->")
             continue
-        scene = Path(r["scene"]).parent.name
-        by_scene.setdefault(scene, []).append(r)
+        r["raw"] = curve(r["dir"])
+        r["smooth"] = smoothed(r["raw"])
+        r["settled"] = settled(r["raw"])
+        r["rate"] = rate(r["dir"])
+        by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
+    return by_scene
 
+
+def fmt(v, spec=".4f"):
+    return "-" if v is None else format(v, spec)
+
+
+def speedup(reference_time, time):
+    if reference_time is None:
+        return None
+    if time is None:
+        return 0.0
+    return reference_time / time if time > 0 else math.inf
+
+
+def fmt_speedup(s):
+    if s is None:
+        return "-"
+    if s == 0.0:
+        return "never"
+    return "∞" if s == math.inf else f"{s:.1f}×"
+
+
+def protocol(by_scene):
+    verdicts = []
     for scene, rows in by_scene.items():
-        raw = {r["label"]: curve(r["dir"]) for r in rows}
-        curves = {label: smoothed(points) for label, points in raw.items()}
-        meta = next((r for r in rows if r["optimiser"] == "meta"), None)
-        adams = [r for r in rows if r["optimiser"] == "adam"]
-        largest = max(adams, key=lambda r: r["spp"]) if adams else None
-        goal = GOAL_MARGIN * settled(raw[largest["label"]]) if largest else None
-        goal_time = time_to_reach(curves[largest["label"]], goal) if largest else None
+        metas = [r for r in rows if r["optimiser"].startswith("meta")]
+        # The default: spec `meta` at the scene's own settings (other meta rows are shown too).
+        meta = next((r for r in metas if r["optimiser"] == "meta" and r["rate"] == "scene"), metas[0] if metas else None)
+        grid = sorted((r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3), key=lambda r: float(r["rate"]) if r["rate"] != "scene" else 0.0)
+        best = min(grid, key=lambda r: r["settled"]) if grid else None
+        adam64 = max((r for r in rows if r["optimiser"] == "adam" and r["spp"] > 3), key=lambda r: r["spp"], default=None)
+        goal3 = GOAL_MARGIN * best["settled"] if best else None
+        goal64 = GOAL_MARGIN * adam64["settled"] if adam64 else None
         equal_time = meta["time_s"] if meta else None
-        equal_iterations = min(len(p) - 1 for p in raw.values())
-        initial = next(iter(raw.values()))[0][1]
+        equal_it = min(meta["iterations"], adam64["iterations"]) if meta and adam64 else None
+        initial = rows[0]["raw"][0][2]
 
         print(f"### {scene}\n")
-        print(f"Initial parameter error {initial:.4f}.", end=" ")
-        if largest:
-            reached = f"reached at {goal_time:.1f} s" if goal_time is not None else "not reached by its smoothed curve"
-            print(f"Goal: {GOAL_MARGIN} × the settled error of Adam at {largest['spp']} spp, {goal:.4f}, {reached}.", end="")
-        print("\n")
-        print("| run | spp | iterations | ms / iteration | error at iteration %d | final error | settled error | error at %s s | time to goal (s) | speed-up | meta n_eff |"
-              % (equal_iterations, f"{equal_time:.0f}" if equal_time else "equal time"))
+        print(
+            f"Initial parameter error {initial:.4f}. Adam-3: the best rate of the grid "
+            + (", ".join(f"{r['rate']}" for r in grid) or "-")
+            + (f" is {best['rate']}, settled error {best['settled']:.4f}" if best else "")
+            + (f"; Adam-{adam64['spp']} settles at {adam64['settled']:.4f} after {adam64['iterations']} iterations" if adam64 else "")
+            + ".\n"
+        )
+        print(
+            f"| run | spp | lr | iterations | ms / iteration | settled error | error at iteration {fmt(equal_it, 'd')} "
+            + f"| error at {fmt(equal_time, '.0f')} s | time to Adam-3 goal (s) | time to Adam-64 goal (s) | meta n_eff |"
+        )
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
-            pts = curves[r["label"]]
-            spp = f"{r['spp']}+1 FD" if r["optimiser"] == "meta" else str(r["spp"])
-            at = error_at(pts, equal_time) if equal_time else None
-            reach = time_to_reach(pts, goal) if goal is not None else None
-            speedup = goal_time / reach if reach and goal_time else None
+            sm = r["smooth"]
+            spp = f"{r['spp']}+1 FD" if r["optimiser"].startswith("meta") else str(r["spp"])
+            mark = " (best)" if r is best else " (default)" if r is meta else ""
+            n_eff = summary(r["dir"]).get("meta_n_eff") or {}
+            n_eff = ", ".join(f"{k.split('.')[-1]} {v:.1f}" for k, v in n_eff.items()) or "-"
             print(
-                f"| {r['label']} | {spp} | {r['iterations']} | {1000 * r['time_s'] / r['iterations']:.0f} | {pts[equal_iterations][1]:.4f} "
-                + f"| {raw[r['label']][-1][1]:.4f} | {settled(raw[r['label']]):.4f} | "
-                + (f"{at:.4f}" if at is not None else "-")
-                + " | " + (f"{reach:.1f}" if reach is not None else "not reached")
-                + " | " + (f"{speedup:.1f}×" if speedup else "-")
-                + " | " + (n_eff(r["dir"]) if r["optimiser"] == "meta" else "-") + " |"
+                f"| {r['optimiser']}{mark} | {spp} | {r['rate']} | {r['iterations']} | {1000 * r['time_s'] / r['iterations']:.0f} "
+                + f"| {r['settled']:.4f} | {fmt(error_at_iteration(sm, equal_it) if equal_it else None)} "
+                + f"| {fmt(error_at_time(sm, equal_time) if equal_time else None)} "
+                + f"| {fmt(time_to_reach(sm, goal3) if goal3 else None, '.1f')} | {fmt(time_to_reach(sm, goal64) if goal64 else None, '.1f')} | {n_eff} |"
             )
         print()
+        if meta and best:
+            t3_adam, t3_meta = time_to_reach(best["smooth"], goal3), time_to_reach(meta["smooth"], goal3)
+            s3 = speedup(t3_adam, t3_meta)
+            s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64)) if adam64 else None
+            ratio = meta["settled"] / best["settled"]
+            at_or_below = meta["settled"] <= best["settled"]
+            v = dict(scene=scene, meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=ratio, s3=s3, s64=s64,
+                     adam64=adam64["settled"] if adam64 else None, ok=at_or_below and s3 is not None and s3 >= 3.0)
+            verdicts.append(v)
+            print(
+                f"Meta settles at {ratio:.2f}× Adam-3's error ({'at or below' if at_or_below else 'above'}); "
+                + f"to Adam-3's goal it is {fmt_speedup(s3)} as fast as Adam-3, to Adam-64's goal {fmt_speedup(s64)} as fast as Adam-64.\n"
+            )
+    if verdicts:
+        print("### Summary\n")
+        print("| scene | Adam-3 best lr | Adam-3 settled | Adam-64 settled | meta settled | meta / Adam-3 | speed-up to Adam-3's goal | speed-up to Adam-64's goal | goal (≤ Adam-3, ≥ 3×) |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for v in verdicts:
+            print(
+                f"| {v['scene']} | {v['rate']} | {v['adam3']:.4f} | {fmt(v['adam64'])} | {v['meta']:.4f} | {v['ratio']:.2f} "
+                + f"| {fmt_speedup(v['s3'])} | {fmt_speedup(v['s64'])} | {'met' if v['ok'] else 'not met'} |"
+            )
+        print()
+
+
+def pilot(by_scene):
+    scenes = list(by_scene)
+    configs = []
+    for rows in by_scene.values():
+        for r in rows:
+            if r["optimiser"].startswith("meta") and r["optimiser"] not in configs:
+                configs.append(r["optimiser"])
+    best = {s: min((r for r in rows if r["optimiser"] == "adam"), key=lambda r: r["settled"], default=None) for s, rows in by_scene.items()}
+    print("Settled error relative to the best Adam run of the pilot on the scene (below 1: meta better):\n")
+    print("| configuration | " + " | ".join(scenes) + " | geometric mean |")
+    print("|---|" + "---|" * (len(scenes) + 1))
+    print("| best Adam (3 spp): settled error, lr | " + " | ".join(f"{best[s]['settled']:.4f}, {best[s]['rate']}" if best[s] else "-" for s in scenes) + " | |")
+    for c in configs:
+        ratios = []
+        for s in scenes:
+            r = next((r for r in by_scene[s] if r["optimiser"] == c), None)
+            ratios.append(r["settled"] / best[s]["settled"] if r and best[s] else None)
+        known = [x for x in ratios if x]
+        gm = math.exp(sum(math.log(x) for x in known) / len(known)) if known else None
+        print(f"| {c} | " + " | ".join(fmt(x, ".2f") for x in ratios) + f" | {fmt(gm, '.2f')} |")
+    print()
+
+
+def main():
+    args = sys.argv[1:]
+    mode = protocol
+    if args and args[0] == "--pilot":
+        mode, args = pilot, args[1:]
+    if not args:
+        sys.exit("usage: results.py [--pilot] OUTDIR [OUTDIR ...]")
+    mode(load(args))
 
 
 if __name__ == "__main__":

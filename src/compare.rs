@@ -6,6 +6,7 @@
 //! it), else the image loss. OUTDIR then receives:
 //! - `error_vs_time.png`: every run's error against wall time, log scale;
 //! - `curves.csv`: `label,time_s,error`, the points behind the plot;
+//! - `optimiser.png`: every run's optimiser diagnostics (`optimiser.csv`) overlaid;
 //! - `compare.csv` and `compare.json`: per run the final error, the wall time at which the
 //!   error first reached each of [`LEVELS`] times the first run's final error, and the
 //!   speed-up over the first run.
@@ -20,8 +21,9 @@ use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::Spec;
+use crate::optim::csv::DiagLog;
 use crate::optim::Optimiser;
-use crate::optimise::{optimise, Observer, Outcome, Progress};
+use crate::optimise::{optimise, read_diagnostics, Observer, Outcome, Progress, DIAG_CSV};
 use crate::report::{write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::Scene;
@@ -205,6 +207,11 @@ pub fn compare(
     write_bytes_atomic(&path, json.as_bytes()).map_err(io(&path))?;
     let title = format!("{}: {} vs time", comparison.scene, metric.describe());
     write_curves(&out_dir.join("curves.csv"), &out_dir.join("error_vs_time.png"), &title, metric.describe(), &curves).map_err(Error::Invalid)?;
+    // Every run's optimiser diagnostics overlaid, labelled by spec.
+    let diags = specs.iter().map(|s| read_diagnostics(&out_dir.join(s.dir_name()).join(DIAG_CSV))).collect::<Result<Vec<_>>>()?;
+    let runs: Vec<(&str, &DiagLog)> = specs.iter().map(|s| s.label.as_str()).zip(&diags).collect();
+    let path = out_dir.join("optimiser.png");
+    crate::optim::csv::plot(&path, &format!("{}: optimiser diagnostics", comparison.scene), &runs).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     Ok(comparison)
 }
 

@@ -30,3 +30,20 @@ pub const LOSS_L2: u32 = 0;
 pub const LOSS_L1: u32 = 1;
 /// Squared difference over (target² + 0.01).
 pub const LOSS_RELATIVE_L2: u32 = 2;
+
+/// `StepRule::code` (src/optim/mod.rs) of the meta-estimator's step rules, as the fused pass
+/// (glsl/lib/optim.glsl) numbers them: the seed's −lr·⟨F⟩_M/√V_M.
+pub const STEP_SNR: u32 = 0;
+/// Adam's normalisation of the meta-estimate.
+pub const STEP_ADAM: u32 = 1;
+/// The seed's rule bounded by lr.
+pub const STEP_BOUNDED: u32 = 2;
+/// Adam's normalisation times the estimate's Wiener gain.
+pub const STEP_WIENER: u32 = 3;
+
+/// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
+pub const SCHEDULE_CONSTANT: u32 = 0;
+/// Cosine decay to a floor.
+pub const SCHEDULE_COSINE: u32 = 1;
+/// Step decay.
+pub const SCHEDULE_STEP: u32 = 2;

@@ -9,7 +9,7 @@
 //! `trace_adjoint`, `trace_fd_primal`, `trace_fd_adjoint`, `sub`, `optim_meta`,
 //! `optim_adam`), once per sensor where a pass is per sensor. [`Iteration`] is that
 //! recording resubmitted with a fresh iteration counter; [`Step`] is what one submission
-//! reports (the place for further per-iteration diagnostics of an optimiser).
+//! reports, the optimiser's diagnostics (`optimiser.csv`) included.
 //!
 //! Seeds: the run's `u64` seed is hashed down to the GPU's 32 bits by
 //! [`crate::settings::gpu_seed`]; the finite-difference sample adds [`SEED_FD`] so that its
@@ -20,7 +20,7 @@ use crate::gpu::{self, Access, Buffer, CommandBuffer, Context, MaybeProfiler, Me
 use crate::image::Image;
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
-use crate::optim::{Optimiser, Range};
+use crate::optim::{Diagnostics, Optimiser, Range};
 use crate::render::gradient::GradientPass;
 use crate::render::targets::{padded, targets, TARGET_SPP};
 use crate::render::{GpuScene, Renderer};
@@ -114,6 +114,11 @@ impl Engine {
     }
 
     fn build(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, optimise: bool, on_targets: impl FnMut(usize, u32, u32)) -> Result<Self> {
+        // The optimiser (its spec with the run's schedule) is checked before any GPU work.
+        let optimiser = match optimise {
+            true => Some(settings.optimiser().map_err(|e| Error::Invalid(format!("{}: {}", e.key, e.message)))?),
+            false => None,
+        };
         let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
         let targets = targets(&renderer, scene, TARGET_SPP, on_targets)?;
         let ops = BufferOps::new(ctx)?;
@@ -121,16 +126,26 @@ impl Engine {
         let n = gs.layout.len.max(1);
         let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
         let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
+        let groups = param_groups(gs, settings);
+        // Built before the gradient passes: with the centred variance estimate the optimiser
+        // owns the half-pixel sums those passes add into.
+        let opt = match &optimiser {
+            Some(o) => Some(GpuOptimiser::new(ctx, &ops, o, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?),
+            None => None,
+        };
+        let halves = opt.as_ref().and_then(|o| o.halves.as_ref());
         let seed = gpu_seed(settings.seed);
-        let gradient = GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, &grad)?;
-        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: None };
-        if optimise {
-            let opt = engine.extra_optimiser(&settings.optimiser.optimiser)?;
-            if let Some(prev) = &opt.theta_prev {
-                engine.fd = Some(engine.fd_sample(prev, settings.fd_two_trace)?);
-            }
-            engine.optimiser = Some(opt);
-        }
+        let gradient =
+            GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, &grad, halves.map(|h| &h.grad))?;
+        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: opt };
+        let fd = match engine.optimiser.as_ref() {
+            Some(opt) => match &opt.theta_prev {
+                Some(prev) => Some(engine.fd_sample(prev, settings.fd_two_trace, opt.halves.as_ref().map(|h| &h.fd_grad))?),
+                None => None,
+            },
+            None => None,
+        };
+        engine.fd = fd;
         Ok(engine)
     }
 
@@ -153,27 +168,32 @@ impl Engine {
     /// Another gradient estimate on this scene and its targets, adding into `grad`.
     pub fn extra_gradient(&self, spp: u32, primal_spp: u32, seed: u32, grad: &Buffer) -> Result<GradientPass> {
         let gs = self.scene();
-        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, grad)?)
+        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, grad, None)?)
     }
 
     /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at the
-    /// settings' fd_spp, into this engine's `fd_grad`: fused, or from two traces.
-    pub fn fd_sample(&self, theta_prev: &Buffer, two_trace: bool) -> Result<FdSample> {
+    /// settings' fd_spp, into this engine's `fd_grad`: fused, or from two traces. The fused
+    /// sample also sums half of its pixels into `fd_half` when given (the centred variance
+    /// estimate); the two-trace sample cannot.
+    pub fn fd_sample(&self, theta_prev: &Buffer, two_trace: bool, fd_half: Option<&Buffer>) -> Result<FdSample> {
         let gs = self.scene();
         theta_prev.write(&padded(gs, gs.layout.initial()))?;
         let seed = gpu_seed(self.settings.seed).wrapping_add(SEED_FD);
         let spp = self.settings.fd_spp;
         let loss = self.loss();
         if !two_trace {
-            return Ok(FdSample::Fused(GradientPass::new_fd(gs, &self.ops, &self.targets, loss, spp, seed, theta_prev, &self.fd_grad)?));
+            return Ok(FdSample::Fused(GradientPass::new_fd(gs, &self.ops, &self.targets, loss, spp, seed, theta_prev, &self.fd_grad, fd_half)?));
+        }
+        if fd_half.is_some() {
+            return Err(Error::Invalid("the centred variance estimate (var=centred) needs the fused finite difference, not fd_two_trace".into()));
         }
         let n = gs.layout.len.max(1);
         let at_cur = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta", n, MemoryKind::Device)?;
         let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
         // The primal images of the difference use fd_spp samples too: with common random
         // numbers most of their noise cancels in the difference.
-        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, &at_cur)?;
-        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, &at_prev)?;
+        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, &at_cur, None)?;
+        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, &at_prev, None)?;
         Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
     }
 
@@ -221,9 +241,15 @@ impl Engine {
         warm.record(|rec| {
             self.record_gradient(rec, None)?;
             self.record_fd(rec, None)?;
-            rec.transition(&[(&self.grad, Access::TransferWrite), (&self.fd_grad, Access::TransferWrite)])?;
-            rec.zero(&self.grad)?;
-            rec.zero(&self.fd_grad)
+            let mut sums = vec![&self.grad, &self.fd_grad];
+            if let Some(h) = self.optimiser.as_ref().and_then(|o| o.halves.as_ref()) {
+                sums.extend([&h.grad, &h.fd_grad]);
+            }
+            rec.transition(&sums.iter().map(|b| (*b, Access::TransferWrite)).collect::<Vec<_>>())?;
+            for b in sums {
+                rec.zero(b)?;
+            }
+            Ok(())
         })?;
         warm.submit_and_wait()?;
         Ok(())
@@ -247,7 +273,12 @@ impl Engine {
         self.scene().set_frame(index)?;
         iteration.cmd.submit_and_wait()?;
         let times = iteration.profiler.results()?;
-        Ok(Step { loss: self.gradient.total_loss()?, pass_ms: pass_totals(&times) })
+        // Step t = index + 1 of the optimiser; its diagnostics are a few records per group.
+        let diagnostics = match &self.optimiser {
+            Some(opt) => opt.diagnostics(index + 1)?,
+            None => Vec::new(),
+        };
+        Ok(Step { loss: self.gradient.total_loss()?, pass_ms: pass_totals(&times), diagnostics })
     }
 
     /// θ as the host sees it after the last submission.
@@ -286,6 +317,9 @@ pub struct Step {
     pub loss: f64,
     /// GPU milliseconds of each pass (by kernel name).
     pub pass_ms: BTreeMap<String, f64>,
+    /// The optimiser's diagnostics of the step, one per parameter group (the scene's
+    /// optimised parameters, in layout order); empty without an optimiser.
+    pub diagnostics: Vec<Diagnostics>,
 }
 
 impl Step {

@@ -152,7 +152,7 @@ struct GradcheckArgs {
 
 #[derive(Args)]
 struct ReplayArgs {
-    /// meta or adam
+    /// An optimiser spec: meta or adam, with optional @KEY=VALUE hyperparameters.
     #[arg(long)]
     optimiser: String,
     #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
@@ -167,6 +167,13 @@ struct ReplayArgs {
     grads: PathBuf,
     /// Finite-difference samples, float32 [iterations, n] (meta only).
     fd_grads: Option<PathBuf>,
+    /// The sums of half of the pixels of GRADS and of FD_GRADS, `GH.npy,FH.npy`, each
+    /// [iterations, n] (meta with var=centred).
+    #[arg(long, value_name = "GH.npy,FH.npy")]
+    halves: Option<String>,
+    /// Write each step's optimiser diagnostics to this CSV file.
+    #[arg(long, value_name = "CSV")]
+    diagnostics: Option<PathBuf>,
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
 }
@@ -551,7 +558,9 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
 
 fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
     use vkinverse::optim;
-    let opt: optim::Optimiser = a.optimiser.parse().map_err(|e| format!("--optimiser {}: {e}", a.optimiser))?;
+    let spec: optim::spec::Spec = a.optimiser.parse().map_err(|e| format!("--optimiser {}: {e}", a.optimiser))?;
+    // A cosine schedule without a horizon decays over the replayed iterations.
+    let opt = spec.optimiser;
     let range = match &a.range {
         Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
         None => optim::Range::UNBOUNDED,
@@ -559,10 +568,25 @@ fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
     if !(a.lr.is_finite() && a.lr > 0.0) {
         return Err(format!("--lr {}: must be positive and finite", a.lr).into());
     }
-    let input = optim::replay::ReplayInput::load(&a.grads, a.fd_grads.as_deref(), a.init.as_deref(), opt.needs_fd())?;
+    let mut input = optim::replay::ReplayInput::load(&a.grads, a.fd_grads.as_deref(), a.init.as_deref(), opt.needs_fd())?;
+    match (&a.halves, opt.needs_halves()) {
+        (Some(list), _) => {
+            let (gh, fh) = list.split_once(',').ok_or_else(|| format!("--halves {list}: expected GH.npy,FH.npy"))?;
+            input.load_halves(gh.as_ref(), fh.as_ref())?;
+        }
+        (None, true) => return Err("--optimiser with var=centred needs --halves GH.npy,FH.npy (the half-pixel sums of both streams)".into()),
+        (None, false) => {}
+    }
+    let opt = opt.resolve(input.grads.len() as u32);
     let ctx = context(cli)?;
-    let (trajectory, skipped) = optim::gpu::replay_gpu(&ctx, &opt, &input.grads, input.fd_grads.as_deref(), &input.init, range, a.lr)?;
+    let replay = optim::gpu::replay_gpu_streams(&ctx, &opt, &input.streams(), &input.init, range, a.lr)?;
+    let (trajectory, skipped) = (replay.theta, replay.nonfinite);
     vkinverse::npy::write_rows(&a.output, &trajectory)?;
+    if let Some(path) = &a.diagnostics {
+        let steps: Vec<Vec<(String, optim::Diagnostics)>> =
+            replay.diagnostics.iter().map(|d| d.iter().map(|d| ("theta".to_string(), *d)).collect()).collect();
+        optim::csv::write(path, &steps).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
     if !cli.quiet {
         eprintln!("replayed {} iterations of {} parameters -> {}", input.grads.len(), input.init.len(), a.output.display());
     }

@@ -8,7 +8,9 @@
 //! needs (the loss, and θ for the parameter error).
 //!
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
-//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, and the
+//! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, the
+//! optimiser's diagnostics of every iteration and parameter group (`optimiser.csv`, reduced
+//! on the GPU, and their plot `optimiser.png`; [`crate::optim::csv`]), and the
 //! recovered scene in `final/` (`crate::scene::write`). The
 //! directory's rules (lock, refusal of a used directory, crash-safe checkpoints, what
 //! `--resume` checks) are those of [`crate::rundir`]. The log rows are also returned in
@@ -18,6 +20,7 @@ use crate::engine::Engine;
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::image::{self, Image};
+use crate::optim::csv::DiagLog;
 use crate::rundir::{checkpoint_name, debug_point, Mode, RunDir, RunIdentity};
 use crate::scene::Scene;
 use crate::settings::{gpu_seed, RunSettings};
@@ -199,7 +202,7 @@ fn state_buffers(engine: &Engine) -> Result<Vec<&Buffer>> {
     Ok(std::iter::once(&engine.scene().theta).chain(engine.optimiser()?.state()).collect())
 }
 
-fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log) -> Result<()> {
+fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog) -> Result<()> {
     run_dir.commit(&checkpoint_name(state.iteration), |dir| {
         for b in state_buffers(engine)? {
             let data: Vec<f32> = b.read()?;
@@ -207,14 +210,25 @@ fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, l
         }
         let log_path = dir.join("log.csv");
         image::write_bytes_atomic(&log_path, &log.to_csv()?).map_err(io_err(&log_path))?;
+        let diag_path = dir.join(DIAG_CSV);
+        image::write_bytes_atomic(&diag_path, diag.to_csv().as_bytes()).map_err(io_err(&diag_path))?;
         let path = dir.join("state.json");
         image::write_bytes_atomic(&path, &json_bytes(state)?).map_err(io_err(&path))
     })
 }
 
-/// The committed checkpoint's state and log, checked against this run: the same scene and
-/// parameters, and the optimiser whose state it holds.
-fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSettings) -> Result<(std::path::PathBuf, CheckpointState, Log)> {
+/// The optimiser diagnostics' file name, in the run directory and its checkpoints.
+pub const DIAG_CSV: &str = "optimiser.csv";
+
+/// Reads a run's `optimiser.csv`.
+pub fn read_diagnostics(path: &Path) -> Result<DiagLog> {
+    let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    DiagLog::parse(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+}
+
+/// The committed checkpoint's state, log and diagnostics, checked against this run: the
+/// same scene and parameters, and the optimiser whose state it holds.
+fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSettings) -> Result<(std::path::PathBuf, CheckpointState, Log, DiagLog)> {
     let dir = run_dir.committed()?.ok_or_else(|| Error::Invalid(format!("{}: no committed checkpoint", run_dir.path.display())))?;
     let path = dir.join("state.json");
     let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
@@ -227,7 +241,10 @@ fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSetti
         return Err(Error::Invalid(format!("{}: cannot resume: the checkpoint holds optimiser {then}'s state, the run uses {now}", dir.display())));
     }
     let log = Log::read(&dir.join("log.csv"))?;
-    Ok((dir, state, log))
+    // A checkpoint written before the diagnostics were logged has none to continue.
+    let diag_path = dir.join(DIAG_CSV);
+    let diag = if diag_path.exists() { read_diagnostics(&diag_path)? } else { DiagLog::default() };
+    Ok((dir, state, log, diag))
 }
 
 fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
@@ -284,6 +301,7 @@ struct Loop<'a> {
     identity: RunIdentity,
     has_reference: bool,
     log: Log,
+    diag: DiagLog,
     iteration: u32,
     time_offset: f64,
     gpu_total: f64,
@@ -307,9 +325,11 @@ impl Loop<'_> {
             identity: self.identity.clone(),
             settings: self.engine.settings.clone(),
         };
-        save_checkpoint(self.run_dir, self.engine, &state, &self.log)?;
+        save_checkpoint(self.run_dir, self.engine, &state, &self.log, &self.diag)?;
         let path = self.run_dir.path.join("log.csv");
-        image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))
+        image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))?;
+        let path = self.run_dir.path.join(DIAG_CSV);
+        image::write_bytes_atomic(&path, self.diag.to_csv().as_bytes()).map_err(io_err(&path))
     }
 
     /// Iterates until the settings say stop; returns the total optimisation time.
@@ -331,6 +351,8 @@ impl Loop<'_> {
             self.gpu_total += step.gpu_ms() * 1e-3;
             self.iteration += 1;
             self.last_loss = step.loss;
+            let names = engine.scene().layout.slots.iter().map(|s| s.name.clone());
+            self.diag.push(self.iteration, names.zip(step.diagnostics));
             let row = self.row(time_s, Some(step.loss))?;
             observer.iteration(&Progress { iteration: self.iteration, time_s, loss: step.loss, param_error: row.param_error });
             self.log.rows.push(row);
@@ -355,7 +377,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         Mode::Resume => Some(read_checkpoint(&run_dir, &identity, settings)?),
         _ => None,
     };
-    if let Some((_, state, _)) = &resume {
+    if let Some((_, state, _, _)) = &resume {
         if settings.done(state.iteration, state.time_s) {
             return Ok(Outcome::AlreadyDone { iteration: state.iteration });
         }
@@ -371,6 +393,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         identity,
         has_reference,
         log: Log { params, rows: Vec::new() },
+        diag: DiagLog::default(),
         iteration: 0,
         time_offset: 0.0,
         gpu_total: 0.0,
@@ -378,9 +401,9 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         last_loss: f64::NAN,
     };
     match resume {
-        Some((dir, state, log)) => {
+        Some((dir, state, log, diag)) => {
             load_state(&dir, &engine)?;
-            (run.iteration, run.time_offset, run.gpu_total, run.log) = (state.iteration, state.time_s, state.gpu_time_s, log);
+            (run.iteration, run.time_offset, run.gpu_total, run.log, run.diag) = (state.iteration, state.time_s, state.gpu_time_s, log, diag);
             run.last_loss = run.log.rows.last().and_then(|r| r.loss).unwrap_or(f64::NAN);
         }
         None => {
@@ -404,6 +427,9 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
     let final_img = engine.renderer.render(0, settings.primal_spp.max(64), gpu_seed(settings.seed) ^ 0x5EED, |_, _| {})?;
     image::write_exr(&out_dir.join("final.exr"), &final_img)?;
     write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;
+    let path = out_dir.join("optimiser.png");
+    let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);
+    crate::optim::csv::plot(&path, &title, &[("", &run.diag)]).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let layout = &engine.scene().layout;
     let opt = engine.optimiser()?;
     let pass_ms = run.pass_samples.into_iter().map(|(k, mut v)| (k, crate::bench::median(&mut v))).collect();

@@ -4,7 +4,7 @@
 //! new kernel without a mirror, or a drift on either side, fails.
 
 use crate::gpu::PushBlock;
-use crate::optim::push::{AdamPush, MetaPush};
+use crate::optim::push::{AdamPush, DiagPush, MetaPush};
 use crate::push_block;
 use crate::shared::Material;
 use bytemuck::{Pod, Zeroable};
@@ -136,8 +136,15 @@ pub struct RngTestPush {
 }
 push_block!(RngTestPush { n, sample_index, seed, frame, dims });
 
-push_block!(AdamPush { n, offset, lr, beta1, beta2, eps, lo, hi });
-push_block!(MetaPush { n, offset, lr, decay_f, decay_d, eps, lo, hi });
+push_block!(AdamPush {
+    n, offset, group, first_partial, lr, beta1, beta2, eps, lo, hi,
+    sched_decay, sched_warmup, sched_horizon, sched_every, sched_floor, sched_gamma,
+});
+push_block!(MetaPush {
+    n, offset, group, first_partial, lr, decay_f, decay_d, eps, lo, hi, beta2, grow_f, step_rule, centred,
+    groups, global_dpi, sched_decay, sched_warmup, sched_horizon, sched_every, sched_floor, sched_gamma,
+});
+push_block!(DiagPush { first, count, group });
 
 /// A push block's members (name, byte offset) and size.
 pub type Layout = (&'static [(&'static str, usize)], usize);
@@ -164,6 +171,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
         "rng_test" => layout::<RngTestPush>(),
         "optim_adam" => layout::<AdamPush>(),
         "optim_meta" => layout::<MetaPush>(),
+        "optim_diag" => layout::<DiagPush>(),
         "layout_probe" => layout::<()>(),
         k if k.starts_with("trace_") => layout::<TracePush>(),
         _ => return None,

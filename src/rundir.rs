@@ -10,7 +10,8 @@
 //!   checkpoint pointer first, so a kill midway leaves neither a resumable old run nor a
 //!   mix.
 //! - **Checkpoints** are numbered directories `checkpoint/<iteration>/` (θ and the
-//!   optimiser state as `.npy`, `state.json`, the log rows so far as `log.csv`) and the
+//!   optimiser state as `.npy`, `state.json`, the log rows so far as `log.csv`, the
+//!   optimiser diagnostics so far as `optimiser.csv`) and the
 //!   pointer file `checkpoint/current`, which names the committed one. A commit writes the
 //!   new directory completely (each file flushed), replaces the pointer atomically
 //!   (rename), and only then removes older directories: at every instant the pointer names
@@ -32,7 +33,7 @@ use std::fs::{self, File};
 use std::path::{Path, PathBuf};
 
 /// What a run writes into its directory; a directory holding any of them holds a run.
-pub const RUN_FILES: [&str; 7] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png"];
+pub const RUN_FILES: [&str; 9] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png", "optimiser.csv", "optimiser.png"];
 
 /// How a run treats a directory that already holds a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -19,6 +19,7 @@
 //! - a learning rate given outside the scene replaces the scene's per-parameter rates.
 
 use crate::optim::spec::Spec;
+use crate::optim::{Optimiser, Schedule};
 use serde::de::{self, DeserializeSeed, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
@@ -182,6 +183,11 @@ settings! {
     /// the scene's per-parameter rates).
     #[arg(long, value_name = "X", allow_negative_numbers = true)]
     lr: f64 = 0.02;
+    /// Learning-rate schedule DECAY[@KEY=VALUE]...: constant, cosine (keys horizon, floor)
+    /// or step (every, gamma), each with an optional warmup; given, it replaces the
+    /// optimiser spec's own. A cosine without a horizon decays over the run's iterations.
+    #[arg(long, value_name = "SCHEDULE")]
+    schedule: Schedule => Option<Schedule> = None;
     /// Seed of every random-number stream of the run.
     #[arg(long, value_name = "S")]
     seed: u64 = 0;
@@ -189,7 +195,8 @@ settings! {
     #[arg(long, value_name = "N")]
     checkpoint_every: u32 = 50;
     /// Meta: trace each parameter state separately for the finite-difference sample instead
-    /// of the fused single trace (for comparison).
+    /// of the fused single trace (for comparison; with `var=zero`, since two traces cannot
+    /// split their pixels for the centred variance estimate).
     #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL")]
     fd_two_trace: bool = false;
 }
@@ -259,6 +266,24 @@ impl RunSettings {
     /// The settings of a scene alone.
     pub fn of_scene(scene: &crate::scene::Scene) -> RunSettings {
         Settings::resolve(&scene.optimise.settings, &Settings::default())
+    }
+
+    /// The optimiser of the run: the spec's, with the settings' schedule when one is given
+    /// and a cosine without a horizon decaying over the run's iterations (a run with a time
+    /// budget alone must give the horizon).
+    pub fn optimiser(&self) -> Result<Optimiser, Invalid> {
+        let mut opt = self.optimiser.optimiser;
+        if let Some(s) = self.schedule {
+            *opt.schedule_mut() = s;
+        }
+        let s = opt.schedule();
+        if s.decay == crate::optim::Decay::Cosine && s.horizon == 0 {
+            let Some(n) = self.iterations else {
+                return Err(Invalid { key: "schedule", message: "a cosine schedule of a run with a time budget alone needs horizon=N".into() });
+            };
+            return Ok(opt.resolve(n));
+        }
+        Ok(opt)
     }
 
     /// Whether the run is over after `iteration` iterations and `time_s` seconds.

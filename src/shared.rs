@@ -156,3 +156,31 @@ const _: () = {
         i += 1;
     }
 };
+
+/// Mirror of `Ssq` (glsl/shared/optim.glsl): 8 bytes, a sum of squares as scale·√sum.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Ssq {
+    pub scale: f32,
+    pub sum: f32,
+}
+
+/// Mirror of `DiagRecord` (glsl/shared/optim.glsl): 76 bytes, one parameter group's
+/// optimiser diagnostics as the GPU reduces them; [`crate::optim::reference::DiagRecord`]
+/// is the same record in the CPU reference.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct DiagRecord {
+    pub count: f32,
+    pub n_eff_sum: f32,
+    pub n_eff_min: f32,
+    pub n_eff_max: f32,
+    pub clipped: f32,
+    pub f: Ssq,
+    pub df: Ssq,
+    pub sd_d: Ssq,
+    pub step: Ssq,
+    pub mean: Ssq,
+    pub sd: Ssq,
+    pub sd_f: Ssq,
+}

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use common::scenes::temp_dir;
 use vkinverse::npy::{self, Array};
-use vkinverse::optim::{self, Optimiser, Range};
+use vkinverse::optim::{self, Range};
 
 /// Longest any one invocation may take before the test fails instead of hanging.
 const DEADLINE: Duration = Duration::from_secs(120);
@@ -275,7 +275,25 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         &s(&out_dir),
     ]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
-    assert_eq!(dir_names(&out_dir), [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "params", "summary.json"]);
+    assert_eq!(
+        dir_names(&out_dir),
+        [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"]
+    );
+    // The optimiser's diagnostics: one row per iteration and parameter group, the step's
+    // learning rate and size consistent with θ's movement, n_eff (meta) counting up.
+    let diag = vkinverse::optim::csv::DiagLog::parse(&std::fs::read_to_string(out_dir.join("optimiser.csv")).unwrap()).unwrap();
+    assert_eq!(diag.rows.len(), iterations);
+    for (k, (it, group, d)) in diag.rows.iter().enumerate() {
+        assert_eq!((*it as usize, group.as_str(), d.elements), (k + 1, "materials.red.base_color", 3));
+        assert!((d.lr - 0.05).abs() < 1e-6, "lr {}", d.lr);
+        assert!((d.step_norm - d.rms_step * 3f64.sqrt()).abs() <= 1e-5 * d.step_norm.max(1e-30), "{d:?}");
+        assert!(d.rms_f > 0.0 && d.rms_step > 0.0 && d.rms_step <= 0.05 * 8.0, "{d:?}");
+        match optimiser {
+            "meta" => assert!(d.n_eff_min >= 1.0 && d.n_eff_max <= (k + 1) as f64 + 1e-3 && d.n_eff_min <= d.n_eff_mean && d.n_eff_mean <= d.n_eff_max, "{d:?}"),
+            _ => assert_eq!((d.n_eff_mean, d.sd_fd), (0.0, 0.0)),
+        }
+    }
+    png_size(&out_dir.join("optimiser.png"));
 
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
@@ -387,6 +405,13 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(iterations, (0..=10).map(|i| i.to_string()).collect::<Vec<_>>(), "iterations 0..=10, each once");
     // The first six rows are kept as they were.
     assert_eq!(rows[..7], first[..]);
+    // So are the first six steps' diagnostics, and the resumed steps follow them.
+    let diag = |dir: &Path| std::fs::read_to_string(dir.join("optimiser.csv")).unwrap();
+    let (before, after) = (diag(&committed(&out_dir)), diag(&out_dir));
+    assert_eq!(after.lines().count(), 11, "header and ten steps");
+    assert_eq!(after, before, "the last checkpoint holds the whole diagnostics log");
+    let iters: Vec<&str> = after.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(iters, (1..=10).map(|i| i.to_string()).collect::<Vec<_>>());
     let times: Vec<f64> = rows.iter().map(|r| field(r, 1)).collect();
     assert!(times.windows(2).all(|w| w[0] <= w[1]), "time_s restarted on resume: {times:?}");
     // θ continues: the step after the checkpoint starts near the checkpoint's error, far
@@ -501,10 +526,26 @@ fn replay_matches_the_cpu_reference() {
     let init_path = dir.join("init.npy");
     npy::write(&init_path, &Array { shape: vec![n], data: init.clone() }).unwrap();
 
-    let cases: [(&str, Option<&[f32]>, Option<&str>); 4] =
-        [("adam", None, None), ("meta", None, None), ("adam", Some(&init), Some("0,1")), ("meta", Some(&init), Some("0.1,0.7"))];
-    for (name, start, range) in cases {
-        let traj = dir.join(format!("traj-{name}-{}.npy", start.is_some()));
+    // Half-pixel sums of both streams, for the centred variance estimate of meta's defaults.
+    let half = |rows: &[Vec<f32>]| rows.iter().map(|r| r.iter().enumerate().map(|(j, x)| x * (0.3 + 0.1 * j as f32)).collect()).collect::<Vec<Vec<f32>>>();
+    let (gh, fh) = (half(&g), half(&fd));
+    let (gh_path, fh_path) = (dir.join("gh.npy"), dir.join("fh.npy"));
+    npy::write_rows(&gh_path, &gh).unwrap();
+    npy::write_rows(&fh_path, &fh).unwrap();
+    let halves = format!("{},{}", s(&gh_path), s(&fh_path));
+
+    let seed_meta = "meta@step=snr@var=zero";
+    let cases: [(&str, Option<&[f32]>, Option<&str>); 6] = [
+        ("adam", None, None),
+        ("meta", None, None),
+        (seed_meta, None, None),
+        ("adam@schedule=cosine@horizon=12", Some(&init), Some("0,1")),
+        ("meta@step=adam@dpi=global@grow_f=0.5", Some(&init), Some("0.1,0.7")),
+        (seed_meta, Some(&init), Some("0.1,0.7")),
+    ];
+    for (k, (name, start, range)) in cases.into_iter().enumerate() {
+        let traj = dir.join(format!("traj-{k}.npy"));
+        let diag = dir.join(format!("diag-{k}.csv"));
         let mut args = vec!["replay".to_string(), "--optimiser".into(), name.into(), "--lr".into(), "0.05".into()];
         if start.is_some() {
             args.extend(["--init".into(), s(&init_path)]);
@@ -512,6 +553,11 @@ fn replay_matches_the_cpu_reference() {
         if let Some(r) = range {
             args.extend(["--range".into(), r.into()]);
         }
+        let optimiser = name.parse::<vkinverse::optim::spec::Spec>().unwrap().optimiser;
+        if optimiser.needs_halves() {
+            args.extend(["--halves".into(), halves.clone()]);
+        }
+        args.extend(["--diagnostics".into(), s(&diag)]);
         args.extend([s(&grads), s(&fd_grads), "-o".into(), s(&traj)]);
         vkinverse_ok(&args);
 
@@ -521,14 +567,25 @@ fn replay_matches_the_cpu_reference() {
         let start = start.unwrap_or(&zeros);
         let rows = got.rows();
         assert_eq!(rows[0], start, "{name}: row 0 is the start");
-        let optimiser: Optimiser = name.parse().unwrap();
         let range: Range = range.map_or(Range::UNBOUNDED, |r| r.parse().unwrap());
-        let cpu = optim::replay_cpu(&optimiser, &g, Some(&fd), start, range, 0.05).unwrap();
+        let streams = optim::Streams {
+            grads: &g,
+            fd_grads: Some(&fd),
+            grad_halves: optimiser.needs_halves().then_some(gh.as_slice()),
+            fd_halves: optimiser.needs_halves().then_some(fh.as_slice()),
+        };
+        let cpu = optim::replay::replay_streams::<f64>(&optimiser, &streams, start, range, 0.05).unwrap();
         for (i, (gpu_row, cpu_row)) in rows.iter().zip(&cpu.theta).enumerate() {
             for (j, (a, b)) in gpu_row.iter().zip(cpu_row).enumerate() {
                 assert!((*a as f64 - b).abs() < 1e-5, "{name} {range:?}: θ[{i}][{j}] GPU {a} CPU {b}");
                 assert!(range.lo <= *a as f64 && *a as f64 <= range.hi);
             }
+        }
+        // The diagnostics file: one row per step, its step sizes those of the reference.
+        let log = vkinverse::optim::csv::DiagLog::parse(&std::fs::read_to_string(&diag).unwrap()).unwrap();
+        assert_eq!(log.rows.len(), iterations, "{name}");
+        for ((_, _, d), c) in log.rows.iter().zip(&cpu.diagnostics) {
+            assert!((d.rms_step - c.rms_step).abs() <= 1e-4 * c.rms_step.max(1e-6), "{name}: rms_step {} vs {}", d.rms_step, c.rms_step);
         }
         // The trajectory moved: a replay that ignored the gradients would also start right.
         assert!(rows[iterations] != rows[0], "{name}: θ never moved");
@@ -707,7 +764,7 @@ fn a_killed_overwrite_never_mixes_two_runs() {
     // Killed before its first checkpoint is committed: none of the old run's files remain
     // beside the new run's, and there is no checkpoint to resume.
     killed_at(&optimise_args(&dir, &["--iterations", "3", "--checkpoint-every", "1", "--overwrite", "--quiet"]), "checkpoint.written:1");
-    for old in ["summary.json", "params", "final.exr", "error_vs_time.png", "log.csv"] {
+    for old in ["summary.json", "params", "final.exr", "error_vs_time.png", "log.csv", "optimiser.csv", "optimiser.png"] {
         assert!(!dir.join(old).exists(), "{old} left beside the new run");
     }
     assert!(!dir.join("checkpoint/current").exists());

@@ -148,7 +148,7 @@ fn compare_two_optimisers() {
     ])
     .stdout;
     assert!(printed.contains("meta") && printed.contains("adam@beta1=0.5") && printed.contains("speed-up"), "{printed}");
-    for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png"] {
+    for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png", "optimiser.png"] {
         assert!(out.join(name).exists(), "{name} missing");
     }
     // Each run is a full optimise run with the same settings and seed.

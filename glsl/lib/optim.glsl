@@ -24,12 +24,22 @@
 //    finite difference over a zero step is exactly 0;
 //  - the dF Moment2 counts its own samples per element (wsum_d = 1 - decay_d^count);
 //  - a non-finite F or dF leaves theta and the element's state unchanged (returns false);
-//  - results that can leave the f32 range saturate at +-FLT_MAX.
+//  - results that can leave the f32 range saturate at +-FLT_MAX;
+//  - diagnostics are reduced as counts, sums, minima, maxima and scaled sums of squares
+//    (Ssq, glsl/shared/optim.glsl), never as plain squares.
+//
+// Variants of the meta-estimator (src/optim/mod.rs): the step rule (STEP_*), the centred
+// variance estimate from half-sample sums, beta_F growth, and the learning-rate schedule
+// (SCHEDULE_*), a pure function of the step number.
 
 #ifndef OPTIM_GLSL
 #define OPTIM_GLSL
+#include "shared/optim.glsl"
 
 const float FLT_MAX = 3.40282347e38;
+const float PI = 3.14159265358979;
+
+#include "vkinverse_constants.glsl"  // STEP_*, SCHEDULE_*
 // The seed's regulariser in the alpha denominator: alpha = VF / (VF + var + 1e-30).
 const float META_ALPHA_REG = 1e-30;
 
@@ -76,6 +86,79 @@ float inverse_variance_weight(float s_a, float s_b) {
     return a * a / (a * a + b * b);
 }
 
+// ---- Learning-rate schedule (src/optim/schedule.rs) ---------------------------------------
+
+struct Schedule {
+    uint decay;    // SCHEDULE_*
+    uint warmup;   // iterations of the linear warm-up (0: none)
+    uint horizon;  // cosine: where the factor reaches floor_ (0: no decay)
+    uint every;    // step: iterations between decays
+    float floor_;  // cosine: final factor
+    float gamma;   // step: factor per decay
+};
+
+// The learning rate's factor at step t (t >= 1).
+float schedule_factor(Schedule s, uint t) {
+    float warm = t < s.warmup ? float(t) / float(s.warmup) : 1.0;
+    float d = 1.0;
+    if (s.decay == SCHEDULE_COSINE && s.horizon > 0u) {
+        float x = float(min(t, s.horizon)) / float(s.horizon);
+        d = s.floor_ + (1.0 - s.floor_) * 0.5 * (1.0 + cos(PI * x));
+    } else if (s.decay == SCHEDULE_STEP) {
+        d = pow(s.gamma, float(t / max(s.every, 1u)));
+    }
+    return warm * d;
+}
+
+// ---- Diagnostics ---------------------------------------------------------------------------
+
+Ssq ssq_of(float x) {
+    float a = abs(x);
+    return a == 0.0 ? Ssq(0.0, 0.0) : Ssq(a, 1.0);
+}
+
+Ssq ssq_merge(Ssq a, Ssq b) {
+    float m = max(a.scale, b.scale);
+    if (m == 0.0) return Ssq(0.0, 0.0);
+    float ra = a.scale / m;
+    float rb = b.scale / m;
+    return Ssq(m, a.sum * (ra * ra) + b.sum * (rb * rb));
+}
+
+// The sum of squares (saturating).
+float ssq_total(Ssq a) { return sat(a.scale * a.scale * a.sum); }
+
+// The empty record: the identity of diag_merge.
+DiagRecord diag_empty() {
+    Ssq z = Ssq(0.0, 0.0);
+    return DiagRecord(0.0, 0.0, FLT_MAX, 0.0, 0.0, z, z, z, z, z, z, z);
+}
+
+DiagRecord diag_merge(DiagRecord a, DiagRecord b) {
+    return DiagRecord(a.count + b.count, sat(a.n_eff_sum + b.n_eff_sum), min(a.n_eff_min, b.n_eff_min),
+                      max(a.n_eff_max, b.n_eff_max), a.clipped + b.clipped, ssq_merge(a.f, b.f),
+                      ssq_merge(a.df, b.df), ssq_merge(a.sd_d, b.sd_d), ssq_merge(a.step, b.step),
+                      ssq_merge(a.mean, b.mean), ssq_merge(a.sd, b.sd), ssq_merge(a.sd_f, b.sd_f));
+}
+
+// One element's diagnostics (ElemDiag in src/optim/reference.rs).
+struct ElemDiag {
+    float n_eff;
+    bool clipped;
+    float f;
+    float df;
+    float sd_d;
+    float step;
+    float mean;
+    float sd;
+    float sd_f;
+};
+
+DiagRecord diag_of(ElemDiag e) {
+    return DiagRecord(1.0, e.n_eff, e.n_eff, e.n_eff, e.clipped ? 1.0 : 0.0, ssq_of(e.f), ssq_of(e.df),
+                      ssq_of(e.sd_d), ssq_of(e.step), ssq_of(e.mean), ssq_of(e.sd), ssq_of(e.sd_f));
+}
+
 // ---- Adam --------------------------------------------------------------------------------
 
 // Bias-corrected first moment and bias-corrected RMS (sqrt of the second moment).
@@ -94,15 +177,19 @@ struct AdamParams {
     float hi;
 };
 
-// One Adam step of one element. False for a non-finite gradient: nothing is changed.
-bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s) {
+// One Adam step of one element (lr: the scheduled rate of step t). False for a non-finite
+// gradient: nothing is changed.
+bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s, out ElemDiag d) {
+    d = ElemDiag(0.0, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     if (!is_finite(g)) return false;
     float k1 = ema_weight(p.beta1, p.t);
     float k2 = ema_weight(p.beta2, p.t);
     float m = (1.0 - k1) * s.m + k1 * g;
     float r = hypot_safe(sqrt(1.0 - k2) * s.r, sqrt(k2) * g);
     float step = sat(-p.lr * (m / (r + p.eps)));
-    theta = min(max(sat(theta + step), p.lo), p.hi);
+    float next = min(max(sat(theta + step), p.lo), p.hi);
+    d = ElemDiag(0.0, false, g, 0.0, 0.0, next - theta, m, 0.0, r);
+    theta = next;
     s = AdamElem(m, r);
     return true;
 }
@@ -113,30 +200,65 @@ bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s) {
 struct MetaElem {
     float mean;   // meta-estimate <F_i>_M
     float sd;     // sqrt(Var[<F_i>_M])
-    float rms_f;  // sqrt(Moment2 of <F>), bias-corrected with the global count t
-    float rms_d;  // sqrt(Moment2 of <dF>/|dpi|), bias-corrected with wsum_d
+    float rms_f;  // sqrt(Moment2 of <F> or of its centred samples), bias-corrected with t
+    float rms_d;  // sqrt(Moment2 of <dF>/|dpi| or of its centred samples), with wsum_d
     float wsum_d; // 1 - decay_d^count of the dF Moment2's own samples
     float n_eff;  // 1/(1 - alpha_prev): effective number of averaged samples
+    float v;      // Adam's bias-corrected sqrt(v) of <F> (beta2): the normaliser of STEP_ADAM
 };
 
 struct MetaParams {
     uint t;      // step number, from 1
-    float lr;
+    float lr;    // the scheduled rate of step t
     float decay_f;
     float decay_d;
     float eps;
     float lo;
     float hi;
+    uint step_rule; // STEP_*
+    float beta2;
+    bool centred;   // variance EMAs of centred half-sample differences instead of squares
+    float grow_f;   // beta_F growth exponent (0: the seed's constant decay)
 };
 
-// One meta-estimator step of one element from the proportional gradient f, the
-// finite-difference sample df and the buffer's |dpi|^2 of the previous step.
-// False for a non-finite f or df: nothing is changed.
-bool meta_update(MetaParams p, inout float theta, float f, float df, float dpi2,
-                 inout MetaElem s) {
-    if (!is_finite(f) || !is_finite(df)) return false;
-    float kf = ema_weight(p.decay_f, p.t);
-    float rms_f = hypot_safe(sqrt(1.0 - kf) * s.rms_f, sqrt(kf) * f);
+// One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
+struct MetaInput {
+    float f;
+    float df;
+    float f_half;
+    float df_half;
+};
+
+// Weight of the t-th sample of the <F> Moment2: the bias-corrected EMA weight, or with
+// beta_F growth min(that, (1-b)(t(1-b))^-grow), never below the running mean's 1/t.
+float f_weight(float decay, float grow, uint t) {
+    float k = ema_weight(decay, t);
+    if (grow <= 0.0) return k;
+    float tt = float(max(t, 1u));
+    float q = 1.0 - decay;
+    return max(min(k, q * pow(tt * q, -grow)), 1.0 / tt);
+}
+
+// The centred variance sample of an estimate x from the sum of half of its samples: the
+// halves A = 2 half and B = 2 (x - half) give (A - B)/2 = x - 2 half. Saturates.
+float centred_sample(float x, float half_sum) { return sat(2.0 * sat(0.5 * x - half_sum)); }
+
+// One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
+// previous step. False for a non-finite input: nothing is changed.
+bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout MetaElem s,
+                 out ElemDiag d) {
+    d = ElemDiag(0.0, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    float f = x.f;
+    float df = x.df;
+    if (!is_finite(f) || !is_finite(df) || (p.centred && !(is_finite(x.f_half) && is_finite(x.df_half))))
+        return false;
+    // What the two Moment2 EMAs average the squares of.
+    float sample_f = p.centred ? centred_sample(f, x.f_half) : f;
+    float sample_d = p.centred ? centred_sample(df, x.df_half) : df;
+    float kf = f_weight(p.decay_f, p.grow_f, p.t);
+    float rms_f = hypot_safe(sqrt(1.0 - kf) * s.rms_f, sqrt(kf) * sample_f);
+    float k2 = ema_weight(p.beta2, p.t);
+    float v = hypot_safe(sqrt(1.0 - k2) * s.v, sqrt(k2) * f);
 
     // dF terms: VD = Moment2(dF/|dpi|) * |dpi|^2, kept as the standard deviation sd_d.
     float sd_d = 0.0;
@@ -147,7 +269,7 @@ bool meta_update(MetaParams p, inout float theta, float f, float df, float dpi2,
         float q = 1.0 - p.decay_d;
         wsum_d = q + p.decay_d * s.wsum_d;
         float kd = q / wsum_d;
-        sd_d = hypot_safe(sqrt(1.0 - kd) * sat(s.rms_d * step_len), sqrt(kd) * df);
+        sd_d = hypot_safe(sqrt(1.0 - kd) * sat(s.rms_d * step_len), sqrt(kd) * sample_d);
         rms_d = sat(sd_d / step_len);
     } else {
         df = 0.0;
@@ -158,15 +280,26 @@ bool meta_update(MetaParams p, inout float theta, float f, float df, float dpi2,
     // accurate as alpha -> 1, and the update h + g*(F - h) on halves, which cannot overflow.
     float sd_pred = hypot_safe(s.sd, sd_d);
     float reg = hypot_safe(sd_pred, sqrt(META_ALPHA_REG));
-    float gain = max(inverse_variance_weight(reg, rms_f), 1.0 / (1.0 + s.n_eff));
+    float bound = 1.0 / (1.0 + s.n_eff);
+    float weighted = inverse_variance_weight(reg, rms_f);
+    float gain = max(weighted, bound);
     float pred = sat(s.mean + df);
     float half_diff = 0.5 * f - 0.5 * pred;
     float mean = sat(pred + gain * half_diff + gain * half_diff);
     float sd = hypot_safe((1.0 - gain) * sd_pred, gain * rms_f);
 
-    float step = sat(-p.lr * (mean / (sd + p.eps)));
-    theta = min(max(sat(theta + step), p.lo), p.hi);
-    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, 1.0 / gain);
+    float ratio;
+    if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
+    else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd) + p.eps);
+    else if (p.step_rule == STEP_WIENER)
+        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd);
+    else ratio = mean / (sd + p.eps);
+    float step = sat(-p.lr * ratio);
+    float next = min(max(sat(theta + step), p.lo), p.hi);
+    float n_eff = 1.0 / gain;
+    d = ElemDiag(n_eff, weighted < bound, f, df, sd_d, next - theta, mean, sd, rms_f);
+    theta = next;
+    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v);
     return true;
 }
 

@@ -147,6 +147,12 @@ float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) *
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
+// SPLIT: the contributions of half of the pixels are also summed into grad_half, so that
+// the optimiser can estimate the gradient's variance from two independent halves
+// (the centred variance estimate, src/optim/mod.rs). The kernel sets grad_in_half per pixel.
+layout(set = 0, binding = 33, scalar) buffer GradHalf { float grad_half[]; };
+layout(constant_id = 7) const bool SPLIT = false;
+bool grad_in_half = false;
 #endif
 
 float value_at(ValueRef r, int index, int state) {
@@ -211,23 +217,37 @@ float fetch1(ValueRef r, vec2 uv, int state) {
 layout(constant_id = 5) const uint LOCAL_GRADS = 0;
 #include "vkinverse_constants.glsl"  // LOCAL_GRADS_CAPACITY
 float local_grads[LOCAL_GRADS_CAPACITY];
+float local_half[LOCAL_GRADS_CAPACITY];
 
 void grad_init() {
-    for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) local_grads[k] = 0.0;
+    for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) {
+        local_grads[k] = 0.0;
+        local_half[k] = 0.0;
+    }
 }
 
 void grad_add(int index, float v) {
-    if (LOCAL_GRADS != 0u) local_grads[index] += v;
-    else atomicAdd(grad[index], v);
+    bool half_too = SPLIT && grad_in_half;
+    if (LOCAL_GRADS != 0u) {
+        local_grads[index] += v;
+        if (half_too) local_half[index] += v;
+    } else {
+        atomicAdd(grad[index], v);
+        if (half_too) atomicAdd(grad_half[index], v);
+    }
 }
 
-// Adds the thread's sums into grad[], one atomic per parameter and subgroup.
+// Adds the thread's sums into grad[] (and grad_half[]), one atomic per parameter and subgroup.
 void grad_flush() {
     if (LOCAL_GRADS == 0u) return;
     for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) {
         if (k >= LOCAL_GRADS) break;
         float total = subgroupAdd(local_grads[k]);
         if (subgroupElect() && total != 0.0) atomicAdd(grad[k], total);
+        if (SPLIT) {
+            float half_total = subgroupAdd(local_half[k]);
+            if (subgroupElect() && half_total != 0.0) atomicAdd(grad_half[k], half_total);
+        }
     }
 }
 

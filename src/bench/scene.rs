@@ -268,7 +268,7 @@ fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
     };
     let adam = engine.extra_optimiser(&adam_kind)?;
     let theta_prev = engine.optimiser()?.theta_prev.as_ref().ok_or_else(|| Error::Invalid("the meta optimiser has no previous θ".into()))?;
-    let fd_two = engine.fd_sample(theta_prev, true)?;
+    let fd_two = engine.fd_sample(theta_prev, true, None)?;
     let live = ctx.live_allocations();
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
     let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", gs.layout.len.max(1), MemoryKind::Device)?;

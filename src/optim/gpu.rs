@@ -1,16 +1,25 @@
 //! The optimisers on the GPU: one fused pass per parameter group (`glsl/optim_adam.comp`,
-//! `glsl/optim_meta.comp`), recorded into the iteration's command buffer.
+//! `glsl/optim_meta.comp`), then one diagnostics merge per group (`glsl/optim_diag.comp`),
+//! recorded into the iteration's command buffer.
 //!
 //! All groups share one θ buffer (and state arrays of the same length); a group is a
-//! range of it with its own learning rate and bounds. For the meta-estimator each group
-//! also owns its ‖Δπ‖² reduction: the pass writes per-workgroup partial sums of its
-//! squared steps, a reduction sums them on the GPU into the 1-float buffer the next
-//! iteration's pass reads, so no value crosses to the host inside an iteration.
+//! range of it with its own learning rate and bounds. Each pass writes one diagnostics
+//! record per workgroup; the merge reduces a group's records into its slot of the `diag`
+//! buffer. For the meta-estimator that slot's sum of squared steps is the group's ‖Δπ‖²,
+//! which the next iteration's pass reads, so no value crosses to the host inside an
+//! iteration; the host reads the slots after the iteration for `optimiser.csv`.
+//!
+//! The centred variance estimate needs each gradient pass to sum half of its samples into
+//! a second buffer: the optimiser owns those buffers ([`GpuOptimiser::halves`]) and clears
+//! them with the gradients.
 
-use super::push::{AdamPush, MetaPush};
+use super::push::{AdamPush, DiagPush, GroupSlots, MetaPush};
+use super::reference::{DiagRecord, Diagnostics};
+use super::replay::Streams;
 use super::{Optimiser, Range};
 use crate::gpu::{self, Access, BindGroup, Buffer, ComputePipeline, Context, MemoryKind, Recorder};
-use crate::ops::{BufferOps, Reduction};
+use crate::ops::BufferOps;
+use crate::shared;
 use std::sync::Arc;
 
 /// One parameter group: `len` elements of θ from `offset`.
@@ -32,19 +41,34 @@ struct Pass {
     group: BindGroup,
     push: Push,
     n: u64,
-    dpi2: Option<Reduction>,
+    diag_push: DiagPush,
+}
+
+/// The sums of half of the samples of the gradient and of the finite-difference sample.
+pub struct Halves {
+    pub grad: Buffer,
+    pub fd_grad: Buffer,
 }
 
 /// The fused optimiser passes of one θ buffer.
 pub struct GpuOptimiser {
+    optimiser: Optimiser,
+    groups: Vec<Group>,
     pipeline: ComputePipeline,
+    diag_pipeline: ComputePipeline,
+    diag_group: BindGroup,
     passes: Vec<Pass>,
     /// Buffers the passes write, for the barriers in front of them.
     written: Vec<Buffer>,
     /// The optimiser's own state arrays (what a checkpoint must save besides θ).
     state: Vec<Buffer>,
+    partials: Buffer,
+    /// One [`shared::DiagRecord`] per group: the last step's diagnostics.
+    diag: Buffer,
     /// θ of the previous iteration (meta only): the finite-difference pass reads it.
     pub theta_prev: Option<Buffer>,
+    /// The half-sample sums (meta with the centred variance estimate only).
+    pub halves: Option<Halves>,
     /// Count of non-finite gradient elements skipped so far.
     pub nonfinite: Buffer,
 }
@@ -55,7 +79,7 @@ impl GpuOptimiser {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         ctx: &Arc<Context>,
-        ops: &BufferOps,
+        _ops: &BufferOps,
         optimiser: &Optimiser,
         theta: &Buffer,
         grad: &Buffer,
@@ -66,28 +90,42 @@ impl GpuOptimiser {
         let n_total = (theta.len() / 4) as usize;
         let zeros = |name: &str| Buffer::zeroed::<f32>(ctx, name, n_total, MemoryKind::Device);
         let nonfinite = Buffer::zeroed::<u32>(ctx, "nonfinite", 1, MemoryKind::Device)?;
-        let mut written = vec![theta.clone(), grad.clone(), nonfinite.clone()];
+        let local = 256u64; // local_size_x of optim_adam and optim_meta
+        let mut slots = Vec::new();
+        let mut first = 0u32;
+        for (k, g) in groups.iter().enumerate() {
+            let count = (g.len as u64).div_ceil(local) as u32;
+            slots.push((GroupSlots { n: g.len as u32, offset: g.offset as u32, group: k as u32, first_partial: first }, count));
+            first += count;
+        }
+        let partials = Buffer::zeroed::<shared::DiagRecord>(ctx, "diag partials", (first as usize).max(1), MemoryKind::Device)?;
+        let diag = Buffer::zeroed::<shared::DiagRecord>(ctx, "optimiser diagnostics", groups.len().max(1), MemoryKind::Device)?;
+        let diag_pipeline = ComputePipeline::new(ctx, "optim_diag", &[])?;
+        let diag_group = diag_pipeline.bind(&[("DiagPartial", &partials), ("Diag", &diag)])?;
+        let diag_push = |(g, count): (GroupSlots, u32)| DiagPush { first: g.first_partial, count, group: g.group };
+        let mut written = vec![theta.clone(), grad.clone(), nonfinite.clone(), partials.clone()];
         let mut passes = Vec::new();
         let mut state = Vec::new();
-        let (pipeline, theta_prev) = match optimiser {
+        let (pipeline, theta_prev, halves) = match optimiser {
             Optimiser::Adam(h) => {
                 let pipeline = ComputePipeline::new(ctx, "optim_adam", &[])?;
                 let (m, r) = (zeros("adam m")?, zeros("adam r")?);
                 written.extend([m.clone(), r.clone()]);
                 state.extend([m.clone(), r.clone()]);
-                for g in groups {
+                for (g, s) in groups.iter().zip(&slots) {
                     let group = pipeline.bind(&[
                         ("Theta", theta),
                         ("Grad", grad),
                         ("AdamM", &m),
                         ("AdamR", &r),
+                        ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),
                         ("Frame", frame),
                     ])?;
-                    let push = AdamPush::new(h, g.len as u32, g.offset as u32, g.lr, g.range);
-                    passes.push(Pass { group, push: Push::Adam(push), n: g.len as u64, dpi2: None });
+                    let push = AdamPush::new(h, s.0, g.lr, g.range);
+                    passes.push(Pass { group, push: Push::Adam(push), n: g.len as u64, diag_push: diag_push(*s) });
                 }
-                (pipeline, None)
+                (pipeline, None, None)
             }
             Optimiser::Meta(h) => {
                 let pipeline = ComputePipeline::new(ctx, "optim_meta", &[])?;
@@ -96,67 +134,97 @@ impl GpuOptimiser {
                     what: "the meta-estimator needs a finite-difference gradient buffer".into(),
                 })?;
                 let theta_prev = zeros("theta prev")?;
-                let meta_state: Vec<Buffer> = ["meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff"]
-                    .iter()
-                    .map(|n| zeros(n))
-                    .collect::<gpu::Result<_>>()?;
+                let halves = if optimiser.needs_halves() {
+                    Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? })
+                } else {
+                    None
+                };
+                // Without the centred estimate the kernel never touches the half buffers.
+                let unused = match &halves {
+                    Some(_) => None,
+                    None => Some(Buffer::zeroed::<f32>(ctx, "half sums (unused)", 1, MemoryKind::Device)?),
+                };
+                let (grad_half, fd_half) = match (&halves, &unused) {
+                    (Some(hv), _) => (hv.grad.clone(), hv.fd_grad.clone()),
+                    (None, Some(u)) => (u.clone(), u.clone()),
+                    (None, None) => unreachable!("one of the two is set"),
+                };
+                let names = ["meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v"];
+                let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 written.extend(meta_state.iter().cloned());
-                written.extend([fd.clone(), theta_prev.clone()]);
+                written.extend([fd.clone(), theta_prev.clone(), grad_half.clone(), fd_half.clone()]);
                 state.extend(meta_state.iter().cloned());
                 state.push(theta_prev.clone());
-                let local = pipeline.local_size()[0] as u64;
-                for (k, g) in groups.iter().enumerate() {
-                    let partial_count = (g.len as u64).div_ceil(local).max(1) as usize;
-                    let partials = Buffer::zeroed::<f32>(ctx, &format!("dpi2 partials {k}"), partial_count, MemoryKind::Device)?;
-                    let reduction = ops.reduction(&partials, false)?;
+                for (g, s) in groups.iter().zip(&slots) {
                     let group = pipeline.bind(&[
                         ("Theta", theta),
                         ("ThetaPrev", &theta_prev),
                         ("Grad", grad),
                         ("FdGrad", fd),
+                        ("GradHalf", &grad_half),
+                        ("FdGradHalf", &fd_half),
                         ("MetaMean", &meta_state[0]),
                         ("MetaSd", &meta_state[1]),
                         ("MetaRmsF", &meta_state[2]),
                         ("MetaRmsD", &meta_state[3]),
                         ("MetaWsumD", &meta_state[4]),
                         ("MetaNEff", &meta_state[5]),
-                        ("Dpi2", reduction.result()),
-                        ("Dpi2Partial", &partials),
+                        ("MetaV", &meta_state[6]),
+                        ("Diag", &diag),
+                        ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),
                         ("Frame", frame),
                     ])?;
-                    written.push(partials);
-                    state.push(reduction.result().clone());
-                    let push = MetaPush::new(h, g.len as u32, g.offset as u32, g.lr, g.range);
-                    passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, dpi2: Some(reduction) });
+                    let push = MetaPush::new(h, s.0, groups.len() as u32, g.lr, g.range);
+                    passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, diag_push: diag_push(*s) });
                 }
-                (pipeline, Some(theta_prev))
+                (pipeline, Some(theta_prev), halves)
             }
         };
-        Ok(Self { pipeline, passes, written, state, theta_prev, nonfinite })
+        // The diagnostics hold the meta-estimator's ‖Δπ‖² between iterations.
+        state.push(diag.clone());
+        Ok(Self {
+            optimiser: *optimiser,
+            groups: groups.to_vec(),
+            pipeline,
+            diag_pipeline,
+            diag_group,
+            passes,
+            written,
+            state,
+            partials,
+            diag,
+            theta_prev,
+            halves,
+            nonfinite,
+        })
     }
 
-    /// Records every group's pass, then (meta) the ‖Δπ‖² reductions for the next iteration.
-    pub fn record(&self, rec: &mut Recorder, ops: &BufferOps) -> gpu::Result<()> {
+    /// Records every group's pass, then the merge of each group's diagnostics (for meta,
+    /// the next iteration's ‖Δπ‖²).
+    pub fn record(&self, rec: &mut Recorder, _ops: &BufferOps) -> gpu::Result<()> {
         let ready: Vec<(&Buffer, Access)> = self.written.iter().map(|b| (b, Access::ComputeReadWrite)).collect();
         rec.transition(&ready)?;
+        // The passes read ‖Δπ‖² from the previous iteration's merge.
+        rec.transition(&[(&self.diag, Access::ComputeRead)])?;
         for (k, p) in self.passes.iter().enumerate() {
             if k > 0 {
                 // Groups touch disjoint ranges, but the tracker sees whole buffers: order them.
                 rec.transition(&ready)?;
-            }
-            if let Some(red) = &p.dpi2 {
-                rec.transition(&[(red.result(), Access::ComputeRead)])?;
             }
             match &p.push {
                 Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
                 Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
             }
         }
-        for p in &self.passes {
-            if let Some(red) = &p.dpi2 {
-                ops.record_reduction(rec, red)?;
+        // Every pass has read its ‖Δπ‖² and written its records before the merge.
+        rec.transition(&[(&self.partials, Access::ComputeRead), (&self.diag, Access::ComputeWrite)])?;
+        for (k, p) in self.passes.iter().enumerate() {
+            if k > 0 {
+                // Each merge writes its own slot, but the tracker sees the whole buffer.
+                rec.transition(&[(&self.diag, Access::ComputeWrite)])?;
             }
+            rec.dispatch_groups(&self.diag_pipeline, &self.diag_group, &p.diag_push, [1, 1, 1])?;
         }
         Ok(())
     }
@@ -177,6 +245,18 @@ impl GpuOptimiser {
         Ok(self.nonfinite.read::<u32>()?[0])
     }
 
+    /// The last step's records, one per group, as the GPU merged them.
+    pub fn records(&self) -> gpu::Result<Vec<DiagRecord<f32>>> {
+        let raw: Vec<shared::DiagRecord> = self.diag.read()?;
+        Ok(raw.into_iter().take(self.groups.len()).map(DiagRecord::from).collect())
+    }
+
+    /// The diagnostics of step `t` (counted from 1), one per group, after it ran.
+    pub fn diagnostics(&self, t: u32) -> gpu::Result<Vec<Diagnostics>> {
+        let factor = self.optimiser.schedule().factor(t);
+        Ok(self.records()?.iter().zip(&self.groups).map(|(r, g)| Diagnostics::from_record(r, g.lr * factor)).collect())
+    }
+
     /// The meta-estimator's effective number of averaged samples per element,
     /// n_eff = 1/(1 − α) of its last step (None for Adam): how much history it is using.
     pub fn meta_n_eff(&self) -> gpu::Result<Option<Vec<f32>>> {
@@ -185,6 +265,18 @@ impl GpuOptimiser {
             None => Ok(None),
         }
     }
+}
+
+/// What [`replay_gpu_groups`] returns.
+pub struct GpuReplay {
+    /// θ before the first step and after each step.
+    pub theta: Vec<Vec<f32>>,
+    /// Elements skipped for non-finite inputs.
+    pub nonfinite: u32,
+    /// Each step's diagnostics, one per group.
+    pub diagnostics: Vec<Vec<Diagnostics>>,
+    /// Each step's records as the GPU merged them, one per group.
+    pub records: Vec<Vec<DiagRecord<f32>>>,
 }
 
 /// Runs the GPU optimiser passes on recorded gradient streams (`vkinverse replay`):
@@ -199,25 +291,58 @@ pub fn replay_gpu(
     range: Range,
     lr: f64,
 ) -> gpu::Result<(Vec<Vec<f32>>, u32)> {
+    let r = replay_gpu_streams(ctx, optimiser, &Streams::new(grads, fd_grads), init, range, lr)?;
+    Ok((r.theta, r.nonfinite))
+}
+
+/// [`replay_gpu`] with every stream (the half-sample sums of the centred variance
+/// estimate too), returning each step's diagnostics; the buffer is one group.
+pub fn replay_gpu_streams(
+    ctx: &Arc<Context>,
+    optimiser: &Optimiser,
+    streams: &Streams,
+    init: &[f32],
+    range: Range,
+    lr: f64,
+) -> gpu::Result<GpuReplay> {
+    replay_gpu_groups(ctx, optimiser, streams, init, &[Group { offset: 0, len: init.len(), lr, range }])
+}
+
+/// [`replay_gpu_streams`] with the buffer split into parameter groups, as a scene's
+/// parameters are.
+pub fn replay_gpu_groups(
+    ctx: &Arc<Context>,
+    optimiser: &Optimiser,
+    streams: &Streams,
+    init: &[f32],
+    groups: &[Group],
+) -> gpu::Result<GpuReplay> {
+    streams.check(optimiser).map_err(|e| gpu::GpuError::BufferAccess { name: "replay streams".into(), what: e.to_string() })?;
     let n = init.len();
     let ops = BufferOps::new(ctx)?;
     let theta = Buffer::from_slice(ctx, "theta", init, MemoryKind::Device)?;
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Upload)?;
     let fd = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Upload)?;
     let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
-    let groups = [Group { offset: 0, len: n, lr, range }];
-    let opt = GpuOptimiser::new(ctx, &ops, optimiser, &theta, &grad, Some(&fd), &frame, &groups)?;
+    let opt = GpuOptimiser::new(ctx, &ops, optimiser, &theta, &grad, Some(&fd), &frame, groups)?;
     let mut cmd = gpu::CommandBuffer::new(ctx, "replay")?;
     cmd.record(|rec| opt.record(rec, &ops))?;
-    let mut trajectory = vec![init.to_vec()];
-    for (i, g) in grads.iter().enumerate() {
+    let mut out = GpuReplay { theta: vec![init.to_vec()], nonfinite: 0, diagnostics: Vec::new(), records: Vec::new() };
+    for (i, g) in streams.grads.iter().enumerate() {
         frame.write(&[i as u32])?;
         grad.write(g)?;
-        if let Some(fd_rows) = fd_grads {
+        if let Some(fd_rows) = streams.fd_grads {
             fd.write(&fd_rows[i])?;
         }
+        if let (Some(h), Some(gh), Some(fh)) = (&opt.halves, streams.grad_halves, streams.fd_halves) {
+            h.grad.write(&gh[i])?;
+            h.fd_grad.write(&fh[i])?;
+        }
         cmd.submit_and_wait()?;
-        trajectory.push(theta.read()?);
+        out.theta.push(theta.read()?);
+        out.diagnostics.push(opt.diagnostics(i as u32 + 1)?);
+        out.records.push(opt.records()?);
     }
-    Ok((trajectory, opt.nonfinite_count()?))
+    out.nonfinite = opt.nonfinite_count()?;
+    Ok(out)
 }

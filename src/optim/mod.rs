@@ -55,17 +55,20 @@
 //! meta-estimate takes larger steps by design: with Var[M] ≈ VF/n_eff the step is about
 //! lr·√n_eff·M/√VF.
 
+pub mod csv;
 pub mod gpu;
 pub mod literal;
 pub mod push;
 pub mod reference;
 pub mod replay;
+pub mod schedule;
 pub mod spec;
 #[cfg(test)]
 mod tests;
 
-pub use reference::{AdamElem, BufferOptimiser, MetaElem, Real};
-pub use replay::{replay_cpu, replay_cpu_f32, Replay};
+pub use reference::{AdamElem, BufferOptimiser, Diagnostics, GroupedOptimiser, MetaElem, Real};
+pub use replay::{replay_cpu, replay_cpu_f32, Replay, Streams};
+pub use schedule::{Decay, Schedule};
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -97,6 +100,8 @@ pub enum OptimError {
     },
     #[error("the meta optimiser needs finite-difference gradients")]
     MissingFd,
+    #[error("the centred variance estimate (var=centred) needs the half-sample sums of both gradient streams")]
+    MissingHalves,
 }
 
 /// Closed parameter range; ±infinity for an open side.
@@ -139,12 +144,15 @@ impl FromStr for Range {
     }
 }
 
-/// Adam (Kingma & Ba 2015) hyperparameters; the learning rate is given per run.
+/// Adam (Kingma & Ba 2015) hyperparameters; the learning rate is given per run and scaled
+/// by the schedule.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct AdamHyper {
     pub beta1: f64,
     pub beta2: f64,
     pub eps: f64,
+    pub schedule: Schedule,
 }
 
 impl Default for AdamHyper {
@@ -153,26 +161,134 @@ impl Default for AdamHyper {
             beta1: 0.9,
             beta2: 0.999,
             eps: 1e-8,
+            schedule: Schedule::default(),
         }
     }
 }
 
-/// Meta-estimator hyperparameters: the decays of the two Moment2 EMAs (0.9 in the seed's
-/// Moment2) and the ε of the step (1e-8, supplementary B).
+/// How the meta-estimator turns its estimate ⟨F⟩_M (variance V_M) into a step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StepRule {
+    /// The seed's −lr·⟨F⟩_M/(√V_M + ε): lr per unit signal-to-noise ratio of the estimate,
+    /// so the step grows like √n_eff as the estimate averages.
+    #[default]
+    Snr,
+    /// Adam's normalisation with the meta-estimate as its first moment:
+    /// −lr·⟨F⟩_M/(√v̂ + ε), v̂ Adam's bias-corrected EMA (β2) of ⟨F⟩². A consistent gradient
+    /// moves about lr per iteration, as with Adam; near the optimum the step shrinks with the
+    /// estimate's noise, ∝ 1/√n_eff.
+    Adam,
+    /// −lr·⟨F⟩_M/(√(⟨F⟩_M² + V_M) + ε): the seed's rule for a noisy estimate, at most lr.
+    Bounded,
+    /// Adam's normalisation of the estimate shrunk by its own significance:
+    /// −lr·⟨F⟩_M/(√v̂ + ε)·⟨F⟩_M²/(⟨F⟩_M² + V_M), the Wiener gain of the estimate. Where the
+    /// estimate is far larger than its noise this is `adam`; where it is mostly noise (near
+    /// the optimum) the step shrinks, so the iterate stops wandering on the estimate's noise,
+    /// the steps and with them the finite-difference variance fall, and the estimate
+    /// averages more.
+    Wiener,
+}
+
+impl StepRule {
+    /// The kernels' number for it (`STEP_*`, src/constants.rs).
+    pub fn code(self) -> u32 {
+        use crate::constants::*;
+        match self {
+            StepRule::Snr => STEP_SNR,
+            StepRule::Adam => STEP_ADAM,
+            StepRule::Bounded => STEP_BOUNDED,
+            StepRule::Wiener => STEP_WIENER,
+        }
+    }
+}
+
+/// What the meta-estimator's variance EMAs of ⟨F⟩ and ⟨ΔF⟩ are taken of.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VarianceEstimate {
+    /// The seed's zero-centred second moments: E[⟨F⟩²] counts the squared mean as variance,
+    /// E[⟨ΔF⟩²] the squared expected change H·Δπ.
+    #[default]
+    Zero,
+    /// Centred: each gradient pass also sums a random half of its pixels into a second
+    /// buffer, and the two independent halves A, B of an estimate give (A − B)²/4, a sample
+    /// of its variance that counts the per-pixel squared means (which vanish at the
+    /// optimum) instead of the squared total mean. No extra samples.
+    Centred,
+}
+
+impl VarianceEstimate {
+    pub fn code(self) -> u32 {
+        match self {
+            VarianceEstimate::Zero => 0,
+            VarianceEstimate::Centred => 1,
+        }
+    }
+}
+
+/// Which step length normalises the finite-difference samples' variance (‖Δπ‖ of
+/// supplementary B: Var[⟨ΔF⟩] ≈ Moment2(⟨ΔF⟩/‖Δπ‖)·‖Δπ‖²).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StepNorm {
+    /// The parameter group's own step.
+    #[default]
+    Group,
+    /// The step of all groups together: the paths of a finite-difference sample are
+    /// reweighted for every parameter that changes how they are sampled (roughness,
+    /// metallic), so every group's ⟨ΔF⟩ varies with every group's step.
+    Global,
+}
+
+/// Meta-estimator hyperparameters. `decay_f`, `decay_d` are the decays of the two Moment2
+/// EMAs (0.9 in the seed's Moment2), `eps` the ε of the step (1e-8, supplementary B).
+/// `grow_f` > 0 lets β_F grow over the run (supplementary A): the ⟨F⟩ EMA's sample weight
+/// falls like t^−grow_f once t passes 1/(1 − decay_f), down to the running mean's 1/t.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct MetaHyper {
     pub decay_f: f64,
     pub decay_d: f64,
     pub eps: f64,
+    pub step: StepRule,
+    /// Adam's β2 for `step = adam`.
+    pub beta2: f64,
+    pub variance: VarianceEstimate,
+    pub grow_f: f64,
+    /// The step length the ⟨ΔF⟩ variance scales with.
+    pub dpi: StepNorm,
+    pub schedule: Schedule,
 }
 
-impl Default for MetaHyper {
-    fn default() -> Self {
+impl MetaHyper {
+    /// The seed's configuration (supplementary B): the step −lr·⟨F⟩_M/(√V_M + ε),
+    /// zero-centred Moment2 EMAs of decay 0.9, constant β_F and learning rate.
+    pub fn seed() -> Self {
         MetaHyper {
             decay_f: 0.9,
             decay_d: 0.9,
             eps: 1e-8,
+            step: StepRule::Snr,
+            beta2: 0.999,
+            variance: VarianceEstimate::Zero,
+            grow_f: 0.0,
+            dpi: StepNorm::Group,
+            schedule: Schedule::default(),
         }
+    }
+}
+
+/// The defaults (spec `meta`): the Wiener step rule (Adam's normalisation, so `lr` is the
+/// typical parameter change per iteration as for Adam, shrunk where the estimate is mostly
+/// noise) and the centred variance estimate, with the seed's decays and ε, each parameter
+/// group's own step norm, constant β_F and rate. Chosen by the pilot runs of
+/// docs/results.md (scenes/pilot.toml, scenes/pilot2.toml): of the candidates, the smallest
+/// worst-case settled error relative to the best Adam over five scenes, and a geometric mean
+/// tied with the best.
+impl Default for MetaHyper {
+    fn default() -> Self {
+        MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, ..MetaHyper::seed() }
     }
 }
 
@@ -197,7 +313,36 @@ impl Optimiser {
         matches!(self, Optimiser::Meta(_))
     }
 
-    /// Checks that decays lie in [0, 1) and ε is positive and finite.
+    /// Whether the gradient passes must also sum half of their samples separately (the
+    /// centred variance estimate).
+    pub fn needs_halves(&self) -> bool {
+        matches!(self, Optimiser::Meta(h) if h.variance == VarianceEstimate::Centred)
+    }
+
+    /// The learning-rate schedule.
+    pub fn schedule(&self) -> &Schedule {
+        match self {
+            Optimiser::Adam(h) => &h.schedule,
+            Optimiser::Meta(h) => &h.schedule,
+        }
+    }
+
+    /// The learning-rate schedule, to change.
+    pub fn schedule_mut(&mut self) -> &mut Schedule {
+        match self {
+            Optimiser::Adam(h) => &mut h.schedule,
+            Optimiser::Meta(h) => &mut h.schedule,
+        }
+    }
+
+    /// The optimiser for a run of `iterations` steps: a cosine horizon of 0 becomes it.
+    pub fn resolve(mut self, iterations: u32) -> Self {
+        let s = self.schedule().resolve(iterations);
+        *self.schedule_mut() = s;
+        self
+    }
+
+    /// Checks that decays lie in [0, 1), ε is positive and finite, and the schedule is valid.
     pub fn validate(&self) -> Result<(), OptimError> {
         let decay = |name: &str, b: f64| {
             if (0.0..1.0).contains(&b) {
@@ -208,12 +353,23 @@ impl Optimiser {
                 )))
             }
         };
-        let (a, b, eps) = match *self {
-            Optimiser::Adam(h) => (("beta1", h.beta1), ("beta2", h.beta2), h.eps),
-            Optimiser::Meta(h) => (("decay_f", h.decay_f), ("decay_d", h.decay_d), h.eps),
+        let eps = match *self {
+            Optimiser::Adam(h) => {
+                decay("beta1", h.beta1)?;
+                decay("beta2", h.beta2)?;
+                h.eps
+            }
+            Optimiser::Meta(h) => {
+                decay("decay_f", h.decay_f)?;
+                decay("decay_d", h.decay_d)?;
+                decay("beta2", h.beta2)?;
+                if !(0.0..=1.0).contains(&h.grow_f) {
+                    return Err(OptimError::BadHyper(format!("grow_f = {} is outside [0, 1]", h.grow_f)));
+                }
+                h.eps
+            }
         };
-        decay(a.0, a.1)?;
-        decay(b.0, b.1)?;
+        self.schedule().validate()?;
         if eps > 0.0 && eps.is_finite() {
             Ok(())
         } else {

@@ -6,8 +6,13 @@
 //! Invariants per element, for any finite inputs: θ stays finite and inside its range; state
 //! values are finite and non-negative where they are RMS / standard deviations / weights;
 //! `sd == 0` implies `mean == 0`; `n_eff` ≤ the number of steps the element has taken.
+//!
+//! Every step also yields per-element diagnostics ([`ElemDiag`]), reduced per parameter
+//! group into a [`DiagRecord`] exactly as the GPU pass reduces them (sums, minima, maxima,
+//! and sums of squares kept as a scale and a scaled sum, [`Ssq`], so that they cannot
+//! overflow); the meta-estimator's ‖Δπ‖² is the record's sum of squared steps.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, ALPHA_REG};
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, StepRule, VarianceEstimate, ALPHA_REG};
 use std::fmt::Debug;
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -34,6 +39,7 @@ pub trait Real:
     fn is_finite(self) -> bool;
     fn min(self, other: Self) -> Self;
     fn max(self, other: Self) -> Self;
+    fn powf(self, e: Self) -> Self;
 }
 
 macro_rules! impl_real {
@@ -62,6 +68,9 @@ macro_rules! impl_real {
             }
             fn max(self, other: Self) -> Self {
                 <$t>::max(self, other)
+            }
+            fn powf(self, e: Self) -> Self {
+                <$t>::powf(self, e)
             }
         }
     };
@@ -116,6 +125,266 @@ fn inverse_variance_weight<R: Real>(s_a: R, s_b: R) -> R {
     a * a / (a * a + b * b)
 }
 
+/// Weight of the t-th sample of the ⟨F⟩ Moment2: the seed's bias-corrected EMA weight, or
+/// with β_F growth (`grow` > 0, supplementary A) min(that, (1−β)·(t(1−β))^−grow), never below
+/// the running mean's 1/t. Before t = 1/(1−β) the growth term exceeds the EMA weight.
+pub fn f_weight<R: Real>(decay: R, grow: R, t: u32) -> R {
+    let k = ema_weight(decay, t);
+    if grow <= R::ZERO {
+        return k;
+    }
+    let tt = R::of(t.max(1) as f64);
+    let q = R::ONE - decay;
+    k.min(q * (tt * q).powf(-grow)).max(R::ONE / tt)
+}
+
+/// The centred variance sample of an estimate from its total `x` (all samples) and `half`
+/// (the sum of half of them, weighted as in the total): with halves A = 2·half and
+/// B = 2·(x − half), (A − B)/2 = x − 2·half, whose square is an unbiased sample of Var[x]
+/// when the halves are independent and identically distributed. Saturates.
+pub fn centred_sample<R: Real>(x: R, half: R) -> R {
+    sat(R::of(2.0) * sat(R::of(0.5) * x - half))
+}
+
+/// A sum of squares kept as `scale`·√`sum` = its root (the largest magnitude and the sum of
+/// the squares divided by its square), so that values near 1e30 do not overflow and values
+/// near 1e-30 do not vanish. Mirrored by `Ssq` in glsl/shared/optim.glsl.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ssq<R> {
+    pub scale: R,
+    pub sum: R,
+}
+
+impl<R: Real> Ssq<R> {
+    pub fn of(x: R) -> Self {
+        let a = x.abs();
+        if a == R::ZERO {
+            Ssq::default()
+        } else {
+            Ssq { scale: a, sum: R::ONE }
+        }
+    }
+
+    pub fn merge(self, o: Self) -> Self {
+        let m = self.scale.max(o.scale);
+        if m == R::ZERO {
+            return Ssq::default();
+        }
+        let (a, b) = (self.scale / m, o.scale / m);
+        Ssq { scale: m, sum: self.sum * (a * a) + o.sum * (b * b) }
+    }
+
+    /// The sum of squares (saturating).
+    pub fn total(self) -> R {
+        sat(self.scale * self.scale * self.sum)
+    }
+
+    /// Its square root, the L2 norm.
+    pub fn norm(self) -> R {
+        sat(self.scale * self.sum.sqrt())
+    }
+}
+
+/// One element's contribution to its group's diagnostics.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ElemDiag<R> {
+    /// 1/(1 − α) after the step (Meta; 0 for Adam).
+    pub n_eff: R,
+    /// Whether α was limited by the clip α ≤ 1/(2 − α_prev) (Meta).
+    pub clipped: bool,
+    /// ⟨F⟩ (the proportional gradient).
+    pub f: R,
+    /// ⟨ΔF⟩ as used: 0 when the ΔF terms were skipped (Meta).
+    pub df: R,
+    /// √Var[⟨ΔF⟩], the FD term's standard deviation (Meta).
+    pub sd_d: R,
+    /// The step taken (after clamping to the range).
+    pub step: R,
+    /// ⟨F⟩_M (Meta) or Adam's first moment m̂.
+    pub mean: R,
+    /// √Var[⟨F⟩_M] (Meta).
+    pub sd: R,
+    /// √Var[⟨F⟩] (Meta's Moment2) or Adam's √v̂.
+    pub sd_f: R,
+}
+
+/// A parameter group's diagnostics as the GPU reduces them (`DiagRecord` in
+/// glsl/shared/optim.glsl): counts and sums, the n_eff range, sums of squares.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DiagRecord<R> {
+    /// Elements that stepped (not skipped for non-finite input).
+    pub count: R,
+    pub n_eff_sum: R,
+    pub n_eff_min: R,
+    pub n_eff_max: R,
+    pub clipped: R,
+    pub f: Ssq<R>,
+    pub df: Ssq<R>,
+    pub sd_d: Ssq<R>,
+    pub step: Ssq<R>,
+    pub mean: Ssq<R>,
+    pub sd: Ssq<R>,
+    pub sd_f: Ssq<R>,
+}
+
+impl<R: Real> Default for DiagRecord<R> {
+    /// The empty record, the identity of [`DiagRecord::merge`].
+    fn default() -> Self {
+        DiagRecord {
+            count: R::ZERO,
+            n_eff_sum: R::ZERO,
+            n_eff_min: R::MAX,
+            n_eff_max: R::ZERO,
+            clipped: R::ZERO,
+            f: Ssq::default(),
+            df: Ssq::default(),
+            sd_d: Ssq::default(),
+            step: Ssq::default(),
+            mean: Ssq::default(),
+            sd: Ssq::default(),
+            sd_f: Ssq::default(),
+        }
+    }
+}
+
+impl<R: Real> DiagRecord<R> {
+    pub fn of(e: &ElemDiag<R>) -> Self {
+        DiagRecord {
+            count: R::ONE,
+            n_eff_sum: e.n_eff,
+            n_eff_min: e.n_eff,
+            n_eff_max: e.n_eff,
+            clipped: if e.clipped { R::ONE } else { R::ZERO },
+            f: Ssq::of(e.f),
+            df: Ssq::of(e.df),
+            sd_d: Ssq::of(e.sd_d),
+            step: Ssq::of(e.step),
+            mean: Ssq::of(e.mean),
+            sd: Ssq::of(e.sd),
+            sd_f: Ssq::of(e.sd_f),
+        }
+    }
+
+    pub fn merge(self, o: Self) -> Self {
+        DiagRecord {
+            count: self.count + o.count,
+            n_eff_sum: sat(self.n_eff_sum + o.n_eff_sum),
+            n_eff_min: self.n_eff_min.min(o.n_eff_min),
+            n_eff_max: self.n_eff_max.max(o.n_eff_max),
+            clipped: self.clipped + o.clipped,
+            f: self.f.merge(o.f),
+            df: self.df.merge(o.df),
+            sd_d: self.sd_d.merge(o.sd_d),
+            step: self.step.merge(o.step),
+            mean: self.mean.merge(o.mean),
+            sd: self.sd.merge(o.sd),
+            sd_f: self.sd_f.merge(o.sd_f),
+        }
+    }
+}
+
+/// One step's diagnostics of one parameter group, as `optimiser.csv` reports them.
+/// RMS values are over the elements that stepped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Diagnostics {
+    /// The learning rate of the step (the schedule applied).
+    pub lr: f64,
+    /// Elements that stepped.
+    pub elements: u64,
+    /// The meta-estimator's effective number of averaged samples, 1/(1 − α) (0 for Adam).
+    pub n_eff_mean: f64,
+    pub n_eff_min: f64,
+    pub n_eff_max: f64,
+    /// Fraction of elements whose α the clip α ≤ 1/(2 − α_prev) limited.
+    pub clipped: f64,
+    /// RMS of ⟨F⟩.
+    pub rms_f: f64,
+    /// RMS of ⟨ΔF⟩.
+    pub rms_df: f64,
+    /// RMS of the FD term's standard deviation √Var[⟨ΔF⟩].
+    pub sd_fd: f64,
+    /// RMS of the estimate the step uses (⟨F⟩_M, Adam's m̂).
+    pub rms_mean: f64,
+    /// RMS of √Var[⟨F⟩_M].
+    pub sd_mean: f64,
+    /// RMS of √Var[⟨F⟩] (Adam: √v̂).
+    pub sd_f: f64,
+    /// ‖Δπ‖ of the step.
+    pub step_norm: f64,
+    /// RMS of the step.
+    pub rms_step: f64,
+}
+
+impl Diagnostics {
+    /// The column names of [`Diagnostics::csv`], in order.
+    pub const COLUMNS: [&'static str; 14] = [
+        "lr", "elements", "n_eff_mean", "n_eff_min", "n_eff_max", "clipped", "rms_f", "rms_df", "sd_fd", "rms_mean",
+        "sd_mean", "sd_f", "step_norm", "rms_step",
+    ];
+
+    pub fn from_record<R: Real>(r: &DiagRecord<R>, lr: f64) -> Self {
+        let count = r.count.to_f64();
+        let rms = |s: Ssq<R>| if count > 0.0 { s.norm().to_f64() / count.sqrt() } else { 0.0 };
+        let per = |x: R| if count > 0.0 { x.to_f64() / count } else { 0.0 };
+        Diagnostics {
+            lr,
+            elements: count as u64,
+            n_eff_mean: per(r.n_eff_sum),
+            n_eff_min: if count > 0.0 { r.n_eff_min.to_f64() } else { 0.0 },
+            n_eff_max: r.n_eff_max.to_f64(),
+            clipped: per(r.clipped),
+            rms_f: rms(r.f),
+            rms_df: rms(r.df),
+            sd_fd: rms(r.sd_d),
+            rms_mean: rms(r.mean),
+            sd_mean: rms(r.sd),
+            sd_f: rms(r.sd_f),
+            step_norm: r.step.norm().to_f64(),
+            rms_step: rms(r.step),
+        }
+    }
+
+    /// The diagnostics from values in the order of [`Diagnostics::COLUMNS`].
+    pub fn from_values(v: &[f64; 14]) -> Self {
+        Diagnostics {
+            lr: v[0],
+            elements: v[1] as u64,
+            n_eff_mean: v[2],
+            n_eff_min: v[3],
+            n_eff_max: v[4],
+            clipped: v[5],
+            rms_f: v[6],
+            rms_df: v[7],
+            sd_fd: v[8],
+            rms_mean: v[9],
+            sd_mean: v[10],
+            sd_f: v[11],
+            step_norm: v[12],
+            rms_step: v[13],
+        }
+    }
+
+    /// The values in the order of [`Diagnostics::COLUMNS`].
+    pub fn values(&self) -> [f64; 14] {
+        [
+            self.lr,
+            self.elements as f64,
+            self.n_eff_mean,
+            self.n_eff_min,
+            self.n_eff_max,
+            self.clipped,
+            self.rms_f,
+            self.rms_df,
+            self.sd_fd,
+            self.rms_mean,
+            self.sd_mean,
+            self.sd_f,
+            self.step_norm,
+            self.rms_step,
+        ]
+    }
+}
+
 /// Adam's per-element state: the bias-corrected first moment m̂ and the bias-corrected RMS √v̂.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AdamElem<R> {
@@ -123,7 +392,8 @@ pub struct AdamElem<R> {
     pub r: R,
 }
 
-/// Adam's per-step parameters (the push constants of `optim_adam.comp`). `t` counts from 1.
+/// Adam's per-step parameters (the push constants of `optim_adam.comp`). `t` counts from 1;
+/// `lr` is the scheduled rate of step t.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdamParams<R> {
     pub t: u32,
@@ -139,7 +409,7 @@ impl<R: Real> AdamParams<R> {
     pub fn new(h: &AdamHyper, t: u32, lr: f64, range: Range) -> Self {
         AdamParams {
             t,
-            lr: R::of(lr),
+            lr: R::of(lr * h.schedule.factor(t)),
             beta1: R::of(h.beta1),
             beta2: R::of(h.beta2),
             eps: R::of(h.eps),
@@ -149,14 +419,14 @@ impl<R: Real> AdamParams<R> {
     }
 }
 
-/// One Adam step of one element: returns (θ', state') or `None` for a non-finite gradient,
-/// in which case θ and the state stay as they are.
+/// One Adam step of one element: returns (θ', state', diagnostics) or `None` for a
+/// non-finite gradient, in which case θ and the state stay as they are.
 pub fn adam_update<R: Real>(
     p: &AdamParams<R>,
     theta: R,
     g: R,
     s: AdamElem<R>,
-) -> Option<(R, AdamElem<R>)> {
+) -> Option<(R, AdamElem<R>, ElemDiag<R>)> {
     if !g.is_finite() {
         return None;
     }
@@ -165,8 +435,9 @@ pub fn adam_update<R: Real>(
     let m = (R::ONE - k1) * s.m + k1 * g;
     let r = hypot((R::ONE - k2).sqrt() * s.r, k2.sqrt() * g);
     let step = sat(-p.lr * (m / (r + p.eps)));
-    let theta = sat(theta + step).max(p.lo).min(p.hi);
-    Some((theta, AdamElem { m, r }))
+    let next = sat(theta + step).max(p.lo).min(p.hi);
+    let diag = ElemDiag { f: g, step: next - theta, mean: m, sd_f: r, ..Default::default() };
+    Some((next, AdamElem { m, r }, diag))
 }
 
 /// The meta-estimator's per-element state, all zero initially.
@@ -176,18 +447,21 @@ pub struct MetaElem<R> {
     pub mean: R,
     /// √Var[⟨F_i⟩_M].
     pub sd: R,
-    /// √(Moment2 of ⟨F⟩), bias-corrected with the global count t.
+    /// √(Moment2 of ⟨F⟩, or of its centred samples), bias-corrected with the global count t.
     pub rms_f: R,
-    /// √(Moment2 of ⟨ΔF⟩/‖Δπ‖), bias-corrected with `wsum_d`.
+    /// √(Moment2 of ⟨ΔF⟩/‖Δπ‖, or of its centred samples), bias-corrected with `wsum_d`.
     pub rms_d: R,
     /// 1 − decay_d^count: the bias-correction sum of the ΔF Moment2's own samples.
     pub wsum_d: R,
     /// 1/(1 − α_prev): the effective number of samples averaged so far. The seed's clip
     /// α ≤ 1/(2 − α_prev) reads 1 − α ≥ 1/(1 + n_eff); n_eff = 0 is α_prev = −∞.
     pub n_eff: R,
+    /// Adam's bias-corrected √v̂ of ⟨F⟩ (β2), the normaliser of `step = adam`.
+    pub v: R,
 }
 
-/// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1.
+/// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1;
+/// `lr` is the scheduled rate of step t.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MetaParams<R> {
     pub t: u32,
@@ -197,40 +471,63 @@ pub struct MetaParams<R> {
     pub eps: R,
     pub lo: R,
     pub hi: R,
+    pub step: StepRule,
+    pub beta2: R,
+    pub centred: bool,
+    pub grow_f: R,
 }
 
 impl<R: Real> MetaParams<R> {
     pub fn new(h: &MetaHyper, t: u32, lr: f64, range: Range) -> Self {
         MetaParams {
             t,
-            lr: R::of(lr),
+            lr: R::of(lr * h.schedule.factor(t)),
             decay_f: R::of(h.decay_f),
             decay_d: R::of(h.decay_d),
             eps: R::of(h.eps),
             lo: R::of(range.lo),
             hi: R::of(range.hi),
+            step: h.step,
+            beta2: R::of(h.beta2),
+            centred: h.variance == VarianceEstimate::Centred,
+            grow_f: R::of(h.grow_f),
         }
     }
 }
 
-/// One meta-estimator step of one element (supplementary B, Moment2 + Meta), given the
-/// proportional gradient `f`, the finite-difference sample `df` and the buffer's ‖Δπ‖²
-/// `dpi2` of the previous step. Returns (θ', state') or `None` for a non-finite `f` or `df`,
-/// in which case θ and the state stay as they are.
+/// One element's inputs to a meta step: the proportional gradient ⟨F⟩, the finite-difference
+/// sample ⟨ΔF⟩ and, for the centred variance estimate, the sums of half of their samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MetaInput<R> {
+    pub f: R,
+    pub df: R,
+    pub f_half: R,
+    pub df_half: R,
+}
+
+/// One meta-estimator step of one element (supplementary B, Moment2 + Meta, with the step
+/// rule, variance estimate and β_F growth of `p`), given the buffer's ‖Δπ‖² `dpi2` of the
+/// previous step. Returns (θ', state', diagnostics) or `None` for a non-finite input, in
+/// which case θ and the state stay as they are.
 pub fn meta_update<R: Real>(
     p: &MetaParams<R>,
     theta: R,
-    f: R,
-    df: R,
+    x: MetaInput<R>,
     dpi2: R,
     s: MetaElem<R>,
-) -> Option<(R, MetaElem<R>)> {
-    if !f.is_finite() || !df.is_finite() {
+) -> Option<(R, MetaElem<R>, ElemDiag<R>)> {
+    let (f, df) = (x.f, x.df);
+    if !f.is_finite() || !df.is_finite() || (p.centred && !(x.f_half.is_finite() && x.df_half.is_finite())) {
         return None;
     }
     let one = R::ONE;
-    let kf = ema_weight(p.decay_f, p.t);
-    let rms_f = hypot((one - kf).sqrt() * s.rms_f, kf.sqrt() * f);
+    // What the two Moment2 EMAs average the squares of.
+    let (sample_f, sample_d) =
+        if p.centred { (centred_sample(f, x.f_half), centred_sample(df, x.df_half)) } else { (f, df) };
+    let kf = f_weight(p.decay_f, p.grow_f, p.t);
+    let rms_f = hypot((one - kf).sqrt() * s.rms_f, kf.sqrt() * sample_f);
+    let k2 = ema_weight(p.beta2, p.t);
+    let v = hypot((one - k2).sqrt() * s.v, k2.sqrt() * f);
 
     // ΔF terms: VD = Moment2(ΔF/‖Δπ‖)·‖Δπ‖², kept as the standard deviation sd_d.
     let (df, sd_d, rms_d, wsum_d) = if dpi2 > R::ZERO && dpi2.is_finite() {
@@ -238,7 +535,7 @@ pub fn meta_update<R: Real>(
         let q = one - p.decay_d;
         let wsum_d = q + p.decay_d * s.wsum_d;
         let kd = q / wsum_d;
-        let sd_d = hypot((one - kd).sqrt() * sat(s.rms_d * step_len), kd.sqrt() * df);
+        let sd_d = hypot((one - kd).sqrt() * sat(s.rms_d * step_len), kd.sqrt() * sample_d);
         (df, sd_d, sat(sd_d / step_len), wsum_d)
     } else {
         (R::ZERO, R::ZERO, s.rms_d, s.wsum_d)
@@ -249,25 +546,26 @@ pub fn meta_update<R: Real>(
     // accurate as α → 1, and the update h + g·(F − h) on halves, which cannot overflow.
     let sd_pred = hypot(s.sd, sd_d);
     let reg = hypot(sd_pred, R::of(ALPHA_REG.sqrt()));
-    let gain = inverse_variance_weight(reg, rms_f).max(one / (one + s.n_eff));
+    let bound = one / (one + s.n_eff);
+    let weighted = inverse_variance_weight(reg, rms_f);
+    let gain = weighted.max(bound);
     let pred = sat(s.mean + df);
     let half_diff = R::of(0.5) * f - R::of(0.5) * pred;
     let mean = sat(pred + gain * half_diff + gain * half_diff);
     let sd = hypot((one - gain) * sd_pred, gain * rms_f);
 
-    let step = sat(-p.lr * (mean / (sd + p.eps)));
-    let theta = sat(theta + step).max(p.lo).min(p.hi);
-    Some((
-        theta,
-        MetaElem {
-            mean,
-            sd,
-            rms_f,
-            rms_d,
-            wsum_d,
-            n_eff: one / gain,
-        },
-    ))
+    let ratio = match p.step {
+        StepRule::Snr => mean / (sd + p.eps),
+        StepRule::Adam => mean / (v + p.eps),
+        StepRule::Bounded => mean / (hypot(mean, sd) + p.eps),
+        StepRule::Wiener if mean == R::ZERO => R::ZERO,
+        StepRule::Wiener => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
+    };
+    let step = sat(-p.lr * ratio);
+    let next = sat(theta + step).max(p.lo).min(p.hi);
+    let n_eff = one / gain;
+    let diag = ElemDiag { n_eff, clipped: weighted < bound, f, df, sd_d, step: next - theta, mean, sd, sd_f: rms_f };
+    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v }, diag))
 }
 
 /// Hyperparameters and per-element state of one parameter buffer.
@@ -288,6 +586,18 @@ pub struct BufferOptimiser<R> {
     t: u32,
     dpi2: R,
     nonfinite: u64,
+    record: DiagRecord<R>,
+    diagnostics: Diagnostics,
+}
+
+/// One step's inputs for a whole buffer: the gradient, and for Meta the finite-difference
+/// sample and (centred variance) the half-sample sums of both.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepInput<'a, R> {
+    pub grad: &'a [R],
+    pub fd: Option<&'a [R]>,
+    pub grad_half: Option<&'a [R]>,
+    pub fd_half: Option<&'a [R]>,
 }
 
 impl<R: Real> BufferOptimiser<R> {
@@ -309,53 +619,78 @@ impl<R: Real> BufferOptimiser<R> {
             t: 0,
             dpi2: R::ZERO,
             nonfinite: 0,
+            record: DiagRecord::default(),
+            diagnostics: Diagnostics::default(),
         })
     }
 
     /// One step over the buffer, in place. `fd` is required by Meta and ignored by Adam.
     /// Returns the number of elements skipped for non-finite inputs.
-    pub fn step(
-        &mut self,
-        theta: &mut [R],
-        grad: &[R],
-        fd: Option<&[R]>,
-    ) -> Result<u64, OptimError> {
+    pub fn step(&mut self, theta: &mut [R], grad: &[R], fd: Option<&[R]>) -> Result<u64, OptimError> {
+        self.step_with(theta, StepInput { grad, fd, ..Default::default() })
+    }
+
+    /// [`Self::step`] with every input, the half-sample sums included.
+    pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
+        self.step_at(theta, input, None)
+    }
+
+    /// [`Self::step_with`] with the ‖Δπ‖² of the previous step given (the global norm of a
+    /// [`GroupedOptimiser`]) instead of the buffer's own.
+    fn step_at(&mut self, theta: &mut [R], input: StepInput<R>, dpi2: Option<R>) -> Result<u64, OptimError> {
+        let dpi2_prev = dpi2.unwrap_or(self.dpi2);
         let n = self.len();
         check_len("theta", n, theta.len())?;
-        check_len("gradient", n, grad.len())?;
+        check_len("gradient", n, input.grad.len())?;
         let t = self.t + 1;
         let mut skipped = 0;
+        let mut record = DiagRecord::default();
+        let lr_t;
         match &mut self.elems {
             Elems::Adam(h, state) => {
-                let p = AdamParams::new(h, t, self.lr, self.range);
-                for ((th, &g), s) in theta.iter_mut().zip(grad).zip(state.iter_mut()) {
+                let p = AdamParams::<R>::new(h, t, self.lr, self.range);
+                lr_t = p.lr.to_f64();
+                for ((th, &g), s) in theta.iter_mut().zip(input.grad).zip(state.iter_mut()) {
                     match adam_update(&p, *th, g, *s) {
-                        Some((t2, s2)) => (*th, *s) = (t2, s2),
+                        Some((t2, s2, d)) => {
+                            (*th, *s) = (t2, s2);
+                            record = record.merge(DiagRecord::of(&d));
+                        }
                         None => skipped += 1,
                     }
                 }
             }
             Elems::Meta(h, state) => {
-                let fd = fd.ok_or(OptimError::MissingFd)?;
+                let fd = input.fd.ok_or(OptimError::MissingFd)?;
                 check_len("finite-difference gradient", n, fd.len())?;
-                let p = MetaParams::new(h, t, self.lr, self.range);
-                let mut dpi2 = R::ZERO;
-                for (((th, &f), &df), s) in theta.iter_mut().zip(grad).zip(fd).zip(state.iter_mut())
-                {
-                    match meta_update(&p, *th, f, df, self.dpi2, *s) {
-                        Some((t2, s2)) => {
-                            let d = t2 - *th;
-                            dpi2 = dpi2 + d * d;
+                let p = MetaParams::<R>::new(h, t, self.lr, self.range);
+                lr_t = p.lr.to_f64();
+                let halves = if p.centred {
+                    let (gh, fh) = input.grad_half.zip(input.fd_half).ok_or(OptimError::MissingHalves)?;
+                    check_len("half-sample gradient", n, gh.len())?;
+                    check_len("half-sample finite-difference gradient", n, fh.len())?;
+                    Some((gh, fh))
+                } else {
+                    None
+                };
+                for (i, (th, s)) in theta.iter_mut().zip(state.iter_mut()).enumerate() {
+                    let (f_half, df_half) = halves.map_or((R::ZERO, R::ZERO), |(gh, fh)| (gh[i], fh[i]));
+                    let x = MetaInput { f: input.grad[i], df: fd[i], f_half, df_half };
+                    match meta_update(&p, *th, x, dpi2_prev, *s) {
+                        Some((t2, s2, d)) => {
                             (*th, *s) = (t2, s2);
+                            record = record.merge(DiagRecord::of(&d));
                         }
                         None => skipped += 1,
                     }
                 }
-                self.dpi2 = dpi2;
+                self.dpi2 = record.step.total();
             }
         }
         self.t = t;
         self.nonfinite += skipped;
+        self.record = record;
+        self.diagnostics = Diagnostics::from_record(&record, lr_t);
         Ok(skipped)
     }
 
@@ -385,6 +720,16 @@ impl<R: Real> BufferOptimiser<R> {
         self.nonfinite
     }
 
+    /// The last step's diagnostics record, as the GPU reduces it.
+    pub fn record(&self) -> &DiagRecord<R> {
+        &self.record
+    }
+
+    /// The last step's diagnostics.
+    pub fn diagnostics(&self) -> &Diagnostics {
+        &self.diagnostics
+    }
+
     pub fn adam_state(&self) -> Option<&[AdamElem<R>]> {
         match &self.elems {
             Elems::Adam(_, s) => Some(s),
@@ -397,6 +742,53 @@ impl<R: Real> BufferOptimiser<R> {
             Elems::Meta(_, s) => Some(s),
             Elems::Adam(..) => None,
         }
+    }
+}
+
+/// The parameter groups of one θ buffer as the GPU passes run them: each group (a range of
+/// the buffer) has its own state, rate and range; with the global step norm
+/// ([`super::StepNorm::Global`]) every group's ΔF terms scale with the ‖Δπ‖² of all groups'
+/// previous steps together.
+#[derive(Clone, Debug)]
+pub struct GroupedOptimiser<R> {
+    groups: Vec<(usize, BufferOptimiser<R>)>,
+    global: bool,
+    dpi2: R,
+}
+
+impl<R: Real> GroupedOptimiser<R> {
+    /// `groups`: (offset, length, learning rate, range) of each group.
+    pub fn new(optimiser: &Optimiser, groups: &[(usize, usize, f64, Range)]) -> Result<Self, OptimError> {
+        let global = matches!(optimiser, Optimiser::Meta(h) if h.dpi == super::StepNorm::Global);
+        let groups = groups
+            .iter()
+            .map(|&(offset, len, lr, range)| Ok((offset, BufferOptimiser::new(optimiser, len, lr, range)?)))
+            .collect::<Result<_, OptimError>>()?;
+        Ok(GroupedOptimiser { groups, global, dpi2: R::ZERO })
+    }
+
+    /// One step of every group over the whole buffer; returns the elements skipped.
+    pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
+        let mut skipped = 0;
+        let mut all = Ssq::default();
+        for (offset, o) in &mut self.groups {
+            let r = *offset..*offset + o.len();
+            let input = StepInput {
+                grad: &input.grad[r.clone()],
+                fd: input.fd.map(|s| &s[r.clone()]),
+                grad_half: input.grad_half.map(|s| &s[r.clone()]),
+                fd_half: input.fd_half.map(|s| &s[r.clone()]),
+            };
+            skipped += o.step_at(&mut theta[r.clone()], input, self.global.then_some(self.dpi2))?;
+            all = all.merge(o.record().step);
+        }
+        self.dpi2 = all.total();
+        Ok(skipped)
+    }
+
+    /// The last step's diagnostics, per group.
+    pub fn diagnostics(&self) -> Vec<Diagnostics> {
+        self.groups.iter().map(|(_, o)| *o.diagnostics()).collect()
     }
 }
 

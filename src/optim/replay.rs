@@ -4,9 +4,11 @@
 //!
 //! Row i of `grads` is ⟨F_i⟩ and row i of `fd_grads` is ⟨ΔF_i⟩ (its row 0 is unused: the
 //! first step has no previous one). Meta's ‖Δπ‖² at step i is that of step i − 1 after
-//! clamping, exactly as the GPU pass reduces it.
+//! clamping, exactly as the GPU pass reduces it. For the centred variance estimate the
+//! streams also hold, per row, the sums of half of the samples of each (`grad_halves`,
+//! `fd_halves`; see [`super::reference::centred_sample`]).
 
-use super::reference::{BufferOptimiser, Real};
+use super::reference::{BufferOptimiser, Diagnostics, Real, StepInput};
 use super::{OptimError, Optimiser, Range};
 use std::path::Path;
 
@@ -17,6 +19,8 @@ pub struct ReplayInput {
     pub grads: Vec<Vec<f32>>,
     pub fd_grads: Option<Vec<Vec<f32>>>,
     pub init: Vec<f32>,
+    /// The half-sample sums of both streams (the centred variance estimate).
+    pub halves: Option<(Vec<Vec<f32>>, Vec<Vec<f32>>)>,
 }
 
 impl ReplayInput {
@@ -53,7 +57,73 @@ impl ReplayInput {
             }
             None => vec![0.0; n],
         };
-        Ok(ReplayInput { grads: g.rows(), fd_grads: fd, init })
+        Ok(ReplayInput { grads: g.rows(), fd_grads: fd, init, halves: None })
+    }
+
+    /// Reads the half-sample sums of the gradients and of the finite differences, each of
+    /// the gradients' shape.
+    pub fn load_halves(&mut self, grads: &Path, fd_grads: &Path) -> crate::error::Result<()> {
+        let read = |path: &Path| -> crate::error::Result<Vec<Vec<f32>>> {
+            let a = crate::npy::read(path)?;
+            let rows = a.rows();
+            if rows.len() != self.grads.len() || rows.iter().any(|r| r.len() != self.init.len()) {
+                return Err(crate::error::Error::Invalid(format!(
+                    "{}: shape {:?} differs from the gradients' [{}, {}]",
+                    path.display(),
+                    a.shape,
+                    self.grads.len(),
+                    self.init.len()
+                )));
+            }
+            Ok(rows)
+        };
+        self.halves = Some((read(grads)?, read(fd_grads)?));
+        Ok(())
+    }
+
+    /// The streams, for the replays.
+    pub fn streams(&self) -> Streams<'_> {
+        Streams {
+            grads: &self.grads,
+            fd_grads: self.fd_grads.as_deref(),
+            grad_halves: self.halves.as_ref().map(|h| h.0.as_slice()),
+            fd_halves: self.halves.as_ref().map(|h| h.1.as_slice()),
+        }
+    }
+}
+
+/// Recorded gradient streams, `iterations` rows of `n` values each.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Streams<'a> {
+    pub grads: &'a [Vec<f32>],
+    pub fd_grads: Option<&'a [Vec<f32>]>,
+    pub grad_halves: Option<&'a [Vec<f32>]>,
+    pub fd_halves: Option<&'a [Vec<f32>]>,
+}
+
+impl<'a> Streams<'a> {
+    /// Gradients and finite differences only.
+    pub fn new(grads: &'a [Vec<f32>], fd_grads: Option<&'a [Vec<f32>]>) -> Self {
+        Streams { grads, fd_grads, ..Default::default() }
+    }
+
+    /// Checks that every stream `optimiser` reads is there with one row per gradient row.
+    pub fn check(&self, optimiser: &Optimiser) -> Result<(), OptimError> {
+        let rows = |what: &'static str, s: Option<&[Vec<f32>]>| match s {
+            Some(s) if s.len() != self.grads.len() => {
+                Err(OptimError::Length { what, expected: self.grads.len(), found: s.len() })
+            }
+            _ => Ok(()),
+        };
+        if optimiser.needs_fd() && self.fd_grads.is_none() {
+            return Err(OptimError::MissingFd);
+        }
+        if optimiser.needs_halves() && (self.grad_halves.is_none() || self.fd_halves.is_none()) {
+            return Err(OptimError::MissingHalves);
+        }
+        rows("finite-difference stream (iterations)", self.fd_grads)?;
+        rows("half-sample gradient stream (iterations)", self.grad_halves)?;
+        rows("half-sample finite-difference stream (iterations)", self.fd_halves)
     }
 }
 
@@ -64,6 +134,8 @@ pub struct Replay {
     pub theta: Vec<Vec<f64>>,
     /// Elements skipped for non-finite inputs, over all steps.
     pub nonfinite: u64,
+    /// Each step's diagnostics.
+    pub diagnostics: Vec<Diagnostics>,
 }
 
 impl Replay {
@@ -85,7 +157,7 @@ pub fn replay_cpu(
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
-    replay_in::<f64>(optimiser, grads, fd_grads, init, range, lr)
+    replay_streams::<f64>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
 }
 
 /// Replays in f32 with the same formulation: what the GPU computes, up to the order of the
@@ -98,45 +170,44 @@ pub fn replay_cpu_f32(
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
-    replay_in::<f32>(optimiser, grads, fd_grads, init, range, lr)
+    replay_streams::<f32>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
 }
 
-fn replay_in<R: Real>(
+/// Replays every stream in the arithmetic `R` (f64: the reference; f32: the GPU's).
+pub fn replay_streams<R: Real>(
     optimiser: &Optimiser,
-    grads: &[Vec<f32>],
-    fd_grads: Option<&[Vec<f32>]>,
+    streams: &Streams,
     init: &[f32],
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
+    streams.check(optimiser)?;
     let n = init.len();
-    let fd_grads = if optimiser.needs_fd() {
-        let fd = fd_grads.ok_or(OptimError::MissingFd)?;
-        if fd.len() != grads.len() {
-            return Err(OptimError::Length {
-                what: "finite-difference stream (iterations)",
-                expected: grads.len(),
-                found: fd.len(),
-            });
-        }
-        Some(fd)
-    } else {
-        None
-    };
     let to_r = |row: &[f32]| row.iter().map(|&x| R::of(x as f64)).collect::<Vec<R>>();
     let to_f64 = |row: &[R]| row.iter().map(|x| x.to_f64()).collect::<Vec<f64>>();
+    let row = |s: Option<&[Vec<f32>]>, i: usize| s.map(|s| to_r(&s[i]));
 
     let mut opt = BufferOptimiser::<R>::new(optimiser, n, lr, range)?;
     let mut theta = to_r(init);
-    let mut traj = Vec::with_capacity(grads.len() + 1);
+    let mut traj = Vec::with_capacity(streams.grads.len() + 1);
+    let mut diagnostics = Vec::with_capacity(streams.grads.len());
     traj.push(to_f64(&theta));
-    for (i, g) in grads.iter().enumerate() {
-        let fd = fd_grads.map(|fd| to_r(&fd[i]));
-        opt.step(&mut theta, &to_r(g), fd.as_deref())?;
+    for (i, g) in streams.grads.iter().enumerate() {
+        let fd = if optimiser.needs_fd() { row(streams.fd_grads, i) } else { None };
+        let (gh, fh) = if optimiser.needs_halves() {
+            (row(streams.grad_halves, i), row(streams.fd_halves, i))
+        } else {
+            (None, None)
+        };
+        let grad = to_r(g);
+        let input = StepInput { grad: &grad, fd: fd.as_deref(), grad_half: gh.as_deref(), fd_half: fh.as_deref() };
+        opt.step_with(&mut theta, input)?;
         traj.push(to_f64(&theta));
+        diagnostics.push(*opt.diagnostics());
     }
     Ok(Replay {
         theta: traj,
         nonfinite: opt.nonfinite(),
+        diagnostics,
     })
 }

@@ -1,12 +1,15 @@
 //! Optimiser specs as `compare --optimisers` and job files name them:
-//! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@decay_f=0.99`.
+//! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@step=snr@var=zero`.
 //!
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
-//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`); the rest keep their
-//! defaults. The learning rate is a run setting (`--lr`), not a hyperparameter.
+//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded,
+//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global), and for both the learning-rate schedule's
+//! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
+//! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
+//! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser};
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -36,12 +39,59 @@ pub fn file_safe(text: &str) -> String {
     text.chars().map(|c| if c.is_ascii_alphanumeric() || "._@=-".contains(c) { c } else { '_' }).collect()
 }
 
-/// The keys each optimiser accepts, for error messages.
+/// The keys each optimiser accepts besides the schedule's, for error messages.
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi",
     }
+}
+
+/// Sets hyperparameter `key` of `optimiser` from `value`; `Ok(false)` for an unknown key.
+pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool, OptimError> {
+    if optimiser.schedule_mut().set(key, value)? {
+        return Ok(true);
+    }
+    let number = || value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")));
+    let slot = match (&mut *optimiser, key) {
+        (Optimiser::Meta(h), "step") => {
+            h.step = match value {
+                "snr" => StepRule::Snr,
+                "adam" => StepRule::Adam,
+                "bounded" => StepRule::Bounded,
+                "wiener" => StepRule::Wiener,
+                _ => return Err(OptimError::BadHyper(format!("step = '{value}' (expected snr, adam, bounded or wiener)"))),
+            };
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "var") => {
+            h.variance = match value {
+                "zero" => VarianceEstimate::Zero,
+                "centred" => VarianceEstimate::Centred,
+                _ => return Err(OptimError::BadHyper(format!("var = '{value}' (expected zero or centred)"))),
+            };
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "dpi") => {
+            h.dpi = match value {
+                "group" => StepNorm::Group,
+                "global" => StepNorm::Global,
+                _ => return Err(OptimError::BadHyper(format!("dpi = '{value}' (expected group or global)"))),
+            };
+            return Ok(true);
+        }
+        (Optimiser::Adam(AdamHyper { beta1, .. }), "beta1") => beta1,
+        (Optimiser::Adam(AdamHyper { beta2, .. }), "beta2") => beta2,
+        (Optimiser::Adam(AdamHyper { eps, .. }), "eps") => eps,
+        (Optimiser::Meta(MetaHyper { decay_f, .. }), "decay_f") => decay_f,
+        (Optimiser::Meta(MetaHyper { decay_d, .. }), "decay_d") => decay_d,
+        (Optimiser::Meta(MetaHyper { eps, .. }), "eps") => eps,
+        (Optimiser::Meta(MetaHyper { beta2, .. }), "beta2") => beta2,
+        (Optimiser::Meta(MetaHyper { grow_f, .. }), "grow_f") => grow_f,
+        _ => return Ok(false),
+    };
+    *slot = number()?;
+    Ok(true)
 }
 
 impl FromStr for Spec {
@@ -60,17 +110,13 @@ impl FromStr for Spec {
                 return Err(bad(format!("{key} given twice")));
             }
             seen.push(key);
-            let v: f64 = value.parse().map_err(|_| bad(format!("{key} = '{value}' is not a number")))?;
-            let slot = match (&mut optimiser, key) {
-                (Optimiser::Adam(AdamHyper { beta1, .. }), "beta1") => beta1,
-                (Optimiser::Adam(AdamHyper { beta2, .. }), "beta2") => beta2,
-                (Optimiser::Adam(AdamHyper { eps, .. }), "eps") => eps,
-                (Optimiser::Meta(MetaHyper { decay_f, .. }), "decay_f") => decay_f,
-                (Optimiser::Meta(MetaHyper { decay_d, .. }), "decay_d") => decay_d,
-                (Optimiser::Meta(MetaHyper { eps, .. }), "eps") => eps,
-                (o, _) => return Err(bad(format!("unknown key '{key}' for {name} (expected {})", keys(o)))),
-            };
-            *slot = v;
+            if !set_key(&mut optimiser, key, value).map_err(|e| bad(e.to_string()))? {
+                return Err(bad(format!(
+                    "unknown key '{key}' for {name} (expected {}, or the schedule's {})",
+                    keys(&optimiser),
+                    super::Schedule::KEYS
+                )));
+            }
         }
         optimiser.validate().map_err(|e| bad(e.to_string()))?;
         Ok(Spec { label: label.to_string(), optimiser })
@@ -105,6 +151,12 @@ mod tests {
         assert_eq!(s.label, "adam@beta1=0.5@beta2=0.99");
         let m: Spec = "meta@decay_f=0.99".parse().unwrap();
         assert_eq!(m.optimiser, Optimiser::Meta(MetaHyper { decay_f: 0.99, ..Default::default() }));
+        let m: Spec = "meta@step=bounded@var=centred@grow_f=0.5@beta2=0.99@schedule=cosine@warmup=5".parse().unwrap();
+        let Optimiser::Meta(h) = m.optimiser else { panic!() };
+        assert_eq!((h.step, h.variance, h.grow_f, h.beta2), (StepRule::Bounded, VarianceEstimate::Centred, 0.5, 0.99));
+        assert_eq!((h.schedule.decay, h.schedule.warmup), (super::super::Decay::Cosine, 5));
+        let a: Spec = "adam@schedule=step@every=50@gamma=0.3".parse().unwrap();
+        assert_eq!(a.optimiser.schedule().factor(50), 0.3);
         assert_eq!("meta".parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let list = parse_list("meta,adam,adam@beta1=0.5").unwrap();
         assert_eq!(list.iter().map(|s| s.label.as_str()).collect::<Vec<_>>(), ["meta", "adam", "adam@beta1=0.5"]);
@@ -119,6 +171,15 @@ mod tests {
         assert!(msg("adam@beta1=1.5").contains("beta1 = 1.5"));
         assert!(msg("adam@eps=1@eps=2").contains("eps given twice"));
         assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
+        assert!(msg("meta@step=newton").contains("expected snr, adam, bounded or wiener"));
+        assert!(msg("meta@var=mad").contains("expected zero or centred"));
+        assert!(msg("meta@dpi=all").contains("expected group or global"));
+        let Optimiser::Meta(h) = "meta@dpi=global".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h.dpi, StepNorm::Global);
+        assert!(msg("adam@step=adam").contains("unknown key 'step' for adam"));
+        assert!(msg("meta@grow_f=2").contains("grow_f = 2"));
+        assert!(msg("meta@schedule=cosine@floor=2").contains("floor = 2"));
+        assert!(msg("adam@every=x").contains("every = 'x'"));
         assert!(parse_list("meta,,adam").unwrap_err().to_string().contains("empty entry"));
         assert!(parse_list("adam,adam").unwrap_err().to_string().contains("listed twice"));
     }

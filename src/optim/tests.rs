@@ -1,6 +1,6 @@
 use super::literal::replay_literal;
-use super::push::{AdamPush, MetaPush};
-use super::reference::{one_minus_pow, BufferOptimiser, Real};
+use super::push::{GroupSlots, MetaPush};
+use super::reference::{centred_sample, f_weight, one_minus_pow, BufferOptimiser, DiagRecord, Real, Ssq, StepInput};
 use super::*;
 
 /// SplitMix64 with Box–Muller normals: deterministic test streams without a dependency.
@@ -26,18 +26,62 @@ impl Rng {
 fn adam() -> Optimiser {
     Optimiser::Adam(AdamHyper::default())
 }
+/// The seed's configuration.
 fn meta() -> Optimiser {
-    Optimiser::Meta(MetaHyper::default())
+    Optimiser::Meta(MetaHyper::seed())
+}
+fn meta_with(step: StepRule, variance: VarianceEstimate, grow_f: f64) -> Optimiser {
+    Optimiser::Meta(MetaHyper { step, variance, grow_f, ..MetaHyper::seed() })
 }
 
-/// |Δθ_t| / lr bound of the module docs.
-fn step_bound(opt: &Optimiser, t: u32) -> f64 {
-    match *opt {
-        Optimiser::Adam(_) => ADAM_STEP_BOUND,
-        Optimiser::Meta(h) => {
-            (1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt()
+/// Every meta variant the stability and GPU tests cover: each step rule with each variance
+/// estimate, β_F growth, and a schedule.
+fn meta_variants() -> Vec<Optimiser> {
+    let mut v = Vec::new();
+    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener] {
+        for var in [VarianceEstimate::Zero, VarianceEstimate::Centred] {
+            v.push(meta_with(step, var, 0.0));
         }
     }
+    v.push(meta_with(StepRule::Adam, VarianceEstimate::Centred, 0.5));
+    let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
+    h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
+    v.push(Optimiser::Meta(h));
+    v
+}
+
+/// Adam, with and without a schedule, and every meta variant.
+fn all_optimisers() -> Vec<Optimiser> {
+    let stepped = Optimiser::Adam(AdamHyper {
+        schedule: Schedule { decay: Decay::Step, every: 10, gamma: 0.5, warmup: 3, ..Default::default() },
+        ..Default::default()
+    });
+    let mut v = vec![adam(), stepped];
+    v.extend(meta_variants());
+    v
+}
+
+/// |Δθ_t| / lr bound of the module docs (None: no bound in terms of lr: `step = adam`, and
+/// the seed's rule with the centred estimate, whose √V_M can be far below |⟨F⟩_M|).
+fn step_bound(opt: &Optimiser, t: u32) -> Option<f64> {
+    match *opt {
+        Optimiser::Adam(_) => Some(ADAM_STEP_BOUND),
+        Optimiser::Meta(h) => match h.step {
+            StepRule::Snr if h.variance == VarianceEstimate::Centred => None,
+            StepRule::Snr => Some(
+                (1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt(),
+            ),
+            StepRule::Bounded => Some(1.0),
+            StepRule::Adam | StepRule::Wiener => None,
+        },
+    }
+}
+
+/// Half-sample sums for a stream value: a deterministic share of it, so that the halves
+/// differ and scale with it (and are non-finite where it is).
+fn half_of(x: f64, t: u32, _i: usize, salt: u64) -> f64 {
+    // The same share for every element: streams that scale one row keep their halves scaled.
+    x * (0.5 + 0.3 * noise(t, 0, salt))
 }
 
 /// Ordinary streams: per-element gradient offsets plus unit noise, small FD samples.
@@ -170,12 +214,14 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
     let mut traj = vec![theta.iter().map(|x| x.to_f64()).collect::<Vec<_>>()];
     let mut expected_skips = 0;
     for t in 1..=case.iters {
-        let (f, df): (Vec<R>, Vec<R>) = (0..case.n)
-            .map(|i| {
-                let (f, df) = (case.input)(t, i);
-                (R::of(f), R::of(df))
-            })
-            .unzip();
+        let (mut f, mut df, mut fh, mut dh) = (vec![], vec![], vec![], vec![]);
+        for i in 0..case.n {
+            let (a, b) = (case.input)(t, i);
+            f.push(R::of(a));
+            df.push(R::of(b));
+            fh.push(R::of(half_of(a, t, i, 21)));
+            dh.push(R::of(half_of(b, t, i, 22)));
+        }
         let bad: Vec<bool> = (0..case.n)
             .map(|i| !f[i].is_finite() || (opt.needs_fd() && !df[i].is_finite()))
             .collect();
@@ -185,7 +231,11 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
             o.adam_state().map(<[_]>::to_vec),
             o.meta_state().map(<[_]>::to_vec),
         );
-        o.step(&mut theta, &f, Some(&df)).unwrap();
+        let input = StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) };
+        o.step_with(&mut theta, input).unwrap();
+        let d = o.diagnostics();
+        assert!(d.values().iter().all(|v| v.is_finite()), "{opt} t {t}: diagnostics {d:?}");
+        assert_eq!(d.elements, bad.iter().filter(|&&b| !b).count() as u64, "{opt} t {t}");
         for i in 0..case.n {
             let (th, prev) = (theta[i].to_f64(), before[i].to_f64());
             assert!(
@@ -193,11 +243,14 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
                 "{opt} t {t} i {i}: θ {th}"
             );
             let tol = 1.0 + 1e-5;
-            assert!(
-                (th - prev).abs() <= case.lr * step_bound(opt, t) * tol,
-                "{opt} t {t} i {i}: step {}",
-                th - prev
-            );
+            if let Some(bound) = step_bound(opt, t) {
+                let lr_t = case.lr * opt.schedule().factor(t);
+                assert!(
+                    (th - prev).abs() <= lr_t * bound * tol,
+                    "{opt:?} t {t} i {i}: step {}",
+                    th - prev
+                );
+            }
             if let Some(s) = o.adam_state() {
                 assert!(
                     s[i].m.is_finite() && s[i].r.is_finite() && s[i].r >= R::ZERO,
@@ -210,11 +263,11 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
             }
             if let Some(s) = o.meta_state() {
                 let e = s[i];
-                for v in [e.mean, e.sd, e.rms_f, e.rms_d, e.wsum_d, e.n_eff] {
+                for v in [e.mean, e.sd, e.rms_f, e.rms_d, e.wsum_d, e.n_eff, e.v] {
                     assert!(v.is_finite(), "{opt} t {t} i {i}: {e:?}");
                 }
                 assert!(
-                    e.sd >= R::ZERO && e.rms_f >= R::ZERO && e.rms_d >= R::ZERO,
+                    e.sd >= R::ZERO && e.rms_f >= R::ZERO && e.rms_d >= R::ZERO && e.v >= R::ZERO,
                     "{e:?}"
                 );
                 assert!(e.n_eff <= R::of(t as f64) * R::of(1.0 + 1e-6), "{e:?}");
@@ -230,10 +283,10 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
     (traj, o.nonfinite())
 }
 
-/// Runs a case for both optimisers in f32 (the GPU's arithmetic) and f64.
+/// Runs a case for every optimiser and variant in f32 (the GPU's arithmetic) and f64.
 fn stable_everywhere(case: &Case) -> Vec<(Optimiser, Vec<Vec<f64>>, u64)> {
     let mut out = vec![];
-    for opt in [adam(), meta()] {
+    for opt in all_optimisers() {
         let (t32, n32) = run_case::<f32>(&opt, case);
         let (t64, n64) = run_case::<f64>(&opt, case);
         assert_eq!(n32, n64);
@@ -437,9 +490,10 @@ fn nonfinite_inputs_are_counted_and_skipped() {
 // ---- the noisy quadratic -------------------------------------------------------------------
 
 /// f(π) = ½a(π−π*)² per element, a ∈ [0.5, 2], π* ∈ [−3, 3], θ_0 = 0; ⟨F⟩ = a(π−π*) + 3ξ;
-/// ⟨ΔF⟩ = a(π_i − π_{i−1}) + σ_d ξ' (common random numbers cancel the noise up to σ_d).
-/// Returns the final parameter RMSE and, for Meta, the element-mean n_eff at 3/4 and at the
-/// end of the run.
+/// ⟨ΔF⟩ = a(π_i − π_{i−1}) + σ_d ξ' (common random numbers cancel the noise up to σ_d). Each
+/// estimate is the mean of two independent halves (its half-sample sum is half the second),
+/// as the gradient passes split their samples. Returns the final parameter RMSE and, for
+/// Meta, the element-mean n_eff at 3/4 and at the end of the run.
 fn quadratic(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma_d: f64) -> (f64, f64, f64) {
     let n = 64;
     let mut rng = Rng(seed);
@@ -452,16 +506,19 @@ fn quadratic(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma_d: f64) -> (
         o.meta_state()
             .map_or(0.0, |s| s.iter().map(|e| e.n_eff).sum::<f64>() / n as f64)
     };
+    // (total, half-sample sum) of an estimate with expectation `mean` and noise `sigma`.
+    let mut halves = |mean: f64, sigma: f64| {
+        let (x, y) = (rng.normal(), rng.normal());
+        let (a, b) = (mean + sigma * std::f64::consts::SQRT_2 * x, mean + sigma * std::f64::consts::SQRT_2 * y);
+        ((a + b) / 2.0, b / 2.0)
+    };
     let mut n_eff_3q = 0.0;
     for t in 1..=iters {
-        let f: Vec<f64> = (0..n)
-            .map(|i| a[i] * (theta[i] - target[i]) + 3.0 * rng.normal())
-            .collect();
-        let df: Vec<f64> = (0..n)
-            .map(|i| a[i] * (theta[i] - prev[i]) + sigma_d * rng.normal())
-            .collect();
+        let (f, fh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - target[i]), 3.0)).unzip();
+        let (df, dh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - prev[i]), sigma_d)).unzip();
         prev.clone_from(&theta);
-        o.step(&mut theta, &f, Some(&df)).unwrap();
+        let input = StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) };
+        o.step_with(&mut theta, input).unwrap();
         if t == iters * 3 / 4 {
             n_eff_3q = n_eff(&o);
         }
@@ -514,9 +571,10 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
     // A linear objective, ⟨F⟩ = 1 + ξ, has the exact finite difference 0. There α stays below
     // the bound only through the noise of the VF EMA, which vanishes as β_F → 1.
     for (decay_f, at_least) in [(0.9, 0.4), (0.999, 0.9)] {
+        // The seed's zero-centred variance: this stream has no half sums.
         let opt = Optimiser::Meta(MetaHyper {
             decay_f,
-            ..Default::default()
+            ..MetaHyper::seed()
         });
         let (n, iters) = (64, 400);
         let mut rng = Rng(3);
@@ -548,45 +606,253 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
 fn glsl_mirrors_constants_and_push_blocks() {
     let lib = include_str!("../../glsl/lib/optim.glsl");
     assert!(lib.contains("const float META_ALPHA_REG = 1e-30;") && ALPHA_REG == 1e-30);
-    // The push blocks as compiled: member names and offsets reflected from the SPIR-V.
-    let reflected = |kernel: &str| {
-        let spirv = crate::gpu::shaders::get(kernel).unwrap();
-        let r = crate::gpu::reflect::Reflection::new(kernel, spirv).unwrap();
-        assert_eq!(r.push_constant_size, 32, "{kernel}");
-        r.struct_layout("Push").unwrap()
-    };
-    let owned = |v: &[(&str, usize)]| v.iter().map(|(n, o)| (n.to_string(), *o)).collect::<Vec<_>>();
+    // The step-rule and schedule numbers are the generated constants (src/constants.rs).
+    let codes = [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener].map(StepRule::code);
+    assert_eq!(codes, [0, 1, 2, 3]);
+    assert_eq!([Decay::Constant, Decay::Cosine, Decay::Step].map(Decay::code), [0, 1, 2]);
+    // Push blocks are checked against their mirrors for every kernel (tests/contracts.rs).
     use std::mem::offset_of;
-    assert_eq!(
-        reflected("optim_adam"),
-        owned(&[
-            ("n", offset_of!(AdamPush, n)),
-            ("offset", offset_of!(AdamPush, offset)),
-            ("lr", offset_of!(AdamPush, lr)),
-            ("beta1", offset_of!(AdamPush, beta1)),
-            ("beta2", offset_of!(AdamPush, beta2)),
-            ("eps", offset_of!(AdamPush, eps)),
-            ("lo", offset_of!(AdamPush, lo)),
-            ("hi", offset_of!(AdamPush, hi)),
-        ])
-    );
-    assert_eq!(
-        reflected("optim_meta"),
-        owned(&[
-            ("n", offset_of!(MetaPush, n)),
-            ("offset", offset_of!(MetaPush, offset)),
-            ("lr", offset_of!(MetaPush, lr)),
-            ("decay_f", offset_of!(MetaPush, decay_f)),
-            ("decay_d", offset_of!(MetaPush, decay_d)),
-            ("eps", offset_of!(MetaPush, eps)),
-            ("lo", offset_of!(MetaPush, lo)),
-            ("hi", offset_of!(MetaPush, hi)),
-        ])
-    );
-    assert_eq!(std::mem::size_of::<AdamPush>(), 32);
-    assert_eq!(std::mem::size_of::<MetaPush>(), 32);
-    let p = MetaPush::new(&MetaHyper::default(), 5, 1, 0.1, Range::UNBOUNDED);
-    assert_eq!((p.lo, p.hi, p.offset), (f32::MIN, f32::MAX, 1));
+    let owned = |v: &[(&str, usize)]| v.iter().map(|(n, o)| (n.to_string(), *o)).collect::<Vec<_>>();
+    // The diagnostics record, as every kernel that writes or reads it declares it.
+    use crate::shared::{DiagRecord as Rec, Ssq as S};
+    for kernel in ["optim_adam", "optim_meta", "optim_diag"] {
+        let r = crate::gpu::reflect::Reflection::new(kernel, crate::gpu::shaders::get(kernel).unwrap()).unwrap();
+        assert_eq!(
+            r.struct_layout("DiagRecord").unwrap(),
+            owned(&[
+                ("count", offset_of!(Rec, count)),
+                ("n_eff_sum", offset_of!(Rec, n_eff_sum)),
+                ("n_eff_min", offset_of!(Rec, n_eff_min)),
+                ("n_eff_max", offset_of!(Rec, n_eff_max)),
+                ("clipped", offset_of!(Rec, clipped)),
+                ("f", offset_of!(Rec, f)),
+                ("df", offset_of!(Rec, df)),
+                ("sd_d", offset_of!(Rec, sd_d)),
+                ("step", offset_of!(Rec, step)),
+                ("mean", offset_of!(Rec, mean)),
+                ("sd", offset_of!(Rec, sd)),
+                ("sd_f", offset_of!(Rec, sd_f)),
+            ]),
+            "{kernel}"
+        );
+        assert_eq!(r.struct_size("DiagRecord"), Some(std::mem::size_of::<Rec>()), "{kernel}");
+        assert_eq!(r.struct_layout("Ssq").unwrap(), owned(&[("scale", offset_of!(S, scale)), ("sum", offset_of!(S, sum))]));
+    }
+    let g = GroupSlots { n: 5, offset: 1, group: 2, first_partial: 3 };
+    let p = MetaPush::new(&MetaHyper::default(), g, 4, 0.1, Range::UNBOUNDED);
+    assert_eq!((p.lo, p.hi, p.offset, p.group, p.first_partial), (f32::MIN, f32::MAX, 1, 2, 3));
+}
+
+// ---- variants ------------------------------------------------------------------------------
+
+#[test]
+fn sums_of_squares_neither_overflow_nor_vanish() {
+    for scale in [1e-30f64, 1.0, 1e30] {
+        let xs: Vec<f64> = (0..1000).map(|i| scale * (i as f64 - 400.0) / 100.0).collect();
+        let exact = xs.iter().map(|x| (x / scale).powi(2)).sum::<f64>().sqrt() * scale;
+        // In f32, in two different merge orders (sequential, and pairwise as the GPU does).
+        let seq = xs.iter().fold(Ssq::<f32>::default(), |a, &x| a.merge(Ssq::of(x as f32)));
+        let mut level: Vec<Ssq<f32>> = xs.iter().map(|&x| Ssq::of(x as f32)).collect();
+        while level.len() > 1 {
+            level = level.chunks(2).map(|c| c.iter().fold(Ssq::default(), |a, b| a.merge(*b))).collect();
+        }
+        for got in [seq.norm(), level[0].norm()] {
+            assert!(close(got as f64, exact, 1e-5, 0.0), "scale {scale:e}: {got} vs {exact}");
+        }
+        assert!(seq.total().is_finite());
+    }
+    assert_eq!(Ssq::<f64>::of(0.0).merge(Ssq::of(0.0)), Ssq::default());
+}
+
+#[test]
+fn diagnostics_summarise_the_step() {
+    // The record of a step equals the statistics computed directly from the states.
+    let (grads, fds) = ordinary_streams(5, 30, 41);
+    let opt = meta_with(StepRule::Adam, VarianceEstimate::Zero, 0.0);
+    let mut o = BufferOptimiser::<f64>::new(&opt, 41, 0.02, Range::new(-5.0, 5.0).unwrap()).unwrap();
+    let mut theta = vec![0.0f64; 41];
+    for (t, (g, fd)) in grads.iter().zip(&fds).enumerate() {
+        let g: Vec<f64> = g.iter().map(|&x| x as f64).collect();
+        let fd: Vec<f64> = fd.iter().map(|&x| x as f64).collect();
+        let before = theta.clone();
+        let dpi2_before = o.dpi2();
+        o.step(&mut theta, &g, Some(&fd)).unwrap();
+        let s = o.meta_state().unwrap();
+        let d = o.diagnostics();
+        let n = 41.0;
+        let rms = |v: &mut dyn Iterator<Item = f64>| (v.map(|x| x * x).sum::<f64>() / n).sqrt();
+        let steps: Vec<f64> = theta.iter().zip(&before).map(|(a, b)| a - b).collect();
+        assert_eq!(d.elements, 41);
+        assert!(close(d.n_eff_mean, s.iter().map(|e| e.n_eff).sum::<f64>() / n, 1e-12, 0.0));
+        assert_eq!(d.n_eff_max, s.iter().map(|e| e.n_eff).fold(0.0, f64::max));
+        assert_eq!(d.n_eff_min, s.iter().map(|e| e.n_eff).fold(f64::MAX, f64::min));
+        assert!(close(d.rms_f, rms(&mut g.iter().copied()), 1e-12, 0.0));
+        // The ΔF used: none at the first step (no previous one).
+        let used = if dpi2_before > 0.0 { rms(&mut fd.iter().copied()) } else { 0.0 };
+        assert!(close(d.rms_df, used, 1e-12, 0.0), "t {t}");
+        assert!(close(d.rms_mean, rms(&mut s.iter().map(|e| e.mean)), 1e-12, 0.0));
+        assert!(close(d.sd_mean, rms(&mut s.iter().map(|e| e.sd)), 1e-12, 0.0));
+        assert!(close(d.sd_f, rms(&mut s.iter().map(|e| e.rms_f)), 1e-12, 0.0));
+        assert!(close(d.rms_step, rms(&mut steps.iter().copied()), 1e-12, 1e-300));
+        assert!(close(d.step_norm * d.step_norm, o.dpi2(), 1e-12, 1e-300));
+        assert!((0.0..=1.0).contains(&d.clipped) && d.lr == 0.02);
+        if t == 0 {
+            // The first step is clipped to α = 0: one sample, n_eff 1.
+            assert_eq!((d.clipped, d.n_eff_max, d.sd_fd), (1.0, 1.0, 0.0));
+        }
+    }
+}
+
+#[test]
+fn centred_variance_leaves_out_the_mean() {
+    // ⟨F⟩ with mean 10 and standard deviation 1 from two halves: the zero-centred Moment2
+    // holds E[F²] ≈ 101, the centred one Var[F] ≈ 1.
+    let mut rng = Rng(11);
+    let (n, iters) = (256, 200);
+    let mut zero = BufferOptimiser::<f64>::new(&meta_with(StepRule::Snr, VarianceEstimate::Zero, 1.0), n, 0.0, Range::UNBOUNDED).unwrap();
+    let mut cent = BufferOptimiser::<f64>::new(&meta_with(StepRule::Snr, VarianceEstimate::Centred, 1.0), n, 0.0, Range::UNBOUNDED).unwrap();
+    let mut theta = vec![0.0; n];
+    for _ in 0..iters {
+        let (f, fh): (Vec<f64>, Vec<f64>) = (0..n)
+            .map(|_| {
+                let (a, b) = (10.0 + 2f64.sqrt() * rng.normal(), 10.0 + 2f64.sqrt() * rng.normal());
+                ((a + b) / 2.0, b / 2.0)
+            })
+            .unzip();
+        let zeros = vec![0.0; n];
+        let input = StepInput { grad: &f, fd: Some(&zeros), grad_half: Some(&fh), fd_half: Some(&zeros) };
+        zero.step_with(&mut theta.clone(), input).unwrap();
+        cent.step_with(&mut theta, input).unwrap();
+    }
+    let mean_sq = |o: &BufferOptimiser<f64>| o.meta_state().unwrap().iter().map(|e| e.rms_f * e.rms_f).sum::<f64>() / n as f64;
+    let (z, c) = (mean_sq(&zero), mean_sq(&cent));
+    assert!((z - 101.0).abs() < 3.0, "zero-centred {z}");
+    assert!((c - 1.0).abs() < 0.1, "centred {c}");
+    assert_eq!(centred_sample(3.0f64, 1.0), 1.0);
+    assert_eq!(centred_sample(f32::MAX, -f32::MAX), f32::MAX);
+}
+
+#[test]
+fn beta_f_growth_ends_in_the_running_mean() {
+    // grow_f = 0: the seed's weights; 1: the running mean's 1/t; in between the weight
+    // (1−β)·(t(1−β))^−grow_f, between the two.
+    for t in 1..200u32 {
+        let ema = reference::ema_weight(0.9f64, t);
+        assert_eq!(f_weight(0.9f64, 0.0, t), ema);
+        assert!(close(f_weight(0.9f64, 1.0, t), 1.0 / t as f64, 1e-12, 0.0), "t {t}");
+        let half = f_weight(0.9f64, 0.5, t);
+        assert!(half >= 1.0 / t as f64 - 1e-15 && half <= ema + 1e-15, "t {t}: {half}");
+        if t > 10 {
+            assert!(close(half, 0.1 * (0.1 * t as f64).powf(-0.5), 1e-12, 0.0), "t {t}: {half}");
+        }
+    }
+}
+
+#[test]
+fn step_rules_set_the_step_size() {
+    // A constant gradient c with exact finite differences: the estimate is c and averages
+    // every sample (n_eff = t). Adam-normalised and bounded steps are lr (the rate is the
+    // typical change per iteration), the seed's grows like √n_eff while its noise shrinks.
+    let run = |step: StepRule, c: f64, t_end: u32| {
+        let mut o = BufferOptimiser::<f64>::new(&meta_with(step, VarianceEstimate::Zero, 0.0), 1, 0.01, Range::UNBOUNDED).unwrap();
+        let mut theta = vec![0.0];
+        let mut last = 0.0;
+        for _ in 0..t_end {
+            let before = theta[0];
+            o.step(&mut theta, &[c], Some(&[0.0])).unwrap();
+            last = theta[0] - before;
+        }
+        (last, o.meta_state().unwrap()[0].n_eff)
+    };
+    for c in [1e-3, 1.0, 1e6] {
+        let (adam_step, n) = run(StepRule::Adam, c, 50);
+        assert!(close(adam_step, -0.01, 2e-5, 0.0) && close(n, 50.0, 1e-9, 0.0), "{adam_step} {n}");
+        let (bounded, _) = run(StepRule::Bounded, c, 50);
+        assert!(bounded < 0.0 && bounded > -0.01 && close(bounded, -0.01, 0.01, 0.0), "{bounded}");
+        // Wiener: the Adam-normalised step times ⟨F⟩_M²/(⟨F⟩_M² + V_M) = n/(n + 1).
+        let (wiener, _) = run(StepRule::Wiener, c, 50);
+        assert!(close(wiener, -0.01 * 50.0 / 51.0, 1e-4, 0.0), "{wiener}");
+        let (snr, _) = run(StepRule::Snr, c, 50);
+        // √V_M = rms_f/√n (all samples equal): the seed's step is lr·√50.
+        assert!(close(snr, -0.01 * 50f64.sqrt(), 1e-4, 0.0), "{snr}");
+    }
+    // Pure noise around a zero gradient: the Wiener step is a fraction of the Adam one.
+    let noisy = |step: StepRule| {
+        let mut rng = Rng(9);
+        let n = 400;
+        let mut o = BufferOptimiser::<f64>::new(&meta_with(step, VarianceEstimate::Zero, 0.0), n, 0.01, Range::UNBOUNDED).unwrap();
+        let mut theta = vec![0.0; n];
+        let mut total = 0.0;
+        for _ in 0..100 {
+            let f: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+            let before = theta.clone();
+            o.step(&mut theta, &f, Some(&vec![0.0; n])).unwrap();
+            total += theta.iter().zip(&before).map(|(a, b)| (a - b).abs()).sum::<f64>();
+        }
+        total
+    };
+    let (adam_path, wiener_path) = (noisy(StepRule::Adam), noisy(StepRule::Wiener));
+    assert!(wiener_path < 0.6 * adam_path, "wiener {wiener_path} vs adam {adam_path}");
+    // The bounded step never exceeds lr, whatever the input.
+    let input = |t: u32, i: usize| (1e20 * noise(t, i, 30), 1e25 * noise(t, i, 31));
+    let case = Case { n: 8, iters: 40, lr: 0.05, range: Range::UNBOUNDED, init: 0.0, input: &input };
+    run_case::<f32>(&meta_with(StepRule::Bounded, VarianceEstimate::Centred, 0.0), &case);
+}
+
+#[test]
+fn schedules_scale_the_step() {
+    // Adam with a step schedule on a constant gradient: each step is lr·factor(t).
+    let opt = Optimiser::Adam(AdamHyper {
+        beta1: 0.0,
+        schedule: Schedule { decay: Decay::Step, every: 5, gamma: 0.5, warmup: 2, ..Default::default() },
+        ..Default::default()
+    });
+    let mut o = BufferOptimiser::<f64>::new(&opt, 1, 0.1, Range::UNBOUNDED).unwrap();
+    let mut theta = vec![0.0];
+    for t in 1..=20u32 {
+        let before = theta[0];
+        o.step(&mut theta, &[1.0], None).unwrap();
+        let want = -0.1 * opt.schedule().factor(t);
+        assert!(close(theta[0] - before, want, 1e-6, 0.0), "t {t}: {} vs {want}", theta[0] - before);
+        assert_eq!(o.diagnostics().lr, 0.1 * opt.schedule().factor(t));
+    }
+}
+
+#[test]
+fn variants_in_f32_match_f64() {
+    // Every variant, with its halves: what the GPU computes against the reference.
+    for opt in all_optimisers() {
+        let (grads, fds) = ordinary_streams(200, 150, 29);
+        let halves = |rows: &[Vec<f32>], salt: u64| -> Vec<Vec<f32>> {
+            rows.iter().enumerate().map(|(t, r)| r.iter().enumerate().map(|(i, &x)| half_of(x as f64, t as u32, i, salt) as f32).collect()).collect()
+        };
+        let (gh, fh) = (halves(&grads, 41), halves(&fds, 42));
+        let streams = Streams { grads: &grads, fd_grads: Some(&fds), grad_halves: Some(&gh), fd_halves: Some(&fh) };
+        let init = vec![0.25f32; 29];
+        let r64 = replay::replay_streams::<f64>(&opt, &streams, &init, Range::new(-3.0, 3.0).unwrap(), 0.01).unwrap();
+        let r32 = replay::replay_streams::<f32>(&opt, &streams, &init, Range::new(-3.0, 3.0).unwrap(), 0.01).unwrap();
+        for (a, b) in r32.theta.iter().zip(&r64.theta) {
+            for (x, y) in a.iter().zip(b) {
+                assert!((x - y).abs() < 2e-5, "{opt:?}: {x} vs {y}");
+            }
+        }
+        for (a, b) in r32.diagnostics.iter().zip(&r64.diagnostics) {
+            // Steps are differences of θ, which f32 resolves to ~1e-7 of θ's scale (0.25 here).
+            for (k, (x, y)) in a.values().iter().zip(b.values()).enumerate() {
+                let (rel, scale) = if k >= 12 { (1e-2, 1e-5) } else { (1e-3, 1e-5) };
+                assert!(close(*x, y, rel, scale), "{opt:?}: diagnostics {a:?} vs {b:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn missing_halves_are_an_error() {
+    let g = vec![vec![1.0f32; 3]; 2];
+    let opt = meta_with(StepRule::Adam, VarianceEstimate::Centred, 0.0);
+    assert!(matches!(replay_cpu(&opt, &g, Some(&g), &[0.0; 3], Range::UNBOUNDED, 0.1), Err(OptimError::MissingHalves)));
+    let rec = DiagRecord::<f64>::default();
+    assert_eq!(Diagnostics::from_record(&rec, 0.1).elements, 0);
 }
 
 #[test]

@@ -49,6 +49,9 @@ pub struct GradientPass {
     sensors: Vec<SensorBuffers>,
     /// dLoss/dθ, accumulated with atomics.
     pub grad: Buffer,
+    /// The part of `grad` from half of the pixels (see [`Self::new`]), or an unused
+    /// one-float buffer.
+    grad_half: Buffer,
     pub spp: u32,
     pub primal_spp: u32,
     pub seed: u32,
@@ -65,6 +68,11 @@ fn loss_index(loss: Loss) -> u32 {
 impl GradientPass {
     /// `targets`: one image per sensor, of the film's size. The passes read parameters
     /// from `theta` (the scene's θ or another state of it) and add into `grad`.
+    /// Also adds the contributions of a random half of the pixels (drawn anew every
+    /// iteration) into `grad_half` when given. The two halves are independent
+    /// estimates, whose difference gives the optimiser's centred variance estimate. Halves of
+    /// the samples would not be: every sample of a pixel shares its primal image, and so the
+    /// image's noise.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         scene: &GpuScene,
@@ -76,14 +84,16 @@ impl GradientPass {
         seed: u32,
         theta: &Buffer,
         grad: &Buffer,
+        grad_half: Option<&Buffer>,
     ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad)
+        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, grad_half)
     }
 
     /// The fused finite-difference sample ⟨ΔF⟩: every path is sampled once at θ (the
     /// scene's) and evaluated at θ and at `theta_prev`; both primal images, both losses'
     /// adjoint images and the difference of the two gradients (+θ, −θ_prev) are computed
     /// in one trace per pass (glsl/lib/integrator.glsl, FD). Adds ⟨ΔF⟩ into `grad`.
+    /// `grad_half` as for [`Self::new`].
     #[allow(clippy::too_many_arguments)]
     pub fn new_fd(
         scene: &GpuScene,
@@ -94,8 +104,9 @@ impl GradientPass {
         seed: u32,
         theta_prev: &Buffer,
         grad: &Buffer,
+        grad_half: Option<&Buffer>,
     ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad)
+        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad, grad_half)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -110,6 +121,7 @@ impl GradientPass {
         theta: &Buffer,
         theta_prev: Option<&Buffer>,
         grad: &Buffer,
+        grad_half: Option<&Buffer>,
     ) -> gpu::Result<Self> {
         let ctx = &scene.ctx;
         let spec = scene.spec();
@@ -120,6 +132,11 @@ impl GradientPass {
         let mut adjoint_spec = spec.clone();
         let local = if (1..=LOCAL_GRADS_CAPACITY as usize).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
+        adjoint_spec.push(("SPLIT", SpecValue::Bool(grad_half.is_some())));
+        let grad_half = match grad_half {
+            Some(b) => b.clone(),
+            None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,
+        };
         let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
@@ -153,6 +170,7 @@ impl GradientPass {
             let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
             b.push(("Grad", &grad));
+            b.push(("GradHalf", &grad_half));
             if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
                 b.push(("ThetaPrev", tp));
                 b.push(("AdjointImagePrev", &pb.adjoint));
@@ -170,7 +188,7 @@ impl GradientPass {
                 prev,
             });
         }
-        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, spp, primal_spp, seed })
+        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, spp, primal_spp, seed })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -240,7 +258,7 @@ impl GradientPass {
                 rec.transition(&[(adjoint, Access::ComputeRead)])?;
             }
             // The loss partials (of θ, the reported loss) are reduced.
-            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite)])?;
+            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (&self.grad_half, Access::ComputeReadWrite)])?;
             ops.record_reduction(rec, &b.reduction)?;
             profiler.end_scope(rec)?;
             if !adjoint {
@@ -248,7 +266,7 @@ impl GradientPass {
             }
             profiler.begin_scope(rec, self.adjoint_kernel)?;
             let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
-            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad])?;
+            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
             profiler.end_scope(rec)?;
         }
         Ok(())
