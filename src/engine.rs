@@ -136,7 +136,7 @@ impl Engine {
         let halves = opt.as_ref().and_then(|o| o.halves.as_ref());
         let seed = gpu_seed(settings.seed);
         let gradient =
-            GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, &grad, halves.map(|h| &h.grad))?;
+            GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, None, &grad, halves.map(|h| &h.grad))?;
         let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: opt };
         let fd = match engine.optimiser.as_ref() {
             Some(opt) => match &opt.theta_prev {
@@ -168,7 +168,7 @@ impl Engine {
     /// Another gradient estimate on this scene and its targets, adding into `grad`.
     pub fn extra_gradient(&self, spp: u32, primal_spp: u32, seed: u32, grad: &Buffer) -> Result<GradientPass> {
         let gs = self.scene();
-        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, grad, None)?)
+        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, None, grad, None)?)
     }
 
     /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at the
@@ -182,7 +182,7 @@ impl Engine {
         let spp = self.settings.fd_spp;
         let loss = self.loss();
         if !two_trace {
-            return Ok(FdSample::Fused(GradientPass::new_fd(gs, &self.ops, &self.targets, loss, spp, seed, theta_prev, &self.fd_grad, fd_half)?));
+            return Ok(FdSample::Fused(GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, Some(theta_prev), &self.fd_grad, fd_half)?));
         }
         if fd_half.is_some() {
             return Err(Error::Invalid("the centred variance estimate (var=centred) needs the fused finite difference, not fd_two_trace".into()));
@@ -192,8 +192,8 @@ impl Engine {
         let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
         // The primal images of the difference use fd_spp samples too: with common random
         // numbers most of their noise cancels in the difference.
-        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, &at_cur, None)?;
-        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, &at_prev, None)?;
+        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, None, &at_cur, None)?;
+        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, None, &at_prev, None)?;
         Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
     }
 

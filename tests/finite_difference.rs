@@ -37,9 +37,9 @@ fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f
         let g_prev = Buffer::zeroed::<f32>(ctx, "prev", n, MemoryKind::Device).unwrap();
         let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
         let seed = 77;
-        let fused = GradientPass::new_fd(gs, &ops, &imgs, loss, spp, seed, &theta_prev, &fused_grad, None).unwrap();
-        let cur = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, &g_cur, None).unwrap();
-        let prv = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &theta_prev, &g_prev, None).unwrap();
+        let fused = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, Some(&theta_prev), &fused_grad, None).unwrap();
+        let cur = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, None, &g_cur, None).unwrap();
+        let prv = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &theta_prev, None, &g_prev, None).unwrap();
         let mut cmd_fused = CommandBuffer::new(ctx, "fused").unwrap();
         cmd_fused.record(|rec| fused.record(rec, gs, &ops)).unwrap();
         let mut cmd_two = CommandBuffer::new(ctx, "two").unwrap();

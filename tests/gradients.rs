@@ -362,7 +362,7 @@ impl Bench {
         gs.set_theta(gs.layout.initial()).unwrap();
         let ops = BufferOps::new(ctx).unwrap();
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &targets, loss, spp, primal_spp, 1, &gs.theta, &grad, None).unwrap();
+        let pass = GradientPass::new(gs, &ops, &targets, loss, spp, primal_spp, 1, &gs.theta, None, &grad, None).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "gradient").unwrap();
         cmd.record(|rec| pass.record(rec, gs, &ops)).unwrap();
         Bench { renderer, grad, pass, cmd, targets, loss, _ops: ops }

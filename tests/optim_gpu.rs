@@ -268,8 +268,8 @@ fn half_sample_sums_estimate_the_gradient_variance() {
         let zeros = |name: &str| vkinverse::gpu::Buffer::zeroed::<f32>(ctx, name, n, vkinverse::gpu::MemoryKind::Device).unwrap();
         for (spp, rounds) in [(2u32, 48u32), (1, 256)] {
             let (grad, half, plain) = (zeros("grad"), zeros("half"), zeros("plain"));
-            let split = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, &grad, Some(&half)).unwrap();
-            let unsplit = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, &plain, None).unwrap();
+            let split = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, None, &grad, Some(&half)).unwrap();
+            let unsplit = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, None, &plain, None).unwrap();
             use vkinverse::gpu::Access;
             let mut cmd = vkinverse::gpu::CommandBuffer::new(ctx, "halves").unwrap();
             cmd.record(|rec| {

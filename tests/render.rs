@@ -692,7 +692,7 @@ fn many_samples_per_pixel_in_one_pass_render_the_same_image() {
         let ops = BufferOps::new(ctx).unwrap();
         let zero = Image { width: gs.width, height: gs.height, data: vec![[0.0; 3]; gs.pixels()] };
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, &grad, None).unwrap();
+        let pass = GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, None, &grad, None).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "primal").unwrap();
         cmd.record(|rec| pass.record_loss(rec, gs, &ops)).unwrap();
         cmd.submit_and_wait().unwrap();

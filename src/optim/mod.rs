@@ -67,7 +67,7 @@ pub mod spec;
 mod tests;
 
 pub use reference::{AdamElem, BufferOptimiser, Diagnostics, GroupedOptimiser, MetaElem, Real};
-pub use replay::{replay_cpu, replay_cpu_f32, Replay, Streams};
+pub use replay::{replay_cpu, Replay, Streams};
 pub use schedule::{Decay, Schedule};
 
 use serde::{Deserialize, Serialize};

@@ -148,8 +148,10 @@ impl Replay {
     }
 }
 
-/// Replays in f64: the reference trajectory. Adam ignores `fd_grads`; Meta requires them.
-pub fn replay_cpu(
+/// Replays in the arithmetic `R`: f64 is the reference trajectory; f32 the same
+/// formulation as the GPU's, up to the order of the ‖Δπ‖² reduction and the accuracy of the
+/// device's `sqrt` and division. Adam ignores `fd_grads`; Meta requires them.
+pub fn replay_cpu<R: Real>(
     optimiser: &Optimiser,
     grads: &[Vec<f32>],
     fd_grads: Option<&[Vec<f32>]>,
@@ -157,20 +159,7 @@ pub fn replay_cpu(
     range: Range,
     lr: f64,
 ) -> Result<Replay, OptimError> {
-    replay_streams::<f64>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
-}
-
-/// Replays in f32 with the same formulation: what the GPU computes, up to the order of the
-/// ‖Δπ‖² reduction and the accuracy of the device's `sqrt` and division.
-pub fn replay_cpu_f32(
-    optimiser: &Optimiser,
-    grads: &[Vec<f32>],
-    fd_grads: Option<&[Vec<f32>]>,
-    init: &[f32],
-    range: Range,
-    lr: f64,
-) -> Result<Replay, OptimError> {
-    replay_streams::<f32>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
+    replay_streams::<R>(optimiser, &Streams::new(grads, fd_grads), init, range, lr)
 }
 
 /// Replays every stream in the arithmetic `R` (f64: the reference; f32: the GPU's).

@@ -114,7 +114,7 @@ fn reference_equals_seed_transcription() {
         };
         let init64: Vec<f64> = init.iter().map(|&x| x as f64).collect();
         for (opt, lr) in [(meta(), 0.02), (adam(), 0.05)] {
-            let got = replay_cpu(&opt, &grads, Some(&fds), &init, range, lr).unwrap();
+            let got = replay_cpu::<f64>(&opt, &grads, Some(&fds), &init, range, lr).unwrap();
             let want = replay_literal(
                 &opt,
                 &f64rows(&grads),
@@ -144,9 +144,9 @@ fn float32_run_matches_reference() {
         let (grads, fds) = ordinary_streams(100 + seed, 300, 53);
         let init = vec![0.25f32; 53];
         for (opt, lr) in [(meta(), 0.01), (adam(), 0.01)] {
-            let r64 = replay_cpu(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
+            let r64 = replay_cpu::<f64>(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
             let r32 =
-                replay_cpu_f32(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
+                replay_cpu::<f32>(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
             for i in 0..53 {
                 let scale = r64.theta.iter().map(|row| row[i].abs()).fold(0.0, f64::max);
                 for (a, b) in r32.theta.iter().zip(&r64.theta) {
@@ -850,7 +850,7 @@ fn variants_in_f32_match_f64() {
 fn missing_halves_are_an_error() {
     let g = vec![vec![1.0f32; 3]; 2];
     let opt = meta_with(StepRule::Adam, VarianceEstimate::Centred, 0.0);
-    assert!(matches!(replay_cpu(&opt, &g, Some(&g), &[0.0; 3], Range::UNBOUNDED, 0.1), Err(OptimError::MissingHalves)));
+    assert!(matches!(replay_cpu::<f64>(&opt, &g, Some(&g), &[0.0; 3], Range::UNBOUNDED, 0.1), Err(OptimError::MissingHalves)));
     let rec = DiagRecord::<f64>::default();
     assert_eq!(Diagnostics::from_record(&rec, 0.1).elements, 0);
 }
@@ -868,11 +868,11 @@ fn input_errors() {
     assert!("1,0".parse::<Range>().is_err() && "x".parse::<Range>().is_err());
     let g = vec![vec![1.0f32; 3]; 2];
     assert!(matches!(
-        replay_cpu(&meta(), &g, None, &[0.0; 3], Range::UNBOUNDED, 0.1),
+        replay_cpu::<f64>(&meta(), &g, None, &[0.0; 3], Range::UNBOUNDED, 0.1),
         Err(OptimError::MissingFd)
     ));
     assert!(matches!(
-        replay_cpu(&adam(), &g, None, &[0.0; 2], Range::UNBOUNDED, 0.1),
+        replay_cpu::<f64>(&adam(), &g, None, &[0.0; 2], Range::UNBOUNDED, 0.1),
         Err(OptimError::Length { .. })
     ));
     let bad = Optimiser::Meta(MetaHyper {

@@ -73,44 +73,14 @@ impl GradientPass {
     /// estimates, whose difference gives the optimiser's centred variance estimate. Halves of
     /// the samples would not be: every sample of a pixel shares its primal image, and so the
     /// image's noise.
+    ///
+    /// With `theta_prev`, the fused finite-difference sample ⟨ΔF⟩ (`theta` must then be the
+    /// scene's θ and `primal_spp` equal `spp`): every path is sampled once at θ and evaluated
+    /// at θ and at `theta_prev`; both primal images, both losses' adjoint images and the
+    /// difference of the two gradients (+θ, −θ_prev) are computed in one trace per pass
+    /// (glsl/lib/integrator.glsl, FD), and ⟨ΔF⟩ goes into `grad`.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        scene: &GpuScene,
-        ops: &BufferOps,
-        targets: &[Image],
-        loss: Loss,
-        spp: u32,
-        primal_spp: u32,
-        seed: u32,
-        theta: &Buffer,
-        grad: &Buffer,
-        grad_half: Option<&Buffer>,
-    ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, primal_spp, seed, theta, None, grad, grad_half)
-    }
-
-    /// The fused finite-difference sample ⟨ΔF⟩: every path is sampled once at θ (the
-    /// scene's) and evaluated at θ and at `theta_prev`; both primal images, both losses'
-    /// adjoint images and the difference of the two gradients (+θ, −θ_prev) are computed
-    /// in one trace per pass (glsl/lib/integrator.glsl, FD). Adds ⟨ΔF⟩ into `grad`.
-    /// `grad_half` as for [`Self::new`].
-    #[allow(clippy::too_many_arguments)]
-    pub fn new_fd(
-        scene: &GpuScene,
-        ops: &BufferOps,
-        targets: &[Image],
-        loss: Loss,
-        spp: u32,
-        seed: u32,
-        theta_prev: &Buffer,
-        grad: &Buffer,
-        grad_half: Option<&Buffer>,
-    ) -> gpu::Result<Self> {
-        Self::build(scene, ops, targets, loss, spp, spp, seed, &scene.theta, Some(theta_prev), grad, grad_half)
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn build(
         scene: &GpuScene,
         ops: &BufferOps,
         targets: &[Image],
