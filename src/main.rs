@@ -432,7 +432,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
-        outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png checkpoint/", a.output.display())?;
+        outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png checkpoint/", a.output.display())?;
     }
     Ok(())
 }
@@ -463,7 +463,7 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
     bar.borrow().finish();
     print_result(a.out.json, &comparison, || comparison.table())?;
     if !a.out.json && !cli.quiet {
-        outln!("outputs in {}: error_vs_time.png curves.csv compare.csv compare.json and one directory per optimiser", a.out.output.display())?;
+        outln!("outputs in {}: error_vs_time.png optimiser.png curves.csv compare.csv compare.json and one directory per optimiser", a.out.output.display())?;
     }
     Ok(())
 }
