@@ -273,12 +273,18 @@ impl Engine {
         self.scene().set_frame(index)?;
         iteration.cmd.submit_and_wait()?;
         let times = iteration.profiler.results()?;
-        // Step t = index + 1 of the optimiser; its diagnostics are a few records per group.
+        let (loss, diagnostics) = self.read_step(index)?;
+        Ok(Step { loss, pass_ms: pass_totals(&times), diagnostics })
+    }
+
+    /// What the host reads back after iteration `index` ran: the total loss and the
+    /// optimiser's diagnostics of its step t = index + 1 (one record per group).
+    pub fn read_step(&self, index: u32) -> Result<(f64, Vec<Diagnostics>)> {
         let diagnostics = match &self.optimiser {
             Some(opt) => opt.diagnostics(index + 1)?,
             None => Vec::new(),
         };
-        Ok(Step { loss: self.gradient.total_loss()?, pass_ms: pass_totals(&times), diagnostics })
+        Ok((self.gradient.total_loss()?, diagnostics))
     }
 
     /// θ as the host sees it after the last submission.

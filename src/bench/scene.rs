@@ -393,8 +393,9 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     for i in 0..iterations {
         engine.scene().set_frame(i + 1)?;
         cmd.submit_and_wait()?;
-        // The host's side of an optimisation iteration: the loss and θ for the log.
-        engine.gradient.total_loss()?;
+        // The host's side of an optimisation iteration: the loss and the optimiser's
+        // diagnostics of the step, and θ for the log.
+        engine.read_step(i + 1)?;
         engine.theta()?;
         for (s, p) in samples.iter_mut().zip(&profs) {
             s.add(&p.results()?);
