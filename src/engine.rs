@@ -68,6 +68,61 @@ impl FdSample {
     }
 }
 
+/// What the host reads back after every iteration: each sensor's loss, each parameter
+/// group's diagnostics record (with an optimiser) and θ, copied on the device into one
+/// host-visible buffer at the end of the iteration's recording. A discrete GPU then reads
+/// an iteration's results without a staged copy or a submission of its own.
+pub struct Report {
+    buffer: Buffer,
+    /// The sources in their order in `buffer`, with their bytes.
+    sources: Vec<(Buffer, u64)>,
+    sensors: usize,
+    theta_len: usize,
+}
+
+impl Report {
+    fn new(ctx: &Arc<Context>, gradient: &GradientPass, optimiser: Option<&GpuOptimiser>, theta: &Buffer, theta_len: usize) -> gpu::Result<Self> {
+        let mut sources: Vec<(Buffer, u64)> = (0..gradient.sensors()).map(|s| (gradient.loss_buffer(s).clone(), 4)).collect();
+        if let Some(opt) = optimiser {
+            let (b, n) = opt.records_buffer();
+            sources.push((b.clone(), n));
+        }
+        sources.push((theta.clone(), 4 * theta_len as u64));
+        let total: u64 = sources.iter().map(|(_, n)| n).sum();
+        let buffer = Buffer::new(ctx, "iteration report", total, MemoryKind::Readback)?;
+        Ok(Report { buffer, sources, sensors: gradient.sensors(), theta_len })
+    }
+
+    /// Records the copies into the report, after everything that writes its sources.
+    pub fn record(&self, rec: &mut Recorder) -> gpu::Result<()> {
+        let mut t: Vec<(&Buffer, Access)> = self.sources.iter().map(|(b, _)| (b, Access::TransferRead)).collect();
+        t.push((&self.buffer, Access::TransferWrite));
+        rec.transition(&t)?;
+        let mut at = 0;
+        for (k, (b, n)) in self.sources.iter().enumerate() {
+            if k > 0 {
+                // The copies write disjoint ranges, which the command tracker (whole buffers)
+                // cannot tell apart; a transfer-to-transfer barrier costs next to nothing.
+                rec.barrier(&self.buffer, Access::TransferWrite, Access::TransferWrite)?;
+            }
+            rec.copy_range(b, 0, &self.buffer, at, *n)?;
+            at += n;
+        }
+        rec.transition(&[(&self.buffer, Access::HostRead)])
+    }
+
+    /// (total loss, the optimiser's record bytes, θ) from the report of the last submission.
+    fn read(&self) -> gpu::Result<(f64, Vec<u8>, Vec<f32>)> {
+        let bytes: Vec<u8> = self.buffer.read()?;
+        let loss_bytes = 4 * self.sensors;
+        let theta_bytes = 4 * self.theta_len;
+        let loss = bytes[..loss_bytes].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64).sum();
+        let records = bytes[loss_bytes..bytes.len() - theta_bytes].to_vec();
+        let theta = bytes[bytes.len() - theta_bytes..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        Ok((loss, records, theta))
+    }
+}
+
 /// One optimiser group per optimised parameter, with its learning rate and range: the
 /// scene's per-parameter rate where it has one, unless the settings' rate replaces it.
 pub fn param_groups(gs: &GpuScene, settings: &RunSettings) -> Vec<Group> {
@@ -98,6 +153,8 @@ pub struct Engine {
     pub gradient: GradientPass,
     pub fd: Option<FdSample>,
     pub optimiser: Option<GpuOptimiser>,
+    /// The iteration's results for the host, in one buffer.
+    pub report: Report,
 }
 
 impl Engine {
@@ -137,7 +194,8 @@ impl Engine {
         let seed = gpu_seed(settings.seed);
         let gradient =
             GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, None, &grad, halves.map(|h| &h.grad))?;
-        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: opt };
+        let report = Report::new(ctx, &gradient, opt.as_ref(), &gs.theta, gs.layout.len)?;
+        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: opt, report };
         let fd = match engine.optimiser.as_ref() {
             Some(opt) => match &opt.theta_prev {
                 Some(prev) => Some(engine.fd_sample(prev, settings.fd_two_trace, opt.halves.as_ref().map(|h| &h.fd_grad))?),
@@ -217,14 +275,15 @@ impl Engine {
         profiler.end_scope(rec)
     }
 
-    /// Records the whole iteration: gradient, finite-difference sample, optimiser step.
+    /// Records the whole iteration: gradient, finite-difference sample, optimiser step, and
+    /// the copies of its results into the report.
     pub fn record(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
         self.record_gradient(rec, profiler.as_deref_mut())?;
         self.record_fd(rec, profiler.as_deref_mut())?;
-        match &self.optimiser {
-            Some(opt) => self.record_step(rec, opt, profiler),
-            None => Ok(()),
+        if let Some(opt) = &self.optimiser {
+            self.record_step(rec, opt, profiler)?;
         }
+        self.report.record(rec)
     }
 
     /// Profiler scopes that [`Self::record`] opens.
@@ -273,18 +332,20 @@ impl Engine {
         self.scene().set_frame(index)?;
         iteration.cmd.submit_and_wait()?;
         let times = iteration.profiler.results()?;
-        let (loss, diagnostics) = self.read_step(index)?;
-        Ok(Step { loss, pass_ms: pass_totals(&times), diagnostics })
+        let (loss, diagnostics, theta) = self.read_step(index)?;
+        Ok(Step { loss, pass_ms: pass_totals(&times), diagnostics, theta })
     }
 
-    /// What the host reads back after iteration `index` ran: the total loss and the
-    /// optimiser's diagnostics of its step t = index + 1 (one record per group).
-    pub fn read_step(&self, index: u32) -> Result<(f64, Vec<Diagnostics>)> {
+    /// What the host reads back after iteration `index` ran, from the report (one read of
+    /// one buffer): the total loss, the optimiser's diagnostics of its step t = index + 1
+    /// (one record per group) and θ.
+    pub fn read_step(&self, index: u32) -> Result<(f64, Vec<Diagnostics>, Vec<f32>)> {
+        let (loss, records, theta) = self.report.read()?;
         let diagnostics = match &self.optimiser {
-            Some(opt) => opt.diagnostics(index + 1)?,
+            Some(opt) => opt.diagnostics_from_bytes(&records, index + 1),
             None => Vec::new(),
         };
-        Ok((self.gradient.total_loss()?, diagnostics))
+        Ok((loss, diagnostics, theta))
     }
 
     /// θ as the host sees it after the last submission.
@@ -326,6 +387,8 @@ pub struct Step {
     /// The optimiser's diagnostics of the step, one per parameter group (the scene's
     /// optimised parameters, in layout order); empty without an optimiser.
     pub diagnostics: Vec<Diagnostics>,
+    /// θ after the step (the scene's optimised parameters).
+    pub theta: Vec<f32>,
 }
 
 impl Step {

@@ -310,9 +310,9 @@ struct Loop<'a> {
 }
 
 impl Loop<'_> {
-    /// The log row of θ as it is now.
-    fn row(&self, time_s: f64, loss: Option<f64>) -> Result<LogRow> {
-        let (e, per) = self.engine.scene().layout.errors(&self.engine.theta()?);
+    /// The log row of θ.
+    fn row(&self, time_s: f64, loss: Option<f64>, theta: &[f32]) -> Result<LogRow> {
+        let (e, per) = self.engine.scene().layout.errors(theta);
         let known = |v: f64| self.has_reference.then_some(v);
         Ok(LogRow { iteration: self.iteration, time_s, gpu_time_s: self.gpu_total, loss, param_error: known(e), param_errors: per.into_iter().map(known).collect() })
     }
@@ -353,7 +353,7 @@ impl Loop<'_> {
             self.last_loss = step.loss;
             let names = engine.scene().layout.slots.iter().map(|s| s.name.clone());
             self.diag.push(self.iteration, names.zip(step.diagnostics));
-            let row = self.row(time_s, Some(step.loss))?;
+            let row = self.row(time_s, Some(step.loss), &step.theta)?;
             observer.iteration(&Progress { iteration: self.iteration, time_s, loss: step.loss, param_error: row.param_error });
             self.log.rows.push(row);
             if self.iteration.is_multiple_of(settings.checkpoint_every) {
@@ -407,7 +407,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
             run.last_loss = run.log.rows.last().and_then(|r| r.loss).unwrap_or(f64::NAN);
         }
         None => {
-            let row = run.row(0.0, None)?;
+            let row = run.row(0.0, None, &engine.theta()?)?;
             run.log.rows.push(row);
         }
     }

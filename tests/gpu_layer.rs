@@ -170,6 +170,31 @@ fn missing_barrier_is_a_hazard() {
             .unwrap_err();
         assert!(matches!(err, GpuError::Hazard { .. }), "{err}");
 
+        // A barrier that made a write visible to compute reads does not cover a transfer
+        // read after those reads; `transition` adds the barrier from the write, and the
+        // copy then reads what the kernel wrote (the validation layer checks the sync).
+        let err = cmd
+            .record(|rec| {
+                ops.fill(rec, &b, 2.0)?;
+                rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
+                ops.copy(rec, &b, &c)?;
+                rec.copy(&b, &a, 400)?;
+                Ok(())
+            })
+            .unwrap_err();
+        assert!(matches!(err, GpuError::Hazard { ref buffer, now: Access::TransferRead, .. } if buffer == "b"), "{err}");
+        cmd.record(|rec| {
+            ops.fill(rec, &b, 2.0)?;
+            rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
+            ops.copy(rec, &b, &c)?;
+            rec.transition(&[(&b, Access::TransferRead), (&a, Access::TransferWrite)])?;
+            rec.copy(&b, &a, 400)?;
+            Ok(())
+        })
+        .unwrap();
+        cmd.submit_and_wait().unwrap();
+        assert_eq!(a.read::<f32>().unwrap(), vec![2.0f32; 100]);
+
         // A barrier that misdeclares the previous access is caught in debug builds.
         if cfg!(debug_assertions) {
             let err = cmd

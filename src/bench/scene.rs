@@ -359,6 +359,8 @@ fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine
         // The copy reads θ, which the optimisers wrote.
         rec.transition(&[(&gs.theta, Access::ComputeRead), (&x.theta_copy, Access::ComputeWrite)])?;
         opt.scope(rec, "copy", |rec, _| ops.copy(rec, &gs.theta, &x.theta_copy))?;
+        // What the host reads back, as an optimisation's iteration records it.
+        engine.report.record(rec)?;
         iter.end(rec)?;
         x.equal.record_passes(rec, gs, ops, true, Some(eq))?;
         for s in 0..gs.sensors as u32 {
@@ -393,10 +395,9 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     for i in 0..iterations {
         engine.scene().set_frame(i + 1)?;
         cmd.submit_and_wait()?;
-        // The host's side of an optimisation iteration: the loss and the optimiser's
-        // diagnostics of the step, and θ for the log.
+        // The host's side of an optimisation iteration: the loss, the optimiser's
+        // diagnostics of the step and θ for the log, from the iteration's report.
         engine.read_step(i + 1)?;
-        engine.theta()?;
         for (s, p) in samples.iter_mut().zip(&profs) {
             s.add(&p.results()?);
         }

@@ -1,8 +1,10 @@
 //! Command buffers recorded once and submitted many times, with checked barriers.
 //!
-//! The [`Recorder`] remembers, per buffer, the last access it recorded and what the last
-//! barrier made that buffer visible to. Any access after a write (or a write after a
-//! read) that no barrier covers is a [`GpuError::Hazard`] at record time. Lavapipe runs
+//! The [`Recorder`] remembers, per buffer, the last access it recorded, the last write, and
+//! what the last barrier made that buffer visible to. Any access after a write (or a write
+//! after a read) that no barrier covers is a [`GpuError::Hazard`] at record time, also a
+//! read of another kind after a barrier that made the write visible to one kind of read
+//! only (a transfer read after write → compute read). Lavapipe runs
 //! dispatches in order, so a missing barrier never shows in its results: this check is
 //! what catches one in tests.
 //!
@@ -21,7 +23,18 @@ const MAX_GROUPS_X: u32 = 65535;
 
 struct Track {
     last: Access,
-    visible_to: Option<Access>,
+    /// The last write this recording made (None: none yet).
+    written: Option<Access>,
+    /// What the barriers since the last write made it visible to.
+    visible_to: Vec<Access>,
+}
+
+impl Track {
+    /// Whether `access` next needs a barrier: a write after anything, a read after a write,
+    /// unless the last barrier made the buffer visible to it.
+    fn needs_barrier(&self, access: Access) -> bool {
+        (self.written.is_some() || access.writes()) && !self.visible_to.iter().any(|v| v.covers(access))
+    }
 }
 
 /// Records commands into a [`CommandBuffer`]; see the module doc for the hazard check.
@@ -45,9 +58,7 @@ impl Recorder<'_> {
         let id = buf.0.id;
         match self.tracked.get_mut(&id) {
             Some(t) => {
-                let conflict = t.last.writes() || access.writes();
-                let covered = t.visible_to.is_some_and(|v| v.covers(access));
-                if conflict && !covered {
+                if t.needs_barrier(access) {
                     return Err(GpuError::Hazard {
                         pass: pass.to_string(),
                         buffer: buf.name().to_string(),
@@ -58,12 +69,14 @@ impl Recorder<'_> {
                 // Reads after a barrier leave it in force for further reads; a write
                 // starts a new epoch that needs its own barrier.
                 if access.writes() {
-                    t.visible_to = None;
+                    t.visible_to.clear();
+                    t.written = Some(access);
                 }
                 t.last = access;
             }
             None => {
-                self.tracked.insert(id, Track { last: access, visible_to: None });
+                let written = access.writes().then_some(access);
+                self.tracked.insert(id, Track { last: access, written, visible_to: Vec::new() });
                 self.keep.buffers.push(buf.clone());
             }
         }
@@ -77,13 +90,17 @@ impl Recorder<'_> {
         for (buf, from, to) in list {
             match self.tracked.get_mut(&buf.0.id) {
                 Some(t) => {
-                    if cfg!(debug_assertions) && !from.covers(t.last) {
+                    // The declared previous access covers the last one, or is the last write
+                    // (made visible to another kind of read after reads of one kind).
+                    let declared_ok = from.covers(t.last) || (!to.writes() && t.written.is_some_and(|w| from.covers(w)));
+                    if cfg!(debug_assertions) && !declared_ok {
                         return Err(GpuError::BarrierMismatch { buffer: buf.name().to_string(), declared: *from, actual: t.last });
                     }
-                    t.visible_to = Some(*to);
+                    t.visible_to.push(*to);
                 }
                 None => {
-                    self.tracked.insert(buf.0.id, Track { last: *from, visible_to: Some(*to) });
+                    let written = from.writes().then_some(*from);
+                    self.tracked.insert(buf.0.id, Track { last: *from, written, visible_to: vec![*to] });
                     self.keep.buffers.push((*buf).clone());
                 }
             }
@@ -115,9 +132,14 @@ impl Recorder<'_> {
         let mut pending = Vec::new();
         for (buf, to) in list {
             if let Some(t) = self.tracked.get(&buf.0.id) {
-                let needed = (t.last.writes() || to.writes()) && !t.visible_to.is_some_and(|v| v.covers(*to));
-                if needed {
-                    pending.push((*buf, t.last, *to));
+                if t.needs_barrier(*to) {
+                    // A read waits for the last write; a write for the last access, which
+                    // follows every earlier one.
+                    let from = match t.written {
+                        Some(w) if !to.writes() => w,
+                        _ => t.last,
+                    };
+                    pending.push((*buf, from, *to));
                 }
             }
         }
@@ -209,12 +231,17 @@ impl Recorder<'_> {
 
     /// Copies the first `bytes` bytes of `src` to `dst`.
     pub fn copy(&mut self, src: &Buffer, dst: &Buffer, bytes: u64) -> Result<()> {
+        self.copy_range(src, 0, dst, 0, bytes)
+    }
+
+    /// Copies `bytes` bytes of `src` from `src_offset` to `dst` at `dst_offset`.
+    pub fn copy_range(&mut self, src: &Buffer, src_offset: u64, dst: &Buffer, dst_offset: u64, bytes: u64) -> Result<()> {
         self.track("copy", src, Access::TransferRead)?;
         self.track("copy", dst, Access::TransferWrite)?;
         if bytes == 0 {
             return Ok(());
         }
-        let region = [vk::BufferCopy { src_offset: 0, dst_offset: 0, size: bytes }];
+        let region = [vk::BufferCopy { src_offset, dst_offset, size: bytes }];
         // SAFETY: both buffers are alive and at least `bytes` long (checked by the caller's
         // sizes; Vulkan validation reports otherwise in tests).
         unsafe { self.ctx.device.cmd_copy_buffer(self.cmd, src.0.raw, dst.0.raw, &region) };

@@ -253,8 +253,28 @@ impl GpuOptimiser {
 
     /// The diagnostics of step `t` (counted from 1), one per group, after it ran.
     pub fn diagnostics(&self, t: u32) -> gpu::Result<Vec<Diagnostics>> {
+        Ok(self.diagnostics_of(&self.records()?, t))
+    }
+
+    /// The buffer of the last step's records (one [`shared::DiagRecord`] per group first),
+    /// and the bytes they take, for a copy of them.
+    pub fn records_buffer(&self) -> (&Buffer, u64) {
+        (&self.diag, (self.groups.len() * std::mem::size_of::<shared::DiagRecord>()) as u64)
+    }
+
+    /// The diagnostics of step `t` from the records of its groups as the GPU wrote them
+    /// (bytes as [`Self::records_buffer`] names them).
+    pub fn diagnostics_from_bytes(&self, bytes: &[u8], t: u32) -> Vec<Diagnostics> {
+        let records: Vec<DiagRecord<f32>> = bytes
+            .chunks_exact(std::mem::size_of::<shared::DiagRecord>())
+            .map(|c| DiagRecord::from(bytemuck::pod_read_unaligned::<shared::DiagRecord>(c)))
+            .collect();
+        self.diagnostics_of(&records, t)
+    }
+
+    fn diagnostics_of(&self, records: &[DiagRecord<f32>], t: u32) -> Vec<Diagnostics> {
         let factor = self.optimiser.schedule().factor(t);
-        Ok(self.records()?.iter().zip(&self.groups).map(|(r, g)| Diagnostics::from_record(r, g.lr * factor)).collect())
+        records.iter().zip(&self.groups).map(|(r, g)| Diagnostics::from_record(r, g.lr * factor)).collect()
     }
 
     /// The meta-estimator's effective number of averaged samples per element,

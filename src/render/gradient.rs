@@ -261,6 +261,11 @@ impl GradientPass {
         Ok(self.sensors[s].reduction.result().read::<f32>()?[0])
     }
 
+    /// The one-float buffer that holds sensor s's loss after the recorded work ran.
+    pub fn loss_buffer(&self, s: usize) -> &Buffer {
+        self.sensors[s].reduction.result()
+    }
+
     /// Total loss over sensors.
     pub fn total_loss(&self) -> gpu::Result<f64> {
         (0..self.sensors.len()).map(|s| self.loss_value(s).map(|v| v as f64)).sum()
