@@ -59,6 +59,7 @@ layout(push_constant, scalar) uniform Push {
     uint sched_every;
     float sched_floor;
     float sched_gamma;
+    uint fd_raw;      // nonzero: the dF variance is Moment2(dF), not Moment2(dF/|dpi|)*|dpi|^2
 } pc;
 
 void main() {
@@ -72,7 +73,8 @@ void main() {
                                   pc.sched_floor, pc.sched_gamma);
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
-                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f);
+                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
+                                  pc.fd_raw != 0u);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
                               meta_n_eff[i], meta_v[i]);
         MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,

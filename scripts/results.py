@@ -24,7 +24,8 @@ mean over a twentieth of its iterations; the time to a goal is the first time fr
 the smoothed curve stays at or below it to the run's end.
 
 The pilot table has one row per meta configuration and one column per scene: its settled
-error relative to the best Adam run of the pilot on that scene, and their geometric mean.
+error (the geometric mean over its runs, e.g. seeds) relative to the best Adam run on that
+scene, and their geometric mean over scenes.
 """
 
 import csv
@@ -212,12 +213,16 @@ def protocol(by_scene):
 
 def pilot(by_scene):
     scenes = list(by_scene)
+    # A configuration is a meta spec with the rate it ran at (when not the scene's own).
+    def config(r):
+        return r["optimiser"] + ("" if r["rate"] == "scene" else f" (lr {r['rate']})")
+
     configs = []
     for rows in by_scene.values():
         for r in rows:
-            if r["optimiser"].startswith("meta") and r["optimiser"] not in configs:
-                configs.append(r["optimiser"])
-    best = {s: min((r for r in rows if r["optimiser"] == "adam"), key=lambda r: r["settled"], default=None) for s, rows in by_scene.items()}
+            if r["optimiser"].startswith("meta") and config(r) not in configs:
+                configs.append(config(r))
+    best = {s: min((r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3), key=lambda r: r["settled"], default=None) for s, rows in by_scene.items()}
     print("Settled error relative to the best Adam run of the pilot on the scene (below 1: meta better):\n")
     print("| configuration | " + " | ".join(scenes) + " | geometric mean |")
     print("|---|" + "---|" * (len(scenes) + 1))
@@ -225,8 +230,10 @@ def pilot(by_scene):
     for c in configs:
         ratios = []
         for s in scenes:
-            r = next((r for r in by_scene[s] if r["optimiser"] == c), None)
-            ratios.append(r["settled"] / best[s]["settled"] if r and best[s] else None)
+            # Several runs of one configuration (seeds): the geometric mean of their settled errors.
+            runs = [r["settled"] for r in by_scene[s] if r["optimiser"].startswith("meta") and config(r) == c]
+            settled = math.exp(sum(math.log(x) for x in runs) / len(runs)) if runs else None
+            ratios.append(settled / best[s]["settled"] if settled and best[s] else None)
         known = [x for x in ratios if x]
         gm = math.exp(sum(math.log(x) for x in known) / len(known)) if known else None
         print(f"| {c} | " + " | ".join(fmt(x, ".2f") for x in ratios) + f" | {fmt(gm, '.2f')} |")

@@ -534,13 +534,13 @@ fn replay_matches_the_cpu_reference() {
     npy::write_rows(&fh_path, &fh).unwrap();
     let halves = format!("{},{}", s(&gh_path), s(&fh_path));
 
-    let seed_meta = "meta@step=snr@var=zero";
+    let seed_meta = "meta@step=snr@var=zero@fdvar=scaled";
     let cases: [(&str, Option<&[f32]>, Option<&str>); 6] = [
         ("adam", None, None),
         ("meta", None, None),
         (seed_meta, None, None),
         ("adam@schedule=cosine@horizon=12", Some(&init), Some("0,1")),
-        ("meta@step=adam@dpi=global@grow_f=0.5", Some(&init), Some("0.1,0.7")),
+        ("meta@step=adam@dpi=global@grow_f=0.5@fdvar=raw", Some(&init), Some("0.1,0.7")),
         (seed_meta, Some(&init), Some("0.1,0.7")),
     ];
     for (k, (name, start, range)) in cases.into_iter().enumerate() {

@@ -5,7 +5,7 @@ mod common;
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
 use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, MetaHyper, Optimiser, Range, Schedule, StepNorm, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, StepNorm, StepRule, Streams, VarianceEstimate};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -22,6 +22,7 @@ fn variants() -> Vec<Optimiser> {
             v.push(Optimiser::Meta(MetaHyper { step, variance, ..MetaHyper::seed() }));
         }
     }
+    v.push(Optimiser::Meta(MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,

@@ -219,6 +219,7 @@ struct MetaParams {
     float beta2;
     bool centred;   // variance EMAs of centred half-sample differences instead of squares
     float grow_f;   // beta_F growth exponent (0: the seed's constant decay)
+    bool fd_raw;    // Moment2 of dF itself instead of dF/|dpi| (then times |dpi|^2)
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -260,12 +261,13 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float k2 = ema_weight(p.beta2, p.t);
     float v = hypot_safe(sqrt(1.0 - k2) * s.v, sqrt(k2) * f);
 
-    // dF terms: VD = Moment2(dF/|dpi|) * |dpi|^2, kept as the standard deviation sd_d.
+    // dF terms: VD = Moment2(dF/|dpi|) * |dpi|^2 (or Moment2(dF) with fd_raw), kept as the
+    // standard deviation sd_d.
     float sd_d = 0.0;
     float rms_d = s.rms_d;
     float wsum_d = s.wsum_d;
     if (dpi2 > 0.0 && is_finite(dpi2)) {
-        float step_len = sqrt(dpi2);
+        float step_len = p.fd_raw ? 1.0 : sqrt(dpi2);
         float q = 1.0 - p.decay_d;
         wsum_d = q + p.decay_d * s.wsum_d;
         float kd = q / wsum_d;

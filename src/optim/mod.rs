@@ -30,7 +30,8 @@
 //!    with h = M + ΔF: a convex combination at every stage, so it cannot overflow.
 //! 6. The ΔF Moment2 (of ΔF/‖Δπ‖) is updated through the current step's standard deviation
 //!    sd_D = hypot(√(1−k)·rms_D·‖Δπ‖, √k·|ΔF|), never through ΔF/‖Δπ‖ itself (which overflows
-//!    for tiny steps); the stored rms_D = sd_D/‖Δπ‖ saturates.
+//!    for tiny steps); the stored rms_D = sd_D/‖Δπ‖ saturates. With [`FdVariance::Raw`] the
+//!    same update runs with ‖Δπ‖ taken as 1.
 //! 7. ‖Δπ‖² = 0 (the first iteration, or a buffer that did not move, e.g. pinned at its range)
 //!    or non-finite: the ΔF terms are skipped — ΔF is taken as 0 with variance 0 and the ΔF
 //!    Moment2 is not stepped. A common-random-number finite difference over a zero step is
@@ -241,6 +242,21 @@ pub enum StepNorm {
     Global,
 }
 
+/// How the meta-estimator models the variance of its finite-difference samples ⟨ΔF⟩.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FdVariance {
+    /// Supplementary B: Var[⟨ΔF⟩] ≈ Moment2(⟨ΔF⟩/‖Δπ‖)·‖Δπ‖², for a difference whose noise
+    /// is proportional to the step. Where the steps' lengths vary by orders of magnitude from
+    /// one iteration to the next and the difference has a noise floor (a few-sample primal
+    /// image, paths reweighted for sampling parameters), the ratio learnt from a tiny step
+    /// predicts a huge variance for the next large one, and the history gets no weight.
+    #[default]
+    Scaled,
+    /// Moment2(⟨ΔF⟩) itself, not rescaled by the step.
+    Raw,
+}
+
 /// Meta-estimator hyperparameters. `decay_f`, `decay_d` are the decays of the two Moment2
 /// EMAs (0.9 in the seed's Moment2), `eps` the ε of the step (1e-8, supplementary B).
 /// `grow_f` > 0 lets β_F grow over the run (supplementary A): the ⟨F⟩ EMA's sample weight
@@ -258,6 +274,8 @@ pub struct MetaHyper {
     pub grow_f: f64,
     /// The step length the ⟨ΔF⟩ variance scales with.
     pub dpi: StepNorm,
+    /// The ⟨ΔF⟩ variance model.
+    pub fdvar: FdVariance,
     pub schedule: Schedule,
 }
 
@@ -274,6 +292,7 @@ impl MetaHyper {
             variance: VarianceEstimate::Zero,
             grow_f: 0.0,
             dpi: StepNorm::Group,
+            fdvar: FdVariance::Scaled,
             schedule: Schedule::default(),
         }
     }
@@ -281,14 +300,15 @@ impl MetaHyper {
 
 /// The defaults (spec `meta`): the Wiener step rule (Adam's normalisation, so `lr` is the
 /// typical parameter change per iteration as for Adam, shrunk where the estimate is mostly
-/// noise) and the centred variance estimate, with the seed's decays and ε, each parameter
-/// group's own step norm, constant β_F and rate. Chosen by the pilot runs of
-/// docs/results.md (scenes/pilot.toml, scenes/pilot2.toml): of the candidates, the smallest
-/// worst-case settled error relative to the best Adam over five scenes, and a geometric mean
-/// tied with the best.
+/// noise), the centred variance estimate and the raw ⟨ΔF⟩ variance, with the seed's decays
+/// and ε, each parameter group's own step norm, constant β_F and rate. Chosen by the pilot
+/// runs of docs/results.md (scenes/pilot.toml, scenes/pilot2.toml): of the candidates, the
+/// smallest worst-case settled error relative to the best Adam over five scenes, and a
+/// geometric mean tied with the best; then `fdvar=raw` (scenes/pilot3.toml), which lets the
+/// estimate average for parameters that change how paths are sampled.
 impl Default for MetaHyper {
     fn default() -> Self {
-        MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, ..MetaHyper::seed() }
+        MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }
     }
 }
 

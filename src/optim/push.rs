@@ -3,7 +3,7 @@
 //! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
 //! (`crate::push`).
 
-use super::{AdamHyper, MetaHyper, Range, Schedule, StepNorm, VarianceEstimate};
+use super::{AdamHyper, FdVariance, MetaHyper, Range, Schedule, StepNorm, VarianceEstimate};
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
 
@@ -115,6 +115,7 @@ pub struct MetaPush {
     pub sched_every: u32,
     pub sched_floor: f32,
     pub sched_gamma: f32,
+    pub fd_raw: u32,
 }
 
 impl MetaPush {
@@ -144,6 +145,7 @@ impl MetaPush {
             sched_every: sc.every,
             sched_floor: sc.floor,
             sched_gamma: sc.gamma,
+            fd_raw: u32::from(h.fdvar == FdVariance::Raw),
         }
     }
 }

@@ -449,7 +449,8 @@ pub struct MetaElem<R> {
     pub sd: R,
     /// √(Moment2 of ⟨F⟩, or of its centred samples), bias-corrected with the global count t.
     pub rms_f: R,
-    /// √(Moment2 of ⟨ΔF⟩/‖Δπ‖, or of its centred samples), bias-corrected with `wsum_d`.
+    /// √(Moment2 of ⟨ΔF⟩/‖Δπ‖ (of ⟨ΔF⟩ with `fd_raw`), or of its centred samples),
+    /// bias-corrected with `wsum_d`.
     pub rms_d: R,
     /// 1 − decay_d^count: the bias-correction sum of the ΔF Moment2's own samples.
     pub wsum_d: R,
@@ -475,6 +476,8 @@ pub struct MetaParams<R> {
     pub beta2: R,
     pub centred: bool,
     pub grow_f: R,
+    /// Moment2 of ⟨ΔF⟩ itself rather than of ⟨ΔF⟩/‖Δπ‖ ([`super::FdVariance::Raw`]).
+    pub fd_raw: bool,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -491,6 +494,7 @@ impl<R: Real> MetaParams<R> {
             beta2: R::of(h.beta2),
             centred: h.variance == VarianceEstimate::Centred,
             grow_f: R::of(h.grow_f),
+            fd_raw: h.fdvar == super::FdVariance::Raw,
         }
     }
 }
@@ -529,9 +533,10 @@ pub fn meta_update<R: Real>(
     let k2 = ema_weight(p.beta2, p.t);
     let v = hypot((one - k2).sqrt() * s.v, k2.sqrt() * f);
 
-    // ΔF terms: VD = Moment2(ΔF/‖Δπ‖)·‖Δπ‖², kept as the standard deviation sd_d.
+    // ΔF terms: VD = Moment2(ΔF/‖Δπ‖)·‖Δπ‖² (or Moment2(ΔF) with fd_raw), kept as the
+    // standard deviation sd_d.
     let (df, sd_d, rms_d, wsum_d) = if dpi2 > R::ZERO && dpi2.is_finite() {
-        let step_len = dpi2.sqrt();
+        let step_len = if p.fd_raw { one } else { dpi2.sqrt() };
         let q = one - p.decay_d;
         let wsum_d = q + p.decay_d * s.wsum_d;
         let kd = q / wsum_d;

@@ -4,12 +4,12 @@
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded,
-//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global), and for both the learning-rate schedule's
+//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, FdVariance, MetaHyper, OptimError, Optimiser, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -43,8 +43,22 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar",
     }
+}
+
+/// The option named `value` of a key with named options, or an error listing them.
+fn choice<T: Copy>(key: &str, value: &str, options: &[(&str, T)]) -> Result<T, OptimError> {
+    if let Some((_, v)) = options.iter().find(|(name, _)| *name == value) {
+        return Ok(*v);
+    }
+    let names: Vec<&str> = options.iter().map(|(name, _)| *name).collect();
+    let expected = match names.split_last() {
+        Some((last, [])) => last.to_string(),
+        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+        None => String::new(),
+    };
+    Err(OptimError::BadHyper(format!("{key} = '{value}' (expected {expected})")))
 }
 
 /// Sets hyperparameter `key` of `optimiser` from `value`; `Ok(false)` for an unknown key.
@@ -55,29 +69,19 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
     let number = || value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")));
     let slot = match (&mut *optimiser, key) {
         (Optimiser::Meta(h), "step") => {
-            h.step = match value {
-                "snr" => StepRule::Snr,
-                "adam" => StepRule::Adam,
-                "bounded" => StepRule::Bounded,
-                "wiener" => StepRule::Wiener,
-                _ => return Err(OptimError::BadHyper(format!("step = '{value}' (expected snr, adam, bounded or wiener)"))),
-            };
+            h.step = choice(key, value, &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "var") => {
-            h.variance = match value {
-                "zero" => VarianceEstimate::Zero,
-                "centred" => VarianceEstimate::Centred,
-                _ => return Err(OptimError::BadHyper(format!("var = '{value}' (expected zero or centred)"))),
-            };
+            h.variance = choice(key, value, &[("zero", VarianceEstimate::Zero), ("centred", VarianceEstimate::Centred)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "dpi") => {
-            h.dpi = match value {
-                "group" => StepNorm::Group,
-                "global" => StepNorm::Global,
-                _ => return Err(OptimError::BadHyper(format!("dpi = '{value}' (expected group or global)"))),
-            };
+            h.dpi = choice(key, value, &[("group", StepNorm::Group), ("global", StepNorm::Global)])?;
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "fdvar") => {
+            h.fdvar = choice(key, value, &[("scaled", FdVariance::Scaled), ("raw", FdVariance::Raw)])?;
             return Ok(true);
         }
         (Optimiser::Adam(AdamHyper { beta1, .. }), "beta1") => beta1,
@@ -174,6 +178,9 @@ mod tests {
         assert!(msg("meta@step=newton").contains("expected snr, adam, bounded or wiener"));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
         assert!(msg("meta@dpi=all").contains("expected group or global"));
+        assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));
+        let Optimiser::Meta(h) = "meta@fdvar=raw".parse::<Spec>().unwrap().optimiser else { unreachable!() };
+        assert_eq!(h.fdvar, FdVariance::Raw);
         let Optimiser::Meta(h) = "meta@dpi=global".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h.dpi, StepNorm::Global);
         assert!(msg("adam@step=adam").contains("unknown key 'step' for adam"));

@@ -1,6 +1,6 @@
 use super::literal::replay_literal;
 use super::push::{GroupSlots, MetaPush};
-use super::reference::{centred_sample, f_weight, one_minus_pow, BufferOptimiser, DiagRecord, Real, Ssq, StepInput};
+use super::reference::{centred_sample, f_weight, one_minus_pow, BufferOptimiser, DiagRecord, MetaInput, MetaParams, Real, Ssq, StepInput};
 use super::*;
 
 /// SplitMix64 with Box–Muller normals: deterministic test streams without a dependency.
@@ -44,6 +44,10 @@ fn meta_variants() -> Vec<Optimiser> {
         }
     }
     v.push(meta_with(StepRule::Adam, VarianceEstimate::Centred, 0.5));
+    for step in [StepRule::Snr, StepRule::Wiener] {
+        let Optimiser::Meta(h) = meta_with(step, VarianceEstimate::Centred, 0.0) else { unreachable!() };
+        v.push(Optimiser::Meta(MetaHyper { fdvar: FdVariance::Raw, ..h }));
+    }
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -598,6 +602,49 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
     );
     let (_, _, noisy) = quadratic(&meta(), 0.02, 7, 400, 3.0);
     assert!(noisy < 3.0, "n_eff {noisy} with noisy finite differences");
+}
+
+#[test]
+fn raw_fd_variance_survives_steps_of_varying_length() {
+    // ⟨ΔF⟩ with a noise floor that does not shrink with the step (σ_d = 0.05 of ⟨F⟩'s noise),
+    // and steps whose length alternates between 1e-6 and 1e-2 (as the Wiener rule's do near
+    // the optimum). The scaled model learns ⟨ΔF⟩/‖Δπ‖ from the tiny steps and predicts a
+    // variance 1e4² too large after the large ones, so the history loses its weight; the raw
+    // model keeps averaging.
+    let run = |fdvar: FdVariance| {
+        let opt = Optimiser::Meta(MetaHyper { fdvar, ..MetaHyper::seed() });
+        let p = |t: u32| MetaParams::<f64>::new(match &opt { Optimiser::Meta(h) => h, _ => unreachable!() }, t, 0.01, Range::UNBOUNDED);
+        let mut rng = Rng(11);
+        let mut s = MetaElem::<f64>::default();
+        let mut n_eff = Vec::new();
+        for t in 1..=200u32 {
+            let dpi2 = if t == 1 { 0.0 } else if t % 2 == 0 { 1e-12 } else { 1e-4 };
+            let x = MetaInput { f: 1.0 + rng.normal(), df: 0.05 * rng.normal(), ..Default::default() };
+            let (_, next, d) = reference::meta_update(&p(t), 0.5, x, dpi2, s).unwrap();
+            s = next;
+            n_eff.push(d.n_eff);
+        }
+        n_eff[100..].iter().sum::<f64>() / 100.0
+    };
+    let (scaled, raw) = (run(FdVariance::Scaled), run(FdVariance::Raw));
+    assert!(scaled < 2.5, "scaled: n_eff {scaled}");
+    assert!(raw > 10.0, "raw: n_eff {raw}");
+    // With a step-proportional ⟨ΔF⟩ noise and steady steps both models agree.
+    let steady = |fdvar: FdVariance| {
+        let h = MetaHyper { fdvar, ..MetaHyper::seed() };
+        let mut rng = Rng(12);
+        let mut s = MetaElem::<f64>::default();
+        let mut last = 0.0;
+        for t in 1..=200u32 {
+            let x = MetaInput { f: 1.0 + rng.normal(), df: 0.01 * 3.0 * rng.normal(), ..Default::default() };
+            let (_, next, d) = reference::meta_update(&MetaParams::<f64>::new(&h, t, 0.01, Range::UNBOUNDED), 0.5, x, if t == 1 { 0.0 } else { 1e-4 }, s).unwrap();
+            s = next;
+            last = d.n_eff;
+        }
+        last
+    };
+    let (a, b) = (steady(FdVariance::Scaled), steady(FdVariance::Raw));
+    assert!((a - b).abs() < 1e-9 * a, "steady steps: {a} vs {b}");
 }
 
 // ---- GPU-side contracts --------------------------------------------------------------------
