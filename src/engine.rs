@@ -108,7 +108,8 @@ impl Report {
             rec.copy_range(b, 0, &self.buffer, at, *n)?;
             at += n;
         }
-        rec.transition(&[(&self.buffer, Access::HostRead)])
+        // The recording's closing barrier makes the copies visible to the host.
+        Ok(())
     }
 
     /// (total loss, the optimiser's record bytes, θ) from the report of the last submission.

@@ -31,7 +31,7 @@ struct Track {
 
 impl Track {
     /// Whether `access` next needs a barrier: a write after anything, a read after a write,
-    /// unless the last barrier made the buffer visible to it.
+    /// unless a barrier since the last write made the buffer visible to it.
     fn needs_barrier(&self, access: Access) -> bool {
         (self.written.is_some() || access.writes()) && !self.visible_to.iter().any(|v| v.covers(access))
     }
