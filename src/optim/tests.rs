@@ -611,39 +611,32 @@ fn raw_fd_variance_survives_steps_of_varying_length() {
     // the optimum). The scaled model learns ⟨ΔF⟩/‖Δπ‖ from the tiny steps and predicts a
     // variance 1e4² too large after the large ones, so the history loses its weight; the raw
     // model keeps averaging.
-    let run = |fdvar: FdVariance| {
-        let opt = Optimiser::Meta(MetaHyper { fdvar, ..MetaHyper::seed() });
-        let p = |t: u32| MetaParams::<f64>::new(match &opt { Optimiser::Meta(h) => h, _ => unreachable!() }, t, 0.01, Range::UNBOUNDED);
-        let mut rng = Rng(11);
+    // n_eff of each of 200 steps of one element: ⟨F⟩ = 1 + ξ, ⟨ΔF⟩ = sigma_d·ξ', and
+    // ‖Δπ‖² = dpi2(t) for the step before t (0 before the first).
+    let n_eff = |fdvar: FdVariance, dpi2: &dyn Fn(u32) -> f64, sigma_d: f64, seed: u64| -> Vec<f64> {
+        let h = MetaHyper { fdvar, ..MetaHyper::seed() };
+        let mut rng = Rng(seed);
         let mut s = MetaElem::<f64>::default();
-        let mut n_eff = Vec::new();
-        for t in 1..=200u32 {
-            let dpi2 = if t == 1 { 0.0 } else if t % 2 == 0 { 1e-12 } else { 1e-4 };
-            let x = MetaInput { f: 1.0 + rng.normal(), df: 0.05 * rng.normal(), ..Default::default() };
-            let (_, next, d) = reference::meta_update(&p(t), 0.5, x, dpi2, s).unwrap();
-            s = next;
-            n_eff.push(d.n_eff);
-        }
-        n_eff[100..].iter().sum::<f64>() / 100.0
+        (1..=200u32)
+            .map(|t| {
+                let x = MetaInput { f: 1.0 + rng.normal(), df: sigma_d * rng.normal(), ..Default::default() };
+                let p = MetaParams::<f64>::new(&h, t, 0.01, Range::UNBOUNDED);
+                let (_, next, d) = reference::meta_update(&p, 0.5, x, if t == 1 { 0.0 } else { dpi2(t) }, s).unwrap();
+                s = next;
+                d.n_eff
+            })
+            .collect()
     };
-    let (scaled, raw) = (run(FdVariance::Scaled), run(FdVariance::Raw));
+    let alternating = |t: u32| if t % 2 == 0 { 1e-12 } else { 1e-4 };
+    let late_mean = |v: Vec<f64>| v[100..].iter().sum::<f64>() / 100.0;
+    let scaled = late_mean(n_eff(FdVariance::Scaled, &alternating, 0.05, 11));
+    let raw = late_mean(n_eff(FdVariance::Raw, &alternating, 0.05, 11));
     assert!(scaled < 2.5, "scaled: n_eff {scaled}");
     assert!(raw > 10.0, "raw: n_eff {raw}");
-    // With a step-proportional ⟨ΔF⟩ noise and steady steps both models agree.
-    let steady = |fdvar: FdVariance| {
-        let h = MetaHyper { fdvar, ..MetaHyper::seed() };
-        let mut rng = Rng(12);
-        let mut s = MetaElem::<f64>::default();
-        let mut last = 0.0;
-        for t in 1..=200u32 {
-            let x = MetaInput { f: 1.0 + rng.normal(), df: 0.01 * 3.0 * rng.normal(), ..Default::default() };
-            let (_, next, d) = reference::meta_update(&MetaParams::<f64>::new(&h, t, 0.01, Range::UNBOUNDED), 0.5, x, if t == 1 { 0.0 } else { 1e-4 }, s).unwrap();
-            s = next;
-            last = d.n_eff;
-        }
-        last
-    };
-    let (a, b) = (steady(FdVariance::Scaled), steady(FdVariance::Raw));
+    // With a step-proportional ⟨ΔF⟩ noise (3‖Δπ‖) and steady steps both models agree.
+    let steady = |t: u32| if t > 0 { 1e-4 } else { 0.0 };
+    let a = *n_eff(FdVariance::Scaled, &steady, 0.03, 12).last().unwrap();
+    let b = *n_eff(FdVariance::Raw, &steady, 0.03, 12).last().unwrap();
     assert!((a - b).abs() < 1e-9 * a, "steady steps: {a} vs {b}");
 }
 
