@@ -627,7 +627,7 @@ fn raw_fd_variance_survives_steps_of_varying_length() {
             })
             .collect()
     };
-    let alternating = |t: u32| if t % 2 == 0 { 1e-12 } else { 1e-4 };
+    let alternating = |t: u32| if t.is_multiple_of(2) { 1e-12 } else { 1e-4 };
     let late_mean = |v: Vec<f64>| v[100..].iter().sum::<f64>() / 100.0;
     let scaled = late_mean(n_eff(FdVariance::Scaled, &alternating, 0.05, 11));
     let raw = late_mean(n_eff(FdVariance::Raw, &alternating, 0.05, 11));
