@@ -155,6 +155,16 @@ layout(constant_id = 7) const bool SPLIT = false;
 bool grad_in_half = false;
 #endif
 
+// Scene features, set per scene by the host (GpuScene::spec) so that the compiler drops the
+// code of what the scene does not have: no textured value (every lookup reads one texel,
+// no bilinear footprint) and no principled material (fetch_material reports the diffuse
+// kind, and the principled model's sampling, evaluation and derivatives fold away). The
+// defaults keep everything, for kernels built without them. This matters most on CPU
+// drivers: lavapipe runs the body of every branch whose condition is not a constant,
+// masked, even when no lane of the SIMD batch takes it (docs/lavapipe.md).
+layout(constant_id = 8) const bool HAS_TEXTURES = true;
+layout(constant_id = 9) const bool HAS_PRINCIPLED = true;
+
 float value_at(ValueRef r, int index, int state) {
     if (r.in_theta == 0u) return texel_float(MaterialData, r.offset + index);
 #ifdef FD
@@ -166,7 +176,8 @@ float value_at(ValueRef r, int index, int state) {
 // Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
 // A constant is one "texel" with weight 1 in slot 0.
 void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
-    if (r.width == 0u) {
+    uint width = HAS_TEXTURES ? r.width : 0u;
+    if (width == 0u) {
         texel = ivec4(0);
         weight = vec4(1.0, 0.0, 0.0, 0.0);
         return;
@@ -285,7 +296,7 @@ Material fetch_material(uint id, vec2 uv, int state) {
     m.base_color = fetch3(r.base_color, uv, state);
     m.roughness = fetch1(r.roughness, uv, state);
     m.metallic = fetch1(r.metallic, uv, state);
-    m.kind = r.kind;
+    m.kind = HAS_PRINCIPLED ? r.kind : MATERIAL_DIFFUSE;
     return m;
 }
 

@@ -42,6 +42,12 @@ pub struct GpuScene {
     pub has_environment: bool,
     /// Point, spot and directional lights (all sampled at every path vertex).
     pub lights: u32,
+    /// Whether any value the kernels look up (material, emission, light, environment) is
+    /// a texture; without one, every lookup reads one texel.
+    pub has_textures: bool,
+    /// Whether any material is principled; without one, the kernels build the diffuse
+    /// model alone.
+    pub has_principled: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     pub triangles: usize,
@@ -284,6 +290,15 @@ impl GpuScene {
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
+        let value_refs = materials
+            .iter()
+            .flat_map(|m| [m.base_color, m.roughness, m.metallic])
+            .chain(meshes.iter().map(|m| m.emission))
+            .chain(lights.iter().flat_map(|l| [l.color, l.intensity]))
+            .chain([environment]);
+        let has_textures = value_refs.into_iter().any(|r| r.width != 0);
+        let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
+
         let aspect = scene.film.width as f32 / scene.film.height as f32;
         let sensors: Vec<SensorRecord> = scene
             .sensors
@@ -324,6 +339,8 @@ impl GpuScene {
             emitters: emitters.len() as u32,
             has_environment,
             lights: lights.len() as u32,
+            has_textures,
+            has_principled,
             environment_distribution,
             triangles: geo.indices.len(),
             globals,
@@ -393,6 +410,8 @@ impl GpuScene {
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
             ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
             ("HAS_DELTA_LIGHTS", SpecValue::Bool(self.lights > 0)),
+            ("HAS_TEXTURES", SpecValue::Bool(self.has_textures)),
+            ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
         ]
     }
 
