@@ -46,6 +46,7 @@ layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
 #define RR_DEPTH limit_rr_depth
 #define NUM_EMITTERS limit_num_emitters
 #define HAS_ENVIRONMENT (limit_has_environment != 0u)
+#define ENVIRONMENT_SAMPLED true
 #else
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;
@@ -54,6 +55,11 @@ layout(constant_id = 2) const uint RR_DEPTH = 5;
 // comparisons of them.)
 layout(constant_id = 3) const uint NUM_EMITTERS = 0;
 layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
+// Whether next-event estimation may sample the environment (a lat-long map: it has a
+// sampling distribution); false compiles that strategy out, which a constant environment
+// never uses. lavapipe would otherwise run it, masked, at every path vertex, shadow ray
+// included (docs/lavapipe.md).
+layout(constant_id = 10) const bool ENVIRONMENT_SAMPLED = false;
 #endif
 
 #ifdef COUNT_RAYS
@@ -203,7 +209,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
     // Probability that next-event estimation samples the environment map.
-    float p_env = HAS_ENVIRONMENT ? scene_globals().environment_sample_prob : 0.0;
+    float p_env = 0.0;
+    if (ENVIRONMENT_SAMPLED) p_env = scene_globals().environment_sample_prob;
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
@@ -273,7 +280,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         vec3 u_bsdf = rng_next3(rng);
         float u_rr = rng_next(rng);
         float u_select = rng_next(rng);
-        bool env_nee = u_select < p_env;
+        bool env_nee = ENVIRONMENT_SAMPLED && u_select < p_env;
 
         // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
         // (pdfs of state 0).

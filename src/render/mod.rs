@@ -409,6 +409,7 @@ impl GpuScene {
             ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
             ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
+            ("ENVIRONMENT_SAMPLED", SpecValue::Bool(self.environment_distribution.is_some())),
             ("HAS_DELTA_LIGHTS", SpecValue::Bool(self.lights > 0)),
             ("HAS_TEXTURES", SpecValue::Bool(self.has_textures)),
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
