@@ -46,7 +46,7 @@ layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
 #define RR_DEPTH limit_rr_depth
 #define NUM_EMITTERS limit_num_emitters
 #define HAS_ENVIRONMENT (limit_has_environment != 0u)
-#define ENVIRONMENT_SAMPLED true
+#define ENVIRONMENT_SAMPLED HAS_ENVIRONMENT
 #else
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;

@@ -290,13 +290,13 @@ impl GpuScene {
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
-        let value_refs = materials
+        let has_textures = materials
             .iter()
             .flat_map(|m| [m.base_color, m.roughness, m.metallic])
             .chain(meshes.iter().map(|m| m.emission))
             .chain(lights.iter().flat_map(|l| [l.color, l.intensity]))
-            .chain([environment]);
-        let has_textures = value_refs.into_iter().any(|r| r.width != 0);
+            .chain([environment])
+            .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
