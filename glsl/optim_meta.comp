@@ -1,7 +1,7 @@
 #version 460
 // Fused meta-estimator pass over one parameter group (Balint et al. 2023): one invocation
-// per element loads its state, steps both Moment2 EMAs, Adam's second moment and the
-// meta-estimate, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
+// per element loads its state, steps both Moment2 EMAs, Adam's second moment, the
+// meta-estimate and the secant curvature, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
 // records theta_prev <- theta and clears the gradient buffers for the next iteration's
 // accumulation. Each workgroup writes the diagnostics record of its elements to
 // partials[first_partial + workgroup]; optim_diag merges them into diag[group], whose sum
@@ -28,13 +28,16 @@ layout(set = 0, binding = 9, scalar) buffer MetaRmsD { float meta_rms_d[]; };
 layout(set = 0, binding = 10, scalar) buffer MetaWsumD { float meta_wsum_d[]; };
 layout(set = 0, binding = 11, scalar) buffer MetaNEff { float meta_n_eff[]; };
 layout(set = 0, binding = 12, scalar) buffer MetaV { float meta_v[]; };
-layout(set = 0, binding = 13, scalar) readonly buffer Diag { DiagRecord diag[]; };
-layout(set = 0, binding = 14, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
-layout(set = 0, binding = 15, scalar) buffer NonFinite { uint nonfinite; };
+layout(set = 0, binding = 13, scalar) buffer MetaCurv { float meta_curv[]; };
+layout(set = 0, binding = 14, scalar) buffer MetaCurvW { float meta_curv_w[]; };
+layout(set = 0, binding = 15, scalar) buffer MetaLast { float meta_last[]; };
+layout(set = 0, binding = 16, scalar) readonly buffer Diag { DiagRecord diag[]; };
+layout(set = 0, binding = 17, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
+layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
 
 // The iteration counter (host-written before each submission): step t = iteration + 1,
 // so a recording resubmitted every iteration needs no new push constants.
-layout(set = 0, binding = 16, scalar) readonly buffer Frame { uint frame_iteration; };
+layout(set = 0, binding = 19, scalar) readonly buffer Frame { uint frame_iteration; };
 
 layout(push_constant, scalar) uniform Push {
     uint n;
@@ -60,6 +63,9 @@ layout(push_constant, scalar) uniform Push {
     float sched_floor;
     float sched_gamma;
     uint fd_raw;      // nonzero: the dF variance is Moment2(dF), not Moment2(dF/|dpi|)*|dpi|^2
+    float decay_h;    // STEP_NEWTON: the curvature fit's forgetting per sample
+    float sig;        // STEP_NEWTON: the significance its Newton step needs
+    float settle;     // STEP_NEWTON: the Wiener step's fraction where Newton's is shorter
 } pc;
 
 void main() {
@@ -74,9 +80,9 @@ void main() {
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u);
+                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
-                              meta_n_eff[i], meta_v[i]);
+                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i]);
         MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
                                 centred ? fd_grad_half[i] : 0.0);
         float th = theta[i];
@@ -98,8 +104,13 @@ void main() {
             meta_wsum_d[i] = s.wsum_d;
             meta_n_eff[i] = s.n_eff;
             meta_v[i] = s.v;
+            meta_curv[i] = s.curv;
+            meta_curv_w[i] = s.curv_w;
+            meta_last[i] = s.last;
             rec = diag_of(d);
         } else {
+            // The element did not move: the next finite difference spans no step of it.
+            meta_last[i] = 0.0;
             atomicAdd(nonfinite, 1u);
         }
         grad[i] = 0.0;

@@ -40,6 +40,9 @@ pub const STEP_ADAM: u32 = 1;
 pub const STEP_BOUNDED: u32 = 2;
 /// Adam's normalisation times the estimate's Wiener gain.
 pub const STEP_WIENER: u32 = 3;
+/// Newton's step on the secant curvature of the finite-difference samples where the
+/// estimate is significant, else the Wiener step scaled down.
+pub const STEP_NEWTON: u32 = 4;
 
 /// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
 pub const SCHEDULE_CONSTANT: u32 = 0;

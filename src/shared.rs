@@ -165,7 +165,7 @@ pub struct Ssq {
     pub sum: f32,
 }
 
-/// Mirror of `DiagRecord` (glsl/shared/optim.glsl): 76 bytes, one parameter group's
+/// Mirror of `DiagRecord` (glsl/shared/optim.glsl): 88 bytes, one parameter group's
 /// optimiser diagnostics as the GPU reduces them; [`crate::optim::reference::DiagRecord`]
 /// is the same record in the CPU reference.
 #[repr(C)]
@@ -176,6 +176,7 @@ pub struct DiagRecord {
     pub n_eff_min: f32,
     pub n_eff_max: f32,
     pub clipped: f32,
+    pub newton: f32,
     pub f: Ssq,
     pub df: Ssq,
     pub sd_d: Ssq,
@@ -183,4 +184,5 @@ pub struct DiagRecord {
     pub mean: Ssq,
     pub sd: Ssq,
     pub sd_f: Ssq,
+    pub curv: Ssq,
 }

@@ -535,10 +535,11 @@ fn replay_matches_the_cpu_reference() {
     let halves = format!("{},{}", s(&gh_path), s(&fh_path));
 
     let seed_meta = "meta@step=snr@var=zero@fdvar=scaled";
-    let cases: [(&str, Option<&[f32]>, Option<&str>); 6] = [
+    let cases: [(&str, Option<&[f32]>, Option<&str>); 7] = [
         ("adam", None, None),
         ("meta", None, None),
         (seed_meta, None, None),
+        ("meta@step=newton@sig=1@settle=0.5@decay_h=0.8", Some(&init), Some("0.1,0.7")),
         ("adam@schedule=cosine@horizon=12", Some(&init), Some("0,1")),
         ("meta@step=adam@dpi=global@grow_f=0.5@fdvar=raw", Some(&init), Some("0.1,0.7")),
         (seed_meta, Some(&init), Some("0.1,0.7")),
@@ -575,6 +576,10 @@ fn replay_matches_the_cpu_reference() {
             fd_halves: optimiser.needs_halves().then_some(fh.as_slice()),
         };
         let cpu = optim::replay::replay_streams::<f64>(&optimiser, &streams, start, range, 0.05).unwrap();
+        // Newton's rule is held to the f32 reference: on streams whose ⟨ΔF⟩ ignore the steps
+        // its curvature rests on steps that f32 resolves coarsely (src/optim/tests.rs).
+        let newton = matches!(optimiser, optim::Optimiser::Meta(h) if h.step == optim::StepRule::Newton);
+        let cpu = if newton { optim::replay::replay_streams::<f32>(&optimiser, &streams, start, range, 0.05).unwrap() } else { cpu };
         for (i, (gpu_row, cpu_row)) in rows.iter().zip(&cpu.theta).enumerate() {
             for (j, (a, b)) in gpu_row.iter().zip(cpu_row).enumerate() {
                 assert!((*a as f64 - b).abs() < 1e-5, "{name} {range:?}: θ[{i}][{j}] GPU {a} CPU {b}");

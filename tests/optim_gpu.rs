@@ -17,12 +17,13 @@ fn variants() -> Vec<Optimiser> {
             ..Default::default()
         }),
     ];
-    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener] {
+    for step in [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener, StepRule::Newton] {
         for variance in [VarianceEstimate::Zero, VarianceEstimate::Centred] {
             v.push(Optimiser::Meta(MetaHyper { step, variance, ..MetaHyper::seed() }));
         }
     }
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }));
+    v.push(Optimiser::Meta(MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, sig: 1.0, settle: 0.5, decay_h: 0.8, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,
@@ -94,8 +95,14 @@ fn gpu_trajectories_match_the_f64_reference() {
             }
             // The seed's step with the centred estimate is lr·SNR with an SNR that can be
             // large (√V_M far below |⟨F⟩_M|), which amplifies rounding into θ.
+            // Newton's step divides by a curvature fitted to ⟨ΔF⟩/Δθ; these streams' ⟨ΔF⟩
+            // ignore the steps, so its tiny steps, which f32 resolves to ~1e-7 of θ, set the
+            // curvature and f32 parts from f64 (src/optim/tests.rs checks f32 against f64 on
+            // finite differences that span the steps): it is held to the f32 run alone.
+            let newton = matches!(opt, Optimiser::Meta(h) if h.step == StepRule::Newton);
             let tol = match opt {
                 Optimiser::Meta(h) if h.step == StepRule::Snr && h.variance == VarianceEstimate::Centred => 5e-5,
+                _ if newton => f64::INFINITY,
                 _ => 1e-5,
             };
             assert!(worst < tol, "{opt:?}: worst relative difference to f64 {worst}");
@@ -103,12 +110,19 @@ fn gpu_trajectories_match_the_f64_reference() {
             // The optimiser moved: the test is not comparing two copies of `init`.
             let moved: f64 = gpu.theta.last().unwrap().iter().zip(&init).map(|(a, b)| (a - b).abs() as f64).sum();
             assert!(moved > 0.1 * n as f64 * 0.01 * opt.schedule().factor(60), "{opt:?} barely moved: {moved}");
-            // The diagnostics the GPU reduced, step by step, against the f64 reference's.
-            for (t, (dg, dc)) in gpu.diagnostics.iter().zip(&cpu.diagnostics).enumerate() {
+            // The diagnostics the GPU reduced, step by step, against the f64 reference's (for
+            // Newton, the f32 run's).
+            let reference = if newton { &cpu32.diagnostics } else { &cpu.diagnostics };
+            for (t, (dg, dc)) in gpu.diagnostics.iter().zip(reference).enumerate() {
                 let (dg, dc) = (dg[0].values(), dc.values());
                 for (k, (x, y)) in dg.iter().zip(dc).enumerate() {
-                    // Steps are differences of θ ~ 0.5, resolved to ~3e-8 in f32.
-                    let (rel, scale) = if k >= 12 { (1e-2, 1e-5) } else { (1e-4, 1e-9) };
+                    // Steps are differences of θ ~ 0.5, resolved to ~3e-8 in f32; the secant
+                    // curvature divides by them.
+                    let (rel, scale) = match Diagnostics::COLUMNS[k] {
+                        "rms_curv" => (0.2, 1e-5),
+                        "step_norm" | "rms_step" | "newton" => (1e-2, 1e-5),
+                        _ => (1e-4, 1e-9),
+                    };
                     assert!(
                         close(*x, y, rel, scale),
                         "{opt:?} step {}: {} GPU {x} vs f64 {y}",

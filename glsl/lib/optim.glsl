@@ -23,7 +23,8 @@
 //    skipped (dF = 0 with variance 0, dF Moment2 not stepped): a common-random-number
 //    finite difference over a zero step is exactly 0;
 //  - the dF Moment2 counts its own samples per element (wsum_d = 1 - decay_d^count);
-//  - a non-finite F or dF leaves theta and the element's state unchanged (returns false);
+//  - a non-finite F or dF leaves theta and the element's state unchanged (returns false; the
+//    pass zeroes the element's last step, since it took none);
 //  - results that can leave the f32 range saturate at +-FLT_MAX;
 //  - diagnostics are reduced as counts, sums, minima, maxima and scaled sums of squares
 //    (Ssq, glsl/shared/optim.glsl), never as plain squares.
@@ -31,6 +32,11 @@
 // Variants of the meta-estimator (src/optim/mod.rs): the step rule (STEP_*), the centred
 // variance estimate from half-sample sums, beta_F growth, and the learning-rate schedule
 // (SCHEDULE_*), a pure function of the step number.
+//
+// STEP_NEWTON's curvature is the RMS of the secants dF/dpi of the element's own steps,
+// weighted by dpi^2 (a fit of dF = h dpi); it is kept as its root and the root of its
+// weight sum, updated as a convex combination, and the secant saturates, so that neither a
+// tiny step nor a huge dF leaves f32.
 
 #ifndef OPTIM_GLSL
 #define OPTIM_GLSL
@@ -131,20 +137,22 @@ float ssq_total(Ssq a) { return sat(a.scale * a.scale * a.sum); }
 // The empty record: the identity of diag_merge.
 DiagRecord diag_empty() {
     Ssq z = Ssq(0.0, 0.0);
-    return DiagRecord(0.0, 0.0, FLT_MAX, 0.0, 0.0, z, z, z, z, z, z, z);
+    return DiagRecord(0.0, 0.0, FLT_MAX, 0.0, 0.0, 0.0, z, z, z, z, z, z, z, z);
 }
 
 DiagRecord diag_merge(DiagRecord a, DiagRecord b) {
     return DiagRecord(a.count + b.count, sat(a.n_eff_sum + b.n_eff_sum), min(a.n_eff_min, b.n_eff_min),
-                      max(a.n_eff_max, b.n_eff_max), a.clipped + b.clipped, ssq_merge(a.f, b.f),
+                      max(a.n_eff_max, b.n_eff_max), a.clipped + b.clipped, a.newton + b.newton, ssq_merge(a.f, b.f),
                       ssq_merge(a.df, b.df), ssq_merge(a.sd_d, b.sd_d), ssq_merge(a.step, b.step),
-                      ssq_merge(a.mean, b.mean), ssq_merge(a.sd, b.sd), ssq_merge(a.sd_f, b.sd_f));
+                      ssq_merge(a.mean, b.mean), ssq_merge(a.sd, b.sd), ssq_merge(a.sd_f, b.sd_f),
+                      ssq_merge(a.curv, b.curv));
 }
 
 // One element's diagnostics (ElemDiag in src/optim/reference.rs).
 struct ElemDiag {
     float n_eff;
     bool clipped;
+    bool newton;
     float f;
     float df;
     float sd_d;
@@ -152,11 +160,13 @@ struct ElemDiag {
     float mean;
     float sd;
     float sd_f;
+    float curv;
 };
 
 DiagRecord diag_of(ElemDiag e) {
-    return DiagRecord(1.0, e.n_eff, e.n_eff, e.n_eff, e.clipped ? 1.0 : 0.0, ssq_of(e.f), ssq_of(e.df),
-                      ssq_of(e.sd_d), ssq_of(e.step), ssq_of(e.mean), ssq_of(e.sd), ssq_of(e.sd_f));
+    return DiagRecord(1.0, e.n_eff, e.n_eff, e.n_eff, e.clipped ? 1.0 : 0.0, e.newton ? 1.0 : 0.0, ssq_of(e.f),
+                      ssq_of(e.df), ssq_of(e.sd_d), ssq_of(e.step), ssq_of(e.mean), ssq_of(e.sd), ssq_of(e.sd_f),
+                      ssq_of(e.curv));
 }
 
 // ---- Adam --------------------------------------------------------------------------------
@@ -180,7 +190,7 @@ struct AdamParams {
 // One Adam step of one element (lr: the scheduled rate of step t). False for a non-finite
 // gradient: nothing is changed.
 bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s, out ElemDiag d) {
-    d = ElemDiag(0.0, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    d = ElemDiag(0.0, false, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     if (!is_finite(g)) return false;
     float k1 = ema_weight(p.beta1, p.t);
     float k2 = ema_weight(p.beta2, p.t);
@@ -188,7 +198,7 @@ bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s, out
     float r = hypot_safe(sqrt(1.0 - k2) * s.r, sqrt(k2) * g);
     float step = sat(-p.lr * (m / (r + p.eps)));
     float next = min(max(sat(theta + step), p.lo), p.hi);
-    d = ElemDiag(0.0, false, g, 0.0, 0.0, next - theta, m, 0.0, r);
+    d = ElemDiag(0.0, false, false, g, 0.0, 0.0, next - theta, m, 0.0, r, 0.0);
     theta = next;
     s = AdamElem(m, r);
     return true;
@@ -205,6 +215,9 @@ struct MetaElem {
     float wsum_d; // 1 - decay_d^count of the dF Moment2's own samples
     float n_eff;  // 1/(1 - alpha_prev): effective number of averaged samples
     float v;      // Adam's bias-corrected sqrt(v) of <F> (beta2): the normaliser of STEP_ADAM
+    float curv;   // STEP_NEWTON: sqrt(sum w (dF/dpi)^2 / sum w), w = dpi^2, the secant curvature
+    float curv_w; // sqrt(sum w), each earlier weight forgotten by decay_h per new sample
+    float last;   // the element's last step theta_i - theta_{i-1}: the dpi of the next dF
 };
 
 struct MetaParams {
@@ -220,6 +233,9 @@ struct MetaParams {
     bool centred;   // variance EMAs of centred half-sample differences instead of squares
     float grow_f;   // beta_F growth exponent (0: the seed's constant decay)
     bool fd_raw;    // Moment2 of dF itself instead of dF/|dpi| (then times |dpi|^2)
+    float decay_h;  // STEP_NEWTON: the curvature fit's forgetting per sample
+    float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
+    float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -248,7 +264,7 @@ float centred_sample(float x, float half_sum) { return sat(2.0 * sat(0.5 * x - h
 // previous step. False for a non-finite input: nothing is changed.
 bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout MetaElem s,
                  out ElemDiag d) {
-    d = ElemDiag(0.0, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    d = ElemDiag(0.0, false, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     float f = x.f;
     float df = x.df;
     if (!is_finite(f) || !is_finite(df) || (p.centred && !(is_finite(x.f_half) && is_finite(x.df_half))))
@@ -290,18 +306,41 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float mean = sat(pred + gain * half_diff + gain * half_diff);
     float sd = hypot_safe((1.0 - gain) * sd_pred, gain * rms_f);
 
+    // The secant curvature along the element's own last step (where dF spans it).
+    float curv = s.curv;
+    float curv_w = s.curv_w;
+    if (dpi2 > 0.0 && is_finite(dpi2) && s.last != 0.0) {
+        curv_w = hypot_safe(sqrt(p.decay_h) * s.curv_w, s.last);
+        float kw = abs(s.last) / curv_w;
+        float k = kw * kw;
+        curv = hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * sat(df / s.last));
+    }
+
     float ratio;
     if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
     else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd) + p.eps);
-    else if (p.step_rule == STEP_WIENER)
+    else if (p.step_rule == STEP_WIENER || p.step_rule == STEP_NEWTON)
         ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd);
     else ratio = mean / (sd + p.eps);
     float step = sat(-p.lr * ratio);
+    bool newton = false;
+    if (p.step_rule == STEP_NEWTON && curv > 0.0) {
+        // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
+        // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0), or the
+        // Wiener step times settle, whichever is longer, within |step| <= lr.
+        float z = mean == 0.0 ? FLT_MAX : p.sig * (sd / abs(mean));
+        float shrink = z >= 1.0 ? 0.0 : 1.0 - z * z;
+        float newton_step = clamp(sat(-mean / curv) * shrink, -p.lr, p.lr);
+        float settle_step = p.settle * step;
+        newton = abs(newton_step) > abs(settle_step);
+        step = clamp(newton ? newton_step : settle_step, -p.lr, p.lr);
+    }
     float next = min(max(sat(theta + step), p.lo), p.hi);
     float n_eff = 1.0 / gain;
-    d = ElemDiag(n_eff, weighted < bound, f, df, sd_d, next - theta, mean, sd, rms_f);
+    float taken = next - theta;
+    d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, curv);
     theta = next;
-    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v);
+    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken);
     return true;
 }
 

@@ -21,9 +21,9 @@ Ssq ssq_subgroup(Ssq a) {
 
 DiagRecord diag_subgroup(DiagRecord a) {
     return DiagRecord(subgroupAdd(a.count), sat(subgroupAdd(a.n_eff_sum)), subgroupMin(a.n_eff_min),
-                      subgroupMax(a.n_eff_max), subgroupAdd(a.clipped), ssq_subgroup(a.f), ssq_subgroup(a.df),
-                      ssq_subgroup(a.sd_d), ssq_subgroup(a.step), ssq_subgroup(a.mean), ssq_subgroup(a.sd),
-                      ssq_subgroup(a.sd_f));
+                      subgroupMax(a.n_eff_max), subgroupAdd(a.clipped), subgroupAdd(a.newton), ssq_subgroup(a.f),
+                      ssq_subgroup(a.df), ssq_subgroup(a.sd_d), ssq_subgroup(a.step), ssq_subgroup(a.mean),
+                      ssq_subgroup(a.sd), ssq_subgroup(a.sd_f), ssq_subgroup(a.curv));
 }
 
 // The workgroup's merged record, valid in subgroup 0.

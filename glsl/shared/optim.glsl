@@ -13,13 +13,14 @@ struct Ssq {
     float sum;
 };
 
-// 76 bytes.
+// 88 bytes.
 struct DiagRecord {
     float count;      // elements that stepped (not skipped for non-finite input)
     float n_eff_sum;  // meta: 1/(1 - alpha) summed over them
     float n_eff_min;
     float n_eff_max;
     float clipped;    // meta: elements whose alpha the clip alpha <= 1/(2 - alpha_prev) limited
+    float newton;     // meta, STEP_NEWTON: elements that took Newton's step
     Ssq f;            // <F>
     Ssq df;           // meta: <dF> as used (0 where the dF terms were skipped)
     Ssq sd_d;         // meta: sqrt(Var[<dF>]), the FD term's standard deviation
@@ -27,5 +28,6 @@ struct DiagRecord {
     Ssq mean;         // meta: <F>_M; adam: m
     Ssq sd;           // meta: sqrt(Var[<F>_M])
     Ssq sd_f;         // meta: sqrt(Var[<F>]) (its Moment2); adam: sqrt(v)
+    Ssq curv;         // meta: the secant curvature of STEP_NEWTON (kept for every rule)
 };
 #endif

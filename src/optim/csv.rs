@@ -58,7 +58,7 @@ impl DiagLog {
             let it = f.next().and_then(|v| v.parse().ok()).ok_or_else(bad)?;
             let group = f.next().ok_or_else(bad)?.to_string();
             let values: Vec<f64> = f.map(|v| v.parse().map_err(|_| bad())).collect::<Result<_, _>>()?;
-            let values: [f64; 14] = values.try_into().map_err(|_| bad())?;
+            let values: [f64; Diagnostics::COLUMNS.len()] = values.try_into().map_err(|_| bad())?;
             rows.push((it, group, Diagnostics::from_values(&values)));
         }
         Ok(DiagLog { rows })

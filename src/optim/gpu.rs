@@ -149,7 +149,10 @@ impl GpuOptimiser {
                     (None, Some(u)) => (u.clone(), u.clone()),
                     (None, None) => unreachable!("one of the two is set"),
                 };
-                let names = ["meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v"];
+                let names = [
+                    "meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v", "meta curv",
+                    "meta curv w", "meta last",
+                ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 written.extend(meta_state.iter().cloned());
                 written.extend([fd.clone(), theta_prev.clone(), grad_half.clone(), fd_half.clone()]);
@@ -170,6 +173,9 @@ impl GpuOptimiser {
                         ("MetaWsumD", &meta_state[4]),
                         ("MetaNEff", &meta_state[5]),
                         ("MetaV", &meta_state[6]),
+                        ("MetaCurv", &meta_state[7]),
+                        ("MetaCurvW", &meta_state[8]),
+                        ("MetaLast", &meta_state[9]),
                         ("Diag", &diag),
                         ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),

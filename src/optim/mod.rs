@@ -38,12 +38,17 @@
 //!    exactly zero, so this is the limit, not an approximation.
 //! 8. The ΔF Moment2 counts its own samples per element (`wsum_d` = 1 − β^count), because its
 //!    samples are missing at the first iteration and whenever (7) applies.
-//! 9. A non-finite F or ΔF skips the element: θ and its state are unchanged, its step is 0,
-//!    and it is counted (Adam reads no ΔF). The F Moment2 keeps the global count t, so after
+//! 9. A non-finite F or ΔF skips the element: θ and its state are unchanged (but for its last
+//!    step, which becomes 0: the next ΔF spans no step of it), its step is 0, and it is
+//!    counted (Adam reads no ΔF). The F Moment2 keeps the global count t, so after
 //!    a skip its bias correction is slightly low until the EMA forgets (the step bounds below
 //!    still hold).
-//! 10. Results that can leave the f32 range (M + ΔF, rms_D·‖Δπ‖, lr·ratio, θ + step) saturate
-//!     at ±MAX; the ratio M/(sd + ε) is taken before multiplying by lr.
+//! 10. Results that can leave the f32 range (M + ΔF, rms_D·‖Δπ‖, lr·ratio, θ + step, the
+//!     secant ΔF/Δθ, M/h) saturate at ±MAX; the ratio M/(sd + ε) is taken before multiplying
+//!     by lr.
+//! 11. `step = newton`'s curvature, the Δθ²-weighted RMS of the secants ΔF/Δθ, is kept as its
+//!     root h and the root of its weight sum and updated by `hypot` with weights that sum to
+//!     one, so that neither a tiny step nor a huge ΔF overflows it.
 //!
 //! The seed's constants are absolute: ε = 1e-8 makes steps shrink in proportion for
 //! gradients below ~1e-8 (as in Adam), and the 1e-30 in the α denominator makes Meta stop
@@ -51,7 +56,8 @@
 //!
 //! # Step bounds
 //! With these choices the step is bounded for any finite input (Cauchy–Schwarz on the EMA
-//! weights): Adam |Δθ| ≤ lr·[`ADAM_STEP_BOUND`] for the default betas; Meta
+//! weights): Adam |Δθ| ≤ lr·[`ADAM_STEP_BOUND`] for the default betas; Meta with
+//! `step = bounded` or `newton` |Δθ| ≤ lr; Meta with the seed's rule
 //! |Δθ_t| ≤ lr·√(1 + (t−1)(1/(1−β_F) + 1/(1−β_D))), which grows like √t because a confident
 //! meta-estimate takes larger steps by design: with Var[M] ≈ VF/n_eff the step is about
 //! lr·√n_eff·M/√VF.
@@ -189,6 +195,20 @@ pub enum StepRule {
     /// the steps and with them the finite-difference variance fall, and the estimate
     /// averages more.
     Wiener,
+    /// Newton's step −⟨F⟩_M/h where the estimate is significant, the Wiener step scaled
+    /// down elsewhere, never longer than lr. h is the element's secant curvature: the RMS
+    /// of ⟨ΔF⟩/Δθ over its own recent steps, weighted by Δθ² (the finite-difference samples
+    /// measure how the gradient changed over a known step, which is what Newton needs), an
+    /// upper estimate where the secants are noisy. Newton's step is shrunk by the
+    /// positive-part James–Stein factor 1 − (sig·√V_M/⟨F⟩_M)², zero unless the estimate
+    /// lies `sig` standard deviations from 0; the step is the longer of it and `settle`
+    /// times the Wiener step. So far from the optimum, where the estimate is significant, the
+    /// iterate moves by the estimated distance to the optimum (at most lr) instead of a
+    /// step that shrinks with the gradient; near it, where the estimate is noise, it moves
+    /// by a fraction of the Wiener step, which keeps the finite differences small so that
+    /// the estimate keeps averaging; as the averaged estimate becomes significant again,
+    /// Newton's step corrects the iterate by the remaining distance.
+    Newton,
 }
 
 impl StepRule {
@@ -200,6 +220,7 @@ impl StepRule {
             StepRule::Adam => STEP_ADAM,
             StepRule::Bounded => STEP_BOUNDED,
             StepRule::Wiener => STEP_WIENER,
+            StepRule::Newton => STEP_NEWTON,
         }
     }
 }
@@ -276,6 +297,13 @@ pub struct MetaHyper {
     pub dpi: StepNorm,
     /// The ⟨ΔF⟩ variance model.
     pub fdvar: FdVariance,
+    /// `step = newton`: the decay of each earlier secant's weight per new one.
+    pub decay_h: f64,
+    /// `step = newton`: the significance, in standard deviations of the estimate, that
+    /// Newton's step needs.
+    pub sig: f64,
+    /// `step = newton`: the fraction of the Wiener step taken where Newton's is shorter.
+    pub settle: f64,
     pub schedule: Schedule,
 }
 
@@ -293,22 +321,27 @@ impl MetaHyper {
             grow_f: 0.0,
             dpi: StepNorm::Group,
             fdvar: FdVariance::Scaled,
+            decay_h: 0.9,
+            sig: 3.0,
+            settle: 0.3,
             schedule: Schedule::default(),
         }
     }
 }
 
-/// The defaults (spec `meta`): the Wiener step rule (Adam's normalisation, so `lr` is the
-/// typical parameter change per iteration as for Adam, shrunk where the estimate is mostly
-/// noise), the centred variance estimate and the raw ⟨ΔF⟩ variance, with the seed's decays
-/// and ε, each parameter group's own step norm, constant β_F and rate. Chosen by the pilot
-/// runs of docs/results.md (scenes/pilot.toml, scenes/pilot2.toml): of the candidates, the
-/// smallest worst-case settled error relative to the best Adam over five scenes, and a
-/// geometric mean tied with the best; then `fdvar=raw` (scenes/pilot3.toml), which lets the
-/// estimate average for parameters that change how paths are sampled.
+/// The defaults (spec `meta`): Newton's step rule on the finite differences' secant
+/// curvature (`lr` is the longest step, the typical step far from the optimum as for Adam;
+/// significance 3, a tenth of the secants' weight forgotten per step, 0.3 of the Wiener step
+/// near the optimum), the centred variance estimate and the raw ⟨ΔF⟩ variance, with the
+/// seed's decays and ε, each parameter group's own step norm, constant β_F and rate. Chosen
+/// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
+/// (scenes/pilot.toml, scenes/pilot2.toml), `fdvar=raw` (scenes/pilot3.toml), which lets the
+/// estimate average for parameters that change how paths are sampled, then Newton's rule
+/// (scenes/pilot6.toml), whose settled error relative to the best Adam has the smaller
+/// geometric mean over the six bundled scenes.
 impl Default for MetaHyper {
     fn default() -> Self {
-        MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }
+        MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }
     }
 }
 
@@ -383,8 +416,15 @@ impl Optimiser {
                 decay("decay_f", h.decay_f)?;
                 decay("decay_d", h.decay_d)?;
                 decay("beta2", h.beta2)?;
+                decay("decay_h", h.decay_h)?;
                 if !(0.0..=1.0).contains(&h.grow_f) {
                     return Err(OptimError::BadHyper(format!("grow_f = {} is outside [0, 1]", h.grow_f)));
+                }
+                if !(0.0..=1.0).contains(&h.settle) {
+                    return Err(OptimError::BadHyper(format!("settle = {} is outside [0, 1]", h.settle)));
+                }
+                if !(h.sig >= 0.0 && h.sig <= 1e6) {
+                    return Err(OptimError::BadHyper(format!("sig = {} is outside [0, 1e6]", h.sig)));
                 }
                 h.eps
             }

@@ -87,7 +87,7 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block: 88 bytes. The step number comes from the `Frame`
+/// `optim_meta.comp`'s `Push` block: 104 bytes. The step number comes from the `Frame`
 /// buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -116,6 +116,9 @@ pub struct MetaPush {
     pub sched_floor: f32,
     pub sched_gamma: f32,
     pub fd_raw: u32,
+    pub decay_h: f32,
+    pub sig: f32,
+    pub settle: f32,
 }
 
 impl MetaPush {
@@ -146,6 +149,9 @@ impl MetaPush {
             sched_floor: sc.floor,
             sched_gamma: sc.gamma,
             fd_raw: u32::from(h.fdvar == FdVariance::Raw),
+            decay_h: h.decay_h as f32,
+            sig: h.sig as f32,
+            settle: h.settle as f32,
         }
     }
 }
@@ -169,6 +175,7 @@ impl From<shared::DiagRecord> for super::reference::DiagRecord<f32> {
             n_eff_min: r.n_eff_min,
             n_eff_max: r.n_eff_max,
             clipped: r.clipped,
+            newton: r.newton,
             f: s(r.f),
             df: s(r.df),
             sd_d: s(r.sd_d),
@@ -176,6 +183,7 @@ impl From<shared::DiagRecord> for super::reference::DiagRecord<f32> {
             mean: s(r.mean),
             sd: s(r.sd),
             sd_f: s(r.sd_f),
+            curv: s(r.curv),
         }
     }
 }

@@ -192,6 +192,8 @@ pub struct ElemDiag<R> {
     pub n_eff: R,
     /// Whether α was limited by the clip α ≤ 1/(2 − α_prev) (Meta).
     pub clipped: bool,
+    /// Whether the step was Newton's (Meta, `step = newton`).
+    pub newton: bool,
     /// ⟨F⟩ (the proportional gradient).
     pub f: R,
     /// ⟨ΔF⟩ as used: 0 when the ΔF terms were skipped (Meta).
@@ -206,6 +208,8 @@ pub struct ElemDiag<R> {
     pub sd: R,
     /// √Var[⟨F⟩] (Meta's Moment2) or Adam's √v̂.
     pub sd_f: R,
+    /// The secant curvature of `step = newton` (Meta, kept for every rule).
+    pub curv: R,
 }
 
 /// A parameter group's diagnostics as the GPU reduces them (`DiagRecord` in
@@ -218,6 +222,7 @@ pub struct DiagRecord<R> {
     pub n_eff_min: R,
     pub n_eff_max: R,
     pub clipped: R,
+    pub newton: R,
     pub f: Ssq<R>,
     pub df: Ssq<R>,
     pub sd_d: Ssq<R>,
@@ -225,6 +230,7 @@ pub struct DiagRecord<R> {
     pub mean: Ssq<R>,
     pub sd: Ssq<R>,
     pub sd_f: Ssq<R>,
+    pub curv: Ssq<R>,
 }
 
 impl<R: Real> Default for DiagRecord<R> {
@@ -236,6 +242,7 @@ impl<R: Real> Default for DiagRecord<R> {
             n_eff_min: R::MAX,
             n_eff_max: R::ZERO,
             clipped: R::ZERO,
+            newton: R::ZERO,
             f: Ssq::default(),
             df: Ssq::default(),
             sd_d: Ssq::default(),
@@ -243,6 +250,7 @@ impl<R: Real> Default for DiagRecord<R> {
             mean: Ssq::default(),
             sd: Ssq::default(),
             sd_f: Ssq::default(),
+            curv: Ssq::default(),
         }
     }
 }
@@ -255,6 +263,7 @@ impl<R: Real> DiagRecord<R> {
             n_eff_min: e.n_eff,
             n_eff_max: e.n_eff,
             clipped: if e.clipped { R::ONE } else { R::ZERO },
+            newton: if e.newton { R::ONE } else { R::ZERO },
             f: Ssq::of(e.f),
             df: Ssq::of(e.df),
             sd_d: Ssq::of(e.sd_d),
@@ -262,6 +271,7 @@ impl<R: Real> DiagRecord<R> {
             mean: Ssq::of(e.mean),
             sd: Ssq::of(e.sd),
             sd_f: Ssq::of(e.sd_f),
+            curv: Ssq::of(e.curv),
         }
     }
 
@@ -272,6 +282,7 @@ impl<R: Real> DiagRecord<R> {
             n_eff_min: self.n_eff_min.min(o.n_eff_min),
             n_eff_max: self.n_eff_max.max(o.n_eff_max),
             clipped: self.clipped + o.clipped,
+            newton: self.newton + o.newton,
             f: self.f.merge(o.f),
             df: self.df.merge(o.df),
             sd_d: self.sd_d.merge(o.sd_d),
@@ -279,6 +290,7 @@ impl<R: Real> DiagRecord<R> {
             mean: self.mean.merge(o.mean),
             sd: self.sd.merge(o.sd),
             sd_f: self.sd_f.merge(o.sd_f),
+            curv: self.curv.merge(o.curv),
         }
     }
 }
@@ -297,6 +309,8 @@ pub struct Diagnostics {
     pub n_eff_max: f64,
     /// Fraction of elements whose α the clip α ≤ 1/(2 − α_prev) limited.
     pub clipped: f64,
+    /// Fraction of elements that took Newton's step (`step = newton`).
+    pub newton: f64,
     /// RMS of ⟨F⟩.
     pub rms_f: f64,
     /// RMS of ⟨ΔF⟩.
@@ -313,13 +327,15 @@ pub struct Diagnostics {
     pub step_norm: f64,
     /// RMS of the step.
     pub rms_step: f64,
+    /// RMS of the secant curvature (Meta).
+    pub rms_curv: f64,
 }
 
 impl Diagnostics {
     /// The column names of [`Diagnostics::csv`], in order.
-    pub const COLUMNS: [&'static str; 14] = [
+    pub const COLUMNS: [&'static str; 16] = [
         "lr", "elements", "n_eff_mean", "n_eff_min", "n_eff_max", "clipped", "rms_f", "rms_df", "sd_fd", "rms_mean",
-        "sd_mean", "sd_f", "step_norm", "rms_step",
+        "sd_mean", "sd_f", "step_norm", "rms_step", "newton", "rms_curv",
     ];
 
     pub fn from_record<R: Real>(r: &DiagRecord<R>, lr: f64) -> Self {
@@ -341,11 +357,13 @@ impl Diagnostics {
             sd_f: rms(r.sd_f),
             step_norm: r.step.norm().to_f64(),
             rms_step: rms(r.step),
+            newton: per(r.newton),
+            rms_curv: rms(r.curv),
         }
     }
 
     /// The diagnostics from values in the order of [`Diagnostics::COLUMNS`].
-    pub fn from_values(v: &[f64; 14]) -> Self {
+    pub fn from_values(v: &[f64; Self::COLUMNS.len()]) -> Self {
         Diagnostics {
             lr: v[0],
             elements: v[1] as u64,
@@ -361,11 +379,13 @@ impl Diagnostics {
             sd_f: v[11],
             step_norm: v[12],
             rms_step: v[13],
+            newton: v[14],
+            rms_curv: v[15],
         }
     }
 
     /// The values in the order of [`Diagnostics::COLUMNS`].
-    pub fn values(&self) -> [f64; 14] {
+    pub fn values(&self) -> [f64; Self::COLUMNS.len()] {
         [
             self.lr,
             self.elements as f64,
@@ -381,6 +401,8 @@ impl Diagnostics {
             self.sd_f,
             self.step_norm,
             self.rms_step,
+            self.newton,
+            self.rms_curv,
         ]
     }
 }
@@ -459,6 +481,13 @@ pub struct MetaElem<R> {
     pub n_eff: R,
     /// Adam's bias-corrected √v̂ of ⟨F⟩ (β2), the normaliser of `step = adam`.
     pub v: R,
+    /// The secant curvature of `step = newton`: √(Σ w·(ΔF/Δθ)²/Σ w) over the element's
+    /// steps, w = Δθ², each earlier weight forgotten by `decay_h` per new secant.
+    pub curv: R,
+    /// √Σ w of that fit.
+    pub curv_w: R,
+    /// The element's last step θ_i − θ_{i−1}, the Δθ of the next ⟨ΔF⟩ (0 after a skip).
+    pub last: R,
 }
 
 /// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1;
@@ -478,6 +507,10 @@ pub struct MetaParams<R> {
     pub grow_f: R,
     /// Moment2 of ⟨ΔF⟩ itself rather than of ⟨ΔF⟩/‖Δπ‖ ([`super::FdVariance::Raw`]).
     pub fd_raw: bool,
+    /// `step = newton`: the curvature fit's forgetting, significance and settle fraction.
+    pub decay_h: R,
+    pub sig: R,
+    pub settle: R,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -495,6 +528,9 @@ impl<R: Real> MetaParams<R> {
             centred: h.variance == VarianceEstimate::Centred,
             grow_f: R::of(h.grow_f),
             fd_raw: h.fdvar == super::FdVariance::Raw,
+            decay_h: R::of(h.decay_h),
+            sig: R::of(h.sig),
+            settle: R::of(h.settle),
         }
     }
 }
@@ -559,18 +595,40 @@ pub fn meta_update<R: Real>(
     let mean = sat(pred + gain * half_diff + gain * half_diff);
     let sd = hypot((one - gain) * sd_pred, gain * rms_f);
 
+    // The secant curvature along the element's own last step (where ΔF spans it): the RMS
+    // of ΔF/Δθ weighted by Δθ², each earlier weight forgotten by decay_h.
+    let (mut curv, mut curv_w) = (s.curv, s.curv_w);
+    if dpi2 > R::ZERO && dpi2.is_finite() && s.last != R::ZERO {
+        curv_w = hypot(p.decay_h.sqrt() * s.curv_w, s.last);
+        let kw = s.last.abs() / curv_w;
+        let k = kw * kw;
+        curv = hypot((one - k).sqrt() * curv, k.sqrt() * sat(df / s.last));
+    }
+
     let ratio = match p.step {
         StepRule::Snr => mean / (sd + p.eps),
         StepRule::Adam => mean / (v + p.eps),
         StepRule::Bounded => mean / (hypot(mean, sd) + p.eps),
-        StepRule::Wiener if mean == R::ZERO => R::ZERO,
-        StepRule::Wiener => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
+        StepRule::Wiener | StepRule::Newton if mean == R::ZERO => R::ZERO,
+        StepRule::Wiener | StepRule::Newton => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
     };
-    let step = sat(-p.lr * ratio);
+    let mut step = sat(-p.lr * ratio);
+    let mut newton = false;
+    if p.step == StepRule::Newton && curv > R::ZERO {
+        // Newton's step −mean/h shrunk by the positive-part James–Stein factor
+        // 1 − (sig·sd/mean)², or the Wiener step times settle, whichever is longer, within lr.
+        let z = if mean == R::ZERO { R::MAX } else { p.sig * (sd / mean.abs()) };
+        let shrink = if z >= one { R::ZERO } else { one - z * z };
+        let newton_step = (sat(-mean / curv) * shrink).max(-p.lr).min(p.lr);
+        let settle_step = p.settle * step;
+        newton = newton_step.abs() > settle_step.abs();
+        step = if newton { newton_step } else { settle_step }.max(-p.lr).min(p.lr);
+    }
     let next = sat(theta + step).max(p.lo).min(p.hi);
     let n_eff = one / gain;
-    let diag = ElemDiag { n_eff, clipped: weighted < bound, f, df, sd_d, step: next - theta, mean, sd, sd_f: rms_f };
-    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v }, diag))
+    let taken = next - theta;
+    let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
+    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken }, diag))
 }
 
 /// Hyperparameters and per-element state of one parameter buffer.
@@ -686,7 +744,11 @@ impl<R: Real> BufferOptimiser<R> {
                             (*th, *s) = (t2, s2);
                             record = record.merge(DiagRecord::of(&d));
                         }
-                        None => skipped += 1,
+                        None => {
+                            // The element did not move: the next ⟨ΔF⟩ spans no step of it.
+                            s.last = R::ZERO;
+                            skipped += 1;
+                        }
                     }
                 }
                 self.dpi2 = record.step.total();

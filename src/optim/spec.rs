@@ -3,8 +3,9 @@
 //!
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
-//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded,
-//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw), and for both the learning-rate schedule's
+//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
+//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
+//! for `step` = newton `decay_h`, `sig`, `settle`), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
@@ -43,7 +44,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle",
     }
 }
 
@@ -69,7 +70,7 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
     let number = || value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")));
     let slot = match (&mut *optimiser, key) {
         (Optimiser::Meta(h), "step") => {
-            h.step = choice(key, value, &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener)])?;
+            h.step = choice(key, value, &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener), ("newton", StepRule::Newton)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "var") => {
@@ -92,6 +93,9 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         (Optimiser::Meta(MetaHyper { eps, .. }), "eps") => eps,
         (Optimiser::Meta(MetaHyper { beta2, .. }), "beta2") => beta2,
         (Optimiser::Meta(MetaHyper { grow_f, .. }), "grow_f") => grow_f,
+        (Optimiser::Meta(MetaHyper { decay_h, .. }), "decay_h") => decay_h,
+        (Optimiser::Meta(MetaHyper { sig, .. }), "sig") => sig,
+        (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
         _ => return Ok(false),
     };
     *slot = number()?;
@@ -175,7 +179,12 @@ mod tests {
         assert!(msg("adam@beta1=1.5").contains("beta1 = 1.5"));
         assert!(msg("adam@eps=1@eps=2").contains("eps given twice"));
         assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
-        assert!(msg("meta@step=newton").contains("expected snr, adam, bounded or wiener"));
+        assert!(msg("meta@step=secant").contains("expected snr, adam, bounded, wiener or newton"));
+        assert!(msg("meta@settle=2").contains("settle = 2"));
+        assert!(msg("meta@decay_h=1").contains("decay_h = 1"));
+        assert!(msg("meta@sig=-1").contains("sig = -1"));
+        let Optimiser::Meta(h) = "meta@step=newton@sig=2@settle=0.5@decay_h=0.8".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!((h.step, h.sig, h.settle, h.decay_h), (StepRule::Newton, 2.0, 0.5, 0.8));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
         assert!(msg("meta@dpi=all").contains("expected group or global"));
         assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));
