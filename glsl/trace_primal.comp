@@ -93,11 +93,11 @@ void main() {
         vec3 radiance[NSTATES];
 #ifdef ADJOINT
         Rng replay = rng;
-        trace_path(rng, o, d, zero, zero, radiance);
+        trace_path(rng, o, d, zero, zero, false, radiance);
         vec3 unused[NSTATES];
-        trace_path(replay, o, d, radiance, delta, unused);
+        trace_path(replay, o, d, radiance, delta, true, unused);
 #else
-        trace_path(rng, o, d, zero, zero, radiance);
+        trace_path(rng, o, d, zero, zero, false, radiance);
         for (int j = 0; j < NSTATES; ++j) sum[j] += radiance[j];
 #endif
     }

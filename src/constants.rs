@@ -24,6 +24,11 @@ pub const FALLOFF_LINEAR: u32 = 1;
 /// atomics (glsl/lib/scene_access.glsl); a larger θ takes the direct atomics.
 pub const LOCAL_GRADS_CAPACITY: u32 = 32;
 
+/// Path vertices whose ray casts the adjoint kernels cache between a path's two replays
+/// (glsl/lib/integrator.glsl); with `max_depth` at most this, every cast is cached and the
+/// `CACHE_ALL` specialization constant lets the compiler drop the second traversal.
+pub const CACHED_BOUNCES: u32 = 8;
+
 /// The `LOSS` specialization constant of glsl/loss.comp: mean squared difference.
 pub const LOSS_L2: u32 = 0;
 /// Mean absolute difference.

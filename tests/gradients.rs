@@ -1032,7 +1032,9 @@ range = [0.0, 1.0]
 /// scene without textures or principled materials has their code compiled out. The kernels
 /// with every feature compiled in must compute the same thing: the Cornell box (neither
 /// feature) and the spiral (principled, untextured) render bit-identical images and the
-/// same gradient either way.
+/// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
+/// replay takes every cast from the cache, its traversal compiled out) and without (it
+/// tests each cast for the cache at run time).
 #[test]
 fn feature_specialisation_changes_no_result() {
     for (name, principled) in [("cornell", false), ("spiral", true)] {
@@ -1044,9 +1046,12 @@ fn feature_specialisation_changes_no_result() {
                 let mut gs = GpuScene::new(ctx, &scene).unwrap();
                 assert!(!gs.has_textures, "{name} has no texture");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
+                assert!(gs.replay_cached, "{name}: every cast of a path fits the replay cache");
                 if every_feature {
                     gs.has_textures = true;
                     gs.has_principled = true;
+                    // The gradient replay tests each cast for the cache at run time.
+                    gs.replay_cached = false;
                 }
                 let renderer = Renderer::new(gs).unwrap();
                 renderer.scene.set_theta(renderer.scene.layout.reference()).unwrap();

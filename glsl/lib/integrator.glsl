@@ -47,6 +47,7 @@ layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
 #define NUM_EMITTERS limit_num_emitters
 #define HAS_ENVIRONMENT (limit_has_environment != 0u)
 #define ENVIRONMENT_SAMPLED HAS_ENVIRONMENT
+#define CACHE_ALL false
 #else
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;
@@ -60,6 +61,12 @@ layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
 // never uses. lavapipe would otherwise run it, masked, at every path vertex, shadow ray
 // included (docs/lavapipe.md).
 layout(constant_id = 10) const bool ENVIRONMENT_SAMPLED = false;
+// Whether every ray cast of a path fits the adjoint kernels' cache (MAX_DEPTH <=
+// CACHED_BOUNCES, set by the host): then the gradient replay's test for a cached cast is
+// the constant `replay`, and the compiler drops the replay's traversal, which lavapipe
+// would otherwise enter, masked, at every vertex (docs/lavapipe.md). Only the adjoint
+// kernels use it (the compiler drops it from the others).
+layout(constant_id = 11) const bool CACHE_ALL = false;
 #endif
 
 #ifdef COUNT_RAYS
@@ -75,18 +82,20 @@ layout(set = 0, binding = 40, scalar) buffer RayCount { uint ray_count[]; };
 // traversing the BVH again, which leaves the gradient pass about one trace instead of two.
 // Memory stays constant per thread (path replay's point): vertices past the cache are
 // traced again as before. Depth d's closest hit is cached_hits[d - 1]; bit d - 1 of
-// cached_shadow says whether depth d's shadow ray was blocked.
-#define CACHED_BOUNCES 8u
+// cached_shadow says whether depth d's shadow ray was blocked. The replay is the constant
+// argument `replay` of trace_path, so that with CACHE_ALL the cached test folds away.
+#include "vkinverse_constants.glsl"  // CACHED_BOUNCES
 Hit cached_hits[CACHED_BOUNCES];
 uint cached_shadow;
 #endif
 
 // trace_closest and trace_any as the integrator casts them at path depth `depth` (counted
-// in COUNT_RAYS). `replay` (adjoint kernels only): take the result of the first replay's
-// cast from the cache; otherwise cast, and cache the result in the adjoint kernels.
+// in COUNT_RAYS). `replay` (adjoint kernels only; a constant at each call): take the result
+// of the first replay's cast from the cache; otherwise cast, and cache the result in the
+// adjoint kernels.
 bool cast_closest(vec3 o, vec3 d, float tmax, uint depth, bool replay, out Hit hit) {
 #ifdef ADJOINT
-    if (replay && depth <= CACHED_BOUNCES) {
+    if (replay && (CACHE_ALL || depth <= CACHED_BOUNCES)) {
         hit = cached_hits[depth - 1u];
         return hit.prim != BVH_NO_HIT;
     }
@@ -104,7 +113,7 @@ bool cast_closest(vec3 o, vec3 d, float tmax, uint depth, bool replay, out Hit h
 bool cast_any(vec3 o, vec3 d, float tmax, uint depth, bool replay) {
 #ifdef ADJOINT
     uint bit = depth <= CACHED_BOUNCES ? 1u << (depth - 1u) : 0u;
-    if (replay && bit != 0u) return (cached_shadow & bit) != 0u;
+    if (replay && (CACHE_ALL || bit != 0u)) return (cached_shadow & bit) != 0u;
 #endif
 #ifdef COUNT_RAYS
     atomicAdd(ray_count[workgroup_index()], 1u);
@@ -186,27 +195,23 @@ void add_light_sample(uint material, vec2 uv, Material mat[NSTATES], vec3 ns, ve
 // parameter state. Primal: returns each state's radiance in `radiance`. ADJOINT: `L` is
 // that radiance (from a primal replay) and `delta` each state's pixel adjoint (dLoss/dI
 // times the sample weight); gradients go into grad[] (delta all zero: primal replay).
-void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTATES], out vec3 radiance[NSTATES]) {
+// `replay` (a constant at each call): this is the gradient replay (delta not all zero),
+// whose ray casts the primal replay of the same sample just cached (ADJOINT; false in the
+// primal kernels). Being a constant, it also compiles the gradient code out of the primal
+// replay and its tests out of the gradient replay.
+void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTATES], bool replay, out vec3 radiance[NSTATES]) {
     vec3 beta[NSTATES];
 #ifdef ADJOINT
     vec3 remaining[NSTATES];   // radiance still to be accounted for along the path
-    bool grad_pass = false;
+    bool grad_pass = replay;
 #endif
     for (int s = 0; s < NSTATES; ++s) {
         radiance[s] = vec3(0.0);
         beta[s] = vec3(1.0);
 #ifdef ADJOINT
         remaining[s] = L[s];
-        grad_pass = grad_pass || any(notEqual(delta[s], vec3(0.0)));
 #endif
     }
-#ifdef ADJOINT
-    // The gradient replay follows the primal replay that just ran for the same sample, so
-    // its ray casts are in the cache.
-    bool replay = grad_pass;
-#else
-    bool replay = false;
-#endif
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
     // Probability that next-event estimation samples the environment map.
     float p_env = 0.0;

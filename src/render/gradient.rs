@@ -103,6 +103,7 @@ impl GradientPass {
         let local = if (1..=LOCAL_GRADS_CAPACITY as usize).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
         adjoint_spec.push(("SPLIT", SpecValue::Bool(grad_half.is_some())));
+        adjoint_spec.push(("CACHE_ALL", SpecValue::Bool(scene.replay_cached)));
         let grad_half = match grad_half {
             Some(b) => b.clone(),
             None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,

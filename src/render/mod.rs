@@ -50,6 +50,10 @@ pub struct GpuScene {
     pub has_principled: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
+    /// Whether every ray cast of a path fits the adjoint kernels' replay cache
+    /// (`max_depth` ≤ [`crate::constants::CACHED_BOUNCES`]): the `CACHE_ALL` constant of
+    /// the adjoint kernels, which then trace each path once.
+    pub replay_cached: bool,
     pub triangles: usize,
     globals: Globals,
     bvh: BvhBuffers,
@@ -342,6 +346,7 @@ impl GpuScene {
             has_textures,
             has_principled,
             environment_distribution,
+            replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             triangles: geo.indices.len(),
             globals,
             layout,
