@@ -145,6 +145,18 @@ def fmt_speedup(s):
     return "∞" if s == math.inf else f"{s:.1f}×"
 
 
+def short_names(groups):
+    """The shortest endings of the parameter groups' names that still tell them apart
+    (`materials.left.base_color` -> `left.base_color` beside `materials.right.base_color`)."""
+    groups = list(groups)
+    most = max((g.count(".") + 1 for g in groups), default=1)
+    for k in range(1, most + 1):
+        ends = {g: ".".join(g.split(".")[-k:]) for g in groups}
+        if len(set(ends.values())) == len(groups):
+            return ends
+    return {g: g for g in groups}
+
+
 def protocol(by_scene):
     verdicts = []
     for scene, rows in by_scene.items():
@@ -178,7 +190,7 @@ def protocol(by_scene):
             spp = f"{r['spp']}+1 FD" if r["optimiser"].startswith("meta") else str(r["spp"])
             mark = " (best)" if r is best else " (default)" if r is meta else ""
             n_eff = summary(r["dir"]).get("meta_n_eff") or {}
-            n_eff = ", ".join(f"{k.split('.')[-1]} {v:.1f}" for k, v in n_eff.items()) or "-"
+            n_eff = ", ".join(f"{short[k]} {v:.1f}" for short in [short_names(n_eff)] for k, v in n_eff.items()) or "-"
             print(
                 f"| {r['optimiser']}{mark} | {spp} | {r['rate']} | {r['iterations']} | {1000 * r['time_s'] / r['iterations']:.0f} "
                 + f"| {r['settled']:.4f} | {fmt(error_at_iteration(sm, equal_it) if equal_it else None)} "

@@ -5,6 +5,7 @@
 
 use super::reference::Diagnostics;
 use crate::report::{plot_panels, Curve, Panel};
+use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -87,17 +88,30 @@ pub fn write(path: &Path, steps: &[Vec<(String, Diagnostics)>]) -> std::io::Resu
     crate::image::write_bytes_atomic(path, log.to_csv().as_bytes())
 }
 
-/// The last part of a parameter's name (`materials.red.base_color` → `base_color`).
-fn short(group: &str) -> &str {
-    group.rsplit('.').next().unwrap_or(group)
+/// The shortest endings of the parameter groups' names that still tell them apart, for
+/// legends: `materials.red.base_color` → `base_color` when it is the only base colour,
+/// `red.base_color` beside `materials.green.base_color`.
+fn short_names<'a>(groups: &[&'a str]) -> BTreeMap<&'a str, String> {
+    let ending = |g: &str, parts: usize| {
+        let all: Vec<&str> = g.split('.').collect();
+        all[all.len().saturating_sub(parts)..].join(".")
+    };
+    let most = groups.iter().map(|g| g.split('.').count()).max().unwrap_or(1);
+    let distinct: BTreeSet<&str> = groups.iter().copied().collect();
+    let parts = (1..=most)
+        .find(|&k| distinct.iter().map(|g| ending(g, k)).collect::<BTreeSet<_>>().len() == distinct.len())
+        .unwrap_or(most);
+    distinct.into_iter().map(|g| (g, ending(g, parts))).collect()
 }
 
 /// Plots the diagnostics of one or more runs (`(label, log)`; an empty label for a single
 /// run) into `path`: n_eff, RMS step, and RMS ⟨F⟩ with the FD term's standard deviation,
 /// against the iteration, on log scales.
 pub fn plot(path: &Path, title: &str, runs: &[(&str, &DiagLog)]) -> Result<(), String> {
+    let groups: Vec<&str> = runs.iter().flat_map(|(_, log)| log.rows.iter().map(|r| r.1.as_str())).collect();
+    let short = short_names(&groups);
     let name = |label: &str, group: &str, what: &str| {
-        [label, short(group), what].iter().filter(|s| !s.is_empty()).copied().collect::<Vec<_>>().join(" ")
+        [label, short[group].as_str(), what].iter().filter(|s| !s.is_empty()).copied().collect::<Vec<_>>().join(" ")
     };
     let mut n_eff = Vec::new();
     let mut step = Vec::new();
@@ -144,5 +158,16 @@ mod tests {
         back.truncate(7);
         assert_eq!(back.rows.len(), 1);
         assert!(DiagLog::parse("h\n1,g,2").unwrap_err().contains("line 2"));
+    }
+
+    #[test]
+    fn legend_names_tell_groups_apart() {
+        let names = short_names(&["materials.left.base_color", "materials.right.base_color", "materials.left.base_color"]);
+        assert_eq!(names["materials.left.base_color"], "left.base_color");
+        assert_eq!(names["materials.right.base_color"], "right.base_color");
+        let names = short_names(&["materials.ribbon.base_color", "materials.ribbon.roughness"]);
+        assert_eq!(names["materials.ribbon.roughness"], "roughness");
+        let names = short_names(&["a.x", "x"]);
+        assert_eq!((names["a.x"].as_str(), names["x"].as_str()), ("a.x", "x"));
     }
 }
