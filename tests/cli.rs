@@ -575,11 +575,15 @@ fn replay_matches_the_cpu_reference() {
             grad_halves: optimiser.needs_halves().then_some(gh.as_slice()),
             fd_halves: optimiser.needs_halves().then_some(fh.as_slice()),
         };
-        let cpu = optim::replay::replay_streams::<f64>(&optimiser, &streams, start, range, 0.05).unwrap();
         // Newton's rule is held to the f32 reference: on streams whose ⟨ΔF⟩ ignore the steps
         // its curvature rests on steps that f32 resolves coarsely (src/optim/tests.rs).
         let newton = matches!(optimiser, optim::Optimiser::Meta(h) if h.step == optim::StepRule::Newton);
-        let cpu = if newton { optim::replay::replay_streams::<f32>(&optimiser, &streams, start, range, 0.05).unwrap() } else { cpu };
+        let cpu = if newton {
+            optim::replay::replay_streams::<f32>(&optimiser, &streams, start, range, 0.05)
+        } else {
+            optim::replay::replay_streams::<f64>(&optimiser, &streams, start, range, 0.05)
+        }
+        .unwrap();
         for (i, (gpu_row, cpu_row)) in rows.iter().zip(&cpu.theta).enumerate() {
             for (j, (a, b)) in gpu_row.iter().zip(cpu_row).enumerate() {
                 assert!((*a as f64 - b).abs() < 1e-5, "{name} {range:?}: θ[{i}][{j}] GPU {a} CPU {b}");

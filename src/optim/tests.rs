@@ -894,7 +894,6 @@ fn newton_steps_to_the_optimum_of_an_exact_quadratic() {
             assert!(close(curv, a, 1e-12, 0.0), "curvature {curv} vs {a}");
             assert_eq!((d.newton, d.elements), (1.0, 1));
             assert!(close(d.rms_curv, a, 1e-12, 0.0));
-            // The Wiener rule's steps shrink with the gradient: it is still on its way.
             // The Wiener rule's steps shrink with the gradient: it is still on its way there.
             let (wiener, wiener_curv, wd) = exact_quadratic(StepRule::Wiener, a, target, 0.05, 12);
             assert!((wiener[arrive] - target).abs() > 1e-4, "wiener {wiener:?}");
@@ -927,7 +926,8 @@ fn newton_in_f32_follows_f64() {
     // precision took, as a renderer's does), the same noise in both precisions: Newton's
     // rule in f32 stays within 1e-4 of the f64 run's trajectory.
     let opt = Optimiser::Meta(MetaHyper { step: StepRule::Newton, ..MetaHyper::default() });
-    fn run<R: Real>(opt: &Optimiser, seed: u64) -> Vec<Vec<f64>> {
+    // The trajectory and the targets.
+    fn run<R: Real>(opt: &Optimiser, seed: u64) -> (Vec<Vec<f64>>, Vec<f64>) {
         let n = 16;
         let mut rng = Rng(seed);
         let a: Vec<f64> = (0..n).map(|_| 1e-3 * (0.5 + 1.5 * rng.uniform())).collect();
@@ -949,10 +949,10 @@ fn newton_in_f32_follows_f64() {
             o.step_with(&mut theta, input).unwrap();
             traj.push(theta.iter().map(|x| x.to_f64()).collect());
         }
-        traj
+        (traj, target)
     }
     for seed in 0..4 {
-        let (t32, t64) = (run::<f32>(&opt, seed), run::<f64>(&opt, seed));
+        let ((t32, _), (t64, target)) = (run::<f32>(&opt, seed), run::<f64>(&opt, seed));
         for (t, (a, b)) in t32.iter().zip(&t64).enumerate() {
             for (x, y) in a.iter().zip(b) {
                 assert!((x - y).abs() < 1e-4, "seed {seed} t {t}: {x} vs {y}");
@@ -960,9 +960,6 @@ fn newton_in_f32_follows_f64() {
         }
         // And it got there: the targets are recovered to the noise's level.
         let last = t64.last().unwrap();
-        let mut rng = Rng(seed);
-        let _: Vec<f64> = (0..16).map(|_| rng.uniform()).collect();
-        let target: Vec<f64> = (0..16).map(|_| 0.1 + 0.8 * rng.uniform()).collect();
         let rmse = (last.iter().zip(&target).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / 16.0).sqrt();
         assert!(rmse < 0.01, "seed {seed}: rmse {rmse}");
     }
