@@ -31,6 +31,7 @@ layout(set = 0, binding = 12, scalar) buffer MetaV { float meta_v[]; };
 layout(set = 0, binding = 13, scalar) buffer MetaCurv { float meta_curv[]; };
 layout(set = 0, binding = 14, scalar) buffer MetaCurvW { float meta_curv_w[]; };
 layout(set = 0, binding = 15, scalar) buffer MetaLast { float meta_last[]; };
+layout(set = 0, binding = 20, scalar) buffer MetaNis { float meta_nis[]; };
 layout(set = 0, binding = 16, scalar) readonly buffer Diag { DiagRecord diag[]; };
 layout(set = 0, binding = 17, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
 layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
@@ -66,6 +67,7 @@ layout(push_constant, scalar) uniform Push {
     float decay_h;    // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;        // STEP_NEWTON: the significance its Newton step needs
     float settle;     // STEP_NEWTON: the Wiener step's fraction where Newton's is shorter
+    float calib;      // the decay of the variance calibration's NIS EMA (0: none)
 } pc;
 
 void main() {
@@ -80,9 +82,9 @@ void main() {
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle);
+                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.calib);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
-                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i]);
+                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i]);
         MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
                                 centred ? fd_grad_half[i] : 0.0);
         float th = theta[i];
@@ -107,6 +109,7 @@ void main() {
             meta_curv[i] = s.curv;
             meta_curv_w[i] = s.curv_w;
             meta_last[i] = s.last;
+            meta_nis[i] = s.nis;
             rec = diag_of(d);
         } else {
             // The element did not move: the next finite difference spans no step of it.

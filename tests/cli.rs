@@ -398,6 +398,10 @@ fn resume_continues_from_the_checkpoint() {
     // A commit removes the checkpoints before it: the pointer and one directory are left.
     assert_eq!(dir_names(&out_dir.join("checkpoint")), ["0000000006", "current"]);
 
+    // A checkpoint from before the variance calibration has no NIS state; it resumes.
+    let nis = committed(&out_dir).join("meta_nis.npy");
+    assert!(nis.exists(), "{} missing", nis.display());
+    std::fs::remove_file(&nis).unwrap();
     vkinverse_ok(&with(&["--iterations", "10", "--resume"]));
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
@@ -539,7 +543,7 @@ fn replay_matches_the_cpu_reference() {
         ("adam", None, None),
         ("meta", None, None),
         (seed_meta, None, None),
-        ("meta@step=newton@sig=1@settle=0.5@decay_h=0.8", Some(&init), Some("0.1,0.7")),
+        ("meta@step=newton@sig=1@settle=0.5@decay_h=0.8@calib=0.9", Some(&init), Some("0.1,0.7")),
         ("adam@schedule=cosine@horizon=12", Some(&init), Some("0,1")),
         ("meta@step=adam@dpi=global@grow_f=0.5@fdvar=raw", Some(&init), Some("0.1,0.7")),
         (seed_meta, Some(&init), Some("0.1,0.7")),

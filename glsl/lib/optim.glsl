@@ -48,6 +48,9 @@ const float PI = 3.14159265358979;
 #include "vkinverse_constants.glsl"  // STEP_*, SCHEDULE_*
 // The seed's regulariser in the alpha denominator: alpha = VF / (VF + var + 1e-30).
 const float META_ALPHA_REG = 1e-30;
+// The cap on one step's normalised innovation squared in the variance calibration (a
+// 10-sigma innovation): one wild sample cannot freeze the step rule for long.
+const float META_NIS_MAX = 100.0;
 
 bool is_finite(float x) { return !isnan(x) && !isinf(x); }
 
@@ -218,6 +221,7 @@ struct MetaElem {
     float curv;   // STEP_NEWTON: sqrt(sum w (dF/dpi)^2 / sum w), w = dpi^2, the secant curvature
     float curv_w; // sqrt(sum w), each earlier weight forgotten by decay_h per new sample
     float last;   // the element's last step theta_i - theta_{i-1}: the dpi of the next dF
+    float nis;    // the bias-corrected EMA of the normalised innovation squared (calib > 0)
 };
 
 struct MetaParams {
@@ -236,6 +240,7 @@ struct MetaParams {
     float decay_h;  // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
+    float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -302,9 +307,24 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float weighted = inverse_variance_weight(reg, rms_f);
     float gain = max(weighted, bound);
     float pred = sat(s.mean + df);
+
+    // The variance calibration: the fresh sample's innovation against the prediction, over
+    // the innovation's predicted standard deviation (before this sample), squared and capped
+    // at META_NIS_MAX; its EMA, where above 1, scales the variance the step rule sees. The
+    // first step has no prediction (n_eff 0).
+    float nis = s.nis;
+    if (p.calib > 0.0 && s.n_eff > 0.0) {
+        float spread = hypot_safe(s.rms_f, sd_pred);
+        float r = spread > 0.0 ? abs(sat(f - pred)) / spread : 0.0;
+        float r2 = min(r * r, META_NIS_MAX);
+        float kn = ema_weight(p.calib, p.t - 1u);
+        nis = (1.0 - kn) * s.nis + kn * r2;
+    }
     float half_diff = 0.5 * f - 0.5 * pred;
     float mean = sat(pred + gain * half_diff + gain * half_diff);
     float sd = hypot_safe((1.0 - gain) * sd_pred, gain * rms_f);
+    // The standard deviation the step rule sees.
+    float sd_step = sat(sd * sqrt(max(nis, 1.0)));
 
     // The secant curvature along the element's own last step (where dF spans it).
     float curv = s.curv;
@@ -318,17 +338,17 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
 
     float ratio;
     if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
-    else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd) + p.eps);
+    else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd_step) + p.eps);
     else if (p.step_rule == STEP_WIENER || p.step_rule == STEP_NEWTON)
-        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd);
-    else ratio = mean / (sd + p.eps);
+        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd_step);
+    else ratio = mean / (sd_step + p.eps);
     float step = sat(-p.lr * ratio);
     bool newton = false;
     if (p.step_rule == STEP_NEWTON && curv > 0.0) {
         // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
         // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0), or the
         // Wiener step times settle, whichever is longer, within |step| <= lr.
-        float z = mean == 0.0 ? FLT_MAX : p.sig * (sd / abs(mean));
+        float z = mean == 0.0 ? FLT_MAX : p.sig * (sd_step / abs(mean));
         float shrink = z >= 1.0 ? 0.0 : 1.0 - z * z;
         float newton_step = clamp(sat(-mean / curv) * shrink, -p.lr, p.lr);
         float settle_step = p.settle * step;
@@ -340,7 +360,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float taken = next - theta;
     d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, curv);
     theta = next;
-    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken);
+    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken, nis);
     return true;
 }
 

@@ -151,7 +151,7 @@ impl GpuOptimiser {
                 };
                 let names = [
                     "meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v", "meta curv",
-                    "meta curv w", "meta last",
+                    "meta curv w", "meta last", "meta nis",
                 ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 written.extend(meta_state.iter().cloned());
@@ -176,6 +176,7 @@ impl GpuOptimiser {
                         ("MetaCurv", &meta_state[7]),
                         ("MetaCurvW", &meta_state[8]),
                         ("MetaLast", &meta_state[9]),
+                        ("MetaNis", &meta_state[10]),
                         ("Diag", &diag),
                         ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),

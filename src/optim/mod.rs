@@ -49,6 +49,9 @@
 //! 11. `step = newton`'s curvature, the Δθ²-weighted RMS of the secants ΔF/Δθ, is kept as its
 //!     root h and the root of its weight sum and updated by `hypot` with weights that sum to
 //!     one, so that neither a tiny step nor a huge ΔF overflows it.
+//! 12. The variance calibration's NIS is formed as the ratio |F − (M + ΔF)| / hypot(rms_F,
+//!     sd) before it is squared, and capped at [`NIS_MAX`]; it only ever enlarges the sd the
+//!     step rule sees (which saturates), so the step bounds below still hold.
 //!
 //! The seed's constants are absolute: ε = 1e-8 makes steps shrink in proportion for
 //! gradients below ~1e-8 (as in Adam), and the 1e-30 in the α denominator makes Meta stop
@@ -87,6 +90,11 @@ pub const ADAM_STEP_BOUND: f64 = 7.3;
 
 /// The seed's regulariser in the α denominator, VF/(VF + var + 1e-30) (supplementary B).
 pub const ALPHA_REG: f64 = 1e-30;
+
+/// The cap on one step's normalised innovation squared in the variance calibration
+/// ([`MetaHyper::calib`]): a 10-sigma innovation, so that one wild sample cannot freeze the
+/// step rule for long.
+pub const NIS_MAX: f64 = 100.0;
 
 /// Errors of the optimiser layer.
 #[derive(Debug, thiserror::Error)]
@@ -304,6 +312,14 @@ pub struct MetaHyper {
     pub sig: f64,
     /// `step = newton`: the fraction of the Wiener step taken where Newton's is shorter.
     pub settle: f64,
+    /// The decay of the calibration of the estimate's variance (0: none). Each step compares
+    /// the fresh ⟨F⟩ with its prediction ⟨F⟩_M + ⟨ΔF⟩: the squared innovation over its
+    /// predicted variance (the normalised innovation squared, NIS) is 1 on average when the
+    /// variance estimates are right. Its EMA of this decay, where above 1, scales the
+    /// variance that the step rule's significance and Wiener gain see: heavy-tailed
+    /// gradients, whose rare large samples the Moment2 EMAs miss most of the time, show as
+    /// a NIS well above 1.
+    pub calib: f64,
     pub schedule: Schedule,
 }
 
@@ -324,6 +340,7 @@ impl MetaHyper {
             decay_h: 0.9,
             sig: 3.0,
             settle: 0.3,
+            calib: 0.0,
             schedule: Schedule::default(),
         }
     }
@@ -426,6 +443,9 @@ impl Optimiser {
                 }
                 if !(h.sig >= 0.0 && h.sig <= 1e6) {
                     return Err(OptimError::BadHyper(format!("sig = {} is outside [0, 1e6]", h.sig)));
+                }
+                if !(0.0..1.0).contains(&h.calib) {
+                    return Err(OptimError::BadHyper(format!("calib = {} is outside [0, 1)", h.calib)));
                 }
                 h.eps
             }

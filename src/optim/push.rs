@@ -87,7 +87,7 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block: 104 bytes. The step number comes from the `Frame`
+/// `optim_meta.comp`'s `Push` block: 108 bytes. The step number comes from the `Frame`
 /// buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -119,6 +119,7 @@ pub struct MetaPush {
     pub decay_h: f32,
     pub sig: f32,
     pub settle: f32,
+    pub calib: f32,
 }
 
 impl MetaPush {
@@ -152,6 +153,7 @@ impl MetaPush {
             decay_h: h.decay_h as f32,
             sig: h.sig as f32,
             settle: h.settle as f32,
+            calib: h.calib as f32,
         }
     }
 }

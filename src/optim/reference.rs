@@ -12,7 +12,7 @@
 //! and sums of squares kept as a scale and a scaled sum, [`Ssq`], so that they cannot
 //! overflow); the meta-estimator's ‖Δπ‖² is the record's sum of squared steps.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, StepRule, VarianceEstimate, ALPHA_REG};
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, StepRule, VarianceEstimate, ALPHA_REG, NIS_MAX};
 use std::fmt::Debug;
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -488,6 +488,8 @@ pub struct MetaElem<R> {
     pub curv_w: R,
     /// The element's last step θ_i − θ_{i−1}, the Δθ of the next ⟨ΔF⟩ (0 after a skip).
     pub last: R,
+    /// The bias-corrected EMA of the normalised innovation squared (`calib` > 0).
+    pub nis: R,
 }
 
 /// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1;
@@ -511,6 +513,8 @@ pub struct MetaParams<R> {
     pub decay_h: R,
     pub sig: R,
     pub settle: R,
+    /// The decay of the variance calibration's NIS EMA (0: none).
+    pub calib: R,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -531,6 +535,7 @@ impl<R: Real> MetaParams<R> {
             decay_h: R::of(h.decay_h),
             sig: R::of(h.sig),
             settle: R::of(h.settle),
+            calib: R::of(h.calib),
         }
     }
 }
@@ -591,9 +596,24 @@ pub fn meta_update<R: Real>(
     let weighted = inverse_variance_weight(reg, rms_f);
     let gain = weighted.max(bound);
     let pred = sat(s.mean + df);
+
+    // The variance calibration: the fresh sample's innovation against the prediction, over
+    // the innovation's predicted standard deviation (before this sample), squared and capped
+    // at NIS_MAX; its EMA, where above 1, scales the variance the step rule sees. The first
+    // step has no prediction (n_eff 0).
+    let mut nis = s.nis;
+    if p.calib > R::ZERO && s.n_eff > R::ZERO {
+        let spread = hypot(s.rms_f, sd_pred);
+        let r = if spread > R::ZERO { sat(f - pred).abs() / spread } else { R::ZERO };
+        let r2 = (r * r).min(R::of(NIS_MAX));
+        let kn = ema_weight(p.calib, p.t - 1);
+        nis = (one - kn) * s.nis + kn * r2;
+    }
     let half_diff = R::of(0.5) * f - R::of(0.5) * pred;
     let mean = sat(pred + gain * half_diff + gain * half_diff);
     let sd = hypot((one - gain) * sd_pred, gain * rms_f);
+    // The standard deviation the step rule sees.
+    let sd_step = sat(sd * nis.max(one).sqrt());
 
     // The secant curvature along the element's own last step (where ΔF spans it): the RMS
     // of ΔF/Δθ weighted by Δθ², each earlier weight forgotten by decay_h.
@@ -606,18 +626,18 @@ pub fn meta_update<R: Real>(
     }
 
     let ratio = match p.step {
-        StepRule::Snr => mean / (sd + p.eps),
+        StepRule::Snr => mean / (sd_step + p.eps),
         StepRule::Adam => mean / (v + p.eps),
-        StepRule::Bounded => mean / (hypot(mean, sd) + p.eps),
+        StepRule::Bounded => mean / (hypot(mean, sd_step) + p.eps),
         StepRule::Wiener | StepRule::Newton if mean == R::ZERO => R::ZERO,
-        StepRule::Wiener | StepRule::Newton => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
+        StepRule::Wiener | StepRule::Newton => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd_step),
     };
     let mut step = sat(-p.lr * ratio);
     let mut newton = false;
     if p.step == StepRule::Newton && curv > R::ZERO {
         // Newton's step −mean/h shrunk by the positive-part James–Stein factor
         // 1 − (sig·sd/mean)², or the Wiener step times settle, whichever is longer, within lr.
-        let z = if mean == R::ZERO { R::MAX } else { p.sig * (sd / mean.abs()) };
+        let z = if mean == R::ZERO { R::MAX } else { p.sig * (sd_step / mean.abs()) };
         let shrink = if z >= one { R::ZERO } else { one - z * z };
         let newton_step = (sat(-mean / curv) * shrink).max(-p.lr).min(p.lr);
         let settle_step = p.settle * step;
@@ -628,7 +648,7 @@ pub fn meta_update<R: Real>(
     let n_eff = one / gain;
     let taken = next - theta;
     let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
-    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken }, diag))
+    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis }, diag))
 }
 
 /// Hyperparameters and per-element state of one parameter buffer.

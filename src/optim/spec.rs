@@ -44,7 +44,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib",
     }
 }
 
@@ -96,6 +96,7 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         (Optimiser::Meta(MetaHyper { decay_h, .. }), "decay_h") => decay_h,
         (Optimiser::Meta(MetaHyper { sig, .. }), "sig") => sig,
         (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
+        (Optimiser::Meta(MetaHyper { calib, .. }), "calib") => calib,
         _ => return Ok(false),
     };
     *slot = number()?;
@@ -183,6 +184,9 @@ mod tests {
         assert!(msg("meta@settle=2").contains("settle = 2"));
         assert!(msg("meta@decay_h=1").contains("decay_h = 1"));
         assert!(msg("meta@sig=-1").contains("sig = -1"));
+        assert!(msg("meta@calib=1").contains("calib = 1 is outside [0, 1)"));
+        let Optimiser::Meta(h) = "meta@calib=0.99".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h.calib, 0.99);
         let Optimiser::Meta(h) = "meta@step=newton@sig=2@settle=0.5@decay_h=0.8".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!((h.step, h.sig, h.settle, h.decay_h), (StepRule::Newton, 2.0, 0.5, 0.8));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));

@@ -48,6 +48,8 @@ fn meta_variants() -> Vec<Optimiser> {
         let Optimiser::Meta(h) = meta_with(step, VarianceEstimate::Centred, 0.0) else { unreachable!() };
         v.push(Optimiser::Meta(MetaHyper { fdvar: FdVariance::Raw, ..h }));
     }
+    v.push(Optimiser::Meta(MetaHyper { calib: 0.99, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { calib: 0.9, step: StepRule::Snr, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -512,10 +514,21 @@ fn quadratic(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma_d: f64) -> (
 
 /// [`quadratic`] with ⟨F⟩'s noise `sigma`.
 fn quadratic_with(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, sigma_d: f64) -> (f64, f64, f64) {
+    let (rmse, n_eff_3q, n_eff, _) = quadratic_spiky(opt, lr, seed, iters, sigma, sigma_d, (0.0, 0.0), true);
+    (rmse, n_eff_3q, n_eff)
+}
+
+/// [`quadratic_with`] where each ⟨F⟩ sample gets, with probability `spike.0`, an extra
+/// ±`spike.1` from one of its halves (a heavy-tailed gradient: rare bright paths), from θ_0 =
+/// 0 (`far`) or from the optimum. Also returns the element-mean NIS EMA at the end.
+#[allow(clippy::too_many_arguments)]
+fn quadratic_spiky(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, sigma_d: f64, spike: (f64, f64), far: bool) -> (f64, f64, f64, f64) {
     let n = 64;
     let mut rng = Rng(seed);
     let a: Vec<f64> = (0..n).map(|_| 0.5 + 1.5 * rng.uniform()).collect();
     let target: Vec<f64> = (0..n).map(|_| 6.0 * rng.uniform() - 3.0).collect();
+    let target: Vec<f64> = if far { target } else { vec![0.0; n] };
+    let mut spikes = Rng(seed ^ 0x5EED_5EED);
     let mut o = BufferOptimiser::<f64>::new(opt, n, lr, Range::new(-4.0, 4.0).unwrap()).unwrap();
     let mut theta = vec![0.0; n];
     let mut prev = theta.clone();
@@ -531,7 +544,15 @@ fn quadratic_with(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, s
     };
     let mut n_eff_3q = 0.0;
     for t in 1..=iters {
-        let (f, fh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - target[i]), sigma)).unzip();
+        let (mut f, fh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - target[i]), sigma)).unzip();
+        if spike.0 > 0.0 {
+            // The spike lands in the half that is not in the half-sample sum.
+            for x in f.iter_mut() {
+                if spikes.uniform() < spike.0 {
+                    *x += if spikes.uniform() < 0.5 { spike.1 } else { -spike.1 };
+                }
+            }
+        }
         let (df, dh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - prev[i]), sigma_d)).unzip();
         prev.clone_from(&theta);
         let input = StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) };
@@ -547,7 +568,8 @@ fn quadratic_with(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, s
         .sum::<f64>()
         / n as f64)
         .sqrt();
-    (rmse, n_eff_3q, n_eff(&o))
+    let nis = o.meta_state().map_or(0.0, |s| s.iter().map(|e| e.nis).sum::<f64>() / n as f64);
+    (rmse, n_eff_3q, n_eff(&o), nis)
 }
 
 fn mean_error(opt: &Optimiser, lr: f64, seeds: std::ops::Range<u64>, iters: u32) -> f64 {
@@ -659,6 +681,7 @@ fn raw_fd_variance_survives_steps_of_varying_length() {
 fn glsl_mirrors_constants_and_push_blocks() {
     let lib = include_str!("../../glsl/lib/optim.glsl");
     assert!(lib.contains("const float META_ALPHA_REG = 1e-30;") && ALPHA_REG == 1e-30);
+    assert!(lib.contains("const float META_NIS_MAX = 100.0;") && NIS_MAX == 100.0);
     // The step-rule and schedule numbers are the generated constants (src/constants.rs).
     let codes = [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener, StepRule::Newton].map(StepRule::code);
     assert_eq!(codes, [0, 1, 2, 3, 4]);
@@ -921,6 +944,30 @@ fn newton_beats_wiener_on_a_noisy_quadratic() {
 }
 
 #[test]
+fn calibration_sees_heavy_tails_and_leaves_gaussian_noise_alone() {
+    let plain = Optimiser::Meta(MetaHyper::default());
+    let calib = Optimiser::Meta(MetaHyper { calib: 0.99, ..MetaHyper::default() });
+    let runs = |opt: &Optimiser, spike: (f64, f64), far: bool| -> (f64, f64) {
+        let r: Vec<_> = (0..6).map(|s| quadratic_spiky(opt, 0.05, s, 300, 0.3, 0.01, spike, far)).collect();
+        (r.iter().map(|x| x.0).sum::<f64>() / 6.0, r.iter().map(|x| x.3).sum::<f64>() / 6.0)
+    };
+    // Gaussian noise: the variance estimates are right, the NIS averages about 1, and the
+    // calibration changes the run by little.
+    let (e_plain, _) = runs(&plain, (0.0, 0.0), true);
+    let (e_calib, nis) = runs(&calib, (0.0, 0.0), true);
+    assert!((0.5..2.0).contains(&nis), "gaussian: NIS {nis}");
+    assert!(e_calib < 1.3 * e_plain, "gaussian: {e_calib} vs {e_plain}");
+    // Rare large samples (1 % of them 100x the Gaussian noise), started at the optimum: the
+    // EMAs miss them most of the time, the NIS does not, and the calibrated step rule drifts
+    // less far from the optimum.
+    let spike = (0.01, 30.0);
+    let (d_plain, _) = runs(&plain, spike, false);
+    let (d_calib, nis) = runs(&calib, spike, false);
+    assert!(nis > 1.2, "heavy tails: NIS {nis}");
+    assert!(d_calib < 0.9 * d_plain, "heavy tails: drift {d_calib} vs {d_plain}");
+}
+
+#[test]
 fn newton_in_f32_follows_f64() {
     // The noisy quadratic closed over each run's own iterates (⟨ΔF⟩ spans the step each
     // precision took, as a renderer's does), the same noise in both precisions: Newton's
@@ -1063,4 +1110,3 @@ fn input_errors() {
         Err(OptimError::BadHyper(_))
     ));
 }
-
