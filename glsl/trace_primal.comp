@@ -57,12 +57,22 @@ layout(push_constant, scalar) uniform Push {
     uint first_sample; // index of the first of them (for the RNG)
     uint seed;         // combined with frame_iteration
     float weight;      // primal: added value = weight * sum of samples; adjoint: delta scale
+    uint stride;       // trace every stride-th pixel of each row (1: all) ...
+    uint phase;        // ... from column (row + iteration + phase) mod stride: a moving checkerboard
 } pc;
 
 void main() {
-    uint i = thread_index();
-    if (i >= pc.width * pc.height) return;
-    uvec2 pixel = uvec2(i % pc.width, i / pc.width);
+    // One invocation per traced pixel: ceil(width / stride) of each row.
+    uint stride = max(pc.stride, 1u);
+    uint per_row = (pc.width + stride - 1u) / stride;
+    uint t = thread_index();
+    if (t >= per_row * pc.height) return;
+    uint y = t / per_row;
+    uint x = (t % per_row) * stride + (y + frame_iteration + pc.phase) % stride;
+    if (x >= pc.width) return;
+    // The pixel's index in every image: its random numbers and half do not depend on stride.
+    uint i = y * pc.width + x;
+    uvec2 pixel = uvec2(x, y);
     SensorRecord s = sensor_record(pc.sensor);
     vec3 zero[NSTATES];
     vec3 delta[NSTATES];

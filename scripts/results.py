@@ -121,6 +121,7 @@ def load(args):
         r["smooth"] = smoothed(r["raw"])
         r["settled"] = settled(r["raw"])
         r["rate"] = rate(r["dir"])
+        r["fd_stride"] = summary(r["dir"]).get("settings", {}).get("fd_stride", 1)
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
 
@@ -225,9 +226,12 @@ def protocol(by_scene):
 
 def pilot(by_scene):
     scenes = list(by_scene)
-    # A configuration is a meta spec with the rate it ran at (when not the scene's own).
+    # A configuration is a meta spec with the rate it ran at (when not the scene's own) and
+    # its finite-difference pixel stride (when not 1).
     def config(r):
-        return r["optimiser"] + ("" if r["rate"] == "scene" else f" (lr {r['rate']})")
+        lr = "" if r["rate"] == "scene" else f" (lr {r['rate']})"
+        stride = "" if r["fd_stride"] == 1 else f" (fd_stride {r['fd_stride']})"
+        return r["optimiser"] + lr + stride
 
     configs = []
     for rows in by_scene.values():

@@ -231,17 +231,20 @@ impl Engine {
     }
 
     /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at the
-    /// settings' fd_spp, into this engine's `fd_grad`: fused, or from two traces. The fused
-    /// sample also sums half of its pixels into `fd_half` when given (the centred variance
-    /// estimate); the two-trace sample cannot.
+    /// settings' fd_spp on every fd_stride-th pixel, into this engine's `fd_grad`: fused, or
+    /// from two traces. The fused sample also sums half of its pixels into `fd_half` when
+    /// given (the centred variance estimate); the two-trace sample cannot.
     pub fn fd_sample(&self, theta_prev: &Buffer, two_trace: bool, fd_half: Option<&Buffer>) -> Result<FdSample> {
         let gs = self.scene();
         theta_prev.write(&padded(gs, gs.layout.initial()))?;
         let seed = gpu_seed(self.settings.seed).wrapping_add(SEED_FD);
         let spp = self.settings.fd_spp;
         let loss = self.loss();
+        let stride = self.settings.fd_stride;
         if !two_trace {
-            return Ok(FdSample::Fused(GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, Some(theta_prev), &self.fd_grad, fd_half)?));
+            let mut pass = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, Some(theta_prev), &self.fd_grad, fd_half)?;
+            pass.stride = stride;
+            return Ok(FdSample::Fused(pass));
         }
         if fd_half.is_some() {
             return Err(Error::Invalid("the centred variance estimate (var=centred) needs the fused finite difference, not fd_two_trace".into()));
@@ -251,8 +254,10 @@ impl Engine {
         let at_prev = Buffer::zeroed::<f32>(&gs.ctx, "fd grad at theta prev", n, MemoryKind::Device)?;
         // The primal images of the difference use fd_spp samples too: with common random
         // numbers most of their noise cancels in the difference.
-        let cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, None, &at_cur, None)?;
-        let prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, None, &at_prev, None)?;
+        // Both traces take the same pixels: the checkerboard follows the iteration.
+        let mut cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, None, &at_cur, None)?;
+        let mut prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, None, &at_prev, None)?;
+        (cur.stride, prv.stride) = (stride, stride);
         Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
     }
 

@@ -88,8 +88,20 @@ pub struct TracePush {
     pub seed: u32,
     /// Primal: added value = weight × sum of samples; adjoint: the adjoint's scale.
     pub weight: f32,
+    /// Trace every `stride`-th pixel of each row (0 or 1: every pixel), from column
+    /// (row + iteration + `phase`) mod `stride`: a checkerboard (for 2) that moves every
+    /// iteration. The dispatch has ceil(width / stride) × height invocations.
+    pub stride: u32,
+    pub phase: u32,
 }
-push_block!(TracePush { width, height, sensor, spp, first_sample, seed, weight });
+
+impl TracePush {
+    /// The invocations of a dispatch with this block.
+    pub fn invocations(&self) -> u64 {
+        self.width.div_ceil(self.stride.max(1)) as u64 * self.height as u64
+    }
+}
+push_block!(TracePush { width, height, sensor, spp, first_sample, seed, weight, stride, phase });
 
 /// records_test.comp's block: the element count of every record array.
 #[repr(C)]

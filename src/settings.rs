@@ -176,6 +176,11 @@ settings! {
     /// Samples per pixel of the meta-estimator's finite-difference sample.
     #[arg(long, value_name = "N")]
     fd_spp: u32 = 1;
+    /// The meta-estimator's finite-difference sample traces every N-th pixel of each row
+    /// (2: a checkerboard that moves every iteration), each weighted N times: 1/N of its
+    /// cost, N times its variance.
+    #[arg(long, value_name = "N")]
+    fd_stride: u32 = 1;
     /// Samples per pixel of the gradient estimate's primal render.
     #[arg(long, value_name = "N")]
     primal_spp: u32 = 4;
@@ -225,6 +230,7 @@ impl Settings {
             ("iterations", self.iterations),
             ("spp", self.spp),
             ("fd_spp", self.fd_spp),
+            ("fd_stride", self.fd_stride),
             ("primal_spp", self.primal_spp),
             ("checkpoint_every", self.checkpoint_every),
         ] {
@@ -416,7 +422,7 @@ mod tests {
     fn layers_resolve_with_defaults_and_the_budget_rule() {
         let scene = layer("iterations = 200\nspp = 3\nlr = 0.1");
         let run = Settings::resolve(&scene, &Settings::default());
-        assert_eq!((run.iterations, run.spp, run.lr, run.fd_spp), (Some(200), 3, 0.1, 1));
+        assert_eq!((run.iterations, run.spp, run.lr, run.fd_spp, run.fd_stride), (Some(200), 3, 0.1, 1, 1));
         assert!(!run.lr_replaces_param_rates);
         // A budget from above drops the scene's iteration count; with its own count it keeps both.
         let budget = layer("time_budget = 2.5");
@@ -441,7 +447,7 @@ mod tests {
 
     #[test]
     fn one_validate_names_the_key() {
-        for (text, key) in [("spp = 0", "spp"), ("checkpoint_every = 0", "checkpoint_every"), ("lr = -1", "lr"), ("time_budget = nan", "time_budget"), ("iterations = 0", "iterations")] {
+        for (text, key) in [("spp = 0", "spp"), ("checkpoint_every = 0", "checkpoint_every"), ("lr = -1", "lr"), ("time_budget = nan", "time_budget"), ("iterations = 0", "iterations"), ("fd_stride = 0", "fd_stride")] {
             assert_eq!(layer(text).validate().unwrap_err().key, key, "{text}");
         }
         assert!(layer("spp = 1\nlr = 0.5\noptimiser = 'adam@beta1=0.5'\nloss = 'l1'").validate().is_ok());

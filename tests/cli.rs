@@ -369,6 +369,20 @@ fn optimise_meta_outputs_and_progress() {
 }
 
 #[test]
+fn fd_stride_runs_the_finite_difference_on_part_of_the_pixels() {
+    let out_dir = temp_dir("fd-stride");
+    let args = |stride: &str| ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "--iterations", "8", "--lr", "0.05", "--fd-stride", stride, "--quiet", "-o", &s(&out_dir)].map(String::from);
+    vkinverse_err(&args("0"), &["--fd-stride", "at least 1"]);
+    vkinverse_ok(&args("2"));
+    let summary = json(&out_dir.join("summary.json"));
+    assert_eq!(summary["settings"]["fd_stride"], 2);
+    assert!(summary["pass_ms"]["trace_fd_adjoint"].as_f64().unwrap() > 0.0);
+    let (_, rows) = read_log(&out_dir);
+    let e = |i: usize| field(&rows[i], 4);
+    assert!(e(8) < 0.8 * e(0), "meta with fd_stride 2 did not approach the reference: {} -> {}", e(0), e(8));
+}
+
+#[test]
 fn command_line_lr_overrides_the_scene() {
     // Adam's first step moves every element by lr (|m̂/√v̂| = 1), whatever the gradient's
     // size, so one step from 0.5 lands on 0.5 ± lr, not 0.5 ± the scene's 0.02.

@@ -11,27 +11,35 @@ use vkinverse::render::targets::targets;
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::Scene;
 
+/// What a finite-difference sample of a scene needs: the scene, its renderer (θ at the
+/// scene's init), cheap targets, the buffer operations and θ_{i-1} with every element moved
+/// by `shift` inside its range.
+fn fd_setup(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene_path: &str, shift: f32) -> (Scene, Renderer, Vec<vkinverse::image::Image>, BufferOps, Buffer) {
+    let scene = Scene::load(scene_path).unwrap();
+    let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+    let gs = &renderer.scene;
+    // Target quality is irrelevant to these comparisons: few samples keep the tests short.
+    let imgs = targets(&renderer, &scene, 16, |_, _, _| {}).unwrap();
+    let ops = BufferOps::new(ctx).unwrap();
+    let theta = gs.layout.initial();
+    let mut prev_vals = theta.clone();
+    for slot in &gs.layout.slots {
+        for v in &mut prev_vals[slot.offset..slot.offset + slot.len] {
+            *v = if *v + shift <= slot.range[1] { *v + shift } else { *v - shift };
+        }
+    }
+    gs.set_theta(theta).unwrap();
+    // Read as texels by the trace kernels, like the scene's θ.
+    let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &prev_vals).unwrap();
+    (scene, renderer, imgs, ops, theta_prev)
+}
+
 /// ⟨ΔF⟩ for θ_prev → θ = scene init, fused and two-trace, over `rounds` seeds.
 fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
     with_gpu(|ctx| {
-        let scene = Scene::load(scene_path).unwrap();
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let (scene, renderer, imgs, ops, theta_prev) = fd_setup(ctx, scene_path, shift);
         let gs = &renderer.scene;
-        // Target quality is irrelevant to this comparison: few samples keep the test short.
-        let imgs = targets(&renderer, &scene, 16, |_, _, _| {}).unwrap();
-        let ops = BufferOps::new(ctx).unwrap();
         let n = gs.layout.len;
-        let theta = gs.layout.initial();
-        // θ_{i-1}: every element moved by `shift`, kept inside its range.
-        let mut prev_vals = theta.clone();
-        for slot in &gs.layout.slots {
-            for v in &mut prev_vals[slot.offset..slot.offset + slot.len] {
-                *v = if *v + shift <= slot.range[1] { *v + shift } else { *v - shift };
-            }
-        }
-        gs.set_theta(theta).unwrap();
-        // Read as texels by the trace kernels, like the scene's θ.
-        let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &prev_vals).unwrap();
         let fused_grad = Buffer::zeroed::<f32>(ctx, "fused", n, MemoryKind::Device).unwrap();
         let g_cur = Buffer::zeroed::<f32>(ctx, "cur", n, MemoryKind::Device).unwrap();
         let g_prev = Buffer::zeroed::<f32>(ctx, "prev", n, MemoryKind::Device).unwrap();
@@ -77,6 +85,44 @@ fn fused_equals_two_trace_when_sampling_does_not_depend_on_parameters() {
         }
         assert!(a.iter().any(|v| v.abs() > 1e-7), "a 0.05 step changes the gradient: {a:?}");
     }
+}
+
+/// The sample on every stride-th pixel (`fd_stride`): the checkerboards of all phases
+/// cover each pixel once, with the random numbers of the full sample and each pixel
+/// weighted `stride` times, so their mean is the full sample up to summation order. Stride
+/// 3 does not divide the 64-pixel rows: the last column of a row may be past its end.
+#[test]
+fn strided_samples_of_all_phases_average_to_the_full_sample() {
+    with_gpu(|ctx| {
+        let (scene, renderer, imgs, ops, theta_prev) = fd_setup(ctx, "scenes/cornell/scene.toml", 0.05);
+        let gs = &renderer.scene;
+        assert_eq!(gs.width, 64);
+        let n = gs.layout.len;
+        let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
+        let sample = |stride: u32, phase: u32, frame: u32| -> Vec<f32> {
+            let grad = Buffer::zeroed::<f32>(ctx, "fd", n, MemoryKind::Device).unwrap();
+            let mut pass = GradientPass::new(gs, &ops, &imgs, loss, 1, 1, 5, &gs.theta, Some(&theta_prev), &grad, None).unwrap();
+            (pass.stride, pass.phase) = (stride, phase);
+            let mut cmd = CommandBuffer::new(ctx, "strided").unwrap();
+            cmd.record(|rec| pass.record(rec, gs, &ops)).unwrap();
+            gs.set_frame(frame).unwrap();
+            cmd.submit_and_wait().unwrap();
+            grad.read().unwrap()
+        };
+        for frame in [0, 3] {
+            let full = sample(1, 0, frame);
+            assert!(full.iter().any(|v| v.abs() > 1e-7), "a 0.05 step changes the gradient: {full:?}");
+            for stride in [2u32, 3] {
+                let parts: Vec<Vec<f32>> = (0..stride).map(|phase| sample(stride, phase, frame)).collect();
+                for (k, want) in full.iter().enumerate() {
+                    let mean = parts.iter().map(|p| p[k]).sum::<f32>() / stride as f32;
+                    assert!((mean - want).abs() <= 1e-4 * want.abs() + 1e-8, "stride {stride}, frame {frame}, element {k}: {mean} vs {want}");
+                }
+                // Each phase alone is a different, noisier estimate.
+                assert!(parts.iter().all(|p| p != &full), "stride {stride}: a phase equals the full sample");
+            }
+        }
+    })
 }
 
 /// Principled materials: roughness and metallic change BSDF sampling, so the two versions

@@ -165,6 +165,8 @@ fn primal_push(gs: &GpuScene, st: &RunSettings, s: u32) -> TracePush {
         first_sample: 0,
         seed: gpu_seed(st.seed).wrapping_add(SEED_PRIMAL),
         weight: 1.0 / st.primal_spp as f32,
+        stride: 1,
+        phase: 0,
     }
 }
 

@@ -55,6 +55,11 @@ pub struct GradientPass {
     pub spp: u32,
     pub primal_spp: u32,
     pub seed: u32,
+    /// Trace every `stride`-th pixel of each row, a checkerboard that moves every iteration
+    /// (1: every pixel); the adjoint pass weighs each traced pixel by `stride`, so the
+    /// gradient's expectation is the same. `phase` shifts the checkerboard (tests).
+    pub stride: u32,
+    pub phase: u32,
 }
 
 fn loss_index(loss: Loss) -> u32 {
@@ -159,7 +164,7 @@ impl GradientPass {
                 prev,
             });
         }
-        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, spp, primal_spp, seed })
+        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, spp, primal_spp, seed, stride: 1, phase: 0 })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -200,6 +205,8 @@ impl GradientPass {
                 first_sample: 0,
                 seed,
                 weight,
+                stride: self.stride,
+                phase: self.phase,
             };
             // Images and their loss: (rendered, adjoint image, partials, loss bind group) per
             // parameter state.
@@ -236,7 +243,8 @@ impl GradientPass {
                 continue;
             }
             profiler.begin_scope(rec, self.adjoint_kernel)?;
-            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), 1.0 / self.spp as f32);
+            // Every stride-th pixel stands for `stride` of them.
+            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
             record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
             profiler.end_scope(rec)?;
         }
@@ -254,6 +262,8 @@ impl GradientPass {
             first_sample: 0,
             seed: self.seed.wrapping_add(SEED_PRIMAL),
             weight: 1.0 / self.primal_spp as f32,
+            stride: self.stride,
+            phase: self.phase,
         }
     }
 

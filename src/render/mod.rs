@@ -486,7 +486,7 @@ pub fn record_samples(
         }
         let chunk = step.min(spp - done);
         let p = TracePush { spp: chunk, first_sample: push.first_sample + done, ..push };
-        rec.dispatch_linear(pipeline, group, &p, scene.pixels() as u64)?;
+        rec.dispatch_linear(pipeline, group, &p, p.invocations())?;
         done += chunk;
     }
     Ok(())
@@ -538,6 +538,8 @@ impl Renderer {
                 first_sample: done,
                 seed,
                 weight: 1.0 / spp as f32,
+                stride: 1,
+                phase: 0,
             };
             cmd.record(|rec| record_samples(rec, &self.scene, &self.primal, &group, push, chunk, &[&accum]))?;
             cmd.submit_and_wait()?;
