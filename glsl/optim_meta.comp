@@ -31,7 +31,6 @@ layout(set = 0, binding = 12, scalar) buffer MetaV { float meta_v[]; };
 layout(set = 0, binding = 13, scalar) buffer MetaCurv { float meta_curv[]; };
 layout(set = 0, binding = 14, scalar) buffer MetaCurvW { float meta_curv_w[]; };
 layout(set = 0, binding = 15, scalar) buffer MetaLast { float meta_last[]; };
-layout(set = 0, binding = 20, scalar) buffer MetaNis { float meta_nis[]; };
 layout(set = 0, binding = 16, scalar) readonly buffer Diag { DiagRecord diag[]; };
 layout(set = 0, binding = 17, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
 layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
@@ -39,6 +38,8 @@ layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
 // The iteration counter (host-written before each submission): step t = iteration + 1,
 // so a recording resubmitted every iteration needs no new push constants.
 layout(set = 0, binding = 19, scalar) readonly buffer Frame { uint frame_iteration; };
+// The variance calibration's NIS EMA (MetaElem.nis; untouched with calib = 0).
+layout(set = 0, binding = 20, scalar) buffer MetaNis { float meta_nis[]; };
 
 layout(push_constant, scalar) uniform Push {
     uint n;
