@@ -208,10 +208,15 @@ uint bvh_cw_intersect(BvhCwNode n, vec3 origin, vec3 inv_dir, float tmax, uint o
 // at the first hit). Callers pass a constant any_hit, so each copy is specialised.
 // Ylitie et al.'s loop: a node group (child base, hit inner children in bits 24-31 and
 // the node's inner-child mask in bits 0-7) and a triangle group (triangle base, hit
-// triangles in bits 0-23). The triangles are tested first, one per iteration; then the
-// highest-priority child of the node group is fetched and intersected, the rest of the
-// group pushed if any; an empty group pops the stack. Each push is one level deeper than
-// the entries below it, so the stack never holds more than the tree's depth.
+// triangles in bits 0-23). Each iteration of the outer loop takes the highest-priority
+// child of the node group (an empty group pops the stack first; an empty stack ends),
+// pushes the rest of the group if any, fetches and intersects the child, and tests the
+// triangles it hit in an inner loop, one per iteration. Each push is one level deeper
+// than the entries below it, so the stack never holds more than the tree's depth.
+// The order (node, then its triangles, with the pop in the same iteration) matters on
+// lavapipe, which enters every loop at least once, masked, even when no lane has work in
+// it (docs/lavapipe.md): testing the triangles first, in their own outer iteration,
+// cost a wasted triangle test at the first iteration, at every pop and at the end.
 bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) {
     hit = Hit(tmax, BVH_NO_HIT, 0.0, 0.0);
     vec3 inv_dir = 1.0 / bvh_safe_dir(dir);
@@ -222,12 +227,31 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     uint sp = 0u;
     // The root, as the single hit child of a group at base 0.
     uvec2 group = uvec2(0u, 0x80000000u);
-    uvec2 tris = uvec2(0u);
     while (true) {
+        // A group without hit inner children left: take the next one from the stack
+        // (every pushed group has one), or end.
+        if ((group.y & 0xFF000000u) == 0u) {
+            if (sp == 0u) {
+                break;
+            }
+            group = stack[--sp];
+        }
+        uint hits = group.y;
+        int k = findMSB(hits);
+        group.y &= ~(1u << k);
+        if ((group.y & 0xFF000000u) != 0u) {
+            stack[sp++] = group;
+        }
+        uint slot = uint(k - 24) ^ oct_inv;
+        uint node = group.x + bitCount(hits & ~(0xFFFFFFFFu << slot));
+        BvhCwNode n = bvh_node(node);
+        uint mask = bvh_cw_intersect(n, origin, inv_dir, hit.t, oct_inv);
+        group = uvec2(n.child_base, (mask & 0xFF000000u) | (n.e_imask >> 24));
+        uvec2 tris = uvec2(n.triangle_base, mask & 0x00FFFFFFu);
         while (tris.y != 0u) {
-            int k = findMSB(tris.y);
-            tris.y &= ~(1u << k);
-            BvhTriangle triangle = bvh_triangle(tris.x + uint(k));
+            int j = findMSB(tris.y);
+            tris.y &= ~(1u << j);
+            BvhTriangle triangle = bvh_triangle(tris.x + uint(j));
             float th, u, v;
             if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
                 hit = Hit(th, triangle.prim, u, v);
@@ -235,24 +259,6 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
                     return true;
                 }
             }
-        }
-        if ((group.y & 0xFF000000u) != 0u) {
-            uint hits = group.y;
-            int k = findMSB(hits);
-            group.y &= ~(1u << k);
-            if ((group.y & 0xFF000000u) != 0u) {
-                stack[sp++] = group;
-            }
-            uint slot = uint(k - 24) ^ oct_inv;
-            uint node = group.x + bitCount(hits & ~(0xFFFFFFFFu << slot));
-            BvhCwNode n = bvh_node(node);
-            uint mask = bvh_cw_intersect(n, origin, inv_dir, hit.t, oct_inv);
-            group = uvec2(n.child_base, (mask & 0xFF000000u) | (n.e_imask >> 24));
-            tris = uvec2(n.triangle_base, mask & 0x00FFFFFFu);
-        } else if (sp > 0u) {
-            group = stack[--sp];
-        } else {
-            break;
         }
     }
     return hit.prim != BVH_NO_HIT;
