@@ -331,7 +331,7 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
     spp = args.spp
     mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "path", spp))
 
-    def mitsuba_render(seed):
+    def mitsuba_render(seed, spp=spp):
         t = time.perf_counter()
         # Reading the image back waits for the render's kernels.
         img = np.array(mi.render(mscene, spp=spp, seed=seed))
@@ -357,7 +357,7 @@ def compare_images(np, mi, scene, scene_path, vk, args, out):
         v_imgs.append(np.array(mi.Bitmap(str(path)))[..., :3].astype(np.float64))
     # Fixed costs: a 1-spp render of each (Vulkan start-up, pipeline creation, BVH).
     v_one, _, _ = run_vk(vk, ["render", scene_path, "--spp", 1, "--seed", 9, "-o", out / "vk_1spp.exr"])
-    m_one = statistics.median(mitsuba_render(9 + r)[0] for r in range(3))
+    m_one = statistics.median(mitsuba_render(9 + r, spp=1)[0] for r in range(3))
 
     m_imgs = [x.astype(np.float64) for x in m_imgs]
     cmp = image_comparison(np, m_imgs[0], m_imgs[1], v_imgs[0], v_imgs[1])
