@@ -532,22 +532,50 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
             times.append(time.perf_counter() - t)
             del loss_value
 
-    # Half of Mitsuba's iterations before vkinverse's run and half after, so that a change
-    # in the machine's load shows in both medians.
-    mitsuba_iterations(0, iters // 2)
     opt_dir = out / "vk_adam"
     shutil.rmtree(opt_dir, ignore_errors=True)
-    wall, _, _ = run_vk(vk, ["optimise", scene_path, "--optimiser", "adam", "--iterations", iters, "--spp", spp,
-                             "--primal-spp", primal_spp, "--lr", lr, "--quiet", "-o", opt_dir])
-    mitsuba_iterations(iters // 2, iters - iters // 2)
+    vk_args = [str(vk), "optimise", str(scene_path), "--optimiser", "adam", "--iterations", str(iters), "--spp",
+               str(spp), "--primal-spp", str(primal_spp), "--lr", str(lr), "--quiet", "-o", str(opt_dir)]
+    if args.concurrent:
+        # Both at once, one thread each (Dr.Jit's pool and lavapipe's rasterizer threads),
+        # so that whatever else loads the machine slows both alike. Mitsuba's kernels are
+        # compiled first; its iterations count while vkinverse's process runs.
+        previous_threads = dr.thread_count()
+        dr.set_thread_count(1)
+        mitsuba_iterations(0, 3)
+        del times[:]
+        t = time.perf_counter()
+        proc = subprocess.Popen(vk_args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "LP_NUM_THREADS": "1"})
+        it = 3
+        while proc.poll() is None:
+            mitsuba_iterations(it, 1)
+            it += 1
+        _, err = proc.communicate()
+        wall = time.perf_counter() - t
+        dr.set_thread_count(previous_threads)
+        if proc.returncode != 0:
+            fail(f"vkinverse {' '.join(vk_args[1:])} failed ({proc.returncode}):\n{err.strip()}")
+        # Mitsuba's last iteration may have run partly alone.
+        if len(times) > 2:
+            times.pop()
+    else:
+        # Half of Mitsuba's iterations before vkinverse's run and half after, so that a
+        # change in the machine's load shows in both medians.
+        mitsuba_iterations(0, iters // 2)
+        wall, _, _ = run_vk(vk, vk_args[1:])
+        mitsuba_iterations(iters // 2, iters - iters // 2)
     m_final = np.array(params[key]).ravel()[:3].tolist()
     summary = json.loads((opt_dir / "summary.json").read_text())
     v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.base_color")
     reference = next(m["base_color"] for m in scene["materials"] if m["name"] == name)
     return {
         "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
-        # The first iterations compile Dr.Jit's kernels; the median leaves them out.
-        "mitsuba_per_iter_s": statistics.median(times[min(3, iters // 2 - 1):] if iters >= 8 else times),
+        "concurrent": bool(args.concurrent),
+        # The first iterations compile Dr.Jit's kernels; the median leaves them out (the
+        # concurrent mode ran them before timing).
+        "mitsuba_per_iter_s": statistics.median(
+            times if args.concurrent or iters < 8 else times[min(3, iters // 2 - 1):]),
         "mitsuba_first_iter_s": times[0],
         "vkinverse_per_iter_s": per_iteration_time(opt_dir / "log.csv"),
         "vkinverse_mean_iter_s": summary["total_time_s"] / max(summary["iterations"], 1),
@@ -600,7 +628,8 @@ def print_tables(a, b, c):
               f"{b['vkinverse_per_estimate_s']:.3f} s (ratio vk/mi {b['vkinverse_per_estimate_s'] / b['mitsuba_per_estimate_s']:.2f}); "
               f"whole vkinverse gradcheck process {b['vkinverse_gradcheck_process_s']:.2f} s")
     if c:
-        print(f"\n(c) Adam, {c['iterations']} iterations, spp {c['spp']} (primal {c['primal_spp']}), lr {c['lr']}")
+        mode = ", concurrent, one thread each" if c.get("concurrent") else ""
+        print(f"\n(c) Adam, {c['iterations']} iterations, spp {c['spp']} (primal {c['primal_spp']}), lr {c['lr']}{mode}")
         print(f"  time per iteration: Mitsuba {c['mitsuba_per_iter_s']:.4f} s (first {c['mitsuba_first_iter_s']:.2f} s), "
               f"vkinverse {c['vkinverse_per_iter_s']:.4f} s (mean {c['vkinverse_mean_iter_s']:.4f} s); "
               f"ratio vk/mi {c['vkinverse_per_iter_s'] / c['mitsuba_per_iter_s']:.2f}")
@@ -621,6 +650,9 @@ def main():
     ap.add_argument("--iterations", type=int, default=50, help="Adam iterations of each")
     ap.add_argument("--opt-spp", type=int, help="adjoint spp per iteration (default: the scene's)")
     ap.add_argument("--opt-primal-spp", type=int, help="primal spp per iteration (default: the scene's)")
+    ap.add_argument("--concurrent", action="store_true",
+                    help="part c: run Mitsuba's and vkinverse's iterations at the same time, one thread each "
+                    "(LP_NUM_THREADS=1, Dr.Jit's thread count 1), so that the machine's load affects both alike")
     ap.add_argument("--parts", default="abc", help="which comparisons to run (subset of abc)")
     ap.add_argument("--res", help="comma-separated film sizes (square) to run everything at, e.g. 64,256 "
                     "(default: the scene's own film)")
