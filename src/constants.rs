@@ -24,6 +24,11 @@ pub const FALLOFF_LINEAR: u32 = 1;
 /// atomics (glsl/lib/scene_access.glsl); a larger θ takes the direct atomics.
 pub const LOCAL_GRADS_CAPACITY: u32 = 32;
 
+/// Up to this many parameters, the adjoint kernels add each gradient contribution to all of
+/// the per-thread sums in an unrolled loop (the `LOCAL_GRADS_UNROLLED` specialization
+/// constant) rather than indexing them per lane; measured on lavapipe (docs/lavapipe.md).
+pub const LOCAL_GRADS_UNROLL_MAX: u32 = 16;
+
 /// Path vertices whose ray casts the adjoint kernels cache between a path's two replays
 /// (glsl/lib/integrator.glsl); with `max_depth` at most this, every cast is cached and the
 /// `CACHE_ALL` specialization constant lets the compiler drop the second traversal.

@@ -1034,7 +1034,8 @@ range = [0.0, 1.0]
 /// feature) and the spiral (principled, untextured) render bit-identical images and the
 /// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
 /// replay takes every cast from the cache, its traversal compiled out) and without (it
-/// tests each cast for the cache at run time).
+/// tests each cast for the cache at run time), and with the per-thread gradient sums
+/// added in an unrolled loop (`LOCAL_GRADS_UNROLLED`) and indexed per lane.
 #[test]
 fn feature_specialisation_changes_no_result() {
     for (name, principled) in [("cornell", false), ("spiral", true)] {
@@ -1047,11 +1048,14 @@ fn feature_specialisation_changes_no_result() {
                 assert!(!gs.has_textures, "{name} has no texture");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 assert!(gs.replay_cached, "{name}: every cast of a path fits the replay cache");
+                assert!(gs.local_grads_unrolled, "{name}: few parameters, summed in an unrolled loop");
                 if every_feature {
                     gs.has_textures = true;
                     gs.has_principled = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
+                    // The per-thread gradient sums indexed per lane.
+                    gs.local_grads_unrolled = false;
                 }
                 let renderer = Renderer::new(gs).unwrap();
                 renderer.scene.set_theta(renderer.scene.layout.reference()).unwrap();

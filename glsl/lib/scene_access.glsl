@@ -226,6 +226,12 @@ float fetch1(ValueRef r, vec2 uv, int state) {
 // hundred spp. LOCAL_GRADS is θ's length when it fits (set by the host), else 0: large θ
 // (textures) has few contributions per element and keeps the direct atomics.
 layout(constant_id = 5) const uint LOCAL_GRADS = 0;
+// Set by the host when LOCAL_GRADS is at most LOCAL_GRADS_UNROLL_MAX: grad_add then adds to
+// every one of the LOCAL_GRADS sums (v where the index matches, 0 elsewhere) in a loop that
+// the compiler unrolls, so the arrays are indexed by constants and live in registers. With
+// the per-lane index instead, lavapipe reads and writes the arrays lane by lane; that is
+// cheaper only for many parameters (measured in docs/lavapipe.md).
+layout(constant_id = 12) const bool LOCAL_GRADS_UNROLLED = false;
 #include "vkinverse_constants.glsl"  // LOCAL_GRADS_CAPACITY
 float local_grads[LOCAL_GRADS_CAPACITY];
 float local_half[LOCAL_GRADS_CAPACITY];
@@ -239,7 +245,15 @@ void grad_init() {
 
 void grad_add(int index, float v) {
     bool half_too = SPLIT && grad_in_half;
-    if (LOCAL_GRADS != 0u) {
+    if (LOCAL_GRADS_UNROLLED) {
+        // Adding 0.0 leaves every other sum as it is: the same sums as below.
+        for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) {
+            if (k >= LOCAL_GRADS) break;
+            float add = uint(index) == k ? v : 0.0;
+            local_grads[k] += add;
+            local_half[k] += half_too ? add : 0.0;
+        }
+    } else if (LOCAL_GRADS != 0u) {
         local_grads[index] += v;
         if (half_too) local_half[index] += v;
     } else {

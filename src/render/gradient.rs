@@ -107,6 +107,7 @@ impl GradientPass {
         let mut adjoint_spec = spec.clone();
         let local = if (1..=LOCAL_GRADS_CAPACITY as usize).contains(&scene.layout.len) { scene.layout.len as u32 } else { 0 };
         adjoint_spec.push(("LOCAL_GRADS", SpecValue::U32(local)));
+        adjoint_spec.push(("LOCAL_GRADS_UNROLLED", SpecValue::Bool(local != 0 && scene.local_grads_unrolled)));
         adjoint_spec.push(("SPLIT", SpecValue::Bool(grad_half.is_some())));
         adjoint_spec.push(("CACHE_ALL", SpecValue::Bool(scene.replay_cached)));
         let grad_half = match grad_half {

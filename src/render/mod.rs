@@ -54,6 +54,10 @@ pub struct GpuScene {
     /// (`max_depth` ≤ [`crate::constants::CACHED_BOUNCES`]): the `CACHE_ALL` constant of
     /// the adjoint kernels, which then trace each path once.
     pub replay_cached: bool,
+    /// Whether the adjoint kernels add each gradient contribution to their per-thread sums
+    /// in an unrolled loop (`LOCAL_GRADS_UNROLLED`): θ has at most
+    /// [`crate::constants::LOCAL_GRADS_UNROLL_MAX`] elements.
+    pub local_grads_unrolled: bool,
     pub triangles: usize,
     globals: Globals,
     bvh: BvhBuffers,
@@ -347,6 +351,7 @@ impl GpuScene {
             has_principled,
             environment_distribution,
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
+            local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
             triangles: geo.indices.len(),
             globals,
             layout,
