@@ -553,9 +553,10 @@ fn replay_matches_the_cpu_reference() {
     let halves = format!("{},{}", s(&gh_path), s(&fh_path));
 
     let seed_meta = "meta@step=snr@var=zero@fdvar=scaled";
-    let cases: [(&str, Option<&[f32]>, Option<&str>); 7] = [
+    let cases: [(&str, Option<&[f32]>, Option<&str>); 8] = [
         ("adam", None, None),
         ("meta", None, None),
+        ("meta@shrink=element", Some(&init), Some("0.1,0.7")),
         (seed_meta, None, None),
         ("meta@step=newton@sig=1@settle=0.5@decay_h=0.8@calib=0.9", Some(&init), Some("0.1,0.7")),
         ("adam@schedule=cosine@horizon=12", Some(&init), Some("0,1")),

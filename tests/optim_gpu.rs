@@ -5,7 +5,7 @@ mod common;
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
 use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, StepNorm, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -25,6 +25,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, sig: 1.0, settle: 0.5, decay_h: 0.8, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.95, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,
@@ -111,6 +112,11 @@ fn gpu_trajectories_match_the_f64_reference() {
             // The optimiser moved: the test is not comparing two copies of `init`.
             let moved: f64 = gpu.theta.last().unwrap().iter().zip(&init).map(|(a, b)| (a - b).abs() as f64).sum();
             assert!(moved > 0.1 * n as f64 * 0.01 * opt.schedule().factor(60), "{opt:?} barely moved: {moved}");
+            // The group's James–Stein factor let Newton's step through at some steps, so the
+            // comparisons below see the kernel's group_z2 at work.
+            if matches!(opt, Optimiser::Meta(h) if h.step == StepRule::Newton && h.shrink == Shrink::Group) {
+                assert!(gpu.diagnostics.iter().any(|d| d[0].newton > 0.0), "{opt:?} took no Newton step");
+            }
             // The diagnostics the GPU reduced, step by step, against the f64 reference's (for
             // Newton, the f32 run's).
             let reference = if newton { &cpu32.diagnostics } else { &cpu.diagnostics };

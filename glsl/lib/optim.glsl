@@ -241,6 +241,8 @@ struct MetaParams {
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
     float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
+    bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
+    float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -264,6 +266,17 @@ float f_weight(float decay, float grow, uint t) {
 // The centred variance sample of an estimate x from the sum of half of its samples: the
 // halves A = 2 half and B = 2 (x - half) give (A - B)/2 = x - 2 half. Saturates.
 float centred_sample(float x, float half_sum) { return sat(2.0 * sat(0.5 * x - half_sum)); }
+
+// The group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 over its k elements, from its
+// diagnostics record r of its previous step (the first step's is empty: FLT_MAX, no Newton
+// step): a chi-square test of the group's estimate against noise alone, then James-Stein's
+// factor (group_z2 in src/optim/reference.rs, which this mirrors).
+float group_z2(float sig, DiagRecord r) {
+    if (r.mean.scale == 0.0 || r.mean.sum == 0.0 || r.count <= 0.0) return FLT_MAX;
+    float q = r.sd.scale / r.mean.scale;
+    float chi = 1.0 + sig * sqrt(2.0 / r.count);
+    return sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum));
+}
 
 // One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
 // previous step. False for a non-finite input: nothing is changed.
@@ -346,10 +359,19 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     bool newton = false;
     if (p.step_rule == STEP_NEWTON && curv > 0.0) {
         // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
-        // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0), or the
-        // Wiener step times settle, whichever is longer, within |step| <= lr.
-        float z = mean == 0.0 ? FLT_MAX : p.sig * (sd_step / abs(mean));
-        float shrink = z >= 1.0 ? 0.0 : 1.0 - z * z;
+        // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0) or the
+        // group's, or the Wiener step times settle, whichever is longer, within |step| <= lr.
+        float z2;
+        if (p.shrink_group) {
+            // The group's z^2 sees the element's variance calibration as sd_step does.
+            z2 = sat(p.group_z2 * max(nis, 1.0));
+        } else if (mean == 0.0) {
+            z2 = FLT_MAX;
+        } else {
+            float z = p.sig * (sd_step / abs(mean));
+            z2 = z >= 1.0 ? 1.0 : z * z;
+        }
+        float shrink = z2 >= 1.0 ? 0.0 : 1.0 - z2;
         float newton_step = clamp(sat(-mean / curv) * shrink, -p.lr, p.lr);
         float settle_step = p.settle * step;
         newton = abs(newton_step) > abs(settle_step);

@@ -286,6 +286,23 @@ pub enum FdVariance {
     Raw,
 }
 
+/// What the significance of Newton's step (`step = newton`) is judged on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Shrink {
+    /// Each element on its own: the positive-part James–Stein factor 1 − (sig·sd/⟨F⟩_M)²
+    /// of the element.
+    #[default]
+    Element,
+    /// The parameter group as one vector (James–Stein's own setting): the factor
+    /// 1 − (1 + sig·√(2/k))·Σsd²/Σ⟨F⟩_M² over the group's k elements, from the sums of the
+    /// group's previous step (its diagnostics record), positive only where the group's
+    /// estimate stands sig standard deviations above noise alone (a χ² test). A texture
+    /// whose texels are each within their noise can be significant as a whole; each
+    /// element then takes its own Newton step, shrunk by the group's factor.
+    Group,
+}
+
 /// Meta-estimator hyperparameters. `decay_f`, `decay_d` are the decays of the two Moment2
 /// EMAs (0.9 in the seed's Moment2), `eps` the ε of the step (1e-8, supplementary B).
 /// `grow_f` > 0 lets β_F grow over the run (supplementary A): the ⟨F⟩ EMA's sample weight
@@ -320,6 +337,8 @@ pub struct MetaHyper {
     /// gradients, whose rare large samples the Moment2 EMAs miss most of the time, show as
     /// a NIS well above 1.
     pub calib: f64,
+    /// `step = newton`: the James–Stein factor of each element or of the whole group.
+    pub shrink: Shrink,
     pub schedule: Schedule,
 }
 
@@ -341,6 +360,7 @@ impl MetaHyper {
             sig: 3.0,
             settle: 0.3,
             calib: 0.0,
+            shrink: Shrink::Element,
             schedule: Schedule::default(),
         }
     }
@@ -349,17 +369,25 @@ impl MetaHyper {
 /// The defaults (spec `meta`): Newton's step rule on the finite differences' secant
 /// curvature (`lr` is the longest step, the typical step far from the optimum as for Adam;
 /// significance 3, a tenth of the secants' weight forgotten per step, 0.3 of the Wiener step
-/// near the optimum), the centred variance estimate and the raw ⟨ΔF⟩ variance, with the
-/// seed's decays and ε, each parameter group's own step norm, constant β_F and rate. Chosen
+/// near the optimum, the James–Stein factor of each parameter group as a whole), the centred
+/// variance estimate and the raw ⟨ΔF⟩ variance, with the seed's decays and ε, each parameter
+/// group's own step norm, constant β_F and rate. Chosen
 /// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
 /// (scenes/pilot.toml, scenes/pilot2.toml), `fdvar=raw` (scenes/pilot3.toml), which lets the
 /// estimate average for parameters that change how paths are sampled, then Newton's rule
 /// (scenes/pilot6.toml), whose settled error relative to the best Adam has the smaller
 /// geometric mean over the six bundled scenes, and its sig and settle (scenes/pilot7.toml:
-/// no other setting tried was better on every scene).
+/// no other setting tried was better on every scene), then the group's James–Stein factor
+/// (scenes/pilot10.toml, scenes/pilot11.toml: the smaller geometric mean over four seeds).
 impl Default for MetaHyper {
     fn default() -> Self {
-        MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }
+        MetaHyper {
+            step: StepRule::Newton,
+            variance: VarianceEstimate::Centred,
+            fdvar: FdVariance::Raw,
+            shrink: Shrink::Group,
+            ..MetaHyper::seed()
+        }
     }
 }
 

@@ -3,7 +3,7 @@
 //! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
 //! (`crate::push`).
 
-use super::{AdamHyper, FdVariance, MetaHyper, Range, Schedule, StepNorm, VarianceEstimate};
+use super::{AdamHyper, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
 
@@ -120,6 +120,7 @@ pub struct MetaPush {
     pub sig: f32,
     pub settle: f32,
     pub calib: f32,
+    pub shrink_group: u32,
 }
 
 impl MetaPush {
@@ -154,6 +155,7 @@ impl MetaPush {
             sig: h.sig as f32,
             settle: h.settle as f32,
             calib: h.calib as f32,
+            shrink_group: u32::from(h.shrink == Shrink::Group),
         }
     }
 }

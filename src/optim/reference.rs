@@ -515,6 +515,10 @@ pub struct MetaParams<R> {
     pub settle: R,
     /// The decay of the variance calibration's NIS EMA (0: none).
     pub calib: R,
+    /// `step = newton` with [`super::Shrink::Group`]: the group's [`group_z2`] from its
+    /// previous step, which replaces each element's (sig·sd/⟨F⟩_M)² in the James–Stein
+    /// factor; `None`: each element's own.
+    pub group_z2: Option<R>,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -536,6 +540,7 @@ impl<R: Real> MetaParams<R> {
             sig: R::of(h.sig),
             settle: R::of(h.settle),
             calib: R::of(h.calib),
+            group_z2: None,
         }
     }
 }
@@ -636,9 +641,18 @@ pub fn meta_update<R: Real>(
     let mut newton = false;
     if p.step == StepRule::Newton && curv > R::ZERO {
         // Newton's step −mean/h shrunk by the positive-part James–Stein factor
-        // 1 − (sig·sd/mean)², or the Wiener step times settle, whichever is longer, within lr.
-        let z = if mean == R::ZERO { R::MAX } else { p.sig * (sd_step / mean.abs()) };
-        let shrink = if z >= one { R::ZERO } else { one - z * z };
+        // 1 − (sig·sd/mean)² (or the group's), or the Wiener step times settle, whichever is
+        // longer, within lr.
+        // The group's z² sees the element's variance calibration as sd_step does.
+        let z2 = match p.group_z2 {
+            Some(z2) => sat(z2 * nis.max(one)),
+            None if mean == R::ZERO => R::MAX,
+            None => {
+                let z = p.sig * (sd_step / mean.abs());
+                if z >= one { one } else { z * z }
+            }
+        };
+        let shrink = if z2 >= one { R::ZERO } else { one - z2 };
         let newton_step = (sat(-mean / curv) * shrink).max(-p.lr).min(p.lr);
         let settle_step = p.settle * step;
         newton = newton_step.abs() > settle_step.abs();
@@ -649,6 +663,23 @@ pub fn meta_update<R: Real>(
     let taken = next - theta;
     let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
     Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis }, diag))
+}
+
+/// What [`super::Shrink::Group`] puts in place of each element's (sig·sd/⟨F⟩_M)²: the
+/// group's (1 + sig·√(2/k))·‖sd‖²/‖⟨F⟩_M‖² over its k elements, from its diagnostics record
+/// `r` of the previous step (the first step's is empty: R::MAX, no Newton step). Where the
+/// estimate is noise alone, ‖⟨F⟩_M‖²/‖sd‖² is a χ² over k with mean 1 and standard
+/// deviation √(2/k), so the factor 1 − z² is positive only where the group stands sig
+/// standard deviations of that above noise, and is then James–Stein's. The sums' ratio is
+/// taken from their Ssq form, so that it neither overflows nor vanishes where the sums
+/// would. Mirrored by group_z2 in glsl/lib/optim.glsl.
+pub fn group_z2<R: Real>(sig: R, r: &DiagRecord<R>) -> R {
+    if r.mean.scale == R::ZERO || r.mean.sum == R::ZERO || r.count <= R::ZERO {
+        return R::MAX;
+    }
+    let q = r.sd.scale / r.mean.scale;
+    let chi = R::ONE + sig * (R::of(2.0) / r.count).sqrt();
+    sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum))
 }
 
 /// Hyperparameters and per-element state of one parameter buffer.
@@ -746,7 +777,10 @@ impl<R: Real> BufferOptimiser<R> {
             Elems::Meta(h, state) => {
                 let fd = input.fd.ok_or(OptimError::MissingFd)?;
                 check_len("finite-difference gradient", n, fd.len())?;
-                let p = MetaParams::<R>::new(h, t, self.lr, self.range);
+                let mut p = MetaParams::<R>::new(h, t, self.lr, self.range);
+                if h.shrink == super::Shrink::Group {
+                    p.group_z2 = Some(group_z2(p.sig, &self.record));
+                }
                 lr_t = p.lr.to_f64();
                 let halves = if p.centred {
                     let (gh, fh) = input.grad_half.zip(input.fd_half).ok_or(OptimError::MissingHalves)?;

@@ -5,12 +5,12 @@
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `settle`), and for both the learning-rate schedule's
+//! for `step` = newton `decay_h`, `sig`, `settle`, `shrink` = element|group), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, FdVariance, MetaHyper, OptimError, Optimiser, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -44,7 +44,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib, shrink",
     }
 }
 
@@ -79,6 +79,10 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         }
         (Optimiser::Meta(h), "dpi") => {
             h.dpi = choice(key, value, &[("group", StepNorm::Group), ("global", StepNorm::Global)])?;
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "shrink") => {
+            h.shrink = choice(key, value, &[("element", Shrink::Element), ("group", Shrink::Group)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "fdvar") => {
@@ -192,6 +196,9 @@ mod tests {
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
         assert!(msg("meta@dpi=all").contains("expected group or global"));
         assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));
+        assert!(msg("meta@shrink=all").contains("expected element or group"));
+        let Optimiser::Meta(h) = "meta@shrink=group".parse::<Spec>().unwrap().optimiser else { unreachable!() };
+        assert_eq!(h.shrink, Shrink::Group);
         let Optimiser::Meta(h) = "meta@fdvar=raw".parse::<Spec>().unwrap().optimiser else { unreachable!() };
         assert_eq!(h.fdvar, FdVariance::Raw);
         let Optimiser::Meta(h) = "meta@dpi=global".parse::<Spec>().unwrap().optimiser else { panic!() };

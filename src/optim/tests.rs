@@ -50,6 +50,7 @@ fn meta_variants() -> Vec<Optimiser> {
     }
     v.push(Optimiser::Meta(MetaHyper { calib: 0.99, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.9, step: StepRule::Snr, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -1109,4 +1110,57 @@ fn input_errors() {
         BufferOptimiser::<f64>::new(&bad, 1, 0.1, Range::UNBOUNDED),
         Err(OptimError::BadHyper(_))
     ));
+}
+
+/// A texture-like group of `n` elements on a noisy quadratic with per-element curvatures
+/// a_i in [0.5, 2]: each starts at 0 with its optimum at `offset` ± 0.1, and each ⟨F⟩
+/// sample carries noise `sigma`, far above one element's gradient. Returns the final RMSE
+/// and the mean fraction of element-steps that took Newton's step.
+fn texture_quadratic(opt: &Optimiser, seed: u64, n: usize, iters: u32, sigma: f64, offset: f64) -> (f64, f64) {
+    let mut rng = Rng(seed);
+    let a: Vec<f64> = (0..n).map(|_| 0.5 + 1.5 * rng.uniform()).collect();
+    let target: Vec<f64> = (0..n).map(|_| offset + 0.2 * rng.uniform() - 0.1).collect();
+    let mut o = BufferOptimiser::<f64>::new(opt, n, 0.05, Range::new(-2.0, 2.0).unwrap()).unwrap();
+    let mut theta = vec![0.0; n];
+    let mut prev = theta.clone();
+    let mut halves = |mean: f64, sigma: f64| {
+        let (x, y) = (rng.normal(), rng.normal());
+        let (a, b) = (mean + sigma * std::f64::consts::SQRT_2 * x, mean + sigma * std::f64::consts::SQRT_2 * y);
+        ((a + b) / 2.0, b / 2.0)
+    };
+    let mut newton = 0.0;
+    for _ in 0..iters {
+        let (f, fh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - target[i]), sigma)).unzip();
+        let (df, dh): (Vec<f64>, Vec<f64>) = (0..n).map(|i| halves(a[i] * (theta[i] - prev[i]), 0.01 * sigma)).unzip();
+        prev.clone_from(&theta);
+        o.step_with(&mut theta, StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) }).unwrap();
+        newton += o.diagnostics().newton / iters as f64;
+    }
+    let rmse = (theta.iter().zip(&target).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / n as f64).sqrt();
+    (rmse, newton)
+}
+
+#[test]
+fn group_shrink_steps_on_a_group_significant_as_a_whole() {
+    let element = Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() });
+    let group = Optimiser::Meta(MetaHyper { shrink: Shrink::Group, ..MetaHyper::default() });
+    let mean = |opt: &Optimiser, offset: f64| -> (f64, f64) {
+        let r: Vec<_> = (0..4).map(|s| texture_quadratic(opt, 40 + s, 512, 60, 4.0, offset)).collect();
+        (r.iter().map(|x| x.0).sum::<f64>() / 4.0, r.iter().map(|x| x.1).sum::<f64>() / 4.0)
+    };
+    // Far from the optimum (0.8 away, each sample's noise 4): each element's estimate stays
+    // within a few of its standard deviations, the group's is far above its noise. The
+    // group's factor lets every element take its Newton step; the element rule takes few.
+    let (e_element, n_element) = mean(&element, 0.8);
+    let (e_group, n_group) = mean(&group, 0.8);
+    eprintln!("far: element {e_element} ({n_element}), group {e_group} ({n_group})");
+    assert!(n_group > 2.0 * n_element && n_group > 0.3, "Newton steps: group {n_group}, element {n_element}");
+    assert!(e_group < 0.85 * e_element, "error: group {e_group}, element {e_element}");
+    // At the optimum the group's estimate is noise alone: the χ² test keeps Newton's step
+    // for almost every iteration, and the iterate drifts no further than the element rule's.
+    let (d_element, _) = mean(&element, 0.0);
+    let (d_group, n_noise) = mean(&group, 0.0);
+    eprintln!("optimum: element {d_element}, group {d_group} ({n_noise})");
+    assert!(n_noise < 0.1, "Newton steps at the optimum: {n_noise}");
+    assert!(d_group < 1.2 * d_element, "drift: group {d_group}, element {d_element}");
 }
