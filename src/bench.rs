@@ -12,7 +12,7 @@ mod scene;
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
-use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
+use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
 use crate::ops::BufferOps;
 use crate::push::{Count4Push, CountPush, GatherPush};
 use crate::optim::gpu::{GpuOptimiser, Group};
@@ -103,28 +103,18 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
     let meta = GpuOptimiser::new(ctx, &ops, &Optimiser::Meta(Default::default()), &theta, &grad, Some(&fd_grad), &frame, &groups)?;
     let adam = GpuOptimiser::new(ctx, &ops, &Optimiser::Adam(Default::default()), &theta, &grad, None, &frame, &groups)?;
 
-    let mut profiler = Profiler::new(ctx, 3 * iterations)?;
-    let record = |cmd: &mut CommandBuffer, profiler: &mut Profiler, rounds: u32| {
-        cmd.record(|rec| {
-            profiler.reset(rec);
-            for _ in 0..rounds {
-                profiler.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
-                profiler.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
-                // copy reads θ, which both passes wrote.
-                rec.transition(&[(&theta, Access::ComputeRead), (&copy_dst, Access::ComputeWrite)])?;
-                profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
-            }
-            Ok(())
-        })
-    };
-    // Warm-up: lavapipe compiles a pipeline on its first dispatch.
-    let mut warm = CommandBuffer::new(ctx, "optimiser warm-up")?;
-    record(&mut warm, &mut profiler, 1)?;
-    warm.submit_and_wait()?;
+    let mut profiler = Profiler::new(ctx, 3)?;
     let mut cmd = CommandBuffer::new(ctx, "optimiser bench")?;
-    record(&mut cmd, &mut profiler, iterations)?;
-    cmd.submit_and_wait()?;
-    let times = profiler.results()?;
+    cmd.record(|rec| {
+        profiler.reset(rec);
+        profiler.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
+        profiler.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
+        // copy reads θ, which both passes wrote.
+        rec.transition(&[(&theta, Access::ComputeRead), (&copy_dst, Access::ComputeWrite)])?;
+        profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
+        Ok(())
+    })?;
+    let times = timed_rounds(&mut cmd, &profiler, iterations)?;
     let median_of = |name: &str| {
         let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
         median(&mut v)
@@ -169,6 +159,21 @@ impl OptimiserBandwidth {
         }
         s
     }
+}
+
+/// Submits the recorded round `cmd` once to warm up (lavapipe compiles a pipeline on its
+/// first dispatch), then `iterations` times, and returns the scopes of every timed round.
+/// One round per submission keeps each submission short: all rounds in one submission
+/// (as before) ran past the fence's timeout on a CPU device for large `--elements` or
+/// `--iterations`, and a timed-out wait reads as a hung device.
+fn timed_rounds(cmd: &mut CommandBuffer, profiler: &Profiler, iterations: u32) -> Result<Vec<ScopeTime>> {
+    cmd.submit_and_wait()?;
+    let mut times = Vec::new();
+    for _ in 0..iterations {
+        cmd.submit_and_wait()?;
+        times.extend(profiler.results()?);
+    }
+    Ok(times)
 }
 
 /// Median of a non-empty list (0 for an empty one).
@@ -217,8 +222,8 @@ const GATHER_TABLE: u64 = 4096;
 
 /// Measures fill, copy (scalar and vec4, several workgroup sizes), scale-add, the two
 /// reductions over `elements` floats and incoherent float4 reads through a storage buffer
-/// and a texel buffer (`gather`, `gather_texel`), `iterations` times each, in one command
-/// buffer.
+/// and a texel buffer (`gather`, `gather_texel`), `iterations` times each, one round per
+/// submission.
 pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<BufferBench> {
     let n = elements - elements % 4;
     let iterations = iterations.max(1);
@@ -242,9 +247,7 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         .map(|&w| ComputePipeline::new(ctx, "copy", &[("local_size_x", SpecValue::U32(w))]))
         .collect::<Result<Vec<_>>>()?;
     let wg_groups = wg_pipes.iter().map(|p| p.bind(&[("Src", &a), ("Dst", &b)])).collect::<Result<Vec<_>>>()?;
-    let reductions = (0..iterations)
-        .map(|_| Ok((ops.reduction(&a, false)?, ops.reduction(&a, true)?)))
-        .collect::<Result<Vec<_>>>()?;
+    let (sum, sq) = (ops.reduction(&a, false)?, ops.reduction(&a, true)?);
     // Incoherent float4 reads (glsl/gather.comp): GATHER_THREADS threads, GATHER_ROUNDS
     // dependent reads each, from a table of GATHER_TABLE float4 at the start of `a` (64 KiB:
     // cache-resident, as a small scene's BVH and records are), through a storage buffer and
@@ -260,67 +263,58 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         })
         .collect::<Result<Vec<_>>>()?;
 
-    let mut profiler = Profiler::new(ctx, 24 * iterations + 4)?;
+    let mut profiler = Profiler::new(ctx, 24)?;
     let mut cmd = CommandBuffer::new(ctx, "buffer bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
         let n_push = CountPush::new(n);
         let n4_push = Count4Push { n4: (n / 4) as u32 };
-        for (r, (sum, sq)) in reductions.iter().enumerate() {
-            if r > 0 {
-                // b was written by the last kernel of the previous round; x by scale_add.
-                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-                rec.barrier(&x, Access::ComputeReadWrite, Access::ComputeReadWrite)?;
-                rec.barrier(&tiny, Access::ComputeWrite, Access::ComputeWrite)?;
-            }
-            profiler.begin(rec, "fill")?;
-            ops.fill(rec, &b, 1.0)?;
-            profiler.end(rec)?;
-            // Each kernel below overwrites b: order the writes.
+        profiler.begin(rec, "fill")?;
+        ops.fill(rec, &b, 1.0)?;
+        profiler.end(rec)?;
+        // Each kernel below overwrites b: order the writes.
+        rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
+        profiler.begin(rec, "copy")?;
+        ops.copy(rec, &a, &b)?;
+        profiler.end(rec)?;
+        rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
+        profiler.begin(rec, "copy_vec4")?;
+        rec.dispatch_linear(&copy4, &copy4_group, &n4_push, n / 4)?;
+        profiler.end(rec)?;
+        for ((k, p), g) in wide_items.iter().zip(&wide_pipes).zip(&wide_groups) {
             rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-            profiler.begin(rec, "copy")?;
-            ops.copy(rec, &a, &b)?;
+            profiler.begin(rec, &format!("copy_vec4_x{k}"))?;
+            // One thread per ITEMS float4s.
+            rec.dispatch_linear(p, g, &n4_push, (n / 4).div_ceil(*k as u64))?;
             profiler.end(rec)?;
+        }
+        for ((w, p), g) in wg_sizes.iter().zip(&wg_pipes).zip(&wg_groups) {
             rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-            profiler.begin(rec, "copy_vec4")?;
-            rec.dispatch_linear(&copy4, &copy4_group, &n4_push, n / 4)?;
+            profiler.begin(rec, &format!("copy_wg{w}"))?;
+            rec.dispatch_linear(p, g, &n_push, n)?;
             profiler.end(rec)?;
-            for ((k, p), g) in wide_items.iter().zip(&wide_pipes).zip(&wide_groups) {
-                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-                profiler.begin(rec, &format!("copy_vec4_x{k}"))?;
-                // One thread per ITEMS float4s.
-                rec.dispatch_linear(p, g, &n4_push, (n / 4).div_ceil(*k as u64))?;
-                profiler.end(rec)?;
-            }
-            for ((w, p), g) in wg_sizes.iter().zip(&wg_pipes).zip(&wg_groups) {
-                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-                profiler.begin(rec, &format!("copy_wg{w}"))?;
-                rec.dispatch_linear(p, g, &n_push, n)?;
-                profiler.end(rec)?;
-            }
-            profiler.begin(rec, "scale_add")?;
-            ops.scale_add(rec, &x, 1.0, 0.0)?;
+        }
+        profiler.begin(rec, "scale_add")?;
+        ops.scale_add(rec, &x, 1.0, 0.0)?;
+        profiler.end(rec)?;
+        profiler.begin(rec, "reduce_sum")?;
+        ops.record_reduction(rec, &sum)?;
+        profiler.end(rec)?;
+        profiler.begin(rec, "reduce_sumsq")?;
+        ops.record_reduction(rec, &sq)?;
+        profiler.end(rec)?;
+        profiler.begin(rec, "tiny_dispatch")?;
+        ops.fill(rec, &tiny, 0.0)?;
+        profiler.end(rec)?;
+        for (kernel, p, g) in &gathers {
+            rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
+            profiler.begin(rec, kernel)?;
+            rec.dispatch_linear(p, g, &gather_push, GATHER_THREADS)?;
             profiler.end(rec)?;
-            profiler.begin(rec, "reduce_sum")?;
-            ops.record_reduction(rec, sum)?;
-            profiler.end(rec)?;
-            profiler.begin(rec, "reduce_sumsq")?;
-            ops.record_reduction(rec, sq)?;
-            profiler.end(rec)?;
-            profiler.begin(rec, "tiny_dispatch")?;
-            ops.fill(rec, &tiny, 0.0)?;
-            profiler.end(rec)?;
-            for (kernel, p, g) in &gathers {
-                rec.barrier(&b, Access::ComputeWrite, Access::ComputeWrite)?;
-                profiler.begin(rec, kernel)?;
-                rec.dispatch_linear(p, g, &gather_push, GATHER_THREADS)?;
-                profiler.end(rec)?;
-            }
         }
         Ok(())
     })?;
-    cmd.submit_and_wait()?;
-    let times = profiler.results()?;
+    let times = timed_rounds(&mut cmd, &profiler, iterations)?;
 
     let median_of = |name: &str| {
         let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::with_gpu;
+use common::{with_gpu, with_gpu_options};
 use vkinverse::scene::Scene;
 
 fn finite_positive(what: &str, v: f64) {
@@ -155,4 +155,30 @@ fn buffer_bench_reports_every_kernel() {
     }
     let copy = b.kernels.iter().find(|k| k.name == "copy").unwrap();
     assert!((copy.ratio_to_copy - 1.0).abs() < 1e-12);
+}
+
+/// The optimiser passes' bench submits each timed round on its own: with the fence's
+/// timeout set to three times one round's time (at least 2 s, above the warm-up's pipeline
+/// compilation), twice the timeout's worth of rounds still finishes, where those rounds in
+/// one submission would run past it. (The default `vkinverse bench` times 16 M parameters,
+/// about 13 s a round on lavapipe here: ten rounds in one submission ran into the 120 s
+/// timeout and were reported as a hung device.)
+#[test]
+fn optimiser_bench_rounds_stay_within_the_timeout() {
+    let elements = 1 << 20;
+    let round = with_gpu(|ctx| vkinverse::bench::optimiser_bandwidth(ctx, elements, 1).unwrap());
+    let round_ms: f64 = round.passes.iter().map(|p| p.median_ms).sum();
+    finite_positive("one round", round_ms);
+    let timeout_ms = (3.0 * round_ms).max(2000.0);
+    let rounds = (2.0 * timeout_ms / round_ms).ceil() as u32;
+    let options = vkinverse::gpu::ContextOptions {
+        timeout: Some(std::time::Duration::from_secs_f64(timeout_ms * 1e-3)),
+        ..common::options()
+    };
+    let b = with_gpu_options(options, |ctx| vkinverse::bench::optimiser_bandwidth(ctx, elements, rounds))
+        .unwrap_or_else(|e| panic!("{rounds} rounds of {round_ms:.0} ms with a {timeout_ms:.0} ms timeout: {e}"));
+    assert_eq!(b.iterations, rounds);
+    for p in &b.passes {
+        finite_positive(&p.name, p.median_ms);
+    }
 }

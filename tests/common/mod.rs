@@ -12,14 +12,27 @@ use vkinverse::gpu::{Context, ContextOptions};
 /// With `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1` in the environment its device buffers are
 /// never mapped (the staging path of a discrete GPU; CI runs the suite once so).
 pub fn context() -> Arc<Context> {
-    let options = ContextOptions { device: std::env::var("VKINVERSE_TEST_DEVICE").ok(), validation: true, ..Default::default() };
+    context_with(options())
+}
+
+/// The options of [`context`]: validation on, the device `VKINVERSE_TEST_DEVICE` names.
+pub fn options() -> ContextOptions {
+    ContextOptions { device: std::env::var("VKINVERSE_TEST_DEVICE").ok(), validation: true, ..Default::default() }
+}
+
+fn context_with(options: ContextOptions) -> Arc<Context> {
     Context::new(&options).expect("Vulkan context with validation (needs mesa-vulkan-drivers and vulkan-validationlayers)")
 }
 
 /// Runs `f` on a fresh validating context, then checks that the validation layer said
 /// nothing and that `f` freed every allocation.
 pub fn with_gpu<R>(f: impl FnOnce(&Arc<Context>) -> R) -> R {
-    let ctx = context();
+    with_gpu_options(options(), f)
+}
+
+/// [`with_gpu`] on a context made with `options` (which should keep validation on).
+pub fn with_gpu_options<R>(options: ContextOptions, f: impl FnOnce(&Arc<Context>) -> R) -> R {
+    let ctx = context_with(options);
     let r = f(&ctx);
     ctx.wait_idle().expect("wait idle");
     let messages = ctx.take_validation_messages();
