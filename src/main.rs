@@ -186,9 +186,9 @@ struct BenchArgs {
     #[arg(long, default_value_t = 9)]
     iterations: u32,
     /// Elements (f32) per buffer for the buffer kernels, and parameters of the synthetic
-    /// θ of the optimiser passes.
-    #[arg(long, default_value_t = 16 << 20)]
-    elements: u64,
+    /// θ of the optimiser passes [default: 16777216 without a scene, 1048576 with one]
+    #[arg(long)]
+    elements: Option<u64>,
     /// With a scene: compare the BVH layouts (binary, wide, cw8) instead, rotating them
     /// over `--iterations` rounds.
     #[arg(long)]
@@ -596,13 +596,21 @@ fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
     Ok(())
 }
 
+/// `bench`'s default `--elements` without a scene: buffers far larger than the caches.
+const BUFFER_BENCH_ELEMENTS: u64 = 16 << 20;
+/// With a scene, whose own optimiser passes the iteration table times: a synthetic θ of
+/// 16M parameters took about 13 s a round on lavapipe, nine tenths of the default scene
+/// bench's time; 1M still fills every workgroup of a GPU many times over.
+const SCENE_BENCH_ELEMENTS: u64 = 1 << 20;
+
 fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
     let Some(path) = &a.scene else {
+        let elements = a.elements.unwrap_or(BUFFER_BENCH_ELEMENTS);
         // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
-        if a.elements < 4 {
-            return Err(format!("--elements {}: must be at least 4", a.elements).into());
+        if elements < 4 {
+            return Err(format!("--elements {elements}: must be at least 4").into());
         }
-        let result = vkinverse::bench::buffer_bench(&context(cli)?, a.elements, a.iterations)?;
+        let result = vkinverse::bench::buffer_bench(&context(cli)?, elements, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     };
     let scene = load_scene(cli, path, &a.scene_flags)?;
@@ -611,7 +619,7 @@ fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
         let result = vkinverse::bench::layout_bench(&ctx, &scene, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     }
-    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements)?;
+    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS))?;
     print_result(a.json, &result, || result.table())
 }
 

@@ -868,3 +868,18 @@ fn replay_refuses_non_finite_start_values() {
     npy::write(&init, &Array { shape: vec![2], data: vec![0.5, f32::NAN] }).unwrap();
     vkinverse_err(&["replay", "--optimiser", "adam", "--init", &s(&init), &s(&grads), "-o", &s(&dir.join("t.npy"))], &["init.npy", "value 1 is NaN"]);
 }
+
+/// A scene bench times its synthetic θ at 1M parameters unless `--elements` says otherwise
+/// (at the buffer bench's 16M it was most of a scene bench's run time on lavapipe).
+#[test]
+fn scene_bench_sizes_its_synthetic_theta_by_default_and_by_flag() {
+    let scene = s(tiny_cornell());
+    let elements = |extra: &[&str]| -> u64 {
+        let args: Vec<&str> = ["bench", scene.as_str(), "--iterations", "1", "--json"].iter().chain(extra).copied().collect();
+        let out = vkinverse_ok(&args);
+        let v: serde_json::Value = serde_json::from_str(&out.stdout).unwrap_or_else(|e| panic!("{e}:\n{}", out.stdout));
+        v["optimisers"]["elements"].as_u64().expect("optimisers.elements")
+    };
+    assert_eq!(elements(&[]), 1 << 20);
+    assert_eq!(elements(&["--elements", "4096"]), 4096);
+}
