@@ -163,9 +163,10 @@ impl OptimiserBandwidth {
 
 /// Submits the recorded round `cmd` once to warm up (lavapipe compiles a pipeline on its
 /// first dispatch), then `iterations` times, and returns the scopes of every timed round.
-/// One round per submission keeps each submission short: all rounds in one submission
-/// (as before) ran past the fence's timeout on a CPU device for large `--elements` or
-/// `--iterations`, and a timed-out wait reads as a hung device.
+/// One round per submission keeps each submission short: all rounds in one submission run
+/// past the fence's timeout on a CPU device for large `--elements` or `--iterations` (16M
+/// parameters take about 13 s a round on lavapipe), and a timed-out wait reads as a hung
+/// device.
 fn timed_rounds(cmd: &mut CommandBuffer, profiler: &Profiler, iterations: u32) -> Result<Vec<ScopeTime>> {
     cmd.submit_and_wait()?;
     let mut times = Vec::new();
