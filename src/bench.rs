@@ -12,7 +12,7 @@ mod scene;
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
-use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
+use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
 use crate::ops::BufferOps;
 use crate::push::{Count4Push, CountPush, GatherPush};
 use crate::optim::gpu::{GpuOptimiser, Group};
@@ -114,7 +114,11 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
         profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
         Ok(())
     })?;
-    let times = timed_rounds(&mut cmd, &profiler, iterations)?;
+    let mut times = Vec::new();
+    timed_rounds(&mut cmd, iterations, || {
+        times.extend(profiler.results()?);
+        Ok(())
+    })?;
     let median_of = |name: &str| {
         let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
         median(&mut v)
@@ -162,19 +166,18 @@ impl OptimiserBandwidth {
 }
 
 /// Submits the recorded round `cmd` once to warm up (lavapipe compiles a pipeline on its
-/// first dispatch), then `iterations` times, and returns the scopes of every timed round.
-/// One round per submission keeps each submission short: all rounds in one submission run
-/// past the fence's timeout on a CPU device for large `--elements` or `--iterations` (16M
-/// parameters take about 13 s a round on lavapipe), and a timed-out wait reads as a hung
-/// device.
-fn timed_rounds(cmd: &mut CommandBuffer, profiler: &Profiler, iterations: u32) -> Result<Vec<ScopeTime>> {
+/// first dispatch), then `iterations` times, calling `collect` after each timed round to
+/// read its timestamps. One round per submission keeps each submission short: all rounds
+/// in one submission run past the fence's timeout on a CPU device for large `--elements`
+/// or `--iterations` (16M parameters take about 13 s a round on lavapipe), and a timed-out
+/// wait reads as a hung device.
+fn timed_rounds(cmd: &mut CommandBuffer, iterations: u32, mut collect: impl FnMut() -> Result<()>) -> Result<()> {
     cmd.submit_and_wait()?;
-    let mut times = Vec::new();
     for _ in 0..iterations {
         cmd.submit_and_wait()?;
-        times.extend(profiler.results()?);
+        collect()?;
     }
-    Ok(times)
+    Ok(())
 }
 
 /// Median of a non-empty list (0 for an empty one).
@@ -315,7 +318,11 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         }
         Ok(())
     })?;
-    let times = timed_rounds(&mut cmd, &profiler, iterations)?;
+    let mut times = Vec::new();
+    timed_rounds(&mut cmd, iterations, || {
+        times.extend(profiler.results()?);
+        Ok(())
+    })?;
 
     let median_of = |name: &str| {
         let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();

@@ -28,7 +28,7 @@
 //! rays of the first sensor, in the default node layout (`bench SCENE --bvh-layouts`
 //! compares the layouts: bench/layouts.rs).
 
-use super::{median, optimiser_bandwidth, OptimiserBandwidth};
+use super::{median, optimiser_bandwidth, timed_rounds, OptimiserBandwidth};
 use crate::bvh::TraceRay;
 use crate::engine::{Engine, FdSample};
 use crate::error::{Error, Result};
@@ -584,14 +584,12 @@ fn bvh_throughput(ctx: &Arc<Context>, scene: &Scene, gs: &GpuScene, iterations: 
         rec.barrier(&results, Access::ComputeWrite, Access::ComputeWrite)?;
         any_prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(&any, &any_group, &push, n))
     })?;
-    // The first submission is the warm-up (pipeline compilation on lavapipe).
-    cmd.submit_and_wait()?;
     let (mut c, mut a) = (Vec::new(), Vec::new());
-    for _ in 0..iterations {
-        cmd.submit_and_wait()?;
+    timed_rounds(&mut cmd, iterations, || {
         c.push(Profiler::total_ms(&closest_prof.results()?, "trace_test"));
         a.push(Profiler::total_ms(&any_prof.results()?, "trace_test"));
-    }
+        Ok(())
+    })?;
     let (closest_ms, any_ms) = (median(&mut c), median(&mut a));
     let mrays = |ms: f64| n as f64 / (ms * 1e-3).max(1e-12) * 1e-6;
     Ok(BvhThroughput {
