@@ -12,7 +12,7 @@ mod scene;
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
-use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, SpecValue};
+use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
 use crate::ops::BufferOps;
 use crate::push::{Count4Push, CountPush, GatherPush};
 use crate::optim::gpu::{GpuOptimiser, Group};
@@ -114,15 +114,8 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
         profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
         Ok(())
     })?;
-    let mut times = Vec::new();
-    timed_rounds(&mut cmd, iterations, || {
-        times.extend(profiler.results()?);
-        Ok(())
-    })?;
-    let median_of = |name: &str| {
-        let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
-        median(&mut v)
-    };
+    let times = timed_scopes(&mut cmd, &profiler, iterations)?;
+    let median_of = |name: &str| median_ms(&times, name);
     let gbps = |name: &str, bytes: u64| bytes as f64 * n as f64 / (median_of(name) * 1e-3).max(1e-12) / 1e9;
     let copy_gbps = gbps("copy", 8);
     let passes = OPTIMISER_BYTES
@@ -178,6 +171,22 @@ fn timed_rounds(cmd: &mut CommandBuffer, iterations: u32, mut collect: impl FnMu
         collect()?;
     }
     Ok(())
+}
+
+/// [`timed_rounds`] with one profiler: the scopes of every timed round.
+fn timed_scopes(cmd: &mut CommandBuffer, profiler: &Profiler, iterations: u32) -> Result<Vec<ScopeTime>> {
+    let mut times = Vec::new();
+    timed_rounds(cmd, iterations, || {
+        times.extend(profiler.results()?);
+        Ok(())
+    })?;
+    Ok(times)
+}
+
+/// The median time of the scopes named `name`.
+fn median_ms(times: &[ScopeTime], name: &str) -> f64 {
+    let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
+    median(&mut v)
 }
 
 /// Median of a non-empty list (0 for an empty one).
@@ -318,16 +327,9 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
         }
         Ok(())
     })?;
-    let mut times = Vec::new();
-    timed_rounds(&mut cmd, iterations, || {
-        times.extend(profiler.results()?);
-        Ok(())
-    })?;
+    let times = timed_scopes(&mut cmd, &profiler, iterations)?;
 
-    let median_of = |name: &str| {
-        let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
-        median(&mut v)
-    };
+    let median_of = |name: &str| median_ms(&times, name);
     let bytes = |name: &str| match name {
         "fill" | "reduce_sum" | "reduce_sumsq" => 4 * n,
         "gather" | "gather_texel" => GATHER_THREADS * GATHER_ROUNDS as u64 * 16,
