@@ -7,7 +7,9 @@
 //! optimiser passes. [`Engine::record`] records them in that order, each pass in a
 //! profiler scope named after its kernel (`trace_primal`, `loss` with its reduction,
 //! `trace_adjoint`, `trace_fd_primal`, `trace_fd_adjoint`, `sub`, `optim_meta`,
-//! `optim_adam`), once per sensor where a pass is per sensor. [`Iteration`] is that
+//! `optim_adam`), once per sensor where a pass is per sensor. With meta's carried primal
+//! image ([`Carry`]) both samples' primal passes come first, then `carry_image`, then the
+//! losses and adjoint passes of both. [`Iteration`] is that
 //! recording resubmitted with a fresh iteration counter; [`Step`] is what one submission
 //! reports, the optimiser's diagnostics (`optimiser.csv`) included.
 //!
@@ -16,11 +18,12 @@
 //! random numbers are independent of the proportional sample's.
 
 use crate::error::{Error, Result};
-use crate::gpu::{self, Access, Buffer, CommandBuffer, Context, MaybeProfiler, MemoryKind, Profiler, Recorder, ScopeTime};
+use crate::gpu::{self, Access, Buffer, CommandBuffer, ComputePipeline, Context, MaybeProfiler, MemoryKind, Profiler, Recorder, ScopeTime};
 use crate::image::Image;
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{Diagnostics, Optimiser, Range};
+use crate::push::CarryPush;
 use crate::render::gradient::GradientPass;
 use crate::render::targets::{padded, targets, TARGET_SPP};
 use crate::render::{GpuScene, Renderer};
@@ -65,6 +68,77 @@ impl FdSample {
             FdSample::Fused(_) => 3 * sensors,
             FdSample::TwoTrace { .. } => 6 * sensors + 1,
         }
+    }
+}
+
+/// The meta-estimator's carried primal image (meta `carry` > 0; glsl/carry_image.comp):
+/// after the primal passes of ⟨F⟩ and of the fused ⟨ΔF⟩, one pass per sensor carries the
+/// previous iteration's image to θ_i by the difference of ⟨ΔF⟩'s two images, mixes in the
+/// fresh render, and puts the result in the images the losses read.
+pub struct Carry {
+    pipeline: ComputePipeline,
+    sensors: Vec<CarrySensor>,
+    /// Carries so far (one float, incremented on the device after each pass); 0 in a new
+    /// engine (the first carry takes the fresh image alone). Checkpointed with the images.
+    count: Buffer,
+    pixels: u32,
+    w_min: f32,
+}
+
+/// One sensor's images: the fresh render of θ_i, the finite-difference sample's images of
+/// θ_i and θ_{i-1}, the carried image, and the pass's bind group over them.
+struct CarrySensor {
+    fresh: Buffer,
+    cur: Buffer,
+    prev: Buffer,
+    carried: Buffer,
+    group: gpu::BindGroup,
+}
+
+impl Carry {
+    /// A carry over `images`, one (fresh, cur, prev) triple of `pixels` RGB pixels per
+    /// sensor, with the fresh image's least weight `w_min`.
+    pub fn new(ctx: &Arc<Context>, pixels: usize, images: &[(&Buffer, &Buffer, &Buffer)], w_min: f64) -> gpu::Result<Self> {
+        let pipeline = ComputePipeline::new(ctx, "carry_image", &[])?;
+        let count = Buffer::zeroed::<f32>(ctx, "carry count", 1, MemoryKind::Device)?;
+        let mut sensors = Vec::new();
+        for (s, (fresh, cur, prev)) in images.iter().enumerate() {
+            let carried = Buffer::zeroed::<[f32; 3]>(ctx, &format!("carried image {s}"), pixels, MemoryKind::Device)?;
+            let group = pipeline.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Carried", &carried), ("Count", &count)])?;
+            sensors.push(CarrySensor { fresh: (*fresh).clone(), cur: (*cur).clone(), prev: (*prev).clone(), carried, group });
+        }
+        Ok(Carry { pipeline, sensors, count, pixels: pixels as u32, w_min: w_min as f32 })
+    }
+
+    /// The carry of a gradient estimate's images by a fused finite-difference sample's.
+    fn of_passes(ctx: &Arc<Context>, gs: &GpuScene, gradient: &GradientPass, fd: &GradientPass, w_min: f64) -> gpu::Result<Self> {
+        let images: Vec<_> = (0..gradient.sensors())
+            .map(|s| (gradient.image(s), fd.image(s), fd.prev_image(s).expect("the fused finite-difference sample renders θ_{i-1}")))
+            .collect();
+        Self::new(ctx, gs.pixels(), &images, w_min)
+    }
+
+    /// Records the pass over every sensor's images and the count's increment.
+    pub fn record(&self, rec: &mut Recorder, ops: &BufferOps, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        profiler.begin_scope(rec, "carry_image")?;
+        rec.transition(&[(&self.count, Access::ComputeRead)])?;
+        for c in &self.sensors {
+            rec.transition(&[(&c.fresh, Access::ComputeReadWrite), (&c.cur, Access::ComputeReadWrite), (&c.prev, Access::ComputeReadWrite), (&c.carried, Access::ComputeReadWrite)])?;
+            rec.dispatch_linear(&self.pipeline, &c.group, &CarryPush { n: self.pixels, w_min: self.w_min }, self.pixels as u64)?;
+        }
+        rec.transition(&[(&self.count, Access::ComputeReadWrite)])?;
+        ops.scale_add(rec, &self.count, 1.0, 1.0)?;
+        profiler.end_scope(rec)
+    }
+
+    /// Sensor s's carried image (after the recorded work ran).
+    pub fn image(&self, s: usize) -> &Buffer {
+        &self.sensors[s].carried
+    }
+
+    /// What a checkpoint saves: every sensor's carried image, then the count.
+    pub fn state(&self) -> Vec<&Buffer> {
+        self.sensors.iter().map(|c| &c.carried).chain(std::iter::once(&self.count)).collect()
     }
 }
 
@@ -153,6 +227,8 @@ pub struct Engine {
     pub fd_grad: Buffer,
     pub gradient: GradientPass,
     pub fd: Option<FdSample>,
+    /// The carried primal image (meta `carry` > 0).
+    pub carry: Option<Carry>,
     pub optimiser: Option<GpuOptimiser>,
     /// The iteration's results for the host, in one buffer.
     pub report: Report,
@@ -196,7 +272,7 @@ impl Engine {
         let gradient =
             GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, None, &grad, halves.map(|h| &h.grad))?;
         let report = Report::new(ctx, &gradient, opt.as_ref(), &gs.theta, gs.layout.len)?;
-        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, optimiser: opt, report };
+        let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, carry: None, optimiser: opt, report };
         let fd = match engine.optimiser.as_ref() {
             Some(opt) => match &opt.theta_prev {
                 Some(prev) => Some(engine.fd_sample(prev, settings.fd_two_trace, opt.halves.as_ref().map(|h| &h.fd_grad))?),
@@ -205,6 +281,13 @@ impl Engine {
             None => None,
         };
         engine.fd = fd;
+        // The carried image needs the fused finite-difference sample on every pixel; with a
+        // stride or two traces the losses read each iteration's own render.
+        if let (Some(Optimiser::Meta(h)), Some(FdSample::Fused(fd))) = (optimiser, &engine.fd) {
+            if h.carry > 0.0 && fd.stride == 1 {
+                engine.carry = Some(Carry::of_passes(ctx, engine.scene(), &engine.gradient, fd, h.carry)?);
+            }
+        }
         Ok(engine)
     }
 
@@ -281,11 +364,26 @@ impl Engine {
         profiler.end_scope(rec)
     }
 
-    /// Records the whole iteration: gradient, finite-difference sample, optimiser step, and
-    /// the copies of its results into the report.
+    /// Records the whole iteration: gradient, finite-difference sample (with the carried
+    /// image between their primal passes and their losses), optimiser step, and the copies
+    /// of its results into the report.
     pub fn record(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        self.record_gradient(rec, profiler.as_deref_mut())?;
-        self.record_fd(rec, profiler.as_deref_mut())?;
+        match (&self.carry, &self.fd) {
+            (Some(carry), Some(FdSample::Fused(fd))) => {
+                // Both samples' primal images first: the carried image replaces them before
+                // the losses read them.
+                let gs = self.scene();
+                self.gradient.record_primal(rec, gs, profiler.as_deref_mut())?;
+                fd.record_primal(rec, gs, profiler.as_deref_mut())?;
+                carry.record(rec, &self.ops, profiler.as_deref_mut())?;
+                self.gradient.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
+                fd.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
+            }
+            _ => {
+                self.record_gradient(rec, profiler.as_deref_mut())?;
+                self.record_fd(rec, profiler.as_deref_mut())?;
+            }
+        }
         if let Some(opt) = &self.optimiser {
             self.record_step(rec, opt, profiler)?;
         }
@@ -295,7 +393,7 @@ impl Engine {
     /// Profiler scopes that [`Self::record`] opens.
     pub fn scopes(&self) -> u32 {
         let sensors = self.scene().sensors as u32;
-        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + 1
+        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + self.carry.as_ref().map_or(0, |_| 1) + 1
     }
 
     /// Runs the rendering passes once, untimed, and clears what they accumulated: lavapipe

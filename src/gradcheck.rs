@@ -109,6 +109,12 @@ pub struct Row {
     pub element: usize,
     pub adjoint: f64,
     pub adjoint_se: f64,
+    /// The median of the rounds' adjoint estimates and the share of them below 0: far from
+    /// the mean and from one half, they show a skewed, heavy-tailed gradient, whose typical
+    /// sample points away from its expectation (a step rule that damps rare large samples
+    /// then drifts that way).
+    pub adjoint_median: f64,
+    pub adjoint_share_negative: f64,
     pub finite_difference: f64,
     pub finite_difference_se: f64,
     /// Standard error of adjoint − finite difference.
@@ -280,6 +286,17 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Re
     Ok(report)
 }
 
+/// The median of `x` (0 for none).
+fn median(x: &[f64]) -> f64 {
+    let mut v = x.to_vec();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
 /// The statistics and verdicts of the samples so far (`rounds` of them).
 fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
     let stats: Vec<((f64, f64), (f64, f64))> = elements.iter().map(|e| (mean_se(&e.adjoint), mean_se(&e.fd))).collect();
@@ -325,6 +342,8 @@ fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
             element: e.element,
             adjoint: a,
             adjoint_se: a_se,
+            adjoint_median: median(&e.adjoint),
+            adjoint_share_negative: e.adjoint.iter().filter(|&&x| x < 0.0).count() as f64 / e.adjoint.len().max(1) as f64,
             finite_difference: f,
             finite_difference_se: f_se,
             se,

@@ -138,6 +138,10 @@ struct GradcheckArgs {
     scene: PathBuf,
     #[arg(long, default_value_t = 16)]
     spp: u32,
+    /// Samples per pixel of the primal images whose loss the adjoint pass differentiates
+    /// (by default --spp)
+    #[arg(long, value_name = "N")]
+    primal_spp: Option<u32>,
     /// Rounds (independent estimates of each side); by default sized from a pilot so that
     /// a 10 % bias of a typical gradient would be detected, up to --max-rounds.
     #[arg(long)]
@@ -520,6 +524,9 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
     if a.spp == 0 {
         return Err("--spp must be at least 1".into());
     }
+    if a.primal_spp == Some(0) {
+        return Err("--primal-spp must be at least 1".into());
+    }
     if a.max_rounds == 0 {
         return Err("--max-rounds must be at least 1".into());
     }
@@ -530,7 +537,7 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
     let ctx = context(cli)?;
     let opts = vkinverse::gradcheck::Options {
         spp: a.spp,
-        primal_spp: a.spp,
+        primal_spp: a.primal_spp.unwrap_or(a.spp),
         rounds: a.rounds.map(|r| r.max(2)),
         max_rounds: a.max_rounds,
         ..Default::default()

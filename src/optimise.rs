@@ -197,9 +197,10 @@ fn json_bytes(value: &impl Serialize) -> Result<Vec<u8>> {
     serde_json::to_vec_pretty(value).map_err(|e| Error::Invalid(e.to_string()))
 }
 
-/// θ and the optimiser's state: what a checkpoint saves.
+/// θ, the optimiser's state and meta's carried image: what a checkpoint saves.
 fn state_buffers(engine: &Engine) -> Result<Vec<&Buffer>> {
-    Ok(std::iter::once(&engine.scene().theta).chain(engine.optimiser()?.state()).collect())
+    let carry = engine.carry.iter().flat_map(|c| c.state());
+    Ok(std::iter::once(&engine.scene().theta).chain(engine.optimiser()?.state()).chain(carry).collect())
 }
 
 fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog) -> Result<()> {
@@ -252,7 +253,10 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
         let path = dir.join(format!("{}.npy", file_name(b.name())));
         // Checkpoints from before the variance calibration have no NIS EMA: it stays at
         // its initial zero, the state of an element that has not stepped with it yet.
-        if b.name() == "meta nis" && !path.exists() {
+        // Likewise checkpoints from before the carried image (or of a run without it) have
+        // none: its count stays 0, and the first carry takes the fresh image alone.
+        let optional = b.name() == "meta nis" || b.name() == "carry count" || b.name().starts_with("carried image");
+        if optional && !path.exists() {
             continue;
         }
         let a = crate::npy::read(&path)?;

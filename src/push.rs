@@ -51,6 +51,15 @@ pub struct ScaleAddPush {
 }
 push_block!(ScaleAddPush { n, a, b });
 
+/// carry_image.comp's block.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct CarryPush {
+    pub n: u32,
+    pub w_min: f32,
+}
+push_block!(CarryPush { n, w_min });
+
 /// gather.comp's block.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -179,6 +188,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
         "scale_add" => layout::<ScaleAddPush>(),
         "gather" | "gather_texel" => layout::<GatherPush>(),
         "loss" => layout::<LossPush>(),
+        "carry_image" => layout::<CarryPush>(),
         "records_test" => layout::<RecordsPush>(),
         "bsdf_sample_test" => layout::<BsdfSamplePush>(),
         "rng_test" => layout::<RngTestPush>(),

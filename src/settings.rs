@@ -178,7 +178,8 @@ settings! {
     fd_spp: u32 = 1;
     /// The meta-estimator's finite-difference sample traces every N-th pixel of each row
     /// (2: a checkerboard that moves every iteration), each weighted N times: 1/N of its
-    /// cost, N times its variance.
+    /// cost, N times its variance. Above 1 the losses read each iteration's own primal
+    /// render (meta's carried image needs the sample on every pixel).
     #[arg(long, value_name = "N")]
     fd_stride: u32 = 1;
     /// Samples per pixel of the gradient estimate's primal render.

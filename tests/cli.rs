@@ -412,6 +412,12 @@ fn resume_continues_from_the_checkpoint() {
     // A commit removes the checkpoints before it: the pointer and one directory are left.
     assert_eq!(dir_names(&out_dir.join("checkpoint")), ["0000000006", "current"]);
 
+    // Meta's carried image is checkpointed with its count of carries.
+    let count = vkinverse::npy::read(&committed(&out_dir).join("carry_count.npy")).unwrap();
+    assert_eq!(count.data, [6.0], "carries in six iterations");
+    let image = vkinverse::npy::read(&committed(&out_dir).join("carried_image_0.npy")).unwrap();
+    assert!(image.data.iter().any(|&v| v > 0.0), "the checkpointed carried image is black");
+
     // A checkpoint from before the variance calibration has no NIS state; it resumes.
     let nis = committed(&out_dir).join("meta_nis.npy");
     assert!(nis.exists(), "{} missing", nis.display());
@@ -520,6 +526,7 @@ fn bad_optimise_flags_are_one_line_errors() {
     // A missing required argument is named.
     vkinverse_err(&["optimise", &scene], &["--output"]);
     vkinverse_err(&["gradcheck", &scene, "--spp", "0"], &["--spp"]);
+    vkinverse_err(&["gradcheck", &scene, "--primal-spp", "0"], &["--primal-spp", "at least 1"]);
     vkinverse_err(&["bench", "--elements", "0"], &["--elements"]);
 }
 
@@ -678,9 +685,10 @@ fn gradcheck_passes_on_the_cornell_box() {
     assert_eq!(rows.len(), 3, "one row per colour channel:\n{}", out.stdout);
     assert!(rows.iter().all(|r| r.trim_end().ends_with("pass")), "{}", out.stdout);
     assert!(out.stdout.lines().any(|l| l == "verdict: pass"), "{}", out.stdout);
-    let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell()), "--json"]);
+    let out = vkinverse_ok(&["gradcheck", &s(tiny_cornell()), "--json", "--primal-spp", "32"]);
     let report: serde_json::Value = serde_json::from_str(&out.stdout).unwrap();
     assert_eq!(report["verdict"], "pass");
+    assert_eq!((report["spp"].as_u64(), report["primal_spp"].as_u64()), (Some(16), Some(32)));
     assert!(report["rounds"].as_u64().unwrap() >= 8, "at least the pilot's rounds");
     let p = report["combined"]["p_value"].as_f64().unwrap();
     assert!((1e-3..=1.0).contains(&p), "combined p {p}");
@@ -688,6 +696,10 @@ fn gradcheck_passes_on_the_cornell_box() {
         let (z, se, needed) = (row["z"].as_f64().unwrap(), row["se"].as_f64().unwrap(), row["se_needed"].as_f64().unwrap());
         assert!(z.abs() <= 4.0 && se > 0.0 && se <= needed, "{row}");
         assert_eq!(row["verdict"], "pass");
+        // The median of the rounds lies on the side of 0 where most of them are.
+        let (median, negative) = (row["adjoint_median"].as_f64().unwrap(), row["adjoint_share_negative"].as_f64().unwrap());
+        assert!((0.0..=1.0).contains(&negative), "{row}");
+        assert!(if negative > 0.5 { median < 0.0 } else if negative < 0.5 { median >= 0.0 } else { true }, "{row}");
     }
 }
 

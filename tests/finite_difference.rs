@@ -242,3 +242,105 @@ fn fused_equals_two_trace_with_delta_lights() {
         assert!(a.iter().all(|v| v.abs() > 1e-7), "every element's gradient moves with a 0.05 step: {a:?}");
     }
 }
+
+/// The carry pass (glsl/carry_image.comp) against its formula, on two sensors' images of a
+/// pixel count that is no multiple of the workgroup: the first carry takes the fresh image,
+/// later ones the running mean and then the EMA of weight `w_min` of the fresh image and the
+/// carried one moved by cur − prev; the losses' images are replaced by the result.
+#[test]
+fn carry_pass_follows_its_formula() {
+    use vkinverse::engine::Carry;
+    with_gpu(|ctx| {
+        let (pixels, w_min, rounds) = (1000usize, 0.3f64, 5u32);
+        let ops = BufferOps::new(ctx).unwrap();
+        let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
+        let bufs: Vec<[Buffer; 3]> = (0..2).map(|s| [mk(&format!("fresh {s}")), mk(&format!("cur {s}")), mk(&format!("prev {s}"))]).collect();
+        let triples: Vec<(&Buffer, &Buffer, &Buffer)> = bufs.iter().map(|[f, c, p]| (f, c, p)).collect();
+        let carry = Carry::new(ctx, pixels, &triples, w_min).unwrap();
+        let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
+        cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
+        let value = |s: usize, r: u32, i: usize, kind: u32| -> [f32; 3] {
+            let x = (s * 7919 + r as usize * 104729 + i * 31 + kind as usize * 17) as f32;
+            [(x * 0.37).sin(), (x * 0.11).cos() * 2.0, (x * 0.05).sin() + 1.0]
+        };
+        let mut expected: Vec<Vec<[f64; 3]>> = vec![vec![[0.0; 3]; pixels]; 2];
+        for r in 0..rounds {
+            for (s, [f, c, p]) in bufs.iter().enumerate() {
+                f.write(&(0..pixels).map(|i| value(s, r, i, 0)).collect::<Vec<_>>()).unwrap();
+                c.write(&(0..pixels).map(|i| value(s, r, i, 1)).collect::<Vec<_>>()).unwrap();
+                p.write(&(0..pixels).map(|i| value(s, r, i, 2)).collect::<Vec<_>>()).unwrap();
+            }
+            cmd.submit_and_wait().unwrap();
+            let w = (1.0 / (r as f64 + 1.0)).max(w_min);
+            for (s, [f, c, p]) in bufs.iter().enumerate() {
+                let (fresh, cur, prev): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>) = (f.read().unwrap(), c.read().unwrap(), p.read().unwrap());
+                let carried: Vec<[f32; 3]> = carry.image(s).read().unwrap();
+                for i in 0..pixels {
+                    let (vf, vc, vp) = (value(s, r, i, 0), value(s, r, i, 1), value(s, r, i, 2));
+                    for k in 0..3 {
+                        let diff = vc[k] as f64 - vp[k] as f64;
+                        let e = if r == 0 { vf[k] as f64 } else { w * vf[k] as f64 + (1.0 - w) * (expected[s][i][k] + diff) };
+                        expected[s][i][k] = e;
+                        let close = |got: f32, want: f64| (got as f64 - want).abs() <= 1e-5 * (1.0 + want.abs());
+                        assert!(close(carried[i][k], e), "round {r} sensor {s} pixel {i}: carried {} against {e}", carried[i][k]);
+                        assert!(close(fresh[i][k], e) && close(cur[i][k], e), "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one");
+                        assert!(close(prev[i][k], e - diff), "round {r} sensor {s} pixel {i}: prev {} against {}", prev[i][k], e - diff);
+                    }
+                }
+            }
+        }
+    });
+}
+
+/// A meta-estimator run with the carried image (`carry`): after 30 iterations in which θ
+/// moves, the carried image agrees with a 512-spp render of the θ it belongs to (the carry
+/// follows θ through the finite differences instead of lagging behind: without them the
+/// green channel's mean is 5 % off here, with them 0.2 %), and is closer to it than a
+/// fresh render at the run's primal_spp (an RMS error of about a fifth).
+#[test]
+fn carried_image_follows_the_parameters_with_less_noise_than_a_fresh_render() {
+    use vkinverse::engine::Engine;
+    use vkinverse::optim::spec::Spec;
+    use vkinverse::settings::RunSettings;
+    let scene = Scene::load("scenes/cornell/scene.toml").unwrap();
+    let mut settings = RunSettings::of_scene(&scene);
+    settings.optimiser = "meta@carry=0.05".parse::<Spec>().unwrap();
+    with_gpu(|ctx| {
+        let engine = Engine::new(ctx, &scene, &settings, |_, _, _| {}).unwrap();
+        let mut iteration = engine.iteration().unwrap();
+        let iterations = 30;
+        let mut theta_of_last = engine.theta().unwrap();
+        for i in 0..iterations {
+            if i + 1 == iterations {
+                theta_of_last = engine.theta().unwrap();
+            }
+            engine.step(&mut iteration, i).unwrap();
+        }
+        let start = engine.scene().layout.initial();
+        let moved = theta_of_last.iter().zip(&start).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(moved > 0.05, "θ moved by {moved} only: the test needs a moving θ");
+        let carried: Vec<[f32; 3]> = engine.carry.as_ref().expect("meta@carry builds a carry").image(0).read().unwrap();
+        engine.scene().set_theta(theta_of_last).unwrap();
+        let reference = engine.renderer.render(0, 512, 77, |_, _| {}).unwrap();
+        let fresh = engine.renderer.render(0, settings.primal_spp, 78, |_, _| {}).unwrap();
+        let stats = |img: &[[f32; 3]]| -> ([f64; 3], f64) {
+            let mut mean = [0f64; 3];
+            let mut sq = 0f64;
+            for (a, b) in img.iter().zip(&reference.data) {
+                for k in 0..3 {
+                    let d = a[k] as f64 - b[k] as f64;
+                    mean[k] += d / img.len() as f64;
+                    sq += d * d / (3 * img.len()) as f64;
+                }
+            }
+            (mean, sq.sqrt())
+        };
+        let ref_mean: Vec<f64> = (0..3).map(|k| reference.data.iter().map(|p| p[k] as f64).sum::<f64>() / reference.data.len() as f64).collect();
+        let (bias, rms_carried) = stats(&carried);
+        let (_, rms_fresh) = stats(&fresh.data);
+        for k in 0..3 {
+            assert!(bias[k].abs() < 0.01 * ref_mean[k], "channel {k}: the carried image's mean is off by {} (image mean {})", bias[k], ref_mean[k]);
+        }
+        assert!(rms_carried < 0.5 * rms_fresh, "carried image RMS error {rms_carried} against a fresh render's {rms_fresh}");
+    });
+}

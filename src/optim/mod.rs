@@ -339,6 +339,16 @@ pub struct MetaHyper {
     pub calib: f64,
     /// `step = newton`: the James–Stein factor of each element or of the whole group.
     pub shrink: Shrink,
+    /// The primal image the losses read (0: each iteration's own render). Above 0, the image
+    /// is carried from one iteration to the next by the finite-difference sample's two
+    /// images (an unbiased estimate of how the expected image changed between θ_{i-1} and
+    /// θ_i, with common random numbers) and mixed with the fresh render, whose weight falls
+    /// as 1/k at the k-th iteration down to `carry`: the adjoint images of ⟨F⟩ and ⟨ΔF⟩ then
+    /// hold the noise of many iterations' primal samples instead of one's
+    /// (glsl/carry_image.comp). The carry needs the fused finite-difference sample on every
+    /// pixel: with `fd_stride` > 1 or `fd_two_trace` the losses read each iteration's own
+    /// render.
+    pub carry: f64,
     pub schedule: Schedule,
 }
 
@@ -361,6 +371,7 @@ impl MetaHyper {
             settle: 0.3,
             calib: 0.0,
             shrink: Shrink::Element,
+            carry: 0.0,
             schedule: Schedule::default(),
         }
     }
@@ -378,7 +389,10 @@ impl MetaHyper {
 /// (scenes/pilot6.toml), whose settled error relative to the best Adam has the smaller
 /// geometric mean over the six bundled scenes, and its sig and settle (scenes/pilot7.toml:
 /// no other setting tried was better on every scene), then the group's James–Stein factor
-/// (scenes/pilot10.toml, scenes/pilot11.toml: the smaller geometric mean over four seeds).
+/// (scenes/pilot10.toml, scenes/pilot11.toml: the smaller geometric mean over four seeds),
+/// then the carried primal image with the fresh render's weight down to 0.05
+/// (scenes/pilot14.toml, scenes/pilot15.toml: the smallest geometric mean of 0.1, 0.05, 0.02
+/// and 0.01, two seeds).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
@@ -386,6 +400,7 @@ impl Default for MetaHyper {
             variance: VarianceEstimate::Centred,
             fdvar: FdVariance::Raw,
             shrink: Shrink::Group,
+            carry: 0.05,
             ..MetaHyper::seed()
         }
     }
@@ -471,6 +486,9 @@ impl Optimiser {
                 }
                 if !(h.sig >= 0.0 && h.sig <= 1e6) {
                     return Err(OptimError::BadHyper(format!("sig = {} is outside [0, 1e6]", h.sig)));
+                }
+                if !(0.0..=1.0).contains(&h.carry) {
+                    return Err(OptimError::BadHyper(format!("carry = {} is outside [0, 1]", h.carry)));
                 }
                 if !(0.0..1.0).contains(&h.calib) {
                     return Err(OptimError::BadHyper(format!("calib = {} is outside [0, 1)", h.calib)));

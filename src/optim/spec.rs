@@ -5,7 +5,8 @@
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `settle`, `shrink` = element|group), and for both the learning-rate schedule's
+//! for `step` = newton `decay_h`, `sig`, `settle`, `shrink` = element|group; `carry`, the least weight of the fresh primal image in the
+//! carried one), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
@@ -44,7 +45,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib, shrink",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib, shrink, carry",
     }
 }
 
@@ -101,6 +102,7 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         (Optimiser::Meta(MetaHyper { sig, .. }), "sig") => sig,
         (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
         (Optimiser::Meta(MetaHyper { calib, .. }), "calib") => calib,
+        (Optimiser::Meta(MetaHyper { carry, .. }), "carry") => carry,
         _ => return Ok(false),
     };
     *slot = number()?;
@@ -186,6 +188,8 @@ mod tests {
         assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
         assert!(msg("meta@step=secant").contains("expected snr, adam, bounded, wiener or newton"));
         assert!(msg("meta@settle=2").contains("settle = 2"));
+        assert!(msg("meta@carry=1.5").contains("carry = 1.5 is outside [0, 1]"));
+        assert!(msg("adam@carry=0.1").contains("unknown key 'carry' for adam"));
         assert!(msg("meta@decay_h=1").contains("decay_h = 1"));
         assert!(msg("meta@sig=-1").contains("sig = -1"));
         assert!(msg("meta@calib=1").contains("calib = 1 is outside [0, 1)"));
@@ -193,6 +197,10 @@ mod tests {
         assert_eq!(h.calib, 0.99);
         let Optimiser::Meta(h) = "meta@step=newton@sig=2@settle=0.5@decay_h=0.8".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!((h.step, h.sig, h.settle, h.decay_h), (StepRule::Newton, 2.0, 0.5, 0.8));
+        let Optimiser::Meta(h) = "meta@carry=0".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h.carry, 0.0);
+        let Optimiser::Meta(h) = "meta".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h.carry, 0.05);
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
         assert!(msg("meta@dpi=all").contains("expected group or global"));
         assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));

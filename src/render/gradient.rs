@@ -196,60 +196,104 @@ impl GradientPass {
         adjoint: bool,
         mut profiler: Option<&mut Profiler>,
     ) -> gpu::Result<()> {
-        let n = scene.pixels();
-        for (s, b) in self.sensors.iter().enumerate() {
-            let push = |spp: u32, seed: u32, weight: f32| TracePush {
-                width: scene.width,
-                height: scene.height,
-                sensor: s as u32,
-                spp,
-                first_sample: 0,
-                seed,
-                weight,
-                stride: self.stride,
-                phase: self.phase,
-            };
-            // Images and their loss: (rendered, adjoint image, partials, loss bind group) per
-            // parameter state.
-            let mut states = vec![(&b.rendered, &b.adjoint, &b.partials, &b.loss_group)];
-            if let Some(pb) = &b.prev {
-                states.push((&pb.rendered, &pb.adjoint, &pb.partials, &pb.loss_group));
-            }
-            for (rendered, _, _, _) in &states {
-                rec.transition(&[(rendered, Access::TransferWrite)])?;
-                rec.zero(rendered)?;
-                // The primal pass accumulates into the cleared image.
-                rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
-            }
-            let p = self.primal_push(scene, s as u32);
-            profiler.begin_scope(rec, self.primal_kernel)?;
-            // Short dispatches (see render::spp_per_dispatch), each adding to the images.
-            let images: Vec<&Buffer> = states.iter().map(|(rendered, _, _, _)| *rendered).collect();
-            record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp, &images)?;
-            profiler.end_scope(rec)?;
-            let lp = LossPush { n: n as u32, scale: (1.0 / (3.0 * n as f64)) as f32 };
-            profiler.begin_scope(rec, "loss")?;
-            for (rendered, adjoint, partials, group) in &states {
-                rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
-                rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
-                rec.dispatch_linear(&self.loss, group, &lp, n as u64)?;
-                // The adjoint pass reads the adjoint image.
-                rec.transition(&[(adjoint, Access::ComputeRead)])?;
-            }
-            // The loss partials (of θ, the reported loss) are reduced.
-            rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (&self.grad_half, Access::ComputeReadWrite)])?;
-            ops.record_reduction(rec, &b.reduction)?;
-            profiler.end_scope(rec)?;
-            if !adjoint {
-                continue;
-            }
-            profiler.begin_scope(rec, self.adjoint_kernel)?;
-            // Every stride-th pixel stands for `stride` of them.
-            let p = push(self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
-            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
-            profiler.end_scope(rec)?;
+        for s in 0..self.sensors.len() {
+            self.record_sensor_primal(rec, scene, s, profiler.as_deref_mut())?;
+            self.record_sensor_rest(rec, scene, ops, s, adjoint, profiler.as_deref_mut())?;
         }
         Ok(())
+    }
+
+    /// Records the primal renders of every sensor (the first half of [`Self::record_passes`],
+    /// for a pass that changes the images before their loss).
+    pub fn record_primal(&self, rec: &mut Recorder, scene: &GpuScene, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_primal(rec, scene, s, profiler.as_deref_mut()))
+    }
+
+    /// Records the losses and the adjoint passes of every sensor (the second half).
+    pub fn record_loss_adjoint(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_rest(rec, scene, ops, s, true, profiler.as_deref_mut()))
+    }
+
+    /// The images of sensor `s` (one per parameter state) with their adjoint images,
+    /// loss partials and loss bind groups.
+    fn states(&self, s: usize) -> Vec<(&Buffer, &Buffer, &Buffer, &gpu::BindGroup)> {
+        let b = &self.sensors[s];
+        let mut states = vec![(&b.rendered, &b.adjoint, &b.partials, &b.loss_group)];
+        if let Some(pb) = &b.prev {
+            states.push((&pb.rendered, &pb.adjoint, &pb.partials, &pb.loss_group));
+        }
+        states
+    }
+
+    fn record_sensor_primal(&self, rec: &mut Recorder, scene: &GpuScene, s: usize, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        let b = &self.sensors[s];
+        let states = self.states(s);
+        for (rendered, _, _, _) in &states {
+            rec.transition(&[(rendered, Access::TransferWrite)])?;
+            rec.zero(rendered)?;
+            // The primal pass accumulates into the cleared image.
+            rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
+        }
+        let p = self.primal_push(scene, s as u32);
+        profiler.begin_scope(rec, self.primal_kernel)?;
+        // Short dispatches (see render::spp_per_dispatch), each adding to the images.
+        let images: Vec<&Buffer> = states.iter().map(|(rendered, _, _, _)| *rendered).collect();
+        record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp, &images)?;
+        profiler.end_scope(rec)
+    }
+
+    fn record_sensor_rest(
+        &self,
+        rec: &mut Recorder,
+        scene: &GpuScene,
+        ops: &BufferOps,
+        s: usize,
+        adjoint: bool,
+        mut profiler: Option<&mut Profiler>,
+    ) -> gpu::Result<()> {
+        let n = scene.pixels();
+        let b = &self.sensors[s];
+        let lp = LossPush { n: n as u32, scale: (1.0 / (3.0 * n as f64)) as f32 };
+        profiler.begin_scope(rec, "loss")?;
+        for (rendered, adjoint, partials, group) in &self.states(s) {
+            rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
+            rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
+            rec.dispatch_linear(&self.loss, group, &lp, n as u64)?;
+            // The adjoint pass reads the adjoint image.
+            rec.transition(&[(adjoint, Access::ComputeRead)])?;
+        }
+        // The loss partials (of θ, the reported loss) are reduced.
+        rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (&self.grad_half, Access::ComputeReadWrite)])?;
+        ops.record_reduction(rec, &b.reduction)?;
+        profiler.end_scope(rec)?;
+        if !adjoint {
+            return Ok(());
+        }
+        profiler.begin_scope(rec, self.adjoint_kernel)?;
+        // Every stride-th pixel stands for `stride` of them.
+        let p = TracePush {
+            width: scene.width,
+            height: scene.height,
+            sensor: s as u32,
+            spp: self.spp,
+            first_sample: 0,
+            seed: self.seed.wrapping_add(SEED_ADJOINT),
+            weight: self.stride as f32 / self.spp as f32,
+            stride: self.stride,
+            phase: self.phase,
+        };
+        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
+        profiler.end_scope(rec)
+    }
+
+    /// Sensor s's primal image buffer (of θ; after the primal pass, before the loss reads it).
+    pub fn image(&self, s: usize) -> &Buffer {
+        &self.sensors[s].rendered
+    }
+
+    /// Sensor s's primal image of θ_{i-1} (the fused finite-difference sample's second state).
+    pub fn prev_image(&self, s: usize) -> Option<&Buffer> {
+        self.sensors[s].prev.as_ref().map(|p| &p.rendered)
     }
 
     /// The push constants of sensor `sensor`'s primal render: another primal kernel given
