@@ -271,17 +271,7 @@ impl GradientPass {
         }
         profiler.begin_scope(rec, self.adjoint_kernel)?;
         // Every stride-th pixel stands for `stride` of them.
-        let p = TracePush {
-            width: scene.width,
-            height: scene.height,
-            sensor: s as u32,
-            spp: self.spp,
-            first_sample: 0,
-            seed: self.seed.wrapping_add(SEED_ADJOINT),
-            weight: self.stride as f32 / self.spp as f32,
-            stride: self.stride,
-            phase: self.phase,
-        };
+        let p = self.trace_push(scene, s as u32, self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
         record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
         profiler.end_scope(rec)
     }
@@ -299,17 +289,12 @@ impl GradientPass {
     /// The push constants of sensor `sensor`'s primal render: another primal kernel given
     /// them (e.g. a variant of trace_primal) traces the same paths.
     pub fn primal_push(&self, scene: &GpuScene, sensor: u32) -> TracePush {
-        TracePush {
-            width: scene.width,
-            height: scene.height,
-            sensor,
-            spp: self.primal_spp,
-            first_sample: 0,
-            seed: self.seed.wrapping_add(SEED_PRIMAL),
-            weight: 1.0 / self.primal_spp as f32,
-            stride: self.stride,
-            phase: self.phase,
-        }
+        self.trace_push(scene, sensor, self.primal_spp, self.seed.wrapping_add(SEED_PRIMAL), 1.0 / self.primal_spp as f32)
+    }
+
+    /// The push constants of a trace pass over sensor `sensor` on this pass's pixels.
+    fn trace_push(&self, scene: &GpuScene, sensor: u32, spp: u32, seed: u32, weight: f32) -> TracePush {
+        TracePush { width: scene.width, height: scene.height, sensor, spp, first_sample: 0, seed, weight, stride: self.stride, phase: self.phase }
     }
 
     /// Sensor s's loss after the recorded work ran.
