@@ -22,6 +22,9 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::time::Instant;
 
+/// Median of a list (0 for an empty one).
+pub use crate::stats::median;
+
 /// One kernel's measured bandwidth.
 #[derive(Clone, Debug, Serialize)]
 pub struct KernelResult {
@@ -187,20 +190,6 @@ fn timed_scopes(cmd: &mut CommandBuffer, profiler: &Profiler, iterations: u32) -
 fn median_ms(times: &[ScopeTime], name: &str) -> f64 {
     let mut v: Vec<f64> = times.iter().filter(|t| t.name == name).map(|t| t.ms).collect();
     median(&mut v)
-}
-
-/// Median of a non-empty list (0 for an empty one).
-pub fn median(values: &mut [f64]) -> f64 {
-    if values.is_empty() {
-        return 0.0;
-    }
-    values.sort_by(|a, b| a.total_cmp(b));
-    let m = values.len() / 2;
-    if values.len() % 2 == 1 {
-        values[m]
-    } else {
-        0.5 * (values[m - 1] + values[m])
-    }
 }
 
 impl BufferBench {

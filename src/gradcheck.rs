@@ -39,7 +39,7 @@ use crate::gpu::{CommandBuffer, Context};
 use crate::render::gradient::GradientPass;
 use crate::scene::Scene;
 use crate::settings::{Loss, RunSettings};
-use crate::stats::{hotelling, mean_se, Hotelling};
+use crate::stats::{hotelling, mean_se, median, Hotelling};
 use serde::Serialize;
 use std::sync::Arc;
 
@@ -286,17 +286,6 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Re
     Ok(report)
 }
 
-/// The median of `x` (0 for none).
-fn median(x: &[f64]) -> f64 {
-    let mut v = x.to_vec();
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => 0.0,
-        n if n % 2 == 1 => v[n / 2],
-        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-    }
-}
-
 /// The statistics and verdicts of the samples so far (`rounds` of them).
 fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
     let stats: Vec<((f64, f64), (f64, f64))> = elements.iter().map(|e| (mean_se(&e.adjoint), mean_se(&e.fd))).collect();
@@ -342,7 +331,7 @@ fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
             element: e.element,
             adjoint: a,
             adjoint_se: a_se,
-            adjoint_median: median(&e.adjoint),
+            adjoint_median: median(&mut e.adjoint.clone()),
             adjoint_share_negative: e.adjoint.iter().filter(|&&x| x < 0.0).count() as f64 / e.adjoint.len().max(1) as f64,
             finite_difference: f,
             finite_difference_se: f_se,
