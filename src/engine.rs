@@ -22,8 +22,8 @@ use crate::gpu::{self, Access, Buffer, CommandBuffer, ComputePipeline, Context, 
 use crate::image::Image;
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
-use crate::optim::{Diagnostics, Optimiser, Range};
-use crate::push::CarryPush;
+use crate::optim::{CarryWeight, Diagnostics, MetaHyper, Optimiser, Range};
+use crate::push::{CarryWeightPush, CountPush};
 use crate::render::gradient::GradientPass;
 use crate::render::targets::{padded, targets, TARGET_SPP};
 use crate::render::{GpuScene, Renderer};
@@ -72,59 +72,139 @@ impl FdSample {
 }
 
 /// The meta-estimator's carried primal image (meta `carry` > 0; glsl/carry_image.comp):
-/// after the primal passes of ⟨F⟩ and of the fused ⟨ΔF⟩, one pass per sensor carries the
-/// previous iteration's image to θ_i by the difference of ⟨ΔF⟩'s two images, mixes in the
-/// fresh render, and puts the result in the images the losses read.
+/// after the primal passes of ⟨F⟩ and of the fused ⟨ΔF⟩, per sensor `carry_stats` sums the
+/// squared differences of the three renders, `carry_weight` chooses the fresh render's weight
+/// from them and tracks the carried image's variance, and `carry_image` carries the previous
+/// iteration's image to θ_i by the difference of ⟨ΔF⟩'s two images, mixes in the fresh
+/// render, and puts the result in the images the losses read.
 pub struct Carry {
-    pipeline: ComputePipeline,
+    image: ComputePipeline,
+    stats: ComputePipeline,
+    weight: ComputePipeline,
     sensors: Vec<CarrySensor>,
     /// Carries so far (one float, incremented on the device after each pass); 0 in a new
     /// engine (the first carry takes the fresh image alone). Checkpointed with the images.
     count: Buffer,
     pixels: u32,
-    w_min: f32,
+    push: CarryWeightPush,
 }
 
 /// One sensor's images: the fresh render of θ_i, the finite-difference sample's images of
-/// θ_i and θ_{i-1}, the carried image, and the pass's bind group over them.
+/// θ_i and θ_{i-1}, the carried image, the statistics' partial sums, the weight's state, and
+/// the passes' bind groups over them.
 struct CarrySensor {
     fresh: Buffer,
     cur: Buffer,
     prev: Buffer,
     carried: Buffer,
-    group: gpu::BindGroup,
+    partials: Buffer,
+    /// (w, the carried image's variance, the fresh render's, the bound on the difference's),
+    /// per pixel and channel, after the last carry.
+    state: Buffer,
+    image: gpu::BindGroup,
+    stats: gpu::BindGroup,
+    weight: gpu::BindGroup,
+}
+
+/// Bytes of a sensor's carry state on the device.
+const CARRY_STATE_BYTES: u64 = 16;
+
+/// What a sensor's carry did in an iteration (its `carry_weight` state).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CarryState {
+    /// The fresh render's weight.
+    pub weight: f32,
+    /// The carried image's tracked variance, per pixel and channel.
+    pub var_carried: f32,
+    /// The fresh render's estimated variance.
+    pub var_fresh: f32,
+    /// The bound on the variance the finite-difference images' difference adds.
+    pub var_diff: f32,
+}
+
+impl CarryState {
+    /// The CSV columns of [`Self::values`].
+    pub const COLUMNS: [&'static str; 4] = ["weight", "var_carried", "var_fresh", "var_diff"];
+
+    fn from_floats(v: &[f32]) -> Self {
+        CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3] }
+    }
+
+    pub fn values(&self) -> [f32; 4] {
+        [self.weight, self.var_carried, self.var_fresh, self.var_diff]
+    }
 }
 
 impl Carry {
     /// A carry over `images`, one (fresh, cur, prev) triple of `pixels` RGB pixels per
-    /// sensor, with the fresh image's least weight `w_min`.
-    pub fn new(ctx: &Arc<Context>, pixels: usize, images: &[(&Buffer, &Buffer, &Buffer)], w_min: f64) -> gpu::Result<Self> {
-        let pipeline = ComputePipeline::new(ctx, "carry_image", &[])?;
+    /// sensor: the fresh render at `spp.0` samples per pixel, the finite-difference images at
+    /// `spp.1`; the fresh image's least weight `w_min`, and how it is weighed above that.
+    pub fn new(ctx: &Arc<Context>, pixels: usize, images: &[(&Buffer, &Buffer, &Buffer)], w_min: f64, weight: CarryWeight, spp: (u32, u32)) -> gpu::Result<Self> {
+        let image = ComputePipeline::new(ctx, "carry_image", &[])?;
+        let stats = ComputePipeline::new(ctx, "carry_stats", &[])?;
+        let weigh = ComputePipeline::new(ctx, "carry_weight", &[])?;
         let count = Buffer::zeroed::<f32>(ctx, "carry count", 1, MemoryKind::Device)?;
+        let groups = (pixels as u64).div_ceil(stats.local_size()[0] as u64) as usize;
         let mut sensors = Vec::new();
         for (s, (fresh, cur, prev)) in images.iter().enumerate() {
             let carried = Buffer::zeroed::<[f32; 3]>(ctx, &format!("carried image {s}"), pixels, MemoryKind::Device)?;
-            let group = pipeline.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Carried", &carried), ("Count", &count)])?;
-            sensors.push(CarrySensor { fresh: (*fresh).clone(), cur: (*cur).clone(), prev: (*prev).clone(), carried, group });
+            let partials = Buffer::zeroed::<f32>(ctx, &format!("carry partials {s}"), 2 * groups.max(1), MemoryKind::Device)?;
+            let state = Buffer::zeroed::<f32>(ctx, &format!("carry state {s}"), 4, MemoryKind::Device)?;
+            let image_group = image.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Carried", &carried), ("State", &state)])?;
+            let stats_group = stats.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Partials", &partials)])?;
+            let weight_group = weigh.bind(&[("Partials", &partials), ("Count", &count), ("State", &state)])?;
+            sensors.push(CarrySensor {
+                fresh: (*fresh).clone(),
+                cur: (*cur).clone(),
+                prev: (*prev).clone(),
+                carried,
+                partials,
+                state,
+                image: image_group,
+                stats: stats_group,
+                weight: weight_group,
+            });
         }
-        Ok(Carry { pipeline, sensors, count, pixels: pixels as u32, w_min: w_min as f32 })
+        let push = CarryWeightPush {
+            groups: groups as u32,
+            scale: 1.0 / (3.0 * pixels.max(1) as f32),
+            fresh_share: spp.1 as f32 / (spp.0 + spp.1).max(1) as f32,
+            w_min: w_min as f32,
+            variance: (weight == CarryWeight::Variance) as u32,
+        };
+        Ok(Carry { image, stats, weight: weigh, sensors, count, pixels: pixels as u32, push })
     }
 
     /// The carry of a gradient estimate's images by a fused finite-difference sample's.
-    fn of_passes(ctx: &Arc<Context>, gs: &GpuScene, gradient: &GradientPass, fd: &GradientPass, w_min: f64) -> gpu::Result<Self> {
+    fn of_passes(ctx: &Arc<Context>, gs: &GpuScene, gradient: &GradientPass, fd: &GradientPass, h: &MetaHyper) -> gpu::Result<Self> {
         let images: Vec<_> = (0..gradient.sensors())
             .map(|s| (gradient.image(s), fd.image(s), fd.prev_image(s).expect("the fused finite-difference sample renders θ_{i-1}")))
             .collect();
-        Self::new(ctx, gs.pixels(), &images, w_min)
+        Self::new(ctx, gs.pixels(), &images, h.carry, h.carry_weight, (gradient.primal_spp, fd.primal_spp))
     }
 
-    /// Records the pass over every sensor's images and the count's increment.
+    /// Records the passes over every sensor's images and the count's increment.
     pub fn record(&self, rec: &mut Recorder, ops: &BufferOps, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
         profiler.begin_scope(rec, "carry_image")?;
+        let n = CountPush { n: self.pixels };
+        for c in &self.sensors {
+            rec.transition(&[(&c.fresh, Access::ComputeRead), (&c.cur, Access::ComputeRead), (&c.prev, Access::ComputeRead), (&c.partials, Access::ComputeWrite)])?;
+            rec.dispatch_linear(&self.stats, &c.stats, &n, self.pixels as u64)?;
+        }
         rec.transition(&[(&self.count, Access::ComputeRead)])?;
         for c in &self.sensors {
-            rec.transition(&[(&c.fresh, Access::ComputeReadWrite), (&c.cur, Access::ComputeReadWrite), (&c.prev, Access::ComputeReadWrite), (&c.carried, Access::ComputeReadWrite)])?;
-            rec.dispatch_linear(&self.pipeline, &c.group, &CarryPush { n: self.pixels, w_min: self.w_min }, self.pixels as u64)?;
+            rec.transition(&[(&c.partials, Access::ComputeRead), (&c.state, Access::ComputeReadWrite)])?;
+            rec.dispatch_groups(&self.weight, &c.weight, &self.push, [1, 1, 1])?;
+        }
+        for c in &self.sensors {
+            rec.transition(&[
+                (&c.fresh, Access::ComputeReadWrite),
+                (&c.cur, Access::ComputeReadWrite),
+                (&c.prev, Access::ComputeReadWrite),
+                (&c.carried, Access::ComputeReadWrite),
+                (&c.state, Access::ComputeRead),
+            ])?;
+            rec.dispatch_linear(&self.image, &c.image, &n, self.pixels as u64)?;
         }
         rec.transition(&[(&self.count, Access::ComputeReadWrite)])?;
         ops.scale_add(rec, &self.count, 1.0, 1.0)?;
@@ -136,9 +216,23 @@ impl Carry {
         &self.sensors[s].carried
     }
 
-    /// What a checkpoint saves: every sensor's carried image, then the count.
+    /// Sensor s's weight state buffer (four floats: [`CarryState`]'s fields in order).
+    pub fn state_buffer(&self, s: usize) -> &Buffer {
+        &self.sensors[s].state
+    }
+
+    /// Sensor s's state after the last recorded carry ran (read back from the device).
+    pub fn sensor_state(&self, s: usize) -> gpu::Result<CarryState> {
+        let v: Vec<f32> = self.sensors[s].state.read()?;
+        Ok(CarryState::from_floats(&v))
+    }
+
+    /// What a checkpoint saves: every sensor's carried image, then the count, then every
+    /// sensor's weight state.
     pub fn state(&self) -> Vec<&Buffer> {
-        self.sensors.iter().map(|c| &c.carried).chain(std::iter::once(&self.count)).collect()
+        let images = self.sensors.iter().map(|c| &c.carried);
+        let states = self.sensors.iter().map(|c| &c.state);
+        images.chain(std::iter::once(&self.count)).chain(states).collect()
     }
 }
 
@@ -151,20 +245,26 @@ pub struct Report {
     /// The sources in their order in `buffer`, with their bytes.
     sources: Vec<(Buffer, u64)>,
     sensors: usize,
+    /// Sensors whose carried image's state follows the records (0 without a carry).
+    carried: usize,
     theta_len: usize,
 }
 
 impl Report {
-    fn new(ctx: &Arc<Context>, gradient: &GradientPass, optimiser: Option<&GpuOptimiser>, theta: &Buffer, theta_len: usize) -> gpu::Result<Self> {
+    fn new(ctx: &Arc<Context>, gradient: &GradientPass, optimiser: Option<&GpuOptimiser>, carry: Option<&Carry>, theta: &Buffer, theta_len: usize) -> gpu::Result<Self> {
         let mut sources: Vec<(Buffer, u64)> = (0..gradient.sensors()).map(|s| (gradient.loss_buffer(s).clone(), 4)).collect();
         if let Some(opt) = optimiser {
             let (b, n) = opt.records_buffer();
             sources.push((b.clone(), n));
         }
+        let carried = carry.map_or(0, |c| c.sensors.len());
+        for s in 0..carried {
+            sources.push((carry.unwrap().state_buffer(s).clone(), CARRY_STATE_BYTES));
+        }
         sources.push((theta.clone(), 4 * theta_len as u64));
         let total: u64 = sources.iter().map(|(_, n)| n).sum();
         let buffer = Buffer::new(ctx, "iteration report", total, MemoryKind::Readback)?;
-        Ok(Report { buffer, sources, sensors: gradient.sensors(), theta_len })
+        Ok(Report { buffer, sources, sensors: gradient.sensors(), carried, theta_len })
     }
 
     /// Records the copies into the report, after everything that writes its sources.
@@ -186,15 +286,18 @@ impl Report {
         Ok(())
     }
 
-    /// (total loss, the optimiser's record bytes, θ) from the report of the last submission.
-    fn read(&self) -> gpu::Result<(f64, Vec<u8>, Vec<f32>)> {
+    /// (total loss, the optimiser's record bytes, each carried sensor's state, θ) from the
+    /// report of the last submission.
+    fn read(&self) -> gpu::Result<(f64, Vec<u8>, Vec<CarryState>, Vec<f32>)> {
         let bytes: Vec<u8> = self.buffer.read()?;
+        let floats = |b: &[u8]| -> Vec<f32> { b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect() };
         let loss_bytes = 4 * self.sensors;
-        let theta_bytes = 4 * self.theta_len;
-        let loss = bytes[..loss_bytes].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64).sum();
-        let records = bytes[loss_bytes..bytes.len() - theta_bytes].to_vec();
-        let theta = bytes[bytes.len() - theta_bytes..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
-        Ok((loss, records, theta))
+        let theta_at = bytes.len() - 4 * self.theta_len;
+        let carry_at = theta_at - self.carried * CARRY_STATE_BYTES as usize;
+        let loss = floats(&bytes[..loss_bytes]).iter().map(|&l| l as f64).sum();
+        let records = bytes[loss_bytes..carry_at].to_vec();
+        let carry = floats(&bytes[carry_at..theta_at]).chunks_exact(4).map(CarryState::from_floats).collect();
+        Ok((loss, records, carry, floats(&bytes[theta_at..])))
     }
 }
 
@@ -271,7 +374,7 @@ impl Engine {
         let seed = gpu_seed(settings.seed);
         let gradient =
             GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, None, &grad, halves.map(|h| &h.grad))?;
-        let report = Report::new(ctx, &gradient, opt.as_ref(), &gs.theta, gs.layout.len)?;
+        let report = Report::new(ctx, &gradient, opt.as_ref(), None, &gs.theta, gs.layout.len)?;
         let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, carry: None, optimiser: opt, report };
         let fd = match engine.optimiser.as_ref() {
             Some(opt) => match &opt.theta_prev {
@@ -285,7 +388,10 @@ impl Engine {
         // stride or two traces the losses read each iteration's own render.
         if let (Some(Optimiser::Meta(h)), Some(FdSample::Fused(fd))) = (optimiser, &engine.fd) {
             if h.carry > 0.0 && fd.stride == 1 {
-                engine.carry = Some(Carry::of_passes(ctx, engine.scene(), &engine.gradient, fd, h.carry)?);
+                engine.carry = Some(Carry::of_passes(ctx, engine.scene(), &engine.gradient, fd, &h)?);
+                // The report then also carries each sensor's carry state.
+                let gs = engine.scene();
+                engine.report = Report::new(ctx, &engine.gradient, engine.optimiser.as_ref(), engine.carry.as_ref(), &gs.theta, gs.layout.len)?;
             }
         }
         Ok(engine)
@@ -436,20 +542,20 @@ impl Engine {
         self.scene().set_frame(index)?;
         iteration.cmd.submit_and_wait()?;
         let times = iteration.profiler.results()?;
-        let (loss, diagnostics, theta) = self.read_step(index)?;
-        Ok(Step { loss, pass_ms: pass_totals(&times), diagnostics, theta })
+        let (loss, diagnostics, carry, theta) = self.read_step(index)?;
+        Ok(Step { loss, pass_ms: pass_totals(&times), diagnostics, carry, theta })
     }
 
     /// What the host reads back after iteration `index` ran, from the report (one read of
     /// one buffer): the total loss, the optimiser's diagnostics of its step t = index + 1
-    /// (one record per group) and θ.
-    pub fn read_step(&self, index: u32) -> Result<(f64, Vec<Diagnostics>, Vec<f32>)> {
-        let (loss, records, theta) = self.report.read()?;
+    /// (one record per group), each sensor's carry state (with a carried image) and θ.
+    pub fn read_step(&self, index: u32) -> Result<(f64, Vec<Diagnostics>, Vec<CarryState>, Vec<f32>)> {
+        let (loss, records, carry, theta) = self.report.read()?;
         let diagnostics = match &self.optimiser {
             Some(opt) => opt.diagnostics_from_bytes(&records, index + 1),
             None => Vec::new(),
         };
-        Ok((loss, diagnostics, theta))
+        Ok((loss, diagnostics, carry, theta))
     }
 
     /// θ as the host sees it after the last submission.
@@ -491,6 +597,8 @@ pub struct Step {
     /// The optimiser's diagnostics of the step, one per parameter group (the scene's
     /// optimised parameters, in layout order); empty without an optimiser.
     pub diagnostics: Vec<Diagnostics>,
+    /// Each sensor's carried-image state (meta `carry`); empty without one.
+    pub carry: Vec<CarryState>,
     /// θ after the step (the scene's optimised parameters).
     pub theta: Vec<f32>,
 }

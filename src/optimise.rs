@@ -16,7 +16,7 @@
 //! `--resume` checks) are those of [`crate::rundir`]. The log rows are also returned in
 //! memory ([`Run::log`]).
 
-use crate::engine::Engine;
+use crate::engine::{CarryState, Engine};
 use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::image::{self, Image};
@@ -203,7 +203,7 @@ fn state_buffers(engine: &Engine) -> Result<Vec<&Buffer>> {
     Ok(std::iter::once(&engine.scene().theta).chain(engine.optimiser()?.state()).chain(carry).collect())
 }
 
-fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog) -> Result<()> {
+fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog, carry: &CarryLog) -> Result<()> {
     run_dir.commit(&checkpoint_name(state.iteration), |dir| {
         for b in state_buffers(engine)? {
             let data: Vec<f32> = b.read()?;
@@ -213,6 +213,10 @@ fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, l
         image::write_bytes_atomic(&log_path, &log.to_csv()?).map_err(io_err(&log_path))?;
         let diag_path = dir.join(DIAG_CSV);
         image::write_bytes_atomic(&diag_path, diag.to_csv().as_bytes()).map_err(io_err(&diag_path))?;
+        if engine.carry.is_some() {
+            let carry_path = dir.join(CARRY_CSV);
+            image::write_bytes_atomic(&carry_path, carry.to_csv().as_bytes()).map_err(io_err(&carry_path))?;
+        }
         let path = dir.join("state.json");
         image::write_bytes_atomic(&path, &json_bytes(state)?).map_err(io_err(&path))
     })
@@ -220,6 +224,48 @@ fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, l
 
 /// The optimiser diagnostics' file name, in the run directory and its checkpoints.
 pub const DIAG_CSV: &str = "optimiser.csv";
+
+/// The carried primal image's log's file name (meta `carry`), in the run directory and its
+/// checkpoints.
+pub const CARRY_CSV: &str = "carry.csv";
+
+/// The carried primal image's log (`carry.csv`): per iteration and sensor, the fresh render's
+/// weight and the variances it was chosen from (glsl/carry_weight.comp).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CarryLog {
+    pub rows: Vec<(u32, usize, CarryState)>,
+}
+
+impl CarryLog {
+    pub fn to_csv(&self) -> String {
+        let mut out = format!("iteration,sensor,{}\n", CarryState::COLUMNS.join(","));
+        for (iteration, sensor, c) in &self.rows {
+            let values: Vec<String> = c.values().iter().map(|v| v.to_string()).collect();
+            out.push_str(&format!("{iteration},{sensor},{}\n", values.join(",")));
+        }
+        out
+    }
+
+    pub fn parse(text: &str) -> std::result::Result<Self, String> {
+        let mut lines = text.lines();
+        let header = format!("iteration,sensor,{}", CarryState::COLUMNS.join(","));
+        if lines.next() != Some(header.as_str()) {
+            return Err(format!("the header is not '{header}'"));
+        }
+        let mut rows = Vec::new();
+        for (n, line) in lines.enumerate() {
+            let bad = || format!("line {}: '{line}' is not {} numbers", n + 2, 2 + CarryState::COLUMNS.len());
+            let f: Vec<&str> = line.split(',').collect();
+            if f.len() != 2 + CarryState::COLUMNS.len() {
+                return Err(bad());
+            }
+            let v: Vec<f32> = f[2..].iter().map(|x| x.parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| bad())?;
+            let state = CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3] };
+            rows.push((f[0].parse().map_err(|_| bad())?, f[1].parse().map_err(|_| bad())?, state));
+        }
+        Ok(CarryLog { rows })
+    }
+}
 
 /// Reads a run's `optimiser.csv`.
 pub fn read_diagnostics(path: &Path) -> Result<DiagLog> {
@@ -229,7 +275,7 @@ pub fn read_diagnostics(path: &Path) -> Result<DiagLog> {
 
 /// The committed checkpoint's state, log and diagnostics, checked against this run: the
 /// same scene and parameters, and the optimiser whose state it holds.
-fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSettings) -> Result<(std::path::PathBuf, CheckpointState, Log, DiagLog)> {
+fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSettings) -> Result<(std::path::PathBuf, CheckpointState, Log, DiagLog, CarryLog)> {
     let dir = run_dir.committed()?.ok_or_else(|| Error::Invalid(format!("{}: no committed checkpoint", run_dir.path.display())))?;
     let path = dir.join("state.json");
     let text = std::fs::read_to_string(&path).map_err(io_err(&path))?;
@@ -245,7 +291,16 @@ fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSetti
     // A checkpoint written before the diagnostics were logged has none to continue.
     let diag_path = dir.join(DIAG_CSV);
     let diag = if diag_path.exists() { read_diagnostics(&diag_path)? } else { DiagLog::default() };
-    Ok((dir, state, log, diag))
+    // Likewise a checkpoint from before the carried image's log (or of a run without one).
+    let carry_path = dir.join(CARRY_CSV);
+    let carry = match carry_path.exists() {
+        true => {
+            let text = std::fs::read_to_string(&carry_path).map_err(io_err(&carry_path))?;
+            CarryLog::parse(&text).map_err(|e| Error::Invalid(format!("{}: {e}", carry_path.display())))?
+        }
+        false => CarryLog::default(),
+    };
+    Ok((dir, state, log, diag, carry))
 }
 
 fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
@@ -255,7 +310,9 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
         // its initial zero, the state of an element that has not stepped with it yet.
         // Likewise checkpoints from before the carried image (or of a run without it) have
         // none: its count stays 0, and the first carry takes the fresh image alone.
-        let optional = b.name() == "meta nis" || b.name() == "carry count" || b.name().starts_with("carried image");
+        // Checkpoints from before the carried image's variance weights have no weight state:
+        // its tracked variance starts at 0 and follows the renders from the next carry on.
+        let optional = b.name() == "meta nis" || b.name() == "carry count" || b.name().starts_with("carried image") || b.name().starts_with("carry state");
         if optional && !path.exists() {
             continue;
         }
@@ -311,6 +368,7 @@ struct Loop<'a> {
     has_reference: bool,
     log: Log,
     diag: DiagLog,
+    carry: CarryLog,
     iteration: u32,
     time_offset: f64,
     gpu_total: f64,
@@ -334,9 +392,13 @@ impl Loop<'_> {
             identity: self.identity.clone(),
             settings: self.engine.settings.clone(),
         };
-        save_checkpoint(self.run_dir, self.engine, &state, &self.log, &self.diag)?;
+        save_checkpoint(self.run_dir, self.engine, &state, &self.log, &self.diag, &self.carry)?;
         let path = self.run_dir.path.join("log.csv");
         image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))?;
+        if self.engine.carry.is_some() {
+            let path = self.run_dir.path.join(CARRY_CSV);
+            image::write_bytes_atomic(&path, self.carry.to_csv().as_bytes()).map_err(io_err(&path))?;
+        }
         let path = self.run_dir.path.join(DIAG_CSV);
         image::write_bytes_atomic(&path, self.diag.to_csv().as_bytes()).map_err(io_err(&path))
     }
@@ -362,6 +424,7 @@ impl Loop<'_> {
             self.last_loss = step.loss;
             let names = engine.scene().layout.slots.iter().map(|s| s.name.clone());
             self.diag.push(self.iteration, names.zip(step.diagnostics));
+            self.carry.rows.extend(step.carry.iter().enumerate().map(|(s, c)| (self.iteration, s, *c)));
             let row = self.row(time_s, Some(step.loss), &step.theta)?;
             observer.iteration(&Progress { iteration: self.iteration, time_s, loss: step.loss, param_error: row.param_error });
             self.log.rows.push(row);
@@ -386,7 +449,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         Mode::Resume => Some(read_checkpoint(&run_dir, &identity, settings)?),
         _ => None,
     };
-    if let Some((_, state, _, _)) = &resume {
+    if let Some((_, state, ..)) = &resume {
         if settings.done(state.iteration, state.time_s) {
             return Ok(Outcome::AlreadyDone { iteration: state.iteration });
         }
@@ -403,6 +466,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         has_reference,
         log: Log { params, rows: Vec::new() },
         diag: DiagLog::default(),
+        carry: CarryLog::default(),
         iteration: 0,
         time_offset: 0.0,
         gpu_total: 0.0,
@@ -410,9 +474,9 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         last_loss: f64::NAN,
     };
     match resume {
-        Some((dir, state, log, diag)) => {
+        Some((dir, state, log, diag, carry)) => {
             load_state(&dir, &engine)?;
-            (run.iteration, run.time_offset, run.gpu_total, run.log, run.diag) = (state.iteration, state.time_s, state.gpu_time_s, log, diag);
+            (run.iteration, run.time_offset, run.gpu_total, run.log, run.diag, run.carry) = (state.iteration, state.time_s, state.gpu_time_s, log, diag, carry);
             run.last_loss = run.log.rows.last().and_then(|r| r.loss).unwrap_or(f64::NAN);
         }
         None => {
@@ -465,4 +529,22 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
     let path = out_dir.join("summary.json");
     image::write_bytes_atomic(&path, &json_bytes(&summary)?).map_err(io_err(&path))?;
     Ok(Outcome::Finished(Box::new(Run { summary, log: run.log })))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn carry_log_round_trips_and_names_bad_lines() {
+        let state = |w: f32| CarryState { weight: w, var_carried: 1.5e-4, var_fresh: 0.0419, var_diff: 1.3e-13 };
+        let log = CarryLog { rows: vec![(1, 0, state(1.0)), (2, 0, state(0.53)), (2, 1, state(0.0033))] };
+        let text = log.to_csv();
+        assert_eq!(CarryLog::parse(&text).unwrap(), log);
+        assert!(CarryLog::parse("iteration,sensor,weight\n").unwrap_err().contains("header"));
+        let bad = format!("{}1,0,0.5,x,1,1\n", text.lines().next().unwrap().to_string() + "\n");
+        assert!(CarryLog::parse(&bad).unwrap_err().contains("line 2"), "{:?}", CarryLog::parse(&bad));
+        let short = format!("{}1,0,0.5\n", text.lines().next().unwrap().to_string() + "\n");
+        assert!(CarryLog::parse(&short).is_err());
+    }
 }

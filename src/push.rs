@@ -51,14 +51,21 @@ pub struct ScaleAddPush {
 }
 push_block!(ScaleAddPush { n, a, b });
 
-/// carry_image.comp's block.
+/// carry_weight.comp's block.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct CarryPush {
-    pub n: u32,
+pub struct CarryWeightPush {
+    /// carry_stats' workgroups.
+    pub groups: u32,
+    /// 1 / (3 pixels).
+    pub scale: f32,
+    /// s_fd / (s_fd + s_primal).
+    pub fresh_share: f32,
     pub w_min: f32,
+    /// 1: inverse-variance weights; 0: fixed.
+    pub variance: u32,
 }
-push_block!(CarryPush { n, w_min });
+push_block!(CarryWeightPush { groups, scale, fresh_share, w_min, variance });
 
 /// gather.comp's block.
 #[repr(C)]
@@ -182,13 +189,13 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
     // of its own.
     let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
     Some(match base {
-        "copy" | "sub" | "reduce" | "trace_test" | "bsdf_test" => layout::<CountPush>(),
+        "copy" | "sub" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" => layout::<CountPush>(),
         "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
         "fill" => layout::<FillPush>(),
         "scale_add" => layout::<ScaleAddPush>(),
         "gather" | "gather_texel" => layout::<GatherPush>(),
         "loss" => layout::<LossPush>(),
-        "carry_image" => layout::<CarryPush>(),
+        "carry_weight" => layout::<CarryWeightPush>(),
         "records_test" => layout::<RecordsPush>(),
         "bsdf_sample_test" => layout::<BsdfSamplePush>(),
         "rng_test" => layout::<RngTestPush>(),

@@ -275,10 +275,12 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         &s(&out_dir),
     ]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
-    assert_eq!(
-        dir_names(&out_dir),
-        [".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"]
-    );
+    // Meta's defaults carry the primal image and log its weights.
+    let mut expected = vec![".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"];
+    if optimiser == "meta" {
+        expected.insert(1, "carry.csv");
+    }
+    assert_eq!(dir_names(&out_dir), expected);
     // The optimiser's diagnostics: one row per iteration and parameter group, the step's
     // learning rate and size consistent with θ's movement, n_eff (meta) counting up.
     let diag = vkinverse::optim::csv::DiagLog::parse(&std::fs::read_to_string(out_dir.join("optimiser.csv")).unwrap()).unwrap();
@@ -417,6 +419,11 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(count.data, [6.0], "carries in six iterations");
     let image = vkinverse::npy::read(&committed(&out_dir).join("carried_image_0.npy")).unwrap();
     assert!(image.data.iter().any(|&v| v > 0.0), "the checkpointed carried image is black");
+    // With its weight's state (w, the carried image's variance, the fresh render's, the
+    // difference's), and the log of the weights.
+    let state0 = vkinverse::npy::read(&committed(&out_dir).join("carry_state_0.npy")).unwrap();
+    assert_eq!(state0.data.len(), 4);
+    assert!(state0.data[0] > 0.0 && state0.data[0] < 1.0 && state0.data[1] > 0.0 && state0.data[1] < state0.data[2], "carry state {:?}", state0.data);
 
     // A checkpoint from before the variance calibration has no NIS state; it resumes.
     let nis = committed(&out_dir).join("meta_nis.npy");
@@ -436,6 +443,16 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(after, before, "the last checkpoint holds the whole diagnostics log");
     let iters: Vec<&str> = after.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
     assert_eq!(iters, (1..=10).map(|i| i.to_string()).collect::<Vec<_>>());
+    // Likewise the carried image's log: one row per step, the first carry's weight 1, the
+    // last step's row the checkpoint's state.
+    let carry = std::fs::read_to_string(out_dir.join("carry.csv")).unwrap();
+    assert_eq!(carry, std::fs::read_to_string(committed(&out_dir).join("carry.csv")).unwrap());
+    let carry_rows: Vec<Vec<String>> = carry.lines().skip(1).map(|l| l.split(',').map(String::from).collect()).collect();
+    assert_eq!(carry.lines().next().unwrap(), "iteration,sensor,weight,var_carried,var_fresh,var_diff");
+    assert_eq!(carry_rows.iter().map(|r| r[0].clone()).collect::<Vec<_>>(), (1..=10).map(|i| i.to_string()).collect::<Vec<_>>());
+    assert_eq!(field(&carry_rows[0], 2), 1.0, "the first carry takes the fresh render");
+    let last_state = vkinverse::npy::read(&committed(&out_dir).join("carry_state_0.npy")).unwrap();
+    assert!((field(&carry_rows[9], 2) - last_state.data[0] as f64).abs() < 1e-6, "{:?} against {:?}", carry_rows[9], last_state.data);
     let times: Vec<f64> = rows.iter().map(|r| field(r, 1)).collect();
     assert!(times.windows(2).all(|w| w[0] <= w[1]), "time_s restarted on resume: {times:?}");
     // θ continues: the step after the checkpoint starts near the checkpoint's error, far

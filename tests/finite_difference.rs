@@ -243,48 +243,78 @@ fn fused_equals_two_trace_with_delta_lights() {
     }
 }
 
-/// The carry pass (glsl/carry_image.comp) against its formula, on two sensors' images of a
-/// pixel count that is no multiple of the workgroup: the first carry takes the fresh image,
-/// later ones the running mean and then the EMA of weight `w_min` of the fresh image and the
-/// carried one moved by cur − prev; the losses' images are replaced by the result.
+/// The carry passes (glsl/carry_stats.comp, carry_weight.comp, carry_image.comp) against
+/// their formulas in f64, on two sensors' images of a pixel count that is no multiple of the
+/// workgroup, with both weights: the first carry takes the fresh image; later ones mix it
+/// with the carried one moved by cur − prev, with the running mean's weight down to `w_min`
+/// (fixed) or the inverse-variance weight from the renders' squared differences and the
+/// tracked variance (variance); the losses' images are replaced by the result, and the
+/// state holds the weight and the variances.
 #[test]
 fn carry_pass_follows_its_formula() {
     use vkinverse::engine::Carry;
+    use vkinverse::optim::CarryWeight;
     with_gpu(|ctx| {
-        let (pixels, w_min, rounds) = (1000usize, 0.3f64, 5u32);
+        let (pixels, rounds, spp) = (1000usize, 6u32, (4u32, 1u32));
         let ops = BufferOps::new(ctx).unwrap();
         let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
         let bufs: Vec<[Buffer; 3]> = (0..2).map(|s| [mk(&format!("fresh {s}")), mk(&format!("cur {s}")), mk(&format!("prev {s}"))]).collect();
         let triples: Vec<(&Buffer, &Buffer, &Buffer)> = bufs.iter().map(|[f, c, p]| (f, c, p)).collect();
-        let carry = Carry::new(ctx, pixels, &triples, w_min).unwrap();
-        let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
-        cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
-        let value = |s: usize, r: u32, i: usize, kind: u32| -> [f32; 3] {
-            let x = (s * 7919 + r as usize * 104729 + i * 31 + kind as usize * 17) as f32;
-            [(x * 0.37).sin(), (x * 0.11).cos() * 2.0, (x * 0.05).sin() + 1.0]
-        };
-        let mut expected: Vec<Vec<[f64; 3]>> = vec![vec![[0.0; 3]; pixels]; 2];
-        for r in 0..rounds {
-            for (s, [f, c, p]) in bufs.iter().enumerate() {
-                f.write(&(0..pixels).map(|i| value(s, r, i, 0)).collect::<Vec<_>>()).unwrap();
-                c.write(&(0..pixels).map(|i| value(s, r, i, 1)).collect::<Vec<_>>()).unwrap();
-                p.write(&(0..pixels).map(|i| value(s, r, i, 2)).collect::<Vec<_>>()).unwrap();
-            }
-            cmd.submit_and_wait().unwrap();
-            let w = (1.0 / (r as f64 + 1.0)).max(w_min);
-            for (s, [f, c, p]) in bufs.iter().enumerate() {
-                let (fresh, cur, prev): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>) = (f.read().unwrap(), c.read().unwrap(), p.read().unwrap());
-                let carried: Vec<[f32; 3]> = carry.image(s).read().unwrap();
-                for i in 0..pixels {
-                    let (vf, vc, vp) = (value(s, r, i, 0), value(s, r, i, 1), value(s, r, i, 2));
-                    for k in 0..3 {
-                        let diff = vc[k] as f64 - vp[k] as f64;
-                        let e = if r == 0 { vf[k] as f64 } else { w * vf[k] as f64 + (1.0 - w) * (expected[s][i][k] + diff) };
-                        expected[s][i][k] = e;
-                        let close = |got: f32, want: f64| (got as f64 - want).abs() <= 1e-5 * (1.0 + want.abs());
-                        assert!(close(carried[i][k], e), "round {r} sensor {s} pixel {i}: carried {} against {e}", carried[i][k]);
-                        assert!(close(fresh[i][k], e) && close(cur[i][k], e), "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one");
-                        assert!(close(prev[i][k], e - diff), "round {r} sensor {s} pixel {i}: prev {} against {}", prev[i][k], e - diff);
+        for (mode, w_min) in [(CarryWeight::Fixed, 0.3f64), (CarryWeight::Variance, 0.02)] {
+            let carry = Carry::new(ctx, pixels, &triples, w_min, mode, spp).unwrap();
+            let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
+            cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
+            // cur and prev differ by a small step, fresh by noise of the size of cur's.
+            let value = |s: usize, r: u32, i: usize, kind: u32| -> [f32; 3] {
+                let x = (s * 7919 + r as usize * 104729 + i * 31) as f32;
+                let base = [(x * 0.37).sin(), (x * 0.11).cos() * 2.0, (x * 0.05).sin() + 1.0];
+                let y = (s * 31 + r as usize * 17 + i * 7 + kind as usize * 1013) as f32;
+                let noise = (y * 0.731).sin() * [0.3, 0.01, 0.1][kind as usize];
+                base.map(|b| b + noise)
+            };
+            let mut expected: Vec<Vec<[f64; 3]>> = vec![vec![[0.0; 3]; pixels]; 2];
+            let mut var = [0f64; 2];
+            for r in 0..rounds {
+                for (s, [f, c, p]) in bufs.iter().enumerate() {
+                    f.write(&(0..pixels).map(|i| value(s, r, i, 0)).collect::<Vec<_>>()).unwrap();
+                    c.write(&(0..pixels).map(|i| value(s, r, i, 1)).collect::<Vec<_>>()).unwrap();
+                    p.write(&(0..pixels).map(|i| value(s, r, i, 2)).collect::<Vec<_>>()).unwrap();
+                }
+                cmd.submit_and_wait().unwrap();
+                for (s, [f, c, p]) in bufs.iter().enumerate() {
+                    let sq = |a: usize, b: usize| -> f64 {
+                        (0..pixels).map(|i| (0..3).map(|k| (value(s, r, i, a as u32)[k] as f64 - value(s, r, i, b as u32)[k] as f64).powi(2)).sum::<f64>()).sum::<f64>()
+                            / (3 * pixels) as f64
+                    };
+                    let v_fresh = sq(0, 1) * spp.1 as f64 / (spp.0 + spp.1) as f64;
+                    let v_diff = sq(1, 2);
+                    let w = match (r, mode) {
+                        (0, _) => 1.0,
+                        (_, CarryWeight::Fixed) => (1.0 / (r as f64 + 1.0)).max(w_min),
+                        (_, CarryWeight::Variance) => ((var[s] + v_diff) / (var[s] + v_diff + v_fresh)).max(w_min),
+                    };
+                    var[s] = w * w * v_fresh + (1.0 - w) * (1.0 - w) * (var[s] + v_diff);
+                    let state = carry.sensor_state(s).unwrap();
+                    let near = |got: f32, want: f64, what: &str| {
+                        assert!((got as f64 - want).abs() <= 1e-4 * want.abs() + 1e-9, "{mode:?} round {r} sensor {s}: {what} {got} against {want}")
+                    };
+                    near(state.weight, w, "weight");
+                    near(state.var_carried, var[s], "carried variance");
+                    near(state.var_fresh, v_fresh, "fresh variance");
+                    near(state.var_diff, v_diff, "difference variance");
+                    let (fresh, cur, prev): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>) = (f.read().unwrap(), c.read().unwrap(), p.read().unwrap());
+                    let carried: Vec<[f32; 3]> = carry.image(s).read().unwrap();
+                    for i in 0..pixels {
+                        let (vf, vc, vp) = (value(s, r, i, 0), value(s, r, i, 1), value(s, r, i, 2));
+                        for k in 0..3 {
+                            let diff = vc[k] as f64 - vp[k] as f64;
+                            let e = if r == 0 { vf[k] as f64 } else { w * vf[k] as f64 + (1.0 - w) * (expected[s][i][k] + diff) };
+                            expected[s][i][k] = e;
+                            let close = |got: f32, want: f64| (got as f64 - want).abs() <= 1e-4 * (1.0 + want.abs());
+                            assert!(close(carried[i][k], e), "{mode:?} round {r} sensor {s} pixel {i}: carried {} against {e}", carried[i][k]);
+                            assert!(close(fresh[i][k], e) && close(cur[i][k], e), "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one");
+                            assert!(close(prev[i][k], e - diff), "round {r} sensor {s} pixel {i}: prev {} against {}", prev[i][k], e - diff);
+                        }
                     }
                 }
             }
@@ -292,55 +322,138 @@ fn carry_pass_follows_its_formula() {
     });
 }
 
-/// A meta-estimator run with the carried image (`carry`): after 30 iterations in which θ
-/// moves, the carried image agrees with a 512-spp render of the θ it belongs to (the carry
-/// follows θ through the finite differences instead of lagging behind: without them the
-/// green channel's mean is 5 % off here, with them 0.2 %), and is closer to it than a
-/// fresh render at the run's primal_spp (an RMS error of about a fifth).
+/// A non-finite pixel in the fresh render (a NaN from a broken texture, an overflow) makes
+/// its statistics non-finite: the carry then takes the fresh image alone, restarts the
+/// tracked variance, and the next iteration weighs finite renders again.
 #[test]
-fn carried_image_follows_the_parameters_with_less_noise_than_a_fresh_render() {
+fn carry_weight_survives_a_non_finite_render() {
+    use vkinverse::engine::Carry;
+    use vkinverse::optim::CarryWeight;
+    with_gpu(|ctx| {
+        let pixels = 300usize;
+        let ops = BufferOps::new(ctx).unwrap();
+        let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
+        let (f, c, p) = (mk("fresh"), mk("cur"), mk("prev"));
+        let carry = Carry::new(ctx, pixels, &[(&f, &c, &p)], 0.01, CarryWeight::Variance, (4, 1)).unwrap();
+        let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
+        cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
+        let image = |r: u32, kind: u32| -> Vec<[f32; 3]> { (0..pixels).map(|i| [((i as u32 * 7 + r * 13 + kind * 5) % 11) as f32 * 0.1; 3]).collect() };
+        for r in 0..4u32 {
+            let mut fresh = image(r, 0);
+            if r == 1 {
+                fresh[0] = [f32::NAN; 3];
+                fresh[1] = [f32::INFINITY; 3];
+            }
+            f.write(&fresh).unwrap();
+            c.write(&image(r, 1)).unwrap();
+            p.write(&image(r, 2)).unwrap();
+            cmd.submit_and_wait().unwrap();
+            let state = carry.sensor_state(0).unwrap();
+            match r {
+                1 => {
+                    assert_eq!(state.weight, 1.0, "round 1: {state:?}");
+                    assert!(state.var_carried.is_finite(), "round 1: {state:?}");
+                    let carried: Vec<[f32; 3]> = carry.image(0).read().unwrap();
+                    assert_eq!(carried[2..], fresh[2..], "round 1 takes the fresh image");
+                }
+                _ => assert!(state.values().iter().all(|v| v.is_finite()) && (0.0..=1.0).contains(&state.weight), "round {r}: {state:?}"),
+            }
+        }
+        let carried: Vec<[f32; 3]> = carry.image(0).read().unwrap();
+        assert!(carried.iter().flatten().all(|v| v.is_finite()), "the carried image stays non-finite after finite renders took over");
+    });
+}
+
+/// 30 meta iterations of the Cornell box with `spec`, in which θ moves; then the carried
+/// image, a 512-spp render of the θ it belongs to, a fresh render at the run's primal_spp,
+/// and the carry's state.
+fn carried_run(spec: &str) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>, vkinverse::engine::CarryState) {
     use vkinverse::engine::Engine;
     use vkinverse::optim::spec::Spec;
     use vkinverse::settings::RunSettings;
     let scene = Scene::load("scenes/cornell/scene.toml").unwrap();
     let mut settings = RunSettings::of_scene(&scene);
-    settings.optimiser = "meta@carry=0.05".parse::<Spec>().unwrap();
+    settings.optimiser = spec.parse::<Spec>().unwrap();
     with_gpu(|ctx| {
         let engine = Engine::new(ctx, &scene, &settings, |_, _, _| {}).unwrap();
         let mut iteration = engine.iteration().unwrap();
         let iterations = 30;
         let mut theta_of_last = engine.theta().unwrap();
+        let mut last = None;
         for i in 0..iterations {
             if i + 1 == iterations {
                 theta_of_last = engine.theta().unwrap();
             }
-            engine.step(&mut iteration, i).unwrap();
+            last = Some(engine.step(&mut iteration, i).unwrap());
         }
         let start = engine.scene().layout.initial();
         let moved = theta_of_last.iter().zip(&start).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
         assert!(moved > 0.05, "θ moved by {moved} only: the test needs a moving θ");
-        let carried: Vec<[f32; 3]> = engine.carry.as_ref().expect("meta@carry builds a carry").image(0).read().unwrap();
+        let carry = engine.carry.as_ref().expect("meta@carry builds a carry");
+        let carried: Vec<[f32; 3]> = carry.image(0).read().unwrap();
+        let state = carry.sensor_state(0).unwrap();
+        assert_eq!(last.unwrap().carry, vec![state], "the iteration's report holds the carry's state");
         engine.scene().set_theta(theta_of_last).unwrap();
         let reference = engine.renderer.render(0, 512, 77, |_, _| {}).unwrap();
         let fresh = engine.renderer.render(0, settings.primal_spp, 78, |_, _| {}).unwrap();
-        let stats = |img: &[[f32; 3]]| -> ([f64; 3], f64) {
-            let mut mean = [0f64; 3];
-            let mut sq = 0f64;
-            for (a, b) in img.iter().zip(&reference.data) {
-                for k in 0..3 {
-                    let d = a[k] as f64 - b[k] as f64;
-                    mean[k] += d / img.len() as f64;
-                    sq += d * d / (3 * img.len()) as f64;
-                }
-            }
-            (mean, sq.sqrt())
-        };
-        let ref_mean: Vec<f64> = (0..3).map(|k| reference.data.iter().map(|p| p[k] as f64).sum::<f64>() / reference.data.len() as f64).collect();
-        let (bias, rms_carried) = stats(&carried);
-        let (_, rms_fresh) = stats(&fresh.data);
+        (carried, reference.data, fresh.data, state)
+    })
+}
+
+/// Per channel, the mean of `img` − `reference`; and the mean squared difference over pixels
+/// and channels.
+fn error_stats(img: &[[f32; 3]], reference: &[[f32; 3]]) -> ([f64; 3], f64) {
+    let mut mean = [0f64; 3];
+    let mut sq = 0f64;
+    for (a, b) in img.iter().zip(reference) {
         for k in 0..3 {
-            assert!(bias[k].abs() < 0.01 * ref_mean[k], "channel {k}: the carried image's mean is off by {} (image mean {})", bias[k], ref_mean[k]);
+            let d = a[k] as f64 - b[k] as f64;
+            mean[k] += d / img.len() as f64;
+            sq += d * d / (3 * img.len()) as f64;
         }
-        assert!(rms_carried < 0.5 * rms_fresh, "carried image RMS error {rms_carried} against a fresh render's {rms_fresh}");
-    });
+    }
+    (mean, sq)
+}
+
+/// A meta-estimator run with the carried image (`carry`, fixed weights): after 30
+/// iterations in which θ moves, the carried image agrees with a 512-spp render of the θ it
+/// belongs to (the carry follows θ through the finite differences instead of lagging
+/// behind: without them the green channel's mean is 5 % off here, with them 0.2 %), and is
+/// closer to it than a fresh render at the run's primal_spp (an RMS error of about a fifth).
+#[test]
+fn carried_image_follows_the_parameters_with_less_noise_than_a_fresh_render() {
+    let (carried, reference, fresh, _) = carried_run("meta@carry=0.05@carry_weight=fixed");
+    let ref_mean: Vec<f64> = (0..3).map(|k| reference.iter().map(|p| p[k] as f64).sum::<f64>() / reference.len() as f64).collect();
+    let (bias, ms_carried) = error_stats(&carried, &reference);
+    let (_, ms_fresh) = error_stats(&fresh, &reference);
+    for k in 0..3 {
+        assert!(bias[k].abs() < 0.01 * ref_mean[k], "channel {k}: the carried image's mean is off by {} (image mean {})", bias[k], ref_mean[k]);
+    }
+    let (rms_carried, rms_fresh) = (ms_carried.sqrt(), ms_fresh.sqrt());
+    assert!(rms_carried < 0.5 * rms_fresh, "carried image RMS error {rms_carried} against a fresh render's {rms_fresh}");
+}
+
+/// The inverse-variance weights (`carry_weight=variance`): the variances the carry estimates
+/// and tracks are those measured against a 512-spp render of the same θ (the fresh render's
+/// from its difference with the finite-difference image of θ, the carried image's through
+/// the iterations), and the carried image is unbiased with less noise than a fresh render.
+#[test]
+fn carried_image_variance_weights_estimate_the_variances_they_weigh() {
+    let (carried, reference, fresh, state) = carried_run("meta@carry=0.001@carry_weight=variance");
+    // The reference's own variance, at 512 spp against the fresh render's primal_spp (4).
+    let ref_var = state.var_fresh as f64 * 4.0 / 512.0;
+    let (bias, ms_carried) = error_stats(&carried, &reference);
+    let (_, ms_fresh) = error_stats(&fresh, &reference);
+    let ref_mean: Vec<f64> = (0..3).map(|k| reference.iter().map(|p| p[k] as f64).sum::<f64>() / reference.len() as f64).collect();
+    for k in 0..3 {
+        assert!(bias[k].abs() < 0.01 * ref_mean[k], "channel {k}: the carried image's mean is off by {} (image mean {})", bias[k], ref_mean[k]);
+    }
+    let fresh_ratio = state.var_fresh as f64 / (ms_fresh - ref_var);
+    assert!((0.8..1.25).contains(&fresh_ratio), "the fresh render's estimated variance {} against its measured {} (ratio {fresh_ratio})", state.var_fresh, ms_fresh - ref_var);
+    // Tracked through 30 carries (measured: 0.9 of the carried image's squared error, the
+    // fresh render's estimate 1.0 of its own).
+    let carried_ratio = state.var_carried as f64 / (ms_carried - ref_var).max(1e-12);
+    assert!((0.6..1.7).contains(&carried_ratio), "the carried image's tracked variance {} against its measured {} (ratio {carried_ratio})", state.var_carried, ms_carried - ref_var);
+    assert!(state.weight > 0.0 && state.weight < 0.5, "weight {} of the fresh render after 30 iterations", state.weight);
+    assert!(ms_carried < 0.25 * ms_fresh, "carried image's mean squared error {ms_carried} against a fresh render's {ms_fresh}");
 }

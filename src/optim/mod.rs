@@ -286,6 +286,21 @@ pub enum FdVariance {
     Raw,
 }
 
+/// How the carried primal image (`carry` > 0) weighs each iteration's fresh render.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CarryWeight {
+    /// 1/k at the k-th iteration down to `carry`: a running mean, then an EMA.
+    #[default]
+    Fixed,
+    /// The fresh render's inverse-variance weight against the carried image's, no lower
+    /// than `carry`: the variances are estimated every iteration from the renders (the
+    /// fresh one against the finite-difference sample's image of the same θ, and that
+    /// sample's two images), and the carried image's is tracked (glsl/carry_weight.comp).
+    /// Large steps weigh the fresh render, small ones let the image average more iterations.
+    Variance,
+}
+
 /// What the significance of Newton's step (`step = newton`) is judged on.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -349,6 +364,8 @@ pub struct MetaHyper {
     /// pixel: with `fd_stride` > 1 or `fd_two_trace` the losses read each iteration's own
     /// render.
     pub carry: f64,
+    /// How the fresh render is weighed in the carried image (`carry_weight` = fixed|variance).
+    pub carry_weight: CarryWeight,
     pub schedule: Schedule,
 }
 
@@ -372,6 +389,7 @@ impl MetaHyper {
             calib: 0.0,
             shrink: Shrink::Element,
             carry: 0.0,
+            carry_weight: CarryWeight::Fixed,
             schedule: Schedule::default(),
         }
     }
@@ -392,7 +410,9 @@ impl MetaHyper {
 /// (scenes/pilot10.toml, scenes/pilot11.toml: the smaller geometric mean over four seeds),
 /// then the carried primal image with the fresh render's weight down to 0.05
 /// (scenes/pilot14.toml, scenes/pilot15.toml: the smallest geometric mean of 0.1, 0.05, 0.02
-/// and 0.01, two seeds).
+/// and 0.01, two seeds), then its inverse-variance weights down to 0.01
+/// (scenes/pilot17.toml: the same geometric mean without a tuned floor, and below the best
+/// Adam on ajar).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
@@ -400,7 +420,8 @@ impl Default for MetaHyper {
             variance: VarianceEstimate::Centred,
             fdvar: FdVariance::Raw,
             shrink: Shrink::Group,
-            carry: 0.05,
+            carry: 0.01,
+            carry_weight: CarryWeight::Variance,
             ..MetaHyper::seed()
         }
     }

@@ -6,12 +6,12 @@
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
 //! for `step` = newton `decay_h`, `sig`, `settle`, `shrink` = element|group; `carry`, the least weight of the fresh primal image in the
-//! carried one), and for both the learning-rate schedule's
+//! carried one, `carry_weight` = fixed|variance), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, CarryWeight, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -45,7 +45,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib, shrink, carry",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, calib, shrink, carry, carry_weight",
     }
 }
 
@@ -84,6 +84,10 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         }
         (Optimiser::Meta(h), "shrink") => {
             h.shrink = choice(key, value, &[("element", Shrink::Element), ("group", Shrink::Group)])?;
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "carry_weight") => {
+            h.carry_weight = choice(key, value, &[("fixed", CarryWeight::Fixed), ("variance", CarryWeight::Variance)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "fdvar") => {
@@ -200,7 +204,11 @@ mod tests {
         let Optimiser::Meta(h) = "meta@carry=0".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h.carry, 0.0);
         let Optimiser::Meta(h) = "meta".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h.carry, 0.05);
+        assert_eq!((h.carry, h.carry_weight), (0.01, crate::optim::CarryWeight::Variance));
+        assert!(msg("meta@carry_weight=mean").contains("carry_weight = 'mean' (expected fixed or variance)"));
+        assert!(msg("adam@carry_weight=variance").contains("unknown key 'carry_weight' for adam"));
+        let Optimiser::Meta(h) = "meta@carry_weight=variance@carry=0.01".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!((h.carry_weight, h.carry), (crate::optim::CarryWeight::Variance, 0.01));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
         assert!(msg("meta@dpi=all").contains("expected group or global"));
         assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));
