@@ -126,7 +126,8 @@ impl CarryState {
     /// The CSV columns of [`Self::values`].
     pub const COLUMNS: [&'static str; 4] = ["weight", "var_carried", "var_fresh", "var_diff"];
 
-    fn from_floats(v: &[f32]) -> Self {
+    /// The state from its four floats in [`Self::COLUMNS`]' order.
+    pub fn from_floats(v: &[f32]) -> Self {
         CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3] }
     }
 
@@ -216,11 +217,6 @@ impl Carry {
         &self.sensors[s].carried
     }
 
-    /// Sensor s's weight state buffer (four floats: [`CarryState`]'s fields in order).
-    pub fn state_buffer(&self, s: usize) -> &Buffer {
-        &self.sensors[s].state
-    }
-
     /// Sensor s's state after the last recorded carry ran (read back from the device).
     pub fn sensor_state(&self, s: usize) -> gpu::Result<CarryState> {
         let v: Vec<f32> = self.sensors[s].state.read()?;
@@ -258,8 +254,8 @@ impl Report {
             sources.push((b.clone(), n));
         }
         let carried = carry.map_or(0, |c| c.sensors.len());
-        for s in 0..carried {
-            sources.push((carry.unwrap().state_buffer(s).clone(), CARRY_STATE_BYTES));
+        if let Some(c) = carry {
+            sources.extend(c.sensors.iter().map(|sensor| (sensor.state.clone(), CARRY_STATE_BYTES)));
         }
         sources.push((theta.clone(), 4 * theta_len as u64));
         let total: u64 = sources.iter().map(|(_, n)| n).sum();

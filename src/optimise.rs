@@ -260,8 +260,7 @@ impl CarryLog {
                 return Err(bad());
             }
             let v: Vec<f32> = f[2..].iter().map(|x| x.parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| bad())?;
-            let state = CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3] };
-            rows.push((f[0].parse().map_err(|_| bad())?, f[1].parse().map_err(|_| bad())?, state));
+            rows.push((f[0].parse().map_err(|_| bad())?, f[1].parse().map_err(|_| bad())?, CarryState::from_floats(&v)));
         }
         Ok(CarryLog { rows })
     }
