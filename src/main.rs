@@ -436,7 +436,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
-        let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv" } else { "" };
+        let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
         outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/", a.output.display())?;
     }
     Ok(())

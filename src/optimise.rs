@@ -229,6 +229,9 @@ pub const DIAG_CSV: &str = "optimiser.csv";
 /// checkpoints.
 pub const CARRY_CSV: &str = "carry.csv";
 
+/// The plot of the carried primal image's log, in the run directory.
+pub const CARRY_PNG: &str = "carry.png";
+
 /// The carried primal image's log (`carry.csv`): per iteration and sensor, the fresh render's
 /// weight and the variances it was chosen from (glsl/carry_weight.comp).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -263,6 +266,30 @@ impl CarryLog {
             rows.push((f[0].parse().map_err(|_| bad())?, f[1].parse().map_err(|_| bad())?, CarryState::from_floats(&v)));
         }
         Ok(CarryLog { rows })
+    }
+
+    /// Plots the log (`carry.png`): the fresh render's weight, and the variances it was
+    /// chosen from, per sensor against the iteration, on log axes.
+    pub fn plot(&self, path: &Path, title: &str) -> std::result::Result<(), String> {
+        use crate::report::{plot_panels, Curve, Panel};
+        let sensors = self.rows.iter().map(|r| r.1 + 1).max().unwrap_or(0);
+        let series = |sensor: usize, value: fn(&CarryState) -> f32| -> Vec<(f64, f64)> {
+            self.rows.iter().filter(|r| r.1 == sensor).map(|(i, _, c)| (*i as f64, value(c) as f64)).collect()
+        };
+        let label = |sensor: usize, what: &str| if sensors > 1 { format!("sensor {sensor} {what}") } else { what.to_string() };
+        let mut weights = Vec::new();
+        let mut variances = Vec::new();
+        for s in 0..sensors {
+            weights.push(Curve { name: label(s, "weight"), points: series(s, |c| c.weight) });
+            variances.push(Curve { name: label(s, "carried image"), points: series(s, |c| c.var_carried) });
+            variances.push(Curve { name: label(s, "fresh render"), points: series(s, |c| c.var_fresh) });
+            variances.push(Curve { name: label(s, "difference (bound)"), points: series(s, |c| c.var_diff) });
+        }
+        let panels = [
+            Panel { y_label: "fresh render's weight".into(), curves: &weights },
+            Panel { y_label: "variance per pixel and channel".into(), curves: &variances },
+        ];
+        plot_panels(path, title, "iteration", &panels, (800, 750))
     }
 }
 
@@ -502,6 +529,11 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
     let path = out_dir.join("optimiser.png");
     let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);
     crate::optim::csv::plot(&path, &title, &[("", &run.diag)]).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    if engine.carry.is_some() {
+        let path = out_dir.join(CARRY_PNG);
+        let title = format!("{}: {} carried primal image", scene.path.display(), settings.optimiser.label);
+        run.carry.plot(&path, &title).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    }
     let layout = &engine.scene().layout;
     let opt = engine.optimiser()?;
     let pass_ms = run.pass_samples.into_iter().map(|(k, mut v)| (k, crate::bench::median(&mut v))).collect();

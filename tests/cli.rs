@@ -278,7 +278,7 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     // Meta's defaults carry the primal image and log its weights.
     let mut expected = vec![".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"];
     if optimiser == "meta" {
-        expected.insert(1, "carry.csv");
+        expected.splice(1..1, ["carry.csv", "carry.png"]);
     }
     assert_eq!(dir_names(&out_dir), expected);
     // The optimiser's diagnostics: one row per iteration and parameter group, the step's
@@ -296,6 +296,16 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         }
     }
     png_size(&out_dir.join("optimiser.png"));
+    if optimiser == "meta" {
+        // The carried image's log: one row per iteration, the first carry the fresh render's
+        // alone, later weights within (0, 1], and its plot.
+        let carry = std::fs::read_to_string(out_dir.join("carry.csv")).unwrap();
+        let weights: Vec<f64> = carry.lines().skip(1).map(|l| l.split(',').nth(2).unwrap().parse().unwrap()).collect();
+        assert_eq!(weights.len(), iterations);
+        assert_eq!(weights[0], 1.0);
+        assert!(weights.iter().all(|w| *w > 0.0 && *w <= 1.0), "{weights:?}");
+        assert_eq!(png_size(&out_dir.join("carry.png")), (800, 750));
+    }
 
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
