@@ -240,8 +240,13 @@ pub struct CarryLog {
 }
 
 impl CarryLog {
+    /// The header line (without its newline).
+    fn header() -> String {
+        format!("iteration,sensor,{}", CarryState::COLUMNS.join(","))
+    }
+
     pub fn to_csv(&self) -> String {
-        let mut out = format!("iteration,sensor,{}\n", CarryState::COLUMNS.join(","));
+        let mut out = Self::header() + "\n";
         for (iteration, sensor, c) in &self.rows {
             let values: Vec<String> = c.values().iter().map(|v| v.to_string()).collect();
             out.push_str(&format!("{iteration},{sensor},{}\n", values.join(",")));
@@ -251,7 +256,7 @@ impl CarryLog {
 
     pub fn parse(text: &str) -> std::result::Result<Self, String> {
         let mut lines = text.lines();
-        let header = format!("iteration,sensor,{}", CarryState::COLUMNS.join(","));
+        let header = Self::header();
         if lines.next() != Some(header.as_str()) {
             return Err(format!("the header is not '{header}'"));
         }
