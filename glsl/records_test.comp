@@ -31,6 +31,10 @@ layout(set = 0, binding = 7, scalar) writeonly buffer OutCdfs { float out_cdfs[]
 layout(set = 0, binding = 8, scalar) writeonly buffer OutSensors { SensorRecord out_sensors[]; };
 layout(set = 0, binding = 9, scalar) writeonly buffer OutGlobals { Globals out_globals; };
 layout(set = 0, binding = 15, scalar) writeonly buffer OutLights { LightRecord out_lights[]; };
+// Material data and θ as fetch3 reads them (texel_vec3_at): thread i writes the three floats
+// from float i, for every i with i + 2 inside the array (the rest stays zero), so every
+// alignment of a vec3 within a texel is read.
+layout(set = 0, binding = 16, scalar) writeonly buffer OutTriples { vec3 out_triples[]; };
 
 layout(push_constant, scalar) uniform Push {
     uint materials;
@@ -60,6 +64,8 @@ void main() {
     if (i < pc.nodes) out_nodes[i] = bvh_node(i);
     if (i < pc.material_data) out_floats[i] = texel_float(MaterialData, int(i));
     if (i < pc.theta) out_floats[pc.material_data + i] = texel_float(Theta, int(i));
+    if (i + 2u < pc.material_data) out_triples[i] = texel_vec3_at(MaterialData, int(i));
+    if (i + 2u < pc.theta) out_triples[pc.material_data + i] = texel_vec3_at(Theta, int(i));
     if (i < pc.env_dist) out_floats[pc.material_data + pc.theta + i] = texel_float(EnvDistribution, int(i));
     if (i < pc.sensors) out_sensors[i] = sensor_record(i);
     if (i < pc.lights) out_lights[i] = light_record(i);

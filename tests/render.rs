@@ -489,6 +489,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 let o_sensors = out::<SensorRecord>(ctx, "out sensors", sensors.len());
                 let o_globals = out::<Globals>(ctx, "out globals", 1);
                 let o_lights = out::<LightRecord>(ctx, "out lights", lights.len());
+                let o_triples = out::<[f32; 3]>(ctx, "out triples", data.len() + theta.len());
                 let mut b = bound.clone();
                 b.extend([
                     ("OutMaterials", &o_materials),
@@ -502,6 +503,7 @@ fn kernels_read_the_records_the_host_wrote() {
                     ("OutSensors", &o_sensors),
                     ("OutGlobals", &o_globals),
                     ("OutLights", &o_lights),
+                    ("OutTriples", &o_triples),
                 ]);
                 // The frame counter is the scene's but not read here.
                 b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
@@ -542,6 +544,14 @@ fn kernels_read_the_records_the_host_wrote() {
                 let all: Vec<f32> = [data.clone(), theta.clone(), env.clone()].concat();
                 let got: Vec<u32> = read::<f32>(&o_floats)[..all.len()].iter().map(|v| v.to_bits()).collect();
                 assert_eq!(got, all.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{tag}: material data, θ, environment");
+                // Every vec3 fetch3 can read, at each of the four alignments within a texel.
+                let triples = read::<[f32; 3]>(&o_triples);
+                for (base, floats) in [(0, &data), (data.len(), &theta)] {
+                    for i in 0..floats.len().saturating_sub(2) {
+                        let want = [floats[i], floats[i + 1], floats[i + 2]].map(f32::to_bits);
+                        assert_eq!(triples[base + i].map(f32::to_bits), want, "{tag}: the vec3 at float {i} of {}", if base == 0 { "material data" } else { "θ" });
+                    }
+                }
                 if *name == "env quad" {
                     assert!(!env.is_empty(), "the lat-long map has a distribution");
                 }

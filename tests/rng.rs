@@ -100,3 +100,71 @@ fn streams_of_passes_and_iterations_are_independent() {
         }
     });
 }
+
+/// The numbers within one stream: every number a path draws is a hash of its key and its
+/// index (lib/rng.glsl), and the indices of one path vertex, of consecutive vertices and of
+/// the same dimension at consecutive vertices differ only in their low bits, which pcg4d
+/// carries only upwards; the numbers must still be independent of one another, and each
+/// dimension uniform.
+#[test]
+fn numbers_within_a_stream_are_independent_and_uniform() {
+    with_gpu(|ctx| {
+        let pipe = ComputePipeline::new(ctx, "rng_test", &[]).unwrap();
+        let seed = gpu_seed(0).wrapping_add(SEED_PRIMAL);
+        let mut draws: Vec<Vec<f32>> = Vec::new();
+        // 8× the samples of the test above: the tail count of one pair has ~100 expected.
+        for f in 0..FRAMES {
+            for s in 0..8 * SAMPLES {
+                draws.push(numbers(ctx, &pipe, seed, f, s));
+            }
+        }
+        let dims = DIMS as usize;
+        // Pairs of dimensions: neighbours within vertex 1, its first and last, across the
+        // vertices 1 and 2, and the same dimension at vertices 1 and 2.
+        let pairs = [(0usize, 1usize), (0, 3), (1, 2), (2, 3), (3, 4), (0, 4), (7, 8), (0, 8), (5, 13)];
+        let p = 2.0 * TAIL * TAIL;
+        for (a, b) in pairs {
+            let mut together = 0u64;
+            let mut n = 0u64;
+            let mut prod = 0.0f64;
+            for x in &draws {
+                for key in x.chunks_exact(dims) {
+                    let (u, v) = (key[a] as f64, key[b] as f64);
+                    if (u < TAIL && v < TAIL) || (u >= 1.0 - TAIL && v >= 1.0 - TAIL) {
+                        together += 1;
+                    }
+                    prod += (u - 0.5) * (v - 0.5);
+                    n += 1;
+                }
+            }
+            let expected = n as f64 * p;
+            let z = (together as f64 - expected) / (expected * (1.0 - p)).sqrt();
+            // Correlation of two independent uniforms: mean 0, sd 1/sqrt(n).
+            let corr = prod / n as f64 * 12.0;
+            let z_corr = corr * (n as f64).sqrt();
+            eprintln!("dimensions {a} and {b}: {together} tail pairs, {expected:.0} expected (z {z:+.2}); correlation {corr:+.5} (z {z_corr:+.2})");
+            assert!(z.abs() <= Z_MAX, "dimensions {a} and {b}: tails not independent (z {z:+.2})");
+            assert!(z_corr.abs() <= Z_MAX, "dimensions {a} and {b}: correlated ({corr:+.5}, z {z_corr:+.2})");
+        }
+        // Uniformity of each dimension: 16 bins, each count binomial.
+        const BINS: usize = 16;
+        for d in 0..dims {
+            let mut counts = [0u64; BINS];
+            let mut n = 0u64;
+            for x in &draws {
+                for key in x.chunks_exact(dims) {
+                    let u = key[d];
+                    assert!((0.0..1.0).contains(&u), "dimension {d}: {u} outside [0, 1)");
+                    counts[(u * BINS as f32) as usize] += 1;
+                    n += 1;
+                }
+            }
+            let q = 1.0 / BINS as f64;
+            let expected = n as f64 * q;
+            for (k, &c) in counts.iter().enumerate() {
+                let z = (c as f64 - expected) / (expected * (1.0 - q)).sqrt();
+                assert!(z.abs() <= Z_MAX, "dimension {d}: bin {k} holds {c}, {expected:.0} expected (z {z:+.2})");
+            }
+        }
+    });
+}

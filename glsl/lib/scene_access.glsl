@@ -173,6 +173,16 @@ float value_at(ValueRef r, int index, int state) {
     return texel_float(Theta, r.offset + index);
 }
 
+// Elements index .. index + 2 of value r in parameter state `state`: value_at of each, in
+// two texel fetches per buffer instead of three.
+vec3 value3_at(ValueRef r, int index, int state) {
+    if (r.in_theta == 0u) return texel_vec3_at(MaterialData, r.offset + index);
+#ifdef FD
+    if (state == 1) return texel_vec3_at(ThetaPrev, r.offset + index);
+#endif
+    return texel_vec3_at(Theta, r.offset + index);
+}
+
 // Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
 // A constant is one "texel" with weight 1 in slot 0.
 void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
@@ -201,7 +211,7 @@ vec3 fetch3(ValueRef r, vec2 uv, int state) {
     for (int k = 0; k < 4; ++k) {
         if (w[k] == 0.0) continue;
         int base = texel[k] * 3;
-        v += w[k] * vec3(value_at(r, base, state), value_at(r, base + 1, state), value_at(r, base + 2, state));
+        v += w[k] * value3_at(r, base, state);
     }
     return v;
 }

@@ -8,6 +8,16 @@
 // Float i of a texel buffer read as an array of floats.
 float texel_float(usamplerBuffer b, int i) { return uintBitsToFloat(texelFetch(b, i >> 2)[i & 3]); }
 
+// Floats i, i + 1 and i + 2 of a texel buffer read as an array of floats, in two fetches
+// instead of three: the texels of the first and of the last float (the same texel when
+// all three lie in it; both exist whenever float i + 2 does).
+vec3 texel_vec3_at(usamplerBuffer b, int i) {
+    uvec4 t0 = texelFetch(b, i >> 2);
+    uvec4 t1 = texelFetch(b, (i + 2) >> 2);
+    int k = i & 3;
+    return uintBitsToFloat(uvec3(t0[k], k < 3 ? t0[min(k + 1, 3)] : t1.x, k < 2 ? t0[min(k + 2, 3)] : t1[max(k - 2, 0)]));
+}
+
 // Words 0-11 of the record that starts at texel `base` (three texels): words 0-2, 3-5 and
 // 6-8 as three vec3 of floats, words 9-11 as they are. Triangles (a vertex and two edges),
 // emitters, shading records (three normals) and sensors (three frame vectors) begin so.
