@@ -1047,11 +1047,14 @@ fn feature_specialisation_changes_no_result() {
                 let mut gs = GpuScene::new(ctx, &scene).unwrap();
                 assert!(!gs.has_textures, "{name} has no texture");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
+                // The spiral's meshes have vertex normals, the Cornell box's none.
+                assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
                 assert!(gs.replay_cached, "{name}: every cast of a path fits the replay cache");
                 assert!(gs.local_grads_unrolled, "{name}: few parameters, summed in an unrolled loop");
                 if every_feature {
                     gs.has_textures = true;
                     gs.has_principled = true;
+                    gs.has_normals = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.
@@ -1079,13 +1082,13 @@ fn feature_specialisation_changes_no_result() {
     }
 }
 
-/// Scenes with textures and principled materials keep their code.
+/// Scenes with textures, principled materials and vertex normals keep their code.
 #[test]
 fn scene_features_are_detected() {
     let scene = Scene::load(format!("{}/scenes/glossy/scene.toml", env!("CARGO_MANIFEST_DIR"))).unwrap();
-    let (textures, principled) = with_gpu(|ctx| {
+    let (textures, principled, normals) = with_gpu(|ctx| {
         let gs = GpuScene::new(ctx, &scene).unwrap();
-        (gs.has_textures, gs.has_principled)
+        (gs.has_textures, gs.has_principled, gs.has_normals)
     });
-    assert!(textures && principled);
+    assert!(textures && principled && normals);
 }

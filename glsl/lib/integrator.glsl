@@ -270,7 +270,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 
         // Shading frame: interpolated normal if the mesh has normals, flipped to the side
         // of wo; the geometric normal likewise.
-        vec3 ns = w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2;
+        vec3 ns = HAS_NORMALS ? w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2 : vec3(0.0);
         ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
         if (dot(ng, wo) < 0.0) ng = -ng;
         if (dot(ns, ng) < 0.0) ns = -ns;

@@ -157,31 +157,34 @@ bool grad_in_half = false;
 
 // Scene features, set per scene by the host (GpuScene::spec) so that the compiler drops the
 // code of what the scene does not have: no textured value (every lookup reads one texel,
-// no bilinear footprint) and no principled material (fetch_material reports the diffuse
-// kind, and the principled model's sampling, evaluation and derivatives fold away). The
+// no bilinear footprint), no principled material (fetch_material reports the diffuse
+// kind, and the principled model's sampling, evaluation and derivatives fold away) and no
+// vertex normals. The
 // defaults keep everything, for kernels built without them. This matters most on CPU
 // drivers: lavapipe runs the body of every branch whose condition is not a constant,
 // masked, even when no lane of the SIMD batch takes it (docs/lavapipe.md).
 layout(constant_id = 8) const bool HAS_TEXTURES = true;
 layout(constant_id = 9) const bool HAS_PRINCIPLED = true;
+// Whether any triangle has vertex normals: without them the shading normal is the geometric
+// one, and the normals' two texels of each shading record are not read.
+layout(constant_id = 13) const bool HAS_NORMALS = true;
 
-float value_at(ValueRef r, int index, int state) {
-    if (r.in_theta == 0u) return texel_float(MaterialData, r.offset + index);
+// Reads element i of a value's data with `read` (texel_float or texel_vec3_at) from the
+// buffer that holds it: the material data for a constant, θ for an optimised value, or
+// θ of the previous iteration in parameter state 1 of the finite-difference kernels.
 #ifdef FD
-    if (state == 1) return texel_float(ThetaPrev, r.offset + index);
+#define VALUE_READ(read, r, i, state) \
+    ((r).in_theta == 0u ? read(MaterialData, i) : (state) == 1 ? read(ThetaPrev, i) : read(Theta, i))
+#else
+#define VALUE_READ(read, r, i, state) ((r).in_theta == 0u ? read(MaterialData, i) : read(Theta, i))
 #endif
-    return texel_float(Theta, r.offset + index);
-}
+
+// Element `index` of value r in parameter state `state`.
+float value_at(ValueRef r, int index, int state) { return VALUE_READ(texel_float, r, r.offset + index, state); }
 
 // Elements index .. index + 2 of value r in parameter state `state`: value_at of each, in
 // two texel fetches per buffer instead of three.
-vec3 value3_at(ValueRef r, int index, int state) {
-    if (r.in_theta == 0u) return texel_vec3_at(MaterialData, r.offset + index);
-#ifdef FD
-    if (state == 1) return texel_vec3_at(ThetaPrev, r.offset + index);
-#endif
-    return texel_vec3_at(Theta, r.offset + index);
-}
+vec3 value3_at(ValueRef r, int index, int state) { return VALUE_READ(texel_vec3_at, r, r.offset + index, state); }
 
 // Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
 // A constant is one "texel" with weight 1 in slot 0.

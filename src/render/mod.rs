@@ -48,6 +48,9 @@ pub struct GpuScene {
     /// Whether any material is principled; without one, the kernels build the diffuse
     /// model alone.
     pub has_principled: bool,
+    /// Whether any triangle has vertex normals; without them the kernels shade with the
+    /// geometric normal and read no vertex normals.
+    pub has_normals: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     /// Whether every ray cast of a path fits the adjoint kernels' replay cache
@@ -306,6 +309,7 @@ impl GpuScene {
             .chain([environment])
             .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
+        let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
         let sensors: Vec<SensorRecord> = scene
@@ -349,6 +353,7 @@ impl GpuScene {
             lights: lights.len() as u32,
             has_textures,
             has_principled,
+            has_normals,
             environment_distribution,
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
@@ -423,6 +428,7 @@ impl GpuScene {
             ("HAS_DELTA_LIGHTS", SpecValue::Bool(self.lights > 0)),
             ("HAS_TEXTURES", SpecValue::Bool(self.has_textures)),
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
+            ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
         ]
     }
 
