@@ -159,10 +159,9 @@ bool grad_in_half = false;
 // code of what the scene does not have: no textured value (every lookup reads one texel,
 // no bilinear footprint), no principled material (fetch_material reports the diffuse
 // kind, and the principled model's sampling, evaluation and derivatives fold away) and no
-// vertex normals. The
-// defaults keep everything, for kernels built without them. This matters most on CPU
-// drivers: lavapipe runs the body of every branch whose condition is not a constant,
-// masked, even when no lane of the SIMD batch takes it (docs/lavapipe.md).
+// vertex normals. The defaults keep everything, for kernels built without them. This
+// matters most on CPU drivers: lavapipe runs the body of every branch whose condition is
+// not a constant, masked, even when no lane of the SIMD batch takes it (docs/lavapipe.md).
 layout(constant_id = 8) const bool HAS_TEXTURES = true;
 layout(constant_id = 9) const bool HAS_PRINCIPLED = true;
 // Whether any triangle has vertex normals: without them the shading normal is the geometric

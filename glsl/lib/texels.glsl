@@ -10,7 +10,8 @@ float texel_float(usamplerBuffer b, int i) { return uintBitsToFloat(texelFetch(b
 
 // Floats i, i + 1 and i + 2 of a texel buffer read as an array of floats, in two fetches
 // instead of three: the texels of the first and of the last float (the same texel when
-// all three lie in it; both exist whenever float i + 2 does).
+// all three lie in it; both exist whenever float i + 2 does). A SIMD build evaluates both
+// sides of each select, so the component indices are clamped to stay inside the texel.
 vec3 texel_vec3_at(usamplerBuffer b, int i) {
     uvec4 t0 = texelFetch(b, i >> 2);
     uvec4 t1 = texelFetch(b, (i + 2) >> 2);
