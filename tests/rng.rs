@@ -43,6 +43,12 @@ fn numbers(ctx: &Arc<Context>, pipe: &ComputePipeline, seed: u32, frame: u32, sa
     out.read().unwrap()
 }
 
+/// z of `count` successes in `n` trials of probability `p` (binomial), and the expected count.
+fn binomial_z(count: u64, n: u64, p: f64) -> (f64, f64) {
+    let expected = n as f64 * p;
+    ((count as f64 - expected) / (expected * (1.0 - p)).sqrt(), expected)
+}
+
 /// z of the tail co-occurrence count of streams `a` and `b` (each a function of the
 /// iteration), over FRAMES iterations and SAMPLES samples.
 fn tail_z(ctx: &Arc<Context>, pipe: &ComputePipeline, a: impl Fn(u32) -> (u32, u32), b: impl Fn(u32) -> (u32, u32)) -> (f64, u64, f64) {
@@ -66,9 +72,7 @@ fn tail_z(ctx: &Arc<Context>, pipe: &ComputePipeline, a: impl Fn(u32) -> (u32, u
         }
     }
     assert!(in_range, "numbers outside [0, 1)");
-    let p = 2.0 * TAIL * TAIL;
-    let expected = pairs as f64 * p;
-    let z = (together as f64 - expected) / (expected * (1.0 - p)).sqrt();
+    let (z, expected) = binomial_z(together, pairs, 2.0 * TAIL * TAIL);
     (z, together, expected)
 }
 
@@ -122,7 +126,6 @@ fn numbers_within_a_stream_are_independent_and_uniform() {
         // Pairs of dimensions: neighbours within vertex 1, its first and last, across the
         // vertices 1 and 2, and the same dimension at vertices 1 and 2.
         let pairs = [(0usize, 1usize), (0, 3), (1, 2), (2, 3), (3, 4), (0, 4), (7, 8), (0, 8), (5, 13)];
-        let p = 2.0 * TAIL * TAIL;
         for (a, b) in pairs {
             let mut together = 0u64;
             let mut n = 0u64;
@@ -137,8 +140,7 @@ fn numbers_within_a_stream_are_independent_and_uniform() {
                     n += 1;
                 }
             }
-            let expected = n as f64 * p;
-            let z = (together as f64 - expected) / (expected * (1.0 - p)).sqrt();
+            let (z, expected) = binomial_z(together, n, 2.0 * TAIL * TAIL);
             // Correlation of two independent uniforms: mean 0, sd 1/sqrt(n).
             let corr = prod / n as f64 * 12.0;
             let z_corr = corr * (n as f64).sqrt();
@@ -159,10 +161,8 @@ fn numbers_within_a_stream_are_independent_and_uniform() {
                     n += 1;
                 }
             }
-            let q = 1.0 / BINS as f64;
-            let expected = n as f64 * q;
             for (k, &c) in counts.iter().enumerate() {
-                let z = (c as f64 - expected) / (expected * (1.0 - q)).sqrt();
+                let (z, expected) = binomial_z(c, n, 1.0 / BINS as f64);
                 assert!(z.abs() <= Z_MAX, "dimension {d}: bin {k} holds {c}, {expected:.0} expected (z {z:+.2})");
             }
         }
