@@ -39,7 +39,7 @@ fn box_loads_to_the_same_model_from_every_format() {
         assert_eq!(s.meshes.len(), 3, "{file}");
         for (a, b) in toml.meshes.iter().zip(&s.meshes) {
             assert_eq!(a.name, b.name, "{file}: mesh names are the source's");
-            assert_eq!((&a.positions, &a.indices, a.emission), (&b.positions, &b.indices, b.emission), "{file}: mesh {}", a.name);
+            assert_eq!((&a.positions, &a.normals, &a.indices, a.emission), (&b.positions, &b.normals, &b.indices, b.emission), "{file}: mesh {}", a.name);
             assert_eq!(toml.materials[a.material].name, s.materials[b.material].name, "{file}: material of {}", a.name);
         }
         for (a, b) in toml.materials.iter().zip(&s.materials) {

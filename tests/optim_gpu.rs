@@ -83,32 +83,57 @@ fn gpu_trajectories_match_the_f64_reference() {
             let cpu32 = optim::replay::replay_streams::<f32>(&opt, &streams, &init, range, 0.01).unwrap();
             assert_eq!(gpu.nonfinite, 0);
             assert_eq!(gpu.theta.len(), cpu.theta.len());
+            let newton = matches!(opt, Optimiser::Meta(h) if h.step == StepRule::Newton);
+            // Newton's step is gated per element (its significance test and shrink factor)
+            // and divides by a curvature fitted to ⟨ΔF⟩/Δθ; these streams' ⟨ΔF⟩ ignore the
+            // steps, so its tiny steps, which f32 resolves to ~1e-7 of θ, set the curvature.
+            // A rounding difference that flips an element's gate moves that element by a
+            // whole step: the f32 run parts from the f64 one on 2-11 % of the elements from
+            // about step 4 (src/optim/tests.rs checks f32 against f64 on finite differences
+            // that span the steps), and a device that rounds otherwise than the CPU (NVIDIA
+            // fuses multiplies and adds) flips other elements against the f32 run alike.
+            // So Newton is held to the f32 run, element by element, until the f32 and f64
+            // runs part (`parted`); afterwards on all but about as many elements as they
+            // disagree on.
+            let parted = cpu32
+                .theta
+                .iter()
+                .zip(&cpu.theta)
+                .position(|(a, b)| a.iter().zip(b).any(|(x, y)| (*x as f64 - y).abs() > 1e-5))
+                .unwrap_or(cpu.theta.len());
+            let flipped_by_precision = (0..n).filter(|&i| cpu32.theta.iter().zip(&cpu.theta).any(|(a, b)| (a[i] as f64 - b[i]).abs() > 1e-5)).count();
             // Against the f64 reference: relative to the parameter's scale (the range is
             // [0, 1]); float32 rounding over 60 steps stays below 1e-5 of it.
             let mut worst = 0.0f64;
             // Against the same arithmetic in f32 on the CPU: only the order of the ‖Δπ‖²
-            // sum and the device's sqrt/division differ.
+            // sum and the device's sqrt/division (and multiply-add fusion) differ.
             let mut worst32 = 0.0f64;
-            for ((a, b), c) in gpu.theta.iter().zip(&cpu.theta).zip(&cpu32.theta) {
-                for ((x, y), z) in a.iter().zip(b).zip(c) {
+            let mut departed = vec![false; n];
+            for (t, ((a, b), c)) in gpu.theta.iter().zip(&cpu.theta).zip(&cpu32.theta).enumerate() {
+                for (i, ((x, y), z)) in a.iter().zip(b).zip(c).enumerate() {
                     worst = worst.max((*x as f64 - y).abs() / y.abs().max(0.1));
-                    worst32 = worst32.max((*x as f64 - z).abs());
+                    let d = (*x as f64 - z).abs();
+                    if !newton || t < parted {
+                        worst32 = worst32.max(d);
+                    } else if d > 2e-6 {
+                        departed[i] = true;
+                    }
                 }
             }
             // The seed's step with the centred estimate is lr·SNR with an SNR that can be
             // large (√V_M far below |⟨F⟩_M|), which amplifies rounding into θ.
-            // Newton's step divides by a curvature fitted to ⟨ΔF⟩/Δθ; these streams' ⟨ΔF⟩
-            // ignore the steps, so its tiny steps, which f32 resolves to ~1e-7 of θ, set the
-            // curvature and f32 parts from f64 (src/optim/tests.rs checks f32 against f64 on
-            // finite differences that span the steps): it is held to the f32 run alone.
-            let newton = matches!(opt, Optimiser::Meta(h) if h.step == StepRule::Newton);
             let tol = match opt {
                 Optimiser::Meta(h) if h.step == StepRule::Snr && h.variance == VarianceEstimate::Centred => 5e-5,
                 _ if newton => f64::INFINITY,
                 _ => 1e-5,
             };
             assert!(worst < tol, "{opt:?}: worst relative difference to f64 {worst}");
-            assert!(worst32 < 2e-6, "{opt:?}: worst difference to the f32 CPU run {worst32}");
+            assert!(worst32 < 2e-6, "{opt:?}: worst difference to the f32 CPU run {worst32} (Newton: before step {parted})");
+            let departed = departed.iter().filter(|&&d| d).count();
+            assert!(
+                departed <= 2 * flipped_by_precision + n / 50,
+                "{opt:?}: {departed} elements part from the f32 CPU run after step {parted} (f32 and f64 disagree on {flipped_by_precision})"
+            );
             // The optimiser moved: the test is not comparing two copies of `init`.
             let moved: f64 = gpu.theta.last().unwrap().iter().zip(&init).map(|(a, b)| (a - b).abs() as f64).sum();
             assert!(moved > 0.1 * n as f64 * 0.01 * opt.schedule().factor(60), "{opt:?} barely moved: {moved}");
@@ -118,9 +143,10 @@ fn gpu_trajectories_match_the_f64_reference() {
                 assert!(gpu.diagnostics.iter().any(|d| d[0].newton > 0.0), "{opt:?} took no Newton step");
             }
             // The diagnostics the GPU reduced, step by step, against the f64 reference's (for
-            // Newton, the f32 run's).
+            // Newton, the f32 run's, until it parts from the f64 run).
             let reference = if newton { &cpu32.diagnostics } else { &cpu.diagnostics };
-            for (t, (dg, dc)) in gpu.diagnostics.iter().zip(reference).enumerate() {
+            let compared = if newton { parted.saturating_sub(1) } else { reference.len() };
+            for (t, (dg, dc)) in gpu.diagnostics.iter().zip(reference).enumerate().take(compared) {
                 let (dg, dc) = (dg[0].values(), dc.values());
                 for (k, (x, y)) in dg.iter().zip(dc).enumerate() {
                     // Steps are differences of θ ~ 0.5, resolved to ~3e-8 in f32; the secant

@@ -128,7 +128,14 @@ unsafe extern "system" fn debug_callback(
     if let Ok(mut list) = list.lock() {
         list.push(line);
     }
-    vk::FALSE
+    // An error refuses the call: the Khronos layer then returns
+    // VK_ERROR_VALIDATION_FAILED_EXT instead of passing an invalid call on, which a real
+    // driver may crash on (NVIDIA's does on an invalid SPIR-V module).
+    if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
+        vk::TRUE
+    } else {
+        vk::FALSE
+    }
 }
 
 fn version_string(v: u32) -> String {
