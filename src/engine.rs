@@ -25,7 +25,7 @@ use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{CarryWeight, Diagnostics, MetaHyper, Optimiser, Range};
 use crate::push::{CarryWeightPush, CountPush};
 use crate::render::gradient::GradientPass;
-use crate::render::targets::{padded, targets, TARGET_SPP};
+use crate::render::targets::{padded, targets};
 use crate::render::{GpuScene, Renderer};
 use crate::scene::Scene;
 use crate::settings::{gpu_seed, Loss, RunSettings};
@@ -353,7 +353,7 @@ impl Engine {
             false => None,
         };
         let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
-        let targets = targets(&renderer, scene, TARGET_SPP, on_targets)?;
+        let targets = targets(&renderer, scene, settings.target_spp, on_targets)?;
         let ops = BufferOps::new(ctx)?;
         let gs = &renderer.scene;
         let n = gs.layout.len.max(1);

@@ -185,6 +185,11 @@ settings! {
     /// Samples per pixel of the gradient estimate's primal render.
     #[arg(long, value_name = "N")]
     primal_spp: u32 = 4;
+    /// Samples per pixel of the target images rendered from the scene's reference values
+    /// (a sensor without `target_image`); a glossy scene may need more for a target whose
+    /// noise does not move the loss's optimum.
+    #[arg(long, value_name = "N")]
+    target_spp: u32 = 1024;
     /// Learning rate: the typical parameter change per iteration (given here, it replaces
     /// the scene's per-parameter rates).
     #[arg(long, value_name = "X", allow_negative_numbers = true)]
@@ -233,6 +238,7 @@ impl Settings {
             ("fd_spp", self.fd_spp),
             ("fd_stride", self.fd_stride),
             ("primal_spp", self.primal_spp),
+            ("target_spp", self.target_spp),
             ("checkpoint_every", self.checkpoint_every),
         ] {
             if v == Some(0) {

@@ -548,6 +548,7 @@ fn bad_optimise_flags_are_one_line_errors() {
     run(&["--fd-spp", "0"], &["--fd-spp"]);
     run(&["--iterations", "0"], &["--iterations", "at least 1"]);
     run(&["--checkpoint-every", "0"], &["--checkpoint-every", "at least 1"]);
+    run(&["--target-spp", "0"], &["--target-spp", "at least 1"]);
     run(&["--resume", "--overwrite"], &["--resume", "--overwrite"]);
     run(&["--unknown-flag"], &["--unknown-flag"]);
     let resume_dir = temp_dir("resume-nothing");

@@ -9,6 +9,7 @@ use vkinverse::bvh::BvhLayout;
 use vkinverse::render::targets::{cache_dirs, targets};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::Scene;
+use vkinverse::settings::Settings;
 
 const SCENE: &str = r#"[film]
 width = 8
@@ -68,5 +69,35 @@ fn a_renderer_change_invalidates_the_cache_and_a_read_only_scene_uses_the_user_c
         assert!(rendered(ctx, &scene, BvhLayout::Wide));
         assert_eq!(std::fs::read_dir(&user_cache).unwrap().count(), before + 1);
         assert!(!rendered(ctx, &scene, BvhLayout::Wide), "read back from the user cache");
+    });
+}
+
+/// The run's `target_spp` (scene `[optimise]`, command line, job file) is the sample count
+/// the engine renders its targets with, and a key of the cache.
+#[test]
+fn the_run_renders_its_targets_at_target_spp() {
+    let scene_text = SCENE.replace("[optimise]\n", "[optimise]\ntarget_spp = 8\n");
+    let path = write_scene("target-spp", &scene_text, &sphere_obj(1.0, 1, false));
+    let scene = Scene::load(&path).unwrap();
+    let beside = scene.dir().join(".vkinverse-cache");
+    let cached = || -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(&beside).map(|d| d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect()).unwrap_or_default();
+        names.sort();
+        names
+    };
+    common::with_gpu(|ctx| {
+        let from_scene = vkinverse::settings::RunSettings::of_scene(&scene);
+        assert_eq!(from_scene.target_spp, 8);
+        let mut rendered = Vec::new();
+        vkinverse::engine::Engine::new(ctx, &scene, &from_scene, |_, done, total| rendered.push((done, total))).unwrap();
+        assert_eq!(rendered.last(), Some(&(8, 8)), "progress reports the target's samples");
+        assert!(matches!(cached().as_slice(), [one] if one.ends_with("-s0-8spp.exr")), "{:?}", cached());
+        // Given outside the scene it wins, and is cached under its own key.
+        let over = Settings { target_spp: Some(16), ..Default::default() };
+        let run = Settings::resolve(&scene.optimise.settings, &over);
+        vkinverse::engine::Engine::new(ctx, &scene, &run, |_, _, _| {}).unwrap();
+        let names = cached();
+        assert_eq!(names.len(), 2, "{names:?}");
+        assert!(names.iter().any(|n| n.ends_with("-s0-16spp.exr")), "{names:?}");
     });
 }

@@ -14,9 +14,6 @@ use crate::image::{self, Image};
 use crate::scene::Scene;
 use std::path::PathBuf;
 
-/// Samples per pixel of rendered targets.
-pub const TARGET_SPP: u32 = 1024;
-
 /// Seed of rendered targets: far from the optimisation's seeds.
 const TARGET_SEED: u32 = 0x7A46_E701;
 
