@@ -99,9 +99,9 @@ fn gpu_trajectories_match_the_f64_reference() {
                 .theta
                 .iter()
                 .zip(&cpu.theta)
-                .position(|(a, b)| a.iter().zip(b).any(|(x, y)| (*x as f64 - y).abs() > 1e-5))
+                .position(|(a, b)| a.iter().zip(b).any(|(x, y)| (x - y).abs() > 1e-5))
                 .unwrap_or(cpu.theta.len());
-            let flipped_by_precision = (0..n).filter(|&i| cpu32.theta.iter().zip(&cpu.theta).any(|(a, b)| (a[i] as f64 - b[i]).abs() > 1e-5)).count();
+            let flipped_by_precision = (0..n).filter(|&i| cpu32.theta.iter().zip(&cpu.theta).any(|(a, b)| (a[i] - b[i]).abs() > 1e-5)).count();
             // Against the f64 reference: relative to the parameter's scale (the range is
             // [0, 1]); float32 rounding over 60 steps stays below 1e-5 of it.
             let mut worst = 0.0f64;
