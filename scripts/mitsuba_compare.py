@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Compares vkinverse with Mitsuba 3 (variant llvm_ad_rgb) on one scene file:
+"""Compares vkinverse with Mitsuba 3 (variant llvm_ad_rgb, or --variant) on one scene file:
 
   a. images: `vkinverse render` against Mitsuba's `path` integrator at the same
      resolution, samples and depth; wall-time ratio and mean relative error, set against
@@ -27,6 +27,9 @@ only place it is imported, and it stops with a message when it is missing.
     python3 scripts/mitsuba_compare.py scenes/cornell/scene.toml --res 64,256 --spp 256 \
         --parts ac --out /tmp/cmp
 
+On a machine with an NVIDIA GPU, `--variant cuda_ad_rgb` compares against Mitsuba's CUDA
+backend (OptiX) instead, with vkinverse on the same GPU through Vulkan.
+
 Only what has an exact Mitsuba counterpart is translated: diffuse (Lambert) materials
 with constant colours, OBJ meshes, one-sided area lights, a constant environment, pinhole
 sensors. Anything else is refused rather than approximated, since an approximate peer
@@ -45,6 +48,7 @@ import time
 import tomllib
 from pathlib import Path
 
+# Mitsuba's variant: llvm_ad_rgb (the CPU backend) unless --variant names another.
 VARIANT = "llvm_ad_rgb"
 # Debian's LLVM 19, which Dr.Jit's LLVM backend loads at run time; an explicit
 # DRJIT_LIBLLVM_PATH in the environment wins.
@@ -57,6 +61,11 @@ DEFAULT_RR_DEPTH = 5
 REL_FLOOR = 1e-2
 # Side of the pixel blocks in which systematic differences are located.
 BLOCK = 8
+
+
+def set_variant(name):
+    global VARIANT
+    VARIANT = name
 
 
 def fail(msg, code=2):
@@ -80,11 +89,10 @@ def import_mitsuba():
     try:
         mi.set_variant(VARIANT)
     except Exception as e:  # noqa: BLE001 - any failure here means the variant is unusable
-        fail(
-            f"Mitsuba's {VARIANT} variant is unavailable ({e}).\n"
-            "  It needs libLLVM: apt-get install libllvm19 and set "
-            f"DRJIT_LIBLLVM_PATH={DEBIAN_LIBLLVM}"
-        )
+        need = ("libLLVM: apt-get install libllvm19 and set "
+                f"DRJIT_LIBLLVM_PATH={DEBIAN_LIBLLVM}") if VARIANT.startswith("llvm") else \
+            "an NVIDIA GPU with its driver (libcuda, libnvoptix)"
+        fail(f"Mitsuba's {VARIANT} variant is unavailable ({e}).\n  It needs {need}")
     return np, dr, mi
 
 
@@ -658,7 +666,10 @@ def main():
                     "(default: the scene's own film)")
     ap.add_argument("--vkinverse", help="vkinverse binary (default: $CARGO_TARGET_DIR or target/ release build)")
     ap.add_argument("--out", type=Path, required=True, help="directory for images, logs and results.json")
+    ap.add_argument("--variant", default="llvm_ad_rgb", choices=["llvm_ad_rgb", "cuda_ad_rgb"],
+                    help="Mitsuba's variant (default: %(default)s)")
     args = ap.parse_args()
+    set_variant(args.variant)
     if args.runs < 2:
         fail("--runs must be at least 2")
     if args.rounds < 2:
