@@ -130,6 +130,14 @@ def fmt(v, spec=".4f"):
     return "-" if v is None else format(v, spec)
 
 
+def fmt_short(v):
+    """A time or duration to a tenth above 1 and to two significant digits below, so that
+    a GPU's fractions of a millisecond show as well as lavapipe's tens of milliseconds."""
+    if v is None:
+        return "-"
+    return f"{v:.0f}" if v >= 100 else f"{v:.1f}" if v >= 1 else f"{v:.2g}"
+
+
 def speedup(reference_time, time):
     if reference_time is None:
         return None
@@ -183,7 +191,7 @@ def protocol(by_scene):
         )
         print(
             f"| run | spp | lr | iterations | ms / iteration | settled error | error at iteration {fmt(equal_it, 'd')} "
-            + f"| error at {fmt(equal_time, '.0f')} s | time to Adam-3 goal (s) | time to Adam-64 goal (s) | meta n_eff |"
+            + f"| error at {fmt_short(equal_time)} s | time to Adam-3 goal (s) | time to Adam-64 goal (s) | meta n_eff |"
         )
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
@@ -193,10 +201,10 @@ def protocol(by_scene):
             n_eff = summary(r["dir"]).get("meta_n_eff") or {}
             n_eff = ", ".join(f"{short[k]} {v:.1f}" for short in [short_names(n_eff)] for k, v in n_eff.items()) or "-"
             print(
-                f"| {r['optimiser']}{mark} | {spp} | {r['rate']} | {r['iterations']} | {1000 * r['time_s'] / r['iterations']:.0f} "
+                f"| {r['optimiser']}{mark} | {spp} | {r['rate']} | {r['iterations']} | {fmt_short(1000 * r['time_s'] / r['iterations'])} "
                 + f"| {r['settled']:.4f} | {fmt(error_at_iteration(sm, equal_it) if equal_it else None)} "
                 + f"| {fmt(error_at_time(sm, equal_time) if equal_time else None)} "
-                + f"| {fmt(time_to_reach(sm, goal3) if goal3 else None, '.1f')} | {fmt(time_to_reach(sm, goal64) if goal64 else None, '.1f')} | {n_eff} |"
+                + f"| {fmt_short(time_to_reach(sm, goal3) if goal3 else None)} | {fmt_short(time_to_reach(sm, goal64) if goal64 else None)} | {n_eff} |"
             )
         print()
         if meta and best:
