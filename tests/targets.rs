@@ -9,7 +9,7 @@ use vkinverse::bvh::BvhLayout;
 use vkinverse::render::targets::{cache_dirs, targets};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::Scene;
-use vkinverse::settings::Settings;
+use vkinverse::settings::{RunSettings, Settings};
 
 const SCENE: &str = r#"[film]
 width = 8
@@ -86,7 +86,7 @@ fn the_run_renders_its_targets_at_target_spp() {
         names
     };
     common::with_gpu(|ctx| {
-        let from_scene = vkinverse::settings::RunSettings::of_scene(&scene);
+        let from_scene = RunSettings::of_scene(&scene);
         assert_eq!(from_scene.target_spp, 8);
         let mut rendered = Vec::new();
         vkinverse::engine::Engine::new(ctx, &scene, &from_scene, |_, done, total| rendered.push((done, total))).unwrap();
