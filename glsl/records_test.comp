@@ -62,9 +62,9 @@ void main() {
         out_cdfs[i] = emitter_cdf(i);
     }
     if (i < pc.nodes) out_nodes[i] = bvh_node(i);
-    if (i < pc.material_data) out_floats[i] = texel_float(MaterialData, int(i));
+    if (i < pc.material_data) out_floats[i] = texel_float(Theta, int(CONST_BASE + i));
     if (i < pc.theta) out_floats[pc.material_data + i] = texel_float(Theta, int(i));
-    if (i + 2u < pc.material_data) out_triples[i] = texel_vec3_at(MaterialData, int(i));
+    if (i + 2u < pc.material_data) out_triples[i] = texel_vec3_at(Theta, int(CONST_BASE + i));
     if (i + 2u < pc.theta) out_triples[pc.material_data + i] = texel_vec3_at(Theta, int(i));
     if (i < pc.env_dist) out_floats[pc.material_data + pc.theta + i] = texel_float(EnvDistribution, int(i));
     if (i < pc.sensors) out_sensors[i] = sensor_record(i);

@@ -197,16 +197,22 @@ fn json_bytes(value: &impl Serialize) -> Result<Vec<u8>> {
     serde_json::to_vec_pretty(value).map_err(|e| Error::Invalid(e.to_string()))
 }
 
-/// θ, the optimiser's state and meta's carried image: what a checkpoint saves.
-fn state_buffers(engine: &Engine) -> Result<Vec<&Buffer>> {
+/// θ, the optimiser's state and meta's carried image: what a checkpoint saves, each with
+/// the floats it saves. θ's buffer and the previous θ (shaped like it) save θ's part, not
+/// the scene's material data after it, which the scene rebuilds.
+fn state_buffers(engine: &Engine) -> Result<Vec<(&Buffer, usize)>> {
     let carry = engine.carry.iter().flat_map(|c| c.state());
-    Ok(std::iter::once(&engine.scene().theta).chain(engine.optimiser()?.state()).chain(carry).collect())
+    let gs = engine.scene();
+    let theta_shaped = |b: &Buffer| b.len() == gs.theta.len();
+    let buffers = std::iter::once(&gs.theta).chain(engine.optimiser()?.state()).chain(carry);
+    Ok(buffers.map(|b| (b, if theta_shaped(b) { gs.const_base as usize } else { (b.len() / 4) as usize })).collect())
 }
 
 fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog, carry: &CarryLog) -> Result<()> {
     run_dir.commit(&checkpoint_name(state.iteration), |dir| {
-        for b in state_buffers(engine)? {
-            let data: Vec<f32> = b.read()?;
+        for (b, saved) in state_buffers(engine)? {
+            let mut data: Vec<f32> = b.read()?;
+            data.truncate(saved);
             crate::npy::write(&dir.join(format!("{}.npy", file_name(b.name()))), &crate::npy::Array { shape: vec![data.len()], data })?;
         }
         let log_path = dir.join("log.csv");
@@ -335,7 +341,7 @@ fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSetti
 }
 
 fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
-    for b in state_buffers(engine)? {
+    for (b, saved) in state_buffers(engine)? {
         let path = dir.join(format!("{}.npy", file_name(b.name())));
         // Checkpoints from before the variance calibration have no NIS EMA: it stays at
         // its initial zero, the state of an element that has not stepped with it yet.
@@ -348,8 +354,8 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
             continue;
         }
         let a = crate::npy::read(&path)?;
-        if a.data.len() * 4 != b.len() as usize {
-            return Err(Error::Invalid(format!("{}: {} values, expected {}", path.display(), a.data.len(), b.len() / 4)));
+        if a.data.len() != saved {
+            return Err(Error::Invalid(format!("{}: {} values, expected {saved}", path.display(), a.data.len())));
         }
         b.write(&a.data)?;
     }

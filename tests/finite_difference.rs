@@ -7,7 +7,7 @@ use common::with_gpu;
 use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};
 use vkinverse::ops::BufferOps;
 use vkinverse::render::gradient::GradientPass;
-use vkinverse::render::targets::targets;
+use vkinverse::render::targets::{padded, targets};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::Scene;
 
@@ -29,8 +29,9 @@ fn fd_setup(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene_path: &str, shi
         }
     }
     gs.set_theta(theta).unwrap();
-    // Read as texels by the trace kernels, like the scene's θ.
-    let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &prev_vals).unwrap();
+    // Read as texels by the trace kernels, shaped like the scene's θ (the material data
+    // after it).
+    let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &padded(gs, prev_vals)).unwrap();
     (scene, renderer, imgs, ops, theta_prev)
 }
 
@@ -456,4 +457,22 @@ fn carried_image_variance_weights_estimate_the_variances_they_weigh() {
     assert!((0.6..1.7).contains(&carried_ratio), "the carried image's tracked variance {} against its measured {} (ratio {carried_ratio})", state.var_carried, ms_carried - ref_var);
     assert!(state.weight > 0.0 && state.weight < 0.5, "weight {} of the fresh render after 30 iterations", state.weight);
     assert!(ms_carried < 0.25 * ms_fresh, "carried image's mean squared error {ms_carried} against a fresh render's {ms_fresh}");
+}
+
+/// A buffer bound as θ or θ_{i-1} is shaped like the scene's θ buffer, material data
+/// included: one holding θ alone is refused with the sizes named, not read past its end.
+#[test]
+fn a_theta_buffer_without_the_material_data_is_refused() {
+    with_gpu(|ctx| {
+        let (_, renderer, imgs, ops, theta_prev) = fd_setup(ctx, "scenes/cornell/scene.toml", 0.05);
+        let gs = &renderer.scene;
+        let grad = Buffer::zeroed::<f32>(ctx, "fd", gs.layout.len, MemoryKind::Device).unwrap();
+        let bare = vkinverse::render::texel_buffer(ctx, "bare theta", &gs.layout.initial()).unwrap();
+        assert!(bare.len() < gs.theta.len(), "the Cornell box has material data after θ");
+        for (theta, prev) in [(&bare, None), (&gs.theta, Some(&bare))] {
+            let e = GradientPass::new(gs, &ops, &imgs, vkinverse::settings::Loss::L2, 1, 1, 5, theta, prev, &grad, None).err().expect("refused");
+            assert!(e.to_string().contains("bare theta") && e.to_string().contains(&gs.theta.len().to_string()), "{e}");
+        }
+        GradientPass::new(gs, &ops, &imgs, vkinverse::settings::Loss::L2, 1, 1, 5, &gs.theta, Some(&theta_prev), &grad, None).unwrap();
+    });
 }

@@ -468,7 +468,11 @@ fn kernels_read_the_records_the_host_wrote() {
                 let lights: Vec<LightRecord> = read(buffer("Lights"));
                 let lights = &lights[..globals[0].num_lights as usize];
                 let floats = |n: &str| -> Vec<f32> { read(buffer(n)) };
-                let (data, theta, env) = (floats("MaterialData"), floats("Theta"), floats("EnvDistribution"));
+                // θ's buffer: θ padded to CONST_BASE floats, then the material data.
+                let theta_buffer = floats("Theta");
+                let base = gs.const_base as usize;
+                assert!(base >= gs.layout.len && base.is_multiple_of(4), "{name}: CONST_BASE {base} after θ, on a texel");
+                let (data, theta, env) = (gs.constants().to_vec(), theta_buffer[..base].to_vec(), floats("EnvDistribution"));
                 let (n_nodes, node_bytes) = match layout {
                     BvhLayout::Binary => (read::<BvhNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhNode>()),
                     BvhLayout::Wide => (read::<BvhWideNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhWideNode>()),
@@ -477,7 +481,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 assert_eq!(shading.len(), triangles.len(), "{name}: one shading record per triangle");
                 assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights"), "{name} has emitters");
 
-                let pipeline = ComputePipeline::new(ctx, &gs.kernel("records_test"), &[]).unwrap();
+                let pipeline = ComputePipeline::new(ctx, &gs.kernel("records_test"), &[gs.const_base_spec()]).unwrap();
                 let o_materials = out::<MaterialRecord>(ctx, "out materials", materials.len());
                 let o_shading = out::<TriShading>(ctx, "out shading", shading.len());
                 let o_meshes = out::<MeshRecord>(ctx, "out meshes", meshes.len());
@@ -665,7 +669,6 @@ fn texel_record_layouts_match_reflection() {
         ("Emitters", 23),
         ("Sensors", 24),
         ("SceneGlobals", 25),
-        ("MaterialData", 26),
         ("EnvDistribution", 27),
         ("Lights", 28),
         ("Theta", 30),

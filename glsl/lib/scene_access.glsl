@@ -1,4 +1,4 @@
-// Scene buffers (bindings 20-27) and the parameter buffers (30-32), with the lookups that
+// Scene buffers (bindings 20-28) and the parameter buffers (30-32), with the lookups that
 // read a material or emission value from a constant, a texture, or the parameters being
 // optimised, and (ADJOINT) scatter gradients back through the same lookup.
 //
@@ -21,12 +21,15 @@ layout(set = 0, binding = 22) uniform usamplerBuffer Meshes;
 layout(set = 0, binding = 23) uniform usamplerBuffer Emitters;
 layout(set = 0, binding = 24) uniform usamplerBuffer Sensors;
 layout(set = 0, binding = 25) uniform usamplerBuffer SceneGlobals;
-layout(set = 0, binding = 26) uniform usamplerBuffer MaterialData;
 // The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
 // column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
 layout(set = 0, binding = 27) uniform usamplerBuffer EnvDistribution;
 // Delta lights: scene_globals().num_lights LightRecords.
 layout(set = 0, binding = 28) uniform usamplerBuffer Lights;
+// θ, then from element CONST_BASE on the material data: every constant value (colours,
+// roughness, textures, emission, lights, the environment). One buffer for both, so that a
+// value read, which runs both sides of its branch on lavapipe, fetches from one buffer
+// only (src/render/mod.rs builds it; the optimisers move only θ's elements).
 layout(set = 0, binding = 30) uniform usamplerBuffer Theta;
 
 // Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
@@ -167,15 +170,18 @@ layout(constant_id = 9) const bool HAS_PRINCIPLED = true;
 // Whether any triangle has vertex normals: without them the shading normal is the geometric
 // one, and the normals' two texels of each shading record are not read.
 layout(constant_id = 13) const bool HAS_NORMALS = true;
+// Where the material data start in Theta: θ's length padded to whole texels.
+layout(constant_id = 14) const uint CONST_BASE = 0u;
 
-// Reads element i of a value's data with `read` (texel_float or texel_vec3_at) from the
-// buffer that holds it: the material data for a constant, θ for an optimised value, or
-// θ of the previous iteration in parameter state 1 of the finite-difference kernels.
+// Reads element i of a value's data with `read` (texel_float or texel_vec3_at): a
+// constant's from the material data at the end of Theta, an optimised value's from θ, or in
+// parameter state 1 of the finite-difference kernels from θ of the previous iteration.
+#define VALUE_INDEX(r, i) ((r).in_theta == 0u ? int(CONST_BASE) + (i) : (i))
 #ifdef FD
 #define VALUE_READ(read, r, i, state) \
-    ((r).in_theta == 0u ? read(MaterialData, i) : (state) == 1 ? read(ThetaPrev, i) : read(Theta, i))
+    ((state) == 1 && (r).in_theta != 0u ? read(ThetaPrev, i) : read(Theta, VALUE_INDEX(r, i)))
 #else
-#define VALUE_READ(read, r, i, state) ((r).in_theta == 0u ? read(MaterialData, i) : read(Theta, i))
+#define VALUE_READ(read, r, i, state) read(Theta, VALUE_INDEX(r, i))
 #endif
 
 // Element `index` of value r in parameter state `state`.

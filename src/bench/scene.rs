@@ -273,7 +273,7 @@ fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
     let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", gs.layout.len.max(1), MemoryKind::Device)?;
     let equal = engine.extra_gradient(st.fd_spp, st.fd_spp, gpu_seed(st.seed), &eq_grad)?;
-    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[])?;
+    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[gs.const_base_spec()])?;
     let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
     let image = Buffer::zeroed::<[f32; 3]>(ctx, "generic accum", gs.pixels(), MemoryKind::Device)?;
     let mut b = gs.bindings();
@@ -301,7 +301,7 @@ fn count_rays(ctx: &Arc<Context>, engine: &Engine) -> Result<(u64, f64, f64)> {
     let gs = engine.scene();
     let pixels = gs.pixels();
     let specialised = ComputePipeline::new(ctx, &gs.kernel("trace_primal"), &gs.spec())?;
-    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[])?;
+    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[gs.const_base_spec()])?;
     let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
     let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
     let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device);

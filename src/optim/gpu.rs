@@ -87,7 +87,10 @@ impl GpuOptimiser {
         frame: &Buffer,
         groups: &[Group],
     ) -> gpu::Result<Self> {
-        let n_total = (theta.len() / 4) as usize;
+        // The state arrays cover θ's elements, the groups' extent in whole texels (θ's
+        // buffer may hold more after them: a scene's material data, which no optimiser reads
+        // or moves).
+        let n_total = groups.iter().map(|g| g.offset + g.len).max().unwrap_or(0).div_ceil(4).max(1) * 4;
         let zeros = |name: &str| Buffer::zeroed::<f32>(ctx, name, n_total, MemoryKind::Device);
         let nonfinite = Buffer::zeroed::<u32>(ctx, "nonfinite", 1, MemoryKind::Device)?;
         let local = 256u64; // local_size_x of optim_adam and optim_meta
@@ -133,7 +136,10 @@ impl GpuOptimiser {
                     name: "fd grad".into(),
                     what: "the meta-estimator needs a finite-difference gradient buffer".into(),
                 })?;
-                let theta_prev = zeros("theta prev")?;
+                // Shaped like θ's buffer: the finite-difference kernels read the previous
+                // iterate through it, and the two-trace sample binds it as θ, material
+                // data included.
+                let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (theta.len() / 4) as usize, MemoryKind::Device)?;
                 let halves = if optimiser.needs_halves() {
                     Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? })
                 } else {

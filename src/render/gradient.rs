@@ -84,6 +84,9 @@ impl GradientPass {
     /// at θ and at `theta_prev`; both primal images, both losses' adjoint images and the
     /// difference of the two gradients (+θ, −θ_prev) are computed in one trace per pass
     /// (glsl/lib/integrator.glsl, FD), and ⟨ΔF⟩ goes into `grad`.
+    ///
+    /// `theta` and `theta_prev` are shaped like the scene's θ buffer: θ padded to whole
+    /// texels, then the scene's material data ([`crate::render::targets::padded`]).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         scene: &GpuScene,
@@ -99,6 +102,14 @@ impl GradientPass {
         grad_half: Option<&Buffer>,
     ) -> gpu::Result<Self> {
         let ctx = &scene.ctx;
+        for b in std::iter::once(theta).chain(theta_prev) {
+            if b.len() != scene.theta.len() {
+                return Err(gpu::GpuError::BufferAccess {
+                    name: b.name().into(),
+                    what: format!("{} bytes where the kernels read θ and the material data after it ({} bytes)", b.len(), scene.theta.len()),
+                });
+            }
+        }
         let spec = scene.spec();
         let (primal_name, adjoint_name) =
             if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };

@@ -65,8 +65,14 @@ pub struct GpuScene {
     globals: Globals,
     bvh: BvhBuffers,
     buffers: Vec<(&'static str, Buffer)>,
-    /// The parameters (θ), `layout.len` floats (at least one, unused, when empty).
+    /// The parameters (θ), `layout.len` floats padded to whole texels (at least one, unused,
+    /// when empty), followed from [`Self::const_base`] on by the material data: every
+    /// constant value the kernels look up. The optimisers move θ's elements alone.
     pub theta: Buffer,
+    /// Where the material data start in [`Self::theta`] (the kernels' `CONST_BASE`).
+    pub const_base: u32,
+    /// The material data, as uploaded after θ.
+    constants: Vec<f32>,
     /// The iteration counter the kernels mix into their seeds (host-written).
     pub frame: Buffer,
 }
@@ -333,13 +339,15 @@ impl GpuScene {
             ("Emitters", texel_buffer(ctx, "emitters", &emitters)?),
             ("Sensors", texel_buffer(ctx, "sensors", &sensors)?),
             ("SceneGlobals", texel_buffer(ctx, "globals", &[globals])?),
-            ("MaterialData", texel_buffer(ctx, "material data", &data)?),
             ("EnvDistribution", texel_buffer(ctx, "environment distribution", &env_data)?),
             ("Lights", texel_buffer(ctx, "lights", &lights)?),
         ];
         // θ is read as texels by the integrator kernels and as floats by the optimisers;
-        // its length is a whole number of texels (the padding is never read or moved).
-        let theta = texel_buffer(ctx, "theta", &layout.initial())?;
+        // its length is a whole number of texels (the padding is never read or moved), and
+        // the material data follow it in the same buffer.
+        let texel_floats = TEXEL_BYTES as usize / 4;
+        let const_base = (layout.len.div_ceil(texel_floats).max(1) * texel_floats) as u32;
+        let theta = texel_buffer(ctx, "theta", &targets::with_constants(const_base, &data, layout.initial()))?;
         let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
         Ok(Self {
             ctx: ctx.clone(),
@@ -363,6 +371,8 @@ impl GpuScene {
             bvh,
             buffers,
             theta,
+            const_base,
+            constants: data,
             frame,
         })
     }
@@ -429,7 +439,19 @@ impl GpuScene {
             ("HAS_TEXTURES", SpecValue::Bool(self.has_textures)),
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
+            self.const_base_spec(),
         ]
+    }
+
+    /// Where the material data start in θ's buffer: a constant every build of a kernel that
+    /// reads the scene's values needs, the unspecialised ones too.
+    pub fn const_base_spec(&self) -> (&'static str, SpecValue) {
+        ("CONST_BASE", SpecValue::U32(self.const_base))
+    }
+
+    /// The material data that follow θ in its buffer.
+    pub fn constants(&self) -> &[f32] {
+        &self.constants
     }
 
     /// The run-time values of the integrator's limits that the unspecialised variant

@@ -76,8 +76,15 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
     Ok(out)
 }
 
-/// θ values padded to the buffer's length (one unused float when nothing is optimised).
-pub fn padded(scene: &GpuScene, mut v: Vec<f32>) -> Vec<f32> {
-    v.resize((scene.theta.len() / 4) as usize, 0.0);
-    v
+/// θ values as θ's buffer holds them: padded to whole texels (one unused texel when nothing
+/// is optimised), then the scene's material data.
+pub fn padded(scene: &GpuScene, v: Vec<f32>) -> Vec<f32> {
+    with_constants(scene.const_base, scene.constants(), v)
+}
+
+/// `theta` padded with zeros to `const_base` floats, then `constants`.
+pub fn with_constants(const_base: u32, constants: &[f32], mut theta: Vec<f32>) -> Vec<f32> {
+    theta.resize(const_base as usize, 0.0);
+    theta.extend_from_slice(constants);
+    theta
 }
