@@ -9,8 +9,8 @@
 // Where a material or emission value comes from. 16 bytes.
 // width == 0: a constant of `channels` floats at `offset`; otherwise a width x height
 // texture of `channels` floats per texel, row-major from the top row, at `offset`.
-// in_theta != 0: the floats live in the parameter buffer (they are being optimised),
-// otherwise in the constant MaterialData buffer.
+// in_theta != 0: the floats are elements of θ (they are being optimised); otherwise they
+// are material data, stored in θ's buffer after θ (from CONST_BASE on).
 struct ValueRef {
     int offset;
     uint width;
