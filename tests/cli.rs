@@ -437,6 +437,14 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(state0.data.len(), 4);
     assert!(state0.data[0] > 0.0 && state0.data[0] < 1.0 && state0.data[1] > 0.0 && state0.data[1] < state0.data[2], "carry state {:?}", state0.data);
 
+    // θ and the previous θ are saved as θ's three floats in one texel, without the material
+    // data that follow them in θ's buffer (the format of earlier checkpoints), and the
+    // previous θ is the iterate before the last.
+    let theta = vkinverse::npy::read(&committed(&out_dir).join("theta.npy")).unwrap();
+    let prev = vkinverse::npy::read(&committed(&out_dir).join("theta_prev.npy")).unwrap();
+    assert_eq!((theta.data.len(), prev.data.len()), (4, 4));
+    assert!(theta.data[..3] != prev.data[..3] && prev.data[..3].iter().all(|v| (0.0..=1.0).contains(v)), "θ {:?}, previous θ {:?}", theta.data, prev.data);
+
     // A checkpoint from before the variance calibration has no NIS state; it resumes.
     let nis = committed(&out_dir).join("meta_nis.npy");
     assert!(nis.exists(), "{} missing", nis.display());

@@ -24,7 +24,7 @@ mod sync;
 pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
-pub use pipeline::{BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
+pub use pipeline::{texel_padded, BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
 pub use profiler::{MaybeProfiler, Profiler, ScopeTime};
 pub use staging::{TransferStats, STAGING_BYTES};
 pub use sync::Access;

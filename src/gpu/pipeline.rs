@@ -229,6 +229,13 @@ fn descriptor_type(kind: BindingKind) -> vk::DescriptorType {
 /// Bytes of one texel of a texel-buffer view: four 32-bit components.
 pub const TEXEL_BYTES: u64 = 16;
 
+/// `n` 32-bit values rounded up to whole texels, at least one texel: the length of a texel
+/// buffer that holds them.
+pub fn texel_padded(n: usize) -> usize {
+    let per_texel = TEXEL_BYTES as usize / 4;
+    n.div_ceil(per_texel).max(1) * per_texel
+}
+
 fn texel_format(t: TexelType) -> vk::Format {
     match t {
         TexelType::Float => vk::Format::R32G32B32A32_SFLOAT,

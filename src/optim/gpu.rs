@@ -90,7 +90,7 @@ impl GpuOptimiser {
         // The state arrays cover θ's elements, the groups' extent in whole texels (θ's
         // buffer may hold more after them: a scene's material data, which no optimiser reads
         // or moves).
-        let n_total = groups.iter().map(|g| g.offset + g.len).max().unwrap_or(0).div_ceil(4).max(1) * 4;
+        let n_total = gpu::texel_padded(groups.iter().map(|g| g.offset + g.len).max().unwrap_or(0));
         let zeros = |name: &str| Buffer::zeroed::<f32>(ctx, name, n_total, MemoryKind::Device);
         let nonfinite = Buffer::zeroed::<u32>(ctx, "nonfinite", 1, MemoryKind::Device)?;
         let local = 256u64; // local_size_x of optim_adam and optim_meta

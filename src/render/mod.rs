@@ -345,8 +345,7 @@ impl GpuScene {
         // θ is read as texels by the integrator kernels and as floats by the optimisers;
         // its length is a whole number of texels (the padding is never read or moved), and
         // the material data follow it in the same buffer.
-        let texel_floats = TEXEL_BYTES as usize / 4;
-        let const_base = (layout.len.div_ceil(texel_floats).max(1) * texel_floats) as u32;
+        let const_base = gpu::texel_padded(layout.len) as u32;
         let theta = texel_buffer(ctx, "theta", &targets::with_constants(const_base, &data, layout.initial()))?;
         let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
         Ok(Self {
