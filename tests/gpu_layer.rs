@@ -491,3 +491,35 @@ fn unmappable_device_memory_goes_through_the_staging_buffers() {
         }
     });
 }
+
+#[test]
+fn contexts_are_made_and_dropped_from_many_threads_at_once() {
+    // A library user may make contexts on several threads; some fail half-way (no such
+    // device) while others are made, used and dropped. Every one must come out whole.
+    let threads: Vec<_> = (0..8u32)
+        .map(|t| {
+            std::thread::spawn(move || {
+                for round in 0..3u32 {
+                    if (t + round) % 3 == 0 {
+                        let options = ContextOptions { device: Some("no such device".into()), ..common::options() };
+                        let e = Context::new(&options).err().expect("no device has that name");
+                        assert!(matches!(e, GpuError::DeviceNotFound(_)), "{e}");
+                        continue;
+                    }
+                    let sum = with_gpu(|ctx| {
+                        let ops = BufferOps::new(ctx).unwrap();
+                        let x = data(1000, t * 7 + round);
+                        let a = Buffer::from_slice(ctx, "a", &x, MemoryKind::Device).unwrap();
+                        let got = ops.sum(&a, false).unwrap();
+                        let want: f64 = x.iter().map(|&v| v as f64).sum();
+                        (got as f64, want)
+                    });
+                    assert!((sum.0 - sum.1).abs() < 1e-3, "thread {t} round {round}: {} against {}", sum.0, sum.1);
+                }
+            })
+        })
+        .collect();
+    for t in threads {
+        t.join().expect("a thread's contexts failed");
+    }
+}

@@ -9,10 +9,33 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{c_void, CStr, CString};
 use std::mem::ManuallyDrop;
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use std::time::Duration;
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// The Vulkan loader, loaded once per process and kept: every context shares it, so that
+/// no context's end unloads the loader (and the drivers it loaded) under another.
+static LOADER: OnceLock<std::result::Result<ash::Entry, String>> = OnceLock::new();
+
+/// Held while an instance and its device are made or destroyed. Concurrent
+/// `vkCreateInstance`/`vkDestroyInstance` and `vkCreateDevice`/`vkDestroyDevice` from
+/// different threads are legal Vulkan, but the loader keeps process-global lists of
+/// instances and devices that some releases do not lock everywhere, and NVIDIA's driver
+/// crashed when one thread destroyed an instance while others created theirs (the test
+/// suite at 16 threads, `docs/gpu.md`). Contexts are made rarely, so one lock costs
+/// nothing measurable.
+static LIFECYCLE: Mutex<()> = Mutex::new(());
+
+fn lifecycle() -> MutexGuard<'static, ()> {
+    LIFECYCLE.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn loader() -> Result<ash::Entry> {
+    // SAFETY: loading the system Vulkan loader; failure is reported, not assumed.
+    let entry = LOADER.get_or_init(|| unsafe { ash::Entry::load() }.map_err(|e| e.to_string()));
+    entry.clone().map_err(GpuError::Loader)
+}
 
 /// How to create a [`Context`].
 #[derive(Clone, Debug, Default)]
@@ -153,8 +176,9 @@ impl Context {
     pub fn new(options: &ContextOptions) -> Result<Arc<Self>> {
         let validation = options.validation
             || std::env::var("VKINVERSE_VALIDATION").is_ok_and(|v| v == "1");
-        // SAFETY: loading the system Vulkan loader; failure is reported, not assumed.
-        let entry = unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))?;
+        // Released when `new` returns, after an error path's guard has destroyed what it made.
+        let _lifecycle = lifecycle();
+        let entry = loader()?;
         let messages: Box<Mutex<Vec<String>>> = Box::default();
 
         // SAFETY: plain queries on a loaded entry.
@@ -479,6 +503,7 @@ impl Drop for Context {
             let mut staging = std::mem::take(self.staging.get_mut().unwrap_or_else(|p| p.into_inner()));
             staging.destroy(self);
             ManuallyDrop::drop(&mut self.allocator);
+            let _lifecycle = lifecycle();
             self.device.destroy_device(None);
             if let Some((loader, m)) = &self.debug {
                 loader.destroy_debug_utils_messenger(*m, None);
