@@ -82,16 +82,19 @@ pub struct MeshRecord {
     pub emission: ValueRef,
 }
 
-/// Mirror of `EmitterTri`: 48 bytes.
+/// Mirror of `EmitterTri`: 80 bytes (5 texels).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct EmitterTri {
     pub p0: [f32; 3],
     pub e1: [f32; 3],
     pub e2: [f32; 3],
+    pub ng: [f32; 3],
     pub prim: u32,
     pub cdf: f32,
     pub pdf: f32,
+    pub two_sided: u32,
+    pub emission: ValueRef,
 }
 
 /// Mirror of `LightRecord`: 80 bytes (5 texels).

@@ -539,6 +539,13 @@ fn kernels_read_the_records_the_host_wrote() {
                 assert_eq!(read::<SensorRecord>(&o_sensors)[..sensors.len()], sensors[..], "{tag}: sensors");
                 assert_eq!(read::<Globals>(&o_globals), globals, "{tag}: globals");
                 assert_eq!(read::<LightRecord>(&o_lights)[..lights.len()], lights[..], "{tag}: lights");
+                // An emitter's record repeats what light sampling needs of its triangle's
+                // shading record and its mesh's.
+                for e in &emitters {
+                    let sh = &shading[e.prim as usize];
+                    assert_eq!((e.ng, e.two_sided, e.pdf), (sh.ng, sh.two_sided, sh.emitter_pdf), "{tag}: emitter {}", e.prim);
+                    assert_eq!(e.emission, meshes[sh.mesh as usize].emission, "{tag}: emitter {}'s emission", e.prim);
+                }
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
                 assert_eq!(read::<BvhTriangle>(&o_triangles)[..triangles.len()], triangles[..], "{tag}: triangles");
@@ -614,9 +621,12 @@ fn texel_record_layouts_match_reflection() {
             ("p0", offset_of!(EmitterTri, p0)),
             ("e1", offset_of!(EmitterTri, e1)),
             ("e2", offset_of!(EmitterTri, e2)),
+            ("ng", offset_of!(EmitterTri, ng)),
             ("prim", offset_of!(EmitterTri, prim)),
             ("cdf", offset_of!(EmitterTri, cdf)),
             ("pdf", offset_of!(EmitterTri, pdf)),
+            ("two_sided", offset_of!(EmitterTri, two_sided)),
+            ("emission", offset_of!(EmitterTri, emission)),
         ],
     );
     check(

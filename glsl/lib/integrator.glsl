@@ -130,9 +130,9 @@ bool cast_any(vec3 o, vec3 d, float tmax, uint depth, bool replay) {
 // are a few units across; this is ~1e-4 of that).
 const float RAY_EPSILON = 1e-4;
 
-// Picks an emissive triangle by its probability and a point on it.
-// Returns the triangle's id, the point and the pdf (area measure).
-uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
+// Picks an emissive triangle by its probability and a point on it: returns its record,
+// the point in `p` (its pdf in area measure is the record's pdf).
+EmitterTri sample_emitter(vec3 u, out vec3 p) {
     // Binary search for the first triangle whose inclusive cdf exceeds u.x.
     uint lo = 0u, hi = NUM_EMITTERS - 1u;
     while (lo < hi) {
@@ -142,8 +142,7 @@ uint sample_emitter(vec3 u, out vec3 p, out float pdf_area) {
     EmitterTri e = emitter_tri(lo);
     vec2 b = sample_triangle_barycentrics(u.yz);
     p = e.p0 + b.x * e.e1 + b.y * e.e2;
-    pdf_area = e.pdf;
-    return e.prim;
+    return e;
 }
 
 #ifdef ADJOINT
@@ -291,19 +290,18 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // (pdfs of state 0).
         if (NUM_EMITTERS != 0u && !env_nee) {
             vec3 pl;
-            float pdf_area;
-            uint lprim = sample_emitter(u_light, pl, pdf_area);
+            EmitterTri light = sample_emitter(u_light, pl);
+            float pdf_area = light.pdf;
             vec3 to_l = pl - p_off;
             float dist2 = dot(to_l, to_l);
             float dist = sqrt(dist2);
             vec3 wi = to_l / dist;
-            TriShading lsh = tri_shading(lprim);
-            float cos_l = dot(lsh.ng, -wi);
-            if (lsh.two_sided != 0u) cos_l = abs(cos_l);
+            float cos_l = dot(light.ng, -wi);
+            if (light.two_sided != 0u) cos_l = abs(cos_l);
             if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
-                ValueRef emission = mesh_record(lsh.mesh).emission;
+                ValueRef emission = light.emission;
                 vec3 le[NSTATES];
                 for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, vec2(0.0), s);
 #ifdef ADJOINT

@@ -89,14 +89,20 @@ TriShading tri_shading(uint prim) {
 // Mesh `id` (1 texel).
 MeshRecord mesh_record(uint id) { return MeshRecord(value_ref(texelFetch(Meshes, int(id)))); }
 
-// Emissive triangle `i` (3 texels: p0 0-2, e1 3-5, e2 6-8, prim 9, cdf 10, pdf 11).
+// Emissive triangle `i` (5 texels: p0 0-2, e1 3-5, e2 6-8, ng 9-11, prim 12, cdf 13,
+// pdf 14, two_sided 15, emission 16-19).
 EmitterTri emitter_tri(uint i) {
     EmitterTri e;
-    uvec3 rest;
-    texel_vec3x3(Emitters, int(i) * 3, e.p0, e.e1, e.e2, rest);
-    e.prim = rest.x;
-    e.cdf = uintBitsToFloat(rest.y);
-    e.pdf = uintBitsToFloat(rest.z);
+    uvec3 ng;
+    int b = int(i) * 5;
+    texel_vec3x3(Emitters, b, e.p0, e.e1, e.e2, ng);
+    e.ng = uintBitsToFloat(ng);
+    uvec4 t3 = texelFetch(Emitters, b + 3);
+    e.prim = t3.x;
+    e.cdf = uintBitsToFloat(t3.y);
+    e.pdf = uintBitsToFloat(t3.z);
+    e.two_sided = t3.w;
+    e.emission = value_ref(texelFetch(Emitters, b + 4));
     return e;
 }
 
@@ -145,8 +151,8 @@ LightRecord light_record(uint i) {
     return l;
 }
 
-// The cdf of emissive triangle `i` alone (its third texel), for the binary search.
-float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) * 3 + 2).z); }
+// The cdf of emissive triangle `i` alone (its fourth texel), for the binary search.
+float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) * 5 + 3).y); }
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };

@@ -52,13 +52,18 @@ struct MeshRecord {
 };
 
 // An emissive triangle for light sampling. 48 bytes (3 texels).
+// Everything light sampling needs of the triangle, so that it reads this record alone
+// (5 texels) instead of the triangle's shading record and its mesh's as well.
 struct EmitterTri {
     vec3 p0;
     vec3 e1;
     vec3 e2;
+    vec3 ng;     // the triangle's geometric normal (its shading record's ng)
     uint prim;   // original triangle id
     float cdf;   // inclusive cumulative probability of picking triangles 0..this one
     float pdf;   // probability density (area measure) of a point sampled on it
+    uint two_sided; // its mesh emits from both sides
+    ValueRef emission; // its mesh's emission
 };
 
 // Delta lights (lib/delta_lights.glsl): kinds LIGHT_* and spot falloffs FALLOFF_*,

@@ -262,9 +262,12 @@ impl GpuScene {
                     p0: a.into(),
                     e1: (b - a).into(),
                     e2: (c - a).into(),
+                    ng: ng.into(),
                     prim: t as u32,
                     cdf: 0.0,
                     pdf: area,
+                    two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                    emission: meshes[mesh].emission,
                 });
             }
             shading.push(TriShading {
