@@ -14,7 +14,6 @@ layout(local_size_x = 64, local_size_x_id = 0) in;
 
 layout(set = 0, binding = 0, scalar) writeonly buffer OutMaterials { MaterialRecord out_materials[]; };
 layout(set = 0, binding = 1, scalar) writeonly buffer OutShading { TriShading out_shading[]; };
-layout(set = 0, binding = 2, scalar) writeonly buffer OutMeshes { MeshRecord out_meshes[]; };
 layout(set = 0, binding = 3, scalar) writeonly buffer OutEmitters { EmitterTri out_emitters[]; };
 #if defined(BVH_CW8)
 layout(set = 0, binding = 4, scalar) writeonly buffer OutNodes { BvhCwNode out_nodes[]; };
@@ -39,7 +38,6 @@ layout(set = 0, binding = 16, scalar) writeonly buffer OutTriples { vec3 out_tri
 layout(push_constant, scalar) uniform Push {
     uint materials;
     uint triangles;
-    uint meshes;
     uint emitters;
     uint nodes;
     uint material_data;
@@ -56,7 +54,6 @@ void main() {
         out_shading[i] = tri_shading(i);
         out_triangles[i] = bvh_triangle(i);
     }
-    if (i < pc.meshes) out_meshes[i] = mesh_record(i);
     if (i < pc.emitters) {
         out_emitters[i] = emitter_tri(i);
         out_cdfs[i] = emitter_cdf(i);

@@ -125,7 +125,6 @@ push_block!(TracePush { width, height, sensor, spp, first_sample, seed, weight, 
 pub struct RecordsPush {
     pub materials: u32,
     pub triangles: u32,
-    pub meshes: u32,
     pub emitters: u32,
     pub nodes: u32,
     pub material_data: u32,
@@ -134,7 +133,7 @@ pub struct RecordsPush {
     pub sensors: u32,
     pub lights: u32,
 }
-push_block!(RecordsPush { materials, triangles, meshes, emitters, nodes, material_data, theta, env_dist, sensors, lights });
+push_block!(RecordsPush { materials, triangles, emitters, nodes, material_data, theta, env_dist, sensors, lights });
 
 /// The bsdf_sample_test variant's block: one material and direction per dispatch.
 #[repr(C)]

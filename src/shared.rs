@@ -56,30 +56,27 @@ pub struct MaterialRecord {
     pub pad: [u32; 2],
 }
 
-/// Mirror of `TriShading`: 96 bytes (6 texels; `pad` is zero).
+/// Mirror of `TriShading`: 112 bytes (7 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct TriShading {
-    pub n0: [f32; 3],
-    pub n1: [f32; 3],
-    pub n2: [f32; 3],
     pub ng: [f32; 3],
-    pub uv0: [f32; 2],
-    pub uv1: [f32; 2],
-    pub uv2: [f32; 2],
     pub material: u32,
-    pub mesh: u32,
     pub emitter_pdf: f32,
     /// 1: an emitter that shines from both sides; 0: from its front only.
     pub two_sided: u32,
-    pub pad: [u32; 2],
-}
-
-/// Mirror of `MeshRecord`: 16 bytes.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct MeshRecord {
+    /// Its material's `one_sided`.
+    pub one_sided: u32,
+    pub mesh: u32,
+    /// Its mesh's emission.
     pub emission: ValueRef,
+    pub n0: [f32; 3],
+    pub n1: [f32; 3],
+    pub n2: [f32; 3],
+    pub uv0: [f32; 2],
+    pub uv1: [f32; 2],
+    pub uv2: [f32; 2],
+    pub pad: u32,
 }
 
 /// Mirror of `EmitterTri`: 80 bytes (5 texels).
@@ -143,10 +140,9 @@ pub struct Globals {
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 7] = [
+pub const TEXEL_RECORDS: [(&str, usize); 6] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
-    ("MeshRecord", std::mem::size_of::<MeshRecord>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
     ("SensorRecord", std::mem::size_of::<SensorRecord>()),
     ("LightRecord", std::mem::size_of::<LightRecord>()),

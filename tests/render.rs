@@ -430,7 +430,7 @@ fn environment_distribution_matches_its_pdf() {
 fn kernels_read_the_records_the_host_wrote() {
     use vkinverse::bvh::{BvhCwNode, BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
     use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
-    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading};
+    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading};
     fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
         let bytes: Vec<u8> = b.read().unwrap();
         bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
@@ -460,7 +460,6 @@ fn kernels_read_the_records_the_host_wrote() {
                 let buffer = |n: &str| bound.iter().find(|(b, _)| *b == n).unwrap_or_else(|| panic!("{n} not bound")).1;
                 let materials: Vec<MaterialRecord> = read(buffer("Materials"));
                 let shading: Vec<TriShading> = read(buffer("Shading"));
-                let meshes: Vec<MeshRecord> = read(buffer("Meshes"));
                 let emitters: Vec<EmitterTri> = read(buffer("Emitters"));
                 let triangles: Vec<BvhTriangle> = read(buffer("BvhTriangles"));
                 let sensors: Vec<SensorRecord> = read(buffer("Sensors"));
@@ -484,7 +483,6 @@ fn kernels_read_the_records_the_host_wrote() {
                 let pipeline = ComputePipeline::new(ctx, &gs.kernel("records_test"), &[gs.const_base_spec()]).unwrap();
                 let o_materials = out::<MaterialRecord>(ctx, "out materials", materials.len());
                 let o_shading = out::<TriShading>(ctx, "out shading", shading.len());
-                let o_meshes = out::<MeshRecord>(ctx, "out meshes", meshes.len());
                 let o_emitters = out::<EmitterTri>(ctx, "out emitters", emitters.len());
                 let o_cdfs = out::<f32>(ctx, "out cdfs", emitters.len());
                 let o_nodes = Buffer::zeroed::<u8>(ctx, "out nodes", n_nodes.max(1) * node_bytes, MemoryKind::Device).unwrap();
@@ -498,7 +496,6 @@ fn kernels_read_the_records_the_host_wrote() {
                 b.extend([
                     ("OutMaterials", &o_materials),
                     ("OutShading", &o_shading),
-                    ("OutMeshes", &o_meshes),
                     ("OutEmitters", &o_emitters),
                     ("OutCdfs", &o_cdfs),
                     ("OutNodes", &o_nodes),
@@ -512,19 +509,18 @@ fn kernels_read_the_records_the_host_wrote() {
                 // The frame counter is the scene's but not read here.
                 b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
                 let group = pipeline.bind(&b).unwrap();
-                let counts = [materials.len(), shading.len(), meshes.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len(), lights.len()];
+                let counts = [materials.len(), shading.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len(), lights.len()];
                 let c = counts.map(|c| c as u32);
                 let push = vkinverse::push::RecordsPush {
                     materials: c[0],
                     triangles: c[1],
-                    meshes: c[2],
-                    emitters: c[3],
-                    nodes: c[4],
-                    material_data: c[5],
-                    theta: c[6],
-                    env_dist: c[7],
-                    sensors: c[8],
-                    lights: c[9],
+                    emitters: c[2],
+                    nodes: c[3],
+                    material_data: c[4],
+                    theta: c[5],
+                    env_dist: c[6],
+                    sensors: c[7],
+                    lights: c[8],
                 };
                 let threads = *counts.iter().max().unwrap() as u64;
                 let mut cmd = CommandBuffer::new(ctx, "records").unwrap();
@@ -534,17 +530,31 @@ fn kernels_read_the_records_the_host_wrote() {
                 let tag = format!("{name} {layout:?}");
                 assert_eq!(read::<MaterialRecord>(&o_materials)[..materials.len()], materials[..], "{tag}: materials");
                 assert_eq!(read::<TriShading>(&o_shading)[..shading.len()], shading[..], "{tag}: shading");
-                assert_eq!(read::<MeshRecord>(&o_meshes)[..meshes.len()], meshes[..], "{tag}: meshes");
                 assert_eq!(read::<EmitterTri>(&o_emitters)[..emitters.len()], emitters[..], "{tag}: emitters");
                 assert_eq!(read::<SensorRecord>(&o_sensors)[..sensors.len()], sensors[..], "{tag}: sensors");
                 assert_eq!(read::<Globals>(&o_globals), globals, "{tag}: globals");
                 assert_eq!(read::<LightRecord>(&o_lights)[..lights.len()], lights[..], "{tag}: lights");
-                // An emitter's record repeats what light sampling needs of its triangle's
-                // shading record and its mesh's.
+                // A triangle's shading record repeats its material's one_sided and its mesh's
+                // emission (one per mesh, the scene's emission value); an emitter's record what
+                // light sampling needs of its triangle's shading record.
+                let mut mesh_emission = std::collections::HashMap::new();
+                for (t, sh) in shading.iter().enumerate() {
+                    assert_eq!(sh.one_sided, materials[sh.material as usize].one_sided, "{tag}: triangle {t}'s one_sided");
+                    let first = *mesh_emission.entry(sh.mesh).or_insert(sh.emission);
+                    assert_eq!(sh.emission, first, "{tag}: triangle {t}'s emission against its mesh's other triangles'");
+                }
+                for (m, e) in &mesh_emission {
+                    // A constant emission reads the scene's value; an optimised one reads θ.
+                    let o = e.offset as usize;
+                    if e.in_theta == 0 {
+                        assert_eq!(&data[o..o + 3], &scene.meshes[*m as usize].emission[..], "{tag}: mesh {m}'s emission");
+                    } else {
+                        assert!(o + 3 <= gs.layout.len, "{tag}: mesh {m}'s emission at θ[{o}..] of {}", gs.layout.len);
+                    }
+                }
                 for e in &emitters {
                     let sh = &shading[e.prim as usize];
-                    assert_eq!((e.ng, e.two_sided, e.pdf), (sh.ng, sh.two_sided, sh.emitter_pdf), "{tag}: emitter {}", e.prim);
-                    assert_eq!(e.emission, meshes[sh.mesh as usize].emission, "{tag}: emitter {}'s emission", e.prim);
+                    assert_eq!((e.ng, e.two_sided, e.pdf, e.emission), (sh.ng, sh.two_sided, sh.emitter_pdf, sh.emission), "{tag}: emitter {}", e.prim);
                 }
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
@@ -579,7 +589,7 @@ fn kernels_read_the_records_the_host_wrote() {
 #[test]
 fn texel_record_layouts_match_reflection() {
     use std::mem::offset_of;
-    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading, TEXEL_RECORDS};
+    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, TEXEL_RECORDS};
     let spirv = vkinverse::gpu::shaders::get("records_test").unwrap();
     let r = vkinverse::gpu::reflect::Reflection::new("records_test", spirv).unwrap();
     let size = |name: &str| TEXEL_RECORDS.iter().find(|(n, _)| *n == name).unwrap_or_else(|| panic!("{name} not a texel record")).1;
@@ -599,22 +609,22 @@ fn texel_record_layouts_match_reflection() {
     check(
         "TriShading",
         &[
+            ("ng", offset_of!(TriShading, ng)),
+            ("material", offset_of!(TriShading, material)),
+            ("emitter_pdf", offset_of!(TriShading, emitter_pdf)),
+            ("two_sided", offset_of!(TriShading, two_sided)),
+            ("one_sided", offset_of!(TriShading, one_sided)),
+            ("mesh", offset_of!(TriShading, mesh)),
+            ("emission", offset_of!(TriShading, emission)),
             ("n0", offset_of!(TriShading, n0)),
             ("n1", offset_of!(TriShading, n1)),
             ("n2", offset_of!(TriShading, n2)),
-            ("ng", offset_of!(TriShading, ng)),
             ("uv0", offset_of!(TriShading, uv0)),
             ("uv1", offset_of!(TriShading, uv1)),
             ("uv2", offset_of!(TriShading, uv2)),
-            ("material", offset_of!(TriShading, material)),
-            ("mesh", offset_of!(TriShading, mesh)),
-            ("emitter_pdf", offset_of!(TriShading, emitter_pdf)),
-            ("two_sided", offset_of!(TriShading, two_sided)),
-            ("pad1", offset_of!(TriShading, pad)),
-            ("pad2", offset_of!(TriShading, pad) + 4),
+            ("pad", offset_of!(TriShading, pad)),
         ],
     );
-    check("MeshRecord", &[("emission", offset_of!(MeshRecord, emission))]);
     check(
         "EmitterTri",
         &[
@@ -675,7 +685,6 @@ fn texel_record_layouts_match_reflection() {
     let bindings = [
         ("Materials", 20),
         ("Shading", 21),
-        ("Meshes", 22),
         ("Emitters", 23),
         ("Sensors", 24),
         ("SceneGlobals", 25),

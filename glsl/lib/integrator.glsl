@@ -255,17 +255,17 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
             for (int s = 0; s < NSTATES; ++s) {
-                vec3 e = beta[s] * fetch3(mesh_record(sh.mesh).emission, vec2(0.0), s) * mis;
+                vec3 e = beta[s] * fetch3(sh.emission, vec2(0.0), s) * mis;
                 radiance[s] += e;
 #ifdef ADJOINT
                 remaining[s] -= e;
-                if (grad_pass) scatter3(mesh_record(sh.mesh).emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
+                if (grad_pass) scatter3(sh.emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
 #endif
             }
         }
         if (depth >= MAX_DEPTH) break;
         // A one-sided material seen from behind reflects nothing.
-        if (dot(ng, wo) < 0.0 && material_record(sh.material).one_sided != 0u) break;
+        if (dot(ng, wo) < 0.0 && sh.one_sided != 0u) break;
 
         // Shading frame: interpolated normal if the mesh has normals, flipped to the side
         // of wo; the geometric normal likewise.

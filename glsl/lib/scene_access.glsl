@@ -17,7 +17,6 @@
 
 layout(set = 0, binding = 20) uniform usamplerBuffer Materials;
 layout(set = 0, binding = 21) uniform usamplerBuffer Shading;
-layout(set = 0, binding = 22) uniform usamplerBuffer Meshes;
 layout(set = 0, binding = 23) uniform usamplerBuffer Emitters;
 layout(set = 0, binding = 24) uniform usamplerBuffer Sensors;
 layout(set = 0, binding = 25) uniform usamplerBuffer SceneGlobals;
@@ -62,32 +61,31 @@ MaterialRecord material_record(uint id) {
     return r;
 }
 
-// Shading data of triangle `prim` (6 texels; words in TriShading's scalar layout: n0 0-2,
-// n1 3-5, n2 6-8, ng 9-11, uv0 12-13, uv1 14-15, uv2 16-17, material 18, mesh 19,
-// emitter_pdf 20, two_sided 21). Fetches of fields a caller does not use are dead code.
+// Shading data of triangle `prim` (7 texels; words in TriShading's scalar layout: ng 0-2,
+// material 3, emitter_pdf 4, two_sided 5, one_sided 6, mesh 7, emission 8-11, n0 12-14,
+// n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26). Fetches of fields a caller does
+// not use are dead code: a scene without vertex normals and textures reads texels 0-2.
 TriShading tri_shading(uint prim) {
-    int b = int(prim) * 6;
+    int b = int(prim) * 7;
     TriShading s;
-    uvec3 ng;
-    texel_vec3x3(Shading, b, s.n0, s.n1, s.n2, ng);
-    s.ng = uintBitsToFloat(ng);
-    uvec4 t3 = texelFetch(Shading, b + 3);
-    uvec4 t4 = texelFetch(Shading, b + 4);
-    uvec4 t5 = texelFetch(Shading, b + 5);
-    s.uv0 = uintBitsToFloat(t3.xy);
-    s.uv1 = uintBitsToFloat(t3.zw);
-    s.uv2 = uintBitsToFloat(t4.xy);
-    s.material = t4.z;
-    s.mesh = t4.w;
-    s.emitter_pdf = uintBitsToFloat(t5.x);
-    s.two_sided = t5.y;
-    s.pad1 = 0u;
-    s.pad2 = 0u;
+    uvec4 t0 = texelFetch(Shading, b);
+    uvec4 t1 = texelFetch(Shading, b + 1);
+    s.ng = uintBitsToFloat(t0.xyz);
+    s.material = t0.w;
+    s.emitter_pdf = uintBitsToFloat(t1.x);
+    s.two_sided = t1.y;
+    s.one_sided = t1.z;
+    s.mesh = t1.w;
+    s.emission = value_ref(texelFetch(Shading, b + 2));
+    uvec3 n2z_uv0_uv1x;
+    texel_vec3x3(Shading, b + 3, s.n0, s.n1, s.n2, n2z_uv0_uv1x);
+    uvec4 t6 = texelFetch(Shading, b + 6);
+    s.uv0 = uintBitsToFloat(n2z_uv0_uv1x.xy);
+    s.uv1 = uintBitsToFloat(uvec2(n2z_uv0_uv1x.z, t6.x));
+    s.uv2 = uintBitsToFloat(t6.yz);
+    s.pad = 0u;
     return s;
 }
-
-// Mesh `id` (1 texel).
-MeshRecord mesh_record(uint id) { return MeshRecord(value_ref(texelFetch(Meshes, int(id)))); }
 
 // Emissive triangle `i` (5 texels: p0 0-2, e1 3-5, e2 6-8, ng 9-11, prim 12, cdf 13,
 // pdf 14, two_sided 15, emission 16-19).

@@ -29,29 +29,28 @@ struct MaterialRecord {
     uint pad2;
 };
 
-// Per-triangle shading data, indexed by the original triangle id. 96 bytes (6 texels).
+// Per-triangle shading data, indexed by the original triangle id. 112 bytes (7 texels).
+// What every path vertex reads comes first (texels 0-2), with what it would otherwise read
+// from the material's and the mesh's records (one_sided, emission); the vertex normals
+// (texels 3-5) and texture coordinates (5-6) follow, read only by scenes that have them.
 struct TriShading {
+    vec3 ng;          // unit geometric normal (front side = counter-clockwise winding)
+    uint material;
+    float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
+    uint two_sided;     // 1: an emitter that shines from both sides; 0: from its front only
+    uint one_sided;     // its material's one_sided
+    uint mesh;
+    ValueRef emission;  // its mesh's emission: 3 channels, radiance emitted from the front side
     vec3 n0;          // vertex normals; all zero when the mesh has none
     vec3 n1;
     vec3 n2;
-    vec3 ng;          // unit geometric normal (front side = counter-clockwise winding)
     vec2 uv0;
     vec2 uv1;
     vec2 uv2;
-    uint material;
-    uint mesh;
-    float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
-    uint two_sided;     // 1: an emitter that shines from both sides; 0: from its front only
-    uint pad1;
-    uint pad2;
+    uint pad;
 };
 
-// One mesh. 16 bytes (1 texel).
-struct MeshRecord {
-    ValueRef emission;  // 3 channels, radiance emitted from the front side
-};
-
-// An emissive triangle for light sampling. 48 bytes (3 texels).
+// An emissive triangle for light sampling. 80 bytes (5 texels).
 // Everything light sampling needs of the triangle, so that it reads this record alone
 // (5 texels) instead of the triangle's shading record and its mesh's as well.
 struct EmitterTri {

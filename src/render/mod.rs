@@ -23,7 +23,7 @@ use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline
 use crate::image::Image;
 use crate::scene::{ColorValue, LightKind, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
-use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, MeshRecord, SensorRecord, TriShading, ValueRef};
+use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::Vec3;
 pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
@@ -179,13 +179,14 @@ impl GpuScene {
                 }
             })
             .collect();
-        let meshes: Vec<MeshRecord> = scene
+        // Each mesh's emission, which its triangles' shading records and emitter records carry.
+        let mesh_emission: Vec<ValueRef> = scene
             .meshes
             .iter()
             .enumerate()
             .map(|(i, m)| {
                 let constant = push_value(&mut data, &m.emission, None);
-                MeshRecord { emission: layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant) }
+                layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant)
             })
             .collect();
         let lights: Vec<LightRecord> = scene
@@ -267,22 +268,25 @@ impl GpuScene {
                     cdf: 0.0,
                     pdf: area,
                     two_sided: scene.meshes[mesh].two_sided_emission as u32,
-                    emission: meshes[mesh].emission,
+                    emission: mesh_emission[mesh],
                 });
             }
+            let material = geo.triangle_material[t];
             shading.push(TriShading {
+                ng: ng.into(),
+                material,
+                emitter_pdf: 0.0,
+                two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                one_sided: materials[material as usize].one_sided,
+                mesh: mesh as u32,
+                emission: mesh_emission[mesh],
                 n0: geo.normals[idx[0] as usize],
                 n1: geo.normals[idx[1] as usize],
                 n2: geo.normals[idx[2] as usize],
-                ng: ng.into(),
                 uv0: geo.uvs[idx[0] as usize],
                 uv1: geo.uvs[idx[1] as usize],
                 uv2: geo.uvs[idx[2] as usize],
-                material: geo.triangle_material[t],
-                mesh: mesh as u32,
-                emitter_pdf: 0.0,
-                two_sided: scene.meshes[mesh].two_sided_emission as u32,
-                pad: [0; 2],
+                pad: 0,
             });
         }
         warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
@@ -313,7 +317,7 @@ impl GpuScene {
         let has_textures = materials
             .iter()
             .flat_map(|m| [m.base_color, m.roughness, m.metallic])
-            .chain(meshes.iter().map(|m| m.emission))
+            .chain(mesh_emission.iter().copied())
             .chain(lights.iter().flat_map(|l| [l.color, l.intensity]))
             .chain([environment])
             .any(|r| r.width != 0);
@@ -338,7 +342,6 @@ impl GpuScene {
         let buffers = vec![
             ("Materials", texel_buffer(ctx, "materials", &materials)?),
             ("Shading", texel_buffer(ctx, "shading", &shading)?),
-            ("Meshes", texel_buffer(ctx, "meshes", &meshes)?),
             ("Emitters", texel_buffer(ctx, "emitters", &emitters)?),
             ("Sensors", texel_buffer(ctx, "sensors", &sensors)?),
             ("SceneGlobals", texel_buffer(ctx, "globals", &[globals])?),
