@@ -50,9 +50,9 @@ struct TriShading {
     uint pad;
 };
 
-// An emissive triangle for light sampling. 80 bytes (5 texels).
-// Everything light sampling needs of the triangle, so that it reads this record alone
-// (5 texels) instead of the triangle's shading record and its mesh's as well.
+// An emissive triangle for light sampling. 80 bytes (5 texels): everything light sampling
+// needs of the triangle, so that it reads this record alone instead of the triangle's
+// shading record as well.
 struct EmitterTri {
     vec3 p0;
     vec3 e1;

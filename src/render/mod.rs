@@ -254,6 +254,7 @@ impl GpuScene {
             let area = 0.5 * cross.length();
             let ng = cross.normalize_or_zero();
             let mesh = geo.triangle_mesh[t] as usize;
+            let two_sided = scene.meshes[mesh].two_sided_emission as u32;
             let e = geo.triangle_emission[t];
             let emits = layout.slot(ParamTarget::Emission { mesh }).is_some() || e.iter().any(|&v| v > 0.0);
             if emits && area > 0.0 {
@@ -267,7 +268,7 @@ impl GpuScene {
                     prim: t as u32,
                     cdf: 0.0,
                     pdf: area,
-                    two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                    two_sided,
                     emission: mesh_emission[mesh],
                 });
             }
@@ -276,7 +277,7 @@ impl GpuScene {
                 ng: ng.into(),
                 material,
                 emitter_pdf: 0.0,
-                two_sided: scene.meshes[mesh].two_sided_emission as u32,
+                two_sided,
                 one_sided: materials[material as usize].one_sided,
                 mesh: mesh as u32,
                 emission: mesh_emission[mesh],
