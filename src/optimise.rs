@@ -204,7 +204,7 @@ fn state_buffers(engine: &Engine) -> Result<Vec<(&Buffer, usize)>> {
     let carry = engine.carry.iter().flat_map(|c| c.state());
     let gs = engine.scene();
     let optimiser = engine.optimiser()?;
-    let theta_shaped = |b: &Buffer| b.is(&gs.theta) || optimiser.theta_prev.as_ref().is_some_and(|p| b.is(p));
+    let theta_shaped = |b: &Buffer| b.same(&gs.theta) || optimiser.theta_prev.as_ref().is_some_and(|p| b.same(p));
     let buffers = std::iter::once(&gs.theta).chain(optimiser.state()).chain(carry);
     Ok(buffers.map(|b| (b, if theta_shaped(b) { gs.const_base as usize } else { (b.len() / 4) as usize })).collect())
 }

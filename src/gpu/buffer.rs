@@ -89,11 +89,6 @@ impl Buffer {
         &self.0.name
     }
 
-    /// Whether `other` is this buffer (a clone of the same handle).
-    pub fn is(&self, other: &Buffer) -> bool {
-        Arc::ptr_eq(&self.0, &other.0)
-    }
-
     /// Whether both handles refer to the same buffer.
     pub fn same(&self, other: &Buffer) -> bool {
         Arc::ptr_eq(&self.0, &other.0)

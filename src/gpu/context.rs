@@ -23,8 +23,8 @@ static LOADER: OnceLock<std::result::Result<ash::Entry, String>> = OnceLock::new
 /// different threads are legal Vulkan, but the loader keeps process-global lists of
 /// instances and devices that some releases do not lock everywhere, and NVIDIA's driver
 /// crashed when one thread destroyed an instance while others created theirs (the test
-/// suite at 16 threads, `docs/gpu.md`). Contexts are made rarely, so one lock costs
-/// nothing measurable.
+/// suite at 16 threads, `docs/gpu.md`). Contexts are made rarely (one per process in the
+/// command-line tool), so the lock seldom makes a thread wait.
 static LIFECYCLE: Mutex<()> = Mutex::new(());
 
 fn lifecycle() -> MutexGuard<'static, ()> {
