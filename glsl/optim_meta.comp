@@ -68,6 +68,7 @@ layout(push_constant, scalar) uniform Push {
     float decay_h;    // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;        // STEP_NEWTON: the significance its Newton step needs
     float settle;     // STEP_NEWTON: the Wiener step's fraction where Newton's is shorter
+    float trust;      // STEP_NEWTON: the longest step, in lr, while its direction holds
     float calib;      // the decay of the variance calibration's NIS EMA (0: none)
     uint shrink_group; // STEP_NEWTON: nonzero: the group's James-Stein factor (group_z2)
 } pc;
@@ -84,7 +85,7 @@ void main() {
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.calib,
+                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.calib,
                                   pc.shrink_group != 0u, 0.0);
         if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],

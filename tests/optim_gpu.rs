@@ -26,6 +26,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, sig: 1.0, settle: 0.5, decay_h: 0.8, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.95, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,

@@ -240,6 +240,7 @@ struct MetaParams {
     float decay_h;  // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
+    float trust;    // STEP_NEWTON: the longest step, in lr, while the direction holds (trust_reach)
     float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
     bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
     float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
@@ -280,6 +281,15 @@ float group_z2(float sig, DiagRecord r) {
 
 // One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
 // previous step. False for a non-finite input: nothing is changed.
+// The longest step STEP_NEWTON may take: lr, or where trust > 1 and the step keeps the
+// direction of the element's previous step `last`, twice that step's length, within
+// trust*lr. Mirrors trust_reach in src/optim/reference.rs.
+float trust_reach(float lr, float trust, float step, float last) {
+    bool holds = (step > 0.0 && last > 0.0) || (step < 0.0 && last < 0.0);
+    if (trust > 1.0 && holds) return min(max(sat(2.0 * abs(last)), lr), sat(trust * lr));
+    return lr;
+}
+
 bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout MetaElem s,
                  out ElemDiag d) {
     d = ElemDiag(0.0, false, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
@@ -372,10 +382,12 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
             z2 = z >= 1.0 ? 1.0 : z * z;
         }
         float shrink = z2 >= 1.0 ? 0.0 : 1.0 - z2;
-        float newton_step = clamp(sat(-mean / curv) * shrink, -p.lr, p.lr);
+        float newton_step = sat(-mean / curv) * shrink;
+        float reach = trust_reach(p.lr, p.trust, newton_step, s.last);
+        newton_step = clamp(newton_step, -reach, reach);
         float settle_step = p.settle * step;
         newton = abs(newton_step) > abs(settle_step);
-        step = clamp(newton ? newton_step : settle_step, -p.lr, p.lr);
+        step = clamp(newton ? newton_step : settle_step, -reach, reach);
     }
     float next = min(max(sat(theta + step), p.lo), p.hi);
     float n_eff = 1.0 / gain;

@@ -344,6 +344,11 @@ pub struct MetaHyper {
     pub sig: f64,
     /// `step = newton`: the fraction of the Wiener step taken where Newton's is shorter.
     pub settle: f64,
+    /// `step = newton`: how far past lr a step may reach while its direction holds. A step
+    /// in the direction of the element's previous step may be up to twice as long as that
+    /// one, and at most `trust`·lr; a step that reverses it (or follows no step) is held
+    /// to lr. 1: every step is held to lr.
+    pub trust: f64,
     /// The decay of the calibration of the estimate's variance (0: none). Each step compares
     /// the fresh ⟨F⟩ with its prediction ⟨F⟩_M + ⟨ΔF⟩: the squared innovation over its
     /// predicted variance (the normalised innovation squared, NIS) is 1 on average when the
@@ -386,6 +391,7 @@ impl MetaHyper {
             decay_h: 0.9,
             sig: 3.0,
             settle: 0.3,
+            trust: 1.0,
             calib: 0.0,
             shrink: Shrink::Element,
             carry: 0.0,
@@ -504,6 +510,9 @@ impl Optimiser {
                 }
                 if !(0.0..=1.0).contains(&h.settle) {
                     return Err(OptimError::BadHyper(format!("settle = {} is outside [0, 1]", h.settle)));
+                }
+                if !(1.0..=1e3).contains(&h.trust) {
+                    return Err(OptimError::BadHyper(format!("trust = {} is outside [1, 1000]", h.trust)));
                 }
                 if !(h.sig >= 0.0 && h.sig <= 1e6) {
                     return Err(OptimError::BadHyper(format!("sig = {} is outside [0, 1e6]", h.sig)));

@@ -119,6 +119,7 @@ pub struct MetaPush {
     pub decay_h: f32,
     pub sig: f32,
     pub settle: f32,
+    pub trust: f32,
     pub calib: f32,
     pub shrink_group: u32,
 }
@@ -154,6 +155,7 @@ impl MetaPush {
             decay_h: h.decay_h as f32,
             sig: h.sig as f32,
             settle: h.settle as f32,
+            trust: h.trust as f32,
             calib: h.calib as f32,
             shrink_group: u32::from(h.shrink == Shrink::Group),
         }

@@ -513,6 +513,7 @@ pub struct MetaParams<R> {
     pub decay_h: R,
     pub sig: R,
     pub settle: R,
+    pub trust: R,
     /// The decay of the variance calibration's NIS EMA (0: none).
     pub calib: R,
     /// `step = newton` with [`super::Shrink::Group`]: the group's [`group_z2`] from its
@@ -539,6 +540,7 @@ impl<R: Real> MetaParams<R> {
             decay_h: R::of(h.decay_h),
             sig: R::of(h.sig),
             settle: R::of(h.settle),
+            trust: R::of(h.trust),
             calib: R::of(h.calib),
             group_z2: None,
         }
@@ -653,16 +655,30 @@ pub fn meta_update<R: Real>(
             }
         };
         let shrink = if z2 >= one { R::ZERO } else { one - z2 };
-        let newton_step = (sat(-mean / curv) * shrink).max(-p.lr).min(p.lr);
+        let newton_step = sat(-mean / curv) * shrink;
+        let reach = trust_reach(p.lr, p.trust, newton_step, s.last);
+        let newton_step = newton_step.max(-reach).min(reach);
         let settle_step = p.settle * step;
         newton = newton_step.abs() > settle_step.abs();
-        step = if newton { newton_step } else { settle_step }.max(-p.lr).min(p.lr);
+        step = if newton { newton_step } else { settle_step }.max(-reach).min(reach);
     }
     let next = sat(theta + step).max(p.lo).min(p.hi);
     let n_eff = one / gain;
     let taken = next - theta;
     let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
     Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis }, diag))
+}
+
+/// The longest step `step = newton` may take: lr, or where `trust` > 1 and the step keeps
+/// the direction of the element's previous step `last`, twice that step's length, within
+/// trust·lr. Mirrored by trust_reach in glsl/lib/optim.glsl.
+pub fn trust_reach<R: Real>(lr: R, trust: R, step: R, last: R) -> R {
+    let holds = (step > R::ZERO && last > R::ZERO) || (step < R::ZERO && last < R::ZERO);
+    if trust > R::ONE && holds {
+        sat(R::of(2.0) * last.abs()).max(lr).min(sat(trust * lr))
+    } else {
+        lr
+    }
 }
 
 /// What [`super::Shrink::Group`] puts in place of each element's (sig·sd/⟨F⟩_M)²: the

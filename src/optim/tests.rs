@@ -51,6 +51,7 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { calib: 0.99, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.9, step: StepRule::Snr, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -78,7 +79,8 @@ fn step_bound(opt: &Optimiser, t: u32) -> Option<f64> {
             StepRule::Snr => Some(
                 (1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt(),
             ),
-            StepRule::Bounded | StepRule::Newton => Some(1.0),
+            StepRule::Bounded => Some(1.0),
+            StepRule::Newton => Some(h.trust),
             StepRule::Adam | StepRule::Wiener => None,
         },
     }
@@ -881,7 +883,11 @@ fn step_rules_set_the_step_size() {
 /// One element's exact quadratic: ⟨F⟩ = a(θ − θ*), ⟨ΔF⟩ = a·Δθ, halves equal (no noise).
 /// Returns θ after each step, the final curvature state and each step's diagnostics.
 fn exact_quadratic(step: StepRule, a: f64, target: f64, lr: f64, iters: u32) -> (Vec<f64>, f64, Vec<Diagnostics>) {
-    let opt = Optimiser::Meta(MetaHyper { step, ..MetaHyper::default() });
+    exact_quadratic_with(MetaHyper { step, ..MetaHyper::default() }, a, target, lr, iters)
+}
+
+fn exact_quadratic_with(h: MetaHyper, a: f64, target: f64, lr: f64, iters: u32) -> (Vec<f64>, f64, Vec<Diagnostics>) {
+    let opt = Optimiser::Meta(h);
     let mut o = BufferOptimiser::<f64>::new(&opt, 1, lr, Range::new(0.0, 1.0).unwrap()).unwrap();
     let (mut theta, mut prev) = (vec![0.5], 0.5);
     let (mut traj, mut diags) = (Vec::new(), Vec::new());
@@ -925,6 +931,31 @@ fn newton_steps_to_the_optimum_of_an_exact_quadratic() {
             assert!(close(wiener_curv, a, 1e-12, 0.0) && wd.iter().all(|d| d.newton == 0.0));
         }
     }
+}
+
+#[test]
+fn trust_lets_steps_grow_while_their_direction_holds() {
+    use super::reference::trust_reach;
+    // The reach: lr unless the step keeps the last one's direction, then twice the last
+    // step within trust·lr.
+    assert_eq!(trust_reach(0.01, 4.0, 0.3, 0.01), 0.02);
+    assert_eq!(trust_reach(0.01, 4.0, -0.3, -0.03), 0.04);
+    assert_eq!(trust_reach(0.01, 4.0, 0.3, 0.001), 0.01);
+    assert_eq!(trust_reach(0.01, 4.0, 0.3, -0.02), 0.01);
+    assert_eq!(trust_reach(0.01, 4.0, 0.3, 0.0), 0.01);
+    assert_eq!(trust_reach(0.01, 1.0, 0.3, 0.01), 0.01);
+    assert_eq!(trust_reach(1e30f32, 1e3, 1.0, 3e38), 1e33);
+    // An exact quadratic 0.4 from the start at lr 0.01: the first (Wiener) step is lr, then
+    // Newton's steps double to trust·lr, so the iterate arrives after 12 steps; held to lr
+    // it is still 0.28 away.
+    let (traj, _, _) = exact_quadratic_with(MetaHyper { trust: 4.0, ..MetaHyper::default() }, 1.0, 0.9, 0.01, 16);
+    let steps: Vec<f64> = std::iter::once(0.5).chain(traj.iter().copied()).collect::<Vec<_>>().windows(2).map(|w| w[1] - w[0]).collect();
+    for (t, (&s, want)) in steps.iter().zip([0.01, 0.02, 0.04, 0.04, 0.04]).enumerate() {
+        assert!(close(s, want, 1e-3, 0.0), "step {t}: {s} (want {want}; {steps:?})");
+    }
+    assert!(traj[11..].iter().all(|&x| (x - 0.9).abs() < 1e-12), "{traj:?}");
+    let (held, _, _) = exact_quadratic_with(MetaHyper::default(), 1.0, 0.9, 0.01, 12);
+    assert!(close(0.9 - held[11], 0.28, 1e-3, 0.0), "{held:?}");
 }
 
 #[test]
