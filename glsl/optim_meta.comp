@@ -40,6 +40,8 @@ layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
 layout(set = 0, binding = 19, scalar) readonly buffer Frame { uint frame_iteration; };
 // The variance calibration's NIS EMA (MetaElem.nis; untouched with calib = 0).
 layout(set = 0, binding = 20, scalar) buffer MetaNis { float meta_nis[]; };
+// The meta-estimate's sign run (MetaElem.run).
+layout(set = 0, binding = 21, scalar) buffer MetaRun { float meta_run[]; };
 
 layout(push_constant, scalar) uniform Push {
     uint n;
@@ -69,6 +71,7 @@ layout(push_constant, scalar) uniform Push {
     float sig;        // STEP_NEWTON: the significance its Newton step needs
     float settle;     // STEP_NEWTON: the Wiener step's fraction where Newton's is shorter
     float trust;      // STEP_NEWTON: the longest step, in lr, while its direction holds
+    float persist;    // STEP_NEWTON: a sign run of persist*n_eff estimates is significant
     float calib;      // the decay of the variance calibration's NIS EMA (0: none)
     uint shrink_group; // STEP_NEWTON: nonzero: the group's James-Stein factor (group_z2)
 } pc;
@@ -85,11 +88,12 @@ void main() {
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.calib,
+                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist, pc.calib,
                                   pc.shrink_group != 0u, 0.0);
         if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
-                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i]);
+                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i],
+                              meta_run[i]);
         MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
                                 centred ? fd_grad_half[i] : 0.0);
         float th = theta[i];
@@ -115,6 +119,7 @@ void main() {
             meta_curv_w[i] = s.curv_w;
             meta_last[i] = s.last;
             meta_nis[i] = s.nis;
+            meta_run[i] = s.run;
             rec = diag_of(d);
         } else {
             // The element did not move: the next finite difference spans no step of it.

@@ -350,7 +350,8 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
         // none: its count stays 0, and the first carry takes the fresh image alone.
         // Checkpoints from before the carried image's variance weights have no weight state:
         // its tracked variance starts at 0 and follows the renders from the next carry on.
-        let optional = b.name() == "meta nis" || b.name() == "carry count" || b.name().starts_with("carried image") || b.name().starts_with("carry state");
+        // Likewise checkpoints from before the sign run: it starts at 0.
+        let optional = b.name() == "meta nis" || b.name() == "meta run" || b.name() == "carry count" || b.name().starts_with("carried image") || b.name().starts_with("carry state");
         if optional && !path.exists() {
             continue;
         }

@@ -27,6 +27,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { calib: 0.95, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,
@@ -291,6 +292,51 @@ fn extreme_streams_stay_finite_and_nonfinite_inputs_are_skipped() {
 }
 
 /// Per element: (mean, variance) of `xs` over rounds.
+#[test]
+fn sign_runs_and_trust_step_as_the_reference_on_the_gpu() {
+    // Streams whose gradient keeps each element's sign while its half-sample sums make it
+    // look noisy (the centred variance sees 4 times its size), and whose ⟨ΔF⟩ halves are as
+    // noisy: Newton's test at 3 standard deviations fails, so only `persist` takes Newton
+    // steps, and `trust` lets those steps grow. The GPU must take the same steps as the
+    // CPU reference (f32), element by element.
+    with_gpu(|ctx| {
+        let (n, iters) = (300, 40);
+        let sign: Vec<f32> = noise(7, n).iter().map(|x| if *x < 0.0 { -1.0 } else { 1.0 }).collect();
+        let wobble = |t: usize| noise(100 + t as u64, n);
+        let g: Vec<Vec<f32>> = (0..iters).map(|t| wobble(t).iter().zip(&sign).map(|(u, s)| s * 1e-3 * (1.0 + 0.2 * u)).collect()).collect();
+        let fd: Vec<Vec<f32>> = (0..iters).map(|t| wobble(1000 + t).iter().map(|u| 1e-5 * u).collect()).collect();
+        let off = |rows: &[Vec<f32>], c: f32| -> Vec<Vec<f32>> {
+            rows.iter().enumerate().map(|(t, r)| r.iter().map(|x| x / 2.0 + if t % 2 == 0 { c } else { -c }).collect()).collect()
+        };
+        let (gh, fh) = (off(&g, 2e-3), off(&fd, 2e-3));
+        let streams = Streams { grads: &g, fd_grads: Some(&fd), grad_halves: Some(&gh), fd_halves: Some(&fh) };
+        let init = vec![0.5f32; n];
+        let range = Range::new(0.0, 1.0).unwrap();
+        let newton_steps = |d: &[Diagnostics]| d.iter().map(|d| d.newton * d.elements as f64).sum::<f64>();
+        let mut counts = Vec::new();
+        for h in [MetaHyper::default(), MetaHyper { persist: 3.0, ..MetaHyper::default() }, MetaHyper { persist: 3.0, trust: 4.0, ..MetaHyper::default() }] {
+            let opt = Optimiser::Meta(h);
+            let gpu = replay_gpu_streams(ctx, &opt, &streams, &init, range, 0.01).unwrap();
+            let cpu = optim::replay::replay_streams::<f32>(&opt, &streams, &init, range, 0.01).unwrap();
+            for (t, (a, b)) in gpu.theta.iter().zip(&cpu.theta).enumerate() {
+                for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                    assert!((*x as f64 - y).abs() <= 1e-6, "{h:?} step {t} element {i}: GPU {x}, CPU {y}");
+                }
+            }
+            let gpu_diag: Vec<Diagnostics> = gpu.diagnostics.iter().map(|d| d[0]).collect();
+            assert_eq!(newton_steps(&gpu_diag), newton_steps(&cpu.diagnostics), "{h:?}");
+            let longest = gpu.theta.windows(2).flat_map(|w| w[0].iter().zip(&w[1]).map(|(a, b)| (b - a).abs())).fold(0.0f32, f32::max);
+            counts.push((newton_steps(&gpu_diag), longest));
+        }
+        eprintln!("(Newton element-steps, longest step): plain, persist, persist + trust: {counts:?}");
+        // Without persist no step passes the test; with it most elements take Newton steps;
+        // only with trust do steps pass lr.
+        assert_eq!(counts[0].0, 0.0, "{counts:?}");
+        assert!(counts[1].0 > (n * iters / 4) as f64, "{counts:?}");
+        assert!(counts[1].1 <= 0.01 * (1.0 + 1e-6) && counts[2].1 > 0.015, "{counts:?}");
+    });
+}
+
 fn mean_var(xs: &[f64]) -> (f64, f64) {
     let n = xs.len() as f64;
     let m = xs.iter().sum::<f64>() / n;

@@ -222,6 +222,7 @@ struct MetaElem {
     float curv_w; // sqrt(sum w), each earlier weight forgotten by decay_h per new sample
     float last;   // the element's last step theta_i - theta_{i-1}: the dpi of the next dF
     float nis;    // the bias-corrected EMA of the normalised innovation squared (calib > 0)
+    float run;    // +k (-k) after k consecutive positive (negative) estimates (persist)
 };
 
 struct MetaParams {
@@ -241,6 +242,7 @@ struct MetaParams {
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
     float trust;    // STEP_NEWTON: the longest step, in lr, while the direction holds (trust_reach)
+    float persist;  // STEP_NEWTON: a sign run of persist*n_eff estimates is significant (0: off)
     float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
     bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
     float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
@@ -281,6 +283,16 @@ float group_z2(float sig, DiagRecord r) {
 
 // One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
 // previous step. False for a non-finite input: nothing is changed.
+// The sign run after an estimate `mean`: one longer where it keeps the run's sign, +-1
+// where it starts a new one, 0 where it is 0; within +-RUN_MAX. Mirrors run_of in
+// src/optim/reference.rs.
+const float RUN_MAX = 1e6;
+float run_of(float run, float mean) {
+    if (mean > 0.0) return run > 0.0 ? min(run + 1.0, RUN_MAX) : 1.0;
+    if (mean < 0.0) return run < 0.0 ? max(run - 1.0, -RUN_MAX) : -1.0;
+    return 0.0;
+}
+
 // The longest step STEP_NEWTON may take: lr, or where trust > 1 and the step keeps the
 // direction of the element's previous step `last`, twice that step's length, within
 // trust*lr. Mirrors trust_reach in src/optim/reference.rs.
@@ -367,6 +379,8 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     else ratio = mean / (sd_step + p.eps);
     float step = sat(-p.lr * ratio);
     bool newton = false;
+    float n_eff = 1.0 / gain;
+    float run = run_of(s.run, mean);
     if (p.step_rule == STEP_NEWTON && curv > 0.0) {
         // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
         // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0) or the
@@ -382,6 +396,9 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
             z2 = z >= 1.0 ? 1.0 : z * z;
         }
         float shrink = z2 >= 1.0 ? 0.0 : 1.0 - z2;
+        // A run of persist*n_eff estimates of one sign (persist independent estimates'
+        // worth) is significant by itself: Newton's step is then not shrunk.
+        if (p.persist > 0.0 && abs(run) >= p.persist * max(n_eff, 1.0)) shrink = 1.0;
         float newton_step = sat(-mean / curv) * shrink;
         float reach = trust_reach(p.lr, p.trust, newton_step, s.last);
         newton_step = clamp(newton_step, -reach, reach);
@@ -390,11 +407,10 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
         step = clamp(newton ? newton_step : settle_step, -reach, reach);
     }
     float next = min(max(sat(theta + step), p.lo), p.hi);
-    float n_eff = 1.0 / gain;
     float taken = next - theta;
     d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, curv);
     theta = next;
-    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken, nis);
+    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken, nis, run);
     return true;
 }
 

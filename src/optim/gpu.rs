@@ -157,7 +157,7 @@ impl GpuOptimiser {
                 };
                 let names = [
                     "meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v", "meta curv",
-                    "meta curv w", "meta last", "meta nis",
+                    "meta curv w", "meta last", "meta nis", "meta run",
                 ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 written.extend(meta_state.iter().cloned());
@@ -183,6 +183,7 @@ impl GpuOptimiser {
                         ("MetaCurvW", &meta_state[8]),
                         ("MetaLast", &meta_state[9]),
                         ("MetaNis", &meta_state[10]),
+                        ("MetaRun", &meta_state[11]),
                         ("Diag", &diag),
                         ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),

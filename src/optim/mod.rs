@@ -349,6 +349,11 @@ pub struct MetaHyper {
     /// one, and at most `trust`·lr; a step that reverses it (or follows no step) is held
     /// to lr. 1: every step is held to lr.
     pub trust: f64,
+    /// `step = newton`: a run of consecutive estimates of one sign `persist` times n_eff
+    /// long (about `persist` independent estimates that agree) makes the estimate
+    /// significant whatever its size against its standard deviation: Newton's step is
+    /// then taken unshrunk. 0: off.
+    pub persist: f64,
     /// The decay of the calibration of the estimate's variance (0: none). Each step compares
     /// the fresh ⟨F⟩ with its prediction ⟨F⟩_M + ⟨ΔF⟩: the squared innovation over its
     /// predicted variance (the normalised innovation squared, NIS) is 1 on average when the
@@ -392,6 +397,7 @@ impl MetaHyper {
             sig: 3.0,
             settle: 0.3,
             trust: 1.0,
+            persist: 0.0,
             calib: 0.0,
             shrink: Shrink::Element,
             carry: 0.0,
@@ -510,6 +516,9 @@ impl Optimiser {
                 }
                 if !(0.0..=1.0).contains(&h.settle) {
                     return Err(OptimError::BadHyper(format!("settle = {} is outside [0, 1]", h.settle)));
+                }
+                if !(0.0..=1e3).contains(&h.persist) {
+                    return Err(OptimError::BadHyper(format!("persist = {} is outside [0, 1000]", h.persist)));
                 }
                 if !(1.0..=1e3).contains(&h.trust) {
                     return Err(OptimError::BadHyper(format!("trust = {} is outside [1, 1000]", h.trust)));

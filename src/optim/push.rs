@@ -120,6 +120,7 @@ pub struct MetaPush {
     pub sig: f32,
     pub settle: f32,
     pub trust: f32,
+    pub persist: f32,
     pub calib: f32,
     pub shrink_group: u32,
 }
@@ -156,6 +157,7 @@ impl MetaPush {
             sig: h.sig as f32,
             settle: h.settle as f32,
             trust: h.trust as f32,
+            persist: h.persist as f32,
             calib: h.calib as f32,
             shrink_group: u32::from(h.shrink == Shrink::Group),
         }

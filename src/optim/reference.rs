@@ -490,6 +490,9 @@ pub struct MetaElem<R> {
     pub last: R,
     /// The bias-corrected EMA of the normalised innovation squared (`calib` > 0).
     pub nis: R,
+    /// The meta-estimate's run: +k (−k) after k consecutive steps with a positive
+    /// (negative) estimate, 0 after a zero one (`persist`).
+    pub run: R,
 }
 
 /// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1;
@@ -514,6 +517,7 @@ pub struct MetaParams<R> {
     pub sig: R,
     pub settle: R,
     pub trust: R,
+    pub persist: R,
     /// The decay of the variance calibration's NIS EMA (0: none).
     pub calib: R,
     /// `step = newton` with [`super::Shrink::Group`]: the group's [`group_z2`] from its
@@ -541,6 +545,7 @@ impl<R: Real> MetaParams<R> {
             sig: R::of(h.sig),
             settle: R::of(h.settle),
             trust: R::of(h.trust),
+            persist: R::of(h.persist),
             calib: R::of(h.calib),
             group_z2: None,
         }
@@ -641,6 +646,8 @@ pub fn meta_update<R: Real>(
     };
     let mut step = sat(-p.lr * ratio);
     let mut newton = false;
+    let n_eff = one / gain;
+    let run = run_of(s.run, mean);
     if p.step == StepRule::Newton && curv > R::ZERO {
         // Newton's step −mean/h shrunk by the positive-part James–Stein factor
         // 1 − (sig·sd/mean)² (or the group's), or the Wiener step times settle, whichever is
@@ -655,6 +662,9 @@ pub fn meta_update<R: Real>(
             }
         };
         let shrink = if z2 >= one { R::ZERO } else { one - z2 };
+        // A run of persist·n_eff estimates of one sign (persist independent estimates'
+        // worth) is significant by itself: Newton's step is then not shrunk.
+        let shrink = if p.persist > R::ZERO && run.abs() >= p.persist * n_eff.max(one) { one } else { shrink };
         let newton_step = sat(-mean / curv) * shrink;
         let reach = trust_reach(p.lr, p.trust, newton_step, s.last);
         let newton_step = newton_step.max(-reach).min(reach);
@@ -663,11 +673,27 @@ pub fn meta_update<R: Real>(
         step = if newton { newton_step } else { settle_step }.max(-reach).min(reach);
     }
     let next = sat(theta + step).max(p.lo).min(p.hi);
-    let n_eff = one / gain;
     let taken = next - theta;
     let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
-    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis }, diag))
+    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis, run }, diag))
 }
+
+/// The sign run after an estimate `mean`: one longer where it keeps the run's sign, ±1 where
+/// it starts a new one, 0 where it is 0; kept within ±RUN_MAX. Mirrored by run_of in
+/// glsl/lib/optim.glsl.
+pub fn run_of<R: Real>(run: R, mean: R) -> R {
+    let max = R::of(RUN_MAX);
+    if mean > R::ZERO {
+        if run > R::ZERO { (run + R::ONE).min(max) } else { R::ONE }
+    } else if mean < R::ZERO {
+        if run < R::ZERO { (run - R::ONE).max(-max) } else { -R::ONE }
+    } else {
+        R::ZERO
+    }
+}
+
+/// The longest run [`run_of`] counts (exact in f32).
+pub const RUN_MAX: f64 = 1e6;
 
 /// The longest step `step = newton` may take: lr, or where `trust` > 1 and the step keeps
 /// the direction of the element's previous step `last`, twice that step's length, within

@@ -5,7 +5,7 @@
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `shrink` = element|group; `carry`, the least weight of the fresh primal image in the
+//! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `persist`, `shrink` = element|group; `carry`, the least weight of the fresh primal image in the
 //! carried one, `carry_weight` = fixed|variance), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
@@ -45,7 +45,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, calib, shrink, carry, carry_weight",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, calib, shrink, carry, carry_weight",
     }
 }
 
@@ -106,6 +106,7 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         (Optimiser::Meta(MetaHyper { sig, .. }), "sig") => sig,
         (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
         (Optimiser::Meta(MetaHyper { trust, .. }), "trust") => trust,
+        (Optimiser::Meta(MetaHyper { persist, .. }), "persist") => persist,
         (Optimiser::Meta(MetaHyper { calib, .. }), "calib") => calib,
         (Optimiser::Meta(MetaHyper { carry, .. }), "carry") => carry,
         _ => return Ok(false),
@@ -199,6 +200,7 @@ mod tests {
         assert!(msg("meta@sig=-1").contains("sig = -1"));
         assert!(msg("meta@calib=1").contains("calib = 1 is outside [0, 1)"));
         assert!(msg("meta@trust=0.5").contains("trust = 0.5 is outside [1, 1000]"));
+        assert!(msg("meta@persist=-1").contains("persist = -1 is outside [0, 1000]"));
         let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h, MetaHyper { trust: 4.0, ..MetaHyper::default() });
         let Optimiser::Meta(h) = "meta@calib=0.99".parse::<Spec>().unwrap().optimiser else { panic!() };

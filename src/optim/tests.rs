@@ -52,6 +52,7 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { calib: 0.9, step: StepRule::Snr, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -956,6 +957,60 @@ fn trust_lets_steps_grow_while_their_direction_holds() {
     assert!(traj[11..].iter().all(|&x| (x - 0.9).abs() < 1e-12), "{traj:?}");
     let (held, _, _) = exact_quadratic_with(MetaHyper::default(), 1.0, 0.9, 0.01, 12);
     assert!(close(0.9 - held[11], 0.28, 1e-3, 0.0), "{held:?}");
+}
+
+#[test]
+fn sign_runs_count_consecutive_estimates_of_one_sign() {
+    use super::reference::{run_of, RUN_MAX};
+    let mut run = 0.0;
+    let mut seen = Vec::new();
+    for mean in [1e-30, 2.0, 3.0, -1e-6, -1.0, 0.0, -5.0, 4.0] {
+        run = run_of(run, mean);
+        seen.push(run);
+    }
+    assert_eq!(seen, [1.0, 2.0, 3.0, -1.0, -2.0, 0.0, -1.0, 1.0]);
+    assert_eq!(run_of(RUN_MAX as f32, 1.0), RUN_MAX as f32);
+    assert_eq!(run_of(-RUN_MAX, -1.0), -RUN_MAX);
+}
+
+/// An exact quadratic as [`exact_quadratic_with`] whose gradient samples carry noise that
+/// the centred variance sees: each half-sample sum of ⟨F⟩ and ⟨ΔF⟩ is off by ±`c`
+/// (alternating), so the finite differences look noisy, n_eff stays small and the
+/// estimate's standard deviation near `c`, while its sign never changes.
+fn noisy_sign_quadratic(h: MetaHyper, c: f64, iters: u32) -> (Vec<f64>, Vec<Diagnostics>) {
+    let opt = Optimiser::Meta(h);
+    let mut o = BufferOptimiser::<f64>::new(&opt, 1, 0.01, Range::new(0.0, 1.0).unwrap()).unwrap();
+    let (mut theta, mut prev) = (vec![0.5], 0.5);
+    let (mut traj, mut diags) = (Vec::new(), Vec::new());
+    for t in 0..iters {
+        let f = theta[0] - 0.9;
+        let df = theta[0] - prev;
+        prev = theta[0];
+        let off = if t % 2 == 0 { c } else { -c };
+        let input = StepInput { grad: &[f], fd: Some(&[df]), grad_half: Some(&[f / 2.0 + off]), fd_half: Some(&[df / 2.0 - off]) };
+        o.step_with(&mut theta, input).unwrap();
+        traj.push(theta[0]);
+        diags.push(*o.diagnostics());
+    }
+    (traj, diags)
+}
+
+#[test]
+fn a_persistent_sign_makes_the_estimate_significant() {
+    // The gradient's noise is large enough that Newton's test at 3 standard deviations
+    // fails, but the estimate keeps its sign: with `persist` its Newton steps are taken
+    // after a run of persist·n_eff estimates, so it closes on the optimum sooner.
+    let base = MetaHyper::default();
+    let (plain, pd) = noisy_sign_quadratic(base, 0.5, 60);
+    let (persist, sd) = noisy_sign_quadratic(MetaHyper { persist: 3.0, ..base }, 0.5, 60);
+    let newton = |d: &[Diagnostics]| d.iter().filter(|d| d.newton > 0.0).count();
+    eprintln!("Newton steps {} / {}, error {:.4} / {:.4} (persist / plain); n_eff at the end {:.1}", newton(&sd), newton(&pd), (persist[59] - 0.9).abs(), (plain[59] - 0.9).abs(), sd[59].n_eff_mean);
+    assert!(newton(&sd) > newton(&pd) + 5, "Newton steps: {} with persist, {} without", newton(&sd), newton(&pd));
+    let (e_plain, e_persist) = ((plain[59] - 0.9).abs(), (persist[59] - 0.9).abs());
+    assert!(e_persist < 0.5 * e_plain, "error after 60 steps: {e_persist} with persist, {e_plain} without");
+    // Without noise every estimate is significant anyway: persist changes nothing.
+    let exact = |h| exact_quadratic_with(h, 1.0, 0.9, 0.01, 30).0;
+    assert_eq!(exact(base), exact(MetaHyper { persist: 3.0, ..base }));
 }
 
 #[test]
