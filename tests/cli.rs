@@ -597,7 +597,7 @@ fn replay_matches_the_cpu_reference() {
     npy::write_rows(&fh_path, &fh).unwrap();
     let halves = format!("{},{}", s(&gh_path), s(&fh_path));
 
-    let seed_meta = "meta@step=snr@var=zero@fdvar=scaled";
+    let seed_meta = "meta@step=snr@var=zero@fdvar=scaled@decay_d=0.9";
     let cases: [(&str, Option<&[f32]>, Option<&str>); 8] = [
         ("adam", None, None),
         ("meta", None, None),

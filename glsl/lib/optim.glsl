@@ -281,8 +281,6 @@ float group_z2(float sig, DiagRecord r) {
     return sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum));
 }
 
-// One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
-// previous step. False for a non-finite input: nothing is changed.
 // The sign run after an estimate `mean`: one longer where it keeps the run's sign, +-1
 // where it starts a new one, 0 where it is 0; within +-RUN_MAX. Mirrors run_of in
 // src/optim/reference.rs.
@@ -302,6 +300,8 @@ float trust_reach(float lr, float trust, float step, float last) {
     return lr;
 }
 
+// One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
+// previous step. False for a non-finite input: nothing is changed.
 bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout MetaElem s,
                  out ElemDiag d) {
     d = ElemDiag(0.0, false, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);

@@ -411,7 +411,7 @@ impl MetaHyper {
 /// curvature (`lr` is the longest step, the typical step far from the optimum as for Adam;
 /// significance 3, a tenth of the secants' weight forgotten per step, 0.3 of the Wiener step
 /// near the optimum, the James–Stein factor of each parameter group as a whole), the centred
-/// variance estimate and the raw ⟨ΔF⟩ variance, with the seed's decays and ε, each parameter
+/// variance estimate and the raw ⟨ΔF⟩ variance of decay 0.3, with the seed's other decay and ε, each parameter
 /// group's own step norm, constant β_F and rate. Chosen
 /// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
 /// (scenes/pilot.toml, scenes/pilot2.toml), `fdvar=raw` (scenes/pilot3.toml), which lets the
@@ -424,10 +424,14 @@ impl MetaHyper {
 /// (scenes/pilot14.toml, scenes/pilot15.toml: the smallest geometric mean of 0.1, 0.05, 0.02
 /// and 0.01, two seeds), then its inverse-variance weights down to 0.01
 /// (scenes/pilot17.toml: the same geometric mean without a tuned floor, and below the best
-/// Adam on ajar).
+/// Adam on ajar), then a shorter memory of the ⟨ΔF⟩ variance, `decay_d` = 0.3
+/// (scenes/pilot28.toml, scenes/pilot29.toml: the smaller geometric mean at two seeds; the
+/// variance of a long step's ⟨ΔF⟩ no longer holds n_eff down for tens of short steps after
+/// it).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
+            decay_d: 0.3,
             step: StepRule::Newton,
             variance: VarianceEstimate::Centred,
             fdvar: FdVariance::Raw,

@@ -686,6 +686,7 @@ fn glsl_mirrors_constants_and_push_blocks() {
     let lib = include_str!("../../glsl/lib/optim.glsl");
     assert!(lib.contains("const float META_ALPHA_REG = 1e-30;") && ALPHA_REG == 1e-30);
     assert!(lib.contains("const float META_NIS_MAX = 100.0;") && NIS_MAX == 100.0);
+    assert!(lib.contains("const float RUN_MAX = 1e6;") && super::reference::RUN_MAX == 1e6);
     // The step-rule and schedule numbers are the generated constants (src/constants.rs).
     let codes = [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener, StepRule::Newton].map(StepRule::code);
     assert_eq!(codes, [0, 1, 2, 3, 4]);
