@@ -81,9 +81,10 @@ pub struct OptimiserBandwidth {
 /// glsl/optim_adam.comp, each read or written once per element (the per-workgroup ‖Δπ‖²
 /// partial sums, one float per 256 parameters, are left out).
 const OPTIMISER_BYTES: [(&str, u64); 3] = [
-    // reads θ, grad, fd_grad and the 6 meta arrays; writes θ_prev, θ, the 6 meta arrays
-    // and clears grad and fd_grad: 9 + 10 floats.
-    ("optim_meta", 4 * 19),
+    // with the defaults (the centred variance): reads θ, grad, fd_grad, their two
+    // half-sample sums and the 12 meta state arrays (src/optim/gpu.rs); writes θ_prev, θ,
+    // the 12 state arrays and clears grad, fd_grad and both half sums: 17 + 18 floats.
+    ("optim_meta", 4 * 35),
     // reads θ, grad, m, r; writes θ, m, r and clears grad: 4 + 4 floats.
     ("optim_adam", 4 * 8),
     ("copy", 4 * 2),
