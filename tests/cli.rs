@@ -445,10 +445,16 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!((theta.data.len(), prev.data.len()), (4, 4));
     assert!(theta.data[..3] != prev.data[..3] && prev.data[..3].iter().all(|v| (0.0..=1.0).contains(v)), "θ {:?}, previous θ {:?}", theta.data, prev.data);
 
-    // A checkpoint from before the variance calibration has no NIS state; it resumes.
+    // The estimate's sign run is checkpointed: a whole number of steps, at most the six taken.
+    let run = committed(&out_dir).join("meta_run.npy");
+    let runs = vkinverse::npy::read(&run).unwrap();
+    assert!(runs.data.iter().all(|r| r.fract() == 0.0 && r.abs() <= 6.0) && runs.data.iter().any(|&r| r != 0.0), "sign runs {:?}", runs.data);
+    // A checkpoint from before the variance calibration and the sign run has neither state;
+    // it resumes.
     let nis = committed(&out_dir).join("meta_nis.npy");
     assert!(nis.exists(), "{} missing", nis.display());
     std::fs::remove_file(&nis).unwrap();
+    std::fs::remove_file(&run).unwrap();
     vkinverse_ok(&with(&["--iterations", "10", "--resume"]));
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
