@@ -885,19 +885,26 @@ fn step_rules_set_the_step_size() {
 /// One element's exact quadratic: ⟨F⟩ = a(θ − θ*), ⟨ΔF⟩ = a·Δθ, halves equal (no noise).
 /// Returns θ after each step, the final curvature state and each step's diagnostics.
 fn exact_quadratic(step: StepRule, a: f64, target: f64, lr: f64, iters: u32) -> (Vec<f64>, f64, Vec<Diagnostics>) {
-    exact_quadratic_with(MetaHyper { step, ..MetaHyper::default() }, a, target, lr, iters)
+    secant_quadratic(MetaHyper { step, ..MetaHyper::default() }, a, target, lr, iters, 0.0)
 }
 
-fn exact_quadratic_with(h: MetaHyper, a: f64, target: f64, lr: f64, iters: u32) -> (Vec<f64>, f64, Vec<Diagnostics>) {
+/// One element's quadratic ⟨F⟩ = a(θ − θ*), ⟨ΔF⟩ = a·Δθ from θ = 0.5, whose half-sample
+/// sums of ⟨F⟩ and ⟨ΔF⟩ are off by ±`c` (alternating by step, opposite for the two): with
+/// c = 0 the halves are equal (no noise); above 0 the centred variance sees noise of about
+/// 2c in both, so n_eff stays small and the estimate's standard deviation near c, while
+/// the gradient itself stays exact and never changes sign. Returns θ after each step, the
+/// final curvature state and each step's diagnostics.
+fn secant_quadratic(h: MetaHyper, a: f64, target: f64, lr: f64, iters: u32, c: f64) -> (Vec<f64>, f64, Vec<Diagnostics>) {
     let opt = Optimiser::Meta(h);
     let mut o = BufferOptimiser::<f64>::new(&opt, 1, lr, Range::new(0.0, 1.0).unwrap()).unwrap();
     let (mut theta, mut prev) = (vec![0.5], 0.5);
     let (mut traj, mut diags) = (Vec::new(), Vec::new());
-    for _ in 0..iters {
+    for t in 0..iters {
         let f = a * (theta[0] - target);
         let df = a * (theta[0] - prev);
         prev = theta[0];
-        let input = StepInput { grad: &[f], fd: Some(&[df]), grad_half: Some(&[f / 2.0]), fd_half: Some(&[df / 2.0]) };
+        let off = if t % 2 == 0 { c } else { -c };
+        let input = StepInput { grad: &[f], fd: Some(&[df]), grad_half: Some(&[f / 2.0 + off]), fd_half: Some(&[df / 2.0 - off]) };
         o.step_with(&mut theta, input).unwrap();
         traj.push(theta[0]);
         diags.push(*o.diagnostics());
@@ -950,13 +957,13 @@ fn trust_lets_steps_grow_while_their_direction_holds() {
     // An exact quadratic 0.4 from the start at lr 0.01: the first (Wiener) step is lr, then
     // Newton's steps double to trust·lr, so the iterate arrives after 12 steps; held to lr
     // it is still 0.28 away.
-    let (traj, _, _) = exact_quadratic_with(MetaHyper { trust: 4.0, ..MetaHyper::default() }, 1.0, 0.9, 0.01, 16);
+    let (traj, _, _) = secant_quadratic(MetaHyper { trust: 4.0, ..MetaHyper::default() }, 1.0, 0.9, 0.01, 16, 0.0);
     let steps: Vec<f64> = std::iter::once(0.5).chain(traj.iter().copied()).collect::<Vec<_>>().windows(2).map(|w| w[1] - w[0]).collect();
     for (t, (&s, want)) in steps.iter().zip([0.01, 0.02, 0.04, 0.04, 0.04]).enumerate() {
         assert!(close(s, want, 1e-3, 0.0), "step {t}: {s} (want {want}; {steps:?})");
     }
     assert!(traj[11..].iter().all(|&x| (x - 0.9).abs() < 1e-12), "{traj:?}");
-    let (held, _, _) = exact_quadratic_with(MetaHyper::default(), 1.0, 0.9, 0.01, 12);
+    let (held, _, _) = secant_quadratic(MetaHyper::default(), 1.0, 0.9, 0.01, 12, 0.0);
     assert!(close(0.9 - held[11], 0.28, 1e-3, 0.0), "{held:?}");
 }
 
@@ -974,43 +981,21 @@ fn sign_runs_count_consecutive_estimates_of_one_sign() {
     assert_eq!(run_of(-RUN_MAX, -1.0), -RUN_MAX);
 }
 
-/// An exact quadratic as [`exact_quadratic_with`] whose gradient samples carry noise that
-/// the centred variance sees: each half-sample sum of ⟨F⟩ and ⟨ΔF⟩ is off by ±`c`
-/// (alternating), so the finite differences look noisy, n_eff stays small and the
-/// estimate's standard deviation near `c`, while its sign never changes.
-fn noisy_sign_quadratic(h: MetaHyper, c: f64, iters: u32) -> (Vec<f64>, Vec<Diagnostics>) {
-    let opt = Optimiser::Meta(h);
-    let mut o = BufferOptimiser::<f64>::new(&opt, 1, 0.01, Range::new(0.0, 1.0).unwrap()).unwrap();
-    let (mut theta, mut prev) = (vec![0.5], 0.5);
-    let (mut traj, mut diags) = (Vec::new(), Vec::new());
-    for t in 0..iters {
-        let f = theta[0] - 0.9;
-        let df = theta[0] - prev;
-        prev = theta[0];
-        let off = if t % 2 == 0 { c } else { -c };
-        let input = StepInput { grad: &[f], fd: Some(&[df]), grad_half: Some(&[f / 2.0 + off]), fd_half: Some(&[df / 2.0 - off]) };
-        o.step_with(&mut theta, input).unwrap();
-        traj.push(theta[0]);
-        diags.push(*o.diagnostics());
-    }
-    (traj, diags)
-}
-
 #[test]
 fn a_persistent_sign_makes_the_estimate_significant() {
     // The gradient's noise is large enough that Newton's test at 3 standard deviations
     // fails, but the estimate keeps its sign: with `persist` its Newton steps are taken
     // after a run of persist·n_eff estimates, so it closes on the optimum sooner.
     let base = MetaHyper::default();
-    let (plain, pd) = noisy_sign_quadratic(base, 0.5, 60);
-    let (persist, sd) = noisy_sign_quadratic(MetaHyper { persist: 3.0, ..base }, 0.5, 60);
+    let (plain, _, pd) = secant_quadratic(base, 1.0, 0.9, 0.01, 60, 0.5);
+    let (persist, _, sd) = secant_quadratic(MetaHyper { persist: 3.0, ..base }, 1.0, 0.9, 0.01, 60, 0.5);
     let newton = |d: &[Diagnostics]| d.iter().filter(|d| d.newton > 0.0).count();
     eprintln!("Newton steps {} / {}, error {:.4} / {:.4} (persist / plain); n_eff at the end {:.1}", newton(&sd), newton(&pd), (persist[59] - 0.9).abs(), (plain[59] - 0.9).abs(), sd[59].n_eff_mean);
     assert!(newton(&sd) > newton(&pd) + 5, "Newton steps: {} with persist, {} without", newton(&sd), newton(&pd));
     let (e_plain, e_persist) = ((plain[59] - 0.9).abs(), (persist[59] - 0.9).abs());
     assert!(e_persist < 0.5 * e_plain, "error after 60 steps: {e_persist} with persist, {e_plain} without");
     // Without noise every estimate is significant anyway: persist changes nothing.
-    let exact = |h| exact_quadratic_with(h, 1.0, 0.9, 0.01, 30).0;
+    let exact = |h| secant_quadratic(h, 1.0, 0.9, 0.01, 30, 0.0).0;
     assert_eq!(exact(base), exact(MetaHyper { persist: 3.0, ..base }));
 }
 
