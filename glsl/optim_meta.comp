@@ -74,6 +74,8 @@ layout(push_constant, scalar) uniform Push {
     float persist;    // STEP_NEWTON: a sign run of persist*n_eff estimates is significant
     float calib;      // the decay of the variance calibration's NIS EMA (0: none)
     uint shrink_group; // STEP_NEWTON: nonzero: the group's James-Stein factor (group_z2)
+    uint curv_ls;     // STEP_NEWTON: nonzero: the secants' least-squares slope (curvature_of)
+    float curv_se;    // STEP_NEWTON, curv_ls: the slope's standard errors in quadrature
 } pc;
 
 void main() {
@@ -88,7 +90,8 @@ void main() {
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist, pc.calib,
+                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist,
+                                  pc.curv_ls != 0u, pc.curv_se, pc.calib,
                                   pc.shrink_group != 0u, 0.0);
         if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],

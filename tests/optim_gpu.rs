@@ -5,7 +5,7 @@ mod common;
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
 use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::{self, AdamHyper, CurvatureFit, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -26,6 +26,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, sig: 1.0, settle: 0.5, decay_h: 0.8, ..MetaHyper::seed() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.95, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {

@@ -219,6 +219,7 @@ struct MetaElem {
     float n_eff;  // 1/(1 - alpha_prev): effective number of averaged samples
     float v;      // Adam's bias-corrected sqrt(v) of <F> (beta2): the normaliser of STEP_ADAM
     float curv;   // STEP_NEWTON: sqrt(sum w (dF/dpi)^2 / sum w), w = dpi^2, the secant curvature
+                  // (curv_ls: sum w (dF/dpi) / sum w, the least-squares slope)
     float curv_w; // sqrt(sum w), each earlier weight forgotten by decay_h per new sample
     float last;   // the element's last step theta_i - theta_{i-1}: the dpi of the next dF
     float nis;    // the bias-corrected EMA of the normalised innovation squared (calib > 0)
@@ -243,6 +244,8 @@ struct MetaParams {
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
     float trust;    // STEP_NEWTON: the longest step, in lr, while the direction holds (trust_reach)
     float persist;  // STEP_NEWTON: a sign run of persist*n_eff estimates is significant (0: off)
+    bool curv_ls;   // STEP_NEWTON: the secants' least-squares slope instead of their RMS
+    float curv_se;  // STEP_NEWTON, curv_ls: the slope's standard errors added in quadrature
     float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
     bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
     float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
@@ -289,6 +292,16 @@ float run_of(float run, float mean) {
     if (mean > 0.0) return run > 0.0 ? min(run + 1.0, RUN_MAX) : 1.0;
     if (mean < 0.0) return run < 0.0 ? max(run - 1.0, -RUN_MAX) : -1.0;
     return 0.0;
+}
+
+// The curvature Newton's step divides by, from the fit's state `curv` (the secants' RMS, or
+// with `ls` their least-squares slope) and curv_w = sqrt(sum dpi^2): the RMS itself, or the
+// slope's positive part in quadrature with `se` standard errors sd_d/curv_w of the slope.
+// Mirrors curvature_of in src/optim/reference.rs.
+float curvature_of(bool ls, float se, float curv, float curv_w, float sd_d) {
+    if (!ls) return curv;
+    float noise = curv_w > 0.0 ? sat(se * sat(sd_d / curv_w)) : 0.0;
+    return hypot_safe(max(curv, 0.0), noise);
 }
 
 // The longest step STEP_NEWTON may take: lr, or where trust > 1 and the step keeps the
@@ -368,8 +381,10 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
         curv_w = hypot_safe(sqrt(p.decay_h) * s.curv_w, s.last);
         float kw = abs(s.last) / curv_w;
         float k = kw * kw;
-        curv = hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * sat(df / s.last));
+        float secant = sat(df / s.last);
+        curv = p.curv_ls ? sat((1.0 - k) * curv + k * secant) : hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * secant);
     }
+    float h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
 
     float ratio;
     if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
@@ -381,7 +396,9 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     bool newton = false;
     float n_eff = 1.0 / gain;
     float run = run_of(s.run, mean);
-    if (p.step_rule == STEP_NEWTON && curv > 0.0) {
+    // With the least-squares fit a secant may give no positive curvature: then no Newton
+    // step, but the settle step within lr as near an optimum.
+    if (p.step_rule == STEP_NEWTON && (h > 0.0 || (p.curv_ls && curv_w > 0.0))) {
         // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
         // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0) or the
         // group's, or the Wiener step times settle, whichever is longer, within |step| <= lr.
@@ -399,7 +416,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
         // A run of persist*n_eff estimates of one sign (persist independent estimates'
         // worth) is significant by itself: Newton's step is then not shrunk.
         if (p.persist > 0.0 && abs(run) >= p.persist * max(n_eff, 1.0)) shrink = 1.0;
-        float newton_step = sat(-mean / curv) * shrink;
+        float newton_step = h > 0.0 ? sat(-mean / h) * shrink : 0.0;
         float reach = trust_reach(p.lr, p.trust, newton_step, s.last);
         newton_step = clamp(newton_step, -reach, reach);
         float settle_step = p.settle * step;
@@ -408,7 +425,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     }
     float next = min(max(sat(theta + step), p.lo), p.hi);
     float taken = next - theta;
-    d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, curv);
+    d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, h);
     theta = next;
     s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken, nis, run);
     return true;

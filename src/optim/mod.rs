@@ -318,6 +318,21 @@ pub enum Shrink {
     Group,
 }
 
+/// How `step = newton` fits each element's curvature to its secants ⟨ΔF⟩/Δθ.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CurvatureFit {
+    /// The secants' root mean square, each weighted by Δθ²: √(Σ⟨ΔF⟩²/ΣΔθ²). An upper
+    /// estimate: the noise of ⟨ΔF⟩ and the other parameters' share of its change add to it.
+    #[default]
+    Rms,
+    /// The least-squares slope of ⟨ΔF⟩ against Δθ, Σ⟨ΔF⟩Δθ/ΣΔθ² (the secants' mean, each
+    /// weighted by Δθ²), whose noise averages out instead of adding: h = the slope's positive
+    /// part in quadrature with `curv_se` times its standard error, sd(⟨ΔF⟩)/√ΣΔθ². A slope
+    /// within its noise still gives a curvature of about its standard error.
+    Ls,
+}
+
 /// Meta-estimator hyperparameters. `decay_f`, `decay_d` are the decays of the two Moment2
 /// EMAs (0.9 in the seed's Moment2), `eps` the ε of the step (1e-8, supplementary B).
 /// `grow_f` > 0 lets β_F grow over the run (supplementary A): the ⟨F⟩ EMA's sample weight
@@ -364,6 +379,10 @@ pub struct MetaHyper {
     pub calib: f64,
     /// `step = newton`: the James–Stein factor of each element or of the whole group.
     pub shrink: Shrink,
+    /// `step = newton`: how the curvature is fitted to the secants (`curv` = rms|ls).
+    pub curv: CurvatureFit,
+    /// `curv = ls`: the standard errors of the slope added in quadrature.
+    pub curv_se: f64,
     /// The primal image the losses read (0: each iteration's own render). Above 0, the image
     /// is carried from one iteration to the next by the finite-difference sample's two
     /// images (an unbiased estimate of how the expected image changed between θ_{i-1} and
@@ -400,6 +419,8 @@ impl MetaHyper {
             persist: 0.0,
             calib: 0.0,
             shrink: Shrink::Element,
+            curv: CurvatureFit::Rms,
+            curv_se: 1.0,
             carry: 0.0,
             carry_weight: CarryWeight::Fixed,
             schedule: Schedule::default(),
@@ -523,6 +544,9 @@ impl Optimiser {
                 }
                 if !(0.0..=1e3).contains(&h.persist) {
                     return Err(OptimError::BadHyper(format!("persist = {} is outside [0, 1000]", h.persist)));
+                }
+                if !(0.0..=1e3).contains(&h.curv_se) {
+                    return Err(OptimError::BadHyper(format!("curv_se = {} is outside [0, 1000]", h.curv_se)));
                 }
                 if !(1.0..=1e3).contains(&h.trust) {
                     return Err(OptimError::BadHyper(format!("trust = {} is outside [1, 1000]", h.trust)));

@@ -3,7 +3,7 @@
 //! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
 //! (`crate::push`).
 
-use super::{AdamHyper, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
+use super::{AdamHyper, CurvatureFit, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
 
@@ -87,7 +87,7 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block: 108 bytes. The step number comes from the `Frame`
+/// `optim_meta.comp`'s `Push` block: 128 bytes (Vulkan's least guaranteed push-constant size). The step number comes from the `Frame`
 /// buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -123,6 +123,8 @@ pub struct MetaPush {
     pub persist: f32,
     pub calib: f32,
     pub shrink_group: u32,
+    pub curv_ls: u32,
+    pub curv_se: f32,
 }
 
 impl MetaPush {
@@ -160,6 +162,8 @@ impl MetaPush {
             persist: h.persist as f32,
             calib: h.calib as f32,
             shrink_group: u32::from(h.shrink == Shrink::Group),
+            curv_ls: u32::from(h.curv == CurvatureFit::Ls),
+            curv_se: h.curv_se as f32,
         }
     }
 }

@@ -518,6 +518,9 @@ pub struct MetaParams<R> {
     pub settle: R,
     pub trust: R,
     pub persist: R,
+    /// The least-squares curvature fit ([`super::CurvatureFit::Ls`]) and its standard errors.
+    pub curv_ls: bool,
+    pub curv_se: R,
     /// The decay of the variance calibration's NIS EMA (0: none).
     pub calib: R,
     /// `step = newton` with [`super::Shrink::Group`]: the group's [`group_z2`] from its
@@ -546,6 +549,8 @@ impl<R: Real> MetaParams<R> {
             settle: R::of(h.settle),
             trust: R::of(h.trust),
             persist: R::of(h.persist),
+            curv_ls: h.curv == super::CurvatureFit::Ls,
+            curv_se: R::of(h.curv_se),
             calib: R::of(h.calib),
             group_z2: None,
         }
@@ -628,14 +633,17 @@ pub fn meta_update<R: Real>(
     let sd_step = sat(sd * nis.max(one).sqrt());
 
     // The secant curvature along the element's own last step (where ΔF spans it): the RMS
-    // of ΔF/Δθ weighted by Δθ², each earlier weight forgotten by decay_h.
+    // of ΔF/Δθ weighted by Δθ² (or with curv_ls their weighted mean, the least-squares
+    // slope), each earlier weight forgotten by decay_h.
     let (mut curv, mut curv_w) = (s.curv, s.curv_w);
     if dpi2 > R::ZERO && dpi2.is_finite() && s.last != R::ZERO {
         curv_w = hypot(p.decay_h.sqrt() * s.curv_w, s.last);
         let kw = s.last.abs() / curv_w;
         let k = kw * kw;
-        curv = hypot((one - k).sqrt() * curv, k.sqrt() * sat(df / s.last));
+        let secant = sat(df / s.last);
+        curv = if p.curv_ls { sat((one - k) * curv + k * secant) } else { hypot((one - k).sqrt() * curv, k.sqrt() * secant) };
     }
+    let h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
 
     let ratio = match p.step {
         StepRule::Snr => mean / (sd_step + p.eps),
@@ -648,7 +656,9 @@ pub fn meta_update<R: Real>(
     let mut newton = false;
     let n_eff = one / gain;
     let run = run_of(s.run, mean);
-    if p.step == StepRule::Newton && curv > R::ZERO {
+    // With the least-squares fit a secant may give no positive curvature: then no Newton
+    // step, but the settle step within lr as near an optimum.
+    if p.step == StepRule::Newton && (h > R::ZERO || (p.curv_ls && curv_w > R::ZERO)) {
         // Newton's step −mean/h shrunk by the positive-part James–Stein factor
         // 1 − (sig·sd/mean)² (or the group's), or the Wiener step times settle, whichever is
         // longer, within lr.
@@ -665,7 +675,7 @@ pub fn meta_update<R: Real>(
         // A run of persist·n_eff estimates of one sign (persist independent estimates'
         // worth) is significant by itself: Newton's step is then not shrunk.
         let shrink = if p.persist > R::ZERO && run.abs() >= p.persist * n_eff.max(one) { one } else { shrink };
-        let newton_step = sat(-mean / curv) * shrink;
+        let newton_step = if h > R::ZERO { sat(-mean / h) * shrink } else { R::ZERO };
         let reach = trust_reach(p.lr, p.trust, newton_step, s.last);
         let newton_step = newton_step.max(-reach).min(reach);
         let settle_step = p.settle * step;
@@ -674,8 +684,21 @@ pub fn meta_update<R: Real>(
     }
     let next = sat(theta + step).max(p.lo).min(p.hi);
     let taken = next - theta;
-    let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv };
+    let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv: h };
     Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis, run }, diag))
+}
+
+/// The curvature Newton's step divides by, from the fit's state `curv` (the RMS of the
+/// secants, or with `ls` their least-squares slope) and `curv_w` = √ΣΔθ²: the RMS itself, or
+/// the slope's positive part in quadrature with `se` standard errors sd_d/√ΣΔθ² of the slope
+/// (sd_d: the standard deviation of one ⟨ΔF⟩). Mirrored by curvature_of in
+/// glsl/lib/optim.glsl.
+pub fn curvature_of<R: Real>(ls: bool, se: R, curv: R, curv_w: R, sd_d: R) -> R {
+    if !ls {
+        return curv;
+    }
+    let noise = if curv_w > R::ZERO { sat(se * sat(sd_d / curv_w)) } else { R::ZERO };
+    hypot(curv.max(R::ZERO), noise)
 }
 
 /// The sign run after an estimate `mean`: one longer where it keeps the run's sign, ±1 where

@@ -5,13 +5,14 @@
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `persist`, `shrink` = element|group; `carry`, the least weight of the fresh primal image in the
+//! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `persist`, `shrink` = element|group, `curv` = rms|ls,
+//! `curv_se`; `carry`, the least weight of the fresh primal image in the
 //! carried one, `carry_weight` = fixed|variance), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, CarryWeight, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, CarryWeight, CurvatureFit, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -45,7 +46,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, calib, shrink, carry, carry_weight",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, curv, curv_se, calib, shrink, carry, carry_weight",
     }
 }
 
@@ -86,6 +87,10 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
             h.shrink = choice(key, value, &[("element", Shrink::Element), ("group", Shrink::Group)])?;
             return Ok(true);
         }
+        (Optimiser::Meta(h), "curv") => {
+            h.curv = choice(key, value, &[("rms", CurvatureFit::Rms), ("ls", CurvatureFit::Ls)])?;
+            return Ok(true);
+        }
         (Optimiser::Meta(h), "carry_weight") => {
             h.carry_weight = choice(key, value, &[("fixed", CarryWeight::Fixed), ("variance", CarryWeight::Variance)])?;
             return Ok(true);
@@ -107,6 +112,7 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
         (Optimiser::Meta(MetaHyper { trust, .. }), "trust") => trust,
         (Optimiser::Meta(MetaHyper { persist, .. }), "persist") => persist,
+        (Optimiser::Meta(MetaHyper { curv_se, .. }), "curv_se") => curv_se,
         (Optimiser::Meta(MetaHyper { calib, .. }), "calib") => calib,
         (Optimiser::Meta(MetaHyper { carry, .. }), "carry") => carry,
         _ => return Ok(false),
@@ -201,6 +207,14 @@ mod tests {
         assert!(msg("meta@calib=1").contains("calib = 1 is outside [0, 1)"));
         assert!(msg("meta@trust=0.5").contains("trust = 0.5 is outside [1, 1000]"));
         assert!(msg("meta@persist=-1").contains("persist = -1 is outside [0, 1000]"));
+        assert!(msg("meta@curv=mean").contains("curv = 'mean' (expected rms or ls)"));
+        assert!(msg("meta@curv_se=-1").contains("curv_se = -1 is outside [0, 1000]"));
+        let Optimiser::Meta(h) = "meta@curv=ls@curv_se=3".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h, MetaHyper { curv: crate::optim::CurvatureFit::Ls, curv_se: 3.0, ..MetaHyper::default() });
+        // The README's spelling of the defaults is the defaults.
+        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@settle=0.3@trust=1@persist=0@curv=rms@shrink=group@calib=0@carry=0.01@carry_weight=variance";
+        assert!(include_str!("../../README.md").contains(spelled));
+        assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h, MetaHyper { trust: 4.0, ..MetaHyper::default() });
         let Optimiser::Meta(h) = "meta@calib=0.99".parse::<Spec>().unwrap().optimiser else { panic!() };

@@ -53,6 +53,8 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, curv_se: 0.0, shrink: Shrink::Element, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -280,7 +282,9 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
                     e.sd >= R::ZERO && e.rms_f >= R::ZERO && e.rms_d >= R::ZERO && e.v >= R::ZERO,
                     "{e:?}"
                 );
-                assert!(e.curv >= R::ZERO && e.curv_w >= R::ZERO, "{e:?}");
+                // The least-squares slope may be negative; the RMS may not.
+                let ls = matches!(opt, Optimiser::Meta(h) if h.curv == CurvatureFit::Ls);
+                assert!((ls || e.curv >= R::ZERO) && e.curv_w >= R::ZERO, "{e:?}");
                 // The state's last step is the step this element just took (0 if skipped).
                 assert_eq!(e.last, theta[i] - before[i], "{opt} t {t} i {i}");
                 assert!(e.n_eff <= R::of(t as f64) * R::of(1.0 + 1e-6), "{e:?}");
@@ -1235,4 +1239,71 @@ fn group_shrink_steps_on_a_group_significant_as_a_whole() {
     eprintln!("optimum: element {d_element}, group {d_group} ({n_noise})");
     assert!(n_noise < 0.1, "Newton steps at the optimum: {n_noise}");
     assert!(d_group < 1.2 * d_element, "drift: group {d_group}, element {d_element}");
+}
+
+/// The curvature fits of `h` on a prescribed walk: steps of ±`step` in a fixed pseudo-random
+/// order, each followed by a finite difference a·Δθ plus noise ±`sigma` (told to the centred
+/// variance estimate through the half sums). Returns, per step, the fit's state (the RMS, or
+/// the least-squares slope) and the curvature Newton's step divides by.
+fn secant_fits(h: MetaHyper, a: f64, step: f64, sigma: f64, iters: u32) -> Vec<(f64, f64)> {
+    use super::reference::meta_update;
+    let mut state = 0x2545_f491_u64;
+    let mut sign = || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        if state >> 63 == 1 { 1.0 } else { -1.0 }
+    };
+    let mut e = MetaElem::<f64>::default();
+    let mut out = Vec::new();
+    for t in 1..=iters {
+        let p = MetaParams::<f64>::new(&h, t, 0.01, Range::new(-1e9, 1e9).unwrap());
+        let (last, noise) = (step * sign(), sigma * sign());
+        e.last = if t == 1 { 0.0 } else { last };
+        let df = a * e.last + noise;
+        let x = MetaInput { f: 0.0, df, f_half: 0.0, df_half: (df - noise) / 2.0 };
+        let (_, next, d) = meta_update(&p, 0.0, x, step * step, e).unwrap();
+        e = next;
+        out.push((e.curv, d.curv));
+    }
+    out
+}
+
+#[test]
+fn least_squares_curvature_averages_the_secants_noise_out() {
+    use super::reference::curvature_of;
+    // The RMS as it is; the slope's positive part in quadrature with se standard errors
+    // sd_d / sqrt(sum dpi^2); nothing before the first secant.
+    assert_eq!(curvature_of(false, 1.0, 3.0, 2.0, 4.0), 3.0);
+    assert_eq!(curvature_of(true, 1.0, 3.0, 2.0, 8.0), 5.0);
+    assert_eq!(curvature_of(true, 2.0, -3.0, 2.0, 3.0), 3.0);
+    assert_eq!(curvature_of(true, 0.0, 3.0, 2.0, 3.0), 3.0);
+    assert_eq!(curvature_of(true, 1.0, 0.0, 0.0, 3.0), 0.0);
+    assert_eq!(curvature_of(true, 1e30f32, 1e30, 1e-30, 1e30), f32::MAX);
+    // Noiseless secants: every fit is the curvature.
+    let rms = MetaHyper::default();
+    let ls = MetaHyper { curv: CurvatureFit::Ls, ..rms };
+    for h in [rms, ls] {
+        let fits = secant_fits(h, 2.0, 0.01, 0.0, 40);
+        assert!(fits[1..].iter().all(|&(c, used)| close(c, 2.0, 1e-12, 0.0) && close(used, 2.0, 1e-12, 0.0)), "{h:?}: {fits:?}");
+    }
+    // Secants whose noise is twice their signal (sigma / step = 2 a): the RMS adds the
+    // noise, √(a² + (sigma/step)²) = √5 a; the slope averages it out (its median over the
+    // walk is within a tenth of a), and with one standard error in quadrature (sd_d/√ΣΔθ²,
+    // about 2a/√10 at decay_h 0.9) it stays well below the RMS.
+    let median = |v: Vec<f64>| {
+        let mut v = v;
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (a, n) = (1.0, 2000);
+    let r = secant_fits(rms, a, 0.01, 0.02, n);
+    let l = secant_fits(ls, a, 0.01, 0.02, n);
+    let l0 = secant_fits(MetaHyper { curv_se: 0.0, ..ls }, a, 0.01, 0.02, n);
+    let rms_h = median(r[50..].iter().map(|x| x.1).collect());
+    let slope = median(l[50..].iter().map(|x| x.0).collect());
+    let ls_h = median(l[50..].iter().map(|x| x.1).collect());
+    assert!(close(rms_h, 5f64.sqrt() * a, 0.15, 0.0), "RMS fit {rms_h}");
+    assert!((slope - a).abs() < 0.1 * a, "least-squares slope {slope}");
+    assert!(ls_h > slope && ls_h < 0.75 * rms_h, "least-squares curvature {ls_h} (RMS {rms_h})");
+    // Without the standard error the curvature is the slope's positive part.
+    assert!(l0[50..].iter().zip(&l[50..]).all(|(x, y)| x.1 == x.0.max(0.0) && x.0 == y.0));
 }
