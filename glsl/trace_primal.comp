@@ -14,6 +14,9 @@
 // (GENERIC) reads the integrator's limits at run time: both for `vkinverse bench`.
 // variant: trace_primal_count COUNT_RAYS
 // variant: trace_primal_generic GENERIC
+// trace_primal_sampled (TEXELS_SAMPLED) reads the scene's texel buffers by texel fetches
+// instead of image loads (lib/texels.glsl), the same bits: for `vkinverse bench`.
+// variant: trace_primal_sampled TEXELS_SAMPLED
 // Each has a copy for the wide BVH layout (BVH_WIDE, lib/bvh_traverse.glsl), named with
 // the suffix _wide, and one for the compressed layout (BVH_CW8), suffix _cw8
 // (vkinverse::bvh::BvhLayout::kernel).
@@ -23,12 +26,14 @@
 // variant: trace_fd_adjoint_wide FD ADJOINT BVH_WIDE
 // variant: trace_primal_count_wide COUNT_RAYS BVH_WIDE
 // variant: trace_primal_generic_wide GENERIC BVH_WIDE
+// variant: trace_primal_sampled_wide TEXELS_SAMPLED BVH_WIDE
 // variant: trace_primal_cw8 BVH_CW8
 // variant: trace_adjoint_cw8 ADJOINT BVH_CW8
 // variant: trace_fd_primal_cw8 FD BVH_CW8
 // variant: trace_fd_adjoint_cw8 FD ADJOINT BVH_CW8
 // variant: trace_primal_count_cw8 COUNT_RAYS BVH_CW8
 // variant: trace_primal_generic_cw8 GENERIC BVH_CW8
+// variant: trace_primal_sampled_cw8 TEXELS_SAMPLED BVH_CW8
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/integrator.glsl"

@@ -7,6 +7,7 @@
 #
 #   scripts/instructions.sh BINARY SCENE [FILM] [SPP1] [SPP2]
 #   scripts/instructions.sh target/release/vkinverse scenes/cornell/scene.toml 64x64 4 36
+#   EXTRA_ARGS="--max-depth 2" scripts/instructions.sh ...   (more `render` arguments)
 set -euo pipefail
 if [ $# -lt 2 ]; then
     echo "usage: $0 BINARY SCENE [FILM] [SPP1] [SPP2]" >&2
@@ -20,7 +21,7 @@ count() {
     # One lavapipe thread; no shader cache, so both renders compile the same kernels.
     MESA_SHADER_CACHE_DISABLE=true LP_NUM_THREADS=1 valgrind --tool=cachegrind --cache-sim=no \
         --cachegrind-out-file=/dev/null "$bin" render "$scene" --spp "$1" --film "$film" --quiet \
-        -o "$out/render.exr" 2>&1 | sed -n 's/.*I *refs: *\([0-9,]*\).*/\1/p' | tr -d ,
+        ${EXTRA_ARGS:-} -o "$out/render.exr" 2>&1 | sed -n 's/.*I *refs: *\([0-9,]*\).*/\1/p' | tr -d ,
 }
 a=$(count "$spp1")
 b=$(count "$spp2")

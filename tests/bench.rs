@@ -67,6 +67,10 @@ fn scene_bench_on_cornell_is_consistent() {
     // Same paths, same radiance: the variants differ in speed only.
     assert!(g.generic_image_rel_diff < 1e-4, "generic build renders a different image: {}", g.generic_image_rel_diff);
     assert!(g.count_image_rel_diff < 1e-4, "counting build renders a different image: {}", g.count_image_rel_diff);
+    // Texel fetches and image loads read the same bits: the same image, bit for bit.
+    finite_positive("sampled trace_primal", g.sampled_ms);
+    assert_eq!(g.sampled_gain, g.sampled_ms / g.specialised_ms);
+    assert_eq!(g.sampled_image_rel_diff, 0.0, "texel fetches render a different image");
 
     let r = &b.ratios;
     assert_eq!(r.spp, b.fd_spp);

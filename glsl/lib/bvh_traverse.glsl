@@ -46,7 +46,7 @@
 // that the ray grazes.
 //
 // Declares the geometry buffers at bindings 10 and 11 (bindings 10-19 are scene geometry)
-// as uniform texel buffers of 16-byte texels (see lib/scene_access.glsl for why), read
+// as texel buffers of 16-byte texels (lib/texels.glsl; see lib/scene_access.glsl for why), read
 // through bvh_node and bvh_triangle; a kernel that includes this file binds them with
 // BvhBuffers::bindings(). Kernels declare their workgroup size before including this file
 // (see lib/common.glsl).
@@ -56,41 +56,41 @@
 #include "lib/texels.glsl"
 #include "shared/bvh.glsl"
 
-layout(set = 0, binding = 10) uniform usamplerBuffer BvhNodes;
-layout(set = 0, binding = 11) uniform usamplerBuffer BvhTriangles;
+TEXEL_BUFFER(0, 10) BvhNodes;
+TEXEL_BUFFER(0, 11) BvhTriangles;
 
 #if defined(BVH_CW8)
 // Compressed node i: 5 texels.
 BvhCwNode bvh_node(uint i) {
     int b = int(i) * 5;
-    uvec4 t0 = texelFetch(BvhNodes, b);
-    uvec4 t1 = texelFetch(BvhNodes, b + 1);
-    return BvhCwNode(uintBitsToFloat(t0.xyz), t0.w, t1.x, t1.y, t1.zw, texelFetch(BvhNodes, b + 2),
-                     texelFetch(BvhNodes, b + 3), texelFetch(BvhNodes, b + 4));
+    uvec4 t0 = texel_load(BvhNodes, b);
+    uvec4 t1 = texel_load(BvhNodes, b + 1);
+    return BvhCwNode(uintBitsToFloat(t0.xyz), t0.w, t1.x, t1.y, t1.zw, texel_load(BvhNodes, b + 2),
+                     texel_load(BvhNodes, b + 3), texel_load(BvhNodes, b + 4));
 }
 #elif defined(BVH_WIDE)
 // Wide node i: 8 texels, one per member.
 BvhWideNode bvh_node(uint i) {
     int b = int(i) * 8;
     BvhWideNode n;
-    n.min_x = uintBitsToFloat(texelFetch(BvhNodes, b));
-    n.min_y = uintBitsToFloat(texelFetch(BvhNodes, b + 1));
-    n.min_z = uintBitsToFloat(texelFetch(BvhNodes, b + 2));
-    n.max_x = uintBitsToFloat(texelFetch(BvhNodes, b + 3));
-    n.max_y = uintBitsToFloat(texelFetch(BvhNodes, b + 4));
-    n.max_z = uintBitsToFloat(texelFetch(BvhNodes, b + 5));
-    n.index = texelFetch(BvhNodes, b + 6);
-    n.count = texelFetch(BvhNodes, b + 7);
+    n.min_x = uintBitsToFloat(texel_load(BvhNodes, b));
+    n.min_y = uintBitsToFloat(texel_load(BvhNodes, b + 1));
+    n.min_z = uintBitsToFloat(texel_load(BvhNodes, b + 2));
+    n.max_x = uintBitsToFloat(texel_load(BvhNodes, b + 3));
+    n.max_y = uintBitsToFloat(texel_load(BvhNodes, b + 4));
+    n.max_z = uintBitsToFloat(texel_load(BvhNodes, b + 5));
+    n.index = texel_load(BvhNodes, b + 6);
+    n.count = texel_load(BvhNodes, b + 7);
     return n;
 }
 #else
 // Binary node i: 4 texels, each a box corner and an index or count.
 BvhNode bvh_node(uint i) {
     int b = int(i) * 4;
-    uvec4 t0 = texelFetch(BvhNodes, b);
-    uvec4 t1 = texelFetch(BvhNodes, b + 1);
-    uvec4 t2 = texelFetch(BvhNodes, b + 2);
-    uvec4 t3 = texelFetch(BvhNodes, b + 3);
+    uvec4 t0 = texel_load(BvhNodes, b);
+    uvec4 t1 = texel_load(BvhNodes, b + 1);
+    uvec4 t2 = texel_load(BvhNodes, b + 2);
+    uvec4 t3 = texel_load(BvhNodes, b + 3);
     return BvhNode(uintBitsToFloat(t0.xyz), t0.w, uintBitsToFloat(t1.xyz), t1.w,
                    uintBitsToFloat(t2.xyz), t2.w, uintBitsToFloat(t3.xyz), t3.w);
 }

@@ -2,40 +2,41 @@
 // read a material or emission value from a constant, a texture, or the parameters being
 // optimised, and (ADJOINT) scatter gradients back through the same lookup.
 //
-// What is read per ray or path vertex comes from uniform texel buffers of 16-byte texels
-// (usamplerBuffer, viewed R32G32B32A32_UINT; floats are read by their bits, so no value is
-// converted or flushed): records (shared/scene.glsl, a whole number of texels each) through
-// the accessors below, float arrays through texel_float. A texel fetch is the sampler's
-// vector gather on lavapipe, where a storage-buffer load is a loop over the SIMD lanes
-// with a bounds check per lane, and it reads through the texture cache on GPUs. The host
-// binds every buffer by the names below (src/render/mod.rs sizes them in whole texels).
+// What is read per ray or path vertex comes from texel buffers of 16-byte texels
+// (lib/texels.glsl: read-only storage texel buffers viewed R32G32B32A32_UINT; floats are
+// read by their bits, so no value is converted or flushed): records (shared/scene.glsl, a
+// whole number of texels each) through the accessors below, float arrays through
+// texel_float. A texel load is a vector gather on lavapipe, where a storage-buffer load is a
+// loop over the SIMD lanes with a bounds check per lane, and it reads through the texture
+// path on GPUs. The host binds every buffer by the names below (src/render/mod.rs sizes them
+// in whole texels).
 #ifndef SCENE_ACCESS_GLSL
 #define SCENE_ACCESS_GLSL
 #include "shared/scene.glsl"
 #include "shared/material.glsl"
 #include "lib/texels.glsl"
 
-layout(set = 0, binding = 20) uniform usamplerBuffer Materials;
-layout(set = 0, binding = 21) uniform usamplerBuffer Shading;
-layout(set = 0, binding = 23) uniform usamplerBuffer Emitters;
-layout(set = 0, binding = 24) uniform usamplerBuffer Sensors;
-layout(set = 0, binding = 25) uniform usamplerBuffer SceneGlobals;
+TEXEL_BUFFER(0, 20) Materials;
+TEXEL_BUFFER(0, 21) Shading;
+TEXEL_BUFFER(0, 23) Emitters;
+TEXEL_BUFFER(0, 24) Sensors;
+TEXEL_BUFFER(0, 25) SceneGlobals;
 // The environment map's sampling distribution (src/render/envmap.rs): row cdf (H), per-row
 // column cdfs (H × W), cell densities in solid angle (H × W); W × H = the map's size.
-layout(set = 0, binding = 27) uniform usamplerBuffer EnvDistribution;
+TEXEL_BUFFER(0, 27) EnvDistribution;
 // Delta lights: scene_globals().num_lights LightRecords.
-layout(set = 0, binding = 28) uniform usamplerBuffer Lights;
+TEXEL_BUFFER(0, 28) Lights;
 // θ, then from element CONST_BASE on the material data: every constant value (colours,
 // roughness, textures, emission, lights, the environment). One buffer for both, so that a
 // value read, which runs both sides of its branch on lavapipe, fetches from one buffer
 // only (src/render/mod.rs builds it; the optimisers move only θ's elements).
-layout(set = 0, binding = 30) uniform usamplerBuffer Theta;
+TEXEL_BUFFER(0, 30) Theta;
 
 // Parameter states a kernel evaluates along each path: 1, or 2 for the fused finite
 // difference (state 0 = θ_i, which samples the path; state 1 = θ_{i-1}).
 #ifdef FD
 #define NSTATES 2
-layout(set = 0, binding = 32) uniform usamplerBuffer ThetaPrev;
+TEXEL_BUFFER(0, 32) ThetaPrev;
 #else
 #define NSTATES 1
 #endif
@@ -50,10 +51,10 @@ ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 MaterialRecord material_record(uint id) {
     int b = int(id) * 4;
     MaterialRecord r;
-    r.base_color = value_ref(texelFetch(Materials, b));
-    r.roughness = value_ref(texelFetch(Materials, b + 1));
-    r.metallic = value_ref(texelFetch(Materials, b + 2));
-    uvec4 t3 = texelFetch(Materials, b + 3);
+    r.base_color = value_ref(texel_load(Materials, b));
+    r.roughness = value_ref(texel_load(Materials, b + 1));
+    r.metallic = value_ref(texel_load(Materials, b + 2));
+    uvec4 t3 = texel_load(Materials, b + 3);
     r.kind = t3.x;
     r.one_sided = t3.y;
     r.pad1 = 0u;
@@ -68,18 +69,18 @@ MaterialRecord material_record(uint id) {
 TriShading tri_shading(uint prim) {
     int b = int(prim) * 7;
     TriShading s;
-    uvec4 t0 = texelFetch(Shading, b);
-    uvec4 t1 = texelFetch(Shading, b + 1);
+    uvec4 t0 = texel_load(Shading, b);
+    uvec4 t1 = texel_load(Shading, b + 1);
     s.ng = uintBitsToFloat(t0.xyz);
     s.material = t0.w;
     s.emitter_pdf = uintBitsToFloat(t1.x);
     s.two_sided = t1.y;
     s.one_sided = t1.z;
     s.mesh = t1.w;
-    s.emission = value_ref(texelFetch(Shading, b + 2));
+    s.emission = value_ref(texel_load(Shading, b + 2));
     uvec3 n2z_uv0_uv1x;
     texel_vec3x3(Shading, b + 3, s.n0, s.n1, s.n2, n2z_uv0_uv1x);
-    uvec4 t6 = texelFetch(Shading, b + 6);
+    uvec4 t6 = texel_load(Shading, b + 6);
     s.uv0 = uintBitsToFloat(n2z_uv0_uv1x.xy);
     s.uv1 = uintBitsToFloat(uvec2(n2z_uv0_uv1x.z, t6.x));
     s.uv2 = uintBitsToFloat(t6.yz);
@@ -95,12 +96,12 @@ EmitterTri emitter_tri(uint i) {
     int b = int(i) * 5;
     texel_vec3x3(Emitters, b, e.p0, e.e1, e.e2, ng);
     e.ng = uintBitsToFloat(ng);
-    uvec4 t3 = texelFetch(Emitters, b + 3);
+    uvec4 t3 = texel_load(Emitters, b + 3);
     e.prim = t3.x;
     e.cdf = uintBitsToFloat(t3.y);
     e.pdf = uintBitsToFloat(t3.z);
     e.two_sided = t3.w;
-    e.emission = value_ref(texelFetch(Emitters, b + 4));
+    e.emission = value_ref(texel_load(Emitters, b + 4));
     return e;
 }
 
@@ -112,7 +113,7 @@ SensorRecord sensor_record(uint i) {
     uvec3 forward;
     texel_vec3x3(Sensors, b, s.origin, s.right, s.up, forward);
     s.forward = uintBitsToFloat(forward);
-    uvec4 t3 = texelFetch(Sensors, b + 3);
+    uvec4 t3 = texel_load(Sensors, b + 3);
     s.tan_half_fov_y = uintBitsToFloat(t3.x);
     s.aspect = uintBitsToFloat(t3.y);
     s.pad0 = 0u;
@@ -123,8 +124,8 @@ SensorRecord sensor_record(uint i) {
 // The scene-wide values (2 texels: environment 0-3, environment_scale 4,
 // environment_sample_prob 5, num_lights 6).
 Globals scene_globals() {
-    uvec4 t0 = texelFetch(SceneGlobals, 0);
-    uvec4 t1 = texelFetch(SceneGlobals, 1);
+    uvec4 t0 = texel_load(SceneGlobals, 0);
+    uvec4 t1 = texel_load(SceneGlobals, 1);
     return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), t1.z, 0u);
 }
 
@@ -132,16 +133,16 @@ Globals scene_globals() {
 // intensity 12-15, cos_inner 16, cos_outer 17, inner 18, outer 19).
 LightRecord light_record(uint i) {
     int b = int(i) * 5;
-    uvec4 t0 = texelFetch(Lights, b);
-    uvec4 t1 = texelFetch(Lights, b + 1);
-    uvec4 t4 = texelFetch(Lights, b + 4);
+    uvec4 t0 = texel_load(Lights, b);
+    uvec4 t1 = texel_load(Lights, b + 1);
+    uvec4 t4 = texel_load(Lights, b + 4);
     LightRecord l;
     l.position = uintBitsToFloat(t0.xyz);
     l.kind = t0.w;
     l.direction = uintBitsToFloat(t1.xyz);
     l.falloff = t1.w;
-    l.color = value_ref(texelFetch(Lights, b + 2));
-    l.intensity = value_ref(texelFetch(Lights, b + 3));
+    l.color = value_ref(texel_load(Lights, b + 2));
+    l.intensity = value_ref(texel_load(Lights, b + 3));
     l.cos_inner = uintBitsToFloat(t4.x);
     l.cos_outer = uintBitsToFloat(t4.y);
     l.inner = uintBitsToFloat(t4.z);
@@ -150,7 +151,7 @@ LightRecord light_record(uint i) {
 }
 
 // The cdf of emissive triangle `i` alone (its fourth texel), for the binary search.
-float emitter_cdf(uint i) { return uintBitsToFloat(texelFetch(Emitters, int(i) * 5 + 3).y); }
+float emitter_cdf(uint i) { return uintBitsToFloat(texel_load(Emitters, int(i) * 5 + 3).y); }
 #ifdef ADJOINT
 #extension GL_EXT_shader_atomic_float : require
 layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };

@@ -16,13 +16,15 @@
 //! - `equal_spp`: the proportional estimate at fd_spp samples for primal and adjoint, for
 //!   the cost ratios at equal sample counts;
 //! - `generic`: `trace_primal` built from the unspecialised variant trace_primal_generic
-//!   (the integrator's limits read at run time), for the specialisation gain.
+//!   (the integrator's limits read at run time), for the specialisation gain;
+//! - `sampled`: `trace_primal` built to read the scene's texel buffers by texel fetches
+//!   (trace_primal_sampled) instead of image loads, the same bits (glsl/lib/texels.glsl).
 //!
 //! Rays are counted once, untimed, by the variant trace_primal_count, which traces the
 //! same paths as the primal pass with the same push constants and counts every ray cast;
 //! rays/s is that count over the median time of the uncounted primal pass. The same
-//! submission renders the specialised and generic variants too and compares the images,
-//! which must agree: the comparison is of speed only.
+//! submission renders the specialised, generic and sampled variants too and compares the
+//! images, which must agree: the comparison is of speed only.
 //!
 //! The BVH throughput is trace_test (closest hit only, any hit only) on jittered camera
 //! rays of the first sensor, in the default node layout (`bench SCENE --bvh-layouts`
@@ -99,6 +101,13 @@ pub struct SpecialisationGain {
     pub generic_image_rel_diff: f64,
     /// The same for the ray-counting variant.
     pub count_image_rel_diff: f64,
+    /// trace_primal reading the scene's texel buffers by texel fetches (the sampler's path)
+    /// instead of image loads.
+    pub sampled_ms: f64,
+    /// sampled_ms / specialised_ms.
+    pub sampled_gain: f64,
+    /// The image difference of the sampled variant (the same bits are read: 0).
+    pub sampled_image_rel_diff: f64,
 }
 
 /// Cost ratios at equal samples per pixel.
@@ -244,7 +253,7 @@ pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser
 }
 
 /// The bench's own passes beside the engine's: the other optimiser, the two-trace
-/// finite-difference sample, the gradient at equal spp, the unspecialised and counting
+/// finite-difference sample, the gradient at equal spp, the unspecialised and sampled
 /// builds of the primal kernel.
 struct Extras {
     adam: GpuOptimiser,
@@ -252,11 +261,72 @@ struct Extras {
     theta_copy: Buffer,
     _eq_grad: Buffer,
     equal: GradientPass,
-    generic: ComputePipeline,
-    generic_group: BindGroup,
-    generic_image: Buffer,
+    generic: Variant,
+    sampled: Variant,
     memory_bytes: u64,
     memory_allocations: usize,
+}
+
+/// A build of trace_primal other than the engine's, bound to the scene with an image of its
+/// own.
+struct Variant {
+    pipe: ComputePipeline,
+    group: BindGroup,
+    image: Buffer,
+    /// The buffers its dispatches add to: the image, and any other (ray counters).
+    accumulated: Vec<Buffer>,
+}
+
+impl Variant {
+    /// trace_primal_generic (the integrator's limits read from a buffer).
+    fn generic(ctx: &Arc<Context>, gs: &GpuScene, image_name: &str) -> Result<Self> {
+        let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
+        Self::new(ctx, gs, "trace_primal_generic", &[gs.const_base_spec()], image_name, &[("IntegratorLimits", &limits)])
+    }
+
+    /// `kernel` (in the scene's node layout) with specialization constants `spec` and the
+    /// scene's bindings, `extra` and an image named `image_name` as its accumulator.
+    fn new(
+        ctx: &Arc<Context>,
+        gs: &GpuScene,
+        kernel: &str,
+        spec: &[(&'static str, SpecValue)],
+        image_name: &str,
+        extra: &[(&'static str, &Buffer)],
+    ) -> Result<Self> {
+        let pipe = ComputePipeline::new(ctx, &gs.kernel(kernel), spec)?;
+        let image = Buffer::zeroed::<[f32; 3]>(ctx, image_name, gs.pixels(), MemoryKind::Device)?;
+        let mut b = gs.bindings();
+        b.push(("Accum", &image));
+        b.extend_from_slice(extra);
+        let group = pipe.bind(&b)?;
+        Ok(Variant { pipe, group, accumulated: vec![image.clone()], image })
+    }
+
+    /// The variant with `b` among the buffers its dispatches add to.
+    fn accumulating(mut self, b: &Buffer) -> Self {
+        self.accumulated.push(b.clone());
+        self
+    }
+
+    /// Adds its render of every sensor at the primal pass's push constants to its image.
+    fn record(&self, rec: &mut crate::gpu::Recorder, engine: &Engine, prof: Option<&mut Profiler>) -> gpu::Result<()> {
+        let gs = engine.scene();
+        let mut prof = prof;
+        for s in 0..gs.sensors as u32 {
+            // The renders accumulate into one image.
+            let acc: Vec<&Buffer> = self.accumulated.iter().collect();
+            let rw: Vec<(&Buffer, Access)> = acc.iter().map(|&b| (b, Access::ComputeReadWrite)).collect();
+            rec.transition(&rw)?;
+            let push = engine.gradient.primal_push(gs, s);
+            let pass = |rec: &mut crate::gpu::Recorder| record_samples(rec, gs, &self.pipe, &self.group, push, push.spp, &acc);
+            match prof.as_deref_mut() {
+                Some(p) => p.scope(rec, "trace_primal", |rec, _| pass(rec))?,
+                None => pass(rec)?,
+            }
+        }
+        Ok(())
+    }
 }
 
 fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
@@ -273,12 +343,8 @@ fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
     let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", gs.layout.len.max(1), MemoryKind::Device)?;
     let equal = engine.extra_gradient(st.fd_spp, st.fd_spp, gpu_seed(st.seed), &eq_grad)?;
-    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[gs.const_base_spec()])?;
-    let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
-    let image = Buffer::zeroed::<[f32; 3]>(ctx, "generic accum", gs.pixels(), MemoryKind::Device)?;
-    let mut b = gs.bindings();
-    b.extend([("Accum", &image), ("IntegratorLimits", &limits)]);
-    let generic_group = generic.bind(&b)?;
+    let generic = Variant::generic(ctx, gs, "generic accum")?;
+    let sampled = Variant::new(ctx, gs, "trace_primal_sampled", &gs.spec(), "sampled accum", &[])?;
     Ok(Extras {
         adam,
         fd_two,
@@ -286,59 +352,38 @@ fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
         _eq_grad: eq_grad,
         equal,
         generic,
-        generic_group,
-        generic_image: image,
+        sampled,
         memory_bytes: live.iter().map(|(_, size)| size).sum(),
         memory_allocations: live.len(),
     })
 }
 
 /// Rays cast by one primal pass (counted by trace_primal_count) and the relative image
-/// differences of the generic and counting builds against the specialised one: each
-/// renders every sensor once, at θ and the first iteration's counter, with the primal
-/// pass's push constants.
-fn count_rays(ctx: &Arc<Context>, engine: &Engine) -> Result<(u64, f64, f64)> {
+/// differences of the generic, counting and sampled builds against the specialised one:
+/// each renders every sensor once, at θ and the first iteration's counter, with the primal
+/// pass's push constants (before the timed rounds, into the variants' own images).
+fn count_rays(ctx: &Arc<Context>, engine: &Engine, x: &Extras) -> Result<(u64, [f64; 3])> {
     let gs = engine.scene();
-    let pixels = gs.pixels();
-    let specialised = ComputePipeline::new(ctx, &gs.kernel("trace_primal"), &gs.spec())?;
-    let generic = ComputePipeline::new(ctx, &gs.kernel("trace_primal_generic"), &[gs.const_base_spec()])?;
-    let counting = ComputePipeline::new(ctx, &gs.kernel("trace_primal_count"), &gs.spec())?;
-    let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
-    let accum = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device);
-    let images = [accum("image specialised")?, accum("image generic")?, accum("image counted")?];
-    let counters = Buffer::zeroed::<u32>(ctx, "ray count", (pixels as u64).div_ceil(counting.local_size()[0] as u64) as usize, MemoryKind::Device)?;
-    let bind = |p: &ComputePipeline, extra: &[(&'static str, &Buffer)]| {
-        let mut b = gs.bindings();
-        b.extend_from_slice(extra);
-        p.bind(&b)
-    };
-    let groups = [
-        bind(&specialised, &[("Accum", &images[0])])?,
-        bind(&generic, &[("Accum", &images[1]), ("IntegratorLimits", &limits)])?,
-        bind(&counting, &[("Accum", &images[2]), ("RayCount", &counters)])?,
-    ];
-    let pipes = [&specialised, &generic, &counting];
+    let specialised = Variant::new(ctx, gs, "trace_primal", &gs.spec(), "image specialised", &[])?;
+    let counters = Buffer::zeroed::<u32>(ctx, "ray count", gs.pixels().div_ceil(specialised.pipe.local_size()[0] as usize), MemoryKind::Device)?;
+    let counting = Variant::new(ctx, gs, "trace_primal_count", &gs.spec(), "image counted", &[("RayCount", &counters)])?.accumulating(&counters);
     gs.set_frame(0)?;
     let mut check = CommandBuffer::new(ctx, "ray count")?;
     check.record(|rec| {
-        for s in 0..gs.sensors as u32 {
-            let push = engine.gradient.primal_push(gs, s);
-            for k in 0..3 {
-                // Each sensor's render (and ray count) accumulates onto the previous one's.
-                rec.transition(&[(&images[k], Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
-                record_samples(rec, gs, pipes[k], &groups[k], push, push.spp, &[&images[k], &counters])?;
-            }
+        for v in [&specialised, &x.generic, &x.sampled, &counting] {
+            v.record(rec, engine, None)?;
         }
         Ok(())
     })?;
     check.submit_and_wait()?;
     let rays: u64 = counters.read::<u32>()?.iter().map(|&c| c as u64).sum();
-    let reference: Vec<[f32; 3]> = images[0].read()?;
-    Ok((rays, rel_diff(&reference, &images[1].read()?), rel_diff(&reference, &images[2].read()?)))
+    let reference: Vec<[f32; 3]> = specialised.image.read()?;
+    let diff = |v: &Variant| -> Result<f64> { Ok(rel_diff(&reference, &v.image.read()?)) };
+    Ok((rays, [diff(&x.generic)?, diff(&counting)?, diff(&x.sampled)?]))
 }
 
 /// The profilers of the timed recording, one per group of passes.
-const GROUPS: [&str; 7] = ["gradient", "finite_difference", "finite_difference_two_trace", "optimiser", "iteration", "equal_spp", "generic"];
+const GROUPS: [&str; 8] = ["gradient", "finite_difference", "finite_difference_two_trace", "optimiser", "iteration", "equal_spp", "generic", "sampled"];
 
 /// Records the timed iteration: the engine's passes and the extras, each group in its own
 /// profiler (see the module documentation).
@@ -349,7 +394,7 @@ fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine
         for p in profs.iter_mut() {
             p.reset(rec);
         }
-        let [grad, fd, fd_two, opt, iter, eq, generic] = profs else { unreachable!("one profiler per group") };
+        let [grad, fd, fd_two, opt, iter, eq, generic, sampled] = profs else { unreachable!("one profiler per group") };
         iter.begin(rec, "iteration")?;
         engine.record_gradient(rec, Some(grad))?;
         engine.record_fd(rec, Some(fd))?;
@@ -363,12 +408,8 @@ fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine
         engine.report.record(rec)?;
         iter.end(rec)?;
         x.equal.record_passes(rec, gs, ops, true, Some(eq))?;
-        for s in 0..gs.sensors as u32 {
-            // The renders accumulate into one image.
-            rec.transition(&[(&x.generic_image, Access::ComputeReadWrite)])?;
-            let push = engine.gradient.primal_push(gs, s);
-            generic.scope(rec, "trace_primal", |rec, _| record_samples(rec, gs, &x.generic, &x.generic_group, push, push.spp, &[&x.generic_image]))?;
-        }
+        x.generic.record(rec, engine, Some(generic))?;
+        x.sampled.record(rec, engine, Some(sampled))?;
         Ok(())
     })?;
     Ok(())
@@ -382,9 +423,9 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     st.fd_two_trace = false;
     let engine = Engine::new(ctx, scene, &st, |_, _, _| {})?;
     let x = extras(ctx, &engine)?;
-    let (rays, generic_image_rel_diff, count_image_rel_diff) = count_rays(ctx, &engine)?;
+    let (rays, [generic_image_rel_diff, count_image_rel_diff, sampled_image_rel_diff]) = count_rays(ctx, &engine, &x)?;
     let sensors = engine.scene().sensors as u32;
-    let sizes = [3 * sensors, 3 * sensors, 6 * sensors + 1, 3, 1, 3 * sensors, sensors];
+    let sizes = [3 * sensors, 3 * sensors, 6 * sensors + 1, 3, 1, 3 * sensors, sensors, sensors];
     let mut profs = sizes.iter().map(|&n| Profiler::new(ctx, n)).collect::<gpu::Result<Vec<_>>>()?;
     let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
     record_timed(&mut cmd, &mut profs, &engine, &x)?;
@@ -412,7 +453,7 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
         staged_submissions: per(moved.staged_submissions),
         buffers_created: moved.buffers_created + moved.staging_allocations,
     };
-    let measured = Measured { engine: &engine, samples: &samples, rays, generic_image_rel_diff, count_image_rel_diff };
+    let measured = Measured { engine: &engine, samples: &samples, rays, generic_image_rel_diff, count_image_rel_diff, sampled_image_rel_diff };
     let mut bench = measured.report(scene, iterations, &x, optimisers);
     bench.bvh = bvh_throughput(ctx, scene, engine.scene(), iterations)?;
     bench.transfer = transfer;
@@ -426,6 +467,7 @@ struct Measured<'a> {
     rays: u64,
     generic_image_rel_diff: f64,
     count_image_rel_diff: f64,
+    sampled_image_rel_diff: f64,
 }
 
 impl Measured<'_> {
@@ -470,6 +512,7 @@ impl Measured<'_> {
         let proportional_ms = eq.total();
         let (fd_ms, fd_two_ms) = (self.group("finite_difference").total(), self.group("finite_difference_two_trace").total());
         let generic_ms = self.group("generic").median("trace_primal");
+        let sampled_ms = self.group("sampled").median("trace_primal");
         SceneBench {
             scene: scene.path.display().to_string(),
             device: gs.ctx.info().name.clone(),
@@ -500,6 +543,9 @@ impl Measured<'_> {
                 gain: generic_ms / primal_ms.max(1e-12),
                 generic_image_rel_diff: self.generic_image_rel_diff,
                 count_image_rel_diff: self.count_image_rel_diff,
+                sampled_ms,
+                sampled_gain: sampled_ms / primal_ms.max(1e-12),
+                sampled_image_rel_diff: self.sampled_image_rel_diff,
             },
             ratios: Ratios {
                 spp: st.fd_spp,
@@ -648,6 +694,11 @@ impl SceneBench {
             s,
             "specialisation gain: trace_primal {} spp specialised {:.3} ms, generic {:.3} ms: {:.3}x (image difference generic {:.1e}, counted {:.1e})",
             g.spp, g.specialised_ms, g.generic_ms, g.gain, g.generic_image_rel_diff, g.count_image_rel_diff
+        );
+        let _ = writeln!(
+            s,
+            "texel reads: trace_primal {} spp by image loads {:.3} ms, by texel fetches (trace_primal_sampled) {:.3} ms: {:.3}x (image difference {:.1e})",
+            g.spp, g.specialised_ms, g.sampled_ms, g.sampled_gain, g.sampled_image_rel_diff
         );
         let q = &self.ratios;
         let _ = writeln!(

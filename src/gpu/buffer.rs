@@ -48,10 +48,12 @@ impl Buffer {
             return Err(GpuError::BufferTooLarge { name: name.into(), size: len, max });
         }
         let physical = len.max(16);
-        // Any buffer may also be bound as a uniform texel buffer (read through texel fetches).
+        // Any buffer may also be bound as a texel buffer (read through texel fetches or
+        // image loads).
         let info = vk::BufferCreateInfo::default().size(physical).usage(
             vk::BufferUsageFlags::STORAGE_BUFFER
                 | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
+                | vk::BufferUsageFlags::STORAGE_TEXEL_BUFFER
                 | vk::BufferUsageFlags::TRANSFER_SRC
                 | vk::BufferUsageFlags::TRANSFER_DST,
         );

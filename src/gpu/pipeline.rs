@@ -223,6 +223,7 @@ fn descriptor_type(kind: BindingKind) -> vk::DescriptorType {
     match kind {
         BindingKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
         BindingKind::TexelBuffer(_) => vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
+        BindingKind::ImageBuffer(_) => vk::DescriptorType::STORAGE_TEXEL_BUFFER,
     }
 }
 
@@ -314,7 +315,7 @@ impl BindGroup {
         // device's limit and cannot end in a partial texel.
         let max_texels = ctx.info().max_texel_buffer_elements;
         for b in &bound {
-            if let BindingKind::TexelBuffer(_) = b.kind {
+            if b.kind.texel().is_some() {
                 let len = b.buffer.len();
                 if len % TEXEL_BYTES != 0 || len / TEXEL_BYTES > max_texels {
                     return Err(GpuError::BufferAccess {
@@ -360,15 +361,15 @@ impl BindGroup {
         // One view slot per binding (null for storage buffers), for the descriptor writes.
         let mut views: Vec<[vk::BufferView; 1]> = Vec::with_capacity(bound.len());
         for b in &bound {
-            views.push([match b.kind {
-                BindingKind::StorageBuffer => vk::BufferView::null(),
-                BindingKind::TexelBuffer(t) => {
+            views.push([match b.kind.texel() {
+                None => vk::BufferView::null(),
+                Some(t) => {
                     let info = vk::BufferViewCreateInfo::default()
                         .buffer(b.buffer.0.raw)
                         .format(texel_format(t))
                         .offset(0)
                         .range(vk::WHOLE_SIZE);
-                    // SAFETY: the buffer has UNIFORM_TEXEL_BUFFER usage and a whole number of
+                    // SAFETY: the buffer has both texel-buffer usages and a whole number of
                     // texels (checked above); the group destroys the view.
                     let view = unsafe { dev.create_buffer_view(&info, None) }.map_err(vk_err("vkCreateBufferView"))?;
                     group.views.push(view);
@@ -390,7 +391,7 @@ impl BindGroup {
                     .descriptor_type(descriptor_type(b.kind));
                 match b.kind {
                     BindingKind::StorageBuffer => w.buffer_info(info),
-                    BindingKind::TexelBuffer(_) => w.texel_buffer_view(view),
+                    BindingKind::TexelBuffer(_) | BindingKind::ImageBuffer(_) => w.texel_buffer_view(view),
                 }
             })
             .collect();

@@ -6,7 +6,7 @@
 
 use super::{GpuError, Result};
 use spirq::prelude::*;
-use spirq::ty::{AccessType, DescriptorType, ScalarType, Type};
+use spirq::ty::{AccessType, DescriptorType, ImageFormat, ScalarType, Type};
 
 /// One descriptor binding.
 #[derive(Clone, Debug)]
@@ -28,6 +28,19 @@ pub struct BindingInfo {
 pub enum BindingKind {
     StorageBuffer,
     TexelBuffer(TexelType),
+    /// A read-only storage texel buffer (`readonly uimageBuffer` and the like, format
+    /// rgba32ui/rgba32f/rgba32i): the same texels read by image loads.
+    ImageBuffer(TexelType),
+}
+
+impl BindingKind {
+    /// The component type of a binding read as 16-byte texels (either kind of texel buffer).
+    pub fn texel(self) -> Option<TexelType> {
+        match self {
+            BindingKind::StorageBuffer => None,
+            BindingKind::TexelBuffer(t) | BindingKind::ImageBuffer(t) => Some(t),
+        }
+    }
 }
 
 /// Component type of a texel buffer; the host views the buffer as R32G32B32A32 of this type.
@@ -147,6 +160,18 @@ impl Reflection {
                                 other => return Err(err(kernel, format!("texel buffer of unsupported component type {other:?}"))),
                             };
                             (BindingAccess::Read, BindingKind::TexelBuffer(texel))
+                        }
+                        DescriptorType::StorageTexelBuffer(AccessType::ReadOnly) => {
+                            let texel = match ty {
+                                Type::StorageImage(t) => match t.fmt {
+                                    ImageFormat::Rgba32ui => TexelType::Uint,
+                                    ImageFormat::Rgba32f => TexelType::Float,
+                                    ImageFormat::Rgba32i => TexelType::Int,
+                                    other => return Err(err(kernel, format!("image buffer of unsupported format {other:?}"))),
+                                },
+                                other => return Err(err(kernel, format!("image buffer of unexpected type {other:?}"))),
+                            };
+                            (BindingAccess::Read, BindingKind::ImageBuffer(texel))
                         }
                         other => return Err(err(kernel, format!("unsupported descriptor type {other:?}"))),
                     };
