@@ -399,7 +399,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     // With the least-squares fit a secant may give no positive curvature: then no Newton
     // step, but the settle step within lr as near an optimum.
     if (p.step_rule == STEP_NEWTON && (h > 0.0 || (p.curv_ls && curv_w > 0.0))) {
-        // Newton's step -mean/curv shrunk by the positive-part James-Stein factor
+        // Newton's step -mean/h shrunk by the positive-part James-Stein factor
         // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0) or the
         // group's, or the Wiener step times settle, whichever is longer, within |step| <= lr.
         float z2;

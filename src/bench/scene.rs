@@ -279,9 +279,9 @@ struct Variant {
 
 impl Variant {
     /// trace_primal_generic (the integrator's limits read from a buffer).
-    fn generic(ctx: &Arc<Context>, gs: &GpuScene, image_name: &str) -> Result<Self> {
+    fn generic(ctx: &Arc<Context>, gs: &GpuScene) -> Result<Self> {
         let limits = Buffer::from_slice(ctx, "integrator limits", &gs.integrator_limits(), MemoryKind::Device)?;
-        Self::new(ctx, gs, "trace_primal_generic", &[gs.const_base_spec()], image_name, &[("IntegratorLimits", &limits)])
+        Self::new(ctx, gs, "trace_primal_generic", &[gs.const_base_spec()], "generic accum", &[("IntegratorLimits", &limits)])
     }
 
     /// `kernel` (in the scene's node layout) with specialization constants `spec` and the
@@ -310,13 +310,12 @@ impl Variant {
     }
 
     /// Adds its render of every sensor at the primal pass's push constants to its image.
-    fn record(&self, rec: &mut crate::gpu::Recorder, engine: &Engine, prof: Option<&mut Profiler>) -> gpu::Result<()> {
+    fn record(&self, rec: &mut crate::gpu::Recorder, engine: &Engine, mut prof: Option<&mut Profiler>) -> gpu::Result<()> {
         let gs = engine.scene();
-        let mut prof = prof;
+        let acc: Vec<&Buffer> = self.accumulated.iter().collect();
+        let rw: Vec<(&Buffer, Access)> = acc.iter().map(|&b| (b, Access::ComputeReadWrite)).collect();
         for s in 0..gs.sensors as u32 {
             // The renders accumulate into one image.
-            let acc: Vec<&Buffer> = self.accumulated.iter().collect();
-            let rw: Vec<(&Buffer, Access)> = acc.iter().map(|&b| (b, Access::ComputeReadWrite)).collect();
             rec.transition(&rw)?;
             let push = engine.gradient.primal_push(gs, s);
             let pass = |rec: &mut crate::gpu::Recorder| record_samples(rec, gs, &self.pipe, &self.group, push, push.spp, &acc);
@@ -343,7 +342,7 @@ fn extras(ctx: &Arc<Context>, engine: &Engine) -> Result<Extras> {
     let theta_copy = Buffer::new(ctx, "theta copy", gs.theta.len(), MemoryKind::Device)?;
     let eq_grad = Buffer::zeroed::<f32>(ctx, "grad at equal spp", gs.layout.len.max(1), MemoryKind::Device)?;
     let equal = engine.extra_gradient(st.fd_spp, st.fd_spp, gpu_seed(st.seed), &eq_grad)?;
-    let generic = Variant::generic(ctx, gs, "generic accum")?;
+    let generic = Variant::generic(ctx, gs)?;
     let sampled = Variant::new(ctx, gs, "trace_primal_sampled", &gs.spec(), "sampled accum", &[])?;
     Ok(Extras {
         adam,
