@@ -96,6 +96,12 @@ pub fn info_text(ctx: &Context) -> String {
     let _ = writeln!(s, "  subgroup size              {}", d.subgroup_size);
     let _ = writeln!(s, "  timestamp period           {} ns", d.timestamp_period_ns);
     let _ = writeln!(s, "  device-local heap          {:.1} GiB", d.device_local_heap_bytes as f64 / (1u64 << 30) as f64);
+    let l = d.descriptor_limits;
+    let _ = writeln!(
+        s,
+        "  per-stage descriptors      {} storage buffers, {} storage images, {} sampled images, {} in all",
+        l.storage_buffers, l.storage_images, l.sampled_images, l.resources
+    );
     let _ = writeln!(s, "features used by vkinverse:");
     for (name, has) in d.features.list() {
         let _ = writeln!(s, "  {:<58} {}", name, if has { "yes" } else { "MISSING" });
@@ -120,6 +126,12 @@ pub fn info_json(ctx: &Context) -> String {
             "subgroup_size": d.subgroup_size,
             "timestamp_period_ns": d.timestamp_period_ns,
             "device_local_heap_bytes": d.device_local_heap_bytes,
+            "max_per_stage_descriptors": {
+                "storage_buffers": d.descriptor_limits.storage_buffers,
+                "storage_images": d.descriptor_limits.storage_images,
+                "sampled_images": d.descriptor_limits.sampled_images,
+                "resources": d.descriptor_limits.resources,
+            },
             "features": d.features.list().iter().map(|(n, h)| (n.to_string(), *h)).collect::<std::collections::BTreeMap<_, _>>(),
         })
     };

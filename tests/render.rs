@@ -788,3 +788,33 @@ fn delta_lights_over_a_diffuse_plane_match_the_closed_form() {
     eprintln!("delta lights: worst pixel at {worst:.2} of its tolerance");
     assert!(image.data.iter().any(|p| p[2] > 0.0), "the scene is lit");
 }
+
+/// Every kernel's bindings fit the test device's per-stage descriptor limits, and a device
+/// with Vulkan's least guaranteed limits is refused with an error naming the limit, not
+/// handed an invalid pipeline layout.
+#[test]
+fn kernels_fit_the_per_stage_descriptor_limits_or_are_refused() {
+    use vkinverse::gpu::reflect::Reflection;
+    use vkinverse::gpu::{check_descriptor_limits, shaders, ComputePipeline, DescriptorLimits, GpuError};
+    with_gpu(|ctx| {
+        let limits = ctx.info().descriptor_limits;
+        for (name, spirv) in shaders::KERNELS {
+            let r = Reflection::new(name, spirv).unwrap();
+            check_descriptor_limits(name, &r.bindings, "test", limits).unwrap_or_else(|e| panic!("{e}"));
+        }
+        let minimum = DescriptorLimits { storage_buffers: 4, storage_images: 4, sampled_images: 16, resources: 128 };
+        let r = Reflection::new("trace_primal_cw8", shaders::get("trace_primal_cw8").unwrap()).unwrap();
+        let err = check_descriptor_limits("trace_primal_cw8", &r.bindings, "small", minimum).unwrap_err();
+        assert!(matches!(err, GpuError::TooManyDescriptors { what: "storage texel buffers", max: 4, .. }), "{err}");
+        let msg = err.to_string();
+        assert!(msg.contains("maxPerStageDescriptorStorageImages") && msg.contains("device 'small'") && !msg.contains('\n'), "{msg}");
+        // The texel-fetch build counts its texel buffers as sampled images instead.
+        let r = Reflection::new("trace_primal_sampled_cw8", shaders::get("trace_primal_sampled_cw8").unwrap()).unwrap();
+        check_descriptor_limits("trace_primal_sampled_cw8", &r.bindings, "small", minimum).unwrap();
+        let fewer = DescriptorLimits { sampled_images: 2, ..minimum };
+        let err = check_descriptor_limits("trace_primal_sampled_cw8", &r.bindings, "small", fewer).unwrap_err();
+        assert!(matches!(err, GpuError::TooManyDescriptors { what: "uniform texel buffers", .. }), "{err}");
+        // The pipeline is built through the check.
+        ComputePipeline::new(ctx, "trace_primal_cw8", &[]).unwrap();
+    });
+}

@@ -109,6 +109,20 @@ pub struct DeviceInfo {
     pub timestamp_period_ns: f32,
     pub device_local_heap_bytes: u64,
     pub features: DeviceFeatures,
+    /// Descriptors one compute kernel may use, per kind.
+    pub descriptor_limits: DescriptorLimits,
+}
+
+/// The device's per-stage descriptor limits that vkinverse's kernels run into (Vulkan
+/// guarantees only 4 storage buffers and 4 storage images per stage; desktop drivers allow
+/// thousands). Storage texel buffers count as storage images, uniform texel buffers as
+/// sampled images.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DescriptorLimits {
+    pub storage_buffers: u32,
+    pub storage_images: u32,
+    pub sampled_images: u32,
+    pub resources: u32,
 }
 
 /// The Vulkan instance, the chosen device and its compute queue.
@@ -397,6 +411,12 @@ impl Context {
                 timestamp_period_ns: props.limits.timestamp_period,
                 device_local_heap_bytes,
                 features,
+                descriptor_limits: DescriptorLimits {
+                    storage_buffers: props.limits.max_per_stage_descriptor_storage_buffers,
+                    storage_images: props.limits.max_per_stage_descriptor_storage_images,
+                    sampled_images: props.limits.max_per_stage_descriptor_sampled_images,
+                    resources: props.limits.max_per_stage_resources,
+                },
             });
         }
         Ok((infos, physicals))

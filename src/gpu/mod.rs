@@ -23,8 +23,8 @@ mod sync;
 
 pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
-pub use context::{check_features, Context, ContextOptions, DeviceFeatures, DeviceInfo};
-pub use pipeline::{texel_padded, BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
+pub use context::{check_features, Context, ContextOptions, DescriptorLimits, DeviceFeatures, DeviceInfo};
+pub use pipeline::{check_descriptor_limits, texel_padded, BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
 pub use profiler::{MaybeProfiler, Profiler, ScopeTime};
 pub use staging::{TransferStats, STAGING_BYTES};
 pub use sync::Access;
@@ -91,6 +91,8 @@ pub enum GpuError {
     UnknownKernel(String),
     #[error("reflection of kernel '{kernel}': {msg}")]
     Reflect { kernel: String, msg: String },
+    #[error("kernel '{kernel}' uses {count} {what}, more than the {max} per shader stage that device '{device}' allows ({limit})")]
+    TooManyDescriptors { kernel: String, device: String, what: &'static str, count: u32, max: u32, limit: &'static str },
     #[error("kernel '{kernel}' has no binding named '{name}' (it has: {known})")]
     UnknownBinding { kernel: String, name: String, known: String },
     #[error("kernel '{kernel}': binding '{name}' was not bound")]

@@ -1,7 +1,7 @@
 //! Compute pipelines built from reflected SPIR-V, and bind groups filled by GLSL name.
 
-use super::reflect::{BindingAccess, BindingKind, LocalSize, Reflection, SpecKind, TexelType};
-use super::{shaders, vk_err, Access, Buffer, Context, GpuError, PushBlock, Result};
+use super::reflect::{BindingAccess, BindingInfo, BindingKind, LocalSize, Reflection, SpecKind, TexelType};
+use super::{shaders, vk_err, Access, Buffer, Context, DescriptorLimits, GpuError, PushBlock, Result};
 use ash::vk;
 use std::sync::Arc;
 
@@ -100,6 +100,7 @@ impl ComputePipeline {
                 .unwrap_or(default),
         });
 
+        check_descriptor_limits(kernel, &reflection.bindings, &ctx.info().name, ctx.info().descriptor_limits)?;
         let layout_bindings: Vec<_> = reflection
             .bindings
             .iter()
@@ -216,6 +217,22 @@ impl ComputePipeline {
             bound.push(Bound { binding: info.binding, buffer: buf, access, kind: info.kind, name: info.names[0].clone() });
         }
         BindGroup::new(&me.ctx, me.set_layout, kernel, bound)
+    }
+}
+
+/// Fails with [`GpuError::TooManyDescriptors`] where a kernel's bindings exceed one of the
+/// device's per-stage limits, instead of an invalid pipeline layout.
+pub fn check_descriptor_limits(kernel: &str, bindings: &[BindingInfo], device: &str, limits: DescriptorLimits) -> Result<()> {
+    let count = |f: fn(BindingKind) -> bool| bindings.iter().filter(|b| f(b.kind)).count() as u32;
+    let checks = [
+        ("storage buffers", "maxPerStageDescriptorStorageBuffers", count(|k| k == BindingKind::StorageBuffer), limits.storage_buffers),
+        ("storage texel buffers", "maxPerStageDescriptorStorageImages", count(|k| matches!(k, BindingKind::ImageBuffer(_))), limits.storage_images),
+        ("uniform texel buffers", "maxPerStageDescriptorSampledImages", count(|k| matches!(k, BindingKind::TexelBuffer(_))), limits.sampled_images),
+        ("descriptors", "maxPerStageResources", bindings.len() as u32, limits.resources),
+    ];
+    match checks.into_iter().find(|c| c.2 > c.3) {
+        Some((what, limit, count, max)) => Err(GpuError::TooManyDescriptors { kernel: kernel.into(), device: device.into(), what, count, max, limit }),
+        None => Ok(()),
     }
 }
 
