@@ -101,6 +101,15 @@ def summary(job_dir):
         return {}
 
 
+def image_excess(job_dir):
+    """The result's image error less the reference's (summary.json; both from the same
+    random numbers): how much further the expected image is from the target than the
+    reference's, free of the renders' noise. None for runs from before it was measured."""
+    sm = summary(job_dir)
+    final, ref = sm.get("final_image_error"), sm.get("reference_image_error")
+    return None if final is None or ref is None else final - ref
+
+
 def rate(job_dir):
     """The run's learning rate as given: a number, or "scene" for the scene's own rates."""
     st = summary(job_dir).get("settings", {})
@@ -191,9 +200,9 @@ def protocol(by_scene):
         )
         print(
             f"| run | spp | lr | iterations | ms / iteration | settled error | error at iteration {fmt(equal_it, 'd')} "
-            + f"| error at {fmt_short(equal_time)} s | time to Adam-3 goal (s) | time to Adam-64 goal (s) | meta n_eff |"
+            + f"| error at {fmt_short(equal_time)} s | time to Adam-3 goal (s) | time to Adam-64 goal (s) | image error over the reference's | meta n_eff |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
             sm = r["smooth"]
             spp = f"{r['spp']}+1 FD" if r["optimiser"].startswith("meta") else str(r["spp"])
@@ -204,7 +213,8 @@ def protocol(by_scene):
                 f"| {r['optimiser']}{mark} | {spp} | {r['rate']} | {r['iterations']} | {fmt_short(1000 * r['time_s'] / r['iterations'])} "
                 + f"| {r['settled']:.4f} | {fmt(error_at_iteration(sm, equal_it) if equal_it else None)} "
                 + f"| {fmt(error_at_time(sm, equal_time) if equal_time else None)} "
-                + f"| {fmt_short(time_to_reach(sm, goal3) if goal3 else None)} | {fmt_short(time_to_reach(sm, goal64) if goal64 else None)} | {n_eff} |"
+                + f"| {fmt_short(time_to_reach(sm, goal3) if goal3 else None)} | {fmt_short(time_to_reach(sm, goal64) if goal64 else None)} "
+                + f"| {fmt(image_excess(r['dir']), '.2e')} | {n_eff} |"
             )
         print()
         if meta and best:
@@ -213,7 +223,9 @@ def protocol(by_scene):
             s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64)) if adam64 else None
             ratio = meta["settled"] / best["settled"]
             at_or_below = meta["settled"] <= best["settled"]
-            v = dict(scene=scene, meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=ratio, s3=s3, s64=s64,
+            im_meta, im_adam = image_excess(meta["dir"]), image_excess(best["dir"])
+            im_ratio = im_meta / im_adam if im_meta is not None and im_adam else None
+            v = dict(scene=scene, meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=ratio, s3=s3, s64=s64, im_ratio=im_ratio,
                      adam64=adam64["settled"] if adam64 else None, ok=at_or_below and s3 is not None and s3 >= 3.0)
             verdicts.append(v)
             print(
@@ -222,12 +234,12 @@ def protocol(by_scene):
             )
     if verdicts:
         print("### Summary\n")
-        print("| scene | Adam-3 best lr | Adam-3 settled | Adam-64 settled | meta settled | meta / Adam-3 | speed-up to Adam-3's goal | speed-up to Adam-64's goal | goal (≤ Adam-3, ≥ 3×) |")
-        print("|---|---|---|---|---|---|---|---|---|")
+        print("| scene | Adam-3 best lr | Adam-3 settled | Adam-64 settled | meta settled | meta / Adam-3 | speed-up to Adam-3's goal | speed-up to Adam-64's goal | goal (≤ Adam-3, ≥ 3×) | image error over the reference's: meta / Adam-3 |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
         for v in verdicts:
             print(
                 f"| {v['scene']} | {v['rate']} | {v['adam3']:.4f} | {fmt(v['adam64'])} | {v['meta']:.4f} | {v['ratio']:.2f} "
-                + f"| {fmt_speedup(v['s3'])} | {fmt_speedup(v['s64'])} | {'met' if v['ok'] else 'not met'} |"
+                + f"| {fmt_speedup(v['s3'])} | {fmt_speedup(v['s64'])} | {'met' if v['ok'] else 'not met'} | {fmt(v['im_ratio'], '.2f')} |"
             )
         print()
 

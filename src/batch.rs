@@ -281,6 +281,9 @@ pub struct JobResult {
     pub final_loss: Option<f64>,
     /// Final parameter RMSE (None when the reference is unknown).
     pub final_error: Option<f64>,
+    /// The optimised scene's image error (`summary.json`'s `final_image_error`).
+    #[serde(default)]
+    pub final_image_error: Option<f64>,
     /// The job's output directory, relative to the table's directory (in a merged table,
     /// the shard's directory as given to `--merge` joined with it); empty when a failed job
     /// wrote nothing.
@@ -300,7 +303,7 @@ pub struct Results {
     pub results: Vec<JobResult>,
 }
 
-const CSV_HEADER: [&str; 13] = ["job", "label", "scene", "optimiser", "seed", "spp", "status", "message", "iterations", "time_s", "final_loss", "final_error", "dir"];
+const CSV_HEADER: [&str; 14] = ["job", "label", "scene", "optimiser", "seed", "spp", "status", "message", "iterations", "time_s", "final_loss", "final_error", "final_image_error", "dir"];
 
 impl Results {
     pub fn failed(&self) -> usize {
@@ -327,6 +330,7 @@ impl Results {
                 opt(r.time_s),
                 opt(r.final_loss),
                 opt(r.final_error),
+                opt(r.final_image_error),
                 r.dir.clone(),
             ]
         });
@@ -395,6 +399,7 @@ fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobR
     row.time_s = Some(summary.total_time_s);
     row.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
     row.final_error = summary.final_param_error;
+    row.final_image_error = summary.final_image_error;
     Ok(run.log)
 }
 
@@ -439,6 +444,7 @@ pub fn run(
             time_s: None,
             final_loss: None,
             final_error: None,
+            final_image_error: None,
             dir: job.dir_name(),
         };
         let dir = out_dir.join(job.dir_name());

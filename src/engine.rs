@@ -554,6 +554,51 @@ impl Engine {
         Ok((loss, diagnostics, carry, theta))
     }
 
+    /// The image error at θ = `theta` (the optimised θ when None): the mean over sensors,
+    /// pixels and channels of (A − T)(B − T), where A and B are two renders of `spp`
+    /// samples with the two `seeds` and T is the sensor's target. A and B are independent
+    /// and unbiased, so this estimates the mean squared difference between θ's expected
+    /// image and the target without the renders' own variance, which mean((A − T)²) would
+    /// add; it can fall below zero by its own noise. Also returns each sensor's (A + B)/2.
+    /// θ's buffer holds `theta` only while this renders.
+    pub fn image_error(&self, theta: Option<&[f32]>, spp: u32, seeds: [u32; 2]) -> Result<(f64, Vec<Image>)> {
+        let gs = self.scene();
+        let saved: Option<Vec<f32>> = match theta {
+            Some(values) => {
+                let all: Vec<f32> = gs.theta.read()?;
+                let mut set = all.clone();
+                set[..values.len()].copy_from_slice(values);
+                gs.theta.write(&set)?;
+                Some(all)
+            }
+            None => None,
+        };
+        let measured = self.measure_image_error(spp, seeds);
+        if let Some(all) = saved {
+            gs.theta.write(&all)?;
+        }
+        measured
+    }
+
+    fn measure_image_error(&self, spp: u32, seeds: [u32; 2]) -> Result<(f64, Vec<Image>)> {
+        let mut total = 0.0;
+        let mut means = Vec::with_capacity(self.targets.len());
+        for (sensor, target) in self.targets.iter().enumerate() {
+            let a = self.renderer.render(sensor as u32, spp, seeds[0], |_, _| {})?;
+            let b = self.renderer.render(sensor as u32, spp, seeds[1], |_, _| {})?;
+            let mut sum = 0.0;
+            for ((pa, pb), pt) in a.data.iter().zip(&b.data).zip(&target.data) {
+                for c in 0..3 {
+                    sum += (f64::from(pa[c]) - f64::from(pt[c])) * (f64::from(pb[c]) - f64::from(pt[c]));
+                }
+            }
+            total += sum / (3 * target.data.len().max(1)) as f64;
+            let data = a.data.iter().zip(&b.data).map(|(pa, pb)| [0, 1, 2].map(|c| 0.5 * (pa[c] + pb[c]))).collect();
+            means.push(Image { width: a.width, height: a.height, data });
+        }
+        Ok((total / self.targets.len().max(1) as f64, means))
+    }
+
     /// θ as the host sees it after the last submission.
     pub fn theta(&self) -> Result<Vec<f32>> {
         let gs = self.scene();

@@ -288,7 +288,7 @@ Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --sh
 runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
 per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, iterations,
-time_s, final_loss, final_error, dir); per scene, error_vs_time-<scene>.png plots every
+time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
 finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
 points. A failed job does not stop the batch; the exit status
 is non-zero if any failed. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
@@ -436,6 +436,8 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
+        let floor = s.reference_image_error.map(|r| format!(" (the reference's: {r:.4e})")).unwrap_or_default();
+        outln!("image error of the result: {}{floor}, from two renders of {} spp against the target", err(s.final_image_error), s.image_error_spp)?;
         let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
         outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/", a.output.display())?;
     }

@@ -147,6 +147,20 @@ pub struct Summary {
     pub final_loss: f64,
     pub final_param_error: Option<f64>,
     pub initial_param_error: Option<f64>,
+    /// The image error of the optimised scene ([`Engine::image_error`]): the mean squared
+    /// difference between its expected image and the target, per pixel and channel,
+    /// estimated from two independent renders of `image_error_spp` samples without their
+    /// noise. Unlike the parameter error it needs no reference and measures what the loss
+    /// can see: where the target does not determine a parameter, the loss's optimum and
+    /// the reference differ, and the parameter error stops measuring the fit.
+    #[serde(default)]
+    pub final_image_error: Option<f64>,
+    /// The same of the reference scene, with the same random numbers (None when the
+    /// reference is unknown): the floor that the target's own noise leaves.
+    #[serde(default)]
+    pub reference_image_error: Option<f64>,
+    #[serde(default)]
+    pub image_error_spp: u32,
     /// Median GPU milliseconds per iteration of each pass, by kernel name (a pass recorded
     /// once per sensor summed over sensors), over the iterations of this process.
     pub pass_ms: BTreeMap<String, f64>,
@@ -536,8 +550,16 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
     let theta = engine.theta()?;
     write_params(out_dir, engine, &theta)?;
     crate::scene::write::write_final(out_dir, scene, &engine.scene().layout.recovered(&theta))?;
-    let final_img = engine.renderer.render(0, settings.primal_spp.max(64), gpu_seed(settings.seed) ^ 0x5EED, |_, _| {})?;
-    image::write_exr(&out_dir.join("final.exr"), &final_img)?;
+    let eval_spp = settings.primal_spp.max(64);
+    let seeds = [gpu_seed(settings.seed) ^ 0x5EED, gpu_seed(settings.seed) ^ 0x5EED_B0B0];
+    let (final_image_error, images) = engine.image_error(None, eval_spp, seeds)?;
+    image::write_exr(&out_dir.join("final.exr"), &images[0])?;
+    // The same renders of the reference (common random numbers: the same seeds), whose
+    // error is what the target's own noise leaves.
+    let reference_image_error = match run.has_reference {
+        true => Some(engine.image_error(Some(&engine.scene().layout.reference()), eval_spp, seeds)?.0),
+        false => None,
+    };
     write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;
     let path = out_dir.join("optimiser.png");
     let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);
@@ -565,6 +587,9 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
         final_loss: run.last_loss,
         final_param_error: run.log.rows.last().and_then(|r| r.param_error),
         initial_param_error: initial_error,
+        final_image_error: Some(final_image_error).filter(|e| e.is_finite()),
+        reference_image_error: reference_image_error.filter(|e| e.is_finite()),
+        image_error_spp: eval_spp,
         pass_ms,
         nonfinite_gradients: opt.nonfinite_count()?,
         meta_n_eff,

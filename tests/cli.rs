@@ -340,6 +340,13 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     assert!((summary["final_param_error"].as_f64().unwrap() - errors[iterations]).abs() < 1e-9);
     assert!((summary["initial_param_error"].as_f64().unwrap() - errors[0]).abs() < 1e-9);
     assert!((summary["settings"]["lr"].as_f64().unwrap() - 0.05).abs() < 1e-6);
+    // The result's image error, and the reference's from the same random numbers (most
+    // of both is the low-spp target's noise): the red wall a few steps from grey is
+    // further from the target than the reference.
+    let image_error = summary["final_image_error"].as_f64().expect("final_image_error");
+    let floor = summary["reference_image_error"].as_f64().expect("reference_image_error");
+    assert!(image_error > floor && floor > 0.0, "the result's {image_error:e} against the reference's {floor:e}");
+    assert_eq!(summary["image_error_spp"], 64);
     // The meta-estimator reports how many samples it averages (n_eff = 1/(1 - α), at least
     // 1 after its first step, at most one more per iteration); Adam has no such state.
     match optimiser {

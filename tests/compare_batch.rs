@@ -222,7 +222,7 @@ fn rows_of(dir: &Path) -> Vec<Vec<String>> {
     let results = json(&dir.join("results.json"));
     let rows = results["results"].as_array().expect("results array");
     let (header, csv_rows) = read_csv(&dir.join("results.csv"));
-    assert_eq!(header.join(","), "job,label,scene,optimiser,seed,spp,status,message,iterations,time_s,final_loss,final_error,dir");
+    assert_eq!(header.join(","), "job,label,scene,optimiser,seed,spp,status,message,iterations,time_s,final_loss,final_error,final_image_error,dir");
     assert_eq!(csv_rows.len(), rows.len(), "results.csv and results.json differ");
     rows.iter()
         .zip(&csv_rows)
