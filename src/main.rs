@@ -436,7 +436,10 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
             s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
         )?;
-        let floor = s.reference_image_error.map(|r| format!(" (the reference's: {r:.4e})")).unwrap_or_default();
+        let floor = match (s.final_image_error, s.reference_image_error) {
+            (Some(e), Some(r)) => format!(" (the reference's {r:.4e}, with the same random numbers: {:+.3e} over it)", e - r),
+            _ => String::new(),
+        };
         outln!("image error of the result: {}{floor}, from two renders of {} spp against the target", err(s.final_image_error), s.image_error_spp)?;
         let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
         outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/", a.output.display())?;
