@@ -73,6 +73,10 @@ pub struct Run {
     pub iterations: u32,
     pub time_s: f64,
     pub final_error: Option<f64>,
+    /// The result's image error less the reference's at the same random numbers
+    /// (`summary.json`'s `final_image_error` − `reference_image_error`; None when the
+    /// reference is unknown): the runs of a comparison share their seed, so these compare.
+    pub image_error_over_reference: Option<f64>,
     /// Wall time at which the error first reached each level (None: never).
     pub time_to_level: Vec<Option<f64>>,
     pub speedup: Option<f64>,
@@ -186,6 +190,7 @@ pub fn compare(
                 iterations: summary.iterations,
                 time_s: summary.total_time_s,
                 final_error: curve.points.last().map(|p| p.1),
+                image_error_over_reference: summary.final_image_error.zip(summary.reference_image_error).map(|(e, r)| e - r),
                 time_to_level: levels.iter().map(|l| time_to_reach(&curve.points, l.error)).collect(),
                 speedup,
             }
@@ -225,10 +230,12 @@ impl Comparison {
         let mut header: Vec<String> = ["label", "optimiser", "iterations", "time_s", "final_error"].map(String::from).to_vec();
         header.extend(self.levels.iter().map(|l| format!("time_to_{}", factor_name(l.factor))));
         header.push("speedup".into());
+        header.push("image_error_over_reference".into());
         let rows = self.runs.iter().map(|r| {
             let mut row = vec![r.label.clone(), r.optimiser.name().to_string(), r.iterations.to_string(), r.time_s.to_string(), opt_num(r.final_error)];
             row.extend(r.time_to_level.iter().map(|t| opt_num(*t)));
             row.push(opt_num(r.speedup));
+            row.push(opt_num(r.image_error_over_reference));
             row
         });
         crate::report::csv_bytes(&header, rows).map_err(Error::Invalid)
@@ -250,14 +257,14 @@ impl Comparison {
         for l in &self.levels {
             let _ = write!(s, " {:>10}", format!("t({})", factor_name(l.factor)));
         }
-        let _ = writeln!(s, " {:>8}", "speed-up");
+        let _ = writeln!(s, " {:>8} {:>11}", "speed-up", "image error");
         let cell = |v: Option<f64>, f: &dyn Fn(f64) -> String| v.map(f).unwrap_or_else(|| "-".into());
         for r in &self.runs {
             let _ = write!(s, "{:<width$} {:>6} {:>9.2} {:>11}", r.label, r.iterations, r.time_s, cell(r.final_error, &|e| format!("{e:.4e}")));
             for t in &r.time_to_level {
                 let _ = write!(s, " {:>10}", cell(*t, &|t| format!("{t:.3}")));
             }
-            let _ = writeln!(s, " {:>8}", cell(r.speedup, &|x| format!("{x:.2}x")));
+            let _ = writeln!(s, " {:>8} {:>11}", cell(r.speedup, &|x| format!("{x:.2}x")), cell(r.image_error_over_reference, &|e| format!("{e:+.3e}")));
         }
         s
     }

@@ -270,7 +270,9 @@ directory follows optimise's rules (--overwrite replaces earlier runs). Outputs 
   compare.csv, .json  per run: final error; time_to_2x, time_to_1x, time_to_0.5x: the wall
                       time at which its error first reached 2, 1 and 0.5 times the first
                       run's final error; speedup: the first run's time to its final error
-                      over this run's (empty when never reached)
+                      over this run's (empty when never reached);
+                      image_error_over_reference: the result's image error less the
+                      reference's at the same random numbers (summary.json)
 The error is the parameter RMSE when the reference is known, else the image loss.";
 
 const BATCH_HELP: &str = "\

@@ -162,7 +162,7 @@ fn compare_two_optimisers() {
     assert_eq!(json(&out.join("adam@beta1=0.5/summary.json"))["settings"]["optimiser"], "adam@beta1=0.5");
 
     let (header, rows) = read_csv(&out.join("compare.csv"));
-    assert_eq!(header, ["label", "optimiser", "iterations", "time_s", "final_error", "time_to_2x", "time_to_1x", "time_to_0.5x", "speedup"]);
+    assert_eq!(header, ["label", "optimiser", "iterations", "time_s", "final_error", "time_to_2x", "time_to_1x", "time_to_0.5x", "speedup", "image_error_over_reference"]);
     assert_eq!(rows.len(), 2);
     assert_eq!((rows[0][0].as_str(), rows[1][0].as_str()), ("meta", "adam@beta1=0.5"));
     for r in &rows {
@@ -172,7 +172,14 @@ fn compare_two_optimisers() {
         for t in &r[5..8] {
             assert!(t.is_empty() || (0.0..=num(&r[3]) + 1e-6).contains(&num(t)), "{r:?}");
         }
+        // The run's own summary less its reference's.
+        let summary = json(&out.join(&r[0]).join("summary.json"));
+        let over = summary["final_image_error"].as_f64().unwrap() - summary["reference_image_error"].as_f64().unwrap();
+        assert!((num(&r[9]) - over).abs() <= 1e-9 * over.abs().max(1e-12), "{r:?}: {over}");
     }
+    // The runs share their seed, so they share the reference's renders.
+    let floors: Vec<f64> = ["meta", "adam@beta1=0.5"].iter().map(|d| json(&out.join(d).join("summary.json"))["reference_image_error"].as_f64().unwrap()).collect();
+    assert_eq!(floors[0], floors[1]);
     // The baseline reaches its own final error (at the latest at its end): speed-up 1.
     assert!((num(&rows[0][8]) - 1.0).abs() < 1e-12, "{:?}", rows[0]);
 
