@@ -147,9 +147,19 @@ def fmt_short(v):
     return f"{v:.0f}" if v >= 100 else f"{v:.1f}" if v >= 1 else f"{v:.2g}"
 
 
-def speedup(reference_time, time):
+class Bound(float):
+    """A speed-up known only from below: the reference run never stayed at the goal, so
+    its time to it is at least its whole run's."""
+
+
+def speedup(reference_time, time, reference_end=None):
+    """The reference's time to a goal over this run's; 0.0 if this run never gets there,
+    None if neither does. Where only this run gets there, the reference's whole run time
+    (`reference_end`) over this run's time, as a lower bound."""
     if reference_time is None:
-        return None
+        if time is None or reference_end is None:
+            return None
+        return Bound(reference_end / time) if time > 0 else math.inf
     if time is None:
         return 0.0
     return reference_time / time if time > 0 else math.inf
@@ -160,7 +170,9 @@ def fmt_speedup(s):
         return "-"
     if s == 0.0:
         return "never"
-    return "∞" if s == math.inf else f"{s:.1f}×"
+    if s == math.inf:
+        return "∞"
+    return f"> {s:.1f}×" if isinstance(s, Bound) else f"{s:.1f}×"
 
 
 def short_names(groups):
@@ -219,8 +231,8 @@ def protocol(by_scene):
         print()
         if meta and best:
             t3_adam, t3_meta = time_to_reach(best["smooth"], goal3), time_to_reach(meta["smooth"], goal3)
-            s3 = speedup(t3_adam, t3_meta)
-            s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64)) if adam64 else None
+            s3 = speedup(t3_adam, t3_meta, best["time_s"])
+            s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64), adam64["time_s"]) if adam64 else None
             ratio = meta["settled"] / best["settled"]
             at_or_below = meta["settled"] <= best["settled"]
             v = dict(scene=scene, meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=ratio, s3=s3, s64=s64,
