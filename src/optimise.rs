@@ -159,6 +159,7 @@ pub struct Summary {
     /// reference is unknown): the floor that the target's own noise leaves.
     #[serde(default)]
     pub reference_image_error: Option<f64>,
+    /// Samples per pixel of each of the two renders (final.exr is their mean).
     #[serde(default)]
     pub image_error_spp: u32,
     /// Median GPU milliseconds per iteration of each pass, by kernel name (a pass recorded
