@@ -140,6 +140,11 @@ pub struct Job {
 }
 
 impl Job {
+    /// The job with `over` (the command line's settings) on top of its own.
+    pub fn overridden(self, over: &Settings) -> Job {
+        Job { settings: self.settings.then(over), ..self }
+    }
+
     /// The job's output directory under OUTDIR.
     pub fn dir_name(&self) -> String {
         format!("job-{}-{}", self.index, self.label)

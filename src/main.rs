@@ -115,6 +115,10 @@ struct BatchArgs {
     /// Join the results tables in these output directories (of shards) into one.
     #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
     merge: Vec<PathBuf>,
+    /// Run settings given here replace every job's (e.g. `--seed 1` runs the job file at
+    /// another seed).
+    #[command(flatten)]
+    settings: Settings,
     #[command(flatten)]
     out: TableOutput,
 }
@@ -286,6 +290,7 @@ Job file (TOML); paths are relative to it:
   [[jobs]]                         # single jobs after the product, in file order
   scene = \"spiral/scene.toml\"    # with optimiser, seed, spp and any shared setting
   optimiser = \"adam@beta1=0.5\"
+Run settings given as flags (--seed 1, --iterations 50, ...) replace every job's.
 Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --shard I/N
 runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
@@ -482,7 +487,11 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
 
 fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     use vkinverse::batch;
+    check_flags(&a.settings)?;
     if !a.merge.is_empty() {
+        if a.settings != Settings::default() {
+            return Err("run settings apply to a job file's runs, not to --merge".into());
+        }
         let (merged, missing) = batch::merge(&a.merge, &a.out.output)?;
         if !missing.is_empty() {
             let list: Vec<String> = missing.iter().map(usize::to_string).collect();
@@ -494,7 +503,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     let Some(jobs_file) = &a.jobs else {
         return Err("give a job file, or --merge with the shards' output directories".into());
     };
-    let all = batch::load_jobs(jobs_file)?;
+    let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings)).collect();
     let mine: Vec<batch::Job> = all.iter().filter(|j| shard.iter().all(|s| s.has(j.index))).cloned().collect();
     // One context for every job: device set-up is paid once per batch.
     let ctx = context(cli)?;

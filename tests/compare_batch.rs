@@ -296,6 +296,28 @@ fn batch_records_failures_and_shards_merge() {
     assert!(!twice.exists());
 }
 
+/// Run settings given on the command line replace every job's, the job file's shared
+/// ones and a job's own alike; they are checked like optimise's, and refused with --merge.
+#[test]
+fn batch_flags_replace_every_jobs_settings() {
+    let jobs = jobs_file("jobs-flags.toml");
+    let out = temp_dir("batch-flags");
+    // Shard 2/2: jobs 2 (the product's adam) and 4 (spp 1 of its own).
+    vkinverse_ok(&["--quiet", "batch", &s(&jobs), "--shard", "2/2", "--seed", "5", "--iterations", "3", "--spp", "2", "-o", &s(&out)]);
+    let rows = rows_of(&out);
+    assert_eq!(rows.iter().map(|r| (r[0].as_str(), r[3].as_str(), r[4].as_str(), r[7].as_str())).collect::<Vec<_>>(), [("2", "5", "2", "3"), ("4", "5", "2", "3")]);
+    for dir in ["job-2-cornell-adam", "job-4-cornell-adam@beta1=0.5-spp1"] {
+        let summary = json(&out.join(dir).join("summary.json"));
+        assert_eq!((summary["settings"]["seed"].as_u64(), summary["iterations"].as_u64()), (Some(5), Some(3)), "{dir}");
+        // The file's shared rate, which no flag replaced, still holds.
+        assert!((summary["settings"]["lr"].as_f64().unwrap() - 0.05).abs() < 1e-9, "{dir}");
+    }
+    let bad = temp_dir("batch-flags-bad").join("out");
+    vkinverse_err(&["batch", &s(&jobs), "--spp", "0", "-o", &s(&bad)], &["--spp", "at least 1"]);
+    vkinverse_err(&["batch", "--merge", &s(&out), "--seed", "1", "-o", &s(&bad)], &["--merge"]);
+    assert!(!bad.exists());
+}
+
 #[test]
 fn bad_shards_are_refused() {
     let jobs = jobs_file("jobs-bad-shard.toml");
