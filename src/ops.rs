@@ -18,6 +18,7 @@ pub struct BufferOps {
     copy: ComputePipeline,
     scale_add: ComputePipeline,
     sub: ComputePipeline,
+    merge_half: ComputePipeline,
     reduce_sum: ComputePipeline,
     reduce_sq: ComputePipeline,
 }
@@ -45,6 +46,7 @@ impl BufferOps {
             copy: ComputePipeline::new(ctx, "copy", &[])?,
             scale_add: ComputePipeline::new(ctx, "scale_add", &[])?,
             sub: ComputePipeline::new(ctx, "sub", &[])?,
+            merge_half: ComputePipeline::new(ctx, "merge_half", &[])?,
             reduce_sum: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(false))])?,
             reduce_sq: ComputePipeline::new(ctx, "reduce", &[("SQUARE", SpecValue::Bool(true))])?,
         })
@@ -80,6 +82,16 @@ impl BufferOps {
         let group = self.sub.bind(&[("A", a), ("B", b), ("Dst", dst)])?;
         let n = Self::elements(dst);
         rec.dispatch_linear(&self.sub, &group, &CountPush::new(n), n)
+    }
+
+    /// Records `grad[i] += fresh[2i] + fresh[2i + 1]; half[i] += fresh[2i + 1]; fresh[2i] =
+    /// fresh[2i + 1] = 0` over `grad`'s elements (glsl/merge_half.comp), each buffer made
+    /// ready for it.
+    pub fn merge_half(&self, rec: &mut Recorder, grad: &Buffer, half: &Buffer, fresh: &Buffer) -> Result<()> {
+        let group = self.merge_half.bind(&[("Grad", grad), ("GradHalf", half), ("Fresh", fresh)])?;
+        let n = (Self::elements(fresh) / 2).min(Self::elements(grad)).min(Self::elements(half));
+        rec.transition(&[(grad, Access::ComputeReadWrite), (half, Access::ComputeReadWrite), (fresh, Access::ComputeReadWrite)])?;
+        rec.dispatch_linear(&self.merge_half, &group, &CountPush::new(n), n)
     }
 
     /// Prepares the sum (or, with `square`, the sum of squares) of `src`'s f32 elements.

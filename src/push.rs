@@ -188,7 +188,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
     // of its own.
     let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
     Some(match base {
-        "copy" | "sub" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" => layout::<CountPush>(),
+        "copy" | "sub" | "merge_half" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" => layout::<CountPush>(),
         "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
         "fill" => layout::<FillPush>(),
         "scale_add" => layout::<ScaleAddPush>(),

@@ -344,6 +344,92 @@ fn mean_var(xs: &[f64]) -> (f64, f64) {
     (m, xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0))
 }
 
+/// The same split where θ is too long for the per-thread sums (ajar's 32 × 32 texture: 3072
+/// elements): each contribution is added once, by a direct atomic into the gradient or into
+/// the pass's own half buffer, which the pass then merges into both sums and clears. The
+/// full sum equals the unsplit pass's up to the atomics' order, the same frame gives the
+/// same half twice (nothing carries over between submissions), and the halves are
+/// unbiased and independent: over all texels together, Σ(F − 2·half) averages to 0 and
+/// Σ(F − 2·half)² to about ΣVar[F].
+#[test]
+fn half_sample_sums_from_direct_atomics_add_up_and_start_afresh() {
+    use vkinverse::gpu::Access;
+    use vkinverse::ops::BufferOps;
+    use vkinverse::render::gradient::GradientPass;
+    use vkinverse::render::{GpuScene, Renderer};
+    use vkinverse::scene::{Loss, Scene};
+    with_gpu(|ctx| {
+        let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/ajar/scene.toml")).unwrap();
+        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let target = renderer.render(0, 16, 7, |_, _| {}).unwrap();
+        let gs = &renderer.scene;
+        let ops = BufferOps::new(ctx).unwrap();
+        let n = gs.layout.len;
+        assert!(n > vkinverse::constants::LOCAL_GRADS_CAPACITY as usize, "{n} elements");
+        let zeros = |name: &str| vkinverse::gpu::Buffer::zeroed::<f32>(ctx, name, n, vkinverse::gpu::MemoryKind::Device).unwrap();
+        let (grad, half, plain) = (zeros("grad"), zeros("half"), zeros("plain"));
+        let split = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, 1, 4, 3, &gs.theta, None, &grad, Some(&half)).unwrap();
+        let unsplit = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, 1, 4, 3, &gs.theta, None, &plain, None).unwrap();
+        let mut cmd = vkinverse::gpu::CommandBuffer::new(ctx, "halves").unwrap();
+        cmd.record(|rec| {
+            rec.transition(&[(&grad, Access::TransferWrite), (&half, Access::TransferWrite)])?;
+            rec.zero(&grad)?;
+            rec.zero(&half)?;
+            split.record(rec, gs, &ops)
+        })
+        .unwrap();
+        let mut cmd_plain = vkinverse::gpu::CommandBuffer::new(ctx, "plain").unwrap();
+        cmd_plain
+            .record(|rec| {
+                rec.transition(&[(&plain, Access::TransferWrite)])?;
+                rec.zero(&plain)?;
+                unsplit.record(rec, gs, &ops)
+            })
+            .unwrap();
+        let rounds = 48u32;
+        let (mut f, mut d) = (vec![Vec::new(); n], vec![Vec::new(); n]);
+        let mut first_half = Vec::new();
+        for r in 0..rounds {
+            gs.set_frame(r).unwrap();
+            cmd.submit_and_wait().unwrap();
+            let (g, h): (Vec<f32>, Vec<f32>) = (grad.read().unwrap(), half.read().unwrap());
+            if r < 2 {
+                cmd_plain.submit_and_wait().unwrap();
+                let p: Vec<f32> = plain.read().unwrap();
+                let top = p.iter().fold(0f32, |m, v| m.max(v.abs()));
+                assert!(top > 0.0);
+                for k in 0..n {
+                    assert!((g[k] - p[k]).abs() <= 1e-4 * p[k].abs() + 1e-6 * top, "round {r} element {k}: {} vs {}", g[k], p[k]);
+                }
+                // The half holds part of the sum, not none or all of it.
+                assert!(h.iter().any(|v| *v != 0.0) && (0..n).any(|k| (h[k] - g[k]).abs() > 1e-3 * g[k].abs()), "round {r}");
+            }
+            if r == 0 {
+                first_half = h.clone();
+            }
+            for k in 0..n {
+                f[k].push(g[k] as f64);
+                d[k].push(g[k] as f64 - 2.0 * h[k] as f64);
+            }
+        }
+        // The first frame again: the same half, not the sum of two.
+        gs.set_frame(0).unwrap();
+        cmd.submit_and_wait().unwrap();
+        let again: Vec<f32> = half.read().unwrap();
+        let top = first_half.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for k in 0..n {
+            assert!((again[k] - first_half[k]).abs() <= 1e-4 * first_half[k].abs() + 1e-6 * top, "element {k}: {} then {}", first_half[k], again[k]);
+        }
+        let sums: Vec<f64> = (0..rounds as usize).map(|r| d.iter().map(|dk| dk[r]).sum()).collect();
+        let (sm, sv) = mean_var(&sums);
+        assert!(sm.abs() < 4.0 * (sv / rounds as f64).sqrt(), "Σ(F − 2 half): mean {sm}, sd {}", sv.sqrt());
+        let d2: f64 = d.iter().map(|dk| dk.iter().map(|x| x * x).sum::<f64>() / rounds as f64).sum();
+        let fv: f64 = f.iter().map(|fk| mean_var(fk).1).sum();
+        let ratio = d2 / fv;
+        assert!(ratio > 0.8 && ratio < 1.5, "ΣE[d²] {d2} vs ΣVar[F] {fv}: {ratio}");
+    });
+}
+
 #[test]
 fn half_sample_sums_estimate_the_gradient_variance() {
     // The gradient passes that also sum a random half of their pixels (the centred variance

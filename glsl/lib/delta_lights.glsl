@@ -80,6 +80,13 @@ void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2
         float tmax, g;
         delta_light_incidence(l, p_off, wi, tmax, g);
         if (g <= 0.0 || dot(wi, ng) <= 0.0 || delta_light_blocked(p_off, wi, tmax)) continue;
+#ifdef ADJOINT
+        // Every state reads the same parameters: their derivatives are summed before one
+        // scatter each (scatter_bsdf).
+        vec3 k_bsdf[NSTATES];
+        vec3 g_color = vec3(0.0);
+        float g_intensity = 0.0;
+#endif
         for (int s = 0; s < NSTATES; ++s) {
             vec3 color = fetch3(l.color, vec2(0.0), s);
             float intensity = fetch1(l.intensity, vec2(0.0), s);
@@ -89,15 +96,20 @@ void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2
             radiance[s] += c;
 #ifdef ADJOINT
             remaining[s] -= c;
-            if (grad_pass) {
-                vec3 k = state_sign(s) * delta[s] * beta[s];
-                scatter_bsdf(material, uv, mat[s], ns, wo, wi, k * le);
-                vec3 dle = k * f * g;  // d(loss)/d(color × intensity), per channel
-                scatter3(l.color, vec2(0.0), dle * intensity);
-                scatter1(l.intensity, vec2(0.0), dot(dle, color));
-            }
+            vec3 k = state_sign(s) * delta[s] * beta[s];
+            k_bsdf[s] = k * le;
+            vec3 dle = k * f * g;  // d(loss)/d(color × intensity), per channel
+            g_color += dle * intensity;
+            g_intensity += dot(dle, color);
 #endif
         }
+#ifdef ADJOINT
+        if (grad_pass) {
+            scatter_bsdf(material, uv, mat, ns, wo, wi, k_bsdf);
+            scatter3(l.color, vec2(0.0), g_color);
+            scatter1(l.intensity, vec2(0.0), g_intensity);
+        }
+#endif
     }
 }
 #endif

@@ -149,15 +149,32 @@ EmitterTri sample_emitter(vec3 u, out vec3 p) {
 // Gradient contributions of one state carry its sign: + for θ_i, − for θ_{i-1} (FD).
 float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
 
-// Scatters k · d bsdf_eval(m; ns, wo, wi) / d(material parameters) into the gradients of
-// material `id`'s parameters at texture coordinate uv.
-void scatter_bsdf(uint id, vec2 uv, Material m, vec3 ns, vec3 wo, vec3 wi, vec3 k) {
-    vec3 d_base, d_rough, d_metal;
-    bsdf_eval_grad(m, ns, wo, wi, d_base, d_rough, d_metal);
+// Scatters the sum over states of k[s] · d bsdf_eval(m[s]; ns, wo, wi) / d(material
+// parameters) into the gradients of material `id`'s parameters at texture coordinate uv
+// (k[s] carries the state's sign). Every state reads the same parameters at the same uv, so
+// the states' derivatives are summed before one scatter: the finite-difference kernels then
+// add each difference once instead of both of its large terms, with half the atomics.
+void scatter_bsdf(uint id, vec2 uv, Material m[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 k[NSTATES]) {
+    vec3 g_base = vec3(0.0);
+    float g_rough = 0.0, g_metal = 0.0;
+    for (int s = 0; s < NSTATES; ++s) {
+        vec3 d_base, d_rough, d_metal;
+        bsdf_eval_grad(m[s], ns, wo, wi, d_base, d_rough, d_metal);
+        g_base += k[s] * d_base;
+        g_rough += dot(k[s], d_rough);
+        g_metal += dot(k[s], d_metal);
+    }
     MaterialRecord mr = material_record(id);
-    scatter3(mr.base_color, uv, k * d_base);
-    scatter1(mr.roughness, uv, dot(k, d_rough));
-    scatter1(mr.metallic, uv, dot(k, d_metal));
+    scatter3(mr.base_color, uv, g_base);
+    scatter1(mr.roughness, uv, g_rough);
+    scatter1(mr.metallic, uv, g_metal);
+}
+
+// The sum of g[] over the states, for one scatter of a value every state reads alike.
+vec3 state_sum(vec3 g[NSTATES]) {
+    vec3 t = vec3(0.0);
+    for (int s = 0; s < NSTATES; ++s) t += g[s];
+    return t;
 }
 #endif
 
@@ -172,20 +189,23 @@ void add_light_sample(uint material, vec2 uv, Material mat[NSTATES], vec3 ns, ve
                       , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, out vec3 dle[NSTATES]
 #endif
 ) {
+#ifdef ADJOINT
+    vec3 k_bsdf[NSTATES];
+#endif
     for (int s = 0; s < NSTATES; ++s) {
         vec3 f = bsdf_eval(mat[s], ns, wo, wi);
         vec3 c = beta[s] * f * le[s] * w;
         radiance[s] += c;
 #ifdef ADJOINT
         remaining[s] -= c;
-        dle[s] = vec3(0.0);
-        if (grad_pass) {
-            vec3 k = state_sign(s) * delta[s] * beta[s];
-            scatter_bsdf(material, uv, mat[s], ns, wo, wi, k * le[s] * w);
-            dle[s] = k * f * w;
-        }
+        vec3 k = state_sign(s) * delta[s] * beta[s];
+        k_bsdf[s] = k * le[s] * w;
+        dle[s] = grad_pass ? k * f * w : vec3(0.0);
 #endif
     }
+#ifdef ADJOINT
+    if (grad_pass) scatter_bsdf(material, uv, mat, ns, wo, wi, k_bsdf);
+#endif
 }
 
 #include "lib/delta_lights.glsl"
@@ -224,6 +244,9 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 // The map's light-sampling density of this direction (it was reached by a
                 // BSDF sample unless the previous vertex is the camera).
                 if (prev_bsdf_pdf > 0.0 && p_env > 0.0) mis = power_heuristic(prev_bsdf_pdf, p_env * environment_density(d));
+#ifdef ADJOINT
+                vec3 g_env[NSTATES];
+#endif
                 for (int s = 0; s < NSTATES; ++s) {
                     vec3 e = beta[s] * environment_radiance(d, s) * mis;
                     radiance[s] += e;
@@ -231,10 +254,12 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     remaining[s] -= e;
                     // Emission enters linearly: d(beta * mis * scale * E)/dE = beta * mis *
                     // scale, at the texel(s) of the lookup for an environment map.
-                    if (grad_pass)
-                        scatter3(scene_globals().environment, environment_uv(d), state_sign(s) * delta[s] * beta[s] * (mis * scene_globals().environment_scale));
+                    g_env[s] = state_sign(s) * delta[s] * beta[s] * (mis * scene_globals().environment_scale);
 #endif
                 }
+#ifdef ADJOINT
+                if (grad_pass) scatter3(scene_globals().environment, environment_uv(d), state_sum(g_env));
+#endif
             }
             break;
         }
@@ -254,14 +279,20 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 float pdf_light = (1.0 - p_env) * sh.emitter_pdf * hit.t * hit.t / max(abs(dot(ng, wo)), 1e-8);
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
+#ifdef ADJOINT
+            vec3 g_em[NSTATES];
+#endif
             for (int s = 0; s < NSTATES; ++s) {
                 vec3 e = beta[s] * fetch3(sh.emission, vec2(0.0), s) * mis;
                 radiance[s] += e;
 #ifdef ADJOINT
                 remaining[s] -= e;
-                if (grad_pass) scatter3(sh.emission, vec2(0.0), state_sign(s) * delta[s] * beta[s] * mis);
+                g_em[s] = state_sign(s) * delta[s] * beta[s] * mis;
 #endif
             }
+#ifdef ADJOINT
+            if (grad_pass) scatter3(sh.emission, vec2(0.0), state_sum(g_em));
+#endif
         }
         if (depth >= MAX_DEPTH) break;
         // A one-sided material seen from behind reflects nothing.
@@ -307,9 +338,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
                 add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle);
-                if (grad_pass) {
-                    for (int s = 0; s < NSTATES; ++s) scatter3(emission, vec2(0.0), dle[s]);
-                }
+                if (grad_pass) scatter3(emission, vec2(0.0), state_sum(dle));
 #else
                 add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif
@@ -330,7 +359,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 if (grad_pass) {
                     vec2 env_uv = environment_uv(wi);
                     float scale = scene_globals().environment_scale;
-                    for (int s = 0; s < NSTATES; ++s) scatter3(scene_globals().environment, env_uv, dle[s] * scale);
+                    scatter3(scene_globals().environment, env_uv, state_sum(dle) * scale);
                 }
 #else
                 add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
@@ -351,20 +380,24 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         vec3 wi, weight;
         float pdf;
         if (!bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
+#ifdef ADJOINT
+        vec3 k_bsdf[NSTATES];
+#endif
         for (int s = 0; s < NSTATES; ++s) {
             // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over
             // state 0's pdf (the shift).
             vec3 f = s == 0 ? weight * pdf : bsdf_eval(mat[s], ns, wo, wi);
 #ifdef ADJOINT
-            if (grad_pass) {
-                // Everything the path gathers from here on is proportional to f(wo, wi):
-                // its derivative is remaining * (df/dθ) / f, per channel.
-                vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
-                scatter_bsdf(sh.material, uv, mat[s], ns, wo, wi, state_sign(s) * delta[s] * remaining[s] * inv_f);
-            }
+            // Everything the path gathers from here on is proportional to f(wo, wi): its
+            // derivative is remaining * (df/dθ) / f, per channel.
+            vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
+            k_bsdf[s] = state_sign(s) * delta[s] * remaining[s] * inv_f;
 #endif
             beta[s] *= f / pdf;
         }
+#ifdef ADJOINT
+        if (grad_pass) scatter_bsdf(sh.material, uv, mat, ns, wo, wi, k_bsdf);
+#endif
         prev_bsdf_pdf = pdf;
 
         // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability

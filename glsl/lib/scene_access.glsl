@@ -256,32 +256,34 @@ layout(constant_id = 5) const uint LOCAL_GRADS = 0;
 // cheaper only for many parameters (measured in docs/lavapipe.md).
 layout(constant_id = 12) const bool LOCAL_GRADS_UNROLLED = false;
 #include "vkinverse_constants.glsl"  // LOCAL_GRADS_CAPACITY
+// A thread traces one pixel, whose half (grad_in_half) is fixed, so the half's sums are the
+// thread's own sums where it is in the half and 0 elsewhere: no second array.
 float local_grads[LOCAL_GRADS_CAPACITY];
-float local_half[LOCAL_GRADS_CAPACITY];
 
+// SPLIT with direct atomics (LOCAL_GRADS = 0): each contribution is one atomic addition
+// into a buffer of the pass's own, bound as grad_half, that holds two sums per element,
+// interleaved: [2k] from the pixels outside the half, [2k + 1] from those in it. One
+// atomic with a per-lane address costs what the unsplit kernel's does, where an atomic
+// into grad and a second, masked one into grad_half (or either of two, masked) cost a
+// loop over the lanes each. The host afterwards adds both into grad and the second into
+// the real grad_half (merge_half.comp).
 void grad_init() {
-    for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) {
-        local_grads[k] = 0.0;
-        local_half[k] = 0.0;
-    }
+    for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) local_grads[k] = 0.0;
 }
 
 void grad_add(int index, float v) {
-    bool half_too = SPLIT && grad_in_half;
     if (LOCAL_GRADS_UNROLLED) {
         // Adding 0.0 leaves every other sum as it is: the same sums as below.
         for (uint k = 0u; k < LOCAL_GRADS_CAPACITY; ++k) {
             if (k >= LOCAL_GRADS) break;
-            float add = uint(index) == k ? v : 0.0;
-            local_grads[k] += add;
-            local_half[k] += half_too ? add : 0.0;
+            local_grads[k] += uint(index) == k ? v : 0.0;
         }
     } else if (LOCAL_GRADS != 0u) {
         local_grads[index] += v;
-        if (half_too) local_half[index] += v;
+    } else if (SPLIT) {
+        atomicAdd(grad_half[2 * index + (grad_in_half ? 1 : 0)], v);
     } else {
         atomicAdd(grad[index], v);
-        if (half_too) atomicAdd(grad_half[index], v);
     }
 }
 
@@ -293,7 +295,7 @@ void grad_flush() {
         float total = subgroupAdd(local_grads[k]);
         if (subgroupElect() && total != 0.0) atomicAdd(grad[k], total);
         if (SPLIT) {
-            float half_total = subgroupAdd(local_half[k]);
+            float half_total = subgroupAdd(grad_in_half ? local_grads[k] : 0.0);
             if (subgroupElect() && half_total != 0.0) atomicAdd(grad_half[k], half_total);
         }
     }

@@ -52,6 +52,11 @@ pub struct GradientPass {
     /// The part of `grad` from half of the pixels (see [`Self::new`]), or an unused
     /// one-float buffer.
     grad_half: Buffer,
+    /// With the half split and direct atomics (θ too long for the per-thread sums): the
+    /// adjoint kernel adds every contribution here, two sums per element (outside and in
+    /// the half), and each sensor's pass then merges them into `grad` and `grad_half`
+    /// (glsl/merge_half.comp).
+    fresh_half: Option<Buffer>,
     pub spp: u32,
     pub primal_spp: u32,
     pub seed: u32,
@@ -121,6 +126,10 @@ impl GradientPass {
         adjoint_spec.push(("LOCAL_GRADS_UNROLLED", SpecValue::Bool(local != 0 && scene.local_grads_unrolled)));
         adjoint_spec.push(("SPLIT", SpecValue::Bool(grad_half.is_some())));
         adjoint_spec.push(("CACHE_ALL", SpecValue::Bool(scene.replay_cached)));
+        let fresh_half = match grad_half {
+            Some(_) if local == 0 => Some(Buffer::zeroed::<[f32; 2]>(ctx, "grad halves of one pass", scene.layout.len.max(1), MemoryKind::Device)?),
+            _ => None,
+        };
         let grad_half = match grad_half {
             Some(b) => b.clone(),
             None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,
@@ -158,7 +167,7 @@ impl GradientPass {
             let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
             b.push(("Grad", &grad));
-            b.push(("GradHalf", &grad_half));
+            b.push(("GradHalf", fresh_half.as_ref().unwrap_or(&grad_half)));
             if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
                 b.push(("ThetaPrev", tp));
                 b.push(("AdjointImagePrev", &pb.adjoint));
@@ -176,7 +185,7 @@ impl GradientPass {
                 prev,
             });
         }
-        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, spp, primal_spp, seed, stride: 1, phase: 0 })
+        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, fresh_half, spp, primal_spp, seed, stride: 1, phase: 0 })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -274,7 +283,8 @@ impl GradientPass {
             rec.transition(&[(adjoint, Access::ComputeRead)])?;
         }
         // The loss partials (of θ, the reported loss) are reduced.
-        rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (&self.grad_half, Access::ComputeReadWrite)])?;
+        let half = self.fresh_half.as_ref().unwrap_or(&self.grad_half);
+        rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (half, Access::ComputeReadWrite)])?;
         ops.record_reduction(rec, &b.reduction)?;
         profiler.end_scope(rec)?;
         if !adjoint {
@@ -283,7 +293,10 @@ impl GradientPass {
         profiler.begin_scope(rec, self.adjoint_kernel)?;
         // Every stride-th pixel stands for `stride` of them.
         let p = self.trace_push(scene, s as u32, self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
-        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, &self.grad_half])?;
+        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, half])?;
+        if let Some(fresh) = &self.fresh_half {
+            ops.merge_half(rec, &self.grad, &self.grad_half, fresh)?;
+        }
         profiler.end_scope(rec)
     }
 
