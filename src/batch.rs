@@ -145,6 +145,12 @@ impl Job {
         Job { settings: self.settings.then(over), ..self }
     }
 
+    /// The short name of the job's scene (its directory's for `…/NAME/scene.toml`), which
+    /// begins its label.
+    pub fn scene_name(&self) -> String {
+        scene_name(&self.scene)
+    }
+
     /// The job's output directory under OUTDIR.
     pub fn dir_name(&self) -> String {
         format!("job-{}-{}", self.index, self.label)

@@ -112,8 +112,12 @@ struct BatchArgs {
     /// Run shard I of N: jobs I, I+N, I+2N, ... (jobs and shards count from 1).
     #[arg(long, value_name = "I/N", allow_hyphen_values = true)]
     shard: Option<String>,
+    /// Run only the jobs of this scene (its short name, as in the jobs' labels: `ajar` for
+    /// `ajar/scene.toml`); may be repeated. The jobs keep their numbers.
+    #[arg(long = "scene", value_name = "NAME")]
+    scenes: Vec<String>,
     /// Join the results tables in these output directories (of shards) into one.
-    #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard"])]
+    #[arg(long, value_name = "OUTDIR", num_args = 1.., conflicts_with_all = ["jobs", "shard", "scenes"])]
     merge: Vec<PathBuf>,
     /// Run settings given here replace every job's (e.g. `--seed 1` runs the job file at
     /// another seed).
@@ -291,6 +295,7 @@ Job file (TOML); paths are relative to it:
   scene = \"spiral/scene.toml\"    # with optimiser, seed, spp and any shared setting
   optimiser = \"adam@beta1=0.5\"
 Run settings given as flags (--seed 1, --iterations 50, ...) replace every job's.
+--scene NAME (repeatable) runs only the jobs of that scene, e.g. --scene ajar.
 Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --shard I/N
 runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
@@ -504,7 +509,21 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         return Err("give a job file, or --merge with the shards' output directories".into());
     };
     let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings)).collect();
-    let mine: Vec<batch::Job> = all.iter().filter(|j| shard.iter().all(|s| s.has(j.index))).cloned().collect();
+    let names: Vec<String> = all.iter().map(batch::Job::scene_name).collect();
+    if let Some(unknown) = a.scenes.iter().find(|n| !names.contains(n)) {
+        let mut known: Vec<&str> = Vec::new();
+        for n in &names {
+            if !known.contains(&n.as_str()) {
+                known.push(n);
+            }
+        }
+        return Err(format!("--scene {unknown}: no job of {} has that scene (its scenes: {})", jobs_file.display(), known.join(", ")).into());
+    }
+    let mine: Vec<batch::Job> = all
+        .iter()
+        .filter(|j| shard.iter().all(|s| s.has(j.index)) && (a.scenes.is_empty() || a.scenes.contains(&j.scene_name())))
+        .cloned()
+        .collect();
     // One context for every job: device set-up is paid once per batch.
     let ctx = context(cli)?;
     let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));

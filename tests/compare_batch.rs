@@ -319,6 +319,22 @@ fn batch_flags_replace_every_jobs_settings() {
 }
 
 #[test]
+fn batch_runs_the_jobs_of_the_scenes_named() {
+    let jobs = jobs_file("jobs-scene.toml");
+    let out = temp_dir("batch-scene");
+    // The file's jobs 1, 2 and 4 are the Cornell box's; job 3 (a broken scene) is left out,
+    // so the batch succeeds, and the jobs keep their numbers.
+    vkinverse_ok(&["--quiet", "batch", &s(&jobs), "--scene", "cornell", "--iterations", "1", "-o", &s(&out)]);
+    let rows = rows_of(&out);
+    assert_eq!(rows.iter().map(|r| (r[0].as_str(), r[5].as_str())).collect::<Vec<_>>(), [("1", "ok"), ("2", "ok"), ("4", "ok")]);
+    assert!(out.join("job-4-cornell-adam@beta1=0.5-spp1").join("summary.json").exists());
+    let bad = temp_dir("batch-scene-bad").join("out");
+    vkinverse_err(&["batch", &s(&jobs), "--scene", "ajar", "-o", &s(&bad)], &["--scene ajar", "cornell, broken"]);
+    vkinverse_err(&["batch", "--merge", &s(&out), "--scene", "cornell", "-o", &s(&bad)], &["--scene"]);
+    assert!(!bad.exists());
+}
+
+#[test]
 fn bad_shards_are_refused() {
     let jobs = jobs_file("jobs-bad-shard.toml");
     let out = temp_dir("batch-bad-shard").join("out");

@@ -10,7 +10,7 @@
 // are the optimisable parameters (their ValueRefs may point into θ).
 //
 // Included by lib/integrator.glsl after the functions it uses (bsdf_eval, fetch3/fetch1,
-// trace_any and, ADJOINT, scatter_bsdf, scatter3/scatter1, state_sign).
+// trace_any and, ADJOINT, MatGrad, add_bsdf_grad, scatter3/scatter1, state_sign).
 #ifndef DELTA_LIGHTS_GLSL
 #define DELTA_LIGHTS_GLSL
 
@@ -63,14 +63,14 @@ bool delta_light_blocked(vec3 o, vec3 d, float tmax) {
 }
 
 // Adds every delta light's direct contribution at a path vertex (offset point p_off,
-// geometric and shading normals ng and ns on wo's side, material `material` with values
-// mat[] at uv) to radiance[] of each state, weighted by beta[]. ADJOINT: also takes it off
-// remaining[] and, in the gradient replay, scatters delta[] × its derivatives into the
-// material's, the lights' colour and the lights' intensity gradients.
-void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2 uv, Material mat[NSTATES], vec3 beta[NSTATES],
+// geometric and shading normals ng and ns on wo's side, material values mat[]) to
+// radiance[] of each state, weighted by beta[]. ADJOINT: also takes it off remaining[] and,
+// in the gradient replay, adds delta[] × its derivatives with respect to the material's
+// values to mg and scatters those with respect to the lights' colour and intensity.
+void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, Material mat[NSTATES], vec3 beta[NSTATES],
                       inout vec3 radiance[NSTATES]
 #ifdef ADJOINT
-                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, inout MatGrad mg
 #endif
 ) {
     uint n = scene_globals().num_lights;
@@ -82,7 +82,7 @@ void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2
         if (g <= 0.0 || dot(wi, ng) <= 0.0 || delta_light_blocked(p_off, wi, tmax)) continue;
 #ifdef ADJOINT
         // Every state reads the same parameters: their derivatives are summed before one
-        // scatter each (scatter_bsdf).
+        // scatter each (the material's with the vertex's others, MatGrad).
         vec3 k_bsdf[NSTATES];
         vec3 g_color = vec3(0.0);
         float g_intensity = 0.0;
@@ -105,7 +105,7 @@ void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, uint material, vec2
         }
 #ifdef ADJOINT
         if (grad_pass) {
-            scatter_bsdf(material, uv, mat, ns, wo, wi, k_bsdf);
+            add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
             scatter3(l.color, vec2(0.0), g_color);
             scatter1(l.intensity, vec2(0.0), g_intensity);
         }

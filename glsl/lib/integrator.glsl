@@ -149,25 +149,39 @@ EmitterTri sample_emitter(vec3 u, out vec3 p) {
 // Gradient contributions of one state carry its sign: + for θ_i, − for θ_{i-1} (FD).
 float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
 
-// Scatters the sum over states of k[s] · d bsdf_eval(m[s]; ns, wo, wi) / d(material
-// parameters) into the gradients of material `id`'s parameters at texture coordinate uv
-// (k[s] carries the state's sign). Every state reads the same parameters at the same uv, so
-// the states' derivatives are summed before one scatter: the finite-difference kernels then
-// add each difference once instead of both of its large terms, with half the atomics.
-void scatter_bsdf(uint id, vec2 uv, Material m[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 k[NSTATES]) {
-    vec3 g_base = vec3(0.0);
-    float g_rough = 0.0, g_metal = 0.0;
+// The derivatives of the loss with respect to a path vertex's material values (base
+// colour, roughness, metallic), summed over everything at the vertex that reads them (its
+// light samples and its continuation) and over the parameter states, then scattered once
+// per vertex (scatter_material). Every term reads the same parameters at the same uv, so
+// one scatter does what one per term did, with a fraction of the atomics (or of the
+// per-thread additions); the finite-difference kernels add each difference once instead
+// of both of its large terms.
+struct MatGrad {
+    vec3 base;
+    float rough;
+    float metal;
+};
+
+MatGrad mat_grad_zero() { return MatGrad(vec3(0.0), 0.0, 0.0); }
+
+// Adds the sum over states of k[s] · d bsdf_eval(m[s]; ns, wo, wi) / d(material values) to
+// g (k[s] carries the state's sign).
+void add_bsdf_grad(inout MatGrad g, Material m[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 k[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) {
         vec3 d_base, d_rough, d_metal;
         bsdf_eval_grad(m[s], ns, wo, wi, d_base, d_rough, d_metal);
-        g_base += k[s] * d_base;
-        g_rough += dot(k[s], d_rough);
-        g_metal += dot(k[s], d_metal);
+        g.base += k[s] * d_base;
+        g.rough += dot(k[s], d_rough);
+        g.metal += dot(k[s], d_metal);
     }
+}
+
+// Scatters g into the gradients of material `id`'s parameters at texture coordinate uv.
+void scatter_material(uint id, vec2 uv, MatGrad g) {
     MaterialRecord mr = material_record(id);
-    scatter3(mr.base_color, uv, g_base);
-    scatter1(mr.roughness, uv, g_rough);
-    scatter1(mr.metallic, uv, g_metal);
+    scatter3(mr.base_color, uv, g.base);
+    scatter1(mr.roughness, uv, g.rough);
+    scatter1(mr.metallic, uv, g.metal);
 }
 
 // The sum of g[] over the states, for one scatter of a value every state reads alike.
@@ -180,13 +194,13 @@ vec3 state_sum(vec3 g[NSTATES]) {
 
 // One light sample arriving along wi with radiance le[s] in each state and weight w (its
 // MIS weight over its pdf): adds beta·f·le·w to each state's radiance. ADJOINT: also takes
-// it off remaining[] and, in the gradient replay, scatters its derivative into the
-// material's gradients; dle[s] is then the factor of the derivative with respect to the
+// it off remaining[] and, in the gradient replay, adds its derivative with respect to the
+// material's values to mg; dle[s] is then the factor of the derivative with respect to the
 // emitted radiance (state sign × δ × beta × f × w), zero outside the gradient replay.
-void add_light_sample(uint material, vec2 uv, Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[NSTATES], float w,
+void add_light_sample(Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[NSTATES], float w,
                       vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
 #ifdef ADJOINT
-                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, out vec3 dle[NSTATES]
+                      , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, out vec3 dle[NSTATES], inout MatGrad mg
 #endif
 ) {
 #ifdef ADJOINT
@@ -204,7 +218,7 @@ void add_light_sample(uint material, vec2 uv, Material mat[NSTATES], vec3 ns, ve
 #endif
     }
 #ifdef ADJOINT
-    if (grad_pass) scatter_bsdf(material, uv, mat, ns, wo, wi, k_bsdf);
+    if (grad_pass) add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
 #endif
 }
 
@@ -307,6 +321,9 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         Material mat[NSTATES];
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
         vec3 p_off = p + RAY_EPSILON * ng;
+#ifdef ADJOINT
+        MatGrad mg = mat_grad_zero();
+#endif
 
         // The bounce's random numbers, drawn up front in a fixed order whatever the branches
         // below use, so replays stay in step (lib/rng.glsl): light sample (3), BSDF sample
@@ -337,10 +354,10 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, vec2(0.0), s);
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
-                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle);
+                add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
                 if (grad_pass) scatter3(emission, vec2(0.0), state_sum(dle));
 #else
-                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
+                add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif
             }
         }
@@ -355,23 +372,23 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s);
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
-                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle);
+                add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
                 if (grad_pass) {
                     vec2 env_uv = environment_uv(wi);
                     float scale = scene_globals().environment_scale;
                     scatter3(scene_globals().environment, env_uv, state_sum(dle) * scale);
                 }
 #else
-                add_light_sample(sh.material, uv, mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
+                add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif
             }
         }
 
         // Delta lights: each sampled once, without MIS (BSDF sampling never reaches one).
         if (HAS_DELTA_LIGHTS) {
-            delta_lights_nee(p_off, ng, ns, wo, sh.material, uv, mat, beta, radiance
+            delta_lights_nee(p_off, ng, ns, wo, mat, beta, radiance
 #ifdef ADJOINT
-                             , remaining, delta, grad_pass
+                             , remaining, delta, grad_pass, mg
 #endif
             );
         }
@@ -379,25 +396,31 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // Continue by sampling the BSDF of state 0.
         vec3 wi, weight;
         float pdf;
-        if (!bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) || pdf <= 0.0 || dot(wi, ng) <= 0.0) break;
+        bool sampled = bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) && pdf > 0.0 && dot(wi, ng) > 0.0;
+        // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over state
+        // 0's pdf (the shift).
+        vec3 f[NSTATES];
+        for (int s = 0; s < NSTATES; ++s) f[s] = s == 0 ? weight * pdf : bsdf_eval(mat[s], ns, wo, wi);
 #ifdef ADJOINT
-        vec3 k_bsdf[NSTATES];
-#endif
-        for (int s = 0; s < NSTATES; ++s) {
-            // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over
-            // state 0's pdf (the shift).
-            vec3 f = s == 0 ? weight * pdf : bsdf_eval(mat[s], ns, wo, wi);
-#ifdef ADJOINT
-            // Everything the path gathers from here on is proportional to f(wo, wi): its
-            // derivative is remaining * (df/dθ) / f, per channel.
-            vec3 inv_f = vec3(f.x > 0.0 ? 1.0 / f.x : 0.0, f.y > 0.0 ? 1.0 / f.y : 0.0, f.z > 0.0 ? 1.0 / f.z : 0.0);
-            k_bsdf[s] = state_sign(s) * delta[s] * remaining[s] * inv_f;
-#endif
-            beta[s] *= f / pdf;
+        // The vertex's material derivatives, with the continuation's when there is one, are
+        // scattered here, from one place whether or not the path goes on (lavapipe runs
+        // both sides of a branch: a scatter on each would cost two).
+        if (grad_pass) {
+            if (sampled) {
+                // Everything the path gathers from here on is proportional to f(wo, wi): its
+                // derivative is remaining * (df/dθ) / f, per channel.
+                vec3 k_bsdf[NSTATES];
+                for (int s = 0; s < NSTATES; ++s) {
+                    vec3 inv_f = vec3(f[s].x > 0.0 ? 1.0 / f[s].x : 0.0, f[s].y > 0.0 ? 1.0 / f[s].y : 0.0, f[s].z > 0.0 ? 1.0 / f[s].z : 0.0);
+                    k_bsdf[s] = state_sign(s) * delta[s] * remaining[s] * inv_f;
+                }
+                add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
+            }
+            scatter_material(sh.material, uv, mg);
         }
-#ifdef ADJOINT
-        if (grad_pass) scatter_bsdf(sh.material, uv, mat, ns, wo, wi, k_bsdf);
 #endif
+        if (!sampled) break;
+        for (int s = 0; s < NSTATES; ++s) beta[s] *= f[s] / pdf;
         prev_bsdf_pdf = pdf;
 
         // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
