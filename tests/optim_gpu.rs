@@ -344,6 +344,53 @@ fn mean_var(xs: &[f64]) -> (f64, f64) {
     (m, xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0))
 }
 
+/// A bundled scene's renderer, a 16-spp target of it and the buffer kernels.
+fn with_target(ctx: &std::sync::Arc<vkinverse::gpu::Context>, name: &str) -> (vkinverse::render::Renderer, vkinverse::image::Image, vkinverse::ops::BufferOps) {
+    use vkinverse::render::{GpuScene, Renderer};
+    let scene = vkinverse::scene::Scene::load(format!("{}/scenes/{name}/scene.toml", env!("CARGO_MANIFEST_DIR"))).unwrap();
+    let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+    let target = renderer.render(0, 16, 7, |_, _| {}).unwrap();
+    (renderer, target, vkinverse::ops::BufferOps::new(ctx).unwrap())
+}
+
+/// Two recorded gradient passes at `spp` over one target: one that also sums a random half
+/// of its pixels into `half`, one without the split into `plain`; each clears its sums first.
+#[allow(clippy::too_many_arguments)]
+fn split_and_plain(
+    ctx: &std::sync::Arc<vkinverse::gpu::Context>,
+    gs: &vkinverse::render::GpuScene,
+    ops: &vkinverse::ops::BufferOps,
+    target: &vkinverse::image::Image,
+    spp: u32,
+    grad: &vkinverse::gpu::Buffer,
+    half: &vkinverse::gpu::Buffer,
+    plain: &vkinverse::gpu::Buffer,
+) -> (vkinverse::gpu::CommandBuffer, vkinverse::gpu::CommandBuffer) {
+    use vkinverse::gpu::{Access, CommandBuffer};
+    use vkinverse::render::gradient::GradientPass;
+    use vkinverse::scene::Loss;
+    let targets = std::slice::from_ref(target);
+    let split = GradientPass::new(gs, ops, targets, Loss::L2, spp, 4, 3, &gs.theta, None, grad, Some(half)).unwrap();
+    let unsplit = GradientPass::new(gs, ops, targets, Loss::L2, spp, 4, 3, &gs.theta, None, plain, None).unwrap();
+    let mut cmd = CommandBuffer::new(ctx, "halves").unwrap();
+    cmd.record(|rec| {
+        rec.transition(&[(grad, Access::TransferWrite), (half, Access::TransferWrite)])?;
+        rec.zero(grad)?;
+        rec.zero(half)?;
+        split.record(rec, gs, ops)
+    })
+    .unwrap();
+    let mut cmd_plain = CommandBuffer::new(ctx, "plain").unwrap();
+    cmd_plain
+        .record(|rec| {
+            rec.transition(&[(plain, Access::TransferWrite)])?;
+            rec.zero(plain)?;
+            unsplit.record(rec, gs, ops)
+        })
+        .unwrap();
+    (cmd, cmd_plain)
+}
+
 /// The same split where θ is too long for the per-thread sums (ajar's 32 × 32 texture: 3072
 /// elements): each contribution is added once, by a direct atomic into the gradient or into
 /// the pass's own half buffer, which the pass then merges into both sums and clears. The
@@ -353,39 +400,14 @@ fn mean_var(xs: &[f64]) -> (f64, f64) {
 /// Σ(F − 2·half)² to about ΣVar[F].
 #[test]
 fn half_sample_sums_from_direct_atomics_add_up_and_start_afresh() {
-    use vkinverse::gpu::Access;
-    use vkinverse::ops::BufferOps;
-    use vkinverse::render::gradient::GradientPass;
-    use vkinverse::render::{GpuScene, Renderer};
-    use vkinverse::scene::{Loss, Scene};
     with_gpu(|ctx| {
-        let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/ajar/scene.toml")).unwrap();
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
-        let target = renderer.render(0, 16, 7, |_, _| {}).unwrap();
+        let (renderer, target, ops) = with_target(ctx, "ajar");
         let gs = &renderer.scene;
-        let ops = BufferOps::new(ctx).unwrap();
         let n = gs.layout.len;
         assert!(n > vkinverse::constants::LOCAL_GRADS_CAPACITY as usize, "{n} elements");
         let zeros = |name: &str| vkinverse::gpu::Buffer::zeroed::<f32>(ctx, name, n, vkinverse::gpu::MemoryKind::Device).unwrap();
         let (grad, half, plain) = (zeros("grad"), zeros("half"), zeros("plain"));
-        let split = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, 1, 4, 3, &gs.theta, None, &grad, Some(&half)).unwrap();
-        let unsplit = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, 1, 4, 3, &gs.theta, None, &plain, None).unwrap();
-        let mut cmd = vkinverse::gpu::CommandBuffer::new(ctx, "halves").unwrap();
-        cmd.record(|rec| {
-            rec.transition(&[(&grad, Access::TransferWrite), (&half, Access::TransferWrite)])?;
-            rec.zero(&grad)?;
-            rec.zero(&half)?;
-            split.record(rec, gs, &ops)
-        })
-        .unwrap();
-        let mut cmd_plain = vkinverse::gpu::CommandBuffer::new(ctx, "plain").unwrap();
-        cmd_plain
-            .record(|rec| {
-                rec.transition(&[(&plain, Access::TransferWrite)])?;
-                rec.zero(&plain)?;
-                unsplit.record(rec, gs, &ops)
-            })
-            .unwrap();
+        let (mut cmd, mut cmd_plain) = split_and_plain(ctx, gs, &ops, &target, 1, &grad, &half, &plain);
         let rounds = 48u32;
         let (mut f, mut d) = (vec![Vec::new(); n], vec![Vec::new(); n]);
         let mut first_half = Vec::new();
@@ -436,39 +458,14 @@ fn half_sample_sums_estimate_the_gradient_variance() {
     // estimate): the full sum is unchanged, and (F − 2·half)² is a sample of Var[F] plus the
     // per-pixel squared means (small against the variance for a parameter seen by many
     // pixels), whatever the samples per pixel.
-    use vkinverse::ops::BufferOps;
-    use vkinverse::render::gradient::GradientPass;
-    use vkinverse::render::{GpuScene, Renderer};
-    use vkinverse::scene::{Loss, Scene};
     with_gpu(|ctx| {
-        let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
-        let target = renderer.render(0, 16, 7, |_, _| {}).unwrap();
+        let (renderer, target, ops) = with_target(ctx, "cornell");
         let gs = &renderer.scene;
-        let ops = BufferOps::new(ctx).unwrap();
         let n = gs.layout.len;
         let zeros = |name: &str| vkinverse::gpu::Buffer::zeroed::<f32>(ctx, name, n, vkinverse::gpu::MemoryKind::Device).unwrap();
         for (spp, rounds) in [(2u32, 48u32), (1, 256)] {
             let (grad, half, plain) = (zeros("grad"), zeros("half"), zeros("plain"));
-            let split = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, None, &grad, Some(&half)).unwrap();
-            let unsplit = GradientPass::new(gs, &ops, std::slice::from_ref(&target), Loss::L2, spp, 4, 3, &gs.theta, None, &plain, None).unwrap();
-            use vkinverse::gpu::Access;
-            let mut cmd = vkinverse::gpu::CommandBuffer::new(ctx, "halves").unwrap();
-            cmd.record(|rec| {
-                rec.transition(&[(&grad, Access::TransferWrite), (&half, Access::TransferWrite)])?;
-                rec.zero(&grad)?;
-                rec.zero(&half)?;
-                split.record(rec, gs, &ops)
-            })
-            .unwrap();
-            let mut cmd_plain = vkinverse::gpu::CommandBuffer::new(ctx, "plain").unwrap();
-            cmd_plain
-                .record(|rec| {
-                    rec.transition(&[(&plain, Access::TransferWrite)])?;
-                    rec.zero(&plain)?;
-                    unsplit.record(rec, gs, &ops)
-                })
-                .unwrap();
+            let (mut cmd, mut cmd_plain) = split_and_plain(ctx, gs, &ops, &target, spp, &grad, &half, &plain);
             let (mut f, mut d) = (vec![Vec::new(); n], vec![Vec::new(); n]);
             for r in 0..rounds {
                 gs.set_frame(r).unwrap();
