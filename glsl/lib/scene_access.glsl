@@ -158,6 +158,8 @@ layout(set = 0, binding = 31, scalar) buffer Grad { float grad[]; };
 // SPLIT: the contributions of half of the pixels are also summed into grad_half, so that
 // the optimiser can estimate the gradient's variance from two independent halves
 // (the centred variance estimate, src/optim/mod.rs). The kernel sets grad_in_half per pixel.
+// With direct atomics the host binds a buffer of two interleaved sums per element here
+// instead (grad_add).
 layout(set = 0, binding = 33, scalar) buffer GradHalf { float grad_half[]; };
 layout(constant_id = 7) const bool SPLIT = false;
 bool grad_in_half = false;
