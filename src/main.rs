@@ -521,8 +521,9 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     }
     let mine: Vec<batch::Job> = all
         .iter()
-        .filter(|j| shard.iter().all(|s| s.has(j.index)) && (a.scenes.is_empty() || a.scenes.contains(&j.scene_name())))
-        .cloned()
+        .zip(&names)
+        .filter(|(j, name)| shard.iter().all(|s| s.has(j.index)) && (a.scenes.is_empty() || a.scenes.contains(name)))
+        .map(|(j, _)| j.clone())
         .collect();
     // One context for every job: device set-up is paid once per batch.
     let ctx = context(cli)?;
