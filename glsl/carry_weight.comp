@@ -13,18 +13,26 @@
 //             weight of the fresh image against the carried one. With v_diff = 0 it is the
 //             running mean's 1/(k + 1); a large step (large v_diff) gives the fresh render
 //             most of the weight, a small one lets the carried image average more iterations.
-// state = (w, v_carried after this carry, v_fresh, v_diff): the diagnostics read it.
+// With the adjoint pass's render taken in (adjoint_ratio > 0; glsl/carry_adjoint.comp, after
+// the adjoint pass), its weight u is chosen here too: that render of θ_i, at s_adjoint spp
+// with its own random numbers, is independent of the carried image, so
+//   v_adjoint = v_fresh · s_primal / s_adjoint,   u = max(v / (v + v_adjoint), u_min),
+//   v ← (1 − u)² v + u² v_adjoint                 (with v the carried image's after the carry).
+// state = (w, v_carried after this iteration's mixes, v_fresh, v_diff, u): the diagnostics
+// read it.
 layout(local_size_x = 256, local_size_x_id = 0) in;
 #include "lib/reduce.glsl"
 layout(set = 0, binding = 0, scalar) readonly buffer Partials { float partials[]; };
 layout(set = 0, binding = 1, scalar) readonly buffer Count { float count; };
-layout(set = 0, binding = 2, scalar) buffer State { float state[4]; };
+layout(set = 0, binding = 2, scalar) buffer State { float state[5]; };
 layout(push_constant, scalar) uniform Push {
     uint groups;        // carry_stats' workgroups (two partials each)
     float scale;        // 1 / (3 n)
     float fresh_share;  // s_fd / (s_fd + s_primal)
     float w_min;        // the fresh image's least weight
     uint variance;      // 1: inverse-variance weights; 0: fixed
+    float adjoint_ratio; // s_primal / s_adjoint; 0: no adjoint render
+    float u_min;        // the adjoint render's least weight
 } pc;
 
 void main() {
@@ -56,8 +64,17 @@ void main() {
     float v_next = w * w * v_fresh + (1.0 - w) * (1.0 - w) * (v + v_diff);
     // A non-finite estimate restarts the tracking from the fresh image's variance.
     if (isnan(v_next) || isinf(v_next)) v_next = isnan(v_fresh) || isinf(v_fresh) ? 0.0 : v_fresh;
+    float u = 0.0;
+    if (pc.adjoint_ratio > 0.0) {
+        float v_adjoint = v_fresh * pc.adjoint_ratio;
+        u = v_next / (v_next + v_adjoint);
+        // Noiseless renders (0 / 0) or a non-finite estimate: the carried image as it is.
+        u = u >= 0.0 && u <= 1.0 ? max(u, pc.u_min) : 0.0;
+        v_next = (1.0 - u) * (1.0 - u) * v_next + u * u * v_adjoint;
+    }
     state[0] = w;
     state[1] = v_next;
     state[2] = v_fresh;
     state[3] = v_diff;
+    state[4] = u;
 }

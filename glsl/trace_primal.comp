@@ -2,7 +2,9 @@
 // trace_primal: renders `spp` samples per pixel of one sensor and adds their mean times
 // `weight` to accum (so that a render split into several submissions sums correctly).
 // trace_adjoint (ADJOINT): replays every sample twice, once for its radiance and once to
-// scatter dLoss/dPixel into the parameter gradients.
+// scatter dLoss/dPixel into the parameter gradients; adds the mean of the first replays'
+// radiance to accum, a render of θ at the pass's spp with the pass's own random numbers
+// (the meta-estimator's carried image takes it in: src/engine.rs, glsl/carry_adjoint.comp).
 // trace_fd_primal (FD): renders the same samples in both parameter states (θ_i into
 // accum, θ_{i-1} into accum_prev), paths sampled with θ_i.
 // trace_fd_adjoint (FD, ADJOINT): the gradient at θ_i minus the gradient at θ_{i-1}
@@ -42,6 +44,8 @@ layout(local_size_x = 64, local_size_x_id = 0) in;
 layout(set = 0, binding = 1, scalar) readonly buffer AdjointImage { vec3 adjoint_image[]; };
 #ifdef FD
 layout(set = 0, binding = 4, scalar) readonly buffer AdjointImagePrev { vec3 adjoint_image_prev[]; };
+#else
+layout(set = 0, binding = 0, scalar) buffer Accum { vec3 accum[]; };
 #endif
 #else
 layout(set = 0, binding = 0, scalar) buffer Accum { vec3 accum[]; };
@@ -89,7 +93,10 @@ void main() {
 #endif
     bool any_delta = false;
     for (int k = 0; k < NSTATES; ++k) any_delta = any_delta || any(notEqual(delta[k], vec3(0.0)));
+#ifdef FD
     if (!any_delta) return;
+#endif
+    // (trace_adjoint renders every pixel: a pixel without gradient still adds its radiance.)
     grad_init();
 #endif
     vec3 sum[NSTATES];
@@ -110,7 +117,8 @@ void main() {
         Rng replay = rng;
         trace_path(rng, o, d, zero, zero, false, radiance);
         vec3 unused[NSTATES];
-        trace_path(replay, o, d, radiance, delta, true, unused);
+        if (any_delta) trace_path(replay, o, d, radiance, delta, true, unused);
+        sum[0] += radiance[0];
 #else
         trace_path(rng, o, d, zero, zero, false, radiance);
         for (int j = 0; j < NSTATES; ++j) sum[j] += radiance[j];
@@ -118,6 +126,10 @@ void main() {
     }
 #ifdef ADJOINT
     grad_flush();
+#ifndef FD
+    // pc.weight is the gradient's 1 / spp (stride 1: every pixel traced).
+    accum[i] += pc.weight * sum[0];
+#endif
 #else
     accum[i] += pc.weight * sum[0];
 #ifdef FD

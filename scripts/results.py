@@ -131,6 +131,7 @@ def load(args):
         r["settled"] = settled(r["raw"])
         r["rate"] = rate(r["dir"])
         r["fd_stride"] = summary(r["dir"]).get("settings", {}).get("fd_stride", 1)
+        r["primal_spp"] = summary(r["dir"]).get("settings", {}).get("primal_spp", 4)
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
 
@@ -257,12 +258,13 @@ def protocol(by_scene):
 
 def pilot(by_scene):
     scenes = list(by_scene)
-    # A configuration is a meta spec with the rate it ran at (when not the scene's own) and
-    # its finite-difference pixel stride (when not 1).
+    # A configuration is a meta spec with the rate it ran at (when not the scene's own), its
+    # finite-difference pixel stride (when not 1) and its primal render's spp (when not 4).
     def config(r):
         lr = "" if r["rate"] == "scene" else f" (lr {r['rate']})"
         stride = "" if r["fd_stride"] == 1 else f" (fd_stride {r['fd_stride']})"
-        return r["optimiser"] + lr + stride
+        primal = "" if r["primal_spp"] == 4 else f" (primal_spp {r['primal_spp']})"
+        return r["optimiser"] + lr + stride + primal
 
     configs = []
     for rows in by_scene.values():

@@ -9,7 +9,8 @@
 //! `trace_adjoint`, `trace_fd_primal`, `trace_fd_adjoint`, `sub`, `optim_meta`,
 //! `optim_adam`), once per sensor where a pass is per sensor. With meta's carried primal
 //! image ([`Carry`]) both samples' primal passes come first, then `carry_image`, then the
-//! losses and adjoint passes of both. [`Iteration`] is that
+//! losses and adjoint passes of both, then (meta `carry_adjoint`) `carry_adjoint`, which
+//! mixes the adjoint pass's render of θ_i into the carried image. [`Iteration`] is that
 //! recording resubmitted with a fresh iteration counter; [`Step`] is what one submission
 //! reports, the optimiser's diagnostics (`optimiser.csv`) included.
 //!
@@ -76,11 +77,15 @@ impl FdSample {
 /// squared differences of the three renders, `carry_weight` chooses the fresh render's weight
 /// from them and tracks the carried image's variance, and `carry_image` carries the previous
 /// iteration's image to θ_i by the difference of ⟨ΔF⟩'s two images, mixes in the fresh
-/// render, and puts the result in the images the losses read.
+/// render, and puts the result in the images the losses read. With `carry_adjoint`,
+/// `carry_adjoint` then mixes the adjoint pass's render of θ_i into the carried image, by the
+/// weight `carry_weight` chose for it (glsl/carry_adjoint.comp).
 pub struct Carry {
     image: ComputePipeline,
     stats: ComputePipeline,
     weight: ComputePipeline,
+    /// carry_adjoint, with the adjoint pass's render taken in (meta `carry_adjoint`).
+    adjoint: Option<ComputePipeline>,
     sensors: Vec<CarrySensor>,
     /// Carries so far (one float, incremented on the device after each pass); 0 in a new
     /// engine (the first carry takes the fresh image alone). Checkpointed with the images.
@@ -98,16 +103,20 @@ struct CarrySensor {
     prev: Buffer,
     carried: Buffer,
     partials: Buffer,
-    /// (w, the carried image's variance, the fresh render's, the bound on the difference's),
-    /// per pixel and channel, after the last carry.
+    /// (w, the carried image's variance, the fresh render's, the bound on the difference's,
+    /// the adjoint render's weight u), per pixel and channel, after the last iteration.
     state: Buffer,
     image: gpu::BindGroup,
     stats: gpu::BindGroup,
     weight: gpu::BindGroup,
+    /// The adjoint pass's render and carry_adjoint's bind group over it.
+    adjoint: Option<(Buffer, gpu::BindGroup)>,
 }
 
+/// Floats of a sensor's carry state on the device.
+const CARRY_STATE_FLOATS: usize = 5;
 /// Bytes of a sensor's carry state on the device.
-const CARRY_STATE_BYTES: u64 = 16;
+const CARRY_STATE_BYTES: u64 = 4 * CARRY_STATE_FLOATS as u64;
 
 /// What a sensor's carry did in an iteration (its `carry_weight` state).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -120,19 +129,22 @@ pub struct CarryState {
     pub var_fresh: f32,
     /// The bound on the variance the finite-difference images' difference adds.
     pub var_diff: f32,
+    /// The adjoint pass's render's weight (0 where it is not taken in).
+    pub weight_adjoint: f32,
 }
 
 impl CarryState {
     /// The CSV columns of [`Self::values`].
-    pub const COLUMNS: [&'static str; 4] = ["weight", "var_carried", "var_fresh", "var_diff"];
+    pub const COLUMNS: [&'static str; CARRY_STATE_FLOATS] = ["weight", "var_carried", "var_fresh", "var_diff", "weight_adjoint"];
 
-    /// The state from its four floats in [`Self::COLUMNS`]' order.
+    /// The state from its floats in [`Self::COLUMNS`]' order; a state without the last
+    /// (written before the adjoint render was taken in) has its weight 0.
     pub fn from_floats(v: &[f32]) -> Self {
-        CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3] }
+        CarryState { weight: v[0], var_carried: v[1], var_fresh: v[2], var_diff: v[3], weight_adjoint: v.get(4).copied().unwrap_or(0.0) }
     }
 
-    pub fn values(&self) -> [f32; 4] {
-        [self.weight, self.var_carried, self.var_fresh, self.var_diff]
+    pub fn values(&self) -> [f32; CARRY_STATE_FLOATS] {
+        [self.weight, self.var_carried, self.var_fresh, self.var_diff, self.weight_adjoint]
     }
 }
 
@@ -140,8 +152,20 @@ impl Carry {
     /// A carry over `images`, one (fresh, cur, prev) triple of `pixels` RGB pixels per
     /// sensor: the fresh render at `spp.0` samples per pixel, the finite-difference images at
     /// `spp.1`; the fresh image's least weight `w_min`, and how it is weighed above that.
-    pub fn new(ctx: &Arc<Context>, pixels: usize, images: &[(&Buffer, &Buffer, &Buffer)], w_min: f64, weight: CarryWeight, spp: (u32, u32)) -> gpu::Result<Self> {
+    /// With `adjoint` (one render per sensor, at `adjoint.1` samples per pixel), each
+    /// sensor's adjoint render of θ_i is mixed into its carried image after the adjoint pass
+    /// ([`Self::record_adjoint`]).
+    pub fn new(
+        ctx: &Arc<Context>,
+        pixels: usize,
+        images: &[(&Buffer, &Buffer, &Buffer)],
+        w_min: f64,
+        weight: CarryWeight,
+        spp: (u32, u32),
+        adjoint: Option<(Vec<&Buffer>, u32)>,
+    ) -> gpu::Result<Self> {
         let image = ComputePipeline::new(ctx, "carry_image", &[])?;
+        let mix = adjoint.as_ref().map(|_| ComputePipeline::new(ctx, "carry_adjoint", &[])).transpose()?;
         let stats = ComputePipeline::new(ctx, "carry_stats", &[])?;
         let weigh = ComputePipeline::new(ctx, "carry_weight", &[])?;
         let count = Buffer::zeroed::<f32>(ctx, "carry count", 1, MemoryKind::Device)?;
@@ -150,10 +174,18 @@ impl Carry {
         for (s, (fresh, cur, prev)) in images.iter().enumerate() {
             let carried = Buffer::zeroed::<[f32; 3]>(ctx, &format!("carried image {s}"), pixels, MemoryKind::Device)?;
             let partials = Buffer::zeroed::<f32>(ctx, &format!("carry partials {s}"), 2 * groups.max(1), MemoryKind::Device)?;
-            let state = Buffer::zeroed::<f32>(ctx, &format!("carry state {s}"), 4, MemoryKind::Device)?;
+            let state = Buffer::zeroed::<f32>(ctx, &format!("carry state {s}"), CARRY_STATE_FLOATS, MemoryKind::Device)?;
             let image_group = image.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Carried", &carried), ("State", &state)])?;
             let stats_group = stats.bind(&[("Fresh", fresh), ("Cur", cur), ("Prev", prev), ("Partials", &partials)])?;
             let weight_group = weigh.bind(&[("Partials", &partials), ("Count", &count), ("State", &state)])?;
+            let adjoint_mix = match (&mix, &adjoint) {
+                (Some(p), Some((renders, _))) => {
+                    let r = renders[s].clone();
+                    let group = p.bind(&[("Carried", &carried), ("Adjoint", &r), ("State", &state)])?;
+                    Some((r, group))
+                }
+                _ => None,
+            };
             sensors.push(CarrySensor {
                 fresh: (*fresh).clone(),
                 cur: (*cur).clone(),
@@ -164,16 +196,24 @@ impl Carry {
                 image: image_group,
                 stats: stats_group,
                 weight: weight_group,
+                adjoint: adjoint_mix,
             });
         }
+        // The least weight of an iteration's new samples: the fresh render's alone, or shared
+        // with the adjoint render by their samples, so that the carried image's memory at the
+        // floor is the same (1/w_min iterations) with or without it.
+        let s_a = adjoint.as_ref().map_or(0, |(_, s_a)| *s_a);
+        let new_samples = (spp.0 + s_a).max(1) as f64;
         let push = CarryWeightPush {
             groups: groups as u32,
             scale: 1.0 / (3.0 * pixels.max(1) as f32),
             fresh_share: spp.1 as f32 / (spp.0 + spp.1).max(1) as f32,
-            w_min: w_min as f32,
+            w_min: (w_min * spp.0 as f64 / new_samples) as f32,
             variance: (weight == CarryWeight::Variance) as u32,
+            adjoint_ratio: if s_a > 0 { spp.0 as f32 / s_a as f32 } else { 0.0 },
+            u_min: (w_min * s_a as f64 / new_samples) as f32,
         };
-        Ok(Carry { image, stats, weight: weigh, sensors, count, pixels: pixels as u32, push })
+        Ok(Carry { image, stats, weight: weigh, adjoint: mix, sensors, count, pixels: pixels as u32, push })
     }
 
     /// The carry of a gradient estimate's images by a fused finite-difference sample's.
@@ -181,7 +221,26 @@ impl Carry {
         let images: Vec<_> = (0..gradient.sensors())
             .map(|s| (gradient.image(s), fd.image(s), fd.prev_image(s).expect("the fused finite-difference sample renders θ_{i-1}")))
             .collect();
-        Self::new(ctx, gs.pixels(), &images, h.carry, h.carry_weight, (gradient.primal_spp, fd.primal_spp))
+        let adjoint = h.carry_adjoint.then(|| {
+            let renders = (0..gradient.sensors()).map(|s| gradient.adjoint_radiance(s).expect("the gradient estimate's adjoint pass renders θ")).collect();
+            (renders, gradient.spp)
+        });
+        Self::new(ctx, gs.pixels(), &images, h.carry, h.carry_weight, (gradient.primal_spp, fd.primal_spp), adjoint)
+    }
+
+    /// Records the mix of every sensor's adjoint render into its carried image (after the
+    /// adjoint pass; nothing without `carry_adjoint`).
+    pub fn record_adjoint(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+        let Some(mix) = &self.adjoint else { return Ok(()) };
+        profiler.begin_scope(rec, "carry_adjoint")?;
+        let n = CountPush { n: self.pixels };
+        for c in &self.sensors {
+            if let Some((render, group)) = &c.adjoint {
+                rec.transition(&[(render, Access::ComputeRead), (&c.carried, Access::ComputeReadWrite), (&c.state, Access::ComputeRead)])?;
+                rec.dispatch_linear(mix, group, &n, self.pixels as u64)?;
+            }
+        }
+        profiler.end_scope(rec)
     }
 
     /// Records the passes over every sensor's images and the count's increment.
@@ -292,7 +351,7 @@ impl Report {
         let carry_at = theta_at - self.carried * CARRY_STATE_BYTES as usize;
         let loss = floats(&bytes[..loss_bytes]).iter().map(|&l| l as f64).sum();
         let records = bytes[loss_bytes..carry_at].to_vec();
-        let carry = floats(&bytes[carry_at..theta_at]).chunks_exact(4).map(CarryState::from_floats).collect();
+        let carry = floats(&bytes[carry_at..theta_at]).chunks_exact(CARRY_STATE_FLOATS).map(CarryState::from_floats).collect();
         Ok((loss, records, carry, floats(&bytes[theta_at..])))
     }
 }
@@ -480,6 +539,7 @@ impl Engine {
                 carry.record(rec, &self.ops, profiler.as_deref_mut())?;
                 self.gradient.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
                 fd.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
+                carry.record_adjoint(rec, profiler.as_deref_mut())?;
             }
             _ => {
                 self.record_gradient(rec, profiler.as_deref_mut())?;
@@ -495,7 +555,8 @@ impl Engine {
     /// Profiler scopes that [`Self::record`] opens.
     pub fn scopes(&self) -> u32 {
         let sensors = self.scene().sensors as u32;
-        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + self.carry.as_ref().map_or(0, |_| 1) + 1
+        let carry = self.carry.as_ref().map_or(0, |c| 1 + c.adjoint.is_some() as u32);
+        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + carry + 1
     }
 
     /// Runs the rendering passes once, untimed, and clears what they accumulated: lavapipe

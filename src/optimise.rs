@@ -279,14 +279,18 @@ impl CarryLog {
     pub fn parse(text: &str) -> std::result::Result<Self, String> {
         let mut lines = text.lines();
         let header = Self::header();
-        if lines.next() != Some(header.as_str()) {
-            return Err(format!("the header is not '{header}'"));
-        }
+        // A log from before the adjoint render's weight lacks its column (read as 0).
+        let earlier = header.rsplit_once(',').map(|(h, _)| h.to_string()).unwrap_or_default();
+        let columns = match lines.next() {
+            Some(h) if h == header => CarryState::COLUMNS.len(),
+            Some(h) if h == earlier => CarryState::COLUMNS.len() - 1,
+            _ => return Err(format!("the header is not '{header}'")),
+        };
         let mut rows = Vec::new();
         for (n, line) in lines.enumerate() {
-            let bad = || format!("line {}: '{line}' is not {} numbers", n + 2, 2 + CarryState::COLUMNS.len());
+            let bad = || format!("line {}: '{line}' is not {} numbers", n + 2, 2 + columns);
             let f: Vec<&str> = line.split(',').collect();
-            if f.len() != 2 + CarryState::COLUMNS.len() {
+            if f.len() != 2 + columns {
                 return Err(bad());
             }
             let v: Vec<f32> = f[2..].iter().map(|x| x.parse::<f32>()).collect::<std::result::Result<_, _>>().map_err(|_| bad())?;
@@ -295,8 +299,8 @@ impl CarryLog {
         Ok(CarryLog { rows })
     }
 
-    /// Plots the log (`carry.png`): the fresh render's weight, and the variances it was
-    /// chosen from, per sensor against the iteration, on log axes.
+    /// Plots the log (`carry.png`): the weights of the fresh render and of the adjoint pass's
+    /// render, and the variances they were chosen from, per sensor against the iteration, on log axes.
     pub fn plot(&self, path: &Path, title: &str) -> std::result::Result<(), String> {
         use crate::report::{plot_panels, Curve, Panel};
         let sensors = self.rows.iter().map(|r| r.1 + 1).max().unwrap_or(0);
@@ -307,13 +311,16 @@ impl CarryLog {
         let mut weights = Vec::new();
         let mut variances = Vec::new();
         for s in 0..sensors {
-            weights.push(Curve { name: label(s, "weight"), points: series(s, |c| c.weight) });
+            weights.push(Curve { name: label(s, "fresh render"), points: series(s, |c| c.weight) });
+            if self.rows.iter().any(|r| r.1 == s && r.2.weight_adjoint > 0.0) {
+                weights.push(Curve { name: label(s, "adjoint render"), points: series(s, |c| c.weight_adjoint) });
+            }
             variances.push(Curve { name: label(s, "carried image"), points: series(s, |c| c.var_carried) });
             variances.push(Curve { name: label(s, "fresh render"), points: series(s, |c| c.var_fresh) });
             variances.push(Curve { name: label(s, "difference (bound)"), points: series(s, |c| c.var_diff) });
         }
         let panels = [
-            Panel { y_label: "fresh render's weight".into(), curves: &weights },
+            Panel { y_label: "weight in the carried image".into(), curves: &weights },
             Panel { y_label: "variance per pixel and channel".into(), curves: &variances },
         ];
         plot_panels(path, title, "iteration", &panels, (800, 750))
@@ -370,7 +377,12 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
         if optional && !path.exists() {
             continue;
         }
-        let a = crate::npy::read(&path)?;
+        let mut a = crate::npy::read(&path)?;
+        // Checkpoints from before the adjoint render was taken in hold the carry state
+        // without its weight: 0, as if the last iteration had not mixed one in.
+        if b.name().starts_with("carry state") && a.data.len() + 1 == saved {
+            a.data.push(0.0);
+        }
         if a.data.len() != saved {
             return Err(Error::Invalid(format!("{}: {} values, expected {saved}", path.display(), a.data.len())));
         }
@@ -607,14 +619,19 @@ mod tests {
 
     #[test]
     fn carry_log_round_trips_and_names_bad_lines() {
-        let state = |w: f32| CarryState { weight: w, var_carried: 1.5e-4, var_fresh: 0.0419, var_diff: 1.3e-13 };
+        let state = |w: f32| CarryState { weight: w, var_carried: 1.5e-4, var_fresh: 0.0419, var_diff: 1.3e-13, weight_adjoint: 0.25 };
         let log = CarryLog { rows: vec![(1, 0, state(1.0)), (2, 0, state(0.53)), (2, 1, state(0.0033))] };
         let text = log.to_csv();
         assert_eq!(CarryLog::parse(&text).unwrap(), log);
         assert!(CarryLog::parse("iteration,sensor,weight\n").unwrap_err().contains("header"));
-        let bad = format!("{}1,0,0.5,x,1,1\n", text.lines().next().unwrap().to_string() + "\n");
+        let bad = format!("{}1,0,0.5,x,1,1,1\n", text.lines().next().unwrap().to_string() + "\n");
         assert!(CarryLog::parse(&bad).unwrap_err().contains("line 2"), "{:?}", CarryLog::parse(&bad));
         let short = format!("{}1,0,0.5\n", text.lines().next().unwrap().to_string() + "\n");
         assert!(CarryLog::parse(&short).is_err());
+        // A log from before the adjoint render's weight column reads with that weight 0.
+        let earlier = "iteration,sensor,weight,var_carried,var_fresh,var_diff\n3,0,0.5,0.001,0.1,1e-9\n";
+        let rows = CarryLog::parse(earlier).unwrap().rows;
+        assert_eq!(rows, vec![(3, 0, CarryState { weight: 0.5, var_carried: 0.001, var_fresh: 0.1, var_diff: 1e-9, weight_adjoint: 0.0 })]);
+        assert!(CarryLog::parse("iteration,sensor,weight,var_carried,var_fresh,var_diff\n3,0,0.5,0.001,0.1,1e-9,0.2\n").is_err());
     }
 }

@@ -64,8 +64,13 @@ pub struct CarryWeightPush {
     pub w_min: f32,
     /// 1: inverse-variance weights; 0: fixed.
     pub variance: u32,
+    /// s_primal / s_adjoint, the adjoint render's variance over the fresh render's; 0: the
+    /// adjoint render is not taken in.
+    pub adjoint_ratio: f32,
+    /// The adjoint render's least weight.
+    pub u_min: f32,
 }
-push_block!(CarryWeightPush { groups, scale, fresh_share, w_min, variance });
+push_block!(CarryWeightPush { groups, scale, fresh_share, w_min, variance, adjoint_ratio, u_min });
 
 /// gather.comp's block.
 #[repr(C)]
@@ -188,7 +193,7 @@ pub fn mirror(kernel: &str) -> Option<Layout> {
     // of its own.
     let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
     Some(match base {
-        "copy" | "sub" | "merge_half" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" => layout::<CountPush>(),
+        "copy" | "sub" | "merge_half" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" | "carry_adjoint" => layout::<CountPush>(),
         "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
         "fill" => layout::<FillPush>(),
         "scale_add" => layout::<ScaleAddPush>(),

@@ -438,11 +438,12 @@ fn resume_continues_from_the_checkpoint() {
     assert_eq!(count.data, [6.0], "carries in six iterations");
     let image = vkinverse::npy::read(&committed(&out_dir).join("carried_image_0.npy")).unwrap();
     assert!(image.data.iter().any(|&v| v > 0.0), "the checkpointed carried image is black");
-    // With its weight's state (w, the carried image's variance, the fresh render's, the
-    // difference's), and the log of the weights.
+    // With its weights' state (w, the carried image's variance, the fresh render's, the
+    // difference's, the adjoint render's weight), and the log of the weights.
     let state0 = vkinverse::npy::read(&committed(&out_dir).join("carry_state_0.npy")).unwrap();
-    assert_eq!(state0.data.len(), 4);
+    assert_eq!(state0.data.len(), 5);
     assert!(state0.data[0] > 0.0 && state0.data[0] < 1.0 && state0.data[1] > 0.0 && state0.data[1] < state0.data[2], "carry state {:?}", state0.data);
+    assert!(state0.data[4] > 0.0 && state0.data[4] < 1.0, "the adjoint render's weight {}", state0.data[4]);
 
     // θ and the previous θ are saved as θ's three floats in one texel, without the material
     // data that follow them in θ's buffer (the format of earlier checkpoints), and the
@@ -462,6 +463,13 @@ fn resume_continues_from_the_checkpoint() {
     assert!(nis.exists(), "{} missing", nis.display());
     std::fs::remove_file(&nis).unwrap();
     std::fs::remove_file(&run).unwrap();
+    // Nor the adjoint render's weight in its carry state and log.
+    let state_path = committed(&out_dir).join("carry_state_0.npy");
+    vkinverse::npy::write(&state_path, &vkinverse::npy::Array { shape: vec![4], data: state0.data[..4].to_vec() }).unwrap();
+    let carry_csv = committed(&out_dir).join("carry.csv");
+    let earlier: String = std::fs::read_to_string(&carry_csv).unwrap().lines().map(|l| l.rsplit_once(',').unwrap().0.to_string() + "\n").collect();
+    assert!(earlier.starts_with("iteration,sensor,weight,var_carried,var_fresh,var_diff\n"), "{earlier}");
+    std::fs::write(&carry_csv, earlier).unwrap();
     vkinverse_ok(&with(&["--iterations", "10", "--resume"]));
     let (header, rows) = read_log(&out_dir);
     assert_eq!(header, LOG_HEADER);
@@ -481,7 +489,8 @@ fn resume_continues_from_the_checkpoint() {
     let carry = std::fs::read_to_string(out_dir.join("carry.csv")).unwrap();
     assert_eq!(carry, std::fs::read_to_string(committed(&out_dir).join("carry.csv")).unwrap());
     let carry_rows: Vec<Vec<String>> = carry.lines().skip(1).map(|l| l.split(',').map(String::from).collect()).collect();
-    assert_eq!(carry.lines().next().unwrap(), "iteration,sensor,weight,var_carried,var_fresh,var_diff");
+    // (The log resumed from the earlier format is written in the current one.)
+    assert_eq!(carry.lines().next().unwrap(), "iteration,sensor,weight,var_carried,var_fresh,var_diff,weight_adjoint");
     assert_eq!(carry_rows.iter().map(|r| r[0].clone()).collect::<Vec<_>>(), (1..=10).map(|i| i.to_string()).collect::<Vec<_>>());
     assert_eq!(field(&carry_rows[0], 2), 1.0, "the first carry takes the fresh render");
     let last_state = vkinverse::npy::read(&committed(&out_dir).join("carry_state_0.npy")).unwrap();

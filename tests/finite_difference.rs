@@ -250,7 +250,9 @@ fn fused_equals_two_trace_with_delta_lights() {
 /// with the carried one moved by cur − prev, with the running mean's weight down to `w_min`
 /// (fixed) or the inverse-variance weight from the renders' squared differences and the
 /// tracked variance (variance); the losses' images are replaced by the result, and the
-/// state holds the weight and the variances.
+/// state holds the weight and the variances. With the adjoint pass's render taken in
+/// (carry_adjoint.comp), it is mixed into the carried image after the losses' images were
+/// written, by its inverse-variance weight against the carried image's tracked variance.
 #[test]
 fn carry_pass_follows_its_formula() {
     use vkinverse::engine::Carry;
@@ -261,16 +263,25 @@ fn carry_pass_follows_its_formula() {
         let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
         let bufs: Vec<[Buffer; 3]> = (0..2).map(|s| [mk(&format!("fresh {s}")), mk(&format!("cur {s}")), mk(&format!("prev {s}"))]).collect();
         let triples: Vec<(&Buffer, &Buffer, &Buffer)> = bufs.iter().map(|[f, c, p]| (f, c, p)).collect();
-        for (mode, w_min) in [(CarryWeight::Fixed, 0.3f64), (CarryWeight::Variance, 0.02)] {
-            let carry = Carry::new(ctx, pixels, &triples, w_min, mode, spp).unwrap();
+        // The adjoint pass's renders of θ_i, at 2 spp (kind 3 below).
+        let (adjoint_renders, s_a) = ([mk("adjoint 0"), mk("adjoint 1")], 2u32);
+        // Whether the fresh and the adjoint render's floors were each reached.
+        let mut floors_met = [false; 2];
+        for (mode, w_min, with_adjoint) in [(CarryWeight::Fixed, 0.3f64, false), (CarryWeight::Variance, 0.02, false), (CarryWeight::Variance, 0.9, true)] {
+            let adjoint = with_adjoint.then(|| (adjoint_renders.iter().collect::<Vec<_>>(), s_a));
+            let carry = Carry::new(ctx, pixels, &triples, w_min, mode, spp, adjoint).unwrap();
             let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
-            cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
+            cmd.record(|rec| {
+                carry.record(rec, &ops, None)?;
+                carry.record_adjoint(rec, None)
+            })
+            .unwrap();
             // cur and prev differ by a small step, fresh by noise of the size of cur's.
             let value = |s: usize, r: u32, i: usize, kind: u32| -> [f32; 3] {
                 let x = (s * 7919 + r as usize * 104729 + i * 31) as f32;
                 let base = [(x * 0.37).sin(), (x * 0.11).cos() * 2.0, (x * 0.05).sin() + 1.0];
                 let y = (s * 31 + r as usize * 17 + i * 7 + kind as usize * 1013) as f32;
-                let noise = (y * 0.731).sin() * [0.3, 0.01, 0.1][kind as usize];
+                let noise = (y * 0.731).sin() * [0.3, 0.01, 0.1, 0.2][kind as usize];
                 base.map(|b| b + noise)
             };
             let mut expected: Vec<Vec<[f64; 3]>> = vec![vec![[0.0; 3]; pixels]; 2];
@@ -280,6 +291,7 @@ fn carry_pass_follows_its_formula() {
                     f.write(&(0..pixels).map(|i| value(s, r, i, 0)).collect::<Vec<_>>()).unwrap();
                     c.write(&(0..pixels).map(|i| value(s, r, i, 1)).collect::<Vec<_>>()).unwrap();
                     p.write(&(0..pixels).map(|i| value(s, r, i, 2)).collect::<Vec<_>>()).unwrap();
+                    adjoint_renders[s].write(&(0..pixels).map(|i| value(s, r, i, 3)).collect::<Vec<_>>()).unwrap();
                 }
                 cmd.submit_and_wait().unwrap();
                 for (s, [f, c, p]) in bufs.iter().enumerate() {
@@ -288,13 +300,22 @@ fn carry_pass_follows_its_formula() {
                             / (3 * pixels) as f64
                     };
                     let v_fresh = sq(0, 1) * spp.1 as f64 / (spp.0 + spp.1) as f64;
+                    // With the adjoint render the floor is shared by the two renders' samples.
+                    let s_new = if with_adjoint { (spp.0 + s_a) as f64 } else { spp.0 as f64 };
+                    let (w_floor, u_floor) = (w_min * spp.0 as f64 / s_new, w_min * (s_new - spp.0 as f64) / s_new);
                     let v_diff = sq(1, 2);
                     let w = match (r, mode) {
                         (0, _) => 1.0,
-                        (_, CarryWeight::Fixed) => (1.0 / (r as f64 + 1.0)).max(w_min),
-                        (_, CarryWeight::Variance) => ((var[s] + v_diff) / (var[s] + v_diff + v_fresh)).max(w_min),
+                        (_, CarryWeight::Fixed) => (1.0 / (r as f64 + 1.0)).max(w_floor),
+                        (_, CarryWeight::Variance) => ((var[s] + v_diff) / (var[s] + v_diff + v_fresh)).max(w_floor),
                     };
                     var[s] = w * w * v_fresh + (1.0 - w) * (1.0 - w) * (var[s] + v_diff);
+                    // The adjoint render's weight, against the carried image after the carry.
+                    let v_adjoint = v_fresh * spp.0 as f64 / s_a as f64;
+                    let u = if with_adjoint { (var[s] / (var[s] + v_adjoint)).max(u_floor) } else { 0.0 };
+                    floors_met[0] |= with_adjoint && w == w_floor;
+                    floors_met[1] |= with_adjoint && u == u_floor;
+                    var[s] = (1.0 - u) * (1.0 - u) * var[s] + u * u * v_adjoint;
                     let state = carry.sensor_state(s).unwrap();
                     let near = |got: f32, want: f64, what: &str| {
                         assert!((got as f64 - want).abs() <= 1e-4 * want.abs() + 1e-9, "{mode:?} round {r} sensor {s}: {what} {got} against {want}")
@@ -303,6 +324,8 @@ fn carry_pass_follows_its_formula() {
                     near(state.var_carried, var[s], "carried variance");
                     near(state.var_fresh, v_fresh, "fresh variance");
                     near(state.var_diff, v_diff, "difference variance");
+                    near(state.weight_adjoint, u, "adjoint render's weight");
+
                     let (fresh, cur, prev): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>) = (f.read().unwrap(), c.read().unwrap(), p.read().unwrap());
                     let carried: Vec<[f32; 3]> = carry.image(s).read().unwrap();
                     for i in 0..pixels {
@@ -310,9 +333,11 @@ fn carry_pass_follows_its_formula() {
                         for k in 0..3 {
                             let diff = vc[k] as f64 - vp[k] as f64;
                             let e = if r == 0 { vf[k] as f64 } else { w * vf[k] as f64 + (1.0 - w) * (expected[s][i][k] + diff) };
-                            expected[s][i][k] = e;
+                            // The losses read the carry's image; the adjoint render is mixed in after.
+                            let mixed = (1.0 - u) * e + u * value(s, r, i, 3)[k] as f64;
+                            expected[s][i][k] = mixed;
                             let close = |got: f32, want: f64| (got as f64 - want).abs() <= 1e-4 * (1.0 + want.abs());
-                            assert!(close(carried[i][k], e), "{mode:?} round {r} sensor {s} pixel {i}: carried {} against {e}", carried[i][k]);
+                            assert!(close(carried[i][k], mixed), "{mode:?} round {r} sensor {s} pixel {i}: carried {} against {mixed}", carried[i][k]);
                             assert!(close(fresh[i][k], e) && close(cur[i][k], e), "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one");
                             assert!(close(prev[i][k], e - diff), "round {r} sensor {s} pixel {i}: prev {} against {}", prev[i][k], e - diff);
                         }
@@ -320,6 +345,7 @@ fn carry_pass_follows_its_formula() {
                 }
             }
         }
+        assert_eq!(floors_met, [true, true], "the rounds never reached the fresh and the adjoint render's floors");
     });
 }
 
@@ -335,7 +361,7 @@ fn carry_weight_survives_a_non_finite_render() {
         let ops = BufferOps::new(ctx).unwrap();
         let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
         let (f, c, p) = (mk("fresh"), mk("cur"), mk("prev"));
-        let carry = Carry::new(ctx, pixels, &[(&f, &c, &p)], 0.01, CarryWeight::Variance, (4, 1)).unwrap();
+        let carry = Carry::new(ctx, pixels, &[(&f, &c, &p)], 0.01, CarryWeight::Variance, (4, 1), None).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
         cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
         let image = |r: u32, kind: u32| -> Vec<[f32; 3]> { (0..pixels).map(|i| [((i as u32 * 7 + r * 13 + kind * 5) % 11) as f32 * 0.1; 3]).collect() };
@@ -437,12 +463,16 @@ fn carried_image_follows_the_parameters_with_less_noise_than_a_fresh_render() {
 /// The inverse-variance weights (`carry_weight=variance`): the variances the carry estimates
 /// and tracks are those measured against a 512-spp render of the same θ (the fresh render's
 /// from its difference with the finite-difference image of θ, the carried image's through
-/// the iterations), and the carried image is unbiased with less noise than a fresh render.
+/// the iterations, the adjoint pass's render mixed in), and the carried image is unbiased
+/// with less noise than a fresh render.
 #[test]
 fn carried_image_variance_weights_estimate_the_variances_they_weigh() {
+    // With the defaults' adjoint render mixed into the carried image after each carry.
     let (carried, reference, fresh, state) = carried_run("meta@carry=0.001@carry_weight=variance");
-    // The reference's own variance, at 512 spp against the fresh render's primal_spp (4).
-    let ref_var = state.var_fresh as f64 * 4.0 / 512.0;
+    assert!(state.weight_adjoint > 0.0, "the adjoint render was not taken in");
+    // The reference's own variance, at 512 spp against the fresh render's primal_spp.
+    let primal_spp = vkinverse::settings::RunSettings::of_scene(&Scene::load("scenes/cornell/scene.toml").unwrap()).primal_spp;
+    let ref_var = state.var_fresh as f64 * primal_spp as f64 / 512.0;
     let (bias, ms_carried) = error_stats(&carried, &reference);
     let (_, ms_fresh) = error_stats(&fresh, &reference);
     let ref_mean: Vec<f64> = (0..3).map(|k| reference.iter().map(|p| p[k] as f64).sum::<f64>() / reference.len() as f64).collect();

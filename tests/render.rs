@@ -738,6 +738,66 @@ fn many_samples_per_pixel_in_one_pass_render_the_same_image() {
     });
 }
 
+/// The adjoint pass renders θ as it replays its samples for their radiance
+/// (`GradientPass::adjoint_radiance`, which meta's carried image takes in): its image is the
+/// primal kernel's with the adjoint pass's seed and samples, over a pass split into several
+/// dispatches, and on every pixel, those without gradient (an adjoint weight of 0, which skip
+/// the gradient replay) included.
+#[test]
+fn the_adjoint_pass_renders_theta_with_its_own_samples() {
+    use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};
+    use vkinverse::image::Image;
+    use vkinverse::ops::BufferOps;
+    use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT, SEED_PRIMAL};
+    use vkinverse::render::spp_per_dispatch;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = Scene::load(root.join("scenes/cornell/scene.toml")).unwrap();
+    with_gpu(|ctx| {
+        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let gs = &renderer.scene;
+        let ops = BufferOps::new(ctx).unwrap();
+        let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
+        let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
+        let (spp, seed) = (9u32, 11u32);
+        assert!(spp > spp_per_dispatch(gs.max_depth), "one dispatch would not test the split");
+        let zero = Image { width: gs.width, height: gs.height, data: vec![[0.0; 3]; gs.pixels()] };
+        let run = |pass: &GradientPass, adjoint: bool| {
+            let mut cmd = CommandBuffer::new(ctx, "pass").unwrap();
+            cmd.record(|rec| {
+                rec.transition(&[(&grad, vkinverse::gpu::Access::TransferWrite)])?;
+                rec.zero(&grad)?;
+                pass.record_passes(rec, gs, &ops, adjoint, None)
+            })
+            .unwrap();
+            cmd.submit_and_wait().unwrap();
+        };
+        // The primal kernel with the adjoint pass's seed and samples.
+        let primal = GradientPass::new(gs, &ops, std::slice::from_ref(&zero), loss, 1, spp, seed.wrapping_add(SEED_ADJOINT).wrapping_sub(SEED_PRIMAL), &gs.theta, None, &grad, None).unwrap();
+        run(&primal, false);
+        let want = primal.rendered(0, gs).unwrap();
+        // A pass's own primal image as its target makes every pixel's adjoint weight 0.
+        let first = GradientPass::new(gs, &ops, std::slice::from_ref(&zero), loss, spp, 1, seed, &gs.theta, None, &grad, None).unwrap();
+        run(&first, false);
+        let own = first.rendered(0, gs).unwrap();
+        for (what, target) in [("a black target", zero), ("its own primal image as the target", own)] {
+            let pass = GradientPass::new(gs, &ops, &[target], loss, spp, 1, seed, &gs.theta, None, &grad, None).unwrap();
+            run(&pass, true);
+            let g: Vec<f32> = grad.read().unwrap();
+            let no_gradient = g.iter().all(|&x| x == 0.0);
+            assert_eq!(no_gradient, what.contains("own"), "{what}: gradient {g:?}");
+            let got: Vec<[f32; 3]> = pass.adjoint_radiance(0).expect("a gradient estimate's adjoint pass renders").read().unwrap();
+            let mut total = 0.0;
+            for (i, (a, b)) in got.iter().zip(&want.data).enumerate() {
+                for c in 0..3 {
+                    total += b[c] as f64;
+                    assert!((a[c] - b[c]).abs() <= 1e-5 * (1.0 + b[c].abs()), "{what}: pixel {i} channel {c}: adjoint pass {} against the primal kernel {}", a[c], b[c]);
+                }
+            }
+            assert!(total > 0.0, "{what}: a black image tests nothing");
+        }
+    });
+}
+
 fn delta_lit_scene(name: &str, optimise: &str) -> Scene {
     Scene::load(common::scenes::write_delta_lit(name, (24, 20), optimise)).unwrap()
 }

@@ -395,6 +395,12 @@ pub struct MetaHyper {
     pub carry: f64,
     /// How the fresh render is weighed in the carried image (`carry_weight` = fixed|variance).
     pub carry_weight: CarryWeight,
+    /// With the carried image (`carry_weight = variance`): the adjoint pass of ⟨F⟩, whose
+    /// primal replays render θ_i at `spp` with random numbers of their own, mixes that
+    /// render into the carried image after the losses read it, by its inverse-variance
+    /// weight (`carry_adjoint` = on|off; glsl/carry_adjoint.comp). The next iterations' images
+    /// then hold those samples too, at no extra tracing.
+    pub carry_adjoint: bool,
     pub schedule: Schedule,
 }
 
@@ -423,6 +429,7 @@ impl MetaHyper {
             curv_se: 1.0,
             carry: 0.0,
             carry_weight: CarryWeight::Fixed,
+            carry_adjoint: false,
             schedule: Schedule::default(),
         }
     }
@@ -448,7 +455,9 @@ impl MetaHyper {
 /// Adam on ajar), then a shorter memory of the ⟨ΔF⟩ variance, `decay_d` = 0.3
 /// (scenes/pilot28.toml, scenes/pilot29.toml: the smaller geometric mean at two seeds; the
 /// variance of a long step's ⟨ΔF⟩ no longer holds n_eff down for tens of short steps after
-/// it).
+/// it), then the adjoint pass's render taken into the carried image, `carry_adjoint`, with
+/// the fresh render at 2 spp instead of 4 (scenes/pilot35.toml, scenes/pilot36.toml: a
+/// smaller geometric mean at two seeds for less tracing).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
@@ -459,6 +468,7 @@ impl Default for MetaHyper {
             shrink: Shrink::Group,
             carry: 0.01,
             carry_weight: CarryWeight::Variance,
+            carry_adjoint: true,
             ..MetaHyper::seed()
         }
     }

@@ -7,7 +7,7 @@
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
 //! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `persist`, `shrink` = element|group, `curv` = rms|ls,
 //! `curv_se`; `carry`, the least weight of the fresh primal image in the
-//! carried one, `carry_weight` = fixed|variance), and for both the learning-rate schedule's
+//! carried one, `carry_weight` = fixed|variance, `carry_adjoint` = on|off), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
@@ -46,7 +46,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, curv, curv_se, calib, shrink, carry, carry_weight",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, curv, curv_se, calib, shrink, carry, carry_weight, carry_adjoint",
     }
 }
 
@@ -93,6 +93,10 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         }
         (Optimiser::Meta(h), "carry_weight") => {
             h.carry_weight = choice(key, value, &[("fixed", CarryWeight::Fixed), ("variance", CarryWeight::Variance)])?;
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "carry_adjoint") => {
+            h.carry_adjoint = choice(key, value, &[("on", true), ("off", false)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "fdvar") => {
@@ -212,7 +216,7 @@ mod tests {
         let Optimiser::Meta(h) = "meta@curv=ls@curv_se=3".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h, MetaHyper { curv: crate::optim::CurvatureFit::Ls, curv_se: 3.0, ..MetaHyper::default() });
         // The README's spelling of the defaults is the defaults.
-        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@settle=0.3@trust=1@persist=0@curv=rms@shrink=group@calib=0@carry=0.01@carry_weight=variance";
+        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@settle=0.3@trust=1@persist=0@curv=rms@shrink=group@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
         assert!(include_str!("../../README.md").contains(spelled));
         assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };
@@ -227,6 +231,9 @@ mod tests {
         assert_eq!((h.carry, h.carry_weight), (0.01, crate::optim::CarryWeight::Variance));
         assert!(msg("meta@carry_weight=mean").contains("carry_weight = 'mean' (expected fixed or variance)"));
         assert!(msg("adam@carry_weight=variance").contains("unknown key 'carry_weight' for adam"));
+        assert!(msg("meta@carry_adjoint=yes").contains("carry_adjoint = 'yes' (expected on or off)"));
+        let Optimiser::Meta(h) = "meta@carry_adjoint=off".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h, MetaHyper { carry_adjoint: false, ..MetaHyper::default() });
         let Optimiser::Meta(h) = "meta@carry_weight=variance@carry=0.01".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!((h.carry_weight, h.carry), (crate::optim::CarryWeight::Variance, 0.01));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));

@@ -29,6 +29,9 @@ struct SensorBuffers {
     adjoint_group: gpu::BindGroup,
     /// The θ_{i-1} image, adjoint image and loss of the fused finite difference.
     prev: Option<PrevBuffers>,
+    /// The adjoint pass's render of θ (the mean radiance of its primal replays, `spp`
+    /// samples per pixel); `None` in the fused finite-difference sample.
+    adjoint_radiance: Option<Buffer>,
 }
 
 struct PrevBuffers {
@@ -164,8 +167,15 @@ impl GradientPass {
             }
             let primal_group = primal.bind(&b)?;
             let loss_group = loss.bind(&[("Rendered", &rendered), ("Target", &target), ("AdjointImage", &adjoint_img), ("LossPartials", &partials)])?;
+            let adjoint_radiance = match theta_prev {
+                Some(_) => None,
+                None => Some(Buffer::zeroed::<[f32; 3]>(ctx, &format!("adjoint radiance {s}"), n, MemoryKind::Device)?),
+            };
             let mut b = scene.bindings_with(theta);
             b.push(("AdjointImage", &adjoint_img));
+            if let Some(r) = &adjoint_radiance {
+                b.push(("Accum", r));
+            }
             b.push(("Grad", &grad));
             b.push(("GradHalf", fresh_half.as_ref().unwrap_or(&grad_half)));
             if let (Some(tp), Some(pb)) = (theta_prev, &prev) {
@@ -183,6 +193,7 @@ impl GradientPass {
                 loss_group,
                 adjoint_group,
                 prev,
+                adjoint_radiance,
             });
         }
         Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, fresh_half, spp, primal_spp, seed, stride: 1, phase: 0 })
@@ -293,7 +304,15 @@ impl GradientPass {
         profiler.begin_scope(rec, self.adjoint_kernel)?;
         // Every stride-th pixel stands for `stride` of them.
         let p = self.trace_push(scene, s as u32, self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
-        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &[&self.grad, half])?;
+        let mut sums = vec![&self.grad, half];
+        if let Some(r) = &b.adjoint_radiance {
+            // The pass adds its render into the cleared image.
+            rec.transition(&[(r, Access::TransferWrite)])?;
+            rec.zero(r)?;
+            rec.barrier(r, Access::TransferWrite, Access::ComputeReadWrite)?;
+            sums.push(r);
+        }
+        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &sums)?;
         if let Some(fresh) = &self.fresh_half {
             ops.merge_half(rec, &self.grad, &self.grad_half, fresh)?;
         }
@@ -303,6 +322,13 @@ impl GradientPass {
     /// Sensor s's primal image buffer (of θ; after the primal pass, before the loss reads it).
     pub fn image(&self, s: usize) -> &Buffer {
         &self.sensors[s].rendered
+    }
+
+    /// Sensor s's render by the adjoint pass (after it ran): the mean radiance of its primal
+    /// replays of θ, `spp` samples per pixel with the pass's own random numbers; `None` in the
+    /// fused finite-difference sample.
+    pub fn adjoint_radiance(&self, s: usize) -> Option<&Buffer> {
+        self.sensors[s].adjoint_radiance.as_ref()
     }
 
     /// Sensor s's primal image of θ_{i-1} (the fused finite-difference sample's second state).
