@@ -571,6 +571,7 @@ fn glsl_constants_match_rust() {
     assert_eq!(glsl_define("BVH_STACK_SIZE").parse::<u32>().unwrap(), STACK_SIZE);
     assert_eq!(glsl_define("BVH_WIDE_STACK_SIZE").parse::<u32>().unwrap(), WIDE_STACK_SIZE);
     assert_eq!(glsl_define("BVH_CW_STACK_SIZE").parse::<u32>().unwrap(), CW_STACK_SIZE);
+    assert_eq!(glsl_define("BVH_CW_STACK_REGISTERS").parse::<u32>().unwrap(), vkinverse::bvh::CW_STACK_REGISTERS);
     assert_eq!(glsl_define("BVH_T_MIN").parse::<f32>().unwrap(), T_MIN);
     let hex = |s: String| u32::from_str_radix(s.trim_start_matches("0x").trim_end_matches('u'), 16).unwrap();
     assert_eq!(hex(glsl_define("BVH_INNER")), INNER);
@@ -1092,4 +1093,44 @@ fn compressed_bvh_is_well_formed_and_traces_like_the_reference() {
     check_against_cpu("nested cw8 build", &deep, &deep_rays, &deep_results);
     let hits = deep_results.iter().filter(|r| r.hit.prim != NO_HIT).count();
     assert!(hits > deep_rays.len() / 10, "nested: {hits} hits");
+}
+
+/// The compressed layout's register stack (`BVH_STACK_REGISTERS`, for trees of inner depth
+/// at most `CW_STACK_REGISTERS`): on a tree of exactly that depth, where the stack fills
+/// every register, it traces every ray as the array stack does (the same nodes in the same
+/// order: identical results) and as the reference; and the renderer picks it exactly for
+/// such trees.
+#[test]
+fn register_stack_traces_shallow_trees_like_the_array_stack() {
+    use vkinverse::bvh::CW_STACK_REGISTERS;
+    use vkinverse::gpu::SpecValue;
+    // The smallest soup whose tree reaches the registers' depth.
+    let (mesh, tree) = [300, 600, 1200, 2400, 4800, 9600]
+        .into_iter()
+        .map(|n| {
+            let mesh = soup(n, 31);
+            let tree = CwBvh::build(&mesh.positions, &mesh.indices);
+            (mesh, tree)
+        })
+        .find(|(_, t)| t.depth() == CW_STACK_REGISTERS)
+        .expect("a soup whose compressed tree has the registers' depth");
+    let rays = random_rays(&mesh, [-1.2; 3], [1.2; 3], 3001, 32);
+    let (array, registers) = with_gpu(|ctx| {
+        let bufs = tree.upload(ctx).unwrap();
+        assert_eq!(bufs.stack_entries, CW_STACK_REGISTERS);
+        let regs = ComputePipeline::new(ctx, &BvhLayout::Cw8.kernel("trace_test"), &[("BVH_STACK_REGISTERS", SpecValue::Bool(true))]).unwrap();
+        (run_trace(ctx, &pipeline(ctx, BvhLayout::Cw8), &bufs, &rays), run_trace(ctx, &regs, &bufs, &rays))
+    });
+    let borderline = check_against_cpu("register stack", &mesh, &rays, &registers);
+    assert!(borderline * 50 < rays.len(), "{borderline} borderline rays");
+    for (i, (a, r)) in array.iter().zip(&registers).enumerate() {
+        assert_eq!((a.hit.prim, a.hit.t.to_bits(), a.any_hit), (r.hit.prim, r.hit.t.to_bits(), r.any_hit), "ray {i}: array stack {:?}, registers {:?}", a.hit, r.hit);
+    }
+    // The renderer's choice, on the Cornell box's shallow tree.
+    let (entries, on) = with_gpu(|ctx| {
+        let gs = vkinverse::render::GpuScene::with_bvh_layout(ctx, &cornell_scene(), BvhLayout::Cw8).unwrap();
+        let on = gs.spec().iter().find(|(n, _)| *n == "BVH_STACK_REGISTERS").map(|(_, v)| matches!(v, SpecValue::Bool(true)));
+        (gs.bvh().stack_entries, on)
+    });
+    assert!(entries <= CW_STACK_REGISTERS && on == Some(true), "cornell: {entries} entries, registers {on:?}");
 }

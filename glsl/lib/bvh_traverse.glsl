@@ -163,6 +163,13 @@ vec3 bvh_safe_dir(vec3 dir) {
 }
 
 #if defined(BVH_CW8)
+// Whether the traversal stack lives in BVH_CW_STACK_REGISTERS (4) registers instead of a
+// private array: set by the host (GpuScene::spec) where the tree is shallow enough that the
+// stack never holds more (its inner depth). lavapipe reads and writes a private array indexed
+// per lane lane by lane, and runs both the push and the pop at every outer iteration; the
+// registers shift instead, a few selects (docs/lavapipe.md).
+layout(constant_id = 15) const bool BVH_STACK_REGISTERS = false;
+
 // The grid coordinates in bytes 0-3 (`hi` false) or 4-7 (true) of a pair of words.
 vec4 bvh_cw_bytes(uvec2 w, bool hi) {
     return vec4((uvec4(hi ? w.y : w.x) >> uvec4(0u, 8u, 16u, 24u)) & 0xFFu);
@@ -224,6 +231,8 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
     uint oct_inv = (dir.x < 0.0 ? 0u : 4u) | (dir.y < 0.0 ? 0u : 2u) | (dir.z < 0.0 ? 0u : 1u);
 
     uvec2 stack[BVH_CW_STACK_SIZE];
+    // The register stack: r0 is its top.
+    uvec2 r0 = uvec2(0u), r1 = uvec2(0u), r2 = uvec2(0u), r3 = uvec2(0u);
     uint sp = 0u;
     // The root, as the single hit child of a group at base 0.
     uvec2 group = uvec2(0u, 0x80000000u);
@@ -234,13 +243,29 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
             if (sp == 0u) {
                 break;
             }
-            group = stack[--sp];
+            --sp;
+            if (BVH_STACK_REGISTERS) {
+                group = r0;
+                r0 = r1;
+                r1 = r2;
+                r2 = r3;
+            } else {
+                group = stack[sp];
+            }
         }
         uint hits = group.y;
         int k = findMSB(hits);
         group.y &= ~(1u << k);
         if ((group.y & 0xFF000000u) != 0u) {
-            stack[sp++] = group;
+            if (BVH_STACK_REGISTERS) {
+                r3 = r2;
+                r2 = r1;
+                r1 = r0;
+                r0 = group;
+            } else {
+                stack[sp] = group;
+            }
+            ++sp;
         }
         uint slot = uint(k - 24) ^ oct_inv;
         uint node = group.x + bitCount(hits & ~(0xFFFFFFFFu << slot));

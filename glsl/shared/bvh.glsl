@@ -21,6 +21,11 @@
 // tests/bvh.rs checks that this value equals vkinverse::bvh::CW_STACK_SIZE.
 #define BVH_CW_STACK_SIZE 32
 
+// Entries of the compressed layout's register stack (BVH_STACK_REGISTERS in
+// lib/bvh_traverse.glsl), for trees whose inner depth is at most this; tests/bvh.rs checks
+// that this value equals vkinverse::bvh::CW_STACK_REGISTERS.
+#define BVH_CW_STACK_REGISTERS 4
+
 // Hits at t <= BVH_T_MIN (in units of |dir|) are ignored, so that a ray leaving a surface
 // does not find that surface again. Absolute, sized for scenes of unit scale (1 to 100
 // units across); tests/bvh.rs checks that it equals vkinverse::bvh::T_MIN.

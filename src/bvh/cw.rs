@@ -39,6 +39,11 @@ use crate::gpu::{self, Buffer, Context, MemoryKind};
 /// glsl/shared/bvh.glsl, compared by a test): one per level of inner nodes.
 pub const CW_STACK_SIZE: u32 = 32;
 
+/// Entries of the compressed layout's register stack (`BVH_CW_STACK_REGISTERS`): a tree of
+/// at most this inner depth is traced with its stack in registers (`BVH_STACK_REGISTERS`,
+/// [`crate::render::GpuScene::spec`]).
+pub const CW_STACK_REGISTERS: u32 = 4;
+
 /// Mirror of `BvhCwNode` (glsl/shared/bvh.glsl): 80 bytes, byte for byte obvhs's
 /// `CwBvhNode`. `e_imask` packs the three scale exponents (bytes 0-2, the scale of axis k
 /// is the float with exponent bits `e[k]`) and the mask of inner children (byte 3);
@@ -305,6 +310,7 @@ impl CwBvh {
             layout: BvhLayout::Cw8,
             nodes: Buffer::from_slice(ctx, "bvh cw8 nodes", &self.nodes, MemoryKind::Device)?,
             triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
+            stack_entries: self.depth(),
         })
     }
 }

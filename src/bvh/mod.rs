@@ -39,7 +39,7 @@ use obvhs::BvhBuildParams;
 use crate::gpu::{self, Buffer, Context, MemoryKind};
 
 mod cw;
-pub use cw::{BvhCwNode, CwBvh, CW_STACK_SIZE};
+pub use cw::{BvhCwNode, CwBvh, CW_STACK_REGISTERS, CW_STACK_SIZE};
 
 /// Entries of the GPU traversal stack (`BVH_STACK_SIZE` in glsl/shared/bvh.glsl, compared
 /// by a test): [`build`] keeps every inner node at depth `<= STACK_SIZE`.
@@ -257,6 +257,23 @@ impl BvhLayout {
 
     pub const ALL: [BvhLayout; 3] = [BvhLayout::Binary, BvhLayout::Wide, BvhLayout::Cw8];
 
+    /// Whether the traversal of these buffers keeps its stack in registers
+    /// (`BVH_STACK_REGISTERS`): the compressed layout's, where its stack never holds more than
+    /// [`CW_STACK_REGISTERS`] entries, unless the environment variable `VKINVERSE_BVH_STACK` is
+    /// `array` (to measure one against the other, or on a device where the array measures
+    /// faster). Any other value than `array` or `auto` is ignored with a warning.
+    pub fn stack_in_registers(bufs: &BvhBuffers) -> bool {
+        let fits = bufs.layout == BvhLayout::Cw8 && bufs.stack_entries <= CW_STACK_REGISTERS;
+        match std::env::var("VKINVERSE_BVH_STACK").as_deref() {
+            Ok("array") => false,
+            Ok("auto") | Err(_) => fits,
+            Ok(other) => {
+                eprintln!("warning: VKINVERSE_BVH_STACK: '{other}' is not array or auto; using auto");
+                fits
+            }
+        }
+    }
+
     /// The name of the build of `kernel` (e.g. `trace_primal`) that traces this layout.
     pub fn kernel(self, kernel: &str) -> String {
         match self {
@@ -292,6 +309,10 @@ pub struct BvhBuffers {
     pub layout: BvhLayout,
     pub nodes: Buffer,
     pub triangles: Buffer,
+    /// The most entries the traversal stack holds on this tree: the compressed layout's inner
+    /// depth (each push is one level deeper than the entries below it); the stack's size in
+    /// the other layouts.
+    pub stack_entries: u32,
 }
 
 impl BvhBuffers {
@@ -309,6 +330,7 @@ impl Bvh {
             layout: BvhLayout::Binary,
             nodes: Buffer::from_slice(ctx, "bvh nodes", &self.nodes, MemoryKind::Device)?,
             triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
+            stack_entries: STACK_SIZE,
         })
     }
 
@@ -413,6 +435,7 @@ impl WideBvh {
             layout: BvhLayout::Wide,
             nodes: Buffer::from_slice(ctx, "bvh wide nodes", &self.nodes, MemoryKind::Device)?,
             triangles: Buffer::from_slice(ctx, "bvh triangles", &self.triangles, MemoryKind::Device)?,
+            stack_entries: WIDE_STACK_SIZE,
         })
     }
 }

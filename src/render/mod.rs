@@ -433,9 +433,10 @@ impl GpuScene {
         self.frame.write(&[iteration])
     }
 
-    /// The specialization constants of the integrator kernels for this scene.
+    /// The specialization constants of the integrator kernels for this scene (with the
+    /// compressed BVH layout, whether its traversal stack fits in registers).
     pub fn spec(&self) -> Vec<(&'static str, SpecValue)> {
-        vec![
+        let mut spec = vec![
             ("MAX_DEPTH", SpecValue::U32(self.max_depth)),
             ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
@@ -446,7 +447,11 @@ impl GpuScene {
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
             self.const_base_spec(),
-        ]
+        ];
+        if self.bvh.layout == BvhLayout::Cw8 {
+            spec.push(("BVH_STACK_REGISTERS", SpecValue::Bool(BvhLayout::stack_in_registers(&self.bvh))));
+        }
+        spec
     }
 
     /// Where the material data start in θ's buffer: a constant every build of a kernel that
