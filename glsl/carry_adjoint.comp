@@ -7,7 +7,8 @@
 // The losses of this iteration have read the carried image already; the next carry moves
 // the mixed image to θ_{i+1}. The adjoint render's random numbers are its own, and no later
 // pass that reads the carried image traces with them, so its noise is independent of every
-// path it weighs: the gradients stay unbiased. A non-finite adjoint pixel is not taken in.
+// path it weighs later (though not of the step this iteration's gradient, from the same
+// paths, takes). A non-finite adjoint pixel is not taken in.
 layout(local_size_x = 256, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 layout(set = 0, binding = 0, scalar) buffer Carried { vec3 carried[]; };

@@ -184,7 +184,7 @@ settings! {
     fd_stride: u32 = 1;
     /// Samples per pixel of the gradient estimate's primal render.
     #[arg(long, value_name = "N")]
-    primal_spp: u32 = 2;
+    primal_spp: u32 = 4;
     /// Samples per pixel of the target images rendered from the scene's reference values
     /// (a sensor without `target_image`); a glossy scene may need more for a target whose
     /// noise does not move the loss's optimum.

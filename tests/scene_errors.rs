@@ -156,7 +156,7 @@ fn defaults_and_resolved_parameters() {
     let run = vkinverse::settings::RunSettings::of_scene(&scene);
     assert_eq!(
         (run.iterations, run.spp, run.fd_spp, run.primal_spp, run.lr, run.seed),
-        (Some(500), 2, 1, 2, 0.02, 0)
+        (Some(500), 2, 1, 4, 0.02, 0)
     );
     assert_eq!(o.settings.optimiser.as_ref().map(|s| s.label.as_str()), Some("adam"));
     assert_eq!(o.settings.loss, None);

@@ -456,8 +456,8 @@ impl MetaHyper {
 /// (scenes/pilot28.toml, scenes/pilot29.toml: the smaller geometric mean at two seeds; the
 /// variance of a long step's ⟨ΔF⟩ no longer holds n_eff down for tens of short steps after
 /// it), then the adjoint pass's render taken into the carried image, `carry_adjoint`, with
-/// the fresh render at 2 spp instead of 4 (scenes/pilot35.toml, scenes/pilot36.toml: a
-/// smaller geometric mean at two seeds for less tracing).
+/// the fresh render at 2 spp instead of 4 in the bundled scenes' settings (scenes/pilot35.toml,
+/// scenes/pilot36.toml: a smaller geometric mean at two seeds for less tracing).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
