@@ -25,7 +25,10 @@ the smoothed curve stays at or below it to the run's end.
 
 The pilot table has one row per meta configuration and one column per scene: its settled
 error (the geometric mean over its runs, e.g. seeds) relative to the best Adam run on that
-scene, and their geometric mean over scenes.
+scene, and their geometric mean over scenes. Where two configurations ran one scene at the
+same seeds (at least two), a second table compares each with the first configuration seed
+by seed, at equal iterations (settled errors) and at equal time (smoothed errors at the
+shorter run's end).
 """
 
 import csv
@@ -286,6 +289,40 @@ def pilot(by_scene):
         known = [x for x in ratios if x]
         gm = math.exp(sum(math.log(x) for x in known) / len(known)) if known else None
         print(f"| {c} | " + " | ".join(fmt(x, ".2f") for x in ratios) + f" | {fmt(gm, '.2f')} |")
+    print()
+    paired(by_scene, configs, config)
+
+
+def paired(by_scene, configs, config):
+    """Each configuration against the first, seed by seed, where both ran a scene at the
+    same seed: the geometric mean over seeds of the ratio of settled errors (equal
+    iterations) and of the smoothed errors at the shorter run's end (equal time), and at how
+    many seeds each ratio is below 1."""
+    def gm(xs):
+        return math.exp(sum(math.log(x) for x in xs) / len(xs))
+
+    rows = []
+    for c in configs[1:]:
+        for s, runs in by_scene.items():
+            first = {r["seed"]: r for r in runs if r["optimiser"].startswith("meta") and config(r) == configs[0]}
+            other = {r["seed"]: r for r in runs if r["optimiser"].startswith("meta") and config(r) == c}
+            seeds = sorted(set(first) & set(other))
+            if len(seeds) < 2:
+                continue
+            it, tm = [], []
+            for seed in seeds:
+                a, b = first[seed], other[seed]
+                it.append(a["settled"] / b["settled"])
+                end = min(a["raw"][-1][1], b["raw"][-1][1])
+                tm.append(error_at_time(a["smooth"], end) / error_at_time(b["smooth"], end))
+            rows.append((c, s, len(seeds), gm(it), sum(x < 1 for x in it), gm(tm), sum(x < 1 for x in tm)))
+    if not rows:
+        return
+    print(f"{configs[0]} against each configuration at the same seeds (below 1: {configs[0]} better):\n")
+    print("| configuration | scene | seeds | settled error, ratio (geometric mean) | lower at | error at equal time, ratio | lower at |")
+    print("|---|---|---|---|---|---|---|")
+    for c, s, n, it, wi, tm, wt in rows:
+        print(f"| {c} | {s} | {n} | {it:.2f} | {wi} | {tm:.2f} | {wt} |")
     print()
 
 
