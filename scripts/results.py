@@ -28,7 +28,7 @@ error (the geometric mean over its runs, e.g. seeds) relative to the best Adam r
 scene, and their geometric mean over scenes. Where two configurations ran one scene at the
 same seeds (at least two), a second table compares each with the first configuration seed
 by seed, at equal iterations (settled errors) and at equal time (smoothed errors at the
-shorter run's end).
+shorter run's end), each seed's run taken from the first directory that has one.
 """
 
 import csv
@@ -137,6 +137,10 @@ def load(args):
         r["primal_spp"] = summary(r["dir"]).get("settings", {}).get("primal_spp", 4)
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
+
+
+def geometric_mean(xs):
+    return math.exp(sum(math.log(x) for x in xs) / len(xs))
 
 
 def fmt(v, spec=".4f"):
@@ -284,10 +288,10 @@ def pilot(by_scene):
         for s in scenes:
             # Several runs of one configuration (seeds): the geometric mean of their settled errors.
             runs = [r["settled"] for r in by_scene[s] if r["optimiser"].startswith("meta") and config(r) == c]
-            settled = math.exp(sum(math.log(x) for x in runs) / len(runs)) if runs else None
+            settled = geometric_mean(runs) if runs else None
             ratios.append(settled / best[s]["settled"] if settled and best[s] else None)
         known = [x for x in ratios if x]
-        gm = math.exp(sum(math.log(x) for x in known) / len(known)) if known else None
+        gm = geometric_mean(known) if known else None
         print(f"| {c} | " + " | ".join(fmt(x, ".2f") for x in ratios) + f" | {fmt(gm, '.2f')} |")
     print()
     paired(by_scene, configs, config)
@@ -298,14 +302,17 @@ def paired(by_scene, configs, config):
     same seed: the geometric mean over seeds of the ratio of settled errors (equal
     iterations) and of the smoothed errors at the shorter run's end (equal time), and at how
     many seeds each ratio is below 1."""
-    def gm(xs):
-        return math.exp(sum(math.log(x) for x in xs) / len(xs))
-
     rows = []
     for c in configs[1:]:
         for s, runs in by_scene.items():
-            first = {r["seed"]: r for r in runs if r["optimiser"].startswith("meta") and config(r) == configs[0]}
-            other = {r["seed"]: r for r in runs if r["optimiser"].startswith("meta") and config(r) == c}
+            first, other = {}, {}
+            for r in runs:
+                if r["optimiser"].startswith("meta"):
+                    # A seed run in several directories: the first directory's run.
+                    if config(r) == configs[0]:
+                        first.setdefault(r["seed"], r)
+                    elif config(r) == c:
+                        other.setdefault(r["seed"], r)
             seeds = sorted(set(first) & set(other))
             if len(seeds) < 2:
                 continue
@@ -315,7 +322,7 @@ def paired(by_scene, configs, config):
                 it.append(a["settled"] / b["settled"])
                 end = min(a["raw"][-1][1], b["raw"][-1][1])
                 tm.append(error_at_time(a["smooth"], end) / error_at_time(b["smooth"], end))
-            rows.append((c, s, len(seeds), gm(it), sum(x < 1 for x in it), gm(tm), sum(x < 1 for x in tm)))
+            rows.append((c, s, len(seeds), geometric_mean(it), sum(x < 1 for x in it), geometric_mean(tm), sum(x < 1 for x in tm)))
     if not rows:
         return
     print(f"{configs[0]} against each configuration at the same seeds (below 1: {configs[0]} better):\n")
