@@ -4,6 +4,7 @@ library only):
 
     python3 scripts/results.py OUTDIR [OUTDIR ...] > tables.md          # the protocol
     python3 scripts/results.py --pilot OUTDIR [OUTDIR ...] > pilot.md   # candidate configurations
+    python3 scripts/results.py --depth OUTDIR [OUTDIR ...] > depth.md   # meta's averaging depth
 
 Several output directories (e.g. the shards of one batch) are read as one.
 
@@ -29,6 +30,14 @@ scene, and their geometric mean over scenes. Where two configurations ran one sc
 same seeds (at least two), a second table compares each with the first configuration seed
 by seed, at equal iterations (settled errors) and at equal time (smoothed errors at the
 shorter run's end), each seed's run taken from the first directory that has one.
+
+The depth table has one row per meta run: at a few iterations, how many gradient samples
+its estimate averages (n_eff, the mean over all its parameters, from optimiser.csv), the
+share of parameters whose averaging grew by the most one iteration allows (the clip
+alpha <= 1/(2 - alpha_prev): n_eff at most one more than before, so n_eff <= t), and the
+RMS of the estimate over its standard deviation (the worst-resolved group's). Adam's first
+moment averages (1 + beta1)/(1 - beta1) = 19 samples' worth at beta1 = 0.9, which is the
+depth meta's estimate has to exceed to be the less noisy of the two.
 """
 
 import csv
@@ -134,6 +143,7 @@ def load(args):
         r["settled"] = settled(r["raw"])
         r["rate"] = rate(r["dir"])
         r["fd_stride"] = summary(r["dir"]).get("settings", {}).get("fd_stride", 1)
+        r["fd_spp"] = summary(r["dir"]).get("settings", {}).get("fd_spp", 1)
         r["primal_spp"] = summary(r["dir"]).get("settings", {}).get("primal_spp", 4)
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
@@ -263,15 +273,19 @@ def protocol(by_scene):
         print()
 
 
+# A configuration is a meta spec with the rate it ran at (when not the scene's own), its
+# finite-difference pixel stride and spp (when not 1) and its primal render's spp (when
+# not 4).
+def config(r):
+    lr = "" if r["rate"] == "scene" else f" (lr {r['rate']})"
+    stride = "" if r["fd_stride"] == 1 else f" (fd_stride {r['fd_stride']})"
+    fd = "" if r["fd_spp"] == 1 else f" (fd_spp {r['fd_spp']})"
+    primal = "" if r["primal_spp"] == 4 else f" (primal_spp {r['primal_spp']})"
+    return r["optimiser"] + lr + stride + fd + primal
+
+
 def pilot(by_scene):
     scenes = list(by_scene)
-    # A configuration is a meta spec with the rate it ran at (when not the scene's own), its
-    # finite-difference pixel stride (when not 1) and its primal render's spp (when not 4).
-    def config(r):
-        lr = "" if r["rate"] == "scene" else f" (lr {r['rate']})"
-        stride = "" if r["fd_stride"] == 1 else f" (fd_stride {r['fd_stride']})"
-        primal = "" if r["primal_spp"] == 4 else f" (primal_spp {r['primal_spp']})"
-        return r["optimiser"] + lr + stride + primal
 
     configs = []
     for rows in by_scene.values():
@@ -333,13 +347,44 @@ def paired(by_scene, configs, config):
     print()
 
 
+DEPTH_ITERATIONS = (25, 50, 100, 300, 1000)
+
+
+def depth(by_scene):
+    print("Meta's averaging depth: n_eff (mean over the parameters), the share clipped (growing by one"
+          " per iteration), and the estimate's RMS over its standard deviation (the lowest of its groups):\n")
+    print("| scene | run | seed | " + " | ".join(f"iteration {i}" for i in DEPTH_ITERATIONS) + " |")
+    print("|---|---|---|" + "---|" * len(DEPTH_ITERATIONS))
+    for s, rows in by_scene.items():
+        for r in rows:
+            if not r["optimiser"].startswith("meta"):
+                continue
+            by_it = {}
+            with open(r["dir"] / "optimiser.csv", newline="") as f:
+                for row in csv.DictReader(f):
+                    by_it.setdefault(int(row["iteration"]), []).append(row)
+            cells = []
+            for i in DEPTH_ITERATIONS:
+                groups = by_it.get(i)
+                if not groups:
+                    cells.append("-")
+                    continue
+                n = sum(float(g["elements"]) for g in groups)
+                n_eff = sum(float(g["n_eff_mean"]) * float(g["elements"]) for g in groups) / n
+                clipped = sum(float(g["clipped"]) * float(g["elements"]) for g in groups) / n
+                snr = min(float(g["rms_mean"]) / float(g["sd_mean"]) if float(g["sd_mean"]) > 0 else math.inf for g in groups)
+                cells.append(f"{n_eff:.0f}, {clipped:.2f}, {snr:.1f}")
+            print(f"| {s} | {config(r)} | {r.get('seed', '-')} | " + " | ".join(cells) + " |")
+    print()
+
+
 def main():
     args = sys.argv[1:]
     mode = protocol
-    if args and args[0] == "--pilot":
-        mode, args = pilot, args[1:]
+    if args and args[0] in ("--pilot", "--depth"):
+        mode, args = (pilot if args[0] == "--pilot" else depth), args[1:]
     if not args:
-        sys.exit("usage: results.py [--pilot] OUTDIR [OUTDIR ...]")
+        sys.exit("usage: results.py [--pilot | --depth] OUTDIR [OUTDIR ...]")
     mode(load(args))
 
 
