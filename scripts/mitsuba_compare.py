@@ -33,7 +33,17 @@ backend (OptiX) instead, with vkinverse on the same GPU through Vulkan.
 Only what has an exact Mitsuba counterpart is translated: diffuse (Lambert) materials
 with constant colours, OBJ meshes, one-sided area lights, a constant environment, pinhole
 sensors. Anything else is refused rather than approximated, since an approximate peer
-would turn every difference into noise.
+would turn every difference into noise. The one exception is asked for by name:
+`--approximate-materials` translates principled materials with constant inputs to
+Mitsuba's `principled` BSDF (base colour, metallic and roughness; its other inputs at
+their defaults, `specular` 0.5 being the same 4 % reflectance at normal incidence), so
+that a scene like the spiral can be timed against Mitsuba. The two models differ
+(Mitsuba's diffuse lobe is Disney's, with retro-reflection; vkinverse's is Lambert's
+weighted by both directions' Fresnel transmission), so the images are not expected to
+agree and part b is refused; the run says so in its tables.
+
+    python3 scripts/mitsuba_compare.py scenes/spiral/scene.toml --approximate-materials \
+        --res 64,256 --spp 256 --parts ac --out /tmp/cmp-spiral
 """
 
 import argparse
@@ -61,6 +71,15 @@ DEFAULT_RR_DEPTH = 5
 REL_FLOOR = 1e-2
 # Side of the pixel blocks in which systematic differences are located.
 BLOCK = 8
+# --approximate-materials: principled materials translated to Mitsuba's principled BSDF.
+APPROXIMATE = False
+# The optimisable material inputs part c translates, by material type: vkinverse's field
+# and the Mitsuba parameter (under the material's twosided wrapper) that holds it.
+MITSUBA_FIELDS = {
+    "diffuse": {"base_color": "brdf_0.reflectance.value"},
+    "principled": {"base_color": "brdf_0.base_color.value", "metallic": "brdf_0.metallic.value",
+                   "roughness": "brdf_0.roughness.value"},
+}
 
 
 def set_variant(name):
@@ -118,17 +137,6 @@ def mitsuba_key(name):
     return "mat_" + "".join(c if c.isalnum() else "_" for c in name)
 
 
-def color_param(scene):
-    """(material name, init, range, lr) of the first optimised material colour."""
-    opt = scene.get("optimise", {})
-    for p in opt.get("params", []):
-        parts = p["target"].split(".")
-        if len(parts) == 3 and parts[0] == "materials" and parts[2] == "base_color" and "texture" not in p:
-            init = p["init"] if isinstance(p["init"], list) else [p["init"]] * 3
-            return parts[1], [float(v) for v in init], p.get("range", [0.0, 1.0]), p.get("lr", opt.get("lr", 0.02))
-    fail("the scene optimises no constant materials.NAME.base_color; parts b and c need one")
-
-
 def color_params(scene):
     """[(material name, init)] of every optimised constant materials.NAME.base_color."""
     out = []
@@ -142,9 +150,30 @@ def color_params(scene):
     return out
 
 
+def opt_params(scene):
+    """[(material, field, init, range, lr or None)] of every optimised constant material input that
+    part c translates (MITSUBA_FIELDS), in the scene's order."""
+    types = {m["name"]: m.get("type", "diffuse") for m in scene.get("materials", [])}
+    out = []
+    for p in scene.get("optimise", {}).get("params", []):
+        parts = p["target"].split(".")
+        if len(parts) != 3 or parts[0] != "materials" or "texture" in p:
+            continue
+        if parts[2] not in MITSUBA_FIELDS.get(types.get(parts[1]), {}):
+            continue
+        init = p["init"]
+        if parts[2] == "base_color":
+            init = [float(v) for v in init] if isinstance(init, list) else [float(init)] * 3
+        else:
+            init = float(init[0] if isinstance(init, list) else init)
+        out.append((parts[1], parts[2], init, p.get("range", [0.0, 1.0]), p.get("lr")))
+    return out
+
+
 def scene_dict(scene, scene_dir, integrator, spp, sensor=0, overrides=None):
     """Mitsuba scene dict of a vkinverse scene file; `overrides` maps material names to
-    base colours that replace the written (reference) ones."""
+    base colours, or to {field: value} of their inputs, that replace the written
+    (reference) ones."""
     overrides = overrides or {}
     film = scene.get("film", {})
     width, height = film.get("width", 256), film.get("height", 256)
@@ -175,18 +204,25 @@ def scene_dict(scene, scene_dir, integrator, spp, sensor=0, overrides=None):
         },
     }
     for m in scene.get("materials", []):
-        if m.get("type") != "diffuse":
-            fail(f"material {m['name']!r} is {m.get('type')!r}: only diffuse materials have an exact Mitsuba counterpart")
-        c = overrides.get(m["name"], m["base_color"])
-        if not isinstance(c, list):
-            fail(f"material {m['name']!r}: textured base colours are not translated")
+        kind = m.get("type", "diffuse")
+        if kind not in ("diffuse", "principled") or (kind == "principled" and not APPROXIMATE):
+            fail(f"material {m['name']!r} is {kind!r}: only diffuse materials have an exact Mitsuba counterpart"
+                 + (" (--approximate-materials translates principled ones, for timing)" if kind == "principled" else ""))
+        inputs = {"base_color": m["base_color"], "metallic": m.get("metallic", 0.0), "roughness": m.get("roughness", 0.5)}
+        o = overrides.get(m["name"], {})
+        inputs.update(o if isinstance(o, dict) else {"base_color": o})
+        for field, v in inputs.items():
+            if not isinstance(v, (list, int, float)):
+                fail(f"material {m['name']!r}: textured {field} is not translated")
+        c = [float(v) for v in inputs["base_color"]]
+        if kind == "diffuse":
+            brdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": c}}
+        else:
+            brdf = {"type": "principled", "base_color": {"type": "rgb", "value": c},
+                    "metallic": float(inputs["metallic"]), "roughness": float(inputs["roughness"])}
         # vkinverse shades both sides of every surface (it flips the normal towards the
-        # viewer); Mitsuba's diffuse is one-sided unless wrapped.
-        d[mitsuba_key(m["name"])] = {
-            "type": "twosided",
-            "id": mitsuba_key(m["name"]),
-            "brdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [float(v) for v in c]}},
-        }
+        # viewer); Mitsuba's BSDFs are one-sided unless wrapped.
+        d[mitsuba_key(m["name"])] = {"type": "twosided", "id": mitsuba_key(m["name"]), "brdf_0": brdf}
     for i, mesh in enumerate(scene.get("meshes", [])):
         path = (scene_dir / mesh["file"]).resolve()
         shape = {
@@ -505,17 +541,28 @@ def compare_gradients(np, dr, mi, scene, scene_path, vk, target, args, out):
 
 
 def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
-    name, init, rng, lr = color_param(scene)
+    # Every optimised constant input that has a Mitsuba parameter, at the first one's rate
+    # (vkinverse runs with --lr, which replaces the scene's per-parameter rates).
+    inputs = opt_params(scene)
+    if not inputs:
+        fail("the scene optimises no constant material input that part c translates "
+             "(a base colour, or a principled material's metallic or roughness)")
     opt_cfg = scene.get("optimise", {})
+    lr = inputs[0][4] if inputs[0][4] is not None else opt_cfg.get("lr", 0.02)
     spp = args.opt_spp or opt_cfg.get("spp", 2)
     primal_spp = args.opt_primal_spp or opt_cfg.get("primal_spp", 4)
     iters = args.iterations
-    mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", primal_spp, overrides={name: init}))
+    overrides = {}
+    for name, field, init, _, _ in inputs:
+        overrides.setdefault(name, {})[field] = init
+    mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", primal_spp, overrides=overrides))
     params = mi.traverse(mscene)
-    key = f"{mitsuba_key(name)}.brdf_0.reflectance.value"
+    types = {m["name"]: m.get("type", "diffuse") for m in scene.get("materials", [])}
+    keys = [(f"{mitsuba_key(name)}.{MITSUBA_FIELDS[types[name]][field]}", rng) for name, field, _, rng, _ in inputs]
     target_t = mi.TensorXf(target.astype(np.float32))
     opt = mi.ad.Adam(lr=lr)
-    opt[key] = params[key]
+    for key, _ in keys:
+        opt[key] = params[key]
     params.update(opt)
 
     times = []
@@ -529,12 +576,13 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
             loss = dr.mean(dr.square(img - target_t), axis=None)
             dr.backward(loss)
             opt.step()
-            opt[key] = dr.clip(opt[key], rng[0], rng[1])
+            for key, rng in keys:
+                opt[key] = dr.clip(opt[key], rng[0], rng[1])
             params.update(opt)
             # The step and the optimiser state are evaluated inside the iteration (else
             # their kernels would run lazily in the next one), and the loss is read back
             # as vkinverse's is; then every launched kernel is waited for.
-            dr.eval(params[key], opt[key])
+            dr.eval(*[params[key] for key, _ in keys], *[opt[key] for key, _ in keys])
             loss_value = float(np.array(loss).ravel()[0])
             dr.sync_thread()
             times.append(time.perf_counter() - t)
@@ -573,10 +621,15 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         mitsuba_iterations(0, iters // 2)
         wall, _, _ = run_vk(vk, vk_args[1:])
         mitsuba_iterations(iters // 2, iters - iters // 2)
-    m_final = np.array(params[key]).ravel()[:3].tolist()
+    # The first optimised input's result, as a vector.
+    name, field, init, _, _ = inputs[0]
+    init = init if isinstance(init, list) else [init]
+    m_final = np.array(params[keys[0][0]]).ravel()[:3].tolist()
     summary = json.loads((opt_dir / "summary.json").read_text())
-    v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.base_color")
-    reference = next(m["base_color"] for m in scene["materials"] if m["name"] == name)
+    v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.{field}")
+    v_final = v_final if isinstance(v_final, list) or v_final is None else [v_final]
+    reference = next(m.get(field) for m in scene["materials"] if m["name"] == name)
+    reference = reference if isinstance(reference, list) else [reference]
     return {
         "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
         "concurrent": bool(args.concurrent),
@@ -589,6 +642,7 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         "vkinverse_mean_iter_s": summary["total_time_s"] / max(summary["iterations"], 1),
         "vkinverse_process_s": wall,
         "reference": reference, "init": init, "mitsuba_final": m_final, "vkinverse_final": v_final,
+        "input": f"materials.{name}.{field}", "inputs": [f"materials.{n}.{f}" for n, f, _, _, _ in inputs],
     }
 
 
@@ -605,6 +659,9 @@ def print_tables(a, b, c):
     print(f"\n(a) images at {a['spp']} spp" if a else "")
     if a:
         im = a["images"]
+        if APPROXIMATE:
+            print("  (--approximate-materials: Mitsuba renders another principled model, so the image "
+                  "comparison below measures the models' difference, not an error)")
         print(f"  {'':34} {'Mitsuba':>10} {'vkinverse':>10} {'ratio vk/mi':>12}")
         print(f"  {'render, median wall s (warm)':34} {a['mitsuba_s']:10.3f} {a['vkinverse_process_s']:10.3f} {a['vkinverse_process_s'] / a['mitsuba_s']:12.2f}")
         print(f"  {'  vkinverse self-reported s':34} {'':10} {a['vkinverse_reported_s']:10.3f} {a['vkinverse_reported_s'] / a['mitsuba_s']:12.2f}")
@@ -641,7 +698,8 @@ def print_tables(a, b, c):
         print(f"  time per iteration: Mitsuba {c['mitsuba_per_iter_s']:.4f} s (first {c['mitsuba_first_iter_s']:.2f} s), "
               f"vkinverse {c['vkinverse_per_iter_s']:.4f} s (mean {c['vkinverse_mean_iter_s']:.4f} s); "
               f"ratio vk/mi {c['vkinverse_per_iter_s'] / c['mitsuba_per_iter_s']:.2f}")
-        print(f"  colour: reference {fmt_vec(c['reference'])}, init {fmt_vec(c['init'])}, "
+        print(f"  optimised: {', '.join(c['inputs'])}")
+        print(f"  {c['input']}: reference {fmt_vec(c['reference'])}, init {fmt_vec(c['init'])}, "
               f"Mitsuba {fmt_vec(c['mitsuba_final'])}, vkinverse {fmt_vec(c['vkinverse_final'])}")
 
 
@@ -668,8 +726,16 @@ def main():
     ap.add_argument("--out", type=Path, required=True, help="directory for images, logs and results.json")
     ap.add_argument("--variant", default="llvm_ad_rgb", choices=["llvm_ad_rgb", "cuda_ad_rgb"],
                     help="Mitsuba's variant (default: %(default)s)")
+    ap.add_argument("--approximate-materials", action="store_true",
+                    help="translate principled materials to Mitsuba's principled BSDF, a different model: "
+                    "for timing (parts a and c), not for comparing images or gradients")
     args = ap.parse_args()
     set_variant(args.variant)
+    global APPROXIMATE
+    APPROXIMATE = args.approximate_materials
+    if APPROXIMATE and "b" in args.parts:
+        fail("--approximate-materials: part b compares gradients, which needs the same model on both sides; "
+             "run --parts ac")
     if args.runs < 2:
         fail("--runs must be at least 2")
     if args.rounds < 2:
