@@ -137,22 +137,10 @@ def mitsuba_key(name):
     return "mat_" + "".join(c if c.isalnum() else "_" for c in name)
 
 
-def color_params(scene):
-    """[(material name, init)] of every optimised constant materials.NAME.base_color."""
-    out = []
-    for p in scene.get("optimise", {}).get("params", []):
-        parts = p["target"].split(".")
-        if len(parts) == 3 and parts[0] == "materials" and parts[2] == "base_color" and "texture" not in p:
-            init = p["init"] if isinstance(p["init"], list) else [p["init"]] * 3
-            out.append((parts[1], [float(v) for v in init]))
-    if not out:
-        fail("the scene optimises no constant materials.NAME.base_color; part b needs one")
-    return out
-
-
 def opt_params(scene):
-    """[(material, field, init, range, lr or None)] of every optimised constant material input that
-    part c translates (MITSUBA_FIELDS), in the scene's order."""
+    """[(material, field, init, range, lr or None, Mitsuba parameter)] of every optimised
+    constant material input that has a Mitsuba parameter (MITSUBA_FIELDS), in the scene's
+    order."""
     types = {m["name"]: m.get("type", "diffuse") for m in scene.get("materials", [])}
     out = []
     for p in scene.get("optimise", {}).get("params", []):
@@ -166,7 +154,16 @@ def opt_params(scene):
             init = [float(v) for v in init] if isinstance(init, list) else [float(init)] * 3
         else:
             init = float(init[0] if isinstance(init, list) else init)
-        out.append((parts[1], parts[2], init, p.get("range", [0.0, 1.0]), p.get("lr")))
+        key = f"{mitsuba_key(parts[1])}.{MITSUBA_FIELDS[types[parts[1]]][parts[2]]}"
+        out.append((parts[1], parts[2], init, p.get("range", [0.0, 1.0]), p.get("lr"), key))
+    return out
+
+
+def color_params(scene):
+    """[(material name, init)] of every optimised constant materials.NAME.base_color."""
+    out = [(name, init) for name, field, init, _, _, _ in opt_params(scene) if field == "base_color"]
+    if not out:
+        fail("the scene optimises no constant materials.NAME.base_color; part b needs one")
     return out
 
 
@@ -553,12 +550,11 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
     primal_spp = args.opt_primal_spp or opt_cfg.get("primal_spp", 4)
     iters = args.iterations
     overrides = {}
-    for name, field, init, _, _ in inputs:
+    for name, field, init, _, _, _ in inputs:
         overrides.setdefault(name, {})[field] = init
     mscene = mi.load_dict(scene_dict(scene, scene_path.parent, "prb", primal_spp, overrides=overrides))
     params = mi.traverse(mscene)
-    types = {m["name"]: m.get("type", "diffuse") for m in scene.get("materials", [])}
-    keys = [(f"{mitsuba_key(name)}.{MITSUBA_FIELDS[types[name]][field]}", rng) for name, field, _, rng, _ in inputs]
+    keys = [(key, rng) for _, _, _, rng, _, key in inputs]
     target_t = mi.TensorXf(target.astype(np.float32))
     opt = mi.ad.Adam(lr=lr)
     for key, _ in keys:
@@ -622,7 +618,7 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         wall, _, _ = run_vk(vk, vk_args[1:])
         mitsuba_iterations(iters // 2, iters - iters // 2)
     # The first optimised input's result, as a vector.
-    name, field, init, _, _ = inputs[0]
+    name, field, init, _, _, _ = inputs[0]
     init = init if isinstance(init, list) else [init]
     m_final = np.array(params[keys[0][0]]).ravel()[:3].tolist()
     summary = json.loads((opt_dir / "summary.json").read_text())
@@ -642,7 +638,7 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         "vkinverse_mean_iter_s": summary["total_time_s"] / max(summary["iterations"], 1),
         "vkinverse_process_s": wall,
         "reference": reference, "init": init, "mitsuba_final": m_final, "vkinverse_final": v_final,
-        "input": f"materials.{name}.{field}", "inputs": [f"materials.{n}.{f}" for n, f, _, _, _ in inputs],
+        "input": f"materials.{name}.{field}", "inputs": [f"materials.{n}.{f}" for n, f, _, _, _, _ in inputs],
     }
 
 

@@ -142,9 +142,10 @@ def load(args):
         r["smooth"] = smoothed(r["raw"])
         r["settled"] = settled(r["raw"])
         r["rate"] = rate(r["dir"])
-        r["fd_stride"] = summary(r["dir"]).get("settings", {}).get("fd_stride", 1)
-        r["fd_spp"] = summary(r["dir"]).get("settings", {}).get("fd_spp", 1)
-        r["primal_spp"] = summary(r["dir"]).get("settings", {}).get("primal_spp", 4)
+        settings = summary(r["dir"]).get("settings", {})
+        r["fd_stride"] = settings.get("fd_stride", 1)
+        r["fd_spp"] = settings.get("fd_spp", 1)
+        r["primal_spp"] = settings.get("primal_spp", 4)
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
 
