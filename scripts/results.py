@@ -5,6 +5,12 @@ library only):
     python3 scripts/results.py OUTDIR [OUTDIR ...] > tables.md          # the protocol
     python3 scripts/results.py --pilot OUTDIR [OUTDIR ...] > pilot.md   # candidate configurations
     python3 scripts/results.py --depth OUTDIR [OUTDIR ...] > depth.md   # meta's averaging depth
+    python3 scripts/results.py --goals OUTDIR [OUTDIR ...] > goals.md   # the goal, seed by seed
+
+Any mode takes `--costs OUTDIR` (repeatable) before the output directories: each run's times
+are then its iterations at the median cost per iteration of the runs of the same scene and
+kind (meta or Adam, and the same samples per pixel) in those directories, e.g. runs on a GPU,
+whose clock moves with its load, priced at what lavapipe's runs of the protocol cost.
 
 Several output directories (e.g. the shards of one batch) are read as one.
 
@@ -31,6 +37,11 @@ same seeds (at least two), a second table compares each with the first configura
 by seed, at equal iterations (settled errors) and at equal time (smoothed errors at the
 shorter run's end), each seed's run taken from the first directory that has one.
 
+The goals table has one row per meta configuration: at how many of the scene-seeds it ran
+it meets issue 14's goal against the best Adam-3 and the Adam-64 of the same scene and seed
+(settled at or below that Adam-3, and at least 3x as fast to its error), and at how many
+seeds it reaches Adam-64's error at least 10x sooner than Adam-64 on at least two scenes.
+
 The depth table has one row per meta run: at a few iterations, how many gradient samples
 its estimate averages (n_eff, the mean over all its parameters, from optimiser.csv), the
 share of parameters whose averaging grew by the most one iteration allows (the clip
@@ -43,6 +54,7 @@ depth meta's estimate has to exceed to be the less noisy of the two.
 import csv
 import json
 import math
+import statistics
 import sys
 from pathlib import Path
 
@@ -206,15 +218,36 @@ def short_names(groups):
     return {g: g for g in groups}
 
 
+def adam_references(rows):
+    """The Adam-3 grid (by rate), its best run (the lowest settled error) and the Adam run of
+    the most samples per pixel (Adam-64) among `rows`."""
+    grid = sorted((r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3), key=lambda r: float(r["rate"]) if r["rate"] != "scene" else 0.0)
+    best = min(grid, key=lambda r: r["settled"]) if grid else None
+    adam64 = max((r for r in rows if r["optimiser"] == "adam" and r["spp"] > 3), key=lambda r: r["spp"], default=None)
+    return grid, best, adam64
+
+
+def verdict(meta, best, adam64):
+    """A meta run against the best Adam-3 and Adam-64 of its scene: its settled error over
+    Adam-3's, its speed-ups to their goals, and whether it meets the goal (at or below
+    Adam-3, at least 3x as fast to Adam-3's goal)."""
+    goal3 = GOAL_MARGIN * best["settled"]
+    s3 = speedup(time_to_reach(best["smooth"], goal3), time_to_reach(meta["smooth"], goal3), best["time_s"])
+    s64 = None
+    if adam64:
+        goal64 = GOAL_MARGIN * adam64["settled"]
+        s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64), adam64["time_s"])
+    return dict(meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=meta["settled"] / best["settled"], s3=s3, s64=s64,
+                adam64=adam64["settled"] if adam64 else None, ok=meta["settled"] <= best["settled"] and s3 is not None and s3 >= 3.0)
+
+
 def protocol(by_scene):
     verdicts = []
     for scene, rows in by_scene.items():
         metas = [r for r in rows if r["optimiser"].startswith("meta")]
         # The default: spec `meta` at the scene's own settings (other meta rows are shown too).
         meta = next((r for r in metas if r["optimiser"] == "meta" and r["rate"] == "scene"), metas[0] if metas else None)
-        grid = sorted((r for r in rows if r["optimiser"] == "adam" and r["spp"] == 3), key=lambda r: float(r["rate"]) if r["rate"] != "scene" else 0.0)
-        best = min(grid, key=lambda r: r["settled"]) if grid else None
-        adam64 = max((r for r in rows if r["optimiser"] == "adam" and r["spp"] > 3), key=lambda r: r["spp"], default=None)
+        grid, best, adam64 = adam_references(rows)
         goal3 = GOAL_MARGIN * best["settled"] if best else None
         goal64 = GOAL_MARGIN * adam64["settled"] if adam64 else None
         equal_time = meta["time_s"] if meta else None
@@ -249,15 +282,9 @@ def protocol(by_scene):
             )
         print()
         if meta and best:
-            t3_adam, t3_meta = time_to_reach(best["smooth"], goal3), time_to_reach(meta["smooth"], goal3)
-            s3 = speedup(t3_adam, t3_meta, best["time_s"])
-            s64 = speedup(time_to_reach(adam64["smooth"], goal64), time_to_reach(meta["smooth"], goal64), adam64["time_s"]) if adam64 else None
-            ratio = meta["settled"] / best["settled"]
-            at_or_below = meta["settled"] <= best["settled"]
-            v = dict(scene=scene, meta=meta["settled"], adam3=best["settled"], rate=best["rate"], ratio=ratio, s3=s3, s64=s64,
-                     im_meta=image_excess(meta["dir"]), im_adam=image_excess(best["dir"]),
-                     adam64=adam64["settled"] if adam64 else None, ok=at_or_below and s3 is not None and s3 >= 3.0)
+            v = dict(verdict(meta, best, adam64), scene=scene, im_meta=image_excess(meta["dir"]), im_adam=image_excess(best["dir"]))
             verdicts.append(v)
+            ratio, at_or_below, s3, s64 = v["ratio"], v["meta"] <= v["adam3"], v["s3"], v["s64"]
             print(
                 f"Meta settles at {ratio:.2f}× Adam-3's error ({'at or below' if at_or_below else 'above'}); "
                 + f"to Adam-3's goal it is {fmt_speedup(s3)} as fast as Adam-3, to Adam-64's goal {fmt_speedup(s64)} as fast as Adam-64.\n"
@@ -379,14 +406,103 @@ def depth(by_scene):
     print()
 
 
+def cost_class(r):
+    """What one iteration of a run traces: its kind and sample counts. The meta variants of
+    a step rule trace alike, so they share a class."""
+    kind = "meta" if r["optimiser"].startswith("meta") else "adam"
+    return (kind, r["spp"], r["primal_spp"], r["fd_spp"], r["fd_stride"], "carry_adjoint=off" in r["optimiser"])
+
+
+def costs_of(by_scene):
+    """The median seconds per iteration of each scene's runs of each cost class."""
+    seconds = {}
+    for s, rows in by_scene.items():
+        for r in rows:
+            seconds.setdefault((s, cost_class(r)), []).append(r["time_s"] / r["iterations"])
+    return {k: statistics.median(v) for k, v in seconds.items()}
+
+
+def priced(by_scene, costs):
+    """Each run's times replaced by its iterations at the cost `costs` gives its scene and
+    cost class (from runs on another device: a GPU's runs priced at lavapipe's cost, so
+    that its clock, which moves with its load, does not decide who reaches a goal first)."""
+    for s, rows in by_scene.items():
+        for r in rows:
+            cost = costs.get((s, cost_class(r)))
+            if cost is None:
+                sys.exit(f"results.py: no run of {s} like {config(r)} (spp {r['spp']}) in the --costs directories to price it by")
+            r["raw"] = [(i, i * cost, e) for i, _, e in r["raw"]]
+            r["smooth"] = smoothed(r["raw"])
+            r["time_s"] = r["iterations"] * cost
+    return by_scene
+
+
+def goals(by_scene):
+    """Per meta configuration, over every scene and seed: how often it meets the goal of
+    issue 14 against the best Adam-3 and Adam-64 of the same scene and seed."""
+    runs = {}
+    for s, rows in by_scene.items():
+        for seed in sorted({r["seed"] for r in rows}):
+            at = [r for r in rows if r["seed"] == seed]
+            _, best, adam64 = adam_references(at)
+            if best is None:
+                continue
+            for r in at:
+                if r["optimiser"].startswith("meta"):
+                    # A seed run in several directories: the first directory's run.
+                    runs.setdefault(config(r), {}).setdefault((s, seed), verdict(r, best, adam64))
+    scenes = list(by_scene)
+    print("Goals per configuration: at or below the best Adam-3 of the same seed and at least 3× as fast to"
+          " its error (scene by scene: seeds met of seeds run), and Adam-64's error at least 10× sooner than Adam-64:\n")
+    print("| configuration | goal met | " + " | ".join(scenes) + " | settled / Adam-3 (geometric mean) | seeds with 10× Adam-64 on two scenes |")
+    print("|---|---|" + "---|" * len(scenes) + "---|---|")
+    for c, vs in runs.items():
+        per_scene = []
+        for s in scenes:
+            mine = [v for (sc, _), v in vs.items() if sc == s]
+            per_scene.append(f"{sum(v['ok'] for v in mine)}/{len(mine)}" if mine else "-")
+        seeds = sorted({seed for _, seed in vs})
+        ten = [seed for seed in seeds if sum(1 for (_, sd), v in vs.items() if sd == seed and v["s64"] is not None and v["s64"] >= 10.0) >= 2]
+        print(
+            f"| {c} | {sum(v['ok'] for v in vs.values())}/{len(vs)} | " + " | ".join(per_scene)
+            + f" | {geometric_mean([v['ratio'] for v in vs.values()]):.2f} | {len(ten)}/{len(seeds)} |"
+        )
+    print()
+    print("Median over seeds, scene by scene: settled error over Adam-3's, speed-up to Adam-3's goal, speed-up to Adam-64's goal:\n")
+    print("| configuration | " + " | ".join(scenes) + " |")
+    print("|---|" + "---|" * len(scenes))
+    for c, vs in runs.items():
+        cells = []
+        for s in scenes:
+            mine = [v for (sc, _), v in vs.items() if sc == s]
+            if not mine:
+                cells.append("-")
+                continue
+            med = lambda xs: statistics.median(x if x is not None else 0.0 for x in xs)
+            cells.append(f"{med(v['ratio'] for v in mine):.2f}, {med(v['s3'] for v in mine):.1f}×, {med(v['s64'] for v in mine):.1f}×")
+        print(f"| {c} | " + " | ".join(cells) + " |")
+    print()
+
+
+USAGE = "usage: results.py [--pilot | --depth | --goals] [--costs OUTDIR]... OUTDIR [OUTDIR ...]"
+
+
 def main():
     args = sys.argv[1:]
     mode = protocol
-    if args and args[0] in ("--pilot", "--depth"):
-        mode, args = (pilot if args[0] == "--pilot" else depth), args[1:]
-    if not args:
-        sys.exit("usage: results.py [--pilot | --depth] OUTDIR [OUTDIR ...]")
-    mode(load(args))
+    modes = {"--pilot": pilot, "--depth": depth, "--goals": goals}
+    if args and args[0] in modes:
+        mode, args = modes[args[0]], args[1:]
+    cost_dirs = []
+    while len(args) >= 2 and args[0] == "--costs":
+        cost_dirs.append(args[1])
+        args = args[2:]
+    if not args or any(a.startswith("--") for a in args):
+        sys.exit(USAGE)
+    by_scene = load(args)
+    if cost_dirs:
+        by_scene = priced(by_scene, costs_of(load(cost_dirs)))
+    mode(by_scene)
 
 
 if __name__ == "__main__":

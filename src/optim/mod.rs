@@ -438,7 +438,7 @@ impl MetaHyper {
 /// The defaults (spec `meta`): Newton's step rule on the finite differences' secant
 /// curvature (`lr` is the longest step, the typical step far from the optimum as for Adam;
 /// significance 3, a tenth of the secants' weight forgotten per step, 0.3 of the Wiener step
-/// near the optimum, the James–Stein factor of each parameter group as a whole), the centred
+/// near the optimum, each element's own James–Stein factor), the centred
 /// variance estimate and the raw ⟨ΔF⟩ variance of decay 0.3, with the seed's other decay and ε, each parameter
 /// group's own step norm, constant β_F and rate. Chosen
 /// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
@@ -457,7 +457,11 @@ impl MetaHyper {
 /// variance of a long step's ⟨ΔF⟩ no longer holds n_eff down for tens of short steps after
 /// it), then the adjoint pass's render taken into the carried image, `carry_adjoint`, with
 /// the fresh render at 2 spp instead of 4 in the bundled scenes' settings (scenes/pilot35.toml,
-/// scenes/pilot36.toml: a smaller geometric mean at two seeds for less tracing).
+/// scenes/pilot36.toml: a smaller geometric mean at two seeds for less tracing), then each
+/// element's own James–Stein factor again (scenes/pilot47.toml, eight seeds on a GPU priced
+/// at lavapipe's cost per iteration, and scenes/pilot48.toml on lavapipe: at or below the
+/// best Adam at 3 spp on 45 of 48 scene-seeds against 35, and Adam at 64 spp's error 10×
+/// sooner on two scenes at 7 of 8 seeds against 5).
 impl Default for MetaHyper {
     fn default() -> Self {
         MetaHyper {
@@ -465,7 +469,7 @@ impl Default for MetaHyper {
             step: StepRule::Newton,
             variance: VarianceEstimate::Centred,
             fdvar: FdVariance::Raw,
-            shrink: Shrink::Group,
+            shrink: Shrink::Element,
             carry: 0.01,
             carry_weight: CarryWeight::Variance,
             carry_adjoint: true,

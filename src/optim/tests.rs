@@ -50,7 +50,7 @@ fn meta_variants() -> Vec<Optimiser> {
     }
     v.push(Optimiser::Meta(MetaHyper { calib: 0.99, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.9, step: StepRule::Snr, ..MetaHyper::default() }));
-    v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Element, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Group, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
