@@ -89,7 +89,12 @@ fn vkinverse_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
 /// Runs, requires a non-zero exit and stderr of exactly one `vkinverse: error:` line that
 /// contains every needle; returns that line.
 fn vkinverse_err<S: AsRef<std::ffi::OsStr>>(args: &[S], needles: &[&str]) -> String {
-    let out = vkinverse(args);
+    vkinverse_err_env(args, &[], needles)
+}
+
+/// [`vkinverse_err`] with extra environment variables.
+fn vkinverse_err_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)], needles: &[&str]) -> String {
+    let out = vkinverse_env(args, envs);
     let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy().into_owned()).collect();
     assert!(!out.ok() && out.code.is_some(), "vkinverse {shown:?} should fail, exited {:?}", out.code);
     let lines: Vec<&str> = out.stderr.lines().collect();
@@ -188,6 +193,24 @@ fn png_size(path: &Path) -> (u32, u32) {
 }
 
 const LOG_HEADER: &str = "iteration,time_s,gpu_time_s,loss,param_error,param_error.materials.red.base_color";
+
+/// A machine whose Vulkan loader finds no driver (here: the driver variables name a manifest
+/// that does not exist; on a bare GPU machine, a driver whose own libraries do not load)
+/// gets one line that says so and what to check, not the loader's bare result.
+#[test]
+fn no_vulkan_driver_is_one_line_saying_what_to_check() {
+    let missing = "/nonexistent/vkinverse-test-icd.json";
+    let image = temp_dir("no-driver").join("x.exr");
+    let scene = bundled_cornell();
+    let render = ["render".as_ref(), scene.as_os_str(), "-o".as_ref(), image.as_os_str()];
+    for args in [&["info".as_ref()][..], &render[..]] {
+        vkinverse_err_env::<&std::ffi::OsStr>(
+            args,
+            &[("VK_DRIVER_FILES", missing), ("VK_ICD_FILENAMES", missing)],
+            &["no Vulkan driver could be loaded", "mesa-vulkan-drivers", "VK_DRIVER_FILES"],
+        );
+    }
+}
 
 #[test]
 fn info_lists_the_test_device_and_features() {

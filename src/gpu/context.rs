@@ -239,7 +239,11 @@ impl Context {
             create = create.push_next(&mut vfeatures);
         }
         // SAFETY: all pointers in `create` reference locals that outlive the call.
-        let instance = unsafe { entry.create_instance(&create, None) }.map_err(vk_err("vkCreateInstance"))?;
+        let instance = unsafe { entry.create_instance(&create, None) }.map_err(|e| match e {
+            // The loader found no driver manifest, or none whose library loads.
+            vk::Result::ERROR_INCOMPATIBLE_DRIVER => GpuError::NoDriver(e),
+            e => vk_err("vkCreateInstance")(e),
+        })?;
 
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);

@@ -75,6 +75,12 @@ pub enum GpuError {
     Vk { what: &'static str, result: vk::Result },
     #[error("no Vulkan device found (install a driver, e.g. mesa-vulkan-drivers for lavapipe)")]
     NoDevice,
+    #[error(
+        "no Vulkan driver could be loaded (vkCreateInstance: {0}): install one (mesa-vulkan-drivers for lavapipe, or the GPU's), \
+         check VK_DRIVER_FILES and VK_ICD_FILENAMES if set, and that the driver's own libraries load \
+         (NVIDIA's needs libglvnd0); VK_LOADER_DEBUG=error says which"
+    )]
+    NoDriver(vk::Result),
     #[error("no Vulkan device matches '{0}' (see `vkinverse info`)")]
     DeviceNotFound(String),
     #[error("device '{device}' lacks required feature {feature}")]
