@@ -3,6 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 use vkinverse::gpu::{Context, ContextOptions};
 use vkinverse::optimise::{Observer, Outcome, Progress};
 use vkinverse::report::ProgressReport;
@@ -205,6 +206,11 @@ struct BenchArgs {
     /// over `--iterations` rounds.
     #[arg(long)]
     bvh_layouts: bool,
+    /// With a scene: repeat its iteration untimed for this many seconds before timing it,
+    /// so that a GPU whose clocks idle low has raised them [default: 0 on a CPU device
+    /// (lavapipe), 2 on others]
+    #[arg(long, value_name = "SECONDS")]
+    warm_up: Option<f64>,
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -647,6 +653,10 @@ const BUFFER_BENCH_ELEMENTS: u64 = 16 << 20;
 /// bench's time; 1M still fills every workgroup of a GPU many times over.
 const SCENE_BENCH_ELEMENTS: u64 = 1 << 20;
 
+/// `bench SCENE`'s default `--warm-up` on a GPU: NVIDIA's H100 and H200 idled at a few
+/// hundred MHz, and benches that started cold ran up to 6x slower (docs/gpu.md).
+const GPU_WARM_UP_SECONDS: f64 = 2.0;
+
 fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
     let Some(path) = &a.scene else {
         let elements = a.elements.unwrap_or(BUFFER_BENCH_ELEMENTS);
@@ -663,7 +673,14 @@ fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
         let result = vkinverse::bench::layout_bench(&ctx, &scene, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     }
-    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS))?;
+    let warm_up = match a.warm_up {
+        Some(s) if !(0.0..=3600.0).contains(&s) => return Err(format!("--warm-up {s}: must be between 0 and 3600 seconds").into()),
+        Some(s) => s,
+        // A CPU device runs at its clock from the first round; a GPU's idles low.
+        None if ctx.info().device_type == "CPU" => 0.0,
+        None => GPU_WARM_UP_SECONDS,
+    };
+    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS), Duration::from_secs_f64(warm_up))?;
     print_result(a.json, &result, || result.table())
 }
 

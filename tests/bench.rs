@@ -14,7 +14,9 @@ fn finite_positive(what: &str, v: f64) {
 fn scene_bench_on_cornell_is_consistent() {
     let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
     // Two iterations: the medians are means, so per-pass sums compare with the total.
-    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(ctx, &scene, 2, 1 << 16).unwrap());
+    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(ctx, &scene, 2, 1 << 16, std::time::Duration::ZERO).unwrap());
+    // Without a warm-up time, one untimed round: the one that compiles the pipelines.
+    assert_eq!(b.warm_up.rounds, 1);
 
     // Every scope is named after its kernel, within its group of passes.
     let names: Vec<String> = b.passes.iter().map(|p| format!("{}/{}", p.group, p.name)).collect();

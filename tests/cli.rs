@@ -969,12 +969,25 @@ fn replay_refuses_non_finite_start_values() {
 #[test]
 fn scene_bench_sizes_its_synthetic_theta_by_default_and_by_flag() {
     let scene = s(tiny_cornell());
-    let elements = |extra: &[&str]| -> u64 {
+    let bench = |extra: &[&str]| -> serde_json::Value {
         let args: Vec<&str> = ["bench", scene.as_str(), "--iterations", "1", "--json"].iter().chain(extra).copied().collect();
         let out = vkinverse_ok(&args);
-        let v: serde_json::Value = serde_json::from_str(&out.stdout).unwrap_or_else(|e| panic!("{e}:\n{}", out.stdout));
-        v["optimisers"]["elements"].as_u64().expect("optimisers.elements")
+        serde_json::from_str(&out.stdout).unwrap_or_else(|e| panic!("{e}:\n{}", out.stdout))
     };
-    assert_eq!(elements(&[]), 1 << 20);
-    assert_eq!(elements(&["--elements", "4096"]), 4096);
+    let elements = |v: &serde_json::Value| v["optimisers"]["elements"].as_u64().expect("optimisers.elements");
+    let warm_up = |v: &serde_json::Value| (v["warm_up"]["rounds"].as_u64().expect("warm_up.rounds"), v["warm_up"]["seconds"].as_f64().unwrap());
+    let default = bench(&[]);
+    assert_eq!(elements(&default), 1 << 20);
+    // On a CPU device the only untimed round is the one that compiles the pipelines; with a
+    // warm-up time, rounds repeat until it has passed.
+    if std::env::var("VKINVERSE_TEST_DEVICE").is_err() {
+        assert_eq!(warm_up(&default).0, 1, "{}", default["warm_up"]);
+    }
+    let warmed = bench(&["--elements", "4096", "--warm-up", "0.3"]);
+    assert_eq!(elements(&warmed), 4096);
+    let (rounds, seconds) = warm_up(&warmed);
+    assert!(rounds >= 2 && seconds >= 0.3, "{}", warmed["warm_up"]);
+    for bad in ["-1", "nan", "1e9"] {
+        vkinverse_err(&["bench", scene.as_str(), &format!("--warm-up={bad}")], &["--warm-up", "between 0 and 3600 seconds"]);
+    }
 }

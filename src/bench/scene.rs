@@ -47,6 +47,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// Camera rays per pixel of the BVH throughput measurement: enough work per dispatch that
 /// the dispatch overhead does not dominate on small films.
@@ -176,8 +177,19 @@ pub struct SceneBench {
     /// Host↔device traffic per timed iteration: the frame counter written, the loss and θ
     /// read back (as `optimise` does for its log).
     pub transfer: TransferPerIteration,
+    /// The untimed rounds of the iteration before the timed ones.
+    pub warm_up: WarmUp,
     /// The fused optimiser passes on a synthetic θ.
     pub optimisers: OptimiserBandwidth,
+}
+
+/// The untimed rounds of the scene's iteration before the timed ones: the first (lavapipe
+/// and some drivers compile a pipeline at its first dispatch), then more until the warm-up
+/// time has passed, so that a GPU whose clocks idle low has raised them.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct WarmUp {
+    pub rounds: u32,
+    pub seconds: f64,
 }
 
 /// Means per iteration of [`crate::gpu::TransferStats`] over the timed iterations.
@@ -245,11 +257,13 @@ pub(super) fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 
 /// Benchmarks `scene`'s iteration over `iterations` submissions, and the optimiser
 /// passes on a synthetic θ of `optimiser_elements` parameters.
-pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser_elements: u64) -> Result<SceneBench> {
+/// `warm_up`: how long to repeat the scene's iteration, untimed, before timing it (at least
+/// once).
+pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser_elements: u64, warm_up: Duration) -> Result<SceneBench> {
     let iterations = iterations.max(1);
     // First, so that its buffers (large at 16M parameters) are gone before the scene's.
     let optimisers = optimiser_bandwidth(ctx, optimiser_elements, iterations)?;
-    measure_scene(ctx, scene, iterations, optimisers)
+    measure_scene(ctx, scene, iterations, optimisers, warm_up)
 }
 
 /// The bench's own passes beside the engine's: the other optimiser, the two-trace
@@ -414,7 +428,7 @@ fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine
     Ok(())
 }
 
-fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth) -> Result<SceneBench> {
+fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth, warm_up: Duration) -> Result<SceneBench> {
     let mut st = RunSettings::of_scene(scene);
     if !st.optimiser.optimiser.needs_fd() {
         st.optimiser = Spec::default();
@@ -428,8 +442,15 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     let mut profs = sizes.iter().map(|&n| Profiler::new(ctx, n)).collect::<gpu::Result<Vec<_>>>()?;
     let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
     record_timed(&mut cmd, &mut profs, &engine, &x)?;
-    // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch.
-    cmd.submit_and_wait()?;
+    // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch, and a
+    // GPU raises its clocks only under load.
+    let start = Instant::now();
+    let mut rounds = 0;
+    while rounds == 0 || start.elapsed() < warm_up {
+        cmd.submit_and_wait()?;
+        rounds += 1;
+    }
+    let warm_up = WarmUp { rounds, seconds: start.elapsed().as_secs_f64() };
     let mut samples: Vec<Samples> = GROUPS.iter().map(|_| Samples::default()).collect();
     let before = ctx.transfer_stats();
     for i in 0..iterations {
@@ -456,6 +477,7 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     let mut bench = measured.report(scene, iterations, &x, optimisers);
     bench.bvh = bvh_throughput(ctx, scene, engine.scene(), iterations)?;
     bench.transfer = transfer;
+    bench.warm_up = warm_up;
     Ok(bench)
 }
 
@@ -559,6 +581,7 @@ impl Measured<'_> {
             },
             bvh: BvhThroughput::default(),
             transfer: TransferPerIteration::default(),
+            warm_up: WarmUp::default(),
             memory_bytes: x.memory_bytes,
             memory_allocations: x.memory_allocations,
             optimisers,
@@ -654,7 +677,7 @@ impl SceneBench {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "scene bench: {} on {}: {}x{}, {} sensor(s), {} triangles, {} parameters; median of {} iterations, LP_NUM_THREADS={}",
+            "scene bench: {} on {}: {}x{}, {} sensor(s), {} triangles, {} parameters; median of {} iterations after {} untimed in {:.2} s, LP_NUM_THREADS={}",
             self.scene,
             self.device,
             self.width,
@@ -663,6 +686,8 @@ impl SceneBench {
             self.triangles,
             self.parameters,
             self.iterations,
+            self.warm_up.rounds,
+            self.warm_up.seconds,
             self.lp_num_threads.as_deref().unwrap_or("unset")
         );
         let spec: Vec<String> = self.specialisation.iter().map(|c| format!("{}={}", c.name, c.value)).collect();
