@@ -185,10 +185,11 @@ pub struct SceneBench {
 
 /// The untimed rounds of the scene's iteration before the timed ones: the first (lavapipe
 /// and some drivers compile a pipeline at its first dispatch), then more until the warm-up
-/// time has passed, so that a GPU whose clocks idle low has raised them.
+/// time has passed after it, so that a GPU whose clocks idle low has raised them.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct WarmUp {
     pub rounds: u32,
+    /// The time the rounds after the first took.
     pub seconds: f64,
 }
 
@@ -443,10 +444,12 @@ fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers:
     let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
     record_timed(&mut cmd, &mut profs, &engine, &x)?;
     // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch, and a
-    // GPU raises its clocks only under load.
+    // GPU raises its clocks only under load, so after that round more follow until the
+    // warm-up time has passed.
+    cmd.submit_and_wait()?;
     let start = Instant::now();
-    let mut rounds = 0;
-    while rounds == 0 || start.elapsed() < warm_up {
+    let mut rounds = 1;
+    while start.elapsed() < warm_up {
         cmd.submit_and_wait()?;
         rounds += 1;
     }
@@ -677,7 +680,7 @@ impl SceneBench {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "scene bench: {} on {}: {}x{}, {} sensor(s), {} triangles, {} parameters; median of {} iterations after {} untimed in {:.2} s, LP_NUM_THREADS={}",
+            "scene bench: {} on {}: {}x{}, {} sensor(s), {} triangles, {} parameters; median of {} iterations after {} untimed ({:.2} s of warm-up), LP_NUM_THREADS={}",
             self.scene,
             self.device,
             self.width,
