@@ -618,14 +618,13 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         wall, _, _ = run_vk(vk, vk_args[1:])
         mitsuba_iterations(iters // 2, iters - iters // 2)
     # The first optimised input's result, as a vector.
+    as_vector = lambda v: v if isinstance(v, list) or v is None else [v]
     name, field, init, _, _, _ = inputs[0]
-    init = init if isinstance(init, list) else [init]
+    init = as_vector(init)
     m_final = np.array(params[keys[0][0]]).ravel()[:3].tolist()
     summary = json.loads((opt_dir / "summary.json").read_text())
-    v_final = json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.{field}")
-    v_final = v_final if isinstance(v_final, list) or v_final is None else [v_final]
-    reference = next(m.get(field) for m in scene["materials"] if m["name"] == name)
-    reference = reference if isinstance(reference, list) else [reference]
+    v_final = as_vector(json.loads((opt_dir / "params" / "params.json").read_text()).get(f"materials.{name}.{field}"))
+    reference = as_vector(next(m.get(field) for m in scene["materials"] if m["name"] == name))
     return {
         "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
         "concurrent": bool(args.concurrent),
