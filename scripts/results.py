@@ -183,6 +183,12 @@ class Bound(float):
     its time to it is at least its whole run's."""
 
 
+class AtStart(float):
+    """A speed-up of 0 because the reference was at its goal from its start (a run that
+    hardly moves: its settled error is its initial one), not because this run never
+    got there."""
+
+
 def speedup(reference_time, time, reference_end=None):
     """The reference's time to a goal over this run's; 0.0 if this run never gets there,
     None if neither does. Where only this run gets there, the reference's whole run time
@@ -193,12 +199,16 @@ def speedup(reference_time, time, reference_end=None):
         return Bound(reference_end / time) if time > 0 else math.inf
     if time is None:
         return 0.0
+    if time > 0 and reference_time == 0:
+        return AtStart(0.0)
     return reference_time / time if time > 0 else math.inf
 
 
 def fmt_speedup(s):
     if s is None:
         return "-"
+    if isinstance(s, AtStart):
+        return "0× (the reference at its goal from the start)"
     if s == 0.0:
         return "never"
     if s == math.inf:
@@ -225,6 +235,15 @@ def adam_references(rows):
     best = min(grid, key=lambda r: r["settled"]) if grid else None
     adam64 = max((r for r in rows if r["optimiser"] == "adam" and r["spp"] > 3), key=lambda r: r["spp"], default=None)
     return grid, best, adam64
+
+
+def grid_edge(grid, best):
+    """"lowest" or "highest" where the best Adam-3 ran at that end of a grid of at least
+    three rates (the grid may then not hold Adam's best rate), else None."""
+    rates = [r["rate"] for r in grid if r["rate"] != "scene"]
+    if best is None or len(rates) < 3 or best["rate"] not in (rates[0], rates[-1]):
+        return None
+    return "lowest" if best["rate"] == rates[0] else "highest"
 
 
 def verdict(meta, best, adam64):
@@ -259,6 +278,7 @@ def protocol(by_scene):
             f"Initial parameter error {initial:.4f}. Adam-3: the best rate of the grid "
             + (", ".join(f"{r['rate']}" for r in grid) or "-")
             + (f" is {best['rate']}, settled error {best['settled']:.4f}" if best else "")
+            + (f" (the grid's {grid_edge(grid, best)} rate: a wider grid may hold a better one)" if grid_edge(grid, best) else "")
             + (f"; Adam-{adam64['spp']} settles at {adam64['settled']:.4f} after {adam64['iterations']} iterations" if adam64 else "")
             + ".\n"
         )
@@ -441,12 +461,16 @@ def goals(by_scene):
     """Per meta configuration, over every scene and seed: how often it meets the goal of
     issue 14 against the best Adam-3 and Adam-64 of the same scene and seed."""
     runs = {}
+    edges = {}
     for s, rows in by_scene.items():
         for seed in sorted({r["seed"] for r in rows}):
             at = [r for r in rows if r["seed"] == seed]
-            _, best, adam64 = adam_references(at)
+            grid, best, adam64 = adam_references(at)
             if best is None:
                 continue
+            edge = grid_edge(grid, best)
+            if edge:
+                edges.setdefault(s, []).append(f"{seed} ({edge})")
             for r in at:
                 if r["optimiser"].startswith("meta"):
                     # A seed run in several directories: the first directory's run.
@@ -479,6 +503,9 @@ def goals(by_scene):
         ]
         print(f"| {c} | " + " | ".join(cells) + " |")
     print()
+    if edges:
+        print("The best Adam-3 ran at an end of its grid (a wider grid may hold a better rate) at seeds: "
+              + "; ".join(f"{s} {', '.join(e)}" for s, e in edges.items()) + ".\n")
 
 
 USAGE = "usage: results.py [--pilot | --depth | --goals] [--costs OUTDIR]... OUTDIR [OUTDIR ...]"
