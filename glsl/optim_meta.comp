@@ -73,9 +73,11 @@ layout(push_constant, scalar) uniform Push {
     float trust;      // STEP_NEWTON: the longest step, in lr, while its direction holds
     float persist;    // STEP_NEWTON: a sign run of persist*n_eff estimates is significant
     float calib;      // the decay of the variance calibration's NIS EMA (0: none)
-    uint shrink_group; // STEP_NEWTON: nonzero: the group's James-Stein factor (group_z2)
-    uint curv_ls;     // STEP_NEWTON: nonzero: the secants' least-squares slope (curvature_of)
+    uint flags;       // STEP_NEWTON: META_SHRINK_GROUP (the group's James-Stein factor,
+                      // group_z2), META_CURV_LS (the secants' least-squares slope, curvature_of)
     float curv_se;    // STEP_NEWTON, curv_ls: the slope's standard errors in quadrature
+    float curv_floor; // STEP_NEWTON: the fraction of the group's RMS curvature below which
+                      // no element's curvature is taken (curv_floor_of; 0: none)
 } pc;
 
 void main() {
@@ -91,8 +93,9 @@ void main() {
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
                                   pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist,
-                                  pc.curv_ls != 0u, pc.curv_se, pc.calib,
-                                  pc.shrink_group != 0u, 0.0);
+                                  (pc.flags & META_CURV_LS) != 0u, pc.curv_se, pc.calib,
+                                  (pc.flags & META_SHRINK_GROUP) != 0u, 0.0,
+                                  pc.curv_floor > 0.0 ? curv_floor_of(pc.curv_floor, diag[pc.group]) : 0.0);
         if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
                               meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i],

@@ -53,6 +53,11 @@ pub const STEP_WIENER: u32 = 3;
 /// Newton's step on the secant curvature of the finite-difference samples where the
 /// estimate is significant, else the Wiener step scaled down.
 pub const STEP_NEWTON: u32 = 4;
+/// Bits of the fused meta pass's `flags` (src/optim/push.rs): the group's James–Stein
+/// factor (`shrink = group`).
+pub const META_SHRINK_GROUP: u32 = 1;
+/// The secants' least-squares slope as the curvature (`curv = ls`).
+pub const META_CURV_LS: u32 = 2;
 
 /// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
 pub const SCHEDULE_CONSTANT: u32 = 0;

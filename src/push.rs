@@ -175,7 +175,7 @@ push_block!(AdamPush {
 push_block!(MetaPush {
     n, offset, group, first_partial, lr, decay_f, decay_d, eps, lo, hi, beta2, grow_f, step_rule, centred,
     groups, global_dpi, sched_decay, sched_warmup, sched_horizon, sched_every, sched_floor, sched_gamma, fd_raw, decay_h, sig, settle, trust, persist, calib,
-    shrink_group, curv_ls, curv_se,
+    flags, curv_se, curv_floor,
 });
 push_block!(DiagPush { first, count, group });
 

@@ -29,6 +29,8 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { trust: 4.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, curv: CurvatureFit::Ls, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,

@@ -249,6 +249,7 @@ struct MetaParams {
     float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
     bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
     float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
+    float h_floor;     // STEP_NEWTON: the least curvature an element takes (curv_floor_of)
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -282,6 +283,17 @@ float group_z2(float sig, DiagRecord r) {
     float q = r.sd.scale / r.mean.scale;
     float chi = 1.0 + sig * sqrt(2.0 / r.count);
     return sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum));
+}
+
+// The least curvature an element of a group takes: `frac` times the RMS over the group's
+// elements of the curvatures of its previous step (its diagnostics record r), 0 for frac 0
+// or an empty record. An element whose own secants say almost nothing changes (a texel
+// barely seen, whose finite differences are noise around 0) would otherwise divide its
+// noisy estimate by a near-zero curvature and take the whole lr. Mirrors curv_floor_of in
+// src/optim/reference.rs.
+float curv_floor_of(float frac, DiagRecord r) {
+    if (frac <= 0.0 || r.count <= 0.0 || r.curv.scale == 0.0) return 0.0;
+    return sat(frac * sat(r.curv.scale * sqrt(r.curv.sum / r.count)));
 }
 
 // The sign run after an estimate `mean`: one longer where it keeps the run's sign, +-1
@@ -385,6 +397,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
         curv = p.curv_ls ? sat((1.0 - k) * curv + k * secant) : hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * secant);
     }
     float h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
+    if (h > 0.0) h = max(h, p.h_floor);
 
     float ratio;
     if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);

@@ -383,6 +383,14 @@ pub struct MetaHyper {
     pub curv: CurvatureFit,
     /// `curv = ls`: the standard errors of the slope added in quadrature.
     pub curv_se: f64,
+    /// `step = newton`: no element takes a curvature below this fraction of the RMS of its
+    /// group's curvatures at the previous step (0: none). An element whose own secants say
+    /// almost nothing changes, such as a texel barely seen, whose finite differences are
+    /// noise around 0, would otherwise divide its noisy estimate by a near-zero curvature
+    /// and take the whole lr wherever a run of noise looks significant. It takes a group's
+    /// elements to share one scale (a texture's texels, a colour's channels), as their
+    /// units do.
+    pub curv_floor: f64,
     /// The primal image the losses read (0: each iteration's own render). Above 0, the image
     /// is carried from one iteration to the next by the finite-difference sample's two
     /// images (an unbiased estimate of how the expected image changed between θ_{i-1} and
@@ -427,6 +435,7 @@ impl MetaHyper {
             shrink: Shrink::Element,
             curv: CurvatureFit::Rms,
             curv_se: 1.0,
+            curv_floor: 0.0,
             carry: 0.0,
             carry_weight: CarryWeight::Fixed,
             carry_adjoint: false,
@@ -558,6 +567,9 @@ impl Optimiser {
                 }
                 if !(0.0..=1e3).contains(&h.persist) {
                     return Err(OptimError::BadHyper(format!("persist = {} is outside [0, 1000]", h.persist)));
+                }
+                if !(0.0..=1.0).contains(&h.curv_floor) {
+                    return Err(OptimError::BadHyper(format!("curv_floor = {} is outside [0, 1]", h.curv_floor)));
                 }
                 if !(0.0..=1e3).contains(&h.curv_se) {
                     return Err(OptimError::BadHyper(format!("curv_se = {} is outside [0, 1000]", h.curv_se)));

@@ -122,9 +122,11 @@ pub struct MetaPush {
     pub trust: f32,
     pub persist: f32,
     pub calib: f32,
-    pub shrink_group: u32,
-    pub curv_ls: u32,
+    /// META_SHRINK_GROUP | META_CURV_LS (src/constants.rs): two switches in one word, so
+    /// that the block stays within the 128 bytes every Vulkan device accepts.
+    pub flags: u32,
     pub curv_se: f32,
+    pub curv_floor: f32,
 }
 
 impl MetaPush {
@@ -161,9 +163,10 @@ impl MetaPush {
             trust: h.trust as f32,
             persist: h.persist as f32,
             calib: h.calib as f32,
-            shrink_group: u32::from(h.shrink == Shrink::Group),
-            curv_ls: u32::from(h.curv == CurvatureFit::Ls),
+            flags: if h.shrink == Shrink::Group { crate::constants::META_SHRINK_GROUP } else { 0 }
+                | if h.curv == CurvatureFit::Ls { crate::constants::META_CURV_LS } else { 0 },
             curv_se: h.curv_se as f32,
+            curv_floor: h.curv_floor as f32,
         }
     }
 }

@@ -527,6 +527,9 @@ pub struct MetaParams<R> {
     /// previous step, which replaces each element's (sig·sd/⟨F⟩_M)² in the James–Stein
     /// factor; `None`: each element's own.
     pub group_z2: Option<R>,
+    /// `step = newton`: the least curvature an element takes, [`curv_floor_of`] the group's
+    /// previous step (0: none).
+    pub h_floor: R,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -553,6 +556,7 @@ impl<R: Real> MetaParams<R> {
             curv_se: R::of(h.curv_se),
             calib: R::of(h.calib),
             group_z2: None,
+            h_floor: R::ZERO,
         }
     }
 }
@@ -644,6 +648,7 @@ pub fn meta_update<R: Real>(
         curv = if p.curv_ls { sat((one - k) * curv + k * secant) } else { hypot((one - k).sqrt() * curv, k.sqrt() * secant) };
     }
     let h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
+    let h = if h > R::ZERO { h.max(p.h_floor) } else { h };
 
     let ratio = match p.step {
         StepRule::Snr => mean / (sd_step + p.eps),
@@ -747,6 +752,17 @@ pub fn group_z2<R: Real>(sig: R, r: &DiagRecord<R>) -> R {
     sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum))
 }
 
+/// The least curvature an element of a group takes ([`super::MetaHyper::curv_floor`]):
+/// `frac` times the RMS over the group's elements of the curvatures in its diagnostics record
+/// `r` of the previous step; 0 for `frac` 0 or an empty record. Mirrored by curv_floor_of
+/// in glsl/lib/optim.glsl.
+pub fn curv_floor_of<R: Real>(frac: R, r: &DiagRecord<R>) -> R {
+    if frac <= R::ZERO || r.count <= R::ZERO || r.curv.scale == R::ZERO {
+        return R::ZERO;
+    }
+    sat(frac * sat(r.curv.scale * (r.curv.sum / r.count).sqrt()))
+}
+
 /// Hyperparameters and per-element state of one parameter buffer.
 #[derive(Clone, Debug)]
 enum Elems<R> {
@@ -846,6 +862,7 @@ impl<R: Real> BufferOptimiser<R> {
                 if h.shrink == super::Shrink::Group {
                     p.group_z2 = Some(group_z2(p.sig, &self.record));
                 }
+                p.h_floor = curv_floor_of(R::of(h.curv_floor), &self.record);
                 lr_t = p.lr.to_f64();
                 let halves = if p.centred {
                     let (gh, fh) = input.grad_half.zip(input.fd_half).ok_or(OptimError::MissingHalves)?;

@@ -1,6 +1,6 @@
 use super::literal::replay_literal;
 use super::push::{GroupSlots, MetaPush};
-use super::reference::{centred_sample, f_weight, one_minus_pow, BufferOptimiser, DiagRecord, MetaInput, MetaParams, Real, Ssq, StepInput};
+use super::reference::{centred_sample, f_weight, one_minus_pow, BufferOptimiser, DiagRecord, ElemDiag, MetaInput, MetaParams, Real, Ssq, StepInput};
 use super::*;
 
 /// SplitMix64 with Box–Muller normals: deterministic test streams without a dependency.
@@ -55,6 +55,8 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, curv_se: 0.0, shrink: Shrink::Element, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, persist: 3.0, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -372,6 +374,13 @@ fn scales_1e60_apart_in_one_buffer_follow_one_trajectory() {
         input: &input,
     };
     for (opt, traj, _) in stable_everywhere(&case) {
+        // A curvature floor ties each element's least curvature to its group's RMS, whose
+        // elements it takes to share one scale (a texture's texels, a colour's channels): in
+        // a group whose elements lie 1e60 apart it binds on the small ones by design. Its
+        // float safety at every scale is the other cases' to check.
+        if matches!(opt, Optimiser::Meta(h) if h.curv_floor > 0.0) {
+            continue;
+        }
         let unit = n / 2; // scale 1
         for i in (0..n).filter(|&i| scale(i) >= 1e-2) {
             for row in &traj {
@@ -1239,6 +1248,47 @@ fn group_shrink_steps_on_a_group_significant_as_a_whole() {
     eprintln!("optimum: element {d_element}, group {d_group} ({n_noise})");
     assert!(n_noise < 0.1, "Newton steps at the optimum: {n_noise}");
     assert!(d_group < 1.2 * d_element, "drift: group {d_group}, element {d_element}");
+}
+
+#[test]
+fn curvature_floor_bounds_a_near_zero_curvature_by_the_groups() {
+    // Two elements of one group, both with a steady, noiseless gradient 0.01 (significant
+    // from the first step): element 0's finite differences say curvature 1, element 1's
+    // 1e-6. Without the floor element 1 divides by 1e-6 and takes the whole lr; with it, by
+    // a tenth of the group's RMS curvature (about 0.07): Newton's step, about 0.14·lr, is
+    // then shorter than the settle step (0.3 of the Wiener step, here 0.3·lr), which it takes.
+    let lr = 1.0;
+    let run = |curv_floor: f64| -> Vec<f64> {
+        let opt = Optimiser::Meta(MetaHyper { curv_floor, ..MetaHyper::default() });
+        let mut o = BufferOptimiser::<f64>::new(&opt, 2, lr, Range::UNBOUNDED).unwrap();
+        let mut theta = vec![0.0; 2];
+        let mut prev = theta.clone();
+        let mut steps = Vec::new();
+        for _ in 0..6 {
+            let f = [0.01, 0.01];
+            let df: Vec<f64> = [1.0, 1e-6].iter().zip(theta.iter().zip(&prev)).map(|(a, (t, p))| a * (t - p)).collect();
+            // Halves equal to half the sums: a centred variance of 0.
+            let (fh, dh): (Vec<f64>, Vec<f64>) = (f.iter().map(|x| x / 2.0).collect(), df.iter().map(|x| x / 2.0).collect());
+            prev.clone_from(&theta);
+            o.step_with(&mut theta, StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) }).unwrap();
+            steps.push(theta[1] - prev[1]);
+        }
+        steps
+    };
+    let (with, without) = (run(0.1), run(0.0));
+    assert_eq!(MetaHyper::default().curv_floor, 0.0);
+    eprintln!("element 1's steps: floor {with:?}, none {without:?}");
+    // The last step, once both elements have curvature estimates: lr without the floor,
+    // well under it with.
+    let (w, n) = (with[5].abs(), without[5].abs());
+    assert!((n - lr).abs() < 1e-9, "without the floor: {n}");
+    assert!((w - 0.3 * lr).abs() < 1e-3 * lr, "with the floor: {w}");
+    // The floor itself, from a record: a tenth of the RMS of the curvatures 3 and 4 over 2
+    // elements, √(25/2)/10.
+    let r = DiagRecord::<f64>::of(&ElemDiag { curv: 3.0, ..Default::default() }).merge(DiagRecord::of(&ElemDiag { curv: 4.0, ..Default::default() }));
+    assert!((super::reference::curv_floor_of(0.1, &r) - (12.5f64).sqrt() / 10.0).abs() < 1e-12);
+    assert_eq!(super::reference::curv_floor_of(0.0, &r), 0.0);
+    assert_eq!(super::reference::curv_floor_of(0.1, &DiagRecord::<f64>::default()), 0.0);
 }
 
 /// The curvature fits of `h` on a prescribed walk: steps of ±`step` in a fixed pseudo-random
