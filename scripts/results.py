@@ -267,6 +267,7 @@ def protocol(by_scene):
         # The default: spec `meta` at the scene's own settings (other meta rows are shown too).
         meta = next((r for r in metas if r["optimiser"] == "meta" and r["rate"] == "scene"), metas[0] if metas else None)
         grid, best, adam64 = adam_references(rows)
+        edge = grid_edge(grid, best)
         goal3 = GOAL_MARGIN * best["settled"] if best else None
         goal64 = GOAL_MARGIN * adam64["settled"] if adam64 else None
         equal_time = meta["time_s"] if meta else None
@@ -278,7 +279,7 @@ def protocol(by_scene):
             f"Initial parameter error {initial:.4f}. Adam-3: the best rate of the grid "
             + (", ".join(f"{r['rate']}" for r in grid) or "-")
             + (f" is {best['rate']}, settled error {best['settled']:.4f}" if best else "")
-            + (f" (the grid's {grid_edge(grid, best)} rate: a wider grid may hold a better one)" if grid_edge(grid, best) else "")
+            + (f" (the grid's {edge} rate: a wider grid may hold a better one)" if edge else "")
             + (f"; Adam-{adam64['spp']} settles at {adam64['settled']:.4f} after {adam64['iterations']} iterations" if adam64 else "")
             + ".\n"
         )
