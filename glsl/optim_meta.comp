@@ -94,9 +94,10 @@ void main() {
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
                                   pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist,
                                   (pc.flags & META_CURV_LS) != 0u, pc.curv_se, pc.calib,
-                                  (pc.flags & META_SHRINK_GROUP) != 0u, 0.0,
-                                  pc.curv_floor > 0.0 ? curv_floor_of(pc.curv_floor, diag[pc.group]) : 0.0);
+                                  (pc.flags & META_SHRINK_GROUP) != 0u, 0.0, 0.0);
+        // From the group's record of its previous step, where the spec asks for them.
         if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
+        if (pc.curv_floor > 0.0) p.h_floor = curv_floor_of(pc.curv_floor, diag[pc.group]);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
                               meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i],
                               meta_run[i]);
