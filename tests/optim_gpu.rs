@@ -5,7 +5,7 @@ mod common;
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
 use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, CurvatureFit, Decay, Diagnostics, FdVariance, MetaHyper, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::{self, AdamHyper, CurvatureFit, Decay, Diagnostics, FdVariance, MetaHyper, Multiple, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -31,6 +31,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, curv: CurvatureFit::Ls, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,

@@ -158,7 +158,7 @@ impl MetaPush {
             sched_gamma: sc.gamma,
             fd_raw: u32::from(h.fdvar == FdVariance::Raw),
             decay_h: h.decay_h as f32,
-            sig: h.sig as f32,
+            sig: h.sig_for(g.n as usize) as f32,
             settle: h.settle as f32,
             trust: h.trust as f32,
             persist: h.persist as f32,

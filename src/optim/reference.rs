@@ -859,6 +859,7 @@ impl<R: Real> BufferOptimiser<R> {
                 let fd = input.fd.ok_or(OptimError::MissingFd)?;
                 check_len("finite-difference gradient", n, fd.len())?;
                 let mut p = MetaParams::<R>::new(h, t, self.lr, self.range);
+                p.sig = R::of(h.sig_for(n));
                 if h.shrink == super::Shrink::Group {
                     p.group_z2 = Some(group_z2(p.sig, &self.record));
                 }

@@ -5,14 +5,14 @@
 //! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
 //! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
 //! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `settle`, `trust`, `persist`, `shrink` = element|group, `curv` = rms|ls,
+//! for `step` = newton `decay_h`, `sig`, `multiple` = none|bonferroni, `settle`, `trust`, `persist`, `shrink` = element|group, `curv` = rms|ls,
 //! `curv_se`, `curv_floor`; `carry`, the least weight of the fresh primal image in the
 //! carried one, `carry_weight` = fixed|variance, `carry_adjoint` = on|off), and for both the learning-rate schedule's
 //! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, CarryWeight, CurvatureFit, FdVariance, MetaHyper, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, CarryWeight, CurvatureFit, FdVariance, MetaHyper, Multiple, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -46,7 +46,7 @@ pub fn file_safe(text: &str) -> String {
 fn keys(o: &Optimiser) -> &'static str {
     match o {
         Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, settle, trust, persist, curv, curv_se, curv_floor, calib, shrink, carry, carry_weight, carry_adjoint",
+        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, multiple, settle, trust, persist, curv, curv_se, curv_floor, calib, shrink, carry, carry_weight, carry_adjoint",
     }
 }
 
@@ -85,6 +85,10 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
         }
         (Optimiser::Meta(h), "shrink") => {
             h.shrink = choice(key, value, &[("element", Shrink::Element), ("group", Shrink::Group)])?;
+            return Ok(true);
+        }
+        (Optimiser::Meta(h), "multiple") => {
+            h.multiple = choice(key, value, &[("none", Multiple::None), ("bonferroni", Multiple::Bonferroni)])?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "curv") => {
@@ -221,7 +225,7 @@ mod tests {
         let Optimiser::Meta(h) = "meta@curv=ls@curv_se=3".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h, MetaHyper { curv: crate::optim::CurvatureFit::Ls, curv_se: 3.0, ..MetaHyper::default() });
         // The README's spelling of the defaults is the defaults.
-        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@settle=0.3@trust=1@persist=0@curv=rms@curv_floor=0@shrink=element@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
+        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@multiple=none@settle=0.3@trust=1@persist=0@curv=rms@curv_floor=0@shrink=element@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
         assert!(include_str!("../../README.md").contains(spelled));
         assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };

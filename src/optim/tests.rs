@@ -57,6 +57,7 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, curv_se: 0.0, shrink: Shrink::Element, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, persist: 3.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -1356,4 +1357,77 @@ fn least_squares_curvature_averages_the_secants_noise_out() {
     assert!(ls_h > slope && ls_h < 0.75 * rms_h, "least-squares curvature {ls_h} (RMS {rms_h})");
     // Without the standard error the curvature is the slope's positive part.
     assert!(l0[50..].iter().zip(&l[50..]).all(|(x, y)| x.1 == x.0.max(0.0) && x.0 == y.0));
+}
+
+#[test]
+fn bonferroni_significance_keeps_a_groups_false_steps_at_one_elements() {
+    use super::bonferroni_sig;
+    // Two-sided normal quantiles: P(|Z| > 1.959964) = 0.05; 0.05/10 at 2.807034, 0.05/1000
+    // at 4.055627, 0.05/1e6 at 5.451310.
+    let z05 = 1.959_963_985;
+    for (k, z) in [(1usize, z05), (10, 2.807_033_768), (1000, 4.055_626_981), (1_000_000, 5.451_310_438)] {
+        let got = bonferroni_sig(z05, k);
+        assert!((got - z).abs() < 2e-6, "k = {k}: {got} against {z}");
+    }
+    // The values the option's docs quote for sig = 2.
+    for (k, z) in [(3usize, 2.43), (64, 3.39), (3072, 4.33)] {
+        assert!((bonferroni_sig(2.0, k) - z).abs() < 0.005, "k = {k}: {}", bonferroni_sig(2.0, k));
+    }
+    // No test stays no test; one element keeps sig; the level rises with k and stays finite
+    // for the largest sig the spec accepts.
+    assert_eq!(bonferroni_sig(0.0, 1000), 0.0);
+    assert_eq!(bonferroni_sig(3.0, 1), 3.0);
+    let big = bonferroni_sig(1e6, 1 << 30);
+    assert!((1e6..1e6 + 1.0).contains(&big), "{big}");
+    let mut last = 3.0;
+    for k in [2usize, 5, 50, 500, 5000] {
+        let z = bonferroni_sig(3.0, k);
+        assert!(z > last, "k = {k}: {z} after {last}");
+        last = z;
+    }
+    // The spec: one level per group through sig_for, and refused with the group's own test.
+    let h = MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() };
+    assert_eq!(h.sig_for(1), 2.0);
+    assert_eq!(h.sig_for(64), bonferroni_sig(2.0, 64));
+    assert_eq!(MetaHyper::default().sig_for(64), MetaHyper::default().sig);
+    let bad = Optimiser::Meta(MetaHyper { shrink: Shrink::Group, ..h });
+    assert!(bad.validate().unwrap_err().to_string().contains("shrink=group"));
+}
+
+#[test]
+fn bonferroni_significance_is_the_groups_level_for_each_element() {
+    // The same steady, noisy estimate in a group of one element and in one of 3072: with
+    // `multiple = bonferroni` each element steps as it would at its group's level without
+    // it (sig for one, bonferroni_sig(sig, 3072) for the texture), and the two differ:
+    // the scalar's estimate is significant sooner, so its Newton steps start sooner.
+    let lr = 1.0;
+    let run = |k: usize, h: MetaHyper| -> Vec<f64> {
+        let mut o = BufferOptimiser::<f64>::new(&Optimiser::Meta(h), k, lr, Range::UNBOUNDED).unwrap();
+        let mut theta = vec![0.0; k];
+        let mut prev = theta.clone();
+        let mut steps = Vec::new();
+        for it in 0..12 {
+            // A gradient 0.01 + 1e-4·θ (its optimum at θ = −100, lr = 1 away per step)
+            // and its exact finite difference.
+            let f: Vec<f64> = theta.iter().map(|t| 0.01 + 1e-4 * t).collect();
+            let df: Vec<f64> = theta.iter().zip(&prev).map(|(t, p)| 1e-4 * (t - p)).collect();
+            // Half-sample sums of 3 % and 97 % of the sum, alternating: centred samples of
+            // ±0.94·F, so the estimate grows significant as it averages.
+            let share = if it % 2 == 0 { 0.03 } else { 0.97 };
+            let fh: Vec<f64> = f.iter().map(|x| x * share).collect();
+            let dh: Vec<f64> = df.iter().map(|x| x / 2.0).collect();
+            prev.clone_from(&theta);
+            o.step_with(&mut theta, StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) }).unwrap();
+            steps.push(theta[0] - prev[0]);
+        }
+        steps
+    };
+    let bonf = MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() };
+    let plain = |sig: f64| MetaHyper { sig, ..MetaHyper::default() };
+    let one = run(1, bonf);
+    let many = run(3072, bonf);
+    assert_eq!(one, run(1, plain(2.0)));
+    assert_eq!(many, run(3072, plain(super::bonferroni_sig(2.0, 3072))));
+    eprintln!("element 0's steps: one element {one:?}, 3072 elements {many:?}");
+    assert_ne!(one, many);
 }
