@@ -341,8 +341,9 @@ pub fn bonferroni_sig(sig: f64, k: usize) -> f64 {
         return sig;
     }
     let target = ln_two_sided_tail(sig) - (k as f64).ln();
-    // The tail falls at least as fast as a Gaussian's beyond sig: the root lies below
-    // sig + √(2 ln k) + 2; bisection to the f64 resolution of the bracket.
+    // The normal tail's hazard rate is at least z, so tail(sig + d) ≤ tail(sig)·e^(−d²/2):
+    // the root lies below sig + √(2 ln k) (2 more for the fit's error); bisection to the
+    // f64 resolution of the bracket.
     let (mut lo, mut hi) = (sig, sig + (2.0 * (k as f64).ln()).sqrt() + 2.0);
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
