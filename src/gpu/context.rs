@@ -9,7 +9,7 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{c_void, CStr, CString};
 use std::mem::ManuallyDrop;
-use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::Duration;
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -18,17 +18,27 @@ const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
 /// no context's end unloads the loader (and the drivers it loaded) under another.
 static LOADER: OnceLock<std::result::Result<ash::Entry, String>> = OnceLock::new();
 
-/// Held while an instance and its device are made or destroyed. Concurrent
-/// `vkCreateInstance`/`vkDestroyInstance` and `vkCreateDevice`/`vkDestroyDevice` from
-/// different threads are legal Vulkan, but the loader keeps process-global lists of
-/// instances and devices that some releases do not lock everywhere, and NVIDIA's driver
-/// crashed when one thread destroyed an instance while others created theirs (the test
-/// suite at 16 threads, `docs/gpu.md`). Contexts are made rarely (one per process in the
-/// command-line tool), so the lock seldom makes a thread wait.
-static LIFECYCLE: Mutex<()> = Mutex::new(());
+/// Held for writing while an instance and its device are made or destroyed, for reading
+/// while a pipeline is (`pipelines_made`). Concurrent `vkCreateInstance`/`vkDestroyInstance`
+/// and `vkCreateDevice`/`vkDestroyDevice` from different threads are legal Vulkan, but the
+/// loader keeps process-global lists of instances and devices that some releases do not
+/// lock everywhere, and NVIDIA's driver crashed when one thread destroyed an instance while
+/// others created theirs (the test suite at 16 threads, `docs/gpu.md`). The validation
+/// layer of Debian 12 (1.3.239) crashed in `vkCreateComputePipelines` on one device while
+/// another thread was in `vkCreateDevice` (`gpu_layer` on lavapipe, about 1 run in 30), so
+/// pipelines are made and destroyed only while no device is. Contexts are made rarely (one
+/// per process in the command-line tool) and pipelines at start-up, so the lock seldom
+/// makes a thread wait; pipelines of different contexts are still made at once.
+static LIFECYCLE: RwLock<()> = RwLock::new(());
 
-fn lifecycle() -> MutexGuard<'static, ()> {
-    LIFECYCLE.lock().unwrap_or_else(|p| p.into_inner())
+fn lifecycle() -> RwLockWriteGuard<'static, ()> {
+    LIFECYCLE.write().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Held while a pipeline and its layouts are made or destroyed: never while an instance or
+/// device is ([`LIFECYCLE`]).
+pub(crate) fn pipelines_made() -> RwLockReadGuard<'static, ()> {
+    LIFECYCLE.read().unwrap_or_else(|p| p.into_inner())
 }
 
 fn loader() -> Result<ash::Entry> {

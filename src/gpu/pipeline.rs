@@ -113,6 +113,8 @@ impl ComputePipeline {
             })
             .collect();
         let dev = &ctx.device;
+        // Declared before `partial`, so that an error path's destruction holds it too.
+        let _made = super::context::pipelines_made();
         // SAFETY: create infos reference locals alive for each call; on failure every
         // object made so far is destroyed by `Partial`'s drop.
         let mut partial = Partial { dev, set_layout: None, layout: None, module: None };
@@ -301,6 +303,7 @@ impl Drop for PipelineInner {
     fn drop(&mut self) {
         // SAFETY: recordings that use this pipeline hold a handle, so the last handle goes
         // only once no pending work uses it.
+        let _made = super::context::pipelines_made();
         unsafe {
             self.ctx.device.destroy_pipeline(self.pipeline, None);
             self.ctx.device.destroy_pipeline_layout(self.layout, None);
