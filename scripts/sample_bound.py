@@ -3,16 +3,16 @@
 per iteration: a lower bound from the noise of the images a run fits.
 
 A run fits θ to images: the target (rendered once, at the job's target_spp) and its own
-primal renders. Near the optimum the parameter error from an image's noise scales as
+renders of θ. Near the optimum the parameter error from an image's noise scales as
 1/sqrt(its samples per pixel), and the two images' noises are independent, so a run whose
-primal images hold N samples per pixel in all cannot settle below
+renders of θ hold N samples per pixel in all cannot settle below
 
     e(N)^2 = F^2 (1 + target_spp / N),
 
 where F is the error from the target's noise alone. F comes from two Adam runs that differ
 only in the target's samples (scenes/bound.toml): e_lo^2 - e_hi^2 = F^2 (1 - lo / hi).
-Reaching a goal error E therefore needs N(E) = target_spp F^2 / (E^2 - F^2) primal
-samples per pixel; a run that renders s samples per pixel of θ per iteration needs at least
+Reaching a goal error E therefore needs N(E) = target_spp F^2 / (E^2 - F^2) samples per
+pixel; a run that renders s samples per pixel of θ per iteration needs at least
 N(E) / s iterations. Every pass that traces camera paths at θ renders it: the primal pass
 (primal_spp), the adjoint pass (spp: path replay traces each of its samples once for its
 radiance) and meta's finite-difference sample (fd_spp on every fd_stride-th pixel: its two
@@ -41,7 +41,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from results import GOAL_MARGIN, adam_references, costs_of, fmt_speedup, load, priced, speedup, summary, time_to_reach  # noqa: E402
+from results import GOAL_MARGIN, adam_references, costs_of, fmt, fmt_speedup, load, priced, speedup, summary, time_to_reach  # noqa: E402
 
 
 def seed_of(r):
@@ -120,33 +120,33 @@ def main():
         meta = metas[0]
         f, spp_t, _, _ = floors.get(seed, (f_all, target_spp(best), None, None))
         goal = GOAL_MARGIN * best["settled"]
-        need = spp_t * f * f / (goal * goal - f * f) if goal > f else math.inf
+        # None where the goal lies at or below the target's floor: no number of samples.
+        need = spp_t * f * f / (goal * goal - f * f) if goal > f else None
         t_adam = time_to_reach(best["smooth"], goal)
         t_meta = time_to_reach(meta["smooth"], goal)
         it_adam = iteration_at(best["smooth"], t_adam)
         it_meta = iteration_at(meta["smooth"], t_meta)
         s_meta = samples_per_iteration(meta)
         sec_meta = meta["time_s"] / meta["iterations"]
-        fewest = math.ceil(need / s_meta) if math.isfinite(need) else None
+        fewest = math.ceil(need / s_meta) if need is not None else None
         least = fewest * sec_meta if fewest is not None else None
         largest = t_adam / least if t_adam is not None and least else None
-        num = lambda v, spec: "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
-
         def eff(it, r):
-            if not it or not math.isfinite(need):
+            if not it or need is None:
                 return "-"
             e = need / (it * samples_per_iteration(r))
             if e > 1.0:
                 beaten.append(f"{seed} ({r['optimiser']})")
             return f"{e:.0%}"
 
-        print(f"| {seed} | {goal:.4f} | {best['rate']} | {num(it_adam, 'd')}, {num(t_adam, '.2f')} | {num(need, '.0f')} | {s_meta:g} | "
-              f"{num(fewest, 'd')}, {num(least, '.2f')} | {num(largest, '.2f')}× | {fmt_speedup(speedup(t_adam, t_meta, best['time_s']))} | "
+        print(f"| {seed} | {goal:.4f} | {best['rate']} | {fmt(it_adam, 'd')}, {fmt(t_adam, '.2f')} | {fmt(need, '.0f')} | {s_meta:g} | "
+              f"{fmt(fewest, 'd')}, {fmt(least, '.2f')} | {fmt(largest, '.2f')}× | {fmt_speedup(speedup(t_adam, t_meta, best['time_s']))} | "
               f"{eff(it_adam, best)}, {eff(it_meta, meta)} |")
     if beaten:
         print(f"\nRuns that beat the bound, at seeds {', '.join(beaten)}: its premise, an error from the images' "
               "noise alone, does not hold on this scene (part of its error moves with no image, such as parameters "
               "the images barely constrain), and the bound says nothing there.")
+
 
 if __name__ == "__main__":
     main()
