@@ -32,6 +32,7 @@ fn variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, curv: CurvatureFit::Ls, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::None, sig: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper {
         step: StepRule::Adam,
         variance: VarianceEstimate::Centred,

@@ -225,7 +225,7 @@ mod tests {
         let Optimiser::Meta(h) = "meta@curv=ls@curv_se=3".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!(h, MetaHyper { curv: crate::optim::CurvatureFit::Ls, curv_se: 3.0, ..MetaHyper::default() });
         // The README's spelling of the defaults is the defaults.
-        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=3@multiple=none@settle=0.3@trust=1@persist=0@curv=rms@curv_floor=0@shrink=element@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
+        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=1.5@multiple=bonferroni@settle=0.3@trust=1@persist=0@curv=rms@curv_floor=0@shrink=element@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
         assert!(include_str!("../../README.md").contains(spelled));
         assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };

@@ -58,6 +58,7 @@ fn meta_variants() -> Vec<Optimiser> {
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 0.1, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv_floor: 1.0, persist: 3.0, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() }));
+    v.push(Optimiser::Meta(MetaHyper { multiple: Multiple::None, sig: 3.0, ..MetaHyper::default() }));
     let Optimiser::Meta(mut h) = meta_with(StepRule::Bounded, VarianceEstimate::Zero, 1.0) else { unreachable!() };
     h.schedule = Schedule { decay: Decay::Cosine, warmup: 5, horizon: 40, floor: 0.1, ..Default::default() };
     v.push(Optimiser::Meta(h));
@@ -1389,9 +1390,9 @@ fn bonferroni_significance_keeps_a_groups_false_steps_at_one_elements() {
     let h = MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() };
     assert_eq!(h.sig_for(1), 2.0);
     assert_eq!(h.sig_for(64), bonferroni_sig(2.0, 64));
-    assert_eq!(MetaHyper::default().sig_for(64), MetaHyper::default().sig);
-    let bad = Optimiser::Meta(MetaHyper { shrink: Shrink::Group, ..h });
-    assert!(bad.validate().unwrap_err().to_string().contains("shrink=group"));
+    assert_eq!(MetaHyper { multiple: Multiple::None, ..h }.sig_for(64), 2.0);
+    // The group's own test is one test: its level stays sig.
+    assert_eq!(MetaHyper { shrink: Shrink::Group, ..h }.sig_for(64), 2.0);
 }
 
 #[test]
@@ -1423,7 +1424,7 @@ fn bonferroni_significance_is_the_groups_level_for_each_element() {
         steps
     };
     let bonf = MetaHyper { multiple: Multiple::Bonferroni, sig: 2.0, ..MetaHyper::default() };
-    let plain = |sig: f64| MetaHyper { sig, ..MetaHyper::default() };
+    let plain = |sig: f64| MetaHyper { sig, multiple: Multiple::None, ..MetaHyper::default() };
     let one = run(1, bonf);
     let many = run(3072, bonf);
     assert_eq!(one, run(1, plain(2.0)));
