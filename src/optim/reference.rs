@@ -533,7 +533,9 @@ pub struct MetaParams<R> {
 }
 
 impl<R: Real> MetaParams<R> {
-    pub fn new(h: &MetaHyper, t: u32, lr: f64, range: Range) -> Self {
+    /// The parameters of step `t` of a group of `k` elements (its size sets the
+    /// significance, [`MetaHyper::sig_for`]).
+    pub fn new(h: &MetaHyper, k: usize, t: u32, lr: f64, range: Range) -> Self {
         MetaParams {
             t,
             lr: R::of(lr * h.schedule.factor(t)),
@@ -548,7 +550,7 @@ impl<R: Real> MetaParams<R> {
             grow_f: R::of(h.grow_f),
             fd_raw: h.fdvar == super::FdVariance::Raw,
             decay_h: R::of(h.decay_h),
-            sig: R::of(h.sig),
+            sig: R::of(h.sig_for(k)),
             settle: R::of(h.settle),
             trust: R::of(h.trust),
             persist: R::of(h.persist),
@@ -858,8 +860,7 @@ impl<R: Real> BufferOptimiser<R> {
             Elems::Meta(h, state) => {
                 let fd = input.fd.ok_or(OptimError::MissingFd)?;
                 check_len("finite-difference gradient", n, fd.len())?;
-                let mut p = MetaParams::<R>::new(h, t, self.lr, self.range);
-                p.sig = R::of(h.sig_for(n));
+                let mut p = MetaParams::<R>::new(h, n, t, self.lr, self.range);
                 if h.shrink == super::Shrink::Group {
                     p.group_z2 = Some(group_z2(p.sig, &self.record));
                 }

@@ -674,7 +674,7 @@ fn raw_fd_variance_survives_steps_of_varying_length() {
         (1..=200u32)
             .map(|t| {
                 let x = MetaInput { f: 1.0 + rng.normal(), df: sigma_d * rng.normal(), ..Default::default() };
-                let p = MetaParams::<f64>::new(&h, t, 0.01, Range::UNBOUNDED);
+                let p = MetaParams::<f64>::new(&h, 1, t, 0.01, Range::UNBOUNDED);
                 let (_, next, d) = reference::meta_update(&p, 0.5, x, if t == 1 { 0.0 } else { dpi2(t) }, s).unwrap();
                 s = next;
                 d.n_eff
@@ -1307,7 +1307,7 @@ fn secant_fits(h: MetaHyper, a: f64, step: f64, sigma: f64, iters: u32) -> Vec<(
     let mut e = MetaElem::<f64>::default();
     let mut out = Vec::new();
     for t in 1..=iters {
-        let p = MetaParams::<f64>::new(&h, t, 0.01, Range::new(-1e9, 1e9).unwrap());
+        let p = MetaParams::<f64>::new(&h, 1, t, 0.01, Range::new(-1e9, 1e9).unwrap());
         let (last, noise) = (step * sign(), sigma * sign());
         e.last = if t == 1 { 0.0 } else { last };
         let df = a * e.last + noise;
