@@ -5,7 +5,8 @@ library only):
     python3 scripts/results.py OUTDIR [OUTDIR ...] > tables.md          # the protocol
     python3 scripts/results.py --pilot OUTDIR [OUTDIR ...] > pilot.md   # candidate configurations
     python3 scripts/results.py --depth OUTDIR [OUTDIR ...] > depth.md   # meta's averaging depth
-    python3 scripts/results.py --goals OUTDIR [OUTDIR ...] > goals.md   # the goal, seed by seed
+    python3 scripts/results.py --goals OUTDIR [OUTDIR ...] > goals.md   # the goal over scenes and seeds
+    python3 scripts/results.py --seeds OUTDIR [OUTDIR ...] > seeds.md   # the same, one row per seed
 
 Any mode takes `--costs OUTDIR` (repeatable) before the output directories: each run's times
 are then its iterations at the median cost per iteration of the runs of the same scene and
@@ -41,6 +42,7 @@ The goals table has one row per meta configuration: at how many of the scene-see
 it meets issue 14's goal against the best Adam-3 and the Adam-64 of the same scene and seed
 (settled at or below that Adam-3, and at least 3x as fast to its error), and at how many
 seeds it reaches Adam-64's error at least 10x sooner than Adam-64 on at least two scenes.
+The seeds table gives the figures behind it, one row per scene, seed and configuration.
 
 The depth table has one row per meta run: at a few iterations, how many gradient samples
 its estimate averages (n_eff, the mean over all its parameters, from optimiser.csv), the
@@ -458,9 +460,10 @@ def priced(by_scene, costs):
     return by_scene
 
 
-def goals(by_scene):
-    """Per meta configuration, over every scene and seed: how often it meets the goal of
-    issue 14 against the best Adam-3 and Adam-64 of the same scene and seed."""
+def verdicts(by_scene):
+    """Every meta run's verdict against the best Adam-3 and the Adam-64 of its own scene and
+    seed, by configuration and (scene, seed) (a seed run in several directories: the first
+    directory's run), and the scenes' seeds whose best Adam-3 ran at an end of its grid."""
     runs = {}
     edges = {}
     for s, rows in by_scene.items():
@@ -474,8 +477,31 @@ def goals(by_scene):
                 edges.setdefault(s, []).append(f"{seed} ({edge})")
             for r in at:
                 if r["optimiser"].startswith("meta"):
-                    # A seed run in several directories: the first directory's run.
                     runs.setdefault(config(r), {}).setdefault((s, seed), verdict(r, best, adam64))
+    return runs, edges
+
+
+def seeds(by_scene):
+    """Per scene and seed, every meta configuration's verdict: the figures that `--goals`
+    counts, one row each, so that a gain or loss at one seed can be read off."""
+    runs, _ = verdicts(by_scene)
+    print("Per scene and seed: settled error over the best Adam-3's (its rate), speed-up to Adam-3's goal,"
+          " speed-up to Adam-64's goal, and whether the goal is met:\n")
+    print("| scene | seed | configuration | settled / Adam-3 | Adam-3 rate | to Adam-3's goal | to Adam-64's goal | goal |")
+    print("|---|---|---|---|---|---|---|---|")
+    for s in by_scene:
+        for seed in sorted({sd for vs in runs.values() for sc, sd in vs if sc == s}):
+            for c, vs in runs.items():
+                v = vs.get((s, seed))
+                if v is not None:
+                    print(f"| {s} | {seed} | {c} | {v['ratio']:.2f} | {v['rate']} | {fmt_speedup(v['s3'])} | {fmt_speedup(v['s64'])} | {'met' if v['ok'] else 'not met'} |")
+    print()
+
+
+def goals(by_scene):
+    """Per meta configuration, over every scene and seed: how often it meets the goal of
+    issue 14 against the best Adam-3 and Adam-64 of the same scene and seed."""
+    runs, edges = verdicts(by_scene)
     scenes = list(by_scene)
     # Per configuration, its verdicts scene by scene.
     per_scene = {c: {s: [v for (sc, _), v in vs.items() if sc == s] for s in scenes} for c, vs in runs.items()}
@@ -509,13 +535,13 @@ def goals(by_scene):
               + "; ".join(f"{s} {', '.join(e)}" for s, e in edges.items()) + ".\n")
 
 
-USAGE = "usage: results.py [--pilot | --depth | --goals] [--costs OUTDIR]... OUTDIR [OUTDIR ...]"
+USAGE = "usage: results.py [--pilot | --depth | --goals | --seeds] [--costs OUTDIR]... OUTDIR [OUTDIR ...]"
 
 
 def main():
     args = sys.argv[1:]
     mode = protocol
-    modes = {"--pilot": pilot, "--depth": depth, "--goals": goals}
+    modes = {"--pilot": pilot, "--depth": depth, "--goals": goals, "--seeds": seeds}
     if args and args[0] in modes:
         mode, args = modes[args[0]], args[1:]
     cost_dirs = []
