@@ -61,6 +61,21 @@ impl Image {
         self.data[y as usize * self.width as usize + x as usize]
     }
 
+    /// Nearest-texel resampling of the first `channels` channels to `w` × `h`, row by row,
+    /// `channels` floats per texel.
+    pub fn resample(&self, channels: u32, w: u32, h: u32) -> Vec<f32> {
+        let mut out = Vec::with_capacity((w * h * channels) as usize);
+        for y in 0..h {
+            for x in 0..w {
+                let sx = ((x as f64 + 0.5) * self.width as f64 / w as f64) as u32;
+                let sy = ((y as f64 + 0.5) * self.height as f64 / h as f64) as u32;
+                let px = self.get(sx.min(self.width - 1), sy.min(self.height - 1));
+                out.extend_from_slice(&px[..channels as usize]);
+            }
+        }
+        out
+    }
+
     /// The first pixel (x, y) holding a NaN or an infinity, if any.
     pub fn find_non_finite(&self) -> Option<(u32, u32)> {
         let i = self

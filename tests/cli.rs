@@ -10,7 +10,7 @@ use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use common::scenes::temp_dir;
+use common::scenes::{temp_dir, write_delta_lit};
 use vkinverse::npy::{self, Array};
 use vkinverse::optim::{self, Range};
 
@@ -424,6 +424,28 @@ fn fd_stride_runs_the_finite_difference_on_part_of_the_pixels() {
     let (_, rows) = read_log(&out_dir);
     let e = |i: usize| field(&rows[i], 4);
     assert!(e(8) < 0.8 * e(0), "meta with fd_stride 2 did not approach the reference: {} -> {}", e(0), e(8));
+}
+
+#[test]
+fn a_texture_parameter_starts_from_an_earlier_runs_recovered_texture() {
+    // A first run recovers a floor's colour as a 4×4 texture; a second names the first's
+    // `params/` EXR as its `init` and so starts where the first ended.
+    let textured = |name: &str, init: &str| {
+        write_delta_lit(name, (16, 16), &format!("[[optimise.params]]\ntarget = \"materials.floor.base_color\"\n{init}\nrange = [0, 1]\ntexture = [4, 4]\n"))
+    };
+    let first = textured("init-first", "init = [0.2, 0.2, 0.2]");
+    let first_out = temp_dir("init-first-out");
+    vkinverse_ok(&["optimise", &s(&first), "--optimiser", "adam", "--iterations", "3", "--lr", "0.1", "--quiet", "-o", &s(&first_out)]);
+    let recovered = first_out.join("params/materials.floor.base_color.exr");
+    assert!(recovered.is_file(), "{} was not written", recovered.display());
+    let second = textured("init-second", &format!("init = {{ texture = {:?} }}", s(&recovered)));
+    let second_out = temp_dir("init-second-out");
+    vkinverse_ok(&["optimise", &s(&second), "--optimiser", "adam", "--iterations", "1", "--quiet", "-o", &s(&second_out)]);
+    let first_summary = json(&first_out.join("summary.json"));
+    let (uniform, ended) = (first_summary["initial_param_error"].as_f64().unwrap(), first_summary["final_param_error"].as_f64().unwrap());
+    let started = json(&second_out.join("summary.json"))["initial_param_error"].as_f64().unwrap();
+    assert!(ended < 0.8 * uniform, "the first run did not move: {uniform} -> {ended}");
+    assert!((started - ended).abs() <= 1e-6 * ended, "the second run started at error {started}, the first ended at {ended}");
 }
 
 #[test]

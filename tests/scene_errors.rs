@@ -579,3 +579,30 @@ fn optimise_settings_are_checked_by_the_one_validate() {
     assert_eq!(run.seed, 1 << 32);
     assert_eq!(run.optimiser.label, "adam@beta1=0.5");
 }
+
+#[test]
+fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
+    // A 2×1 image (0.2 | 0.8) as the start of a 4×2 roughness texture: nearest texels.
+    let dir = fixture("init-image", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"halves.exr\" }\nrange = [0, 1]\ntexture = [4, 2]"));
+    let halves = Image { width: 2, height: 1, data: vec![[0.2, 0.9, 0.9], [0.8, 0.9, 0.9]] };
+    write_exr(&dir.parent().unwrap().join("halves.exr"), &halves).unwrap();
+    let scene = Scene::load(dir.clone()).unwrap();
+    assert_eq!(scene.optimise.params[0].init, [0.2, 0.2, 0.8, 0.8, 0.2, 0.2, 0.8, 0.8]);
+    let layout = vkinverse::render::ParamLayout::new(&scene);
+    assert_eq!(layout.initial(), scene.optimise.params[0].init);
+
+    // Not a texture parameter.
+    let err = load_err("init-image-constant", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"tex.exr\" }\nrange = [0, 1]"));
+    assert_message(&err, &["init", "texture = [w, h]"]);
+    // A missing image names its key and file.
+    let err = load_err("init-image-missing", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"nope.exr\" }\nrange = [0, 1]\ntexture = [2, 2]"));
+    assert!(matches!(err, SceneError::MissingFile { .. }), "{err:?}");
+    assert_message(&err, &["init.texture", "nope.exr"]);
+    // Texels outside the parameter's range (tex.exr holds 0.25, 0.5, 0.75).
+    let err = load_err("init-image-range", &with_optimise("target = \"materials.m.base_color\"\ninit = { texture = \"tex.exr\" }\nrange = [0, 0.6]\ntexture = [2, 2]"));
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["init.texture", "0.75", "[0, 0.6]"]);
+    // A malformed `init` says what it takes.
+    let err = load_err("init-image-malformed", &with_optimise("target = \"materials.m.roughness\"\ninit = \"tex.exr\"\nrange = [0, 1]"));
+    assert_message(&err, &["expected a number, [r, g, b] or", "file.exr"]);
+}

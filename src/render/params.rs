@@ -4,7 +4,6 @@
 //! `texels` texels (1 for a constant), starting at `offset` in θ. Kernels read a slot
 //! through a `ValueRef` with `in_theta = 1`; the optimiser updates slots in place.
 
-use crate::image::Image;
 use crate::scene::write::Recovered;
 use crate::scene::{ParamTarget, Reference, Scene};
 
@@ -34,20 +33,6 @@ pub struct ParamLayout {
     pub len: usize,
 }
 
-/// Nearest-texel resampling of `image`'s first `channels` channels to `w` × `h`.
-fn resample(image: &Image, channels: u32, w: u32, h: u32) -> Vec<f32> {
-    let mut out = Vec::with_capacity((w * h * channels) as usize);
-    for y in 0..h {
-        for x in 0..w {
-            let sx = ((x as f64 + 0.5) * image.width as f64 / w as f64) as u32;
-            let sy = ((y as f64 + 0.5) * image.height as f64 / h as f64) as u32;
-            let px = image.get(sx.min(image.width - 1), sy.min(image.height - 1));
-            out.extend_from_slice(&px[..channels as usize]);
-        }
-    }
-    out
-}
-
 impl ParamLayout {
     pub fn new(scene: &Scene) -> Self {
         let mut layout = ParamLayout::default();
@@ -60,7 +45,7 @@ impl ParamLayout {
                 Reference::Constant(v) => v.iter().copied().cycle().take(len).collect(),
                 Reference::Texture(t) => {
                     let (w, h) = if p.texture.is_some() { (size[0], size[1]) } else { (1, 1) };
-                    resample(&t.image, p.channels, w, h)
+                    t.image.resample(p.channels, w, h)
                 }
             };
             layout.slots.push(ParamSlot {

@@ -197,10 +197,13 @@ fn one() -> f32 {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(untagged, expecting = "expected a number or [r, g, b]")]
+#[serde(untagged, expecting = "expected a number, [r, g, b] or { texture = \"file.exr\" }")]
 pub enum InitInput {
     Scalar(f32),
     Color([f32; 3]),
+    /// Every texel's start value from an image (a parameter with `texture = [w, h]` only),
+    /// e.g. a texture an earlier run recovered (its `params/NAME.exr`).
+    Texture(TextureRef),
 }
 
 #[derive(Debug, Deserialize)]

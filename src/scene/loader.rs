@@ -583,23 +583,6 @@ impl Loader {
                 format!("lower bound {lo} is not below upper bound {hi}"),
             ));
         }
-        let init_key = format!("{key}.init");
-        let init = match p.init {
-            InitInput::Scalar(v) => vec![v; channels as usize],
-            InitInput::Color(c) if channels == 3 => c.to_vec(),
-            InitInput::Color(_) => {
-                return Err(self.invalid(
-                    &init_key,
-                    &format!("{} is a scalar; give one number", p.target),
-                ))
-            }
-        };
-        self.finite(&init_key, &init)?;
-        if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
-            return Err(
-                self.out_of_range(&init_key, format!("{v} is outside the range [{lo}, {hi}]"))
-            );
-        }
         if let Some(lr) = p.lr {
             self.positive(&format!("{key}.lr"), lr)?;
         }
@@ -623,6 +606,35 @@ impl Loader {
                     p.target
                 ),
             ));
+        }
+        let init_key = format!("{key}.init");
+        let init = match p.init {
+            InitInput::Scalar(v) => vec![v; channels as usize],
+            InitInput::Color(c) if channels == 3 => c.to_vec(),
+            InitInput::Color(_) => {
+                return Err(self.invalid(
+                    &init_key,
+                    &format!("{} is a scalar; give one number", p.target),
+                ))
+            }
+            InitInput::Texture(t) => {
+                let Some([w, h]) = p.texture else {
+                    return Err(self.invalid(
+                        &init_key,
+                        "an image as `init` needs a texture parameter; give `texture = [w, h]`",
+                    ));
+                };
+                let k = format!("{init_key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, channels as usize, lo, hi)?;
+                tex.image.resample(channels, w, h)
+            }
+        };
+        self.finite(&init_key, &init)?;
+        if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
+            return Err(
+                self.out_of_range(&init_key, format!("{v} is outside the range [{lo}, {hi}]"))
+            );
         }
         Ok(Param {
             name: p.target,

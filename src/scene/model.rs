@@ -232,7 +232,8 @@ pub struct Param {
     pub name: String,
     pub target: ParamTarget,
     pub channels: u32,
-    /// Start value, one per channel (a scalar `init` is repeated).
+    /// Start value, one per channel (a scalar `init` is repeated), or with an image as
+    /// `init` every texel's, row by row (the image resampled to `texture`'s size).
     pub init: Vec<f32>,
     /// Inclusive bounds, `range[0] < range[1]`.
     pub range: [f32; 2],
