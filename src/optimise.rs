@@ -22,6 +22,7 @@ use crate::gpu::{Buffer, Context};
 use crate::image::{self, Image};
 use crate::optim::csv::DiagLog;
 use crate::rundir::{checkpoint_name, debug_point, Mode, RunDir, RunIdentity};
+use crate::scene::write::file_name;
 use crate::scene::Scene;
 use crate::settings::{gpu_seed, RunSettings};
 use serde::{Deserialize, Serialize};
@@ -202,10 +203,6 @@ struct CheckpointState {
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
     move |source| Error::Io { path: path.to_path_buf(), source }
-}
-
-fn file_name(name: &str) -> String {
-    name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '.' || c == '-' { c } else { '_' }).collect()
 }
 
 fn json_bytes(value: &impl Serialize) -> Result<Vec<u8>> {

@@ -55,8 +55,9 @@ fn write_err(path: &Path, message: impl std::fmt::Display) -> SceneError {
     SceneError::Write { path: path.to_path_buf(), message: message.to_string() }
 }
 
-/// A name made safe for a file name.
-fn file_name(name: &str) -> String {
+/// A name made safe for a file name: ASCII letters, digits, `-` and `.` kept, every other
+/// character `_` (a run's `params/` and checkpoint files use it too).
+pub(crate) fn file_name(name: &str) -> String {
     name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '.' { c } else { '_' }).collect()
 }
 
