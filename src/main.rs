@@ -80,8 +80,10 @@ struct OptimiseArgs {
     settings: Settings,
     #[command(flatten)]
     scene_flags: SceneFlags,
+    #[command(flatten)]
+    start: StartFlags,
     /// Continue the run in OUTDIR from its committed checkpoint (same scene and parameters).
-    #[arg(long, conflicts_with = "overwrite")]
+    #[arg(long, conflicts_with_all = ["overwrite", "init_from"])]
     resume: bool,
     /// Replace the run in OUTDIR.
     #[arg(long)]
@@ -102,6 +104,8 @@ struct CompareArgs {
     settings: Settings,
     #[command(flatten)]
     scene_flags: SceneFlags,
+    #[command(flatten)]
+    start: StartFlags,
     #[command(flatten)]
     out: TableOutput,
 }
@@ -161,6 +165,8 @@ struct GradcheckArgs {
     json: bool,
     #[command(flatten)]
     scene_flags: SceneFlags,
+    #[command(flatten)]
+    start: StartFlags,
 }
 
 #[derive(Args)]
@@ -218,6 +224,25 @@ struct BenchArgs {
 }
 
 /// Settings that change what a scene renders, over the scene file's (any format).
+/// Where the optimised parameters start.
+#[derive(Args)]
+struct StartFlags {
+    /// Start every optimised parameter from an earlier run's recovered values: its
+    /// OUTDIR (or OUTDIR/params), whose params.json must name each of this scene's
+    /// parameters; textures are resampled to this scene's size. Replaces the scene's `init`.
+    #[arg(long, value_name = "OUTDIR")]
+    init_from: Option<PathBuf>,
+}
+
+impl StartFlags {
+    fn apply(&self, scene: &mut vkinverse::scene::Scene) -> std::result::Result<(), vkinverse::scene::SceneError> {
+        match &self.init_from {
+            Some(dir) => scene.start_from_run(dir),
+            None => Ok(()),
+        }
+    }
+}
+
 #[derive(Args)]
 struct SceneFlags {
     /// Film size, e.g. `--film 640x480` (a bare glTF scene has 512 on the camera's longer
@@ -434,7 +459,8 @@ impl Observer for RunProgress {
 fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
     // Flags first: a typo on the command line is reported before the scene is read.
     check_flags(&a.settings)?;
-    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
+    let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
+    a.start.apply(&mut scene)?;
     let st = Settings::resolve(&scene.optimise.settings, &a.settings);
     let ctx = context(cli)?;
     let mut progress = RunProgress::new(cli.quiet, "optimise", st.iterations);
@@ -472,7 +498,8 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
         return Err("compare takes --optimisers (a list), not --optimiser".into());
     }
     check_flags(&a.settings)?;
-    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
+    let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
+    a.start.apply(&mut scene)?;
     let ctx = context(cli)?;
     let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
     let comparison = vkinverse::compare::compare(
@@ -573,10 +600,11 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
     if a.max_rounds == 0 {
         return Err("--max-rounds must be at least 1".into());
     }
-    let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
+    let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     if scene.optimise.params.is_empty() {
         return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
     }
+    a.start.apply(&mut scene)?;
     let ctx = context(cli)?;
     let opts = vkinverse::gradcheck::Options {
         spp: a.spp,

@@ -174,6 +174,10 @@ pub struct Summary {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meta_n_eff: Option<BTreeMap<String, f64>>,
     pub device: String,
+    /// The earlier run's `params.json` the parameters started from (`--init-from`); absent
+    /// where they started from the scene's `init`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub started_from: Option<String>,
 }
 
 /// A finished run: its summary and its log rows.
@@ -586,7 +590,9 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
         let mean = |s: &crate::render::ParamSlot| n_eff[s.offset..s.offset + s.len].iter().map(|&x| x as f64).sum::<f64>() / s.len.max(1) as f64;
         layout.slots.iter().map(|s| (s.name.clone(), mean(s))).collect()
     });
-    let initial_error = run.has_reference.then(|| layout.errors(&layout.initial()).0);
+    // Row 0 is the start, restored with the log on a resume: the error where this run
+    // began, whether from the scene's `init` or an earlier run's parameters.
+    let initial_error = run.log.rows.first().and_then(|r| r.param_error);
     let summary = Summary {
         scene: scene.path.display().to_string(),
         optimiser: settings.optimiser.optimiser.name().into(),
@@ -604,6 +610,7 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
         nonfinite_gradients: opt.nonfinite_count()?,
         meta_n_eff,
         device: ctx.info().name.clone(),
+        started_from: scene.optimise.started_from.as_ref().map(|p| p.display().to_string()),
     };
     let path = out_dir.join("summary.json");
     image::write_bytes_atomic(&path, &json_bytes(&summary)?).map_err(io_err(&path))?;

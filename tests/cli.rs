@@ -449,6 +449,71 @@ fn a_texture_parameter_starts_from_an_earlier_runs_recovered_texture() {
 }
 
 #[test]
+fn init_from_starts_every_parameter_where_an_earlier_run_ended() {
+    // A first run recovers a floor colour texture (4×4) and a light's intensity; runs given
+    // `--init-from` its directory start from both, a texture at another size resampled.
+    let scene = |name: &str, size: u32, intensity_range: &str| {
+        write_delta_lit(name, (16, 16), &format!(
+            "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.2, 0.2, 0.2]\nrange = [0, 1]\ntexture = [{size}, {size}]\n\
+             [[optimise.params]]\ntarget = \"lights.bulb.intensity\"\ninit = 1.0\nrange = {intensity_range}\n"
+        ))
+    };
+    let first_out = temp_dir("init-from-first-out");
+    vkinverse_ok(&["optimise", &s(&scene("init-from-first", 4, "[0, 10]")), "--optimiser", "adam", "--iterations", "3", "--lr", "0.1", "--quiet", "-o", &s(&first_out)]);
+    let recovered = json(&first_out.join("params/params.json"));
+    let intensity = recovered["lights.bulb.intensity"].as_f64().unwrap();
+    assert!(intensity > 1.1, "the intensity did not move towards 2: {intensity}");
+    // Row 0 of log.csv is the start; columns 4.. the overall and per-parameter errors.
+    let (header, rows) = read_log(&first_out);
+    assert!(header.ends_with("param_error,param_error.materials.floor.base_color,param_error.lights.bulb.intensity"), "{header}");
+    let (start, end) = (&rows[0], rows.last().unwrap());
+    assert!(field(end, 4) < 0.8 * field(start, 4), "the first run did not move: {} -> {}", field(start, 4), field(end, 4));
+
+    // The same scene, from the run's directory: every parameter starts where it ended.
+    let same_out = temp_dir("init-from-same-out");
+    vkinverse_ok(&["optimise", &s(&scene("init-from-same", 4, "[0, 10]")), "--optimiser", "meta", "--iterations", "1", "--init-from", &s(&first_out), "--quiet", "-o", &s(&same_out)]);
+    let (_, same) = read_log(&same_out);
+    for i in 4..7 {
+        assert!((field(&same[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i), "column {i}: started at {}, the first run ended at {}", field(&same[0], i), field(end, i));
+    }
+    let summary = json(&same_out.join("summary.json"));
+    assert!((summary["initial_param_error"].as_f64().unwrap() - field(end, 4)).abs() <= 1e-6 * field(end, 4));
+    assert_eq!(summary["started_from"].as_str(), Some(s(&first_out.join("params/params.json")).as_str()));
+    assert!(json(&first_out.join("summary.json")).get("started_from").is_none(), "a run from the scene's init names a start");
+
+    // An 8×8 texture from the 4×4 one, named by the params/ directory: nearest-texel
+    // upsampling repeats each texel four times, so the floor's error is the same (its
+    // reference is one colour).
+    let resized_out = temp_dir("init-from-resized-out");
+    vkinverse_ok(&["optimise", &s(&scene("init-from-resized", 8, "[0, 10]")), "--optimiser", "adam", "--iterations", "1", "--init-from", &s(&first_out.join("params")), "--quiet", "-o", &s(&resized_out)]);
+    let (_, resized) = read_log(&resized_out);
+    for i in [5, 6] {
+        assert!((field(&resized[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i), "column {i}: started at {}, the first run ended at {}", field(&resized[0], i), field(end, i));
+    }
+
+    // Refused, one line each: a value outside this scene's range, a parameter the run did
+    // not optimise, a file that is not one of parameter values, a missing directory, and
+    // --resume (which continues from its own checkpoint).
+    let out = temp_dir("init-from-refused-out");
+    let refused = |scene: &Path, from: &Path, needles: &[&str]| {
+        vkinverse_err(&["optimise", &s(scene), "--iterations", "1", "--init-from", &s(from), "--quiet", "-o", &s(&out)], needles);
+    };
+    refused(&scene("init-from-range", 4, "[0, 1.05]"), &first_out, &["params.json", "lights.bulb.intensity", "outside the range [0, 1.05]"]);
+    let other = write_delta_lit("init-from-other", (16, 16), "[[optimise.params]]\ntarget = \"lights.spot.intensity\"\ninit = 1.0\nrange = [0, 10]\n");
+    refused(&other, &first_out, &["lights.spot.intensity", "no value for this parameter", "materials.floor.base_color"]);
+    let bad = temp_dir("init-from-bad");
+    std::fs::write(bad.join("params.json"), "[1, 2]").unwrap();
+    refused(&other, &bad, &["params.json", "expected an object of parameter values"]);
+    std::fs::write(bad.join("params.json"), "{\"lights.spot.intensity\": \"bright\"}").unwrap();
+    refused(&other, &bad, &["lights.spot.intensity", "expected a number"]);
+    refused(&other, &bad.join("nothing"), &["nothing", "cannot read an earlier run's parameters"]);
+    vkinverse_err(&["optimise", &s(&other), "--resume", "--init-from", &s(&first_out), "-o", &s(&out)], &["--init-from", "--resume"]);
+    // compare and gradcheck take the same start.
+    vkinverse_err(&["compare", &s(&other), "--optimisers", "adam,meta", "--iterations", "1", "--init-from", &s(&first_out), "-o", &s(&out)], &["lights.spot.intensity", "no value for this parameter"]);
+    vkinverse_err(&["gradcheck", &s(&other), "--init-from", &s(&bad.join("nothing"))], &["nothing", "cannot read an earlier run's parameters"]);
+}
+
+#[test]
 fn command_line_lr_overrides_the_scene() {
     // Adam's first step moves every element by lr (|m̂/√v̂| = 1), whatever the gradient's
     // size, so one step from 0.5 lands on 0.5 ± lr, not 0.5 ± the scene's 0.02.

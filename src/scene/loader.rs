@@ -548,6 +548,7 @@ impl Loader {
         Ok(Optimise {
             settings: raw.settings,
             params,
+            started_from: None,
         })
     }
 
@@ -607,35 +608,7 @@ impl Loader {
                 ),
             ));
         }
-        let init_key = format!("{key}.init");
-        let init = match p.init {
-            InitInput::Scalar(v) => vec![v; channels as usize],
-            InitInput::Color(c) if channels == 3 => c.to_vec(),
-            InitInput::Color(_) => {
-                return Err(self.invalid(
-                    &init_key,
-                    &format!("{} is a scalar; give one number", p.target),
-                ))
-            }
-            InitInput::Texture(t) => {
-                let Some([w, h]) = p.texture else {
-                    return Err(self.invalid(
-                        &init_key,
-                        "an image as `init` needs a texture parameter; give `texture = [w, h]`",
-                    ));
-                };
-                let k = format!("{init_key}.texture");
-                let tex = self.texture(&k, &t.texture)?;
-                self.texels_in(&k, &tex, channels as usize, lo, hi)?;
-                tex.image.resample(channels, w, h)
-            }
-        };
-        self.finite(&init_key, &init)?;
-        if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
-            return Err(
-                self.out_of_range(&init_key, format!("{v} is outside the range [{lo}, {hi}]"))
-            );
-        }
+        let init = self.init_values(&format!("{key}.init"), p.init, &p.target, channels, p.texture, p.range)?;
         Ok(Param {
             name: p.target,
             target,
@@ -646,6 +619,46 @@ impl Loader {
             lr: p.lr,
             reference,
         })
+    }
+
+    /// The start values of parameter `target` (`channels` per texel, a texture of size
+    /// `texture` or a constant, in `range`) that `init` (read at `key`) gives: a number for
+    /// every channel, a colour, or an image (relative to the loader's directory) resampled
+    /// to the texture's size.
+    pub fn init_values(
+        &self,
+        key: &str,
+        init: InitInput,
+        target: &str,
+        channels: u32,
+        texture: Option<[u32; 2]>,
+        range: [f32; 2],
+    ) -> Result<Vec<f32>, SceneError> {
+        let [lo, hi] = range;
+        let init = match init {
+            InitInput::Scalar(v) => vec![v; channels as usize],
+            InitInput::Color(c) if channels == 3 => c.to_vec(),
+            InitInput::Color(_) => {
+                return Err(self.invalid(key, &format!("{target} is a scalar; give one number")))
+            }
+            InitInput::Texture(t) => {
+                let Some([w, h]) = texture else {
+                    return Err(self.invalid(
+                        key,
+                        "an image as `init` needs a texture parameter; give `texture = [w, h]`",
+                    ));
+                };
+                let k = format!("{key}.texture");
+                let tex = self.texture(&k, &t.texture)?;
+                self.texels_in(&k, &tex, channels as usize, lo, hi)?;
+                tex.image.resample(channels, w, h)
+            }
+        };
+        self.finite(key, &init)?;
+        if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
+            return Err(self.out_of_range(key, format!("{v} is outside the range [{lo}, {hi}]")));
+        }
+        Ok(init)
     }
 
     fn resolve_target(

@@ -33,6 +33,8 @@ mod ply;
 pub mod write;
 
 use std::fs;
+
+use serde::Deserialize;
 use std::path::Path;
 
 pub use error::SceneError;
@@ -94,6 +96,33 @@ impl Scene {
             }
         };
         loader.build(Default::default(), Some(imported), options)
+    }
+
+    /// Starts every optimised parameter from the values an earlier run recovered (its
+    /// `params/`): `dir` is that run's directory or its `params/`, whose `params.json` gives
+    /// each parameter's value as `init` would (a number, a colour, or `{ "texture":
+    /// "NAME.exr" }` beside it, resampled to this scene's texture size), checked against this
+    /// scene's range. Every parameter of this scene must be there; others are ignored.
+    pub fn start_from_run(&mut self, dir: &Path) -> Result<(), SceneError> {
+        let pdir = if dir.join("params.json").is_file() { dir.to_path_buf() } else { dir.join("params") };
+        let path = pdir.join("params.json");
+        let import_err = |message: String| SceneError::Import { path: path.clone(), location: String::new(), message };
+        let text = fs::read_to_string(&path)
+            .map_err(|e| import_err(format!("cannot read an earlier run's parameters: {e}")))?;
+        let values: std::collections::BTreeMap<String, serde_json::Value> = serde_json::from_str(&text)
+            .map_err(|e| import_err(format!("expected an object of parameter values ({e})")))?;
+        let loader = loader::Loader { scene: path.clone(), dir: pdir };
+        for p in &mut self.optimise.params {
+            let Some(v) = values.get(&p.name) else {
+                let names: Vec<&str> = values.keys().map(String::as_str).collect();
+                return Err(loader.invalid(&p.name, &format!("no value for this parameter (the file has {})", if names.is_empty() { "none".into() } else { names.join(", ") })));
+            };
+            let init = file::InitInput::deserialize(v)
+                .map_err(|e| loader.invalid(&p.name, &e.to_string()))?;
+            p.init = loader.init_values(&p.name, init, &p.name, p.channels, p.texture, p.range)?;
+        }
+        self.optimise.started_from = Some(path);
+        Ok(())
     }
 }
 

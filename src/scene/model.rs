@@ -251,6 +251,9 @@ pub struct Param {
 pub struct Optimise {
     pub settings: crate::settings::Settings,
     pub params: Vec<Param>,
+    /// The earlier run's `params.json` the parameters start from instead of their `init`
+    /// ([`Scene::start_from_run`]), if any.
+    pub started_from: Option<std::path::PathBuf>,
 }
 
 /// Where a scene came from, for writing it back: the TOML alone, or the glTF or Mitsuba
