@@ -223,7 +223,6 @@ struct BenchArgs {
     scene_flags: SceneFlags,
 }
 
-/// Settings that change what a scene renders, over the scene file's (any format).
 /// Where the optimised parameters start.
 #[derive(Args)]
 struct StartFlags {
@@ -243,6 +242,7 @@ impl StartFlags {
     }
 }
 
+/// Settings that change what a scene renders, over the scene file's (any format).
 #[derive(Args)]
 struct SceneFlags {
     /// Film size, e.g. `--film 640x480` (a bare glTF scene has 512 on the camera's longer

@@ -33,9 +33,9 @@ mod ply;
 pub mod write;
 
 use std::fs;
+use std::path::Path;
 
 use serde::Deserialize;
-use std::path::Path;
 
 pub use error::SceneError;
 pub use crate::settings::Loss;
