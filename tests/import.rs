@@ -217,7 +217,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
 #[test]
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
-        ("plastic", &["<bsdf type=\"plastic\">", "line 21"][..]),
+        ("dielectric", &["<bsdf type=\"dielectric\">", "line 21", "plastic and roughplastic"][..]),
         ("disk", &["<shape type=\"disk\" id=\"floor\">", "only obj, ply"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
         ("volpath", &["<integrator type=\"volpath\">", "line 3"]),
@@ -432,4 +432,96 @@ fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
     }
     // A corner sees the sky past the card.
     assert_eq!(a.get(0, 0), [1.0; 3]);
+}
+
+/// Mitsuba's plastic and roughplastic become principled dielectrics whose diffuse lobe
+/// carries the coating's: reflectance ρ becomes ρ / ((1 − R_int) η²) · (t̄ / f̄)², R_int the
+/// coating's internal diffuse reflectance, t̄ its cosine-weighted mean transmittance and f̄
+/// the principled model's, (1 − 0.04) · 20/21 for Schlick's factor. For the smooth plastic
+/// R_int and t̄ = 1 − F_dr,ext are checked against the fits Mitsuba computes them with
+/// (d'Eon and Irving's and Egan and Hilgeman's polynomials), a method independent of the
+/// importer's integrals (the rough ones are checked against a direct integral of the BSDF
+/// in the importer's own tests). A smooth conductor is a roughconductor of roughness 0.
+#[test]
+fn mitsuba_plastics_and_smooth_conductors_become_principled() {
+    let dir = temp_dir("mitsuba-plastic");
+    let xml = |bsdfs: &str| {
+        let shapes: String = ["p1", "p2", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
+        format!(
+            r#"<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+{bsdfs}
+    {shapes}
+</scene>"#
+        )
+    };
+    let plastics = r#"    <bsdf type="plastic" id="p1"><string name="int_ior" value="bk7"/><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
+    <bsdf type="roughplastic" id="p2"><float name="alpha" value="0.25"/><string name="distribution" value="ggx"/><float name="int_ior" value="1.333"/><boolean name="nonlinear" value="true"/><rgb name="diffuse_reflectance" value="0.5, 0.8, 1.0"/></bsdf>
+    <bsdf type="conductor" id="gold"><string name="material" value="Au"/></bsdf>"#;
+    std::fs::write(dir.join("plastic.xml"), xml(plastics)).unwrap();
+    let s = Scene::load(dir.join("plastic.xml")).unwrap();
+    let material = |id: &str| s.materials.iter().find(|m| m.name == id).unwrap_or_else(|| panic!("no material {id}"));
+    let constants = |id: &str| {
+        let m = material(id);
+        assert_eq!(m.kind, vkinverse::scene::MaterialKind::Principled, "{id}");
+        let ColorValue::Constant(base) = m.base_color else { panic!("{id}: a constant base colour") };
+        (base.map(f64::from), m.roughness.clone(), m.metallic.clone())
+    };
+
+    // The smooth plastic, against Mitsuba's fits of the diffuse Fresnel reflectance.
+    let eta = 1.5046 / 1.000277;
+    let fdr_below_1 = |e: f64| 0.0636 / e + e * (e * -1.4399 + 0.7099) + 0.6681;
+    let fdr_above_1 = |e: f64| [0.919317, -3.4793, 6.75335, -7.80989, 4.98554, -1.36881].iter().rev().fold(0.0, |acc, c| acc / e + c);
+    let f_mean = 0.96 * 20.0 / 21.0;
+    let carry = ((1.0 - fdr_above_1(eta)) / f_mean).powi(2);
+    let (base, roughness, metallic) = constants("p1");
+    for (c, r) in [0.2, 0.4, 0.6].into_iter().enumerate() {
+        let expected = r / ((1.0 - fdr_below_1(1.0 / eta)) * eta * eta) * carry;
+        assert!((base[c] / expected - 1.0).abs() < 3e-3, "p1 channel {c}: {} against {expected}", base[c]);
+    }
+    assert!(matches!((roughness, metallic), (ScalarValue::Constant(0.0), ScalarValue::Constant(0.0))));
+    // About 1.08 brighter: the coating's internal reflections return more than its
+    // transmittance takes.
+    assert!((base[1] / 0.4 - 1.085).abs() < 0.005, "{base:?}");
+
+    // The rough, nonlinear one: ρ / b(ρ) = (1 − ρ R_int) / C is linear in ρ, with an
+    // internal reflectance below the smooth coating's (the rough interface lets out more
+    // of what total internal reflection would keep).
+    let (base, roughness, metallic) = constants("p2");
+    assert!(matches!((roughness, metallic), (ScalarValue::Constant(r), ScalarValue::Constant(0.0)) if (f64::from(r) - 0.5).abs() < 1e-6));
+    let y: Vec<f64> = [0.5, 0.8, 1.0].iter().zip(base).map(|(r, b)| r / b).collect();
+    let slope = (y[2] - y[0]) / 0.5;
+    assert!((y[1] - (y[0] + 0.3 * slope)).abs() < 1e-5, "ρ / b(ρ) is not linear: {y:?}");
+    let c = 1.0 / (y[0] - 0.5 * slope);
+    let r_int = -slope * c;
+    let eta = 1.333 / 1.000277;
+    assert!(r_int > 0.2 && r_int < fdr_below_1(1.0 / eta), "R_int {r_int}, the smooth coating's {}", fdr_below_1(1.0 / eta));
+    assert!((c * eta * eta - 1.0).abs() < 0.3, "{c}");
+    let gold = material("gold");
+    assert!(matches!((&gold.base_color, gold.roughness.clone(), gold.metallic.clone()), (ColorValue::Constant([1.0, g, b]), ScalarValue::Constant(0.0), ScalarValue::Constant(1.0)) if (*g - 0.766).abs() < 1e-6 && (*b - 0.336).abs() < 1e-6), "{:?}", gold);
+    // One line each: the two plastics' approximations and the conductor's Fresnel term.
+    assert_eq!(s.warnings.len(), 3, "{:?}", s.warnings);
+    assert!(s.warnings.iter().all(|w| !w.contains('\n')));
+    assert!(s.warnings[0].contains("<bsdf type=\"plastic\" id=\"p1\">") && s.warnings[0].contains("F0 = 0.04 (the IOR's is 0.0405") && s.warnings[0].contains("scaled by 1.08"), "{}", s.warnings[0]);
+    assert!(s.warnings[1].contains("roughplastic") && s.warnings[1].contains("/ ((1 - reflectance 0.3") && s.warnings[1].contains("angular profile"), "{}", s.warnings[1]);
+    assert!(s.warnings[2].contains("conductor") && s.warnings[2].contains("Schlick"), "{}", s.warnings[2]);
+
+    // What the mapping cannot render is refused, naming the element.
+    for (bsdf, needles) in [
+        (r#"<bsdf type="plastic" id="p1"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#, &["<bsdf type=\"plastic\" id=\"p1\">", "specular_reflectance 1"][..]),
+        (r#"<bsdf type="plastic" id="p1"><string name="int_ior" value="unobtainium"/></bsdf>"#, &["int_ior \"unobtainium\" is not one of", "bk7"]),
+        (r#"<bsdf type="plastic" id="p1"><float name="int_ior" value="1.000277"/></bsdf>"#, &["int_ior and ext_ior are equal"]),
+        (r#"<bsdf type="roughplastic" id="p1"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "not supported"]),
+    ] {
+        let rest = r#"<bsdf type="diffuse" id="p2"/><bsdf type="diffuse" id="gold"/>"#;
+        std::fs::write(dir.join("bad.xml"), xml(&format!("    {bsdf}{rest}"))).unwrap();
+        let msg = Scene::load(dir.join("bad.xml")).map(|_| ()).expect_err(bsdf).to_string();
+        assert!(!msg.contains('\n'), "{msg}");
+        for n in needles {
+            assert!(msg.contains(n), "{bsdf}: {msg:?} lacks {n:?}");
+        }
+    }
 }

@@ -5,7 +5,8 @@
 //! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
 //! size; `<shape type="obj|ply|rectangle|cube|sphere">` with `to_world`, `face_normals`,
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
-//! type="area">`; `<bsdf type="diffuse|twosided|principled|roughconductor">`; `<emitter
+//! type="area">`; `<bsdf
+//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
 //! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
 //! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
@@ -16,7 +17,10 @@
 //! camera. Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
-//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX), spot
+//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX; a smooth
+//! `conductor` takes the smallest roughness), `plastic` and `roughplastic` (a principled
+//! dielectric whose base colour carries the coating's effect on the diffuse lobe: see
+//! `coating`), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
 //! (tessellated into 96 × 48 quads with exact normals), `envmap` (resampled from
 //! Mitsuba's corner-aligned rows to the renderer's centred rows), reconstruction filters
@@ -50,6 +54,131 @@ const CONDUCTORS: [(&str, [f32; 3]); 6] = [
     ("Cr", [0.549, 0.556, 0.554]),
     ("Cu", [0.955, 0.638, 0.538]),
 ];
+
+/// The indices of refraction Mitsuba names (its `ior.h`).
+const IORS: [(&str, f32); 23] = [
+    ("vacuum", 1.0),
+    ("helium", 1.000036),
+    ("hydrogen", 1.000132),
+    ("air", 1.000277),
+    ("carbon dioxide", 1.00045),
+    ("water", 1.3330),
+    ("acetone", 1.36),
+    ("ethanol", 1.361),
+    ("carbon tetrachloride", 1.461),
+    ("glycerol", 1.4729),
+    ("benzene", 1.501),
+    ("silicone oil", 1.52045),
+    ("bromine", 1.661),
+    ("water ice", 1.31),
+    ("fused quartz", 1.458),
+    ("pyrex", 1.470),
+    ("acrylic glass", 1.49),
+    ("polypropylene", 1.49),
+    ("bk7", 1.5046),
+    ("sodium chloride", 1.544),
+    ("amber", 1.55),
+    ("pet", 1.5750),
+    ("diamond", 2.419),
+];
+
+/// The unpolarised Fresnel reflectance of light arriving at cosine `cos_i` on an interface
+/// into a medium of relative index `eta` (total internal reflection gives 1).
+fn fresnel_dielectric(cos_i: f64, eta: f64) -> f64 {
+    let sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta);
+    if sin_t2 >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin_t2).sqrt();
+    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// A GGX microfacet normal of roughness `alpha` visible from `wi` (z up, `wi.z` > 0), for
+/// the point `u` of the unit square (Heitz 2018, "Sampling the GGX distribution of visible
+/// normals"); `alpha` 0 gives the macro normal.
+fn ggx_visible_normal(wi: [f64; 3], alpha: f64, u: [f64; 2]) -> [f64; 3] {
+    let norm = |v: [f64; 3]| {
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|c| c / l)
+    };
+    let vh = norm([alpha * wi[0], alpha * wi[1], wi[2]]);
+    let len2 = vh[0] * vh[0] + vh[1] * vh[1];
+    let t1 = if len2 > 0.0 { [-vh[1] / len2.sqrt(), vh[0] / len2.sqrt(), 0.0] } else { [1.0, 0.0, 0.0] };
+    let t2 = [vh[1] * t1[2] - vh[2] * t1[1], vh[2] * t1[0] - vh[0] * t1[2], vh[0] * t1[1] - vh[1] * t1[0]];
+    let (r, phi) = (u[0].sqrt(), 2.0 * std::f64::consts::PI * u[1]);
+    let p1 = r * phi.cos();
+    let s = 0.5 * (1.0 + vh[2]);
+    let p2 = (1.0 - s) * (1.0 - p1 * p1).sqrt() + s * r * phi.sin();
+    let p3 = (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
+    let nh: [f64; 3] = std::array::from_fn(|k| p1 * t1[k] + p2 * t2[k] + p3 * vh[k]);
+    norm([alpha * nh[0], alpha * nh[1], nh[2].max(0.0)])
+}
+
+/// Smith's masking of direction `w` by GGX microfacets of roughness `alpha` around normal
+/// `m` (0 where `w` sees the facet's back).
+fn ggx_masking(w: [f64; 3], m: [f64; 3], alpha: f64) -> f64 {
+    let dot = w[0] * m[0] + w[1] * m[1] + w[2] * m[2];
+    if dot * w[2] <= 0.0 {
+        return 0.0;
+    }
+    let tan2 = alpha * alpha * (w[0] * w[0] + w[1] * w[1]) / (w[2] * w[2]);
+    2.0 / (1.0 + (1.0 + tan2).sqrt())
+}
+
+/// The directional reflectance and transmittance of a rough dielectric interface (GGX of
+/// roughness `alpha`, relative index `eta`) for light arriving at cosine `mu` from the side
+/// its normal points to: the energy reflected and refracted once, the mean over visible
+/// normals m of F(wi·m) and 1 − F(wi·m), each times the masking of the direction it
+/// leaves in (midpoint rule on a `k` × `k` grid). Smooth (`alpha` 0): F(mu) and 1 − F(mu).
+fn rough_dielectric(mu: f64, alpha: f64, eta: f64, k: usize) -> (f64, f64) {
+    let wi = [(1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu];
+    let (mut r, mut t) = (0.0, 0.0);
+    for a in 0..k {
+        for b in 0..k {
+            let m = ggx_visible_normal(wi, alpha, [(a as f64 + 0.5) / k as f64, (b as f64 + 0.5) / k as f64]);
+            let cos_i = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+            let f = fresnel_dielectric(cos_i, eta);
+            let wr: [f64; 3] = std::array::from_fn(|c| 2.0 * cos_i * m[c] - wi[c]);
+            if wr[2] > 0.0 {
+                r += f * ggx_masking(wr, m, alpha);
+            }
+            let sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta);
+            if f < 1.0 && sin_t2 < 1.0 {
+                let cos_t = (1.0 - sin_t2).sqrt();
+                let wt: [f64; 3] = std::array::from_fn(|c| (cos_i / eta - cos_t) * m[c] - wi[c] / eta);
+                if wt[2] < 0.0 {
+                    t += (1.0 - f) * ggx_masking(wt, m, alpha);
+                }
+            }
+        }
+    }
+    let n = (k * k) as f64;
+    (r / n, t / n)
+}
+
+/// What a coating of relative index `eta` and roughness `alpha` does to the diffuse
+/// reflection of the layer beneath, as Mitsuba's plastic and roughplastic model it:
+/// reflectance ρ becomes ρ / (1 − R_int) · t(θi) t(θo) / η², with t the coating's
+/// directional transmittance and R_int its internal diffuse reflectance, 2∫ R(μ, 1/η) μ dμ.
+/// Returns R_int and the factor that carries t(θi) t(θo) over to the principled model's
+/// diffuse Fresnel factors (1 − F_d(θi)) (1 − F_d(θo)), F_d Schlick's with 0.04: the square
+/// of the ratio of their cosine-weighted means, so that the lobe's albedo, averaged over
+/// directions, is the same.
+fn coating(eta: f64, alpha: f64) -> (f64, f64) {
+    const MU: usize = 256;
+    let k = if alpha > 0.0 { 24 } else { 1 };
+    let (mut r_int, mut t_mean, mut f_mean) = (0.0, 0.0, 0.0);
+    for i in 0..MU {
+        let mu = (i as f64 + 0.5) / MU as f64;
+        let w = 2.0 * mu / MU as f64;
+        r_int += w * rough_dielectric(mu, alpha, 1.0 / eta, k).0;
+        t_mean += w * rough_dielectric(mu, alpha, eta, k).1;
+        f_mean += w * (1.0 - (0.04 + 0.96 * (1.0 - mu).powi(5)));
+    }
+    (r_int, (t_mean / f_mean).powi(2))
+}
 
 type Items<'a, 'i> = Vec<Node<'a, 'i>>;
 
@@ -577,15 +706,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                 }
                 Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided }
             }
-            "roughconductor" => {
-                let alpha = self.take_float(&mut items, "alpha", 0.1)?;
-                if !(0.0..=1.0).contains(&alpha) {
-                    return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
-                }
-                let distribution = self.take(&mut items, "distribution").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "beckmann".into());
-                if distribution != "ggx" {
-                    self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
-                }
+            "roughconductor" | "conductor" => {
+                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
                 let f0 = match (self.take(&mut items, "material"), self.take(&mut items, "eta"), self.take(&mut items, "k")) {
                     (m, None, None) => {
                         let name = m.map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "none".into());
@@ -611,11 +733,99 @@ impl<'a, 'i> Importer<'a, 'i> {
                     one_sided,
                 }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, principled and roughconductor BSDFs are supported")),
+            "plastic" | "roughplastic" => {
+                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughplastic")?;
+                let int_ior = self.ior(&mut items, "int_ior", "polypropylene")?;
+                let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
+                if int_ior == ext_ior {
+                    return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
+                }
+                let eta = f64::from(int_ior) / f64::from(ext_ior);
+                let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
+                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
+                if tint != [1.0; 3] {
+                    return Err(self.err(node, "only specular_reflectance 1 is supported"));
+                }
+                let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
+                if kind == "roughplastic" {
+                    // Sampling only: the same material either way.
+                    self.take_bool(&mut items, "sample_visible", true)?;
+                }
+                // The coated diffuse lobe (see `coating`; ρ·R_int in the denominator with
+                // `nonlinear`) as the principled model's, whose base colour takes the factors.
+                let (r_int, carry) = coating(eta, f64::from(alpha));
+                let base = |r: f32| {
+                    let r = f64::from(r);
+                    let kept = 1.0 - (if nonlinear { r } else { 1.0 }) * r_int;
+                    (r / (kept * eta * eta) * carry) as f32
+                };
+                let base_color = match diffuse {
+                    ColorValue::Constant(c) => ColorValue::Constant(c.map(base)),
+                    ColorValue::Texture(mut t) => {
+                        t.image.data.iter_mut().for_each(|px| *px = px.map(base));
+                        ColorValue::Texture(t)
+                    }
+                };
+                let f0 = ((eta - 1.0) / (eta + 1.0)).powi(2);
+                let scale = if nonlinear { format!("{carry:.4} / ((1 - reflectance {r_int:.4}) eta^2)") } else { format!("{:.4}", base(1.0)) };
+                self.warn(node, format!(
+                    "approximate: rendered as a principled dielectric: Fresnel terms Schlick's with F0 = 0.04 (the IOR's is {f0:.4}, eta = {eta:.4}), the diffuse reflectance scaled by {scale} for the coating's reflections (internal {r_int:.4}), its transmittance's angular profile as the principled model's"
+                ));
+                Material {
+                    name: name.into(),
+                    kind: MaterialKind::Principled,
+                    base_color,
+                    roughness: ScalarValue::Constant(alpha.sqrt()),
+                    metallic: ScalarValue::Constant(0.0),
+                    one_sided,
+                }
+            }
+            _ => return Err(self.err(node, "only diffuse, twosided, principled, conductor, roughconductor, plastic and roughplastic BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
         Ok(self.out.materials.len() - 1)
+    }
+
+    /// The GGX alpha of a rough BSDF's `alpha` (`rough`; Mitsuba's default 0.1, its default
+    /// Beckmann distribution rendered as GGX with a warning) or 0 for a smooth one (rendered
+    /// as the model's smallest roughness).
+    fn microfacet_alpha(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, rough: bool) -> Result<f32, SceneError> {
+        if !rough {
+            return Ok(0.0);
+        }
+        let alpha = self.take_float(items, "alpha", 0.1)?;
+        if !(0.0..=1.0).contains(&alpha) {
+            return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
+        }
+        let distribution = self.take(items, "distribution").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "beckmann".into());
+        if distribution != "ggx" {
+            self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
+        }
+        Ok(alpha)
+    }
+
+    /// An index of refraction: a number, or one of the materials Mitsuba names (`default`
+    /// when absent).
+    fn ior(&self, items: &mut Items<'a, 'i>, name: &str, default: &str) -> Result<f32, SceneError> {
+        let named = |node: Option<Node>, key: &str| {
+            IORS.iter().find(|(k, _)| *k == key).map(|(_, v)| *v).ok_or_else(|| {
+                let known: Vec<&str> = IORS.iter().map(|(k, _)| *k).collect();
+                self.err(node.unwrap_or(self.doc.root_element()), format!("{name} \"{key}\" is not one of {}", known.join(", ")))
+            })
+        };
+        match self.take(items, name) {
+            None => named(None, default),
+            Some(n) if n.tag_name().name() == "string" => named(Some(n), &self.string(n)?),
+            Some(n) => {
+                let v = self.float(n)?;
+                if v > 0.0 {
+                    Ok(v)
+                } else {
+                    Err(self.err(n, format!("{name} {v} is not positive")))
+                }
+            }
+        }
     }
 
     /// The default material of a shape without a BSDF: Mitsuba's (one-sided) diffuse 0.5.
@@ -909,4 +1119,80 @@ fn sphere(center: Vec3, radius: f32) -> Geometry {
         }
     }
     g
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    }
+
+    fn normalize(v: [f64; 3]) -> [f64; 3] {
+        let l = dot(v, v).sqrt();
+        v.map(|c| c / l)
+    }
+
+    fn ggx_d(m: [f64; 3], alpha: f64) -> f64 {
+        let a2 = alpha * alpha;
+        a2 / (PI * (m[2] * m[2] * (a2 - 1.0) + 1.0).powi(2))
+    }
+
+    /// The rough interface's reflectance and transmittance by integrating its BRDF and BTDF
+    /// (Walter et al. 2007, separable Smith masking) over a grid of outgoing directions: the
+    /// half-vector Jacobians instead of `rough_dielectric`'s visible-normal quadrature.
+    fn brute_force(mu: f64, alpha: f64, eta: f64) -> (f64, f64) {
+        let wi = [(1.0 - mu * mu).sqrt(), 0.0, mu];
+        let n = 1200;
+        let (mut r, mut t) = (0.0, 0.0);
+        for a in 0..n {
+            let theta = (a as f64 + 0.5) / n as f64 * PI;
+            for b in 0..n {
+                let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
+                let wo = [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()];
+                let dw = theta.sin() * (PI / n as f64) * (2.0 * PI / n as f64);
+                if wo[2] > 0.0 {
+                    let m = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]);
+                    let g = ggx_masking(wi, m, alpha) * ggx_masking(wo, m, alpha);
+                    r += fresnel_dielectric(dot(wi, m), eta) * ggx_d(m, alpha) * g / (4.0 * mu) * dw;
+                } else {
+                    let mut m = normalize([wi[0] + eta * wo[0], wi[1] + eta * wo[1], wi[2] + eta * wo[2]]);
+                    if m[2] < 0.0 {
+                        m = m.map(|c| -c);
+                    }
+                    let (ci, co) = (dot(wi, m), dot(wo, m));
+                    if ci <= 0.0 || co >= 0.0 {
+                        continue;
+                    }
+                    let g = ggx_masking(wi, m, alpha) * ggx_masking(wo, m, alpha);
+                    let jacobian = eta * eta * co.abs() / (ci + eta * co).powi(2);
+                    t += (1.0 - fresnel_dielectric(ci, eta)) * ci * ggx_d(m, alpha) * g / mu * jacobian * dw;
+                }
+            }
+        }
+        (r, t)
+    }
+
+    #[test]
+    fn a_smooth_interface_reflects_and_transmits_as_fresnel_says() {
+        for (mu, eta) in [(1.0, 1.5), (0.3, 1.5), (0.05, 1.33), (0.9, 1.0 / 1.5), (0.5, 1.0 / 1.5)] {
+            let (r, t) = rough_dielectric(mu, 0.0, eta, 1);
+            let f = fresnel_dielectric(mu, eta);
+            assert!((r - f).abs() < 1e-12 && (t - (1.0 - f)).abs() < 1e-12, "mu {mu} eta {eta}: {r} {t} against {f}");
+        }
+        // Inside, beyond the critical angle: everything comes back.
+        assert_eq!(rough_dielectric(0.5, 0.0, 1.0 / 1.5, 1), (1.0, 0.0));
+    }
+
+    #[test]
+    fn rough_interface_albedos_match_a_direct_integral_of_the_bsdf() {
+        for (mu, alpha, eta) in [(0.7, 0.3, 1.5), (0.95, 0.5, 1.5), (0.9, 0.3, 1.0 / 1.5), (0.4, 0.5, 1.0 / 1.33)] {
+            let (r, t) = rough_dielectric(mu, alpha, eta, 64);
+            let (rb, tb) = brute_force(mu, alpha, eta);
+            assert!(r + t <= 1.0 + 1e-9, "mu {mu} alpha {alpha} eta {eta}: R + T = {}", r + t);
+            assert!((r - rb).abs() < 0.01 * rb.max(0.02) && (t - tb).abs() < 0.01 * tb.max(0.02), "mu {mu} alpha {alpha} eta {eta}: R {r} against {rb}, T {t} against {tb}");
+        }
+    }
 }

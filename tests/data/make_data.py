@@ -279,7 +279,7 @@ def errors():
 
     base = (HERE / "box" / "box.xml").read_text()
     xml = {
-        "plastic": base.replace('<bsdf type="principled">', '<bsdf type="plastic">', 1),
+        "dielectric": base.replace('<bsdf type="principled">', '<bsdf type="dielectric">', 1),
         "disk": base.replace('<shape type="obj" id="floor">', '<shape type="disk" id="floor">', 1),
         "unknown-parameter": base.replace('<float name="fov"', '<float name="focus_distance" value="2"/>\n        <float name="fov"', 1),
         "volpath": base.replace('<integrator type="path">', '<integrator type="volpath">', 1),
