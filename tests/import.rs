@@ -218,7 +218,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
         ("dielectric", &["<bsdf type=\"dielectric\">", "line 21", "plastic and roughplastic"][..]),
-        ("disk", &["<shape type=\"disk\" id=\"floor\">", "only obj, ply"]),
+        ("serialized", &["<shape type=\"serialized\" id=\"floor\">", "only obj, ply", "disk and cylinder"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
         ("volpath", &["<integrator type=\"volpath\">", "line 3"]),
         ("medium", &["<medium type=\"homogeneous\" id=\"fog\">", "not supported in <scene>"]),
@@ -248,6 +248,8 @@ fn mitsuba_shapes_are_placed_and_face_outwards() {
     <shape type="cube" id="box"><transform name="to_world"><scale value="0.5"/><translate x="2"/></transform></shape>
     <shape type="sphere" id="ball"><point name="center" x="-2" y="0" z="0"/><float name="radius" value="0.7"/></shape>
     <shape type="cube" id="room"><boolean name="flip_normals" value="true"/><transform name="to_world"><scale value="5"/></transform></shape>
+    <shape type="disk" id="coin"><transform name="to_world"><scale value="0.5"/><rotate x="1" angle="-90"/><translate y="-0.5" z="2"/></transform></shape>
+    <shape type="cylinder" id="pipe"><point name="p0" x="0" y="-1" z="-2"/><point name="p1" x="0" y="1" z="-2"/><float name="radius" value="0.3"/></shape>
 </scene>"#;
     std::fs::write(dir.join("shapes.xml"), xml).unwrap();
     let s = Scene::load(dir.join("shapes.xml")).unwrap();
@@ -275,8 +277,32 @@ fn mitsuba_shapes_are_placed_and_face_outwards() {
     }
     let ball = &s.meshes[2];
     assert!(ball.positions.iter().all(|p| ((glam::Vec3::from(*p) - glam::Vec3::new(-2.0, 0.0, 0.0)).length() - 0.7).abs() < 1e-5));
-    assert_eq!(s.warnings.len(), 1, "the sphere's tessellation: {:?}", s.warnings);
-    assert!(s.warnings[0].contains("tessellated"));
+    // The disk: radius 0.5 in the plane y = -0.5 around (0, -0.5, 2), facing up, with
+    // Mitsuba's polar texture coordinates (u the distance from the centre over the radius).
+    let coin = &s.meshes[4];
+    assert_eq!(coin.indices.len(), 96);
+    for t in 0..coin.indices.len() {
+        let (n, _) = face_normal(coin, t);
+        assert!(n.abs_diff_eq(glam::Vec3::Y, 1e-5), "coin triangle {t} faces {n}");
+    }
+    for (p, uv) in coin.positions.iter().zip(&coin.uvs) {
+        let r = glam::Vec2::new(p[0], p[2] - 2.0).length();
+        assert!((p[1] + 0.5).abs() < 1e-6 && r <= 0.5 + 1e-6 && (uv[0] - r / 0.5).abs() < 1e-5, "{p:?} {uv:?}");
+    }
+    // The cylinder: an open tube of radius 0.3 around x = 0, z = -2 from y = -1 to 1, its
+    // triangles and normals facing out, v along the axis.
+    let pipe = &s.meshes[5];
+    for (p, (n, uv)) in pipe.positions.iter().zip(pipe.normals.iter().zip(&pipe.uvs)) {
+        let radial = glam::Vec3::new(p[0], 0.0, p[2] + 2.0);
+        assert!((radial.length() - 0.3).abs() < 1e-5 && glam::Vec3::from(*n).abs_diff_eq(radial / 0.3, 1e-5), "{p:?} {n:?}");
+        assert!((uv[1] - (p[1] + 1.0) / 2.0).abs() < 1e-5, "{p:?} {uv:?}");
+    }
+    for t in 0..pipe.indices.len() {
+        let (n, centroid) = face_normal(pipe, t);
+        assert!(n.dot(glam::Vec3::new(centroid.x, 0.0, centroid.z + 2.0)) > 0.0, "pipe triangle {t} faces in");
+    }
+    assert_eq!(s.warnings.len(), 3, "the sphere's, the disk's and the cylinder's tessellation: {:?}", s.warnings);
+    assert!(s.warnings.iter().all(|w| w.contains("tessellated")));
 }
 
 /// The recovered scene written back: the glTF loads again and renders as the scene did

@@ -3,7 +3,7 @@
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb">` `max_depth` (−1, unlimited, becomes 64) and `rr_depth`; `<sensor
 //! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
-//! size; `<shape type="obj|ply|rectangle|cube|sphere">` with `to_world`, `face_normals`,
+//! size; `<shape type="obj|ply|rectangle|cube|sphere|disk|cylinder">` with `to_world`, `face_normals`,
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">`; `<bsdf
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">`; `<emitter
@@ -22,7 +22,8 @@
 //! dielectric whose base colour carries the coating's effect on the diffuse lobe: see
 //! `coating`), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
-//! (tessellated into 96 × 48 quads with exact normals), `envmap` (resampled from
+//! (tessellated into 96 × 48 quads with exact normals), disks and cylinders (96 triangles
+//! and 96 quads), `envmap` (resampled from
 //! Mitsuba's corner-aligned rows to the renderer's centred rows), reconstruction filters
 //! other than `box`. Every other element, plugin type or parameter is an error naming its
 //! line.
@@ -903,7 +904,26 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let (p, n, t, i) = sphere(center, radius);
                 (p, n, t, i, self.path.to_path_buf())
             }
-            _ => return Err(self.err(node, "only obj, ply, rectangle, cube and sphere shapes are supported")),
+            "disk" => {
+                self.warn(node, format!("approximate: tessellated into {SPHERE_SEGMENTS} triangles"));
+                let (p, n, t, i) = disk();
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            "cylinder" => {
+                let p0 = self.take(&mut items, "p0").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                let p1 = self.take(&mut items, "p1").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::Z);
+                let radius = self.take_float(&mut items, "radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(self.err(node, "the radius is not positive"));
+                }
+                if p0 == p1 {
+                    return Err(self.err(node, "p0 and p1 are the same point"));
+                }
+                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS));
+                let (p, n, t, i) = cylinder(p0, p1, radius);
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            _ => return Err(self.err(node, "only obj, ply, rectangle, cube, sphere, disk and cylinder shapes are supported")),
         };
         let material = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
             (Some(b), None) => self.bsdf(b, &name)?,
@@ -1087,6 +1107,53 @@ fn cube() -> Geometry {
             g.3.push([base, base + 1, base + 2]);
             g.3.push([base + 2, base + 3, base]);
         }
+    }
+    g
+}
+
+/// Mitsuba's disk, the unit disk in the xy-plane facing +z, as `SPHERE_SEGMENTS` triangles
+/// around its centre, with Mitsuba's polar texture coordinates (u the radius, v the angle
+/// over 2π: the centre is repeated per triangle at its middle angle).
+fn disk() -> Geometry {
+    let n = SPHERE_SEGMENTS;
+    let mut g: Geometry = Default::default();
+    for i in 0..n {
+        let base = g.0.len() as u32;
+        let v = |k: f32| k / n as f32;
+        let rim = |k: f32| {
+            let phi = std::f32::consts::TAU * v(k);
+            [phi.cos(), phi.sin(), 0.0]
+        };
+        let (a, b) = (i as f32, i as f32 + 1.0);
+        g.0.extend([[0.0, 0.0, 0.0], rim(a), rim(b)]);
+        g.1.extend([[0.0, 0.0, 1.0]; 3]);
+        g.2.extend([[0.0, v(a + 0.5)], [1.0, v(a)], [1.0, v(b)]]);
+        g.3.push([base, base + 1, base + 2]);
+    }
+    g
+}
+
+/// Mitsuba's cylinder: the open tube of `radius` around the segment from `p0` to `p1`, as
+/// `SPHERE_SEGMENTS` quads around it, counter-clockwise from outside, with the exact normals
+/// and Mitsuba's texture coordinates (u the angle over 2π, v along the axis).
+fn cylinder(p0: Vec3, p1: Vec3, radius: f32) -> Geometry {
+    let n = SPHERE_SEGMENTS;
+    let axis = p1 - p0;
+    let (t1, t2) = axis.normalize().any_orthonormal_pair();
+    let mut g: Geometry = Default::default();
+    for j in 0..2u32 {
+        for i in 0..=n {
+            let phi = std::f32::consts::TAU * i as f32 / n as f32;
+            let normal = phi.cos() * t1 + phi.sin() * t2;
+            g.0.push((p0 + j as f32 * axis + radius * normal).to_array());
+            g.1.push(normal.to_array());
+            g.2.push([i as f32 / n as f32, j as f32]);
+        }
+    }
+    for i in 0..n {
+        let (a, b, c, d) = (i, i + 1, n + 2 + i, n + 1 + i);
+        g.3.push([a, b, c]);
+        g.3.push([c, d, a]);
     }
     g
 }
