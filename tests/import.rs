@@ -218,7 +218,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
         ("dielectric", &["<bsdf type=\"dielectric\">", "line 21", "plastic and roughplastic"][..]),
-        ("serialized", &["<shape type=\"serialized\" id=\"floor\">", "only obj, ply", "disk and cylinder"]),
+        ("bsplinecurve", &["<shape type=\"bsplinecurve\" id=\"floor\">", "only obj, ply, serialized", "disk and cylinder"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
         ("volpath", &["<integrator type=\"volpath\">", "line 3"]),
         ("medium", &["<medium type=\"homogeneous\" id=\"fog\">", "not supported in <scene>"]),
@@ -550,4 +550,106 @@ fn mitsuba_plastics_and_smooth_conductors_become_principled() {
             assert!(msg.contains(n), "{bsdf}: {msg:?} lacks {n:?}");
         }
     }
+}
+
+/// One mesh of a `.serialized` file in version 4 (version 3 without the name): header,
+/// then the zlib stream of flags, name, counts and arrays (double precision with 0x2000).
+fn serialized_mesh_bytes(version: u16, flags: u32, positions: &[[f64; 3]], normals: &[[f64; 3]], uvs: &[[f64; 2]], indices: &[[u32; 3]]) -> Vec<u8> {
+    use std::io::Write;
+    let mut body = flags.to_le_bytes().to_vec();
+    if version == 4 {
+        body.extend(b"mesh\0");
+    }
+    body.extend((positions.len() as u64).to_le_bytes());
+    body.extend((indices.len() as u64).to_le_bytes());
+    let mut float = |v: f64| {
+        if flags & 0x2000 != 0 {
+            body.extend(v.to_le_bytes())
+        } else {
+            body.extend((v as f32).to_le_bytes())
+        }
+    };
+    positions.iter().chain(normals).flatten().for_each(|&v| float(v));
+    uvs.iter().flatten().for_each(|&v| float(v));
+    body.extend(indices.iter().flatten().flat_map(|i| i.to_le_bytes()));
+    let mut z = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+    z.write_all(&body).unwrap();
+    let mut out = 0x041Cu16.to_le_bytes().to_vec();
+    out.extend(version.to_le_bytes());
+    out.extend(z.finish().unwrap());
+    out
+}
+
+/// Mitsuba's `.serialized` meshes (versions 3 and 4): the mesh `shape_index` names, its
+/// normals and texture coordinates (v flipped to the model's convention, as for PLY), in
+/// single or double precision; bad files are refused naming the problem.
+#[test]
+fn mitsuba_serialized_meshes_are_read() {
+    let dir = temp_dir("mitsuba-serialized");
+    let tri = ([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0u32, 1, 2]]);
+    let quad_p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, -1.0], [0.0, 0.0, -1.0]];
+    let quad_n = [[0.0, 1.0, 0.0]; 4];
+    let quad_uv = [[0.0, 0.25], [1.0, 0.25], [1.0, 0.75], [0.0, 0.75]];
+    let quad_i = [[0u32, 1, 2], [2, 3, 0]];
+    let file = |version: u16| {
+        let first = serialized_mesh_bytes(version, 0x1000, &tri.0, &[], &[], &tri.1);
+        let second = serialized_mesh_bytes(version, 0x2000 | 0x1 | 0x2, &quad_p, &quad_n, &quad_uv, &quad_i);
+        let mut out = first.clone();
+        out.extend(&second);
+        if version == 4 {
+            out.extend(0u64.to_le_bytes());
+            out.extend((first.len() as u64).to_le_bytes());
+        } else {
+            out.extend(0u32.to_le_bytes());
+            out.extend((first.len() as u32).to_le_bytes());
+        }
+        out.extend(2u32.to_le_bytes());
+        out
+    };
+    let xml = |index: i64| {
+        format!(
+            r#"<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 3, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="serialized" id="first"><string name="filename" value="m.serialized"/></shape>
+    <shape type="serialized" id="picked"><string name="filename" value="m.serialized"/><integer name="shape_index" value="{index}"/><transform name="to_world"><translate x="2"/></transform></shape>
+</scene>"#
+        )
+    };
+    std::fs::write(dir.join("scene.xml"), xml(1)).unwrap();
+    for version in [3, 4] {
+        std::fs::write(dir.join("m.serialized"), file(version)).unwrap();
+        let s = Scene::load(dir.join("scene.xml")).unwrap_or_else(|e| panic!("version {version}: {e}"));
+        let (first, picked) = (&s.meshes[0], &s.meshes[1]);
+        assert_eq!(first.positions, tri.0.map(|p| p.map(|c| c as f32)));
+        assert_eq!(first.indices, tri.1);
+        // Without normals in the file Mitsuba smooths the mesh: one flat triangle, +z.
+        assert!(first.normals.iter().all(|n| *n == [0.0, 0.0, 1.0]), "{:?}", first.normals);
+        assert!(first.uvs.is_empty());
+        assert_eq!(picked.positions, quad_p.map(|p| [p[0] as f32 + 2.0, p[1] as f32, p[2] as f32]));
+        assert_eq!(picked.normals, quad_n.map(|n| n.map(|c| c as f32)));
+        assert_eq!(picked.uvs, quad_uv.map(|[u, v]| [u as f32, 1.0 - v as f32]));
+        assert_eq!(picked.indices, quad_i);
+    }
+
+    // Refused, one line naming the file: an index past the meshes, another version, a
+    // truncated stream, a file of something else.
+    let refused = |bytes: Vec<u8>, index: i64, needles: &[&str]| {
+        std::fs::write(dir.join("m.serialized"), bytes).unwrap();
+        std::fs::write(dir.join("scene.xml"), xml(index)).unwrap();
+        let msg = Scene::load(dir.join("scene.xml")).map(|_| ()).expect_err("loaded").to_string();
+        assert!(!msg.contains('\n') && msg.contains("m.serialized") && msg.contains("<shape type=\"serialized\""), "{msg}");
+        for n in needles {
+            assert!(msg.contains(n), "{msg:?} lacks {n:?}");
+        }
+    };
+    refused(file(4), 2, &["shape_index 2 is out of range", "2 meshes"]);
+    let mut v5 = file(4);
+    v5[2] = 5;
+    refused(v5, 0, &["format version 5 is not supported"]);
+    let whole = file(4);
+    refused(whole[..24].to_vec(), 0, &["end early"]);
+    refused(b"ply\nformat ascii 1.0\n".to_vec(), 0, &["not a Mitsuba serialized file"]);
 }

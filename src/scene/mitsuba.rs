@@ -3,7 +3,8 @@
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb">` `max_depth` (−1, unlimited, becomes 64) and `rr_depth`; `<sensor
 //! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
-//! size; `<shape type="obj|ply|rectangle|cube|sphere|disk|cylinder">` with `to_world`, `face_normals`,
+//! size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
+//! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">`; `<bsdf
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">`; `<emitter
@@ -856,6 +857,27 @@ impl<'a, 'i> Importer<'a, 'i> {
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
         let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind.as_str() {
+            "serialized" => {
+                let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+                let path = self.dir.join(&rel);
+                let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                let index = match self.take(&mut items, "shape_index") {
+                    Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
+                    None => 0,
+                };
+                let face_normals = self.take_bool(&mut items, "face_normals", false)?;
+                let m = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
+                let n = if face_normals || m.face_normals {
+                    Vec::new()
+                } else if m.normals.is_empty() {
+                    vertex_normals(&m.positions, &m.indices)
+                } else {
+                    m.normals
+                };
+                // Mitsuba's texture coordinates (v down), as the PLY reader's.
+                let t = m.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect();
+                (m.positions, n, t, m.indices, path)
+            }
             "obj" | "ply" => {
                 let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
                 let path = self.dir.join(&rel);
@@ -923,7 +945,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let (p, n, t, i) = cylinder(p0, p1, radius);
                 (p, n, t, i, self.path.to_path_buf())
             }
-            _ => return Err(self.err(node, "only obj, ply, rectangle, cube, sphere, disk and cylinder shapes are supported")),
+            _ => return Err(self.err(node, "only obj, ply, serialized, rectangle, cube, sphere, disk and cylinder shapes are supported")),
         };
         let material = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
             (Some(b), None) => self.bsdf(b, &name)?,
@@ -1109,6 +1131,99 @@ fn cube() -> Geometry {
         }
     }
     g
+}
+
+/// One mesh of a Mitsuba `.serialized` file.
+struct SerializedMesh {
+    positions: Vec<[f32; 3]>,
+    normals: Vec<[f32; 3]>,
+    uvs: Vec<[f32; 2]>,
+    indices: Vec<[u32; 3]>,
+    /// The file asks for face normals.
+    face_normals: bool,
+}
+
+/// Mesh `index` of a Mitsuba `.serialized` file (`bytes`), in the format's versions 3 and 4:
+/// a little-endian header (magic 0x041C, version), then a zlib stream of the flags (0x1
+/// normals, 0x2 texture coordinates, 0x8 colours, 0x10 face normals, 0x2000 double
+/// precision), the name (version 4: null-terminated), the vertex and triangle counts (u64)
+/// and the arrays, one mesh after another; the meshes' offsets close the file (u64 in
+/// version 4, u32 in 3) before their count (u32).
+fn serialized_mesh(bytes: &[u8], index: u32) -> Result<SerializedMesh, String> {
+    use std::io::Read;
+    const MAGIC: u16 = 0x041C;
+    let u16_at = |at: usize| bytes.get(at..at + 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
+    let (magic, version) = (u16_at(0), u16_at(2));
+    if magic != Some(MAGIC) {
+        return Err("not a Mitsuba serialized file (no 0x041C header)".into());
+    }
+    let version = version.unwrap_or(0);
+    if !(3..=4).contains(&version) {
+        return Err(format!("format version {version} is not supported (versions 3 and 4 are)"));
+    }
+    let truncated = || "the file is truncated".to_string();
+    let start = if index == 0 {
+        0
+    } else {
+        let count_at = bytes.len().checked_sub(4).ok_or_else(truncated)?;
+        let count = u32::from_le_bytes(bytes[count_at..].try_into().unwrap());
+        if index >= count {
+            return Err(format!("shape_index {index} is out of range: the file holds {count} meshes"));
+        }
+        let width = if version == 4 { 8 } else { 4 };
+        let at = count_at.checked_sub(width * (count - index) as usize).ok_or_else(truncated)?;
+        let mut offset = [0u8; 8];
+        offset[..width].copy_from_slice(&bytes[at..at + width]);
+        usize::try_from(u64::from_le_bytes(offset)).map_err(|_| truncated())?
+    };
+    if u16_at(start) != Some(MAGIC) {
+        return Err(format!("mesh {index} does not start with the 0x041C header at its offset {start}"));
+    }
+    let mut z = flate2::read::ZlibDecoder::new(bytes.get(start + 4..).ok_or_else(truncated)?);
+    // Reads n bytes, growing the buffer with what the stream holds (a corrupt count
+    // fails when the data end, without allocating what it claims).
+    let mut read = |n: usize| -> Result<Vec<u8>, String> {
+        let mut buf = Vec::new();
+        (&mut z).take(n as u64).read_to_end(&mut buf).map_err(|e| format!("mesh {index}: its compressed data are damaged or end early ({e})"))?;
+        if buf.len() == n {
+            Ok(buf)
+        } else {
+            Err(format!("mesh {index}: its data end early"))
+        }
+    };
+    let u32_of = |b: &[u8]| u32::from_le_bytes(b.try_into().unwrap());
+    let flags = u32_of(&read(4)?);
+    if version == 4 {
+        while read(1)?[0] != 0 {}
+    }
+    let count = |b: Vec<u8>| usize::try_from(u64::from_le_bytes(b.try_into().unwrap())).map_err(|_| "a count beyond memory".to_string());
+    let (vertices, triangles) = (count(read(8)?)?, count(read(8)?)?);
+    if vertices > u32::MAX as usize || triangles > u32::MAX as usize {
+        return Err(format!("mesh {index}: {vertices} vertices and {triangles} triangles are more than 32-bit indices address"));
+    }
+    let double = flags & 0x2000 != 0;
+    let mut floats = |n: usize| -> Result<Vec<f32>, String> {
+        Ok(if double {
+            read(8 * n)?.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap()) as f32).collect()
+        } else {
+            read(4 * n)?.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
+        })
+    };
+    let triples = |v: Vec<f32>| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let positions = triples(floats(3 * vertices)?);
+    let normals = if flags & 0x1 != 0 { triples(floats(3 * vertices)?) } else { Vec::new() };
+    let uvs = if flags & 0x2 != 0 { floats(2 * vertices)?.chunks_exact(2).map(|c| [c[0], c[1]]).collect() } else { Vec::new() };
+    if flags & 0x8 != 0 {
+        floats(3 * vertices)?;
+    }
+    let indices: Vec<[u32; 3]> = read(12 * triangles)?.chunks_exact(12).map(|c| [0, 4, 8].map(|k| u32_of(&c[k..k + 4]))).collect();
+    if let Some(bad) = indices.iter().flatten().find(|&&i| i as usize >= vertices) {
+        return Err(format!("mesh {index}: vertex index {bad} is out of range ({vertices} vertices)"));
+    }
+    if positions.iter().flatten().chain(normals.iter().flatten()).chain(uvs.iter().flatten()).any(|v| !v.is_finite()) {
+        return Err(format!("mesh {index}: a non-finite value"));
+    }
+    Ok(SerializedMesh { positions, normals, uvs, indices, face_normals: flags & 0x10 != 0 })
 }
 
 /// Mitsuba's disk, the unit disk in the xy-plane facing +z, as `SPHERE_SEGMENTS` triangles

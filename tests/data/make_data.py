@@ -280,7 +280,7 @@ def errors():
     base = (HERE / "box" / "box.xml").read_text()
     xml = {
         "dielectric": base.replace('<bsdf type="principled">', '<bsdf type="dielectric">', 1),
-        "serialized": base.replace('<shape type="obj" id="floor">', '<shape type="serialized" id="floor">', 1),
+        "bsplinecurve": base.replace('<shape type="obj" id="floor">', '<shape type="bsplinecurve" id="floor">', 1),
         "unknown-parameter": base.replace('<float name="fov"', '<float name="focus_distance" value="2"/>\n        <float name="fov"', 1),
         "volpath": base.replace('<integrator type="path">', '<integrator type="volpath">', 1),
         "medium": base.replace("</scene>", '    <medium type="homogeneous" id="fog"/>\n</scene>', 1),
