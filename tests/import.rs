@@ -220,7 +220,7 @@ fn unsupported_mitsuba_content_is_named_with_its_line() {
         ("dielectric", &["<bsdf type=\"dielectric\">", "line 21", "plastic and roughplastic"][..]),
         ("bsplinecurve", &["<shape type=\"bsplinecurve\" id=\"floor\">", "only obj, ply, serialized", "disk and cylinder"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
-        ("volpath", &["<integrator type=\"volpath\">", "line 3"]),
+        ("aov", &["<integrator type=\"aov\">", "line 3", "volpathmis and direct"]),
         ("medium", &["<medium type=\"homogeneous\" id=\"fog\">", "not supported in <scene>"]),
         ("undefined-default", &["$resolution", "<integer name=\"width\">"]),
         ("clearcoat", &["<float name=\"clearcoat\">", "only 0"]),
@@ -652,4 +652,45 @@ fn mitsuba_serialized_meshes_are_read() {
     let whole = file(4);
     refused(whole[..24].to_vec(), 0, &["end early"]);
     refused(b"ply\nformat ascii 1.0\n".to_vec(), 0, &["not a Mitsuba serialized file"]);
+}
+
+/// Mitsuba's direct integrator is the path tracer at depth 2 (its per-strategy sample
+/// counts change the noise only), and volpath and volpathmis, in a scene without media
+/// (which are refused), render what path does at their depth.
+#[test]
+fn mitsuba_direct_and_volpath_integrators_map_to_the_path_tracer() {
+    let dir = temp_dir("mitsuba-integrators");
+    let scene = |integrator: &str| {
+        let xml = format!(
+            r#"<scene version="3.0.0">
+    {integrator}
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle"/>
+</scene>"#
+        );
+        std::fs::write(dir.join("scene.xml"), xml).unwrap();
+        Scene::load(dir.join("scene.xml"))
+    };
+    for (integrator, depth) in [
+        (r#"<integrator type="direct"><integer name="emitter_samples" value="4"/><integer name="bsdf_samples" value="0"/></integrator>"#, 2),
+        (r#"<integrator type="volpath"><integer name="max_depth" value="5"/><integer name="rr_depth" value="3"/></integrator>"#, 5),
+        (r#"<integrator type="volpathmis"><integer name="max_depth" value="3"/></integrator>"#, 3),
+        (r#"<integrator type="path"><integer name="max_depth" value="2"/></integrator>"#, 2),
+    ] {
+        let s = scene(integrator).unwrap_or_else(|e| panic!("{integrator}: {e}"));
+        assert_eq!(s.integrator.max_depth, depth, "{integrator}");
+        assert!(s.warnings.is_empty(), "{integrator}: {:?}", s.warnings);
+    }
+    assert_eq!(scene(r#"<integrator type="volpath"><integer name="max_depth" value="5"/><integer name="rr_depth" value="3"/></integrator>"#).unwrap().integrator.rr_depth, 3);
+    for (integrator, needle) in [
+        (r#"<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>"#, "hide_emitters"),
+        (r#"<integrator type="direct"><integer name="bsdf_samples" value="-1"/></integrator>"#, "bsdf_samples is negative"),
+        (r#"<integrator type="direct"><integer name="max_depth" value="3"/></integrator>"#, "not supported"),
+    ] {
+        let msg = scene(integrator).map(|_| ()).expect_err(integrator).to_string();
+        assert!(msg.contains(needle) && !msg.contains('\n'), "{integrator}: {msg}");
+    }
 }

@@ -1,7 +1,8 @@
 //! Mitsuba 3 XML import (a subset, parsed with `roxmltree`).
 //!
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
-//! type="path|prb">` `max_depth` (−1, unlimited, becomes 64) and `rr_depth`; `<sensor
+//! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
+//! `rr_depth`, `<integrator type="direct">` (depth 2); `<sensor
 //! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
 //! size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
@@ -482,10 +483,28 @@ impl<'a, 'i> Importer<'a, 'i> {
 
     fn integrator(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
         let kind = self.plugin_type(node)?;
-        if !matches!(kind.as_str(), "path" | "prb") {
-            return Err(self.err(node, "only the path and prb integrators are supported"));
-        }
         let mut items = elements(node);
+        match kind.as_str() {
+            // Without media (which are refused) volpath and volpathmis render what path does.
+            "path" | "prb" | "volpath" | "volpathmis" => {}
+            // Emitters seen and direct illumination: the path tracer at depth 2. Its sample
+            // counts per strategy change the noise only.
+            "direct" => {
+                for key in ["emitter_samples", "bsdf_samples", "shading_samples"] {
+                    if let Some(n) = self.take(&mut items, key) {
+                        if self.int(n)? < 0 {
+                            return Err(self.err(n, format!("{key} is negative")));
+                        }
+                    }
+                }
+                self.out.max_depth = Some(2);
+                if self.take_bool(&mut items, "hide_emitters", false)? {
+                    return Err(self.err(node, "hide_emitters = true is not supported"));
+                }
+                return self.rest(&items, node);
+            }
+            _ => return Err(self.err(node, "only the path, prb, volpath, volpathmis and direct integrators are supported")),
+        }
         if let Some(n) = self.take(&mut items, "max_depth") {
             let d = self.int(n)?;
             self.out.max_depth = Some(match d {

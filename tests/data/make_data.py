@@ -282,7 +282,7 @@ def errors():
         "dielectric": base.replace('<bsdf type="principled">', '<bsdf type="dielectric">', 1),
         "bsplinecurve": base.replace('<shape type="obj" id="floor">', '<shape type="bsplinecurve" id="floor">', 1),
         "unknown-parameter": base.replace('<float name="fov"', '<float name="focus_distance" value="2"/>\n        <float name="fov"', 1),
-        "volpath": base.replace('<integrator type="path">', '<integrator type="volpath">', 1),
+        "aov": base.replace('<integrator type="path">', '<integrator type="aov">', 1),
         "medium": base.replace("</scene>", '    <medium type="homogeneous" id="fog"/>\n</scene>', 1),
         "undefined-default": base.replace('value="$res"', 'value="$resolution"', 1),
         "clearcoat": base.replace('<float name="metallic" value="0.0"/>', '<float name="metallic" value="0.0"/>\n            <float name="clearcoat" value="0.5"/>', 1),
