@@ -190,6 +190,19 @@ fn import_err(file: &str) -> String {
     }
 }
 
+/// A Mitsuba scene of `body` (integrator, BSDFs, shapes) seen by an 8 × 8 camera.
+fn small_mitsuba_scene(body: &str) -> String {
+    format!(
+        r#"<scene version="3.0.0">
+    <sensor type="perspective"><float name="fov" value="60"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+{body}
+</scene>"#
+    )
+}
+
 #[test]
 fn unsupported_gltf_content_is_named_with_its_json_path() {
     for (file, needles) in [
@@ -431,17 +444,11 @@ fn optimise_from_gltf_comes_back_as_gltf() {
 fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
     let dir = temp_dir("one-sided");
     let xml = |bsdf: &str| {
-        format!(
-            r#"<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-    <sensor type="perspective"><float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
-    </sensor>
+        small_mitsuba_scene(&format!(
+            r#"    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
     <shape type="rectangle" id="card"><transform name="to_world"><rotate y="1" angle="180"/></transform>{bsdf}</shape>
-    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>
-</scene>"#
-        )
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>"#
+        ))
     };
     let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>"#;
     std::fs::write(dir.join("one.xml"), xml(diffuse)).unwrap();
@@ -473,16 +480,7 @@ fn mitsuba_plastics_and_smooth_conductors_become_principled() {
     let dir = temp_dir("mitsuba-plastic");
     let xml = |bsdfs: &str| {
         let shapes: String = ["p1", "p2", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
-        format!(
-            r#"<scene version="3.0.0">
-    <sensor type="perspective"><float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
-    </sensor>
-{bsdfs}
-    {shapes}
-</scene>"#
-        )
+        small_mitsuba_scene(&format!("{bsdfs}\n    {shapes}"))
     };
     let plastics = r#"    <bsdf type="plastic" id="p1"><string name="int_ior" value="bk7"/><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
     <bsdf type="roughplastic" id="p2"><float name="alpha" value="0.25"/><string name="distribution" value="ggx"/><float name="int_ior" value="1.333"/><boolean name="nonlinear" value="true"/><rgb name="diffuse_reflectance" value="0.5, 0.8, 1.0"/></bsdf>
@@ -607,16 +605,10 @@ fn mitsuba_serialized_meshes_are_read() {
         out
     };
     let xml = |index: i64| {
-        format!(
-            r#"<scene version="3.0.0">
-    <sensor type="perspective"><float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 3, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
-    </sensor>
-    <shape type="serialized" id="first"><string name="filename" value="m.serialized"/></shape>
-    <shape type="serialized" id="picked"><string name="filename" value="m.serialized"/><integer name="shape_index" value="{index}"/><transform name="to_world"><translate x="2"/></transform></shape>
-</scene>"#
-        )
+        small_mitsuba_scene(&format!(
+            r#"    <shape type="serialized" id="first"><string name="filename" value="m.serialized"/></shape>
+    <shape type="serialized" id="picked"><string name="filename" value="m.serialized"/><integer name="shape_index" value="{index}"/><transform name="to_world"><translate x="2"/></transform></shape>"#
+        ))
     };
     std::fs::write(dir.join("scene.xml"), xml(1)).unwrap();
     for version in [3, 4] {
@@ -661,17 +653,7 @@ fn mitsuba_serialized_meshes_are_read() {
 fn mitsuba_direct_and_volpath_integrators_map_to_the_path_tracer() {
     let dir = temp_dir("mitsuba-integrators");
     let scene = |integrator: &str| {
-        let xml = format!(
-            r#"<scene version="3.0.0">
-    {integrator}
-    <sensor type="perspective"><float name="fov" value="60"/>
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
-    </sensor>
-    <shape type="rectangle"/>
-</scene>"#
-        );
-        std::fs::write(dir.join("scene.xml"), xml).unwrap();
+        std::fs::write(dir.join("scene.xml"), small_mitsuba_scene(&format!("    {integrator}\n    <shape type=\"rectangle\"/>"))).unwrap();
         Scene::load(dir.join("scene.xml"))
     };
     for (integrator, depth) in [
