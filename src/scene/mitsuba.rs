@@ -33,7 +33,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use glam::{Mat3, Mat4, Vec3};
+use glam::{DVec3, Mat3, Mat4, Vec3};
 use roxmltree::{Document, Node};
 
 use super::loader::Imported;
@@ -101,32 +101,26 @@ fn fresnel_dielectric(cos_i: f64, eta: f64) -> f64 {
 /// A GGX microfacet normal of roughness `alpha` visible from `wi` (z up, `wi.z` > 0), for
 /// the point `u` of the unit square (Heitz 2018, "Sampling the GGX distribution of visible
 /// normals"); `alpha` 0 gives the macro normal.
-fn ggx_visible_normal(wi: [f64; 3], alpha: f64, u: [f64; 2]) -> [f64; 3] {
-    let norm = |v: [f64; 3]| {
-        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        v.map(|c| c / l)
-    };
-    let vh = norm([alpha * wi[0], alpha * wi[1], wi[2]]);
-    let len2 = vh[0] * vh[0] + vh[1] * vh[1];
-    let t1 = if len2 > 0.0 { [-vh[1] / len2.sqrt(), vh[0] / len2.sqrt(), 0.0] } else { [1.0, 0.0, 0.0] };
-    let t2 = [vh[1] * t1[2] - vh[2] * t1[1], vh[2] * t1[0] - vh[0] * t1[2], vh[0] * t1[1] - vh[1] * t1[0]];
+fn ggx_visible_normal(wi: DVec3, alpha: f64, u: [f64; 2]) -> DVec3 {
+    let vh = DVec3::new(alpha * wi.x, alpha * wi.y, wi.z).normalize();
+    let len2 = vh.x * vh.x + vh.y * vh.y;
+    let t1 = if len2 > 0.0 { DVec3::new(-vh.y, vh.x, 0.0) / len2.sqrt() } else { DVec3::X };
+    let t2 = vh.cross(t1);
     let (r, phi) = (u[0].sqrt(), 2.0 * std::f64::consts::PI * u[1]);
     let p1 = r * phi.cos();
-    let s = 0.5 * (1.0 + vh[2]);
+    let s = 0.5 * (1.0 + vh.z);
     let p2 = (1.0 - s) * (1.0 - p1 * p1).sqrt() + s * r * phi.sin();
-    let p3 = (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
-    let nh: [f64; 3] = std::array::from_fn(|k| p1 * t1[k] + p2 * t2[k] + p3 * vh[k]);
-    norm([alpha * nh[0], alpha * nh[1], nh[2].max(0.0)])
+    let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
+    DVec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).normalize()
 }
 
 /// Smith's masking of direction `w` by GGX microfacets of roughness `alpha` around normal
 /// `m` (0 where `w` sees the facet's back).
-fn ggx_masking(w: [f64; 3], m: [f64; 3], alpha: f64) -> f64 {
-    let dot = w[0] * m[0] + w[1] * m[1] + w[2] * m[2];
-    if dot * w[2] <= 0.0 {
+fn ggx_masking(w: DVec3, m: DVec3, alpha: f64) -> f64 {
+    if w.dot(m) * w.z <= 0.0 {
         return 0.0;
     }
-    let tan2 = alpha * alpha * (w[0] * w[0] + w[1] * w[1]) / (w[2] * w[2]);
+    let tan2 = alpha * alpha * (w.x * w.x + w.y * w.y) / (w.z * w.z);
     2.0 / (1.0 + (1.0 + tan2).sqrt())
 }
 
@@ -136,22 +130,21 @@ fn ggx_masking(w: [f64; 3], m: [f64; 3], alpha: f64) -> f64 {
 /// normals m of F(wi·m) and 1 − F(wi·m), each times the masking of the direction it
 /// leaves in (midpoint rule on a `k` × `k` grid). Smooth (`alpha` 0): F(mu) and 1 − F(mu).
 fn rough_dielectric(mu: f64, alpha: f64, eta: f64, k: usize) -> (f64, f64) {
-    let wi = [(1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu];
+    let wi = DVec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
     let (mut r, mut t) = (0.0, 0.0);
     for a in 0..k {
         for b in 0..k {
             let m = ggx_visible_normal(wi, alpha, [(a as f64 + 0.5) / k as f64, (b as f64 + 0.5) / k as f64]);
-            let cos_i = wi[0] * m[0] + wi[1] * m[1] + wi[2] * m[2];
+            let cos_i = wi.dot(m);
             let f = fresnel_dielectric(cos_i, eta);
-            let wr: [f64; 3] = std::array::from_fn(|c| 2.0 * cos_i * m[c] - wi[c]);
-            if wr[2] > 0.0 {
+            let wr = 2.0 * cos_i * m - wi;
+            if wr.z > 0.0 {
                 r += f * ggx_masking(wr, m, alpha);
             }
             let sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta);
             if f < 1.0 && sin_t2 < 1.0 {
-                let cos_t = (1.0 - sin_t2).sqrt();
-                let wt: [f64; 3] = std::array::from_fn(|c| (cos_i / eta - cos_t) * m[c] - wi[c] / eta);
-                if wt[2] < 0.0 {
+                let wt = (cos_i / eta - (1.0 - sin_t2).sqrt()) * m - wi / eta;
+                if wt.z < 0.0 {
                     t += (1.0 - f) * ggx_masking(wt, m, alpha);
                 }
             }
@@ -876,42 +869,34 @@ impl<'a, 'i> Importer<'a, 'i> {
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
         let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind.as_str() {
-            "serialized" => {
+            "obj" | "ply" | "serialized" => {
                 let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
                 let path = self.dir.join(&rel);
                 let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                let index = match self.take(&mut items, "shape_index") {
-                    Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
-                    None => 0,
-                };
-                let face_normals = self.take_bool(&mut items, "face_normals", false)?;
-                let m = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
-                let n = if face_normals || m.face_normals {
-                    Vec::new()
-                } else if m.normals.is_empty() {
-                    vertex_normals(&m.positions, &m.indices)
-                } else {
-                    m.normals
-                };
-                // Mitsuba's texture coordinates (v down), as the PLY reader's.
-                let t = m.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect();
-                (m.positions, n, t, m.indices, path)
-            }
-            "obj" | "ply" => {
-                let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                let path = self.dir.join(&rel);
-                let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                let face_normals = self.take_bool(&mut items, "face_normals", false)?;
-                let (p, mut n, mut t, i) = if kind == "obj" {
-                    // Mitsuba flips OBJ texture coordinates by default, which keeps the
-                    // OBJ convention (v up) that the model uses.
-                    let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
-                    let d = obj::load(&path, &bytes)?;
-                    let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
-                    (d.positions, d.normals, uvs, d.indices)
-                } else {
-                    let d = ply::load(&path, &bytes)?;
-                    (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
+                let (p, mut n, mut t, i) = match kind.as_str() {
+                    "obj" => {
+                        // Mitsuba flips OBJ texture coordinates by default, which keeps the
+                        // OBJ convention (v up) that the model uses.
+                        let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
+                        let d = obj::load(&path, &bytes)?;
+                        let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
+                        (d.positions, d.normals, uvs, d.indices)
+                    }
+                    "ply" => {
+                        let d = ply::load(&path, &bytes)?;
+                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                    }
+                    _ => {
+                        let index = match self.take(&mut items, "shape_index") {
+                            Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
+                            None => 0,
+                        };
+                        let d = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
+                        face_normals |= d.face_normals;
+                        // Mitsuba's texture coordinates (v down), as PLY's.
+                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                    }
                 };
                 if face_normals {
                     n.clear();
@@ -1327,43 +1312,34 @@ mod tests {
     use super::*;
     use std::f64::consts::PI;
 
-    fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-    }
-
-    fn normalize(v: [f64; 3]) -> [f64; 3] {
-        let l = dot(v, v).sqrt();
-        v.map(|c| c / l)
-    }
-
-    fn ggx_d(m: [f64; 3], alpha: f64) -> f64 {
+    fn ggx_d(m: DVec3, alpha: f64) -> f64 {
         let a2 = alpha * alpha;
-        a2 / (PI * (m[2] * m[2] * (a2 - 1.0) + 1.0).powi(2))
+        a2 / (PI * (m.z * m.z * (a2 - 1.0) + 1.0).powi(2))
     }
 
     /// The rough interface's reflectance and transmittance by integrating its BRDF and BTDF
     /// (Walter et al. 2007, separable Smith masking) over a grid of outgoing directions: the
     /// half-vector Jacobians instead of `rough_dielectric`'s visible-normal quadrature.
     fn brute_force(mu: f64, alpha: f64, eta: f64) -> (f64, f64) {
-        let wi = [(1.0 - mu * mu).sqrt(), 0.0, mu];
+        let wi = DVec3::new((1.0 - mu * mu).sqrt(), 0.0, mu);
         let n = 1200;
         let (mut r, mut t) = (0.0, 0.0);
         for a in 0..n {
             let theta = (a as f64 + 0.5) / n as f64 * PI;
             for b in 0..n {
                 let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
-                let wo = [theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()];
+                let wo = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
                 let dw = theta.sin() * (PI / n as f64) * (2.0 * PI / n as f64);
-                if wo[2] > 0.0 {
-                    let m = normalize([wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]]);
+                if wo.z > 0.0 {
+                    let m = (wi + wo).normalize();
                     let g = ggx_masking(wi, m, alpha) * ggx_masking(wo, m, alpha);
-                    r += fresnel_dielectric(dot(wi, m), eta) * ggx_d(m, alpha) * g / (4.0 * mu) * dw;
+                    r += fresnel_dielectric(wi.dot(m), eta) * ggx_d(m, alpha) * g / (4.0 * mu) * dw;
                 } else {
-                    let mut m = normalize([wi[0] + eta * wo[0], wi[1] + eta * wo[1], wi[2] + eta * wo[2]]);
-                    if m[2] < 0.0 {
-                        m = m.map(|c| -c);
+                    let mut m = (wi + eta * wo).normalize();
+                    if m.z < 0.0 {
+                        m = -m;
                     }
-                    let (ci, co) = (dot(wi, m), dot(wo, m));
+                    let (ci, co) = (wi.dot(m), wo.dot(m));
                     if ci <= 0.0 || co >= 0.0 {
                         continue;
                     }
