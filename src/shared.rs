@@ -43,7 +43,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 64 bytes (4 texels; `pad` is zero).
+/// Mirror of `MaterialRecord`: 80 bytes (5 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -54,9 +54,12 @@ pub struct MaterialRecord {
     /// 1: the material reflects nothing from behind (its triangles' clockwise side).
     pub one_sided: u32,
     pub pad: [u32; 2],
+    /// The normal map's tangent-space normals (3 floats per texel, decoded and scaled);
+    /// width 0: no normal map.
+    pub normal_map: ValueRef,
 }
 
-/// Mirror of `TriShading`: 112 bytes (7 texels; `pad` is zero).
+/// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct TriShading {
@@ -77,6 +80,10 @@ pub struct TriShading {
     pub uv1: [f32; 2],
     pub uv2: [f32; 2],
     pub pad: u32,
+    /// Normal-mapped materials only: the unit dp/du of the texture coordinates and the
+    /// bitangent's handedness (+1: dp/dv along cross(ng, tangent), -1: against it); zero
+    /// elsewhere.
+    pub tangent: [f32; 4],
 }
 
 /// Mirror of `EmitterTri`: 80 bytes (5 texels).

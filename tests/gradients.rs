@@ -206,6 +206,23 @@ const GLOSSY_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\
 /// in view and by a constant sky. The quad cannot see itself, so the image is linear in
 /// its base colour and metallic (not in roughness).
 fn glossy(name: &str, film: u32, optimise: &str) -> Scene {
+    glossy_with(name, film, "", optimise)
+}
+
+/// [`glossy`] with `floor` added to the floor's material; a 4 × 4 normal map of tilts up to
+/// 30° in every direction, `normals.exr`, lies beside the scene for it to name.
+fn glossy_with(name: &str, film: u32, floor: &str, optimise: &str) -> Scene {
+    let dir = temp_dir(&format!("gradients-{name}"));
+    let mut normals = Image::filled(4, 4, [0.5, 0.5, 1.0]);
+    for (i, px) in normals.data.iter_mut().enumerate() {
+        let a = i as f32 * 2.4;
+        let t = 0.55 * ((i % 5) as f32 / 4.0);
+        let n = glam::Vec3::new(t * a.cos(), t * a.sin(), 1.0).normalize();
+        *px = [(n.x + 1.0) / 2.0, (n.y + 1.0) / 2.0, (n.z + 1.0) / 2.0];
+    }
+    vkinverse::image::write_exr(&dir.join("normals.exr"), &normals).unwrap();
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("light.obj"), GLOSSY_LIGHT_OBJ).unwrap();
     let toml = format!(
         r#"
 [film]
@@ -225,6 +242,7 @@ type = "principled"
 base_color = [0.7, 0.4, 0.2]
 roughness = 0.35
 metallic = 0.4
+{floor}
 [[materials]]
 name = "black"
 type = "diffuse"
@@ -242,7 +260,8 @@ constant = [0.3, 0.35, 0.4]
 {optimise}
 "#
     );
-    load(name, &toml, &[("quad.obj", QUAD_OBJ), ("light.obj", GLOSSY_LIGHT_OBJ)])
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    Scene::load(dir.join("scene.toml")).unwrap()
 }
 
 /// A diffuse quad lit by the area light of [`glossy`] and by a 16 × 8 lat-long map with one
@@ -673,6 +692,33 @@ texture = [4, 4]
     });
 }
 
+/// The same with a normal map on the quad (4 × 4 texels, tilts up to 30°, bilinear): the
+/// map perturbs the shading normal of every path vertex on the quad, in the primal, the
+/// replay and the finite differences alike, and is no parameter. Metallic and two texels
+/// of the base-colour texture, statistical as above (48 rounds of 8 spp at 16²).
+#[test]
+fn normal_mapped_principled_gradients_match_finite_differences() {
+    shared(|ctx| {
+        let optimise = r#"
+[[optimise.params]]
+target = "materials.floor.metallic"
+init = 0.9
+range = [0.0, 1.0]
+[[optimise.params]]
+target = "materials.floor.base_color"
+init = [0.4, 0.6, 0.4]
+range = [0.0, 1.0]
+texture = [4, 4]
+"#;
+        let scene = glossy_with("normal-mapped", 16, "normal_map = { texture = \"normals.exr\", scale = 0.8 }", optimise);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 8, 8, 16);
+        assert!(b.scene().has_normal_maps, "the kernels are built with normal maps");
+        let texel = |t: usize| probe(1 + 3 * t..4 + 3 * t, 0.1);
+        let samples = measure(&mut b, &[probe([0], 0.2), texel(5), texel(10)], 48);
+        check("l2", &samples, EPS_EXACT, 0.2);
+    });
+}
+
 /// The environment: a constant sky (spiral scene) and a 4 × 2 lat-long map (the glossy
 /// quad; the map is light-sampled, from a distribution built from θ's start value and
 /// fixed after, half of the next-event samples besides the area light's). Environment
@@ -1046,6 +1092,7 @@ fn feature_specialisation_changes_no_result() {
             for every_feature in [false, true] {
                 let mut gs = GpuScene::new(ctx, &scene).unwrap();
                 assert!(!gs.has_textures, "{name} has no texture");
+                assert!(!gs.has_normal_maps, "{name} has no normal map");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
                 assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
@@ -1055,6 +1102,7 @@ fn feature_specialisation_changes_no_result() {
                     gs.has_textures = true;
                     gs.has_principled = true;
                     gs.has_normals = true;
+                    gs.has_normal_maps = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.

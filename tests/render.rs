@@ -268,6 +268,114 @@ file = "sky.exr"
     Scene::load(dir.join("scene.toml")).unwrap()
 }
 
+/// How the quad of [`normal_quad`] is shaded: a constant normal map (the tangent-space
+/// normal it encodes) or vertex normals (world space), or neither.
+#[derive(Clone, Copy)]
+enum Shading {
+    Geometric,
+    Map([f32; 3]),
+    Vertex([f32; 3]),
+}
+
+/// The diffuse quad of [`env_lit_quad`] under [`spot_map`], shaded as `shading` says;
+/// `mirrored`: its texture coordinates' u runs along −x instead of +x.
+fn normal_quad(name: &str, shading: Shading, mirrored: bool) -> Scene {
+    let dir = common::scenes::temp_dir(name);
+    write_exr(&dir.join("sky.exr"), &spot_map()).unwrap();
+    let u = |x: f32| if mirrored { 1.0 - x } else { x };
+    let mut obj = format!("v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt {} 1\nvt {} 1\nvt {} 0\nvt {} 0\n", u(0.0), u(1.0), u(1.0), u(0.0));
+    let mut map = String::new();
+    match shading {
+        Shading::Geometric => obj.push_str("f 1/1 4/4 3/3 2/2\n"),
+        Shading::Vertex(n) => obj.push_str(&format!("vn {} {} {}\nf 1/1/1 4/4/1 3/3/1 2/2/1\n", n[0], n[1], n[2])),
+        Shading::Map(n) => {
+            obj.push_str("f 1/1 4/4 3/3 2/2\n");
+            // Encoded as (n + 1) / 2, in a 2 × 2 image so that the lookup is bilinear.
+            write_exr(&dir.join("normals.exr"), &Image::filled(2, 2, n.map(|v| (v + 1.0) / 2.0))).unwrap();
+            map = "normal_map = { texture = \"normals.exr\" }".into();
+        }
+    }
+    std::fs::write(dir.join("quad.obj"), obj).unwrap();
+    let toml = format!(
+        r#"
+[film]
+width = 32
+height = 32
+[integrator]
+max_depth = 2
+rr_depth = 5
+[[sensors]]
+origin = [0, 3, 0]
+target = [0, 0, 0]
+up = [0, 0, -1]
+fov_y = 30
+[[materials]]
+name = "grey"
+type = "diffuse"
+base_color = [{RHO}, {RHO}, {RHO}]
+{map}
+[[meshes]]
+file = "quad.obj"
+material = "grey"
+[environment]
+file = "sky.exr"
+"#
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    Scene::load(dir.join("scene.toml")).unwrap()
+}
+
+/// A constant normal map shades as vertex normals equal to the normal it encodes, turned
+/// into the frame of the texture coordinates: x along dp/du, y along dp/dv (the bitangent
+/// cross(n, tangent), turned where u is mirrored) and z along the surface normal. The quad
+/// faces +y with u along +x and v along −z, so the tangent-space (sin a, 0, cos a) is the
+/// world's (sin a, cos a, 0) and (0, sin a, cos a) is (0, cos a, −sin a); mirroring u turns
+/// the first to (−sin a, cos a, 0) and leaves the second. With the same random numbers the
+/// images agree but for float rounding in the normal (a sample whose direction the
+/// rounding carries across the map's bright texel's edge could change one pixel), while the
+/// spot of light to one side makes each tilt change the image by a tenth or more. The map
+/// of the untilted normal (0, 0, 1) renders as the geometric normal.
+#[test]
+fn a_constant_normal_map_shades_as_the_vertex_normals_it_encodes() {
+    let a = 35f32.to_radians();
+    let (s, c) = (a.sin(), a.cos());
+    let cases = [
+        ("flat", [0.0, 0.0, 1.0], [0.0, 1.0, 0.0], false),
+        ("tilt-u", [s, 0.0, c], [s, c, 0.0], false),
+        ("tilt-v", [0.0, s, c], [0.0, c, -s], false),
+        ("mirrored-tilt-u", [s, 0.0, c], [-s, c, 0.0], true),
+        ("mirrored-tilt-v", [0.0, s, c], [0.0, c, -s], true),
+    ];
+    let render = |ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene| {
+        let gs = GpuScene::new(ctx, scene).unwrap();
+        let mapped = gs.has_normal_maps;
+        (Renderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
+    };
+    let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
+    with_gpu(|ctx| {
+        let (flat, _) = render(ctx, &normal_quad("nmap-geometric", Shading::Geometric, false));
+        for (name, map, world, mirrored) in cases {
+            let (mapped, has_maps) = render(ctx, &normal_quad(&format!("nmap-{name}"), Shading::Map(map), mirrored));
+            assert!(has_maps, "{name}: the kernels are built with normal maps");
+            let (vertex, _) = render(ctx, &normal_quad(&format!("nmap-{name}-vn"), Shading::Vertex(world), mirrored));
+            let off = mapped
+                .data
+                .iter()
+                .zip(&vertex.data)
+                .filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3)))
+                .count();
+            eprintln!("{name}: mean {:.5} (vertex normals {:.5}, geometric {:.5}); {off} pixels differ", mean(&mapped), mean(&vertex), mean(&flat));
+            assert!(off <= 2, "{name}: {off} pixels differ from the vertex normals' image");
+            let change = (mean(&vertex) / mean(&flat) - 1.0).abs();
+            if name == "flat" {
+                assert!(change < 1e-5, "the untilted map changes the image by {change}");
+            } else {
+                assert!(change > 0.1, "{name}: the tilt changes the image by only {change}");
+            }
+        }
+    });
+}
+
 /// Per channel: the mean over pixels, its standard error and the variance over pixels
 /// (pixels are independent estimates of one value).
 fn pixel_stats(img: &Image) -> [(f64, f64, f64); 3] {
@@ -424,8 +532,9 @@ fn environment_distribution_matches_its_pdf() {
 /// read through the Rust mirror: materials, shading, meshes, emitters (and the cdf the
 /// light-sampling search reads), BVH nodes of both layouts and triangles, material data,
 /// θ and the environment map's distribution. Scenes: spiral (principled materials, vertex
-/// normals, emitters, three optimised parameters), ajar (an optimised albedo texture) and
-/// a quad under a lat-long map (the distribution).
+/// normals, emitters, three optimised parameters), ajar (an optimised albedo texture), a
+/// quad under a lat-long map (the distribution) and one with a normal map (its material
+/// data and the tangents, mirrored).
 #[test]
 fn kernels_read_the_records_the_host_wrote() {
     use vkinverse::bvh::{BvhCwNode, BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
@@ -443,6 +552,7 @@ fn kernels_read_the_records_the_host_wrote() {
         ("spiral", Scene::load(root.join("scenes/spiral/scene.toml")).unwrap()),
         ("ajar", Scene::load(root.join("scenes/ajar/scene.toml")).unwrap()),
         ("env quad", env_lit_quad("records-env", &spot_map())),
+        ("normal map", normal_quad("records-nmap", Shading::Map([0.3, -0.2, 0.93]), true)),
         (
             "lights",
             delta_lit_scene(
@@ -478,7 +588,12 @@ fn kernels_read_the_records_the_host_wrote() {
                     BvhLayout::Cw8 => (read::<BvhCwNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhCwNode>()),
                 };
                 assert_eq!(shading.len(), triangles.len(), "{name}: one shading record per triangle");
-                assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights"), "{name} has emitters");
+                if *name == "normal map" {
+                    // The quad's u runs along −x: tangent −x, dp/dv (−z) against cross(ng, tangent) (+z).
+                    assert!(shading.iter().all(|s| s.tangent == [-1.0, 0.0, 0.0, -1.0]), "{name}: tangents {:?}", shading.iter().map(|s| s.tangent).collect::<Vec<_>>());
+                    assert!(materials[0].normal_map.width == 2 && materials[0].normal_map.in_theta == 0, "{name}: {:?}", materials[0]);
+                }
+                assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights" | "normal map"), "{name} has emitters");
 
                 let pipeline = ComputePipeline::new(ctx, &gs.kernel("records_test"), &[gs.const_base_spec()]).unwrap();
                 let o_materials = out::<MaterialRecord>(ctx, "out materials", materials.len());
@@ -576,7 +691,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 if *name == "env quad" {
                     assert!(!env.is_empty(), "the lat-long map has a distribution");
                 }
-                if *name != "env quad" {
+                if !matches!(*name, "env quad" | "normal map") {
                     assert!(theta.iter().any(|&v| v != 0.0), "{tag}: θ holds the start values");
                 }
             }
@@ -604,6 +719,7 @@ fn texel_record_layouts_match_reflection() {
             ("one_sided", offset_of!(MaterialRecord, one_sided)),
             ("pad1", offset_of!(MaterialRecord, pad)),
             ("pad2", offset_of!(MaterialRecord, pad) + 4),
+            ("normal_map", offset_of!(MaterialRecord, normal_map)),
         ],
     );
     check(
@@ -623,6 +739,7 @@ fn texel_record_layouts_match_reflection() {
             ("uv1", offset_of!(TriShading, uv1)),
             ("uv2", offset_of!(TriShading, uv2)),
             ("pad", offset_of!(TriShading, pad)),
+            ("tangent", offset_of!(TriShading, tangent)),
         ],
     );
     check(

@@ -209,6 +209,13 @@ fn content_hash_follows_the_reference_scene_only() {
     )
     .unwrap();
     assert_ne!(base, Scene::load(&path).unwrap().content_hash());
+    // A normal map, its scale and its convention are part of the reference scene.
+    let mapped = |name: &str, map: &str| Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nnormal_map = {map}")))).unwrap().content_hash();
+    let plain = mapped("hash-e", "{ texture = \"tex.exr\" }");
+    assert_ne!(base, plain);
+    assert_ne!(plain, mapped("hash-f", "{ texture = \"tex.exr\", scale = 0.5 }"));
+    assert_ne!(plain, mapped("hash-g", "{ texture = \"tex.exr\", bitangent = \"cross\" }"));
+    assert_eq!(plain, mapped("hash-h", "{ texture = \"tex.exr\", bitangent = \"uv\", scale = 1 }"));
 }
 
 #[test]
@@ -563,6 +570,28 @@ fn texture_values_obey_the_rules_of_constants() {
     img.data[1][2] = -0.25;
     write_exr(&path.with_file_name("neg.exr"), &img).unwrap();
     assert_message(&Scene::load(&path).unwrap_err(), &["materials.m.base_color.texture", "-0.25", "(1, 0)"]);
+}
+
+/// A normal map's texels encode unit vectors in [0, 1], its scale is finite and its
+/// bitangent one of two conventions; a missing file is named with its key.
+#[test]
+fn normal_maps_are_checked() {
+    let with = |map: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nnormal_map = {map}"));
+    let s = Scene::load(fixture("nmap-ok", &with("{ texture = \"tex.exr\", scale = 0.5, bitangent = \"cross\" }"))).unwrap();
+    let n = s.materials[0].normal_map.as_ref().unwrap();
+    assert_eq!((n.scale, n.bitangent), (0.5, vkinverse::scene::Bitangent::Cross));
+    assert_eq!(n.vectors()[0], [(0.5 - 1.0) * 0.5, 0.0, 0.5]);
+    let path = fixture("nmap-range", &with("{ texture = \"bumps.exr\" }"));
+    let mut img = Image::filled(2, 2, [0.5, 0.5, 1.0]);
+    img.data[3][2] = 1.25;
+    write_exr(&path.with_file_name("bumps.exr"), &img).unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["materials.m.normal_map.texture", "bumps.exr", "1.25", "(1, 1)", "[0, 1]"]);
+    assert_message(&load_err("nmap-scale", &with("{ texture = \"tex.exr\", scale = nan }")), &["materials.m.normal_map.scale"]);
+    assert_message(&load_err("nmap-bitangent", &with("{ texture = \"tex.exr\", bitangent = \"left\" }")), &["materials.m.normal_map.bitangent", "\"left\""]);
+    assert_message(&load_err("nmap-missing", &with("{ texture = \"none.exr\" }")), &["materials.m.normal_map.texture", "none.exr"]);
+    assert_message(&load_err("nmap-key", &with("{ texture = \"tex.exr\", strength = 2 }")), &["strength"]);
 }
 
 #[test]

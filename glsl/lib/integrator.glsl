@@ -312,10 +312,11 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // A one-sided material seen from behind reflects nothing.
         if (dot(ng, wo) < 0.0 && sh.one_sided != 0u) break;
 
-        // Shading frame: interpolated normal if the mesh has normals, flipped to the side
-        // of wo; the geometric normal likewise.
+        // Shading frame: interpolated normal if the mesh has normals, perturbed by the
+        // material's normal map, flipped to the side of wo; the geometric normal likewise.
         vec3 ns = HAS_NORMALS ? w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2 : vec3(0.0);
         ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
+        ns = normal_mapped(sh, ns, uv);
         if (dot(ng, wo) < 0.0) ng = -ng;
         if (dot(ns, ng) < 0.0) ns = -ns;
         Material mat[NSTATES];

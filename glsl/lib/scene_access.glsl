@@ -47,9 +47,9 @@ TEXEL_BUFFER(0, 32) ThetaPrev;
 
 ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 
-// Material `id` (4 texels: three ValueRefs, then kind).
+// Material `id` (5 texels: three ValueRefs, kind, the normal map's ValueRef).
 MaterialRecord material_record(uint id) {
-    int b = int(id) * 4;
+    int b = int(id) * 5;
     MaterialRecord r;
     r.base_color = value_ref(texel_load(Materials, b));
     r.roughness = value_ref(texel_load(Materials, b + 1));
@@ -59,15 +59,17 @@ MaterialRecord material_record(uint id) {
     r.one_sided = t3.y;
     r.pad1 = 0u;
     r.pad2 = 0u;
+    r.normal_map = value_ref(texel_load(Materials, b + 4));
     return r;
 }
 
-// Shading data of triangle `prim` (7 texels; words in TriShading's scalar layout: ng 0-2,
+// Shading data of triangle `prim` (8 texels; words in TriShading's scalar layout: ng 0-2,
 // material 3, emitter_pdf 4, two_sided 5, one_sided 6, mesh 7, emission 8-11, n0 12-14,
-// n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26). Fetches of fields a caller does
-// not use are dead code: a scene without vertex normals and textures reads texels 0-2.
+// n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26, tangent 28-31). Fetches of fields a
+// caller does not use are dead code: a scene without vertex normals, textures and normal
+// maps reads texels 0-2.
 TriShading tri_shading(uint prim) {
-    int b = int(prim) * 7;
+    int b = int(prim) * 8;
     TriShading s;
     uvec4 t0 = texel_load(Shading, b);
     uvec4 t1 = texel_load(Shading, b + 1);
@@ -85,6 +87,7 @@ TriShading tri_shading(uint prim) {
     s.uv1 = uintBitsToFloat(uvec2(n2z_uv0_uv1x.z, t6.x));
     s.uv2 = uintBitsToFloat(t6.yz);
     s.pad = 0u;
+    s.tangent = uintBitsToFloat(texel_load(Shading, b + 7));
     return s;
 }
 
@@ -177,6 +180,9 @@ layout(constant_id = 9) const bool HAS_PRINCIPLED = true;
 // Whether any triangle has vertex normals: without them the shading normal is the geometric
 // one, and the normals' two texels of each shading record are not read.
 layout(constant_id = 13) const bool HAS_NORMALS = true;
+// Whether any material has a normal map: without one the interpolated normal is the
+// shading normal, and neither the maps nor the tangents are read.
+layout(constant_id = 16) const bool HAS_NORMAL_MAPS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -329,6 +335,28 @@ void scatter1(ValueRef r, vec2 uv, float g) {
     }
 }
 #endif
+
+// The shading normal at a point of triangle `sh` with texture coordinates uv and
+// interpolated (or geometric) unit normal n: n perturbed by the material's normal map, in
+// the frame of the triangle's tangent made orthogonal to n (Gram-Schmidt), the bitangent
+// cross(n, tangent) times the tangent's handedness, and n. n itself where the material has
+// no map or the triangle no tangent. The map is a material constant: every parameter state
+// sees the same normal.
+vec3 normal_mapped(TriShading sh, vec3 n, vec2 uv) {
+    // (Not `if (!HAS_NORMAL_MAPS) return n;`: the reflection cannot fold the negation of a
+    // specialisation constant.)
+    if (HAS_NORMAL_MAPS) {
+        ValueRef r = material_record(sh.material).normal_map;
+        vec3 t = sh.tangent.xyz - n * dot(n, sh.tangent.xyz);
+        if (r.width != 0u && sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
+            t = normalize(t);
+            vec3 m = fetch3(r, uv, 0);
+            vec3 v = m.x * t + (m.y * sh.tangent.w) * cross(n, t) + m.z * n;
+            if (dot(v, v) > 0.0) return normalize(v);
+        }
+    }
+    return n;
+}
 
 // The material at a surface point, in parameter state `state`.
 Material fetch_material(uint id, vec2 uv, int state) {

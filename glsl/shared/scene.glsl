@@ -18,7 +18,7 @@ struct ValueRef {
     uint in_theta;
 };
 
-// One material. 64 bytes (4 texels).
+// One material. 80 bytes (5 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
@@ -27,12 +27,17 @@ struct MaterialRecord {
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     uint pad1;
     uint pad2;
+    // The normal map: a texture of tangent-space unit normals (x along the triangle's
+    // tangent, y along its bitangent, z along the interpolated normal), already decoded
+    // from the image's [0, 1] and scaled; width 0: none. Read only by scenes that have one.
+    ValueRef normal_map;
 };
 
-// Per-triangle shading data, indexed by the original triangle id. 112 bytes (7 texels).
+// Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).
 // What every path vertex reads comes first (texels 0-2), with what it would otherwise read
 // from the material's and the mesh's records (one_sided, emission); the vertex normals
-// (texels 3-5) and texture coordinates (5-6) follow, read only by scenes that have them.
+// (texels 3-5), texture coordinates (5-6) and tangent (7) follow, read only by scenes that
+// have them.
 struct TriShading {
     vec3 ng;          // unit geometric normal (front side = counter-clockwise winding)
     uint material;
@@ -48,6 +53,11 @@ struct TriShading {
     vec2 uv1;
     vec2 uv2;
     uint pad;
+    // Normal-mapped materials only: the unit tangent dp/du of the triangle's texture
+    // coordinates (xyz) and the bitangent's handedness w, +1 where dp/dv lies along
+    // cross(ng, tangent), -1 where it lies against it (mirrored coordinates); all zero
+    // without a normal map or where the coordinates span no area.
+    vec4 tangent;
 };
 
 // An emissive triangle for light sampling. 80 bytes (5 texels): everything light sampling

@@ -23,3 +23,32 @@ header = (
 body = b"".join(struct.pack("<3f", *p) for p in v)
 body += b"".join(struct.pack("<B", len(f)) + struct.pack(f"<{len(f)}i", *f) for f in faces)
 (HERE / "meshes" / "wedge.ply").write_bytes(header.encode() + body)
+
+# The normal map of normalmap.xml: 8 x 8 texels, 8-bit RGB encoding (n + 1) / 2 of
+# tangent-space normals. Columns tilt along u (left: -30°, right: +30°, the middle two
+# columns flat), rows along v (top rows +20°, bottom rows -20°).
+import math
+import zlib
+
+
+def png(width, height, rows):
+    raw = b"".join(b"\0" + bytes(c for px in row for c in px) for row in rows)
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    head = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+
+
+def texel(ax, ay):
+    n = (math.tan(math.radians(ax)), math.tan(math.radians(ay)), 1.0)
+    length = math.sqrt(sum(c * c for c in n))
+    return tuple(round((c / length + 1) / 2 * 255) for c in n)
+
+
+rows = []
+for y in range(8):
+    ay = 20 if y < 3 else (-20 if y > 4 else 0)
+    rows.append([texel(-30 if x < 3 else (30 if x > 4 else 0), ay) for x in range(8)])
+(HERE / "meshes" / "bumps.png").write_bytes(png(8, 8, rows))

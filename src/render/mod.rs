@@ -21,10 +21,10 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{ColorValue, LightKind, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::scene::{Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
 use std::sync::Arc;
@@ -51,6 +51,9 @@ pub struct GpuScene {
     /// Whether any triangle has vertex normals; without them the kernels shade with the
     /// geometric normal and read no vertex normals.
     pub has_normals: bool,
+    /// Whether any triangle is normal-mapped (its material has a map and its texture
+    /// coordinates a tangent): the kernels' HAS_NORMAL_MAPS.
+    pub has_normal_maps: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     /// Whether every ray cast of a path fits the adjoint kernels' replay cache
@@ -105,6 +108,38 @@ fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     }
 }
 
+/// The material data of a normal map (its decoded, scaled vectors, [`NormalMap::vectors`]),
+/// or a ValueRef of width 0 for none.
+fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
+    match n {
+        None => ValueRef::default(),
+        Some(n) => {
+            let image = Image { data: n.vectors(), ..n.texture.image.clone() };
+            push_value(data, &[], Some((&image, 3)))
+        }
+    }
+}
+
+/// The unit tangent dp/du of a triangle with corners p and texture coordinates uv, and the
+/// bitangent's handedness against its geometric normal ng (TriShading::tangent); zero where
+/// the coordinates span no area.
+pub fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
+    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+    let (d1, d2) = (Vec2::from(uv[1]) - Vec2::from(uv[0]), Vec2::from(uv[2]) - Vec2::from(uv[0]));
+    let det = d1.x * d2.y - d2.x * d1.y;
+    if det == 0.0 || !det.is_finite() {
+        return [0.0; 4];
+    }
+    let dp_du = (e1 * d2.y - e2 * d1.y) / det;
+    let dp_dv = (e2 * d1.x - e1 * d2.x) / det;
+    let t = dp_du.normalize_or_zero();
+    if t == Vec3::ZERO || !t.is_finite() {
+        return [0.0; 4];
+    }
+    let w = if ng.cross(t).dot(dp_dv) < 0.0 { -1.0 } else { 1.0 };
+    [t.x, t.y, t.z, w]
+}
+
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
@@ -124,6 +159,16 @@ fn warn_about_light(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &P
         });
         if emits && !has_area {
             crate::report::warn(&format!("{}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", scene.path.display(), mesh.name));
+        }
+    }
+    for mesh in &scene.meshes {
+        if scene.materials[mesh.material].normal_map.is_some() && mesh.uvs.is_empty() {
+            crate::report::warn(&format!(
+                "{}: mesh \"{}\" has no texture coordinates: the normal map of its material \"{}\" is not applied to it",
+                scene.path.display(),
+                mesh.name,
+                scene.materials[mesh.material].name
+            ));
         }
     }
     if emitters == 0 && !has_environment {
@@ -176,6 +221,7 @@ impl GpuScene {
                     },
                     one_sided: m.one_sided as u32,
                     pad: [0; 2],
+                    normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                 }
             })
             .collect();
@@ -273,6 +319,14 @@ impl GpuScene {
                 });
             }
             let material = geo.triangle_material[t];
+            let uvs = idx.map(|i| geo.uvs[i as usize]);
+            let tangent = match &scene.materials[material as usize].normal_map {
+                None => [0.0; 4],
+                Some(n) => {
+                    let [x, y, z, w] = triangle_tangent([a, b, c], uvs, ng);
+                    [x, y, z, if n.bitangent == Bitangent::Cross { w.abs() } else { w }]
+                }
+            };
             shading.push(TriShading {
                 ng: ng.into(),
                 material,
@@ -284,10 +338,11 @@ impl GpuScene {
                 n0: geo.normals[idx[0] as usize],
                 n1: geo.normals[idx[1] as usize],
                 n2: geo.normals[idx[2] as usize],
-                uv0: geo.uvs[idx[0] as usize],
-                uv1: geo.uvs[idx[1] as usize],
-                uv2: geo.uvs[idx[2] as usize],
+                uv0: uvs[0],
+                uv1: uvs[1],
+                uv2: uvs[2],
                 pad: 0,
+                tangent,
             });
         }
         warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
@@ -315,9 +370,10 @@ impl GpuScene {
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
+        let has_normal_maps = shading.iter().any(|s| s.tangent[3] != 0.0);
         let has_textures = materials
             .iter()
-            .flat_map(|m| [m.base_color, m.roughness, m.metallic])
+            .flat_map(|m| [m.base_color, m.roughness, m.metallic, m.normal_map])
             .chain(mesh_emission.iter().copied())
             .chain(lights.iter().flat_map(|l| [l.color, l.intensity]))
             .chain([environment])
@@ -368,6 +424,7 @@ impl GpuScene {
             has_textures,
             has_principled,
             has_normals,
+            has_normal_maps,
             environment_distribution,
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
@@ -446,6 +503,7 @@ impl GpuScene {
             ("HAS_TEXTURES", SpecValue::Bool(self.has_textures)),
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
+            ("HAS_NORMAL_MAPS", SpecValue::Bool(self.has_normal_maps)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

@@ -85,6 +85,19 @@ pub struct MaterialFile {
     /// Black from behind (the clockwise side of its triangles).
     #[serde(default)]
     pub one_sided: bool,
+    pub normal_map: Option<NormalMapFile>,
+}
+
+/// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map
+/// (model::NormalMap).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NormalMapFile {
+    pub texture: String,
+    pub scale: Option<f32>,
+    /// "uv" (the default: y along increasing v, glTF's) or "cross" (y along
+    /// cross(n, tangent) everywhere, Mitsuba's).
+    pub bitangent: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -254,9 +254,6 @@ impl Importer<'_> {
             Some(i) => format!("materials[{i}]"),
             None => format!("{used_at}.material"),
         };
-        if m.normal_texture().is_some() {
-            return Err(self.err(format!("{at}.normalTexture"), "normal maps are not supported"));
-        }
         if m.emissive_texture().is_some() {
             return Err(self.err(format!("{at}.emissiveTexture"), "emissive textures are not supported (emission is one colour per mesh)"));
         }
@@ -293,13 +290,25 @@ impl Importer<'_> {
                 return Err(self.err(format!("{at}.pbrMetallicRoughness.{what}"), format!("{v} is outside [0, 1]")));
             }
         }
+        let normal_map = match m.normal_texture() {
+            None => None,
+            Some(n) => {
+                let key = format!("{at}.normalTexture");
+                let (image, path) = self.image(n.texture(), n.tex_coord(), &key)?;
+                let scale = n.scale();
+                if !scale.is_finite() {
+                    return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
+                }
+                Some(NormalMap { texture: Texture { path, image }, scale, bitangent: Bitangent::Uv })
+            }
+        };
         let name = match (m.name(), m.index()) {
             (Some(n), Some(i)) if self.out.materials.iter().any(|x| x.name == n) => format!("{n}#{i}"),
             (Some(n), _) => n.to_string(),
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false });
+        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map });
         self.sources.materials.push(m.index());
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);
@@ -308,10 +317,15 @@ impl Importer<'_> {
 
     /// The image of a texture reference (values as stored) and the path it is known by.
     fn texture(&mut self, info: &gltf::texture::Info, at: &str) -> Result<(Image, PathBuf), SceneError> {
-        if info.tex_coord() != 0 {
-            return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {} is not supported (TEXCOORD_0 only)", info.tex_coord())));
+        self.image(info.texture(), info.tex_coord(), at)
+    }
+
+    /// The image of `texture` read with texture coordinate set `tex_coord` (values as
+    /// stored) and the path it is known by.
+    fn image(&mut self, texture: gltf::Texture, tex_coord: u32, at: &str) -> Result<(Image, PathBuf), SceneError> {
+        if tex_coord != 0 {
+            return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {tex_coord} is not supported (TEXCOORD_0 only)")));
         }
-        let texture = info.texture();
         let sampler = texture.sampler();
         if sampler.wrap_s() != WrappingMode::Repeat || sampler.wrap_t() != WrappingMode::Repeat {
             self.warn(format!("textures[{}].sampler", texture.index()), "wrapping modes other than REPEAT are rendered as REPEAT");

@@ -99,6 +99,14 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.scalar(&m.roughness);
         h.scalar(&m.metallic);
         h.u64(m.one_sided as u64);
+        // Hashed only where present, so that the hashes (and cached targets) of scenes
+        // without normal maps are what they were before normal maps existed.
+        if let Some(n) = &m.normal_map {
+            h.tag("normal_map");
+            h.texture(&n.texture);
+            h.f32s(&[n.scale]);
+            h.tag(n.bitangent.as_str());
+        }
     }
     h.tag("meshes");
     h.u64(scene.meshes.len() as u64);

@@ -429,6 +429,22 @@ impl Loader {
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
                 }
             };
+            let normal_map = match m.normal_map {
+                None => None,
+                Some(n) => {
+                    let k = format!("{key}.normal_map.texture");
+                    let texture = self.texture(&k, &n.texture)?;
+                    self.texels_in(&k, &texture, 3, 0.0, 1.0)?;
+                    let scale = n.scale.unwrap_or(1.0);
+                    self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
+                    let bitangent = match n.bitangent.as_deref() {
+                        None | Some("uv") => Bitangent::Uv,
+                        Some("cross") => Bitangent::Cross,
+                        Some(other) => return Err(self.invalid(&format!("{key}.normal_map.bitangent"), &format!("\"{other}\" is not \"uv\" or \"cross\""))),
+                    };
+                    Some(NormalMap { texture, scale, bitangent })
+                }
+            };
             out.push(Material {
                 name: m.name,
                 kind: m.kind,
@@ -436,6 +452,7 @@ impl Loader {
                 roughness,
                 metallic,
                 one_sided: m.one_sided,
+                normal_map,
             });
         }
         Ok(out)

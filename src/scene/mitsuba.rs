@@ -672,16 +672,56 @@ impl<'a, 'i> Importer<'a, 'i> {
         })
     }
 
-    /// Adds the material of `<bsdf>` `node` named `name` and returns its index.
+    /// Adds the material of `<bsdf>` `node` named `name` and returns its index. The
+    /// wrappers `twosided` and `normalmap` may enclose the BSDF, once each, in either order.
     fn bsdf(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
-        let kind = self.plugin_type(node)?;
-        let mut items = elements(node);
-        if kind == "twosided" {
-            let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, "twosided needs one nested <bsdf>"))?;
+        let (mut node, mut one_sided, mut normal_map) = (node, true, None);
+        loop {
+            let kind = self.plugin_type(node)?;
+            if !(kind == "twosided" && one_sided || kind == "normalmap" && normal_map.is_none()) {
+                break;
+            }
+            let mut items = elements(node);
+            let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, format!("{kind} needs one nested <bsdf>")))?;
+            if kind == "twosided" {
+                one_sided = false;
+            } else {
+                normal_map = Some(self.normal_map(&mut items, node)?);
+            }
             self.rest(&items, node)?;
-            return self.bsdf_material(inner, name, false);
+            node = inner;
         }
-        self.bsdf_material(node, name, true)
+        let index = self.bsdf_material(node, name, one_sided)?;
+        self.out.materials[index].normal_map = normal_map;
+        Ok(index)
+    }
+
+    /// The `normalmap` texture of a `<bsdf type="normalmap">` (`node`): a bitmap whose RGB
+    /// in [0, 1] encodes tangent-space normals as the model's normal maps do, with Mitsuba's
+    /// bitangent cross(n, tangent) everywhere ([`Bitangent::Cross`]).
+    fn normal_map(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<NormalMap, SceneError> {
+        let at = items.iter().find(|n| n.attribute("name") == Some("normalmap")).copied().unwrap_or(node);
+        let texture = match self.color_param(items, "normalmap", [0.5, 0.5, 1.0])? {
+            ColorValue::Texture(t) => t,
+            ColorValue::Constant(_) if at == node => return Err(self.err(node, "normalmap needs a `normalmap` bitmap texture")),
+            ColorValue::Constant(_) => return Err(self.err(at, "a normal map must be a bitmap texture")),
+        };
+        if let Some((i, v)) = texture.image.data.iter().enumerate().find_map(|(i, p)| p.iter().find(|v| !(0.0..=1.0).contains(*v)).map(|v| (i, *v))) {
+            let (x, y) = (i as u32 % texture.image.width, i as u32 / texture.image.width);
+            return Err(self.err(at, format!("{} has {v} at pixel ({x}, {y}), outside [0, 1]", texture.path.display())));
+        }
+        // Mitsuba's refinements of the perturbed frame, which the model does not make.
+        let shadowing = self.take_bool(items, "use_shadowing_function", true)?;
+        let flip = self.take_bool(items, "flip_invalid_normals", true)?;
+        if shadowing || flip {
+            let what: Vec<&str> = [(shadowing, "the shadow-terminator factor (use_shadowing_function)"), (flip, "the turning of normals that face away from the viewer (flip_invalid_normals)")]
+                .iter()
+                .filter(|(on, _)| *on)
+                .map(|(_, w)| *w)
+                .collect();
+            self.warn(node, format!("approximate: rendered without {}", what.join(" and ")));
+        }
+        Ok(NormalMap { texture, scale: 1.0, bitangent: Bitangent::Cross })
     }
 
     /// Adds the material of BSDF `node` (any type but twosided) named `name`; `one_sided`
@@ -697,6 +737,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 roughness: ScalarValue::Constant(1.0),
                 metallic: ScalarValue::Constant(0.0),
                 one_sided,
+                normal_map: None,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -718,7 +759,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None }
             }
             "roughconductor" | "conductor" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
@@ -745,6 +786,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     roughness: ScalarValue::Constant(alpha.sqrt()),
                     metallic: ScalarValue::Constant(1.0),
                     one_sided,
+                    normal_map: None,
                 }
             }
             "plastic" | "roughplastic" => {
@@ -792,9 +834,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                     roughness: ScalarValue::Constant(alpha.sqrt()),
                     metallic: ScalarValue::Constant(0.0),
                     one_sided,
+                    normal_map: None,
                 }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, principled, conductor, roughconductor, plastic and roughplastic BSDFs are supported")),
+            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, principled, conductor, roughconductor, plastic and roughplastic BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
@@ -854,6 +897,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             roughness: ScalarValue::Constant(1.0),
             metallic: ScalarValue::Constant(0.0),
             one_sided: true,
+            normal_map: None,
         });
         self.out.materials.len() - 1
     }

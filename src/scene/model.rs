@@ -96,6 +96,47 @@ pub struct Material {
     /// Reflects nothing from behind (the clockwise side of its triangles), as Mitsuba's
     /// BSDFs not wrapped in `twosided`; otherwise both sides shade alike.
     pub one_sided: bool,
+    /// Perturbs the shading normal (never optimised).
+    pub normal_map: Option<NormalMap>,
+}
+
+/// A tangent-space normal map: each texel's RGB in [0, 1] encodes the unit normal
+/// (2R − 1, 2G − 1, 2B − 1) with x along the surface's tangent (the direction of increasing
+/// u), y along its bitangent and z along the interpolated normal, as glTF's
+/// `normalTexture` and Mitsuba's `normalmap` store it; `scale` multiplies x and y (glTF's
+/// `normalTexture.scale`).
+#[derive(Clone, Debug)]
+pub struct NormalMap {
+    pub texture: Texture,
+    pub scale: f32,
+    pub bitangent: Bitangent,
+}
+
+/// Which way a normal map's y points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Bitangent {
+    /// Along increasing v, the image's up: cross(n, tangent) turned where the texture
+    /// coordinates are mirrored (glTF's convention, MikkTSpace's handedness).
+    Uv,
+    /// cross(n, tangent) everywhere (Mitsuba's `normalmap`).
+    Cross,
+}
+
+impl Bitangent {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Uv => "uv",
+            Self::Cross => "cross",
+        }
+    }
+}
+
+impl NormalMap {
+    /// The decoded, scaled tangent-space vectors (not normalised: the kernels normalise
+    /// after filtering).
+    pub fn vectors(&self) -> Vec<[f32; 3]> {
+        self.texture.image.data.iter().map(|p| [(2.0 * p[0] - 1.0) * self.scale, (2.0 * p[1] - 1.0) * self.scale, 2.0 * p[2] - 1.0]).collect()
+    }
 }
 
 impl Material {

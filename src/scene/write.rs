@@ -161,6 +161,14 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.one_sided {
             pairs.push(("one_sided", Value::Boolean(true)));
         }
+        if let Some(n) = &m.normal_map {
+            let file = exr(dir, &format!("{}.normal_map", m.name), &n.texture.image)?;
+            let mut map = vec![("texture", Value::String(file)), ("scale", Value::Float(num(n.scale)))];
+            if n.bitangent != Bitangent::Uv {
+                map.push(("bitangent", Value::String(n.bitangent.as_str().into())));
+            }
+            pairs.push(("normal_map", table(map)));
+        }
         if m.kind == MaterialKind::Principled {
             for (key, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
                 pairs.push((

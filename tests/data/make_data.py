@@ -258,6 +258,51 @@ def textured():
     write(d / "textured.glb", glb(doc, bytes(blob)))
 
 
+def normal_mapped():
+    """A quad facing +y with a 2 x 2 normal map (scale 0.5) and its buffer in a data URI."""
+    d = HERE / "textured"
+    # Tangent-space normals as bytes (n + 1) / 2 * 255: tilted along +u, along +v, along
+    # -u and untilted.
+    write(d / "bumps.png", png(2, 2, [[(200, 128, 230), (128, 200, 230)], [(55, 128, 230), (128, 128, 255)]]))
+    blob = bytearray()
+    for c in [(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]:
+        blob += struct.pack("<3f", *c)
+    for uv in [(0, 0), (0, 1), (1, 1), (1, 0)]:
+        blob += struct.pack("<2f", *uv)
+    blob += struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+    doc = {
+        "asset": {"version": "2.0"},
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"name": "quad", "mesh": 0},
+            {"name": "eye", "camera": 0, "translation": [0, 3, 0], "rotation": [-0.7071068, 0, 0, 0.7071068]},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2, "material": 0}]}],
+        "materials": [
+            {
+                "name": "bumpy",
+                "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.8, 0.8, 1.0], "roughnessFactor": 0.4, "metallicFactor": 0.0},
+                "normalTexture": {"index": 0, "scale": 0.5},
+            }
+        ],
+        "textures": [{"source": 0}],
+        "images": [{"uri": "bumps.png"}],
+        "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "aspectRatio": 1.0, "znear": 0.01}}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0, 1]},
+            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+            {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+            {"buffer": 0, "byteOffset": 80, "byteLength": 12},
+        ],
+        "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(blob)).decode()}],
+    }
+    write(d / "normal-mapped.gltf", json.dumps(doc, indent=1))
+
+
 def errors():
     d = HERE / "errors"
     doc, _ = box_gltf(binary=False)
@@ -271,7 +316,7 @@ def errors():
     variant("optional-extension", lambda v: (v["materials"][1].setdefault("extensions", {}).update({"KHR_materials_clearcoat": {"clearcoatFactor": 1}}), v["extensionsUsed"].append("KHR_materials_clearcoat")))
     variant("required-on-material", lambda v: (v["materials"][0].setdefault("extensions", {}).update({"KHR_materials_clearcoat": {"clearcoatFactor": 1}}), v.setdefault("extensionsRequired", []).append("KHR_materials_clearcoat")))
     variant("lines", lambda v: v["meshes"][1]["primitives"][0].update({"mode": 1}))
-    variant("normal-map", lambda v: (v["materials"][0].update({"normalTexture": {"index": 0}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
+    variant("normal-map-texcoord1", lambda v: (v["materials"][0].update({"normalTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("texcoord1", lambda v: (v["materials"][0]["pbrMetallicRoughness"].update({"baseColorTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("orthographic", lambda v: v["cameras"].__setitem__(0, {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.01, "zfar": 10}}))
     variant("emissive-texture", lambda v: (v["materials"][2].update({"emissiveTexture": {"index": 0}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
@@ -299,4 +344,5 @@ def errors():
 if __name__ == "__main__":
     box()
     textured()
+    normal_mapped()
     errors()
