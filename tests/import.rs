@@ -248,6 +248,47 @@ fn gltf_normal_maps_are_read_rendered_and_written_back() {
     });
 }
 
+/// `KHR_texture_transform` (offset, rotation, scale) shared by a material's textures moves
+/// the texture coordinates of the meshes that use it; transforms that differ between one
+/// material's textures, or pick another coordinate set, are refused naming the JSON path.
+#[test]
+fn gltf_texture_transforms_move_the_texture_coordinates() {
+    let dir = temp_dir("gltf-texture-transform");
+    std::fs::copy(data("textured/bumps.png"), dir.join("bumps.png")).unwrap();
+    let base: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    let write = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut doc = base.clone();
+        edit(&mut doc);
+        let path = dir.join(format!("{name}.gltf"));
+        std::fs::write(&path, serde_json::to_string(&doc).unwrap()).unwrap();
+        path
+    };
+    let transform = serde_json::json!({ "offset": [0.25, -0.5], "rotation": 0.5, "scale": [2.0, 3.0] });
+    let moved = write("moved", &|d| {
+        d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": transform.clone() });
+        d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0, "extensions": { "KHR_texture_transform": transform.clone() } });
+    });
+    let plain = Scene::load(data("textured/normal-mapped.gltf")).unwrap();
+    let s = Scene::load(&moved).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let (r, c) = (0.5f32.sin(), 0.5f32.cos());
+    for (got, uv) in s.meshes[0].uvs.iter().zip(&plain.meshes[0].uvs) {
+        // Back to glTF's v, transformed, and down again.
+        let (u, v) = (uv[0] * 2.0, (1.0 - uv[1]) * 3.0);
+        let want = [0.25 + c * u + r * v, 1.0 - (-0.5 - r * u + c * v)];
+        assert!((got[0] - want[0]).abs() < 1e-5 && (got[1] - want[1]).abs() < 1e-5, "{got:?} vs {want:?}");
+    }
+    let differ = write("differ", &|d| {
+        d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": transform.clone() });
+        d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0 });
+    });
+    let msg = Scene::load(&differ).map(|_| ()).unwrap_err().to_string();
+    assert!(msg.contains("materials[0].normalTexture.extensions.KHR_texture_transform") && msg.contains("baseColorTexture") && !msg.contains('\n'), "{msg}");
+    let set = write("set", &|d| d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": { "texCoord": 1 } }));
+    let msg = Scene::load(&set).map(|_| ()).unwrap_err().to_string();
+    assert!(msg.contains("KHR_texture_transform.texCoord") && msg.contains("texture coordinate set 1"), "{msg}");
+}
+
 #[test]
 fn unsupported_gltf_content_is_named_with_its_json_path() {
     for (file, needles) in [

@@ -35,7 +35,24 @@ use super::{MaterialKind, SceneError, GLTF_FILM_SIDE, GLTF_MAX_DEPTH};
 use crate::image::{srgb_decode, Image};
 
 /// Extensions whose content is read.
-pub const SUPPORTED_EXTENSIONS: [&str; 2] = ["KHR_lights_punctual", "KHR_materials_emissive_strength"];
+pub const SUPPORTED_EXTENSIONS: [&str; 3] = ["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform"];
+
+/// A texture reference's `KHR_texture_transform`: uv ↦ offset + R(rotation) (scale ∘ uv) in
+/// glTF's texture space (v down the image), R turning counter-clockwise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct UvTransform {
+    offset: [f32; 2],
+    rotation: f32,
+    scale: [f32; 2],
+}
+
+impl UvTransform {
+    fn apply(&self, [u, v]: [f32; 2]) -> [f32; 2] {
+        let (s, c) = self.rotation.sin_cos();
+        let (x, y) = (u * self.scale[0], v * self.scale[1]);
+        [self.offset[0] + c * x + s * y, self.offset[1] - s * x + c * y]
+    }
+}
 
 struct Importer<'a> {
     path: &'a Path,
@@ -202,7 +219,18 @@ impl Importer<'_> {
         let positions: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| self.err(format!("{at}.attributes"), "no POSITION"))?.collect();
         let normals: Vec<[f32; 3]> = reader.read_normals().map(|n| n.collect()).unwrap_or_default();
         // glTF's v points down from the image's top row; the model's points up.
-        let uvs: Vec<[f32; 2]> = reader.read_tex_coords(0).map(|t| t.into_f32().map(|[u, v]| [u, 1.0 - v]).collect()).unwrap_or_default();
+        let transform = self.uv_transform(&prim.material(), &at)?;
+        let uvs: Vec<[f32; 2]> = reader
+            .read_tex_coords(0)
+            .map(|t| {
+                t.into_f32()
+                    .map(|uv| {
+                        let [u, v] = transform.map_or(uv, |t| t.apply(uv));
+                        [u, 1.0 - v]
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
         let flat: Vec<u32> = match reader.read_indices() {
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
@@ -313,6 +341,63 @@ impl Importer<'_> {
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);
         Ok(index)
+    }
+
+    /// The `KHR_texture_transform` that the textures of material `m` (used at `used_at`)
+    /// share, applied to the texture coordinates of the primitives that use it (None: the
+    /// identity). The model has one set of texture coordinates per mesh: textures of one
+    /// material with different transforms, or a transform that picks another set, are
+    /// refused.
+    fn uv_transform(&self, m: &gltf::Material, used_at: &str) -> Result<Option<UvTransform>, SceneError> {
+        let at = match m.index() {
+            Some(i) => format!("materials[{i}]"),
+            None => format!("{used_at}.material"),
+        };
+        let pbr = m.pbr_metallic_roughness();
+        let refs = [
+            ("pbrMetallicRoughness.baseColorTexture", pbr.base_color_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
+            ("pbrMetallicRoughness.metallicRoughnessTexture", pbr.metallic_roughness_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
+            ("normalTexture", m.normal_texture().map(|n| n.extension_value("KHR_texture_transform").cloned())),
+        ];
+        let mut shared: Option<(String, Option<UvTransform>)> = None;
+        for (key, ext) in refs {
+            let Some(ext) = ext else { continue };
+            let key = format!("{at}.{key}.extensions.KHR_texture_transform");
+            let t = match ext {
+                None => None,
+                Some(v) => {
+                    let bad = |what: &str| self.err(&key, format!("{what} is not valid"));
+                    let pair = |name: &str, default: [f32; 2]| -> Result<[f32; 2], SceneError> {
+                        match v.get(name) {
+                            None => Ok(default),
+                            Some(x) => match x.as_array().map(|a| a.iter().map(|c| c.as_f64()).collect::<Option<Vec<f64>>>()) {
+                                Some(Some(a)) if a.len() == 2 && a.iter().all(|c| c.is_finite()) => Ok([a[0] as f32, a[1] as f32]),
+                                _ => Err(bad(name)),
+                            },
+                        }
+                    };
+                    let rotation = match v.get("rotation") {
+                        None => 0.0,
+                        Some(x) => x.as_f64().filter(|r| r.is_finite()).ok_or_else(|| bad("rotation"))? as f32,
+                    };
+                    if let Some(k) = v.get("texCoord") {
+                        if k.as_u64() != Some(0) {
+                            return Err(self.err(format!("{key}.texCoord"), format!("texture coordinate set {k} is not supported (TEXCOORD_0 only)")));
+                        }
+                    }
+                    let t = UvTransform { offset: pair("offset", [0.0; 2])?, rotation, scale: pair("scale", [1.0; 2])? };
+                    (t != UvTransform { offset: [0.0; 2], rotation: 0.0, scale: [1.0; 2] }).then_some(t)
+                }
+            };
+            match &shared {
+                None => shared = Some((key, t)),
+                Some((first, s)) if *s != t => {
+                    return Err(self.err(&key, format!("differs from {first}: the textures of one material must share one texture transform (one set of texture coordinates per mesh)")));
+                }
+                Some(_) => {}
+            }
+        }
+        Ok(shared.and_then(|(_, t)| t))
     }
 
     /// The image of a texture reference (values as stored) and the path it is known by.
