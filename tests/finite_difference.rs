@@ -88,6 +88,66 @@ fn fused_equals_two_trace_when_sampling_does_not_depend_on_parameters() {
     }
 }
 
+/// The same with a normal map on a diffuse quad lit by an area light and a sky: the map
+/// bends the shading normal of every vertex on the quad in both parameter states alike
+/// (it is no parameter), so the fused sample still traces the two-trace version's paths.
+#[test]
+fn fused_equals_two_trace_on_a_normal_mapped_surface() {
+    let dir = common::scenes::temp_dir("fd-normal-map");
+    let mut normals = vkinverse::image::Image::filled(4, 4, [0.5, 0.5, 1.0]);
+    for (i, px) in normals.data.iter_mut().enumerate() {
+        let (x, y) = (0.3 * ((i % 4) as f32 - 1.5) / 1.5, 0.3 * ((i / 4) as f32 - 1.5) / 1.5);
+        let l = (x * x + y * y + 1.0).sqrt();
+        *px = [(x / l + 1.0) / 2.0, (y / l + 1.0) / 2.0, (1.0 / l + 1.0) / 2.0];
+    }
+    vkinverse::image::write_exr(&dir.join("normals.exr"), &normals).unwrap();
+    std::fs::write(dir.join("quad.obj"), "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n").unwrap();
+    std::fs::write(dir.join("light.obj"), "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n").unwrap();
+    let toml = r#"
+[film]
+width = 16
+height = 16
+[integrator]
+max_depth = 3
+rr_depth = 5
+[[sensors]]
+origin = [0, 1.2, 1.8]
+target = [0, 0, -0.1]
+fov_y = 50
+[[materials]]
+name = "floor"
+type = "diffuse"
+base_color = [0.7, 0.4, 0.2]
+normal_map = { texture = "normals.exr" }
+[[materials]]
+name = "black"
+type = "diffuse"
+base_color = [0, 0, 0]
+[[meshes]]
+file = "quad.obj"
+material = "floor"
+[[meshes]]
+file = "light.obj"
+material = "black"
+emission = [6, 6, 6]
+[environment]
+constant = [0.3, 0.35, 0.4]
+[optimise]
+[[optimise.params]]
+target = "materials.floor.base_color"
+init = [0.5, 0.5, 0.5]
+range = [0, 1]
+"#;
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    let (fused, two) = fd_samples(dir.join("scene.toml").to_str().unwrap(), 0.05, 2, 2);
+    for (a, b) in fused.iter().zip(&two) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-4 * y.abs() + 1e-8, "fused {x} vs two-trace {y}");
+        }
+        assert!(a.iter().any(|v| v.abs() > 1e-7), "a 0.05 step changes the gradient: {a:?}");
+    }
+}
+
 /// The sample on every stride-th pixel (`fd_stride`): the checkerboards of all phases
 /// cover each pixel once, with the random numbers of the full sample and each pixel
 /// weighted `stride` times, so their mean is the full sample up to summation order. Stride
