@@ -376,6 +376,18 @@ fn mitsuba_shapes_are_placed_and_face_outwards() {
     }
     let ball = &s.meshes[2];
     assert!(ball.positions.iter().all(|p| ((glam::Vec3::from(*p) - glam::Vec3::new(-2.0, 0.0, 0.0)).length() - 0.7).abs() < 1e-5));
+    // Mitsuba's spherical texture coordinates: θ from the local +z axis (v = θ/π down the
+    // image, 1 − θ/π in the model's), φ around it from +x (u = φ/2π).
+    for (p, uv) in ball.positions.iter().zip(&ball.uvs) {
+        let d = (glam::Vec3::from(*p) - glam::Vec3::new(-2.0, 0.0, 0.0)) / 0.7;
+        let theta = d.z.clamp(-1.0, 1.0).acos();
+        assert!((uv[1] - (1.0 - theta / std::f32::consts::PI)).abs() < 1e-4, "{p:?} {uv:?}");
+        if d.x.hypot(d.y) > 1e-3 {
+            let phi = d.y.atan2(d.x).rem_euclid(std::f32::consts::TAU);
+            let du = (uv[0] - phi / std::f32::consts::TAU).abs();
+            assert!(du < 1e-4 || (du - 1.0).abs() < 1e-4, "{p:?} {uv:?}");
+        }
+    }
     // The disk: radius 0.5 in the plane y = -0.5 around (0, -0.5, 2), facing up, with
     // Mitsuba's polar texture coordinates (u the distance from the centre over the radius).
     let coin = &s.meshes[4];

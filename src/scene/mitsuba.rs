@@ -1330,7 +1330,9 @@ fn sphere(center: Vec3, radius: f32) -> Geometry {
         let theta = std::f32::consts::PI * j as f32 / nv as f32;
         for i in 0..=nu {
             let phi = std::f32::consts::TAU * i as f32 / nu as f32;
-            let n = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+            // Mitsuba's parameterisation: θ from the local +z axis, φ around it from +x,
+            // u = φ / 2π and v = θ / π (v down the image: 1 − θ / π in the model's).
+            let n = Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
             g.0.push((center + radius * n).to_array());
             g.1.push(n.to_array());
             g.2.push([i as f32 / nu as f32, 1.0 - j as f32 / nv as f32]);
