@@ -1159,24 +1159,25 @@ fn vertex_normals(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Vec<[f32; 3]>
 type Geometry = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>);
 
 /// Mitsuba's cube: [−1, 1]³, each face two counter-clockwise triangles seen from outside,
-/// with flat normals.
+/// with flat normals and Mitsuba's texture coordinates (each face mapped onto [0, 1]²): face
+/// s has vertices 4s .. 4s + 3 at the corners `CUBE_CORNERS` names (bit k of a corner: the
+/// sign of axis k), with Mitsuba's uv (0, 1), (1, 1), (1, 0), (0, 0) (v down the image:
+/// 1 − v in the model's), and triangles (4s, 4s + 1, 4s + 2) and (4s + 3, 4s, 4s + 2).
 fn cube() -> Geometry {
+    const NORMALS: [[f32; 3]; 6] = [[0.0, -1.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]];
+    const CUBE_CORNERS: [u32; 24] = [1, 5, 4, 0, 3, 2, 6, 7, 1, 3, 7, 5, 5, 7, 6, 4, 4, 6, 2, 0, 3, 1, 0, 2];
+    const UVS: [[f32; 2]; 4] = [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]];
     let mut g: Geometry = Default::default();
-    for axis in 0..3 {
-        for sign in [-1.0f32, 1.0] {
-            let n = Vec3::from(std::array::from_fn(|i| if i == axis { sign } else { 0.0 }));
-            // Two tangents with t1 × t2 = n.
-            let t1 = Vec3::from(std::array::from_fn(|i| if i == (axis + 1) % 3 { 1.0 } else { 0.0 }));
-            let t2 = n.cross(t1);
-            let base = g.0.len() as u32;
-            for (a, b) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)] {
-                g.0.push((n + a * t1 + b * t2).to_array());
-                g.1.push(n.to_array());
-                g.2.push([(a + 1.0) / 2.0, (b + 1.0) / 2.0]);
-            }
-            g.3.push([base, base + 1, base + 2]);
-            g.3.push([base + 2, base + 3, base]);
+    for (s, n) in NORMALS.iter().enumerate() {
+        let base = 4 * s as u32;
+        for k in 0..4 {
+            let c = CUBE_CORNERS[4 * s + k];
+            g.0.push(std::array::from_fn(|axis| if c & (1 << axis) != 0 { 1.0 } else { -1.0 }));
+            g.1.push(*n);
+            g.2.push([UVS[k][0], 1.0 - UVS[k][1]]);
         }
+        g.3.push([base, base + 1, base + 2]);
+        g.3.push([base + 3, base, base + 2]);
     }
     g
 }
@@ -1276,7 +1277,8 @@ fn serialized_mesh(bytes: &[u8], index: u32) -> Result<SerializedMesh, String> {
 
 /// Mitsuba's disk, the unit disk in the xy-plane facing +z, as `SPHERE_SEGMENTS` triangles
 /// around its centre, with Mitsuba's polar texture coordinates (u the radius, v the angle
-/// over 2π: the centre is repeated per triangle at its middle angle).
+/// over 2π down the image, 1 − v in the model's: the centre is repeated per triangle at its
+/// middle angle).
 fn disk() -> Geometry {
     let n = SPHERE_SEGMENTS;
     let mut g: Geometry = Default::default();
@@ -1290,7 +1292,7 @@ fn disk() -> Geometry {
         let (a, b) = (i as f32, i as f32 + 1.0);
         g.0.extend([[0.0, 0.0, 0.0], rim(a), rim(b)]);
         g.1.extend([[0.0, 0.0, 1.0]; 3]);
-        g.2.extend([[0.0, v(a + 0.5)], [1.0, v(a)], [1.0, v(b)]]);
+        g.2.extend([[0.0, 1.0 - v(a + 0.5)], [1.0, 1.0 - v(a)], [1.0, 1.0 - v(b)]]);
         g.3.push([base, base + 1, base + 2]);
     }
     g
@@ -1298,7 +1300,9 @@ fn disk() -> Geometry {
 
 /// Mitsuba's cylinder: the open tube of `radius` around the segment from `p0` to `p1`, as
 /// `SPHERE_SEGMENTS` quads around it, counter-clockwise from outside, with the exact normals
-/// and Mitsuba's texture coordinates (u the angle over 2π, v along the axis).
+/// and Mitsuba's texture coordinates (u the angle over 2π from the first axis of the
+/// segment's frame, Mitsuba's `coordinate_system`, which glam's `any_orthonormal_pair` is;
+/// v along the axis from p0, down the image: 1 − v in the model's).
 fn cylinder(p0: Vec3, p1: Vec3, radius: f32) -> Geometry {
     let n = SPHERE_SEGMENTS;
     let axis = p1 - p0;
@@ -1310,7 +1314,7 @@ fn cylinder(p0: Vec3, p1: Vec3, radius: f32) -> Geometry {
             let normal = phi.cos() * t1 + phi.sin() * t2;
             g.0.push((p0 + j as f32 * axis + radius * normal).to_array());
             g.1.push(normal.to_array());
-            g.2.push([i as f32 / n as f32, j as f32]);
+            g.2.push([i as f32 / n as f32, 1.0 - j as f32]);
         }
     }
     for i in 0..n {
