@@ -587,7 +587,7 @@ fn normal_maps_are_checked() {
     write_exr(&path.with_file_name("bumps.exr"), &img).unwrap();
     let err = Scene::load(&path).unwrap_err();
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
-    assert_message(&err, &["materials.m.normal_map.texture", "bumps.exr", "1.25", "(1, 1)", "[0, 1]"]);
+    assert_message(&err, &["materials.m.normal_map.texture", "bumps.exr", "1.25", "(1, 1)", "[0, 1]", "(n + 1) / 2"]);
     assert_message(&load_err("nmap-scale", &with("{ texture = \"tex.exr\", scale = nan }")), &["materials.m.normal_map.scale"]);
     assert_message(&load_err("nmap-bitangent", &with("{ texture = \"tex.exr\", bitangent = \"left\" }")), &["materials.m.normal_map.bitangent", "\"left\""]);
     assert_message(&load_err("nmap-missing", &with("{ texture = \"none.exr\" }")), &["materials.m.normal_map.texture", "none.exr"]);

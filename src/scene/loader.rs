@@ -434,7 +434,12 @@ impl Loader {
                 Some(n) => {
                     let k = format!("{key}.normal_map.texture");
                     let texture = self.texture(&k, &n.texture)?;
-                    self.texels_in(&k, &texture, 3, 0.0, 1.0)?;
+                    self.texels_in(&k, &texture, 3, 0.0, 1.0).map_err(|e| match e {
+                        SceneError::OutOfRange { scene, key, message } => {
+                            SceneError::OutOfRange { scene, key, message: format!("{message} (a normal map stores each normal n as (n + 1) / 2)") }
+                        }
+                        e => e,
+                    })?;
                     let scale = n.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
                     let bitangent = match n.bitangent.as_deref() {
