@@ -79,7 +79,13 @@ fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f
 /// paths and must agree up to float summation order (atomics in another order).
 #[test]
 fn fused_equals_two_trace_when_sampling_does_not_depend_on_parameters() {
-    let (fused, two) = fd_samples("scenes/cornell/scene.toml", 0.05, 2, 2);
+    assert_fused_equals_two_trace("scenes/cornell/scene.toml");
+}
+
+/// The fused and two-trace samples of `scene_path` (θ_prev 0.05 off, 2 spp, 2 rounds) agree
+/// up to float summation order, and the step changes the gradient.
+fn assert_fused_equals_two_trace(scene_path: &str) {
+    let (fused, two) = fd_samples(scene_path, 0.05, 2, 2);
     for (a, b) in fused.iter().zip(&two) {
         for (x, y) in a.iter().zip(b) {
             assert!((x - y).abs() <= 1e-4 * y.abs() + 1e-8, "fused {x} vs two-trace {y}");
@@ -93,59 +99,10 @@ fn fused_equals_two_trace_when_sampling_does_not_depend_on_parameters() {
 /// (it is no parameter), so the fused sample still traces the two-trace version's paths.
 #[test]
 fn fused_equals_two_trace_on_a_normal_mapped_surface() {
-    let dir = common::scenes::temp_dir("fd-normal-map");
-    let mut normals = vkinverse::image::Image::filled(4, 4, [0.5, 0.5, 1.0]);
-    for (i, px) in normals.data.iter_mut().enumerate() {
-        let (x, y) = (0.3 * ((i % 4) as f32 - 1.5) / 1.5, 0.3 * ((i / 4) as f32 - 1.5) / 1.5);
-        let l = (x * x + y * y + 1.0).sqrt();
-        *px = [(x / l + 1.0) / 2.0, (y / l + 1.0) / 2.0, (1.0 / l + 1.0) / 2.0];
-    }
-    vkinverse::image::write_exr(&dir.join("normals.exr"), &normals).unwrap();
-    std::fs::write(dir.join("quad.obj"), "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n").unwrap();
-    std::fs::write(dir.join("light.obj"), "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n").unwrap();
-    let toml = r#"
-[film]
-width = 16
-height = 16
-[integrator]
-max_depth = 3
-rr_depth = 5
-[[sensors]]
-origin = [0, 1.2, 1.8]
-target = [0, 0, -0.1]
-fov_y = 50
-[[materials]]
-name = "floor"
-type = "diffuse"
-base_color = [0.7, 0.4, 0.2]
-normal_map = { texture = "normals.exr" }
-[[materials]]
-name = "black"
-type = "diffuse"
-base_color = [0, 0, 0]
-[[meshes]]
-file = "quad.obj"
-material = "floor"
-[[meshes]]
-file = "light.obj"
-material = "black"
-emission = [6, 6, 6]
-[environment]
-constant = [0.3, 0.35, 0.4]
-[optimise]
-[[optimise.params]]
-target = "materials.floor.base_color"
-init = [0.5, 0.5, 0.5]
-range = [0, 1]
-"#;
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    let (fused, two) = fd_samples(dir.join("scene.toml").to_str().unwrap(), 0.05, 2, 2);
-    for (a, b) in fused.iter().zip(&two) {
-        for (x, y) in a.iter().zip(b) {
-            assert!((x - y).abs() <= 1e-4 * y.abs() + 1e-8, "fused {x} vs two-trace {y}");
-        }
-        assert!(a.iter().any(|v| v.abs() > 1e-7), "a 0.05 step changes the gradient: {a:?}");
-    }
+    let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]\nnormal_map = { texture = \"normals.exr\" }";
+    let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]";
+    let path = common::scenes::lit_quad("fd-normal-map", 16, floor, "constant = [0.3, 0.35, 0.4]", optimise);
+    assert_fused_equals_two_trace(path.to_str().unwrap());
 }
 
 /// The sample on every stride-th pixel (`fd_stride`): the checkerboards of all phases
@@ -213,8 +170,6 @@ fn fused_and_two_trace_agree_in_expectation_when_sampling_depends_on_parameters(
 /// float summation order, as in the Cornell box.
 #[test]
 fn fused_equals_two_trace_with_a_light_sampled_environment_map() {
-    let quad = "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nf 1 4 3 2\n";
-    let light = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n";
     let params = [
         r#"
 [[optimise.params]]
@@ -235,48 +190,8 @@ texture = [4, 2]
 "#,
     ];
     for (i, optimise) in params.iter().enumerate() {
-        let dir = common::scenes::temp_dir(&format!("fd-env-{i}"));
-        let mut sky = vkinverse::image::Image::filled(16, 8, [0.05, 0.06, 0.08]);
-        sky.data[2 * 16 + 8] = [60.0, 50.0, 30.0];
-        vkinverse::image::write_exr(&dir.join("sky.exr"), &sky).unwrap();
-        std::fs::write(dir.join("quad.obj"), quad).unwrap();
-        std::fs::write(dir.join("light.obj"), light).unwrap();
-        let toml = format!(
-            r#"
-[film]
-width = 16
-height = 16
-[integrator]
-max_depth = 3
-rr_depth = 5
-[[sensors]]
-origin = [0, 1.2, 1.8]
-target = [0, 0, -0.1]
-up = [0, 1, 0]
-fov_y = 50
-[[materials]]
-name = "floor"
-type = "diffuse"
-base_color = [0.7, 0.4, 0.2]
-[[materials]]
-name = "black"
-type = "diffuse"
-base_color = [0, 0, 0]
-[[meshes]]
-file = "quad.obj"
-material = "floor"
-[[meshes]]
-file = "light.obj"
-material = "black"
-emission = [6, 6, 6]
-[environment]
-file = "sky.exr"
-[optimise]
-{optimise}
-"#
-        );
-        std::fs::write(dir.join("scene.toml"), toml).unwrap();
-        let (fused, two) = fd_samples(dir.join("scene.toml").to_str().unwrap(), 0.05, 2, 2);
+        let path = common::scenes::sky_lit_quad(&format!("fd-env-{i}"), 16, optimise);
+        let (fused, two) = fd_samples(path.to_str().unwrap(), 0.05, 2, 2);
         for (a, b) in fused.iter().zip(&two) {
             for (x, y) in a.iter().zip(b) {
                 assert!((x - y).abs() <= 1e-4 * y.abs() + 1e-8, "scene {i}: fused {x} vs two-trace {y}");

@@ -34,7 +34,7 @@
 
 mod common;
 
-use common::scenes::temp_dir;
+use common::scenes::{lit_quad, temp_dir};
 use common::with_gpu;
 use std::sync::{Arc, RwLock};
 use vkinverse::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
@@ -197,71 +197,17 @@ constant = [0.35, 0.4, 0.5]
     load(name, &toml, &[])
 }
 
-/// A 2 × 2 quad in the y = 0 plane facing +y, with texture coordinates (v up, +z at v = 0).
-const QUAD_OBJ: &str = "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n";
-/// A 0.6 × 0.6 area light at y = 1.2 facing down, behind the quad's centre.
-const GLOSSY_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n";
-
 /// A principled textured quad seen at 40°, lit by an area light whose glossy reflection is
-/// in view and by a constant sky. The quad cannot see itself, so the image is linear in
-/// its base colour and metallic (not in roughness).
+/// in view and by a constant sky ([`lit_quad`]). The quad cannot see itself, so the image is
+/// linear in its base colour and metallic (not in roughness).
 fn glossy(name: &str, film: u32, optimise: &str) -> Scene {
     glossy_with(name, film, "", optimise)
 }
 
-/// [`glossy`] with `floor` added to the floor's material; a 4 × 4 normal map of tilts up to
-/// 30° in every direction, `normals.exr`, lies beside the scene for it to name.
+/// [`glossy`] with `floor` added to the floor's material (`normals.exr` lies beside it).
 fn glossy_with(name: &str, film: u32, floor: &str, optimise: &str) -> Scene {
-    let dir = temp_dir(&format!("gradients-{name}"));
-    let mut normals = Image::filled(4, 4, [0.5, 0.5, 1.0]);
-    for (i, px) in normals.data.iter_mut().enumerate() {
-        let a = i as f32 * 2.4;
-        let t = 0.55 * ((i % 5) as f32 / 4.0);
-        let n = glam::Vec3::new(t * a.cos(), t * a.sin(), 1.0).normalize();
-        *px = [(n.x + 1.0) / 2.0, (n.y + 1.0) / 2.0, (n.z + 1.0) / 2.0];
-    }
-    vkinverse::image::write_exr(&dir.join("normals.exr"), &normals).unwrap();
-    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
-    std::fs::write(dir.join("light.obj"), GLOSSY_LIGHT_OBJ).unwrap();
-    let toml = format!(
-        r#"
-[film]
-width = {film}
-height = {film}
-[integrator]
-max_depth = 3
-rr_depth = 5
-[[sensors]]
-origin = [0, 1.2, 1.8]
-target = [0, 0, -0.1]
-up = [0, 1, 0]
-fov_y = 50
-[[materials]]
-name = "floor"
-type = "principled"
-base_color = [0.7, 0.4, 0.2]
-roughness = 0.35
-metallic = 0.4
-{floor}
-[[materials]]
-name = "black"
-type = "diffuse"
-base_color = [0, 0, 0]
-[[meshes]]
-file = "quad.obj"
-material = "floor"
-[[meshes]]
-file = "light.obj"
-material = "black"
-emission = [6, 6, 6]
-[environment]
-constant = [0.3, 0.35, 0.4]
-[optimise]
-{optimise}
-"#
-    );
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    Scene::load(dir.join("scene.toml")).unwrap()
+    let floor = format!("type = \"principled\"\nbase_color = [0.7, 0.4, 0.2]\nroughness = 0.35\nmetallic = 0.4\n{floor}");
+    Scene::load(lit_quad(&format!("gradients-{name}"), film, &floor, "constant = [0.3, 0.35, 0.4]", optimise)).unwrap()
 }
 
 /// A diffuse quad lit by the area light of [`glossy`] and by a 16 × 8 lat-long map with one
@@ -269,48 +215,7 @@ constant = [0.3, 0.35, 0.4]
 /// estimation picks the light or the map with probability ½ each, and the map by its
 /// (non-uniform) distribution.
 fn env_lit(name: &str, film: u32, optimise: &str) -> Scene {
-    let dir = temp_dir(&format!("gradients-{name}"));
-    let mut sky = Image::filled(16, 8, [0.05, 0.06, 0.08]);
-    sky.data[2 * 16 + 8] = [60.0, 50.0, 30.0];
-    vkinverse::image::write_exr(&dir.join("sky.exr"), &sky).unwrap();
-    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
-    std::fs::write(dir.join("light.obj"), GLOSSY_LIGHT_OBJ).unwrap();
-    let toml = format!(
-        r#"
-[film]
-width = {film}
-height = {film}
-[integrator]
-max_depth = 3
-rr_depth = 5
-[[sensors]]
-origin = [0, 1.2, 1.8]
-target = [0, 0, -0.1]
-up = [0, 1, 0]
-fov_y = 50
-[[materials]]
-name = "floor"
-type = "diffuse"
-base_color = [0.7, 0.4, 0.2]
-[[materials]]
-name = "black"
-type = "diffuse"
-base_color = [0, 0, 0]
-[[meshes]]
-file = "quad.obj"
-material = "floor"
-[[meshes]]
-file = "light.obj"
-material = "black"
-emission = [6, 6, 6]
-[environment]
-file = "sky.exr"
-[optimise]
-{optimise}
-"#
-    );
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    Scene::load(dir.join("scene.toml")).unwrap()
+    Scene::load(common::scenes::sky_lit_quad(&format!("gradients-{name}"), film, optimise)).unwrap()
 }
 
 // ---------------------------------------------------------------------------------------

@@ -237,8 +237,14 @@ fn plane_radiance(map: &Image, rho: f64) -> [f64; 3] {
 /// the lat-long map `map` only (max depth 2: direct light; the quad cannot see itself).
 /// Every pixel estimates the same radiance.
 fn env_lit_quad(name: &str, map: &Image) -> Scene {
+    Scene::load(quad_under_map(name, map, QUAD_OBJ, "")).unwrap()
+}
+
+/// Writes the scene of [`env_lit_quad`] into a fresh temp dir `name`, its quad from OBJ text
+/// `obj` and `material` added to the quad's material table, and returns its path.
+fn quad_under_map(name: &str, map: &Image, obj: &str, material: &str) -> std::path::PathBuf {
     let dir = common::scenes::temp_dir(name);
-    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("quad.obj"), obj).unwrap();
     write_exr(&dir.join("sky.exr"), map).unwrap();
     let toml = format!(
         r#"
@@ -257,6 +263,7 @@ fov_y = 30
 name = "grey"
 type = "diffuse"
 base_color = [{RHO}, {RHO}, {RHO}]
+{material}
 [[meshes]]
 file = "quad.obj"
 material = "grey"
@@ -265,7 +272,7 @@ file = "sky.exr"
 "#
     );
     std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    Scene::load(dir.join("scene.toml")).unwrap()
+    dir.join("scene.toml")
 }
 
 /// How the quad of [`normal_quad`] is shaded: a constant normal map (the tangent-space
@@ -280,53 +287,28 @@ enum Shading {
 /// The diffuse quad of [`env_lit_quad`] under [`spot_map`], shaded as `shading` says;
 /// `mirrored`: its texture coordinates' u runs along −x instead of +x.
 fn normal_quad(name: &str, shading: Shading, mirrored: bool) -> Scene {
-    let dir = common::scenes::temp_dir(name);
-    write_exr(&dir.join("sky.exr"), &spot_map()).unwrap();
     let u = |x: f32| if mirrored { 1.0 - x } else { x };
     let mut obj = format!("v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt {} 1\nvt {} 1\nvt {} 0\nvt {} 0\n", u(0.0), u(1.0), u(1.0), u(0.0));
-    let mut map = String::new();
+    let (mut map, mut normals) = ("", None);
     match shading {
         Shading::Geometric => obj.push_str("f 1/1 4/4 3/3 2/2\n"),
         Shading::Vertex(n) => obj.push_str(&format!("vn {} {} {}\nf 1/1/1 4/4/1 3/3/1 2/2/1\n", n[0], n[1], n[2])),
         Shading::Map(n) => {
             obj.push_str("f 1/1 4/4 3/3 2/2\n");
             // Encoded as (n + 1) / 2, in a 2 × 2 image so that the lookup is bilinear.
-            write_exr(&dir.join("normals.exr"), &Image::filled(2, 2, n.map(|v| (v + 1.0) / 2.0))).unwrap();
-            map = "normal_map = { texture = \"normals.exr\" }".into();
+            normals = Some(Image::filled(2, 2, n.map(|v| (v + 1.0) / 2.0)));
+            map = "normal_map = { texture = \"normals.exr\" }";
         }
     }
-    std::fs::write(dir.join("quad.obj"), obj).unwrap();
-    let toml = format!(
-        r#"
-[film]
-width = 32
-height = 32
-[integrator]
-max_depth = 2
-rr_depth = 5
-[[sensors]]
-origin = [0, 3, 0]
-target = [0, 0, 0]
-up = [0, 0, -1]
-fov_y = 30
-[[materials]]
-name = "grey"
-type = "diffuse"
-base_color = [{RHO}, {RHO}, {RHO}]
-{map}
-[[meshes]]
-file = "quad.obj"
-material = "grey"
-[environment]
-file = "sky.exr"
-"#
-    );
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    Scene::load(dir.join("scene.toml")).unwrap()
+    let path = quad_under_map(name, &spot_map(), &obj, map);
+    if let Some(img) = normals {
+        write_exr(&path.with_file_name("normals.exr"), &img).unwrap();
+    }
+    Scene::load(path).unwrap()
 }
 
-/// A constant normal map shades as vertex normals equal to the normal it encodes, turned
-/// into the frame of the texture coordinates: x along dp/du, y along dp/dv (the bitangent
+/// A constant normal map shades as the vertex normals it encodes, turned into the frame
+/// of the texture coordinates: x along dp/du, y along dp/dv (the bitangent
 /// cross(n, tangent), turned where u is mirrored) and z along the surface normal. The quad
 /// faces +y with u along +x and v along −z, so the tangent-space (sin a, 0, cos a) is the
 /// world's (sin a, cos a, 0) and (0, sin a, cos a) is (0, cos a, −sin a); mirroring u turns

@@ -1,8 +1,11 @@
 #!/usr/bin/env python3
-"""Writes the mesh files of scenes/mitsuba/scene.xml: the back wall as OBJ and a wedge
-(a triangular prism) as binary PLY. The scene file itself is written by hand."""
+"""Writes the mesh files of scenes/mitsuba/scene.xml, the back wall as OBJ and a wedge
+(a triangular prism) as binary PLY, and the normal map of normalmap.xml and
+textured_shapes.xml. The scene files themselves are written by hand."""
 
+import math
 import struct
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -27,18 +30,8 @@ body += b"".join(struct.pack("<B", len(f)) + struct.pack(f"<{len(f)}i", *f) for 
 # The normal map of normalmap.xml: 8 x 8 texels, 8-bit RGB encoding (n + 1) / 2 of
 # tangent-space normals. Columns tilt along u (left: -30°, right: +30°, the middle two
 # columns flat), rows along v (top rows +20°, bottom rows -20°).
-import math
-import zlib
-
-
-def png(width, height, rows):
-    raw = b"".join(b"\0" + bytes(c for px in row for c in px) for row in rows)
-
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    head = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+sys.path.insert(0, str(HERE.parents[1] / "tests" / "data"))
+from make_data import png  # noqa: E402  (8-bit RGB PNG writer)
 
 
 def texel(ax, ay):

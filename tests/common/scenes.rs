@@ -169,3 +169,75 @@ pub fn delta_lit_radiance(scene: &vkinverse::scene::Scene, x: [f64; 3]) -> [f64;
     }
     l
 }
+
+/// A 2 × 2 quad in the y = 0 plane facing +y, with texture coordinates (v up, +z at v = 0).
+pub const QUAD_OBJ: &str = "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n";
+/// A 0.6 × 0.6 area light at y = 1.2 facing down, behind the quad's centre.
+pub const QUAD_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n";
+
+/// Writes into a fresh temp dir `name` a scene of [`QUAD_OBJ`] seen at 40° from
+/// (0, 1.2, 1.8) and lit by [`QUAD_LIGHT_OBJ`] (emission 6) and the environment `environment`
+/// (the body of its table): `film`² pixels, depth 3, Russian roulette from 5. `floor` is the
+/// body of the quad's material table after its name, `optimise` that of `[optimise]`;
+/// `normals.exr`, a 4 × 4 normal map of tilts up to 30° in every direction, lies beside it
+/// for the floor to name. Returns the scene file's path.
+pub fn lit_quad(name: &str, film: u32, floor: &str, environment: &str, optimise: &str) -> PathBuf {
+    let dir = temp_dir(name);
+    let mut normals = vkinverse::image::Image::filled(4, 4, [0.5, 0.5, 1.0]);
+    for (i, px) in normals.data.iter_mut().enumerate() {
+        let a = i as f32 * 2.4;
+        let t = 0.55 * ((i % 5) as f32 / 4.0);
+        let n = glam::Vec3::new(t * a.cos(), t * a.sin(), 1.0).normalize();
+        *px = [(n.x + 1.0) / 2.0, (n.y + 1.0) / 2.0, (n.z + 1.0) / 2.0];
+    }
+    vkinverse::image::write_exr(&dir.join("normals.exr"), &normals).unwrap();
+    std::fs::write(dir.join("quad.obj"), QUAD_OBJ).unwrap();
+    std::fs::write(dir.join("light.obj"), QUAD_LIGHT_OBJ).unwrap();
+    let toml = format!(
+        r#"
+[film]
+width = {film}
+height = {film}
+[integrator]
+max_depth = 3
+rr_depth = 5
+[[sensors]]
+origin = [0, 1.2, 1.8]
+target = [0, 0, -0.1]
+up = [0, 1, 0]
+fov_y = 50
+[[materials]]
+name = "floor"
+{floor}
+[[materials]]
+name = "black"
+type = "diffuse"
+base_color = [0, 0, 0]
+[[meshes]]
+file = "quad.obj"
+material = "floor"
+[[meshes]]
+file = "light.obj"
+material = "black"
+emission = [6, 6, 6]
+[environment]
+{environment}
+[optimise]
+{optimise}
+"#
+    );
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, toml).unwrap();
+    path
+}
+
+/// [`lit_quad`] with a diffuse floor (0.7, 0.4, 0.2) under a 16 × 8 lat-long map with one
+/// bright texel (over the quad, about 34° from the zenith) on a dim sky, light-sampled beside
+/// the area light. Returns the scene file's path.
+pub fn sky_lit_quad(name: &str, film: u32, optimise: &str) -> PathBuf {
+    let path = lit_quad(name, film, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", "file = \"sky.exr\"", optimise);
+    let mut sky = vkinverse::image::Image::filled(16, 8, [0.05, 0.06, 0.08]);
+    sky.data[2 * 16 + 8] = [60.0, 50.0, 30.0];
+    vkinverse::image::write_exr(&path.with_file_name("sky.exr"), &sky).unwrap();
+    path
+}

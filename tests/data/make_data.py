@@ -164,8 +164,8 @@ def box():
     doc, blob = box_gltf(binary=False)
     write(d / "box.gltf", json.dumps(doc, indent=1))
     write(d / "box.glb", glb(*box_gltf(binary=True)))
-    shapes = "".join(
-        f'    <shape type="obj" id="{n}">\n        <string name="filename" value="{n}.obj"/>\n        <ref id="{MESH_MATERIAL[n]}"/>\n'
+    shapes = "    <!-- Flat faces, as in scene.toml, whose OBJs carry no normals: without face_normals\n         the import, like Mitsuba, smooths each mesh with computed vertex normals. -->\n" + "".join(
+        f'    <shape type="obj" id="{n}">\n        <string name="filename" value="{n}.obj"/>\n        <boolean name="face_normals" value="true"/>\n        <ref id="{MESH_MATERIAL[n]}"/>\n'
         + (f'        <emitter type="area"><rgb name="radiance" value="{MATERIALS[MESH_MATERIAL[n]][3]}"/></emitter>\n' if MATERIALS[MESH_MATERIAL[n]][3] else "")
         + "    </shape>\n"
         for n in QUADS
@@ -205,6 +205,30 @@ def box():
         write(d / f"import-{name}.toml", f'# {file} with the camera and film of scene.toml.\nimport = "{file}"\n\n' + head + sensor)
 
 
+# The accessors and buffer views of quad_blob().
+QUAD_ACCESSORS = [
+    {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0, 1]},
+    {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
+    {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
+]
+QUAD_VIEWS = [
+    {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+    {"buffer": 0, "byteOffset": 48, "byteLength": 32},
+    {"buffer": 0, "byteOffset": 80, "byteLength": 12},
+]
+
+
+def quad_blob():
+    """The buffer of a quad in the y = 0 plane facing +y: 4 positions (VEC3 floats, 48
+    bytes), 4 glTF texture coordinates (VEC2 floats, 32 bytes), 6 u16 indices (12 bytes)."""
+    blob = bytearray()
+    for c in [(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]:
+        blob += struct.pack("<3f", *c)
+    for uv in [(0, 0), (0, 1), (1, 1), (1, 0)]:
+        blob += struct.pack("<2f", *uv)
+    return blob + struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+
+
 def textured():
     d = HERE / "textured"
     # 2 x 2 base colour: row 0 red, green; row 1 blue, white (sRGB bytes).
@@ -212,12 +236,7 @@ def textured():
     write(d / "checker.png", base)
     # Metallic-roughness: G = roughness, B = metallic; a 2 x 1 image.
     mr = png(2, 1, [[(0, 51, 255), (0, 204, 0)]])
-    blob = bytearray()
-    for c in [(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]:
-        blob += struct.pack("<3f", *c)
-    for uv in [(0, 0), (0, 1), (1, 1), (1, 0)]:
-        blob += struct.pack("<2f", *uv)
-    blob += struct.pack("<6H", 0, 1, 2, 0, 2, 3) + b"\0\0"
+    blob = quad_blob() + b"\0\0"
     png_offset = len(blob)
     blob += mr + b"\0" * (-len(mr) % 4)
     doc = {
@@ -242,15 +261,8 @@ def textured():
         "textures": [{"source": 0}, {"source": 1}],
         "images": [{"uri": "checker.png"}, {"bufferView": 3, "mimeType": "image/png"}],
         "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "aspectRatio": 2.0, "znear": 0.01}}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0, 1]},
-            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 32},
-            {"buffer": 0, "byteOffset": 80, "byteLength": 12},
+        "accessors": QUAD_ACCESSORS,
+        "bufferViews": QUAD_VIEWS + [
             {"buffer": 0, "byteOffset": png_offset, "byteLength": len(mr)},
         ],
         "buffers": [{"byteLength": len(blob)}],
@@ -264,12 +276,7 @@ def normal_mapped():
     # Tangent-space normals as bytes (n + 1) / 2 * 255: tilted along +u, along +v, along
     # -u and untilted.
     write(d / "bumps.png", png(2, 2, [[(200, 128, 230), (128, 200, 230)], [(55, 128, 230), (128, 128, 255)]]))
-    blob = bytearray()
-    for c in [(-1, 0, -1), (-1, 0, 1), (1, 0, 1), (1, 0, -1)]:
-        blob += struct.pack("<3f", *c)
-    for uv in [(0, 0), (0, 1), (1, 1), (1, 0)]:
-        blob += struct.pack("<2f", *uv)
-    blob += struct.pack("<6H", 0, 1, 2, 0, 2, 3)
+    blob = quad_blob()
     doc = {
         "asset": {"version": "2.0"},
         "scenes": [{"nodes": [0, 1]}],
@@ -288,16 +295,8 @@ def normal_mapped():
         "textures": [{"source": 0}],
         "images": [{"uri": "bumps.png"}],
         "cameras": [{"type": "perspective", "perspective": {"yfov": 0.8, "aspectRatio": 1.0, "znear": 0.01}}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0, 1]},
-            {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"},
-            {"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"},
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": 48},
-            {"buffer": 0, "byteOffset": 48, "byteLength": 32},
-            {"buffer": 0, "byteOffset": 80, "byteLength": 12},
-        ],
+        "accessors": QUAD_ACCESSORS,
+        "bufferViews": QUAD_VIEWS,
         "buffers": [{"byteLength": len(blob), "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(blob)).decode()}],
     }
     write(d / "normal-mapped.gltf", json.dumps(doc, indent=1))
