@@ -123,7 +123,7 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
 /// The unit tangent dp/du of a triangle with corners p and texture coordinates uv, and the
 /// bitangent's handedness against its geometric normal ng (TriShading::tangent); zero where
 /// the coordinates span no area.
-pub fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
+fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
     let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
     let (d1, d2) = (Vec2::from(uv[1]) - Vec2::from(uv[0]), Vec2::from(uv[2]) - Vec2::from(uv[0]));
     let det = d1.x * d2.y - d2.x * d1.y;
