@@ -1038,6 +1038,11 @@ fn progress_lines_and_light_warnings_on_a_pipe() {
     });
     let out = vkinverse_ok(&["render", &s(&dark), "--spp", "1", "-o", &s(&dir.join("dark.exr"))]);
     assert!(out.stderr.contains("warning") && out.stderr.contains("no light"), "{}", out.stderr);
+    // So does a normal map on meshes without texture coordinates (the Cornell box's).
+    let bumpy = edited_cornell("bumpy", |t| replace_once(t, "name = \"red\"", "name = \"red\"\nnormal_map = { texture = \"n.exr\" }"));
+    vkinverse::image::write_exr(&bumpy.with_file_name("n.exr"), &vkinverse::image::Image::filled(2, 2, [0.6, 0.5, 0.9])).unwrap();
+    let out = vkinverse_ok(&["render", &s(&bumpy), "--spp", "1", "-o", &s(&dir.join("bumpy.exr"))]);
+    assert!(out.stderr.contains("warning") && out.stderr.contains("has no texture coordinates") && out.stderr.contains("\"red\""), "{}", out.stderr);
 }
 
 #[test]

@@ -147,10 +147,11 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     }
 }
 
-/// Warns about a scene that renders black or has lights that give none: no emitting
-/// triangle of non-zero area and no environment, or an emitting mesh whose triangles all
-/// have zero area (an emitter table cannot sample them, so they give no light).
-fn warn_about_light(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &ParamLayout, emitters: usize, has_environment: bool) {
+/// Warns about what the scene asks for and will not get: light (no emitting triangle of
+/// non-zero area and no environment: it renders black; an emitting mesh whose triangles all
+/// have zero area, which an emitter table cannot sample), or a normal map on a mesh without
+/// texture coordinates (it has no tangents, so the map is not applied).
+fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &ParamLayout, emitters: usize, has_environment: bool) {
     for (i, mesh) in scene.meshes.iter().enumerate() {
         let emits = layout.slot(ParamTarget::Emission { mesh: i }).is_some() || mesh.emission.iter().any(|&v| v > 0.0);
         let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
@@ -345,7 +346,7 @@ impl GpuScene {
                 tangent,
             });
         }
-        warn_about_light(scene, &geo, &layout, emitters.len(), has_environment);
+        warn_about_scene(scene, &geo, &layout, emitters.len(), has_environment);
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
