@@ -86,6 +86,13 @@ impl Image {
         Some(((i % w) as u32, (i / w) as u32))
     }
 
+    /// The first pixel (x, y, in row order) whose first `channels` channels hold a value
+    /// outside [lo, hi], with that value.
+    pub fn find_outside(&self, channels: usize, lo: f32, hi: f32) -> Option<(u32, u32, f32)> {
+        let w = self.width.max(1) as usize;
+        self.data.iter().enumerate().find_map(|(i, p)| p[..channels].iter().find(|v| !(lo..=hi).contains(*v)).map(|&v| ((i % w) as u32, (i / w) as u32, v)))
+    }
+
     fn check_size(&self, path: &Path) -> Result<(), ImageError> {
         if self.data.len() == self.width as usize * self.height as usize {
             Ok(())

@@ -34,6 +34,15 @@ use super::model::*;
 use super::{MaterialKind, SceneError, GLTF_FILM_SIDE, GLTF_MAX_DEPTH};
 use crate::image::{srgb_decode, Image};
 
+/// Where material `m` is in the document: `materials[i]`, or for glTF's default material
+/// (no index) the primitive that uses it (`used_at`).
+fn material_at(m: &gltf::Material, used_at: &str) -> String {
+    match m.index() {
+        Some(i) => format!("materials[{i}]"),
+        None => format!("{used_at}.material"),
+    }
+}
+
 /// Extensions whose content is read.
 pub const SUPPORTED_EXTENSIONS: [&str; 3] = ["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform"];
 
@@ -278,10 +287,7 @@ impl Importer<'_> {
         if let Some(&i) = self.materials.get(&m.index()) {
             return Ok(i);
         }
-        let at = match m.index() {
-            Some(i) => format!("materials[{i}]"),
-            None => format!("{used_at}.material"),
-        };
+        let at = material_at(&m, used_at);
         if m.emissive_texture().is_some() {
             return Err(self.err(format!("{at}.emissiveTexture"), "emissive textures are not supported (emission is one colour per mesh)"));
         }
@@ -349,10 +355,7 @@ impl Importer<'_> {
     /// material with different transforms, or a transform that picks another set, are
     /// refused.
     fn uv_transform(&self, m: &gltf::Material, used_at: &str) -> Result<Option<UvTransform>, SceneError> {
-        let at = match m.index() {
-            Some(i) => format!("materials[{i}]"),
-            None => format!("{used_at}.material"),
-        };
+        let at = material_at(m, used_at);
         let pbr = m.pbr_metallic_roughness();
         let refs = [
             ("pbrMetallicRoughness.baseColorTexture", pbr.base_color_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),

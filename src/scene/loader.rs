@@ -160,16 +160,15 @@ impl Loader {
     /// Checks the first `channels` channels of every texel against [lo, hi]: the rule a
     /// constant of the same property obeys.
     fn texels_in(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32) -> Result<(), SceneError> {
-        for (i, px) in t.image.data.iter().enumerate() {
-            if let Some(v) = px[..channels].iter().find(|v| !(lo..=hi).contains(*v)) {
-                let (x, y) = (i as u32 % t.image.width, i as u32 / t.image.width);
-                return Err(self.out_of_range(
-                    key,
-                    format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]", t.path.display()),
-                ));
-            }
+        self.texels_in_or(key, t, channels, lo, hi, "")
+    }
+
+    /// [`Self::texels_in`] with `note` after the message.
+    fn texels_in_or(&self, key: &str, t: &Texture, channels: usize, lo: f32, hi: f32, note: &str) -> Result<(), SceneError> {
+        match t.image.find_outside(channels, lo, hi) {
+            Some((x, y, v)) => Err(self.out_of_range(key, format!("{} has {v} at pixel ({x}, {y}), outside [{lo}, {hi}]{note}", t.path.display()))),
+            None => Ok(()),
         }
-        Ok(())
     }
 
     fn scalar_value(&self, key: &str, input: ScalarInput) -> Result<ScalarValue, SceneError> {
@@ -434,12 +433,7 @@ impl Loader {
                 Some(n) => {
                     let k = format!("{key}.normal_map.texture");
                     let texture = self.texture(&k, &n.texture)?;
-                    self.texels_in(&k, &texture, 3, 0.0, 1.0).map_err(|e| match e {
-                        SceneError::OutOfRange { scene, key, message } => {
-                            SceneError::OutOfRange { scene, key, message: format!("{message} (a normal map stores each normal n as (n + 1) / 2)") }
-                        }
-                        e => e,
-                    })?;
+                    self.texels_in_or(&k, &texture, 3, 0.0, 1.0, " (a normal map stores each normal n as (n + 1) / 2)")?;
                     let scale = n.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
                     let bitangent = match n.bitangent.as_deref() {

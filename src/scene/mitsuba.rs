@@ -706,8 +706,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             ColorValue::Constant(_) if at == node => return Err(self.err(node, "normalmap needs a `normalmap` bitmap texture")),
             ColorValue::Constant(_) => return Err(self.err(at, "a normal map must be a bitmap texture")),
         };
-        if let Some((i, v)) = texture.image.data.iter().enumerate().find_map(|(i, p)| p.iter().find(|v| !(0.0..=1.0).contains(*v)).map(|v| (i, *v))) {
-            let (x, y) = (i as u32 % texture.image.width, i as u32 / texture.image.width);
+        if let Some((x, y, v)) = texture.image.find_outside(3, 0.0, 1.0) {
             return Err(self.err(at, format!("{} has {v} at pixel ({x}, {y}), outside [0, 1]", texture.path.display())));
         }
         // Mitsuba's refinements of the perturbed frame, which the model does not make.
