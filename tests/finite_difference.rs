@@ -105,6 +105,16 @@ fn fused_equals_two_trace_on_a_normal_mapped_surface() {
     assert_fused_equals_two_trace(path.to_str().unwrap());
 }
 
+/// The same with the area light's emission optimised as a texture: both parameter states
+/// read it where a light sample lands and where a BSDF sample hits the light.
+#[test]
+fn fused_equals_two_trace_with_an_emission_texture() {
+    let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
+    let optimise = "[[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [3, 9, 5]\nrange = [0, 50]\ntexture = [2, 2]";
+    let path = common::scenes::lit_quad("fd-emission-texture", 16, floor, "constant = [0.3, 0.35, 0.4]", optimise);
+    assert_fused_equals_two_trace(path.to_str().unwrap());
+}
+
 /// The sample on every stride-th pixel (`fd_stride`): the checkerboards of all phases
 /// cover each pixel once, with the random numbers of the full sample and each pixel
 /// weighted `stride` times, so their mean is the full sample up to summation order. Stride

@@ -683,6 +683,25 @@ range = [0.0, 50.0]
     });
 }
 
+/// An emission texture: the area light of [`lit_quad`](common::scenes::lit_quad) optimised
+/// as 2 × 2 texels, which light the diffuse floor through next-event estimation (the
+/// texture read at the sampled point of the light) and through BSDF samples that hit the
+/// light (read where they hit). The image is linear in every texel and neither strategy
+/// depends on them (emitters are picked by area when emission is optimised), so the
+/// adjoint must be exact per sample, texel by texel.
+#[test]
+fn emission_texture_gradients_are_exact() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [3.0, 9.0, 5.0]\nrange = [0.0, 50.0]\ntexture = [2, 2]\n";
+        let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
+        let scene = Scene::load(common::scenes::lit_quad("gradients-emission-texture", 16, floor, "constant = [0.1, 0.1, 0.1]", optimise)).unwrap();
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        assert!(b.scene().has_emission_textures);
+        let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.5)).collect();
+        check("l2", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+    });
+}
+
 /// scenes/gap (a closed box lit only through a 2 cm gap between a one-sided light and the
 /// ceiling) at 32² pixels, its left wall's colour checked by `vkinverse::gradcheck`: the
 /// adjoint against finite differences of the unbiased loss over independent renders, so
@@ -979,7 +998,8 @@ range = [0.0, 1.0]
 }
 
 /// The integrator kernels are specialised for the scene's features (`GpuScene::spec`): a
-/// scene without textures or principled materials has their code compiled out. The kernels
+/// scene without textures (of materials or of emission) or principled materials has their
+/// code compiled out. The kernels
 /// with every feature compiled in must compute the same thing: the Cornell box (neither
 /// feature) and the spiral (principled, untextured) render bit-identical images and the
 /// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
@@ -997,6 +1017,7 @@ fn feature_specialisation_changes_no_result() {
                 let mut gs = GpuScene::new(ctx, &scene).unwrap();
                 assert!(!gs.has_textures, "{name} has no texture");
                 assert!(!gs.has_normal_maps, "{name} has no normal map");
+                assert!(!gs.has_emission_textures, "{name} has no emission texture");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
                 assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
@@ -1007,6 +1028,7 @@ fn feature_specialisation_changes_no_result() {
                     gs.has_principled = true;
                     gs.has_normals = true;
                     gs.has_normal_maps = true;
+                    gs.has_emission_textures = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.

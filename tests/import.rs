@@ -39,7 +39,7 @@ fn box_loads_to_the_same_model_from_every_format() {
         assert_eq!(s.meshes.len(), 3, "{file}");
         for (a, b) in toml.meshes.iter().zip(&s.meshes) {
             assert_eq!(a.name, b.name, "{file}: mesh names are the source's");
-            assert_eq!((&a.positions, &a.normals, &a.indices, a.emission), (&b.positions, &b.normals, &b.indices, b.emission), "{file}: mesh {}", a.name);
+            assert_eq!((&a.positions, &a.normals, &a.indices, &a.emission), (&b.positions, &b.normals, &b.indices, &b.emission), "{file}: mesh {}", a.name);
             assert_eq!(toml.materials[a.material].name, s.materials[b.material].name, "{file}: material of {}", a.name);
         }
         for (a, b) in toml.materials.iter().zip(&s.materials) {
@@ -248,6 +248,69 @@ fn gltf_normal_maps_are_read_rendered_and_written_back() {
     });
 }
 
+/// glTF's `emissiveTexture`: decoded from sRGB and multiplied by `emissiveFactor` and
+/// `KHR_materials_emissive_strength`; the render shows the texture, not its mean; an
+/// emission texture recovered by `optimise` is written back as TOML (an EXR), which renders
+/// as the recovered values do, and as glTF (an 8-bit sRGB PNG, its peak moved into the
+/// strength), which loads as them to the PNG's rounding.
+#[test]
+fn gltf_emissive_textures_are_read_rendered_and_written_back() {
+    let dir = temp_dir("gltf-emissive");
+    std::fs::copy(data("textured/checker.png"), dir.join("checker.png")).unwrap();
+    let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    let m = &mut doc["materials"][0];
+    m.as_object_mut().unwrap().remove("normalTexture");
+    m["emissiveTexture"] = serde_json::json!({ "index": 0 });
+    m["emissiveFactor"] = serde_json::json!([1.0, 0.5, 1.0]);
+    m["extensions"] = serde_json::json!({ "KHR_materials_emissive_strength": { "emissiveStrength": 4.0 } });
+    doc["extensionsUsed"] = serde_json::json!(["KHR_materials_emissive_strength"]);
+    doc["images"] = serde_json::json!([{ "uri": "checker.png" }]);
+    let gltf_path = dir.join("emissive.gltf");
+    std::fs::write(&gltf_path, serde_json::to_string(&doc).unwrap()).unwrap();
+    let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
+    let plain = Scene::load_with(&gltf_path, &small).unwrap();
+    assert!(plain.warnings.is_empty(), "{:?}", plain.warnings);
+    // checker.png: red, green / blue, white, times (1, 0.5, 1) × 4.
+    let ColorValue::Texture(t) = &plain.meshes[0].emission else { panic!("a textured emission: {:?}", plain.meshes[0].emission) };
+    let want = [[4.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 4.0], [4.0, 2.0, 4.0]];
+    assert!(t.image.data.iter().flatten().zip(want.iter().flatten()).all(|(a, b)| (a - b).abs() < 1e-5), "{:?}", t.image.data);
+    let mut mean = plain.clone();
+    mean.meshes[0].emission = ColorValue::Constant([2.0, 1.0, 2.0]);
+
+    let scene_path = dir.join("opt.toml");
+    std::fs::write(
+        &scene_path,
+        "import = \"emissive.gltf\"\n[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 2\n[optimise]\n\
+         [[optimise.params]]\ntarget = \"meshes.quad.emission\"\ninit = 1\nrange = [0, 8]\ntexture = [2, 2]\n",
+    )
+    .unwrap();
+    let scene = Scene::load(&scene_path).unwrap();
+    let out = dir.join("out");
+    with_gpu(|ctx| {
+        let (textured, flat) = (render(ctx, &plain, 0, 8, 3), render(ctx, &mean, 0, 8, 3));
+        let diff: f64 = textured.data.iter().zip(&flat.data).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs() as f64).sum::<f64>()).sum();
+        let total: f64 = flat.data.iter().map(|p| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
+        assert!(total > 0.0 && diff > 0.2 * total, "the texture changes the image by only {:.4} (relative L1)", diff / total);
+
+        let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let layout = r.scene.layout.clone();
+        let theta: Vec<f32> = (0..12).map(|k| 0.6 * (k + 1) as f32).collect();
+        r.scene.set_theta(theta.clone()).unwrap();
+        let expected = r.render(0, 4, 5, |_, _| {}).unwrap();
+        write_final(&out, &scene, &layout.recovered(&theta)).unwrap();
+        let toml = Scene::load(out.join("final/scene.toml")).unwrap();
+        for (a, b) in render_sensor0(ctx, &toml).data.iter().zip(&expected.data) {
+            assert!((0..3).all(|c| (a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-2)), "final/scene.toml: {a:?} vs {b:?}");
+        }
+        let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
+        let ColorValue::Texture(t) = &gltf.meshes[0].emission else { panic!("the written glTF's emission texture") };
+        let peak = 7.2;
+        for (got, want) in t.image.data.iter().flatten().zip(&theta) {
+            assert!((got - want).abs() <= peak * 1.2 / 255.0, "written glTF texel {got} vs {want} (8-bit sRGB of {peak})");
+        }
+    });
+}
+
 /// `KHR_texture_transform` (offset, rotation, scale) shared by a material's textures moves
 /// the texture coordinates of the meshes that use it; transforms that differ between one
 /// material's textures, or pick another coordinate set, are refused naming the JSON path.
@@ -319,7 +382,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
         ("normal-map-texcoord1", &["materials[0].normalTexture.texCoord", "texture coordinate set 1"]),
         ("texcoord1", &["baseColorTexture.texCoord", "texture coordinate set 1"]),
         ("orthographic", &["cameras[0]", "orthographic"]),
-        ("emissive-texture", &["materials[2].emissiveTexture"]),
+        ("missing-emissive-image", &["images[0]", "none.png"]),
         ("missing-buffer", &["buffers[0]"]),
     ] {
         let msg = import_err(&format!("errors/{file}.gltf"));
@@ -345,7 +408,7 @@ fn unsupported_mitsuba_content_is_named_with_its_line() {
         ("undefined-default", &["$resolution", "<integer name=\"width\">"]),
         ("clearcoat", &["<float name=\"clearcoat\">", "only 0"]),
         ("orthographic", &["<sensor type=\"orthographic\">", "perspective"]),
-        ("textured-area", &["textured area lights", "<emitter type=\"area\">"]),
+        ("missing-radiance-bitmap", &["<texture type=\"bitmap\" name=\"radiance\">", "line 57", "x.exr"]),
     ] {
         let msg = import_err(&format!("errors/{file}.xml"));
         for n in needles {
@@ -485,7 +548,8 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
         let bulb = &gltf.lights[0];
         assert_eq!((bulb.kind, bulb.color, bulb.intensity), (LightKind::Point, [1.0, 0.5, 1.0 / 3.0], 2.5 * 1.5));
         let light = gltf.meshes.iter().find(|m| m.name == "light").unwrap();
-        for (got, want) in light.emission.iter().zip([12.5, 9.0, 3.25]) {
+        let ColorValue::Constant(emission) = light.emission else { panic!("a constant emission") };
+        for (got, want) in emission.iter().zip([12.5, 9.0, 3.25]) {
             assert!((got - want).abs() <= 1e-6 * want, "emission {:?}", light.emission);
         }
         let white = gltf.materials.iter().find(|m| m.name == "white").unwrap();
@@ -562,6 +626,34 @@ fn optimise_from_gltf_comes_back_as_gltf() {
 /// refinements left out with a warning unless turned off; a map that is no bitmap, a
 /// wrapper without a BSDF and texels outside [0, 1] are refused naming the line. (How the
 /// bundled scenes/mitsuba/normalmap.xml compares with Mitsuba's render: README.)
+/// A Mitsuba area emitter's `radiance` may be a bitmap (nested or by `ref`): the mesh's
+/// emission is then its sRGB-decoded texture; an `rgb` stays a constant.
+#[test]
+fn mitsuba_area_emitters_take_bitmap_radiance() {
+    let dir = temp_dir("mitsuba-emitter-bitmap");
+    let checker = data("textured/checker.png");
+    let bitmap = |attrs: &str| format!(r#"<texture type="bitmap" {attrs}><string name="filename" value="{}"/></texture>"#, checker.display());
+    let load = |name: &str, body: &str| {
+        let path = dir.join(format!("{name}.xml"));
+        std::fs::write(&path, small_mitsuba_scene(body)).unwrap();
+        Scene::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let nested = load("nested", &format!(r#"<shape type="rectangle" id="panel"><emitter type="area">{}</emitter></shape>"#, bitmap(r#"name="radiance""#)));
+    let by_ref = load(
+        "ref",
+        &format!(r#"{}<shape type="rectangle" id="panel"><emitter type="area"><ref name="radiance" id="glow"/></emitter></shape>"#, bitmap(r#"id="glow""#)),
+    );
+    let mut decoded = vkinverse::image::decode_ldr(&std::fs::read(&checker).unwrap(), &checker).unwrap();
+    decoded.data.iter_mut().flatten().for_each(|c| *c = srgb_decode(*c));
+    for s in [&nested, &by_ref] {
+        let ColorValue::Texture(t) = &s.meshes[0].emission else { panic!("a textured emission: {:?}", s.meshes[0].emission) };
+        assert!(!s.meshes[0].uvs.is_empty());
+        assert_eq!(t.image, decoded);
+    }
+    let constant = load("constant", r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape>"#);
+    assert_eq!(constant.meshes[0].emission, ColorValue::Constant([2.0, 1.0, 0.5]));
+}
+
 #[test]
 fn mitsuba_normal_maps_wrap_bsdfs() {
     let dir = temp_dir("mitsuba-normalmap");

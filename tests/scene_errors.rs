@@ -94,7 +94,7 @@ fn bundled_scenes_load() {
     );
     assert!(matches!(&p.reference, Reference::Constant(c) if c == &[0.63, 0.065, 0.05]));
     let light = &cornell.meshes[cornell.mesh_index("light").unwrap()];
-    assert!(light.emission[0] > 0.0 && light.positions.iter().all(|p| p[1] > 1.9));
+    assert!(matches!(light.emission, ColorValue::Constant(c) if c[0] > 0.0) && light.positions.iter().all(|p| p[1] > 1.9));
 
     let spiral = Scene::load(root.join("spiral/scene.toml")).unwrap();
     let channels: Vec<u32> = spiral.optimise.params.iter().map(|p| p.channels).collect();
@@ -122,15 +122,15 @@ fn bundled_scenes_load() {
         assert_eq!((g.normals.len(), g.uvs.len()), (n, n));
         assert_eq!(g.indices.len(), scene.triangle_count());
         assert_eq!(g.triangle_material.len(), g.indices.len());
-        assert_eq!(g.triangle_emission.len(), g.indices.len());
+        assert_eq!(g.triangle_mesh.len(), g.indices.len());
         assert!(g.indices.iter().flatten().all(|&i| (i as usize) < n));
         assert!(g
             .triangle_material
             .iter()
             .all(|&m| (m as usize) < scene.materials.len()));
-        // Emission follows the mesh a triangle came from.
+        // The material follows the mesh a triangle came from.
         for (t, &mesh) in g.triangle_mesh.iter().enumerate() {
-            assert_eq!(g.triangle_emission[t], scene.meshes[mesh as usize].emission);
+            assert_eq!(g.triangle_material[t] as usize, scene.meshes[mesh as usize].material);
         }
     }
     assert_ne!(cornell.content_hash(), spiral.content_hash());
@@ -216,6 +216,42 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(plain, mapped("hash-f", "{ texture = \"tex.exr\", scale = 0.5 }"));
     assert_ne!(plain, mapped("hash-g", "{ texture = \"tex.exr\", bitangent = \"cross\" }"));
     assert_eq!(plain, mapped("hash-h", "{ texture = \"tex.exr\", bitangent = \"uv\", scale = 1 }"));
+    // An emission texture is too; a constant emission hashes as its values.
+    let emitting = |name: &str, emission: &str| Scene::load(fixture(name, &format!("{BASE}emission = {emission}\n"))).unwrap().content_hash();
+    let textured = emitting("hash-i", "{ texture = \"tex.exr\" }");
+    assert_ne!(textured, base);
+    assert_ne!(textured, emitting("hash-j", "[0.25, 0.5, 0.75]"));
+    assert_eq!(emitting("hash-k", "[0, 0, 0]"), base, "no emission and black emission hash alike");
+}
+
+/// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
+/// texture coordinates; an optimised emission texture needs them too.
+#[test]
+fn emission_textures_are_checked() {
+    let emitting = |mesh: &str, emission: &str| BASE.replace("file = \"tri.obj\"", &format!("file = \"{mesh}\"\nemission = {emission}"));
+    let s = Scene::load(fixture("emission-texture", &emitting("tri.obj", "{ texture = \"tex.exr\" }"))).unwrap();
+    let ColorValue::Texture(t) = &s.meshes[0].emission else { panic!("a textured emission: {:?}", s.meshes[0].emission) };
+    assert_eq!((t.image.width, t.image.height), (4, 4));
+    let path = fixture("emission-negative", &emitting("tri.obj", "{ texture = \"glow.exr\" }"));
+    let mut img = Image::filled(2, 2, [1.0, 1.0, 1.0]);
+    img.data[2][1] = -0.5;
+    write_exr(&path.with_file_name("glow.exr"), &img).unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["meshes.tri.emission.texture", "glow.exr", "-0.5", "(0, 1)"]);
+    assert_message(&load_err("emission-missing", &emitting("tri.obj", "{ texture = \"none.exr\" }")), &["meshes.tri.emission.texture", "none.exr"]);
+    assert_message(&load_err("emission-negative-constant", &emitting("tri.obj", "[1, -1, 1]")), &["meshes.tri.emission", "negative"]);
+    assert_message(&load_err("emission-malformed", &emitting("tri.obj", "\"glow.exr\"")), &["expected [r, g, b] or { texture"]);
+    let err = load_err("emission-no-uvs", &emitting("bare.obj", "{ texture = \"tex.exr\" }"));
+    assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
+    assert_message(&err, &["meshes.bare", "its emission is textured", "texture coordinates"]);
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.bare.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n", emitting("bare.obj", "[1, 1, 1]"));
+    assert_message(&load_err("emission-param-no-uvs", &optimised), &["meshes.bare", "its emission is textured", "texture coordinates"]);
+    // With texture coordinates the same parameter loads, its reference the scene's texture.
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.tri.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n", emitting("tri.obj", "{ texture = \"tex.exr\" }"));
+    let s = Scene::load(fixture("emission-param", &optimised)).unwrap();
+    assert!(matches!(s.optimise.params[0].reference, Reference::Texture(_)));
+    assert_eq!(vkinverse::render::ParamLayout::new(&s).initial().len(), 12, "2 × 2 texels of 3 channels");
 }
 
 #[test]

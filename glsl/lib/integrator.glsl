@@ -131,8 +131,9 @@ bool cast_any(vec3 o, vec3 d, float tmax, uint depth, bool replay) {
 const float RAY_EPSILON = 1e-4;
 
 // Picks an emissive triangle by its probability and a point on it: returns its record,
-// the point in `p` (its pdf in area measure is the record's pdf).
-EmitterTri sample_emitter(vec3 u, out vec3 p) {
+// the point in `p` (its pdf in area measure is the record's pdf) and its barycentrics (the
+// weights of vertices 1 and 2) in `b`.
+EmitterTri sample_emitter(vec3 u, out vec3 p, out vec2 b) {
     // Binary search for the first triangle whose inclusive cdf exceeds u.x.
     uint lo = 0u, hi = NUM_EMITTERS - 1u;
     while (lo < hi) {
@@ -140,7 +141,7 @@ EmitterTri sample_emitter(vec3 u, out vec3 p) {
         if (emitter_cdf(mid) > u.x) hi = mid; else lo = mid + 1u;
     }
     EmitterTri e = emitter_tri(lo);
-    vec2 b = sample_triangle_barycentrics(u.yz);
+    b = sample_triangle_barycentrics(u.yz);
     p = e.p0 + b.x * e.e1 + b.y * e.e2;
     return e;
 }
@@ -297,7 +298,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec3 g_em[NSTATES];
 #endif
             for (int s = 0; s < NSTATES; ++s) {
-                vec3 e = beta[s] * fetch3(sh.emission, vec2(0.0), s) * mis;
+                vec3 e = beta[s] * fetch3(sh.emission, uv, s) * mis;
                 radiance[s] += e;
 #ifdef ADJOINT
                 remaining[s] -= e;
@@ -305,7 +306,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
             }
 #ifdef ADJOINT
-            if (grad_pass) scatter3(sh.emission, vec2(0.0), state_sum(g_em));
+            if (grad_pass) scatter3(sh.emission, uv, state_sum(g_em));
 #endif
         }
         if (depth >= MAX_DEPTH) break;
@@ -339,7 +340,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // (pdfs of state 0).
         if (NUM_EMITTERS != 0u && !env_nee) {
             vec3 pl;
-            EmitterTri light = sample_emitter(u_light, pl);
+            vec2 bary;
+            EmitterTri light = sample_emitter(u_light, pl, bary);
             float pdf_area = light.pdf;
             vec3 to_l = pl - p_off;
             float dist2 = dot(to_l, to_l);
@@ -351,12 +353,14 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 ValueRef emission = light.emission;
+                vec2 light_uv = vec2(0.0);
+                if (HAS_EMISSION_TEXTURES) light_uv = triangle_uv(light.prim, bary);
                 vec3 le[NSTATES];
-                for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, vec2(0.0), s);
+                for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, light_uv, s);
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
-                if (grad_pass) scatter3(emission, vec2(0.0), state_sum(dle));
+                if (grad_pass) scatter3(emission, light_uv, state_sum(dle));
 #else
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif

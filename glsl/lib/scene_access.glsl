@@ -91,6 +91,18 @@ TriShading tri_shading(uint prim) {
     return s;
 }
 
+// The texture coordinates of triangle `prim` at barycentrics b (the weights of vertices 1
+// and 2): texels 5-6 of its shading record alone.
+vec2 triangle_uv(uint prim, vec2 b) {
+    int base = int(prim) * 8;
+    uvec4 t5 = texel_load(Shading, base + 5);
+    uvec4 t6 = texel_load(Shading, base + 6);
+    vec2 uv0 = uintBitsToFloat(t5.yz);
+    vec2 uv1 = uintBitsToFloat(uvec2(t5.w, t6.x));
+    vec2 uv2 = uintBitsToFloat(t6.yz);
+    return uv0 + b.x * (uv1 - uv0) + b.y * (uv2 - uv0);
+}
+
 // Emissive triangle `i` (5 texels: p0 0-2, e1 3-5, e2 6-8, ng 9-11, prim 12, cdf 13,
 // pdf 14, two_sided 15, emission 16-19).
 EmitterTri emitter_tri(uint i) {
@@ -183,6 +195,9 @@ layout(constant_id = 13) const bool HAS_NORMALS = true;
 // Whether any material has a normal map: without one the interpolated normal is the
 // shading normal, and neither the maps nor the tangents are read.
 layout(constant_id = 16) const bool HAS_NORMAL_MAPS = true;
+// Whether any mesh's emission is a texture: without one, a light sample's emission is read
+// without its texture coordinates (which cost two texel fetches of its shading record).
+layout(constant_id = 17) const bool HAS_EMISSION_TEXTURES = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 

@@ -54,6 +54,10 @@ pub struct GpuScene {
     /// Whether any triangle is normal-mapped (its material has a map and its texture
     /// coordinates a tangent): the kernels' HAS_NORMAL_MAPS.
     pub has_normal_maps: bool,
+    /// Whether any mesh's emission is a texture (its own or an optimised one): the
+    /// kernels' HAS_EMISSION_TEXTURES, without which a light sample reads no texture
+    /// coordinates.
+    pub has_emission_textures: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     /// Whether every ray cast of a path fits the adjoint kernels' replay cache
@@ -151,9 +155,8 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
 /// non-zero area and no environment: it renders black; an emitting mesh whose triangles all
 /// have zero area, which an emitter table cannot sample), or a normal map on a mesh without
 /// texture coordinates (it has no tangents, so the map is not applied).
-fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, layout: &ParamLayout, emitters: usize, has_environment: bool) {
-    for (i, mesh) in scene.meshes.iter().enumerate() {
-        let emits = layout.slot(ParamTarget::Emission { mesh: i }).is_some() || mesh.emission.iter().any(|&v| v > 0.0);
+fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits: &[bool], emitters: usize, has_environment: bool) {
+    for (i, (mesh, &emits)) in scene.meshes.iter().zip(mesh_emits).enumerate() {
         let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
             let [a, b, c] = idx.map(|k| Vec3::from(geo.positions[k as usize]));
             (b - a).cross(c - a).length() > 0.0
@@ -232,7 +235,7 @@ impl GpuScene {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let constant = push_value(&mut data, &m.emission, None);
+                let constant = color_ref(&mut data, &m.emission);
                 layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant)
             })
             .collect();
@@ -289,9 +292,19 @@ impl GpuScene {
         };
 
         // Emitters: triangles of meshes that emit or whose emission is optimised. Picked
-        // in proportion to area × luminance, or to area alone when any emission is being
-        // optimised (its current value is not known when the table is built).
+        // in proportion to area × luminance (a texture's mean luminance), or to area alone
+        // when any emission is being optimised (its current value is not known when the
+        // table is built).
         let optimised_emission = scene.meshes.iter().enumerate().any(|(i, _)| layout.slot(ParamTarget::Emission { mesh: i }).is_some());
+        let mesh_luminance: Vec<f32> = scene
+            .meshes
+            .iter()
+            .map(|m| {
+                let e = m.emission.mean();
+                0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]
+            })
+            .collect();
+        let mesh_emits: Vec<bool> = scene.meshes.iter().enumerate().map(|(i, m)| layout.slot(ParamTarget::Emission { mesh: i }).is_some() || m.emission.any_positive()).collect();
         let mut shading: Vec<TriShading> = Vec::with_capacity(geo.indices.len());
         let mut emitters: Vec<EmitterTri> = Vec::new();
         let mut weights = Vec::new();
@@ -302,11 +315,8 @@ impl GpuScene {
             let ng = cross.normalize_or_zero();
             let mesh = geo.triangle_mesh[t] as usize;
             let two_sided = scene.meshes[mesh].two_sided_emission as u32;
-            let e = geo.triangle_emission[t];
-            let emits = layout.slot(ParamTarget::Emission { mesh }).is_some() || e.iter().any(|&v| v > 0.0);
-            if emits && area > 0.0 {
-                let lum = 0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2];
-                weights.push(if optimised_emission { area } else { area * lum.max(1e-6) });
+            if mesh_emits[mesh] && area > 0.0 {
+                weights.push(if optimised_emission { area } else { area * mesh_luminance[mesh].max(1e-6) });
                 emitters.push(EmitterTri {
                     p0: a.into(),
                     e1: (b - a).into(),
@@ -346,7 +356,7 @@ impl GpuScene {
                 tangent,
             });
         }
-        warn_about_scene(scene, &geo, &layout, emitters.len(), has_environment);
+        warn_about_scene(scene, &geo, &mesh_emits, emitters.len(), has_environment);
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -372,6 +382,7 @@ impl GpuScene {
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
         let has_normal_maps = shading.iter().any(|s| s.tangent[3] != 0.0);
+        let has_emission_textures = mesh_emission.iter().any(|r| r.width != 0);
         let has_textures = materials
             .iter()
             .flat_map(|m| [m.base_color, m.roughness, m.metallic, m.normal_map])
@@ -426,6 +437,7 @@ impl GpuScene {
             has_principled,
             has_normals,
             has_normal_maps,
+            has_emission_textures,
             environment_distribution,
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
@@ -505,6 +517,7 @@ impl GpuScene {
             ("HAS_PRINCIPLED", SpecValue::Bool(self.has_principled)),
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
             ("HAS_NORMAL_MAPS", SpecValue::Bool(self.has_normal_maps)),
+            ("HAS_EMISSION_TEXTURES", SpecValue::Bool(self.has_emission_textures)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

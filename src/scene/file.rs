@@ -126,6 +126,10 @@ pub enum ScalarInput {
     Texture(TextureRef),
 }
 
+fn no_emission() -> ColorInput {
+    ColorInput::Constant([0.0; 3])
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MeshFile {
@@ -133,8 +137,10 @@ pub struct MeshFile {
     pub name: Option<String>,
     pub file: String,
     pub material: String,
-    #[serde(default)]
-    pub emission: [f32; 3],
+    /// Emitted radiance: a colour or an EXR texture (linear RGB, read with the mesh's
+    /// texture coordinates).
+    #[serde(default = "no_emission")]
+    pub emission: ColorInput,
     /// Emit from both sides instead of the counter-clockwise front only.
     #[serde(default)]
     pub two_sided: bool,

@@ -5,8 +5,9 @@
 //! non-indexed triangle primitive (positions, normals, TEXCOORD_0) as one mesh in world
 //! space; metallic-roughness materials with their factors and textures (base colour decoded
 //! from sRGB, roughness from the metallic-roughness texture's G channel and metallic from
-//! its B, each multiplied by its factor); `emissiveFactor` × `KHR_materials_emissive_strength`
-//! as the mesh's area emission, on both sides when the material is `doubleSided`; every
+//! its B, each multiplied by its factor) and normal textures; `emissiveFactor` ×
+//! `KHR_materials_emissive_strength`, times the sRGB-decoded `emissiveTexture` where there
+//! is one, as the mesh's area emission, on both sides when the material is `doubleSided`; every
 //! perspective camera as a sensor (looking down its node's −Z, in node order); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
@@ -17,7 +18,7 @@
 //! added, the glTF index of what it names.
 //!
 //! Anything that would change the image and is not read is an error naming its JSON path
-//! (normal and emissive textures, texture sets other than 0, non-triangle primitives,
+//! (texture sets other than 0, non-triangle primitives,
 //! orthographic cameras, required extensions other than the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
 //! (occlusion textures, alpha, non-repeating samplers, optional extensions, animation),
@@ -264,9 +265,8 @@ impl Importer<'_> {
             .map(|t| if mirrored { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] })
             .collect();
         let material = self.material(prim.material(), &at)?;
+        let emission = self.emission(&prim.material(), &at)?;
         let m = prim.material();
-        let strength = m.emissive_strength().unwrap_or(1.0);
-        let emission = m.emissive_factor().map(|e| e * strength);
         self.out.meshes.push(Mesh {
             name: if self.out.meshes.iter().any(|x| x.name == name) { format!("{name}#{node}") } else { name },
             path: self.path.to_path_buf(),
@@ -281,6 +281,22 @@ impl Importer<'_> {
         Ok(())
     }
 
+    /// The emission of material `m`: `emissiveFactor` × `KHR_materials_emissive_strength`,
+    /// times the sRGB-decoded `emissiveTexture` where there is one (and the factor is not
+    /// black).
+    fn emission(&mut self, m: &gltf::Material, used_at: &str) -> Result<ColorValue, SceneError> {
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let [r, g, b] = m.emissive_factor().map(|e| e * strength);
+        Ok(match m.emissive_texture() {
+            Some(info) if r > 0.0 || g > 0.0 || b > 0.0 => {
+                let (img, path) = self.texture(&info, &format!("{}.emissiveTexture", material_at(m, used_at)))?;
+                let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
+                ColorValue::Texture(Texture { path, image: Image { data, ..img } })
+            }
+            _ => ColorValue::Constant([r, g, b]),
+        })
+    }
+
     /// The model index of glTF material `m` (`index() == None`: glTF's default material),
     /// created on first use.
     fn material(&mut self, m: gltf::Material, used_at: &str) -> Result<usize, SceneError> {
@@ -288,9 +304,6 @@ impl Importer<'_> {
             return Ok(i);
         }
         let at = material_at(&m, used_at);
-        if m.emissive_texture().is_some() {
-            return Err(self.err(format!("{at}.emissiveTexture"), "emissive textures are not supported (emission is one colour per mesh)"));
-        }
         if m.occlusion_texture().is_some() {
             self.warn(format!("{at}.occlusionTexture"), "ignored: the path tracer computes occlusion itself");
         }
@@ -361,6 +374,7 @@ impl Importer<'_> {
             ("pbrMetallicRoughness.baseColorTexture", pbr.base_color_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
             ("pbrMetallicRoughness.metallicRoughnessTexture", pbr.metallic_roughness_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
             ("normalTexture", m.normal_texture().map(|n| n.extension_value("KHR_texture_transform").cloned())),
+            ("emissiveTexture", m.emissive_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
         ];
         let mut shared: Option<(String, Option<UvTransform>)> = None;
         for (key, ext) in refs {
@@ -428,7 +442,7 @@ impl Importer<'_> {
             return Ok((img.clone(), path));
         }
         let data = gltf::image::Data::from_source(source.source(), Some(&self.base), &self.buffers)
-            .map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode: {e}")))?;
+            .map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode {}: {e}", path.display())))?;
         let img = to_image(&data).ok_or_else(|| self.err(format!("images[{index}]"), format!("pixel format {:?} is not supported", data.format)))?;
         self.images.insert(index, img.clone());
         Ok((img, path))

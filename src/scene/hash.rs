@@ -116,7 +116,14 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.f32s(m.uvs.as_flattened());
         h.u32s(m.indices.as_flattened());
         h.u64(m.material as u64);
-        h.f32s(&m.emission);
+        // A constant hashes as before textured emission existed (its values alone).
+        match &m.emission {
+            ColorValue::Constant(c) => h.f32s(c),
+            ColorValue::Texture(t) => {
+                h.tag("emission_texture");
+                h.texture(t);
+            }
+        }
         h.u64(m.two_sided_emission as u64);
     }
     h.tag("lights");

@@ -237,16 +237,23 @@ impl Loader {
             None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
         };
         let optimise = self.optimise(raw.optimise.unwrap_or_default(), &materials, &meshes, &lights, &environment)?;
-        for mesh in &meshes {
+        for (i, mesh) in meshes.iter().enumerate() {
+            if !mesh.uvs.is_empty() {
+                continue;
+            }
             let material = &materials[mesh.material];
             let textured = material.is_textured()
                 || optimise.params.iter().any(|p| p.texture.is_some() && p.target.material() == Some(mesh.material));
-            if textured && mesh.uvs.is_empty() {
-                return Err(self.invalid(
-                    &format!("meshes.{}", mesh.name),
-                    &format!("material \"{}\" is textured but {} has no texture coordinates", material.name, mesh.path.display()),
-                ));
-            }
+            let emission_textured = matches!(mesh.emission, ColorValue::Texture(_))
+                || optimise.params.iter().any(|p| p.texture.is_some() && p.target == ParamTarget::Emission { mesh: i });
+            let what = if textured {
+                format!("material \"{}\" is textured", material.name)
+            } else if emission_textured {
+                "its emission is textured".to_string()
+            } else {
+                continue;
+            };
+            return Err(self.invalid(&format!("meshes.{}", mesh.name), &format!("{what} but {} has no texture coordinates", mesh.path.display())));
         }
         let mut scene = Scene {
             path: self.scene,
@@ -281,9 +288,14 @@ impl Loader {
         } else {
             None
         };
-        match problem {
-            Some(p) => Err(self.invalid(&key, &format!("{} {p}", m.path.display()))),
-            None => Ok(()),
+        if let Some(p) = problem {
+            return Err(self.invalid(&key, &format!("{} {p}", m.path.display())));
+        }
+        // Imported emission obeys the TOML's rule too: finite and not negative.
+        let key = format!("{key}.emission");
+        match &m.emission {
+            ColorValue::Constant(c) => self.color(&key, *c).map(|_| ()),
+            ColorValue::Texture(t) => self.texels_in(&key, t, 3, 0.0, f32::INFINITY),
         }
     }
 
@@ -482,7 +494,7 @@ impl Loader {
                     kind: "material",
                     name: m.material.clone(),
                 })?;
-            let emission = self.color(&format!("{key}.emission"), m.emission)?;
+            let emission = self.color_value(&format!("{key}.emission"), m.emission)?;
             let (path, bytes) = self.read(&format!("{key}.file"), &m.file)?;
             let data = obj::load(&path, &bytes)?;
             for (what, values) in [
@@ -607,11 +619,6 @@ impl Loader {
             let k = format!("{key}.texture");
             self.in_range(&k, w, 1, MAX_IMAGE_SIDE)?;
             self.in_range(&k, h, 1, MAX_IMAGE_SIDE)?;
-            if matches!(target, ParamTarget::Emission { .. }) {
-                return Err(
-                    self.invalid(&k, "mesh emission is one constant and cannot be a texture")
-                );
-            }
             if matches!(target, ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. }) {
                 return Err(self.invalid(&k, "a light's colour and intensity are constants and cannot be textures"));
             }
@@ -737,10 +744,7 @@ impl Loader {
                 .iter()
                 .position(|m| m.name == name)
                 .ok_or_else(|| undefined("mesh", name))?;
-            return Ok((
-                ParamTarget::Emission { mesh },
-                Reference::Constant(meshes[mesh].emission.to_vec()),
-            ));
+            return Ok((ParamTarget::Emission { mesh }, color(&meshes[mesh].emission)));
         }
         if let Some((name, property)) = target.strip_prefix("lights.").and_then(|r| r.rsplit_once('.')) {
             if !matches!(property, "color" | "intensity") {

@@ -7,7 +7,7 @@
 //! size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
-//! type="area">`; `<bsdf
+//! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
 //! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
@@ -1009,14 +1009,11 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(e, "a shape's emitter must be an area light"));
                 }
                 let mut em = elements(e);
-                if em.iter().any(|n| n.attribute("name") == Some("radiance") && matches!(n.tag_name().name(), "texture" | "ref")) {
-                    return Err(self.err(e, "textured area lights are not supported"));
-                }
-                let radiance = self.take_rgb(&mut em, "radiance", [1.0; 3])?;
+                let radiance = self.color_param(&mut em, "radiance", [1.0; 3])?;
                 self.rest(&em, e)?;
                 radiance
             }
-            None => [0.0; 3],
+            None => ColorValue::Constant([0.0; 3]),
         };
         self.rest(&items, node)?;
         // Positions and normals to world space (normals by the inverse transpose).

@@ -65,16 +65,43 @@ impl Sensor {
 
 /// An image loaded from a file named in the scene (or embedded in one: then `path` is the
 /// scene file followed by `#` and where in it the image is).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Texture {
     pub path: PathBuf,
     pub image: Image,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum ColorValue {
     Constant([f32; 3]),
     Texture(Texture),
+}
+
+impl ColorValue {
+    /// Whether any channel of the constant, or of any texel, is above zero.
+    pub fn any_positive(&self) -> bool {
+        match self {
+            Self::Constant(c) => c.iter().any(|&v| v > 0.0),
+            Self::Texture(t) => t.image.data.iter().flatten().any(|&v| v > 0.0),
+        }
+    }
+
+    /// The constant, or the texture's mean over its texels.
+    pub fn mean(&self) -> [f32; 3] {
+        match self {
+            Self::Constant(c) => *c,
+            Self::Texture(t) => {
+                let mut sum = [0.0f64; 3];
+                for p in &t.image.data {
+                    for k in 0..3 {
+                        sum[k] += p[k] as f64;
+                    }
+                }
+                let n = t.image.data.len().max(1) as f64;
+                sum.map(|v| (v / n) as f32)
+            }
+        }
+    }
 }
 
 /// A scalar property; a texture's R channel holds it.
@@ -160,8 +187,8 @@ pub struct Mesh {
     pub indices: Vec<[u32; 3]>,
     pub material: usize,
     /// Radiance emitted from the front (counter-clockwise) side, or both sides when
-    /// `two_sided_emission`.
-    pub emission: [f32; 3],
+    /// `two_sided_emission`: a colour, or a texture read with the mesh's texture coordinates.
+    pub emission: ColorValue,
     pub two_sided_emission: bool,
 }
 
@@ -347,7 +374,6 @@ pub struct SceneGeometry {
     pub indices: Vec<[u32; 3]>,
     pub triangle_material: Vec<u32>,
     pub triangle_mesh: Vec<u32>,
-    pub triangle_emission: Vec<[f32; 3]>,
 }
 
 impl Scene {
@@ -400,7 +426,6 @@ impl Scene {
             let count = mesh.indices.len();
             g.triangle_material.extend(std::iter::repeat_n(mesh.material as u32, count));
             g.triangle_mesh.extend(std::iter::repeat_n(mesh_id as u32, count));
-            g.triangle_emission.extend(std::iter::repeat_n(mesh.emission, count));
         }
         g
     }

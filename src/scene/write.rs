@@ -4,10 +4,12 @@
 //! TOML that imports one) `scene.gltf`: the source document with the recovered factors,
 //! textures and lights written into it, its buffers and images beside it.
 //!
-//! In the glTF, recovered textures are PNG: base colour sRGB-encoded, roughness and
-//! metallic packed into the G and B channels of a linear metallic-roughness texture (the
-//! other channel from the material's other value); 8 bits per channel, so a texture
-//! round-trips to within 1/255 (the TOML's EXRs hold the exact values). Constant factors,
+//! In the glTF, recovered textures are PNG: base colour and emission sRGB-encoded (an
+//! emission texture divided by its peak where that is above 1, the peak going into
+//! `KHR_materials_emissive_strength`), roughness and metallic packed into the G and B
+//! channels of a linear metallic-roughness texture (the other channel from the material's
+//! other value); 8 bits per channel, so a texture round-trips to within 1/255 of its range
+//! (the TOML's EXRs hold the exact values). Constant factors,
 //! emission (with `KHR_materials_emissive_strength` above 1) and light values round-trip
 //! exactly. The environment has no glTF counterpart and is written to the TOML only.
 //!
@@ -82,7 +84,7 @@ pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
             ParamTarget::BaseColor { material } => out.materials[material].base_color = color(),
             ParamTarget::Roughness { material } => out.materials[material].roughness = scalar(),
             ParamTarget::Metallic { material } => out.materials[material].metallic = scalar(),
-            ParamTarget::Emission { mesh } => out.meshes[mesh].emission = r.constant3(),
+            ParamTarget::Emission { mesh } => out.meshes[mesh].emission = color(),
             ParamTarget::Environment => out.environment.value = color(),
             ParamTarget::LightColor { light } => out.lights[light].color = r.constant3(),
             ParamTarget::LightIntensity { light } => out.lights[light].intensity = r.constant3()[0],
@@ -198,7 +200,13 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
             ("name", Value::String(m.name.clone())),
             ("file", Value::String(file)),
             ("material", Value::String(scene.materials[m.material].name.clone())),
-            ("emission", arr(&m.emission)),
+            (
+                "emission",
+                match &m.emission {
+                    ColorValue::Constant(c) => arr(c),
+                    ColorValue::Texture(t) => table(vec![("texture", Value::String(exr(dir, &format!("{}.emission", m.name), &t.image)?))]),
+                },
+            ),
         ];
         if m.two_sided_emission {
             pairs.push(("two_sided", Value::Boolean(true)));
@@ -392,9 +400,29 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
             }
             ParamTarget::Emission { mesh } => {
                 let Some(g) = material_of(scene.meshes[mesh].material) else { continue };
-                let e = scene.meshes[mesh].emission;
+                let mesh = &scene.meshes[mesh];
+                // glTF's factor and texture are in [0, 1]: a brighter emission moves its peak
+                // into KHR_materials_emissive_strength.
+                let (e, texture) = match &mesh.emission {
+                    ColorValue::Constant(c) => (*c, None),
+                    ColorValue::Texture(t) => {
+                        let peak = t.image.data.iter().flatten().copied().fold(0.0f32, f32::max);
+                        let scale = if peak > 1.0 { 1.0 / peak } else { 1.0 };
+                        let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), ..t.image.clone() };
+                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true)?;
+                        ([peak.max(1.0); 3], Some(index))
+                    }
+                };
                 let strength = e.iter().copied().fold(0.0f32, f32::max);
                 let m = &mut root["materials"][g];
+                match texture {
+                    Some(index) => m["emissiveTexture"] = json!({ "index": index }),
+                    None => {
+                        if let Some(obj) = m.as_object_mut() {
+                            obj.remove("emissiveTexture");
+                        }
+                    }
+                }
                 if strength > 1.0 {
                     m["emissiveFactor"] = json!([num(e[0] / strength), num(e[1] / strength), num(e[2] / strength)]);
                     m["extensions"]["KHR_materials_emissive_strength"] = json!({ "emissiveStrength": num(strength) });

@@ -172,8 +172,9 @@ pub fn delta_lit_radiance(scene: &vkinverse::scene::Scene, x: [f64; 3]) -> [f64;
 
 /// A 2 × 2 quad in the y = 0 plane facing +y, with texture coordinates (v up, +z at v = 0).
 pub const QUAD_OBJ: &str = "v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt 0 1\nvt 1 1\nvt 1 0\nvt 0 0\nf 1/1 4/4 3/3 2/2\n";
-/// A 0.6 × 0.6 area light at y = 1.2 facing down, behind the quad's centre.
-pub const QUAD_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nf 1 2 3 4\n";
+/// A 0.6 × 0.6 area light at y = 1.2 facing down, behind the quad's centre, with texture
+/// coordinates (u along +x, v along +z).
+pub const QUAD_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.2\nv -0.3 1.2 -0.2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3 4/4\n";
 
 /// Writes into a fresh temp dir `name` a scene of [`QUAD_OBJ`] seen at 40° from
 /// (0, 1.2, 1.8) and lit by [`QUAD_LIGHT_OBJ`] (emission 6) and the environment `environment`

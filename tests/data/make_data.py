@@ -318,7 +318,7 @@ def errors():
     variant("normal-map-texcoord1", lambda v: (v["materials"][0].update({"normalTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("texcoord1", lambda v: (v["materials"][0]["pbrMetallicRoughness"].update({"baseColorTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("orthographic", lambda v: v["cameras"].__setitem__(0, {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.01, "zfar": 10}}))
-    variant("emissive-texture", lambda v: (v["materials"][2].update({"emissiveTexture": {"index": 0}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
+    variant("missing-emissive-image", lambda v: (v["materials"][2].update({"emissiveTexture": {"index": 0}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("missing-buffer", lambda v: v["buffers"][0].update({"uri": "nowhere.bin"}))
 
     base = (HERE / "box" / "box.xml").read_text()
@@ -331,7 +331,7 @@ def errors():
         "undefined-default": base.replace('value="$res"', 'value="$resolution"', 1),
         "clearcoat": base.replace('<float name="metallic" value="0.0"/>', '<float name="metallic" value="0.0"/>\n            <float name="clearcoat" value="0.5"/>', 1),
         "orthographic": base.replace('<sensor type="perspective">', '<sensor type="orthographic">', 1),
-        "textured-area": base.replace('<rgb name="radiance" value="10.0"/>', '<texture type="bitmap" name="radiance"><string name="filename" value="x.exr"/></texture>', 1),
+        "missing-radiance-bitmap": base.replace('<rgb name="radiance" value="10.0"/>', '<texture type="bitmap" name="radiance"><string name="filename" value="x.exr"/></texture>', 1),
     }
     for name, text in xml.items():
         assert text != base, name
