@@ -276,6 +276,16 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
     assert!(t.image.data.iter().flatten().zip(want.iter().flatten()).all(|(a, b)| (a - b).abs() < 1e-5), "{:?}", t.image.data);
     let mut mean = plain.clone();
     mean.meshes[0].emission = ColorValue::Constant([2.0, 1.0, 2.0]);
+    // A second node of the mesh: both meshes share the material's one decoded texture,
+    // and the GPU's material data hold it once.
+    doc["nodes"].as_array_mut().unwrap().push(serde_json::json!({ "name": "twin", "mesh": 0, "translation": [3.0, 0.0, 0.0] }));
+    doc["scenes"][0]["nodes"].as_array_mut().unwrap().push(serde_json::json!(2));
+    let twins_path = dir.join("twins.gltf");
+    std::fs::write(&twins_path, serde_json::to_string(&doc).unwrap()).unwrap();
+    let twins = Scene::load_with(&twins_path, &small).unwrap();
+    assert_eq!(twins.meshes.len(), 2);
+    let (ColorValue::Texture(a), ColorValue::Texture(b)) = (&twins.meshes[0].emission, &twins.meshes[1].emission) else { panic!("textured emission") };
+    assert!(std::sync::Arc::ptr_eq(&a.image, &b.image), "one decoded texture for both meshes");
 
     let scene_path = dir.join("opt.toml");
     std::fs::write(
@@ -287,6 +297,8 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
     let scene = Scene::load(&scene_path).unwrap();
     let out = dir.join("out");
     with_gpu(|ctx| {
+        let data_len = |s: &Scene| GpuScene::new(ctx, s).unwrap().constants().len();
+        assert_eq!(data_len(&twins), data_len(&plain), "the shared texture is uploaded once");
         let (textured, flat) = (render(ctx, &plain, 0, 8, 3), render(ctx, &mean, 0, 8, 3));
         let diff: f64 = textured.data.iter().zip(&flat.data).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs() as f64).sum::<f64>()).sum();
         let total: f64 = flat.data.iter().map(|p| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
@@ -580,7 +592,7 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data } })
+    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into() })
 }
 
 fn render_sensor0(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene) -> Image {
@@ -648,7 +660,7 @@ fn mitsuba_area_emitters_take_bitmap_radiance() {
     for s in [&nested, &by_ref] {
         let ColorValue::Texture(t) = &s.meshes[0].emission else { panic!("a textured emission: {:?}", s.meshes[0].emission) };
         assert!(!s.meshes[0].uvs.is_empty());
-        assert_eq!(t.image, decoded);
+        assert_eq!(*t.image, decoded);
     }
     let constant = load("constant", r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape>"#);
     assert_eq!(constant.meshes[0].emission, ColorValue::Constant([2.0, 1.0, 0.5]));

@@ -118,7 +118,7 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
     match n {
         None => ValueRef::default(),
         Some(n) => {
-            let image = Image { data: n.vectors(), ..n.texture.image.clone() };
+            let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
             push_value(data, &[], Some((&image, 3)))
         }
     }
@@ -229,14 +229,31 @@ impl GpuScene {
                 }
             })
             .collect();
-        // Each mesh's emission, which its triangles' shading records and emitter records carry.
+        // Each mesh's emission, which its triangles' shading records and emitter records
+        // carry. A texture that several meshes share (one glTF material's) is stored once.
+        let mut shared_textures: Vec<(*const Image, ValueRef)> = Vec::new();
         let mesh_emission: Vec<ValueRef> = scene
             .meshes
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let constant = color_ref(&mut data, &m.emission);
-                layout.slot(ParamTarget::Emission { mesh: i }).map(theta_ref).unwrap_or(constant)
+                if let Some(slot) = layout.slot(ParamTarget::Emission { mesh: i }) {
+                    return theta_ref(slot);
+                }
+                match &m.emission {
+                    ColorValue::Texture(t) => {
+                        let key = std::sync::Arc::as_ptr(&t.image);
+                        match shared_textures.iter().find(|(k, _)| *k == key) {
+                            Some(&(_, r)) => r,
+                            None => {
+                                let r = color_ref(&mut data, &m.emission);
+                                shared_textures.push((key, r));
+                                r
+                            }
+                        }
+                    }
+                    ColorValue::Constant(_) => color_ref(&mut data, &m.emission),
+                }
             })
             .collect();
         let lights: Vec<LightRecord> = scene

@@ -53,7 +53,7 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
     let mut reference_set = false;
     for (s, sensor) in scene.sensors.iter().enumerate() {
         if let Some(t) = &sensor.target_image {
-            out.push(t.image.clone());
+            out.push((*t.image).clone());
             continue;
         }
         let name = cache_name(scene, renderer, s, spp);

@@ -73,6 +73,8 @@ struct Importer<'a> {
     images: HashMap<usize, Image>,
     /// Model material index of each glTF material used so far (`None`: the default).
     materials: HashMap<Option<usize>, usize>,
+    /// Emission of each glTF material used so far: its meshes share one texture.
+    emissions: HashMap<Option<usize>, ColorValue>,
     out: Imported,
     sources: GltfSource,
 }
@@ -111,6 +113,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         buffers,
         images: HashMap::new(),
         materials: HashMap::new(),
+        emissions: HashMap::new(),
         out: Imported { warnings, max_depth: Some(GLTF_MAX_DEPTH), ..Default::default() },
         sources: GltfSource { path: path.to_path_buf(), materials: Vec::new(), lights: Vec::new() },
     };
@@ -283,18 +286,23 @@ impl Importer<'_> {
 
     /// The emission of material `m`: `emissiveFactor` × `KHR_materials_emissive_strength`,
     /// times the sRGB-decoded `emissiveTexture` where there is one (and the factor is not
-    /// black).
+    /// black), decoded once per material.
     fn emission(&mut self, m: &gltf::Material, used_at: &str) -> Result<ColorValue, SceneError> {
+        if let Some(e) = self.emissions.get(&m.index()) {
+            return Ok(e.clone());
+        }
         let strength = m.emissive_strength().unwrap_or(1.0);
         let [r, g, b] = m.emissive_factor().map(|e| e * strength);
-        Ok(match m.emissive_texture() {
+        let emission = match m.emissive_texture() {
             Some(info) if r > 0.0 || g > 0.0 || b > 0.0 => {
                 let (img, path) = self.texture(&info, &format!("{}.emissiveTexture", material_at(m, used_at)))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img } })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into() })
             }
             _ => ColorValue::Constant([r, g, b]),
-        })
+        };
+        self.emissions.insert(m.index(), emission.clone());
+        Ok(emission)
     }
 
     /// The model index of glTF material `m` (`index() == None`: glTF's default material),
@@ -317,7 +325,7 @@ impl Importer<'_> {
             Some(info) => {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img } })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into() })
             }
         };
         let (metallic_factor, roughness_factor) = (pbr.metallic_factor(), pbr.roughness_factor());
@@ -327,7 +335,7 @@ impl Importer<'_> {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.metallicRoughnessTexture"))?;
                 let channel = |c: usize, k: f32| Texture {
                     path: path.clone(),
-                    image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), ..img.clone() },
+                    image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), width: img.width, height: img.height }.into(),
                 };
                 (ScalarValue::Texture(channel(1, roughness_factor)), ScalarValue::Texture(channel(2, metallic_factor)))
             }
@@ -346,7 +354,7 @@ impl Importer<'_> {
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(NormalMap { texture: Texture { path, image }, scale, bitangent: Bitangent::Uv })
+                Some(NormalMap { texture: Texture { path, image: image.into() }, scale, bitangent: Bitangent::Uv })
             }
         };
         let name = match (m.name(), m.index()) {

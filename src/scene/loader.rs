@@ -142,7 +142,7 @@ impl Loader {
                 y,
             });
         }
-        Ok(Texture { path, image })
+        Ok(Texture { path, image: image.into() })
     }
 
     fn color_value(&self, key: &str, input: ColorInput) -> Result<ColorValue, SceneError> {

@@ -642,7 +642,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if image.find_non_finite().is_some() {
             return Err(self.err(node, format!("{} has non-finite pixels", path.display())));
         }
-        Ok(ColorValue::Texture(Texture { path, image }))
+        Ok(ColorValue::Texture(Texture { path, image: image.into() }))
     }
 
     /// A colour parameter: a constant, a nested bitmap or a `<ref>` to a texture.
@@ -817,7 +817,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let base_color = match diffuse {
                     ColorValue::Constant(c) => ColorValue::Constant(c.map(base)),
                     ColorValue::Texture(mut t) => {
-                        t.image.data.iter_mut().for_each(|px| *px = px.map(base));
+                        std::sync::Arc::make_mut(&mut t.image).data.iter_mut().for_each(|px| *px = px.map(base));
                         ColorValue::Texture(t)
                     }
                 };
@@ -1067,7 +1067,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                         return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));
                     }
                     self.warn(node, "approximate: resampled from Mitsuba's pole-to-pole rows to centred rows");
-                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map) })
+                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map).into() })
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {

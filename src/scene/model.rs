@@ -68,7 +68,9 @@ impl Sensor {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Texture {
     pub path: PathBuf,
-    pub image: Image,
+    /// Shared between the values that use one image (a glTF emissive material's texture
+    /// on each of its meshes), so that it is held, and uploaded, once.
+    pub image: std::sync::Arc<Image>,
 }
 
 #[derive(Clone, Debug, PartialEq)]

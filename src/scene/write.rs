@@ -69,7 +69,7 @@ pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
     let mut out = scene.clone();
     let texture = |target: ParamTarget, r: &Recovered| {
         let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
-        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image })
+        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into() })
     };
     for (target, r) in values {
         let color = || match texture(*target, r) {
@@ -408,7 +408,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                     ColorValue::Texture(t) => {
                         let peak = t.image.data.iter().flatten().copied().fold(0.0f32, f32::max);
                         let scale = if peak > 1.0 { 1.0 / peak } else { 1.0 };
-                        let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), ..t.image.clone() };
+                        let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), width: t.image.width, height: t.image.height };
                         let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true)?;
                         ([peak.max(1.0); 3], Some(index))
                     }
