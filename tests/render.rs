@@ -535,7 +535,7 @@ fn kernels_read_the_records_the_host_wrote() {
         ("ajar", Scene::load(root.join("scenes/ajar/scene.toml")).unwrap()),
         ("env quad", env_lit_quad("records-env", &spot_map())),
         ("normal map", normal_quad("records-nmap", Shading::Map([0.3, -0.2, 0.93]), true)),
-        ("emission texture", lamp_scene("records-emission", true)),
+        ("emission texture", lamp_scene("records-emission", true, LAMP_RED, LAMP_BLUE)),
         (
             "lights",
             delta_lit_scene(
@@ -989,11 +989,11 @@ const LAMP_BLUE: [f32; 3] = [0.5, 0.5, 4.0];
 
 /// A white diffuse floor (the 2 × 2 quad) under a 1 × 0.5 lamp at y = 1 facing down, seen
 /// from below the lamp's height so that both its underside and the lit floor are in view.
-/// `textured`: one mesh whose emission is a 4 × 1 texture (red, red, blue, blue) and whose
-/// left and right halves read the middle of its red and its blue texels only (u in
+/// `textured`: one mesh whose emission is a 16 × 1 texture (8 texels `left`, 8 `right`)
+/// and whose left and right halves read the middle of either run only (u in
 /// [0.125, 0.375] and [0.625, 0.875]: the bilinear lookup there never mixes them);
-/// otherwise the same two halves as two meshes of constant emission.
-fn lamp_scene(name: &str, textured: bool) -> Scene {
+/// otherwise the same two halves as two meshes of constant emission `left` and `right`.
+fn lamp_scene(name: &str, textured: bool, left_emission: [f32; 3], right_emission: [f32; 3]) -> Scene {
     let dir = common::scenes::temp_dir(name);
     std::fs::write(dir.join("floor.obj"), common::scenes::QUAD_OBJ).unwrap();
     let half = |x0: f32, u0: f32| {
@@ -1003,7 +1003,7 @@ fn lamp_scene(name: &str, textured: bool) -> Scene {
     let (left, right) = (half(-0.5, 0.125), half(0.0, 0.625));
     let color = |c: [f32; 3]| format!("[{}, {}, {}]", c[0], c[1], c[2]);
     let lamps = if textured {
-        let texels = Image { width: 4, height: 1, data: vec![LAMP_RED, LAMP_RED, LAMP_BLUE, LAMP_BLUE] };
+        let texels = Image { width: 16, height: 1, data: [[left_emission; 8], [right_emission; 8]].concat() };
         write_exr(&dir.join("lamp.exr"), &texels).unwrap();
         std::fs::write(dir.join("lamp.obj"), format!("{left}{right}f 1/1 2/2 3/3 4/4\nf 5/5 6/6 7/7 8/8\n")).unwrap();
         "[[meshes]]\nfile = \"lamp.obj\"\nmaterial = \"black\"\nemission = { texture = \"lamp.exr\" }\n".to_string()
@@ -1012,8 +1012,8 @@ fn lamp_scene(name: &str, textured: bool) -> Scene {
         std::fs::write(dir.join("right.obj"), format!("{right}f 1/1 2/2 3/3 4/4\n")).unwrap();
         format!(
             "[[meshes]]\nfile = \"left.obj\"\nmaterial = \"black\"\nemission = {}\n[[meshes]]\nfile = \"right.obj\"\nmaterial = \"black\"\nemission = {}\n",
-            color(LAMP_RED),
-            color(LAMP_BLUE)
+            color(left_emission),
+            color(right_emission)
         )
     };
     let toml = format!(
@@ -1031,8 +1031,7 @@ fn lamp_scene(name: &str, textured: bool) -> Scene {
 /// (the emission at a ray's hit), pixels inside either half show that half's radiance
 /// exactly; on the floor, lit by next-event estimation (the emission at a sampled point
 /// of the light) and by BSDF samples that hit the lamp, each quadrant's mean agrees
-/// within Monte Carlo noise (the two scenes pick emitters with different probabilities:
-/// by area × mean luminance, and by area × each mesh's luminance). A light sample that
+/// within Monte Carlo noise. A light sample that
 /// read the texture at the wrong point would light the floor's right side red: its blue
 /// would fall by more than half.
 #[test]
@@ -1055,9 +1054,9 @@ fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
             let gs = GpuScene::new(ctx, scene).unwrap();
             Renderer::new(gs).unwrap().render(0, 512, seed, |_, _| {}).unwrap()
         };
-        let textured = lamp_scene("emission-texture", true);
+        let textured = lamp_scene("emission-texture", true, LAMP_RED, LAMP_BLUE);
         assert!(GpuScene::new(ctx, &textured).unwrap().has_emission_textures);
-        let split = lamp_scene("emission-split", false);
+        let split = lamp_scene("emission-split", false, LAMP_RED, LAMP_BLUE);
         // The same seed: camera rays (and so the lamp seen directly) alike; another seed of
         // the constant scene shows the noise.
         let (a, b, again) = (render(&textured, 1), render(&split, 1), render(&split, 2));
@@ -1072,5 +1071,33 @@ fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
                 assert!((x / y - 1.0).abs() < 0.03, "quadrant {q}, channel {c}: {x} vs {y}");
             }
         }
+    });
+}
+
+/// Light sampling picks a textured emitter's triangles by the texels their lookups can
+/// reach: the lamp of [`lamp_scene`] black on its left half and white on its right has
+/// the emitter table of the same lamp as a black and a white mesh (the left half's
+/// triangles, which can only read black texels, are not sampled at all), and renders as
+/// it does within noise.
+#[test]
+fn textured_emitters_are_sampled_by_the_texels_they_reach() {
+    use vkinverse::shared::EmitterTri;
+    let white = [3.0, 3.0, 3.0];
+    let (textured, split) = (lamp_scene("emission-half-black", true, [0.0; 3], white), lamp_scene("emission-half-black-split", false, [0.0; 3], white));
+    with_gpu(|ctx| {
+        let table = |scene: &Scene| {
+            let gs = GpuScene::new(ctx, scene).unwrap();
+            let bound = gs.bindings();
+            let bytes: Vec<u8> = bound.iter().find(|(n, _)| *n == "Emitters").unwrap().1.read().unwrap();
+            let records: Vec<EmitterTri> = bytes.chunks_exact(std::mem::size_of::<EmitterTri>()).map(bytemuck::pod_read_unaligned).collect();
+            records[..gs.emitters as usize].iter().map(|e| (e.p0, e.pdf, e.cdf)).collect::<Vec<_>>()
+        };
+        let (a, b) = (table(&textured), table(&split));
+        assert_eq!(a.len(), 2, "the white half's two triangles: {a:?}");
+        assert_eq!(a, b, "the textured lamp's emitter table against the two meshes'");
+        let render = |scene: &Scene| Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 256, 1, |_, _| {}).unwrap();
+        let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
+        let (x, y) = (mean(&render(&textured)), mean(&render(&split)));
+        assert!((x / y - 1.0).abs() < 0.01, "mean {x} against {y}");
     });
 }

@@ -144,6 +144,74 @@ fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
     [t.x, t.y, t.z, w]
 }
 
+fn luminance(c: [f32; 3]) -> f32 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+}
+
+/// Sums of a texture's texel luminances over rectangles of texels (a summed-area table),
+/// for the light-sampling weights of the triangles of a textured emitter.
+struct LuminanceTable {
+    width: i64,
+    height: i64,
+    /// (width + 1) × (height + 1) prefix sums; row 0 and column 0 are zero.
+    sums: Vec<f64>,
+}
+
+impl LuminanceTable {
+    fn new(img: &Image) -> Self {
+        let (w, h) = (img.width as usize, img.height as usize);
+        let mut sums = vec![0.0f64; (w + 1) * (h + 1)];
+        for y in 0..h {
+            let mut row = 0.0;
+            for x in 0..w {
+                row += luminance(img.data[y * w + x]) as f64;
+                sums[(y + 1) * (w + 1) + x + 1] = sums[y * (w + 1) + x + 1] + row;
+            }
+        }
+        Self { width: w as i64, height: h as i64, sums }
+    }
+
+    /// The sum over texels [x0, x1) × [y0, y1) inside the image.
+    fn rect(&self, x0: i64, x1: i64, y0: i64, y1: i64) -> f64 {
+        let at = |x: i64, y: i64| self.sums[(y * (self.width + 1) + x) as usize];
+        at(x1, y1) - at(x0, y1) - at(x1, y0) + at(x0, y0)
+    }
+
+    /// The mean luminance of the texels that a bilinear lookup (repeat wrapping, as the
+    /// kernels' `footprint`) at any point of the triangle with texture coordinates `uvs`
+    /// can read: those in its bounding box in texel space, widened by a texel for the
+    /// bilinear neighbours and by one more for rounding. Zero only if every one is black,
+    /// so that a triangle weighted by it is never left unsampled where it could emit.
+    fn footprint_mean(&self, uvs: [[f32; 2]; 3]) -> f32 {
+        let (w, h) = (self.width, self.height);
+        let lo = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::INFINITY, f32::min);
+        let hi = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::NEG_INFINITY, f32::max);
+        // Texels [a, b] (inclusive, unwrapped) along an axis of n texels, as up to two
+        // ranges [start, end) inside the image; all n where the box spans them (or a
+        // coordinate is not finite).
+        let ranges = |lo: f32, hi: f32, n: i64| -> Vec<(i64, i64)> {
+            let (a, b) = ((lo as f64 * n as f64 - 0.5).floor() - 1.0, (hi as f64 * n as f64 - 0.5).floor() + 2.0);
+            if !(a.is_finite() && b.is_finite()) || b - a + 1.0 >= n as f64 {
+                return vec![(0, n)];
+            }
+            let (a, b) = (a as i64, b as i64 + 1);
+            let start = a.rem_euclid(n);
+            let end = start + (b - a);
+            if end <= n { vec![(start, end)] } else { vec![(start, n), (0, end - n)] }
+        };
+        // Rows are stored top first: v = 1 is row 0.
+        let (xs, ys) = (ranges(lo(0), hi(0), w), ranges(1.0 - hi(1), 1.0 - lo(1), h));
+        let (mut sum, mut count) = (0.0, 0i64);
+        for &(x0, x1) in &xs {
+            for &(y0, y1) in &ys {
+                sum += self.rect(x0, x1, y0, y1);
+                count += (x1 - x0) * (y1 - y0);
+            }
+        }
+        (sum / count as f64) as f32
+    }
+}
+
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
@@ -309,18 +377,12 @@ impl GpuScene {
         };
 
         // Emitters: triangles of meshes that emit or whose emission is optimised. Picked
-        // in proportion to area × luminance (a texture's mean luminance), or to area alone
-        // when any emission is being optimised (its current value is not known when the
-        // table is built).
+        // in proportion to area × luminance (of a texture, its mean over the texels the
+        // triangle's lookups can reach: none for a triangle that reaches only black
+        // texels), or to area alone when any emission is being optimised (its current
+        // value is not known when the table is built).
         let optimised_emission = scene.meshes.iter().enumerate().any(|(i, _)| layout.slot(ParamTarget::Emission { mesh: i }).is_some());
-        let mesh_luminance: Vec<f32> = scene
-            .meshes
-            .iter()
-            .map(|m| {
-                let e = m.emission.mean();
-                0.2126 * e[0] + 0.7152 * e[1] + 0.0722 * e[2]
-            })
-            .collect();
+        let mut luminance_tables: Vec<(*const Image, LuminanceTable)> = Vec::new();
         let mesh_emits: Vec<bool> = scene.meshes.iter().enumerate().map(|(i, m)| layout.slot(ParamTarget::Emission { mesh: i }).is_some() || m.emission.any_positive()).collect();
         let mut shading: Vec<TriShading> = Vec::with_capacity(geo.indices.len());
         let mut emitters: Vec<EmitterTri> = Vec::new();
@@ -332,8 +394,24 @@ impl GpuScene {
             let ng = cross.normalize_or_zero();
             let mesh = geo.triangle_mesh[t] as usize;
             let two_sided = scene.meshes[mesh].two_sided_emission as u32;
-            if mesh_emits[mesh] && area > 0.0 {
-                weights.push(if optimised_emission { area } else { area * mesh_luminance[mesh].max(1e-6) });
+            let uvs = idx.map(|i| geo.uvs[i as usize]);
+            let luminance = match &scene.meshes[mesh].emission {
+                _ if optimised_emission => 1.0,
+                ColorValue::Constant(c) => luminance(*c).max(1e-6),
+                ColorValue::Texture(t) => {
+                    let key = std::sync::Arc::as_ptr(&t.image);
+                    let table = match luminance_tables.iter().position(|(k, _)| *k == key) {
+                        Some(i) => &luminance_tables[i].1,
+                        None => {
+                            luminance_tables.push((key, LuminanceTable::new(&t.image)));
+                            &luminance_tables.last().unwrap().1
+                        }
+                    };
+                    table.footprint_mean(uvs)
+                }
+            };
+            if mesh_emits[mesh] && area > 0.0 && luminance > 0.0 {
+                weights.push(area * luminance);
                 emitters.push(EmitterTri {
                     p0: a.into(),
                     e1: (b - a).into(),
@@ -347,7 +425,6 @@ impl GpuScene {
                 });
             }
             let material = geo.triangle_material[t];
-            let uvs = idx.map(|i| geo.uvs[i as usize]);
             let tangent = match &scene.materials[material as usize].normal_map {
                 None => [0.0; 4],
                 Some(n) => {
@@ -681,5 +758,51 @@ impl Renderer {
         }
         let data: Vec<[f32; 3]> = accum.read()?;
         Ok(Image { width: self.scene.width, height: self.scene.height, data })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The summed-area table's footprint means against a plain loop over the same texels
+    /// (the bounding box widened by two texels, wrapped), on boxes inside the image, across
+    /// its edges (negative and above-one coordinates) and wider than it.
+    #[test]
+    fn footprint_means_match_a_loop_over_the_texels() {
+        let (w, h) = (7u32, 5u32);
+        let data = (0..w * h).map(|i| [((i * 37) % 11) as f32, ((i * 13) % 5) as f32, (i % 3) as f32]).collect();
+        let img = Image { width: w, height: h, data };
+        let table = LuminanceTable::new(&img);
+        let brute = |uvs: [[f32; 2]; 3]| -> f32 {
+            let lo = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::INFINITY, f32::min) as f64;
+            let hi = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::NEG_INFINITY, f32::max) as f64;
+            let axis = |lo: f64, hi: f64, n: i64| -> Vec<i64> {
+                let (a, b) = ((lo * n as f64 - 0.5).floor() as i64 - 1, (hi * n as f64 - 0.5).floor() as i64 + 2);
+                if b - a + 1 >= n { (0..n).collect() } else { (a..=b).map(|x| x.rem_euclid(n)).collect() }
+            };
+            let (xs, ys) = (axis(lo(0), hi(0), w as i64), axis(1.0 - hi(1), 1.0 - lo(1), h as i64));
+            let texels = &img.data;
+            let sum: f64 = ys.iter().flat_map(|&y| xs.iter().map(move |&x| luminance(texels[(y * w as i64 + x) as usize]) as f64)).sum();
+            (sum / (xs.len() * ys.len()) as f64) as f32
+        };
+        let cases = [
+            [[0.3, 0.4], [0.35, 0.45], [0.32, 0.5]],
+            [[-0.1, 0.9], [0.05, 1.1], [0.0, 0.95]],
+            [[0.9, -0.2], [1.05, -0.1], [0.95, 0.05]],
+            [[2.3, 3.4], [2.35, 3.45], [2.32, 3.5]],
+            [[0.0, 0.0], [1.0, 0.0], [1.0, 0.3]],
+            [[0.5, 0.5]; 3],
+        ];
+        for uvs in cases {
+            let (got, want) = (table.footprint_mean(uvs), brute(uvs));
+            assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "{uvs:?}: {got} vs {want}");
+        }
+        // Zero only where every reachable texel is black.
+        let mut dark = Image::filled(16, 1, [0.0; 3]);
+        dark.data[12] = [1.0, 0.0, 0.0];
+        let table = LuminanceTable::new(&dark);
+        assert_eq!(table.footprint_mean([[0.1, 0.5], [0.3, 0.5], [0.2, 0.5]]), 0.0);
+        assert!(table.footprint_mean([[0.7, 0.5], [0.72, 0.5], [0.71, 0.5]]) > 0.0, "a lookup at u = 0.72 reads texel 12");
     }
 }

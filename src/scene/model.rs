@@ -87,23 +87,6 @@ impl ColorValue {
             Self::Texture(t) => t.image.data.iter().flatten().any(|&v| v > 0.0),
         }
     }
-
-    /// The constant, or the texture's mean over its texels.
-    pub fn mean(&self) -> [f32; 3] {
-        match self {
-            Self::Constant(c) => *c,
-            Self::Texture(t) => {
-                let mut sum = [0.0f64; 3];
-                for p in &t.image.data {
-                    for k in 0..3 {
-                        sum[k] += p[k] as f64;
-                    }
-                }
-                let n = t.image.data.len().max(1) as f64;
-                sum.map(|v| (v / n) as f32)
-            }
-        }
-    }
 }
 
 /// A scalar property; a texture's R channel holds it.
