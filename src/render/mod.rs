@@ -144,6 +144,20 @@ fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
     [t.x, t.y, t.z, w]
 }
 
+/// What `make` builds for image `img`, built once per image: `cache` holds it by the image's
+/// address (one shared image: several meshes' emission texture).
+fn per_image<'a, V>(cache: &'a mut Vec<(*const Image, V)>, img: &std::sync::Arc<Image>, make: impl FnOnce() -> V) -> &'a V {
+    let key = std::sync::Arc::as_ptr(img);
+    let i = match cache.iter().position(|(k, _)| *k == key) {
+        Some(i) => i,
+        None => {
+            cache.push((key, make()));
+            cache.len() - 1
+        }
+    };
+    &cache[i].1
+}
+
 fn luminance(c: [f32; 3]) -> f32 {
     0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
@@ -309,17 +323,7 @@ impl GpuScene {
                     return theta_ref(slot);
                 }
                 match &m.emission {
-                    ColorValue::Texture(t) => {
-                        let key = std::sync::Arc::as_ptr(&t.image);
-                        match shared_textures.iter().find(|(k, _)| *k == key) {
-                            Some(&(_, r)) => r,
-                            None => {
-                                let r = color_ref(&mut data, &m.emission);
-                                shared_textures.push((key, r));
-                                r
-                            }
-                        }
-                    }
+                    ColorValue::Texture(t) => *per_image(&mut shared_textures, &t.image, || color_ref(&mut data, &m.emission)),
                     ColorValue::Constant(_) => color_ref(&mut data, &m.emission),
                 }
             })
@@ -398,17 +402,7 @@ impl GpuScene {
             let luminance = match &scene.meshes[mesh].emission {
                 _ if optimised_emission => 1.0,
                 ColorValue::Constant(c) => luminance(*c).max(1e-6),
-                ColorValue::Texture(t) => {
-                    let key = std::sync::Arc::as_ptr(&t.image);
-                    let table = match luminance_tables.iter().position(|(k, _)| *k == key) {
-                        Some(i) => &luminance_tables[i].1,
-                        None => {
-                            luminance_tables.push((key, LuminanceTable::new(&t.image)));
-                            &luminance_tables.last().unwrap().1
-                        }
-                    };
-                    table.footprint_mean(uvs)
-                }
+                ColorValue::Texture(t) => per_image(&mut luminance_tables, &t.image, || LuminanceTable::new(&t.image)).footprint_mean(uvs),
             };
             if mesh_emits[mesh] && area > 0.0 && luminance > 0.0 {
                 weights.push(area * luminance);
