@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Writes the mesh files of scenes/mitsuba/scene.xml, the back wall as OBJ and a wedge
-(a triangular prism) as binary PLY, and the normal map of normalmap.xml and
-textured_shapes.xml. The scene files themselves are written by hand."""
+(a triangular prism) as binary PLY, the normal map of normalmap.xml and
+textured_shapes.xml, and the emission texture of textured_light.xml's globe. The scene
+files themselves are written by hand."""
 
 import math
 import struct
@@ -45,3 +46,10 @@ for y in range(8):
     ay = 20 if y < 3 else (-20 if y > 4 else 0)
     rows.append([texel(-30 if x < 3 else (30 if x > 4 else 0), ay) for x in range(8)])
 (HERE / "meshes" / "bumps.png").write_bytes(png(8, 8, rows))
+
+# The glowing band of textured_light.xml's globe: 32 x 16 texels, black but for three rows
+# (warm on one half of the circumference, cool on the other).
+band = [[(0, 0, 0)] * 32 for _ in range(16)]
+for y in range(7, 10):
+    band[y] = [(255, 180, 90)] * 16 + [(90, 160, 255)] * 16
+(HERE / "meshes" / "band.png").write_bytes(png(32, 16, band))
