@@ -311,9 +311,7 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
         let expected = r.render(0, 4, 5, |_, _| {}).unwrap();
         write_final(&out, &scene, &layout.recovered(&theta)).unwrap();
         let toml = Scene::load(out.join("final/scene.toml")).unwrap();
-        for (a, b) in render_sensor0(ctx, &toml).data.iter().zip(&expected.data) {
-            assert!((0..3).all(|c| (a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-2)), "final/scene.toml: {a:?} vs {b:?}");
-        }
+        assert_close(&render_sensor0(ctx, &toml), &expected, "final/scene.toml");
         let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
         let ColorValue::Texture(t) = &gltf.meshes[0].emission else { panic!("the written glTF's emission texture") };
         let peak = 7.2;
@@ -577,22 +575,24 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
         let mut exact = gltf.clone();
         let white_index = exact.material_index("white").unwrap();
         exact.materials[white_index].base_color = scene_texture(&theta[11..], 4, 2);
-        let close = |img: &Image, what: &str| {
-            for (a, b) in img.data.iter().zip(&expected.data) {
-                for c in 0..3 {
-                    assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-2), "{what}: {a:?} vs {b:?}");
-                }
-            }
-        };
-        close(&render_sensor0(ctx, &exact), "final/scene.gltf");
+        assert_close(&render_sensor0(ctx, &exact), &expected, "final/scene.gltf");
         let toml = Scene::load(out.join("final/scene.toml")).unwrap();
-        close(&render_sensor0(ctx, &toml), "final/scene.toml");
+        assert_close(&render_sensor0(ctx, &toml), &expected, "final/scene.toml");
     });
 }
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into() })
+}
+
+/// `img` equals `expected` to float rounding, pixel by pixel.
+fn assert_close(img: &Image, expected: &Image, what: &str) {
+    for (a, b) in img.data.iter().zip(&expected.data) {
+        for c in 0..3 {
+            assert!((a[c] - b[c]).abs() <= 1e-5 * b[c].abs().max(1e-2), "{what}: {a:?} vs {b:?}");
+        }
+    }
 }
 
 fn render_sensor0(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene) -> Image {
