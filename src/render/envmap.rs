@@ -70,7 +70,7 @@ impl EnvDistribution {
         let lum: Vec<f64> = (0..w * h)
             .map(|i| {
                 let t = &texels[3 * i..3 * i + 3];
-                (0.2126 * t[0] as f64 + 0.7152 * t[1] as f64 + 0.0722 * t[2] as f64).max(0.0)
+                crate::bsdf::LUMINANCE.dot(glam::DVec3::new(t[0] as f64, t[1] as f64, t[2] as f64)).max(0.0)
             })
             .collect();
         let mut weight = vec![0.0f64; w * h];

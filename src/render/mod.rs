@@ -158,8 +158,10 @@ fn per_image<'a, V>(cache: &'a mut Vec<(*const Image, V)>, img: &std::sync::Arc<
     &cache[i].1
 }
 
+/// Rec. 709 luminance ([`crate::bsdf::LUMINANCE`]) in single precision.
 fn luminance(c: [f32; 3]) -> f32 {
-    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+    let k = crate::bsdf::LUMINANCE.as_vec3();
+    k.x * c[0] + k.y * c[1] + k.z * c[2]
 }
 
 /// Sums of a texture's texel luminances over rectangles of texels (a summed-area table),
