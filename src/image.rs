@@ -187,20 +187,25 @@ pub fn write_exr(path: &Path, image: &Image) -> Result<(), ImageError> {
 /// Writes an 8-bit sRGB PNG atomically: each channel clamped to [0, 1] (NaN as 0), then
 /// encoded with the sRGB transfer function. No exposure or tone curve is applied.
 pub fn write_png(path: &Path, image: &Image) -> Result<(), ImageError> {
+    write_png_with_alpha(path, image, None)
+}
+
+/// [`write_png`] with an alpha channel where `alpha` (one value per pixel, linear in
+/// [0, 1], as PNG stores alpha) is given.
+pub fn write_png_with_alpha(path: &Path, image: &Image, alpha: Option<&[f32]>) -> Result<(), ImageError> {
     image.check_size(path)?;
-    let pixels: Vec<u8> = image
-        .data
-        .iter()
-        .flatten()
-        .map(|&c| srgb_encode(c))
-        .collect();
+    let linear8 = |a: f32| (a.clamp(0.0, 1.0) * 255.0).round() as u8;
+    let pixels: Vec<u8> = match alpha {
+        None => image.data.iter().flatten().map(|&c| srgb_encode(c)).collect(),
+        Some(alpha) => image.data.iter().zip(alpha).flat_map(|(p, &a)| [srgb_encode(p[0]), srgb_encode(p[1]), srgb_encode(p[2]), linear8(a)]).collect(),
+    };
     let png_err = |source| ImageError::Png {
         path: path.to_path_buf(),
         source,
     };
     let mut bytes = Vec::new();
     let mut encoder = png::Encoder::new(&mut bytes, image.width, image.height);
-    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_color(if alpha.is_some() { png::ColorType::Rgba } else { png::ColorType::Rgb });
     encoder.set_depth(png::BitDepth::Eight);
     encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
     let mut writer = encoder.write_header().map_err(png_err)?;

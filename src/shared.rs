@@ -43,7 +43,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 80 bytes (5 texels; `pad` is zero).
+/// Mirror of `MaterialRecord`: 96 bytes (6 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -53,10 +53,15 @@ pub struct MaterialRecord {
     pub kind: u32,
     /// 1: the material reflects nothing from behind (its triangles' clockwise side).
     pub one_sided: u32,
-    pub pad: [u32; 2],
+    /// The alpha test's threshold (with `alpha`).
+    pub alpha_cutoff: f32,
+    pub pad: u32,
     /// The normal map's tangent-space normals (3 floats per texel, decoded and scaled);
     /// width 0: no normal map.
     pub normal_map: ValueRef,
+    /// The alpha test's value (1 float per texel); unused (zero) where the material has
+    /// none: the BVH's triangle records say which materials do.
+    pub alpha: ValueRef,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).
@@ -79,7 +84,9 @@ pub struct TriShading {
     pub uv0: [f32; 2],
     pub uv1: [f32; 2],
     pub uv2: [f32; 2],
-    pub pad: u32,
+    /// 0, or 1 + the material whose alpha test the triangle's points must pass (as its
+    /// BVH record's, [`crate::bvh::BvhTriangle::alpha_material`]).
+    pub alpha_material: u32,
     /// Normal-mapped materials only: the unit dp/du of the texture coordinates and the
     /// bitangent's handedness (+1: dp/dv along cross(ng, tangent), -1: against it); zero
     /// elsewhere.

@@ -614,8 +614,8 @@ fn struct_layouts_match_reflection() {
             ("e1", offset_of!(BvhTriangle, e1)),
             ("e2", offset_of!(BvhTriangle, e2)),
             ("prim", offset_of!(BvhTriangle, prim)),
-            ("pad0", offset_of!(BvhTriangle, pad)),
-            ("pad1", offset_of!(BvhTriangle, pad) + 4),
+            ("alpha_material", offset_of!(BvhTriangle, alpha_material)),
+            ("pad", offset_of!(BvhTriangle, pad)),
         ],
         size_of::<BvhTriangle>(),
     );

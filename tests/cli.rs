@@ -1043,6 +1043,11 @@ fn progress_lines_and_light_warnings_on_a_pipe() {
     vkinverse::image::write_exr(&bumpy.with_file_name("n.exr"), &vkinverse::image::Image::filled(2, 2, [0.6, 0.5, 0.9])).unwrap();
     let out = vkinverse_ok(&["render", &s(&bumpy), "--spp", "1", "-o", &s(&dir.join("bumpy.exr"))]);
     assert!(out.stderr.contains("warning") && out.stderr.contains("has no texture coordinates") && out.stderr.contains("\"red\""), "{}", out.stderr);
+    // And an alpha texture there, which then cuts nothing out.
+    let masked = edited_cornell("masked", |t| replace_once(t, "name = \"red\"", "name = \"red\"\nalpha = { texture = \"a.exr\" }"));
+    vkinverse::image::write_exr(&masked.with_file_name("a.exr"), &vkinverse::image::Image::filled(2, 2, [0.0; 3])).unwrap();
+    let out = vkinverse_ok(&["render", &s(&masked), "--spp", "1", "-o", &s(&dir.join("masked.exr"))]);
+    assert!(out.stderr.contains("warning") && out.stderr.contains("the alpha texture of its material \"red\" is not applied"), "{}", out.stderr);
 }
 
 #[test]

@@ -702,6 +702,27 @@ fn emission_texture_gradients_are_exact() {
     });
 }
 
+/// A floor whose left half an alpha test cuts out (a 4 × 1 alpha texture 0, 0, 1, 1 at 0.5),
+/// its diffuse colour a 2 × 2 texture: camera rays, shadow rays and bounces pass through the
+/// cut-out half to the sky and the light, in the primal, the replay and the finite
+/// differences alike. The alpha is no parameter and nothing samples by the colour, so the
+/// adjoint is exact per sample.
+#[test]
+fn alpha_tested_gradients_are_exact() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
+        let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]\nalpha = { texture = \"mask.exr\" }";
+        let path = common::scenes::lit_quad("gradients-alpha", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
+        let mask = vkinverse::image::Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] };
+        vkinverse::image::write_exr(&path.parent().unwrap().join("mask.exr"), &mask).unwrap();
+        let scene = Scene::load(path).unwrap();
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        assert!(b.scene().has_alpha_masks);
+        let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.1)).collect();
+        check("l2", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+    });
+}
+
 /// scenes/gap (a closed box lit only through a 2 cm gap between a one-sided light and the
 /// ceiling) at 32² pixels, its left wall's colour checked by `vkinverse::gradcheck`: the
 /// adjoint against finite differences of the unbiased loss over independent renders, so
@@ -998,8 +1019,8 @@ range = [0.0, 1.0]
 }
 
 /// The integrator kernels are specialised for the scene's features (`GpuScene::spec`): a
-/// scene without textures (of materials or of emission) or principled materials has their
-/// code compiled out. The kernels
+/// scene without textures (of materials or of emission), principled materials or alpha
+/// tests has their code compiled out. The kernels
 /// with every feature compiled in must compute the same thing: the Cornell box (neither
 /// feature) and the spiral (principled, untextured) render bit-identical images and the
 /// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
@@ -1018,6 +1039,7 @@ fn feature_specialisation_changes_no_result() {
                 assert!(!gs.has_textures, "{name} has no texture");
                 assert!(!gs.has_normal_maps, "{name} has no normal map");
                 assert!(!gs.has_emission_textures, "{name} has no emission texture");
+                assert!(!gs.has_alpha_masks, "{name} has no alpha test");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
                 assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
@@ -1029,6 +1051,7 @@ fn feature_specialisation_changes_no_result() {
                     gs.has_normals = true;
                     gs.has_normal_maps = true;
                     gs.has_emission_textures = true;
+                    gs.has_alpha_masks = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.

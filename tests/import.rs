@@ -321,6 +321,93 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
     });
 }
 
+/// glTF's `alphaMode`: `MASK` tests the base colour's alpha (`baseColorFactor`'s fourth
+/// component times the texture's alpha channel) against `alphaCutoff`, and the render shows
+/// the sky through the cut-out half; `BLEND` is tested at 0.5 with a warning; a constant
+/// alpha that passes is no test; a cutoff outside [0, 1] is refused naming its JSON path.
+/// A recovered base colour texture is written back to glTF with the alpha in its PNG's
+/// alpha channel (the factor's alpha then 1), and to TOML with the alpha as an EXR and its
+/// cutoff.
+#[test]
+fn gltf_alpha_masks_are_read_rendered_and_written_back() {
+    let dir = temp_dir("gltf-alpha");
+    // Dark texels whose alpha is 0, 0, 1, 1 from left to right.
+    let dark = Image::filled(4, 1, [0.05, 0.05, 0.05]);
+    vkinverse::image::write_png_with_alpha(&dir.join("leaf.png"), &dark, Some(&[0.0, 0.0, 1.0, 1.0])).unwrap();
+    let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    let m = &mut doc["materials"][0];
+    m.as_object_mut().unwrap().remove("normalTexture");
+    m["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0 });
+    m["pbrMetallicRoughness"]["baseColorFactor"] = serde_json::json!([1.0, 1.0, 1.0, 0.8]);
+    m["alphaMode"] = serde_json::json!("MASK");
+    m["alphaCutoff"] = serde_json::json!(0.4);
+    doc["images"] = serde_json::json!([{ "uri": "leaf.png" }]);
+    let write = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut d = doc.clone();
+        edit(&mut d["materials"][0]);
+        let path = dir.join(name);
+        std::fs::write(&path, serde_json::to_string(&d).unwrap()).unwrap();
+        path
+    };
+    let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
+    let masked = Scene::load_with(write("masked.gltf", &|_| {}), &small).unwrap();
+    assert!(masked.warnings.is_empty(), "{:?}", masked.warnings);
+    let a = masked.materials[0].alpha.clone().expect("an alpha test");
+    let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha: {a:?}") };
+    let alphas: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
+    assert_eq!((a.cutoff, alphas), (0.4, vec![0.0, 0.0, 0.8, 0.8]));
+    let blend = Scene::load_with(write("blend.gltf", &|m| m["alphaMode"] = serde_json::json!("BLEND")), &small).unwrap();
+    assert_eq!(blend.materials[0].alpha.as_ref().map(|a| a.cutoff), Some(0.5));
+    assert!(blend.warnings.iter().any(|w| w.contains("alphaMode") && w.contains("BLEND")), "{:?}", blend.warnings);
+    let untextured = |name: &str, alpha: f32| {
+        let path = write(name, &|m| {
+            m["pbrMetallicRoughness"].as_object_mut().unwrap().remove("baseColorTexture");
+            m["pbrMetallicRoughness"]["baseColorFactor"] = serde_json::json!([0.5, 0.5, 0.5, alpha]);
+        });
+        Scene::load_with(path, &small).unwrap().materials[0].alpha.clone()
+    };
+    assert!(untextured("passes.gltf", 0.4).is_none(), "a constant alpha at the cutoff cuts nothing out");
+    assert!(matches!(untextured("fails.gltf", 0.3), Some(a) if matches!(a.value, ScalarValue::Constant(v) if v == 0.3)));
+    let err = Scene::load_with(write("cutoff.gltf", &|m| m["alphaCutoff"] = serde_json::json!(1.5)), &small).unwrap_err();
+    assert!(err.to_string().contains("materials[0].alphaCutoff") && err.to_string().contains("1.5"), "{err}");
+
+    let sky = "[environment]\nconstant = [1, 1, 1]\n";
+    let wrap = |name: &str, gltf: &str, optimise: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, format!("import = \"{gltf}\"\n[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 2\n{sky}{optimise}")).unwrap();
+        Scene::load(&path).unwrap()
+    };
+    let opaque_path = write("opaque.gltf", &|m| m["alphaMode"] = serde_json::json!("OPAQUE"));
+    let (lit, opaque) = (wrap("lit.toml", "masked.gltf", ""), wrap("opaque.toml", opaque_path.file_name().unwrap().to_str().unwrap(), ""));
+    let texture_param = "[optimise]\n[[optimise.params]]\ntarget = \"materials.bumpy.base_color\"\ninit = 0.5\nrange = [0, 1]\ntexture = [2, 2]\n";
+    let textured = wrap("opt.toml", "masked.gltf", texture_param);
+    with_gpu(|ctx| {
+        // Pixels that see the sky (radiance 1 exactly): around the quad in both, and
+        // through its cut-out left half in the masked one.
+        let sky_share = |img: &Image| img.data.iter().filter(|p| p.iter().all(|&v| (v - 1.0).abs() < 1e-6)).count() as f64 / img.data.len() as f64;
+        let (with_mask, without) = (sky_share(&render(ctx, &lit, 0, 8, 3)), sky_share(&render(ctx, &opaque, 0, 8, 3)));
+        assert!(with_mask > without + 0.2, "the sky fills {with_mask:.3} of the masked quad's image against {without:.3} of the opaque one's");
+
+        let out = dir.join("out");
+        let theta: Vec<f32> = (0..12).map(|k| 0.05 * (k + 1) as f32).collect();
+        let layout = GpuScene::new(ctx, &textured).unwrap().layout.clone();
+        write_final(&out, &textured, &layout.recovered(&theta)).unwrap();
+        let toml = Scene::load(out.join("final/scene.toml")).unwrap();
+        let a = toml.materials[0].alpha.as_ref().expect("final/scene.toml keeps the alpha test");
+        let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.toml") };
+        assert_eq!((a.cutoff, t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>()), (0.4, vec![0.0, 0.0, 0.8, 0.8]), "final/scene.toml");
+        let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
+        let a = gltf.materials[0].alpha.as_ref().expect("final/scene.gltf keeps the alpha test");
+        let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.gltf") };
+        // The alpha in the written PNG, at the base colour texture's size: 2 × 2, the
+        // nearest texels of the 4 × 1 alpha.
+        let got: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
+        assert!(a.cutoff == 0.4 && got.iter().zip(&[0.0, 0.8, 0.0, 0.8]).all(|(g, w)| (g - w).abs() <= 0.5 / 255.0), "final/scene.gltf alpha {got:?}, cutoff {}", a.cutoff);
+        let ColorValue::Texture(t) = &gltf.materials[0].base_color else { panic!("the written base colour texture") };
+        assert!(t.image.data.iter().flatten().zip(&theta).all(|(g, w)| (g - w).abs() <= 1.2 / 255.0), "{:?}", t.image.data);
+    });
+}
+
 /// `KHR_texture_transform` (offset, rotation, scale) shared by a material's textures moves
 /// the texture coordinates of the meshes that use it; transforms that differ between one
 /// material's textures, or pick another coordinate set, are refused naming the JSON path.
@@ -633,11 +720,6 @@ fn optimise_from_gltf_comes_back_as_gltf() {
     assert!(!ok && err.trim().lines().count() == 1 && err.contains("--film 10by6"), "{err}");
 }
 
-/// Mitsuba's `normalmap` wraps a BSDF, inside or outside `twosided`: its bitmap (raw) is
-/// the material's normal map with Mitsuba's bitangent cross(n, tangent), its frame
-/// refinements left out with a warning unless turned off; a map that is no bitmap, a
-/// wrapper without a BSDF and texels outside [0, 1] are refused naming the line. (How the
-/// bundled scenes/mitsuba/normalmap.xml compares with Mitsuba's render: README.)
 /// A Mitsuba area emitter's `radiance` may be a bitmap (nested or by `ref`): the mesh's
 /// emission is then its sRGB-decoded texture; an `rgb` stays a constant.
 #[test]
@@ -666,6 +748,11 @@ fn mitsuba_area_emitters_take_bitmap_radiance() {
     assert_eq!(constant.meshes[0].emission, ColorValue::Constant([2.0, 1.0, 0.5]));
 }
 
+/// Mitsuba's `normalmap` wraps a BSDF, inside or outside `twosided`: its bitmap (raw) is
+/// the material's normal map with Mitsuba's bitangent cross(n, tangent), its frame
+/// refinements left out with a warning unless turned off; a map that is no bitmap, a
+/// wrapper without a BSDF and texels outside [0, 1] are refused naming the line. (How the
+/// bundled scenes/mitsuba/normalmap.xml compares with Mitsuba's render: README.)
 #[test]
 fn mitsuba_normal_maps_wrap_bsdfs() {
     let dir = temp_dir("mitsuba-normalmap");
@@ -720,6 +807,51 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
         &format!(r#"<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="{}"/></texture>{diffuse}</bsdf>"#, hdr.display()),
         &["hot.exr", "2 at pixel (0, 0)", "outside [0, 1]"],
     );
+}
+
+/// Mitsuba's `mask` wraps a BSDF, alone or with `twosided` and `normalmap` in any order:
+/// its `opacity` (a bitmap or a number, 0.5 by default) becomes an alpha test at 0.5, exact
+/// where the opacity is 0 or 1 and approximate elsewhere (a warning); an opacity that
+/// always passes is no test, and the render shows the sky through the cut-out part.
+#[test]
+fn mitsuba_masks_cut_surfaces_out() {
+    let dir = temp_dir("mitsuba-mask");
+    let stripes = dir.join("stripes.png");
+    vkinverse::image::write_png(&stripes, &Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] }).unwrap();
+    let opacity = format!(r#"<texture type="bitmap" name="opacity"><string name="filename" value="{}"/></texture>"#, stripes.display());
+    let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.1"/></bsdf>"#;
+    let load = |name: &str, bsdf: &str| {
+        let path = dir.join(format!("{name}.xml"));
+        std::fs::write(
+            &path,
+            small_mitsuba_scene(&format!(
+                r#"    <shape type="rectangle" id="card"><transform name="to_world"><scale value="2"/></transform>{bsdf}</shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>"#
+            )),
+        )
+        .unwrap();
+        Scene::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let masked = load("masked", &format!(r#"<bsdf type="mask">{opacity}<bsdf type="twosided">{diffuse}</bsdf></bsdf>"#));
+    let inside = load("inside", &format!(r#"<bsdf type="twosided"><bsdf type="mask">{opacity}{diffuse}</bsdf></bsdf>"#));
+    for s in [&masked, &inside] {
+        let m = &s.materials[0];
+        let a = m.alpha.as_ref().expect("an alpha test");
+        let ScalarValue::Texture(t) = &a.value else { panic!("a bitmap opacity: {a:?}") };
+        assert_eq!((a.cutoff, m.one_sided), (0.5, false));
+        assert_eq!(t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>(), [0.0, 0.0, 1.0, 1.0]);
+        assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    }
+    let half = load("half", &format!(r#"<bsdf type="mask"><float name="opacity" value="0.3"/>{diffuse}</bsdf>"#));
+    assert!(matches!(&half.materials[0].alpha, Some(a) if matches!(a.value, ScalarValue::Constant(v) if v == 0.3)));
+    assert!(half.warnings.iter().any(|w| w.contains("opacity between 0 and 1")), "{:?}", half.warnings);
+    let solid = load("solid", &format!(r#"<bsdf type="mask"><float name="opacity" value="1"/>{diffuse}</bsdf>"#));
+    assert!(solid.materials[0].alpha.is_none() && solid.warnings.is_empty(), "{:?}", solid.warnings);
+    let plain = load("plain", &format!(r#"<bsdf type="twosided">{diffuse}</bsdf>"#));
+    let (with_mask, without) = with_gpu(|ctx| (render(ctx, &masked, 0, 4, 1), render(ctx, &plain, 0, 4, 1)));
+    let sky = |img: &Image| img.data.iter().filter(|p| p.iter().all(|&v| (v - 1.0).abs() < 1e-6)).count();
+    // The card fills three quarters of the image, its cut-out half three eighths.
+    assert!(sky(&with_mask) > sky(&without) + with_mask.data.len() / 4, "sky pixels: {} masked against {} plain", sky(&with_mask), sky(&without));
 }
 
 /// A Mitsuba BSDF not wrapped in `twosided` is black from behind, as in Mitsuba: a card

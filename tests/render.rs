@@ -536,6 +536,7 @@ fn kernels_read_the_records_the_host_wrote() {
         ("env quad", env_lit_quad("records-env", &spot_map())),
         ("normal map", normal_quad("records-nmap", Shading::Map([0.3, -0.2, 0.93]), true)),
         ("emission texture", lamp_scene("records-emission", true, LAMP_RED, LAMP_BLUE)),
+        ("alpha test", cutout_scene("records-alpha", Cutout::Masked, false)),
         (
             "lights",
             delta_lit_scene(
@@ -661,6 +662,15 @@ fn kernels_read_the_records_the_host_wrote() {
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
                 assert_eq!(read::<BvhTriangle>(&o_triangles)[..triangles.len()], triangles[..], "{tag}: triangles");
+                // A triangle's BVH record names the alpha test its shading record names.
+                for tri in &triangles {
+                    assert_eq!(tri.alpha_material, shading[tri.prim as usize].alpha_material, "{tag}: triangle {}'s alpha test", tri.prim);
+                }
+                if *name == "alpha test" {
+                    let (grey, tests) = (&materials[1], shading.iter().filter(|s| s.alpha_material == 2).count());
+                    assert_eq!((grey.alpha_cutoff, grey.alpha.width, grey.alpha.height, tests), (0.5, 4, 1, 2), "{tag}: the occluder's alpha test");
+                    assert_eq!(&data[grey.alpha.offset as usize..][..4], [0.0, 0.0, 1.0, 1.0], "{tag}: the alpha texels");
+                }
                 let nodes_in: Vec<u8> = buffer("BvhNodes").read().unwrap();
                 let nodes_out: Vec<u8> = o_nodes.read().unwrap();
                 assert_eq!(nodes_out[..nodes_in.len()], nodes_in[..], "{tag}: nodes");
@@ -678,7 +688,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 if *name == "env quad" {
                     assert!(!env.is_empty(), "the lat-long map has a distribution");
                 }
-                if !matches!(*name, "env quad" | "normal map" | "emission texture") {
+                if !matches!(*name, "env quad" | "normal map" | "emission texture" | "alpha test") {
                     assert!(theta.iter().any(|&v| v != 0.0), "{tag}: θ holds the start values");
                 }
             }
@@ -704,9 +714,10 @@ fn texel_record_layouts_match_reflection() {
             ("metallic", offset_of!(MaterialRecord, metallic)),
             ("kind", offset_of!(MaterialRecord, kind)),
             ("one_sided", offset_of!(MaterialRecord, one_sided)),
-            ("pad1", offset_of!(MaterialRecord, pad)),
-            ("pad2", offset_of!(MaterialRecord, pad) + 4),
+            ("alpha_cutoff", offset_of!(MaterialRecord, alpha_cutoff)),
+            ("pad2", offset_of!(MaterialRecord, pad)),
             ("normal_map", offset_of!(MaterialRecord, normal_map)),
+            ("alpha", offset_of!(MaterialRecord, alpha)),
         ],
     );
     check(
@@ -725,7 +736,7 @@ fn texel_record_layouts_match_reflection() {
             ("uv0", offset_of!(TriShading, uv0)),
             ("uv1", offset_of!(TriShading, uv1)),
             ("uv2", offset_of!(TriShading, uv2)),
-            ("pad", offset_of!(TriShading, pad)),
+            ("alpha_material", offset_of!(TriShading, alpha_material)),
             ("tangent", offset_of!(TriShading, tangent)),
         ],
     );
@@ -1099,5 +1110,119 @@ fn textured_emitters_are_sampled_by_the_texels_they_reach() {
         let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
         let (x, y) = (mean(&render(&textured)), mean(&render(&split)));
         assert!((x / y - 1.0).abs() < 0.01, "mean {x} against {y}");
+    });
+}
+
+/// What the cut-out scenes' masked object is replaced by, or whether it keeps its alpha test.
+#[derive(Clone, Copy, PartialEq)]
+enum Cutout {
+    /// The whole quad with a 4 × 1 alpha texture (0, 0, 1, 1) tested at 0.5: the bilinear
+    /// lookup is below 0.5 exactly where u < 0.5, so the test cuts out the quad's left half.
+    Masked,
+    /// The quad's right half alone, without an alpha test.
+    Half,
+    /// The whole quad, without an alpha test.
+    Whole,
+}
+
+/// A white floor lit from y = 1.2 by a 1 × 1 lamp facing down (emission 3), seen from below
+/// the lamp's height as in [`lamp_scene`], 32² pixels, depth 3. `lamp_cut`: the lamp is
+/// the object `cutout` shapes; otherwise the lamp is whole and the object is a grey 0.8 ×
+/// 0.8 occluder at y = 0.6 between it and the floor.
+fn cutout_scene(name: &str, cutout: Cutout, lamp_cut: bool) -> Scene {
+    let dir = common::scenes::temp_dir(name);
+    std::fs::write(dir.join("floor.obj"), common::scenes::QUAD_OBJ).unwrap();
+    // A quad facing down at height y over [x0, x1] × [-h, h], u from 0 at x = -h to 1 at x = h.
+    let quad = |y: f32, h: f32, x0: f32| {
+        let u0 = (x0 + h) / (2.0 * h);
+        format!("v {x0} {y} {}\nv {h} {y} {}\nv {h} {y} {h}\nv {x0} {y} {h}\nvt {u0} 0\nvt 1 0\nvt 1 1\nvt {u0} 1\nf 1/1 2/2 3/3 4/4\n", -h, -h)
+    };
+    let (y, h) = if lamp_cut { (1.2, 0.5) } else { (0.6, 0.4) };
+    let object = quad(y, h, if cutout == Cutout::Half { 0.0 } else { -h });
+    write_exr(&dir.join("mask.exr"), &Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] }).unwrap();
+    let alpha = if cutout == Cutout::Masked { "alpha = { texture = \"mask.exr\" }\nalpha_cutoff = 0.5\n" } else { "" };
+    std::fs::write(dir.join("object.obj"), object).unwrap();
+    let meshes = if lamp_cut {
+        format!("[[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n{alpha}[[meshes]]\nfile = \"object.obj\"\nmaterial = \"lamp\"\nemission = [3, 3, 3]\n")
+    } else {
+        std::fs::write(dir.join("lamp.obj"), quad(1.2, 0.5, -0.5)).unwrap();
+        format!(
+            "[[materials]]\nname = \"grey\"\ntype = \"diffuse\"\nbase_color = [0.5, 0.5, 0.5]\n{alpha}[[meshes]]\nfile = \"object.obj\"\nmaterial = \"grey\"\n\
+             [[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n[[meshes]]\nfile = \"lamp.obj\"\nmaterial = \"lamp\"\nemission = [3, 3, 3]\n"
+        )
+    };
+    let toml = format!(
+        "[film]\nwidth = 32\nheight = 32\n[integrator]\nmax_depth = 3\n[[sensors]]\norigin = [0, 0.3, 2.5]\ntarget = [0, 0.45, 0]\nfov_y = 50\n\
+         [[materials]]\nname = \"white\"\ntype = \"diffuse\"\nbase_color = [0.8, 0.8, 0.8]\n[[meshes]]\nfile = \"floor.obj\"\nmaterial = \"white\"\n{meshes}"
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    Scene::load(dir.join("scene.toml")).unwrap()
+}
+
+/// The sums of each channel over the image's four quadrants (top left, top right, bottom
+/// left, bottom right).
+fn quadrant_sums(img: &Image) -> [[f64; 3]; 4] {
+    let mut sums = [[0.0f64; 3]; 4];
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let q = (2 * y / img.height * 2 + 2 * x / img.width) as usize;
+            for (sum, v) in sums[q].iter_mut().zip(img.get(x, y)) {
+                *sum += v as f64;
+            }
+        }
+    }
+    sums
+}
+
+/// An alpha test removes the surface where it fails, for every ray: an occluder whose
+/// left half is cut out renders as its right half alone (seen directly by camera rays,
+/// casting shadows on the floor through shadow rays, reflecting light through BSDF-sampled
+/// rays), not as the whole occluder; and a lamp whose left half is cut out lights the
+/// floor as its right half alone (light samples that land on the cut-out half bring no
+/// light). Same seeds: the cut-out occluder's paths are the half occluder's, so quadrant
+/// by quadrant the two agree to rounding; the lamp's light samples land on all of it, so
+/// there the two agree within Monte Carlo noise.
+#[test]
+fn alpha_tests_cut_surfaces_out_for_every_ray() {
+    with_gpu(|ctx| {
+        let render = |scene: &Scene, spp: u32, seed: u32| {
+            let gs = GpuScene::new(ctx, scene).unwrap();
+            Renderer::new(gs).unwrap().render(0, spp, seed, |_, _| {}).unwrap()
+        };
+        let masked = cutout_scene("alpha-occluder", Cutout::Masked, false);
+        assert!(GpuScene::new(ctx, &masked).unwrap().has_alpha_masks);
+        let half = cutout_scene("alpha-occluder-half", Cutout::Half, false);
+        assert!(!GpuScene::new(ctx, &half).unwrap().has_alpha_masks);
+        let whole = cutout_scene("alpha-occluder-whole", Cutout::Whole, false);
+        let (a, b, w) = (quadrant_sums(&render(&masked, 128, 1)), quadrant_sums(&render(&half, 128, 1)), quadrant_sums(&render(&whole, 128, 1)));
+        for q in 0..4 {
+            for c in 0..3 {
+                eprintln!("occluder, quadrant {q}, channel {c}: cut out {:.4}, half {:.4}, whole {:.4}", a[q][c], b[q][c], w[q][c]);
+                assert!((a[q][c] / b[q][c] - 1.0).abs() < 1e-3, "quadrant {q}, channel {c}: the cut-out occluder {} against its half {}", a[q][c], b[q][c]);
+            }
+        }
+        // The left half of the occluder shades the floor's left side and hides what is
+        // behind it: without the cut the bottom-left quadrant would be far darker.
+        assert!(w[2][0] < 0.8 * b[2][0], "the whole occluder {} should darken the bottom-left quadrant against the half {}", w[2][0], b[2][0]);
+
+        let lamp = cutout_scene("alpha-lamp", Cutout::Masked, true);
+        let (half_lamp, whole_lamp) = (cutout_scene("alpha-lamp-half", Cutout::Half, true), cutout_scene("alpha-lamp-whole", Cutout::Whole, true));
+        let (a, b, again, w) = (
+            quadrant_sums(&render(&lamp, 512, 1)),
+            quadrant_sums(&render(&half_lamp, 512, 2)),
+            quadrant_sums(&render(&half_lamp, 512, 3)),
+            quadrant_sums(&render(&whole_lamp, 512, 1)),
+        );
+        for q in 0..4 {
+            for c in 0..3 {
+                let noise = (again[q][c] / b[q][c] - 1.0).abs();
+                eprintln!("lamp, quadrant {q}, channel {c}: cut out {:.4}, half {:.4} (two seeds of the half differ by {noise:.4}), whole {:.4}", a[q][c], b[q][c], w[q][c]);
+                // (The top-left quadrant sees the lamp's cut-out half against the black
+                // sky: nothing there but for the whole lamp.)
+                let agree = if b[q][c] == 0.0 { a[q][c] == 0.0 } else { (a[q][c] / b[q][c] - 1.0).abs() < 0.02 };
+                assert!(agree, "quadrant {q}, channel {c}: the cut-out lamp {} against its half {}", a[q][c], b[q][c]);
+            }
+        }
+        assert!(w[2][0] > 1.3 * b[2][0], "the whole lamp {} should light the bottom-left quadrant more than the half {}", w[2][0], b[2][0]);
     });
 }

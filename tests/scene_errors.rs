@@ -5,7 +5,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use vkinverse::image::{write_exr, Image};
-use vkinverse::scene::{ColorValue, ParamTarget, Reference, Scene, SceneError};
+use vkinverse::scene::{ColorValue, ParamTarget, Reference, ScalarValue, Scene, SceneError};
 
 const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
 const BARE_TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
@@ -222,6 +222,13 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(textured, base);
     assert_ne!(textured, emitting("hash-j", "[0.25, 0.5, 0.75]"));
     assert_eq!(emitting("hash-k", "[0, 0, 0]"), base, "no emission and black emission hash alike");
+    // An alpha test and its cutoff are too.
+    let cut = |name: &str, alpha: &str| Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\n{alpha}")))).unwrap().content_hash();
+    let masked = cut("hash-l", "alpha = { texture = \"tex.exr\" }");
+    assert_ne!(masked, base);
+    assert_ne!(masked, cut("hash-m", "alpha = { texture = \"tex.exr\" }\nalpha_cutoff = 0.3"));
+    assert_eq!(masked, cut("hash-n", "alpha = { texture = \"tex.exr\" }\nalpha_cutoff = 0.5"), "0.5 is the default cutoff");
+    assert_ne!(masked, cut("hash-o", "alpha = 0.25"));
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -628,6 +635,35 @@ fn normal_maps_are_checked() {
     assert_message(&load_err("nmap-bitangent", &with("{ texture = \"tex.exr\", bitangent = \"left\" }")), &["materials.m.normal_map.bitangent", "\"left\""]);
     assert_message(&load_err("nmap-missing", &with("{ texture = \"none.exr\" }")), &["materials.m.normal_map.texture", "none.exr"]);
     assert_message(&load_err("nmap-key", &with("{ texture = \"tex.exr\", strength = 2 }")), &["strength"]);
+}
+
+/// An alpha is a number or an EXR texture in [0, 1] and its cutoff a number in [0, 1] (0.5
+/// by default), given only with an alpha; neither can be optimised.
+#[test]
+fn alpha_tests_are_checked() {
+    let with = |alpha: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\n{alpha}"));
+    let s = Scene::load(fixture("alpha-ok", &with("alpha = { texture = \"tex.exr\" }"))).unwrap();
+    let a = s.materials[0].alpha.as_ref().unwrap();
+    assert!(matches!(a.value, ScalarValue::Texture(_)) && a.cutoff == 0.5, "{a:?}");
+    let s = Scene::load(fixture("alpha-constant", &with("alpha = 0.2\nalpha_cutoff = 0.1"))).unwrap();
+    let a = s.materials[0].alpha.as_ref().unwrap();
+    assert!(matches!(a.value, ScalarValue::Constant(v) if v == 0.2) && a.cutoff == 0.1, "{a:?}");
+    assert!(Scene::load(fixture("alpha-none", BASE)).unwrap().materials[0].alpha.is_none());
+    let path = fixture("alpha-range", &with("alpha = { texture = \"mask.exr\" }"));
+    let mut img = Image::filled(2, 2, [1.0; 3]);
+    img.data[1][0] = 1.5;
+    write_exr(&path.with_file_name("mask.exr"), &img).unwrap();
+    let err = Scene::load(&path).unwrap_err();
+    assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
+    assert_message(&err, &["materials.m.alpha.texture", "mask.exr", "1.5", "(1, 0)", "[0, 1]"]);
+    assert_message(&load_err("alpha-constant-range", &with("alpha = -0.5")), &["materials.m.alpha", "-0.5"]);
+    assert_message(&load_err("alpha-missing", &with("alpha = { texture = \"none.exr\" }")), &["materials.m.alpha.texture", "none.exr"]);
+    assert_message(&load_err("alpha-cutoff-range", &with("alpha = 0.5\nalpha_cutoff = 2")), &["materials.m.alpha_cutoff", "2"]);
+    assert_message(&load_err("alpha-cutoff-nan", &with("alpha = 0.5\nalpha_cutoff = nan")), &["materials.m.alpha_cutoff"]);
+    assert_message(&load_err("alpha-cutoff-alone", &with("alpha_cutoff = 0.5")), &["materials.m.alpha_cutoff", "needs an alpha"]);
+    assert_message(&load_err("alpha-malformed", &with("alpha = \"mask.exr\"")), &["expected a number or { texture"]);
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.alpha\"\ninit = 1\nrange = [0, 1]\n", with("alpha = 1"));
+    assert_message(&load_err("alpha-param", &optimised), &["materials.m.alpha"]);
 }
 
 #[test]

@@ -102,10 +102,21 @@ BvhTriangle bvh_triangle(uint i) {
     uvec3 rest;
     texel_vec3x3(BvhTriangles, int(i) * 3, t.v0, t.e1, t.e2, rest);
     t.prim = rest.x;
-    t.pad0 = 0u;
-    t.pad1 = 0u;
+    t.alpha_material = rest.y;
+    t.pad = 0u;
     return t;
 }
+
+// Alpha tests (materials with an alpha mask): a candidate hit on a triangle whose record
+// names such a material counts only where the material's alpha at the hit passes its
+// cutoff; elsewhere the ray goes on as if the triangle were not there. Kernels that
+// include lib/scene_access.glsl first get the test (alpha_cut); the others (the BVH tests'
+// trace_test) have no materials and none.
+#ifdef SCENE_ACCESS_GLSL
+#define BVH_CUT_OUT(tri, u, v) (HAS_ALPHA_MASKS && (tri).alpha_material != 0u && alpha_cut((tri).alpha_material, triangle_uv((tri).prim, vec2(u, v))))
+#else
+#define BVH_CUT_OUT(tri, u, v) false
+#endif
 
 // The float just above 1 + 2 gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24: the
 // widening of Ize 2013 that covers the rounding of the slab distances.
@@ -148,7 +159,7 @@ bool bvh_hit_leaf(uint first, uint count, vec3 origin, vec3 dir, inout Hit hit) 
     for (uint i = first; i < first + count; i++) {
         BvhTriangle tri = bvh_triangle(i);
         float t, u, v;
-        if (bvh_hit_triangle(tri, origin, dir, hit.t, t, u, v)) {
+        if (bvh_hit_triangle(tri, origin, dir, hit.t, t, u, v) && !BVH_CUT_OUT(tri, u, v)) {
             hit = Hit(t, tri.prim, u, v);
             found = true;
         }
@@ -278,7 +289,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
             tris.y &= ~(1u << j);
             BvhTriangle triangle = bvh_triangle(tris.x + uint(j));
             float th, u, v;
-            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
+            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v) && !BVH_CUT_OUT(triangle, u, v)) {
                 hit = Hit(th, triangle.prim, u, v);
                 if (any_hit) {
                     return true;
@@ -379,7 +390,7 @@ bool bvh_traverse(vec3 origin, vec3 dir, float tmax, bool any_hit, out Hit hit) 
             }
             BvhTriangle triangle = bvh_triangle(tri);
             float th, u, v;
-            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v)) {
+            if (bvh_hit_triangle(triangle, origin, dir, hit.t, th, u, v) && !BVH_CUT_OUT(triangle, u, v)) {
                 hit = Hit(th, triangle.prim, u, v);
                 if (any_hit) {
                     return true;

@@ -29,8 +29,8 @@
 #include "lib/rng.glsl"
 #include "lib/sampling.glsl"
 #include "lib/bsdf.glsl"
-#include "lib/bvh_traverse.glsl"
 #include "lib/scene_access.glsl"
+#include "lib/bvh_traverse.glsl"
 
 #ifdef GENERIC
 // The unspecialised build (variant trace_primal_generic) that `vkinverse bench` times
@@ -349,12 +349,19 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec3 wi = to_l / dist;
             float cos_l = dot(light.ng, -wi);
             if (light.two_sided != 0u) cos_l = abs(cos_l);
-            if (cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
+            vec2 light_uv = vec2(0.0);
+            if (HAS_EMISSION_TEXTURES) {
+                light_uv = triangle_uv(light.prim, bary);
+            } else if (HAS_ALPHA_MASKS) {
+                light_uv = triangle_uv(light.prim, bary);
+            }
+            // A point where the emitter's alpha test cuts it out emits nothing (the emitter
+            // is sampled over its whole area, so the estimate stays unbiased).
+            bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv);
+            if (!cut && cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 ValueRef emission = light.emission;
-                vec2 light_uv = vec2(0.0);
-                if (HAS_EMISSION_TEXTURES) light_uv = triangle_uv(light.prim, bary);
                 vec3 le[NSTATES];
                 for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, light_uv, s);
 #ifdef ADJOINT

@@ -47,9 +47,10 @@ TEXEL_BUFFER(0, 32) ThetaPrev;
 
 ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 
-// Material `id` (5 texels: three ValueRefs, kind, the normal map's ValueRef).
+// Material `id` (6 texels: three ValueRefs, kind, one_sided and alpha_cutoff, the normal
+// map's and the alpha's ValueRefs).
 MaterialRecord material_record(uint id) {
-    int b = int(id) * 5;
+    int b = int(id) * 6;
     MaterialRecord r;
     r.base_color = value_ref(texel_load(Materials, b));
     r.roughness = value_ref(texel_load(Materials, b + 1));
@@ -57,15 +58,16 @@ MaterialRecord material_record(uint id) {
     uvec4 t3 = texel_load(Materials, b + 3);
     r.kind = t3.x;
     r.one_sided = t3.y;
-    r.pad1 = 0u;
+    r.alpha_cutoff = uintBitsToFloat(t3.z);
     r.pad2 = 0u;
     r.normal_map = value_ref(texel_load(Materials, b + 4));
+    r.alpha = value_ref(texel_load(Materials, b + 5));
     return r;
 }
 
 // Shading data of triangle `prim` (8 texels; words in TriShading's scalar layout: ng 0-2,
 // material 3, emitter_pdf 4, two_sided 5, one_sided 6, mesh 7, emission 8-11, n0 12-14,
-// n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26, tangent 28-31). Fetches of fields a
+// n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26, alpha_material 27, tangent 28-31). Fetches of fields a
 // caller does not use are dead code: a scene without vertex normals, textures and normal
 // maps reads texels 0-2.
 TriShading tri_shading(uint prim) {
@@ -86,7 +88,7 @@ TriShading tri_shading(uint prim) {
     s.uv0 = uintBitsToFloat(n2z_uv0_uv1x.xy);
     s.uv1 = uintBitsToFloat(uvec2(n2z_uv0_uv1x.z, t6.x));
     s.uv2 = uintBitsToFloat(t6.yz);
-    s.pad = 0u;
+    s.alpha_material = t6.w;
     s.tangent = uintBitsToFloat(texel_load(Shading, b + 7));
     return s;
 }
@@ -198,6 +200,9 @@ layout(constant_id = 16) const bool HAS_NORMAL_MAPS = true;
 // Whether any mesh's emission is a texture: without one, a light sample's emission is read
 // without its texture coordinates (which cost two texel fetches of its shading record).
 layout(constant_id = 17) const bool HAS_EMISSION_TEXTURES = true;
+// Whether any triangle's material has an alpha test (alpha_cut): without one, traversal
+// tests no candidate hit's alpha and a light sample none either.
+layout(constant_id = 18) const bool HAS_ALPHA_MASKS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -261,6 +266,20 @@ float fetch1(ValueRef r, vec2 uv, int state) {
         if (w[k] != 0.0) v += w[k] * value_at(r, texel[k], state);
     }
     return v;
+}
+
+// Whether the alpha test of material `alpha_material` - 1 (a triangle record's
+// alpha_material; 0: no test) cuts the surface out at texture coordinates uv: its alpha,
+// looked up bilinearly, is below the material's cutoff. The alpha is a material constant:
+// every parameter state sees the same surface.
+bool alpha_cut(uint alpha_material, vec2 uv) {
+    // (Not `!HAS_ALPHA_MASKS || ...`: the reflection cannot fold the negation of a
+    // specialisation constant.)
+    if (HAS_ALPHA_MASKS && alpha_material != 0u) {
+        MaterialRecord r = material_record(alpha_material - 1u);
+        return fetch1(r.alpha, uv, 0) < r.alpha_cutoff;
+    }
+    return false;
 }
 
 #ifdef ADJOINT

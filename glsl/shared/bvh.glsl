@@ -99,13 +99,15 @@ struct BvhCwNode {
 
 // 48 bytes (3 texels): a triangle in Möller–Trumbore form (v0 and the edges v1 - v0,
 // v2 - v0), in leaf order, with the index of the triangle in the scene's triangle list.
+// alpha_material: 0, or 1 + the material whose alpha test a candidate hit must pass
+// (lib/bvh_traverse.glsl).
 struct BvhTriangle {
     vec3 v0;
     vec3 e1;
     vec3 e2;
     uint prim;
-    uint pad0;
-    uint pad1;
+    uint alpha_material;
+    uint pad;
 };
 
 // 16 bytes: the closest hit of a ray. prim is the scene's triangle index (BVH_NO_HIT for a

@@ -18,19 +18,23 @@ struct ValueRef {
     uint in_theta;
 };
 
-// One material. 80 bytes (5 texels).
+// One material. 96 bytes (6 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
     ValueRef metallic;
     uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
-    uint pad1;
+    float alpha_cutoff;  // the surface exists where its alpha is at least this
     uint pad2;
     // The normal map: a texture of tangent-space unit normals (x along the triangle's
     // tangent, y along its bitangent, z along the interpolated normal), already decoded
     // from the image's [0, 1] and scaled; width 0: none. Read only by scenes that have one.
     ValueRef normal_map;
+    // The alpha test's value (1 channel); width 0 and offset -1: no alpha test. Read only
+    // by scenes that have one, and only at a ray's candidate hits on triangles whose BVH
+    // record names the material (shared/bvh.glsl).
+    ValueRef alpha;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).
@@ -52,7 +56,8 @@ struct TriShading {
     vec2 uv0;
     vec2 uv1;
     vec2 uv2;
-    uint pad;
+    uint alpha_material;  // 0, or 1 + the material whose alpha test its points must pass
+                          // (as its BVH record's; read by light samples on emitters)
     // Normal-mapped materials only: the unit tangent dp/du of the triangle's texture
     // coordinates (xyz) and the bitangent's handedness w, +1 where dp/dv lies along
     // cross(ng, tangent), -1 where it lies against it (mirrored coordinates); all zero

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Writes the mesh files of scenes/mitsuba/scene.xml, the back wall as OBJ and a wedge
 (a triangular prism) as binary PLY, the normal map of normalmap.xml and
-textured_shapes.xml, and the emission texture of textured_light.xml's globe. The scene
-files themselves are written by hand."""
+textured_shapes.xml, the emission texture of textured_light.xml's globe and the lattice
+opacity of masked.xml. The scene files themselves are written by hand."""
 
 import math
 import struct
@@ -53,3 +53,11 @@ band = [[(0, 0, 0)] * 32 for _ in range(16)]
 for y in range(7, 10):
     band[y] = [(255, 180, 90)] * 16 + [(90, 160, 255)] * 16
 (HERE / "meshes" / "band.png").write_bytes(png(32, 16, band))
+
+# The lattice of masked.xml's card: 128 x 128 texels, opaque (white) bars 16 texels wide
+# (rows and columns 8-23, 40-55, ...), holes (black) of 16 x 16 texels between them and
+# along the border. The texels are small against the pixels and the opacity is 0 or 1 but
+# for the bilinear ramps at the bars' edges, where Mitsuba's mask passes rays through at
+# random and vkinverse's alpha test cuts at 0.5.
+lattice = [[(255,) * 3 if x % 32 in range(8, 24) or y % 32 in range(8, 24) else (0,) * 3 for x in range(128)] for y in range(128)]
+(HERE / "meshes" / "lattice.png").write_bytes(png(128, 128, lattice))

@@ -179,15 +179,18 @@ pub struct BvhTriangle {
     pub e1: [f32; 3],
     pub e2: [f32; 3],
     pub prim: u32,
+    /// 0, or 1 + the material whose alpha test a hit on the triangle must pass (set by
+    /// [`build_as`] from its `alpha_material` list; the traversal kernels test it).
+    pub alpha_material: u32,
     /// Zero: pads the record to three 16-byte texels (kernels read it from a texel buffer).
-    pub pad: [u32; 2],
+    pub pad: u32,
 }
 
 impl BvhTriangle {
     /// The triangle (a, b, c) with input index `prim`.
     pub fn new(a: [f32; 3], b: [f32; 3], c: [f32; 3], prim: u32) -> Self {
         let sub = |p: [f32; 3], q: [f32; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
-        BvhTriangle { v0: a, e1: sub(b, a), e2: sub(c, a), prim, pad: [0; 2] }
+        BvhTriangle { v0: a, e1: sub(b, a), e2: sub(c, a), prim, alpha_material: 0, pad: 0 }
     }
 }
 
@@ -355,14 +358,29 @@ impl Bvh {
 }
 
 /// Builds the BVH of the triangles `indices` over `positions` (finite coordinates) in
-/// `layout` and uploads it.
+/// `layout` and uploads it. `alpha_material[i]` (where the list is long enough) is 0 or
+/// 1 + the material whose alpha test hits on triangle i must pass
+/// ([`BvhTriangle::alpha_material`]); an empty list: none.
 ///
 /// # Panics
 /// If an index is out of bounds of `positions`.
-pub fn build_as(ctx: &Arc<Context>, positions: &[[f32; 3]], indices: &[[u32; 3]], layout: BvhLayout) -> gpu::Result<BvhBuffers> {
+pub fn build_as(ctx: &Arc<Context>, positions: &[[f32; 3]], indices: &[[u32; 3]], alpha_material: &[u32], layout: BvhLayout) -> gpu::Result<BvhBuffers> {
+    let mark = |triangles: &mut [BvhTriangle]| {
+        for t in triangles {
+            t.alpha_material = alpha_material.get(t.prim as usize).copied().unwrap_or(0);
+        }
+    };
     match layout {
-        BvhLayout::Cw8 => CwBvh::build(positions, indices).upload(ctx),
-        _ => build(positions, indices).upload_as(ctx, layout),
+        BvhLayout::Cw8 => {
+            let mut cw = CwBvh::build(positions, indices);
+            mark(&mut cw.triangles);
+            cw.upload(ctx)
+        }
+        _ => {
+            let mut bvh = build(positions, indices);
+            mark(&mut bvh.triangles);
+            bvh.upload_as(ctx, layout)
+        }
     }
 }
 

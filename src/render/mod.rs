@@ -58,6 +58,9 @@ pub struct GpuScene {
     /// kernels' HAS_EMISSION_TEXTURES, without which a light sample reads no texture
     /// coordinates.
     pub has_emission_textures: bool,
+    /// Whether any triangle's material has an alpha test that applies to it: the kernels'
+    /// HAS_ALPHA_MASKS, without which traversal tests no candidate hit's alpha.
+    pub has_alpha_masks: bool,
     /// The environment map's sampling distribution, when it is light-sampled.
     pub environment_distribution: Option<envmap::EnvDistribution>,
     /// Whether every ray cast of a path fits the adjoint kernels' replay cache
@@ -122,6 +125,21 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
             push_value(data, &[], Some((&image, 3)))
         }
     }
+}
+
+/// Per triangle of `geo`: 0, or 1 + its material where the material has an alpha test that
+/// applies to it ([`crate::shared::TriShading::alpha_material`]). A textured alpha needs
+/// texture coordinates: on a mesh without them it does not apply (a warning says so).
+fn alpha_materials(scene: &Scene, geo: &crate::scene::SceneGeometry) -> Vec<u32> {
+    let applies: Vec<bool> = scene
+        .meshes
+        .iter()
+        .map(|mesh| match &scene.materials[mesh.material].alpha {
+            None => false,
+            Some(a) => !mesh.uvs.is_empty() || matches!(a.value, ScalarValue::Constant(_)),
+        })
+        .collect();
+    geo.triangle_mesh.iter().zip(&geo.triangle_material).map(|(&mesh, &material)| if applies[mesh as usize] { material + 1 } else { 0 }).collect()
 }
 
 /// The unit tangent dp/du of a triangle with corners p and texture coordinates uv, and the
@@ -250,6 +268,15 @@ fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits
         }
     }
     for mesh in &scene.meshes {
+        let material = &scene.materials[mesh.material];
+        if mesh.uvs.is_empty() && material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_))) {
+            crate::report::warn(&format!(
+                "{}: mesh \"{}\" has no texture coordinates: the alpha texture of its material \"{}\" is not applied to it (it is opaque)",
+                scene.path.display(),
+                mesh.name,
+                material.name
+            ));
+        }
         if scene.materials[mesh.material].normal_map.is_some() && mesh.uvs.is_empty() {
             crate::report::warn(&format!(
                 "{}: mesh \"{}\" has no texture coordinates: the normal map of its material \"{}\" is not applied to it",
@@ -287,7 +314,8 @@ impl GpuScene {
     pub fn with_bvh_layout(ctx: &Arc<Context>, scene: &Scene, bvh_layout: BvhLayout) -> gpu::Result<Self> {
         let layout = ParamLayout::new(scene);
         let geo = scene.flatten();
-        let bvh = bvh::build_as(ctx, &geo.positions, &geo.indices, bvh_layout)?;
+        let alpha_material = alpha_materials(scene, &geo);
+        let bvh = bvh::build_as(ctx, &geo.positions, &geo.indices, &alpha_material, bvh_layout)?;
 
         let mut data = Vec::new();
         let materials: Vec<MaterialRecord> = scene
@@ -308,8 +336,10 @@ impl GpuScene {
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                     },
                     one_sided: m.one_sided as u32,
-                    pad: [0; 2],
+                    alpha_cutoff: m.alpha.as_ref().map_or(0.0, |a| a.cutoff),
+                    pad: 0,
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
+                    alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                 }
             })
             .collect();
@@ -442,7 +472,7 @@ impl GpuScene {
                 uv0: uvs[0],
                 uv1: uvs[1],
                 uv2: uvs[2],
-                pad: 0,
+                alpha_material: alpha_material[t],
                 tangent,
             });
         }
@@ -472,10 +502,11 @@ impl GpuScene {
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
         let has_normal_maps = shading.iter().any(|s| s.tangent[3] != 0.0);
+        let has_alpha_masks = alpha_material.iter().any(|&m| m != 0);
         let has_emission_textures = mesh_emission.iter().any(|r| r.width != 0);
         let has_textures = materials
             .iter()
-            .flat_map(|m| [m.base_color, m.roughness, m.metallic, m.normal_map])
+            .flat_map(|m| [m.base_color, m.roughness, m.metallic, m.normal_map, m.alpha])
             .chain(mesh_emission.iter().copied())
             .chain(lights.iter().flat_map(|l| [l.color, l.intensity]))
             .chain([environment])
@@ -528,6 +559,7 @@ impl GpuScene {
             has_normals,
             has_normal_maps,
             has_emission_textures,
+            has_alpha_masks,
             environment_distribution,
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
@@ -608,6 +640,7 @@ impl GpuScene {
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
             ("HAS_NORMAL_MAPS", SpecValue::Bool(self.has_normal_maps)),
             ("HAS_EMISSION_TEXTURES", SpecValue::Bool(self.has_emission_textures)),
+            ("HAS_ALPHA_MASKS", SpecValue::Bool(self.has_alpha_masks)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

@@ -86,6 +86,11 @@ pub struct MaterialFile {
     #[serde(default)]
     pub one_sided: bool,
     pub normal_map: Option<NormalMapFile>,
+    /// `alpha = 0.4` or `{ texture = "mask.exr" }` (its R channel), in [0, 1]: the surface
+    /// is cut out where the alpha is below `alpha_cutoff` (model::AlphaMask).
+    pub alpha: Option<ScalarInput>,
+    /// In [0, 1]; 0.5 by default. Only with `alpha`.
+    pub alpha_cutoff: Option<f32>,
 }
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map

@@ -7,7 +7,8 @@
 //! from sRGB, roughness from the metallic-roughness texture's G channel and metallic from
 //! its B, each multiplied by its factor) and normal textures; `emissiveFactor` ×
 //! `KHR_materials_emissive_strength`, times the sRGB-decoded `emissiveTexture` where there
-//! is one, as the mesh's area emission, on both sides when the material is `doubleSided`; every
+//! is one, as the mesh's area emission, on both sides when the material is `doubleSided`;
+//! `alphaMode` `MASK` (and `BLEND`, with a warning) as an alpha test; every
 //! perspective camera as a sensor (looking down its node's −Z, in node order); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
@@ -21,8 +22,9 @@
 //! (texture sets other than 0, non-triangle primitives,
 //! orthographic cameras, required extensions other than the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
-//! (occlusion textures, alpha, non-repeating samplers, optional extensions, animation),
-//! is a one-line warning.
+//! (occlusion textures, `BLEND` alpha rendered as `MASK`, non-repeating samplers, optional
+//! extensions, animation), is a one-line warning. `alphaMode` `MASK` is an alpha test
+//! ([`AlphaMask`]) on the base colour's alpha.
 
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -71,6 +73,8 @@ struct Importer<'a> {
     buffers: Vec<gltf::buffer::Data>,
     /// Decoded images by index, values in [0, 1] as stored.
     images: HashMap<usize, Image>,
+    /// Each decoded image's alpha channel (grey repeated), where it has one.
+    alphas: HashMap<usize, Option<Image>>,
     /// Model material index of each glTF material used so far (`None`: the default).
     materials: HashMap<Option<usize>, usize>,
     /// Emission of each glTF material used so far: its meshes share one texture.
@@ -112,6 +116,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         doc,
         buffers,
         images: HashMap::new(),
+        alphas: HashMap::new(),
         materials: HashMap::new(),
         emissions: HashMap::new(),
         out: Imported { warnings, max_depth: Some(GLTF_MAX_DEPTH), ..Default::default() },
@@ -315,9 +320,7 @@ impl Importer<'_> {
         if m.occlusion_texture().is_some() {
             self.warn(format!("{at}.occlusionTexture"), "ignored: the path tracer computes occlusion itself");
         }
-        if m.alpha_mode() != gltf::material::AlphaMode::Opaque {
-            self.warn(format!("{at}.alphaMode"), "ignored: surfaces are rendered opaque");
-        }
+        let alpha = self.alpha(&m, &at)?;
         let pbr = m.pbr_metallic_roughness();
         let [r, g, b, _] = pbr.base_color_factor();
         let base_color = match pbr.base_color_texture() {
@@ -363,7 +366,7 @@ impl Importer<'_> {
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map });
+        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha });
         self.sources.materials.push(m.index());
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);
@@ -451,9 +454,52 @@ impl Importer<'_> {
         }
         let data = gltf::image::Data::from_source(source.source(), Some(&self.base), &self.buffers)
             .map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode {}: {e}", path.display())))?;
-        let img = to_image(&data).ok_or_else(|| self.err(format!("images[{index}]"), format!("pixel format {:?} is not supported", data.format)))?;
+        let (img, alpha) = to_image(&data).ok_or_else(|| self.err(format!("images[{index}]"), format!("pixel format {:?} is not supported", data.format)))?;
         self.images.insert(index, img.clone());
+        self.alphas.insert(index, alpha);
         Ok((img, path))
+    }
+
+    /// The alpha channel of `info`'s image (as stored), None where the image has none.
+    fn texture_alpha(&mut self, info: &gltf::texture::Info, at: &str) -> Result<(Option<Image>, PathBuf), SceneError> {
+        let (_, path) = self.texture(info, at)?;
+        Ok((self.alphas.get(&info.texture().source().index()).cloned().flatten(), path))
+    }
+
+    /// The alpha test of material `m` at JSON path `at`: none for `OPAQUE`; for `MASK` its
+    /// `alphaCutoff` (0.5 by default) on the base colour's alpha, `baseColorFactor`'s
+    /// fourth component times the texture's alpha channel where it has one. `BLEND` is
+    /// rendered as `MASK` at 0.5 (a warning says so). A constant alpha at or above the
+    /// cutoff cuts nothing out and is no test.
+    fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {
+        use gltf::material::AlphaMode;
+        let cutoff = match m.alpha_mode() {
+            AlphaMode::Opaque => return Ok(None),
+            AlphaMode::Mask => m.alpha_cutoff().unwrap_or(0.5),
+            AlphaMode::Blend => {
+                self.warn(format!("{at}.alphaMode"), "BLEND is rendered as MASK with alphaCutoff 0.5: the surface is cut out where its alpha is below 0.5 and opaque elsewhere");
+                0.5
+            }
+        };
+        if !(0.0..=1.0).contains(&cutoff) {
+            return Err(self.err(format!("{at}.alphaCutoff"), format!("{cutoff} is outside [0, 1]")));
+        }
+        let pbr = m.pbr_metallic_roughness();
+        let factor = pbr.base_color_factor()[3];
+        let value = match pbr.base_color_texture() {
+            Some(info) => match self.texture_alpha(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))? {
+                (Some(img), path) => {
+                    let data = img.data.iter().map(|p| [p[0] * factor; 3]).collect();
+                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into() })
+                }
+                (None, _) => ScalarValue::Constant(factor),
+            },
+            None => ScalarValue::Constant(factor),
+        };
+        Ok(match value {
+            ScalarValue::Constant(a) if a >= cutoff => None,
+            value => Some(AlphaMask { value, cutoff }),
+        })
     }
 
     fn camera(&mut self, camera: &gltf::Camera, world: Mat4) -> Result<(), SceneError> {
@@ -517,8 +563,9 @@ impl Importer<'_> {
     }
 }
 
-/// Pixels of a decoded glTF image as RGB values in [0, 1] (grey repeated, alpha dropped).
-fn to_image(d: &gltf::image::Data) -> Option<Image> {
+/// Pixels of a decoded glTF image as RGB values in [0, 1] (grey repeated), and its alpha
+/// channel (grey and alpha images: the second channel), where it has one.
+fn to_image(d: &gltf::image::Data) -> Option<(Image, Option<Image>)> {
     use gltf::image::Format::*;
     let (channels, bytes) = match d.format {
         R8 => (1, 1),
@@ -537,17 +584,9 @@ fn to_image(d: &gltf::image::Data) -> Option<Image> {
         2 => u16::from_ne_bytes([b[0], b[1]]) as f32 / 65535.0,
         _ => f32::from_ne_bytes([b[0], b[1], b[2], b[3]]),
     };
-    let data: Vec<[f32; 3]> = d
-        .pixels
-        .chunks_exact(channels * bytes)
-        .map(|px| {
-            let c = |k: usize| value(&px[k * bytes..(k + 1) * bytes]);
-            if channels < 3 {
-                [c(0); 3]
-            } else {
-                [c(0), c(1), c(2)]
-            }
-        })
-        .collect();
-    (data.len() == (d.width * d.height) as usize).then_some(Image { width: d.width, height: d.height, data })
+    let pixels = || d.pixels.chunks_exact(channels * bytes);
+    let c = |px: &[u8], k: usize| value(&px[k * bytes..(k + 1) * bytes]);
+    let data: Vec<[f32; 3]> = pixels().map(|px| if channels < 3 { [c(px, 0); 3] } else { [c(px, 0), c(px, 1), c(px, 2)] }).collect();
+    let alpha = (channels == 2 || channels == 4).then(|| Image { width: d.width, height: d.height, data: pixels().map(|px| [c(px, channels - 1); 3]).collect() });
+    (data.len() == (d.width * d.height) as usize).then_some((Image { width: d.width, height: d.height, data }, alpha))
 }

@@ -107,6 +107,11 @@ pub fn content_hash(scene: &Scene) -> u64 {
             h.f32s(&[n.scale]);
             h.tag(n.bitangent.as_str());
         }
+        if let Some(a) = &m.alpha {
+            h.tag("alpha");
+            h.scalar(&a.value);
+            h.f32s(&[a.cutoff]);
+        }
     }
     h.tag("meshes");
     h.u64(scene.meshes.len() as u64);

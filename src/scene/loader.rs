@@ -456,6 +456,17 @@ impl Loader {
                     Some(NormalMap { texture, scale, bitangent })
                 }
             };
+            let alpha = match (m.alpha, m.alpha_cutoff) {
+                (None, None) => None,
+                (None, Some(_)) => return Err(self.invalid(&format!("{key}.alpha_cutoff"), "needs an alpha (alpha = 0.4 or { texture = \"mask.exr\" })")),
+                (Some(value), cutoff) => {
+                    let value = self.scalar_value(&format!("{key}.alpha"), value)?;
+                    let k = format!("{key}.alpha_cutoff");
+                    let cutoff = cutoff.unwrap_or(0.5);
+                    self.finite(&k, &[cutoff])?;
+                    Some(AlphaMask { value, cutoff: self.in_range(&k, cutoff, 0.0, 1.0)? })
+                }
+            };
             out.push(Material {
                 name: m.name,
                 kind: m.kind,
@@ -464,6 +475,7 @@ impl Loader {
                 metallic,
                 one_sided: m.one_sided,
                 normal_map,
+                alpha,
             });
         }
         Ok(out)

@@ -8,14 +8,15 @@
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
-//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">`; `<emitter
+//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">` and the
+//! wrappers `normalmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
 //! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
 //! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
-//! area lights, the constant environment, point and directional lights, the film and
+//! `mask` where its opacity is 0 or 1 (an alpha test at 0.5; approximate elsewhere), area lights, the constant environment, point and directional lights, the film and
 //! camera. Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
@@ -673,27 +674,50 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// Adds the material of `<bsdf>` `node` named `name` and returns its index. The
-    /// wrappers `twosided` and `normalmap` may enclose the BSDF, once each, in either order.
+    /// wrappers `twosided`, `normalmap` and `mask` may enclose the BSDF, once each, in any
+    /// order.
     fn bsdf(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
-        let (mut node, mut one_sided, mut normal_map) = (node, true, None);
+        let (mut node, mut one_sided, mut normal_map, mut mask) = (node, true, None, None);
         loop {
             let kind = self.plugin_type(node)?;
-            if !(kind == "twosided" && one_sided || kind == "normalmap" && normal_map.is_none()) {
+            if !(kind == "twosided" && one_sided || kind == "normalmap" && normal_map.is_none() || kind == "mask" && mask.is_none()) {
                 break;
             }
             let mut items = elements(node);
             let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, format!("{kind} needs one nested <bsdf>")))?;
-            if kind == "twosided" {
-                one_sided = false;
-            } else {
-                normal_map = Some(self.normal_map(&mut items, node)?);
+            match kind.as_str() {
+                "twosided" => one_sided = false,
+                "normalmap" => normal_map = Some(self.normal_map(&mut items, node)?),
+                _ => mask = Some(self.mask(&mut items, node)?),
             }
             self.rest(&items, node)?;
             node = inner;
         }
         let index = self.bsdf_material(node, name, one_sided)?;
         self.out.materials[index].normal_map = normal_map;
+        self.out.materials[index].alpha = mask.flatten();
         Ok(index)
+    }
+
+    /// The alpha test of a `<bsdf type="mask">` (`node`): its `opacity` (a number or a
+    /// bitmap, 0.5 by default) at cutoff 0.5, so that the surface is there where the
+    /// opacity is at least ½. Exact where the opacity is 0 or 1; Mitsuba passes a ray
+    /// through with probability 1 − opacity, so other values are approximate (a warning).
+    /// None where the test cuts nothing out.
+    fn mask(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<Option<AlphaMask>, SceneError> {
+        let value = self.scalar_param(items, "opacity", 0.5)?;
+        let fractional = |v: f32| v > 0.0 && v < 1.0;
+        let partial = match &value {
+            ScalarValue::Constant(v) => fractional(*v),
+            ScalarValue::Texture(t) => t.image.data.iter().any(|p| fractional(p[0])),
+        };
+        if partial {
+            self.warn(node, "approximate: an opacity between 0 and 1 is rendered as an alpha test at 0.5 (opaque where the opacity is at least 0.5, absent elsewhere), not as Mitsuba's random pass-through");
+        }
+        Ok(match value {
+            ScalarValue::Constant(v) if v >= 0.5 => None,
+            value => Some(AlphaMask { value, cutoff: 0.5 }),
+        })
     }
 
     /// The `normalmap` texture of a `<bsdf type="normalmap">` (`node`): a bitmap whose RGB
@@ -737,6 +761,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 metallic: ScalarValue::Constant(0.0),
                 one_sided,
                 normal_map: None,
+                alpha: None,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -758,7 +783,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None }
             }
             "roughconductor" | "conductor" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
@@ -786,6 +811,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     metallic: ScalarValue::Constant(1.0),
                     one_sided,
                     normal_map: None,
+                    alpha: None,
                 }
             }
             "plastic" | "roughplastic" => {
@@ -834,6 +860,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     metallic: ScalarValue::Constant(0.0),
                     one_sided,
                     normal_map: None,
+                    alpha: None,
                 }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, principled, conductor, roughconductor, plastic and roughplastic BSDFs are supported")),
@@ -897,6 +924,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             metallic: ScalarValue::Constant(0.0),
             one_sided: true,
             normal_map: None,
+            alpha: None,
         });
         self.out.materials.len() - 1
     }

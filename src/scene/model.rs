@@ -110,6 +110,18 @@ pub struct Material {
     pub one_sided: bool,
     /// Perturbs the shading normal (never optimised).
     pub normal_map: Option<NormalMap>,
+    /// Cuts the surface out where its alpha is below a threshold (never optimised).
+    pub alpha: Option<AlphaMask>,
+}
+
+/// An alpha test (glTF's `alphaMode` `MASK`): the surface exists where its alpha, looked up
+/// (bilinearly, for a texture) at the point's texture coordinates, is at least `cutoff`,
+/// and rays pass through it elsewhere, as if it were not there.
+#[derive(Clone, Debug)]
+pub struct AlphaMask {
+    /// In [0, 1]; a texture's R channel holds it.
+    pub value: ScalarValue,
+    pub cutoff: f32,
 }
 
 /// A tangent-space normal map: each texel's RGB in [0, 1] encodes the unit normal

@@ -171,16 +171,20 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
             }
             pairs.push(("normal_map", table(map)));
         }
+        let scalar = |key: &str, v: &ScalarValue| -> Result<Value, SceneError> {
+            Ok(match v {
+                ScalarValue::Constant(c) => Value::Float(num(*c)),
+                ScalarValue::Texture(t) => tex(key, t)?,
+            })
+        };
         if m.kind == MaterialKind::Principled {
             for (key, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
-                pairs.push((
-                    key,
-                    match v {
-                        ScalarValue::Constant(c) => Value::Float(num(*c)),
-                        ScalarValue::Texture(t) => tex(key, t)?,
-                    },
-                ));
+                pairs.push((key, scalar(key, v)?));
             }
+        }
+        if let Some(a) = &m.alpha {
+            pairs.push(("alpha", scalar("alpha", &a.value)?));
+            pairs.push(("alpha_cutoff", Value::Float(num(a.cutoff))));
         }
         materials.push(table(pairs));
     }
@@ -358,8 +362,18 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
         match *target {
             ParamTarget::BaseColor { material } => {
                 let Some(g) = material_of(material) else { continue };
-                match &scene.materials[material].base_color {
-                    ColorValue::Constant(c) => {
+                let m = &scene.materials[material];
+                let name = format!("{}.base_color", m.name);
+                // A textured alpha lives in the base colour texture's alpha channel: the
+                // written texture carries it (its factor then 1). (A glTF material with a
+                // textured alpha has a textured base colour, which is optimised as a
+                // texture: the loader refuses a constant for it.)
+                let alpha_texture = match &m.alpha {
+                    Some(AlphaMask { value: ScalarValue::Texture(a), .. }) => Some(&*a.image),
+                    _ => None,
+                };
+                match (&m.base_color, alpha_texture) {
+                    (ColorValue::Constant(c), _) => {
                         let pbr = pbr(&mut root, g);
                         let alpha = pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0);
                         pbr["baseColorFactor"] = json!([num(c[0]), num(c[1]), num(c[2]), alpha]);
@@ -367,10 +381,13 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                             obj.remove("baseColorTexture");
                         }
                     }
-                    ColorValue::Texture(t) => {
-                        let index = add_png(&mut root, dir, &format!("{}.base_color", scene.materials[material].name), &t.image, true)?;
+                    (ColorValue::Texture(t), alpha_texture) => {
+                        let index = add_png(&mut root, dir, &name, &t.image, true, alpha_texture)?;
                         let pbr = pbr(&mut root, g);
-                        let alpha = pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0);
+                        let alpha = match alpha_texture {
+                            Some(_) => 1.0,
+                            None => pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0),
+                        };
                         pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, alpha]);
                         pbr["baseColorTexture"] = json!({ "index": index });
                     }
@@ -390,7 +407,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                     }
                     (rough, metal) => {
                         let packed = pack_metallic_roughness(rough, metal);
-                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false)?;
+                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false, None)?;
                         let pbr = pbr(&mut root, g);
                         pbr["roughnessFactor"] = json!(1.0);
                         pbr["metallicFactor"] = json!(1.0);
@@ -409,7 +426,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         let peak = t.image.data.iter().flatten().copied().fold(0.0f32, f32::max);
                         let scale = if peak > 1.0 { 1.0 / peak } else { 1.0 };
                         let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), width: t.image.width, height: t.image.height };
-                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true)?;
+                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true, None)?;
                         ([peak.max(1.0); 3], Some(index))
                     }
                 };
@@ -492,15 +509,18 @@ fn pack_metallic_roughness(rough: &ScalarValue, metal: &ScalarValue) -> Image {
     Image { width: w, height: h, data }
 }
 
-/// Writes `img` as `textures/<name>.png` (sRGB-encoded if `srgb`, else linear 8-bit) and
-/// adds an image and a texture referring to it; returns the texture index.
-fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool) -> Result<usize, SceneError> {
+/// Writes `img` as `textures/<name>.png` (sRGB-encoded if `srgb`, else linear 8-bit), with
+/// `alpha`'s R channel (resampled to `img`'s size, nearest texel) as its alpha channel
+/// where given, and adds an image and a texture referring to it; returns the texture
+/// index.
+fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>) -> Result<usize, SceneError> {
     let rel = format!("textures/{}.png", file_name(name));
     let path = dir.join(&rel);
     let encoded = if srgb { img.clone() } else { Image { data: img.data.iter().map(|p| p.map(image::srgb_decode)).collect(), ..img.clone() } };
+    let alpha = alpha.map(|a| a.resample(1, img.width, img.height));
     // write_png encodes with the sRGB curve; a linear texture is pre-decoded so that the
     // stored bytes are its linear values.
-    image::write_png(&path, &encoded).map_err(|e| write_err(&path, e))?;
+    image::write_png_with_alpha(&path, &encoded, alpha.as_deref()).map_err(|e| write_err(&path, e))?;
     let image_index = push(root, "images", json!({ "uri": rel }));
     Ok(push(root, "textures", json!({ "source": image_index })))
 }
