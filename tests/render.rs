@@ -1047,18 +1047,6 @@ fn lamp_scene(name: &str, textured: bool, left_emission: [f32; 3], right_emissio
 /// would fall by more than half.
 #[test]
 fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
-    let quadrants = |img: &Image| {
-        let mut sums = [[0.0f64; 3]; 4];
-        for y in 0..img.height {
-            for x in 0..img.width {
-                let q = (2 * y / img.height * 2 + 2 * x / img.width) as usize;
-                for (sum, v) in sums[q].iter_mut().zip(img.get(x, y)) {
-                    *sum += v as f64;
-                }
-            }
-        }
-        sums
-    };
     let exact = |img: &Image, want: [f32; 3]| img.data.iter().filter(|p| (0..3).all(|c| (p[c] - want[c]).abs() <= 1e-5 * want[c])).count();
     with_gpu(|ctx| {
         let render = |scene: &Scene, seed: u32| {
@@ -1074,7 +1062,7 @@ fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
         for img in [&a, &b] {
             assert!(exact(img, LAMP_RED) >= 4 && exact(img, LAMP_BLUE) >= 4, "the lamp's halves in view: {} red, {} blue pixels", exact(img, LAMP_RED), exact(img, LAMP_BLUE));
         }
-        let (qa, qb, qc) = (quadrants(&a), quadrants(&b), quadrants(&again));
+        let (qa, qb, qc) = (quadrant_sums(&a), quadrant_sums(&b), quadrant_sums(&again));
         for q in 0..4 {
             for c in 0..3 {
                 let (x, y, noise) = (qa[q][c], qb[q][c], (qc[q][c] / qb[q][c] - 1.0).abs());
