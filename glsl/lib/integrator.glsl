@@ -350,6 +350,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float cos_l = dot(light.ng, -wi);
             if (light.two_sided != 0u) cos_l = abs(cos_l);
             vec2 light_uv = vec2(0.0);
+            // (Two branches, not `HAS_EMISSION_TEXTURES || HAS_ALPHA_MASKS`: the reflection
+            // cannot fold an operation on specialisation constants.)
             if (HAS_EMISSION_TEXTURES) {
                 light_uv = triangle_uv(light.prim, bary);
             } else if (HAS_ALPHA_MASKS) {

@@ -31,9 +31,9 @@ struct MaterialRecord {
     // tangent, y along its bitangent, z along the interpolated normal), already decoded
     // from the image's [0, 1] and scaled; width 0: none. Read only by scenes that have one.
     ValueRef normal_map;
-    // The alpha test's value (1 channel); width 0 and offset -1: no alpha test. Read only
-    // by scenes that have one, and only at a ray's candidate hits on triangles whose BVH
-    // record names the material (shared/bvh.glsl).
+    // The alpha test's value (1 channel); zero, with alpha_cutoff 0, where the material
+    // has none. Read only by scenes that have one, and only at a ray's candidate hits on
+    // triangles whose BVH record names the material (shared/bvh.glsl).
     ValueRef alpha;
 };
 

@@ -16,8 +16,9 @@
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
-//! `mask` where its opacity is 0 or 1 (an alpha test at 0.5; approximate elsewhere), area lights, the constant environment, point and directional lights, the film and
-//! camera. Approximate, each with a one-line warning: `principled`
+//! `mask` where its opacity is 0 or 1 (an alpha test at 0.5; approximate elsewhere), area
+//! lights, the constant environment, point and directional lights, the film and camera.
+//! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
 //! material's normal-incidence reflectance; a Beckmann distribution becomes GGX; a smooth
