@@ -53,7 +53,8 @@ pub struct MaterialRecord {
     pub kind: u32,
     /// 1: the material reflects nothing from behind (its triangles' clockwise side).
     pub one_sided: u32,
-    /// The alpha test's threshold (with `alpha`).
+    /// The alpha test's threshold (with `alpha`); negative for a blend, whose threshold
+    /// the kernels draw per ray.
     pub alpha_cutoff: f32,
     pub pad: u32,
     /// The normal map's tangent-space normals (3 floats per texel, decoded and scaled);

@@ -705,21 +705,24 @@ fn emission_texture_gradients_are_exact() {
 /// A floor whose left half an alpha test cuts out (a 4 × 1 alpha texture 0, 0, 1, 1 at 0.5),
 /// its diffuse colour a 2 × 2 texture: camera rays, shadow rays and bounces pass through the
 /// cut-out half to the sky and the light, in the primal, the replay and the finite
-/// differences alike. The alpha is no parameter and nothing samples by the colour, so the
-/// adjoint is exact per sample.
+/// differences alike. Then the same floor as a blend at alpha 0.5, whose choices are drawn
+/// per ray: the replays, which cast the same rays, make the same ones. The alpha is no
+/// parameter and nothing samples by the colour, so the adjoint is exact per sample.
 #[test]
 fn alpha_tested_gradients_are_exact() {
     shared(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
-        let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]\nalpha = { texture = \"mask.exr\" }";
-        let path = common::scenes::lit_quad("gradients-alpha", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
-        let mask = vkinverse::image::Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] };
-        vkinverse::image::write_exr(&path.parent().unwrap().join("mask.exr"), &mask).unwrap();
-        let scene = Scene::load(path).unwrap();
-        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
-        assert!(b.scene().has_alpha_masks);
-        let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.1)).collect();
-        check("l2", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+        for (name, alpha) in [("gradients-alpha", "alpha = { texture = \"mask.exr\" }"), ("gradients-blend", "alpha = 0.5\nalpha_mode = \"blend\"")] {
+            let floor = format!("type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]\n{alpha}");
+            let path = common::scenes::lit_quad(name, 16, &floor, "constant = [0.2, 0.2, 0.2]", optimise);
+            let mask = vkinverse::image::Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] };
+            vkinverse::image::write_exr(&path.parent().unwrap().join("mask.exr"), &mask).unwrap();
+            let scene = Scene::load(path).unwrap();
+            let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+            assert!(b.scene().has_alpha_masks);
+            let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.1)).collect();
+            check(name, &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+        }
     });
 }
 

@@ -12,7 +12,7 @@ use common::with_gpu;
 use vkinverse::image::{srgb_decode, Image};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::write::write_final;
-use vkinverse::scene::{ColorValue, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError};
+use vkinverse::scene::{AlphaMode, ColorValue, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError};
 
 fn data(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(rel)
@@ -323,8 +323,8 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
 
 /// glTF's `alphaMode`: `MASK` tests the base colour's alpha (`baseColorFactor`'s fourth
 /// component times the texture's alpha channel) against `alphaCutoff`, and the render shows
-/// the sky through the cut-out half; `BLEND` is tested at 0.5 with a warning; a constant
-/// alpha that passes is no test; a cutoff outside [0, 1] is refused naming its JSON path.
+/// the sky through the cut-out half; `BLEND` makes the alpha a coverage; a constant alpha
+/// that always passes is no test; a cutoff outside [0, 1] is refused naming its JSON path.
 /// A recovered base colour texture is written back to glTF with the alpha in its PNG's
 /// alpha channel (the factor's alpha then 1), and to TOML with the alpha as an EXR and its
 /// cutoff.
@@ -355,10 +355,10 @@ fn gltf_alpha_masks_are_read_rendered_and_written_back() {
     let a = masked.materials[0].alpha.clone().expect("an alpha test");
     let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha: {a:?}") };
     let alphas: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
-    assert_eq!((a.cutoff, alphas), (0.4, vec![0.0, 0.0, 0.8, 0.8]));
+    assert_eq!((a.mode, alphas), (AlphaMode::Mask { cutoff: 0.4 }, vec![0.0, 0.0, 0.8, 0.8]));
     let blend = Scene::load_with(write("blend.gltf", &|m| m["alphaMode"] = serde_json::json!("BLEND")), &small).unwrap();
-    assert_eq!(blend.materials[0].alpha.as_ref().map(|a| a.cutoff), Some(0.5));
-    assert!(blend.warnings.iter().any(|w| w.contains("alphaMode") && w.contains("BLEND")), "{:?}", blend.warnings);
+    assert_eq!(blend.materials[0].alpha.as_ref().map(|a| a.mode), Some(AlphaMode::Blend));
+    assert!(blend.warnings.is_empty(), "{:?}", blend.warnings);
     let untextured = |name: &str, alpha: f32| {
         let path = write(name, &|m| {
             m["pbrMetallicRoughness"].as_object_mut().unwrap().remove("baseColorTexture");
@@ -395,14 +395,14 @@ fn gltf_alpha_masks_are_read_rendered_and_written_back() {
         let toml = Scene::load(out.join("final/scene.toml")).unwrap();
         let a = toml.materials[0].alpha.as_ref().expect("final/scene.toml keeps the alpha test");
         let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.toml") };
-        assert_eq!((a.cutoff, t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>()), (0.4, vec![0.0, 0.0, 0.8, 0.8]), "final/scene.toml");
+        assert_eq!((a.mode, t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>()), (AlphaMode::Mask { cutoff: 0.4 }, vec![0.0, 0.0, 0.8, 0.8]), "final/scene.toml");
         let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
         let a = gltf.materials[0].alpha.as_ref().expect("final/scene.gltf keeps the alpha test");
         let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.gltf") };
         // The alpha in the written PNG, at the base colour texture's size: 2 × 2, the
         // nearest texels of the 4 × 1 alpha.
         let got: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
-        assert!(a.cutoff == 0.4 && got.iter().zip(&[0.0, 0.8, 0.0, 0.8]).all(|(g, w)| (g - w).abs() <= 0.5 / 255.0), "final/scene.gltf alpha {got:?}, cutoff {}", a.cutoff);
+        assert!(a.mode == AlphaMode::Mask { cutoff: 0.4 } && got.iter().zip(&[0.0, 0.8, 0.0, 0.8]).all(|(g, w)| (g - w).abs() <= 0.5 / 255.0), "final/scene.gltf alpha {got:?}, {:?}", a.mode);
         let ColorValue::Texture(t) = &gltf.materials[0].base_color else { panic!("the written base colour texture") };
         assert!(t.image.data.iter().flatten().zip(&theta).all(|(g, w)| (g - w).abs() <= 1.2 / 255.0), "{:?}", t.image.data);
     });
@@ -810,9 +810,9 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
 }
 
 /// Mitsuba's `mask` wraps a BSDF, alone or with `twosided` and `normalmap` in any order:
-/// its `opacity` (a bitmap or a number, 0.5 by default) becomes an alpha test at 0.5, exact
-/// where the opacity is 0 or 1 and approximate elsewhere (a warning); an opacity that
-/// always passes is no test, and the render shows the sky through the cut-out part.
+/// its `opacity` (a bitmap or a number, 0.5 by default) becomes a coverage (rays pass
+/// through with probability 1 − opacity, as in Mitsuba); an opacity of 1 is no test, and
+/// the render shows the sky through the transparent part.
 #[test]
 fn mitsuba_masks_cut_surfaces_out() {
     let dir = temp_dir("mitsuba-mask");
@@ -838,13 +838,13 @@ fn mitsuba_masks_cut_surfaces_out() {
         let m = &s.materials[0];
         let a = m.alpha.as_ref().expect("an alpha test");
         let ScalarValue::Texture(t) = &a.value else { panic!("a bitmap opacity: {a:?}") };
-        assert_eq!((a.cutoff, m.one_sided), (0.5, false));
+        assert_eq!((a.mode, m.one_sided), (AlphaMode::Blend, false));
         assert_eq!(t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>(), [0.0, 0.0, 1.0, 1.0]);
         assert!(s.warnings.is_empty(), "{:?}", s.warnings);
     }
     let half = load("half", &format!(r#"<bsdf type="mask"><float name="opacity" value="0.3"/>{diffuse}</bsdf>"#));
     assert!(matches!(&half.materials[0].alpha, Some(a) if matches!(a.value, ScalarValue::Constant(v) if v == 0.3)));
-    assert!(half.warnings.iter().any(|w| w.contains("opacity between 0 and 1")), "{:?}", half.warnings);
+    assert!(half.warnings.is_empty(), "{:?}", half.warnings);
     let solid = load("solid", &format!(r#"<bsdf type="mask"><float name="opacity" value="1"/>{diffuse}</bsdf>"#));
     assert!(solid.materials[0].alpha.is_none() && solid.warnings.is_empty(), "{:?}", solid.warnings);
     let plain = load("plain", &format!(r#"<bsdf type="twosided">{diffuse}</bsdf>"#));

@@ -536,7 +536,7 @@ fn kernels_read_the_records_the_host_wrote() {
         ("env quad", env_lit_quad("records-env", &spot_map())),
         ("normal map", normal_quad("records-nmap", Shading::Map([0.3, -0.2, 0.93]), true)),
         ("emission texture", lamp_scene("records-emission", true, LAMP_RED, LAMP_BLUE)),
-        ("alpha test", cutout_scene("records-alpha", Cutout::Masked, false)),
+        ("alpha test", cutout_scene("records-alpha", Cutout::Masked, false, 0.5)),
         (
             "lights",
             delta_lit_scene(
@@ -1107,17 +1107,21 @@ enum Cutout {
     /// The whole quad with a 4 × 1 alpha texture (0, 0, 1, 1) tested at 0.5: the bilinear
     /// lookup is below 0.5 exactly where u < 0.5, so the test cuts out the quad's left half.
     Masked,
+    /// The whole quad, there with probability `alpha` (alpha_mode "blend").
+    Blend(f32),
     /// The quad's right half alone, without an alpha test.
     Half,
     /// The whole quad, without an alpha test.
     Whole,
+    /// No quad.
+    Absent,
 }
 
 /// A white floor lit from y = 1.2 by a 1 × 1 lamp facing down (emission 3), seen from below
 /// the lamp's height as in [`lamp_scene`], 32² pixels, depth 3. `lamp_cut`: the lamp is
-/// the object `cutout` shapes; otherwise the lamp is whole and the object is a grey 0.8 ×
-/// 0.8 occluder at y = 0.6 between it and the floor.
-fn cutout_scene(name: &str, cutout: Cutout, lamp_cut: bool) -> Scene {
+/// the object `cutout` shapes; otherwise the lamp is whole and the object is a 0.8 × 0.8
+/// occluder of colour `grey` at y = 0.6 between it and the floor.
+fn cutout_scene(name: &str, cutout: Cutout, lamp_cut: bool, grey: f32) -> Scene {
     let dir = common::scenes::temp_dir(name);
     std::fs::write(dir.join("floor.obj"), common::scenes::QUAD_OBJ).unwrap();
     // A quad facing down at height y over [x0, x1] × [-h, h], u from 0 at x = -h to 1 at x = h.
@@ -1128,15 +1132,21 @@ fn cutout_scene(name: &str, cutout: Cutout, lamp_cut: bool) -> Scene {
     let (y, h) = if lamp_cut { (1.2, 0.5) } else { (0.6, 0.4) };
     let object = quad(y, h, if cutout == Cutout::Half { 0.0 } else { -h });
     write_exr(&dir.join("mask.exr"), &Image { width: 4, height: 1, data: vec![[0.0; 3], [0.0; 3], [1.0; 3], [1.0; 3]] }).unwrap();
-    let alpha = if cutout == Cutout::Masked { "alpha = { texture = \"mask.exr\" }\nalpha_cutoff = 0.5\n" } else { "" };
+    let alpha = match cutout {
+        Cutout::Masked => "alpha = { texture = \"mask.exr\" }\nalpha_cutoff = 0.5\n".to_string(),
+        Cutout::Blend(a) => format!("alpha = {a}\nalpha_mode = \"blend\"\n"),
+        _ => String::new(),
+    };
     std::fs::write(dir.join("object.obj"), object).unwrap();
+    let object = |material: &str, emission: &str| if cutout == Cutout::Absent { String::new() } else { format!("[[meshes]]\nfile = \"object.obj\"\nmaterial = \"{material}\"\n{emission}") };
     let meshes = if lamp_cut {
-        format!("[[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n{alpha}[[meshes]]\nfile = \"object.obj\"\nmaterial = \"lamp\"\nemission = [3, 3, 3]\n")
+        format!("[[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n{alpha}{}", object("lamp", "emission = [3, 3, 3]\n"))
     } else {
         std::fs::write(dir.join("lamp.obj"), quad(1.2, 0.5, -0.5)).unwrap();
         format!(
-            "[[materials]]\nname = \"grey\"\ntype = \"diffuse\"\nbase_color = [0.5, 0.5, 0.5]\n{alpha}[[meshes]]\nfile = \"object.obj\"\nmaterial = \"grey\"\n\
-             [[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n[[meshes]]\nfile = \"lamp.obj\"\nmaterial = \"lamp\"\nemission = [3, 3, 3]\n"
+            "[[materials]]\nname = \"grey\"\ntype = \"diffuse\"\nbase_color = [{grey}, {grey}, {grey}]\n{alpha}{}\
+             [[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n[[meshes]]\nfile = \"lamp.obj\"\nmaterial = \"lamp\"\nemission = [3, 3, 3]\n",
+            object("grey", "")
         )
     };
     let toml = format!(
@@ -1177,11 +1187,11 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
             let gs = GpuScene::new(ctx, scene).unwrap();
             Renderer::new(gs).unwrap().render(0, spp, seed, |_, _| {}).unwrap()
         };
-        let masked = cutout_scene("alpha-occluder", Cutout::Masked, false);
+        let masked = cutout_scene("alpha-occluder", Cutout::Masked, false, 0.5);
         assert!(GpuScene::new(ctx, &masked).unwrap().has_alpha_masks);
-        let half = cutout_scene("alpha-occluder-half", Cutout::Half, false);
+        let half = cutout_scene("alpha-occluder-half", Cutout::Half, false, 0.5);
         assert!(!GpuScene::new(ctx, &half).unwrap().has_alpha_masks);
-        let whole = cutout_scene("alpha-occluder-whole", Cutout::Whole, false);
+        let whole = cutout_scene("alpha-occluder-whole", Cutout::Whole, false, 0.5);
         let (a, b, w) = (quadrant_sums(&render(&masked, 128, 1)), quadrant_sums(&render(&half, 128, 1)), quadrant_sums(&render(&whole, 128, 1)));
         for q in 0..4 {
             for c in 0..3 {
@@ -1193,8 +1203,8 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
         // behind it: without the cut the bottom-left quadrant would be far darker.
         assert!(w[2][0] < 0.8 * b[2][0], "the whole occluder {} should darken the bottom-left quadrant against the half {}", w[2][0], b[2][0]);
 
-        let lamp = cutout_scene("alpha-lamp", Cutout::Masked, true);
-        let (half_lamp, whole_lamp) = (cutout_scene("alpha-lamp-half", Cutout::Half, true), cutout_scene("alpha-lamp-whole", Cutout::Whole, true));
+        let lamp = cutout_scene("alpha-lamp", Cutout::Masked, true, 0.0);
+        let (half_lamp, whole_lamp) = (cutout_scene("alpha-lamp-half", Cutout::Half, true, 0.0), cutout_scene("alpha-lamp-whole", Cutout::Whole, true, 0.0));
         let (a, b, again, w) = (
             quadrant_sums(&render(&lamp, 512, 1)),
             quadrant_sums(&render(&half_lamp, 512, 2)),
@@ -1212,5 +1222,33 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
             }
         }
         assert!(w[2][0] > 1.3 * b[2][0], "the whole lamp {} should light the bottom-left quadrant more than the half {}", w[2][0], b[2][0]);
+    });
+}
+
+/// A blend (alpha_mode "blend") is a coverage: each ray that reaches the surface finds it
+/// there with probability alpha. With a black occluder or a lamp of black material, every
+/// path that carries light crosses the blended quad at most once, so the image is linear in
+/// the coverage: a black occluder at alpha 0.3 renders as 0.3 × the opaque occluder's
+/// image + 0.7 × the image without it, and a lamp at alpha 0.3 as 0.3 × the opaque lamp's
+/// (its light samples included). Each quadrant agrees within Monte Carlo noise.
+#[test]
+fn blended_surfaces_are_there_with_probability_alpha() {
+    with_gpu(|ctx| {
+        let render = |scene: &Scene, seed: u32| quadrant_sums(&Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap());
+        let alpha = 0.3;
+        for lamp in [false, true] {
+            let tag = if lamp { "lamp" } else { "occluder" };
+            let blend = render(&cutout_scene(&format!("blend-{tag}"), Cutout::Blend(alpha as f32), lamp, 0.0), 1);
+            let whole = render(&cutout_scene(&format!("blend-{tag}-whole"), Cutout::Whole, lamp, 0.0), 2);
+            let absent = render(&cutout_scene(&format!("blend-{tag}-absent"), Cutout::Absent, lamp, 0.0), 3);
+            for q in 0..4 {
+                for c in 0..3 {
+                    let want = alpha * whole[q][c] + (1.0 - alpha) * absent[q][c];
+                    eprintln!("{tag}, quadrant {q}, channel {c}: blend {:.4}, expected {want:.4} (opaque {:.4}, absent {:.4})", blend[q][c], whole[q][c], absent[q][c]);
+                    let agree = if want == 0.0 { blend[q][c] == 0.0 } else { (blend[q][c] / want - 1.0).abs() < 0.03 };
+                    assert!(agree, "{tag}, quadrant {q}, channel {c}: the blend {} against {want}", blend[q][c]);
+                }
+            }
+        }
     });
 }

@@ -5,7 +5,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use vkinverse::image::{write_exr, Image};
-use vkinverse::scene::{ColorValue, ParamTarget, Reference, ScalarValue, Scene, SceneError};
+use vkinverse::scene::{AlphaMode, ColorValue, ParamTarget, Reference, ScalarValue, Scene, SceneError};
 
 const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
 const BARE_TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
@@ -229,6 +229,8 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(masked, cut("hash-m", "alpha = { texture = \"tex.exr\" }\nalpha_cutoff = 0.3"));
     assert_eq!(masked, cut("hash-n", "alpha = { texture = \"tex.exr\" }\nalpha_cutoff = 0.5"), "0.5 is the default cutoff");
     assert_ne!(masked, cut("hash-o", "alpha = 0.25"));
+    assert_ne!(masked, cut("hash-p", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"blend\""));
+    assert_eq!(masked, cut("hash-q", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"mask\""), "mask is the default mode");
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -637,17 +639,20 @@ fn normal_maps_are_checked() {
     assert_message(&load_err("nmap-key", &with("{ texture = \"tex.exr\", strength = 2 }")), &["strength"]);
 }
 
-/// An alpha is a number or an EXR texture in [0, 1] and its cutoff a number in [0, 1] (0.5
-/// by default), given only with an alpha; neither can be optimised.
+/// An alpha is a number or an EXR texture in [0, 1], its mode "mask" (the default) or
+/// "blend", and a mask's cutoff a number in [0, 1] (0.5 by default); mode and cutoff come
+/// only with an alpha, and the alpha cannot be optimised.
 #[test]
 fn alpha_tests_are_checked() {
     let with = |alpha: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\n{alpha}"));
     let s = Scene::load(fixture("alpha-ok", &with("alpha = { texture = \"tex.exr\" }"))).unwrap();
     let a = s.materials[0].alpha.as_ref().unwrap();
-    assert!(matches!(a.value, ScalarValue::Texture(_)) && a.cutoff == 0.5, "{a:?}");
+    assert!(matches!(a.value, ScalarValue::Texture(_)) && a.mode == AlphaMode::Mask { cutoff: 0.5 }, "{a:?}");
     let s = Scene::load(fixture("alpha-constant", &with("alpha = 0.2\nalpha_cutoff = 0.1"))).unwrap();
     let a = s.materials[0].alpha.as_ref().unwrap();
-    assert!(matches!(a.value, ScalarValue::Constant(v) if v == 0.2) && a.cutoff == 0.1, "{a:?}");
+    assert!(matches!(a.value, ScalarValue::Constant(v) if v == 0.2) && a.mode == AlphaMode::Mask { cutoff: 0.1 }, "{a:?}");
+    let s = Scene::load(fixture("alpha-blend", &with("alpha = 0.2\nalpha_mode = \"blend\""))).unwrap();
+    assert_eq!(s.materials[0].alpha.as_ref().unwrap().mode, AlphaMode::Blend);
     assert!(Scene::load(fixture("alpha-none", BASE)).unwrap().materials[0].alpha.is_none());
     let path = fixture("alpha-range", &with("alpha = { texture = \"mask.exr\" }"));
     let mut img = Image::filled(2, 2, [1.0; 3]);
@@ -661,6 +666,9 @@ fn alpha_tests_are_checked() {
     assert_message(&load_err("alpha-cutoff-range", &with("alpha = 0.5\nalpha_cutoff = 2")), &["materials.m.alpha_cutoff", "2"]);
     assert_message(&load_err("alpha-cutoff-nan", &with("alpha = 0.5\nalpha_cutoff = nan")), &["materials.m.alpha_cutoff"]);
     assert_message(&load_err("alpha-cutoff-alone", &with("alpha_cutoff = 0.5")), &["materials.m.alpha_cutoff", "needs an alpha"]);
+    assert_message(&load_err("alpha-mode-alone", &with("alpha_mode = \"blend\"")), &["materials.m.alpha_mode", "needs an alpha"]);
+    assert_message(&load_err("alpha-mode-unknown", &with("alpha = 0.5\nalpha_mode = \"add\"")), &["materials.m.alpha_mode", "\"add\"", "\"mask\" or \"blend\""]);
+    assert_message(&load_err("alpha-blend-cutoff", &with("alpha = 0.5\nalpha_mode = \"blend\"\nalpha_cutoff = 0.5")), &["materials.m.alpha_cutoff", "blend"]);
     assert_message(&load_err("alpha-malformed", &with("alpha = \"mask.exr\"")), &["expected a number or { texture"]);
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.alpha\"\ninit = 1\nrange = [0, 1]\n", with("alpha = 1"));
     assert_message(&load_err("alpha-param", &optimised), &["materials.m.alpha"]);

@@ -109,11 +109,12 @@ BvhTriangle bvh_triangle(uint i) {
 
 // Alpha tests (materials with an alpha mask): a candidate hit on a triangle whose record
 // names such a material counts only where the material's alpha at the hit passes its
-// cutoff; elsewhere the ray goes on as if the triangle were not there. Kernels that
+// test (a cutoff, or for a blend a number hashed from the ray: the ray `origin`, `dir` of
+// the calling function); elsewhere the ray goes on as if the triangle were not there. Kernels that
 // include lib/scene_access.glsl first get the test (alpha_cut); the others (the BVH tests'
 // trace_test) have no materials and none.
 #ifdef SCENE_ACCESS_GLSL
-#define BVH_CUT_OUT(tri, u, v) (HAS_ALPHA_MASKS && (tri).alpha_material != 0u && alpha_cut((tri).alpha_material, triangle_uv((tri).prim, vec2(u, v))))
+#define BVH_CUT_OUT(tri, u, v) (HAS_ALPHA_MASKS && (tri).alpha_material != 0u && alpha_cut((tri).alpha_material, triangle_uv((tri).prim, vec2(u, v)), alpha_ray_key(origin, dir, (tri).prim)))
 #else
 #define BVH_CUT_OUT(tri, u, v) false
 #endif

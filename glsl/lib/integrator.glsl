@@ -358,8 +358,9 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 light_uv = triangle_uv(light.prim, bary);
             }
             // A point where the emitter's alpha test cuts it out emits nothing (the emitter
-            // is sampled over its whole area, so the estimate stays unbiased).
-            bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv);
+            // is sampled over its whole area, so the estimate stays unbiased). A blend's
+            // choice is keyed by the sampled point.
+            bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv, uvec4(floatBitsToUint(pl), light.prim));
             if (!cut && cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));

@@ -15,6 +15,7 @@
 #include "shared/scene.glsl"
 #include "shared/material.glsl"
 #include "lib/texels.glsl"
+#include "lib/rng.glsl"
 
 TEXEL_BUFFER(0, 20) Materials;
 TEXEL_BUFFER(0, 21) Shading;
@@ -269,17 +270,29 @@ float fetch1(ValueRef r, vec2 uv, int state) {
 }
 
 // Whether the alpha test of material `alpha_material` - 1 (a triangle record's
-// alpha_material; 0: no test) cuts the surface out at texture coordinates uv: its alpha,
-// looked up bilinearly, is below the material's cutoff. The alpha is a material constant:
-// every parameter state sees the same surface.
-bool alpha_cut(uint alpha_material, vec2 uv) {
+// alpha_material; 0: no test) cuts the surface out at texture coordinates uv for the ray
+// or sample `key` names: its alpha, looked up bilinearly, is below the material's cutoff,
+// or for a blend (a negative cutoff) below a uniform number hashed from the key, so that
+// the surface is there with probability alpha. The number is a function of the key alone
+// (pcg4d of lib/rng.glsl): the replays of a path, which cast the same rays, make the same
+// choices. The alpha is a material constant: every parameter state sees the same surface.
+bool alpha_cut(uint alpha_material, vec2 uv, uvec4 key) {
     // (Not `!HAS_ALPHA_MASKS || ...`: the reflection cannot fold the negation of a
     // specialisation constant.)
     if (HAS_ALPHA_MASKS && alpha_material != 0u) {
         MaterialRecord r = material_record(alpha_material - 1u);
-        return fetch1(r.alpha, uv, 0) < r.alpha_cutoff;
+        float cutoff = r.alpha_cutoff;
+        if (cutoff < 0.0) cutoff = float(pcg4d(key).x >> 8u) * (1.0 / 16777216.0);
+        return fetch1(r.alpha, uv, 0) < cutoff;
     }
     return false;
+}
+
+// The key of a ray's blend choices on triangle `prim` (alpha_cut): the ray's bits.
+uvec4 alpha_ray_key(vec3 origin, vec3 dir, uint prim) {
+    uvec3 o = floatBitsToUint(origin);
+    uvec3 d = floatBitsToUint(dir);
+    return uvec4(o.x ^ d.y, o.y ^ d.z, o.z ^ d.x, prim);
 }
 
 #ifdef ADJOINT

@@ -25,7 +25,8 @@ struct MaterialRecord {
     ValueRef metallic;
     uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
-    float alpha_cutoff;  // the surface exists where its alpha is at least this
+    float alpha_cutoff;  // the surface is there where its alpha is at least this; negative:
+                         // a blend, there with probability alpha
     uint pad2;
     // The normal map: a texture of tangent-space unit normals (x along the triangle's
     // tangent, y along its bitangent, z along the interpolated normal), already decoded

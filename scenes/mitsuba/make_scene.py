@@ -54,10 +54,16 @@ for y in range(7, 10):
     band[y] = [(255, 180, 90)] * 16 + [(90, 160, 255)] * 16
 (HERE / "meshes" / "band.png").write_bytes(png(32, 16, band))
 
-# The lattice of masked.xml's card: 128 x 128 texels, opaque (white) bars 16 texels wide
-# (rows and columns 8-23, 40-55, ...), holes (black) of 16 x 16 texels between them and
-# along the border. The texels are small against the pixels and the opacity is 0 or 1 but
-# for the bilinear ramps at the bars' edges, where Mitsuba's mask passes rays through at
-# random and vkinverse's alpha test cuts at 0.5.
-lattice = [[(255,) * 3 if x % 32 in range(8, 24) or y % 32 in range(8, 24) else (0,) * 3 for x in range(128)] for y in range(128)]
-(HERE / "meshes" / "lattice.png").write_bytes(png(128, 128, lattice))
+# The lattice of masked.xml's card: 16 x 16 texels, opaque (white) bars two texels wide
+# (rows and columns 1-2, 5-6, ...) and holes (black) of 2 x 2 texels between them and
+# along the border; the bars of the bottom quarter are grey (opacity 0.5). Large texels:
+# the bilinear lookup ramps across a bar's edge over a whole texel, which Mitsuba's mask
+# and a blend treat alike, a ray passing through with probability 1 - opacity.
+def lattice_texel(x, y):
+    if x % 4 not in (1, 2) and y % 4 not in (1, 2):
+        return (0,) * 3
+    return (188,) * 3 if y >= 12 else (255,) * 3  # sRGB 188: linear 0.5
+
+
+lattice = [[lattice_texel(x, y) for x in range(16)] for y in range(16)]
+(HERE / "meshes" / "lattice.png").write_bytes(png(16, 16, lattice))

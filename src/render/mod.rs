@@ -21,7 +21,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
@@ -336,7 +336,12 @@ impl GpuScene {
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                     },
                     one_sided: m.one_sided as u32,
-                    alpha_cutoff: m.alpha.as_ref().map_or(0.0, |a| a.cutoff),
+                    // Blend: a negative cutoff, for which the kernels draw one per ray.
+                    alpha_cutoff: match m.alpha.as_ref().map(|a| a.mode) {
+                        None => 0.0,
+                        Some(AlphaMode::Mask { cutoff }) => cutoff,
+                        Some(AlphaMode::Blend) => -1.0,
+                    },
                     pad: 0,
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),

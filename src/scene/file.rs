@@ -89,7 +89,10 @@ pub struct MaterialFile {
     /// `alpha = 0.4` or `{ texture = "mask.exr" }` (its R channel), in [0, 1]: the surface
     /// is cut out where the alpha is below `alpha_cutoff` (model::AlphaMask).
     pub alpha: Option<ScalarInput>,
-    /// In [0, 1]; 0.5 by default. Only with `alpha`.
+    /// "mask" (the default: cut out below `alpha_cutoff`) or "blend" (there with
+    /// probability alpha). Only with `alpha`.
+    pub alpha_mode: Option<String>,
+    /// In [0, 1]; 0.5 by default. Only with `alpha` in mode "mask".
     pub alpha_cutoff: Option<f32>,
 }
 

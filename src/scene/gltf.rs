@@ -8,7 +8,7 @@
 //! its B, each multiplied by its factor) and normal textures; `emissiveFactor` ×
 //! `KHR_materials_emissive_strength`, times the sRGB-decoded `emissiveTexture` where there
 //! is one, as the mesh's area emission, on both sides when the material is `doubleSided`;
-//! `alphaMode` `MASK` (and `BLEND`, with a warning) as an alpha test; every
+//! `alphaMode` `MASK` and `BLEND` as alpha tests; every
 //! perspective camera as a sensor (looking down its node's −Z, in node order); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
@@ -22,9 +22,9 @@
 //! (texture sets other than 0, non-triangle primitives,
 //! orthographic cameras, required extensions other than the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
-//! (occlusion textures, `BLEND` alpha rendered as `MASK`, non-repeating samplers, optional
-//! extensions, animation), is a one-line warning. `alphaMode` `MASK` is an alpha test
-//! ([`AlphaMask`]) on the base colour's alpha.
+//! (occlusion textures, non-repeating samplers, optional extensions, animation), is a
+//! one-line warning. `alphaMode` `MASK` and `BLEND` are alpha tests ([`AlphaMask`]) on the
+//! base colour's alpha.
 
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
@@ -466,23 +466,22 @@ impl Importer<'_> {
         Ok((self.alphas.get(&info.texture().source().index()).cloned().flatten(), path))
     }
 
-    /// The alpha test of material `m` at JSON path `at`: none for `OPAQUE`; for `MASK` its
-    /// `alphaCutoff` (0.5 by default) on the base colour's alpha, `baseColorFactor`'s
-    /// fourth component times the texture's alpha channel where it has one. `BLEND` is
-    /// rendered as `MASK` at 0.5 (a warning says so). A constant alpha at or above the
-    /// cutoff cuts nothing out and is no test.
+    /// The alpha test of material `m` at JSON path `at` on the base colour's alpha
+    /// (`baseColorFactor`'s fourth component times the texture's alpha channel where it has
+    /// one): none for `OPAQUE`; a cut-out at `alphaCutoff` (0.5 by default) for `MASK`; a
+    /// coverage for `BLEND` (the surface there with probability alpha, which in
+    /// expectation is what blending it over what lies behind shows). A constant alpha that
+    /// always passes is no test.
     fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {
-        use gltf::material::AlphaMode;
-        let cutoff = match m.alpha_mode() {
-            AlphaMode::Opaque => return Ok(None),
-            AlphaMode::Mask => m.alpha_cutoff().unwrap_or(0.5),
-            AlphaMode::Blend => {
-                self.warn(format!("{at}.alphaMode"), "BLEND is rendered as MASK with alphaCutoff 0.5: the surface is cut out where its alpha is below 0.5 and opaque elsewhere");
-                0.5
-            }
+        let mode = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => return Ok(None),
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask { cutoff: m.alpha_cutoff().unwrap_or(0.5) },
+            gltf::material::AlphaMode::Blend => AlphaMode::Blend,
         };
-        if !(0.0..=1.0).contains(&cutoff) {
-            return Err(self.err(format!("{at}.alphaCutoff"), format!("{cutoff} is outside [0, 1]")));
+        if let AlphaMode::Mask { cutoff } = mode {
+            if !(0.0..=1.0).contains(&cutoff) {
+                return Err(self.err(format!("{at}.alphaCutoff"), format!("{cutoff} is outside [0, 1]")));
+            }
         }
         let pbr = m.pbr_metallic_roughness();
         let factor = pbr.base_color_factor()[3];
@@ -496,9 +495,10 @@ impl Importer<'_> {
             },
             None => ScalarValue::Constant(factor),
         };
-        Ok(match value {
-            ScalarValue::Constant(a) if a >= cutoff => None,
-            value => Some(AlphaMask { value, cutoff }),
+        Ok(match (value, mode) {
+            (ScalarValue::Constant(a), AlphaMode::Mask { cutoff }) if a >= cutoff => None,
+            (ScalarValue::Constant(a), AlphaMode::Blend) if a >= 1.0 => None,
+            (value, mode) => Some(AlphaMask { value, mode }),
         })
     }
 

@@ -110,7 +110,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
         if let Some(a) = &m.alpha {
             h.tag("alpha");
             h.scalar(&a.value);
-            h.f32s(&[a.cutoff]);
+            h.tag(a.mode.as_str());
+            if let AlphaMode::Mask { cutoff } = a.mode {
+                h.f32s(&[cutoff]);
+            }
         }
     }
     h.tag("meshes");

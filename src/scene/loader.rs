@@ -456,15 +456,29 @@ impl Loader {
                     Some(NormalMap { texture, scale, bitangent })
                 }
             };
-            let alpha = match (m.alpha, m.alpha_cutoff) {
-                (None, None) => None,
-                (None, Some(_)) => return Err(self.invalid(&format!("{key}.alpha_cutoff"), "needs an alpha (alpha = 0.4 or { texture = \"mask.exr\" })")),
-                (Some(value), cutoff) => {
+            let alpha = match m.alpha {
+                None => {
+                    for (what, given) in [("alpha_mode", m.alpha_mode.is_some()), ("alpha_cutoff", m.alpha_cutoff.is_some())] {
+                        if given {
+                            return Err(self.invalid(&format!("{key}.{what}"), "needs an alpha (alpha = 0.4 or { texture = \"mask.exr\" })"));
+                        }
+                    }
+                    None
+                }
+                Some(value) => {
                     let value = self.scalar_value(&format!("{key}.alpha"), value)?;
                     let k = format!("{key}.alpha_cutoff");
-                    let cutoff = cutoff.unwrap_or(0.5);
-                    self.finite(&k, &[cutoff])?;
-                    Some(AlphaMask { value, cutoff: self.in_range(&k, cutoff, 0.0, 1.0)? })
+                    let mode = match (m.alpha_mode.as_deref(), m.alpha_cutoff) {
+                        (None | Some("mask"), cutoff) => {
+                            let cutoff = cutoff.unwrap_or(0.5);
+                            self.finite(&k, &[cutoff])?;
+                            AlphaMode::Mask { cutoff: self.in_range(&k, cutoff, 0.0, 1.0)? }
+                        }
+                        (Some("blend"), None) => AlphaMode::Blend,
+                        (Some("blend"), Some(_)) => return Err(self.invalid(&k, "has no meaning with alpha_mode = \"blend\" (the surface is there with probability alpha)")),
+                        (Some(other), _) => return Err(self.invalid(&format!("{key}.alpha_mode"), &format!("\"{other}\" is not \"mask\" or \"blend\""))),
+                    };
+                    Some(AlphaMask { value, mode })
                 }
             };
             out.push(Material {

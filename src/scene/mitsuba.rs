@@ -16,7 +16,7 @@
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
-//! `mask` where its opacity is 0 or 1 (an alpha test at 0.5; approximate elsewhere), area
+//! `mask` (a coverage: rays pass through with probability 1 − opacity), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
@@ -689,7 +689,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             match kind.as_str() {
                 "twosided" => one_sided = false,
                 "normalmap" => normal_map = Some(self.normal_map(&mut items, node)?),
-                _ => mask = Some(self.mask(&mut items, node)?),
+                _ => mask = Some(self.mask(&mut items)?),
             }
             self.rest(&items, node)?;
             node = inner;
@@ -701,23 +701,12 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// The alpha test of a `<bsdf type="mask">` (`node`): its `opacity` (a number or a
-    /// bitmap, 0.5 by default) at cutoff 0.5, so that the surface is there where the
-    /// opacity is at least ½. Exact where the opacity is 0 or 1; Mitsuba passes a ray
-    /// through with probability 1 − opacity, so other values are approximate (a warning).
-    /// None where the test cuts nothing out.
-    fn mask(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<Option<AlphaMask>, SceneError> {
-        let value = self.scalar_param(items, "opacity", 0.5)?;
-        let fractional = |v: f32| v > 0.0 && v < 1.0;
-        let partial = match &value {
-            ScalarValue::Constant(v) => fractional(*v),
-            ScalarValue::Texture(t) => t.image.data.iter().any(|p| fractional(p[0])),
-        };
-        if partial {
-            self.warn(node, "approximate: an opacity between 0 and 1 is rendered as an alpha test at 0.5 (opaque where the opacity is at least 0.5, absent elsewhere), not as Mitsuba's random pass-through");
-        }
-        Ok(match value {
-            ScalarValue::Constant(v) if v >= 0.5 => None,
-            value => Some(AlphaMask { value, cutoff: 0.5 }),
+    /// bitmap, 0.5 by default) as a coverage ([`AlphaMode::Blend`]): a ray passes through
+    /// with probability 1 − opacity, as in Mitsuba. None for an opacity of 1.
+    fn mask(&mut self, items: &mut Items<'a, 'i>) -> Result<Option<AlphaMask>, SceneError> {
+        Ok(match self.scalar_param(items, "opacity", 0.5)? {
+            ScalarValue::Constant(v) if v >= 1.0 => None,
+            value => Some(AlphaMask { value, mode: AlphaMode::Blend }),
         })
     }
 

@@ -114,14 +114,35 @@ pub struct Material {
     pub alpha: Option<AlphaMask>,
 }
 
-/// An alpha test (glTF's `alphaMode` `MASK`): the surface exists where its alpha, looked up
-/// (bilinearly, for a texture) at the point's texture coordinates, is at least `cutoff`,
-/// and rays pass through it elsewhere, as if it were not there.
+/// An alpha test: whether the surface is there at a point, by its alpha there (looked up
+/// bilinearly, for a texture, at the point's texture coordinates). Where it is not, rays
+/// pass through it as if it were not there.
 #[derive(Clone, Debug)]
 pub struct AlphaMask {
     /// In [0, 1]; a texture's R channel holds it.
     pub value: ScalarValue,
-    pub cutoff: f32,
+    pub mode: AlphaMode,
+}
+
+/// How an alpha decides whether the surface is there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AlphaMode {
+    /// Where the alpha is at least `cutoff` (glTF's `MASK`): a cut-out.
+    Mask { cutoff: f32 },
+    /// With probability alpha, drawn anew for each ray that reaches the point (glTF's
+    /// `BLEND`, Mitsuba's `mask`): a coverage, which in expectation lets 1 − alpha of the
+    /// light through.
+    Blend,
+}
+
+impl AlphaMode {
+    /// The TOML name (`alpha_mode`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Mask { .. } => "mask",
+            Self::Blend => "blend",
+        }
+    }
 }
 
 /// A tangent-space normal map: each texel's RGB in [0, 1] encodes the unit normal

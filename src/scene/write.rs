@@ -184,7 +184,10 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         }
         if let Some(a) = &m.alpha {
             pairs.push(("alpha", scalar("alpha", &a.value)?));
-            pairs.push(("alpha_cutoff", Value::Float(num(a.cutoff))));
+            pairs.push(("alpha_mode", Value::String(a.mode.as_str().into())));
+            if let AlphaMode::Mask { cutoff } = a.mode {
+                pairs.push(("alpha_cutoff", Value::Float(num(cutoff))));
+            }
         }
         materials.push(table(pairs));
     }
