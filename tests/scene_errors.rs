@@ -29,6 +29,16 @@ file = "tri.obj"
 material = "m"
 "#;
 
+/// The error of loading `scene` (fixture `name`) with `file` beside it: a `w` × `h` image of
+/// `fill` but for channel `c` of pixel `i` (in row order), which holds `value`.
+fn bad_texel(name: &str, scene: &str, file: &str, (w, h): (u32, u32), fill: [f32; 3], (i, c): (usize, usize), value: f32) -> SceneError {
+    let path = fixture(name, scene);
+    let mut img = Image::filled(w, h, fill);
+    img.data[i][c] = value;
+    write_exr(&path.with_file_name(file), &img).unwrap();
+    Scene::load(&path).unwrap_err()
+}
+
 /// A fresh directory holding `tri.obj`, `bare.obj`, `tex.exr` (4x4) and `scene.toml`.
 fn fixture(name: &str, scene: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!(
@@ -241,11 +251,7 @@ fn emission_textures_are_checked() {
     let s = Scene::load(fixture("emission-texture", &emitting("tri.obj", "{ texture = \"tex.exr\" }"))).unwrap();
     let ColorValue::Texture(t) = &s.meshes[0].emission else { panic!("a textured emission: {:?}", s.meshes[0].emission) };
     assert_eq!((t.image.width, t.image.height), (4, 4));
-    let path = fixture("emission-negative", &emitting("tri.obj", "{ texture = \"glow.exr\" }"));
-    let mut img = Image::filled(2, 2, [1.0, 1.0, 1.0]);
-    img.data[2][1] = -0.5;
-    write_exr(&path.with_file_name("glow.exr"), &img).unwrap();
-    let err = Scene::load(&path).unwrap_err();
+    let err = bad_texel("emission-negative", &emitting("tri.obj", "{ texture = \"glow.exr\" }"), "glow.exr", (2, 2), [1.0; 3], (2, 1), -0.5);
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["meshes.tri.emission.texture", "glow.exr", "-0.5", "(0, 1)"]);
     assert_message(&load_err("emission-missing", &emitting("tri.obj", "{ texture = \"none.exr\" }")), &["meshes.tri.emission.texture", "none.exr"]);
@@ -376,14 +382,7 @@ fn exr_without_rgb_is_named() {
 
 #[test]
 fn non_finite_values_are_rejected() {
-    let path = fixture(
-        "nan-pixel",
-        &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"nan.exr\" }"),
-    );
-    let mut img = Image::filled(3, 2, [0.1; 3]);
-    img.data[4][1] = f32::INFINITY;
-    write_exr(&path.with_file_name("nan.exr"), &img).unwrap();
-    let err = Scene::load(&path).unwrap_err();
+    let err = bad_texel("nan-pixel", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"nan.exr\" }"), "nan.exr", (3, 2), [0.1; 3], (4, 1), f32::INFINITY);
     assert!(
         matches!(err, SceneError::NonFinitePixel { x: 1, y: 1, .. }),
         "{err:?}"
@@ -602,19 +601,12 @@ fn lights_and_imports_are_checked() {
 fn texture_values_obey_the_rules_of_constants() {
     // A roughness texture is held to [0, 1] as a roughness constant is.
     let rough = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nroughness = { texture = \"rough.exr\" }");
-    let path = fixture("rough-range", &rough);
-    let mut img = Image::filled(3, 2, [0.5; 3]);
-    img.data[5][0] = 1.5;
-    write_exr(&path.with_file_name("rough.exr"), &img).unwrap();
-    let err = Scene::load(&path).unwrap_err();
+    let err = bad_texel("rough-range", &rough, "rough.exr", (3, 2), [0.5; 3], (5, 0), 1.5);
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["materials.m.roughness.texture", "rough.exr", "1.5", "(2, 1)", "[0, 1]"]);
     // A colour texture, like a colour, is non-negative.
-    let path = fixture("color-range", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"neg.exr\" }"));
-    let mut img = Image::filled(2, 2, [0.5; 3]);
-    img.data[1][2] = -0.25;
-    write_exr(&path.with_file_name("neg.exr"), &img).unwrap();
-    assert_message(&Scene::load(&path).unwrap_err(), &["materials.m.base_color.texture", "-0.25", "(1, 0)"]);
+    let err = bad_texel("color-range", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"neg.exr\" }"), "neg.exr", (2, 2), [0.5; 3], (1, 2), -0.25);
+    assert_message(&err, &["materials.m.base_color.texture", "-0.25", "(1, 0)"]);
 }
 
 /// A normal map's texels encode unit vectors in [0, 1], its scale is finite and its
@@ -626,11 +618,7 @@ fn normal_maps_are_checked() {
     let n = s.materials[0].normal_map.as_ref().unwrap();
     assert_eq!((n.scale, n.bitangent), (0.5, vkinverse::scene::Bitangent::Cross));
     assert_eq!(n.vectors()[0], [(0.5 - 1.0) * 0.5, 0.0, 0.5]);
-    let path = fixture("nmap-range", &with("{ texture = \"bumps.exr\" }"));
-    let mut img = Image::filled(2, 2, [0.5, 0.5, 1.0]);
-    img.data[3][2] = 1.25;
-    write_exr(&path.with_file_name("bumps.exr"), &img).unwrap();
-    let err = Scene::load(&path).unwrap_err();
+    let err = bad_texel("nmap-range", &with("{ texture = \"bumps.exr\" }"), "bumps.exr", (2, 2), [0.5, 0.5, 1.0], (3, 2), 1.25);
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["materials.m.normal_map.texture", "bumps.exr", "1.25", "(1, 1)", "[0, 1]", "(n + 1) / 2"]);
     assert_message(&load_err("nmap-scale", &with("{ texture = \"tex.exr\", scale = nan }")), &["materials.m.normal_map.scale"]);
@@ -654,11 +642,7 @@ fn alpha_tests_are_checked() {
     let s = Scene::load(fixture("alpha-blend", &with("alpha = 0.2\nalpha_mode = \"blend\""))).unwrap();
     assert_eq!(s.materials[0].alpha.as_ref().unwrap().mode, AlphaMode::Blend);
     assert!(Scene::load(fixture("alpha-none", BASE)).unwrap().materials[0].alpha.is_none());
-    let path = fixture("alpha-range", &with("alpha = { texture = \"mask.exr\" }"));
-    let mut img = Image::filled(2, 2, [1.0; 3]);
-    img.data[1][0] = 1.5;
-    write_exr(&path.with_file_name("mask.exr"), &img).unwrap();
-    let err = Scene::load(&path).unwrap_err();
+    let err = bad_texel("alpha-range", &with("alpha = { texture = \"mask.exr\" }"), "mask.exr", (2, 2), [1.0; 3], (1, 0), 1.5);
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["materials.m.alpha.texture", "mask.exr", "1.5", "(1, 0)", "[0, 1]"]);
     assert_message(&load_err("alpha-constant-range", &with("alpha = -0.5")), &["materials.m.alpha", "-0.5"]);
