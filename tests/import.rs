@@ -323,8 +323,8 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
 
 /// glTF's `alphaMode`: `MASK` tests the base colour's alpha (`baseColorFactor`'s fourth
 /// component times the texture's alpha channel) against `alphaCutoff`, and the render shows
-/// the sky through the cut-out half; `BLEND` makes the alpha a coverage; a constant alpha
-/// that always passes is no test; a cutoff outside [0, 1] is refused naming its JSON path.
+/// the sky through the cut-out half; `BLEND` makes the alpha a coverage; an alpha that
+/// always passes (a constant or every texel) is no test; a cutoff outside [0, 1] is refused naming its JSON path.
 /// A recovered base colour texture is written back to glTF with the alpha in its PNG's
 /// alpha channel (the factor's alpha then 1), and to TOML with the alpha as an EXR and its
 /// cutoff.
@@ -359,6 +359,16 @@ fn gltf_alpha_masks_are_read_rendered_and_written_back() {
     let blend = Scene::load_with(write("blend.gltf", &|m| m["alphaMode"] = serde_json::json!("BLEND")), &small).unwrap();
     assert_eq!(blend.materials[0].alpha.as_ref().map(|a| a.mode), Some(AlphaMode::Blend));
     assert!(blend.warnings.is_empty(), "{:?}", blend.warnings);
+    // A BLEND material whose texture's alpha is 1 everywhere (common in exported assets) is
+    // no test.
+    vkinverse::image::write_png_with_alpha(&dir.join("solid.png"), &dark, Some(&[1.0; 4])).unwrap();
+    let solid = write("solid.gltf", &|m| {
+        m["alphaMode"] = serde_json::json!("BLEND");
+        m["pbrMetallicRoughness"]["baseColorFactor"] = serde_json::json!([1.0, 1.0, 1.0, 1.0]);
+    });
+    let solid = std::fs::read_to_string(&solid).unwrap().replace("leaf.png", "solid.png");
+    std::fs::write(dir.join("solid.gltf"), solid).unwrap();
+    assert!(Scene::load_with(dir.join("solid.gltf"), &small).unwrap().materials[0].alpha.is_none(), "an alpha of 1 everywhere is no test");
     let untextured = |name: &str, alpha: f32| {
         let path = write(name, &|m| {
             m["pbrMetallicRoughness"].as_object_mut().unwrap().remove("baseColorTexture");

@@ -1230,10 +1230,16 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
 /// path that carries light crosses the blended quad at most once, so the image is linear in
 /// the coverage: a black occluder at alpha 0.3 renders as 0.3 × the opaque occluder's
 /// image + 0.7 × the image without it, and a lamp at alpha 0.3 as 0.3 × the opaque lamp's
-/// (its light samples included). Each quadrant agrees within Monte Carlo noise.
+/// (its light samples included). Each quadrant agrees within Monte Carlo noise. An alpha of
+/// 1 never cuts: no test is built, and the image is the opaque occluder's, bit for bit.
 #[test]
 fn blended_surfaces_are_there_with_probability_alpha() {
     with_gpu(|ctx| {
+        let image = |scene: &Scene| Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 16, 1, |_, _| {}).unwrap();
+        let (solid, whole) = (cutout_scene("blend-solid", Cutout::Blend(1.0), false, 0.5), cutout_scene("blend-solid-whole", Cutout::Whole, false, 0.5));
+        assert!(solid.materials[1].alpha.is_some() && !GpuScene::new(ctx, &solid).unwrap().has_alpha_masks, "an alpha of 1 is no test");
+        let bits = |i: &Image| i.data.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
+        assert_eq!(bits(&image(&solid)), bits(&image(&whole)), "an alpha of 1 renders as the opaque occluder");
         let render = |scene: &Scene, seed: u32| quadrant_sums(&Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap());
         let alpha = 0.3;
         for lamp in [false, true] {

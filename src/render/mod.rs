@@ -129,13 +129,15 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
 
 /// Per triangle of `geo`: 0, or 1 + its material where the material has an alpha test that
 /// applies to it ([`crate::shared::TriShading::alpha_material`]). A textured alpha needs
-/// texture coordinates: on a mesh without them it does not apply (a warning says so).
+/// texture coordinates: on a mesh without them it does not apply (a warning says so). An
+/// alpha that never cuts is no test: the kernels are built without it.
 fn alpha_materials(scene: &Scene, geo: &crate::scene::SceneGeometry) -> Vec<u32> {
     let applies: Vec<bool> = scene
         .meshes
         .iter()
         .map(|mesh| match &scene.materials[mesh.material].alpha {
             None => false,
+            Some(a) if a.never_cuts() => false,
             Some(a) => !mesh.uvs.is_empty() || matches!(a.value, ScalarValue::Constant(_)),
         })
         .collect();

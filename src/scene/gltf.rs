@@ -470,8 +470,9 @@ impl Importer<'_> {
     /// (`baseColorFactor`'s fourth component times the texture's alpha channel where it has
     /// one): none for `OPAQUE`; a cut-out at `alphaCutoff` (0.5 by default) for `MASK`; a
     /// coverage for `BLEND` (the surface there with probability alpha, which in
-    /// expectation is what blending it over what lies behind shows). A constant alpha that
-    /// always passes is no test.
+    /// expectation is what blending it over what lies behind shows). An alpha that never
+    /// cuts (a constant or every texel that always passes: many `BLEND` materials are
+    /// opaque) is no test.
     fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {
         let mode = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => return Ok(None),
@@ -495,11 +496,7 @@ impl Importer<'_> {
             },
             None => ScalarValue::Constant(factor),
         };
-        Ok(match (value, mode) {
-            (ScalarValue::Constant(a), AlphaMode::Mask { cutoff }) if a >= cutoff => None,
-            (ScalarValue::Constant(a), AlphaMode::Blend) if a >= 1.0 => None,
-            (value, mode) => Some(AlphaMask { value, mode }),
-        })
+        Ok(Some(AlphaMask { value, mode }).filter(|a| !a.never_cuts()))
     }
 
     fn camera(&mut self, camera: &gltf::Camera, world: Mat4) -> Result<(), SceneError> {

@@ -700,14 +700,12 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(index)
     }
 
-    /// The alpha test of a `<bsdf type="mask">` (`node`): its `opacity` (a number or a
-    /// bitmap, 0.5 by default) as a coverage ([`AlphaMode::Blend`]): a ray passes through
-    /// with probability 1 − opacity, as in Mitsuba. None for an opacity of 1.
+    /// The alpha test of a `<bsdf type="mask">`: its `opacity` (a number or a bitmap, 0.5
+    /// by default) as a coverage ([`AlphaMode::Blend`]): a ray passes through with
+    /// probability 1 − opacity, as in Mitsuba. None for an opacity of 1 everywhere.
     fn mask(&mut self, items: &mut Items<'a, 'i>) -> Result<Option<AlphaMask>, SceneError> {
-        Ok(match self.scalar_param(items, "opacity", 0.5)? {
-            ScalarValue::Constant(v) if v >= 1.0 => None,
-            value => Some(AlphaMask { value, mode: AlphaMode::Blend }),
-        })
+        let value = self.scalar_param(items, "opacity", 0.5)?;
+        Ok(Some(AlphaMask { value, mode: AlphaMode::Blend }).filter(|a| !a.never_cuts()))
     }
 
     /// The `normalmap` texture of a `<bsdf type="normalmap">` (`node`): a bitmap whose RGB

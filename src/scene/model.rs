@@ -135,6 +135,21 @@ pub enum AlphaMode {
     Blend,
 }
 
+impl AlphaMask {
+    /// Whether the surface is there at every point for every ray: every texel (so every
+    /// bilinear lookup) at or above the cutoff, or for a blend at 1.
+    pub fn never_cuts(&self) -> bool {
+        let there = |a: f32| match self.mode {
+            AlphaMode::Mask { cutoff } => a >= cutoff,
+            AlphaMode::Blend => a >= 1.0,
+        };
+        match &self.value {
+            ScalarValue::Constant(a) => there(*a),
+            ScalarValue::Texture(t) => t.image.data.iter().all(|p| there(p[0])),
+        }
+    }
+}
+
 impl AlphaMode {
     /// The TOML name (`alpha_mode`).
     pub fn as_str(self) -> &'static str {
