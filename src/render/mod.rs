@@ -132,13 +132,15 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
 /// texture coordinates: on a mesh without them it does not apply (a warning says so). An
 /// alpha that never cuts is no test: the kernels are built without it.
 fn alpha_materials(scene: &Scene, geo: &crate::scene::SceneGeometry) -> Vec<u32> {
+    // Per material, not per mesh: never_cuts scans a texture's texels, and a material's
+    // meshes may be many.
+    let cuts: Vec<bool> = scene.materials.iter().map(|m| m.alpha.as_ref().is_some_and(|a| !a.never_cuts())).collect();
     let applies: Vec<bool> = scene
         .meshes
         .iter()
         .map(|mesh| match &scene.materials[mesh.material].alpha {
-            None => false,
-            Some(a) if a.never_cuts() => false,
-            Some(a) => !mesh.uvs.is_empty() || matches!(a.value, ScalarValue::Constant(_)),
+            Some(a) if cuts[mesh.material] => !mesh.uvs.is_empty() || matches!(a.value, ScalarValue::Constant(_)),
+            _ => false,
         })
         .collect();
     geo.triangle_mesh.iter().zip(&geo.triangle_material).map(|(&mesh, &material)| if applies[mesh as usize] { material + 1 } else { 0 }).collect()
@@ -257,8 +259,9 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
 
 /// Warns about what the scene asks for and will not get: light (no emitting triangle of
 /// non-zero area and no environment: it renders black; an emitting mesh whose triangles all
-/// have zero area, which an emitter table cannot sample), or a normal map on a mesh without
-/// texture coordinates (it has no tangents, so the map is not applied).
+/// have zero area, which an emitter table cannot sample), or a normal map or an alpha texture
+/// on a mesh without texture coordinates (neither is applied: the map has no tangents, the
+/// alpha nowhere to be looked up).
 fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits: &[bool], emitters: usize, has_environment: bool) {
     for (i, (mesh, &emits)) in scene.meshes.iter().zip(mesh_emits).enumerate() {
         let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
@@ -271,21 +274,16 @@ fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits
     }
     for mesh in &scene.meshes {
         let material = &scene.materials[mesh.material];
-        if mesh.uvs.is_empty() && material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_))) {
-            crate::report::warn(&format!(
-                "{}: mesh \"{}\" has no texture coordinates: the alpha texture of its material \"{}\" is not applied to it (it is opaque)",
-                scene.path.display(),
-                mesh.name,
-                material.name
-            ));
-        }
-        if scene.materials[mesh.material].normal_map.is_some() && mesh.uvs.is_empty() {
-            crate::report::warn(&format!(
-                "{}: mesh \"{}\" has no texture coordinates: the normal map of its material \"{}\" is not applied to it",
-                scene.path.display(),
-                mesh.name,
-                scene.materials[mesh.material].name
-            ));
+        let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
+        for (what, has, consequence) in [("alpha texture", textured_alpha, " (it is opaque)"), ("normal map", material.normal_map.is_some(), "")] {
+            if has && mesh.uvs.is_empty() {
+                crate::report::warn(&format!(
+                    "{}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
+                    scene.path.display(),
+                    mesh.name,
+                    material.name
+                ));
+            }
         }
     }
     if emitters == 0 && !has_environment {
