@@ -73,6 +73,18 @@ void main() {
     Material m = materials[i];
     BsdfCase c = cases[i];
     BsdfResult r;
+    if (m.kind == MATERIAL_DIELECTRIC) {
+        // The delta lobes' functions in the same slots: mass, lobe probability, sample,
+        // the mass's base-colour derivative.
+        r.value = dielectric_mass(m, c.n, c.wo, c.wi);
+        r.pdf = dielectric_prob(m, c.n, c.wo, c.wi);
+        r.sample_ok = dielectric_sample(m, c.n, c.wo, c.u.x, r.sample_wi, r.sample_weight, r.sample_pdf) ? 1u : 0u;
+        r.d_base_color = dielectric_mass_grad(m, c.n, c.wo, c.wi);
+        r.d_roughness = vec3(0.0);
+        r.d_metallic = vec3(0.0);
+        results[i] = r;
+        return;
+    }
     r.value = bsdf_eval(m, c.n, c.wo, c.wi);
     r.pdf = bsdf_pdf(m, c.n, c.wo, c.wi);
     r.sample_ok = bsdf_sample(m, c.n, c.wo, c.u, r.sample_wi, r.sample_weight, r.sample_pdf) ? 1u : 0u;

@@ -9,7 +9,7 @@
 //! directions point away from the surface, the BSDF is one-sided, and [`eval`] returns
 //! f(wo, wi) |cos theta_i|.
 
-use crate::shared::{Material, MATERIAL_PRINCIPLED};
+use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -28,6 +28,8 @@ pub struct MaterialF64 {
     pub roughness: f64,
     pub metallic: f64,
     pub kind: u32,
+    /// A dielectric's relative index of refraction (the far side's over wo's).
+    pub ior: f64,
 }
 
 impl From<Material> for MaterialF64 {
@@ -37,6 +39,7 @@ impl From<Material> for MaterialF64 {
             roughness: m.roughness as f64,
             metallic: m.metallic as f64,
             kind: m.kind,
+            ior: m.ior as f64,
         }
     }
 }
@@ -44,6 +47,10 @@ impl From<Material> for MaterialF64 {
 impl MaterialF64 {
     fn principled(&self) -> bool {
         self.kind == MATERIAL_PRINCIPLED
+    }
+
+    pub fn dielectric(&self) -> bool {
+        self.kind == MATERIAL_DIELECTRIC
     }
 
     /// mix(0.04, base_color, metallic)
@@ -180,7 +187,7 @@ fn principled_pdf(p: [f64; 2], cos_i: f64, t: &PrincipledTerms) -> f64 {
 
 /// f cos theta_i in the local frame (`bsdf_eval_local`).
 pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
-    if wo.z <= 0.0 || wi.z <= 0.0 {
+    if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return DVec3::ZERO;
     }
     if !m.principled() {
@@ -191,7 +198,7 @@ pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
 
 /// Mixture pdf in the local frame (`bsdf_pdf_local`).
 pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
-    if wo.z <= 0.0 || wi.z <= 0.0 {
+    if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return 0.0;
     }
     if !m.principled() {
@@ -249,7 +256,7 @@ pub struct BsdfSample {
 pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSample> {
     let f = ShadingFrame::new(n);
     let wo_l = f.to_local(wo);
-    if wo_l.z <= 0.0 {
+    if wo_l.z <= 0.0 || m.dielectric() {
         return None;
     }
     if !m.principled() {
@@ -295,7 +302,7 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
     let f = ShadingFrame::new(n);
     let wo_l = f.to_local(wo);
     let wi_l = f.to_local(wi);
-    if wo_l.z <= 0.0 || wi_l.z <= 0.0 {
+    if wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.dielectric() {
         return g;
     }
     if !m.principled() {
@@ -318,4 +325,65 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
         g.d_roughness = fresnel * (t.specular * (dln_d - ddenom / t.denom) * dalpha);
     }
     g
+}
+
+/// The unpolarised Fresnel reflectance at cos_i > 0 of an interface of relative index eta,
+/// and the refracted cosine (0 under total internal reflection, where it returns 1)
+/// (`dielectric_fresnel`).
+pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
+    let sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return (1.0, 0.0);
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    (0.5 * (rs * rs + rp * rp), cos_t)
+}
+
+/// The probability of wi's lobe: F above the surface, 1 − F below (`dielectric_prob`).
+pub fn dielectric_prob(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
+    let cos_i = wo.dot(n);
+    if cos_i <= 0.0 {
+        return 0.0;
+    }
+    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
+    if wi.dot(n) > 0.0 { fr } else { 1.0 - fr }
+}
+
+/// The lobe's mass at wi: F, or (1 − F) base_color / eta² (`dielectric_mass`).
+pub fn dielectric_mass(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3 {
+    let cos_i = wo.dot(n);
+    if cos_i <= 0.0 {
+        return DVec3::ZERO;
+    }
+    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
+    if wi.dot(n) > 0.0 { DVec3::splat(fr) } else { m.base_color * ((1.0 - fr) / (m.ior * m.ior)) }
+}
+
+/// d [`dielectric_mass`] / d base_color per channel (`dielectric_mass_grad`).
+pub fn dielectric_mass_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3 {
+    let cos_i = wo.dot(n);
+    if cos_i <= 0.0 || wi.dot(n) > 0.0 {
+        return DVec3::ZERO;
+    }
+    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
+    DVec3::splat((1.0 - fr) / (m.ior * m.ior))
+}
+
+/// `dielectric_sample`: the mirror when u < F, else the refraction; `pdf` is the lobe's
+/// probability and `weight` its mass over it. `None` where the GLSL returns false.
+pub fn dielectric_sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: f64) -> Option<BsdfSample> {
+    let cos_i = wo.dot(n);
+    if cos_i <= 0.0 {
+        return None;
+    }
+    let (fr, cos_t) = dielectric_fresnel(cos_i, m.ior);
+    let s = if u < fr {
+        BsdfSample { wi: 2.0 * cos_i * n - wo, weight: DVec3::ONE, pdf: fr }
+    } else {
+        let wi = ((cos_i * n - wo) / m.ior - cos_t * n).normalize();
+        BsdfSample { wi, weight: m.base_color / (m.ior * m.ior), pdf: 1.0 - fr }
+    };
+    (s.pdf > 0.0).then_some(s)
 }

@@ -8,6 +8,9 @@ pub const MATERIAL_DIFFUSE: u32 = 0;
 /// `Material::kind` of the glTF 2.0 metallic-roughness model (Lambert diffuse + GGX/Smith
 /// specular).
 pub const MATERIAL_PRINCIPLED: u32 = 1;
+/// A smooth dielectric (glass): an ideal specular interface that reflects with the
+/// Fresnel reflectance and refracts the rest (Mitsuba 3's `dielectric`).
+pub const MATERIAL_DIELECTRIC: u32 = 2;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

@@ -17,9 +17,9 @@ pub struct ProbeStruct {
     pub d: u32,
 }
 
-pub use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+pub use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 
-/// Mirror of `Material` (glsl/shared/material.glsl): 24 bytes, offsets checked against the
+/// Mirror of `Material` (glsl/shared/material.glsl): 28 bytes, offsets checked against the
 /// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
 /// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
@@ -29,8 +29,11 @@ pub struct Material {
     pub base_color: [f32; 3],
     pub roughness: f32,
     pub metallic: f32,
-    /// [`MATERIAL_DIFFUSE`] or [`MATERIAL_PRINCIPLED`]; any other value behaves as diffuse.
+    /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`] or [`MATERIAL_DIELECTRIC`]; any other
+    /// value behaves as diffuse.
     pub kind: u32,
+    /// A dielectric's relative index of refraction: the far side's over wo's.
+    pub ior: f32,
 }
 
 /// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
@@ -43,7 +46,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 96 bytes (6 texels; `pad` is zero).
+/// Mirror of `MaterialRecord`: 96 bytes (6 texels).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -56,7 +59,8 @@ pub struct MaterialRecord {
     /// The alpha test's threshold (with `alpha`); negative for a blend, whose threshold
     /// the kernels draw per ray.
     pub alpha_cutoff: f32,
-    pub pad: u32,
+    /// A dielectric's index of refraction, interior over exterior; 0 for other kinds.
+    pub ior: f32,
     /// The normal map's tangent-space normals (3 floats per texel, decoded and scaled);
     /// width 0: no normal map.
     pub normal_map: ValueRef,

@@ -726,6 +726,40 @@ fn alpha_tested_gradients_are_exact() {
     });
 }
 
+/// Glass: a diffuse floor's 2 × 2 colour texture seen through a tinted glass slab (two
+/// faces 2 cm apart over the floor's left half), and the slab's tint, against finite
+/// differences. The slab refracts or mirrors each ray with the Fresnel reflectance, which
+/// no parameter changes, and blocks light samples through it (its lobes are deltas), so
+/// what reaches the floor under it comes through by the paths' own bounces; every choice
+/// is the same at θ ± h and the adjoint is exact per sample. The tint's derivative is that
+/// of a mass that scales each crossing (twice for a path through the slab and back).
+#[test]
+fn gradients_through_glass_are_exact() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
+                        [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.9, 0.7, 0.5]\nrange = [0.0, 1.0]\n";
+        let glass = "constant = [0.2, 0.2, 0.2]\n[[materials]]\nname = \"glass\"\ntype = \"dielectric\"\nbase_color = [0.8, 0.8, 0.8]\nior = 1.5\n\
+                     [[meshes]]\nfile = \"slab.obj\"\nmaterial = \"glass\"\n";
+        let path = lit_quad("gradients-glass", 16, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", glass, optimise);
+        let dir = path.parent().unwrap();
+        std::fs::write(
+            dir.join("slab.obj"),
+            "v -1 0.3 -1\nv 0 0.3 -1\nv 0 0.3 1\nv -1 0.3 1\nv -1 0.28 -1\nv 0 0.28 -1\nv 0 0.28 1\nv -1 0.28 1\nf 1 4 3 2\nf 5 6 7 8\n",
+        )
+        .unwrap();
+        // Deep enough for the floor under the slab to see the light through it.
+        let toml = std::fs::read_to_string(&path).unwrap().replace("max_depth = 3", "max_depth = 6").replace("rr_depth = 5", "rr_depth = 6");
+        std::fs::write(&path, toml).unwrap();
+        let scene = Scene::load(path).unwrap();
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
+        assert!(b.scene().has_dielectrics);
+        // The tint's step is short: a path that crosses the slab k times is a polynomial of
+        // degree k in it, whose central difference is exact only for k ≤ 2.
+        let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
+        check("glass", &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
+    });
+}
+
 /// scenes/gap (a closed box lit only through a 2 cm gap between a one-sided light and the
 /// ceiling) at 32² pixels, its left wall's colour checked by `vkinverse::gradcheck`: the
 /// adjoint against finite differences of the unbiased loss over independent renders, so

@@ -241,6 +241,12 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(masked, cut("hash-o", "alpha = 0.25"));
     assert_ne!(masked, cut("hash-p", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"blend\""));
     assert_eq!(masked, cut("hash-q", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"mask\""), "mask is the default mode");
+    // A dielectric's index of refraction is too.
+    let glass = |name: &str, ior: &str| Scene::load(fixture(name, &BASE.replace("type = \"principled\"", &format!("type = \"dielectric\"{ior}")))).unwrap().content_hash();
+    let bk7 = glass("hash-r", "");
+    assert_ne!(bk7, base);
+    assert_eq!(bk7, glass("hash-s", "\nior = 1.5"), "1.5 is the default index");
+    assert_ne!(bk7, glass("hash-t", "\nior = 1.33"));
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -698,4 +704,31 @@ fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
     // A malformed `init` says what it takes.
     let err = load_err("init-image-malformed", &with_optimise("target = \"materials.m.roughness\"\ninit = \"tex.exr\"\nrange = [0, 1]"));
     assert_message(&err, &["expected a number, [r, g, b] or", "file.exr"]);
+}
+
+/// A dielectric: white transmittance and index 1.5 by default, its index within
+/// [0.25, 4], no roughness, metallic, one-sidedness, normal map or alpha, no optimised
+/// roughness or metallic; an index only on a dielectric, a base colour required elsewhere.
+#[test]
+fn dielectrics_are_checked() {
+    let glass = |extra: &str| BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", &format!("type = \"dielectric\"{extra}"));
+    let s = Scene::load(fixture("glass-default", &glass(""))).unwrap();
+    let m = &s.materials[0];
+    assert_eq!((m.kind.as_str(), m.ior), ("dielectric", 1.5));
+    assert!(matches!(m.base_color, ColorValue::Constant(c) if c == [1.0; 3]), "{:?}", m.base_color);
+    let s = Scene::load(fixture("glass-set", &glass("\nbase_color = [0.9, 0.8, 0.7]\nior = 0.75"))).unwrap();
+    assert_eq!(s.materials[0].ior, 0.75);
+    assert_message(&load_err("glass-ior-range", &glass("\nior = 5")), &["materials.m.ior", "5", "[0.25, 4]"]);
+    assert_message(&load_err("glass-ior-zero", &glass("\nior = 0")), &["materials.m.ior", "[0.25, 4]"]);
+    assert_message(&load_err("glass-ior-nan", &glass("\nior = nan")), &["materials.m.ior"]);
+    assert_message(&load_err("glass-rough", &glass("\nroughness = 0.1")), &["materials.m", "smooth", "roughness"]);
+    for (key, line) in [("one_sided", "one_sided = true"), ("normal_map", "normal_map = { texture = \"tex.exr\" }"), ("alpha", "alpha = 0.5")] {
+        assert_message(&load_err(&format!("glass-{key}"), &glass(&format!("\n{line}"))), &[&format!("materials.m.{key}"), "dielectric"]);
+    }
+    assert_message(&load_err("ior-principled", &BASE.replace("type = \"principled\"", "type = \"principled\"\nior = 1.5")), &["materials.m.ior", "dielectric"]);
+    assert_message(&load_err("no-base-color", &BASE.replace("base_color = [0.5, 0.5, 0.5]", "")), &["materials.m.base_color", "missing"]);
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.5\nrange = [0, 1]\n", glass(""));
+    assert_message(&load_err("glass-param", &optimised), &["optimise.params[0].target", "dielectric", "roughness"]);
+    let tinted = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\n", glass(""));
+    Scene::load(fixture("glass-tint-param", &tinted)).unwrap();
 }

@@ -23,6 +23,17 @@
 // so the whole BSDF stays reciprocal, and it depends on no parameter, so the derivatives
 // stay simple. It uses the dielectric F0 because only the dielectric part (weight
 // 1 - metallic) has a diffuse lobe.
+//
+// "dielectric" is a smooth interface between two transparent media (Mitsuba 3's
+// `dielectric`): with m.ior = eta, the index of refraction of the side below the surface
+// over that of wo's side, it mirrors wo with the unpolarised Fresnel reflectance F and
+// refracts it by Snell's law with 1 - F (all of it mirrored under total internal
+// reflection). Its lobes are Dirac deltas, so bsdf_eval, bsdf_pdf, bsdf_sample and
+// bsdf_eval_grad return 0 (false) for it, as for any direction a light sample can pick; the
+// integrator draws its continuation with dielectric_sample instead. Radiance crossing
+// into the denser side is compressed into a smaller solid angle: the refracted weight
+// carries 1 / eta^2 (Veach 1997, section 5.2; Mitsuba's radiance mode). base_color
+// tints the refracted light only (Mitsuba's specular_transmittance).
 #ifndef BSDF_GLSL
 #define BSDF_GLSL
 #include "shared/material.glsl"
@@ -168,12 +179,14 @@ float principled_pdf(vec2 p, float cos_i, PrincipledTerms t) {
 
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
+    if (m.kind == MATERIAL_DIELECTRIC) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
     return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
+    if (m.kind == MATERIAL_DIELECTRIC) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
     vec2 p = bsdf_lobe_probabilities(m, wo.z);
     return principled_pdf(p, wi.z, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
@@ -238,7 +251,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     pdf = 0.0;
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
-    if (wo_l.z <= 0.0) return false;
+    if (wo_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC) return false;
     if (m.kind != MATERIAL_PRINCIPLED) {
         // Lambert: pdf cos_i / pi, weight base_color exactly.
         vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
@@ -287,7 +300,7 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
-    if (wo_l.z <= 0.0 || wi_l.z <= 0.0) return;
+    if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC) return;
     if (m.kind != MATERIAL_PRINCIPLED) {
         d_base_color = vec3(wi_l.z / BSDF_PI);
         return;
@@ -306,5 +319,79 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
         float ddenom = a * sin2_o / (2.0 * t.q_o) + (wo_l.z / wi_l.z) * a * sin2_i / (2.0 * t.q_i);
         d_roughness = fresnel * (t.specular * (dln_d - ddenom / t.denom) * dalpha);
     }
+}
+
+// ---------------------------------------------------------------------------------------
+// The smooth dielectric (delta lobes; world space, n the shading normal on wo's side)
+// ---------------------------------------------------------------------------------------
+
+// The unpolarised Fresnel reflectance of an interface with relative index eta (the far
+// side's over wo's) at cos_i = cos(wo, n) > 0, and the cosine of the refracted direction
+// in cos_t (0 under total internal reflection, where the reflectance is 1).
+float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
+    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0) {
+        cos_t = 0.0;
+        return 1.0;
+    }
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// The probability that dielectric_sample picks wi's lobe (the mirror when wi is above the
+// surface, the refraction when below): F or 1 - F. 0 when wo is on or below the surface.
+float dielectric_prob(Material m, vec3 n, vec3 wo, vec3 wi) {
+    float cos_i = dot(wo, n);
+    if (cos_i <= 0.0) return 0.0;
+    float cos_t;
+    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
+    return dot(wi, n) > 0.0 ? fr : 1.0 - fr;
+}
+
+// The lobe's mass at wi (the discrete counterpart of f cos_i: the radiance that arrives
+// along wi leaves along wo times this): F for the mirror, (1 - F) base_color / eta^2 for
+// the refraction. wi is taken to be the lobe's direction; only its side is looked at.
+vec3 dielectric_mass(Material m, vec3 n, vec3 wo, vec3 wi) {
+    float cos_i = dot(wo, n);
+    if (cos_i <= 0.0) return vec3(0.0);
+    float cos_t;
+    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
+    return dot(wi, n) > 0.0 ? vec3(fr) : m.base_color * ((1.0 - fr) / (m.ior * m.ior));
+}
+
+// d dielectric_mass / d base_color, per channel (the Jacobian is diagonal): 0 for the
+// mirror, (1 - F) / eta^2 for the refraction.
+vec3 dielectric_mass_grad(Material m, vec3 n, vec3 wo, vec3 wi) {
+    float cos_i = dot(wo, n);
+    if (cos_i <= 0.0 || dot(wi, n) > 0.0) return vec3(0.0);
+    float cos_t;
+    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
+    return vec3((1.0 - fr) / (m.ior * m.ior));
+}
+
+// Picks the mirror with probability F (u < F) or the refraction: wi, its lobe's
+// probability `prob` (not a density) and weight = dielectric_mass / prob. False when wo is
+// on or below the surface.
+bool dielectric_sample(Material m, vec3 n, vec3 wo, float u, out vec3 wi, out vec3 weight, out float prob) {
+    wi = vec3(0.0);
+    weight = vec3(0.0);
+    prob = 0.0;
+    float cos_i = dot(wo, n);
+    if (cos_i <= 0.0) return false;
+    float cos_t;
+    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
+    if (u < fr) {
+        wi = 2.0 * cos_i * n - wo;
+        prob = fr;
+        weight = vec3(1.0);
+    } else {
+        // Snell: the tangential part scales by 1 / eta, the normal part is -cos_t.
+        wi = normalize((cos_i * n - wo) / m.ior - cos_t * n);
+        prob = 1.0 - fr;
+        weight = m.base_color / (m.ior * m.ior);
+    }
+    return prob > 0.0;
 }
 #endif

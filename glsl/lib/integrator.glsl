@@ -23,6 +23,14 @@
 // the probability of picking that strategy. The map's distribution is built once on the
 // host and does not depend on θ (src/render/envmap.rs), so it is detached like the rest.
 //
+// A dielectric vertex (HAS_DIELECTRICS) has delta lobes: it takes no light sample, its
+// continuation is dielectric_sample's mirror or refraction (through the surface: the ray
+// leaves from the far side), and the emission that continuation finds is not MIS-weighted,
+// as seen by the camera. Its interior is on the back of its triangles (their clockwise
+// side): a ray arriving from behind leaves the interior, so the relative index inverts.
+// Its other states take the same lobe: their weights are their masses over state 0's
+// probability, the lobe's choice shared like every other.
+//
 // Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
 #ifndef INTEGRATOR_GLSL
 #define INTEGRATOR_GLSL
@@ -318,10 +326,15 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         vec3 ns = HAS_NORMALS ? w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2 : vec3(0.0);
         ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
         ns = normal_mapped(sh, ns, uv);
-        if (dot(ng, wo) < 0.0) ng = -ng;
+        bool from_behind = dot(ng, wo) < 0.0;
+        if (from_behind) ng = -ng;
         if (dot(ns, ng) < 0.0) ns = -ns;
         Material mat[NSTATES];
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
+        bool dielectric = HAS_DIELECTRICS && mat[0].kind == MATERIAL_DIELECTRIC;
+        if (dielectric && from_behind) {
+            for (int s = 0; s < NSTATES; ++s) mat[s].ior = 1.0 / mat[s].ior;
+        }
         vec3 p_off = p + RAY_EPSILON * ng;
 #ifdef ADJOINT
         MatGrad mg = mat_grad_zero();
@@ -338,7 +351,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 
         // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
         // (pdfs of state 0).
-        if (NUM_EMITTERS != 0u && !env_nee) {
+        if (NUM_EMITTERS != 0u && !env_nee && !dielectric) {
             vec3 pl;
             vec2 bary;
             EmitterTri light = sample_emitter(u_light, pl, bary);
@@ -377,7 +390,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             }
         }
         // Or a direction from the environment map, MIS with BSDF sampling likewise.
-        if (HAS_ENVIRONMENT && env_nee) {
+        if (HAS_ENVIRONMENT && env_nee && !dielectric) {
             float density;
             vec3 wi = environment_sample(u_light.xy, density);
             float pdf_light = p_env * density;
@@ -400,7 +413,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         }
 
         // Delta lights: each sampled once, without MIS (BSDF sampling never reaches one).
-        if (HAS_DELTA_LIGHTS) {
+        if (HAS_DELTA_LIGHTS && !dielectric) {
             delta_lights_nee(p_off, ng, ns, wo, mat, beta, radiance
 #ifdef ADJOINT
                              , remaining, delta, grad_pass, mg
@@ -408,14 +421,23 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             );
         }
 
-        // Continue by sampling the BSDF of state 0.
+        // Continue by sampling the BSDF of state 0 (a dielectric's lobe: pdf is then the
+        // lobe's probability, and f its mass).
         vec3 wi, weight;
         float pdf;
-        bool sampled = bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) && pdf > 0.0 && dot(wi, ng) > 0.0;
+        bool sampled;
+        if (dielectric) {
+            sampled = dielectric_sample(mat[0], ns, wo, u_bsdf.x, wi, weight, pdf);
+        } else {
+            sampled = bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) && pdf > 0.0 && dot(wi, ng) > 0.0;
+        }
         // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over state
         // 0's pdf (the shift).
         vec3 f[NSTATES];
-        for (int s = 0; s < NSTATES; ++s) f[s] = s == 0 ? weight * pdf : bsdf_eval(mat[s], ns, wo, wi);
+        for (int s = 0; s < NSTATES; ++s) {
+            if (s == 0) f[s] = weight * pdf;
+            else f[s] = dielectric ? dielectric_mass(mat[s], ns, wo, wi) : bsdf_eval(mat[s], ns, wo, wi);
+        }
 #ifdef ADJOINT
         // The vertex's material derivatives, with the continuation's when there is one, are
         // scattered here, from one place whether or not the path goes on (lavapipe runs
@@ -429,14 +451,19 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                     vec3 inv_f = vec3(f[s].x > 0.0 ? 1.0 / f[s].x : 0.0, f[s].y > 0.0 ? 1.0 / f[s].y : 0.0, f[s].z > 0.0 ? 1.0 / f[s].z : 0.0);
                     k_bsdf[s] = state_sign(s) * delta[s] * remaining[s] * inv_f;
                 }
-                add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
+                if (dielectric) {
+                    for (int s = 0; s < NSTATES; ++s) mg.base += k_bsdf[s] * dielectric_mass_grad(mat[s], ns, wo, wi);
+                } else {
+                    add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
+                }
             }
             scatter_material(sh.material, uv, mg);
         }
 #endif
         if (!sampled) break;
         for (int s = 0; s < NSTATES; ++s) beta[s] *= f[s] / pdf;
-        prev_bsdf_pdf = pdf;
+        // After a delta lobe, emission found next is not MIS-weighted (no light sample here).
+        prev_bsdf_pdf = dielectric ? 0.0 : pdf;
 
         // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
         // min(max(beta), 0.95) of state 0; every state divides by it.
@@ -448,7 +475,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         bool alive = false;
         for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
         if (!alive) break;
-        o = p_off;
+        // A refracted ray leaves from the surface's far side.
+        o = dielectric && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
         d = wi;
     }
 }

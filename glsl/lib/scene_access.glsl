@@ -60,7 +60,7 @@ MaterialRecord material_record(uint id) {
     r.kind = t3.x;
     r.one_sided = t3.y;
     r.alpha_cutoff = uintBitsToFloat(t3.z);
-    r.pad2 = 0u;
+    r.ior = uintBitsToFloat(t3.w);
     r.normal_map = value_ref(texel_load(Materials, b + 4));
     r.alpha = value_ref(texel_load(Materials, b + 5));
     return r;
@@ -204,6 +204,9 @@ layout(constant_id = 17) const bool HAS_EMISSION_TEXTURES = true;
 // Whether any triangle's material has an alpha test (alpha_cut): without one, traversal
 // tests no candidate hit's alpha and a light sample none either.
 layout(constant_id = 18) const bool HAS_ALPHA_MASKS = true;
+// Whether any material is a dielectric: without one the integrator's specular branch (no
+// light sample, a refracted or mirrored continuation) is compiled out.
+layout(constant_id = 19) const bool HAS_DIELECTRICS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -412,7 +415,17 @@ Material fetch_material(uint id, vec2 uv, int state) {
     m.base_color = fetch3(r.base_color, uv, state);
     m.roughness = fetch1(r.roughness, uv, state);
     m.metallic = fetch1(r.metallic, uv, state);
-    m.kind = HAS_PRINCIPLED ? r.kind : MATERIAL_DIFFUSE;
+    // Without principled materials every kind but the dielectric reads as diffuse, so that
+    // the principled model folds away (nested tests: the reflection cannot fold an
+    // operation on specialisation constants).
+    if (HAS_PRINCIPLED) {
+        m.kind = r.kind;
+    } else if (HAS_DIELECTRICS) {
+        m.kind = r.kind == MATERIAL_DIELECTRIC ? MATERIAL_DIELECTRIC : MATERIAL_DIFFUSE;
+    } else {
+        m.kind = MATERIAL_DIFFUSE;
+    }
+    m.ior = r.ior;
     return m;
 }
 

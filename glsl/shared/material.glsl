@@ -4,15 +4,21 @@
 #ifndef MATERIAL_GLSL
 #define MATERIAL_GLSL
 
-// The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED),
-// defined in src/constants.rs.
+// The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED;
+// MATERIAL_DIELECTRIC: base_color is the transmittance, ior the relative index of
+// refraction, roughness and metallic are ignored), defined in src/constants.rs.
 #include "vkinverse_constants.glsl"
 
-// 24 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20.
+// 28 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
+// ior 24.
 struct Material {
     vec3 base_color;
     float roughness;
     float metallic;
     uint kind;
+    // MATERIAL_DIELECTRIC: the index of refraction of the side a ray refracts into over
+    // that of the side it comes from (the integrator inverts the material's interior over
+    // exterior ratio for rays leaving the interior). Unused by the other kinds.
+    float ior;
 };
 #endif

@@ -23,11 +23,11 @@ struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
     ValueRef metallic;
-    uint kind;  // MATERIAL_DIFFUSE or MATERIAL_PRINCIPLED (shared/material.glsl)
+    uint kind;  // MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED or MATERIAL_DIELECTRIC (shared/material.glsl)
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     float alpha_cutoff;  // the surface is there where its alpha is at least this; negative:
                          // a blend, there with probability alpha
-    uint pad2;
+    float ior;  // a dielectric's index of refraction, interior over exterior (0 otherwise)
     // The normal map: a texture of tangent-space unit normals (x along the triangle's
     // tangent, y along its bitangent, z along the interpolated normal), already decoded
     // from the image's [0, 1] and scaled; width 0: none. Read only by scenes that have one.

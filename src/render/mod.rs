@@ -22,7 +22,7 @@ use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
-use crate::constants::{MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
 pub use crate::push::TracePush;
@@ -48,6 +48,9 @@ pub struct GpuScene {
     /// Whether any material is principled; without one, the kernels build the diffuse
     /// model alone.
     pub has_principled: bool,
+    /// Whether any material is a dielectric: the kernels' HAS_DIELECTRICS, without which
+    /// they build no specular branch.
+    pub has_dielectrics: bool,
     /// Whether any triangle has vertex normals; without them the kernels shade with the
     /// geometric normal and read no vertex normals.
     pub has_normals: bool,
@@ -334,6 +337,7 @@ impl GpuScene {
                     kind: match m.kind {
                         MaterialKind::Diffuse => MATERIAL_DIFFUSE,
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
+                        MaterialKind::Dielectric => MATERIAL_DIELECTRIC,
                     },
                     one_sided: m.one_sided as u32,
                     // Blend: a negative cutoff, for which the kernels draw one per ray.
@@ -342,7 +346,7 @@ impl GpuScene {
                         Some(AlphaMode::Mask { cutoff }) => cutoff,
                         Some(AlphaMode::Blend) => -1.0,
                     },
-                    pad: 0,
+                    ior: if m.kind == MaterialKind::Dielectric { m.ior } else { 0.0 },
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                 }
@@ -517,6 +521,7 @@ impl GpuScene {
             .chain([environment])
             .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
+        let has_dielectrics = materials.iter().any(|m| m.kind == MATERIAL_DIELECTRIC);
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
@@ -561,6 +566,7 @@ impl GpuScene {
             lights: lights.len() as u32,
             has_textures,
             has_principled,
+            has_dielectrics,
             has_normals,
             has_normal_maps,
             has_emission_textures,
@@ -646,6 +652,7 @@ impl GpuScene {
             ("HAS_NORMAL_MAPS", SpecValue::Bool(self.has_normal_maps)),
             ("HAS_EMISSION_TEXTURES", SpecValue::Bool(self.has_emission_textures)),
             ("HAS_ALPHA_MASKS", SpecValue::Bool(self.has_alpha_masks)),
+            ("HAS_DIELECTRICS", SpecValue::Bool(self.has_dielectrics)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

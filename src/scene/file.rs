@@ -62,6 +62,7 @@ fn default_up() -> [f32; 3] {
 pub enum MaterialType {
     Principled,
     Diffuse,
+    Dielectric,
 }
 
 impl MaterialType {
@@ -69,6 +70,7 @@ impl MaterialType {
         match self {
             Self::Principled => "principled",
             Self::Diffuse => "diffuse",
+            Self::Dielectric => "dielectric",
         }
     }
 }
@@ -79,7 +81,8 @@ pub struct MaterialFile {
     pub name: String,
     #[serde(rename = "type")]
     pub kind: MaterialType,
-    pub base_color: ColorInput,
+    /// Required, except for a dielectric (whose transmittance is white by default).
+    pub base_color: Option<ColorInput>,
     pub roughness: Option<ScalarInput>,
     pub metallic: Option<ScalarInput>,
     /// Black from behind (the clockwise side of its triangles).
@@ -94,6 +97,9 @@ pub struct MaterialFile {
     pub alpha_mode: Option<String>,
     /// In [0, 1]; 0.5 by default. Only with `alpha` in mode "mask".
     pub alpha_cutoff: Option<f32>,
+    /// A dielectric's index of refraction, interior over exterior (1.5 by default). Only
+    /// with `type = "dielectric"`.
+    pub ior: Option<f32>,
 }
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map

@@ -366,7 +366,7 @@ impl Importer<'_> {
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha });
+        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR });
         self.sources.materials.push(m.index());
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);

@@ -15,6 +15,7 @@
 use xxhash_rust::xxh3::Xxh3;
 
 use super::model::*;
+use super::MaterialKind;
 
 /// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
 const VERSION: &str = "vkinverse-scene-hash-v2";
@@ -114,6 +115,9 @@ pub fn content_hash(scene: &Scene) -> u64 {
             if let AlphaMode::Mask { cutoff } = a.mode {
                 h.f32s(&[cutoff]);
             }
+        }
+        if m.kind == MaterialKind::Dielectric {
+            h.f32s(&[m.ior]);
         }
     }
     h.tag("meshes");

@@ -419,7 +419,14 @@ impl Loader {
         for (i, m) in raw.into_iter().enumerate() {
             self.check_name(&format!("materials[{i}].name"), &m.name, &mut seen)?;
             let key = format!("materials.{}", m.name);
-            let base_color = self.color_value(&format!("{key}.base_color"), m.base_color)?;
+            let base_color = match (m.base_color, m.kind) {
+                (Some(c), _) => self.color_value(&format!("{key}.base_color"), c)?,
+                (None, MaterialKind::Dielectric) => ColorValue::Constant([1.0; 3]),
+                (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
+            };
+            if m.ior.is_some() && m.kind != MaterialKind::Dielectric {
+                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\")"));
+            }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
                     self.scalar_value(
@@ -438,6 +445,24 @@ impl Loader {
                         );
                     }
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
+                }
+                MaterialKind::Dielectric => {
+                    if m.roughness.is_some() || m.metallic.is_some() {
+                        return Err(self.invalid(&key, "a dielectric is smooth and takes no roughness or metallic"));
+                    }
+                    for (what, given) in [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("alpha", m.alpha.is_some())] {
+                        if given {
+                            return Err(self.invalid(&format!("{key}.{what}"), "is not supported on a dielectric"));
+                        }
+                    }
+                    (ScalarValue::Constant(0.0), ScalarValue::Constant(0.0))
+                }
+            };
+            let ior = match m.ior {
+                None => DEFAULT_IOR,
+                Some(ior) => {
+                    self.finite(&format!("{key}.ior"), &[ior])?;
+                    self.in_range(&format!("{key}.ior"), ior, MIN_IOR, MAX_IOR)?
                 }
             };
             let normal_map = match m.normal_map {
@@ -490,6 +515,7 @@ impl Loader {
                 one_sided: m.one_sided,
                 normal_map,
                 alpha,
+                ior,
             });
         }
         Ok(out)
@@ -750,10 +776,10 @@ impl Loader {
                 }
                 _ => return Err(self.bad_target(key, target)),
             };
-            if property != "base_color" && m.kind == MaterialKind::Diffuse {
+            if property != "base_color" && m.kind != MaterialKind::Principled {
                 return Err(self.invalid(
                     key,
-                    &format!("material \"{name}\" is diffuse and has no {property}"),
+                    &format!("material \"{name}\" is {} and has no {property}", m.kind.as_str()),
                 ));
             }
             return Ok(match property {

@@ -695,6 +695,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             node = inner;
         }
         let index = self.bsdf_material(node, name, one_sided)?;
+        if self.out.materials[index].kind == MaterialKind::Dielectric && (normal_map.is_some() || mask.is_some()) {
+            return Err(self.err(node, "a normalmap or mask around a dielectric is not supported"));
+        }
         self.out.materials[index].normal_map = normal_map;
         self.out.materials[index].alpha = mask.flatten();
         Ok(index)
@@ -750,6 +753,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 one_sided,
                 normal_map: None,
                 alpha: None,
+                ior: DEFAULT_IOR,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -771,7 +775,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR }
             }
             "roughconductor" | "conductor" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
@@ -800,6 +804,35 @@ impl<'a, 'i> Importer<'a, 'i> {
                     one_sided,
                     normal_map: None,
                     alpha: None,
+                    ior: DEFAULT_IOR,
+                }
+            }
+            "dielectric" => {
+                if !one_sided {
+                    return Err(self.err(node, "a dielectric has two sides of its own: remove the twosided around it"));
+                }
+                let int_ior = self.ior(&mut items, "int_ior", "bk7")?;
+                let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
+                let eta = int_ior / ext_ior;
+                if !(MIN_IOR..=MAX_IOR).contains(&eta) {
+                    return Err(self.err(node, format!("int_ior / ext_ior = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
+                }
+                if let Some(n) = self.take(&mut items, "specular_reflectance") {
+                    if self.rgb(n)? != [1.0; 3] {
+                        return Err(self.err(n, "only 1 is supported (the reflection is untinted)"));
+                    }
+                }
+                let base_color = self.color_param(&mut items, "specular_transmittance", [1.0; 3])?;
+                Material {
+                    name: name.into(),
+                    kind: MaterialKind::Dielectric,
+                    base_color,
+                    roughness: ScalarValue::Constant(0.0),
+                    metallic: ScalarValue::Constant(0.0),
+                    one_sided: false,
+                    normal_map: None,
+                    alpha: None,
+                    ior: eta,
                 }
             }
             "plastic" | "roughplastic" => {
@@ -849,9 +882,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                     one_sided,
                     normal_map: None,
                     alpha: None,
+                    ior: DEFAULT_IOR,
                 }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, principled, conductor, roughconductor, plastic and roughplastic BSDFs are supported")),
+            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic and dielectric BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
@@ -913,6 +947,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             one_sided: true,
             normal_map: None,
             alpha: None,
+            ior: DEFAULT_IOR,
         });
         self.out.materials.len() - 1
     }

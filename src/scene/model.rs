@@ -12,6 +12,13 @@ use crate::image::Image;
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Deepest path accepted; beyond this the GPU's per-path replay state is wasted.
 pub const MAX_DEPTH: u32 = 1024;
+/// A dielectric's index of refraction (interior over exterior) when none is given: glass
+/// in air.
+pub const DEFAULT_IOR: f32 = 1.5;
+/// The range of relative indices of refraction a dielectric may have (below 1: a less
+/// dense interior, such as a bubble in water).
+pub const MIN_IOR: f32 = 0.25;
+pub const MAX_IOR: f32 = 4.0;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Film {
@@ -97,7 +104,8 @@ pub enum ScalarValue {
 }
 
 /// A glTF metallic-roughness material. A diffuse one has roughness 1 and metallic 0, which
-/// the file may not set.
+/// the file may not set. A dielectric (glass) is a smooth interface whose base colour is
+/// its transmittance; its roughness and metallic are 0 and unused.
 #[derive(Clone, Debug)]
 pub struct Material {
     pub name: String,
@@ -112,6 +120,10 @@ pub struct Material {
     pub normal_map: Option<NormalMap>,
     /// Cuts the surface out where its alpha is below a threshold (never optimised).
     pub alpha: Option<AlphaMask>,
+    /// A dielectric's index of refraction, its interior (the back of its triangles) over
+    /// its exterior, in [MIN_IOR, MAX_IOR] (never optimised); [`DEFAULT_IOR`] and unused
+    /// for the other kinds.
+    pub ior: f32,
 }
 
 /// An alpha test: whether the surface is there at a point, by its alpha there (looked up

@@ -182,6 +182,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 pairs.push((key, scalar(key, v)?));
             }
         }
+        if m.kind == MaterialKind::Dielectric {
+            pairs.push(("ior", Value::Float(num(m.ior))));
+        }
         if let Some(a) = &m.alpha {
             pairs.push(("alpha", scalar("alpha", &a.value)?));
             pairs.push(("alpha_mode", Value::String(a.mode.as_str().into())));
