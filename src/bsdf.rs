@@ -9,7 +9,7 @@
 //! directions point away from the surface, the BSDF is one-sided, and [`eval`] returns
 //! f(wo, wi) |cos theta_i|.
 
-use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED};
+use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -49,8 +49,13 @@ impl MaterialF64 {
         self.kind == MATERIAL_PRINCIPLED
     }
 
+    /// Glass of either kind (delta lobes).
     pub fn dielectric(&self) -> bool {
-        self.kind == MATERIAL_DIELECTRIC
+        self.kind == MATERIAL_DIELECTRIC || self.thin()
+    }
+
+    pub fn thin(&self) -> bool {
+        self.kind == MATERIAL_THIN_DIELECTRIC
     }
 
     /// mix(0.04, base_color, metallic)
@@ -341,24 +346,36 @@ pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
     (0.5 * (rs * rs + rp * rp), cos_t)
 }
 
-/// The probability of wi's lobe: F above the surface, 1 − F below (`dielectric_prob`).
+/// R: the Fresnel reflectance, or a thin sheet's 2F / (1 + F); and the refracted cosine
+/// (`dielectric_reflectance`).
+pub fn dielectric_reflectance(m: &MaterialF64, cos_i: f64) -> (f64, f64) {
+    let (fr, cos_t) = dielectric_fresnel(cos_i, m.ior);
+    (if m.thin() { 2.0 * fr / (1.0 + fr) } else { fr }, cos_t)
+}
+
+/// The transmitted lobe's radiance factor per unit (1 − R) (`dielectric_transmittance`).
+pub fn dielectric_transmittance(m: &MaterialF64) -> DVec3 {
+    if m.thin() { m.base_color } else { m.base_color / (m.ior * m.ior) }
+}
+
+/// The probability of wi's lobe: R above the surface, 1 − R below (`dielectric_prob`).
 pub fn dielectric_prob(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
     let cos_i = wo.dot(n);
     if cos_i <= 0.0 {
         return 0.0;
     }
-    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
-    if wi.dot(n) > 0.0 { fr } else { 1.0 - fr }
+    let (r, _) = dielectric_reflectance(m, cos_i);
+    if wi.dot(n) > 0.0 { r } else { 1.0 - r }
 }
 
-/// The lobe's mass at wi: F, or (1 − F) base_color / eta² (`dielectric_mass`).
+/// The lobe's mass at wi: R, or (1 − R) [`dielectric_transmittance`] (`dielectric_mass`).
 pub fn dielectric_mass(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3 {
     let cos_i = wo.dot(n);
     if cos_i <= 0.0 {
         return DVec3::ZERO;
     }
-    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
-    if wi.dot(n) > 0.0 { DVec3::splat(fr) } else { m.base_color * ((1.0 - fr) / (m.ior * m.ior)) }
+    let (r, _) = dielectric_reflectance(m, cos_i);
+    if wi.dot(n) > 0.0 { DVec3::splat(r) } else { (1.0 - r) * dielectric_transmittance(m) }
 }
 
 /// d [`dielectric_mass`] / d base_color per channel (`dielectric_mass_grad`).
@@ -367,23 +384,25 @@ pub fn dielectric_mass_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> 
     if cos_i <= 0.0 || wi.dot(n) > 0.0 {
         return DVec3::ZERO;
     }
-    let (fr, _) = dielectric_fresnel(cos_i, m.ior);
-    DVec3::splat((1.0 - fr) / (m.ior * m.ior))
+    let (r, _) = dielectric_reflectance(m, cos_i);
+    let k = if m.thin() { 1.0 } else { 1.0 / (m.ior * m.ior) };
+    DVec3::splat((1.0 - r) * k)
 }
 
-/// `dielectric_sample`: the mirror when u < F, else the refraction; `pdf` is the lobe's
-/// probability and `weight` its mass over it. `None` where the GLSL returns false.
+/// `dielectric_sample`: the mirror when u < R, else the transmission (refracted, or
+/// straight through a thin sheet); `pdf` is the lobe's probability and `weight` its mass
+/// over it. `None` where the GLSL returns false.
 pub fn dielectric_sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: f64) -> Option<BsdfSample> {
     let cos_i = wo.dot(n);
     if cos_i <= 0.0 {
         return None;
     }
-    let (fr, cos_t) = dielectric_fresnel(cos_i, m.ior);
-    let s = if u < fr {
-        BsdfSample { wi: 2.0 * cos_i * n - wo, weight: DVec3::ONE, pdf: fr }
+    let (r, cos_t) = dielectric_reflectance(m, cos_i);
+    let s = if u < r {
+        BsdfSample { wi: 2.0 * cos_i * n - wo, weight: DVec3::ONE, pdf: r }
     } else {
-        let wi = ((cos_i * n - wo) / m.ior - cos_t * n).normalize();
-        BsdfSample { wi, weight: m.base_color / (m.ior * m.ior), pdf: 1.0 - fr }
+        let wi = if m.thin() { -wo } else { ((cos_i * n - wo) / m.ior - cos_t * n).normalize() };
+        BsdfSample { wi, weight: dielectric_transmittance(m), pdf: 1.0 - r }
     };
     (s.pdf > 0.0).then_some(s)
 }

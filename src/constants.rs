@@ -11,6 +11,10 @@ pub const MATERIAL_PRINCIPLED: u32 = 1;
 /// A smooth dielectric (glass): an ideal specular interface that reflects with the
 /// Fresnel reflectance and refracts the rest (Mitsuba 3's `dielectric`).
 pub const MATERIAL_DIELECTRIC: u32 = 2;
+/// A thin dielectric (a pane, a soap film): the same interface on both sides of a sheet of
+/// no thickness, which reflects with the sheet's Fresnel reflectance (its internal
+/// reflections summed) and lets the rest through unbent (Mitsuba 3's `thindielectric`).
+pub const MATERIAL_THIN_DIELECTRIC: u32 = 3;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

@@ -11,7 +11,7 @@ use glam::DVec3;
 use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
-use vkinverse::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+use vkinverse::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
 use vkinverse::stats::ln_gamma;
 
 // ---------------------------------------------------------------------------------------
@@ -320,6 +320,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
     (0..count)
         .map(|i| {
             let kind = match i % 7 {
+                3 if i % 2 == 0 => MATERIAL_THIN_DIELECTRIC,
                 3 => MATERIAL_DIELECTRIC,
                 _ if i % 5 == 0 => MATERIAL_DIFFUSE,
                 _ => MATERIAL_PRINCIPLED,
@@ -363,7 +364,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
             // (Not u.x = 0 for a dielectric: index-matched, its reflectance is 0 in exact
             // arithmetic but a rounding's width above or below it, so the lobe at u.x = 0 is
             // a tie the two precisions break differently.)
-            let lowest = if kind == MATERIAL_DIELECTRIC { 1e-3 } else { 0.0 };
+            let lowest = if kind == MATERIAL_DIELECTRIC || kind == MATERIAL_THIN_DIELECTRIC { 1e-3 } else { 0.0 };
             let u = [rng.pick(&[lowest, 0.999_999, ux, ux]), rng.f64(), rng.f64()];
             let case = BsdfCase { n: f3(n), wo: f3(wo), wi: f3(wi), u: u.map(|x| x as f32) };
             (material, case)
@@ -926,5 +927,26 @@ fn dielectric_follows_snell_and_fresnel() {
             assert_eq!(bsdf::eval(&m, n, wo, r.wi), DVec3::ZERO);
             assert_eq!(bsdf::pdf(&m, n, wo, r.wi), 0.0);
         }
+    }
+}
+
+/// The thin dielectric: a sheet that mirrors with 2F/(1 + F), the sum of its two faces'
+/// reflections over every internal round trip (F + (1 − F)² F Σ F^2k), and lets the rest
+/// through unbent, tinted once and without the interface's 1/η².
+#[test]
+fn thin_dielectric_sums_its_internal_reflections() {
+    let n = DVec3::new(0.0, 0.6, 0.8);
+    let sheet = MaterialF64 { base_color: DVec3::new(1.0, 0.5, 0.25), roughness: 0.0, metallic: 0.0, kind: MATERIAL_THIN_DIELECTRIC, ior: 1.5 };
+    for k in 0..40 {
+        let theta = k as f64 / 40.0 * std::f64::consts::FRAC_PI_2;
+        let wo = direction(n, theta.cos(), 0.7 * k as f64);
+        let (f, _) = bsdf::dielectric_fresnel(theta.cos(), 1.5);
+        let series = f + (1.0 - f) * (1.0 - f) * f * (0..200).map(|j| f.powi(2 * j)).sum::<f64>();
+        let r = bsdf::dielectric_sample(&sheet, n, wo, 0.0).unwrap();
+        assert!((r.pdf - series).abs() < 1e-12, "θ {theta}: R {} against the series {series}", r.pdf);
+        let t = bsdf::dielectric_sample(&sheet, n, wo, 1.0 - 1e-12).unwrap();
+        assert_eq!(t.wi, -wo);
+        assert!((t.pdf - (1.0 - series)).abs() < 1e-12 && t.weight == sheet.base_color);
+        assert!((bsdf::dielectric_mass(&sheet, n, wo, t.wi) - sheet.base_color * (1.0 - series)).length() < 1e-12);
     }
 }

@@ -1106,8 +1106,8 @@ fn mitsuba_direct_and_volpath_integrators_map_to_the_path_tracer() {
 
 /// Mitsuba's `dielectric`: its indices (by name, BK7 in air by default, or by number) as
 /// their ratio, its `specular_transmittance` as the transmittance; what the model lacks
-/// (a tinted reflection, a twosided, normalmap or mask around it, rough and thin glass)
-/// is an error naming its line. A clear pane in front of the sky hides nothing of it.
+/// (a tinted reflection, a twosided, normalmap or mask around it, rough glass) is an error
+/// naming its line; `thindielectric` is the thin dielectric. A clear pane in front of the sky hides nothing of it.
 #[test]
 fn mitsuba_dielectrics_are_glass() {
     let dir = temp_dir("mitsuba-dielectric");
@@ -1133,12 +1133,13 @@ fn mitsuba_dielectrics_are_glass() {
     let m = &water.materials[0];
     assert!((m.ior - 1.333).abs() < 1e-3, "{m:?}");
     assert!(matches!(m.base_color, ColorValue::Constant(c) if c == [0.5, 0.6, 0.7]), "{m:?}");
+    let thin = load("thin", r#"<bsdf type="thindielectric"/>"#).unwrap();
+    assert_eq!(thin.materials[0].kind.as_str(), "thin_dielectric");
     for (name, bsdf, needles) in [
         ("tinted", r#"<bsdf type="dielectric"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#, &["specular_reflectance", "only 1"][..]),
         ("twosided", r#"<bsdf type="twosided"><bsdf type="dielectric"/></bsdf>"#, &["twosided", "two sides"][..]),
         ("mask", r#"<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="dielectric"/></bsdf>"#, &["mask", "dielectric"][..]),
-        ("rough", r#"<bsdf type="roughdielectric"/>"#, &["roughdielectric", "dielectric BSDFs are supported"][..]),
-        ("thin", r#"<bsdf type="thindielectric"/>"#, &["thindielectric"][..]),
+        ("rough", r#"<bsdf type="roughdielectric"/>"#, &["roughdielectric", "dielectric and thindielectric BSDFs are supported"][..]),
         ("range", r#"<bsdf type="dielectric"><float name="int_ior" value="9"/></bsdf>"#, &["int_ior / ext_ior", "outside"][..]),
     ] {
         let e = load(name, bsdf).expect_err(name).to_string();

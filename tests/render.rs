@@ -1264,9 +1264,9 @@ fn blended_surfaces_are_there_with_probability_alpha() {
 const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n\
 f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
 
-/// A glass object (`obj`: a closed mesh, its faces outward) in a constant environment, seen
-/// from (0, 0, 4) with a field of view of `fov_y`.
-fn glass_scene(name: &str, obj: &str, fov_y: f32, tint: [f32; 3], ior: f32, max_depth: u32) -> Scene {
+/// An object of glass (`kind`: "dielectric" or "thin_dielectric"; `obj` its mesh) in a
+/// constant environment, seen from (0, 0, 4) with a field of view of `fov_y`.
+fn glass_scene(name: &str, kind: &str, obj: &str, fov_y: f32, tint: [f32; 3], ior: f32, max_depth: u32) -> Scene {
     let toml = format!(
         r#"
 [film]
@@ -1282,7 +1282,7 @@ up = [0, 1, 0]
 fov_y = {fov_y}
 [[materials]]
 name = "glass"
-type = "dielectric"
+type = "{kind}"
 base_color = [{}, {}, {}]
 ior = {ior}
 [[meshes]]
@@ -1307,7 +1307,7 @@ constant = [{}, {}, {}]
 fn clear_glass_in_a_furnace_passes_all_light() {
     with_gpu(|ctx| {
         for ior in [1.5f32, 0.75] {
-            let scene = glass_scene(&format!("glass-furnace-{ior}"), &sphere_obj(1.0, 3, false), 40.0, [1.0; 3], ior, 512);
+            let scene = glass_scene(&format!("glass-furnace-{ior}"), "dielectric", &sphere_obj(1.0, 3, false), 40.0, [1.0; 3], ior, 512);
             let gs = GpuScene::new(ctx, &scene).unwrap();
             assert!(gs.has_dielectrics);
             let img = Renderer::new(gs).unwrap().render(0, 16, 3, |_, _| {}).unwrap();
@@ -1328,23 +1328,30 @@ fn clear_glass_in_a_furnace_passes_all_light() {
 /// with the Fresnel reflectance F ≈ ((η − 1)/(η + 1))² (incidence within 7° of the normal:
 /// F within 2e-4 of it) and sees L, or enters, and every path that enters leaves through
 /// the surface once more (the box is convex): two transmissions, t² L. So the image's mean
-/// is (F + (1 − F) t²) L per channel; checked within 5 standard errors of its samples.
+/// is (F + (1 − F) t²) L per channel; checked within 5 standard errors of its samples. A
+/// thin sheet of the same glass in its place: (R + (1 − R) t) L with R = 2F/(1 + F).
 #[test]
 fn tinted_glass_transmits_through_each_crossing() {
     with_gpu(|ctx| {
         let tint = [1.0f32, 0.5, 0.2];
         let ior = 1.5f64;
-        let scene = glass_scene("glass-box", CUBE_OBJ, 10.0, tint, ior as f32, 16);
-        let img = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap().render(0, 64, 5, |_, _| {}).unwrap();
         let f = ((ior - 1.0) / (ior + 1.0)).powi(2);
-        for c in 0..3 {
-            let v: Vec<f64> = img.data.iter().map(|p| p[c] as f64 / ENV[c] as f64).collect();
-            let n = v.len() as f64;
-            let mean = v.iter().sum::<f64>() / n;
-            let se = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
-            let t2 = (tint[c] as f64).powi(2);
-            let expected = f + (1.0 - f) * t2;
-            assert!((mean - expected).abs() <= 5.0 * se + 2e-4, "channel {c}: mean {mean} expected {expected} (se {se})");
+        // The box, then a thin sheet (one face at z = 1): mirrored with its reflectance
+        // 2F/(1 + F), or let through once, tinted by t.
+        for (kind, obj, expected) in [
+            ("dielectric", CUBE_OBJ, [0, 1, 2].map(|c| f + (1.0 - f) * (tint[c] as f64).powi(2))),
+            ("thin_dielectric", "v -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\nf 1 2 3 4\n", [0, 1, 2].map(|c| 2.0 * f / (1.0 + f) + (1.0 - 2.0 * f / (1.0 + f)) * tint[c] as f64)),
+        ] {
+            let scene = glass_scene(&format!("glass-box-{kind}"), kind, obj, 10.0, tint, ior as f32, 16);
+            let img = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap().render(0, 64, 5, |_, _| {}).unwrap();
+            for c in 0..3 {
+                let v: Vec<f64> = img.data.iter().map(|p| p[c] as f64 / ENV[c] as f64).collect();
+                let n = v.len() as f64;
+                let mean = v.iter().sum::<f64>() / n;
+                let se = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+                let expected = expected[c];
+                assert!((mean - expected).abs() <= 5.0 * se + 2e-4, "{kind}, channel {c}: mean {mean} expected {expected} (se {se})");
+            }
         }
     });
 }

@@ -34,6 +34,12 @@
 // into the denser side is compressed into a smaller solid angle: the refracted weight
 // carries 1 / eta^2 (Veach 1997, section 5.2; Mitsuba's radiance mode). base_color
 // tints the refracted light only (Mitsuba's specular_transmittance).
+//
+// "thin dielectric" is a sheet of no thickness with that interface on both faces (Mitsuba
+// 3's `thindielectric`): the light that enters it leaves it again, after any number of
+// internal reflections, on one side or the other, so it mirrors with R = F + (1 - F)^2 F /
+// (1 - F^2) = 2F / (1 + F) and lets 1 - R straight through (wi = -wo, tinted by
+// base_color, no 1/eta^2: the medium is the same on both sides).
 #ifndef BSDF_GLSL
 #define BSDF_GLSL
 #include "shared/material.glsl"
@@ -179,14 +185,14 @@ float principled_pdf(vec2 p, float cos_i, PrincipledTerms t) {
 
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
-    if (m.kind == MATERIAL_DIELECTRIC) return vec3(0.0);
+    if (m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
     return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
-    if (m.kind == MATERIAL_DIELECTRIC) return 0.0;
+    if (m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
     vec2 p = bsdf_lobe_probabilities(m, wo.z);
     return principled_pdf(p, wi.z, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
@@ -251,7 +257,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     pdf = 0.0;
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
-    if (wo_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC) return false;
+    if (wo_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return false;
     if (m.kind != MATERIAL_PRINCIPLED) {
         // Lambert: pdf cos_i / pi, weight base_color exactly.
         vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
@@ -300,7 +306,7 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
-    if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC) return;
+    if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return;
     if (m.kind != MATERIAL_PRINCIPLED) {
         d_base_color = vec3(wi_l.z / BSDF_PI);
         return;
@@ -340,38 +346,53 @@ float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
     return 0.5 * (rs * rs + rp * rp);
 }
 
+// The reflectance of the material's interface at cos_i = cos(wo, n) > 0: the Fresnel
+// reflectance for a dielectric, the sheet's 2F / (1 + F) for a thin one; the refracted
+// cosine in cos_t (unused for a thin dielectric, whose transmission is not bent).
+float dielectric_reflectance(Material m, float cos_i, out float cos_t) {
+    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
+    return m.kind == MATERIAL_THIN_DIELECTRIC ? 2.0 * fr / (1.0 + fr) : fr;
+}
+
+// The radiance factor of the transmitted lobe per unit (1 - reflectance): base_color /
+// eta^2 through an interface, base_color through a thin sheet.
+vec3 dielectric_transmittance(Material m) {
+    return m.kind == MATERIAL_THIN_DIELECTRIC ? m.base_color : m.base_color / (m.ior * m.ior);
+}
+
 // The probability that dielectric_sample picks wi's lobe (the mirror when wi is above the
-// surface, the refraction when below): F or 1 - F. 0 when wo is on or below the surface.
+// surface, the transmission when below): R or 1 - R. 0 when wo is on or below the surface.
 float dielectric_prob(Material m, vec3 n, vec3 wo, vec3 wi) {
     float cos_i = dot(wo, n);
     if (cos_i <= 0.0) return 0.0;
     float cos_t;
-    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
-    return dot(wi, n) > 0.0 ? fr : 1.0 - fr;
+    float r = dielectric_reflectance(m, cos_i, cos_t);
+    return dot(wi, n) > 0.0 ? r : 1.0 - r;
 }
 
 // The lobe's mass at wi (the discrete counterpart of f cos_i: the radiance that arrives
-// along wi leaves along wo times this): F for the mirror, (1 - F) base_color / eta^2 for
-// the refraction. wi is taken to be the lobe's direction; only its side is looked at.
+// along wi leaves along wo times this): R for the mirror, (1 - R) dielectric_transmittance
+// for the transmission. wi is taken to be the lobe's direction; only its side is looked at.
 vec3 dielectric_mass(Material m, vec3 n, vec3 wo, vec3 wi) {
     float cos_i = dot(wo, n);
     if (cos_i <= 0.0) return vec3(0.0);
     float cos_t;
-    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
-    return dot(wi, n) > 0.0 ? vec3(fr) : m.base_color * ((1.0 - fr) / (m.ior * m.ior));
+    float r = dielectric_reflectance(m, cos_i, cos_t);
+    return dot(wi, n) > 0.0 ? vec3(r) : (1.0 - r) * dielectric_transmittance(m);
 }
 
 // d dielectric_mass / d base_color, per channel (the Jacobian is diagonal): 0 for the
-// mirror, (1 - F) / eta^2 for the refraction.
+// mirror, the transmission's mass per unit base_color.
 vec3 dielectric_mass_grad(Material m, vec3 n, vec3 wo, vec3 wi) {
     float cos_i = dot(wo, n);
     if (cos_i <= 0.0 || dot(wi, n) > 0.0) return vec3(0.0);
     float cos_t;
-    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
-    return vec3((1.0 - fr) / (m.ior * m.ior));
+    float r = dielectric_reflectance(m, cos_i, cos_t);
+    float k = m.kind == MATERIAL_THIN_DIELECTRIC ? 1.0 : 1.0 / (m.ior * m.ior);
+    return vec3((1.0 - r) * k);
 }
 
-// Picks the mirror with probability F (u < F) or the refraction: wi, its lobe's
+// Picks the mirror with probability R (u < R) or the transmission: wi, its lobe's
 // probability `prob` (not a density) and weight = dielectric_mass / prob. False when wo is
 // on or below the surface.
 bool dielectric_sample(Material m, vec3 n, vec3 wo, float u, out vec3 wi, out vec3 weight, out float prob) {
@@ -381,16 +402,17 @@ bool dielectric_sample(Material m, vec3 n, vec3 wo, float u, out vec3 wi, out ve
     float cos_i = dot(wo, n);
     if (cos_i <= 0.0) return false;
     float cos_t;
-    float fr = dielectric_fresnel(cos_i, m.ior, cos_t);
-    if (u < fr) {
+    float r = dielectric_reflectance(m, cos_i, cos_t);
+    if (u < r) {
         wi = 2.0 * cos_i * n - wo;
-        prob = fr;
+        prob = r;
         weight = vec3(1.0);
     } else {
-        // Snell: the tangential part scales by 1 / eta, the normal part is -cos_t.
-        wi = normalize((cos_i * n - wo) / m.ior - cos_t * n);
-        prob = 1.0 - fr;
-        weight = m.base_color / (m.ior * m.ior);
+        // Snell: the tangential part scales by 1 / eta, the normal part is -cos_t; a thin
+        // sheet lets the ray through unbent.
+        wi = m.kind == MATERIAL_THIN_DIELECTRIC ? -wo : normalize((cos_i * n - wo) / m.ior - cos_t * n);
+        prob = 1.0 - r;
+        weight = dielectric_transmittance(m);
     }
     return prob > 0.0;
 }

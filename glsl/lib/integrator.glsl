@@ -27,7 +27,8 @@
 // continuation is dielectric_sample's mirror or refraction (through the surface: the ray
 // leaves from the far side), and the emission that continuation finds is not MIS-weighted,
 // as seen by the camera. Its interior is on the back of its triangles (their clockwise
-// side): a ray arriving from behind leaves the interior, so the relative index inverts.
+// side): a ray arriving from behind leaves the interior, so the relative index inverts
+// (a thin dielectric has the same medium on both sides and keeps it).
 // Its other states take the same lobe: their weights are their masses over state 0's
 // probability, the lobe's choice shared like every other.
 //
@@ -331,8 +332,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         if (dot(ns, ng) < 0.0) ns = -ns;
         Material mat[NSTATES];
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
-        bool dielectric = HAS_DIELECTRICS && mat[0].kind == MATERIAL_DIELECTRIC;
-        if (dielectric && from_behind) {
+        bool dielectric = HAS_DIELECTRICS && (mat[0].kind == MATERIAL_DIELECTRIC || mat[0].kind == MATERIAL_THIN_DIELECTRIC);
+        if (dielectric && from_behind && mat[0].kind == MATERIAL_DIELECTRIC) {
             for (int s = 0; s < NSTATES; ++s) mat[s].ior = 1.0 / mat[s].ior;
         }
         vec3 p_off = p + RAY_EPSILON * ng;

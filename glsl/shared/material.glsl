@@ -6,7 +6,8 @@
 
 // The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED;
 // MATERIAL_DIELECTRIC: base_color is the transmittance, ior the relative index of
-// refraction, roughness and metallic are ignored), defined in src/constants.rs.
+// refraction, roughness and metallic are ignored; MATERIAL_THIN_DIELECTRIC likewise),
+// defined in src/constants.rs.
 #include "vkinverse_constants.glsl"
 
 // 28 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,

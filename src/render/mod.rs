@@ -22,7 +22,7 @@ use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
-use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED};
+use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
 pub use crate::push::TracePush;
@@ -338,6 +338,7 @@ impl GpuScene {
                         MaterialKind::Diffuse => MATERIAL_DIFFUSE,
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                         MaterialKind::Dielectric => MATERIAL_DIELECTRIC,
+                        MaterialKind::ThinDielectric => MATERIAL_THIN_DIELECTRIC,
                     },
                     one_sided: m.one_sided as u32,
                     // Blend: a negative cutoff, for which the kernels draw one per ray.
@@ -346,7 +347,7 @@ impl GpuScene {
                         Some(AlphaMode::Mask { cutoff }) => cutoff,
                         Some(AlphaMode::Blend) => -1.0,
                     },
-                    ior: if m.kind == MaterialKind::Dielectric { m.ior } else { 0.0 },
+                    ior: if m.kind.is_dielectric() { m.ior } else { 0.0 },
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                 }
@@ -521,7 +522,7 @@ impl GpuScene {
             .chain([environment])
             .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
-        let has_dielectrics = materials.iter().any(|m| m.kind == MATERIAL_DIELECTRIC);
+        let has_dielectrics = materials.iter().any(|m| m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC);
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;

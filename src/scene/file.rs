@@ -63,6 +63,8 @@ pub enum MaterialType {
     Principled,
     Diffuse,
     Dielectric,
+    #[serde(rename = "thin_dielectric")]
+    ThinDielectric,
 }
 
 impl MaterialType {
@@ -71,7 +73,13 @@ impl MaterialType {
             Self::Principled => "principled",
             Self::Diffuse => "diffuse",
             Self::Dielectric => "dielectric",
+            Self::ThinDielectric => "thin_dielectric",
         }
+    }
+
+    /// Glass of either kind: smooth, with an index of refraction and no roughness.
+    pub fn is_dielectric(self) -> bool {
+        matches!(self, Self::Dielectric | Self::ThinDielectric)
     }
 }
 

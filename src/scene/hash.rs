@@ -15,7 +15,6 @@
 use xxhash_rust::xxh3::Xxh3;
 
 use super::model::*;
-use super::MaterialKind;
 
 /// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
 const VERSION: &str = "vkinverse-scene-hash-v2";
@@ -116,7 +115,7 @@ pub fn content_hash(scene: &Scene) -> u64 {
                 h.f32s(&[cutoff]);
             }
         }
-        if m.kind == MaterialKind::Dielectric {
+        if m.kind.is_dielectric() {
             h.f32s(&[m.ior]);
         }
     }

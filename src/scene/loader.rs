@@ -421,11 +421,11 @@ impl Loader {
             let key = format!("materials.{}", m.name);
             let base_color = match (m.base_color, m.kind) {
                 (Some(c), _) => self.color_value(&format!("{key}.base_color"), c)?,
-                (None, MaterialKind::Dielectric) => ColorValue::Constant([1.0; 3]),
+                (None, kind) if kind.is_dielectric() => ColorValue::Constant([1.0; 3]),
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
-            if m.ior.is_some() && m.kind != MaterialKind::Dielectric {
-                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\")"));
+            if m.ior.is_some() && !m.kind.is_dielectric() {
+                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\" or \"thin_dielectric\")"));
             }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
@@ -446,7 +446,7 @@ impl Loader {
                     }
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
                 }
-                MaterialKind::Dielectric => {
+                MaterialKind::Dielectric | MaterialKind::ThinDielectric => {
                     if m.roughness.is_some() || m.metallic.is_some() {
                         return Err(self.invalid(&key, "a dielectric is smooth and takes no roughness or metallic"));
                     }

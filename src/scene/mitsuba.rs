@@ -695,7 +695,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             node = inner;
         }
         let index = self.bsdf_material(node, name, one_sided)?;
-        if self.out.materials[index].kind == MaterialKind::Dielectric && (normal_map.is_some() || mask.is_some()) {
+        if self.out.materials[index].kind.is_dielectric() && (normal_map.is_some() || mask.is_some()) {
             return Err(self.err(node, "a normalmap or mask around a dielectric is not supported"));
         }
         self.out.materials[index].normal_map = normal_map;
@@ -807,7 +807,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     ior: DEFAULT_IOR,
                 }
             }
-            "dielectric" => {
+            "dielectric" | "thindielectric" => {
                 if !one_sided {
                     return Err(self.err(node, "a dielectric has two sides of its own: remove the twosided around it"));
                 }
@@ -825,7 +825,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let base_color = self.color_param(&mut items, "specular_transmittance", [1.0; 3])?;
                 Material {
                     name: name.into(),
-                    kind: MaterialKind::Dielectric,
+                    kind: if kind == "dielectric" { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric },
                     base_color,
                     roughness: ScalarValue::Constant(0.0),
                     metallic: ScalarValue::Constant(0.0),
@@ -885,7 +885,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     ior: DEFAULT_IOR,
                 }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic and dielectric BSDFs are supported")),
+            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric and thindielectric BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);

@@ -120,8 +120,8 @@ pub struct Material {
     pub normal_map: Option<NormalMap>,
     /// Cuts the surface out where its alpha is below a threshold (never optimised).
     pub alpha: Option<AlphaMask>,
-    /// A dielectric's index of refraction, its interior (the back of its triangles) over
-    /// its exterior, in [MIN_IOR, MAX_IOR] (never optimised); [`DEFAULT_IOR`] and unused
+    /// A dielectric's index of refraction, its interior (the back of its triangles; a thin
+    /// dielectric's sheet) over its exterior, in [MIN_IOR, MAX_IOR] (never optimised); [`DEFAULT_IOR`] and unused
     /// for the other kinds.
     pub ior: f32,
 }

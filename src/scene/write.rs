@@ -182,7 +182,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 pairs.push((key, scalar(key, v)?));
             }
         }
-        if m.kind == MaterialKind::Dielectric {
+        if m.kind.is_dielectric() {
             pairs.push(("ior", Value::Float(num(m.ior))));
         }
         if let Some(a) = &m.alpha {
