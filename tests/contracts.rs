@@ -28,6 +28,8 @@ fn shared_constants_are_generated_from_one_definition() {
     for (name, value) in [
         ("MATERIAL_DIFFUSE", vkinverse::constants::MATERIAL_DIFFUSE),
         ("MATERIAL_PRINCIPLED", vkinverse::constants::MATERIAL_PRINCIPLED),
+        ("MATERIAL_DIELECTRIC", vkinverse::constants::MATERIAL_DIELECTRIC),
+        ("MATERIAL_THIN_DIELECTRIC", vkinverse::constants::MATERIAL_THIN_DIELECTRIC),
         ("LOCAL_GRADS_CAPACITY", vkinverse::constants::LOCAL_GRADS_CAPACITY),
         ("LOSS_L2", vkinverse::constants::LOSS_L2),
         ("LOSS_L1", vkinverse::constants::LOSS_L1),

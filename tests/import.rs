@@ -1151,3 +1151,82 @@ fn mitsuba_dielectrics_are_glass() {
     let low = img.data.iter().flatten().fold(f32::INFINITY, |a, &b| a.min(b));
     assert!(low > 0.999, "a pixel at {low}");
 }
+
+/// glTF's transmission: `KHR_materials_transmission` with a `KHR_materials_volume`
+/// thickness is refracting glass of `KHR_materials_ior`'s index, without one glTF's
+/// thin-walled transmission (a thin dielectric); the base colour is the transmittance.
+/// What the smooth model drops is one warning, a weak transmission stays principled with a
+/// warning, a factor out of range is an error naming its JSON path; both write-backs
+/// reload as the same glass, and a thin pane under a white sky passes it all.
+#[test]
+fn gltf_transmission_is_glass() {
+    let dir = temp_dir("gltf-glass");
+    let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    let m = &mut doc["materials"][0];
+    m.as_object_mut().unwrap().remove("normalTexture");
+    m["pbrMetallicRoughness"] = serde_json::json!({ "baseColorFactor": [0.9, 0.8, 0.7, 1.0], "roughnessFactor": 0.0, "metallicFactor": 0.0 });
+    for unused in ["images", "textures", "samplers"] {
+        doc.as_object_mut().unwrap().remove(unused);
+    }
+    let load = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut d = doc.clone();
+        edit(&mut d["materials"][0]);
+        let path = dir.join(name);
+        std::fs::write(&path, serde_json::to_string(&d).unwrap()).unwrap();
+        Scene::load_with(path, &LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(8) })
+    };
+    let solid = load("solid.gltf", &|m| {
+        m["extensions"] = serde_json::json!({
+            "KHR_materials_transmission": { "transmissionFactor": 1.0 },
+            "KHR_materials_volume": { "thicknessFactor": 0.1 },
+            "KHR_materials_ior": { "ior": 1.33 }
+        })
+    })
+    .unwrap();
+    let g = &solid.materials[0];
+    assert_eq!((g.kind.as_str(), g.ior), ("dielectric", 1.33));
+    assert!(matches!(g.base_color, ColorValue::Constant(c) if c == [0.9, 0.8, 0.7]), "{g:?}");
+    assert!(solid.warnings.is_empty(), "{:?}", solid.warnings);
+    let thin = load("thin.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 } })).unwrap();
+    assert_eq!((thin.materials[0].kind.as_str(), thin.materials[0].ior), ("thin_dielectric", 1.5));
+    assert!(thin.warnings.is_empty(), "{:?}", thin.warnings);
+    let rough = load("rough.gltf", &|m| {
+        m["pbrMetallicRoughness"]["roughnessFactor"] = serde_json::json!(0.3);
+        m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 0.7 } });
+    })
+    .unwrap();
+    assert_eq!(rough.materials[0].kind.as_str(), "thin_dielectric");
+    assert!(rough.warnings.len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)), "{:?}", rough.warnings);
+    let weak = load("weak.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 0.2 } })).unwrap();
+    assert_eq!(weak.materials[0].kind.as_str(), "principled");
+    assert!(weak.warnings.len() == 1 && weak.warnings[0].contains("0.2"), "{:?}", weak.warnings);
+    let index = load("index.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_ior": { "ior": 2.0 } })).unwrap();
+    assert!(index.materials[0].kind.as_str() == "principled" && index.warnings.len() == 1 && index.warnings[0].contains("KHR_materials_ior"), "{:?}", index.warnings);
+    for (name, ext, needle) in [
+        ("factor.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 2.0 } }), "KHR_materials_transmission.transmissionFactor"),
+        ("ior.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
+        ("nan.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": "x" } }), "KHR_materials_transmission.transmissionFactor"),
+    ] {
+        let e = load(name, &|m| m["extensions"] = ext.clone()).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains("materials[0]") && !e.contains('\n'), "{name}: {e}");
+    }
+    let out = dir.join("out");
+    write_final(&out, &solid, &[]).unwrap();
+    for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
+        let w = &written.materials[0];
+        assert_eq!((w.kind.as_str(), w.ior), ("dielectric", 1.33));
+    }
+    // Under a white sky a clear thin pane shows the sky through it and mirrored on it.
+    let clear = load("clear.gltf", &|m| {
+        m["pbrMetallicRoughness"]["baseColorFactor"] = serde_json::json!([1.0, 1.0, 1.0, 1.0]);
+        m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 } });
+    })
+    .unwrap();
+    let sky = dir.join("sky.toml");
+    std::fs::write(&sky, "import = \"clear.gltf\"\n[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 8\n[environment]\nconstant = [1, 1, 1]\n").unwrap();
+    let lit = Scene::load(&sky).unwrap();
+    assert_eq!(lit.materials[0].kind.as_str(), clear.materials[0].kind.as_str());
+    let img = with_gpu(|ctx| render(ctx, &lit, 0, 4, 1));
+    let low = img.data.iter().flatten().fold(f32::INFINITY, |a, &b| a.min(b));
+    assert!(low > 0.999, "a pixel at {low}");
+}

@@ -8,7 +8,9 @@
 //! its B, each multiplied by its factor) and normal textures; `emissiveFactor` ×
 //! `KHR_materials_emissive_strength`, times the sRGB-decoded `emissiveTexture` where there
 //! is one, as the mesh's area emission, on both sides when the material is `doubleSided`;
-//! `alphaMode` `MASK` and `BLEND` as alpha tests; every
+//! `alphaMode` `MASK` and `BLEND` as alpha tests; `KHR_materials_transmission` as glass (a
+//! dielectric of `KHR_materials_ior`'s index, tinted by the base colour: refracting where
+//! `KHR_materials_volume` gives it a thickness, a thin sheet where it is thin-walled); every
 //! perspective camera as a sensor (looking down its node's −Z, in node order); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
@@ -47,7 +49,14 @@ fn material_at(m: &gltf::Material, used_at: &str) -> String {
 }
 
 /// Extensions whose content is read.
-pub const SUPPORTED_EXTENSIONS: [&str; 3] = ["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_texture_transform"];
+pub const SUPPORTED_EXTENSIONS: [&str; 6] = [
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_texture_transform",
+    "KHR_materials_transmission",
+    "KHR_materials_volume",
+    "KHR_materials_ior",
+];
 
 /// A texture reference's `KHR_texture_transform`: uv ↦ offset + R(rotation) (scale ∘ uv) in
 /// glTF's texture space (v down the image), R turning counter-clockwise.
@@ -366,7 +375,21 @@ impl Importer<'_> {
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        self.out.materials.push(Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR });
+        let material = match self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())? {
+            Some((kind, ior)) => Material {
+                name,
+                kind,
+                base_color,
+                roughness: ScalarValue::Constant(0.0),
+                metallic: ScalarValue::Constant(0.0),
+                one_sided: false,
+                normal_map: None,
+                alpha: None,
+                ior,
+            },
+            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR },
+        };
+        self.out.materials.push(material);
         self.sources.materials.push(m.index());
         let index = self.out.materials.len() - 1;
         self.materials.insert(m.index(), index);
@@ -473,6 +496,75 @@ impl Importer<'_> {
     /// expectation is what blending it over what lies behind shows). An alpha that never
     /// cuts (a constant or every texel that always passes: many `BLEND` materials are
     /// opaque) is no test.
+    /// The glass that `KHR_materials_transmission` makes of material `m` (at JSON path `at`),
+    /// if any: a dielectric of `KHR_materials_ior`'s index (1.5 by default) where
+    /// `KHR_materials_volume` gives it a thickness, otherwise glTF's thin-walled
+    /// transmission, a thin dielectric; the base colour is its transmittance. Exact for a
+    /// smooth, fully transmissive, non-metallic material; otherwise one warning names what
+    /// is dropped (roughness, metallic, a transmission below 1, a transmission texture, a
+    /// normal map or alpha, the volume's absorption). A transmission below 0.5 is dropped
+    /// instead (the material stays principled), with a warning. Without transmission, an
+    /// index other than 1.5 is a warning (the principled model's reflectance is 0.04).
+    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<Option<(MaterialKind, f32)>, SceneError> {
+        let ext = |name: &str| m.extension_value(name);
+        let number = |this: &Self, name: &str, field: &str, default: f32| -> Result<f32, SceneError> {
+            let key = format!("{at}.extensions.{name}.{field}");
+            match ext(name).and_then(|v| v.get(field)) {
+                None => Ok(default),
+                Some(v) => match v.as_f64() {
+                    Some(x) if x.is_finite() => Ok(x as f32),
+                    _ => Err(this.err(key, format!("{v} is not a finite number"))),
+                },
+            }
+        };
+        let factor = number(self, "KHR_materials_transmission", "transmissionFactor", 0.0)?;
+        if !(0.0..=1.0).contains(&factor) {
+            return Err(self.err(format!("{at}.extensions.KHR_materials_transmission.transmissionFactor"), format!("{factor} is outside [0, 1]")));
+        }
+        let ior = number(self, "KHR_materials_ior", "ior", DEFAULT_IOR)?;
+        if factor == 0.0 {
+            if ior != DEFAULT_IOR {
+                self.warn(format!("{at}.extensions.KHR_materials_ior"), format!("approximate: without transmission the index {ior} is rendered as 1.5 (a reflectance of 0.04 at normal incidence)"));
+            }
+            return Ok(None);
+        }
+        if factor < 0.5 {
+            self.warn(format!("{at}.extensions.KHR_materials_transmission"), format!("approximate: a transmission of {factor} is dropped (rendered opaque)"));
+            return Ok(None);
+        }
+        if !(MIN_IOR..=MAX_IOR).contains(&ior) {
+            return Err(self.err(format!("{at}.extensions.KHR_materials_ior.ior"), format!("{ior} is outside [{MIN_IOR}, {MAX_IOR}]")));
+        }
+        let thickness = number(self, "KHR_materials_volume", "thicknessFactor", 0.0)?;
+        let kind = if thickness > 0.0 { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric };
+        let mut dropped = Vec::new();
+        if factor < 1.0 {
+            dropped.push(format!("its transmission {factor} (rendered as 1)"));
+        }
+        if ext("KHR_materials_transmission").and_then(|v| v.get("transmissionTexture")).is_some() {
+            dropped.push("its transmissionTexture".into());
+        }
+        if !matches!(roughness, ScalarValue::Constant(r) if *r == 0.0) {
+            dropped.push("its roughness (rendered smooth)".into());
+        }
+        if !matches!(metallic, ScalarValue::Constant(v) if *v == 0.0) {
+            dropped.push("its metallic".into());
+        }
+        if normal_map {
+            dropped.push("its normal map".into());
+        }
+        if alpha {
+            dropped.push("its alpha".into());
+        }
+        if number(self, "KHR_materials_volume", "attenuationDistance", f32::INFINITY)?.is_finite() {
+            dropped.push("its volume's absorption (attenuationDistance)".into());
+        }
+        if !dropped.is_empty() {
+            self.warn(at, format!("approximate: rendered as {} glass without {}", if kind == MaterialKind::Dielectric { "smooth" } else { "smooth thin-walled" }, dropped.join(", ")));
+        }
+        Ok(Some((kind, ior)))
+    }
+
     fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {
         let mode = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => return Ok(None),
