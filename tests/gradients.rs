@@ -1056,8 +1056,8 @@ range = [0.0, 1.0]
 }
 
 /// The integrator kernels are specialised for the scene's features (`GpuScene::spec`): a
-/// scene without textures (of materials or of emission), principled materials or alpha
-/// tests has their code compiled out. The kernels
+/// scene without textures (of materials or of emission), principled materials, alpha
+/// tests or dielectrics has their code compiled out. The kernels
 /// with every feature compiled in must compute the same thing: the Cornell box (neither
 /// feature) and the spiral (principled, untextured) render bit-identical images and the
 /// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
@@ -1077,6 +1077,7 @@ fn feature_specialisation_changes_no_result() {
                 assert!(!gs.has_normal_maps, "{name} has no normal map");
                 assert!(!gs.has_emission_textures, "{name} has no emission texture");
                 assert!(!gs.has_alpha_masks, "{name} has no alpha test");
+                assert!(!gs.has_dielectrics, "{name} has no dielectric");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
                 assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
@@ -1089,6 +1090,7 @@ fn feature_specialisation_changes_no_result() {
                     gs.has_normal_maps = true;
                     gs.has_emission_textures = true;
                     gs.has_alpha_masks = true;
+                    gs.has_dielectrics = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.

@@ -507,7 +507,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
 #[test]
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
-        ("dielectric", &["<bsdf type=\"dielectric\">", "line 21", "plastic and roughplastic"][..]),
+        ("roughdielectric", &["<bsdf type=\"roughdielectric\">", "line 21", "dielectric and thindielectric BSDFs are supported"][..]),
         ("bsplinecurve", &["<shape type=\"bsplinecurve\" id=\"floor\">", "only obj, ply, serialized", "disk and cylinder"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
         ("aov", &["<integrator type=\"aov\">", "line 3", "volpathmis and direct"]),

@@ -8,7 +8,7 @@
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
-//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic">` and the
+//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric">` and the
 //! wrappers `normalmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
 //! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
@@ -16,7 +16,8 @@
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
-//! `mask` (a coverage: rays pass through with probability 1 − opacity), area
+//! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric and
+//! thindielectric (glass: [`MaterialKind::Dielectric`], [`MaterialKind::ThinDielectric`]), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
