@@ -10,7 +10,10 @@ use vkinverse::scene::{ColorValue, Scene};
 const ENV: [f32; 3] = [0.8, 0.6, 0.4];
 const RHO: f32 = 0.5;
 
-fn convex_scene(max_depth: u32) -> Scene {
+/// A closed object (`obj`, in the scene's `sphere.obj`) of material `material` (the body of
+/// its table after its name) in the constant environment ENV, seen from (0, 0, 4) on a
+/// 24 × 20 film with a field of view of `fov_y`.
+fn object_in_environment(name: &str, material: &str, obj: &str, fov_y: f32, max_depth: u32, rr_depth: u32) -> Scene {
     let toml = format!(
         r#"
 [film]
@@ -18,25 +21,29 @@ width = 24
 height = 20
 [integrator]
 max_depth = {max_depth}
-rr_depth = 10
+rr_depth = {rr_depth}
 [[sensors]]
 origin = [0, 0, 4]
 target = [0, 0, 0]
 up = [0, 1, 0]
-fov_y = 40
+fov_y = {fov_y}
 [[materials]]
-name = "grey"
-type = "diffuse"
-base_color = [{RHO}, {RHO}, {RHO}]
+name = "object"
+{material}
 [[meshes]]
 file = "sphere.obj"
-material = "grey"
+material = "object"
 [environment]
 constant = [{}, {}, {}]
 "#,
         ENV[0], ENV[1], ENV[2]
     );
-    Scene::load(write_scene(&format!("convex{max_depth}"), &toml, &sphere_obj(1.0, 3, false))).unwrap()
+    Scene::load(write_scene(name, &toml, obj)).unwrap()
+}
+
+fn convex_scene(max_depth: u32) -> Scene {
+    let grey = format!("type = \"diffuse\"\nbase_color = [{RHO}, {RHO}, {RHO}]");
+    object_in_environment(&format!("convex{max_depth}"), &grey, &sphere_obj(1.0, 3, false), 40.0, max_depth, 10)
 }
 
 /// White furnace, outside: a convex diffuse object in a constant environment. Every
@@ -1264,36 +1271,11 @@ fn blended_surfaces_are_there_with_probability_alpha() {
 const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\n\
 f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
 
-/// An object of glass (`kind`: "dielectric" or "thin_dielectric"; `obj` its mesh) in a
-/// constant environment, seen from (0, 0, 4) with a field of view of `fov_y`.
+/// An object of glass (`kind`: "dielectric" or "thin_dielectric"; `obj` its mesh) in the
+/// constant environment, seen with a field of view of `fov_y`, without Russian roulette.
 fn glass_scene(name: &str, kind: &str, obj: &str, fov_y: f32, tint: [f32; 3], ior: f32, max_depth: u32) -> Scene {
-    let toml = format!(
-        r#"
-[film]
-width = 24
-height = 20
-[integrator]
-max_depth = {max_depth}
-rr_depth = {max_depth}
-[[sensors]]
-origin = [0, 0, 4]
-target = [0, 0, 0]
-up = [0, 1, 0]
-fov_y = {fov_y}
-[[materials]]
-name = "glass"
-type = "{kind}"
-base_color = [{}, {}, {}]
-ior = {ior}
-[[meshes]]
-file = "sphere.obj"
-material = "glass"
-[environment]
-constant = [{}, {}, {}]
-"#,
-        tint[0], tint[1], tint[2], ENV[0], ENV[1], ENV[2]
-    );
-    Scene::load(write_scene(name, &toml, obj)).unwrap()
+    let glass = format!("type = \"{kind}\"\nbase_color = [{}, {}, {}]\nior = {ior}", tint[0], tint[1], tint[2]);
+    object_in_environment(name, &glass, obj, fov_y, max_depth, max_depth)
 }
 
 /// White furnace through glass: a clear dielectric (no tint) in a constant environment

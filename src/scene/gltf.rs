@@ -376,17 +376,7 @@ impl Importer<'_> {
             (None, None) => "default".to_string(),
         };
         let material = match self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())? {
-            Some((kind, ior)) => Material {
-                name,
-                kind,
-                base_color,
-                roughness: ScalarValue::Constant(0.0),
-                metallic: ScalarValue::Constant(0.0),
-                one_sided: false,
-                normal_map: None,
-                alpha: None,
-                ior,
-            },
+            Some((kind, ior)) => Material::glass(name, kind, base_color, ior),
             None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR },
         };
         self.out.materials.push(material);

@@ -824,17 +824,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                 }
                 let base_color = self.color_param(&mut items, "specular_transmittance", [1.0; 3])?;
-                Material {
-                    name: name.into(),
-                    kind: if kind == "dielectric" { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric },
-                    base_color,
-                    roughness: ScalarValue::Constant(0.0),
-                    metallic: ScalarValue::Constant(0.0),
-                    one_sided: false,
-                    normal_map: None,
-                    alpha: None,
-                    ior: eta,
-                }
+                let kind = if kind == "dielectric" { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric };
+                Material::glass(name.into(), kind, base_color, eta)
             }
             "plastic" | "roughplastic" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughplastic")?;

@@ -126,6 +126,26 @@ pub struct Material {
     pub ior: f32,
 }
 
+impl Material {
+    /// Glass of `kind` (a dielectric of either kind) with transmittance `base_color` and
+    /// index of refraction `ior`: no roughness, metallic, normal map or alpha, both sides
+    /// alike.
+    pub fn glass(name: String, kind: MaterialKind, base_color: ColorValue, ior: f32) -> Self {
+        debug_assert!(kind.is_dielectric());
+        Self {
+            name,
+            kind,
+            base_color,
+            roughness: ScalarValue::Constant(0.0),
+            metallic: ScalarValue::Constant(0.0),
+            one_sided: false,
+            normal_map: None,
+            alpha: None,
+            ior,
+        }
+    }
+}
+
 /// An alpha test: whether the surface is there at a point, by its alpha there (looked up
 /// bilinearly, for a texture, at the point's texture coordinates). Where it is not, rays
 /// pass through it as if it were not there.
