@@ -46,7 +46,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 96 bytes (6 texels).
+/// Mirror of `MaterialRecord`: 112 bytes (7 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -67,6 +67,9 @@ pub struct MaterialRecord {
     /// The alpha test's value (1 float per texel); unused (zero) where the material has
     /// none: the BVH's triangle records say which materials do.
     pub alpha: ValueRef,
+    /// A dielectric's interior absorption coefficient per unit length; zero otherwise.
+    pub absorption: [f32; 3],
+    pub pad: u32,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).

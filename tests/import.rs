@@ -1154,7 +1154,8 @@ fn mitsuba_dielectrics_are_glass() {
 
 /// glTF's transmission: `KHR_materials_transmission` with a `KHR_materials_volume`
 /// thickness is refracting glass of `KHR_materials_ior`'s index, without one glTF's
-/// thin-walled transmission (a thin dielectric); the base colour is the transmittance.
+/// thin-walled transmission (a thin dielectric); the base colour is the transmittance and
+/// the volume's attenuation the interior's absorption.
 /// What the smooth model drops is one warning, a weak transmission stays principled with a
 /// warning, a factor out of range is an error naming its JSON path; both write-backs
 /// reload as the same glass, and a thin pane under a white sky passes it all.
@@ -1178,7 +1179,7 @@ fn gltf_transmission_is_glass() {
     let solid = load("solid.gltf", &|m| {
         m["extensions"] = serde_json::json!({
             "KHR_materials_transmission": { "transmissionFactor": 1.0 },
-            "KHR_materials_volume": { "thicknessFactor": 0.1 },
+            "KHR_materials_volume": { "thicknessFactor": 0.1, "attenuationColor": [0.5, 1.0, 0.25], "attenuationDistance": 2.0 },
             "KHR_materials_ior": { "ior": 1.33 }
         })
     })
@@ -1186,6 +1187,9 @@ fn gltf_transmission_is_glass() {
     let g = &solid.materials[0];
     assert_eq!((g.kind.as_str(), g.ior), ("dielectric", 1.33));
     assert!(matches!(g.base_color, ColorValue::Constant(c) if c == [0.9, 0.8, 0.7]), "{g:?}");
+    // What remains of white light after the distance is the colour: −ln(colour) / distance.
+    let want = [0.5f32, 1.0, 0.25].map(|c| -c.ln() / 2.0);
+    assert!(g.absorption.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{:?} against {want:?}", g.absorption);
     assert!(solid.warnings.is_empty(), "{:?}", solid.warnings);
     let thin = load("thin.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 } })).unwrap();
     assert_eq!((thin.materials[0].kind.as_str(), thin.materials[0].ior), ("thin_dielectric", 1.5));
@@ -1206,6 +1210,7 @@ fn gltf_transmission_is_glass() {
         ("factor.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 2.0 } }), "KHR_materials_transmission.transmissionFactor"),
         ("ior.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
         ("nan.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": "x" } }), "KHR_materials_transmission.transmissionFactor"),
+        ("attenuation.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_volume": { "thicknessFactor": 1.0, "attenuationColor": [0.0, 1.0, 1.0], "attenuationDistance": 1.0 } }), "KHR_materials_volume.attenuationColor"),
     ] {
         let e = load(name, &|m| m["extensions"] = ext.clone()).unwrap_err().to_string();
         assert!(e.contains(needle) && e.contains("materials[0]") && !e.contains('\n'), "{name}: {e}");
@@ -1214,7 +1219,7 @@ fn gltf_transmission_is_glass() {
     write_final(&out, &solid, &[]).unwrap();
     for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
         let w = &written.materials[0];
-        assert_eq!((w.kind.as_str(), w.ior), ("dielectric", 1.33));
+        assert_eq!((w.kind.as_str(), w.ior, w.absorption), ("dielectric", 1.33, g.absorption));
     }
     // Under a white sky a clear thin pane shows the sky through it and mirrored on it.
     let clear = load("clear.gltf", &|m| {

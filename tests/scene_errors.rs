@@ -247,6 +247,8 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(bk7, base);
     assert_eq!(bk7, glass("hash-s", "\nior = 1.5"), "1.5 is the default index");
     assert_ne!(bk7, glass("hash-t", "\nior = 1.33"));
+    assert_ne!(bk7, glass("hash-u", "\nabsorption = [0, 0, 0.5]"));
+    assert_eq!(bk7, glass("hash-v", "\nabsorption = [0, 0, 0]"), "no absorption hashes as none");
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -707,7 +709,7 @@ fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
 }
 
 /// A dielectric: white transmittance and index 1.5 by default, its index within
-/// [0.25, 4], no roughness, metallic, one-sidedness, normal map or alpha, no optimised
+/// [0.25, 4], its absorption finite and not negative (a thin one has none), no roughness, metallic, one-sidedness, normal map or alpha, no optimised
 /// roughness or metallic; an index only on a dielectric, a base colour required elsewhere.
 #[test]
 fn dielectrics_are_checked() {
@@ -725,6 +727,13 @@ fn dielectrics_are_checked() {
     for (key, line) in [("one_sided", "one_sided = true"), ("normal_map", "normal_map = { texture = \"tex.exr\" }"), ("alpha", "alpha = 0.5")] {
         assert_message(&load_err(&format!("glass-{key}"), &glass(&format!("\n{line}"))), &[&format!("materials.m.{key}"), "dielectric"]);
     }
+    let s = Scene::load(fixture("glass-absorbing", &glass("\nabsorption = [0.5, 0, 2]"))).unwrap();
+    assert_eq!(s.materials[0].absorption, [0.5, 0.0, 2.0]);
+    assert_message(&load_err("glass-absorption-negative", &glass("\nabsorption = [0.5, -1, 2]")), &["materials.m.absorption", "-1", "negative"]);
+    assert_message(&load_err("glass-absorption-nan", &glass("\nabsorption = [0.5, nan, 2]")), &["materials.m.absorption"]);
+    let thin = BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"thin_dielectric\"\nabsorption = [1, 1, 1]");
+    assert_message(&load_err("thin-absorption", &thin), &["materials.m.absorption", "refracting dielectric"]);
+    assert_message(&load_err("principled-absorption", &BASE.replace("type = \"principled\"", "type = \"principled\"\nabsorption = [1, 1, 1]")), &["materials.m.absorption"]);
     assert_message(&load_err("ior-principled", &BASE.replace("type = \"principled\"", "type = \"principled\"\nior = 1.5")), &["materials.m.ior", "dielectric"]);
     assert_message(&load_err("no-base-color", &BASE.replace("base_color = [0.5, 0.5, 0.5]", "")), &["materials.m.base_color", "missing"]);
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.5\nrange = [0, 1]\n", glass(""));

@@ -30,7 +30,12 @@
 // side): a ray arriving from behind leaves the interior, so the relative index inverts
 // (a thin dielectric has the same medium on both sides and keeps it).
 // Its other states take the same lobe: their weights are their masses over state 0's
-// probability, the lobe's choice shared like every other.
+// probability, the lobe's choice shared like every other. A refraction into a dielectric's
+// interior sets the path's absorption coefficient to the material's, one out of it back to
+// 0 (the camera is outside every interior; nested interiors are not tracked), and each ray
+// of the path keeps exp(-absorption t) over its length t (none if it escapes the scene
+// inside). Light samples are not attenuated: they never cross glass, and a vertex inside
+// an interior (an object embedded in glass) takes them as if in air.
 //
 // Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
 #ifndef INTEGRATOR_GLSL
@@ -256,13 +261,20 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
     }
     float prev_bsdf_pdf = 0.0;   // 0: the previous vertex is the camera (no MIS)
+    vec3 absorption = vec3(0.0);  // of the interior the path is in (HAS_DIELECTRICS)
     // Probability that next-event estimation samples the environment map.
     float p_env = 0.0;
     if (ENVIRONMENT_SAMPLED) p_env = scene_globals().environment_sample_prob;
     for (uint depth = 1u; ; ++depth) {
         rng_seek_bounce(rng, depth);
         Hit hit;
-        if (!cast_closest(o, d, 1e30, depth, replay, hit)) {
+        bool found = cast_closest(o, d, 1e30, depth, replay, hit);
+        // Beer-Lambert over the ray inside an interior (all of it, if it escapes there).
+        if (HAS_DIELECTRICS && any(greaterThan(absorption, vec3(0.0)))) {
+            vec3 kept = found ? exp(-absorption * hit.t) : vec3(0.0);
+            for (int s = 0; s < NSTATES; ++s) beta[s] *= kept;
+        }
+        if (!found) {
             if (HAS_ENVIRONMENT) {
                 float mis = 1.0;
                 // The map's light-sampling density of this direction (it was reached by a
@@ -476,8 +488,10 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         bool alive = false;
         for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
         if (!alive) break;
-        // A refracted ray leaves from the surface's far side.
-        o = dielectric && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
+        // A refracted ray leaves from the surface's far side, into or out of the interior.
+        bool refracted = dielectric && dot(wi, ng) < 0.0;
+        if (refracted && mat[0].kind == MATERIAL_DIELECTRIC) absorption = from_behind ? vec3(0.0) : material_record(sh.material).absorption;
+        o = refracted ? p - RAY_EPSILON * ng : p_off;
         d = wi;
     }
 }

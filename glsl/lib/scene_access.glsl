@@ -51,7 +51,7 @@ ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 // Material `id` (6 texels: three ValueRefs, kind, one_sided and alpha_cutoff, the normal
 // map's and the alpha's ValueRefs).
 MaterialRecord material_record(uint id) {
-    int b = int(id) * 6;
+    int b = int(id) * 7;
     MaterialRecord r;
     r.base_color = value_ref(texel_load(Materials, b));
     r.roughness = value_ref(texel_load(Materials, b + 1));
@@ -63,6 +63,9 @@ MaterialRecord material_record(uint id) {
     r.ior = uintBitsToFloat(t3.w);
     r.normal_map = value_ref(texel_load(Materials, b + 4));
     r.alpha = value_ref(texel_load(Materials, b + 5));
+    uvec4 t6 = texel_load(Materials, b + 6);
+    r.absorption = uintBitsToFloat(t6.xyz);
+    r.pad3 = 0u;
     return r;
 }
 

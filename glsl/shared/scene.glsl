@@ -18,7 +18,7 @@ struct ValueRef {
     uint in_theta;
 };
 
-// One material. 96 bytes (6 texels).
+// One material. 112 bytes (7 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
@@ -36,6 +36,11 @@ struct MaterialRecord {
     // has none. Read only by scenes that have one, and only at a ray's candidate hits on
     // triangles whose BVH record names the material (shared/bvh.glsl).
     ValueRef alpha;
+    // A dielectric's interior absorption coefficient per unit length (Beer-Lambert: a
+    // segment of length t inside keeps exp(-absorption t)); zero otherwise. Read only at a
+    // dielectric's refractions.
+    vec3 absorption;
+    uint pad3;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).

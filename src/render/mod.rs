@@ -350,6 +350,8 @@ impl GpuScene {
                     ior: if m.kind.is_dielectric() { m.ior } else { 0.0 },
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
+                    absorption: m.absorption,
+                    pad: 0,
                 }
             })
             .collect();

@@ -108,6 +108,9 @@ pub struct MaterialFile {
     /// A dielectric's index of refraction, interior over exterior (1.5 by default). Only
     /// with `type = "dielectric"`.
     pub ior: Option<f32>,
+    /// A dielectric's interior absorption coefficient per unit length, per channel (0 by
+    /// default). Only with `type = "dielectric"`.
+    pub absorption: Option<[f32; 3]>,
 }
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map

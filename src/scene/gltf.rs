@@ -376,8 +376,8 @@ impl Importer<'_> {
             (None, None) => "default".to_string(),
         };
         let material = match self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())? {
-            Some((kind, ior)) => Material::glass(name, kind, base_color, ior),
-            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR },
+            Some((kind, ior, absorption)) => Material { absorption, ..Material::glass(name, kind, base_color, ior) },
+            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR, absorption: [0.0; 3] },
         };
         self.out.materials.push(material);
         self.sources.materials.push(m.index());
@@ -492,10 +492,11 @@ impl Importer<'_> {
     /// transmission, a thin dielectric; the base colour is its transmittance. Exact for a
     /// smooth, fully transmissive, non-metallic material; otherwise one warning names what
     /// is dropped (roughness, metallic, a transmission below 1, a transmission texture, a
-    /// normal map or alpha, the volume's absorption). A transmission below 0.5 is dropped
+    /// normal map or alpha). The volume's `attenuationColor` and `attenuationDistance` are
+    /// the interior's absorption. A transmission below 0.5 is dropped
     /// instead (the material stays principled), with a warning. Without transmission, an
     /// index other than 1.5 is a warning (the principled model's reflectance is 0.04).
-    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<Option<(MaterialKind, f32)>, SceneError> {
+    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<Option<(MaterialKind, f32, [f32; 3])>, SceneError> {
         let ext = |name: &str| m.extension_value(name);
         let number = |this: &Self, name: &str, field: &str, default: f32| -> Result<f32, SceneError> {
             let key = format!("{at}.extensions.{name}.{field}");
@@ -546,13 +547,34 @@ impl Importer<'_> {
         if alpha {
             dropped.push("its alpha".into());
         }
-        if number(self, "KHR_materials_volume", "attenuationDistance", f32::INFINITY)?.is_finite() {
-            dropped.push("its volume's absorption (attenuationDistance)".into());
+        // The volume's absorption: attenuationColor is what remains of white light after
+        // attenuationDistance inside, so the coefficient is −ln(colour) / distance (a
+        // thin-walled material has no volume: glTF ignores it there).
+        let mut absorption = [0.0; 3];
+        let distance = number(self, "KHR_materials_volume", "attenuationDistance", f32::INFINITY)?;
+        if kind == MaterialKind::Dielectric && distance.is_finite() {
+            let vkey = |field: &str| format!("{at}.extensions.KHR_materials_volume.{field}");
+            if distance <= 0.0 {
+                return Err(self.err(vkey("attenuationDistance"), format!("{distance} is not positive")));
+            }
+            let colour = match ext("KHR_materials_volume").and_then(|v| v.get("attenuationColor")) {
+                None => [1.0; 3],
+                Some(v) => v
+                    .as_array()
+                    .filter(|a| a.len() == 3)
+                    .and_then(|a| {
+                        let c: Vec<f32> = a.iter().filter_map(|x| x.as_f64()).map(|x| x as f32).collect();
+                        <[f32; 3]>::try_from(c).ok()
+                    })
+                    .filter(|c| c.iter().all(|x| *x > 0.0 && *x <= 1.0))
+                    .ok_or_else(|| self.err(vkey("attenuationColor"), format!("{v} is not three numbers in (0, 1]")))?,
+            };
+            absorption = colour.map(|c| -c.ln() / distance);
         }
         if !dropped.is_empty() {
             self.warn(at, format!("approximate: rendered as {} glass without {}", if kind == MaterialKind::Dielectric { "smooth" } else { "smooth thin-walled" }, dropped.join(", ")));
         }
-        Ok(Some((kind, ior)))
+        Ok(Some((kind, ior, absorption)))
     }
 
     fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {

@@ -118,6 +118,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
         if m.kind.is_dielectric() {
             h.f32s(&[m.ior]);
         }
+        if m.absorption != [0.0; 3] {
+            h.tag("absorption");
+            h.f32s(&m.absorption);
+        }
     }
     h.tag("meshes");
     h.u64(scene.meshes.len() as u64);

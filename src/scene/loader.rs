@@ -458,6 +458,19 @@ impl Loader {
                     (ScalarValue::Constant(0.0), ScalarValue::Constant(0.0))
                 }
             };
+            let absorption = match m.absorption {
+                None => [0.0; 3],
+                Some(_) if m.kind != MaterialKind::Dielectric => {
+                    return Err(self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\")"));
+                }
+                Some(a) => {
+                    self.finite(&format!("{key}.absorption"), &a)?;
+                    if let Some(v) = a.iter().find(|v| **v < 0.0) {
+                        return Err(self.out_of_range(&format!("{key}.absorption"), format!("{v} is negative")));
+                    }
+                    a
+                }
+            };
             let ior = match m.ior {
                 None => DEFAULT_IOR,
                 Some(ior) => {
@@ -516,6 +529,7 @@ impl Loader {
                 normal_map,
                 alpha,
                 ior,
+                absorption,
             });
         }
         Ok(out)

@@ -755,7 +755,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 normal_map: None,
                 alpha: None,
                 ior: DEFAULT_IOR,
-            },
+                absorption: [0.0; 3],            },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
                 let roughness = self.scalar_param(&mut items, "roughness", 0.5)?;
@@ -776,7 +776,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3] }
             }
             "roughconductor" | "conductor" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
@@ -806,7 +806,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     normal_map: None,
                     alpha: None,
                     ior: DEFAULT_IOR,
-                }
+                    absorption: [0.0; 3],                }
             }
             "dielectric" | "thindielectric" => {
                 if !one_sided {
@@ -875,7 +875,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     normal_map: None,
                     alpha: None,
                     ior: DEFAULT_IOR,
-                }
+                    absorption: [0.0; 3],                }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric and thindielectric BSDFs are supported")),
         };
@@ -940,7 +940,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             normal_map: None,
             alpha: None,
             ior: DEFAULT_IOR,
-        });
+            absorption: [0.0; 3],        });
         self.out.materials.len() - 1
     }
 

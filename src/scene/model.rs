@@ -124,6 +124,10 @@ pub struct Material {
     /// dielectric's sheet) over its exterior, in [MIN_IOR, MAX_IOR] (never optimised); [`DEFAULT_IOR`] and unused
     /// for the other kinds.
     pub ior: f32,
+    /// A (refracting) dielectric's interior absorption coefficient per unit length, per
+    /// channel, at least 0: a ray that travels a distance t inside keeps exp(−absorption t)
+    /// of its radiance (never optimised). Zero for the other kinds.
+    pub absorption: [f32; 3],
 }
 
 impl Material {
@@ -142,6 +146,7 @@ impl Material {
             normal_map: None,
             alpha: None,
             ior,
+            absorption: [0.0; 3],
         }
     }
 }

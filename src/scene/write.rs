@@ -185,6 +185,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.kind.is_dielectric() {
             pairs.push(("ior", Value::Float(num(m.ior))));
         }
+        if m.absorption != [0.0; 3] {
+            pairs.push(("absorption", arr(&m.absorption)));
+        }
         if let Some(a) = &m.alpha {
             pairs.push(("alpha", scalar("alpha", &a.value)?));
             pairs.push(("alpha_mode", Value::String(a.mode.as_str().into())));
