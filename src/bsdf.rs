@@ -353,9 +353,10 @@ pub fn dielectric_reflectance(m: &MaterialF64, cos_i: f64) -> (f64, f64) {
     (if m.thin() { 2.0 * fr / (1.0 + fr) } else { fr }, cos_t)
 }
 
-/// The transmitted lobe's radiance factor per unit (1 − R) (`dielectric_transmittance`).
-pub fn dielectric_transmittance(m: &MaterialF64) -> DVec3 {
-    if m.thin() { m.base_color } else { m.base_color / (m.ior * m.ior) }
+/// The transmitted lobe's radiance factor per unit (1 − R) and unit base colour: 1/η², or 1
+/// through a thin sheet (`dielectric_crossing`).
+pub fn dielectric_crossing(m: &MaterialF64) -> f64 {
+    if m.thin() { 1.0 } else { 1.0 / (m.ior * m.ior) }
 }
 
 /// The probability of wi's lobe: R above the surface, 1 − R below (`dielectric_prob`).
@@ -368,14 +369,14 @@ pub fn dielectric_prob(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
     if wi.dot(n) > 0.0 { r } else { 1.0 - r }
 }
 
-/// The lobe's mass at wi: R, or (1 − R) [`dielectric_transmittance`] (`dielectric_mass`).
+/// The lobe's mass at wi: R, or (1 − R) [`dielectric_crossing`] base_color (`dielectric_mass`).
 pub fn dielectric_mass(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3 {
     let cos_i = wo.dot(n);
     if cos_i <= 0.0 {
         return DVec3::ZERO;
     }
     let (r, _) = dielectric_reflectance(m, cos_i);
-    if wi.dot(n) > 0.0 { DVec3::splat(r) } else { (1.0 - r) * dielectric_transmittance(m) }
+    if wi.dot(n) > 0.0 { DVec3::splat(r) } else { (1.0 - r) * dielectric_crossing(m) * m.base_color }
 }
 
 /// d [`dielectric_mass`] / d base_color per channel (`dielectric_mass_grad`).
@@ -385,8 +386,7 @@ pub fn dielectric_mass_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> 
         return DVec3::ZERO;
     }
     let (r, _) = dielectric_reflectance(m, cos_i);
-    let k = if m.thin() { 1.0 } else { 1.0 / (m.ior * m.ior) };
-    DVec3::splat((1.0 - r) * k)
+    DVec3::splat((1.0 - r) * dielectric_crossing(m))
 }
 
 /// `dielectric_sample`: the mirror when u < R, else the transmission (refracted, or
@@ -402,7 +402,7 @@ pub fn dielectric_sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: f64) -> Option
         BsdfSample { wi: 2.0 * cos_i * n - wo, weight: DVec3::ONE, pdf: r }
     } else {
         let wi = if m.thin() { -wo } else { ((cos_i * n - wo) / m.ior - cos_t * n).normalize() };
-        BsdfSample { wi, weight: dielectric_transmittance(m), pdf: 1.0 - r }
+        BsdfSample { wi, weight: dielectric_crossing(m) * m.base_color, pdf: 1.0 - r }
     };
     (s.pdf > 0.0).then_some(s)
 }

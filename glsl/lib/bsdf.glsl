@@ -354,10 +354,11 @@ float dielectric_reflectance(Material m, float cos_i, out float cos_t) {
     return m.kind == MATERIAL_THIN_DIELECTRIC ? 2.0 * fr / (1.0 + fr) : fr;
 }
 
-// The radiance factor of the transmitted lobe per unit (1 - reflectance): base_color /
-// eta^2 through an interface, base_color through a thin sheet.
-vec3 dielectric_transmittance(Material m) {
-    return m.kind == MATERIAL_THIN_DIELECTRIC ? m.base_color : m.base_color / (m.ior * m.ior);
+// The radiance factor of the transmitted lobe per unit (1 - reflectance) and unit
+// base_color: 1 / eta^2 through an interface (the solid angle's compression), 1 through a
+// thin sheet.
+float dielectric_crossing(Material m) {
+    return m.kind == MATERIAL_THIN_DIELECTRIC ? 1.0 : 1.0 / (m.ior * m.ior);
 }
 
 // The probability that dielectric_sample picks wi's lobe (the mirror when wi is above the
@@ -371,14 +372,14 @@ float dielectric_prob(Material m, vec3 n, vec3 wo, vec3 wi) {
 }
 
 // The lobe's mass at wi (the discrete counterpart of f cos_i: the radiance that arrives
-// along wi leaves along wo times this): R for the mirror, (1 - R) dielectric_transmittance
-// for the transmission. wi is taken to be the lobe's direction; only its side is looked at.
+// along wi leaves along wo times this): R for the mirror, (1 - R) dielectric_crossing
+// base_color for the transmission. wi is taken to be the lobe's direction; only its side is looked at.
 vec3 dielectric_mass(Material m, vec3 n, vec3 wo, vec3 wi) {
     float cos_i = dot(wo, n);
     if (cos_i <= 0.0) return vec3(0.0);
     float cos_t;
     float r = dielectric_reflectance(m, cos_i, cos_t);
-    return dot(wi, n) > 0.0 ? vec3(r) : (1.0 - r) * dielectric_transmittance(m);
+    return dot(wi, n) > 0.0 ? vec3(r) : ((1.0 - r) * dielectric_crossing(m)) * m.base_color;
 }
 
 // d dielectric_mass / d base_color, per channel (the Jacobian is diagonal): 0 for the
@@ -388,8 +389,7 @@ vec3 dielectric_mass_grad(Material m, vec3 n, vec3 wo, vec3 wi) {
     if (cos_i <= 0.0 || dot(wi, n) > 0.0) return vec3(0.0);
     float cos_t;
     float r = dielectric_reflectance(m, cos_i, cos_t);
-    float k = m.kind == MATERIAL_THIN_DIELECTRIC ? 1.0 : 1.0 / (m.ior * m.ior);
-    return vec3((1.0 - r) * k);
+    return vec3((1.0 - r) * dielectric_crossing(m));
 }
 
 // Picks the mirror with probability R (u < R) or the transmission: wi, its lobe's
@@ -412,7 +412,7 @@ bool dielectric_sample(Material m, vec3 n, vec3 wo, float u, out vec3 wi, out ve
         // sheet lets the ray through unbent.
         wi = m.kind == MATERIAL_THIN_DIELECTRIC ? -wo : normalize((cos_i * n - wo) / m.ior - cos_t * n);
         prob = 1.0 - r;
-        weight = dielectric_transmittance(m);
+        weight = dielectric_crossing(m) * m.base_color;
     }
     return prob > 0.0;
 }

@@ -17,9 +17,10 @@ struct Material {
     float roughness;
     float metallic;
     uint kind;
-    // MATERIAL_DIELECTRIC: the index of refraction of the side a ray refracts into over
-    // that of the side it comes from (the integrator inverts the material's interior over
-    // exterior ratio for rays leaving the interior). Unused by the other kinds.
+    // A dielectric's: the index of refraction of the side a ray refracts into over that of
+    // the side it comes from (the integrator inverts the material's interior over exterior
+    // ratio for rays leaving the interior; a thin dielectric's is the same from both
+    // sides). Unused by the other kinds.
     float ior;
 };
 #endif

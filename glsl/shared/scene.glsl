@@ -23,7 +23,7 @@ struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
     ValueRef metallic;
-    uint kind;  // MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED or MATERIAL_DIELECTRIC (shared/material.glsl)
+    uint kind;  // MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_DIELECTRIC or MATERIAL_THIN_DIELECTRIC (shared/material.glsl)
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     float alpha_cutoff;  // the surface is there where its alpha is at least this; negative:
                          // a blend, there with probability alpha
