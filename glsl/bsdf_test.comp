@@ -73,7 +73,7 @@ void main() {
     Material m = materials[i];
     BsdfCase c = cases[i];
     BsdfResult r;
-    if (m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) {
+    if (material_is_dielectric(m.kind)) {
         // The delta lobes' functions in the same slots: mass, lobe probability, sample,
         // the mass's base-colour derivative.
         r.value = dielectric_mass(m, c.n, c.wo, c.wi);

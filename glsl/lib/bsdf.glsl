@@ -185,14 +185,14 @@ float principled_pdf(vec2 p, float cos_i, PrincipledTerms t) {
 
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
-    if (m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return vec3(0.0);
+    if (material_is_dielectric(m.kind)) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
     return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
-    if (m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return 0.0;
+    if (material_is_dielectric(m.kind)) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
     vec2 p = bsdf_lobe_probabilities(m, wo.z);
     return principled_pdf(p, wi.z, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
@@ -257,7 +257,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     pdf = 0.0;
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
-    if (wo_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return false;
+    if (wo_l.z <= 0.0 || material_is_dielectric(m.kind)) return false;
     if (m.kind != MATERIAL_PRINCIPLED) {
         // Lambert: pdf cos_i / pi, weight base_color exactly.
         vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
@@ -306,7 +306,7 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
-    if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC) return;
+    if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || material_is_dielectric(m.kind)) return;
     if (m.kind != MATERIAL_PRINCIPLED) {
         d_base_color = vec3(wi_l.z / BSDF_PI);
         return;

@@ -344,7 +344,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         if (dot(ns, ng) < 0.0) ns = -ns;
         Material mat[NSTATES];
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
-        bool dielectric = HAS_DIELECTRICS && (mat[0].kind == MATERIAL_DIELECTRIC || mat[0].kind == MATERIAL_THIN_DIELECTRIC);
+        bool dielectric = HAS_DIELECTRICS && material_is_dielectric(mat[0].kind);
         if (dielectric && from_behind && mat[0].kind == MATERIAL_DIELECTRIC) {
             for (int s = 0; s < NSTATES; ++s) mat[s].ior = 1.0 / mat[s].ior;
         }

@@ -424,7 +424,7 @@ Material fetch_material(uint id, vec2 uv, int state) {
     if (HAS_PRINCIPLED) {
         m.kind = r.kind;
     } else if (HAS_DIELECTRICS) {
-        m.kind = r.kind == MATERIAL_DIELECTRIC || r.kind == MATERIAL_THIN_DIELECTRIC ? r.kind : MATERIAL_DIFFUSE;
+        m.kind = material_is_dielectric(r.kind) ? r.kind : MATERIAL_DIFFUSE;
     } else {
         m.kind = MATERIAL_DIFFUSE;
     }

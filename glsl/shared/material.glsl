@@ -23,4 +23,9 @@ struct Material {
     // sides). Unused by the other kinds.
     float ior;
 };
+
+// Whether `kind` is glass of either kind (delta lobes, an index of refraction).
+bool material_is_dielectric(uint kind) {
+    return kind == MATERIAL_DIELECTRIC || kind == MATERIAL_THIN_DIELECTRIC;
+}
 #endif

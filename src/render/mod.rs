@@ -524,7 +524,7 @@ impl GpuScene {
             .chain([environment])
             .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
-        let has_dielectrics = materials.iter().any(|m| m.kind == MATERIAL_DIELECTRIC || m.kind == MATERIAL_THIN_DIELECTRIC);
+        let has_dielectrics = scene.materials.iter().any(|m| m.kind.is_dielectric());
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;

@@ -755,7 +755,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                 normal_map: None,
                 alpha: None,
                 ior: DEFAULT_IOR,
-                absorption: [0.0; 3],            },
+                absorption: [0.0; 3],
+            },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
                 let roughness = self.scalar_param(&mut items, "roughness", 0.5)?;
@@ -806,7 +807,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                     normal_map: None,
                     alpha: None,
                     ior: DEFAULT_IOR,
-                    absorption: [0.0; 3],                }
+                    absorption: [0.0; 3],
+                }
             }
             "dielectric" | "thindielectric" => {
                 if !one_sided {
@@ -875,7 +877,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                     normal_map: None,
                     alpha: None,
                     ior: DEFAULT_IOR,
-                    absorption: [0.0; 3],                }
+                    absorption: [0.0; 3],
+                }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric and thindielectric BSDFs are supported")),
         };
@@ -940,7 +943,8 @@ impl<'a, 'i> Importer<'a, 'i> {
             normal_map: None,
             alpha: None,
             ior: DEFAULT_IOR,
-            absorption: [0.0; 3],        });
+            absorption: [0.0; 3],
+        });
         self.out.materials.len() - 1
     }
 
