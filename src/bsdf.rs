@@ -9,7 +9,7 @@
 //! directions point away from the surface, the BSDF is one-sided, and [`eval`] returns
 //! f(wo, wi) |cos theta_i|.
 
-use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
+use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -56,6 +56,11 @@ impl MaterialF64 {
 
     pub fn thin(&self) -> bool {
         self.kind == MATERIAL_THIN_DIELECTRIC
+    }
+
+    /// The rough dielectric (lobes on both sides, no deltas).
+    pub fn rough_glass(&self) -> bool {
+        self.kind == MATERIAL_ROUGH_DIELECTRIC
     }
 
     /// mix(0.04, base_color, metallic)
@@ -190,8 +195,103 @@ fn principled_pdf(p: [f64; 2], cos_i: f64, t: &PrincipledTerms) -> f64 {
     p[0] * (cos_i / PI) + p[1] * (t.d / (4.0 * t.denom_o))
 }
 
+/// The unpolarised Fresnel reflectance at cos_i > 0 of an interface of relative index eta,
+/// and the refracted cosine (0 under total internal reflection, where it returns 1)
+/// (`dielectric_fresnel`).
+pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
+    let sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if sin2_t >= 1.0 {
+        return (1.0, 0.0);
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    (0.5 * (rs * rs + rp * rp), cos_t)
+}
+
+/// `RoughGlassTerms`: see the GLSL for the model and what each term is.
+#[derive(Clone, Copy, Debug)]
+struct RoughGlassTerms {
+    valid: bool,
+    alpha: f64,
+    h: DVec3,
+    k: f64,
+    lambda_o: f64,
+    lambda_i: f64,
+    q_o: f64,
+    q_i: f64,
+    visible: f64,
+    fresnel: f64,
+    reflect: bool,
+}
+
+/// Smith's Lambda of GGX and q = sqrt(cos^2 + alpha^2 sin^2) (`ggx_lambda`).
+fn ggx_lambda(v: DVec3, a2: f64) -> (f64, f64) {
+    let c = v.z.abs();
+    let s2 = v.x * v.x + v.y * v.y;
+    let q = (c * c + a2 * s2).sqrt();
+    (a2 * s2 / (2.0 * c * (q + c)), q)
+}
+
+/// `rough_glass_terms`
+fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGlassTerms {
+    let reflect = wi.z > 0.0;
+    let alpha = alpha(m.roughness);
+    let a2 = alpha * alpha;
+    let (oh, ih) = (wo.dot(h), wi.dot(h));
+    let mut valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && if reflect { ih > 0.0 } else { ih < 0.0 };
+    let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
+    let (lambda_o, q_o) = ggx_lambda(wo, a2);
+    let (lambda_i, q_i) = ggx_lambda(wi, a2);
+    let (fresnel, _) = dielectric_fresnel(oh, m.ior);
+    let jac = if reflect {
+        1.0 / (4.0 * oh)
+    } else {
+        let den = oh + m.ior * ih;
+        m.ior * m.ior * ih.abs() / (den * den)
+    };
+    let d = a2 / (PI * k * k);
+    let mut visible = d * oh * jac / (wo.z * (1.0 + lambda_o));
+    if !valid || visible.is_nan() || visible <= 0.0 {
+        valid = false;
+        visible = 0.0;
+    }
+    RoughGlassTerms { valid, alpha, h, k, lambda_o, lambda_i, q_o, q_i, visible, fresnel, reflect }
+}
+
+/// `rough_glass_half`
+fn rough_glass_half(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
+    let h = if wi.z > 0.0 { wo + wi } else { wo + m.ior * wi }.normalize();
+    if h.z < 0.0 { -h } else { h }
+}
+
+/// `rough_glass_tint`
+fn rough_glass_tint(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
+    if t.reflect { DVec3::ONE } else { m.base_color / (m.ior * m.ior) }
+}
+
+/// `rough_glass_value`
+fn rough_glass_value(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
+    if !t.valid {
+        return DVec3::ZERO;
+    }
+    let prob = if t.reflect { t.fresnel } else { 1.0 - t.fresnel };
+    (prob * t.visible / (1.0 + t.lambda_i)) * rough_glass_tint(m, t)
+}
+
+/// `rough_glass_pdf`
+fn rough_glass_pdf(t: &RoughGlassTerms) -> f64 {
+    if !t.valid {
+        return 0.0;
+    }
+    (if t.reflect { t.fresnel } else { 1.0 - t.fresnel }) * t.visible
+}
+
 /// f cos theta_i in the local frame (`bsdf_eval_local`).
 pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
+    if m.rough_glass() {
+        return rough_glass_value(m, &rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
+    }
     if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return DVec3::ZERO;
     }
@@ -203,6 +303,9 @@ pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
 
 /// Mixture pdf in the local frame (`bsdf_pdf_local`).
 pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
+    if m.rough_glass() {
+        return rough_glass_pdf(&rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
+    }
     if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return 0.0;
     }
@@ -264,6 +367,18 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
     if wo_l.z <= 0.0 || m.dielectric() {
         return None;
     }
+    if m.rough_glass() {
+        let h = ggx_sample_visible_normal(wo_l, alpha(m.roughness), [u.y, u.z]);
+        let oh = wo_l.dot(h);
+        let (fr, cos_t) = dielectric_fresnel(oh, m.ior);
+        let wi_l = if u.x < fr { 2.0 * oh * h - wo_l } else { ((oh * h - wo_l) / m.ior - cos_t * h).normalize() };
+        let t = rough_glass_terms(m, wo_l, wi_l, h);
+        let pdf = rough_glass_pdf(&t);
+        if pdf.is_nan() || pdf <= 0.0 {
+            return None;
+        }
+        return Some(BsdfSample { wi: f.to_world(wi_l), weight: rough_glass_tint(m, &t) / (1.0 + t.lambda_i), pdf });
+    }
     if !m.principled() {
         let wi_l = sample_cosine_hemisphere([u.y, u.z]);
         if wi_l.z <= 0.0 {
@@ -307,6 +422,24 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
     let f = ShadingFrame::new(n);
     let wo_l = f.to_local(wo);
     let wi_l = f.to_local(wi);
+    if m.rough_glass() {
+        let t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
+        let v = rough_glass_value(m, &t);
+        if t.valid && !t.reflect {
+            g.d_base_color = DVec3::splat((1.0 - t.fresnel) * t.visible / ((1.0 + t.lambda_i) * m.ior * m.ior));
+        }
+        let dalpha = dalpha_droughness(m.roughness);
+        if t.valid && dalpha != 0.0 {
+            let a = t.alpha;
+            let dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
+            let s2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
+            let s2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
+            let dl_o = a * s2_o / (2.0 * wo_l.z * t.q_o);
+            let dl_i = a * s2_i / (2.0 * wi_l.z.abs() * t.q_i);
+            g.d_roughness = v * ((dln_d - dl_o / (1.0 + t.lambda_o) - dl_i / (1.0 + t.lambda_i)) * dalpha);
+        }
+        return g;
+    }
     if wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.dielectric() {
         return g;
     }
@@ -330,20 +463,6 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
         g.d_roughness = fresnel * (t.specular * (dln_d - ddenom / t.denom) * dalpha);
     }
     g
-}
-
-/// The unpolarised Fresnel reflectance at cos_i > 0 of an interface of relative index eta,
-/// and the refracted cosine (0 under total internal reflection, where it returns 1)
-/// (`dielectric_fresnel`).
-pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
-    let sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
-    if sin2_t >= 1.0 {
-        return (1.0, 0.0);
-    }
-    let cos_t = (1.0 - sin2_t).sqrt();
-    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    (0.5 * (rs * rs + rp * rp), cos_t)
 }
 
 /// R: the Fresnel reflectance, or a thin sheet's 2F / (1 + F); and the refracted cosine

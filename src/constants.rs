@@ -15,6 +15,10 @@ pub const MATERIAL_DIELECTRIC: u32 = 2;
 /// no thickness, which reflects with the sheet's Fresnel reflectance (its internal
 /// reflections summed) and lets the rest through unbent (Mitsuba 3's `thindielectric`).
 pub const MATERIAL_THIN_DIELECTRIC: u32 = 3;
+/// A rough dielectric (frosted glass): the smooth dielectric's interface on GGX
+/// microfacets, which reflect and refract into lobes that light samples can reach (Mitsuba
+/// 3's `roughdielectric` with the GGX distribution).
+pub const MATERIAL_ROUGH_DIELECTRIC: u32 = 4;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

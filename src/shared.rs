@@ -17,7 +17,9 @@ pub struct ProbeStruct {
     pub d: u32,
 }
 
-pub use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
+pub use crate::constants::{
+    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC,
+};
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 28 bytes, offsets checked against the
 /// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
@@ -29,8 +31,9 @@ pub struct Material {
     pub base_color: [f32; 3],
     pub roughness: f32,
     pub metallic: f32,
-    /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`], [`MATERIAL_DIELECTRIC`] or
-    /// [`MATERIAL_THIN_DIELECTRIC`]; any other value behaves as diffuse.
+    /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`], [`MATERIAL_DIELECTRIC`],
+    /// [`MATERIAL_THIN_DIELECTRIC`] or [`MATERIAL_ROUGH_DIELECTRIC`]; any other value
+    /// behaves as diffuse.
     pub kind: u32,
     /// A dielectric's relative index of refraction: the far side's over wo's.
     pub ior: f32,

@@ -760,6 +760,46 @@ fn gradients_through_glass_are_exact() {
     });
 }
 
+/// Rough glass: the slab of [`gradients_through_glass_are_exact`] made rough (GGX,
+/// roughness 0.3), against finite differences. Its lobes are no deltas: light samples pass
+/// through its faces (the shadow ray leaves from the far side), the emission a
+/// continuation finds is MIS-weighted, and the floor under it is lit through both faces.
+/// The floor's texels and the slab's tint change no choice (the lobe is picked by the
+/// Fresnel reflectance at the sampled microfacet, which neither moves), so they are exact
+/// per sample. The roughness moves the sampled microfacets, and with them every later
+/// vertex: its finite differences follow other paths than the adjoint's, so it agrees in
+/// the mean only, and its samples switch lobes where the moved microfacet's Fresnel
+/// reflectance crosses their random number: 256 rounds of 64 spp, ε = 0.01 as the
+/// principled roughness. The tint starts on
+/// the side of its reference where the floor's texels start (too dark in red, too bright
+/// in green and blue), so that the two residuals do not cancel in its gradient.
+#[test]
+fn gradients_through_rough_glass_match_finite_differences() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
+                        [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.5, 0.95, 0.95]\nrange = [0.0, 1.0]\n\
+                        [[optimise.params]]\ntarget = \"materials.glass.roughness\"\ninit = 0.3\nrange = [0.0, 1.0]\n";
+        let glass = "constant = [0.2, 0.2, 0.2]\n[[materials]]\nname = \"glass\"\ntype = \"rough_dielectric\"\nbase_color = [0.8, 0.8, 0.8]\nroughness = 0.4\nior = 1.5\nabsorption = [1, 2, 3]\n\
+                     [[meshes]]\nfile = \"slab.obj\"\nmaterial = \"glass\"\n";
+        let path = lit_quad("gradients-rough-glass", 16, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", glass, optimise);
+        let dir = path.parent().unwrap();
+        std::fs::write(
+            dir.join("slab.obj"),
+            "v -1 0.3 -1\nv 0 0.3 -1\nv 0 0.3 1\nv -1 0.3 1\nv -1 0.28 -1\nv 0 0.28 -1\nv 0 0.28 1\nv -1 0.28 1\nf 1 4 3 2\nf 5 6 7 8\n",
+        )
+        .unwrap();
+        let toml = std::fs::read_to_string(&path).unwrap().replace("max_depth = 3", "max_depth = 6").replace("rr_depth = 5", "rr_depth = 6");
+        std::fs::write(&path, toml).unwrap();
+        let scene = Scene::load(path).unwrap();
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
+        assert!(b.scene().has_dielectrics && b.scene().has_rough_dielectrics);
+        let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
+        check("rough glass", &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 64, 64, 64);
+        check("rough glass", &measure(&mut b, &[probe([15], 0.05)], 256), 0.01, 0.2);
+    });
+}
+
 /// scenes/gap (a closed box lit only through a 2 cm gap between a one-sided light and the
 /// ceiling) at 32² pixels, its left wall's colour checked by `vkinverse::gradcheck`: the
 /// adjoint against finite differences of the unbiased loss over independent renders, so
@@ -1078,6 +1118,7 @@ fn feature_specialisation_changes_no_result() {
                 assert!(!gs.has_emission_textures, "{name} has no emission texture");
                 assert!(!gs.has_alpha_masks, "{name} has no alpha test");
                 assert!(!gs.has_dielectrics, "{name} has no dielectric");
+                assert!(!gs.has_rough_dielectrics, "{name} has no rough dielectric");
                 assert_eq!(gs.has_principled, principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
                 assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
@@ -1091,6 +1132,7 @@ fn feature_specialisation_changes_no_result() {
                     gs.has_emission_textures = true;
                     gs.has_alpha_masks = true;
                     gs.has_dielectrics = true;
+                    gs.has_rough_dielectrics = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.

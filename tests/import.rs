@@ -507,7 +507,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
 #[test]
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
-        ("roughdielectric", &["<bsdf type=\"roughdielectric\">", "line 21", "dielectric and thindielectric BSDFs are supported"][..]),
+        ("blendbsdf", &["<bsdf type=\"blendbsdf\">", "line 21", "thindielectric and roughdielectric BSDFs are supported"][..]),
         ("bsplinecurve", &["<shape type=\"bsplinecurve\" id=\"floor\">", "only obj, ply, serialized", "disk and cylinder"]),
         ("unknown-parameter", &["<float name=\"focus_distance\">", "line 8", "not supported in line 7: <sensor type=\"perspective\">"]),
         ("aov", &["<integrator type=\"aov\">", "line 3", "volpathmis and direct"]),
@@ -1135,11 +1135,22 @@ fn mitsuba_dielectrics_are_glass() {
     assert!(matches!(m.base_color, ColorValue::Constant(c) if c == [0.5, 0.6, 0.7]), "{m:?}");
     let thin = load("thin", r#"<bsdf type="thindielectric"/>"#).unwrap();
     assert_eq!(thin.materials[0].kind.as_str(), "thin_dielectric");
+    // Rough glass: GGX exactly (roughness = sqrt(alpha)); Mitsuba's default Beckmann
+    // distribution rendered as GGX, with a warning.
+    let frosted = load("frosted", r#"<bsdf type="roughdielectric"><string name="distribution" value="ggx"/><float name="alpha" value="0.2"/><rgb name="specular_transmittance" value="0.8, 0.9, 1"/></bsdf>"#).unwrap();
+    let m = &frosted.materials[0];
+    assert_eq!(m.kind.as_str(), "rough_dielectric");
+    assert!(matches!(m.roughness, ScalarValue::Constant(r) if (r - 0.2f32.sqrt()).abs() < 1e-6), "{m:?}");
+    assert!((m.ior - 1.5046 / 1.000277).abs() < 1e-6 && frosted.warnings.is_empty(), "{m:?} {:?}", frosted.warnings);
+    let beckmann = load("beckmann", r#"<bsdf type="roughdielectric"/>"#).unwrap();
+    assert!(matches!(beckmann.materials[0].roughness, ScalarValue::Constant(r) if (r - 0.1f32.sqrt()).abs() < 1e-6));
+    assert!(beckmann.warnings.len() == 1 && beckmann.warnings[0].contains("beckmann distribution is rendered as GGX"), "{:?}", beckmann.warnings);
     for (name, bsdf, needles) in [
         ("tinted", r#"<bsdf type="dielectric"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#, &["specular_reflectance", "only 1"][..]),
         ("twosided", r#"<bsdf type="twosided"><bsdf type="dielectric"/></bsdf>"#, &["twosided", "two sides"][..]),
         ("mask", r#"<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="dielectric"/></bsdf>"#, &["mask", "dielectric"][..]),
-        ("rough", r#"<bsdf type="roughdielectric"/>"#, &["roughdielectric", "dielectric and thindielectric BSDFs are supported"][..]),
+        ("matched", r#"<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>"#, &["int_ior equals ext_ior"][..]),
+        ("anisotropic", r#"<bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#, &["alpha_u"][..]),
         ("range", r#"<bsdf type="dielectric"><float name="int_ior" value="9"/></bsdf>"#, &["int_ior / ext_ior", "outside"][..]),
     ] {
         let e = load(name, bsdf).expect_err(name).to_string();
@@ -1201,6 +1212,25 @@ fn gltf_transmission_is_glass() {
     .unwrap();
     assert_eq!(rough.materials[0].kind.as_str(), "thin_dielectric");
     assert!(rough.warnings.len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)), "{:?}", rough.warnings);
+    // With a volume, a rough material is rough glass, exactly; its roughness is written back.
+    let frosted = load("frosted.gltf", &|m| {
+        m["pbrMetallicRoughness"]["roughnessFactor"] = serde_json::json!(0.4);
+        m["extensions"] = serde_json::json!({
+            "KHR_materials_transmission": { "transmissionFactor": 1.0 },
+            "KHR_materials_volume": { "thicknessFactor": 0.1 }
+        });
+    })
+    .unwrap();
+    let f = &frosted.materials[0];
+    assert_eq!((f.kind.as_str(), f.ior), ("rough_dielectric", 1.5));
+    assert!(matches!(f.roughness, ScalarValue::Constant(r) if r == 0.4) && frosted.warnings.is_empty(), "{f:?} {:?}", frosted.warnings);
+    let out = dir.join("out-frosted");
+    write_final(&out, &frosted, &[]).unwrap();
+    for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
+        let w = &written.materials[0];
+        assert_eq!(w.kind.as_str(), "rough_dielectric");
+        assert!(matches!(w.roughness, ScalarValue::Constant(r) if r == 0.4), "{w:?}");
+    }
     let weak = load("weak.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 0.2 } })).unwrap();
     assert_eq!(weak.materials[0].kind.as_str(), "principled");
     assert!(weak.warnings.len() == 1 && weak.warnings[0].contains("0.2"), "{:?}", weak.warnings);

@@ -249,6 +249,12 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(bk7, glass("hash-t", "\nior = 1.33"));
     assert_ne!(bk7, glass("hash-u", "\nabsorption = [0, 0, 0.5]"));
     assert_eq!(bk7, glass("hash-v", "\nabsorption = [0, 0, 0]"), "no absorption hashes as none");
+    // Rough glass is another kind, and its roughness counts.
+    let rough = |name: &str, r: &str| Scene::load(fixture(name, &BASE.replace("type = \"principled\"", &format!("type = \"rough_dielectric\"{r}")))).unwrap().content_hash();
+    let frosted = rough("hash-w", "");
+    assert_ne!(frosted, bk7);
+    assert_eq!(frosted, rough("hash-x", "\nroughness = 0.3"), "0.3 is the default roughness");
+    assert_ne!(frosted, rough("hash-y", "\nroughness = 0.5"));
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -740,4 +746,21 @@ fn dielectrics_are_checked() {
     assert_message(&load_err("glass-param", &optimised), &["optimise.params[0].target", "dielectric", "roughness"]);
     let tinted = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\n", glass(""));
     Scene::load(fixture("glass-tint-param", &tinted)).unwrap();
+    // Rough glass: a roughness (0.3 by default, optimisable), an absorption, no metallic,
+    // no index of 1.
+    let rough = |extra: &str| BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", &format!("type = \"rough_dielectric\"{extra}"));
+    let s = Scene::load(fixture("rough-default", &rough(""))).unwrap();
+    let m = &s.materials[0];
+    assert_eq!((m.kind.as_str(), m.ior), ("rough_dielectric", 1.5));
+    assert!(matches!(m.roughness, ScalarValue::Constant(r) if r == 0.3) && matches!(m.base_color, ColorValue::Constant(c) if c == [1.0; 3]), "{m:?}");
+    let s = Scene::load(fixture("rough-set", &rough("\nroughness = 0.6\nabsorption = [1, 0, 0]\nior = 1.33"))).unwrap();
+    assert!(matches!(s.materials[0].roughness, ScalarValue::Constant(r) if r == 0.6) && s.materials[0].absorption == [1.0, 0.0, 0.0]);
+    assert_message(&load_err("rough-metallic", &rough("\nmetallic = 0.5")), &["materials.m", "rough dielectric", "metallic"]);
+    assert_message(&load_err("rough-roughness-range", &rough("\nroughness = 1.5")), &["materials.m.roughness", "1.5"]);
+    assert_message(&load_err("rough-matched", &rough("\nior = 1")), &["materials.m.ior", "is 1"]);
+    assert_message(&load_err("rough-one-sided", &rough("\none_sided = true")), &["materials.m.one_sided", "dielectric"]);
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.5\nrange = [0, 1]\n", rough(""));
+    Scene::load(fixture("rough-param", &optimised)).unwrap();
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n", rough(""));
+    assert_message(&load_err("rough-metallic-param", &optimised), &["optimise.params[0].target", "rough_dielectric", "metallic"]);
 }

@@ -5,7 +5,8 @@
 //
 // Conventions (pbrt-v4): wo and wi are unit vectors pointing away from the surface; n is
 // the unit shading normal. The BSDF is one-sided: eval and pdf are 0 when wo or wi lies on
-// or below the surface (dot with n <= 0); a caller that wants the back side flips n.
+// or below the surface (dot with n <= 0); a caller that wants the back side flips n. The
+// rough dielectric alone also has values for wi below the surface (its transmission).
 // bsdf_eval returns f(wo, wi) |cos theta_i|, the integrand of the rendering equation.
 //
 // "principled" is the glTF 2.0 metallic-roughness model:
@@ -35,6 +36,14 @@
 // carries 1 / eta^2 (Veach 1997, section 5.2; Mitsuba's radiance mode). base_color
 // tints the refracted light only (Mitsuba's specular_transmittance).
 //
+// "rough dielectric" is the dielectric's interface on GGX microfacets (Walter et al. 2007;
+// Mitsuba 3's `roughdielectric` with the GGX distribution and visible-normal sampling):
+// each microfacet mirrors with the Fresnel reflectance at wo.h and refracts the rest,
+// into lobes that bsdf_eval, bsdf_pdf, bsdf_sample and bsdf_eval_grad handle like any
+// other (light samples reach it from both sides); see rough_glass_terms for the formulas.
+// base_color tints the transmission (with the smooth dielectric's 1/eta^2), roughness is
+// the principled model's (alpha = roughness^2) and can be optimised.
+//
 // "thin dielectric" is a sheet of no thickness with that interface on both faces (Mitsuba
 // 3's `thindielectric`): the light that enters it leaves it again, after any number of
 // internal reflections, on one side or the other, so it mirrors with R = F + (1 - F)^2 F /
@@ -43,6 +52,14 @@
 #ifndef BSDF_GLSL
 #define BSDF_GLSL
 #include "shared/material.glsl"
+
+// Whether the interface functions below handle MATERIAL_ROUGH_DIELECTRIC. A kernel whose
+// scene may have none defines it as a specialisation constant before including this file
+// (lib/integrator.glsl: HAS_ROUGH_DIELECTRICS), so that the compiler can drop the branch,
+// which lavapipe would otherwise run, masked, at every evaluation (docs/lavapipe.md).
+#ifndef BSDF_ROUGH_DIELECTRICS
+#define BSDF_ROUGH_DIELECTRICS true
+#endif
 
 const float BSDF_PI = 3.14159265358979;
 // Smallest GGX alpha: keeps D (peak 1 / (pi alpha^2) = 3.2e5) and its derivatives finite
@@ -183,7 +200,121 @@ float principled_pdf(vec2 p, float cos_i, PrincipledTerms t) {
     return p.x * (cos_i / BSDF_PI) + p.y * (t.d / (4.0 * t.denom_o));
 }
 
+// The unpolarised Fresnel reflectance of an interface with relative index eta (the far
+// side's over wo's) at cos_i = cos(wo, n) > 0, and the cosine of the refracted direction
+// in cos_t (0 under total internal reflection, where the reflectance is 1).
+float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
+    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0) {
+        cos_t = 0.0;
+        return 1.0;
+    }
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// ---------------------------------------------------------------------------------------
+// The rough dielectric (local frame, wo.z > 0; wi above the surface for the reflected
+// lobe, below it for the transmitted one)
+// ---------------------------------------------------------------------------------------
+
+// Everything the rough dielectric needs at one (wo, wi). With eta = m.ior and h the
+// microfacet normal that takes wo to wi (normalize(wo + wi) for a reflection,
+// normalize(wo + eta wi) for a refraction, on the upper side), both lobes are
+//   value = mass D(h) G1(wo) G1(wi) (wo.h) jac / cos_o,   pdf = prob D(h) G1(wo) (wo.h) jac / cos_o
+// where D(h) G1(wo) (wo.h) / cos_o is the density of the visible normals (Heitz 2018) and
+// jac = |dh/dwi|: 1 / (4 wo.h) for the reflection (Walter et al. 2007, eq. 14) and
+// eta^2 |wi.h| / (wo.h + eta wi.h)^2 for the refraction (eq. 17). The reflection has
+// mass = prob = F(wo.h), the transmission prob = 1 - F and mass = (1 - F) base_color /
+// eta^2 (radiance mode, as the smooth dielectric). G1 = 1 / (1 + Lambda) is Smith's
+// masking of each direction separately: the shadowing-masking G1(wo) G1(wi) of Mitsuba
+// 3's roughdielectric, not the height-correlated form of the principled model. Directions
+// that see the back of their microfacet (wo.h <= 0, or wi.h on the wrong side) have value
+// and pdf 0.
+struct RoughGlassTerms {
+    bool valid;
+    float alpha;
+    vec3 h;
+    float k;         // alpha^2 h.z^2 + h.x^2 + h.y^2 (D = alpha^2 / (pi k^2))
+    float lambda_o;  // Lambda(wo)
+    float lambda_i;  // Lambda(wi)
+    float q_o;       // sqrt(cos_o^2 + alpha^2 sin_o^2)
+    float q_i;       // likewise for wi (|cos_i|)
+    float visible;   // D(h) G1(wo) (wo.h) jac / cos_o: the pdf per unit lobe probability
+    float fresnel;   // F(wo.h)
+    bool reflect;
+};
+
+// Smith's Lambda of GGX for direction v, as alpha^2 sin^2 / (2 |cos| (q + |cos|)) with
+// q = sqrt(cos^2 + alpha^2 sin^2) (Heitz 2014, eq. 72, without the cancellation in q - |cos|).
+float ggx_lambda(vec3 v, float a2, out float q) {
+    float c = abs(v.z);
+    float s2 = v.x * v.x + v.y * v.y;
+    q = sqrt(c * c + a2 * s2);
+    return a2 * s2 / (2.0 * c * (q + c));
+}
+
+// The terms at (wo, wi) with microfacet normal h (computed from wo and wi by the caller, or
+// the sampled one).
+RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
+    RoughGlassTerms t;
+    t.reflect = wi.z > 0.0;
+    t.alpha = bsdf_alpha(m.roughness);
+    float a2 = t.alpha * t.alpha;
+    t.h = h;
+    float oh = dot(wo, h);
+    float ih = dot(wi, h);
+    t.valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && (t.reflect ? ih > 0.0 : ih < 0.0);
+    t.k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
+    t.lambda_o = ggx_lambda(wo, a2, t.q_o);
+    t.lambda_i = ggx_lambda(wi, a2, t.q_i);
+    float cos_t;
+    t.fresnel = dielectric_fresnel(oh, m.ior, cos_t);
+    float jac;
+    if (t.reflect) {
+        jac = 1.0 / (4.0 * oh);
+    } else {
+        float den = oh + m.ior * ih;
+        jac = m.ior * m.ior * abs(ih) / (den * den);
+    }
+    float d = a2 / (BSDF_PI * t.k * t.k);
+    t.visible = d * oh * jac / (wo.z * (1.0 + t.lambda_o));
+    if (!t.valid || !(t.visible > 0.0)) {
+        t.valid = false;
+        t.visible = 0.0;
+    }
+    return t;
+}
+
+// The microfacet normal that takes wo to wi, on the upper side (either lobe).
+vec3 rough_glass_half(Material m, vec3 wo, vec3 wi) {
+    vec3 h = normalize(wi.z > 0.0 ? wo + wi : wo + m.ior * wi);
+    return h.z < 0.0 ? -h : h;
+}
+
+// The lobe's mass over its probability: 1 for the reflection, base_color / eta^2 for the
+// transmission.
+vec3 rough_glass_tint(Material m, RoughGlassTerms t) {
+    return t.reflect ? vec3(1.0) : m.base_color / (m.ior * m.ior);
+}
+
+vec3 rough_glass_value(Material m, RoughGlassTerms t) {
+    if (!t.valid) return vec3(0.0);
+    float prob = t.reflect ? t.fresnel : 1.0 - t.fresnel;
+    return (prob * t.visible / (1.0 + t.lambda_i)) * rough_glass_tint(m, t);
+}
+
+float rough_glass_pdf(RoughGlassTerms t) {
+    if (!t.valid) return 0.0;
+    return (t.reflect ? t.fresnel : 1.0 - t.fresnel) * t.visible;
+}
+
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
+    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+        return rough_glass_value(m, rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
+    }
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
     if (material_is_dielectric(m.kind)) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
@@ -191,6 +322,9 @@ vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
+    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+        return rough_glass_pdf(rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
+    }
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
     if (material_is_dielectric(m.kind)) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
@@ -258,6 +392,25 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     if (wo_l.z <= 0.0 || material_is_dielectric(m.kind)) return false;
+    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+        // A visible normal h; the mirror about it with probability F(wo.h), else the
+        // refraction through it (Snell's law about h; F = 1 under total internal
+        // reflection, so the refraction is never picked there).
+        vec3 h = ggx_sample_visible_normal(wo_l, bsdf_alpha(m.roughness), u.yz);
+        float oh = dot(wo_l, h);
+        float cos_t;
+        float fr = dielectric_fresnel(oh, m.ior, cos_t);
+        vec3 wi_l = u.x < fr ? 2.0 * oh * h - wo_l : normalize((oh * h - wo_l) / m.ior - cos_t * h);
+        RoughGlassTerms t = rough_glass_terms(m, wo_l, wi_l, h);
+        pdf = rough_glass_pdf(t);
+        if (!(pdf > 0.0)) {
+            pdf = 0.0;
+            return false;
+        }
+        wi = shading_to_world(f, wi_l);
+        weight = rough_glass_tint(m, t) / (1.0 + t.lambda_i);
+        return true;
+    }
     if (m.kind != MATERIAL_PRINCIPLED) {
         // Lambert: pdf cos_i / pi, weight base_color exactly.
         vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
@@ -306,6 +459,24 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
+    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+        RoughGlassTerms t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
+        vec3 v = rough_glass_value(m, t);
+        // Linear in base_color through the transmission only.
+        if (t.valid && !t.reflect) d_base_color = vec3((1.0 - t.fresnel) * t.visible / ((1.0 + t.lambda_i) * m.ior * m.ior));
+        float dalpha = bsdf_dalpha_droughness(m.roughness);
+        if (t.valid && dalpha != 0.0) {
+            float a = t.alpha;
+            float dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
+            // d Lambda / d alpha = alpha sin^2 / (2 |cos| q) per direction.
+            float s2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
+            float s2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
+            float dl_o = a * s2_o / (2.0 * wo_l.z * t.q_o);
+            float dl_i = a * s2_i / (2.0 * abs(wi_l.z) * t.q_i);
+            d_roughness = v * ((dln_d - dl_o / (1.0 + t.lambda_o) - dl_i / (1.0 + t.lambda_i)) * dalpha);
+        }
+        return;
+    }
     if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || material_is_dielectric(m.kind)) return;
     if (m.kind != MATERIAL_PRINCIPLED) {
         d_base_color = vec3(wi_l.z / BSDF_PI);
@@ -330,21 +501,6 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
 // ---------------------------------------------------------------------------------------
 // The smooth dielectric (delta lobes; world space, n the shading normal on wo's side)
 // ---------------------------------------------------------------------------------------
-
-// The unpolarised Fresnel reflectance of an interface with relative index eta (the far
-// side's over wo's) at cos_i = cos(wo, n) > 0, and the cosine of the refracted direction
-// in cos_t (0 under total internal reflection, where the reflectance is 1).
-float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
-    float sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
-    if (sin2_t >= 1.0) {
-        cos_t = 0.0;
-        return 1.0;
-    }
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    return 0.5 * (rs * rs + rp * rp);
-}
 
 // The reflectance of the material's interface at cos_i = cos(wo, n) > 0: the Fresnel
 // reflectance for a dielectric, the sheet's 2F / (1 + F) for a thin one; the refracted

@@ -62,24 +62,27 @@ bool delta_light_blocked(vec3 o, vec3 d, float tmax) {
     return trace_any(o, d, tmax);
 }
 
-// Adds every delta light's direct contribution at a path vertex (offset point p_off,
-// geometric and shading normals ng and ns on wo's side, material values mat[]) to
+// Adds every delta light's direct contribution at a path vertex (point p, geometric and
+// shading normals ng and ns on wo's side, `through` a rough dielectric's surface, which
+// lights on either side reach; material values mat[]) to
 // radiance[] of each state, weighted by beta[]. ADJOINT: also takes it off remaining[] and,
 // in the gradient replay, adds delta[] × its derivatives with respect to the material's
 // values to mg and scatters those with respect to the lights' colour and intensity.
-void delta_lights_nee(vec3 p_off, vec3 ng, vec3 ns, vec3 wo, Material mat[NSTATES], vec3 beta[NSTATES],
+void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material mat[NSTATES], vec3 beta[NSTATES],
                       inout vec3 radiance[NSTATES]
 #ifdef ADJOINT
                       , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, inout MatGrad mg
 #endif
 ) {
     uint n = scene_globals().num_lights;
+    vec3 p_off = p + RAY_EPSILON * ng;
     for (uint i = 0u; i < n; ++i) {
         LightRecord l = light_record(i);
         vec3 wi;
         float tmax, g;
         delta_light_incidence(l, p_off, wi, tmax, g);
-        if (g <= 0.0 || dot(wi, ng) <= 0.0 || delta_light_blocked(p_off, wi, tmax)) continue;
+        vec3 o = through && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
+        if (g <= 0.0 || !passes_side(wi, ng, ns, through) || delta_light_blocked(o, wi, tmax)) continue;
 #ifdef ADJOINT
         // Every state reads the same parameters: their derivatives are summed before one
         // scatter each (the material's with the vertex's others, MatGrad).

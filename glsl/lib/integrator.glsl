@@ -42,8 +42,10 @@
 #define INTEGRATOR_GLSL
 #include "lib/rng.glsl"
 #include "lib/sampling.glsl"
-#include "lib/bsdf.glsl"
 #include "lib/scene_access.glsl"
+// The BSDF functions test for the rough dielectric only where the scene has one.
+#define BSDF_ROUGH_DIELECTRICS HAS_ROUGH_DIELECTRICS
+#include "lib/bsdf.glsl"
 #include "lib/bvh_traverse.glsl"
 
 #ifdef GENERIC
@@ -143,6 +145,16 @@ bool cast_any(vec3 o, vec3 d, float tmax, uint depth, bool replay) {
 // Offsets of ray origins from surfaces, relative to the scene scale (the kernels' scenes
 // are a few units across; this is ~1e-4 of that).
 const float RAY_EPSILON = 1e-4;
+
+// Whether light may travel between wo and direction wi at a surface point (ng and ns, the
+// geometric and shading normals, flipped to wo's side): wi on wo's side of the surface, or,
+// through a rough dielectric (`through`), on either side as long as the shading normal puts
+// it on the same one as the geometric normal (else the BSDF would evaluate the lobe of the
+// other side).
+bool passes_side(vec3 wi, vec3 ng, vec3 ns, bool through) {
+    float g = dot(wi, ng);
+    return through ? g * dot(wi, ns) > 0.0 : g > 0.0;
+}
 
 // Picks an emissive triangle by its probability and a point on it: returns its record,
 // the point in `p` (its pdf in area measure is the record's pdf) and its barycentrics (the
@@ -345,7 +357,9 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         Material mat[NSTATES];
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
         bool dielectric = HAS_DIELECTRICS && material_is_dielectric(mat[0].kind);
-        if (dielectric && from_behind && mat[0].kind == MATERIAL_DIELECTRIC) {
+        // A rough dielectric scatters into both sides by lobes light samples can reach.
+        bool rough = HAS_ROUGH_DIELECTRICS && mat[0].kind == MATERIAL_ROUGH_DIELECTRIC;
+        if ((rough || (dielectric && mat[0].kind == MATERIAL_DIELECTRIC)) && from_behind) {
             for (int s = 0; s < NSTATES; ++s) mat[s].ior = 1.0 / mat[s].ior;
         }
         vec3 p_off = p + RAY_EPSILON * ng;
@@ -373,6 +387,15 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float dist2 = dot(to_l, to_l);
             float dist = sqrt(dist2);
             vec3 wi = to_l / dist;
+            // Through a rough dielectric the shadow ray leaves from the far side.
+            vec3 o_l = p_off;
+            if (rough && dot(wi, ng) < 0.0) {
+                o_l = p - RAY_EPSILON * ng;
+                to_l = pl - o_l;
+                dist2 = dot(to_l, to_l);
+                dist = sqrt(dist2);
+                wi = to_l / dist;
+            }
             float cos_l = dot(light.ng, -wi);
             if (light.two_sided != 0u) cos_l = abs(cos_l);
             vec2 light_uv = vec2(0.0);
@@ -387,7 +410,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             // is sampled over its whole area, so the estimate stays unbiased). A blend's
             // choice is keyed by the sampled point.
             bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv, uvec4(floatBitsToUint(pl), light.prim));
-            if (!cut && cos_l > 0.0 && dot(wi, ng) > 0.0 && pdf_area > 0.0 && !cast_any(p_off, wi, dist * (1.0 - 1e-4), depth, replay)) {
+            if (!cut && cos_l > 0.0 && passes_side(wi, ng, ns, rough) && pdf_area > 0.0 && !cast_any(o_l, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 ValueRef emission = light.emission;
@@ -407,7 +430,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float density;
             vec3 wi = environment_sample(u_light.xy, density);
             float pdf_light = p_env * density;
-            if (pdf_light > 0.0 && dot(wi, ng) > 0.0 && !cast_any(p_off, wi, 1e30, depth, replay)) {
+            vec3 o_e = rough && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
+            if (pdf_light > 0.0 && passes_side(wi, ng, ns, rough) && !cast_any(o_e, wi, 1e30, depth, replay)) {
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 vec3 le[NSTATES];
                 for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s);
@@ -427,7 +451,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 
         // Delta lights: each sampled once, without MIS (BSDF sampling never reaches one).
         if (HAS_DELTA_LIGHTS && !dielectric) {
-            delta_lights_nee(p_off, ng, ns, wo, mat, beta, radiance
+            delta_lights_nee(p, ng, ns, wo, rough, mat, beta, radiance
 #ifdef ADJOINT
                              , remaining, delta, grad_pass, mg
 #endif
@@ -442,7 +466,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         if (dielectric) {
             sampled = dielectric_sample(mat[0], ns, wo, u_bsdf.x, wi, weight, pdf);
         } else {
-            sampled = bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) && pdf > 0.0 && dot(wi, ng) > 0.0;
+            sampled = bsdf_sample(mat[0], ns, wo, u_bsdf, wi, weight, pdf) && pdf > 0.0 && passes_side(wi, ng, ns, rough);
         }
         // State 0: weight = f_0 / pdf_0 as sampled; other states: their own f over state
         // 0's pdf (the shift).
@@ -489,8 +513,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
         if (!alive) break;
         // A refracted ray leaves from the surface's far side, into or out of the interior.
-        bool refracted = dielectric && dot(wi, ng) < 0.0;
-        if (refracted && mat[0].kind == MATERIAL_DIELECTRIC) absorption = from_behind ? vec3(0.0) : material_record(sh.material).absorption;
+        bool refracted = (dielectric || rough) && dot(wi, ng) < 0.0;
+        if (refracted && mat[0].kind != MATERIAL_THIN_DIELECTRIC) absorption = from_behind ? vec3(0.0) : material_record(sh.material).absorption;
         o = refracted ? p - RAY_EPSILON * ng : p_off;
         d = wi;
     }

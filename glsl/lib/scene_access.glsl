@@ -210,6 +210,10 @@ layout(constant_id = 18) const bool HAS_ALPHA_MASKS = true;
 // Whether any material is a dielectric: without one the integrator's specular branch (no
 // light sample, a refracted or mirrored continuation) is compiled out.
 layout(constant_id = 19) const bool HAS_DIELECTRICS = true;
+// Whether any material is a rough dielectric: without one the BSDF functions' rough glass
+// (lib/bsdf.glsl, BSDF_ROUGH_DIELECTRICS) and the integrator's light samples and
+// continuations through a surface are compiled out.
+layout(constant_id = 20) const bool HAS_ROUGH_DIELECTRICS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -424,7 +428,7 @@ Material fetch_material(uint id, vec2 uv, int state) {
     if (HAS_PRINCIPLED) {
         m.kind = r.kind;
     } else if (HAS_DIELECTRICS) {
-        m.kind = material_is_dielectric(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+        m.kind = material_is_glass(r.kind) ? r.kind : MATERIAL_DIFFUSE;
     } else {
         m.kind = MATERIAL_DIFFUSE;
     }

@@ -6,8 +6,9 @@
 
 // The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED;
 // MATERIAL_DIELECTRIC: base_color is the transmittance, ior the relative index of
-// refraction, roughness and metallic are ignored; MATERIAL_THIN_DIELECTRIC likewise),
-// defined in src/constants.rs.
+// refraction, roughness and metallic are ignored; MATERIAL_THIN_DIELECTRIC likewise;
+// MATERIAL_ROUGH_DIELECTRIC: as MATERIAL_DIELECTRIC with a roughness), defined in
+// src/constants.rs.
 #include "vkinverse_constants.glsl"
 
 // 28 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
@@ -24,8 +25,13 @@ struct Material {
     float ior;
 };
 
-// Whether `kind` is glass of either kind (delta lobes, an index of refraction).
+// Whether `kind` is smooth glass of either kind (delta lobes, an index of refraction).
 bool material_is_dielectric(uint kind) {
     return kind == MATERIAL_DIELECTRIC || kind == MATERIAL_THIN_DIELECTRIC;
+}
+
+// Whether `kind` is glass, smooth or rough (an index of refraction).
+bool material_is_glass(uint kind) {
+    return material_is_dielectric(kind) || kind == MATERIAL_ROUGH_DIELECTRIC;
 }
 #endif

@@ -22,7 +22,7 @@ use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
-use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_THIN_DIELECTRIC};
+use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
 pub use crate::push::TracePush;
@@ -51,6 +51,10 @@ pub struct GpuScene {
     /// Whether any material is a dielectric: the kernels' HAS_DIELECTRICS, without which
     /// they build no specular branch.
     pub has_dielectrics: bool,
+    /// Whether any material is a rough dielectric: the kernels' HAS_ROUGH_DIELECTRICS,
+    /// without which the BSDF functions do not test for it and no light sample or
+    /// continuation passes through a surface.
+    pub has_rough_dielectrics: bool,
     /// Whether any triangle has vertex normals; without them the kernels shade with the
     /// geometric normal and read no vertex normals.
     pub has_normals: bool,
@@ -339,6 +343,7 @@ impl GpuScene {
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                         MaterialKind::Dielectric => MATERIAL_DIELECTRIC,
                         MaterialKind::ThinDielectric => MATERIAL_THIN_DIELECTRIC,
+                        MaterialKind::RoughDielectric => MATERIAL_ROUGH_DIELECTRIC,
                     },
                     one_sided: m.one_sided as u32,
                     // Blend: a negative cutoff, for which the kernels draw one per ray.
@@ -525,6 +530,7 @@ impl GpuScene {
             .any(|r| r.width != 0);
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
         let has_dielectrics = scene.materials.iter().any(|m| m.kind.is_dielectric());
+        let has_rough_dielectrics = scene.materials.iter().any(|m| m.kind == MaterialKind::RoughDielectric);
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
@@ -570,6 +576,7 @@ impl GpuScene {
             has_textures,
             has_principled,
             has_dielectrics,
+            has_rough_dielectrics,
             has_normals,
             has_normal_maps,
             has_emission_textures,
@@ -656,6 +663,7 @@ impl GpuScene {
             ("HAS_EMISSION_TEXTURES", SpecValue::Bool(self.has_emission_textures)),
             ("HAS_ALPHA_MASKS", SpecValue::Bool(self.has_alpha_masks)),
             ("HAS_DIELECTRICS", SpecValue::Bool(self.has_dielectrics)),
+            ("HAS_ROUGH_DIELECTRICS", SpecValue::Bool(self.has_rough_dielectrics)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

@@ -65,6 +65,8 @@ pub enum MaterialType {
     Dielectric,
     #[serde(rename = "thin_dielectric")]
     ThinDielectric,
+    #[serde(rename = "rough_dielectric")]
+    RoughDielectric,
 }
 
 impl MaterialType {
@@ -74,12 +76,18 @@ impl MaterialType {
             Self::Diffuse => "diffuse",
             Self::Dielectric => "dielectric",
             Self::ThinDielectric => "thin_dielectric",
+            Self::RoughDielectric => "rough_dielectric",
         }
     }
 
-    /// Glass of either kind: smooth, with an index of refraction and no roughness.
+    /// Glass of any kind: an index of refraction, a transmittance, no metallic.
     pub fn is_dielectric(self) -> bool {
-        matches!(self, Self::Dielectric | Self::ThinDielectric)
+        matches!(self, Self::Dielectric | Self::ThinDielectric | Self::RoughDielectric)
+    }
+
+    /// Whether the material has a roughness of its own (one that can be optimised).
+    pub fn has_roughness(self) -> bool {
+        matches!(self, Self::Principled | Self::RoughDielectric)
     }
 }
 

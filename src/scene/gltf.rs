@@ -376,7 +376,10 @@ impl Importer<'_> {
             (None, None) => "default".to_string(),
         };
         let material = match self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())? {
-            Some((kind, ior, absorption)) => Material { absorption, ..Material::glass(name, kind, base_color, ior) },
+            Some((kind, ior, absorption)) => {
+                let rough = if kind == MaterialKind::RoughDielectric { roughness } else { ScalarValue::Constant(0.0) };
+                Material { absorption, roughness: rough, ..Material::glass(name, kind, base_color, ior) }
+            }
             None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR, absorption: [0.0; 3] },
         };
         self.out.materials.push(material);
@@ -488,11 +491,12 @@ impl Importer<'_> {
     /// opaque) is no test.
     /// The glass that `KHR_materials_transmission` makes of material `m` (at JSON path `at`),
     /// if any: a dielectric of `KHR_materials_ior`'s index (1.5 by default) where
-    /// `KHR_materials_volume` gives it a thickness, otherwise glTF's thin-walled
-    /// transmission, a thin dielectric; the base colour is its transmittance. Exact for a
-    /// smooth, fully transmissive, non-metallic material; otherwise one warning names what
-    /// is dropped (roughness, metallic, a transmission below 1, a transmission texture, a
-    /// normal map or alpha). The volume's `attenuationColor` and `attenuationDistance` are
+    /// `KHR_materials_volume` gives it a thickness (a rough dielectric where its roughness
+    /// is not 0), otherwise glTF's thin-walled transmission, a thin dielectric; the base
+    /// colour is its transmittance. Exact for a fully transmissive, non-metallic material
+    /// with a volume or a smooth one without; otherwise one warning names what is dropped
+    /// (a thin-walled material's roughness, metallic, a transmission below 1, a
+    /// transmission texture, a normal map or alpha). The volume's `attenuationColor` and `attenuationDistance` are
     /// the interior's absorption. A transmission below 0.5 is dropped
     /// instead (the material stays principled), with a warning. Without transmission, an
     /// index other than 1.5 is a warning (the principled model's reflectance is 0.04).
@@ -527,7 +531,14 @@ impl Importer<'_> {
             return Err(self.err(format!("{at}.extensions.KHR_materials_ior.ior"), format!("{ior} is outside [{MIN_IOR}, {MAX_IOR}]")));
         }
         let thickness = number(self, "KHR_materials_volume", "thicknessFactor", 0.0)?;
-        let kind = if thickness > 0.0 { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric };
+        let smooth = matches!(roughness, ScalarValue::Constant(r) if *r == 0.0);
+        let kind = match (thickness > 0.0, smooth) {
+            (true, true) => MaterialKind::Dielectric,
+            (true, false) if ior != 1.0 => MaterialKind::RoughDielectric,
+            // Index-matched: the rough interface's refraction would be a delta.
+            (true, false) => MaterialKind::Dielectric,
+            (false, _) => MaterialKind::ThinDielectric,
+        };
         let mut dropped = Vec::new();
         if factor < 1.0 {
             dropped.push(format!("its transmission {factor} (rendered as 1)"));
@@ -535,7 +546,7 @@ impl Importer<'_> {
         if ext("KHR_materials_transmission").and_then(|v| v.get("transmissionTexture")).is_some() {
             dropped.push("its transmissionTexture".into());
         }
-        if !matches!(roughness, ScalarValue::Constant(r) if *r == 0.0) {
+        if !smooth && kind != MaterialKind::RoughDielectric {
             dropped.push("its roughness (rendered smooth)".into());
         }
         if !matches!(metallic, ScalarValue::Constant(v) if *v == 0.0) {
@@ -552,7 +563,7 @@ impl Importer<'_> {
         // thin-walled material has no volume: glTF ignores it there).
         let mut absorption = [0.0; 3];
         let distance = number(self, "KHR_materials_volume", "attenuationDistance", f32::INFINITY)?;
-        if kind == MaterialKind::Dielectric && distance.is_finite() {
+        if kind != MaterialKind::ThinDielectric && distance.is_finite() {
             let vkey = |field: &str| format!("{at}.extensions.KHR_materials_volume.{field}");
             if distance <= 0.0 {
                 return Err(self.err(vkey("attenuationDistance"), format!("{distance} is not positive")));
@@ -572,7 +583,12 @@ impl Importer<'_> {
             absorption = colour.map(|c| -c.ln() / distance);
         }
         if !dropped.is_empty() {
-            self.warn(at, format!("approximate: rendered as {} glass without {}", if kind == MaterialKind::Dielectric { "smooth" } else { "smooth thin-walled" }, dropped.join(", ")));
+            let glass = match kind {
+                MaterialKind::Dielectric => "smooth",
+                MaterialKind::RoughDielectric => "rough",
+                _ => "smooth thin-walled",
+            };
+            self.warn(at, format!("approximate: rendered as {glass} glass without {}", dropped.join(", ")));
         }
         Ok(Some((kind, ior, absorption)))
     }

@@ -425,7 +425,7 @@ impl Loader {
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
             if m.ior.is_some() && !m.kind.is_dielectric() {
-                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\" or \"thin_dielectric\")"));
+                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\", \"thin_dielectric\" or \"rough_dielectric\")"));
             }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
@@ -446,22 +446,32 @@ impl Loader {
                     }
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
                 }
-                MaterialKind::Dielectric | MaterialKind::ThinDielectric => {
-                    if m.roughness.is_some() || m.metallic.is_some() {
-                        return Err(self.invalid(&key, "a dielectric is smooth and takes no roughness or metallic"));
+                MaterialKind::Dielectric | MaterialKind::ThinDielectric | MaterialKind::RoughDielectric => {
+                    let rough = m.kind == MaterialKind::RoughDielectric;
+                    if m.metallic.is_some() || (m.roughness.is_some() && !rough) {
+                        return Err(self.invalid(&key, if rough {
+                            "a rough dielectric takes no metallic"
+                        } else {
+                            "a dielectric is smooth and takes no roughness or metallic (type = \"rough_dielectric\" has a roughness)"
+                        }));
                     }
                     for (what, given) in [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("alpha", m.alpha.is_some())] {
                         if given {
                             return Err(self.invalid(&format!("{key}.{what}"), "is not supported on a dielectric"));
                         }
                     }
-                    (ScalarValue::Constant(0.0), ScalarValue::Constant(0.0))
+                    let roughness = match m.roughness {
+                        Some(r) => self.scalar_value(&format!("{key}.roughness"), r)?,
+                        None if rough => ScalarValue::Constant(DEFAULT_GLASS_ROUGHNESS),
+                        None => ScalarValue::Constant(0.0),
+                    };
+                    (roughness, ScalarValue::Constant(0.0))
                 }
             };
             let absorption = match m.absorption {
                 None => [0.0; 3],
-                Some(_) if m.kind != MaterialKind::Dielectric => {
-                    return Err(self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\")"));
+                Some(_) if m.kind == MaterialKind::ThinDielectric || !m.kind.is_dielectric() => {
+                    return Err(self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\" or \"rough_dielectric\")"));
                 }
                 Some(a) => {
                     self.finite(&format!("{key}.absorption"), &a)?;
@@ -478,6 +488,9 @@ impl Loader {
                     self.in_range(&format!("{key}.ior"), ior, MIN_IOR, MAX_IOR)?
                 }
             };
+            if m.kind == MaterialKind::RoughDielectric && ior == 1.0 {
+                return Err(self.invalid(&format!("{key}.ior"), "is 1: a rough dielectric needs two different media (its refraction would be a delta)"));
+            }
             let normal_map = match m.normal_map {
                 None => None,
                 Some(n) => {
@@ -790,7 +803,7 @@ impl Loader {
                 }
                 _ => return Err(self.bad_target(key, target)),
             };
-            if property != "base_color" && m.kind != MaterialKind::Principled {
+            if property == "metallic" && m.kind != MaterialKind::Principled || property == "roughness" && !m.kind.has_roughness() {
                 return Err(self.invalid(
                     key,
                     &format!("material \"{name}\" is {} and has no {property}", m.kind.as_str()),

@@ -8,7 +8,7 @@
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
-//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric">` and the
+//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
 //! wrappers `normalmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
 //! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
@@ -16,13 +16,15 @@
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
-//! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric and
-//! thindielectric (glass: [`MaterialKind::Dielectric`], [`MaterialKind::ThinDielectric`]), area
+//! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric,
+//! thindielectric and GGX roughdielectric (glass: [`MaterialKind::Dielectric`],
+//! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
-//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX; a smooth
+//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX, here and in
+//! `roughdielectric`; a smooth
 //! `conductor` takes the smallest roughness), `plastic` and `roughplastic` (a principled
 //! dielectric whose base colour carries the coating's effect on the diffuse lobe: see
 //! `coating`), spot
@@ -810,7 +812,12 @@ impl<'a, 'i> Importer<'a, 'i> {
                     absorption: [0.0; 3],
                 }
             }
-            "dielectric" | "thindielectric" => {
+            "dielectric" | "thindielectric" | "roughdielectric" => {
+                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughdielectric")?;
+                if kind == "roughdielectric" {
+                    // Sampling only: the same material either way.
+                    self.take_bool(&mut items, "sample_visible", true)?;
+                }
                 if !one_sided {
                     return Err(self.err(node, "a dielectric has two sides of its own: remove the twosided around it"));
                 }
@@ -826,8 +833,19 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                 }
                 let base_color = self.color_param(&mut items, "specular_transmittance", [1.0; 3])?;
-                let kind = if kind == "dielectric" { MaterialKind::Dielectric } else { MaterialKind::ThinDielectric };
-                Material::glass(name.into(), kind, base_color, eta)
+                let kind = match kind.as_str() {
+                    "dielectric" => MaterialKind::Dielectric,
+                    "thindielectric" => MaterialKind::ThinDielectric,
+                    _ => MaterialKind::RoughDielectric,
+                };
+                if kind == MaterialKind::RoughDielectric && eta == 1.0 {
+                    return Err(self.err(node, "int_ior equals ext_ior: a rough dielectric needs two different media"));
+                }
+                let mut glass = Material::glass(name.into(), kind, base_color, eta);
+                if kind == MaterialKind::RoughDielectric {
+                    glass.roughness = ScalarValue::Constant(alpha.sqrt());
+                }
+                glass
             }
             "plastic" | "roughplastic" => {
                 let alpha = self.microfacet_alpha(&mut items, node, kind == "roughplastic")?;
@@ -880,7 +898,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     absorption: [0.0; 3],
                 }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric and thindielectric BSDFs are supported")),
+            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);

@@ -19,6 +19,9 @@ pub const DEFAULT_IOR: f32 = 1.5;
 /// dense interior, such as a bubble in water).
 pub const MIN_IOR: f32 = 0.25;
 pub const MAX_IOR: f32 = 4.0;
+/// A rough dielectric's roughness when the scene gives none (GGX alpha 0.09, near
+/// Mitsuba's default alpha of 0.1).
+pub const DEFAULT_GLASS_ROUGHNESS: f32 = 0.3;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Film {

@@ -177,10 +177,11 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 ScalarValue::Texture(t) => tex(key, t)?,
             })
         };
+        if m.kind.has_roughness() {
+            pairs.push(("roughness", scalar("roughness", &m.roughness)?));
+        }
         if m.kind == MaterialKind::Principled {
-            for (key, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
-                pairs.push((key, scalar(key, v)?));
-            }
+            pairs.push(("metallic", scalar("metallic", &m.metallic)?));
         }
         if m.kind.is_dielectric() {
             pairs.push(("ior", Value::Float(num(m.ior))));
