@@ -726,6 +726,27 @@ fn alpha_tested_gradients_are_exact() {
     });
 }
 
+/// The lit quad of [`lit_quad`] under a glass slab of `kind` (its type and any keys of its
+/// own) over the floor's left half: two faces 2 cm apart, tint 0.8, index 1.5, absorption
+/// (1, 2, 3), under a grey sky; deep enough (6) for the floor under the slab to see the
+/// light through it.
+fn slab_scene(name: &str, kind: &str, optimise: &str) -> Scene {
+    let glass = format!(
+        "constant = [0.2, 0.2, 0.2]\n[[materials]]\nname = \"glass\"\n{kind}\nbase_color = [0.8, 0.8, 0.8]\nior = 1.5\nabsorption = [1, 2, 3]\n\
+         [[meshes]]\nfile = \"slab.obj\"\nmaterial = \"glass\"\n"
+    );
+    let path = lit_quad(name, 16, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", &glass, optimise);
+    let dir = path.parent().unwrap();
+    std::fs::write(
+        dir.join("slab.obj"),
+        "v -1 0.3 -1\nv 0 0.3 -1\nv 0 0.3 1\nv -1 0.3 1\nv -1 0.28 -1\nv 0 0.28 -1\nv 0 0.28 1\nv -1 0.28 1\nf 1 4 3 2\nf 5 6 7 8\n",
+    )
+    .unwrap();
+    let toml = std::fs::read_to_string(&path).unwrap().replace("max_depth = 3", "max_depth = 6").replace("rr_depth = 5", "rr_depth = 6");
+    std::fs::write(&path, toml).unwrap();
+    Scene::load(path).unwrap()
+}
+
 /// Glass: a diffuse floor's 2 × 2 colour texture seen through a tinted, absorbing glass
 /// slab (two faces 2 cm apart over the floor's left half), and the slab's tint, against finite
 /// differences. The slab refracts or mirrors each ray with the Fresnel reflectance, which
@@ -738,19 +759,7 @@ fn gradients_through_glass_are_exact() {
     shared(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.95, 0.5, 0.2]\nrange = [0.0, 1.0]\n";
-        let glass = "constant = [0.2, 0.2, 0.2]\n[[materials]]\nname = \"glass\"\ntype = \"dielectric\"\nbase_color = [0.8, 0.8, 0.8]\nior = 1.5\nabsorption = [1, 2, 3]\n\
-                     [[meshes]]\nfile = \"slab.obj\"\nmaterial = \"glass\"\n";
-        let path = lit_quad("gradients-glass", 16, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", glass, optimise);
-        let dir = path.parent().unwrap();
-        std::fs::write(
-            dir.join("slab.obj"),
-            "v -1 0.3 -1\nv 0 0.3 -1\nv 0 0.3 1\nv -1 0.3 1\nv -1 0.28 -1\nv 0 0.28 -1\nv 0 0.28 1\nv -1 0.28 1\nf 1 4 3 2\nf 5 6 7 8\n",
-        )
-        .unwrap();
-        // Deep enough for the floor under the slab to see the light through it.
-        let toml = std::fs::read_to_string(&path).unwrap().replace("max_depth = 3", "max_depth = 6").replace("rr_depth = 5", "rr_depth = 6");
-        std::fs::write(&path, toml).unwrap();
-        let scene = Scene::load(path).unwrap();
+        let scene = slab_scene("gradients-glass", "type = \"dielectric\"", optimise);
         let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
         assert!(b.scene().has_dielectrics);
         // The tint's step is short: a path that crosses the slab k times is a polynomial of
@@ -761,7 +770,7 @@ fn gradients_through_glass_are_exact() {
 }
 
 /// Rough glass: the slab of [`gradients_through_glass_are_exact`] made rough (GGX,
-/// roughness 0.3), against finite differences. Its lobes are no deltas: light samples pass
+/// roughness 0.4, from 0.3), against finite differences. Its lobes are no deltas: light samples pass
 /// through its faces (the shadow ray leaves from the far side), the emission a
 /// continuation finds is MIS-weighted, and the floor under it is lit through both faces.
 /// The floor's texels and the slab's tint change no choice (the lobe is picked by the
@@ -770,27 +779,16 @@ fn gradients_through_glass_are_exact() {
 /// vertex: its finite differences follow other paths than the adjoint's, so it agrees in
 /// the mean only, and its samples switch lobes where the moved microfacet's Fresnel
 /// reflectance crosses their random number: 256 rounds of 64 spp, ε = 0.01 as the
-/// principled roughness. The tint starts on
-/// the side of its reference where the floor's texels start (too dark in red, too bright
-/// in green and blue), so that the two residuals do not cancel in its gradient.
+/// principled roughness. The tint starts on the side of its reference where the floor's
+/// texels start (too dark in red, too bright in green and blue), so that the two residuals
+/// do not cancel in its gradient.
 #[test]
 fn gradients_through_rough_glass_match_finite_differences() {
     shared(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.5, 0.95, 0.95]\nrange = [0.0, 1.0]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.roughness\"\ninit = 0.3\nrange = [0.0, 1.0]\n";
-        let glass = "constant = [0.2, 0.2, 0.2]\n[[materials]]\nname = \"glass\"\ntype = \"rough_dielectric\"\nbase_color = [0.8, 0.8, 0.8]\nroughness = 0.4\nior = 1.5\nabsorption = [1, 2, 3]\n\
-                     [[meshes]]\nfile = \"slab.obj\"\nmaterial = \"glass\"\n";
-        let path = lit_quad("gradients-rough-glass", 16, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", glass, optimise);
-        let dir = path.parent().unwrap();
-        std::fs::write(
-            dir.join("slab.obj"),
-            "v -1 0.3 -1\nv 0 0.3 -1\nv 0 0.3 1\nv -1 0.3 1\nv -1 0.28 -1\nv 0 0.28 -1\nv 0 0.28 1\nv -1 0.28 1\nf 1 4 3 2\nf 5 6 7 8\n",
-        )
-        .unwrap();
-        let toml = std::fs::read_to_string(&path).unwrap().replace("max_depth = 3", "max_depth = 6").replace("rr_depth = 5", "rr_depth = 6");
-        std::fs::write(&path, toml).unwrap();
-        let scene = Scene::load(path).unwrap();
+        let scene = slab_scene("gradients-rough-glass", "type = \"rough_dielectric\"\nroughness = 0.4", optimise);
         let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
         assert!(b.scene().has_dielectrics && b.scene().has_rough_dielectrics);
         let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();

@@ -37,6 +37,13 @@
 // inside). Light samples are not attenuated: they never cross glass, and a vertex inside
 // an interior (an object embedded in glass) takes them as if in air.
 //
+// A rough dielectric vertex (HAS_ROUGH_DIELECTRICS) is no delta: its lobes go through the
+// generic BSDF functions, which evaluate its transmission for directions below the surface.
+// It takes light samples on both sides (a shadow ray below the surface leaves from the far
+// side), and its continuation, on either side, is MIS-weighted as any other; a direction
+// counts only where the geometric and the shading normal put it on the same side. Its
+// index inverts and its interior's absorption switches as a smooth dielectric's.
+//
 // Depth convention (Mitsuba's): MAX_DEPTH = 1 sees emitters only, 2 adds direct light.
 #ifndef INTEGRATOR_GLSL
 #define INTEGRATOR_GLSL
