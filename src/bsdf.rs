@@ -9,7 +9,10 @@
 //! directions point away from the surface, the BSDF is one-sided, and [`eval`] returns
 //! f(wo, wi) |cos theta_i|.
 
-use crate::shared::{Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC};
+use crate::shared::{
+    Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC,
+};
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -58,9 +61,9 @@ impl MaterialF64 {
         self.kind == MATERIAL_THIN_DIELECTRIC
     }
 
-    /// The rough dielectric (lobes on both sides, no deltas).
+    /// The rough dielectric of either distribution (lobes on both sides, no deltas).
     pub fn rough_glass(&self) -> bool {
-        self.kind == MATERIAL_ROUGH_DIELECTRIC
+        self.kind == MATERIAL_ROUGH_DIELECTRIC || self.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN
     }
 
     /// mix(0.04, base_color, metallic)
@@ -213,36 +216,65 @@ pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
 #[derive(Clone, Copy, Debug)]
 struct RoughGlassTerms {
     valid: bool,
-    alpha: f64,
-    h: DVec3,
-    k: f64,
-    lambda_o: f64,
-    lambda_i: f64,
-    q_o: f64,
-    q_i: f64,
-    visible: f64,
+    dln_d: f64,
+    dln_g1: f64,
+    value: f64,
+    density: f64,
     fresnel: f64,
     reflect: bool,
 }
 
-/// Smith's Lambda of GGX and q = sqrt(cos^2 + alpha^2 sin^2) (`ggx_lambda`).
-fn ggx_lambda(v: DVec3, a2: f64) -> (f64, f64) {
+/// Smith's G1 of GGX and d ln G1 / d alpha (`ggx_g1`).
+fn ggx_g1(v: DVec3, alpha: f64) -> (f64, f64) {
+    let a2 = alpha * alpha;
     let c = v.z.abs();
     let s2 = v.x * v.x + v.y * v.y;
     let q = (c * c + a2 * s2).sqrt();
-    (a2 * s2 / (2.0 * c * (q + c)), q)
+    let lambda = a2 * s2 / (2.0 * c * (q + c));
+    (1.0 / (1.0 + lambda), -(alpha * s2 / (2.0 * c * q)) / (1.0 + lambda))
+}
+
+/// Smith's G1 of Beckmann (Walter et al.'s rational approximation) and d ln G1 / d alpha
+/// (`beckmann_g1`).
+fn beckmann_g1(v: DVec3, alpha: f64) -> (f64, f64) {
+    let c = v.z.abs();
+    let s = (v.x * v.x + v.y * v.y).sqrt();
+    if c >= 1.6 * alpha * s {
+        return (1.0, 0.0);
+    }
+    let a = c / (alpha * s);
+    let num = (3.535 + 2.181 * a) * a;
+    let den = 1.0 + (2.276 + 2.577 * a) * a;
+    let dnum = 3.535 + 4.362 * a;
+    let dden = 2.276 + 5.154 * a;
+    (num / den, (dden / den - dnum / num) * a / alpha)
+}
+
+/// A normal from Beckmann's distribution of normals (`beckmann_sample_normal`).
+pub fn beckmann_sample_normal(alpha: f64, u: [f64; 2]) -> DVec3 {
+    let t2 = -alpha * alpha * (1.0 - u[0]).ln();
+    let c = 1.0 / (1.0 + t2).sqrt();
+    let s = t2.sqrt() * c;
+    let phi = 2.0 * PI * u[1];
+    DVec3::new(s * phi.cos(), s * phi.sin(), c)
 }
 
 /// `rough_glass_terms`
 fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGlassTerms {
+    let beckmann = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
     let reflect = wi.z > 0.0;
-    let alpha = alpha(m.roughness);
-    let a2 = alpha * alpha;
+    let a = alpha(m.roughness);
+    let a2 = a * a;
     let (oh, ih) = (wo.dot(h), wi.dot(h));
     let mut valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && if reflect { ih > 0.0 } else { ih < 0.0 };
-    let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
-    let (lambda_o, q_o) = ggx_lambda(wo, a2);
-    let (lambda_i, q_i) = ggx_lambda(wi, a2);
+    let (d, dln_d, (g1_o, dln_o), (g1_i, dln_i)) = if beckmann {
+        let t2 = (h.x * h.x + h.y * h.y) / (h.z * h.z);
+        let c2 = h.z * h.z;
+        ((-t2 / a2).exp() / (PI * a2 * c2 * c2), 2.0 * t2 / (a2 * a) - 2.0 / a, beckmann_g1(wo, a), beckmann_g1(wi, a))
+    } else {
+        let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
+        (a2 / (PI * k * k), 2.0 / a - 4.0 * a * h.z * h.z / k, ggx_g1(wo, a), ggx_g1(wi, a))
+    };
     let (fresnel, _) = dielectric_fresnel(oh, m.ior);
     let jac = if reflect {
         1.0 / (4.0 * oh)
@@ -250,13 +282,15 @@ fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGl
         let den = oh + m.ior * ih;
         m.ior * m.ior * ih.abs() / (den * den)
     };
-    let d = a2 / (PI * k * k);
-    let mut visible = d * oh * jac / (wo.z * (1.0 + lambda_o));
-    if !valid || visible.is_nan() || visible <= 0.0 {
+    let visible = d * g1_o * oh * jac / wo.z;
+    let mut value = visible * g1_i;
+    let mut density = if beckmann { d * h.z * jac } else { visible };
+    if !valid || density.is_nan() || density <= 0.0 {
         valid = false;
-        visible = 0.0;
+        value = 0.0;
+        density = 0.0;
     }
-    RoughGlassTerms { valid, alpha, h, k, lambda_o, lambda_i, q_o, q_i, visible, fresnel, reflect }
+    RoughGlassTerms { valid, dln_d, dln_g1: dln_o + dln_i, value, density, fresnel, reflect }
 }
 
 /// `rough_glass_half`
@@ -276,7 +310,7 @@ fn rough_glass_value(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
         return DVec3::ZERO;
     }
     let prob = if t.reflect { t.fresnel } else { 1.0 - t.fresnel };
-    (prob * t.visible / (1.0 + t.lambda_i)) * rough_glass_tint(m, t)
+    (prob * t.value) * rough_glass_tint(m, t)
 }
 
 /// `rough_glass_pdf`
@@ -284,7 +318,7 @@ fn rough_glass_pdf(t: &RoughGlassTerms) -> f64 {
     if !t.valid {
         return 0.0;
     }
-    (if t.reflect { t.fresnel } else { 1.0 - t.fresnel }) * t.visible
+    (if t.reflect { t.fresnel } else { 1.0 - t.fresnel }) * t.density
 }
 
 /// f cos theta_i in the local frame (`bsdf_eval_local`).
@@ -368,7 +402,12 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         return None;
     }
     if m.rough_glass() {
-        let h = ggx_sample_visible_normal(wo_l, alpha(m.roughness), [u.y, u.z]);
+        let a = alpha(m.roughness);
+        let h = if m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN {
+            beckmann_sample_normal(a, [u.y, u.z])
+        } else {
+            ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
+        };
         let oh = wo_l.dot(h);
         let (fr, cos_t) = dielectric_fresnel(oh, m.ior);
         let wi_l = if u.x < fr { 2.0 * oh * h - wo_l } else { ((oh * h - wo_l) / m.ior - cos_t * h).normalize() };
@@ -377,7 +416,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         if pdf.is_nan() || pdf <= 0.0 {
             return None;
         }
-        return Some(BsdfSample { wi: f.to_world(wi_l), weight: rough_glass_tint(m, &t) / (1.0 + t.lambda_i), pdf });
+        return Some(BsdfSample { wi: f.to_world(wi_l), weight: rough_glass_value(m, &t) / pdf, pdf });
     }
     if !m.principled() {
         let wi_l = sample_cosine_hemisphere([u.y, u.z]);
@@ -424,19 +463,12 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
     let wi_l = f.to_local(wi);
     if m.rough_glass() {
         let t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
-        let v = rough_glass_value(m, &t);
         if t.valid && !t.reflect {
-            g.d_base_color = DVec3::splat((1.0 - t.fresnel) * t.visible / ((1.0 + t.lambda_i) * m.ior * m.ior));
+            g.d_base_color = DVec3::splat((1.0 - t.fresnel) * t.value / (m.ior * m.ior));
         }
         let dalpha = dalpha_droughness(m.roughness);
         if t.valid && dalpha != 0.0 {
-            let a = t.alpha;
-            let dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
-            let s2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
-            let s2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
-            let dl_o = a * s2_o / (2.0 * wo_l.z * t.q_o);
-            let dl_i = a * s2_i / (2.0 * wi_l.z.abs() * t.q_i);
-            g.d_roughness = v * ((dln_d - dl_o / (1.0 + t.lambda_o) - dl_i / (1.0 + t.lambda_i)) * dalpha);
+            g.d_roughness = rough_glass_value(m, &t) * ((t.dln_d + t.dln_g1) * dalpha);
         }
         return g;
     }

@@ -19,6 +19,9 @@ pub const MATERIAL_THIN_DIELECTRIC: u32 = 3;
 /// microfacets, which reflect and refract into lobes that light samples can reach (Mitsuba
 /// 3's `roughdielectric` with the GGX distribution).
 pub const MATERIAL_ROUGH_DIELECTRIC: u32 = 4;
+/// The rough dielectric with Beckmann's distribution of microfacets (Mitsuba 3's default
+/// for `roughdielectric`).
+pub const MATERIAL_ROUGH_DIELECTRIC_BECKMANN: u32 = 5;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

@@ -18,7 +18,8 @@ pub struct ProbeStruct {
 }
 
 pub use crate::constants::{
-    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC,
+    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC,
 };
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 28 bytes, offsets checked against the
@@ -32,8 +33,8 @@ pub struct Material {
     pub roughness: f32,
     pub metallic: f32,
     /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`], [`MATERIAL_DIELECTRIC`],
-    /// [`MATERIAL_THIN_DIELECTRIC`] or [`MATERIAL_ROUGH_DIELECTRIC`]; any other value
-    /// behaves as diffuse.
+    /// [`MATERIAL_THIN_DIELECTRIC`], [`MATERIAL_ROUGH_DIELECTRIC`] or
+    /// [`MATERIAL_ROUGH_DIELECTRIC_BECKMANN`]; any other value behaves as diffuse.
     pub kind: u32,
     /// A dielectric's relative index of refraction: the far side's over wo's.
     pub ior: f32,

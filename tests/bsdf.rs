@@ -12,7 +12,8 @@ use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
 use vkinverse::shared::{
-    Material, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC,
+    Material, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC,
+    MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 use vkinverse::stats::ln_gamma;
 
@@ -324,7 +325,8 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
             let kind = match i % 7 {
                 3 if i % 2 == 0 => MATERIAL_THIN_DIELECTRIC,
                 3 => MATERIAL_DIELECTRIC,
-                5 if i % 2 == 0 => MATERIAL_ROUGH_DIELECTRIC,
+                5 if i % 4 == 0 => MATERIAL_ROUGH_DIELECTRIC,
+                5 if i % 4 == 2 => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                 _ if i % 5 == 0 => MATERIAL_DIFFUSE,
                 _ => MATERIAL_PRINCIPLED,
             };
@@ -342,7 +344,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
                 // Index-matched (not for rough glass, whose refraction is then a delta and
                 // which the loader refuses), glass from outside and inside, water, and any
                 // in between.
-                ior: if kind == MATERIAL_ROUGH_DIELECTRIC {
+                ior: if kind == MATERIAL_ROUGH_DIELECTRIC || kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN {
                     rng.pick(&[1.5, 1.0 / 1.5, 1.33, 0.5 + 2.0 * r, 0.5 + 2.0 * r])
                 } else {
                     rng.pick(&[1.0, 1.5, 1.0 / 1.5, 1.33, 0.5 + 2.0 * r])
@@ -366,7 +368,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
                 let mirror = 2.0 * wo.dot(n) * n - wo;
                 let tilt = 10f64.powf(rng.range(-3.0, -0.5));
                 (mirror + tilt * rng.unit_vector()).normalize()
-            } else if kind == MATERIAL_ROUGH_DIELECTRIC && rng.f64() < 0.5 {
+            } else if (kind == MATERIAL_ROUGH_DIELECTRIC || kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN) && rng.f64() < 0.5 {
                 // Near the refracted direction (the transmitted lobe's peak), or anywhere
                 // below the surface.
                 let m = MaterialF64::from(material);
@@ -469,7 +471,9 @@ fn gpu_matches_cpu_mirror() {
         }
         for k in 0..21 {
             let err = (gpu[k] - cpu[k]).abs();
-            let tol = REL * cpu[k].abs() + 4.0 * sens[k];
+            // Beckmann's exp(-tan^2 / alpha^2) leaves float32's range far from its peak:
+            // below 1e-30 (of the result's scale) the kernel's 0 is its rounding.
+            let tol = REL * cpu[k].abs() + 4.0 * sens[k] + 1e-30;
             if tol > 0.0 {
                 max_ratio = max_ratio.max(err / tol);
             }
@@ -571,7 +575,7 @@ fn expected_fractions(m: &MaterialF64, wo_local: DVec3) -> Vec<f64> {
     // rough glass, whose refracted lobe is narrower by about (η − 1)/η.
     let width = match m.kind {
         MATERIAL_PRINCIPLED => bsdf::alpha(m.roughness),
-        MATERIAL_ROUGH_DIELECTRIC => 0.25 * bsdf::alpha(m.roughness),
+        MATERIAL_ROUGH_DIELECTRIC | MATERIAL_ROUGH_DIELECTRIC_BECKMANN => 0.25 * bsdf::alpha(m.roughness),
         _ => 1.0,
     };
     let depth = |extent: f64| ((extent / width).log2().ceil().max(2.0)) as u32;
@@ -606,10 +610,13 @@ fn gpu_samples_follow_bsdf_pdf() {
             materials.push(Material { base_color, roughness, metallic, kind: MATERIAL_PRINCIPLED, ior: 1.5 });
         }
     }
-    // Rough glass from outside and from inside (total internal reflection past 42°).
-    for roughness in [0.3, 0.7] {
-        for ior in [1.5, 1.0 / 1.5] {
-            materials.push(Material { base_color, roughness, metallic: 0.0, kind: MATERIAL_ROUGH_DIELECTRIC, ior });
+    // Rough glass of both distributions from outside and from inside (total internal
+    // reflection past 42°).
+    for kind in [MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN] {
+        for roughness in [0.3, 0.7] {
+            for ior in [1.5, 1.0 / 1.5] {
+                materials.push(Material { base_color, roughness, metallic: 0.0, kind, ior });
+            }
         }
     }
     // A tilted normal, so that the sampled frame is not the world frame.
@@ -693,9 +700,11 @@ fn white_furnace_albedo_is_at_most_one() {
     }
     // Rough glass, its radiance through the interface counted as power (times η², undoing
     // the solid angle's compression), from outside and inside.
-    for roughness in [0.0, 0.1, 0.3, 0.7, 1.0] {
-        for ior in [1.5, 1.0 / 1.5] {
-            cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, metallic: 0.0, kind: MATERIAL_ROUGH_DIELECTRIC, ior });
+    for kind in [MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN] {
+        for roughness in [0.0, 0.1, 0.3, 0.7, 1.0] {
+            for ior in [1.5, 1.0 / 1.5] {
+                cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, metallic: 0.0, kind, ior });
+            }
         }
     }
     let cos_o = [1.0, 0.7, 0.3, 0.1, 0.01];
@@ -762,7 +771,8 @@ fn eval_grad_matches_finite_differences() {
             metallic: rng.pick(&[0.0, 1.0, mt, mt]),
             kind: match i % 10 {
                 0 => MATERIAL_DIFFUSE,
-                3 | 7 => MATERIAL_ROUGH_DIELECTRIC,
+                3 => MATERIAL_ROUGH_DIELECTRIC,
+                7 => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                 _ => MATERIAL_PRINCIPLED,
             },
             ior: if i % 4 == 3 { 1.0 / 1.5 } else { 1.5 },
@@ -888,7 +898,9 @@ fn principled_is_reciprocal() {
 /// reflection is symmetric, and with radiance's 1/η² its transmission seen from wi's side
 /// (the normal flipped, the relative index inverted) is η² times the one seen from wo's,
 /// f(wi → wo; 1/η) = η² f(wo → wi; η). Both orders compute the same terms in another
-/// order (h from wo + η wi against wi + wo / η, normalised): rounding, 1e-9 allowed.
+/// order (h from wo + η wi against wi + wo / η, normalised; the Fresnel term from either
+/// side): rounding, which the Fresnel term's square root amplifies near the critical
+/// angle (1.4e-8 seen there), so 1e-6 is allowed; a wrong factor would be far larger.
 #[test]
 fn rough_dielectric_is_reciprocal() {
     let mut rng = Rng(23);
@@ -900,7 +912,7 @@ fn rough_dielectric_is_reciprocal() {
             base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
             roughness: rng.pick(&[0.05, 1.0, r, r]),
             metallic: 0.0,
-            kind: MATERIAL_ROUGH_DIELECTRIC,
+            kind: rng.pick(&[MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN]),
             ior,
         };
         let back = MaterialF64 { ior: 1.0 / ior, ..m };
@@ -916,8 +928,13 @@ fn rough_dielectric_is_reciprocal() {
             continue;
         }
         for c in 0..3 {
+            // (Far from Beckmann's peak the value leaves f64's normal range, and its digits.)
+            if scale * forward[c] < 1e-250 {
+                assert!(reverse[c] < 1e-240, "f(wi, wo) = {reverse} but {scale} f(wo, wi) = {}", scale * forward);
+                continue;
+            }
             let rel = (reverse[c] - scale * forward[c]).abs() / (scale * forward[c]).abs();
-            assert!(rel <= 1e-9, "f(wi, wo) = {reverse} but {scale} f(wo, wi) = {}: {m:?} n {n} wo {wo} wi {wi}", scale * forward);
+            assert!(rel <= 1e-6, "f(wi, wo) = {reverse} but {scale} f(wo, wi) = {}: {m:?} n {n} wo {wo} wi {wi}", scale * forward);
         }
         if below { transmitted += 1 } else { reflected += 1 }
     }
@@ -944,9 +961,10 @@ fn sample_pdf_and_weight_match_pdf_and_eval() {
             kind: match i % 10 {
                 0 => MATERIAL_DIFFUSE,
                 5 => MATERIAL_ROUGH_DIELECTRIC,
+                6 => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                 _ => MATERIAL_PRINCIPLED,
             },
-            ior: if i % 20 == 5 { 1.0 / 1.5 } else { 1.5 },
+            ior: if i % 20 >= 10 { 1.0 / 1.5 } else { 1.5 },
         };
         let n = rng.unit_vector();
         let wo = direction(n, rng.range(0.0, 1.0), rng.range(0.0, 2.0 * PI));

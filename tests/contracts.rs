@@ -31,6 +31,7 @@ fn shared_constants_are_generated_from_one_definition() {
         ("MATERIAL_DIELECTRIC", vkinverse::constants::MATERIAL_DIELECTRIC),
         ("MATERIAL_THIN_DIELECTRIC", vkinverse::constants::MATERIAL_THIN_DIELECTRIC),
         ("MATERIAL_ROUGH_DIELECTRIC", vkinverse::constants::MATERIAL_ROUGH_DIELECTRIC),
+        ("MATERIAL_ROUGH_DIELECTRIC_BECKMANN", vkinverse::constants::MATERIAL_ROUGH_DIELECTRIC_BECKMANN),
         ("LOCAL_GRADS_CAPACITY", vkinverse::constants::LOCAL_GRADS_CAPACITY),
         ("LOSS_L2", vkinverse::constants::LOSS_L2),
         ("LOSS_L1", vkinverse::constants::LOSS_L1),

@@ -5,7 +5,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use vkinverse::image::{write_exr, Image};
-use vkinverse::scene::{AlphaMode, ColorValue, ParamTarget, Reference, ScalarValue, Scene, SceneError};
+use vkinverse::scene::{AlphaMode, ColorValue, Distribution, ParamTarget, Reference, ScalarValue, Scene, SceneError};
 
 const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
 const BARE_TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
@@ -255,6 +255,8 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(frosted, bk7);
     assert_eq!(frosted, rough("hash-x", "\nroughness = 0.3"), "0.3 is the default roughness");
     assert_ne!(frosted, rough("hash-y", "\nroughness = 0.5"));
+    assert_eq!(frosted, rough("hash-z", "\ndistribution = \"ggx\""), "GGX is the default distribution");
+    assert_ne!(frosted, rough("hash-za", "\ndistribution = \"beckmann\""));
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -759,6 +761,10 @@ fn dielectrics_are_checked() {
     assert_message(&load_err("rough-roughness-range", &rough("\nroughness = 1.5")), &["materials.m.roughness", "1.5"]);
     assert_message(&load_err("rough-matched", &rough("\nior = 1")), &["materials.m.ior", "is 1"]);
     assert_message(&load_err("rough-one-sided", &rough("\none_sided = true")), &["materials.m.one_sided", "dielectric"]);
+    let s = Scene::load(fixture("rough-beckmann", &rough("\ndistribution = \"beckmann\""))).unwrap();
+    assert_eq!(s.materials[0].distribution, Distribution::Beckmann);
+    assert_message(&load_err("rough-distribution", &rough("\ndistribution = \"phong\"")), &["materials.m.distribution", "phong", "beckmann"]);
+    assert_message(&load_err("glass-distribution", &glass("\ndistribution = \"ggx\"")), &["materials.m.distribution", "rough_dielectric"]);
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.5\nrange = [0, 1]\n", rough(""));
     Scene::load(fixture("rough-param", &optimised)).unwrap();
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n", rough(""));

@@ -223,53 +223,104 @@ float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
 // Everything the rough dielectric needs at one (wo, wi). With eta = m.ior and h the
 // microfacet normal that takes wo to wi (normalize(wo + wi) for a reflection,
 // normalize(wo + eta wi) for a refraction, on the upper side), both lobes are
-//   value = mass D(h) G1(wo) G1(wi) (wo.h) jac / cos_o,   pdf = prob D(h) G1(wo) (wo.h) jac / cos_o
-// where D(h) G1(wo) (wo.h) / cos_o is the density of the visible normals (Heitz 2018) and
-// jac = |dh/dwi|: 1 / (4 wo.h) for the reflection (Walter et al. 2007, eq. 14) and
-// eta^2 |wi.h| / (wo.h + eta wi.h)^2 for the refraction (eq. 17). The reflection has
-// mass = prob = F(wo.h), the transmission prob = 1 - F and mass = (1 - F) base_color /
-// eta^2 (radiance mode, as the smooth dielectric). G1 = 1 / (1 + Lambda) is Smith's
-// masking of each direction separately: the shadowing-masking G1(wo) G1(wi) of Mitsuba
-// 3's roughdielectric, not the height-correlated form of the principled model. Directions
-// that see the back of their microfacet (wo.h <= 0, or wi.h on the wrong side) have value
-// and pdf 0.
+//   value = mass D(h) G1(wo) G1(wi) (wo.h) jac / cos_o,   pdf = prob density
+// where jac = |dh/dwi| is 1 / (4 wo.h) for the reflection (Walter et al. 2007, eq. 14)
+// and eta^2 |wi.h| / (wo.h + eta wi.h)^2 for the refraction (eq. 17), and density the
+// sampled normals' density times jac: D(h) G1(wo) (wo.h) / cos_o for GGX's visible
+// normals (Heitz 2018), D(h) h.z for Beckmann's normals, drawn from the distribution
+// itself. The reflection has mass = prob = F(wo.h), the transmission prob = 1 - F and
+// mass = (1 - F) base_color / eta^2 (radiance mode, as the smooth dielectric). G1 is
+// Smith's masking of each direction separately: the shadowing-masking G1(wo) G1(wi) of
+// Mitsuba 3's roughdielectric, not the height-correlated form of the principled model;
+// Beckmann's G1 is Walter et al.'s rational approximation (eq. 27), as Mitsuba's.
+// Directions that see the back of their microfacet (wo.h <= 0, or wi.h on the wrong side)
+// have value and pdf 0.
 struct RoughGlassTerms {
     bool valid;
     float alpha;
     vec3 h;
-    float k;         // alpha^2 h.z^2 + h.x^2 + h.y^2 (D = alpha^2 / (pi k^2))
-    float lambda_o;  // Lambda(wo)
-    float lambda_i;  // Lambda(wi)
-    float q_o;       // sqrt(cos_o^2 + alpha^2 sin_o^2)
-    float q_i;       // likewise for wi (|cos_i|)
-    float visible;   // D(h) G1(wo) (wo.h) jac / cos_o: the pdf per unit lobe probability
+    float d;         // D(h)
+    float dln_d;     // d ln D / d alpha
+    float g1_o;      // G1(wo)
+    float g1_i;      // G1(wi)
+    float dln_g1;    // d ln (G1(wo) G1(wi)) / d alpha
+    float value;     // D G1(wo) G1(wi) (wo.h) jac / cos_o: the value per unit lobe mass
+    float density;   // the pdf per unit lobe probability
     float fresnel;   // F(wo.h)
     bool reflect;
 };
 
-// Smith's Lambda of GGX for direction v, as alpha^2 sin^2 / (2 |cos| (q + |cos|)) with
-// q = sqrt(cos^2 + alpha^2 sin^2) (Heitz 2014, eq. 72, without the cancellation in q - |cos|).
-float ggx_lambda(vec3 v, float a2, out float q) {
+// Smith's G1 of GGX for direction v (either side), 1 / (1 + Lambda) with Lambda written as
+// alpha^2 sin^2 / (2 |cos| (q + |cos|)), q = sqrt(cos^2 + alpha^2 sin^2) (Heitz 2014,
+// eq. 72, without the cancellation in q - |cos|); d ln G1 / d alpha in dln.
+float ggx_g1(vec3 v, float alpha, out float dln) {
+    float a2 = alpha * alpha;
     float c = abs(v.z);
     float s2 = v.x * v.x + v.y * v.y;
-    q = sqrt(c * c + a2 * s2);
-    return a2 * s2 / (2.0 * c * (q + c));
+    float q = sqrt(c * c + a2 * s2);
+    float lambda = a2 * s2 / (2.0 * c * (q + c));
+    // d Lambda / d alpha = alpha sin^2 / (2 |cos| q)
+    dln = -(alpha * s2 / (2.0 * c * q)) / (1.0 + lambda);
+    return 1.0 / (1.0 + lambda);
+}
+
+// Smith's G1 of Beckmann for direction v (either side): Walter et al. 2007's rational
+// approximation in a = |cos| / (alpha sin), 1 from a = 1.6 on; d ln G1 / d alpha in dln.
+float beckmann_g1(vec3 v, float alpha, out float dln) {
+    float c = abs(v.z);
+    float s = sqrt(v.x * v.x + v.y * v.y);
+    dln = 0.0;
+    if (c >= 1.6 * alpha * s) return 1.0;
+    float a = c / (alpha * s);
+    float num = (3.535 + 2.181 * a) * a;
+    float den = 1.0 + (2.276 + 2.577 * a) * a;
+    float dnum = 3.535 + 4.362 * a;
+    float dden = 2.276 + 5.154 * a;
+    // d ln G1 / da = dnum / num - dden / den, and da / d alpha = -a / alpha.
+    dln = (dden / den - dnum / num) * a / alpha;
+    return num / den;
+}
+
+// A normal drawn from Beckmann's distribution of normals (density D(h) h.z): tan^2 theta =
+// -alpha^2 ln(1 - u.x), phi = 2 pi u.y.
+vec3 beckmann_sample_normal(float alpha, vec2 u) {
+    float t2 = -alpha * alpha * log(1.0 - u.x);
+    float c = inversesqrt(1.0 + t2);
+    float s = sqrt(t2) * c;
+    float phi = 2.0 * BSDF_PI * u.y;
+    return vec3(s * cos(phi), s * sin(phi), c);
 }
 
 // The terms at (wo, wi) with microfacet normal h (computed from wo and wi by the caller, or
 // the sampled one).
 RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
     RoughGlassTerms t;
+    bool beckmann = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
     t.reflect = wi.z > 0.0;
     t.alpha = bsdf_alpha(m.roughness);
-    float a2 = t.alpha * t.alpha;
+    float a = t.alpha;
+    float a2 = a * a;
     t.h = h;
     float oh = dot(wo, h);
     float ih = dot(wi, h);
     t.valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && (t.reflect ? ih > 0.0 : ih < 0.0);
-    t.k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
-    t.lambda_o = ggx_lambda(wo, a2, t.q_o);
-    t.lambda_i = ggx_lambda(wi, a2, t.q_i);
+    float dln_o, dln_i;
+    if (beckmann) {
+        float t2 = (h.x * h.x + h.y * h.y) / (h.z * h.z);
+        float c2 = h.z * h.z;
+        t.d = exp(-t2 / a2) / (BSDF_PI * a2 * c2 * c2);
+        t.dln_d = 2.0 * t2 / (a2 * a) - 2.0 / a;
+        t.g1_o = beckmann_g1(wo, a, dln_o);
+        t.g1_i = beckmann_g1(wi, a, dln_i);
+    } else {
+        // D = alpha^2 / (pi k^2) with k = alpha^2 h.z^2 + h.x^2 + h.y^2 (principled_terms).
+        float k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
+        t.d = a2 / (BSDF_PI * k * k);
+        t.dln_d = 2.0 / a - 4.0 * a * h.z * h.z / k;
+        t.g1_o = ggx_g1(wo, a, dln_o);
+        t.g1_i = ggx_g1(wi, a, dln_i);
+    }
+    t.dln_g1 = dln_o + dln_i;
     float cos_t;
     t.fresnel = dielectric_fresnel(oh, m.ior, cos_t);
     float jac;
@@ -279,11 +330,13 @@ RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
         float den = oh + m.ior * ih;
         jac = m.ior * m.ior * abs(ih) / (den * den);
     }
-    float d = a2 / (BSDF_PI * t.k * t.k);
-    t.visible = d * oh * jac / (wo.z * (1.0 + t.lambda_o));
-    if (!t.valid || !(t.visible > 0.0)) {
+    float visible = t.d * t.g1_o * oh * jac / wo.z;
+    t.value = visible * t.g1_i;
+    t.density = beckmann ? t.d * h.z * jac : visible;
+    if (!t.valid || !(t.density > 0.0)) {
         t.valid = false;
-        t.visible = 0.0;
+        t.value = 0.0;
+        t.density = 0.0;
     }
     return t;
 }
@@ -303,16 +356,16 @@ vec3 rough_glass_tint(Material m, RoughGlassTerms t) {
 vec3 rough_glass_value(Material m, RoughGlassTerms t) {
     if (!t.valid) return vec3(0.0);
     float prob = t.reflect ? t.fresnel : 1.0 - t.fresnel;
-    return (prob * t.visible / (1.0 + t.lambda_i)) * rough_glass_tint(m, t);
+    return (prob * t.value) * rough_glass_tint(m, t);
 }
 
 float rough_glass_pdf(RoughGlassTerms t) {
     if (!t.valid) return 0.0;
-    return (t.reflect ? t.fresnel : 1.0 - t.fresnel) * t.visible;
+    return (t.reflect ? t.fresnel : 1.0 - t.fresnel) * t.density;
 }
 
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
-    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+    if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
         return rough_glass_value(m, rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
     }
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
@@ -322,7 +375,7 @@ vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
-    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+    if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
         return rough_glass_pdf(rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
     }
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
@@ -392,11 +445,13 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     if (wo_l.z <= 0.0 || material_is_dielectric(m.kind)) return false;
-    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
-        // A visible normal h; the mirror about it with probability F(wo.h), else the
-        // refraction through it (Snell's law about h; F = 1 under total internal
-        // reflection, so the refraction is never picked there).
-        vec3 h = ggx_sample_visible_normal(wo_l, bsdf_alpha(m.roughness), u.yz);
+    if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
+        // A normal h (GGX's visible normals, Beckmann's distribution of normals); the
+        // mirror about it with probability F(wo.h), else the refraction through it
+        // (Snell's law about h; F = 1 under total internal reflection, so the refraction
+        // is never picked there).
+        float alpha = bsdf_alpha(m.roughness);
+        vec3 h = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN ? beckmann_sample_normal(alpha, u.yz) : ggx_sample_visible_normal(wo_l, alpha, u.yz);
         float oh = dot(wo_l, h);
         float cos_t;
         float fr = dielectric_fresnel(oh, m.ior, cos_t);
@@ -408,7 +463,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
             return false;
         }
         wi = shading_to_world(f, wi_l);
-        weight = rough_glass_tint(m, t) / (1.0 + t.lambda_i);
+        weight = rough_glass_value(m, t) / pdf;
         return true;
     }
     if (m.kind != MATERIAL_PRINCIPLED) {
@@ -459,22 +514,13 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     ShadingFrame f = shading_frame(n);
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
-    if (BSDF_ROUGH_DIELECTRICS && m.kind == MATERIAL_ROUGH_DIELECTRIC) {
+    if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
         RoughGlassTerms t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
-        vec3 v = rough_glass_value(m, t);
-        // Linear in base_color through the transmission only.
-        if (t.valid && !t.reflect) d_base_color = vec3((1.0 - t.fresnel) * t.visible / ((1.0 + t.lambda_i) * m.ior * m.ior));
+        // Linear in base_color through the transmission only; through alpha in D and
+        // both G1.
+        if (t.valid && !t.reflect) d_base_color = vec3((1.0 - t.fresnel) * t.value / (m.ior * m.ior));
         float dalpha = bsdf_dalpha_droughness(m.roughness);
-        if (t.valid && dalpha != 0.0) {
-            float a = t.alpha;
-            float dln_d = 2.0 / a - 4.0 * a * t.h.z * t.h.z / t.k;
-            // d Lambda / d alpha = alpha sin^2 / (2 |cos| q) per direction.
-            float s2_o = wo_l.x * wo_l.x + wo_l.y * wo_l.y;
-            float s2_i = wi_l.x * wi_l.x + wi_l.y * wi_l.y;
-            float dl_o = a * s2_o / (2.0 * wo_l.z * t.q_o);
-            float dl_i = a * s2_i / (2.0 * abs(wi_l.z) * t.q_i);
-            d_roughness = v * ((dln_d - dl_o / (1.0 + t.lambda_o) - dl_i / (1.0 + t.lambda_i)) * dalpha);
-        }
+        if (t.valid && dalpha != 0.0) d_roughness = rough_glass_value(m, t) * ((t.dln_d + t.dln_g1) * dalpha);
         return;
     }
     if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || material_is_dielectric(m.kind)) return;

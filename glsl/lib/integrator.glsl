@@ -365,7 +365,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         for (int s = 0; s < NSTATES; ++s) mat[s] = fetch_material(sh.material, uv, s);
         bool dielectric = HAS_DIELECTRICS && material_is_dielectric(mat[0].kind);
         // A rough dielectric scatters into both sides by lobes light samples can reach.
-        bool rough = HAS_ROUGH_DIELECTRICS && mat[0].kind == MATERIAL_ROUGH_DIELECTRIC;
+        bool rough = HAS_ROUGH_DIELECTRICS && material_is_rough_glass(mat[0].kind);
         if ((rough || (dielectric && mat[0].kind == MATERIAL_DIELECTRIC)) && from_behind) {
             for (int s = 0; s < NSTATES; ++s) mat[s].ior = 1.0 / mat[s].ior;
         }

@@ -7,7 +7,8 @@
 // The kinds (MATERIAL_DIFFUSE: roughness and metallic are ignored; MATERIAL_PRINCIPLED;
 // MATERIAL_DIELECTRIC: base_color is the transmittance, ior the relative index of
 // refraction, roughness and metallic are ignored; MATERIAL_THIN_DIELECTRIC likewise;
-// MATERIAL_ROUGH_DIELECTRIC: as MATERIAL_DIELECTRIC with a roughness), defined in
+// MATERIAL_ROUGH_DIELECTRIC: as MATERIAL_DIELECTRIC with a roughness (GGX);
+// MATERIAL_ROUGH_DIELECTRIC_BECKMANN likewise with Beckmann's distribution), defined in
 // src/constants.rs.
 #include "vkinverse_constants.glsl"
 
@@ -30,8 +31,13 @@ bool material_is_dielectric(uint kind) {
     return kind == MATERIAL_DIELECTRIC || kind == MATERIAL_THIN_DIELECTRIC;
 }
 
+// Whether `kind` is rough glass, of either microfacet distribution.
+bool material_is_rough_glass(uint kind) {
+    return kind == MATERIAL_ROUGH_DIELECTRIC || kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
+}
+
 // Whether `kind` is glass, smooth or rough (an index of refraction).
 bool material_is_glass(uint kind) {
-    return material_is_dielectric(kind) || kind == MATERIAL_ROUGH_DIELECTRIC;
+    return material_is_dielectric(kind) || material_is_rough_glass(kind);
 }
 #endif

@@ -22,7 +22,10 @@ use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
-use crate::constants::{MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_THIN_DIELECTRIC};
+use crate::constants::{
+    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC,
+};
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
 pub use crate::push::TracePush;
@@ -343,6 +346,7 @@ impl GpuScene {
                         MaterialKind::Principled => MATERIAL_PRINCIPLED,
                         MaterialKind::Dielectric => MATERIAL_DIELECTRIC,
                         MaterialKind::ThinDielectric => MATERIAL_THIN_DIELECTRIC,
+                        MaterialKind::RoughDielectric if m.distribution == crate::scene::Distribution::Beckmann => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                         MaterialKind::RoughDielectric => MATERIAL_ROUGH_DIELECTRIC,
                     },
                     one_sided: m.one_sided as u32,

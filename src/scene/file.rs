@@ -119,6 +119,9 @@ pub struct MaterialFile {
     /// A dielectric's interior absorption coefficient per unit length, per channel (0 by
     /// default). Only with `type = "dielectric"`.
     pub absorption: Option<[f32; 3]>,
+    /// A rough dielectric's distribution of microfacets: "ggx" (the default) or
+    /// "beckmann".
+    pub distribution: Option<String>,
 }
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map

@@ -122,6 +122,9 @@ pub fn content_hash(scene: &Scene) -> u64 {
             h.tag("absorption");
             h.f32s(&m.absorption);
         }
+        if m.distribution != Distribution::Ggx {
+            h.tag(m.distribution.as_str());
+        }
     }
     h.tag("meshes");
     h.u64(scene.meshes.len() as u64);

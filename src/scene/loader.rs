@@ -488,6 +488,15 @@ impl Loader {
                     self.in_range(&format!("{key}.ior"), ior, MIN_IOR, MAX_IOR)?
                 }
             };
+            let distribution = match m.distribution.as_deref() {
+                None => Distribution::Ggx,
+                Some(_) if m.kind != MaterialKind::RoughDielectric => {
+                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's (type = \"rough_dielectric\")"));
+                }
+                Some("ggx") => Distribution::Ggx,
+                Some("beckmann") => Distribution::Beckmann,
+                Some(other) => return Err(self.invalid(&format!("{key}.distribution"), &format!("\"{other}\" is not \"ggx\" or \"beckmann\""))),
+            };
             if m.kind == MaterialKind::RoughDielectric && ior == 1.0 {
                 return Err(self.invalid(&format!("{key}.ior"), "is 1: a rough dielectric needs two different media (its refraction would be a delta)"));
             }
@@ -543,6 +552,7 @@ impl Loader {
                 alpha,
                 ior,
                 absorption,
+                distribution,
             });
         }
         Ok(out)

@@ -17,14 +17,14 @@
 //!
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
 //! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric,
-//! thindielectric and GGX roughdielectric (glass: [`MaterialKind::Dielectric`],
+//! thindielectric and roughdielectric (glass: [`MaterialKind::Dielectric`],
 //! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
-//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX, here and in
-//! `roughdielectric`; a smooth
+//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX (not in
+//! `roughdielectric`, which has both); a smooth
 //! `conductor` takes the smallest roughness), `plastic` and `roughplastic` (a principled
 //! dielectric whose base colour carries the coating's effect on the diffuse lobe: see
 //! `coating`), spot
@@ -758,6 +758,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 alpha: None,
                 ior: DEFAULT_IOR,
                 absorption: [0.0; 3],
+                distribution: Distribution::Ggx,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -779,10 +780,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3] }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx }
             }
             "roughconductor" | "conductor" => {
-                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughconductor")?;
+                let (alpha, _) = self.microfacet_alpha(&mut items, node, kind == "roughconductor", false)?;
                 let f0 = match (self.take(&mut items, "material"), self.take(&mut items, "eta"), self.take(&mut items, "k")) {
                     (m, None, None) => {
                         let name = m.map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "none".into());
@@ -810,10 +811,11 @@ impl<'a, 'i> Importer<'a, 'i> {
                     alpha: None,
                     ior: DEFAULT_IOR,
                     absorption: [0.0; 3],
+                    distribution: Distribution::Ggx,
                 }
             }
             "dielectric" | "thindielectric" | "roughdielectric" => {
-                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughdielectric")?;
+                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, kind == "roughdielectric", true)?;
                 if kind == "roughdielectric" {
                     // Sampling only: the same material either way.
                     self.take_bool(&mut items, "sample_visible", true)?;
@@ -844,11 +846,12 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let mut glass = Material::glass(name.into(), kind, base_color, eta);
                 if kind == MaterialKind::RoughDielectric {
                     glass.roughness = ScalarValue::Constant(alpha.sqrt());
+                    glass.distribution = distribution;
                 }
                 glass
             }
             "plastic" | "roughplastic" => {
-                let alpha = self.microfacet_alpha(&mut items, node, kind == "roughplastic")?;
+                let (alpha, _) = self.microfacet_alpha(&mut items, node, kind == "roughplastic", false)?;
                 let int_ior = self.ior(&mut items, "int_ior", "polypropylene")?;
                 let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
                 if int_ior == ext_ior {
@@ -896,6 +899,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     alpha: None,
                     ior: DEFAULT_IOR,
                     absorption: [0.0; 3],
+                    distribution: Distribution::Ggx,
                 }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
@@ -905,22 +909,26 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(self.out.materials.len() - 1)
     }
 
-    /// The GGX alpha of a rough BSDF's `alpha` (`rough`; Mitsuba's default 0.1, its default
-    /// Beckmann distribution rendered as GGX with a warning) or 0 for a smooth one (rendered
-    /// as the model's smallest roughness).
-    fn microfacet_alpha(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, rough: bool) -> Result<f32, SceneError> {
+    /// The alpha of a rough BSDF's `alpha` (`rough`; Mitsuba's default 0.1) and its
+    /// distribution: Beckmann (Mitsuba's default) where the material has it (`beckmann`),
+    /// otherwise rendered as GGX with a warning; alpha 0 for a smooth BSDF (rendered as the
+    /// model's smallest roughness).
+    fn microfacet_alpha(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, rough: bool, beckmann: bool) -> Result<(f32, Distribution), SceneError> {
         if !rough {
-            return Ok(0.0);
+            return Ok((0.0, Distribution::Ggx));
         }
         let alpha = self.take_float(items, "alpha", 0.1)?;
         if !(0.0..=1.0).contains(&alpha) {
             return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
         }
         let distribution = self.take(items, "distribution").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "beckmann".into());
+        if distribution == "beckmann" && beckmann {
+            return Ok((alpha, Distribution::Beckmann));
+        }
         if distribution != "ggx" {
             self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
         }
-        Ok(alpha)
+        Ok((alpha, Distribution::Ggx))
     }
 
     /// An index of refraction: a number, or one of the materials Mitsuba names (`default`
@@ -962,6 +970,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             alpha: None,
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],
+            distribution: Distribution::Ggx,
         });
         self.out.materials.len() - 1
     }

@@ -131,6 +131,28 @@ pub struct Material {
     /// channel, at least 0: a ray that travels a distance t inside keeps exp(−absorption t)
     /// of its radiance (never optimised). Zero for the other kinds.
     pub absorption: [f32; 3],
+    /// A rough dielectric's distribution of microfacets ([`Distribution::Ggx`] for the
+    /// other kinds).
+    pub distribution: Distribution,
+}
+
+/// The distribution of a rough dielectric's microfacet normals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Distribution {
+    /// Trowbridge–Reitz (GGX), as the principled model's.
+    #[default]
+    Ggx,
+    /// Beckmann's (Mitsuba 3's default for `roughdielectric`).
+    Beckmann,
+}
+
+impl Distribution {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ggx => "ggx",
+            Self::Beckmann => "beckmann",
+        }
+    }
 }
 
 impl Material {
@@ -150,6 +172,7 @@ impl Material {
             alpha: None,
             ior,
             absorption: [0.0; 3],
+            distribution: Distribution::Ggx,
         }
     }
 }

@@ -189,6 +189,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.absorption != [0.0; 3] {
             pairs.push(("absorption", arr(&m.absorption)));
         }
+        if m.distribution != Distribution::Ggx {
+            pairs.push(("distribution", Value::String(m.distribution.as_str().into())));
+        }
         if let Some(a) = &m.alpha {
             pairs.push(("alpha", scalar("alpha", &a.value)?));
             pairs.push(("alpha_mode", Value::String(a.mode.as_str().into())));
