@@ -769,32 +769,39 @@ fn gradients_through_glass_are_exact() {
     });
 }
 
-/// Rough glass: the slab of [`gradients_through_glass_are_exact`] made rough (GGX,
-/// roughness 0.4, from 0.3), against finite differences. Its lobes are no deltas: light samples pass
-/// through its faces (the shadow ray leaves from the far side), the emission a
-/// continuation finds is MIS-weighted, and the floor under it is lit through both faces.
-/// The floor's texels and the slab's tint change no choice (the lobe is picked by the
-/// Fresnel reflectance at the sampled microfacet, which neither moves), so they are exact
-/// per sample. The roughness moves the sampled microfacets, and with them every later
+/// Rough glass: the slab of [`gradients_through_glass_are_exact`] made rough (GGX, then
+/// Beckmann; roughness 0.4, from 0.3), against finite differences. Its lobes are no deltas:
+/// light samples pass through its faces (the shadow ray leaves from the far side), the
+/// emission a continuation finds is MIS-weighted, and the floor under it is lit through
+/// both faces. The floor's texels and the slab's tint change no choice (the lobe is picked
+/// by the Fresnel reflectance at the sampled microfacet, which neither moves), so they are
+/// exact per sample. The roughness moves the sampled microfacets, and with them every later
 /// vertex: its finite differences follow other paths than the adjoint's, so it agrees in
 /// the mean only, and its samples switch lobes where the moved microfacet's Fresnel
 /// reflectance crosses their random number: 256 rounds of 64 spp, ε = 0.01 as the
-/// principled roughness. The tint starts on the side of its reference where the floor's
-/// texels start (too dark in red, too bright in green and blue), so that the two residuals
-/// do not cancel in its gradient.
+/// principled roughness (measured: −3.2 % ± 3.2 % of fd with GGX, −7.0 % ± 6.5 % with
+/// Beckmann). The tint starts on the side of its reference where the floor's texels start
+/// (too dark in red, too bright in green and blue), so that the two residuals do not
+/// cancel in its gradient.
 #[test]
 fn gradients_through_rough_glass_match_finite_differences() {
     shared(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.5, 0.95, 0.95]\nrange = [0.0, 1.0]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.roughness\"\ninit = 0.3\nrange = [0.0, 1.0]\n";
-        let scene = slab_scene("gradients-rough-glass", "type = \"rough_dielectric\"\nroughness = 0.4", optimise);
-        let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
-        assert!(b.scene().has_dielectrics && b.scene().has_rough_dielectrics);
-        let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
-        check("rough glass", &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
-        let mut b = Bench::new(ctx, &scene, Loss::L2, 64, 64, 64);
-        check("rough glass", &measure(&mut b, &[probe([15], 0.05)], 256), 0.01, 0.2);
+        for distribution in ["ggx", "beckmann"] {
+            let kind = format!("type = \"rough_dielectric\"\ndistribution = \"{distribution}\"\nroughness = 0.4");
+            let scene = slab_scene(&format!("gradients-rough-glass-{distribution}"), &kind, optimise);
+            let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
+            assert!(b.scene().has_dielectrics && b.scene().has_rough_dielectrics);
+            let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
+            check(distribution, &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
+            let mut b = Bench::new(ctx, &scene, Loss::L2, 64, 64, 64);
+            // Beckmann's normals come from its distribution, not the visible ones, and weigh
+            // more at grazing angles: its adjoint is twice as noisy (0.35 resolved).
+            let resolution = if distribution == "ggx" { 0.2 } else { 0.35 };
+            check(distribution, &measure(&mut b, &[probe([15], 0.05)], 256), 0.01, resolution);
+        }
     });
 }
 

@@ -81,7 +81,7 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
         vec3 wi;
         float tmax, g;
         delta_light_incidence(l, p_off, wi, tmax, g);
-        vec3 o = through && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
+        vec3 o = through ? ray_origin(p, ng, wi) : p_off;
         if (g <= 0.0 || !passes_side(wi, ng, ns, through) || delta_light_blocked(o, wi, tmax)) continue;
 #ifdef ADJOINT
         // Every state reads the same parameters: their derivatives are summed before one

@@ -163,6 +163,13 @@ bool passes_side(vec3 wi, vec3 ng, vec3 ns, bool through) {
     return through ? g * dot(wi, ns) > 0.0 : g > 0.0;
 }
 
+// The origin of a ray from surface point p in direction d: p offset along the geometric
+// normal ng to d's side of the surface (the far side for a refraction or a light sample
+// through rough glass).
+vec3 ray_origin(vec3 p, vec3 ng, vec3 d) {
+    return p + RAY_EPSILON * (dot(d, ng) < 0.0 ? -ng : ng);
+}
+
 // Picks an emissive triangle by its probability and a point on it: returns its record,
 // the point in `p` (its pdf in area measure is the record's pdf) and its barycentrics (the
 // weights of vertices 1 and 2) in `b`.
@@ -397,7 +404,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             // Through a rough dielectric the shadow ray leaves from the far side.
             vec3 o_l = p_off;
             if (rough && dot(wi, ng) < 0.0) {
-                o_l = p - RAY_EPSILON * ng;
+                o_l = ray_origin(p, ng, wi);
                 to_l = pl - o_l;
                 dist2 = dot(to_l, to_l);
                 dist = sqrt(dist2);
@@ -437,7 +444,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             float density;
             vec3 wi = environment_sample(u_light.xy, density);
             float pdf_light = p_env * density;
-            vec3 o_e = rough && dot(wi, ng) < 0.0 ? p - RAY_EPSILON * ng : p_off;
+            vec3 o_e = rough ? ray_origin(p, ng, wi) : p_off;
             if (pdf_light > 0.0 && passes_side(wi, ng, ns, rough) && !cast_any(o_e, wi, 1e30, depth, replay)) {
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 vec3 le[NSTATES];
@@ -522,7 +529,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // A refracted ray leaves from the surface's far side, into or out of the interior.
         bool refracted = (dielectric || rough) && dot(wi, ng) < 0.0;
         if (refracted && mat[0].kind != MATERIAL_THIN_DIELECTRIC) absorption = from_behind ? vec3(0.0) : material_record(sh.material).absorption;
-        o = refracted ? p - RAY_EPSILON * ng : p_off;
+        o = dielectric || rough ? ray_origin(p, ng, wi) : p_off;
         d = wi;
     }
 }
