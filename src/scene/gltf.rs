@@ -494,7 +494,9 @@ impl Importer<'_> {
     /// `KHR_materials_volume` gives it a thickness (a rough dielectric where its roughness
     /// is not 0), otherwise glTF's thin-walled transmission, a thin dielectric; the base
     /// colour is its transmittance. Exact for a fully transmissive, non-metallic material
-    /// with a volume or a smooth one without; otherwise one warning names what is dropped
+    /// with a volume (but for a rough one's masking term: Smith's separable form, as
+    /// Mitsuba's, where glTF's reference has the height-correlated one) or a smooth one
+    /// without; otherwise one warning names what is dropped
     /// (a thin-walled material's roughness, metallic, a transmission below 1, a
     /// transmission texture, a normal map or alpha). The volume's `attenuationColor` and `attenuationDistance` are
     /// the interior's absorption. A transmission below 0.5 is dropped
