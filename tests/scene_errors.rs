@@ -241,16 +241,17 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(masked, cut("hash-o", "alpha = 0.25"));
     assert_ne!(masked, cut("hash-p", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"blend\""));
     assert_eq!(masked, cut("hash-q", "alpha = { texture = \"tex.exr\" }\nalpha_mode = \"mask\""), "mask is the default mode");
-    // A dielectric's index of refraction is too.
-    let glass = |name: &str, ior: &str| Scene::load(fixture(name, &BASE.replace("type = \"principled\"", &format!("type = \"dielectric\"{ior}")))).unwrap().content_hash();
+    // A dielectric's index of refraction is too; rough glass is another kind, and its
+    // roughness and distribution count.
+    let hash = |name: &str, material: &str| Scene::load(fixture(name, &BASE.replace("type = \"principled\"", material))).unwrap().content_hash();
+    let glass = |name: &str, keys: &str| hash(name, &format!("type = \"dielectric\"{keys}"));
     let bk7 = glass("hash-r", "");
     assert_ne!(bk7, base);
     assert_eq!(bk7, glass("hash-s", "\nior = 1.5"), "1.5 is the default index");
     assert_ne!(bk7, glass("hash-t", "\nior = 1.33"));
     assert_ne!(bk7, glass("hash-u", "\nabsorption = [0, 0, 0.5]"));
     assert_eq!(bk7, glass("hash-v", "\nabsorption = [0, 0, 0]"), "no absorption hashes as none");
-    // Rough glass is another kind, and its roughness counts.
-    let rough = |name: &str, r: &str| Scene::load(fixture(name, &BASE.replace("type = \"principled\"", &format!("type = \"rough_dielectric\"{r}")))).unwrap().content_hash();
+    let rough = |name: &str, keys: &str| hash(name, &format!("type = \"rough_dielectric\"{keys}"));
     let frosted = rough("hash-w", "");
     assert_ne!(frosted, bk7);
     assert_eq!(frosted, rough("hash-x", "\nroughness = 0.3"), "0.3 is the default roughness");

@@ -237,12 +237,7 @@ float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
 // have value and pdf 0.
 struct RoughGlassTerms {
     bool valid;
-    float alpha;
-    vec3 h;
-    float d;         // D(h)
     float dln_d;     // d ln D / d alpha
-    float g1_o;      // G1(wo)
-    float g1_i;      // G1(wi)
     float dln_g1;    // d ln (G1(wo) G1(wi)) / d alpha
     float value;     // D G1(wo) G1(wi) (wo.h) jac / cos_o: the value per unit lobe mass
     float density;   // the pdf per unit lobe probability
@@ -297,28 +292,26 @@ RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
     RoughGlassTerms t;
     bool beckmann = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
     t.reflect = wi.z > 0.0;
-    t.alpha = bsdf_alpha(m.roughness);
-    float a = t.alpha;
+    float a = bsdf_alpha(m.roughness);
     float a2 = a * a;
-    t.h = h;
     float oh = dot(wo, h);
     float ih = dot(wi, h);
     t.valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && (t.reflect ? ih > 0.0 : ih < 0.0);
-    float dln_o, dln_i;
+    float d, g1_o, g1_i, dln_o, dln_i;
     if (beckmann) {
         float t2 = (h.x * h.x + h.y * h.y) / (h.z * h.z);
         float c2 = h.z * h.z;
-        t.d = exp(-t2 / a2) / (BSDF_PI * a2 * c2 * c2);
+        d = exp(-t2 / a2) / (BSDF_PI * a2 * c2 * c2);
         t.dln_d = 2.0 * t2 / (a2 * a) - 2.0 / a;
-        t.g1_o = beckmann_g1(wo, a, dln_o);
-        t.g1_i = beckmann_g1(wi, a, dln_i);
+        g1_o = beckmann_g1(wo, a, dln_o);
+        g1_i = beckmann_g1(wi, a, dln_i);
     } else {
         // D = alpha^2 / (pi k^2) with k = alpha^2 h.z^2 + h.x^2 + h.y^2 (principled_terms).
         float k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
-        t.d = a2 / (BSDF_PI * k * k);
+        d = a2 / (BSDF_PI * k * k);
         t.dln_d = 2.0 / a - 4.0 * a * h.z * h.z / k;
-        t.g1_o = ggx_g1(wo, a, dln_o);
-        t.g1_i = ggx_g1(wi, a, dln_i);
+        g1_o = ggx_g1(wo, a, dln_o);
+        g1_i = ggx_g1(wi, a, dln_i);
     }
     t.dln_g1 = dln_o + dln_i;
     float cos_t;
@@ -330,9 +323,9 @@ RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
         float den = oh + m.ior * ih;
         jac = m.ior * m.ior * abs(ih) / (den * den);
     }
-    float visible = t.d * t.g1_o * oh * jac / wo.z;
-    t.value = visible * t.g1_i;
-    t.density = beckmann ? t.d * h.z * jac : visible;
+    float visible = d * g1_o * oh * jac / wo.z;
+    t.value = visible * g1_i;
+    t.density = beckmann ? d * h.z * jac : visible;
     if (!t.valid || !(t.density > 0.0)) {
         t.valid = false;
         t.value = 0.0;

@@ -156,9 +156,9 @@ impl Distribution {
 }
 
 impl Material {
-    /// Glass of `kind` (a dielectric of either kind) with transmittance `base_color` and
-    /// index of refraction `ior`: no roughness, metallic, normal map or alpha, both sides
-    /// alike.
+    /// Glass of `kind` (any dielectric kind) with transmittance `base_color` and index of
+    /// refraction `ior`: no metallic, normal map or alpha, both sides alike, roughness 0 and
+    /// GGX (a rough dielectric's caller sets its own).
     pub fn glass(name: String, kind: MaterialKind, base_color: ColorValue, ior: f32) -> Self {
         debug_assert!(kind.is_dielectric());
         Self {
