@@ -10,8 +10,8 @@
 //! f(wo, wi) |cos theta_i|.
 
 use crate::shared::{
-    Material, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
-    MATERIAL_THIN_DIELECTRIC,
+    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED,
+    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -25,7 +25,7 @@ pub const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 
 /// Material parameters in f64, so that finite differences of the mirror are not limited
 /// by the f32 storage of [`Material`].
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaterialF64 {
     pub base_color: DVec3,
     pub roughness: f64,
@@ -33,6 +33,9 @@ pub struct MaterialF64 {
     pub kind: u32,
     /// A dielectric's relative index of refraction (the far side's over wo's).
     pub ior: f64,
+    /// A conductor's complex index of refraction, eta + i k.
+    pub eta: DVec3,
+    pub k: DVec3,
 }
 
 impl From<Material> for MaterialF64 {
@@ -43,6 +46,8 @@ impl From<Material> for MaterialF64 {
             metallic: m.metallic as f64,
             kind: m.kind,
             ior: m.ior as f64,
+            eta: DVec3::from(m.eta.map(f64::from)),
+            k: DVec3::from(m.k.map(f64::from)),
         }
     }
 }
@@ -64,6 +69,11 @@ impl MaterialF64 {
     /// The rough dielectric of either distribution (lobes on both sides, no deltas).
     pub fn rough_glass(&self) -> bool {
         self.kind == MATERIAL_ROUGH_DIELECTRIC || self.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN
+    }
+
+    /// The conductor of either distribution (one reflected lobe).
+    pub fn conductor(&self) -> bool {
+        self.kind == MATERIAL_CONDUCTOR || self.kind == MATERIAL_CONDUCTOR_BECKMANN
     }
 
     /// mix(0.04, base_color, metallic)
@@ -212,14 +222,15 @@ pub fn dielectric_fresnel(cos_i: f64, eta: f64) -> (f64, f64) {
     (0.5 * (rs * rs + rp * rp), cos_t)
 }
 
-/// `RoughGlassTerms`: see the GLSL for the model and what each term is.
+/// `MicrofacetTerms`: see the GLSL for the model and what each term is.
 #[derive(Clone, Copy, Debug)]
-struct RoughGlassTerms {
+struct MicrofacetTerms {
     valid: bool,
     dln_d: f64,
     dln_g1: f64,
     value: f64,
     density: f64,
+    oh: f64,
     fresnel: f64,
     reflect: bool,
 }
@@ -259,11 +270,10 @@ pub fn beckmann_sample_normal(alpha: f64, u: [f64; 2]) -> DVec3 {
     DVec3::new(s * phi.cos(), s * phi.sin(), c)
 }
 
-/// `rough_glass_terms`
-fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGlassTerms {
-    let beckmann = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
+/// `microfacet_terms`
+fn microfacet_terms(roughness: f64, beckmann: bool, eta: f64, wo: DVec3, wi: DVec3, h: DVec3) -> MicrofacetTerms {
     let reflect = wi.z > 0.0;
-    let a = alpha(m.roughness);
+    let a = alpha(roughness);
     let a2 = a * a;
     let (oh, ih) = (wo.dot(h), wi.dot(h));
     let mut valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && if reflect { ih > 0.0 } else { ih < 0.0 };
@@ -275,12 +285,11 @@ fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGl
         let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
         (a2 / (PI * k * k), 2.0 / a - 4.0 * a * h.z * h.z / k, ggx_g1(wo, a), ggx_g1(wi, a))
     };
-    let (fresnel, _) = dielectric_fresnel(oh, m.ior);
     let jac = if reflect {
         1.0 / (4.0 * oh)
     } else {
-        let den = oh + m.ior * ih;
-        m.ior * m.ior * ih.abs() / (den * den)
+        let den = oh + eta * ih;
+        eta * eta * ih.abs() / (den * den)
     };
     let visible = d * g1_o * oh * jac / wo.z;
     let mut value = visible * g1_i;
@@ -290,7 +299,14 @@ fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> RoughGl
         value = 0.0;
         density = 0.0;
     }
-    RoughGlassTerms { valid, dln_d, dln_g1: dln_o + dln_i, value, density, fresnel, reflect }
+    MicrofacetTerms { valid, dln_d, dln_g1: dln_o + dln_i, value, density, oh, fresnel: 0.0, reflect }
+}
+
+/// `rough_glass_terms`
+fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> MicrofacetTerms {
+    let mut t = microfacet_terms(m.roughness, m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN, m.ior, wo, wi, h);
+    t.fresnel = dielectric_fresnel(t.oh, m.ior).0;
+    t
 }
 
 /// `rough_glass_half`
@@ -300,12 +316,12 @@ fn rough_glass_half(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
 }
 
 /// `rough_glass_tint`
-fn rough_glass_tint(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
+fn rough_glass_tint(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
     if t.reflect { DVec3::ONE } else { m.base_color / (m.ior * m.ior) }
 }
 
 /// `rough_glass_value`
-fn rough_glass_value(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
+fn rough_glass_value(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
     if !t.valid {
         return DVec3::ZERO;
     }
@@ -314,11 +330,42 @@ fn rough_glass_value(m: &MaterialF64, t: &RoughGlassTerms) -> DVec3 {
 }
 
 /// `rough_glass_pdf`
-fn rough_glass_pdf(t: &RoughGlassTerms) -> f64 {
+fn rough_glass_pdf(t: &MicrofacetTerms) -> f64 {
     if !t.valid {
         return 0.0;
     }
     (if t.reflect { t.fresnel } else { 1.0 - t.fresnel }) * t.density
+}
+
+/// The unpolarised Fresnel reflectance of a conductor of complex index eta + i k at cos_i
+/// (`conductor_fresnel`).
+pub fn conductor_fresnel(c: f64, eta: DVec3, k: DVec3) -> DVec3 {
+    let c2 = c * c;
+    let s2 = 1.0 - c2;
+    let t0 = eta * eta - k * k - DVec3::splat(s2);
+    let sqrt = |v: DVec3| DVec3::new(v.x.sqrt(), v.y.sqrt(), v.z.sqrt());
+    let a2b2 = sqrt(t0 * t0 + 4.0 * eta * eta * k * k);
+    let a = sqrt((0.5 * (a2b2 + t0)).max(DVec3::ZERO));
+    let t1 = a2b2 + DVec3::splat(c2);
+    let t2 = 2.0 * c * a;
+    let rs = (t1 - t2) / (t1 + t2);
+    let t3 = c2 * a2b2 + DVec3::splat(s2 * s2);
+    let t4 = t2 * s2;
+    let rp = rs * (t3 - t4) / (t3 + t4);
+    0.5 * (rs + rp)
+}
+
+/// `conductor_terms`
+fn conductor_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> MicrofacetTerms {
+    microfacet_terms(m.roughness, m.kind == MATERIAL_CONDUCTOR_BECKMANN, 1.0, wo, wi, h)
+}
+
+/// `conductor_value`
+fn conductor_value(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
+    if !t.valid {
+        return DVec3::ZERO;
+    }
+    t.value * conductor_fresnel(t.oh, m.eta, m.k) * m.base_color
 }
 
 /// f cos theta_i in the local frame (`bsdf_eval_local`).
@@ -328,6 +375,9 @@ pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
     }
     if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return DVec3::ZERO;
+    }
+    if m.conductor() {
+        return conductor_value(m, &conductor_terms(m, wo, wi, (wo + wi).normalize()));
     }
     if !m.principled() {
         return m.base_color * (wi.z / PI);
@@ -342,6 +392,9 @@ pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
     }
     if wo.z <= 0.0 || wi.z <= 0.0 || m.dielectric() {
         return 0.0;
+    }
+    if m.conductor() {
+        return conductor_terms(m, wo, wi, (wo + wi).normalize()).density;
     }
     if !m.principled() {
         return wi.z / PI;
@@ -418,6 +471,23 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         }
         return Some(BsdfSample { wi: f.to_world(wi_l), weight: rough_glass_value(m, &t) / pdf, pdf });
     }
+    if m.conductor() {
+        let a = alpha(m.roughness);
+        let h = if m.kind == MATERIAL_CONDUCTOR_BECKMANN {
+            beckmann_sample_normal(a, [u.y, u.z])
+        } else {
+            ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
+        };
+        let wi_l = 2.0 * wo_l.dot(h) * h - wo_l;
+        if wi_l.z <= 0.0 {
+            return None;
+        }
+        let t = conductor_terms(m, wo_l, wi_l, h);
+        if t.density.is_nan() || t.density <= 0.0 {
+            return None;
+        }
+        return Some(BsdfSample { wi: f.to_world(wi_l), weight: conductor_value(m, &t) / t.density, pdf: t.density });
+    }
     if !m.principled() {
         let wi_l = sample_cosine_hemisphere([u.y, u.z]);
         if wi_l.z <= 0.0 {
@@ -473,6 +543,18 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
         return g;
     }
     if wo_l.z <= 0.0 || wi_l.z <= 0.0 || m.dielectric() {
+        return g;
+    }
+    if m.conductor() {
+        let t = conductor_terms(m, wo_l, wi_l, (wo_l + wi_l).normalize());
+        if !t.valid {
+            return g;
+        }
+        g.d_base_color = t.value * conductor_fresnel(t.oh, m.eta, m.k);
+        let dalpha = dalpha_droughness(m.roughness);
+        if dalpha != 0.0 {
+            g.d_roughness = conductor_value(m, &t) * ((t.dln_d + t.dln_g1) * dalpha);
+        }
         return g;
     }
     if !m.principled() {

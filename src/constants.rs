@@ -22,6 +22,13 @@ pub const MATERIAL_ROUGH_DIELECTRIC: u32 = 4;
 /// The rough dielectric with Beckmann's distribution of microfacets (Mitsuba 3's default
 /// for `roughdielectric`).
 pub const MATERIAL_ROUGH_DIELECTRIC_BECKMANN: u32 = 5;
+/// A conductor (a metal): a complex index of refraction's Fresnel reflectance on GGX
+/// microfacets, tinted by the base colour (Mitsuba 3's `roughconductor` with the GGX
+/// distribution).
+pub const MATERIAL_CONDUCTOR: u32 = 6;
+/// The conductor with Beckmann's distribution of microfacets (Mitsuba 3's default for
+/// `roughconductor`).
+pub const MATERIAL_CONDUCTOR_BECKMANN: u32 = 7;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

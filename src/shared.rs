@@ -18,11 +18,11 @@ pub struct ProbeStruct {
 }
 
 pub use crate::constants::{
-    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
-    MATERIAL_THIN_DIELECTRIC,
+    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED,
+    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 
-/// Mirror of `Material` (glsl/shared/material.glsl): 28 bytes, offsets checked against the
+/// Mirror of `Material` (glsl/shared/material.glsl): 52 bytes, offsets checked against the
 /// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
 /// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
@@ -33,11 +33,15 @@ pub struct Material {
     pub roughness: f32,
     pub metallic: f32,
     /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`], [`MATERIAL_DIELECTRIC`],
-    /// [`MATERIAL_THIN_DIELECTRIC`], [`MATERIAL_ROUGH_DIELECTRIC`] or
-    /// [`MATERIAL_ROUGH_DIELECTRIC_BECKMANN`]; any other value behaves as diffuse.
+    /// [`MATERIAL_THIN_DIELECTRIC`], [`MATERIAL_ROUGH_DIELECTRIC`],
+    /// [`MATERIAL_ROUGH_DIELECTRIC_BECKMANN`], [`MATERIAL_CONDUCTOR`] or
+    /// [`MATERIAL_CONDUCTOR_BECKMANN`]; any other value behaves as diffuse.
     pub kind: u32,
     /// A dielectric's relative index of refraction: the far side's over wo's.
     pub ior: f32,
+    /// A conductor's complex index of refraction, eta + i k, per channel.
+    pub eta: [f32; 3],
+    pub k: [f32; 3],
 }
 
 /// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
@@ -50,7 +54,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 112 bytes (7 texels; `pad` is zero).
+/// Mirror of `MaterialRecord`: 144 bytes (9 texels; the pads are zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -74,6 +78,11 @@ pub struct MaterialRecord {
     /// A dielectric's interior absorption coefficient per unit length; zero otherwise.
     pub absorption: [f32; 3],
     pub pad: u32,
+    /// A conductor's complex index of refraction, eta + i k; zero otherwise.
+    pub eta: [f32; 3],
+    pub pad_eta: u32,
+    pub k: [f32; 3],
+    pub pad_k: u32,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).

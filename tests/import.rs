@@ -901,9 +901,10 @@ fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
 /// R_int and t̄ = 1 − F_dr,ext are checked against the fits Mitsuba computes them with
 /// (d'Eon and Irving's and Egan and Hilgeman's polynomials), a method independent of the
 /// importer's integrals (the rough ones are checked against a direct integral of the BSDF
-/// in the importer's own tests). A smooth conductor is a roughconductor of roughness 0.
+/// in the importer's own tests). A smooth conductor is a conductor of roughness 0 (its
+/// named metal's complex index).
 #[test]
-fn mitsuba_plastics_and_smooth_conductors_become_principled() {
+fn mitsuba_plastics_become_principled_and_smooth_conductors_rough() {
     let dir = temp_dir("mitsuba-plastic");
     let xml = |bsdfs: &str| {
         let shapes: String = ["p1", "p2", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
@@ -952,13 +953,15 @@ fn mitsuba_plastics_and_smooth_conductors_become_principled() {
     assert!(r_int > 0.2 && r_int < fdr_below_1(1.0 / eta), "R_int {r_int}, the smooth coating's {}", fdr_below_1(1.0 / eta));
     assert!((c * eta * eta - 1.0).abs() < 0.3, "{c}");
     let gold = material("gold");
-    assert!(matches!((&gold.base_color, gold.roughness.clone(), gold.metallic.clone()), (ColorValue::Constant([1.0, g, b]), ScalarValue::Constant(0.0), ScalarValue::Constant(1.0)) if (*g - 0.766).abs() < 1e-6 && (*b - 0.336).abs() < 1e-6), "{:?}", gold);
-    // One line each: the two plastics' approximations and the conductor's Fresnel term.
+    assert_eq!(gold.kind, vkinverse::scene::MaterialKind::Conductor);
+    assert_eq!([gold.eta, gold.k], vkinverse::scene::metal("Au").unwrap());
+    assert!(matches!((&gold.base_color, gold.roughness.clone()), (ColorValue::Constant([1.0, 1.0, 1.0]), ScalarValue::Constant(0.0))), "{:?}", gold);
+    // One line each: the two plastics' approximations and the smooth conductor's roughness.
     assert_eq!(s.warnings.len(), 3, "{:?}", s.warnings);
     assert!(s.warnings.iter().all(|w| !w.contains('\n')));
     assert!(s.warnings[0].contains("<bsdf type=\"plastic\" id=\"p1\">") && s.warnings[0].contains("F0 = 0.04 (the IOR's is 0.0405") && s.warnings[0].contains("scaled by 1.08"), "{}", s.warnings[0]);
     assert!(s.warnings[1].contains("roughplastic") && s.warnings[1].contains("/ ((1 - reflectance 0.3") && s.warnings[1].contains("angular profile"), "{}", s.warnings[1]);
-    assert!(s.warnings[2].contains("conductor") && s.warnings[2].contains("Schlick"), "{}", s.warnings[2]);
+    assert!(s.warnings[2].contains("<bsdf type=\"conductor\" id=\"gold\">") && s.warnings[2].contains("smallest roughness"), "{}", s.warnings[2]);
 
     // What the mapping cannot render is refused, naming the element.
     for (bsdf, needles) in [
@@ -1003,6 +1006,66 @@ fn serialized_mesh_bytes(version: u16, flags: u32, positions: &[[f64; 3]], norma
     out.extend(version.to_le_bytes());
     out.extend(z.finish().unwrap());
     out
+}
+
+/// Mitsuba's roughconductor is exact: its distribution (Beckmann by default), alpha,
+/// specular reflectance and complex index of refraction (a named material's, as its RGB
+/// variants reduce the measured spectra, or `eta` and `k`) carry over unchanged, with no
+/// warning, and what it cannot be is refused, naming the element.
+#[test]
+fn mitsuba_rough_conductors_keep_their_distribution_and_index() {
+    let dir = temp_dir("mitsuba-conductor");
+    let shapes: String = ["a", "b", "c"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
+    let xml = |bsdfs: &str| small_mitsuba_scene(&format!("{bsdfs}\n    {shapes}"));
+    let good = r#"    <bsdf type="roughconductor" id="a"/>
+    <bsdf type="roughconductor" id="b"><string name="distribution" value="ggx"/><float name="alpha" value="0.25"/><string name="material" value="Cu"/><rgb name="specular_reflectance" value="0.9, 0.8, 0.7"/></bsdf>
+    <bsdf type="twosided" id="c"><bsdf type="roughconductor"><float name="alpha" value="0.04"/><rgb name="eta" value="0.2, 0.9, 1.1"/><rgb name="k" value="3.9, 2.4, 1.6"/><boolean name="sample_visible" value="false"/></bsdf></bsdf>"#;
+    std::fs::write(dir.join("good.xml"), xml(good)).unwrap();
+    let s = Scene::load(dir.join("good.xml")).unwrap();
+    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    let material = |id: &str| s.materials.iter().find(|m| m.name == id).unwrap_or_else(|| panic!("no material {id}")).clone();
+    let rough = |m: &vkinverse::scene::Material| match m.roughness { ScalarValue::Constant(r) => r, _ => panic!("a constant roughness") };
+    let (a, b, c) = (material("a"), material("b"), material("c"));
+    for m in [&a, &b, &c] {
+        assert_eq!(m.kind, vkinverse::scene::MaterialKind::Conductor, "{}", m.name);
+    }
+    // Mitsuba's defaults: Beckmann, alpha 0.1, a perfect mirror ("none"), untinted, one-sided.
+    assert_eq!(a.distribution, Distribution::Beckmann);
+    assert!((rough(&a) - 0.1f32.sqrt()).abs() < 1e-7);
+    assert_eq!([a.eta, a.k], [[0.0; 3], [1.0; 3]]);
+    assert!(matches!(a.base_color, ColorValue::Constant([1.0, 1.0, 1.0])) && a.one_sided);
+    assert_eq!(b.distribution, Distribution::Ggx);
+    assert!((rough(&b) - 0.5).abs() < 1e-7);
+    assert_eq!([b.eta, b.k], vkinverse::scene::metal("Cu").unwrap());
+    assert!(matches!(b.base_color, ColorValue::Constant([0.9, 0.8, 0.7])));
+    assert_eq!([c.eta, c.k], [[0.2, 0.9, 1.1], [3.9, 2.4, 1.6]]);
+    assert!((rough(&c) - 0.2).abs() < 1e-7 && !c.one_sided);
+
+    // Written back as TOML, the conductors load again as they were.
+    let out = dir.join("run");
+    write_final(&out, &s, &[]).unwrap();
+    let t = Scene::load(out.join("final/scene.toml")).unwrap();
+    for id in ["a", "b", "c"] {
+        let (m, n) = (material(id), t.materials.iter().find(|m| m.name == id).unwrap().clone());
+        assert_eq!((n.kind, n.distribution, n.eta, n.k, n.one_sided), (m.kind, m.distribution, m.eta, m.k, m.one_sided), "{id}");
+        assert!((rough(&n) - rough(&m)).abs() < 1e-6, "{id}");
+    }
+
+    for (bsdf, needles) in [
+        (r#"<bsdf type="roughconductor" id="a"><string name="material" value="unobtainium"/></bsdf>"#, &["<bsdf type=\"roughconductor\" id=\"a\">", "\"unobtainium\" is not one of", "Au"][..]),
+        (r#"<bsdf type="roughconductor" id="a"><rgb name="eta" value="0.2"/></bsdf>"#, &["either `material` or both `eta` and `k`"]),
+        (r#"<bsdf type="roughconductor" id="a"><rgb name="eta" value="-0.2"/><rgb name="k" value="1"/></bsdf>"#, &["must not be negative"]),
+        (r#"<bsdf type="roughconductor" id="a"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "not supported"]),
+        (r#"<bsdf type="roughconductor" id="a"><float name="alpha" value="1.5"/></bsdf>"#, &["alpha 1.5 is outside [0, 1]"]),
+    ] {
+        let rest = r#"<bsdf type="diffuse" id="b"/><bsdf type="diffuse" id="c"/>"#;
+        std::fs::write(dir.join("bad.xml"), xml(&format!("    {bsdf}{rest}"))).unwrap();
+        let msg = Scene::load(dir.join("bad.xml")).map(|_| ()).expect_err(bsdf).to_string();
+        assert!(!msg.contains('\n'), "{msg}");
+        for n in needles {
+            assert!(msg.contains(n), "{bsdf}: {msg:?} lacks {n:?}");
+        }
+    }
 }
 
 /// Mitsuba's `.serialized` meshes (versions 3 and 4): the mesh `shape_index` names, its

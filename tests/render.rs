@@ -727,6 +727,10 @@ fn texel_record_layouts_match_reflection() {
             ("alpha", offset_of!(MaterialRecord, alpha)),
             ("absorption", offset_of!(MaterialRecord, absorption)),
             ("pad3", offset_of!(MaterialRecord, pad)),
+            ("eta", offset_of!(MaterialRecord, eta)),
+            ("pad4", offset_of!(MaterialRecord, pad_eta)),
+            ("k", offset_of!(MaterialRecord, k)),
+            ("pad5", offset_of!(MaterialRecord, pad_k)),
         ],
     );
     check(
@@ -1401,7 +1405,25 @@ fn light_through_rough_glass(distribution: &str) {
         metallic: 0.0,
         kind: if distribution == "ggx" { vkinverse::shared::MATERIAL_ROUGH_DIELECTRIC } else { vkinverse::shared::MATERIAL_ROUGH_DIELECTRIC_BECKMANN },
         ior,
+        ..Default::default()
     };
+    let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
+        Some(s) if s.wi.y < 0.0 => {
+            let q = p + (-1.0 / s.wi.y) * s.wi;
+            if q.x.abs() < 1.5 && q.z.abs() < 1.5 { s.weight * le } else { DVec3::ZERO }
+        }
+        _ => DVec3::ZERO,
+    });
+    check_image_mean(distribution, &img, reference, 0.05);
+}
+
+/// The expected image mean of the camera of the floor tests (at (0, 2, 2), looking at the
+/// origin through a square film `fov` degrees wide) from the f64 mirror: the mean of
+/// `value(p, d, u)` over 400 000 uniform points of the film as the kernels draw camera
+/// rays, d the ray's direction, p where it meets the plane y = 0 and u three uniform
+/// numbers; and its standard error, per channel.
+fn floor_reference(fov: f64, value: impl Fn(glam::DVec3, glam::DVec3, glam::DVec3) -> glam::DVec3) -> (glam::DVec3, glam::DVec3) {
+    use glam::DVec3;
     let origin = DVec3::new(0.0, 2.0, 2.0);
     let forward = (-origin).normalize();
     let right = forward.cross(DVec3::Y).normalize();
@@ -1420,32 +1442,83 @@ fn light_through_rough_glass(distribution: &str) {
         let (x, y) = (2.0 * uniform() - 1.0, 2.0 * uniform() - 1.0);
         let d = (forward + x * tan_half * right + y * tan_half * up).normalize();
         let p = origin + (-origin.y / d.y) * d;
-        let u = DVec3::new(uniform(), uniform(), uniform());
-        let mut v = DVec3::ZERO;
-        if let Some(s) = vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
-            if s.wi.y < 0.0 {
-                let q = p + (-1.0 / s.wi.y) * s.wi;
-                if q.x.abs() < 1.5 && q.z.abs() < 1.5 {
-                    v = s.weight * le;
-                }
-            }
-        }
+        let v = value(p, d, DVec3::new(uniform(), uniform(), uniform()));
         sum += v;
         sum2 += v * v;
     }
     let n = SAMPLES as f64;
-    let mean_cpu = sum / n;
-    let se_cpu = ((sum2 / n - mean_cpu * mean_cpu) / (n - 1.0)).max(DVec3::ZERO).sqrt();
+    let mean = sum / n;
+    (mean, ((sum2 / n - mean * mean) / (n - 1.0)).max(DVec3::ZERO).sqrt())
+}
+
+/// Asserts that each channel's mean over `img` is the `reference` (mean, standard error)
+/// within 5 standard errors of their difference, and the reference at least `least`.
+fn check_image_mean(what: &str, img: &Image, (mean_cpu, se_cpu): (glam::DVec3, glam::DVec3), least: f64) {
     for c in 0..3 {
         let v: Vec<f64> = img.data.iter().map(|p| p[c] as f64).collect();
         let k = v.len() as f64;
         let mean = v.iter().sum::<f64>() / k;
         let se = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (k - 1.0) / k).sqrt();
-        let diff = mean - mean_cpu[c];
         let tol = 5.0 * (se * se + se_cpu[c] * se_cpu[c]).sqrt();
-        eprintln!("{distribution}, channel {c}: image mean {mean:.5} ± {se:.1e}, reference {:.5} ± {:.1e}", mean_cpu[c], se_cpu[c]);
-        assert!(mean_cpu[c] > 0.05, "the light must reach the camera through the glass");
-        assert!(diff.abs() <= tol, "{distribution}, channel {c}: image mean {mean} against the reference {} (tolerance {tol:e})", mean_cpu[c]);
+        eprintln!("{what}, channel {c}: image mean {mean:.5} ± {se:.1e}, reference {:.5} ± {:.1e}", mean_cpu[c], se_cpu[c]);
+        assert!(mean_cpu[c] > least, "{what}, channel {c}: the light must reach the camera");
+        assert!((mean - mean_cpu[c]).abs() <= tol, "{what}, channel {c}: image mean {mean} against the reference {} (tolerance {tol:e})", mean_cpu[c]);
+    }
+}
+
+/// A conductor's reflection through the whole renderer: a camera looks down at 45° through
+/// a narrow field of view at a rough conductor floor (the plane y = 0) whose mirror
+/// direction meets a square light (2 × 3, one unit up, shining down), the only emitter.
+/// Every pixel is light that one reflection brings from the light, by light samples and
+/// by continuations, MIS-weighted. The expected image mean comes from the f64 mirror alone,
+/// as in `light_samples_pass_through_rough_glass`: camera rays as the kernels draw them,
+/// the floor's reflection sampled by `bsdf::sample`, its weight counted where the reflected
+/// ray reaches the light. Each channel has its own complex index (a dielectric's 1.5 + 0i,
+/// a metal's 0.2 + 3i, 3 + 1i) and tint, so an index that did not reach the kernels (the
+/// scene records' eta and k) or reached them in the wrong channel would show. The scene
+/// has no principled material, so the kernels keep the conductor alone. Both
+/// distributions of microfacets.
+#[test]
+fn light_reflects_off_conductors() {
+    use glam::DVec3;
+    for distribution in ["ggx", "beckmann"] {
+        let dir = common::scenes::temp_dir(&format!("conductor-light-{distribution}"));
+        std::fs::write(dir.join("floor.obj"), "v -100 0 -100\nv -100 0 100\nv 100 0 100\nv 100 0 -100\nf 1 2 3 4\n").unwrap();
+        std::fs::write(dir.join("light.obj"), "v -1 1 -2.5\nv 1 1 -2.5\nv 1 1 -0.5\nv -1 1 -0.5\nf 1 2 3 4\n").unwrap();
+        let (tint, roughness, eta, k, le, fov) = ([0.9, 0.7, 1.0], 0.3, [1.5, 0.2, 3.0], [0.0, 3.0, 1.0], 2.0, 1.0f64);
+        let v3 = |v: [f64; 3]| format!("[{}, {}, {}]", v[0], v[1], v[2]);
+        let toml = format!(
+            "[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 2\nrr_depth = 5\n\
+             [[sensors]]\norigin = [0, 2, 2]\ntarget = [0, 0, 0]\nup = [0, 1, 0]\nfov_y = {fov}\n\
+             [[materials]]\nname = \"metal\"\ntype = \"conductor\"\ndistribution = \"{distribution}\"\nbase_color = {}\nroughness = {roughness}\neta = {}\nk = {}\n\
+             [[materials]]\nname = \"black\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n\
+             [[meshes]]\nfile = \"floor.obj\"\nmaterial = \"metal\"\n[[meshes]]\nfile = \"light.obj\"\nmaterial = \"black\"\nemission = [{le}, {le}, {le}]\n",
+            v3(tint), v3(eta), v3(k)
+        );
+        std::fs::write(dir.join("scene.toml"), toml).unwrap();
+        let scene = Scene::load(dir.join("scene.toml")).unwrap();
+        let img = with_gpu(|ctx| {
+            let gs = GpuScene::new(ctx, &scene).unwrap();
+            assert!(gs.has_conductors && !gs.has_principled && !gs.has_dielectrics);
+            Renderer::new(gs).unwrap().render(0, 64, 9, |_, _| {}).unwrap()
+        });
+
+        let m = vkinverse::bsdf::MaterialF64 {
+            base_color: DVec3::from_array(tint),
+            roughness,
+            kind: if distribution == "ggx" { vkinverse::shared::MATERIAL_CONDUCTOR } else { vkinverse::shared::MATERIAL_CONDUCTOR_BECKMANN },
+            eta: DVec3::from_array(eta),
+            k: DVec3::from_array(k),
+            ..Default::default()
+        };
+        let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
+            Some(s) => {
+                let q = p + ((1.0 - p.y) / s.wi.y) * s.wi;
+                if q.x.abs() < 1.0 && (-2.5..-0.5).contains(&q.z) { s.weight * le } else { DVec3::ZERO }
+            }
+            None => DVec3::ZERO,
+        });
+        check_image_mean(distribution, &img, reference, 0.02);
     }
 }
 

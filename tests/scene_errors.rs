@@ -258,6 +258,15 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(frosted, rough("hash-y", "\nroughness = 0.5"));
     assert_eq!(frosted, rough("hash-z", "\ndistribution = \"ggx\""), "GGX is the default distribution");
     assert_ne!(frosted, rough("hash-za", "\ndistribution = \"beckmann\""));
+    // A conductor's complex index counts, and a named metal hashes as its index.
+    let metal = |name: &str, keys: &str| hash(name, &format!("type = \"conductor\"{keys}"));
+    let gold = metal("hash-zb", "\nmetal = \"Au\"");
+    assert_ne!(gold, metal("hash-zc", "\nmetal = \"Cu\""));
+    assert_ne!(gold, metal("hash-zd", "\nmetal = \"Au\"\ndistribution = \"beckmann\""));
+    let [eta, k] = vkinverse::scene::metal("Au").unwrap();
+    assert_eq!(gold, metal("hash-ze", &format!("\neta = {eta:?}\nk = {k:?}")), "a named metal is its index");
+    assert_ne!(gold, metal("hash-zf", &format!("\neta = {eta:?}\nk = [1, 1, 1]")));
+    assert_eq!(metal("hash-zg", ""), metal("hash-zh", "\nmetal = \"none\""), "\"none\" is the default metal");
 }
 
 /// Emission is a colour or an EXR texture of texels that are not negative, on a mesh with
@@ -715,6 +724,47 @@ fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
     // A malformed `init` says what it takes.
     let err = load_err("init-image-malformed", &with_optimise("target = \"materials.m.roughness\"\ninit = \"tex.exr\"\nrange = [0, 1]"));
     assert_message(&err, &["expected a number, [r, g, b] or", "file.exr"]);
+}
+
+/// A conductor: a white tint, roughness 0.3, GGX and the perfect mirror ("none") by
+/// default; a named metal or `eta` and `k` together, finite and not negative; no metallic
+/// (its reflectance comes from the index), optimisable tint and roughness; the index keys
+/// only on a conductor.
+#[test]
+fn conductors_are_checked() {
+    let metal = |extra: &str| BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", &format!("type = \"conductor\"{extra}"));
+    let s = Scene::load(fixture("metal-default", &metal(""))).unwrap();
+    let m = &s.materials[0];
+    assert_eq!((m.kind.as_str(), m.distribution, m.eta, m.k), ("conductor", Distribution::Ggx, [0.0; 3], [1.0; 3]));
+    assert!(matches!(m.roughness, ScalarValue::Constant(r) if r == 0.3) && matches!(m.base_color, ColorValue::Constant(c) if c == [1.0; 3]), "{m:?}");
+    let s = Scene::load(fixture("metal-gold", &metal("\nmetal = \"Au\"\nroughness = 0.1\ndistribution = \"beckmann\"\nbase_color = [0.9, 0.9, 0.8]\none_sided = true"))).unwrap();
+    let m = &s.materials[0];
+    assert_eq!([m.eta, m.k], vkinverse::scene::metal("Au").unwrap());
+    assert!(m.distribution == Distribution::Beckmann && m.one_sided && matches!(m.roughness, ScalarValue::Constant(r) if r == 0.1));
+    let s = Scene::load(fixture("metal-index", &metal("\neta = [0.2, 0.9, 1.1]\nk = [3.9, 2.4, 0]"))).unwrap();
+    assert_eq!([s.materials[0].eta, s.materials[0].k], [[0.2, 0.9, 1.1], [3.9, 2.4, 0.0]]);
+    assert_message(&load_err("metal-unknown", &metal("\nmetal = \"unobtainium\"")), &["materials.m.metal", "unobtainium", "Au", "Cu"]);
+    assert_message(&load_err("metal-both", &metal("\nmetal = \"Au\"\neta = [1, 1, 1]\nk = [1, 1, 1]")), &["materials.m.metal", "either"]);
+    assert_message(&load_err("metal-eta-alone", &metal("\neta = [1, 1, 1]")), &["materials.m.k", "missing"]);
+    assert_message(&load_err("metal-k-alone", &metal("\nk = [1, 1, 1]")), &["materials.m.eta", "missing"]);
+    assert_message(&load_err("metal-negative", &metal("\neta = [1, -1, 1]\nk = [1, 1, 1]")), &["materials.m.eta", "-1", "negative"]);
+    assert_message(&load_err("metal-nan", &metal("\neta = [1, 1, 1]\nk = [1, nan, 1]")), &["materials.m.k"]);
+    assert_message(&load_err("metal-metallic", &metal("\nmetallic = 1")), &["materials.m.metallic", "conductor"]);
+    assert_message(&load_err("metal-ior", &metal("\nior = 1.5")), &["materials.m.ior", "dielectric"]);
+    assert_message(&load_err("metal-distribution", &metal("\ndistribution = \"phong\"")), &["materials.m.distribution", "phong"]);
+    assert_message(&load_err("metal-roughness-range", &metal("\nroughness = 1.5")), &["materials.m.roughness", "1.5"]);
+    for (key, line) in [("metal", "metal = \"Au\""), ("eta", "eta = [1, 1, 1]"), ("k", "k = [1, 1, 1]")] {
+        let principled = BASE.replace("type = \"principled\"", &format!("type = \"principled\"\n{line}"));
+        assert_message(&load_err(&format!("principled-{key}"), &principled), &[&format!("materials.m.{key}"), "conductor"]);
+    }
+    let principled = BASE.replace("type = \"principled\"", "type = \"principled\"\ndistribution = \"beckmann\"");
+    assert_message(&load_err("principled-distribution", &principled), &["materials.m.distribution", "conductor"]);
+    for (target, init) in [("roughness", "0.5"), ("base_color", "[0.5, 0.5, 0.5]")] {
+        let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.{target}\"\ninit = {init}\nrange = [0, 1]\n", metal("\nmetal = \"Cu\""));
+        Scene::load(fixture(&format!("metal-param-{target}"), &optimised)).unwrap();
+    }
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n", metal(""));
+    assert_message(&load_err("metal-metallic-param", &optimised), &["optimise.params[0].target", "conductor", "metallic"]);
 }
 
 /// A dielectric: white transmittance and index 1.5 by default, its index within

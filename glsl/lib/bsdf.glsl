@@ -44,6 +44,13 @@
 // base_color tints the transmission (with the smooth dielectric's 1/eta^2), roughness is
 // the principled model's (alpha = roughness^2) and can be optimised.
 //
+// "conductor" is a metal's interface on microfacets (Mitsuba 3's `roughconductor`, of
+// either distribution, with visible-normal sampling for GGX): each microfacet mirrors with
+// the Fresnel reflectance of the complex index of refraction m.eta + i m.k at wo.h, tinted
+// by base_color (Mitsuba's specular_reflectance); nothing is transmitted. Its terms are
+// the rough dielectric's reflection (see microfacet_terms); roughness is the principled
+// model's and can be optimised, as can base_color.
+//
 // "thin dielectric" is a sheet of no thickness with that interface on both faces (Mitsuba
 // 3's `thindielectric`): the light that enters it leaves it again, after any number of
 // internal reflections, on one side or the other, so it mirrors with R = F + (1 - F)^2 F /
@@ -59,6 +66,10 @@
 // which lavapipe would otherwise run, masked, at every evaluation (docs/lavapipe.md).
 #ifndef BSDF_ROUGH_DIELECTRICS
 #define BSDF_ROUGH_DIELECTRICS true
+#endif
+// Likewise for MATERIAL_CONDUCTOR (lib/integrator.glsl: HAS_CONDUCTORS).
+#ifndef BSDF_CONDUCTORS
+#define BSDF_CONDUCTORS true
 #endif
 
 const float BSDF_PI = 3.14159265358979;
@@ -220,28 +231,31 @@ float dielectric_fresnel(float cos_i, float eta, out float cos_t) {
 // lobe, below it for the transmitted one)
 // ---------------------------------------------------------------------------------------
 
-// Everything the rough dielectric needs at one (wo, wi). With eta = m.ior and h the
-// microfacet normal that takes wo to wi (normalize(wo + wi) for a reflection,
-// normalize(wo + eta wi) for a refraction, on the upper side), both lobes are
+// The microfacet terms of the rough dielectric and the conductor at one (wo, wi). With
+// h the microfacet normal that takes wo to wi (normalize(wo + wi) for a reflection,
+// normalize(wo + eta wi) for a refraction, on the upper side), every lobe is
 //   value = mass D(h) G1(wo) G1(wi) (wo.h) jac / cos_o,   pdf = prob density
 // where jac = |dh/dwi| is 1 / (4 wo.h) for the reflection (Walter et al. 2007, eq. 14)
 // and eta^2 |wi.h| / (wo.h + eta wi.h)^2 for the refraction (eq. 17), and density the
 // sampled normals' density times jac: D(h) G1(wo) (wo.h) / cos_o for GGX's visible
 // normals (Heitz 2018), D(h) h.z for Beckmann's normals, drawn from the distribution
-// itself. The reflection has mass = prob = F(wo.h), the transmission prob = 1 - F and
-// mass = (1 - F) base_color / eta^2 (radiance mode, as the smooth dielectric). G1 is
-// Smith's masking of each direction separately: the shadowing-masking G1(wo) G1(wi) of
-// Mitsuba 3's roughdielectric, not the height-correlated form of the principled model;
-// Beckmann's G1 is Walter et al.'s rational approximation (eq. 27), as Mitsuba's.
+// itself. The rough dielectric's reflection has mass = prob = F(wo.h), its transmission
+// prob = 1 - F and mass = (1 - F) base_color / eta^2 (radiance mode, as the smooth
+// dielectric); the conductor has one lobe, the reflection, of prob 1 and mass F_c(wo.h)
+// base_color with the conductor's Fresnel reflectance. G1 is Smith's masking of each
+// direction separately: the shadowing-masking G1(wo) G1(wi) of Mitsuba 3's
+// roughdielectric and roughconductor, not the height-correlated form of the principled
+// model; Beckmann's G1 is Walter et al.'s rational approximation (eq. 27), as Mitsuba's.
 // Directions that see the back of their microfacet (wo.h <= 0, or wi.h on the wrong side)
 // have value and pdf 0.
-struct RoughGlassTerms {
+struct MicrofacetTerms {
     bool valid;
     float dln_d;     // d ln D / d alpha
     float dln_g1;    // d ln (G1(wo) G1(wi)) / d alpha
     float value;     // D G1(wo) G1(wi) (wo.h) jac / cos_o: the value per unit lobe mass
     float density;   // the pdf per unit lobe probability
-    float fresnel;   // F(wo.h)
+    float oh;        // wo.h
+    float fresnel;   // the rough dielectric's F(wo.h) (rough_glass_terms; 0 otherwise)
     bool reflect;
 };
 
@@ -287,16 +301,16 @@ vec3 beckmann_sample_normal(float alpha, vec2 u) {
 }
 
 // The terms at (wo, wi) with microfacet normal h (computed from wo and wi by the caller, or
-// the sampled one).
-RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
-    RoughGlassTerms t;
-    bool beckmann = m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
+// the sampled one), for either distribution; eta (the refraction's) enters only the
+// transmission's Jacobian.
+MicrofacetTerms microfacet_terms(float roughness, bool beckmann, float eta, vec3 wo, vec3 wi, vec3 h) {
+    MicrofacetTerms t;
     t.reflect = wi.z > 0.0;
-    float a = bsdf_alpha(m.roughness);
+    float a = bsdf_alpha(roughness);
     float a2 = a * a;
-    float oh = dot(wo, h);
+    t.oh = dot(wo, h);
     float ih = dot(wi, h);
-    t.valid = wo.z > 0.0 && wi.z != 0.0 && oh > 0.0 && (t.reflect ? ih > 0.0 : ih < 0.0);
+    t.valid = wo.z > 0.0 && wi.z != 0.0 && t.oh > 0.0 && (t.reflect ? ih > 0.0 : ih < 0.0);
     float d, g1_o, g1_i, dln_o, dln_i;
     if (beckmann) {
         float t2 = (h.x * h.x + h.y * h.y) / (h.z * h.z);
@@ -314,16 +328,15 @@ RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
         g1_i = ggx_g1(wi, a, dln_i);
     }
     t.dln_g1 = dln_o + dln_i;
-    float cos_t;
-    t.fresnel = dielectric_fresnel(oh, m.ior, cos_t);
+    t.fresnel = 0.0;
     float jac;
     if (t.reflect) {
-        jac = 1.0 / (4.0 * oh);
+        jac = 1.0 / (4.0 * t.oh);
     } else {
-        float den = oh + m.ior * ih;
-        jac = m.ior * m.ior * abs(ih) / (den * den);
+        float den = t.oh + eta * ih;
+        jac = eta * eta * abs(ih) / (den * den);
     }
-    float visible = d * g1_o * oh * jac / wo.z;
+    float visible = d * g1_o * t.oh * jac / wo.z;
     t.value = visible * g1_i;
     t.density = beckmann ? d * h.z * jac : visible;
     if (!t.valid || !(t.density > 0.0)) {
@@ -331,6 +344,14 @@ RoughGlassTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
         t.value = 0.0;
         t.density = 0.0;
     }
+    return t;
+}
+
+// The rough dielectric's terms: the microfacet terms and the Fresnel reflectance at wo.h.
+MicrofacetTerms rough_glass_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
+    MicrofacetTerms t = microfacet_terms(m.roughness, m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN, m.ior, wo, wi, h);
+    float cos_t;
+    t.fresnel = dielectric_fresnel(t.oh, m.ior, cos_t);
     return t;
 }
 
@@ -342,19 +363,54 @@ vec3 rough_glass_half(Material m, vec3 wo, vec3 wi) {
 
 // The lobe's mass over its probability: 1 for the reflection, base_color / eta^2 for the
 // transmission.
-vec3 rough_glass_tint(Material m, RoughGlassTerms t) {
+vec3 rough_glass_tint(Material m, MicrofacetTerms t) {
     return t.reflect ? vec3(1.0) : m.base_color / (m.ior * m.ior);
 }
 
-vec3 rough_glass_value(Material m, RoughGlassTerms t) {
+vec3 rough_glass_value(Material m, MicrofacetTerms t) {
     if (!t.valid) return vec3(0.0);
     float prob = t.reflect ? t.fresnel : 1.0 - t.fresnel;
     return (prob * t.value) * rough_glass_tint(m, t);
 }
 
-float rough_glass_pdf(RoughGlassTerms t) {
+float rough_glass_pdf(MicrofacetTerms t) {
     if (!t.valid) return 0.0;
     return (t.reflect ? t.fresnel : 1.0 - t.fresnel) * t.density;
+}
+
+// ---------------------------------------------------------------------------------------
+// The conductor (local frame, wo.z > 0, wi above the surface)
+// ---------------------------------------------------------------------------------------
+
+// The unpolarised Fresnel reflectance at cos_i = cos(wo, h) in (0, 1] of a conductor with
+// complex index of refraction eta + i k per channel, relative to wo's side: with
+// a^2 + b^2 = |(eta + i k)^2 - sin^2|, a = sqrt((a^2 + b^2 + eta^2 - k^2 - sin^2) / 2),
+//   R_s = (a^2 + b^2 + cos^2 - 2 a cos) / (a^2 + b^2 + cos^2 + 2 a cos),
+//   R_p = R_s (cos^2 (a^2 + b^2) + sin^4 - 2 a cos sin^2) / (cos^2 (a^2 + b^2) + sin^4 + 2 a cos sin^2)
+// (Born and Wolf; k = 0 gives the dielectric's, eta = 0 and k = 1 a perfect mirror).
+vec3 conductor_fresnel(float c, vec3 eta, vec3 k) {
+    float c2 = c * c;
+    float s2 = 1.0 - c2;
+    vec3 t0 = eta * eta - k * k - s2;
+    vec3 a2b2 = sqrt(t0 * t0 + 4.0 * eta * eta * k * k);
+    vec3 a = sqrt(max(0.5 * (a2b2 + t0), vec3(0.0)));
+    vec3 t1 = a2b2 + c2;
+    vec3 t2 = 2.0 * c * a;
+    vec3 rs = (t1 - t2) / (t1 + t2);
+    vec3 t3 = c2 * a2b2 + s2 * s2;
+    vec3 t4 = t2 * s2;
+    vec3 rp = rs * (t3 - t4) / (t3 + t4);
+    return 0.5 * (rs + rp);
+}
+
+// The conductor's terms at (wo, wi) with microfacet normal h: the reflection's.
+MicrofacetTerms conductor_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
+    return microfacet_terms(m.roughness, m.kind == MATERIAL_CONDUCTOR_BECKMANN, 1.0, wo, wi, h);
+}
+
+vec3 conductor_value(Material m, MicrofacetTerms t) {
+    if (!t.valid) return vec3(0.0);
+    return t.value * conductor_fresnel(t.oh, m.eta, m.k) * m.base_color;
 }
 
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
@@ -362,6 +418,9 @@ vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
         return rough_glass_value(m, rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
     }
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
+    if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
+        return conductor_value(m, conductor_terms(m, wo, wi, normalize(wo + wi)));
+    }
     if (material_is_dielectric(m.kind)) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
     return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
@@ -372,6 +431,9 @@ float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
         return rough_glass_pdf(rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
     }
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
+    if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
+        return conductor_terms(m, wo, wi, normalize(wo + wi)).density;
+    }
     if (material_is_dielectric(m.kind)) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
     vec2 p = bsdf_lobe_probabilities(m, wo.z);
@@ -449,7 +511,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
         float cos_t;
         float fr = dielectric_fresnel(oh, m.ior, cos_t);
         vec3 wi_l = u.x < fr ? 2.0 * oh * h - wo_l : normalize((oh * h - wo_l) / m.ior - cos_t * h);
-        RoughGlassTerms t = rough_glass_terms(m, wo_l, wi_l, h);
+        MicrofacetTerms t = rough_glass_terms(m, wo_l, wi_l, h);
         pdf = rough_glass_pdf(t);
         if (!(pdf > 0.0)) {
             pdf = 0.0;
@@ -457,6 +519,23 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
         }
         wi = shading_to_world(f, wi_l);
         weight = rough_glass_value(m, t) / pdf;
+        return true;
+    }
+    if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
+        // The mirror about a normal h (GGX's visible normals, Beckmann's distribution of
+        // normals).
+        float alpha = bsdf_alpha(m.roughness);
+        vec3 h = m.kind == MATERIAL_CONDUCTOR_BECKMANN ? beckmann_sample_normal(alpha, u.yz) : ggx_sample_visible_normal(wo_l, alpha, u.yz);
+        vec3 wi_l = 2.0 * dot(wo_l, h) * h - wo_l;
+        if (wi_l.z <= 0.0) return false;
+        MicrofacetTerms t = conductor_terms(m, wo_l, wi_l, h);
+        pdf = t.density;
+        if (!(pdf > 0.0)) {
+            pdf = 0.0;
+            return false;
+        }
+        wi = shading_to_world(f, wi_l);
+        weight = conductor_value(m, t) / pdf;
         return true;
     }
     if (m.kind != MATERIAL_PRINCIPLED) {
@@ -508,7 +587,7 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     vec3 wo_l = shading_to_local(f, wo);
     vec3 wi_l = shading_to_local(f, wi);
     if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
-        RoughGlassTerms t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
+        MicrofacetTerms t = rough_glass_terms(m, wo_l, wi_l, rough_glass_half(m, wo_l, wi_l));
         // Linear in base_color through the transmission only; through alpha in D and
         // both G1.
         if (t.valid && !t.reflect) d_base_color = vec3((1.0 - t.fresnel) * t.value / (m.ior * m.ior));
@@ -517,6 +596,15 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
         return;
     }
     if (wo_l.z <= 0.0 || wi_l.z <= 0.0 || material_is_dielectric(m.kind)) return;
+    if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
+        // Linear in base_color; through alpha in D and both G1.
+        MicrofacetTerms t = conductor_terms(m, wo_l, wi_l, normalize(wo_l + wi_l));
+        if (!t.valid) return;
+        d_base_color = t.value * conductor_fresnel(t.oh, m.eta, m.k);
+        float dalpha = bsdf_dalpha_droughness(m.roughness);
+        if (dalpha != 0.0) d_roughness = conductor_value(m, t) * ((t.dln_d + t.dln_g1) * dalpha);
+        return;
+    }
     if (m.kind != MATERIAL_PRINCIPLED) {
         d_base_color = vec3(wi_l.z / BSDF_PI);
         return;

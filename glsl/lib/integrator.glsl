@@ -50,8 +50,10 @@
 #include "lib/rng.glsl"
 #include "lib/sampling.glsl"
 #include "lib/scene_access.glsl"
-// The BSDF functions test for the rough dielectric only where the scene has one.
+// The BSDF functions test for the rough dielectric and the conductor only where the scene
+// has one.
 #define BSDF_ROUGH_DIELECTRICS HAS_ROUGH_DIELECTRICS
+#define BSDF_CONDUCTORS HAS_CONDUCTORS
 #include "lib/bsdf.glsl"
 #include "lib/bvh_traverse.glsl"
 

@@ -48,10 +48,10 @@ TEXEL_BUFFER(0, 32) ThetaPrev;
 
 ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 
-// Material `id` (6 texels: three ValueRefs, kind, one_sided and alpha_cutoff, the normal
-// map's and the alpha's ValueRefs).
+// Material `id` (9 texels: three ValueRefs, kind, one_sided, alpha_cutoff and ior, the
+// normal map's and the alpha's ValueRefs, absorption, eta, k).
 MaterialRecord material_record(uint id) {
-    int b = int(id) * 7;
+    int b = int(id) * 9;
     MaterialRecord r;
     r.base_color = value_ref(texel_load(Materials, b));
     r.roughness = value_ref(texel_load(Materials, b + 1));
@@ -66,6 +66,10 @@ MaterialRecord material_record(uint id) {
     uvec4 t6 = texel_load(Materials, b + 6);
     r.absorption = uintBitsToFloat(t6.xyz);
     r.pad3 = 0u;
+    r.eta = uintBitsToFloat(texel_load(Materials, b + 7).xyz);
+    r.pad4 = 0u;
+    r.k = uintBitsToFloat(texel_load(Materials, b + 8).xyz);
+    r.pad5 = 0u;
     return r;
 }
 
@@ -214,6 +218,9 @@ layout(constant_id = 19) const bool HAS_DIELECTRICS = true;
 // (lib/bsdf.glsl, BSDF_ROUGH_DIELECTRICS) and the integrator's light samples and
 // continuations through a surface are compiled out.
 layout(constant_id = 20) const bool HAS_ROUGH_DIELECTRICS = true;
+// Whether any material is a conductor: without one the BSDF functions' conductor
+// (lib/bsdf.glsl, BSDF_CONDUCTORS) is compiled out and no material reads its complex index.
+layout(constant_id = 21) const bool HAS_CONDUCTORS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -422,17 +429,26 @@ Material fetch_material(uint id, vec2 uv, int state) {
     m.base_color = fetch3(r.base_color, uv, state);
     m.roughness = fetch1(r.roughness, uv, state);
     m.metallic = fetch1(r.metallic, uv, state);
-    // Without principled materials every kind but the dielectric reads as diffuse, so that
-    // the principled model folds away (nested tests: the reflection cannot fold an
+    // Without principled materials every kind but glass and conductors reads as diffuse,
+    // so that the principled model folds away (nested tests: the reflection cannot fold an
     // operation on specialisation constants).
     if (HAS_PRINCIPLED) {
         m.kind = r.kind;
     } else if (HAS_DIELECTRICS) {
-        m.kind = material_is_glass(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+        m.kind = material_is_glass(r.kind) || material_is_conductor(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+    } else if (HAS_CONDUCTORS) {
+        m.kind = material_is_conductor(r.kind) ? r.kind : MATERIAL_DIFFUSE;
     } else {
         m.kind = MATERIAL_DIFFUSE;
     }
     m.ior = r.ior;
+    if (HAS_CONDUCTORS) {
+        m.eta = r.eta;
+        m.k = r.k;
+    } else {
+        m.eta = vec3(0.0);
+        m.k = vec3(0.0);
+    }
     return m;
 }
 

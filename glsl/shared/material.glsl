@@ -8,12 +8,14 @@
 // MATERIAL_DIELECTRIC: base_color is the transmittance, ior the relative index of
 // refraction, roughness and metallic are ignored; MATERIAL_THIN_DIELECTRIC likewise;
 // MATERIAL_ROUGH_DIELECTRIC: as MATERIAL_DIELECTRIC with a roughness (GGX);
-// MATERIAL_ROUGH_DIELECTRIC_BECKMANN likewise with Beckmann's distribution), defined in
-// src/constants.rs.
+// MATERIAL_ROUGH_DIELECTRIC_BECKMANN likewise with Beckmann's distribution;
+// MATERIAL_CONDUCTOR: a metal on GGX microfacets, base_color its specular tint, eta and k
+// its complex index of refraction, metallic and ior ignored; MATERIAL_CONDUCTOR_BECKMANN
+// likewise with Beckmann's distribution), defined in src/constants.rs.
 #include "vkinverse_constants.glsl"
 
-// 28 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
-// ior 24.
+// 52 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
+// ior 24, eta 28, k 40.
 struct Material {
     vec3 base_color;
     float roughness;
@@ -24,6 +26,10 @@ struct Material {
     // ratio for rays leaving the interior; a thin dielectric's is the same from both
     // sides). Unused by the other kinds.
     float ior;
+    // A conductor's complex index of refraction eta + i k per channel, relative to the
+    // medium outside (Mitsuba's `eta` and `k`). Unused by the other kinds.
+    vec3 eta;
+    vec3 k;
 };
 
 // Whether `kind` is smooth glass of either kind (delta lobes, an index of refraction).
@@ -34,6 +40,11 @@ bool material_is_dielectric(uint kind) {
 // Whether `kind` is rough glass, of either microfacet distribution.
 bool material_is_rough_glass(uint kind) {
     return kind == MATERIAL_ROUGH_DIELECTRIC || kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN;
+}
+
+// Whether `kind` is a conductor, of either microfacet distribution.
+bool material_is_conductor(uint kind) {
+    return kind == MATERIAL_CONDUCTOR || kind == MATERIAL_CONDUCTOR_BECKMANN;
 }
 
 // Whether `kind` is glass, smooth or rough (an index of refraction).

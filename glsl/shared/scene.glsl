@@ -18,12 +18,12 @@ struct ValueRef {
     uint in_theta;
 };
 
-// One material. 112 bytes (7 texels).
+// One material. 144 bytes (9 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
     ValueRef metallic;
-    uint kind;  // MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_DIELECTRIC or MATERIAL_THIN_DIELECTRIC (shared/material.glsl)
+    uint kind;  // MATERIAL_* (shared/material.glsl)
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     float alpha_cutoff;  // the surface is there where its alpha is at least this; negative:
                          // a blend, there with probability alpha
@@ -41,6 +41,12 @@ struct MaterialRecord {
     // dielectric's refractions.
     vec3 absorption;
     uint pad3;
+    // A conductor's complex index of refraction eta + i k; zero otherwise. Read only by
+    // scenes that have a conductor.
+    vec3 eta;
+    uint pad4;
+    vec3 k;
+    uint pad5;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).

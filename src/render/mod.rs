@@ -23,7 +23,7 @@ use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{
-    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
 };
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
@@ -58,6 +58,9 @@ pub struct GpuScene {
     /// without which the BSDF functions do not test for it and no light sample or
     /// continuation passes through a surface.
     pub has_rough_dielectrics: bool,
+    /// Whether any material is a conductor: the kernels' HAS_CONDUCTORS, without which the
+    /// BSDF functions do not test for it and no material reads its complex index.
+    pub has_conductors: bool,
     /// Whether any triangle has vertex normals; without them the kernels shade with the
     /// geometric normal and read no vertex normals.
     pub has_normals: bool,
@@ -348,6 +351,8 @@ impl GpuScene {
                         MaterialKind::ThinDielectric => MATERIAL_THIN_DIELECTRIC,
                         MaterialKind::RoughDielectric if m.distribution == crate::scene::Distribution::Beckmann => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                         MaterialKind::RoughDielectric => MATERIAL_ROUGH_DIELECTRIC,
+                        MaterialKind::Conductor if m.distribution == crate::scene::Distribution::Beckmann => MATERIAL_CONDUCTOR_BECKMANN,
+                        MaterialKind::Conductor => MATERIAL_CONDUCTOR,
                     },
                     one_sided: m.one_sided as u32,
                     // Blend: a negative cutoff, for which the kernels draw one per ray.
@@ -361,6 +366,10 @@ impl GpuScene {
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                     absorption: m.absorption,
                     pad: 0,
+                    eta: m.eta,
+                    pad_eta: 0,
+                    k: m.k,
+                    pad_k: 0,
                 }
             })
             .collect();
@@ -535,6 +544,7 @@ impl GpuScene {
         let has_principled = materials.iter().any(|m| m.kind == MATERIAL_PRINCIPLED);
         let has_dielectrics = scene.materials.iter().any(|m| m.kind.is_dielectric());
         let has_rough_dielectrics = scene.materials.iter().any(|m| m.kind == MaterialKind::RoughDielectric);
+        let has_conductors = scene.materials.iter().any(|m| m.kind == MaterialKind::Conductor);
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
@@ -581,6 +591,7 @@ impl GpuScene {
             has_principled,
             has_dielectrics,
             has_rough_dielectrics,
+            has_conductors,
             has_normals,
             has_normal_maps,
             has_emission_textures,
@@ -668,6 +679,7 @@ impl GpuScene {
             ("HAS_ALPHA_MASKS", SpecValue::Bool(self.has_alpha_masks)),
             ("HAS_DIELECTRICS", SpecValue::Bool(self.has_dielectrics)),
             ("HAS_ROUGH_DIELECTRICS", SpecValue::Bool(self.has_rough_dielectrics)),
+            ("HAS_CONDUCTORS", SpecValue::Bool(self.has_conductors)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

@@ -67,6 +67,7 @@ pub enum MaterialType {
     ThinDielectric,
     #[serde(rename = "rough_dielectric")]
     RoughDielectric,
+    Conductor,
 }
 
 impl MaterialType {
@@ -77,6 +78,7 @@ impl MaterialType {
             Self::Dielectric => "dielectric",
             Self::ThinDielectric => "thin_dielectric",
             Self::RoughDielectric => "rough_dielectric",
+            Self::Conductor => "conductor",
         }
     }
 
@@ -87,7 +89,12 @@ impl MaterialType {
 
     /// Whether the material has a roughness of its own (one that can be optimised).
     pub fn has_roughness(self) -> bool {
-        matches!(self, Self::Principled | Self::RoughDielectric)
+        matches!(self, Self::Principled | Self::RoughDielectric | Self::Conductor)
+    }
+
+    /// Whether the material has a distribution of microfacets to choose.
+    pub fn has_distribution(self) -> bool {
+        matches!(self, Self::RoughDielectric | Self::Conductor)
     }
 }
 
@@ -119,9 +126,15 @@ pub struct MaterialFile {
     /// A dielectric's interior absorption coefficient per unit length, per channel (0 by
     /// default). Only with `type = "dielectric"`.
     pub absorption: Option<[f32; 3]>,
-    /// A rough dielectric's distribution of microfacets: "ggx" (the default) or
-    /// "beckmann".
+    /// A rough dielectric's or a conductor's distribution of microfacets: "ggx" (the
+    /// default) or "beckmann".
     pub distribution: Option<String>,
+    /// A conductor's named metal (its complex index of refraction); "none", a perfect
+    /// mirror, by default. Not with `eta` and `k`.
+    pub metal: Option<String>,
+    /// A conductor's complex index of refraction eta + i k, per channel. Both or neither.
+    pub eta: Option<[f32; 3]>,
+    pub k: Option<[f32; 3]>,
 }
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map

@@ -15,6 +15,7 @@
 use xxhash_rust::xxh3::Xxh3;
 
 use super::model::*;
+use super::MaterialKind;
 
 /// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
 const VERSION: &str = "vkinverse-scene-hash-v2";
@@ -124,6 +125,11 @@ pub fn content_hash(scene: &Scene) -> u64 {
         }
         if m.distribution != Distribution::Ggx {
             h.tag(m.distribution.as_str());
+        }
+        if m.kind == MaterialKind::Conductor {
+            h.tag("complex ior");
+            h.f32s(&m.eta);
+            h.f32s(&m.k);
         }
     }
     h.tag("meshes");

@@ -421,7 +421,7 @@ impl Loader {
             let key = format!("materials.{}", m.name);
             let base_color = match (m.base_color, m.kind) {
                 (Some(c), _) => self.color_value(&format!("{key}.base_color"), c)?,
-                (None, kind) if kind.is_dielectric() => ColorValue::Constant([1.0; 3]),
+                (None, kind) if kind.is_dielectric() || kind == MaterialKind::Conductor => ColorValue::Constant([1.0; 3]),
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
             if m.ior.is_some() && !m.kind.is_dielectric() {
@@ -462,10 +462,17 @@ impl Loader {
                     }
                     let roughness = match m.roughness {
                         Some(r) => self.scalar_value(&format!("{key}.roughness"), r)?,
-                        None if rough => ScalarValue::Constant(DEFAULT_GLASS_ROUGHNESS),
+                        None if rough => ScalarValue::Constant(DEFAULT_MICROFACET_ROUGHNESS),
                         None => ScalarValue::Constant(0.0),
                     };
                     (roughness, ScalarValue::Constant(0.0))
+                }
+                MaterialKind::Conductor => {
+                    if m.metallic.is_some() {
+                        return Err(self.invalid(&format!("{key}.metallic"), "is not a conductor's (its reflectance comes from eta and k)"));
+                    }
+                    let roughness = m.roughness.unwrap_or(ScalarInput::Constant(DEFAULT_MICROFACET_ROUGHNESS));
+                    (self.scalar_value(&format!("{key}.roughness"), roughness)?, ScalarValue::Constant(0.0))
                 }
             };
             let absorption = match m.absorption {
@@ -490,13 +497,14 @@ impl Loader {
             };
             let distribution = match m.distribution.as_deref() {
                 None => Distribution::Ggx,
-                Some(_) if m.kind != MaterialKind::RoughDielectric => {
-                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's (type = \"rough_dielectric\")"));
+                Some(_) if !m.kind.has_distribution() => {
+                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's or a conductor's (type = \"rough_dielectric\" or \"conductor\")"));
                 }
                 Some("ggx") => Distribution::Ggx,
                 Some("beckmann") => Distribution::Beckmann,
                 Some(other) => return Err(self.invalid(&format!("{key}.distribution"), &format!("\"{other}\" is not \"ggx\" or \"beckmann\""))),
             };
+            let [eta, k] = self.complex_ior(&key, m.kind, m.metal.as_deref(), m.eta, m.k)?;
             if m.kind == MaterialKind::RoughDielectric && ior == 1.0 {
                 return Err(self.invalid(&format!("{key}.ior"), "is 1: a rough dielectric needs two different media (its refraction would be a delta)"));
             }
@@ -553,9 +561,46 @@ impl Loader {
                 ior,
                 absorption,
                 distribution,
+                eta,
+                k,
             });
         }
         Ok(out)
+    }
+
+    /// A conductor's complex index of refraction: a named metal's ([`super::model::METALS`];
+    /// "none", a perfect mirror, by default), or `eta` and `k` given together, each finite and
+    /// at least 0. Zero for the other kinds, which may give none of the three.
+    fn complex_ior(&self, key: &str, kind: MaterialKind, metal: Option<&str>, eta: Option<[f32; 3]>, k: Option<[f32; 3]>) -> Result<[[f32; 3]; 2], SceneError> {
+        if kind != MaterialKind::Conductor {
+            for (what, given) in [("metal", metal.is_some()), ("eta", eta.is_some()), ("k", k.is_some())] {
+                if given {
+                    return Err(self.invalid(&format!("{key}.{what}"), "is a conductor's (type = \"conductor\")"));
+                }
+            }
+            return Ok([[0.0; 3]; 2]);
+        }
+        match (metal, eta, k) {
+            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => Err(self.invalid(&format!("{key}.metal"), "names a metal's eta and k: give either `metal` or `eta` and `k`")),
+            (_, Some(_), None) => Err(self.invalid(&format!("{key}.k"), "is missing (`eta` and `k` go together)")),
+            (_, None, Some(_)) => Err(self.invalid(&format!("{key}.eta"), "is missing (`eta` and `k` go together)")),
+            (_, Some(eta), Some(k)) => {
+                for (what, v) in [("eta", eta), ("k", k)] {
+                    self.finite(&format!("{key}.{what}"), &v)?;
+                    if let Some(x) = v.iter().find(|x| **x < 0.0) {
+                        return Err(self.out_of_range(&format!("{key}.{what}"), format!("{x} is negative")));
+                    }
+                }
+                Ok([eta, k])
+            }
+            (name, None, None) => {
+                let name = name.unwrap_or("none");
+                super::model::metal(name).ok_or_else(|| {
+                    let known: Vec<&str> = super::model::METALS.iter().map(|(n, _, _)| *n).collect();
+                    self.invalid(&format!("{key}.metal"), &format!("\"{name}\" is not one of {}", known.join(", ")))
+                })
+            }
+        }
     }
 
     fn meshes(

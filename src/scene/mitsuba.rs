@@ -18,16 +18,15 @@
 //! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
 //! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric,
 //! thindielectric and roughdielectric (glass: [`MaterialKind::Dielectric`],
-//! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), area
+//! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), roughconductor
+//! ([`MaterialKind::Conductor`], either distribution, a named material's or a given
+//! complex index of refraction), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
-//! dropped), `roughconductor` (the conductor Fresnel term becomes Schlick's with the
-//! material's normal-incidence reflectance; a Beckmann distribution becomes GGX (not in
-//! `roughdielectric`, which has both); a smooth
-//! `conductor` takes the smallest roughness), `plastic` and `roughplastic` (a principled
-//! dielectric whose base colour carries the coating's effect on the diffuse lobe: see
-//! `coating`), spot
+//! dropped), a smooth `conductor` (the smallest roughness), `plastic` and `roughplastic`
+//! (a principled dielectric whose base colour carries the coating's effect on the diffuse
+//! lobe: see `coating`; a Beckmann distribution becomes GGX), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
 //! (tessellated into 96 × 48 quads with exact normals), disks and cylinders (96 triangles
 //! and 96 quads), `envmap` (resampled from
@@ -51,17 +50,6 @@ use crate::image::{self, srgb_decode, Image};
 pub const UNLIMITED_DEPTH: u32 = 64;
 /// Tessellation of a sphere: quads around the equator (half as many from pole to pole).
 const SPHERE_SEGMENTS: u32 = 96;
-
-/// Normal-incidence reflectance (linear RGB) of the conductors Mitsuba names, for the
-/// Schlick approximation of their Fresnel term.
-const CONDUCTORS: [(&str, [f32; 3]); 6] = [
-    ("none", [1.0, 1.0, 1.0]),
-    ("Ag", [0.972, 0.960, 0.915]),
-    ("Al", [0.913, 0.922, 0.924]),
-    ("Au", [1.0, 0.766, 0.336]),
-    ("Cr", [0.549, 0.556, 0.554]),
-    ("Cu", [0.955, 0.638, 0.538]),
-];
 
 /// The indices of refraction Mitsuba names (its `ior.h`).
 const IORS: [(&str, f32); 23] = [
@@ -759,6 +747,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                 ior: DEFAULT_IOR,
                 absorption: [0.0; 3],
                 distribution: Distribution::Ggx,
+                eta: [0.0; 3],
+                k: [0.0; 3],
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -780,39 +770,36 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3] }
             }
             "roughconductor" | "conductor" => {
-                let (alpha, _) = self.microfacet_alpha(&mut items, node, kind == "roughconductor", false)?;
-                let f0 = match (self.take(&mut items, "material"), self.take(&mut items, "eta"), self.take(&mut items, "k")) {
+                let rough = kind == "roughconductor";
+                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, rough, true)?;
+                if rough {
+                    // Sampling only: the same material either way.
+                    self.take_bool(&mut items, "sample_visible", true)?;
+                } else {
+                    self.warn(node, "approximate: a smooth conductor is rendered at the smallest roughness (alpha 0.001)");
+                }
+                let complex_ior = match (self.take(&mut items, "material"), self.take(&mut items, "eta"), self.take(&mut items, "k")) {
                     (m, None, None) => {
                         let name = m.map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "none".into());
-                        CONDUCTORS.iter().find(|(k, _)| *k == name).map(|(_, f)| *f).ok_or_else(|| {
-                            let known: Vec<&str> = CONDUCTORS.iter().map(|(k, _)| *k).collect();
+                        metal(&name).ok_or_else(|| {
+                            let known: Vec<&str> = METALS.iter().map(|(k, _, _)| *k).collect();
                             self.err(node, format!("conductor \"{name}\" is not one of {}", known.join(", ")))
                         })?
                     }
                     (None, Some(eta), Some(k)) => {
                         let (eta, k) = (self.rgb(eta)?, self.rgb(k)?);
-                        std::array::from_fn(|c| ((eta[c] - 1.0).powi(2) + k[c] * k[c]) / ((eta[c] + 1.0).powi(2) + k[c] * k[c]))
+                        if eta.iter().chain(&k).any(|v| *v < 0.0) {
+                            return Err(self.err(node, "eta and k must not be negative"));
+                        }
+                        [eta, k]
                     }
                     _ => return Err(self.err(node, "give either `material` or both `eta` and `k`")),
                 };
-                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
-                self.warn(node, format!("approximate: the conductor's Fresnel term is rendered as Schlick's with F0 = {:.3?}", f0));
-                Material {
-                    name: name.into(),
-                    kind: MaterialKind::Principled,
-                    base_color: ColorValue::Constant(std::array::from_fn(|c| (f0[c] * tint[c]).min(1.0))),
-                    roughness: ScalarValue::Constant(alpha.sqrt()),
-                    metallic: ScalarValue::Constant(1.0),
-                    one_sided,
-                    normal_map: None,
-                    alpha: None,
-                    ior: DEFAULT_IOR,
-                    absorption: [0.0; 3],
-                    distribution: Distribution::Ggx,
-                }
+                let tint = self.color_param(&mut items, "specular_reflectance", [1.0; 3])?;
+                Material::conductor(name.into(), tint, ScalarValue::Constant(alpha.sqrt()), distribution, complex_ior, one_sided)
             }
             "dielectric" | "thindielectric" | "roughdielectric" => {
                 let (alpha, distribution) = self.microfacet_alpha(&mut items, node, kind == "roughdielectric", true)?;
@@ -900,6 +887,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                     ior: DEFAULT_IOR,
                     absorption: [0.0; 3],
                     distribution: Distribution::Ggx,
+                eta: [0.0; 3],
+                k: [0.0; 3],
                 }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
@@ -971,6 +960,8 @@ impl<'a, 'i> Importer<'a, 'i> {
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],
             distribution: Distribution::Ggx,
+                eta: [0.0; 3],
+                k: [0.0; 3],
         });
         self.out.materials.len() - 1
     }

@@ -192,6 +192,10 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.distribution != Distribution::Ggx {
             pairs.push(("distribution", Value::String(m.distribution.as_str().into())));
         }
+        if m.kind == MaterialKind::Conductor {
+            pairs.push(("eta", arr(&m.eta)));
+            pairs.push(("k", arr(&m.k)));
+        }
         if let Some(a) = &m.alpha {
             pairs.push(("alpha", scalar("alpha", &a.value)?));
             pairs.push(("alpha_mode", Value::String(a.mode.as_str().into())));
