@@ -1011,7 +1011,8 @@ fn serialized_mesh_bytes(version: u16, flags: u32, positions: &[[f64; 3]], norma
 /// Mitsuba's roughconductor is exact: its distribution (Beckmann by default), alpha,
 /// specular reflectance and complex index of refraction (a named material's, as its RGB
 /// variants reduce the measured spectra, or `eta` and `k`) carry over unchanged, with no
-/// warning, and what it cannot be is refused, naming the element.
+/// warning, and what it cannot be is refused, naming the element. A bitmap alpha becomes
+/// a roughness texture.
 #[test]
 fn mitsuba_rough_conductors_keep_their_distribution_and_index() {
     let dir = temp_dir("mitsuba-conductor");
@@ -1050,6 +1051,32 @@ fn mitsuba_rough_conductors_keep_their_distribution_and_index() {
         assert_eq!((n.kind, n.distribution, n.eta, n.k, n.one_sided), (m.kind, m.distribution, m.eta, m.k, m.one_sided), "{id}");
         assert!((rough(&n) - rough(&m)).abs() < 1e-6, "{id}");
     }
+
+    // A bitmap alpha (roughconductor's or roughdielectric's) becomes a roughness texture of
+    // √alpha per texel, with a warning (Mitsuba interpolates alpha itself).
+    let alpha = vkinverse::image::Image { width: 2, height: 1, data: vec![[0.04; 3], [0.25; 3]] };
+    vkinverse::image::write_exr(&dir.join("alpha.exr"), &alpha).unwrap();
+    let bitmap = r#"<texture type="bitmap" name="alpha"><string name="filename" value="alpha.exr"/></texture>"#;
+    let textured = format!(
+        r#"    <bsdf type="roughconductor" id="a">{bitmap}</bsdf>
+    <bsdf type="roughdielectric" id="b">{bitmap}<string name="distribution" value="ggx"/></bsdf>
+    <bsdf type="diffuse" id="c"/>"#
+    );
+    std::fs::write(dir.join("textured.xml"), xml(&textured)).unwrap();
+    let s = Scene::load(dir.join("textured.xml")).unwrap();
+    assert_eq!(s.warnings.len(), 2, "{:?}", s.warnings);
+    assert!(s.warnings.iter().all(|w| w.contains("square root")), "{:?}", s.warnings);
+    for (id, distribution) in [("a", Distribution::Beckmann), ("b", Distribution::Ggx)] {
+        let m = s.materials.iter().find(|m| m.name == id).unwrap();
+        let ScalarValue::Texture(t) = &m.roughness else { panic!("{id}: a roughness texture, not {:?}", m.roughness) };
+        let texels: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
+        assert!((texels[0] - 0.2).abs() < 1e-6 && (texels[1] - 0.5).abs() < 1e-6, "{id}: {texels:?}");
+        assert_eq!(m.distribution, distribution, "{id}");
+    }
+    let too_rough = vkinverse::image::Image { width: 2, height: 1, data: vec![[0.04; 3], [1.5; 3]] };
+    vkinverse::image::write_exr(&dir.join("alpha.exr"), &too_rough).unwrap();
+    let msg = Scene::load(dir.join("textured.xml")).map(|_| ()).unwrap_err().to_string();
+    assert!(msg.contains("alpha texel 1.5") && msg.contains("outside [0, 1]") && !msg.contains('\n'), "{msg}");
 
     for (bsdf, needles) in [
         (r#"<bsdf type="roughconductor" id="a"><string name="material" value="unobtainium"/></bsdf>"#, &["<bsdf type=\"roughconductor\" id=\"a\">", "\"unobtainium\" is not one of", "Au"][..]),

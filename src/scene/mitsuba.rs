@@ -24,7 +24,8 @@
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
-//! dropped), a smooth `conductor` (the smallest roughness), `plastic` and `roughplastic`
+//! dropped), a smooth `conductor` (the smallest roughness), a bitmap `alpha` of
+//! roughconductor or roughdielectric (interpolated as √alpha), `plastic` and `roughplastic`
 //! (a principled dielectric whose base colour carries the coating's effect on the diffuse
 //! lobe: see `coating`; a Beckmann distribution becomes GGX), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
@@ -774,7 +775,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
-                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, rough, true)?;
+                let (roughness, distribution) = self.microfacet_roughness(&mut items, node, rough)?;
                 if rough {
                     // Sampling only: the same material either way.
                     self.take_bool(&mut items, "sample_visible", true)?;
@@ -799,10 +800,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                     _ => return Err(self.err(node, "give either `material` or both `eta` and `k`")),
                 };
                 let tint = self.color_param(&mut items, "specular_reflectance", [1.0; 3])?;
-                Material::conductor(name.into(), tint, ScalarValue::Constant(alpha.sqrt()), distribution, complex_ior, one_sided)
+                Material::conductor(name.into(), tint, roughness, distribution, complex_ior, one_sided)
             }
             "dielectric" | "thindielectric" | "roughdielectric" => {
-                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, kind == "roughdielectric", true)?;
+                let (roughness, distribution) = self.microfacet_roughness(&mut items, node, kind == "roughdielectric")?;
                 if kind == "roughdielectric" {
                     // Sampling only: the same material either way.
                     self.take_bool(&mut items, "sample_visible", true)?;
@@ -832,7 +833,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 }
                 let mut glass = Material::glass(name.into(), kind, base_color, eta);
                 if kind == MaterialKind::RoughDielectric {
-                    glass.roughness = ScalarValue::Constant(alpha.sqrt());
+                    glass.roughness = roughness;
                     glass.distribution = distribution;
                 }
                 glass
@@ -899,9 +900,8 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// The alpha of a rough BSDF's `alpha` (`rough`; Mitsuba's default 0.1) and its
-    /// distribution: Beckmann (Mitsuba's default) where the material has it (`beckmann`),
-    /// otherwise rendered as GGX with a warning; alpha 0 for a smooth BSDF (rendered as the
-    /// model's smallest roughness).
+    /// distribution ([`Self::microfacet_distribution`]); alpha 0 for a smooth BSDF
+    /// (rendered as the model's smallest roughness).
     fn microfacet_alpha(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, rough: bool, beckmann: bool) -> Result<(f32, Distribution), SceneError> {
         if !rough {
             return Ok((0.0, Distribution::Ggx));
@@ -910,14 +910,39 @@ impl<'a, 'i> Importer<'a, 'i> {
         if !(0.0..=1.0).contains(&alpha) {
             return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
         }
+        Ok((alpha, self.microfacet_distribution(items, node, beckmann)?))
+    }
+
+    /// The roughness (√alpha) of a rough BSDF whose model has both distributions: its
+    /// `alpha` a number (Mitsuba's default 0.1) or a bitmap, whose texels (R channel, in
+    /// [0, 1]) become √alpha, interpolated as such (with a warning: Mitsuba interpolates
+    /// alpha); and its distribution. 0 for a smooth BSDF.
+    fn microfacet_roughness(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, rough: bool) -> Result<(ScalarValue, Distribution), SceneError> {
+        let textured = rough && items.iter().any(|n| n.attribute("name") == Some("alpha") && matches!(n.tag_name().name(), "texture" | "ref"));
+        if !textured {
+            let (alpha, distribution) = self.microfacet_alpha(items, node, rough, true)?;
+            return Ok((ScalarValue::Constant(alpha.sqrt()), distribution));
+        }
+        let ColorValue::Texture(mut t) = self.color_param(items, "alpha", [0.1; 3])? else { unreachable!("a bitmap or a reference to one") };
+        if let Some(v) = t.image.data.iter().map(|p| p[0]).find(|v| !(0.0..=1.0).contains(v)) {
+            return Err(self.err(node, format!("alpha texel {v} of {} is outside [0, 1]", t.path.display())));
+        }
+        std::sync::Arc::make_mut(&mut t.image).data.iter_mut().for_each(|p| *p = [p[0].sqrt(); 3]);
+        self.warn(node, "approximate: the alpha bitmap is interpolated as its square root, the model's roughness (exact at texel centres)");
+        Ok((ScalarValue::Texture(t), self.microfacet_distribution(items, node, true)?))
+    }
+
+    /// A rough BSDF's `distribution`: Beckmann (Mitsuba's default) where the material has it
+    /// (`beckmann`), otherwise rendered as GGX with a warning.
+    fn microfacet_distribution(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, beckmann: bool) -> Result<Distribution, SceneError> {
         let distribution = self.take(items, "distribution").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "beckmann".into());
         if distribution == "beckmann" && beckmann {
-            return Ok((alpha, Distribution::Beckmann));
+            return Ok(Distribution::Beckmann);
         }
         if distribution != "ggx" {
             self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
         }
-        Ok((alpha, Distribution::Ggx))
+        Ok(Distribution::Ggx)
     }
 
     /// An index of refraction: a number, or one of the materials Mitsuba names (`default`
