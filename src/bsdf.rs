@@ -261,13 +261,81 @@ fn beckmann_g1(v: DVec3, alpha: f64) -> (f64, f64) {
     (num / den, (dden / den - dnum / num) * a / alpha)
 }
 
-/// A normal from Beckmann's distribution of normals (`beckmann_sample_normal`).
-pub fn beckmann_sample_normal(alpha: f64, u: [f64; 2]) -> DVec3 {
-    let t2 = -alpha * alpha * (1.0 - u[0]).ln();
-    let c = 1.0 / (1.0 + t2).sqrt();
-    let s = t2.sqrt() * c;
-    let phi = 2.0 * PI * u[1];
-    DVec3::new(s * phi.cos(), s * phi.sin(), c)
+/// 1 + erf(x) from Abramowitz and Stegun's 7.1.26 (`bsdf_one_plus_erf`).
+pub fn one_plus_erf(x: f64) -> f64 {
+    let t = 1.0 / (1.0 + 0.3275911 * x.abs());
+    let q = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429)))) * (-x * x).exp();
+    if x < 0.0 { q } else { 2.0 - q }
+}
+
+/// The inverse of erf at x given (1 − x)(1 + x), Giles 2010's single-precision
+/// polynomials (`bsdf_erfinv`).
+pub fn erfinv(x: f64, one_minus_x2: f64) -> f64 {
+    let mut w = -one_minus_x2.ln();
+    let p = if w < 5.0 {
+        w -= 2.5;
+        [3.43273939e-07, -3.5233877e-06, -4.39150654e-06, 0.00021858087, -0.00125372503, -0.00417768164, 0.246640727, 1.50140941]
+            .iter()
+            .fold(2.81022636e-08, |p, c| c + p * w)
+    } else {
+        w = w.sqrt() - 3.0;
+        [0.000100950558, 0.00134934322, -0.00367342844, 0.00573950773, -0.0076224613, 0.00943887047, 1.00167406, 2.83297682]
+            .iter()
+            .fold(-0.000200214257, |p, c| c + p * w)
+    };
+    p * x
+}
+
+/// 1 / √π (`BSDF_INV_SQRT_PI`).
+const INV_SQRT_PI: f64 = 0.564_189_583_547_756_3;
+
+/// A Beckmann normal from the visible normals seen from wo (`beckmann_sample_visible_normal`).
+pub fn beckmann_sample_visible_normal(wo: DVec3, alpha: f64, u: [f64; 2]) -> DVec3 {
+    let v = DVec3::new(alpha * wo.x, alpha * wo.y, wo.z).normalize();
+    let sin_o = (v.x * v.x + v.y * v.y).sqrt();
+    let tan_o = sin_o / v.z;
+    let cot_o = if sin_o > 0.0 { v.z / sin_o } else { 1e15 };
+    let ux = u[0].max(1e-6);
+    let norm = 1.0 / (one_plus_erf(cot_o) + INV_SQRT_PI * tan_o * (-cot_o * cot_o).exp());
+    let theta = sin_o.atan2(v.z);
+    let fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta));
+    let c = one_plus_erf(cot_o) - 1.0;
+    let b = c - (1.0 + c) * (1.0 - ux).powf(fit);
+    let (mut lo, mut hi) = (-6.0, cot_o.min(6.0));
+    let mut x = erfinv(b, (1.0 - b) * (1.0 + b));
+    for _ in 0..10 {
+        if !(x >= lo && x <= hi) {
+            x = 0.5 * (lo + hi);
+        }
+        let g = (-x * x).exp();
+        let value = norm * (one_plus_erf(x) + INV_SQRT_PI * tan_o * g) - ux;
+        let density = norm * (2.0 * INV_SQRT_PI) * g * (1.0 - x * tan_o);
+        if value > 0.0 {
+            hi = x;
+        } else {
+            lo = x;
+        }
+        x -= value / density;
+    }
+    if !(x >= lo && x <= hi) {
+        x = 0.5 * (lo + hi);
+    }
+    let uy = u[1].clamp(1e-6, 1.0 - 1e-6);
+    let (sx, sy) = (x, erfinv(2.0 * uy - 1.0, 4.0 * uy * (1.0 - uy)));
+    let (cos_phi, sin_phi) = if sin_o > 0.0 { (v.x / sin_o, v.y / sin_o) } else { (1.0, 0.0) };
+    let (px, py) = (alpha * (cos_phi * sx - sin_phi * sy), alpha * (sin_phi * sx + cos_phi * sy));
+    DVec3::new(-px, -py, 1.0).normalize()
+}
+
+/// Smith's exact G1 of Beckmann (`beckmann_g1_exact`).
+fn beckmann_g1_exact(v: DVec3, alpha: f64) -> f64 {
+    let c = v.z.abs();
+    let s = (v.x * v.x + v.y * v.y).sqrt();
+    if s.is_nan() || s <= 0.0 {
+        return 1.0;
+    }
+    let a = c / (alpha * s);
+    2.0 / (one_plus_erf(a) + INV_SQRT_PI * (-a * a).exp() / a)
 }
 
 /// `microfacet_terms`
@@ -293,7 +361,7 @@ fn microfacet_terms(roughness: f64, beckmann: bool, eta: f64, wo: DVec3, wi: DVe
     };
     let visible = d * g1_o * oh * jac / wo.z;
     let mut value = visible * g1_i;
-    let mut density = if beckmann { d * h.z * jac } else { visible };
+    let mut density = if beckmann { visible * (beckmann_g1_exact(wo, a) / g1_o) } else { visible };
     if !valid || density.is_nan() || density <= 0.0 {
         valid = false;
         value = 0.0;
@@ -457,7 +525,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
     if m.rough_glass() {
         let a = alpha(m.roughness);
         let h = if m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN {
-            beckmann_sample_normal(a, [u.y, u.z])
+            beckmann_sample_visible_normal(wo_l, a, [u.y, u.z])
         } else {
             ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
         };
@@ -474,7 +542,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
     if m.conductor() {
         let a = alpha(m.roughness);
         let h = if m.kind == MATERIAL_CONDUCTOR_BECKMANN {
-            beckmann_sample_normal(a, [u.y, u.z])
+            beckmann_sample_visible_normal(wo_l, a, [u.y, u.z])
         } else {
             ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
         };
