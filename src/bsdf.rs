@@ -515,6 +515,16 @@ pub struct BsdfSample {
     pub pdf: f64,
 }
 
+/// A visible normal of either distribution from u.yz (the ternary of `bsdf_sample`'s rough
+/// glass and conductor branches).
+fn sample_visible_normal(beckmann: bool, wo: DVec3, alpha: f64, u: DVec3) -> DVec3 {
+    if beckmann {
+        beckmann_sample_visible_normal(wo, alpha, [u.y, u.z])
+    } else {
+        ggx_sample_visible_normal(wo, alpha, [u.y, u.z])
+    }
+}
+
 /// `bsdf_sample`: `None` where the GLSL returns false.
 pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSample> {
     let f = ShadingFrame::new(n);
@@ -523,12 +533,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         return None;
     }
     if m.rough_glass() {
-        let a = alpha(m.roughness);
-        let h = if m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN {
-            beckmann_sample_visible_normal(wo_l, a, [u.y, u.z])
-        } else {
-            ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
-        };
+        let h = sample_visible_normal(m.kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN, wo_l, alpha(m.roughness), u);
         let oh = wo_l.dot(h);
         let (fr, cos_t) = dielectric_fresnel(oh, m.ior);
         let wi_l = if u.x < fr { 2.0 * oh * h - wo_l } else { ((oh * h - wo_l) / m.ior - cos_t * h).normalize() };
@@ -540,12 +545,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         return Some(BsdfSample { wi: f.to_world(wi_l), weight: rough_glass_value(m, &t) / pdf, pdf });
     }
     if m.conductor() {
-        let a = alpha(m.roughness);
-        let h = if m.kind == MATERIAL_CONDUCTOR_BECKMANN {
-            beckmann_sample_visible_normal(wo_l, a, [u.y, u.z])
-        } else {
-            ggx_sample_visible_normal(wo_l, a, [u.y, u.z])
-        };
+        let h = sample_visible_normal(m.kind == MATERIAL_CONDUCTOR_BECKMANN, wo_l, alpha(m.roughness), u);
         let wi_l = 2.0 * wo_l.dot(h) * h - wo_l;
         if wi_l.z <= 0.0 {
             return None;
