@@ -296,10 +296,11 @@ pub fn beckmann_sample_visible_normal(wo: DVec3, alpha: f64, u: [f64; 2]) -> DVe
     let tan_o = sin_o / v.z;
     let cot_o = if sin_o > 0.0 { v.z / sin_o } else { 1e15 };
     let ux = u[0].max(1e-6);
-    let norm = 1.0 / (one_plus_erf(cot_o) + INV_SQRT_PI * tan_o * (-cot_o * cot_o).exp());
+    let e_cot = one_plus_erf(cot_o);
+    let norm = 1.0 / (e_cot + INV_SQRT_PI * tan_o * (-cot_o * cot_o).exp());
     let theta = sin_o.atan2(v.z);
     let fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta));
-    let c = one_plus_erf(cot_o) - 1.0;
+    let c = e_cot - 1.0;
     let b = c - (1.0 + c) * (1.0 - ux).powf(fit);
     let (mut lo, mut hi) = (-6.0, cot_o.min(6.0));
     let mut x = erfinv(b, (1.0 - b) * (1.0 + b));

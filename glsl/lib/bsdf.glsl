@@ -351,11 +351,12 @@ vec3 beckmann_sample_visible_normal(vec3 wo, float alpha, vec2 u) {
     float tan_o = sin_o / v.z;
     float cot_o = sin_o > 0.0 ? v.z / sin_o : 1e15;
     float ux = max(u.x, 1e-6);
-    float norm = 1.0 / (bsdf_one_plus_erf(cot_o) + BSDF_INV_SQRT_PI * tan_o * exp(-cot_o * cot_o));
+    float e_cot = bsdf_one_plus_erf(cot_o);
+    float norm = 1.0 / (e_cot + BSDF_INV_SQRT_PI * tan_o * exp(-cot_o * cot_o));
     // Jakob's fit of the inverse, in erf's range, as the start.
     float theta = atan(sin_o, v.z);
     float fit = 1.0 + theta * (-0.876 + theta * (0.4265 - 0.0594 * theta));
-    float c = bsdf_one_plus_erf(cot_o) - 1.0;
+    float c = e_cot - 1.0;
     float b = c - (1.0 + c) * pow(1.0 - ux, fit);
     float lo = -6.0;
     float hi = min(cot_o, 6.0);
