@@ -18,6 +18,8 @@ layout(push_constant, scalar) uniform Push {
     uint count;
     uint seed;
 } pc;
+// The plastics' transmittance tables (Material.table indexes them).
+layout(set = 0, binding = 1, scalar) readonly buffer Tables { float tables[]; };
 
 // pcg3d of Jarzynski and Olano 2020, "Hash Functions for GPU Rendering" (JCGT 9(3)): three
 // well-mixed 32-bit words per (thread, seed), enough for a test of 10^6 samples.
@@ -32,6 +34,8 @@ uvec3 pcg3d(uvec3 v) {
     v.z += v.x * v.y;
     return v;
 }
+
+float bsdf_table(uint table, int index) { return tables[int(table) + index]; }
 
 void main() {
     uint i = thread_index();
@@ -66,6 +70,10 @@ layout(set = 0, binding = 0, scalar) readonly buffer Materials { Material materi
 layout(set = 0, binding = 1, scalar) readonly buffer Cases { BsdfCase cases[]; };
 layout(set = 0, binding = 2, scalar) writeonly buffer Results { BsdfResult results[]; };
 layout(push_constant, scalar) uniform Push { uint n; } pc;
+// The plastics' transmittance tables (Material.table indexes them).
+layout(set = 0, binding = 3, scalar) readonly buffer Tables { float tables[]; };
+
+float bsdf_table(uint table, int index) { return tables[int(table) + index]; }
 
 void main() {
     uint i = thread_index();

@@ -10,8 +10,9 @@
 //! f(wo, wi) |cos theta_i|.
 
 use crate::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PRINCIPLED,
-    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
+    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PLASTIC,
+    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -22,6 +23,21 @@ pub const ALPHA_MIN: f64 = 1e-3;
 pub const F0_DIELECTRIC: f64 = 0.04;
 /// Rec. 709 luminance, used only for lobe selection (`BSDF_LUMINANCE`).
 pub const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
+
+/// Entries of a plastic's transmittance table.
+pub const TABLE: usize = PLASTIC_TABLE_SIZE as usize;
+
+/// A plastic's transmittance table in f64. (A struct rather than a bare array field of
+/// [`MaterialF64`]: rustc 1.95 fails (an internal error) on closures that capture part of a struct whose field
+/// is an array with a named length and rebuild it with `..m`.)
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Table(pub [f64; TABLE]);
+
+impl Default for Table {
+    fn default() -> Self {
+        Self([0.0; TABLE])
+    }
+}
 
 /// Material parameters in f64, so that finite differences of the mirror are not limited
 /// by the f32 storage of [`Material`].
@@ -36,9 +52,16 @@ pub struct MaterialF64 {
     /// A conductor's complex index of refraction, eta + i k.
     pub eta: DVec3,
     pub k: DVec3,
+    /// A plastic's coating: its transmittance table (the entries the kernel reads at
+    /// `Material::table`), internal diffuse reflectance and `nonlinear`.
+    pub transmittance: Table,
+    pub internal: f64,
+    pub nonlinear: bool,
 }
 
 impl From<Material> for MaterialF64 {
+    /// Everything but a plastic's table, which [`Material`] only points to: see
+    /// [`MaterialF64::with_tables`].
     fn from(m: Material) -> Self {
         Self {
             base_color: DVec3::new(m.base_color[0] as f64, m.base_color[1] as f64, m.base_color[2] as f64),
@@ -48,7 +71,25 @@ impl From<Material> for MaterialF64 {
             ior: m.ior as f64,
             eta: DVec3::from(m.eta.map(f64::from)),
             k: DVec3::from(m.k.map(f64::from)),
+            transmittance: Table::default(),
+            internal: m.internal as f64,
+            nonlinear: m.nonlinear != 0,
         }
+    }
+}
+
+impl MaterialF64 {
+    /// `m` with a plastic's transmittance table read from `tables` at `m.table`, as the
+    /// kernel reads it (`bsdf_table`).
+    pub fn with_tables(m: Material, tables: &[f32]) -> Self {
+        let mut out = Self::from(m);
+        if out.plastic() {
+            let start = m.table as usize;
+            for (t, v) in out.transmittance.0.iter_mut().zip(&tables[start..start + TABLE]) {
+                *t = f64::from(*v);
+            }
+        }
+        out
     }
 }
 
@@ -74,6 +115,11 @@ impl MaterialF64 {
     /// The conductor of either distribution (one reflected lobe).
     pub fn conductor(&self) -> bool {
         self.kind == MATERIAL_CONDUCTOR || self.kind == MATERIAL_CONDUCTOR_BECKMANN
+    }
+
+    /// The plastic of either distribution (a glossy and a diffuse lobe).
+    pub fn plastic(&self) -> bool {
+        self.kind == MATERIAL_PLASTIC || self.kind == MATERIAL_PLASTIC_BECKMANN
     }
 
     /// mix(0.04, base_color, metallic)
@@ -437,6 +483,145 @@ fn conductor_value(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
     t.value * conductor_fresnel(t.oh, m.eta, m.k) * m.base_color
 }
 
+/// `plastic_transmittance`
+fn plastic_transmittance(m: &MaterialF64, c: f64) -> f64 {
+    let x = c * (TABLE - 1) as f64;
+    let i = (x as i64).min(TABLE as i64 - 2) as usize;
+    let w = x - i as f64;
+    m.transmittance.0[i] * (1.0 - w) + m.transmittance.0[i + 1] * w
+}
+
+/// `plastic_terms`
+fn plastic_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> MicrofacetTerms {
+    microfacet_terms(m.roughness, m.kind == MATERIAL_PLASTIC_BECKMANN, 1.0, wo, wi, h)
+}
+
+/// `plastic_diffuse`
+fn plastic_diffuse(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
+    wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (PI * m.ior * m.ior)
+}
+
+/// 1 − the internal reflectance's share (`plastic_base`'s denominator).
+fn plastic_kept(m: &MaterialF64) -> DVec3 {
+    DVec3::ONE - if m.nonlinear { m.base_color * m.internal } else { DVec3::splat(m.internal) }
+}
+
+/// `plastic_value`
+fn plastic_value(m: &MaterialF64, wo: DVec3, wi: DVec3, t: &MicrofacetTerms) -> DVec3 {
+    let spec = if t.valid { t.value * dielectric_fresnel(t.oh, m.ior).0 } else { 0.0 };
+    DVec3::splat(spec) + m.base_color / plastic_kept(m) * plastic_diffuse(m, wo, wi)
+}
+
+/// `plastic_specular_prob`
+fn plastic_specular_prob(m: &MaterialF64, cos_o: f64) -> f64 {
+    let t = plastic_transmittance(m, cos_o);
+    let w = 1.0 / (1.0 + ((m.base_color.x + m.base_color.y + m.base_color.z) / 3.0).max(0.0));
+    let spec = (1.0 - t) * w;
+    let total = spec + t * (1.0 - w);
+    if total > 0.0 { spec / total } else { 1.0 }
+}
+
+/// `plastic_pdf`
+fn plastic_pdf(prob: f64, wi: DVec3, t: &MicrofacetTerms) -> f64 {
+    prob * if t.valid { t.density } else { 0.0 } + (1.0 - prob) * wi.z / PI
+}
+
+/// The Gauss–Legendre rule of `n` points on [−1, 1]: (node, weight) pairs, the nodes by
+/// Newton's method on the Legendre polynomial P_n from Chebyshev-like starting points.
+pub fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
+    (0..n)
+        .map(|i| {
+            let mut x = (PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
+            let mut dp = 1.0;
+            for _ in 0..100 {
+                let (mut p0, mut p1) = (1.0, x);
+                for k in 2..=n {
+                    let k = k as f64;
+                    let p2 = ((2.0 * k - 1.0) * x * p1 - (k - 1.0) * p0) / k;
+                    (p0, p1) = (p1, p2);
+                }
+                dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
+                let dx = p1 / dp;
+                x -= dx;
+                if dx.abs() < 1e-15 {
+                    break;
+                }
+            }
+            (x, 2.0 / ((1.0 - x * x) * dp * dp))
+        })
+        .collect()
+}
+
+/// The albedo of an interface of relative index `eta` on microfacets of `alpha`
+/// (Beckmann's or GGX's) for light from the direction at cosine `mu` (on the side its
+/// normal points to): what it transmits once (`transmit`) or reflects once, as Mitsuba 3
+/// integrates it for its plastics: each visible normal's Fresnel term (1 − F or F) times
+/// Smith's masking of the direction the light leaves in, integrated over the visible
+/// normals by a product Gauss–Legendre rule in the sampler's two numbers (32 points each
+/// way for η > 1, 128 otherwise, where total internal reflection makes the integrand
+/// jump).
+pub fn coating_albedo(beckmann: bool, alpha: f64, eta: f64, mu: f64, transmit: bool) -> f64 {
+    let g1 = |v: DVec3, m: DVec3| {
+        if v.dot(m) * v.z <= 0.0 {
+            0.0
+        } else if beckmann {
+            beckmann_g1(v, alpha).0
+        } else {
+            ggx_g1(v, alpha).0
+        }
+    };
+    let rule = gauss_legendre(if eta > 1.0 { 32 } else { 128 });
+    let wi = DVec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
+    let mut sum = 0.0;
+    for &(x, wx) in &rule {
+        for &(y, wy) in &rule {
+            let m = sample_visible_normal(beckmann, wi, alpha, DVec3::new(0.0, 0.5 * x + 0.5, 0.5 * y + 0.5));
+            let c = wi.dot(m);
+            let (f, cos_t) = dielectric_fresnel(c, eta);
+            let g = if transmit {
+                let wt = (c / eta - cos_t) * m - wi / eta;
+                if f < 1.0 && wt.z < 0.0 { g1(wt, m) * (1.0 - f) } else { 0.0 }
+            } else {
+                let wr = 2.0 * c * m - wi;
+                if wr.z > 0.0 { g1(wr, m) * f } else { 0.0 }
+            };
+            sum += g * wx * wy * 0.25;
+        }
+    }
+    sum
+}
+
+/// A plastic's coating as Mitsuba 3 tabulates it, for a coating of relative index `eta`
+/// (interior over exterior) on microfacets of `roughness` (Beckmann's or GGX's; alpha =
+/// [`alpha`]`(roughness)`): the directional transmittance T(μ) at μ = max(10⁻⁶,
+/// i / (TABLE − 1)) and the internal diffuse reflectance. A rough coating's are its
+/// `roughplastic`'s: T(μ) the [`coating_albedo`] of the transmission, the internal
+/// reflectance 2 · mean_i R(μ_i, 1/η) μ_i over the same μ (Mitsuba's sum), R the albedo of
+/// the reflection from inside. A coating at the smallest alpha ([`ALPHA_MIN`]) is its
+/// smooth `plastic`'s: T(μ) = 1 − F(μ) and the internal reflectance of
+/// [`fresnel_diffuse_reflectance`].
+pub fn coating(beckmann: bool, roughness: f64, eta: f64) -> ([f64; TABLE], f64) {
+    let mu = |i: usize| (i as f64 / (TABLE - 1) as f64).max(1e-6);
+    if roughness * roughness <= ALPHA_MIN {
+        return (std::array::from_fn(|i| 1.0 - dielectric_fresnel(mu(i), eta).0), fresnel_diffuse_reflectance(1.0 / eta));
+    }
+    let a = alpha(roughness);
+    let transmittance = std::array::from_fn(|i| coating_albedo(beckmann, a, eta, mu(i), true));
+    let internal = 2.0 * (0..TABLE).map(|i| coating_albedo(beckmann, a, 1.0 / eta, mu(i), false) * mu(i)).sum::<f64>() / TABLE as f64;
+    (transmittance, internal)
+}
+
+/// The diffuse Fresnel reflectance of an interface of relative index `eta` (the fraction
+/// of a uniform diffuse flux it reflects) by the fits Mitsuba 3 uses: Egan and Hilgeman's
+/// (1973) below 1, d'Eon and Irving's (2011) above.
+pub fn fresnel_diffuse_reflectance(eta: f64) -> f64 {
+    if eta < 1.0 {
+        0.0636 / eta + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    } else {
+        [0.919317, -3.4793, 6.75335, -7.80989, 4.98554, -1.36881].iter().rev().fold(0.0, |acc, c| acc / eta + c)
+    }
+}
+
 /// f cos theta_i in the local frame (`bsdf_eval_local`).
 pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
     if m.rough_glass() {
@@ -447,6 +632,9 @@ pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
     }
     if m.conductor() {
         return conductor_value(m, &conductor_terms(m, wo, wi, (wo + wi).normalize()));
+    }
+    if m.plastic() {
+        return plastic_value(m, wo, wi, &plastic_terms(m, wo, wi, (wo + wi).normalize()));
     }
     if !m.principled() {
         return m.base_color * (wi.z / PI);
@@ -464,6 +652,9 @@ pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
     }
     if m.conductor() {
         return conductor_terms(m, wo, wi, (wo + wi).normalize()).density;
+    }
+    if m.plastic() {
+        return plastic_pdf(plastic_specular_prob(m, wo.z), wi, &plastic_terms(m, wo, wi, (wo + wi).normalize()));
     }
     if !m.principled() {
         return wi.z / PI;
@@ -526,6 +717,19 @@ fn sample_visible_normal(beckmann: bool, wo: DVec3, alpha: f64, u: DVec3) -> DVe
     }
 }
 
+/// wi and its microfacet normal for a glossy and a diffuse lobe (`bsdf_sample_two_lobes`):
+/// with probability `prob` (u.x < prob) the mirror of wo about a visible normal of either
+/// distribution, else a cosine-weighted direction with the normal halfway.
+fn sample_two_lobes(prob: f64, beckmann: bool, wo: DVec3, alpha: f64, u: DVec3) -> (DVec3, DVec3) {
+    if u.x < prob {
+        let h = sample_visible_normal(beckmann, wo, alpha, u);
+        (2.0 * wo.dot(h) * h - wo, h)
+    } else {
+        let wi = sample_cosine_hemisphere([u.y, u.z]);
+        (wi, (wo + wi).normalize())
+    }
+}
+
 /// `bsdf_sample`: `None` where the GLSL returns false.
 pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSample> {
     let f = ShadingFrame::new(n);
@@ -557,6 +761,19 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         }
         return Some(BsdfSample { wi: f.to_world(wi_l), weight: conductor_value(m, &t) / t.density, pdf: t.density });
     }
+    if m.plastic() {
+        let prob = plastic_specular_prob(m, wo_l.z);
+        let (wi_l, h) = sample_two_lobes(prob, m.kind == MATERIAL_PLASTIC_BECKMANN, wo_l, alpha(m.roughness), u);
+        if wi_l.z <= 0.0 {
+            return None;
+        }
+        let t = plastic_terms(m, wo_l, wi_l, h);
+        let pdf = plastic_pdf(prob, wi_l, &t);
+        if pdf.is_nan() || pdf <= 0.0 {
+            return None;
+        }
+        return Some(BsdfSample { wi: f.to_world(wi_l), weight: plastic_value(m, wo_l, wi_l, &t) / pdf, pdf });
+    }
     if !m.principled() {
         let wi_l = sample_cosine_hemisphere([u.y, u.z]);
         if wi_l.z <= 0.0 {
@@ -565,13 +782,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
         return Some(BsdfSample { wi: f.to_world(wi_l), weight: m.base_color, pdf: wi_l.z / PI });
     }
     let p = lobe_probabilities(m, wo_l.z);
-    let (wi_l, h) = if u.x < p[1] {
-        let h = ggx_sample_visible_normal(wo_l, alpha(m.roughness), [u.y, u.z]);
-        (2.0 * wo_l.dot(h) * h - wo_l, h)
-    } else {
-        let wi_l = sample_cosine_hemisphere([u.y, u.z]);
-        (wi_l, (wo_l + wi_l).normalize())
-    };
+    let (wi_l, h) = sample_two_lobes(p[1], false, wo_l, alpha(m.roughness), u);
     if wi_l.z <= 0.0 {
         return None;
     }
@@ -624,6 +835,11 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
         if dalpha != 0.0 {
             g.d_roughness = conductor_value(m, &t) * ((t.dln_d + t.dln_g1) * dalpha);
         }
+        return g;
+    }
+    if m.plastic() {
+        let kept = plastic_kept(m);
+        g.d_base_color = plastic_diffuse(m, wo_l, wi_l) / if m.nonlinear { kept * kept } else { kept };
         return g;
     }
     if !m.principled() {

@@ -29,6 +29,16 @@ pub const MATERIAL_CONDUCTOR: u32 = 6;
 /// The conductor with Beckmann's distribution of microfacets (Mitsuba 3's default for
 /// `roughconductor`).
 pub const MATERIAL_CONDUCTOR_BECKMANN: u32 = 7;
+/// A plastic: a diffuse base under a dielectric coating on GGX microfacets, which
+/// reflects glossily and passes the rest to the base and back (Mitsuba 3's `roughplastic`
+/// with the GGX distribution).
+pub const MATERIAL_PLASTIC: u32 = 8;
+/// The plastic with Beckmann's distribution of microfacets (Mitsuba 3's default for
+/// `roughplastic`).
+pub const MATERIAL_PLASTIC_BECKMANN: u32 = 9;
+/// Entries of a plastic's coating transmittance table, at cos θ = i / (size − 1)
+/// (Mitsuba 3's resolution for `roughplastic`).
+pub const PLASTIC_TABLE_SIZE: u32 = 64;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

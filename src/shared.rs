@@ -18,11 +18,12 @@ pub struct ProbeStruct {
 }
 
 pub use crate::constants::{
-    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED,
-    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
+    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC,
+    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 
-/// Mirror of `Material` (glsl/shared/material.glsl): 52 bytes, offsets checked against the
+/// Mirror of `Material` (glsl/shared/material.glsl): 64 bytes, offsets checked against the
 /// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
 /// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
@@ -34,14 +35,22 @@ pub struct Material {
     pub metallic: f32,
     /// [`MATERIAL_DIFFUSE`], [`MATERIAL_PRINCIPLED`], [`MATERIAL_DIELECTRIC`],
     /// [`MATERIAL_THIN_DIELECTRIC`], [`MATERIAL_ROUGH_DIELECTRIC`],
-    /// [`MATERIAL_ROUGH_DIELECTRIC_BECKMANN`], [`MATERIAL_CONDUCTOR`] or
-    /// [`MATERIAL_CONDUCTOR_BECKMANN`]; any other value behaves as diffuse.
+    /// [`MATERIAL_ROUGH_DIELECTRIC_BECKMANN`], [`MATERIAL_CONDUCTOR`],
+    /// [`MATERIAL_CONDUCTOR_BECKMANN`], [`MATERIAL_PLASTIC`] or [`MATERIAL_PLASTIC_BECKMANN`];
+    /// any other value behaves as diffuse.
     pub kind: u32,
-    /// A dielectric's relative index of refraction: the far side's over wo's.
+    /// A dielectric's relative index of refraction: the far side's over wo's; a plastic's
+    /// coating's, interior over exterior.
     pub ior: f32,
     /// A conductor's complex index of refraction, eta + i k, per channel.
     pub eta: [f32; 3],
     pub k: [f32; 3],
+    /// A plastic's coating: the index of its transmittance table's first entry
+    /// ([`PLASTIC_TABLE_SIZE`] entries, wherever the kernel keeps them), its internal
+    /// diffuse reflectance, and 1 for Mitsuba's `nonlinear`.
+    pub table: u32,
+    pub internal: f32,
+    pub nonlinear: u32,
 }
 
 /// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
@@ -54,7 +63,7 @@ pub struct ValueRef {
     pub in_theta: u32,
 }
 
-/// Mirror of `MaterialRecord`: 144 bytes (9 texels; the pads are zero).
+/// Mirror of `MaterialRecord`: 144 bytes (9 texels).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -67,7 +76,8 @@ pub struct MaterialRecord {
     /// The alpha test's threshold (with `alpha`); negative for a blend, whose threshold
     /// the kernels draw per ray.
     pub alpha_cutoff: f32,
-    /// A dielectric's index of refraction, interior over exterior; 0 for other kinds.
+    /// A dielectric's or a plastic's index of refraction, interior over exterior; 0 for
+    /// other kinds.
     pub ior: f32,
     /// The normal map's tangent-space normals (3 floats per texel, decoded and scaled);
     /// width 0: no normal map.
@@ -77,12 +87,16 @@ pub struct MaterialRecord {
     pub alpha: ValueRef,
     /// A dielectric's interior absorption coefficient per unit length; zero otherwise.
     pub absorption: [f32; 3],
-    pub pad: u32,
+    /// A plastic's internal diffuse reflectance; zero otherwise.
+    pub internal: f32,
     /// A conductor's complex index of refraction, eta + i k; zero otherwise.
     pub eta: [f32; 3],
-    pub pad_eta: u32,
+    /// A plastic's transmittance table: the index of its first entry in the material
+    /// data (which follow θ); zero otherwise.
+    pub table: u32,
     pub k: [f32; 3],
-    pub pad_k: u32,
+    /// A plastic's `nonlinear` (1) or not (0); zero otherwise.
+    pub nonlinear: u32,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).

@@ -12,10 +12,54 @@ use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
 use vkinverse::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED,
-    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
+    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC,
+    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
+    MATERIAL_THIN_DIELECTRIC,
 };
 use vkinverse::stats::ln_gamma;
+
+// ---------------------------------------------------------------------------------------
+// Plastic coatings: their tables, concatenated as the test kernel reads them (`Tables`)
+// ---------------------------------------------------------------------------------------
+
+/// Coatings of both distributions, rough and nearly smooth, from outside and of a dense
+/// index: (kind, roughness, ior).
+const COATINGS: [(u32, f32, f32); 4] =
+    [(MATERIAL_PLASTIC, 0.3, 1.5), (MATERIAL_PLASTIC_BECKMANN, 0.5, 1.49), (MATERIAL_PLASTIC, 0.05, 1.33), (MATERIAL_PLASTIC_BECKMANN, 0.2, 2.0)];
+
+/// The tables of [`COATINGS`], one after the other, and each one's internal reflectance.
+fn coating_tables() -> &'static (Vec<f32>, Vec<f32>) {
+    static TABLES: std::sync::OnceLock<(Vec<f32>, Vec<f32>)> = std::sync::OnceLock::new();
+    TABLES.get_or_init(|| {
+        let (mut tables, mut internal) = (Vec::new(), Vec::new());
+        for (kind, roughness, ior) in COATINGS {
+            let (t, r) = bsdf::coating(kind == MATERIAL_PLASTIC_BECKMANN, f64::from(roughness), f64::from(ior));
+            tables.extend(t.iter().map(|x| *x as f32));
+            internal.push(r as f32);
+        }
+        (tables, internal)
+    })
+}
+
+/// Plastic `i` of [`COATINGS`] with diffuse reflectance `base`.
+fn plastic(i: usize, base: [f32; 3], nonlinear: bool) -> Material {
+    let (kind, roughness, ior) = COATINGS[i];
+    Material {
+        base_color: base,
+        roughness,
+        kind,
+        ior,
+        table: (i * bsdf::TABLE) as u32,
+        internal: coating_tables().1[i],
+        nonlinear: nonlinear as u32,
+        ..Default::default()
+    }
+}
+
+/// The mirror of `m`, with its table if it is a plastic.
+fn mirror(m: Material) -> MaterialF64 {
+    MaterialF64::with_tables(m, &coating_tables().0)
+}
 
 // ---------------------------------------------------------------------------------------
 // Mirrors of the test kernel's structs (glsl/bsdf_test.comp), checked by reflection below.
@@ -58,6 +102,9 @@ fn struct_layouts_match_reflection() {
         ("ior", offset_of!(Material, ior)),
         ("eta", offset_of!(Material, eta)),
         ("k", offset_of!(Material, k)),
+        ("table", offset_of!(Material, table)),
+        ("internal", offset_of!(Material, internal)),
+        ("nonlinear", offset_of!(Material, nonlinear)),
     ];
     check_layout("bsdf_test", "Material", &material, size_of::<Material>());
     // The sampling variant passes Material in its push constants.
@@ -331,6 +378,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
                 5 if i % 4 == 2 => MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
                 5 if i % 4 == 1 => MATERIAL_CONDUCTOR,
                 5 => MATERIAL_CONDUCTOR_BECKMANN,
+                6 if i % 3 == 0 => MATERIAL_PLASTIC,
                 _ if i % 5 == 0 => MATERIAL_DIFFUSE,
                 _ => MATERIAL_PRINCIPLED,
             };
@@ -368,6 +416,10 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
                     _ => [pick(&mut rng, 4.0), pick(&mut rng, 8.0)],
                 };
             }
+            if kind == MATERIAL_PLASTIC {
+                // One of the coatings, linear or not.
+                material = plastic(rng.next_u64() as usize % COATINGS.len(), base, rng.f64() < 0.5);
+            }
             let n = match i % 16 {
                 0 => DVec3::Z,
                 1 => -DVec3::Z,
@@ -389,7 +441,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
             } else if (kind == MATERIAL_ROUGH_DIELECTRIC || kind == MATERIAL_ROUGH_DIELECTRIC_BECKMANN) && rng.f64() < 0.5 {
                 // Near the refracted direction (the transmitted lobe's peak), or anywhere
                 // below the surface.
-                let m = MaterialF64::from(material);
+                let m = mirror(material);
                 match bsdf::dielectric_sample(&MaterialF64 { kind: MATERIAL_DIELECTRIC, ..m }, n, wo, 1.0 - 1e-9) {
                     Some(t) if t.wi.dot(n) < 0.0 && rng.f64() < 0.6 => (t.wi + 10f64.powf(rng.range(-3.0, -0.5)) * rng.unit_vector()).normalize(),
                     _ => direction(n, -rng.f64(), rng.range(0.0, 2.0 * PI)),
@@ -416,7 +468,8 @@ fn run_bsdf_test(ctx: &std::sync::Arc<vkinverse::gpu::Context>, cases: &[(Materi
     let mbuf = Buffer::from_slice(ctx, "materials", &materials, MemoryKind::Upload).unwrap();
     let cbuf = Buffer::from_slice(ctx, "cases", &inputs, MemoryKind::Upload).unwrap();
     let rbuf = Buffer::zeroed::<BsdfResult>(ctx, "results", cases.len(), MemoryKind::Readback).unwrap();
-    let group = pipe.bind(&[("Materials", &mbuf), ("Cases", &cbuf), ("Results", &rbuf)]).unwrap();
+    let tbuf = Buffer::from_slice(ctx, "tables", &coating_tables().0, MemoryKind::Upload).unwrap();
+    let group = pipe.bind(&[("Materials", &mbuf), ("Cases", &cbuf), ("Results", &rbuf), ("Tables", &tbuf)]).unwrap();
     let mut cmd = CommandBuffer::new(ctx, "bsdf_test").unwrap();
     let push = vkinverse::push::CountPush::new(cases.len() as u64);
     cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, cases.len() as u64)).unwrap();
@@ -449,7 +502,7 @@ fn gpu_matches_cpu_mirror() {
     let mut max_ratio: f64 = 0.0;
     let mut failures = Vec::new();
     for (i, ((mat, case), r)) in cases.iter().zip(&results).enumerate() {
-        let m = MaterialF64::from(*mat);
+        let m = mirror(*mat);
         let (n, wo, wi, u) = (v3(case.n), v3(case.wo), v3(case.wi), v3(case.u));
         let mut cpu = mirror_outputs(&m, n, wo, wi, u);
         let mut gpu = result_outputs(r);
@@ -475,6 +528,8 @@ fn gpu_matches_cpu_mirror() {
                 ior: p(m.ior, &mut rng),
                 eta: pv(m.eta, &mut rng),
                 k: pv(m.k, &mut rng),
+                internal: p(m.internal, &mut rng),
+                ..m
             };
             let (pn, pwo) = (pv(n, &mut rng), pv(wo, &mut rng));
             let mut out = mirror_outputs(&mp, pn, pwo, pv(wi, &mut rng), pv(u, &mut rng));
@@ -594,7 +649,7 @@ fn expected_fractions(m: &MaterialF64, wo_local: DVec3) -> Vec<f64> {
     // 1.3 alpha), so that adaptive refinement always sees the peak; a quarter of it for
     // rough glass, whose refracted lobe is narrower by about (η − 1)/η.
     let width = match m.kind {
-        MATERIAL_PRINCIPLED | MATERIAL_CONDUCTOR | MATERIAL_CONDUCTOR_BECKMANN => bsdf::alpha(m.roughness),
+        MATERIAL_PRINCIPLED | MATERIAL_CONDUCTOR | MATERIAL_CONDUCTOR_BECKMANN | MATERIAL_PLASTIC | MATERIAL_PLASTIC_BECKMANN => bsdf::alpha(m.roughness),
         MATERIAL_ROUGH_DIELECTRIC | MATERIAL_ROUGH_DIELECTRIC_BECKMANN => 0.25 * bsdf::alpha(m.roughness),
         _ => 1.0,
     };
@@ -646,6 +701,12 @@ fn gpu_samples_follow_bsdf_pdf() {
             materials.push(Material { base_color, roughness, kind, eta, k, ..Default::default() });
         }
     }
+    // Plastics: each coating, a dark and a bright base.
+    for i in 0..COATINGS.len() {
+        for base in [[0.05, 0.1, 0.02], base_color] {
+            materials.push(plastic(i, base, i % 2 == 1));
+        }
+    }
     // A tilted normal, so that the sampled frame is not the world frame.
     let n = DVec3::new(0.3, -0.5, 0.8).normalize();
     let theta_o_degrees = [5.0f64, 45.0, 80.0];
@@ -658,7 +719,8 @@ fn gpu_samples_follow_bsdf_pdf() {
     let p_values = with_gpu(|ctx| {
         let pipe = ComputePipeline::new(ctx, "bsdf_sample_test", &[]).unwrap();
         let out = Buffer::zeroed::<[f32; 3]>(ctx, "samples", SAMPLES as usize, MemoryKind::Readback).unwrap();
-        let group = pipe.bind(&[("Samples", &out)]).unwrap();
+        let tables = Buffer::from_slice(ctx, "tables", &coating_tables().0, MemoryKind::Upload).unwrap();
+        let group = pipe.bind(&[("Samples", &out), ("Tables", &tables)]).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "bsdf_sample_test").unwrap();
         let mut p_values = Vec::new();
         for (case, (material, theta_o)) in cases.iter().enumerate() {
@@ -670,7 +732,7 @@ fn gpu_samples_follow_bsdf_pdf() {
             let samples: Vec<[f32; 3]> = out.read().unwrap();
 
             // Observed counts per cell, plus one category for failed samples.
-            let m = MaterialF64::from(*material);
+            let m = mirror(*material);
             let bins = theta_bins(&m);
             let mut observed = vec![0.0; bins * PHI_BINS + 1];
             for s in &samples {
@@ -738,6 +800,12 @@ fn white_furnace_albedo_is_at_most_one() {
     for kind in [MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN] {
         for roughness in [0.0, 0.1, 0.3, 0.7, 1.0] {
             cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, kind, k: DVec3::ONE, ..Default::default() });
+        }
+    }
+    // White plastics: their coating's reflection and the base's light that comes back out.
+    for i in 0..COATINGS.len() {
+        for nonlinear in [false, true] {
+            cases.push(mirror(plastic(i, [1.0; 3], nonlinear)));
         }
     }
     let cos_o = [1.0, 0.7, 0.3, 0.1, 0.01];
@@ -813,6 +881,15 @@ fn eval_grad_matches_finite_differences() {
             ior: if i % 4 == 3 { 1.0 / 1.5 } else { 1.5 },
             eta: DVec3::new(rng.range(0.0, 4.0), rng.range(0.0, 4.0), rng.range(0.0, 4.0)),
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
+            ..Default::default()
+        };
+        // Every sixth case a plastic of one of the coatings, linear or not, at the random
+        // base colour.
+        let m = if i % 6 == 1 {
+            let b = m.base_color.as_vec3().to_array();
+            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), b, rng.f64() < 0.5))
+        } else {
+            m
         };
         let n = rng.unit_vector();
         let wo = direction(n, rng.range(0.01, 1.0), rng.range(0.0, 2.0 * PI));
@@ -853,7 +930,8 @@ fn eval_grad_matches_finite_differences() {
             ("metallic", g.d_metallic, Box::new(move |d| MaterialF64 { metallic: m.metallic + d, ..m })),
         ];
         for (name, analytic, at) in params {
-            if name == "roughness" && straddles {
+            // A plastic's roughness is no parameter (its table is fixed for it).
+            if name == "roughness" && (straddles || m.plastic()) {
                 continue;
             }
             let v = |d: f64| bsdf::eval(&at(d), n, wo, wi);
@@ -889,7 +967,7 @@ fn eval_grad_matches_finite_differences() {
 // ---------------------------------------------------------------------------------------
 
 #[test]
-fn principled_and_conductor_are_reciprocal() {
+fn principled_conductor_and_plastic_are_reciprocal() {
     // The diffuse Fresnel factor (1 - F_d(cos_o)) (1 - F_d(cos_i)) is symmetric, so the
     // whole model, not only its specular part, must be reciprocal. Both orders use the
     // same half vector (wo + wi is commutative) and sums and products of positive terms,
@@ -910,10 +988,16 @@ fn principled_and_conductor_are_reciprocal() {
             base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
             roughness: rng.pick(&[0.0, 0.05, 1.0, r, r]),
             metallic: rng.pick(&[0.0, 1.0, mt]),
-            kind: rng.pick(&[MATERIAL_PRINCIPLED, MATERIAL_PRINCIPLED, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN]),
+            kind: rng.pick(&[MATERIAL_PRINCIPLED, MATERIAL_PRINCIPLED, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC]),
             ior: 1.5,
             eta: DVec3::new(rng.range(0.0, 4.0), rng.range(0.0, 4.0), rng.range(0.0, 4.0)),
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
+            ..Default::default()
+        };
+        let m = if m.kind == MATERIAL_PLASTIC {
+            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), m.base_color.as_vec3().to_array(), rng.f64() < 0.5))
+        } else {
+            m
         };
         let n = rng.unit_vector();
         let cos = |rng: &mut Rng| if rng.f64() < 0.2 { 10f64.powf(rng.range(-3.0, -1.0)) } else { rng.f64() };
@@ -926,7 +1010,7 @@ fn principled_and_conductor_are_reciprocal() {
         }
         let f_oi = bsdf::eval(&m, n, wo, wi) / ci;
         let f_io = bsdf::eval(&m, n, wi, wo) / co;
-        let tol = if m.conductor() { 1e-12 } else { f64::EPSILON * (100.0 + 50.0 / (wo + wi).length()) };
+        let tol = if m.conductor() || m.plastic() { 1e-12 } else { f64::EPSILON * (100.0 + 50.0 / (wo + wi).length()) };
         for c in 0..3 {
             // (Far from Beckmann's peak the value leaves f64's normal range, and its digits.)
             if f_oi[c].abs() < 1e-250 {
@@ -1017,7 +1101,9 @@ fn sample_pdf_and_weight_match_pdf_and_eval() {
             ior: if i % 20 >= 10 { 1.0 / 1.5 } else { 1.5 },
             eta: DVec3::new(rng.range(0.0, 4.0), rng.range(0.0, 4.0), rng.range(0.0, 4.0)),
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
+            ..Default::default()
         };
+        let m = if i % 10 == 9 { mirror(plastic(i / 10 % COATINGS.len(), m.base_color.as_vec3().to_array(), i % 20 == 9)) } else { m };
         let n = rng.unit_vector();
         let wo = direction(n, rng.range(0.0, 1.0), rng.range(0.0, 2.0 * PI));
         let u = DVec3::new(rng.f64(), rng.f64(), rng.f64());
@@ -1122,4 +1208,87 @@ fn thin_dielectric_sums_its_internal_reflections() {
         assert!((t.pdf - (1.0 - series)).abs() < 1e-12 && t.weight == sheet.base_color);
         assert!((bsdf::dielectric_mass(&sheet, n, wo, t.wi) - sheet.base_color * (1.0 - series)).length() < 1e-12);
     }
+}
+
+/// A plastic's coating tables against the interface they stand for: the transmittance and
+/// reflectance that `bsdf::coating_albedo` integrates over visible normals, against a
+/// direct integral of the rough dielectric's BSDF (the same interface, `bsdf::eval`) over
+/// a grid of directions, for both distributions, from outside and from inside (total
+/// internal reflection); a nearly smooth coating against Fresnel's equations; and the
+/// tables' internal reflectance against its definition.
+#[test]
+fn plastic_coatings_integrate_their_interface() {
+    // The rough dielectric's transmission carries radiance's 1/η², which the coating's
+    // albedo (power) does not: η² times the integral. Its masking is Smith's G1(wo) G1(wi)
+    // with Walter et al.'s approximation for Beckmann, where the visible normals follow
+    // the exact G1(wo): 1 % is allowed for that and the grid.
+    let direct = |beckmann: bool, alpha: f64, eta: f64, mu: f64| {
+        let m = MaterialF64 {
+            base_color: DVec3::ONE,
+            roughness: alpha.sqrt(),
+            kind: if beckmann { MATERIAL_ROUGH_DIELECTRIC_BECKMANN } else { MATERIAL_ROUGH_DIELECTRIC },
+            ior: eta,
+            ..Default::default()
+        };
+        let wo = DVec3::new((1.0 - mu * mu).sqrt(), 0.0, mu);
+        let n = 600;
+        let (mut r, mut t) = (0.0, 0.0);
+        for a in 0..n {
+            let theta = (a as f64 + 0.5) / n as f64 * PI;
+            for b in 0..n {
+                let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
+                let wi = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+                let v = bsdf::eval_local(&m, wo, wi).x * theta.sin() * (PI / n as f64) * (2.0 * PI / n as f64);
+                if wi.z > 0.0 { r += v } else { t += v * eta * eta }
+            }
+        }
+        (r, t)
+    };
+    for (beckmann, alpha, eta, mu) in [(false, 0.3, 1.5, 0.7), (true, 0.5, 1.5, 0.95), (false, 0.5, 1.0 / 1.5, 0.9), (true, 0.3, 1.0 / 1.33, 0.4), (true, 0.25, 1.49, 0.2)] {
+        let (r, t) = (bsdf::coating_albedo(beckmann, alpha, eta, mu, false), bsdf::coating_albedo(beckmann, alpha, eta, mu, true));
+        let (rb, tb) = direct(beckmann, alpha, eta, mu);
+        println!("beckmann {beckmann} alpha {alpha} eta {eta:.3} mu {mu}: R {r:.5} (direct {rb:.5}), T {t:.5} (direct {tb:.5})");
+        assert!(r + t <= 1.0 + 1e-9, "R + T = {}", r + t);
+        assert!((r - rb).abs() < 0.01 * rb.max(0.02) && (t - tb).abs() < 0.01 * tb.max(0.02), "beckmann {beckmann} alpha {alpha} eta {eta} mu {mu}: R {r} against {rb}, T {t} against {tb}");
+    }
+    // Nearly smooth (alpha 1e-3): Fresnel's reflectance F and 1 − F, from outside and from
+    // inside (where past the critical angle everything comes back).
+    for (mu, eta) in [(1.0, 1.5), (0.3, 1.5), (0.05, 1.33), (0.9, 1.0 / 1.5), (0.5, 1.0 / 1.5)] {
+        let f = bsdf::dielectric_fresnel(mu, eta).0;
+        for beckmann in [false, true] {
+            let (r, t) = (bsdf::coating_albedo(beckmann, ALPHA_MIN, eta, mu, false), bsdf::coating_albedo(beckmann, ALPHA_MIN, eta, mu, true));
+            assert!((r - f).abs() < 2e-3 && (t - (1.0 - f)).abs() < 2e-3, "mu {mu} eta {eta}: R {r} T {t} against F {f}");
+        }
+    }
+    // The table: T at μ = i / 63, and the internal reflectance as the sum over the same μ.
+    let (table, internal) = bsdf::coating(true, 0.1f64.sqrt(), 1.49);
+    let a = bsdf::alpha(0.1f64.sqrt());
+    let mu = |i: usize| (i as f64 / 63.0).max(1e-6);
+    for i in [0, 20, 63] {
+        assert_eq!(table[i], bsdf::coating_albedo(true, a, 1.49, mu(i), true));
+    }
+    let sum: f64 = (0..64).map(|i| bsdf::coating_albedo(true, a, 1.0 / 1.49, mu(i), false) * mu(i)).sum();
+    assert!((internal - sum / 32.0).abs() < 1e-15);
+    // A smooth coating (roughness 0 or up to the smallest alpha) is Mitsuba's smooth
+    // plastic's: 1 − F, and the fit of the internal reflectance.
+    for roughness in [0.0, 0.03] {
+        let (table, internal) = bsdf::coating(false, roughness, 1.5);
+        assert_eq!(table[63], 1.0 - bsdf::dielectric_fresnel(1.0, 1.5).0);
+        assert_eq!(internal, bsdf::fresnel_diffuse_reflectance(1.0 / 1.5));
+    }
+    // The fits against their defining integral 2 ∫ F(μ, η) μ dμ (midpoint rule, 10^5 points):
+    // within 0.2 % (0.1 % at most measured, over η in [0.67, 1.9]).
+    for eta in [1.0 / 1.5, 1.0 / 1.33, 1.33, 1.5, 1.9] {
+        let n = 100_000;
+        let exact: f64 = (0..n).map(|i| (i as f64 + 0.5) / n as f64).map(|m| 2.0 * bsdf::dielectric_fresnel(m, eta).0 * m / n as f64).sum();
+        let fit = bsdf::fresnel_diffuse_reflectance(eta);
+        assert!((fit / exact - 1.0).abs() < 0.002, "eta {eta}: fit {fit} against {exact}");
+    }
+    // Light from inside comes back out where it meets the interface within the critical
+    // angle, ~1/η² of a diffuse flux: the rest is reflected back in (~0.6 at η = 1.49).
+    assert!((0.55..0.65).contains(&internal), "internal reflectance {internal}");
+    // At normal incidence nearly all gets through (1 − F = 0.961 for a smooth coating); at
+    // grazing incidence the visible microfacets face the light more than the surface does,
+    // so a rough coating still transmits some (0.37 here), but less.
+    assert!(table[0] < 0.5 && (0.9..0.97).contains(&table[63]), "T(0) {} T(1) {}", table[0], table[63]);
 }

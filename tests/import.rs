@@ -894,74 +894,65 @@ fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
     assert_eq!(a.get(0, 0), [1.0; 3]);
 }
 
-/// Mitsuba's plastic and roughplastic become principled dielectrics whose diffuse lobe
-/// carries the coating's: reflectance ρ becomes ρ / ((1 − R_int) η²) · (t̄ / f̄)², R_int the
-/// coating's internal diffuse reflectance, t̄ its cosine-weighted mean transmittance and f̄
-/// the principled model's, (1 − 0.04) · 20/21 for Schlick's factor. For the smooth plastic
-/// R_int and t̄ = 1 − F_dr,ext are checked against the fits Mitsuba computes them with
-/// (d'Eon and Irving's and Egan and Hilgeman's polynomials), a method independent of the
-/// importer's integrals (the rough ones are checked against a direct integral of the BSDF
-/// in the importer's own tests). A smooth conductor is a conductor of roughness 0 (its
+/// Mitsuba's plastic and roughplastic become plastics: the diffuse reflectance as the base
+/// colour, √alpha as the roughness, the distribution (Beckmann by default), int_ior /
+/// ext_ior as the index and `nonlinear`. A smooth plastic is a plastic of roughness 0,
+/// with a warning (its coating's reflection a lobe of the smallest alpha, not a delta),
+/// whose coating is Mitsuba's smooth plastic's: its internal reflectance the fit of Egan
+/// and Hilgeman that Mitsuba uses. A smooth conductor is a conductor of roughness 0 (its
 /// named metal's complex index).
 #[test]
-fn mitsuba_plastics_become_principled_and_smooth_conductors_rough() {
+fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     let dir = temp_dir("mitsuba-plastic");
     let xml = |bsdfs: &str| {
-        let shapes: String = ["p1", "p2", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
+        let shapes: String = ["p1", "p2", "p3", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
         small_mitsuba_scene(&format!("{bsdfs}\n    {shapes}"))
     };
     let plastics = r#"    <bsdf type="plastic" id="p1"><string name="int_ior" value="bk7"/><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
     <bsdf type="roughplastic" id="p2"><float name="alpha" value="0.25"/><string name="distribution" value="ggx"/><float name="int_ior" value="1.333"/><boolean name="nonlinear" value="true"/><rgb name="diffuse_reflectance" value="0.5, 0.8, 1.0"/></bsdf>
+    <bsdf type="twosided" id="p3"><bsdf type="roughplastic"/></bsdf>
     <bsdf type="conductor" id="gold"><string name="material" value="Au"/></bsdf>"#;
     std::fs::write(dir.join("plastic.xml"), xml(plastics)).unwrap();
     let s = Scene::load(dir.join("plastic.xml")).unwrap();
     let material = |id: &str| s.materials.iter().find(|m| m.name == id).unwrap_or_else(|| panic!("no material {id}"));
-    let constants = |id: &str| {
+    let check = |id: &str, base: [f32; 3], roughness: f32, distribution: Distribution, ior: f64, nonlinear: bool, one_sided: bool| {
         let m = material(id);
-        assert_eq!(m.kind, vkinverse::scene::MaterialKind::Principled, "{id}");
-        let ColorValue::Constant(base) = m.base_color else { panic!("{id}: a constant base colour") };
-        (base.map(f64::from), m.roughness.clone(), m.metallic.clone())
+        assert_eq!(m.kind, vkinverse::scene::MaterialKind::Plastic, "{id}");
+        assert!(matches!(m.base_color, ColorValue::Constant(c) if c == base), "{id}: {m:?}");
+        assert!(matches!(m.roughness, ScalarValue::Constant(r) if (r - roughness).abs() < 1e-6), "{id}: {m:?}");
+        assert!((f64::from(m.ior) - ior).abs() < 1e-6, "{id}: ior {} against {ior}", m.ior);
+        assert_eq!((m.distribution, m.nonlinear, m.one_sided), (distribution, nonlinear, one_sided), "{id}");
     };
+    check("p1", [0.2, 0.4, 0.6], 0.0, Distribution::Ggx, 1.5046 / 1.000277, false, true);
+    check("p2", [0.5, 0.8, 1.0], 0.5, Distribution::Ggx, 1.333 / 1.000277, true, true);
+    // Mitsuba's defaults: alpha 0.1, Beckmann, polypropylene in air, diffuse 0.5.
+    check("p3", [0.5; 3], 0.1f32.sqrt(), Distribution::Beckmann, 1.49 / 1.000277, false, false);
 
-    // The smooth plastic, against Mitsuba's fits of the diffuse Fresnel reflectance.
+    // The smooth coating's internal reflectance against Mitsuba's fit for its smooth plastic.
     let eta = 1.5046 / 1.000277;
     let fdr_below_1 = |e: f64| 0.0636 / e + e * (e * -1.4399 + 0.7099) + 0.6681;
-    let fdr_above_1 = |e: f64| [0.919317, -3.4793, 6.75335, -7.80989, 4.98554, -1.36881].iter().rev().fold(0.0, |acc, c| acc / e + c);
-    let f_mean = 0.96 * 20.0 / 21.0;
-    let carry = ((1.0 - fdr_above_1(eta)) / f_mean).powi(2);
-    let (base, roughness, metallic) = constants("p1");
-    for (c, r) in [0.2, 0.4, 0.6].into_iter().enumerate() {
-        let expected = r / ((1.0 - fdr_below_1(1.0 / eta)) * eta * eta) * carry;
-        assert!((base[c] / expected - 1.0).abs() < 3e-3, "p1 channel {c}: {} against {expected}", base[c]);
-    }
-    assert!(matches!((roughness, metallic), (ScalarValue::Constant(0.0), ScalarValue::Constant(0.0))));
-    // About 1.08 brighter: the coating's internal reflections return more than its
-    // transmittance takes.
-    assert!((base[1] / 0.4 - 1.085).abs() < 0.005, "{base:?}");
+    let internal = vkinverse::bsdf::coating(false, 0.0, eta).1;
+    assert!((internal / fdr_below_1(1.0 / eta) - 1.0).abs() < 1e-12, "{internal} against {}", fdr_below_1(1.0 / eta));
 
-    // The rough, nonlinear one: ρ / b(ρ) = (1 − ρ R_int) / C is linear in ρ, with an
-    // internal reflectance below the smooth coating's (the rough interface lets out more
-    // of what total internal reflection would keep).
-    let (base, roughness, metallic) = constants("p2");
-    assert!(matches!((roughness, metallic), (ScalarValue::Constant(r), ScalarValue::Constant(0.0)) if (f64::from(r) - 0.5).abs() < 1e-6));
-    let y: Vec<f64> = [0.5, 0.8, 1.0].iter().zip(base).map(|(r, b)| r / b).collect();
-    let slope = (y[2] - y[0]) / 0.5;
-    assert!((y[1] - (y[0] + 0.3 * slope)).abs() < 1e-5, "ρ / b(ρ) is not linear: {y:?}");
-    let c = 1.0 / (y[0] - 0.5 * slope);
-    let r_int = -slope * c;
-    let eta = 1.333 / 1.000277;
-    assert!(r_int > 0.2 && r_int < fdr_below_1(1.0 / eta), "R_int {r_int}, the smooth coating's {}", fdr_below_1(1.0 / eta));
-    assert!((c * eta * eta - 1.0).abs() < 0.3, "{c}");
+    // Written back as TOML, the plastics load again as they were.
+    let out = dir.join("run");
+    write_final(&out, &s, &[]).unwrap();
+    let t = Scene::load(out.join("final/scene.toml")).unwrap();
+    for id in ["p1", "p2", "p3"] {
+        let (m, n) = (material(id), t.materials.iter().find(|m| m.name == id).unwrap());
+        assert_eq!((n.kind, n.distribution, n.ior, n.nonlinear, n.one_sided), (m.kind, m.distribution, m.ior, m.nonlinear, m.one_sided), "{id}");
+        assert!(matches!((&n.roughness, &m.roughness), (ScalarValue::Constant(a), ScalarValue::Constant(b)) if (a - b).abs() < 1e-6), "{id}");
+    }
+
     let gold = material("gold");
     assert_eq!(gold.kind, vkinverse::scene::MaterialKind::Conductor);
     assert_eq!([gold.eta, gold.k], vkinverse::scene::metal("Au").unwrap());
     assert!(matches!((&gold.base_color, gold.roughness.clone()), (ColorValue::Constant([1.0, 1.0, 1.0]), ScalarValue::Constant(0.0))), "{:?}", gold);
-    // One line each: the two plastics' approximations and the smooth conductor's roughness.
-    assert_eq!(s.warnings.len(), 3, "{:?}", s.warnings);
+    // One line each: the smooth plastic's and the smooth conductor's roughness.
+    assert_eq!(s.warnings.len(), 2, "{:?}", s.warnings);
     assert!(s.warnings.iter().all(|w| !w.contains('\n')));
-    assert!(s.warnings[0].contains("<bsdf type=\"plastic\" id=\"p1\">") && s.warnings[0].contains("F0 = 0.04 (the IOR's is 0.0405") && s.warnings[0].contains("scaled by 1.08"), "{}", s.warnings[0]);
-    assert!(s.warnings[1].contains("roughplastic") && s.warnings[1].contains("/ ((1 - reflectance 0.3") && s.warnings[1].contains("angular profile"), "{}", s.warnings[1]);
-    assert!(s.warnings[2].contains("<bsdf type=\"conductor\" id=\"gold\">") && s.warnings[2].contains("smallest roughness"), "{}", s.warnings[2]);
+    assert!(s.warnings[0].contains("<bsdf type=\"plastic\" id=\"p1\">") && s.warnings[0].contains("smallest roughness"), "{}", s.warnings[0]);
+    assert!(s.warnings[1].contains("<bsdf type=\"conductor\" id=\"gold\">") && s.warnings[1].contains("smallest roughness"), "{}", s.warnings[1]);
 
     // What the mapping cannot render is refused, naming the element.
     for (bsdf, needles) in [
@@ -970,7 +961,7 @@ fn mitsuba_plastics_become_principled_and_smooth_conductors_rough() {
         (r#"<bsdf type="plastic" id="p1"><float name="int_ior" value="1.000277"/></bsdf>"#, &["int_ior and ext_ior are equal"]),
         (r#"<bsdf type="roughplastic" id="p1"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "not supported"]),
     ] {
-        let rest = r#"<bsdf type="diffuse" id="p2"/><bsdf type="diffuse" id="gold"/>"#;
+        let rest = r#"<bsdf type="diffuse" id="p2"/><bsdf type="diffuse" id="p3"/><bsdf type="diffuse" id="gold"/>"#;
         std::fs::write(dir.join("bad.xml"), xml(&format!("    {bsdf}{rest}"))).unwrap();
         let msg = Scene::load(dir.join("bad.xml")).map(|_| ()).expect_err(bsdf).to_string();
         assert!(!msg.contains('\n'), "{msg}");

@@ -767,6 +767,38 @@ fn conductors_are_checked() {
     assert_message(&load_err("metal-metallic-param", &optimised), &["optimise.params[0].target", "conductor", "metallic"]);
 }
 
+/// A plastic: roughness 0.3, GGX, index 1.5 and linear by default; its diffuse
+/// reflectance (`base_color`) required and optimisable; its roughness a number (its
+/// coating's table is computed for it), not optimisable; no metallic; an index other than 1
+/// in [0.25, 4]; `nonlinear` only on a plastic.
+#[test]
+fn plastics_are_checked() {
+    let plastic = |extra: &str| BASE.replace("type = \"principled\"", &format!("type = \"plastic\"{extra}"));
+    let s = Scene::load(fixture("plastic-default", &plastic(""))).unwrap();
+    let m = &s.materials[0];
+    assert_eq!((m.kind.as_str(), m.distribution, m.ior, m.nonlinear), ("plastic", Distribution::Ggx, 1.5, false));
+    assert!(matches!(m.roughness, ScalarValue::Constant(r) if r == 0.3) && matches!(m.base_color, ColorValue::Constant(c) if c == [0.5; 3]), "{m:?}");
+    let s = Scene::load(fixture("plastic-set", &plastic("\nroughness = 0.1\ndistribution = \"beckmann\"\nior = 1.33\nnonlinear = true\none_sided = true"))).unwrap();
+    let m = &s.materials[0];
+    assert!(m.distribution == Distribution::Beckmann && m.ior == 1.33 && m.nonlinear && m.one_sided && matches!(m.roughness, ScalarValue::Constant(r) if r == 0.1), "{m:?}");
+    let no_base = BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"plastic\"");
+    assert_message(&load_err("plastic-no-base", &no_base), &["materials.m.base_color", "missing"]);
+    assert_message(&load_err("plastic-rough-texture", &plastic("\nroughness = { texture = \"tex.exr\" }")), &["materials.m.roughness", "number", "plastic"]);
+    assert_message(&load_err("plastic-metallic", &plastic("\nmetallic = 0.5")), &["materials.m.metallic", "plastic"]);
+    assert_message(&load_err("plastic-ior-one", &plastic("\nior = 1")), &["materials.m.ior", "is 1", "plastic"]);
+    assert_message(&load_err("plastic-ior-range", &plastic("\nior = 5")), &["materials.m.ior", "[0.25, 4]"]);
+    assert_message(&load_err("plastic-distribution", &plastic("\ndistribution = \"phong\"")), &["materials.m.distribution", "phong"]);
+    assert_message(&load_err("plastic-eta", &plastic("\neta = [1, 1, 1]\nk = [1, 1, 1]")), &["materials.m.eta", "conductor"]);
+    let principled = BASE.replace("type = \"principled\"", "type = \"principled\"\nnonlinear = true");
+    assert_message(&load_err("principled-nonlinear", &principled), &["materials.m.nonlinear", "plastic"]);
+    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\n", plastic(""));
+    Scene::load(fixture("plastic-param-base", &optimised)).unwrap();
+    for target in ["roughness", "metallic"] {
+        let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.{target}\"\ninit = 0.5\nrange = [0, 1]\n", plastic(""));
+        assert_message(&load_err(&format!("plastic-param-{target}"), &optimised), &["optimise.params[0].target", "plastic", target]);
+    }
+}
+
 /// A dielectric: white transmittance and index 1.5 by default, its index within
 /// [0.25, 4], its absorption finite and not negative (a thin one has none), no roughness, metallic, one-sidedness, normal map or alpha, no optimised
 /// roughness or metallic; an index only on a dielectric, a base colour required elsewhere.

@@ -51,6 +51,19 @@
 // the rough dielectric's reflection (see microfacet_terms); roughness is the principled
 // model's and can be optimised, as can base_color.
 //
+// "plastic" is a diffuse base under a dielectric coating on microfacets (Mitsuba 3's
+// `roughplastic`, of either distribution, with visible-normal sampling): the coating
+// mirrors with the Fresnel reflectance F(wo.h) of its index m.ior on the microfacets (the
+// conductor's terms with the real Fresnel term, untinted), and the light it transmits
+// reaches the base, whose reflectance base_color is raised by the coating's internal
+// reflections to base_color / (1 - m.internal) (base_color / (1 - base_color m.internal)
+// with m.nonlinear), and leaves through the coating again:
+//   diffuse = base / (pi eta^2) T(cos_o) T(cos_i) cos_i
+// where T is the coating's directional transmittance, tabulated at PLASTIC_TABLE_SIZE
+// cosines (bsdf_table) and m.internal its internal diffuse reflectance, both computed on
+// the host as Mitsuba computes them (src/bsdf.rs, coating). base_color can be optimised;
+// roughness and the index cannot (the table depends on them).
+//
 // "thin dielectric" is a sheet of no thickness with that interface on both faces (Mitsuba
 // 3's `thindielectric`): the light that enters it leaves it again, after any number of
 // internal reflections, on one side or the other, so it mirrors with R = F + (1 - F)^2 F /
@@ -71,6 +84,14 @@
 #ifndef BSDF_CONDUCTORS
 #define BSDF_CONDUCTORS true
 #endif
+// Likewise for MATERIAL_PLASTIC (lib/integrator.glsl: HAS_PLASTICS).
+#ifndef BSDF_PLASTICS
+#define BSDF_PLASTICS true
+#endif
+
+// Entry `index` of the table that starts at `table` (a plastic's transmittance): defined by
+// each kernel that includes this file, from wherever it keeps the tables.
+float bsdf_table(uint table, int index);
 
 const float BSDF_PI = 3.14159265358979;
 // Smallest GGX alpha: keeps D (peak 1 / (pi alpha^2) = 3.2e5) and its derivatives finite
@@ -505,6 +526,54 @@ vec3 conductor_value(Material m, MicrofacetTerms t) {
     return t.value * conductor_fresnel(t.oh, m.eta, m.k) * m.base_color;
 }
 
+// ---------------------------------------------------------------------------------------
+// The plastic (local frame, wo.z > 0, wi above the surface)
+// ---------------------------------------------------------------------------------------
+
+// The coating's directional transmittance at cos theta c in [0, 1]: its table's entries
+// at i / (PLASTIC_TABLE_SIZE - 1), interpolated linearly (as Mitsuba's lerp_gather).
+float plastic_transmittance(Material m, float c) {
+    float x = c * float(PLASTIC_TABLE_SIZE - 1u);
+    int i = min(int(x), int(PLASTIC_TABLE_SIZE) - 2);
+    return mix(bsdf_table(m.table, i), bsdf_table(m.table, i + 1), x - float(i));
+}
+
+// The coating's reflection terms at (wo, wi) with microfacet normal h.
+MicrofacetTerms plastic_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
+    return microfacet_terms(m.roughness, m.kind == MATERIAL_PLASTIC_BECKMANN, 1.0, wo, wi, h);
+}
+
+// The diffuse lobe per unit reflectance of the base as seen through the coating:
+// T(cos_o) T(cos_i) cos_i / (pi eta^2).
+float plastic_diffuse(Material m, vec3 wo, vec3 wi) {
+    return wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (BSDF_PI * m.ior * m.ior);
+}
+
+// The base's reflectance with the coating's internal reflections.
+vec3 plastic_base(Material m) {
+    return m.base_color / (1.0 - (m.nonlinear != 0u ? m.base_color * m.internal : vec3(m.internal)));
+}
+
+vec3 plastic_value(Material m, vec3 wo, vec3 wi, MicrofacetTerms t) {
+    float cos_t;
+    float spec = t.valid ? t.value * dielectric_fresnel(t.oh, m.ior, cos_t) : 0.0;
+    return vec3(spec) + plastic_base(m) * plastic_diffuse(m, wo, wi);
+}
+
+// The probability of sampling the coating's reflection at cos_o: Mitsuba's, (1 - T) w
+// against T (1 - w) with w = 1 / (1 + mean base_color).
+float plastic_specular_prob(Material m, float cos_o) {
+    float t = plastic_transmittance(m, cos_o);
+    float w = 1.0 / (1.0 + max((m.base_color.r + m.base_color.g + m.base_color.b) / 3.0, 0.0));
+    float spec = (1.0 - t) * w;
+    float total = spec + t * (1.0 - w);
+    return total > 0.0 ? spec / total : 1.0;
+}
+
+float plastic_pdf(float prob, vec3 wi, MicrofacetTerms t) {
+    return prob * (t.valid ? t.density : 0.0) + (1.0 - prob) * wi.z / BSDF_PI;
+}
+
 vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     if (BSDF_ROUGH_DIELECTRICS && material_is_rough_glass(m.kind)) {
         return rough_glass_value(m, rough_glass_terms(m, wo, wi, rough_glass_half(m, wo, wi)));
@@ -512,6 +581,9 @@ vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return vec3(0.0);
     if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
         return conductor_value(m, conductor_terms(m, wo, wi, normalize(wo + wi)));
+    }
+    if (BSDF_PLASTICS && material_is_plastic(m.kind)) {
+        return plastic_value(m, wo, wi, plastic_terms(m, wo, wi, normalize(wo + wi)));
     }
     if (material_is_dielectric(m.kind)) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
@@ -525,6 +597,9 @@ float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
     if (wo.z <= 0.0 || wi.z <= 0.0) return 0.0;
     if (BSDF_CONDUCTORS && material_is_conductor(m.kind)) {
         return conductor_terms(m, wo, wi, normalize(wo + wi)).density;
+    }
+    if (BSDF_PLASTICS && material_is_plastic(m.kind)) {
+        return plastic_pdf(plastic_specular_prob(m, wo.z), wi, plastic_terms(m, wo, wi, normalize(wo + wi)));
     }
     if (material_is_dielectric(m.kind)) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
@@ -560,6 +635,19 @@ vec3 ggx_sample_visible_normal(vec3 wo, float alpha, vec2 u) {
     // Section 4.3: back onto the hemisphere; section 3.4: unstretch.
     vec3 nh = p1 * t1 + p2 * t2 + sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2)) * vh;
     return normalize(vec3(alpha * nh.x, alpha * nh.y, max(0.0, nh.z)));
+}
+
+// The direction of a glossy and a diffuse lobe, from u: with probability `prob` (u.x <
+// prob) the mirror of wo about a visible normal h of either distribution, else a
+// cosine-weighted direction, h halfway between it and wo.
+vec3 bsdf_sample_two_lobes(float prob, bool beckmann, vec3 wo, float alpha, vec3 u, out vec3 h) {
+    if (u.x < prob) {
+        h = beckmann ? beckmann_sample_visible_normal(wo, alpha, u.yz) : ggx_sample_visible_normal(wo, alpha, u.yz);
+        return 2.0 * dot(wo, h) * h - wo;
+    }
+    vec3 wi = bsdf_sample_cosine_hemisphere(u.yz);
+    h = normalize(wo + wi);
+    return wi;
 }
 
 // ---------------------------------------------------------------------------------------
@@ -628,6 +716,22 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
         weight = conductor_value(m, t) / pdf;
         return true;
     }
+    if (BSDF_PLASTICS && material_is_plastic(m.kind)) {
+        // The coating's mirror with probability plastic_specular_prob, else the base.
+        float prob = plastic_specular_prob(m, wo_l.z);
+        vec3 h;
+        vec3 wi_l = bsdf_sample_two_lobes(prob, m.kind == MATERIAL_PLASTIC_BECKMANN, wo_l, bsdf_alpha(m.roughness), u, h);
+        if (wi_l.z <= 0.0) return false;
+        MicrofacetTerms t = plastic_terms(m, wo_l, wi_l, h);
+        pdf = plastic_pdf(prob, wi_l, t);
+        if (!(pdf > 0.0)) {
+            pdf = 0.0;
+            return false;
+        }
+        wi = shading_to_world(f, wi_l);
+        weight = plastic_value(m, wo_l, wi_l, t) / pdf;
+        return true;
+    }
     if (m.kind != MATERIAL_PRINCIPLED) {
         // Lambert: pdf cos_i / pi, weight base_color exactly.
         vec3 wi_l = bsdf_sample_cosine_hemisphere(u.yz);
@@ -638,15 +742,8 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
         return true;
     }
     vec2 p = bsdf_lobe_probabilities(m, wo_l.z);
-    vec3 wi_l;
     vec3 h;
-    if (u.x < p.y) {
-        h = ggx_sample_visible_normal(wo_l, bsdf_alpha(m.roughness), u.yz);
-        wi_l = 2.0 * dot(wo_l, h) * h - wo_l;
-    } else {
-        wi_l = bsdf_sample_cosine_hemisphere(u.yz);
-        h = normalize(wo_l + wi_l);
-    }
+    vec3 wi_l = bsdf_sample_two_lobes(p.y, false, wo_l, bsdf_alpha(m.roughness), u, h);
     if (wi_l.z <= 0.0) return false;
     PrincipledTerms t = principled_terms(m.roughness, wo_l, wi_l, h);
     pdf = principled_pdf(p, wi_l.z, t);
@@ -693,6 +790,13 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
         d_base_color = t.value * conductor_fresnel(t.oh, m.eta, m.k);
         float dalpha = bsdf_dalpha_droughness(m.roughness);
         if (dalpha != 0.0) d_roughness = conductor_value(m, t) * ((t.dln_d + t.dln_g1) * dalpha);
+        return;
+    }
+    if (BSDF_PLASTICS && material_is_plastic(m.kind)) {
+        // Through the base alone: d (b / (1 - r)) / db = 1 / (1 - r), and with nonlinear
+        // d (b / (1 - b r)) / db = 1 / (1 - b r)^2.
+        vec3 kept = 1.0 - (m.nonlinear != 0u ? m.base_color * m.internal : vec3(m.internal));
+        d_base_color = plastic_diffuse(m, wo_l, wi_l) / (m.nonlinear != 0u ? kept * kept : kept);
         return;
     }
     if (m.kind != MATERIAL_PRINCIPLED) {

@@ -50,11 +50,15 @@
 #include "lib/rng.glsl"
 #include "lib/sampling.glsl"
 #include "lib/scene_access.glsl"
-// The BSDF functions test for the rough dielectric and the conductor only where the scene
-// has one.
+// The BSDF functions test for the rough dielectric, the conductor and the plastic only
+// where the scene has one.
 #define BSDF_ROUGH_DIELECTRICS HAS_ROUGH_DIELECTRICS
 #define BSDF_CONDUCTORS HAS_CONDUCTORS
+#define BSDF_PLASTICS HAS_PLASTICS
 #include "lib/bsdf.glsl"
+
+// A plastic's table entries (lib/bsdf.glsl) are material data: constants after θ.
+float bsdf_table(uint table, int index) { return texel_float(Theta, int(CONST_BASE) + int(table) + index); }
 #include "lib/bvh_traverse.glsl"
 
 #ifdef GENERIC

@@ -65,11 +65,13 @@ MaterialRecord material_record(uint id) {
     r.alpha = value_ref(texel_load(Materials, b + 5));
     uvec4 t6 = texel_load(Materials, b + 6);
     r.absorption = uintBitsToFloat(t6.xyz);
-    r.pad3 = 0u;
-    r.eta = uintBitsToFloat(texel_load(Materials, b + 7).xyz);
-    r.pad4 = 0u;
-    r.k = uintBitsToFloat(texel_load(Materials, b + 8).xyz);
-    r.pad5 = 0u;
+    r.internal = uintBitsToFloat(t6.w);
+    uvec4 t7 = texel_load(Materials, b + 7);
+    r.eta = uintBitsToFloat(t7.xyz);
+    r.table = t7.w;
+    uvec4 t8 = texel_load(Materials, b + 8);
+    r.k = uintBitsToFloat(t8.xyz);
+    r.nonlinear = t8.w;
     return r;
 }
 
@@ -221,6 +223,9 @@ layout(constant_id = 20) const bool HAS_ROUGH_DIELECTRICS = true;
 // Whether any material is a conductor: without one the BSDF functions' conductor
 // (lib/bsdf.glsl, BSDF_CONDUCTORS) is compiled out and no material reads its complex index.
 layout(constant_id = 21) const bool HAS_CONDUCTORS = true;
+// Whether any material is a plastic: without one the BSDF functions' plastic
+// (lib/bsdf.glsl, BSDF_PLASTICS) is compiled out and no material reads its coating.
+layout(constant_id = 22) const bool HAS_PLASTICS = true;
 // Where the material data start in Theta: θ's length padded to whole texels.
 layout(constant_id = 14) const uint CONST_BASE = 0u;
 
@@ -435,9 +440,11 @@ Material fetch_material(uint id, vec2 uv, int state) {
     if (HAS_PRINCIPLED) {
         m.kind = r.kind;
     } else if (HAS_DIELECTRICS) {
-        m.kind = material_is_glass(r.kind) || material_is_conductor(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+        m.kind = material_is_glass(r.kind) || material_is_conductor(r.kind) || material_is_plastic(r.kind) ? r.kind : MATERIAL_DIFFUSE;
     } else if (HAS_CONDUCTORS) {
-        m.kind = material_is_conductor(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+        m.kind = material_is_conductor(r.kind) || material_is_plastic(r.kind) ? r.kind : MATERIAL_DIFFUSE;
+    } else if (HAS_PLASTICS) {
+        m.kind = material_is_plastic(r.kind) ? r.kind : MATERIAL_DIFFUSE;
     } else {
         m.kind = MATERIAL_DIFFUSE;
     }
@@ -448,6 +455,15 @@ Material fetch_material(uint id, vec2 uv, int state) {
     } else {
         m.eta = vec3(0.0);
         m.k = vec3(0.0);
+    }
+    if (HAS_PLASTICS) {
+        m.table = r.table;
+        m.internal = r.internal;
+        m.nonlinear = r.nonlinear;
+    } else {
+        m.table = 0u;
+        m.internal = 0.0;
+        m.nonlinear = 0u;
     }
     return m;
 }

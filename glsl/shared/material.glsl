@@ -11,11 +11,15 @@
 // MATERIAL_ROUGH_DIELECTRIC_BECKMANN likewise with Beckmann's distribution;
 // MATERIAL_CONDUCTOR: a metal on GGX microfacets, base_color its specular tint, eta and k
 // its complex index of refraction, metallic and ior ignored; MATERIAL_CONDUCTOR_BECKMANN
-// likewise with Beckmann's distribution), defined in src/constants.rs.
+// likewise with Beckmann's distribution; MATERIAL_PLASTIC: a diffuse base of reflectance
+// base_color under a dielectric coating of index ior on GGX microfacets, with the
+// coating's tabulated transmittance at `table` and its internal reflectance `internal`,
+// metallic ignored; MATERIAL_PLASTIC_BECKMANN likewise with Beckmann's distribution),
+// defined in src/constants.rs.
 #include "vkinverse_constants.glsl"
 
-// 52 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
-// ior 24, eta 28, k 40.
+// 64 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
+// ior 24, eta 28, k 40, table 52, internal 56, nonlinear 60.
 struct Material {
     vec3 base_color;
     float roughness;
@@ -30,6 +34,13 @@ struct Material {
     // medium outside (Mitsuba's `eta` and `k`). Unused by the other kinds.
     vec3 eta;
     vec3 k;
+    // A plastic's coating (Mitsuba's `roughplastic`): where its transmittance table starts
+    // (PLASTIC_TABLE_SIZE entries, read by bsdf_table), its internal diffuse reflectance,
+    // and 1 where the base's reflectance also scales the internal reflections (Mitsuba's
+    // `nonlinear`). Unused by the other kinds.
+    uint table;
+    float internal;
+    uint nonlinear;
 };
 
 // Whether `kind` is smooth glass of either kind (delta lobes, an index of refraction).
@@ -45,6 +56,11 @@ bool material_is_rough_glass(uint kind) {
 // Whether `kind` is a conductor, of either microfacet distribution.
 bool material_is_conductor(uint kind) {
     return kind == MATERIAL_CONDUCTOR || kind == MATERIAL_CONDUCTOR_BECKMANN;
+}
+
+// Whether `kind` is a plastic, of either microfacet distribution.
+bool material_is_plastic(uint kind) {
+    return kind == MATERIAL_PLASTIC || kind == MATERIAL_PLASTIC_BECKMANN;
 }
 
 // Whether `kind` is glass, smooth or rough (an index of refraction).

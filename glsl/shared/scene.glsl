@@ -27,7 +27,7 @@ struct MaterialRecord {
     uint one_sided;  // 1: black from behind (the back of its triangles' winding), as Mitsuba's BSDFs
     float alpha_cutoff;  // the surface is there where its alpha is at least this; negative:
                          // a blend, there with probability alpha
-    float ior;  // a dielectric's index of refraction, interior over exterior (0 otherwise)
+    float ior;  // a dielectric's or a plastic's index of refraction, interior over exterior (0 otherwise)
     // The normal map: a texture of tangent-space unit normals (x along the triangle's
     // tangent, y along its bitangent, z along the interpolated normal), already decoded
     // from the image's [0, 1] and scaled; width 0: none. Read only by scenes that have one.
@@ -40,13 +40,17 @@ struct MaterialRecord {
     // segment of length t inside keeps exp(-absorption t)); zero otherwise. Read only at a
     // dielectric's refractions.
     vec3 absorption;
-    uint pad3;
+    // A plastic's internal diffuse reflectance (Material.internal); zero otherwise.
+    float internal;
     // A conductor's complex index of refraction eta + i k; zero otherwise. Read only by
     // scenes that have a conductor.
     vec3 eta;
-    uint pad4;
+    // A plastic's transmittance table: its first entry's index in the material data
+    // (after θ, from CONST_BASE on); zero otherwise.
+    uint table;
     vec3 k;
-    uint pad5;
+    // A plastic's `nonlinear` (Material.nonlinear); zero otherwise.
+    uint nonlinear;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).

@@ -23,7 +23,7 @@ use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline
 use crate::image::Image;
 use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{
-    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN,
+    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
 };
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
@@ -61,6 +61,9 @@ pub struct GpuScene {
     /// Whether any material is a conductor: the kernels' HAS_CONDUCTORS, without which the
     /// BSDF functions do not test for it and no material reads its complex index.
     pub has_conductors: bool,
+    /// Whether any material is a plastic: the kernels' HAS_PLASTICS, without which the
+    /// BSDF functions do not test for it and no material reads its coating.
+    pub has_plastics: bool,
     /// Whether any triangle has vertex normals; without them the kernels shade with the
     /// geometric normal and read no vertex normals.
     pub has_normals: bool,
@@ -263,6 +266,27 @@ impl LuminanceTable {
     }
 }
 
+/// A plastic's coating ([`crate::bsdf::coating`]) for its roughness, distribution and
+/// index; None for the other kinds. Computed once per combination in a process (a few
+/// hundred milliseconds each).
+fn plastic_coating(m: &crate::scene::Material) -> Option<([f64; crate::bsdf::TABLE], f64)> {
+    type Key = (bool, u32, u32);
+    static CACHE: std::sync::Mutex<Vec<(Key, ([f64; crate::bsdf::TABLE], f64))>> = std::sync::Mutex::new(Vec::new());
+    if m.kind != MaterialKind::Plastic {
+        return None;
+    }
+    let ScalarValue::Constant(roughness) = m.roughness else { unreachable!("a plastic's roughness is a constant (the loaders refuse a texture)") };
+    let beckmann = m.distribution == crate::scene::Distribution::Beckmann;
+    let key = (beckmann, roughness.to_bits(), m.ior.to_bits());
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, c)) = cache.iter().find(|(k, _)| *k == key) {
+        return Some(*c);
+    }
+    let c = crate::bsdf::coating(beckmann, f64::from(roughness), f64::from(m.ior));
+    cache.push((key, c));
+    Some(c)
+}
+
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
@@ -340,6 +364,14 @@ impl GpuScene {
                 let base = color_ref(&mut data, &m.base_color);
                 let rough = scalar_ref(&mut data, &m.roughness);
                 let metal = scalar_ref(&mut data, &m.metallic);
+                // A plastic's coating: its transmittance table in the material data.
+                let (internal, table) = match plastic_coating(m) {
+                    Some((transmittance, internal)) => {
+                        let entries: Vec<f32> = transmittance.iter().map(|t| *t as f32).collect();
+                        (internal as f32, push_value(&mut data, &entries, None).offset as u32)
+                    }
+                    None => (0.0, 0),
+                };
                 MaterialRecord {
                     base_color: pick(ParamTarget::BaseColor { material: i }, base),
                     roughness: pick(ParamTarget::Roughness { material: i }, rough),
@@ -353,6 +385,8 @@ impl GpuScene {
                         MaterialKind::RoughDielectric => MATERIAL_ROUGH_DIELECTRIC,
                         MaterialKind::Conductor if m.distribution == crate::scene::Distribution::Beckmann => MATERIAL_CONDUCTOR_BECKMANN,
                         MaterialKind::Conductor => MATERIAL_CONDUCTOR,
+                        MaterialKind::Plastic if m.distribution == crate::scene::Distribution::Beckmann => MATERIAL_PLASTIC_BECKMANN,
+                        MaterialKind::Plastic => MATERIAL_PLASTIC,
                     },
                     one_sided: m.one_sided as u32,
                     // Blend: a negative cutoff, for which the kernels draw one per ray.
@@ -361,15 +395,15 @@ impl GpuScene {
                         Some(AlphaMode::Mask { cutoff }) => cutoff,
                         Some(AlphaMode::Blend) => -1.0,
                     },
-                    ior: if m.kind.is_dielectric() { m.ior } else { 0.0 },
+                    ior: if m.kind.has_ior() { m.ior } else { 0.0 },
                     normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                     absorption: m.absorption,
-                    pad: 0,
+                    internal,
                     eta: m.eta,
-                    pad_eta: 0,
+                    table,
                     k: m.k,
-                    pad_k: 0,
+                    nonlinear: m.nonlinear as u32,
                 }
             })
             .collect();
@@ -545,6 +579,7 @@ impl GpuScene {
         let has_dielectrics = scene.materials.iter().any(|m| m.kind.is_dielectric());
         let has_rough_dielectrics = scene.materials.iter().any(|m| m.kind == MaterialKind::RoughDielectric);
         let has_conductors = scene.materials.iter().any(|m| m.kind == MaterialKind::Conductor);
+        let has_plastics = scene.materials.iter().any(|m| m.kind == MaterialKind::Plastic);
         let has_normals = shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]);
 
         let aspect = scene.film.width as f32 / scene.film.height as f32;
@@ -592,6 +627,7 @@ impl GpuScene {
             has_dielectrics,
             has_rough_dielectrics,
             has_conductors,
+            has_plastics,
             has_normals,
             has_normal_maps,
             has_emission_textures,
@@ -680,6 +716,7 @@ impl GpuScene {
             ("HAS_DIELECTRICS", SpecValue::Bool(self.has_dielectrics)),
             ("HAS_ROUGH_DIELECTRICS", SpecValue::Bool(self.has_rough_dielectrics)),
             ("HAS_CONDUCTORS", SpecValue::Bool(self.has_conductors)),
+            ("HAS_PLASTICS", SpecValue::Bool(self.has_plastics)),
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {

@@ -68,6 +68,7 @@ pub enum MaterialType {
     #[serde(rename = "rough_dielectric")]
     RoughDielectric,
     Conductor,
+    Plastic,
 }
 
 impl MaterialType {
@@ -79,6 +80,7 @@ impl MaterialType {
             Self::ThinDielectric => "thin_dielectric",
             Self::RoughDielectric => "rough_dielectric",
             Self::Conductor => "conductor",
+            Self::Plastic => "plastic",
         }
     }
 
@@ -94,7 +96,12 @@ impl MaterialType {
 
     /// Whether the material has a distribution of microfacets to choose.
     pub fn has_distribution(self) -> bool {
-        matches!(self, Self::RoughDielectric | Self::Conductor)
+        matches!(self, Self::RoughDielectric | Self::Conductor | Self::Plastic)
+    }
+
+    /// Whether the material has an index of refraction (glass, and a plastic's coating).
+    pub fn has_ior(self) -> bool {
+        self.is_dielectric() || self == Self::Plastic
     }
 }
 
@@ -126,9 +133,12 @@ pub struct MaterialFile {
     /// A dielectric's interior absorption coefficient per unit length, per channel (0 by
     /// default). Only with `type = "dielectric"`.
     pub absorption: Option<[f32; 3]>,
-    /// A rough dielectric's or a conductor's distribution of microfacets: "ggx" (the
-    /// default) or "beckmann".
+    /// A rough dielectric's, a conductor's or a plastic's distribution of microfacets:
+    /// "ggx" (the default) or "beckmann".
     pub distribution: Option<String>,
+    /// A plastic's `nonlinear` (Mitsuba's): the base's reflectance also scales the light
+    /// that the coating reflects back into it, which saturates colours. False by default.
+    pub nonlinear: Option<bool>,
     /// A conductor's named metal (its complex index of refraction); "none", a perfect
     /// mirror, by default. Not with `eta` and `k`.
     pub metal: Option<String>,

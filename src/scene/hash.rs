@@ -116,8 +116,11 @@ pub fn content_hash(scene: &Scene) -> u64 {
                 h.f32s(&[cutoff]);
             }
         }
-        if m.kind.is_dielectric() {
+        if m.kind.has_ior() {
             h.f32s(&[m.ior]);
+        }
+        if m.nonlinear {
+            h.tag("nonlinear");
         }
         if m.absorption != [0.0; 3] {
             h.tag("absorption");

@@ -424,8 +424,11 @@ impl Loader {
                 (None, kind) if kind.is_dielectric() || kind == MaterialKind::Conductor => ColorValue::Constant([1.0; 3]),
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
-            if m.ior.is_some() && !m.kind.is_dielectric() {
-                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's (type = \"dielectric\", \"thin_dielectric\" or \"rough_dielectric\")"));
+            if m.ior.is_some() && !m.kind.has_ior() {
+                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's or a plastic's (type = \"dielectric\", \"thin_dielectric\", \"rough_dielectric\" or \"plastic\")"));
+            }
+            if m.nonlinear.is_some() && m.kind != MaterialKind::Plastic {
+                return Err(self.invalid(&format!("{key}.nonlinear"), "is a plastic's (type = \"plastic\")"));
             }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
@@ -474,6 +477,18 @@ impl Loader {
                     let roughness = m.roughness.unwrap_or(ScalarInput::Constant(DEFAULT_MICROFACET_ROUGHNESS));
                     (self.scalar_value(&format!("{key}.roughness"), roughness)?, ScalarValue::Constant(0.0))
                 }
+                MaterialKind::Plastic => {
+                    if m.metallic.is_some() {
+                        return Err(self.invalid(&format!("{key}.metallic"), "is not a plastic's (its base is diffuse, its coating a dielectric)"));
+                    }
+                    let roughness = match m.roughness {
+                        Some(ScalarInput::Texture(_)) => {
+                            return Err(self.invalid(&format!("{key}.roughness"), "must be a number for a plastic (its coating's transmittance is tabulated for one roughness)"));
+                        }
+                        r => r.unwrap_or(ScalarInput::Constant(DEFAULT_MICROFACET_ROUGHNESS)),
+                    };
+                    (self.scalar_value(&format!("{key}.roughness"), roughness)?, ScalarValue::Constant(0.0))
+                }
             };
             let absorption = match m.absorption {
                 None => [0.0; 3],
@@ -498,7 +513,7 @@ impl Loader {
             let distribution = match m.distribution.as_deref() {
                 None => Distribution::Ggx,
                 Some(_) if !m.kind.has_distribution() => {
-                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's or a conductor's (type = \"rough_dielectric\" or \"conductor\")"));
+                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's, a conductor's or a plastic's (type = \"rough_dielectric\", \"conductor\" or \"plastic\")"));
                 }
                 Some("ggx") => Distribution::Ggx,
                 Some("beckmann") => Distribution::Beckmann,
@@ -507,6 +522,9 @@ impl Loader {
             let [eta, k] = self.complex_ior(&key, m.kind, m.metal.as_deref(), m.eta, m.k)?;
             if m.kind == MaterialKind::RoughDielectric && ior == 1.0 {
                 return Err(self.invalid(&format!("{key}.ior"), "is 1: a rough dielectric needs two different media (its refraction would be a delta)"));
+            }
+            if m.kind == MaterialKind::Plastic && ior == 1.0 {
+                return Err(self.invalid(&format!("{key}.ior"), "is 1: a plastic's coating needs two different media (it would reflect nothing)"));
             }
             let normal_map = match m.normal_map {
                 None => None,
@@ -563,6 +581,7 @@ impl Loader {
                 distribution,
                 eta,
                 k,
+                nonlinear: m.nonlinear.unwrap_or(false),
             });
         }
         Ok(out)

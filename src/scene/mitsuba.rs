@@ -38,7 +38,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use glam::{DVec3, Mat3, Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec3};
 use roxmltree::{Document, Node};
 
 use super::loader::Imported;
@@ -78,97 +78,6 @@ const IORS: [(&str, f32); 23] = [
     ("pet", 1.5750),
     ("diamond", 2.419),
 ];
-
-/// The unpolarised Fresnel reflectance of light arriving at cosine `cos_i` on an interface
-/// into a medium of relative index `eta` (total internal reflection gives 1).
-fn fresnel_dielectric(cos_i: f64, eta: f64) -> f64 {
-    let sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta);
-    if sin_t2 >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin_t2).sqrt();
-    let rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    let rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    0.5 * (rs * rs + rp * rp)
-}
-
-/// A GGX microfacet normal of roughness `alpha` visible from `wi` (z up, `wi.z` > 0), for
-/// the point `u` of the unit square (Heitz 2018, "Sampling the GGX distribution of visible
-/// normals"); `alpha` 0 gives the macro normal.
-fn ggx_visible_normal(wi: DVec3, alpha: f64, u: [f64; 2]) -> DVec3 {
-    let vh = DVec3::new(alpha * wi.x, alpha * wi.y, wi.z).normalize();
-    let len2 = vh.x * vh.x + vh.y * vh.y;
-    let t1 = if len2 > 0.0 { DVec3::new(-vh.y, vh.x, 0.0) / len2.sqrt() } else { DVec3::X };
-    let t2 = vh.cross(t1);
-    let (r, phi) = (u[0].sqrt(), 2.0 * std::f64::consts::PI * u[1]);
-    let p1 = r * phi.cos();
-    let s = 0.5 * (1.0 + vh.z);
-    let p2 = (1.0 - s) * (1.0 - p1 * p1).sqrt() + s * r * phi.sin();
-    let nh = p1 * t1 + p2 * t2 + (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt() * vh;
-    DVec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(0.0)).normalize()
-}
-
-/// Smith's masking of direction `w` by GGX microfacets of roughness `alpha` around normal
-/// `m` (0 where `w` sees the facet's back).
-fn ggx_masking(w: DVec3, m: DVec3, alpha: f64) -> f64 {
-    if w.dot(m) * w.z <= 0.0 {
-        return 0.0;
-    }
-    let tan2 = alpha * alpha * (w.x * w.x + w.y * w.y) / (w.z * w.z);
-    2.0 / (1.0 + (1.0 + tan2).sqrt())
-}
-
-/// The directional reflectance and transmittance of a rough dielectric interface (GGX of
-/// roughness `alpha`, relative index `eta`) for light arriving at cosine `mu` from the side
-/// its normal points to: the energy reflected and refracted once, the mean over visible
-/// normals m of F(wi·m) and 1 − F(wi·m), each times the masking of the direction it
-/// leaves in (midpoint rule on a `k` × `k` grid). Smooth (`alpha` 0): F(mu) and 1 − F(mu).
-fn rough_dielectric(mu: f64, alpha: f64, eta: f64, k: usize) -> (f64, f64) {
-    let wi = DVec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
-    let (mut r, mut t) = (0.0, 0.0);
-    for a in 0..k {
-        for b in 0..k {
-            let m = ggx_visible_normal(wi, alpha, [(a as f64 + 0.5) / k as f64, (b as f64 + 0.5) / k as f64]);
-            let cos_i = wi.dot(m);
-            let f = fresnel_dielectric(cos_i, eta);
-            let wr = 2.0 * cos_i * m - wi;
-            if wr.z > 0.0 {
-                r += f * ggx_masking(wr, m, alpha);
-            }
-            let sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta);
-            if f < 1.0 && sin_t2 < 1.0 {
-                let wt = (cos_i / eta - (1.0 - sin_t2).sqrt()) * m - wi / eta;
-                if wt.z < 0.0 {
-                    t += (1.0 - f) * ggx_masking(wt, m, alpha);
-                }
-            }
-        }
-    }
-    let n = (k * k) as f64;
-    (r / n, t / n)
-}
-
-/// What a coating of relative index `eta` and roughness `alpha` does to the diffuse
-/// reflection of the layer beneath, as Mitsuba's plastic and roughplastic model it:
-/// reflectance ρ becomes ρ / (1 − R_int) · t(θi) t(θo) / η², with t the coating's
-/// directional transmittance and R_int its internal diffuse reflectance, 2∫ R(μ, 1/η) μ dμ.
-/// Returns R_int and the factor that carries t(θi) t(θo) over to the principled model's
-/// diffuse Fresnel factors (1 − F_d(θi)) (1 − F_d(θo)), F_d Schlick's with 0.04: the square
-/// of the ratio of their cosine-weighted means, so that the lobe's albedo, averaged over
-/// directions, is the same.
-fn coating(eta: f64, alpha: f64) -> (f64, f64) {
-    const MU: usize = 256;
-    let k = if alpha > 0.0 { 24 } else { 1 };
-    let (mut r_int, mut t_mean, mut f_mean) = (0.0, 0.0, 0.0);
-    for i in 0..MU {
-        let mu = (i as f64 + 0.5) / MU as f64;
-        let w = 2.0 * mu / MU as f64;
-        r_int += w * rough_dielectric(mu, alpha, 1.0 / eta, k).0;
-        t_mean += w * rough_dielectric(mu, alpha, eta, k).1;
-        f_mean += w * (1.0 - (0.04 + 0.96 * (1.0 - mu).powi(5)));
-    }
-    (r_int, (t_mean / f_mean).powi(2))
-}
 
 type Items<'a, 'i> = Vec<Node<'a, 'i>>;
 
@@ -750,6 +659,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 distribution: Distribution::Ggx,
                 eta: [0.0; 3],
                 k: [0.0; 3],
+                nonlinear: false,
             },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
@@ -771,7 +681,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3] }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
@@ -839,58 +749,30 @@ impl<'a, 'i> Importer<'a, 'i> {
                 glass
             }
             "plastic" | "roughplastic" => {
-                let (alpha, _) = self.microfacet_alpha(&mut items, node, kind == "roughplastic", false)?;
+                let rough = kind == "roughplastic";
+                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, rough, true)?;
+                if rough {
+                    // Sampling only: the same material either way.
+                    self.take_bool(&mut items, "sample_visible", true)?;
+                } else {
+                    self.warn(node, "approximate: a smooth plastic's mirror reflection is rendered as a lobe of the smallest roughness (alpha 0.001)");
+                }
                 let int_ior = self.ior(&mut items, "int_ior", "polypropylene")?;
                 let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
                 if int_ior == ext_ior {
                     return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
                 }
-                let eta = f64::from(int_ior) / f64::from(ext_ior);
+                let eta = int_ior / ext_ior;
+                if !(MIN_IOR..=MAX_IOR).contains(&eta) {
+                    return Err(self.err(node, format!("int_ior / ext_ior = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
+                }
                 let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
                 let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
                 if tint != [1.0; 3] {
                     return Err(self.err(node, "only specular_reflectance 1 is supported"));
                 }
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
-                if kind == "roughplastic" {
-                    // Sampling only: the same material either way.
-                    self.take_bool(&mut items, "sample_visible", true)?;
-                }
-                // The coated diffuse lobe (see `coating`; ρ·R_int in the denominator with
-                // `nonlinear`) as the principled model's, whose base colour takes the factors.
-                let (r_int, carry) = coating(eta, f64::from(alpha));
-                let base = |r: f32| {
-                    let r = f64::from(r);
-                    let kept = 1.0 - (if nonlinear { r } else { 1.0 }) * r_int;
-                    (r / (kept * eta * eta) * carry) as f32
-                };
-                let base_color = match diffuse {
-                    ColorValue::Constant(c) => ColorValue::Constant(c.map(base)),
-                    ColorValue::Texture(mut t) => {
-                        std::sync::Arc::make_mut(&mut t.image).data.iter_mut().for_each(|px| *px = px.map(base));
-                        ColorValue::Texture(t)
-                    }
-                };
-                let f0 = ((eta - 1.0) / (eta + 1.0)).powi(2);
-                let scale = if nonlinear { format!("{carry:.4} / ((1 - reflectance {r_int:.4}) eta^2)") } else { format!("{:.4}", base(1.0)) };
-                self.warn(node, format!(
-                    "approximate: rendered as a principled dielectric: Fresnel terms Schlick's with F0 = 0.04 (the IOR's is {f0:.4}, eta = {eta:.4}), the diffuse reflectance scaled by {scale} for the coating's reflections (internal {r_int:.4}), its transmittance's angular profile as the principled model's"
-                ));
-                Material {
-                    name: name.into(),
-                    kind: MaterialKind::Principled,
-                    base_color,
-                    roughness: ScalarValue::Constant(alpha.sqrt()),
-                    metallic: ScalarValue::Constant(0.0),
-                    one_sided,
-                    normal_map: None,
-                    alpha: None,
-                    ior: DEFAULT_IOR,
-                    absorption: [0.0; 3],
-                    distribution: Distribution::Ggx,
-                eta: [0.0; 3],
-                k: [0.0; 3],
-                }
+                Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta, nonlinear, one_sided)
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
         };
@@ -985,8 +867,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],
             distribution: Distribution::Ggx,
-                eta: [0.0; 3],
-                k: [0.0; 3],
+            eta: [0.0; 3],
+            k: [0.0; 3],
+            nonlinear: false,
         });
         self.out.materials.len() - 1
     }
@@ -1441,71 +1324,4 @@ fn sphere(center: Vec3, radius: f32) -> Geometry {
         }
     }
     g
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use std::f64::consts::PI;
-
-    fn ggx_d(m: DVec3, alpha: f64) -> f64 {
-        let a2 = alpha * alpha;
-        a2 / (PI * (m.z * m.z * (a2 - 1.0) + 1.0).powi(2))
-    }
-
-    /// The rough interface's reflectance and transmittance by integrating its BRDF and BTDF
-    /// (Walter et al. 2007, separable Smith masking) over a grid of outgoing directions: the
-    /// half-vector Jacobians instead of `rough_dielectric`'s visible-normal quadrature.
-    fn brute_force(mu: f64, alpha: f64, eta: f64) -> (f64, f64) {
-        let wi = DVec3::new((1.0 - mu * mu).sqrt(), 0.0, mu);
-        let n = 1200;
-        let (mut r, mut t) = (0.0, 0.0);
-        for a in 0..n {
-            let theta = (a as f64 + 0.5) / n as f64 * PI;
-            for b in 0..n {
-                let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
-                let wo = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
-                let dw = theta.sin() * (PI / n as f64) * (2.0 * PI / n as f64);
-                if wo.z > 0.0 {
-                    let m = (wi + wo).normalize();
-                    let g = ggx_masking(wi, m, alpha) * ggx_masking(wo, m, alpha);
-                    r += fresnel_dielectric(wi.dot(m), eta) * ggx_d(m, alpha) * g / (4.0 * mu) * dw;
-                } else {
-                    let mut m = (wi + eta * wo).normalize();
-                    if m.z < 0.0 {
-                        m = -m;
-                    }
-                    let (ci, co) = (wi.dot(m), wo.dot(m));
-                    if ci <= 0.0 || co >= 0.0 {
-                        continue;
-                    }
-                    let g = ggx_masking(wi, m, alpha) * ggx_masking(wo, m, alpha);
-                    let jacobian = eta * eta * co.abs() / (ci + eta * co).powi(2);
-                    t += (1.0 - fresnel_dielectric(ci, eta)) * ci * ggx_d(m, alpha) * g / mu * jacobian * dw;
-                }
-            }
-        }
-        (r, t)
-    }
-
-    #[test]
-    fn a_smooth_interface_reflects_and_transmits_as_fresnel_says() {
-        for (mu, eta) in [(1.0, 1.5), (0.3, 1.5), (0.05, 1.33), (0.9, 1.0 / 1.5), (0.5, 1.0 / 1.5)] {
-            let (r, t) = rough_dielectric(mu, 0.0, eta, 1);
-            let f = fresnel_dielectric(mu, eta);
-            assert!((r - f).abs() < 1e-12 && (t - (1.0 - f)).abs() < 1e-12, "mu {mu} eta {eta}: {r} {t} against {f}");
-        }
-        // Inside, beyond the critical angle: everything comes back.
-        assert_eq!(rough_dielectric(0.5, 0.0, 1.0 / 1.5, 1), (1.0, 0.0));
-    }
-
-    #[test]
-    fn rough_interface_albedos_match_a_direct_integral_of_the_bsdf() {
-        for (mu, alpha, eta) in [(0.7, 0.3, 1.5), (0.95, 0.5, 1.5), (0.9, 0.3, 1.0 / 1.5), (0.4, 0.5, 1.0 / 1.33)] {
-            let (r, t) = rough_dielectric(mu, alpha, eta, 64);
-            let (rb, tb) = brute_force(mu, alpha, eta);
-            assert!(r + t <= 1.0 + 1e-9, "mu {mu} alpha {alpha} eta {eta}: R + T = {}", r + t);
-            assert!((r - rb).abs() < 0.01 * rb.max(0.02) && (t - tb).abs() < 0.01 * tb.max(0.02), "mu {mu} alpha {alpha} eta {eta}: R {r} against {rb}, T {t} against {tb}");
-        }
-    }
 }

@@ -124,8 +124,8 @@ pub struct Material {
     /// Cuts the surface out where its alpha is below a threshold (never optimised).
     pub alpha: Option<AlphaMask>,
     /// A dielectric's index of refraction, its interior (the back of its triangles; a thin
-    /// dielectric's sheet) over its exterior, in [MIN_IOR, MAX_IOR] (never optimised); [`DEFAULT_IOR`] and unused
-    /// for the other kinds.
+    /// dielectric's sheet) over its exterior, in [MIN_IOR, MAX_IOR] (never optimised); a
+    /// plastic's coating's likewise; [`DEFAULT_IOR`] and unused for the other kinds.
     pub ior: f32,
     /// A (refracting) dielectric's interior absorption coefficient per unit length, per
     /// channel, at least 0: a ray that travels a distance t inside keeps exp(−absorption t)
@@ -138,9 +138,13 @@ pub struct Material {
     /// medium outside (never optimised); zero for the other kinds.
     pub eta: [f32; 3],
     pub k: [f32; 3],
+    /// A plastic's `nonlinear`: its base's reflectance scales the internal reflections
+    /// too (never optimised); false for the other kinds.
+    pub nonlinear: bool,
 }
 
-/// The distribution of a rough dielectric's or a conductor's microfacet normals.
+/// The distribution of a rough dielectric's, a conductor's or a plastic's microfacet
+/// normals.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Distribution {
     /// Trowbridge–Reitz (GGX), as the principled model's.
@@ -179,6 +183,7 @@ impl Material {
             distribution: Distribution::Ggx,
             eta: [0.0; 3],
             k: [0.0; 3],
+            nonlinear: false,
         }
     }
 }
@@ -201,6 +206,30 @@ impl Material {
             distribution,
             eta,
             k,
+            nonlinear: false,
+        }
+    }
+
+    /// A plastic with diffuse reflectance `base_color` under a coating of index `ior`
+    /// (interior over exterior) on microfacets of `roughness` (a constant: the coating's
+    /// transmittance is tabulated for it) and `distribution`: no metallic, normal map or
+    /// alpha.
+    pub fn plastic(name: String, base_color: ColorValue, roughness: f32, distribution: Distribution, ior: f32, nonlinear: bool, one_sided: bool) -> Self {
+        Self {
+            name,
+            kind: MaterialKind::Plastic,
+            base_color,
+            roughness: ScalarValue::Constant(roughness),
+            metallic: ScalarValue::Constant(0.0),
+            one_sided,
+            normal_map: None,
+            alpha: None,
+            ior,
+            absorption: [0.0; 3],
+            distribution,
+            eta: [0.0; 3],
+            k: [0.0; 3],
+            nonlinear,
         }
     }
 }

@@ -177,14 +177,17 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 ScalarValue::Texture(t) => tex(key, t)?,
             })
         };
-        if m.kind.has_roughness() {
+        if m.kind.has_roughness() || m.kind == MaterialKind::Plastic {
             pairs.push(("roughness", scalar("roughness", &m.roughness)?));
         }
         if m.kind == MaterialKind::Principled {
             pairs.push(("metallic", scalar("metallic", &m.metallic)?));
         }
-        if m.kind.is_dielectric() {
+        if m.kind.has_ior() {
             pairs.push(("ior", Value::Float(num(m.ior))));
+        }
+        if m.nonlinear {
+            pairs.push(("nonlinear", Value::Boolean(true)));
         }
         if m.absorption != [0.0; 3] {
             pairs.push(("absorption", arr(&m.absorption)));
