@@ -561,6 +561,16 @@ pub fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
 /// way for η > 1, 128 otherwise, where total internal reflection makes the integrand
 /// jump).
 pub fn coating_albedo(beckmann: bool, alpha: f64, eta: f64, mu: f64, transmit: bool) -> f64 {
+    albedo_by_rule(&coating_rule(eta), beckmann, alpha, eta, mu, transmit)
+}
+
+/// The Gauss–Legendre rule [`coating_albedo`] uses for an interface of index `eta`.
+fn coating_rule(eta: f64) -> Vec<(f64, f64)> {
+    gauss_legendre(if eta > 1.0 { 32 } else { 128 })
+}
+
+/// [`coating_albedo`] with the rule given, so that a table computes it once.
+fn albedo_by_rule(rule: &[(f64, f64)], beckmann: bool, alpha: f64, eta: f64, mu: f64, transmit: bool) -> f64 {
     let g1 = |v: DVec3, m: DVec3| {
         if v.dot(m) * v.z <= 0.0 {
             0.0
@@ -570,11 +580,10 @@ pub fn coating_albedo(beckmann: bool, alpha: f64, eta: f64, mu: f64, transmit: b
             ggx_g1(v, alpha).0
         }
     };
-    let rule = gauss_legendre(if eta > 1.0 { 32 } else { 128 });
     let wi = DVec3::new((1.0 - mu * mu).max(0.0).sqrt(), 0.0, mu);
     let mut sum = 0.0;
-    for &(x, wx) in &rule {
-        for &(y, wy) in &rule {
+    for &(x, wx) in rule {
+        for &(y, wy) in rule {
             let m = sample_visible_normal(beckmann, wi, alpha, DVec3::new(0.0, 0.5 * x + 0.5, 0.5 * y + 0.5));
             let c = wi.dot(m);
             let (f, cos_t) = dielectric_fresnel(c, eta);
@@ -606,8 +615,9 @@ pub fn coating(beckmann: bool, roughness: f64, eta: f64) -> ([f64; TABLE], f64) 
         return (std::array::from_fn(|i| 1.0 - dielectric_fresnel(mu(i), eta).0), fresnel_diffuse_reflectance(1.0 / eta));
     }
     let a = alpha(roughness);
-    let transmittance = std::array::from_fn(|i| coating_albedo(beckmann, a, eta, mu(i), true));
-    let internal = 2.0 * (0..TABLE).map(|i| coating_albedo(beckmann, a, 1.0 / eta, mu(i), false) * mu(i)).sum::<f64>() / TABLE as f64;
+    let (outside, inside) = (coating_rule(eta), coating_rule(1.0 / eta));
+    let transmittance = std::array::from_fn(|i| albedo_by_rule(&outside, beckmann, a, eta, mu(i), true));
+    let internal = 2.0 * (0..TABLE).map(|i| albedo_by_rule(&inside, beckmann, a, 1.0 / eta, mu(i), false) * mu(i)).sum::<f64>() / TABLE as f64;
     (transmittance, internal)
 }
 

@@ -721,12 +721,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 if !one_sided {
                     return Err(self.err(node, "a dielectric has two sides of its own: remove the twosided around it"));
                 }
-                let int_ior = self.ior(&mut items, "int_ior", "bk7")?;
-                let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
-                let eta = int_ior / ext_ior;
-                if !(MIN_IOR..=MAX_IOR).contains(&eta) {
-                    return Err(self.err(node, format!("int_ior / ext_ior = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
-                }
+                let eta = self.relative_ior(&mut items, node, "bk7")?;
                 if let Some(n) = self.take(&mut items, "specular_reflectance") {
                     if self.rgb(n)? != [1.0; 3] {
                         return Err(self.err(n, "only 1 is supported (the reflection is untinted)"));
@@ -757,14 +752,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                 } else {
                     self.warn(node, "approximate: a smooth plastic's mirror reflection is rendered as a lobe of the smallest roughness (alpha 0.001)");
                 }
-                let int_ior = self.ior(&mut items, "int_ior", "polypropylene")?;
-                let ext_ior = self.ior(&mut items, "ext_ior", "air")?;
-                if int_ior == ext_ior {
+                let eta = self.relative_ior(&mut items, node, "polypropylene")?;
+                if eta == 1.0 {
                     return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
-                }
-                let eta = int_ior / ext_ior;
-                if !(MIN_IOR..=MAX_IOR).contains(&eta) {
-                    return Err(self.err(node, format!("int_ior / ext_ior = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
                 }
                 let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
                 let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
@@ -825,6 +815,16 @@ impl<'a, 'i> Importer<'a, 'i> {
             self.warn(node, format!("approximate: the {distribution} distribution is rendered as GGX"));
         }
         Ok(Distribution::Ggx)
+    }
+
+    /// `int_ior` (`int_default` when absent) over `ext_ior` (air when absent), within the
+    /// model's [MIN_IOR, MAX_IOR].
+    fn relative_ior(&self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>, int_default: &str) -> Result<f32, SceneError> {
+        let eta = self.ior(items, "int_ior", int_default)? / self.ior(items, "ext_ior", "air")?;
+        if !(MIN_IOR..=MAX_IOR).contains(&eta) {
+            return Err(self.err(node, format!("int_ior / ext_ior = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
+        }
+        Ok(eta)
     }
 
     /// An index of refraction: a number, or one of the materials Mitsuba names (`default`
