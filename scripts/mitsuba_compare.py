@@ -71,6 +71,10 @@ DEFAULT_RR_DEPTH = 5
 REL_FLOOR = 1e-2
 # Side of the pixel blocks in which systematic differences are located.
 BLOCK = 8
+# A block whose standard error is below this share of its mean is "quiet": nearly free of
+# noise (an emitter or the sky seen directly), so that float rounding and interpolation
+# differences far below anything visible stand out in z; such blocks are counted apart.
+QUIET = 2e-3
 # --approximate-materials: principled materials translated to Mitsuba's principled BSDF.
 APPROXIMATE = False
 # The optimisable material inputs part c translates, by material type: vkinverse's field
@@ -358,6 +362,19 @@ def image_comparison(np, m1, m2, v1, v2):
         "max_abs_z": float(np.abs(z).max()),
         "worst": {"row": int(worst[0]) * BLOCK, "col": int(worst[1]) * BLOCK, "channel": "rgb"[worst[2]],
                   "z": float(z[worst]), "relative_diff": float(rel[worst])},
+    }
+    quiet = se < QUIET * np.abs(blocks(va))
+    out["blocks"]["noisy"] = {
+        "count": int((~quiet).sum()),
+        "abs_z_over_4": int(((np.abs(z) > 4) & ~quiet).sum()),
+        "max_abs_z": float(np.abs(z)[~quiet].max()) if (~quiet).any() else 0.0,
+    }
+    out_quiet = (np.abs(z) > 4) & quiet
+    out["blocks"]["quiet"] = {
+        "count": int(quiet.sum()),
+        "abs_z_over_4": int(out_quiet.sum()),
+        "median_relative_diff": float(np.median(np.abs(rel[out_quiet]))) if out_quiet.any() else 0.0,
+        "max_relative_diff": float(np.abs(rel[out_quiet]).max()) if out_quiet.any() else 0.0,
     }
     out["_z"] = z
     return out

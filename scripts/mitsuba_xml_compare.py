@@ -8,7 +8,8 @@ noise (two independent renders each; statistics of scripts/mitsuba_compare.py).
 The scene takes its film size from a `res` default (width and height "$res"), which
 Mitsuba gets as a parameter and vkinverse as `--film RESxRES`. Reported per resolution:
 each channel's image mean in both with the z-score of their difference, the block
-z-scores (8 x 8 pixels) and where the worst block is, mean relative errors against the
+z-scores (8 x 8 pixels) and where the worst block is (those nearly free of noise, an
+emitter or the sky seen directly, counted apart), mean relative errors against the
 noise, and the render times (Mitsuba's up to the image read back). vkinverse's import
 warnings (where its mapping of the scene is approximate) are printed first.
 
@@ -75,6 +76,11 @@ def main():
         print(f"  blocks: {b['abs_z_over_4']} of {b['count']} beyond 4 se, max |z| {b['max_abs_z']:.2f} "
               f"(worst at row {b['worst']['row']}, col {b['worst']['col']}, {b['worst']['channel']}: "
               f"{b['worst']['relative_diff'] * 100:+.1f} %)")
+        nb, qb = b["noisy"], b["quiet"]
+        print(f"  of which noisy blocks: {nb['abs_z_over_4']} of {nb['count']}, max |z| {nb['max_abs_z']:.2f}; "
+              f"quiet blocks (standard error < {mc.QUIET:g} of the mean, e.g. an emitter or the sky seen directly): "
+              f"{qb['abs_z_over_4']} of {qb['count']}, relative difference {qb['median_relative_diff'] * 100:.3f} % "
+              f"in the median, {qb['max_relative_diff'] * 100:.2f} % at most")
         print(f"  mean relative error {cmp['mre_mitsuba_vs_vkinverse']:.4f} vs {cmp['mre_expected_if_equal']:.4f} "
               f"expected from noise alone")
         print(f"  time: mitsuba {min(cmp['mitsuba_s']):.2f} s, vkinverse {min(cmp['vkinverse_s']):.2f} s (process)")

@@ -30,6 +30,8 @@ pub enum ImageError {
     },
     #[error("{}: not a readable PNG or JPEG image: {message}", path.display())]
     Decode { path: PathBuf, message: String },
+    #[error("{}: not a readable Radiance HDR image: {message}", path.display())]
+    Hdr { path: PathBuf, message: String },
     #[error("{}: image is {width}x{height} but holds {len} pixels", path.display())]
     Size {
         path: PathBuf,
@@ -160,6 +162,32 @@ pub fn decode_exr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
         .from_buffered(Cursor::new(bytes))
         .map_err(exr_err)?;
     Ok(decoded.layer_data.channel_data.pixels)
+}
+
+/// Whether a file's first bytes are a Radiance HDR (RGBE) header: `#?RADIANCE`, `#?RGBE`
+/// or any other `#?` program name, as Radiance's own readers accept.
+pub fn is_radiance_hdr(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"#?")
+}
+
+/// Decodes a Radiance HDR (RGBE, `.hdr`) file already in memory into linear RGB; `path` is
+/// only used in error messages.
+pub fn decode_hdr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
+    let hdr_err = |message: String| ImageError::Hdr { path: path.to_path_buf(), message };
+    let img = ::image::load_from_memory_with_format(bytes, ::image::ImageFormat::Hdr).map_err(|e| hdr_err(e.to_string()))?;
+    let rgb = img.to_rgb32f();
+    Ok(Image { width: rgb.width(), height: rgb.height(), data: rgb.pixels().map(|p| p.0).collect() })
+}
+
+/// Decodes a linear (high dynamic range) image already in memory: a Radiance HDR file when
+/// it starts with a Radiance header ([`is_radiance_hdr`]), otherwise OpenEXR (so that a
+/// file that is neither gets the OpenEXR reader's error, the format a scene names first).
+pub fn decode_linear(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
+    if is_radiance_hdr(bytes) {
+        decode_hdr(bytes, path)
+    } else {
+        decode_exr(bytes, path)
+    }
 }
 
 /// Writes a float32 RGB OpenEXR file atomically.

@@ -1347,3 +1347,103 @@ fn gltf_transmission_is_glass() {
     let low = img.data.iter().flatten().fold(f32::INFINITY, |a, &b| a.min(b));
     assert!(low > 0.999, "a pixel at {low}");
 }
+
+/// Mitsuba's `envmap`: read from EXR or Radiance HDR alike, refined to an odd multiple of
+/// its size at least 1024 texels wide; each of the renderer's texels takes Mitsuba's
+/// bilinear lookup in the direction of its centre, Mitsuba's texels centred at u = (x +
+/// ½)/W from −z (the renderer's from +z) and lying at θ = πj/(H − 1) (the renderer's at
+/// π(k + ½)/(sH)), so that unturned, every s-th column from the middle of the first s is
+/// one of Mitsuba's; `to_world` turns the map (a quarter-turn about y is the map's columns
+/// rolled by a quarter of its width) or mirrors it; a scaling is refused. A TOML
+/// `[environment] file` reads HDR as it reads EXR, unresampled.
+#[test]
+fn mitsuba_environment_maps_read_hdr_and_turn_with_to_world() {
+    use common::radiance_hdr;
+    let dir = temp_dir("mitsuba-envmap");
+    let (w, h) = (16u32, 8u32);
+    // Components k/64 with the largest (red) in [2, 4): exact in RGBE.
+    let map = Image {
+        width: w,
+        height: h,
+        data: (0..h).flat_map(|y| (0..w).map(move |x| [(128 + 8 * x + y) as f32 / 64.0, ((5 * x + 3 * y) % 100 + 1) as f32 / 64.0, (16 * y + x) as f32 / 64.0])).collect(),
+    };
+    let rolled = Image { data: (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| map.get((x + w / 4) % w, y)).collect(), ..map.clone() };
+    std::fs::write(dir.join("sky.hdr"), radiance_hdr(&map)).unwrap();
+    vkinverse::image::write_exr(&dir.join("sky.exr"), &map).unwrap();
+    vkinverse::image::write_exr(&dir.join("rolled.exr"), &rolled).unwrap();
+    let load = |name: &str, file: &str, transform: &str| {
+        let path = dir.join(format!("{name}.xml"));
+        let body = format!(r#"<emitter type="envmap"><string name="filename" value="{file}"/><float name="scale" value="2"/><boolean name="mis_compensation" value="true"/>{transform}</emitter>"#);
+        std::fs::write(&path, small_mitsuba_scene(&body)).unwrap();
+        Scene::load(&path)
+    };
+    let env = |name: &str, file: &str, transform: &str| {
+        let s = load(name, file, transform).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(s.environment.scale, 2.0, "{name}");
+        let ColorValue::Texture(t) = &s.environment.value else { panic!("{name}: a map: {:?}", s.environment.value) };
+        assert_eq!((t.image.width, t.image.height), (65 * w, 65 * h), "{name}: refined 65 times (odd, 1040 ≥ 1024)");
+        (*t.image).clone()
+    };
+    let s = 65;
+    // Within 1e-4: the f32 rotation (cos 90° is −4e-8) moves directions near the poles,
+    // where Mitsuba's columns meet, by a few 1e-5 in azimuth.
+    let close = |a: &Image, b: &Image, what: &str| {
+        for (i, (p, q)) in a.data.iter().zip(&b.data).enumerate() {
+            for c in 0..3 {
+                assert!((p[c] - q[c]).abs() <= 1e-4 * q[c].abs().max(1.0), "{what}: texel {i} channel {c}: {} against {}", p[c], q[c]);
+            }
+        }
+    };
+    let mitsuba = |x: f32, y: f32| -> [f32; 3] {
+        // Mitsuba's lookup at (fractional) texel coordinates: columns wrap, rows clamp.
+        let (x0, y0) = (x.floor(), y.floor());
+        let (tx, ty) = (x - x0, y - y0);
+        let at = |xi: f32, yi: f32| map.get((xi as i64).rem_euclid(w as i64) as u32, (yi as u32).min(h - 1));
+        std::array::from_fn(|c| {
+            (at(x0, y0)[c] * (1.0 - tx) + at(x0 + 1.0, y0)[c] * tx) * (1.0 - ty) + (at(x0, y0 + 1.0)[c] * (1.0 - tx) + at(x0 + 1.0, y0 + 1.0)[c] * tx) * ty
+        })
+    };
+    let row = |k: u32| (k as f32 + 0.5) / (s * h) as f32 * (h - 1) as f32;
+    // The renderer's texels at Mitsuba's column centres, and what Mitsuba's column `at(x)`
+    // gives there.
+    let at_centres = |img: &Image, at: &dyn Fn(u32) -> f32| -> (Image, Image) {
+        let texels = (0..s * h).flat_map(|k| (0..w).map(move |x| (x, k)));
+        let got = Image { width: w, height: s * h, data: texels.clone().map(|(x, k)| img.get(s * x + s / 2, k)).collect() };
+        let expected = Image { width: w, height: s * h, data: texels.map(|(x, k)| mitsuba(at(x), row(k))).collect() };
+        (got, expected)
+    };
+
+    // Unturned: the renderer's column s·x + (s − 1)/2 is Mitsuba's x + W/2, half a turn away.
+    let plain = env("plain", "sky.hdr", "");
+    let (got, expected) = at_centres(&plain, &|x| (x + w / 2) as f32);
+    close(&got, &expected, "unturned map against Mitsuba's lookup");
+    assert_eq!(plain, env("exr", "sky.exr", ""), "HDR and EXR of the same texels import alike");
+
+    // A quarter-turn about +y: looking along azimuth φ, Mitsuba's frame sees φ + 90°.
+    let turned = env("turned", "sky.hdr", r#"<transform name="to_world"><rotate y="1" angle="90"/></transform>"#);
+    close(&turned, &env("rolled", "rolled.exr", ""), "a quarter-turn against the map rolled by a quarter");
+    assert_ne!(turned, plain);
+    // Mirrored in x: azimuth φ looks up −φ, the renderer's column s·x + (s − 1)/2 Mitsuba's
+    // W/2 − 1 − x.
+    let mirrored = env("mirrored", "sky.hdr", r#"<transform name="to_world"><scale x="-1"/><translate y="5"/></transform>"#);
+    let (got, expected) = at_centres(&mirrored, &|x| (w / 2) as f32 - 1.0 - x as f32);
+    close(&got, &expected, "a mirrored map against Mitsuba's lookup");
+
+    let err = load("scaled", "sky.hdr", r#"<transform name="to_world"><scale value="2"/></transform>"#).expect_err("a scaled map");
+    let msg = err.to_string();
+    assert!(msg.contains("scaled.xml") && msg.contains("line 6") && msg.contains("must be a rotation") && !msg.contains('\n'), "{msg}");
+    std::fs::write(dir.join("broken.hdr"), b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 8 +X 16\n\x01\x02").unwrap();
+    let msg = load("broken", "broken.hdr", "").expect_err("a truncated HDR").to_string();
+    assert!(msg.contains("broken.hdr") && msg.contains("Radiance HDR") && !msg.contains('\n'), "{msg}");
+
+    // The TOML's environment reads the same HDR file as its EXR.
+    let toml = |name: &str, file: &str| {
+        let path = dir.join(format!("{name}.toml"));
+        std::fs::write(&path, format!("import = \"plain.xml\"\n[environment]\nfile = \"{file}\"\n")).unwrap();
+        let s = Scene::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let ColorValue::Texture(t) = s.environment.value else { panic!("{name}: a map") };
+        (*t.image).clone()
+    };
+    assert_eq!(toml("toml-hdr", "sky.hdr"), map, "RGBE stores these texels exactly");
+    assert_eq!(toml("toml-exr", "sky.exr"), map);
+}

@@ -67,3 +67,42 @@ def lattice_texel(x, y):
 
 lattice = [[lattice_texel(x, y) for x in range(16)] for y in range(16)]
 (HERE / "meshes" / "lattice.png").write_bytes(png(16, 16, lattice))
+
+
+def radiance_hdr(width, height, rows):
+    """A Radiance HDR (RGBE) file from rows of linear (r, g, b) floats, scanlines stored
+    flat (not run-length encoded), as Walter's rgbe.c writes and reads them: the largest
+    component's binary exponent shared, each mantissa truncated to 8 bits."""
+    body = bytearray()
+    for row in rows:
+        for px in row:
+            v = max(px)
+            if v < 1e-32:
+                body += bytes(4)
+                continue
+            m, e = math.frexp(v)
+            scale = m * 256 / v
+            body += bytes(int(c * scale) for c in px) + bytes([e + 128])
+    header = f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {height} +X {width}\n".encode()
+    return header + bytes(body)
+
+
+# The sky of envmap.xml: 64 x 32 texels in Mitsuba's layout (column 0 towards -z, rows
+# from the zenith to the nadir), a blue sky brightening to a white horizon over a brown
+# ground, a sun of 2 x 2 texels and a red band on the horizon a quarter-turn from it, so
+# that a wrong rotation, mirror or half-texel shift moves light, shadows and colour.
+def sky_texel(x, y):
+    t = y / 31  # 0 at the zenith, 1 at the nadir
+    if t > 0.5:
+        return (0.12, 0.1, 0.08)
+    k = t / 0.5
+    px = (0.25 + 0.75 * k, 0.4 + 0.55 * k, 0.9 + 0.1 * k)
+    if y in (8, 9) and x in (20, 21):
+        px = (60.0, 52.0, 40.0)
+    if 12 <= y <= 15 and 36 <= x <= 43:
+        px = (2.0, 0.25, 0.1)
+    return px
+
+
+sky = [[sky_texel(x, y) for x in range(64)] for y in range(32)]
+(HERE / "meshes" / "sky.hdr").write_bytes(radiance_hdr(64, 32, sky))

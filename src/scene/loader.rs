@@ -128,7 +128,7 @@ impl Loader {
 
     pub fn texture(&self, key: &str, rel: &str) -> Result<Texture, SceneError> {
         let (path, bytes) = self.read(key, rel)?;
-        let image = image::decode_exr(&bytes, &path).map_err(|source| SceneError::Image {
+        let image = image::decode_linear(&bytes, &path).map_err(|source| SceneError::Image {
             scene: self.scene.clone(),
             key: key.into(),
             source,

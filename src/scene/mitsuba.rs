@@ -10,8 +10,8 @@
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
 //! wrappers `normalmap` and `mask`; `<emitter
-//! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR, PNG,
-//! JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
+//! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR,
+//! Radiance HDR, PNG, JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
 //! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
@@ -20,18 +20,18 @@
 //! thindielectric and roughdielectric (glass: [`MaterialKind::Dielectric`],
 //! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), roughconductor
 //! ([`MaterialKind::Conductor`], either distribution, a named material's or a given
-//! complex index of refraction), area
+//! complex index of refraction), roughplastic ([`MaterialKind::Plastic`]), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
 //! dropped), a smooth `conductor` (the smallest roughness), a bitmap `alpha` of
-//! roughconductor or roughdielectric (interpolated as √alpha), `plastic` and `roughplastic`
-//! (a principled dielectric whose base colour carries the coating's effect on the diffuse
-//! lobe: see `coating`; a Beckmann distribution becomes GGX), spot
+//! roughconductor or roughdielectric (interpolated as √alpha), a smooth `plastic` (its
+//! coating's terms exact, its mirror the smallest roughness), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
 //! (tessellated into 96 × 48 quads with exact normals), disks and cylinders (96 triangles
-//! and 96 quads), `envmap` (resampled from
-//! Mitsuba's corner-aligned rows to the renderer's centred rows), reconstruction filters
+//! and 96 quads), `envmap` (EXR or Radiance HDR, turned or
+//! mirrored by its `to_world`: resampled from Mitsuba's texel positions to the renderer's,
+//! see [`envmap_from_mitsuba`]), reconstruction filters
 //! other than `box`. Every other element, plugin type or parameter is an error naming its
 //! line.
 
@@ -532,9 +532,9 @@ impl<'a, 'i> Importer<'a, 'i> {
         self.rest(&items, node)?;
         let path = self.dir.join(&file);
         let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-        let is_exr = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr"));
-        let image = if is_exr {
-            image::decode_exr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?
+        let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
+        let image = if is_linear {
+            image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?
         } else {
             let mut img = image::decode_ldr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
             if !raw {
@@ -1029,18 +1029,24 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                     self.color_param(&mut items, "radiance", [1.0; 3])?
                 } else {
-                    if to_world.is_some_and(|m| !m.abs_diff_eq(Mat4::IDENTITY, 1e-6)) {
-                        return Err(self.err(node, "a rotated environment map is not supported"));
+                    // Mitsuba looks directions up through the inverse of to_world's linear
+                    // part (its translation moves no direction); only a rotation or a
+                    // mirroring keeps them unit vectors, which its lookup assumes.
+                    let rotation = Mat3::from_mat4(to_world.unwrap_or(Mat4::IDENTITY));
+                    if !(rotation.transpose() * rotation).abs_diff_eq(Mat3::IDENTITY, 1e-4) {
+                        return Err(self.err(node, "an environment map's to_world must be a rotation (scaling or shearing it is not supported)"));
                     }
                     let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
                     let path = self.dir.join(&rel);
                     let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                    let map = image::decode_exr(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
+                    let map = image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
                     if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
                         return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));
                     }
-                    self.warn(node, "approximate: resampled from Mitsuba's pole-to-pole rows to centred rows");
-                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map).into() })
+                    self.warn(node, format!("approximate: resampled from Mitsuba's texel positions (pole-to-pole rows) to a grid {}× finer of centred texels", envmap_refinement(map.width)));
+                    // Sampling only: the expected image is the same either way.
+                    self.take_bool(&mut items, "mis_compensation", false)?;
+                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into() })
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {
@@ -1088,26 +1094,55 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 }
 
-/// A Mitsuba lat-long map as the renderer's: Mitsuba puts u = 0 at the renderer's u = ½
-/// (its azimuth is measured from −z as well, without the renderer's half-turn offset), and
-/// its rows run from pole to pole (row j at polar angle π j / (H − 1)) where the
-/// renderer's are centred (row k at π (k + ½) / H). Columns are rolled by half the width
-/// and each centred row is Mitsuba's linear interpolation at its angle.
-pub fn envmap_from_mitsuba(map: &Image) -> Image {
+/// Width below which the renderer's copy of a Mitsuba environment map is a finer grid than
+/// the map ([`envmap_from_mitsuba`]).
+pub const ENVMAP_MIN_WIDTH: u32 = 1024;
+
+/// The factor by which [`envmap_from_mitsuba`] refines a map `width` texels wide: the
+/// smallest odd integer that brings it to [`ENVMAP_MIN_WIDTH`] (1 at or above it).
+pub fn envmap_refinement(width: u32) -> u32 {
+    ENVMAP_MIN_WIDTH.div_ceil(width.max(1)) | 1
+}
+
+/// A Mitsuba lat-long map, seen through its emitter's `to_world` rotation, as the
+/// renderer's map, `s` = [`envmap_refinement`] times as many texels along each axis. Each
+/// of the renderer's texels takes Mitsuba's radiance in the direction of the texel's
+/// centre: the renderer's column x and row k (centred: u = (x + ½)/(sW), polar angle θ =
+/// π (k + ½)/(sH), azimuth φ = 2π (u − ½) from −z towards +x, as `environment_uv`) give a
+/// world direction d, Mitsuba looks it up in its own frame at `rotation`ᵀ d (the rotation
+/// is orthogonal: a mirroring is allowed), and Mitsuba's lookup is bilinear between texels
+/// centred at u = (x + ½)/W from −z (columns wrapping around) and placed at θ = π j/(H − 1)
+/// (rows from pole to pole). The renderer's bilinear lookup of these values then departs
+/// from Mitsuba's only within one of the renderer's texels of Mitsuba's texel centres,
+/// where Mitsuba's interpolation bends, which refining keeps to a small fraction of a
+/// texel of the map. Unturned, and with an even width, Mitsuba's texel centres fall on the
+/// renderer's column centres (s is odd), so each row is Mitsuba's exactly; rows are
+/// interpolated between Mitsuba's.
+pub fn envmap_from_mitsuba(map: &Image, rotation: Mat3) -> Image {
+    use std::f64::consts::PI;
     let (w, h) = (map.width as usize, map.height as usize);
-    let mut data = Vec::with_capacity(w * h);
-    for k in 0..h {
-        let pos = (k as f32 + 0.5) / h as f32 * (h - 1) as f32;
-        let j = (pos.floor() as usize).min(h - 2);
-        let t = pos - j as f32;
-        for x in 0..w {
-            let src = (x + w / 2) % w;
-            let a = map.data[j * w + src];
-            let b = map.data[(j + 1) * w + src];
-            data.push(std::array::from_fn(|c| a[c] * (1.0 - t) + b[c] * t));
+    let s = envmap_refinement(map.width) as usize;
+    let (out_w, out_h) = (s * w, s * h);
+    let r = rotation.as_dmat3().transpose();
+    let texel = |x: usize, y: usize| glam::DVec3::from(map.data[y * w + x].map(f64::from));
+    let mut data = Vec::with_capacity(out_w * out_h);
+    for k in 0..out_h {
+        let theta = PI * (k as f64 + 0.5) / out_h as f64;
+        for x in 0..out_w {
+            let phi = 2.0 * PI * ((x as f64 + 0.5) / out_w as f64 - 0.5);
+            let d = glam::DVec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+            let l = r * d;
+            let u = (l.x.atan2(-l.z) / (2.0 * PI)).rem_euclid(1.0) * w as f64 - 0.5;
+            let v = l.y.clamp(-1.0, 1.0).acos() / PI * (h - 1) as f64;
+            let (x0, y0) = ((u.floor() as i64).rem_euclid(w as i64) as usize, (v.floor() as usize).min(h - 2));
+            let (tu, tv) = (u - u.floor(), v - y0 as f64);
+            let x1 = (x0 + 1) % w;
+            let top = texel(x0, y0) * (1.0 - tu) + texel(x1, y0) * tu;
+            let bottom = texel(x0, y0 + 1) * (1.0 - tu) + texel(x1, y0 + 1) * tu;
+            data.push((top * (1.0 - tv) + bottom * tv).as_vec3().to_array());
         }
     }
-    Image { width: map.width, height: map.height, data }
+    Image { width: out_w as u32, height: out_h as u32, data }
 }
 
 /// Mitsuba's vertex normals of a mesh that has none: each face's unit normal weighted by

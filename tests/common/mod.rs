@@ -53,3 +53,24 @@ pub fn check_layout(kernel: &str, name: &str, rust: &[(&str, usize)], size: usiz
     assert_eq!(got, rust, "{name} in {kernel}: members and offsets");
     assert_eq!(r.struct_size(name), Some(size), "{name} in {kernel}: size");
 }
+
+/// A Radiance HDR (RGBE) file of `image`, scanlines stored flat (not run-length encoded),
+/// as Walter's rgbe.c writes them: the largest component's binary exponent shared, each
+/// mantissa truncated to 8 bits, so that components k·2^(e−8) with e the exponent of the
+/// largest are stored exactly.
+pub fn radiance_hdr(image: &vkinverse::image::Image) -> Vec<u8> {
+    let mut out = format!("#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {} +X {}\n", image.height, image.width).into_bytes();
+    for px in &image.data {
+        let v = px[0].max(px[1]).max(px[2]);
+        if v < 1e-32 {
+            out.extend([0; 4]);
+            continue;
+        }
+        // v = m·2^e with m in [0.5, 1).
+        let e = v.log2().floor() as i32 + 1;
+        let scale = 256.0 / 2f32.powi(e);
+        out.extend(px.map(|c| (c * scale) as u8));
+        out.push((e + 128) as u8);
+    }
+    out
+}
