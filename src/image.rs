@@ -175,8 +175,14 @@ pub fn is_radiance_hdr(bytes: &[u8]) -> bool {
 pub fn decode_hdr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
     let hdr_err = |message: String| ImageError::Hdr { path: path.to_path_buf(), message };
     let img = ::image::load_from_memory_with_format(bytes, ::image::ImageFormat::Hdr).map_err(|e| hdr_err(e.to_string()))?;
+    Ok(rgb_image(&img))
+}
+
+/// The RGB channels of a decoded image as floats, as stored (grey repeated into R, G and
+/// B, alpha dropped).
+fn rgb_image(img: &::image::DynamicImage) -> Image {
     let rgb = img.to_rgb32f();
-    Ok(Image { width: rgb.width(), height: rgb.height(), data: rgb.pixels().map(|p| p.0).collect() })
+    Image { width: rgb.width(), height: rgb.height(), data: rgb.pixels().map(|p| p.0).collect() }
 }
 
 /// Decodes a linear (high dynamic range) image already in memory: a Radiance HDR file when
@@ -260,8 +266,7 @@ pub fn srgb_decode(encoded: f32) -> f32 {
 /// `path` is only used in error messages.
 pub fn decode_ldr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
     let img = ::image::load_from_memory(bytes).map_err(|e| ImageError::Decode { path: path.to_path_buf(), message: e.to_string() })?;
-    let rgb = img.to_rgb32f();
-    Ok(Image { width: rgb.width(), height: rgb.height(), data: rgb.pixels().map(|p| p.0).collect() })
+    Ok(rgb_image(&img))
 }
 
 /// Linear [0, 1] to 8-bit sRGB (IEC 61966-2-1 OETF).
