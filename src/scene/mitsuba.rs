@@ -1127,10 +1127,10 @@ pub fn envmap_from_mitsuba(map: &Image, rotation: Mat3) -> Image {
     let texel = |x: usize, y: usize| glam::DVec3::from(map.data[y * w + x].map(f64::from));
     let mut data = Vec::with_capacity(out_w * out_h);
     for k in 0..out_h {
-        let theta = PI * (k as f64 + 0.5) / out_h as f64;
+        let (sin_theta, cos_theta) = (PI * (k as f64 + 0.5) / out_h as f64).sin_cos();
         for x in 0..out_w {
-            let phi = 2.0 * PI * ((x as f64 + 0.5) / out_w as f64 - 0.5);
-            let d = glam::DVec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+            let (sin_phi, cos_phi) = (2.0 * PI * ((x as f64 + 0.5) / out_w as f64 - 0.5)).sin_cos();
+            let d = glam::DVec3::new(sin_theta * sin_phi, cos_theta, -sin_theta * cos_phi);
             let l = r * d;
             let u = (l.x.atan2(-l.z) / (2.0 * PI)).rem_euclid(1.0) * w as f64 - 0.5;
             let v = l.y.clamp(-1.0, 1.0).acos() / PI * (h - 1) as f64;
