@@ -220,7 +220,9 @@ def scene_dict(scene, scene_dir, integrator, spp, sensor=0, overrides=None):
             brdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": c}}
         else:
             brdf = {"type": "principled", "base_color": {"type": "rgb", "value": c},
-                    "metallic": float(inputs["metallic"]), "roughness": float(inputs["roughness"])}
+                    "metallic": float(inputs["metallic"]), "roughness": float(inputs["roughness"]),
+                    # The dielectric part's index (vkinverse's `ior`, Mitsuba's `eta`).
+                    "eta": float(m.get("ior", 1.5))}
         # vkinverse shades both sides of every surface (it flips the normal towards the
         # viewer); Mitsuba's BSDFs are one-sided unless wrapped.
         d[mitsuba_key(m["name"])] = {"type": "twosided", "id": mitsuba_key(m["name"]), "brdf_0": brdf}

@@ -19,8 +19,6 @@ use std::f64::consts::PI;
 
 /// Smallest GGX alpha (`BSDF_ALPHA_MIN`).
 pub const ALPHA_MIN: f64 = 1e-3;
-/// Normal-incidence reflectance of dielectrics in glTF 2.0 (`BSDF_F0_DIELECTRIC`).
-pub const F0_DIELECTRIC: f64 = 0.04;
 /// Rec. 709 luminance, used only for lobe selection (`BSDF_LUMINANCE`).
 pub const LUMINANCE: DVec3 = DVec3::new(0.2126, 0.7152, 0.0722);
 
@@ -122,9 +120,15 @@ impl MaterialF64 {
         self.kind == MATERIAL_PLASTIC || self.kind == MATERIAL_PLASTIC_BECKMANN
     }
 
-    /// mix(0.04, base_color, metallic)
+    /// The principled model's dielectric normal-incidence reflectance F0_d
+    /// ([`principled_f0`] of its ior).
+    fn f0_d(&self) -> f64 {
+        principled_f0(self.ior)
+    }
+
+    /// mix(F0_d, base_color, metallic)
     fn f0(&self) -> DVec3 {
-        DVec3::splat(F0_DIELECTRIC) * (1.0 - self.metallic) + self.base_color * self.metallic
+        DVec3::splat(self.f0_d()) * (1.0 - self.metallic) + self.base_color * self.metallic
     }
 }
 
@@ -175,8 +179,18 @@ pub fn schlick_weight(c: f64) -> f64 {
     m2 * m2 * m
 }
 
-pub fn fresnel_dielectric(c: f64) -> f64 {
-    F0_DIELECTRIC + (1.0 - F0_DIELECTRIC) * schlick_weight(c)
+/// The principled model's dielectric normal-incidence reflectance from its index of
+/// refraction, ((ior − 1)/(ior + 1))²: 0.04, glTF 2.0's dielectric, at ior 1.5
+/// (`principled_f0`).
+pub fn principled_f0(ior: f64) -> f64 {
+    let r = (ior - 1.0) / (ior + 1.0);
+    r * r
+}
+
+/// Schlick's Fresnel reflectance of normal-incidence reflectance `f0` at cosine `c`
+/// (`bsdf_fresnel_schlick`).
+pub fn fresnel_schlick(f0: f64, c: f64) -> f64 {
+    f0 + (1.0 - f0) * schlick_weight(c)
 }
 
 /// `PrincipledTerms`: see the GLSL for what each term is and why it is written so.
@@ -195,8 +209,9 @@ struct PrincipledTerms {
 }
 
 /// `principled_terms`; `h` is normalize(wo + wi), or the sampled microfacet normal.
-fn principled_terms(roughness: f64, wo: DVec3, wi: DVec3, h: DVec3) -> PrincipledTerms {
-    let alpha = alpha(roughness);
+fn principled_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> PrincipledTerms {
+    let alpha = alpha(m.roughness);
+    let f0_d = m.f0_d();
     let a2 = alpha * alpha;
     let k = a2 * h.z * h.z + h.x * h.x + h.y * h.y;
     let s = schlick_weight(wo.dot(h));
@@ -220,7 +235,7 @@ fn principled_terms(roughness: f64, wo: DVec3, wi: DVec3, h: DVec3) -> Principle
         denom,
         d,
         specular: d / (4.0 * denom),
-        diffuse: (1.0 - fresnel_dielectric(wo.z)) * (1.0 - fresnel_dielectric(wi.z)) * wi.z / PI,
+        diffuse: (1.0 - fresnel_schlick(f0_d, wo.z)) * (1.0 - fresnel_schlick(f0_d, wi.z)) * wi.z / PI,
     }
 }
 
@@ -233,7 +248,7 @@ pub fn lobe_probabilities(m: &MaterialF64, cos_o: f64) -> [f64; 2] {
     let f0 = m.f0();
     let s = schlick_weight(cos_o);
     let spec = LUMINANCE.dot(f0 + (DVec3::ONE - f0) * s).max(0.0);
-    let diff = ((1.0 - m.metallic) * LUMINANCE.dot(m.base_color) * (1.0 - fresnel_dielectric(cos_o))).max(0.0);
+    let diff = ((1.0 - m.metallic) * LUMINANCE.dot(m.base_color) * (1.0 - fresnel_schlick(m.f0_d(), cos_o))).max(0.0);
     let total = spec + diff;
     if total > 0.0 {
         [diff / total, spec / total]
@@ -649,7 +664,7 @@ pub fn eval_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
     if !m.principled() {
         return m.base_color * (wi.z / PI);
     }
-    principled_value(m, &principled_terms(m.roughness, wo, wi, (wo + wi).normalize()))
+    principled_value(m, &principled_terms(m, wo, wi, (wo + wi).normalize()))
 }
 
 /// Mixture pdf in the local frame (`bsdf_pdf_local`).
@@ -670,7 +685,7 @@ pub fn pdf_local(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
         return wi.z / PI;
     }
     let p = lobe_probabilities(m, wo.z);
-    principled_pdf(p, wi.z, &principled_terms(m.roughness, wo, wi, (wo + wi).normalize()))
+    principled_pdf(p, wi.z, &principled_terms(m, wo, wi, (wo + wi).normalize()))
 }
 
 /// Malley's method with the polar disk mapping (`bsdf_sample_cosine_hemisphere`).
@@ -796,7 +811,7 @@ pub fn sample(m: &MaterialF64, n: DVec3, wo: DVec3, u: DVec3) -> Option<BsdfSamp
     if wi_l.z <= 0.0 {
         return None;
     }
-    let t = principled_terms(m.roughness, wo_l, wi_l, h);
+    let t = principled_terms(m, wo_l, wi_l, h);
     let pdf = principled_pdf(p, wi_l.z, &t);
     // A zero or NaN pdf (possible only through extreme inputs) yields no sample.
     if pdf.is_nan() || pdf <= 0.0 {
@@ -856,12 +871,12 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
         g.d_base_color = DVec3::splat(wi_l.z / PI);
         return g;
     }
-    let t = principled_terms(m.roughness, wo_l, wi_l, (wo_l + wi_l).normalize());
+    let t = principled_terms(m, wo_l, wi_l, (wo_l + wi_l).normalize());
     let f0 = m.f0();
     let fresnel = f0 + (DVec3::ONE - f0) * t.s;
     g.d_base_color = DVec3::splat((1.0 - m.metallic) * t.diffuse + m.metallic * (1.0 - t.s) * t.specular);
     g.d_metallic =
-        -m.base_color * t.diffuse + (m.base_color - DVec3::splat(F0_DIELECTRIC)) * ((1.0 - t.s) * t.specular);
+        -m.base_color * t.diffuse + (m.base_color - DVec3::splat(m.f0_d())) * ((1.0 - t.s) * t.specular);
     let dalpha = dalpha_droughness(m.roughness);
     if dalpha != 0.0 {
         let a = t.alpha;

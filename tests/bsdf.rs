@@ -685,6 +685,13 @@ fn gpu_samples_follow_bsdf_pdf() {
             materials.push(Material { base_color, roughness, metallic, kind: MATERIAL_PRINCIPLED, ior: 1.5, ..Default::default() });
         }
     }
+    // Principled dielectrics of other indices: no specular reflection at normal incidence
+    // (1), and a reflectance of 0.17 (2.4).
+    for ior in [1.0, 2.4] {
+        for roughness in [0.1, 0.5] {
+            materials.push(Material { base_color, roughness, metallic: 0.0, kind: MATERIAL_PRINCIPLED, ior, ..Default::default() });
+        }
+    }
     // Rough glass of both distributions from outside and from inside (total internal
     // reflection past 42°).
     for kind in [MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN] {
@@ -787,6 +794,13 @@ fn white_furnace_albedo_is_at_most_one() {
             cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, metallic, kind: MATERIAL_PRINCIPLED, ior: 1.5, ..Default::default() });
         }
     }
+    // White principled dielectrics of other indices, from no reflectance at normal
+    // incidence (1) to 0.36 (4).
+    for ior in [1.0, 1.2, 2.4, 4.0] {
+        for roughness in [0.0, 0.3, 1.0] {
+            cases.push(MaterialF64 { base_color: DVec3::ONE, roughness, metallic: 0.0, kind: MATERIAL_PRINCIPLED, ior, ..Default::default() });
+        }
+    }
     // Rough glass, its radiance through the interface counted as power (times η², undoing
     // the solid angle's compression), from outside and inside.
     for kind in [MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN] {
@@ -878,7 +892,14 @@ fn eval_grad_matches_finite_differences() {
                 9 => MATERIAL_CONDUCTOR_BECKMANN,
                 _ => MATERIAL_PRINCIPLED,
             },
-            ior: if i % 4 == 3 { 1.0 / 1.5 } else { 1.5 },
+            // Glass from outside and inside; for the principled model, dielectric
+            // reflectances from 0.008 to 0.17.
+            ior: match i % 8 {
+                3 | 7 => 1.0 / 1.5,
+                1 => 2.4,
+                5 => 1.2,
+                _ => 1.5,
+            },
             eta: DVec3::new(rng.range(0.0, 4.0), rng.range(0.0, 4.0), rng.range(0.0, 4.0)),
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
             ..Default::default()
@@ -982,18 +1003,22 @@ fn principled_conductor_and_plastic_are_reciprocal() {
     // seen, with eta near 0): 1e-12 is allowed there, far below any wrong factor.
     let mut rng = Rng(3);
     let mut worst: f64 = 0.0;
-    for _ in 0..20_000 {
+    for case in 0..20_000 {
         let (r, mt) = (rng.f64(), rng.f64());
         let m = MaterialF64 {
             base_color: DVec3::new(rng.f64(), rng.f64(), rng.f64()),
             roughness: rng.pick(&[0.0, 0.05, 1.0, r, r]),
             metallic: rng.pick(&[0.0, 1.0, mt]),
             kind: rng.pick(&[MATERIAL_PRINCIPLED, MATERIAL_PRINCIPLED, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC]),
+            // (A principled material's index is set below: a plastic's must stay its table's.)
             ior: 1.5,
             eta: DVec3::new(rng.range(0.0, 4.0), rng.range(0.0, 4.0), rng.range(0.0, 4.0)),
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
             ..Default::default()
         };
+        // (By the case's number, not a draw, so that the other kinds' cases stay as they were.)
+        let ior = [1.0, 1.2, 1.5, 2.4, 4.0][case % 5];
+        let m = if m.kind == MATERIAL_PRINCIPLED { MaterialF64 { ior, ..m } } else { m };
         let m = if m.kind == MATERIAL_PLASTIC {
             mirror(plastic(rng.next_u64() as usize % COATINGS.len(), m.base_color.as_vec3().to_array(), rng.f64() < 0.5))
         } else {

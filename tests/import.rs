@@ -1317,10 +1317,17 @@ fn gltf_transmission_is_glass() {
     assert_eq!(weak.materials[0].kind.as_str(), "principled");
     assert!(weak.warnings.len() == 1 && weak.warnings[0].contains("0.2"), "{:?}", weak.warnings);
     let index = load("index.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_ior": { "ior": 2.0 } })).unwrap();
-    assert!(index.materials[0].kind.as_str() == "principled" && index.warnings.len() == 1 && index.warnings[0].contains("KHR_materials_ior"), "{:?}", index.warnings);
+    // Without transmission the index is the principled model's: its dielectric reflectance.
+    assert!(index.materials[0].kind.as_str() == "principled" && index.materials[0].ior == 2.0 && index.warnings.is_empty(), "{:?}", index.warnings);
+    let out = dir.join("out-index");
+    write_final(&out, &index, &[]).unwrap();
+    for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
+        assert_eq!((written.materials[0].kind.as_str(), written.materials[0].ior), ("principled", 2.0));
+    }
     for (name, ext, needle) in [
         ("factor.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 2.0 } }), "KHR_materials_transmission.transmissionFactor"),
         ("ior.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
+        ("opaque-ior.gltf", serde_json::json!({ "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
         ("nan.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": "x" } }), "KHR_materials_transmission.transmissionFactor"),
         ("attenuation.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_volume": { "thicknessFactor": 1.0, "attenuationColor": [0.0, 1.0, 1.0], "attenuationDistance": 1.0 } }), "KHR_materials_volume.attenuationColor"),
     ] {
@@ -1446,4 +1453,79 @@ fn mitsuba_environment_maps_read_hdr_and_turn_with_to_world() {
     };
     assert_eq!(toml("toml-hdr", "sky.hdr"), map, "RGBE stores these texels exactly");
     assert_eq!(toml("toml-exr", "sky.exr"), map);
+}
+
+/// A principled material's index of refraction sets the reflectance of its dielectric part,
+/// ((ior − 1)/(ior + 1))² at normal incidence: read from Mitsuba's `specular` (Schlick's
+/// reflectance 0.08 specular) or `eta`, written back to TOML, and rendered: a black rough
+/// principled plane under a white sky, seen head-on, shows its specular lobe's albedo,
+/// which the f64 mirror of the BSDF integrates independently.
+#[test]
+fn principled_index_of_refraction_sets_the_reflectance() {
+    let dir = temp_dir("principled-ior");
+    let xml = |params: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="4"/></integrator>
+    <sensor type="perspective"><float name="fov" value="2"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/><rfilter type="box"/></film>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="1, 1, 1"/></emitter>
+    <shape type="rectangle"><transform name="to_world"><scale value="3"/></transform>
+        <bsdf type="principled" id="m"><rgb name="base_color" value="0, 0, 0"/><float name="roughness" value="0.5"/>{params}</bsdf>
+    </shape>
+</scene>"#
+        )
+    };
+    let load = |name: &str, params: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, xml(params)).unwrap();
+        Scene::load(&path)
+    };
+    // The specular lobe's directional albedo at normal incidence by the mirror's sampling
+    // (its weights are f cos / pdf), on a Fibonacci lattice.
+    let albedo = |ior: f32| {
+        use vkinverse::bsdf::{sample, MaterialF64};
+        let m = MaterialF64 { roughness: 0.5, kind: vkinverse::constants::MATERIAL_PRINCIPLED, ior: f64::from(ior), ..Default::default() };
+        let n = glam::DVec3::Z;
+        const N: usize = 200_000;
+        let sum: f64 = (0..N)
+            .map(|i| {
+                let u = glam::DVec3::new(0.5, (i as f64 * 0.618_033_988_749_894_9).fract(), (i as f64 + 0.5) / N as f64);
+                sample(&m, n, n, u).map_or(0.0, |s| s.weight.x)
+            })
+            .sum();
+        sum / N as f64
+    };
+    let r = (0.08f64 * 2.0).sqrt();
+    let cases = [("default.xml", "", 1.5), ("specular.xml", r#"<float name="specular" value="2"/>"#, ((1.0 + r) / (1.0 - r)) as f32), ("eta.xml", r#"<float name="eta" value="1.2"/>"#, 1.2)];
+    let mut means = Vec::new();
+    with_gpu(|ctx| {
+        for (name, params, ior) in cases {
+            let s = load(name, params).unwrap();
+            assert!((s.materials[0].ior - ior).abs() <= 1e-6 * ior, "{name}: ior {} against {ior}", s.materials[0].ior);
+            assert!(s.warnings.len() == 1 && s.warnings[0].contains("Disney"), "{name}: {:?}", s.warnings);
+            let image = render(ctx, &s, 0, 256, 7);
+            let mean = image.data.iter().map(|p| f64::from(p[0])).sum::<f64>() / image.data.len() as f64;
+            let expected = albedo(ior);
+            println!("{name}: ior {ior}, rendered {mean:.6}, mirror {expected:.6}");
+            assert!((mean / expected - 1.0).abs() < 0.005, "{name}: rendered {mean} against the mirror's albedo {expected}");
+            means.push(mean);
+            // Written back as TOML, the index stays.
+            let out = dir.join(format!("out-{name}"));
+            write_final(&out, &s, &[]).unwrap();
+            assert_eq!(Scene::load(out.join("final/scene.toml")).unwrap().materials[0].ior, s.materials[0].ior, "{name}");
+        }
+    });
+    // Schlick's reflectance 0.16 against 0.04 and 0.008: the albedo follows it.
+    assert!(means[1] > 3.0 * means[0] && means[0] > 3.0 * means[2], "{means:?}");
+    for (name, params, needle) in [
+        ("both.xml", r#"<float name="specular" value="0.5"/><float name="eta" value="1.5"/>"#, "not both"),
+        ("specular-range.xml", r#"<float name="specular" value="6"/>"#, "specular = 6"),
+        ("eta-range.xml", r#"<float name="eta" value="9"/>"#, "eta = 9"),
+    ] {
+        let e = load(name, params).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains("line ") && !e.contains('\n'), "{name}: {e}");
+    }
 }

@@ -825,7 +825,12 @@ fn dielectrics_are_checked() {
     let thin = BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"thin_dielectric\"\nabsorption = [1, 1, 1]");
     assert_message(&load_err("thin-absorption", &thin), &["materials.m.absorption", "refracting dielectric"]);
     assert_message(&load_err("principled-absorption", &BASE.replace("type = \"principled\"", "type = \"principled\"\nabsorption = [1, 1, 1]")), &["materials.m.absorption"]);
-    assert_message(&load_err("ior-principled", &BASE.replace("type = \"principled\"", "type = \"principled\"\nior = 1.5")), &["materials.m.ior", "dielectric"]);
+    // A principled material's index sets its dielectric reflectance; a diffuse one has none.
+    let principled = |extra: &str| BASE.replace("type = \"principled\"", &format!("type = \"principled\"{extra}"));
+    assert_eq!(Scene::load(fixture("ior-principled", &principled("\nior = 2"))).unwrap().materials[0].ior, 2.0);
+    assert_eq!(Scene::load(fixture("ior-principled-default", &principled(""))).unwrap().materials[0].ior, 1.5);
+    assert_message(&load_err("ior-principled-range", &principled("\nior = 9")), &["materials.m.ior", "9", "[0.25, 4]"]);
+    assert_message(&load_err("ior-diffuse", &BASE.replace("type = \"principled\"", "type = \"diffuse\"\nior = 1.5")), &["materials.m.ior", "principled"]);
     assert_message(&load_err("no-base-color", &BASE.replace("base_color = [0.5, 0.5, 0.5]", "")), &["materials.m.base_color", "missing"]);
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.roughness\"\ninit = 0.5\nrange = [0, 1]\n", glass(""));
     assert_message(&load_err("glass-param", &optimised), &["optimise.params[0].target", "dielectric", "roughness"]);

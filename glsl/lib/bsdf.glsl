@@ -12,7 +12,9 @@
 // "principled" is the glTF 2.0 metallic-roughness model:
 //   f = (1 - metallic) base_color / pi (1 - F_d(cos_o)) (1 - F_d(cos_i))
 //     + F(wo.h) D(h) G2(wo, wi) / (4 cos_o cos_i)
-//   F0 = mix(0.04, base_color, metallic); F = Schlick with F0; F_d = Schlick with 0.04;
+//   F0 = mix(F0_d, base_color, metallic); F = Schlick with F0; F_d = Schlick with F0_d;
+//   F0_d = ((ior - 1) / (ior + 1))^2, the dielectric part's normal-incidence reflectance
+//   (glTF's KHR_materials_ior; 0.04 at the default ior 1.5, glTF 2.0's dielectric);
 //   alpha = max(roughness^2, BSDF_ALPHA_MIN); D = GGX (Walter et al. 2007, eq. 33);
 //   G2 = height-correlated Smith, 1 / (1 + Lambda(wo) + Lambda(wi)) (Heitz 2014, eq. 99).
 // The diffuse Fresnel factor (1 - F_d(cos_o)) (1 - F_d(cos_i)) is the energy term: without
@@ -22,8 +24,8 @@
 // wo.h stays large for most wi; with the separable factor a white dielectric's albedo
 // stays below 0.99 (tests/bsdf.rs, white furnace). The factor is symmetric in wo and wi,
 // so the whole BSDF stays reciprocal, and it depends on no parameter, so the derivatives
-// stay simple. It uses the dielectric F0 because only the dielectric part (weight
-// 1 - metallic) has a diffuse lobe.
+// stay simple. It uses the dielectric F0_d because only the dielectric part (weight
+// 1 - metallic) has a diffuse lobe. ior is a constant of the material (never optimised).
 //
 // "dielectric" is a smooth interface between two transparent media (Mitsuba 3's
 // `dielectric`): with m.ior = eta, the index of refraction of the side below the surface
@@ -99,8 +101,6 @@ const float BSDF_PI = 3.14159265358979;
 // not change with roughness, so its roughness derivative is 0 there. Mirrored in
 // src/bsdf.rs (ALPHA_MIN); the GPU/CPU comparison at roughness 0 checks that they agree.
 const float BSDF_ALPHA_MIN = 1e-3;
-// Normal-incidence reflectance of dielectrics in glTF 2.0 (index of refraction 1.5).
-const float BSDF_F0_DIELECTRIC = 0.04;
 // Rec. 709 luminance, used only to choose between lobes.
 const vec3 BSDF_LUMINANCE = vec3(0.2126, 0.7152, 0.0722);
 
@@ -151,8 +151,16 @@ float bsdf_schlick_weight(float c) {
     return m2 * m2 * m;
 }
 
-float bsdf_fresnel_dielectric(float c) {
-    return BSDF_F0_DIELECTRIC + (1.0 - BSDF_F0_DIELECTRIC) * bsdf_schlick_weight(c);
+// The principled model's dielectric normal-incidence reflectance F0_d from its index of
+// refraction: ((ior - 1) / (ior + 1))^2, the same for ior and 1 / ior.
+float principled_f0(float ior) {
+    float r = (ior - 1.0) / (ior + 1.0);
+    return r * r;
+}
+
+// Schlick's Fresnel reflectance of normal-incidence reflectance f0 at cosine c.
+float bsdf_fresnel_schlick(float f0, float c) {
+    return f0 + (1.0 - f0) * bsdf_schlick_weight(c);
 }
 
 // Everything the principled model needs at one (wo, wi), both above the surface.
@@ -168,6 +176,7 @@ struct PrincipledTerms {
     float d;          // GGX D(h)
     float specular;   // D G2 / (4 cos_o), the specular value per unit Fresnel
     float diffuse;    // (1 - F_d(cos_o)) (1 - F_d(cos_i)) cos_i / pi, per unit (1 - metallic) base_color
+    float f0_d;       // principled_f0(ior)
 };
 
 // D is written as alpha^2 / (pi (alpha^2 h.z^2 + h.x^2 + h.y^2)^2), which equals Walter et
@@ -180,9 +189,10 @@ struct PrincipledTerms {
 // sampled (as pbrt-v4 and Mitsuba 3 do): recomputing it from the float32 reflected wi
 // moves its tangential part by ~1e-7, which changes D by up to ~1% at alpha = 1e-3, and
 // the sample's weight and pdf should describe the microfacet that was drawn.
-PrincipledTerms principled_terms(float roughness, vec3 wo, vec3 wi, vec3 h) {
+PrincipledTerms principled_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
     PrincipledTerms t;
-    t.alpha = bsdf_alpha(roughness);
+    t.alpha = bsdf_alpha(m.roughness);
+    t.f0_d = principled_f0(m.ior);
     float a2 = t.alpha * t.alpha;
     t.h = h;
     t.k = a2 * t.h.z * t.h.z + t.h.x * t.h.x + t.h.y * t.h.y;
@@ -197,7 +207,7 @@ PrincipledTerms principled_terms(float roughness, vec3 wo, vec3 wi, vec3 h) {
     t.denom = t.denom_o + cos_o_lambda_i;
     t.d = a2 / (BSDF_PI * t.k * t.k);
     t.specular = t.d / (4.0 * t.denom);
-    t.diffuse = (1.0 - bsdf_fresnel_dielectric(wo.z)) * (1.0 - bsdf_fresnel_dielectric(wi.z)) * wi.z / BSDF_PI;
+    t.diffuse = (1.0 - bsdf_fresnel_schlick(t.f0_d, wo.z)) * (1.0 - bsdf_fresnel_schlick(t.f0_d, wi.z)) * wi.z / BSDF_PI;
     return t;
 }
 
@@ -209,17 +219,18 @@ PrincipledTerms principled_terms(float roughness, vec3 wo, vec3 wi, vec3 h) {
 // digits to cancellation, and the mixture pdf needs it to full relative precision.
 vec2 bsdf_lobe_probabilities(Material m, float cos_o) {
     if (m.kind != MATERIAL_PRINCIPLED) return vec2(1.0, 0.0);
-    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    float f0_d = principled_f0(m.ior);
+    vec3 f0 = mix(vec3(f0_d), m.base_color, m.metallic);
     float s = bsdf_schlick_weight(cos_o);
     float spec = max(dot(BSDF_LUMINANCE, f0 + (1.0 - f0) * s), 0.0);
-    float diff = max((1.0 - m.metallic) * dot(BSDF_LUMINANCE, m.base_color) * (1.0 - bsdf_fresnel_dielectric(cos_o)), 0.0);
+    float diff = max((1.0 - m.metallic) * dot(BSDF_LUMINANCE, m.base_color) * (1.0 - bsdf_fresnel_schlick(f0_d, cos_o)), 0.0);
     float total = spec + diff;
     return total > 0.0 ? vec2(diff, spec) / total : vec2(0.0, 1.0);
 }
 
 // f cos_i of the principled model from its terms.
 vec3 principled_value(Material m, PrincipledTerms t) {
-    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    vec3 f0 = mix(vec3(t.f0_d), m.base_color, m.metallic);
     vec3 fresnel = f0 + (1.0 - f0) * t.s;
     return (1.0 - m.metallic) * t.diffuse * m.base_color + fresnel * t.specular;
 }
@@ -587,7 +598,7 @@ vec3 bsdf_eval_local(Material m, vec3 wo, vec3 wi) {
     }
     if (material_is_dielectric(m.kind)) return vec3(0.0);
     if (m.kind != MATERIAL_PRINCIPLED) return m.base_color * (wi.z / BSDF_PI);
-    return principled_value(m, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
+    return principled_value(m, principled_terms(m, wo, wi, normalize(wo + wi)));
 }
 
 float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
@@ -604,7 +615,7 @@ float bsdf_pdf_local(Material m, vec3 wo, vec3 wi) {
     if (material_is_dielectric(m.kind)) return 0.0;
     if (m.kind != MATERIAL_PRINCIPLED) return wi.z / BSDF_PI;
     vec2 p = bsdf_lobe_probabilities(m, wo.z);
-    return principled_pdf(p, wi.z, principled_terms(m.roughness, wo, wi, normalize(wo + wi)));
+    return principled_pdf(p, wi.z, principled_terms(m, wo, wi, normalize(wo + wi)));
 }
 
 // Cosine-weighted hemisphere by Malley's method (pbrt-v4 SampleCosineHemisphere, with the
@@ -745,7 +756,7 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
     vec3 h;
     vec3 wi_l = bsdf_sample_two_lobes(p.y, false, wo_l, bsdf_alpha(m.roughness), u, h);
     if (wi_l.z <= 0.0) return false;
-    PrincipledTerms t = principled_terms(m.roughness, wo_l, wi_l, h);
+    PrincipledTerms t = principled_terms(m, wo_l, wi_l, h);
     pdf = principled_pdf(p, wi_l.z, t);
     if (!(pdf > 0.0)) {
         pdf = 0.0;
@@ -759,10 +770,10 @@ bool bsdf_sample(Material m, vec3 n, vec3 wo, vec3 u, out vec3 wi, out vec3 weig
 // Derivatives of bsdf_eval's value v (per colour channel c) with respect to the material
 // parameters: d_base_color[c] = dv_c / dbase_color_c (the Jacobian is diagonal),
 // d_roughness[c] = dv_c / droughness, d_metallic[c] = dv_c / dmetallic. With
-// F_c = F0_c (1 - s) + s, F0_c = 0.04 (1 - metallic) + metallic base_color_c and
+// F_c = F0_c (1 - s) + s, F0_c = F0_d (1 - metallic) + metallic base_color_c and
 // v_c = (1 - metallic) base_color_c diffuse + F_c specular:
 //   dv_c/dbase_color_c = (1 - metallic) diffuse + metallic (1 - s) specular
-//   dv_c/dmetallic     = -base_color_c diffuse + (base_color_c - 0.04) (1 - s) specular
+//   dv_c/dmetallic     = -base_color_c diffuse + (base_color_c - F0_d) (1 - s) specular
 //   dv_c/droughness    = F_c specular (dln D/dalpha - d ln(denom)/dalpha) dalpha/droughness
 // with dln D/dalpha = 2 / alpha - 4 alpha h.z^2 / k and, from cos Lambda = (q - cos) / 2,
 // d denom/dalpha = alpha sin_o^2 / (2 q_o) + (cos_o / cos_i) alpha sin_i^2 / (2 q_i).
@@ -803,11 +814,11 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
         d_base_color = vec3(wi_l.z / BSDF_PI);
         return;
     }
-    PrincipledTerms t = principled_terms(m.roughness, wo_l, wi_l, normalize(wo_l + wi_l));
-    vec3 f0 = mix(vec3(BSDF_F0_DIELECTRIC), m.base_color, m.metallic);
+    PrincipledTerms t = principled_terms(m, wo_l, wi_l, normalize(wo_l + wi_l));
+    vec3 f0 = mix(vec3(t.f0_d), m.base_color, m.metallic);
     vec3 fresnel = f0 + (1.0 - f0) * t.s;
     d_base_color = vec3((1.0 - m.metallic) * t.diffuse + m.metallic * (1.0 - t.s) * t.specular);
-    d_metallic = -m.base_color * t.diffuse + (m.base_color - BSDF_F0_DIELECTRIC) * ((1.0 - t.s) * t.specular);
+    d_metallic = -m.base_color * t.diffuse + (m.base_color - t.f0_d) * ((1.0 - t.s) * t.specular);
     float dalpha = bsdf_dalpha_droughness(m.roughness);
     if (dalpha != 0.0) {
         float a = t.alpha;

@@ -99,9 +99,11 @@ impl MaterialType {
         matches!(self, Self::RoughDielectric | Self::Conductor | Self::Plastic)
     }
 
-    /// Whether the material has an index of refraction (glass, and a plastic's coating).
+    /// Whether the material has an index of refraction (glass, a plastic's coating, and
+    /// the dielectric part of a principled material, whose normal-incidence reflectance
+    /// it sets).
     pub fn has_ior(self) -> bool {
-        self.is_dielectric() || self == Self::Plastic
+        self.is_dielectric() || self == Self::Plastic || self == Self::Principled
     }
 }
 
@@ -127,8 +129,9 @@ pub struct MaterialFile {
     pub alpha_mode: Option<String>,
     /// In [0, 1]; 0.5 by default. Only with `alpha` in mode "mask".
     pub alpha_cutoff: Option<f32>,
-    /// A dielectric's index of refraction, interior over exterior (1.5 by default). Only
-    /// with `type = "dielectric"`.
+    /// An index of refraction, interior over exterior (1.5 by default): a dielectric's, a
+    /// plastic's coating's, or a principled material's, whose dielectric part then reflects
+    /// ((ior − 1)/(ior + 1))² at normal incidence (0.04 at 1.5).
     pub ior: Option<f32>,
     /// A dielectric's interior absorption coefficient per unit length, per channel (0 by
     /// default). Only with `type = "dielectric"`.

@@ -5,7 +5,8 @@
 //! non-indexed triangle primitive (positions, normals, TEXCOORD_0) as one mesh in world
 //! space; metallic-roughness materials with their factors and textures (base colour decoded
 //! from sRGB, roughness from the metallic-roughness texture's G channel and metallic from
-//! its B, each multiplied by its factor) and normal textures; `emissiveFactor` ×
+//! its B, each multiplied by its factor, and `KHR_materials_ior`'s index setting the
+//! dielectric reflectance) and normal textures; `emissiveFactor` ×
 //! `KHR_materials_emissive_strength`, times the sRGB-decoded `emissiveTexture` where there
 //! is one, as the mesh's area emission, on both sides when the material is `doubleSided`;
 //! `alphaMode` `MASK` and `BLEND` as alpha tests; `KHR_materials_transmission` as glass (a
@@ -375,12 +376,13 @@ impl Importer<'_> {
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        let material = match self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())? {
-            Some((kind, ior, absorption)) => {
+        let (ior, glass) = self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())?;
+        let material = match glass {
+            Some((kind, absorption)) => {
                 let rough = if kind == MaterialKind::RoughDielectric { roughness } else { ScalarValue::Constant(0.0) };
                 Material { absorption, roughness: rough, ..Material::glass(name, kind, base_color, ior) }
             }
-            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
+            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
         };
         self.out.materials.push(material);
         self.sources.materials.push(m.index());
@@ -500,9 +502,11 @@ impl Importer<'_> {
     /// (a thin-walled material's roughness, metallic, a transmission below 1, a
     /// transmission texture, a normal map or alpha). The volume's `attenuationColor` and `attenuationDistance` are
     /// the interior's absorption. A transmission below 0.5 is dropped
-    /// instead (the material stays principled), with a warning. Without transmission, an
-    /// index other than 1.5 is a warning (the principled model's reflectance is 0.04).
-    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<Option<(MaterialKind, f32, [f32; 3])>, SceneError> {
+    /// instead (the material stays principled), with a warning. Returned with the index,
+    /// which a material without transmission keeps as its principled model's (its
+    /// dielectric reflectance ((ior − 1)/(ior + 1))² at normal incidence, as glTF's).
+    /// An index outside [MIN_IOR, MAX_IOR] is an error.
+    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<(f32, Option<(MaterialKind, [f32; 3])>), SceneError> {
         let ext = |name: &str| m.extension_value(name);
         let number = |this: &Self, name: &str, field: &str, default: f32| -> Result<f32, SceneError> {
             let key = format!("{at}.extensions.{name}.{field}");
@@ -519,18 +523,15 @@ impl Importer<'_> {
             return Err(self.err(format!("{at}.extensions.KHR_materials_transmission.transmissionFactor"), format!("{factor} is outside [0, 1]")));
         }
         let ior = number(self, "KHR_materials_ior", "ior", DEFAULT_IOR)?;
+        if !(MIN_IOR..=MAX_IOR).contains(&ior) {
+            return Err(self.err(format!("{at}.extensions.KHR_materials_ior.ior"), format!("{ior} is outside [{MIN_IOR}, {MAX_IOR}]")));
+        }
         if factor == 0.0 {
-            if ior != DEFAULT_IOR {
-                self.warn(format!("{at}.extensions.KHR_materials_ior"), format!("approximate: without transmission the index {ior} is rendered as 1.5 (a reflectance of 0.04 at normal incidence)"));
-            }
-            return Ok(None);
+            return Ok((ior, None));
         }
         if factor < 0.5 {
             self.warn(format!("{at}.extensions.KHR_materials_transmission"), format!("approximate: a transmission of {factor} is dropped (rendered opaque)"));
-            return Ok(None);
-        }
-        if !(MIN_IOR..=MAX_IOR).contains(&ior) {
-            return Err(self.err(format!("{at}.extensions.KHR_materials_ior.ior"), format!("{ior} is outside [{MIN_IOR}, {MAX_IOR}]")));
+            return Ok((ior, None));
         }
         let thickness = number(self, "KHR_materials_volume", "thicknessFactor", 0.0)?;
         let smooth = matches!(roughness, ScalarValue::Constant(r) if *r == 0.0);
@@ -592,7 +593,7 @@ impl Importer<'_> {
             };
             self.warn(at, format!("approximate: rendered as {glass} glass without {}", dropped.join(", ")));
         }
-        Ok(Some((kind, ior, absorption)))
+        Ok((ior, Some((kind, absorption))))
     }
 
     fn alpha(&mut self, m: &gltf::Material, at: &str) -> Result<Option<AlphaMask>, SceneError> {

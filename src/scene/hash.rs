@@ -18,7 +18,7 @@ use super::model::*;
 use super::MaterialKind;
 
 /// Bumped when the hashed fields or their encoding change, so that old cache entries miss.
-const VERSION: &str = "vkinverse-scene-hash-v2";
+const VERSION: &str = "vkinverse-scene-hash-v3";
 
 struct Hasher(Xxh3);
 

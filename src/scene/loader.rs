@@ -425,7 +425,7 @@ impl Loader {
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
             if m.ior.is_some() && !m.kind.has_ior() {
-                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's or a plastic's (type = \"dielectric\", \"thin_dielectric\", \"rough_dielectric\" or \"plastic\")"));
+                return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's, a plastic's or a principled material's (type = \"dielectric\", \"thin_dielectric\", \"rough_dielectric\", \"plastic\" or \"principled\")"));
             }
             if m.nonlinear.is_some() && m.kind != MaterialKind::Plastic {
                 return Err(self.invalid(&format!("{key}.nonlinear"), "is a plastic's (type = \"plastic\")"));

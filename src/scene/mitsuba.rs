@@ -23,8 +23,8 @@
 //! complex index of refraction), roughplastic ([`MaterialKind::Plastic`]), area
 //! lights, the constant environment, point and directional lights, the film and camera.
 //! Approximate, each with a one-line warning: `principled`
-//! (Mitsuba's Disney diffuse lobe becomes Lambert, `specular` other than 0.5 is
-//! dropped), a smooth `conductor` (the smallest roughness), a bitmap `alpha` of
+//! (Mitsuba's Disney diffuse lobe becomes Lambert and its dielectric Fresnel term
+//! Schlick's of the same index, `specular` or `eta`), a smooth `conductor` (the smallest roughness), a bitmap `alpha` of
 //! roughconductor or roughdielectric (interpolated as √alpha), a smooth `plastic` (its
 //! coating's terms exact, its mirror the smallest roughness), spot
 //! lights (Mitsuba's linear-in-angle falloff is kept, its texture is not), spheres
@@ -49,6 +49,14 @@ use crate::image::{self, srgb_decode, Image};
 /// Depth that Mitsuba's unlimited `max_depth = -1` becomes: Russian roulette ends nearly
 /// every path long before it.
 pub const UNLIMITED_DEPTH: u32 = 64;
+/// The largest `specular` of a Mitsuba principled BSDF that is imported: the one whose
+/// index of refraction is [`MAX_IOR`] (Schlick's reflectance 0.08 specular =
+/// ((MAX_IOR − 1)/(MAX_IOR + 1))²).
+fn max_specular() -> f64 {
+    let r = f64::from(MAX_IOR - 1.0) / f64::from(MAX_IOR + 1.0);
+    r * r / 0.08
+}
+
 /// Tessellation of a sphere: quads around the equator (half as many from pole to pole).
 const SPHERE_SEGMENTS: u32 = 96;
 
@@ -665,11 +673,28 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
                 let roughness = self.scalar_param(&mut items, "roughness", 0.5)?;
                 let metallic = self.scalar_param(&mut items, "metallic", 0.0)?;
-                if let Some(n) = self.take(&mut items, "specular") {
-                    if self.float(n)? != 0.5 {
-                        self.warn(n, "rendered with specular 0.5 (a normal-incidence reflectance of 0.04)");
+                // Mitsuba's `specular` s is Schlick's normal-incidence reflectance 0.08 s, the
+                // index (1 + √(0.08 s)) / (1 − √(0.08 s)); or the index is given as `eta`.
+                let ior = match (self.take(&mut items, "specular"), self.take(&mut items, "eta")) {
+                    (Some(_), Some(e)) => return Err(self.err(e, "a principled BSDF takes `specular` or `eta`, not both")),
+                    (None, None) => DEFAULT_IOR,
+                    (None, Some(e)) => {
+                        let eta = self.float(e)?;
+                        if !(MIN_IOR..=MAX_IOR).contains(&eta) {
+                            return Err(self.err(e, format!("eta = {eta} is outside [{MIN_IOR}, {MAX_IOR}]")));
+                        }
+                        eta
                     }
-                }
+                    (Some(n), None) => {
+                        let specular = self.float(n)?;
+                        let r = (0.08 * f64::from(specular)).sqrt();
+                        let eta = ((1.0 + r) / (1.0 - r)) as f32;
+                        if !(specular >= 0.0) || !(MIN_IOR..=MAX_IOR).contains(&eta) {
+                            return Err(self.err(n, format!("specular = {specular} is outside [0, {:.3}] (an index of refraction in [1, {MAX_IOR}])", max_specular())));
+                        }
+                        eta
+                    }
+                };
                 for zero in ["spec_tint", "anisotropic", "sheen", "sheen_tint", "clearcoat", "spec_trans", "flatness"] {
                     if let Some(n) = self.take(&mut items, zero) {
                         if self.float(n)? != 0.0 {
@@ -679,9 +704,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                 }
                 if !self.principled_warned {
                     self.principled_warned = true;
-                    self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert (glTF metallic-roughness)");
+                    self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert, and its dielectric Fresnel term as Schlick's of the same index (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior: DEFAULT_IOR, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";

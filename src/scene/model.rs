@@ -125,7 +125,9 @@ pub struct Material {
     pub alpha: Option<AlphaMask>,
     /// A dielectric's index of refraction, its interior (the back of its triangles; a thin
     /// dielectric's sheet) over its exterior, in [MIN_IOR, MAX_IOR] (never optimised); a
-    /// plastic's coating's likewise; [`DEFAULT_IOR`] and unused for the other kinds.
+    /// plastic's coating's likewise; a principled material's sets its dielectric part's
+    /// normal-incidence reflectance ((ior − 1)/(ior + 1))², 0.04 at [`DEFAULT_IOR`];
+    /// [`DEFAULT_IOR`] and unused for the other kinds.
     pub ior: f32,
     /// A (refracting) dielectric's interior absorption coefficient per unit length, per
     /// channel, at least 0: a ray that travels a distance t inside keeps exp(−absorption t)

@@ -183,7 +183,8 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.kind == MaterialKind::Principled {
             pairs.push(("metallic", scalar("metallic", &m.metallic)?));
         }
-        if m.kind.has_ior() {
+        // A principled material's default index is left implicit.
+        if m.kind.has_ior() && !(m.kind == MaterialKind::Principled && m.ior == DEFAULT_IOR) {
             pairs.push(("ior", Value::Float(num(m.ior))));
         }
         if m.nonlinear {
