@@ -159,7 +159,8 @@ pub struct LightRecord {
     pub outer: f32,
 }
 
-/// Mirror of `SensorRecord`: 64 bytes (`pad` is zero).
+/// Mirror of `SensorRecord`: 64 bytes (`pad` is zero; `ortho_half_height` 0 for a pinhole
+/// camera).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct SensorRecord {
@@ -169,7 +170,8 @@ pub struct SensorRecord {
     pub forward: [f32; 3],
     pub tan_half_fov_y: f32,
     pub aspect: f32,
-    pub pad: [u32; 2],
+    pub ortho_half_height: f32,
+    pub pad: u32,
 }
 
 /// Mirror of `Globals`: 32 bytes (`pad` is zero).

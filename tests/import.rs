@@ -488,7 +488,7 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
         ("lines", &["meshes[1].primitives[0].mode", "Lines"]),
         ("normal-map-texcoord1", &["materials[0].normalTexture.texCoord", "texture coordinate set 1"]),
         ("texcoord1", &["baseColorTexture.texCoord", "texture coordinate set 1"]),
-        ("orthographic", &["cameras[0]", "orthographic"]),
+        ("orthographic-flat", &["cameras[0].orthographic.ymag", "not a positive number"]),
         ("missing-emissive-image", &["images[0]", "none.png"]),
         ("missing-buffer", &["buffers[0]"]),
     ] {
@@ -514,7 +514,7 @@ fn unsupported_mitsuba_content_is_named_with_its_line() {
         ("medium", &["<medium type=\"homogeneous\" id=\"fog\">", "not supported in <scene>"]),
         ("undefined-default", &["$resolution", "<integer name=\"width\">"]),
         ("clearcoat", &["<float name=\"clearcoat\">", "only 0"]),
-        ("orthographic", &["<sensor type=\"orthographic\">", "perspective"]),
+        ("thinlens", &["<sensor type=\"thinlens\">", "perspective and orthographic"]),
         ("missing-radiance-bitmap", &["<texture type=\"bitmap\" name=\"radiance\">", "line 57", "x.exr"]),
     ] {
         let msg = import_err(&format!("errors/{file}.xml"));
@@ -1528,4 +1528,76 @@ fn principled_index_of_refraction_sets_the_reflectance() {
         let e = load(name, params).unwrap_err().to_string();
         assert!(e.contains(needle) && e.contains("line ") && !e.contains('\n'), "{name}: {e}");
     }
+}
+
+/// An orthographic camera (Mitsuba's `orthographic`, glTF's `orthographic`, TOML's
+/// `ortho_height`) sees a parallel projection: an emitting square of side 1 before a
+/// 16 × 16 film whose view is 2 wide fills exactly the film's middle 8 × 8 pixels with its
+/// radiance, whatever the camera's distance, and 4 × 4 when the view is scaled to 4 wide;
+/// the scene written back as TOML keeps the camera and renders the same image.
+#[test]
+fn orthographic_cameras_see_parallel_projections() {
+    let dir = temp_dir("orthographic");
+    let xml = |distance: f32, scale: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+    <sensor type="orthographic">
+        <transform name="to_world">{scale}<lookat origin="0.3, -0.2, {distance}" target="0.3, -0.2, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><translate x="0.3" y="-0.2"/></transform>
+        <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
+    </shape>
+</scene>"#
+        )
+    };
+    let load = |name: &str, text: String| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        Scene::load(&path)
+    };
+    // The film's pixels inside the middle `side` × `side` block show the radiance, the
+    // others nothing.
+    let check = |image: &Image, side: u32, what: &str| {
+        let lo = (16 - side) / 2;
+        for y in 0..16 {
+            for x in 0..16 {
+                let inside = (lo..lo + side).contains(&x) && (lo..lo + side).contains(&y);
+                let want = if inside { [2.0, 1.0, 0.5] } else { [0.0; 3] };
+                let got = image.data[(y * 16 + x) as usize];
+                assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-5), "{what}: pixel ({x}, {y}) is {got:?}, not {want:?}");
+            }
+        }
+    };
+    with_gpu(|ctx| {
+        for (name, distance, scale, height, side) in [("near.xml", 3.0, "", 2.0, 8), ("far.xml", 40.0, "", 2.0, 8), ("wide.xml", 3.0, r#"<scale x="2" y="2"/>"#, 4.0, 4)] {
+            let s = load(name, xml(distance, scale)).unwrap();
+            assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+            assert_eq!(s.sensors[0].ortho_height, Some(height), "{name}");
+            let image = render(ctx, &s, 0, 16, 3);
+            check(&image, side, name);
+            let out = dir.join(format!("out-{name}"));
+            write_final(&out, &s, &[]).unwrap();
+            let t = Scene::load(out.join("final/scene.toml")).unwrap();
+            assert_eq!(t.sensors[0].ortho_height, Some(height), "{name} written back");
+            check(&render(ctx, &t, 0, 16, 3), side, &format!("{name} written back"));
+        }
+    });
+    let e = load("stretched.xml", xml(3.0, r#"<scale x="2" y="1"/>"#)).unwrap_err().to_string();
+    assert!(e.contains("scaled differently") && e.contains("line ") && !e.contains('\n'), "{e}");
+
+    // glTF: the view is 2·ymag high and the film's aspect ratio xmag / ymag.
+    let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("box/box.gltf")).unwrap()).unwrap();
+    doc["cameras"][0] = serde_json::json!({ "type": "orthographic", "orthographic": { "xmag": 1.5, "ymag": 1.0, "znear": 0.01, "zfar": 100.0 } });
+    std::fs::write(dir.join("box.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
+    let g = Scene::load(dir.join("box.gltf")).unwrap();
+    assert_eq!((g.sensors[0].ortho_height, g.film.width, g.film.height), (Some(2.0), 512, 341));
+    let out = dir.join("out-gltf");
+    write_final(&out, &g, &[]).unwrap();
+    assert_eq!(Scene::load(out.join("final/scene.toml")).unwrap().sensors[0].ortho_height, Some(2.0));
+    doc["cameras"][0]["orthographic"]["ymag"] = serde_json::json!(0.0);
+    std::fs::write(dir.join("flat.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
+    let e = Scene::load(dir.join("flat.gltf")).unwrap_err().to_string();
+    assert!(e.contains("cameras[0].orthographic.ymag") && !e.contains('\n'), "{e}");
 }

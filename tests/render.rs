@@ -776,8 +776,8 @@ fn texel_record_layouts_match_reflection() {
             ("forward", offset_of!(SensorRecord, forward)),
             ("tan_half_fov_y", offset_of!(SensorRecord, tan_half_fov_y)),
             ("aspect", offset_of!(SensorRecord, aspect)),
-            ("pad0", offset_of!(SensorRecord, pad)),
-            ("pad1", offset_of!(SensorRecord, pad) + 4),
+            ("ortho_half_height", offset_of!(SensorRecord, ortho_half_height)),
+            ("pad1", offset_of!(SensorRecord, pad)),
         ],
     );
     check(

@@ -454,6 +454,17 @@ fn film_size_and_fov_are_bounded() {
         );
         assert_message(&err, &["scene.toml", key]);
     }
+    // A sensor is a pinhole camera (fov_y) or an orthographic one (ortho_height), one of
+    // the two.
+    for (name, to, key) in [
+        ("fov-missing", "", "sensors[0].fov_y"),
+        ("fov-and-ortho", "fov_y = 40\northo_height = 2", "sensors[0]"),
+        ("ortho-zero", "ortho_height = 0", "sensors[0].ortho_height"),
+        ("ortho-nan", "ortho_height = nan", "sensors[0].ortho_height"),
+    ] {
+        assert_message(&load_err(name, &BASE.replace("fov_y = 40", to)), &["scene.toml", key]);
+    }
+    assert_eq!(Scene::load(fixture("ortho", &BASE.replace("fov_y = 40", "ortho_height = 2.5"))).unwrap().sensors[0].ortho_height, Some(2.5));
 }
 
 #[test]

@@ -546,7 +546,12 @@ void camera_ray(SensorRecord s, uvec2 pixel, uvec2 size, inout Rng rng, out vec3
     vec2 jitter = rng_next2(rng);
     vec2 ndc = (vec2(pixel) + jitter) / vec2(size) * 2.0 - 1.0;
     ndc.y = -ndc.y;
-    o = s.origin;
-    d = normalize(s.forward + ndc.x * s.tan_half_fov_y * s.aspect * s.right + ndc.y * s.tan_half_fov_y * s.up);
+    if (s.ortho_half_height > 0.0) {
+        o = s.origin + s.ortho_half_height * (ndc.x * s.aspect * s.right + ndc.y * s.up);
+        d = s.forward;
+    } else {
+        o = s.origin;
+        d = normalize(s.forward + ndc.x * s.tan_half_fov_y * s.aspect * s.right + ndc.y * s.tan_half_fov_y * s.up);
+    }
 }
 #endif

@@ -133,7 +133,7 @@ EmitterTri emitter_tri(uint i) {
 }
 
 // Sensor `i` (4 texels: origin 0-2, right 3-5, up 6-8, forward 9-11, tan_half_fov_y 12,
-// aspect 13).
+// aspect 13, ortho_half_height 14).
 SensorRecord sensor_record(uint i) {
     int b = int(i) * 4;
     SensorRecord s;
@@ -143,7 +143,7 @@ SensorRecord sensor_record(uint i) {
     uvec4 t3 = texel_load(Sensors, b + 3);
     s.tan_half_fov_y = uintBitsToFloat(t3.x);
     s.aspect = uintBitsToFloat(t3.y);
-    s.pad0 = 0u;
+    s.ortho_half_height = uintBitsToFloat(t3.z);
     s.pad1 = 0u;
     return s;
 }

@@ -115,7 +115,9 @@ struct LightRecord {
     float outer;
 };
 
-// A pinhole camera. 64 bytes (4 texels).
+// A pinhole camera, or an orthographic one where ortho_half_height > 0: its rays leave the
+// plane through origin spanned by right and up (half the view's height along up, that
+// times aspect along right), all along forward. 64 bytes (4 texels).
 struct SensorRecord {
     vec3 origin;
     vec3 right;
@@ -123,7 +125,7 @@ struct SensorRecord {
     vec3 forward;
     float tan_half_fov_y;
     float aspect;
-    uint pad0;
+    float ortho_half_height;
     uint pad1;
 };
 

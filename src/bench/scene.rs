@@ -616,8 +616,8 @@ pub(super) fn camera_rays(scene: &Scene, gs: &GpuScene) -> Vec<TraceRay> {
                     (x as f32 + hash(id)) / w as f32 * 2.0 - 1.0,
                     1.0 - (y as f32 + hash(id + 1)) / h as f32 * 2.0,
                 );
-                let dir = sensor.ray_direction(ndc, aspect);
-                rays.push(TraceRay { origin: sensor.origin.to_array(), tmax: f32::INFINITY, dir: dir.to_array() });
+                let (origin, dir) = sensor.ray(ndc, aspect);
+                rays.push(TraceRay { origin: origin.to_array(), tmax: f32::INFINITY, dir: dir.to_array() });
             }
         }
     }

@@ -593,7 +593,8 @@ impl GpuScene {
                 forward: s.forward.into(),
                 tan_half_fov_y: (s.fov_y.to_radians() * 0.5).tan(),
                 aspect,
-                pad: [0; 2],
+                ortho_half_height: s.ortho_height.map_or(0.0, |h| 0.5 * h),
+                pad: 0,
             })
             .collect();
 

@@ -49,7 +49,11 @@ pub struct SensorFile {
     pub target: [f32; 3],
     #[serde(default = "default_up")]
     pub up: [f32; 3],
-    pub fov_y: f32,
+    /// A pinhole camera's vertical field of view in degrees, in (0, 180).
+    pub fov_y: Option<f32>,
+    /// An orthographic camera's view height in world units (its width is that times the
+    /// film's aspect ratio). Exactly one of `fov_y` and `ortho_height` is given.
+    pub ortho_height: Option<f32>,
     pub target_image: Option<String>,
 }
 

@@ -12,7 +12,8 @@
 //! `alphaMode` `MASK` and `BLEND` as alpha tests; `KHR_materials_transmission` as glass (a
 //! dielectric of `KHR_materials_ior`'s index, tinted by the base colour: refracting where
 //! `KHR_materials_volume` gives it a thickness, a thin sheet where it is thin-walled); every
-//! perspective camera as a sensor (looking down its node's −Z, in node order); and
+//! camera as a sensor (looking down its node's −Z, in node order; an orthographic one's
+//! view 2·ymag high); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
 //!
@@ -22,8 +23,8 @@
 //! added, the glTF index of what it names.
 //!
 //! Anything that would change the image and is not read is an error naming its JSON path
-//! (texture sets other than 0, non-triangle primitives,
-//! orthographic cameras, required extensions other than the two above); what does not
+//! (texture sets other than 0, non-triangle primitives, required extensions other than
+//! the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
 //! (occlusion textures, non-repeating samplers, optional extensions, animation), is a
 //! one-line warning. `alphaMode` `MASK` and `BLEND` are alpha tests ([`AlphaMask`]) on the
@@ -624,20 +625,34 @@ impl Importer<'_> {
 
     fn camera(&mut self, camera: &gltf::Camera, world: Mat4) -> Result<(), SceneError> {
         let at = format!("cameras[{}]", camera.index());
-        let gltf::camera::Projection::Perspective(p) = camera.projection() else {
-            return Err(self.err(at, "orthographic cameras are not supported"));
+        // A perspective camera's field of view, or an orthographic one's view height (twice
+        // ymag; its film's aspect ratio is xmag / ymag), and the aspect ratio its film
+        // should have.
+        let (fov_y, ortho_height, aspect) = match camera.projection() {
+            gltf::camera::Projection::Perspective(p) => {
+                let fov_y = p.yfov().to_degrees();
+                if !(fov_y > 0.0 && fov_y < 180.0) {
+                    return Err(self.err(format!("{at}.perspective.yfov"), format!("{} radians is outside (0, π)", p.yfov())));
+                }
+                (fov_y, None, p.aspect_ratio())
+            }
+            gltf::camera::Projection::Orthographic(o) => {
+                for (name, v) in [("xmag", o.xmag()), ("ymag", o.ymag())] {
+                    if !(v.is_finite() && v > 0.0) {
+                        return Err(self.err(format!("{at}.orthographic.{name}"), format!("{v} is not a positive number")));
+                    }
+                }
+                (0.0, Some(2.0 * o.ymag()), Some(o.xmag() / o.ymag()))
+            }
         };
-        let fov_y = p.yfov().to_degrees();
-        if !(fov_y > 0.0 && fov_y < 180.0) {
-            return Err(self.err(format!("{at}.perspective.yfov"), format!("{} radians is outside (0, π)", p.yfov())));
-        }
         let origin = world.transform_point3(Vec3::ZERO);
         let forward = world.transform_vector3(Vec3::NEG_Z);
         let up = world.transform_vector3(Vec3::Y);
-        let sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(&at, format!("its node's transform is degenerate: {e}")))?;
+        let mut sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(&at, format!("its node's transform is degenerate: {e}")))?;
+        sensor.ortho_height = ortho_height;
         if self.out.sensors.is_empty() {
             let side = GLTF_FILM_SIDE as f32;
-            self.out.film = Some(match p.aspect_ratio() {
+            self.out.film = Some(match aspect {
                 Some(a) if a.is_finite() && a >= 1.0 => Film { width: GLTF_FILM_SIDE, height: ((side / a).round() as u32).max(1) },
                 Some(a) if a.is_finite() && a > 0.0 => Film { width: ((side * a).round() as u32).max(1), height: GLTF_FILM_SIDE },
                 _ => Film { width: GLTF_FILM_SIDE, height: GLTF_FILM_SIDE },

@@ -91,6 +91,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
     for s in &scene.sensors {
         h.f32s(&[s.origin.to_array(), s.forward.to_array(), s.right.to_array(), s.up.to_array()].concat());
         h.f32s(&[s.fov_y]);
+        if let Some(height) = s.ortho_height {
+            h.tag("orthographic");
+            h.f32s(&[height]);
+        }
     }
     h.tag("materials");
     h.u64(scene.materials.len() as u64);

@@ -358,17 +358,29 @@ impl Loader {
         for (name, v) in [("origin", s.origin), ("target", s.target), ("up", s.up)] {
             self.finite(&format!("{key}.{name}"), &v)?;
         }
-        self.finite(&format!("{key}.fov_y"), &[s.fov_y])?;
-        if !(s.fov_y > 0.0 && s.fov_y < 180.0) {
-            return Err(self.out_of_range(
-                &format!("{key}.fov_y"),
-                format!("{} is outside (0, 180) degrees", s.fov_y),
-            ));
-        }
-        let mut sensor = Sensor::looking_at(Vec3::from(s.origin), Vec3::from(s.target), Vec3::from(s.up), s.fov_y).map_err(|e| {
+        let (fov_y, ortho_height) = match (s.fov_y, s.ortho_height) {
+            (Some(_), Some(_)) => return Err(self.invalid(key, "gives both fov_y (a pinhole camera) and ortho_height (an orthographic one)")),
+            (None, None) => return Err(self.invalid(&format!("{key}.fov_y"), "is missing (or give ortho_height for an orthographic camera)")),
+            (Some(fov_y), None) => {
+                self.finite(&format!("{key}.fov_y"), &[fov_y])?;
+                if !(fov_y > 0.0 && fov_y < 180.0) {
+                    return Err(self.out_of_range(&format!("{key}.fov_y"), format!("{fov_y} is outside (0, 180) degrees")));
+                }
+                (fov_y, None)
+            }
+            (None, Some(height)) => {
+                self.finite(&format!("{key}.ortho_height"), &[height])?;
+                if !(height > 0.0) {
+                    return Err(self.out_of_range(&format!("{key}.ortho_height"), format!("{height} is not positive")));
+                }
+                (0.0, Some(height))
+            }
+        };
+        let mut sensor = Sensor::looking_at(Vec3::from(s.origin), Vec3::from(s.target), Vec3::from(s.up), fov_y).map_err(|e| {
             let k = if e.starts_with("up") { format!("{key}.up") } else { key.to_string() };
             self.invalid(&k, e)
         })?;
+        sensor.ortho_height = ortho_height;
         let target_image = match s.target_image {
             Some(rel) => {
                 let k = format!("{key}.target_image");

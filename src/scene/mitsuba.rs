@@ -3,8 +3,9 @@
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
 //! `rr_depth`, `<integrator type="direct">` (depth 2); `<sensor
-//! type="perspective">` with `fov`, `fov_axis` and `to_world`, its `<film type="hdrfilm">`
-//! size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
+//! type="perspective|orthographic">` with `fov` and `fov_axis` (perspective) and `to_world`
+//! (whose scale sets an orthographic camera's extent, uniform in x and y), its `<film
+//! type="hdrfilm">` size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
@@ -431,15 +432,17 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     fn sensor(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
-        if self.plugin_type(node)? != "perspective" {
-            return Err(self.err(node, "only perspective sensors are supported"));
-        }
+        let orthographic = match self.plugin_type(node)?.as_str() {
+            "perspective" => false,
+            "orthographic" => true,
+            _ => return Err(self.err(node, "only perspective and orthographic sensors are supported")),
+        };
         let mut items = elements(node);
-        let fov = self.take_float(&mut items, "fov", f32::NAN)?;
+        let fov = if orthographic { 90.0 } else { self.take_float(&mut items, "fov", f32::NAN)? };
         if fov.is_nan() {
             return Err(self.err(node, "give the field of view as <float name=\"fov\">"));
         }
-        let axis = self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "x".into());
+        let axis = if orthographic { "x".into() } else { self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "x".into()) };
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         for clip in ["near_clip", "far_clip"] {
             if let Some(n) = self.take(&mut items, clip) {
@@ -482,7 +485,16 @@ impl<'a, 'i> Importer<'a, 'i> {
         let origin = to_world.transform_point3(Vec3::ZERO);
         let forward = to_world.transform_vector3(Vec3::Z);
         let up = to_world.transform_vector3(Vec3::Y);
-        let sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(node, e))?;
+        let mut sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(node, e))?;
+        if orthographic {
+            // Mitsuba's orthographic camera sees local x in [-1, 1] across the film's width
+            // and y in [-1/aspect, 1/aspect] up its height, scaled by to_world.
+            let (sx, sy) = (to_world.transform_vector3(Vec3::X).length(), up.length());
+            if (sx - sy).abs() > 1e-4 * sx.max(sy) {
+                return Err(self.err(node, format!("an orthographic to_world scaled differently in x ({sx}) and y ({sy}) is not supported")));
+            }
+            sensor = Sensor { fov_y: 0.0, ..sensor }.orthographic(2.0 * sy / aspect);
+        }
         self.out.sensors.push(sensor);
         Ok(())
     }

@@ -37,8 +37,8 @@ pub struct Integrator {
     pub rr_depth: u32,
 }
 
-/// A pinhole camera with an orthonormal right-handed basis: it looks along `forward`,
-/// `right = forward × up_hint`, `up = right × forward`.
+/// A pinhole or orthographic camera with an orthonormal right-handed basis: it looks along
+/// `forward`, `right = forward × up_hint`, `up = right × forward`.
 #[derive(Clone, Debug)]
 pub struct Sensor {
     pub origin: Vec3,
@@ -46,8 +46,13 @@ pub struct Sensor {
     pub forward: Vec3,
     pub right: Vec3,
     pub up: Vec3,
-    /// Vertical field of view in degrees.
+    /// Vertical field of view in degrees (a pinhole camera's; kept but unused by an
+    /// orthographic one).
     pub fov_y: f32,
+    /// An orthographic camera's view height in world units (its width is that times the
+    /// film's aspect ratio): its rays leave the plane through `origin` spanned by `right`
+    /// and `up`, all along `forward`. `None`: a pinhole camera at `origin`.
+    pub ortho_height: Option<f32>,
     pub target_image: Option<Texture>,
 }
 
@@ -62,11 +67,26 @@ impl Sensor {
             return Err("up is zero or parallel to the view direction");
         }
         let right = right.normalize();
-        Ok(Sensor { origin, look_at: target, forward, right, up: right.cross(forward), fov_y, target_image: None })
+        Ok(Sensor { origin, look_at: target, forward, right, up: right.cross(forward), fov_y, ortho_height: None, target_image: None })
     }
 
-    /// Unit direction through normalised device coordinates `ndc` in [-1, 1]² (x right,
-    /// y up), for a film of aspect ratio `aspect` = width / height.
+    /// The orthographic camera of view height `height` in place of this pinhole one.
+    pub fn orthographic(self, height: f32) -> Self {
+        Sensor { ortho_height: Some(height), ..self }
+    }
+
+    /// The ray (origin, unit direction) through normalised device coordinates `ndc` in
+    /// [-1, 1]² (x right, y up), for a film of aspect ratio `aspect` = width / height, as
+    /// the kernels' `camera_ray` casts it.
+    pub fn ray(&self, ndc: Vec2, aspect: f32) -> (Vec3, Vec3) {
+        match self.ortho_height {
+            Some(h) => (self.origin + 0.5 * h * (ndc.x * aspect * self.right + ndc.y * self.up), self.forward),
+            None => (self.origin, self.ray_direction(ndc, aspect)),
+        }
+    }
+
+    /// A pinhole camera's unit direction through normalised device coordinates `ndc` in
+    /// [-1, 1]² (x right, y up), for a film of aspect ratio `aspect` = width / height.
     pub fn ray_direction(&self, ndc: Vec2, aspect: f32) -> Vec3 {
         let t = (self.fov_y.to_radians() * 0.5).tan();
         (self.forward + ndc.x * t * aspect * self.right + ndc.y * t * self.up).normalize()

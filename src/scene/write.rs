@@ -146,7 +146,13 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     let sensors = scene
         .sensors
         .iter()
-        .map(|s| table(vec![("origin", arr(&s.origin.to_array())), ("target", arr(&s.look_at.to_array())), ("up", arr(&s.up.to_array())), ("fov_y", Value::Float(num(s.fov_y)))]))
+        .map(|s| {
+            let projection = match s.ortho_height {
+                Some(h) => ("ortho_height", Value::Float(num(h))),
+                None => ("fov_y", Value::Float(num(s.fov_y))),
+            };
+            table(vec![("origin", arr(&s.origin.to_array())), ("target", arr(&s.look_at.to_array())), ("up", arr(&s.up.to_array())), projection])
+        })
         .collect();
     root.insert("sensors".into(), Value::Array(sensors));
     let mut materials = Vec::new();

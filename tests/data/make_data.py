@@ -317,7 +317,7 @@ def errors():
     variant("lines", lambda v: v["meshes"][1]["primitives"][0].update({"mode": 1}))
     variant("normal-map-texcoord1", lambda v: (v["materials"][0].update({"normalTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("texcoord1", lambda v: (v["materials"][0]["pbrMetallicRoughness"].update({"baseColorTexture": {"index": 0, "texCoord": 1}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
-    variant("orthographic", lambda v: v["cameras"].__setitem__(0, {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 1, "znear": 0.01, "zfar": 10}}))
+    variant("orthographic-flat", lambda v: v["cameras"].__setitem__(0, {"type": "orthographic", "orthographic": {"xmag": 1, "ymag": 0, "znear": 0.01, "zfar": 10}}))
     variant("missing-emissive-image", lambda v: (v["materials"][2].update({"emissiveTexture": {"index": 0}}), v.update({"textures": [{"source": 0}], "images": [{"uri": "none.png"}]})))
     variant("missing-buffer", lambda v: v["buffers"][0].update({"uri": "nowhere.bin"}))
 
@@ -330,7 +330,7 @@ def errors():
         "medium": base.replace("</scene>", '    <medium type="homogeneous" id="fog"/>\n</scene>', 1),
         "undefined-default": base.replace('value="$res"', 'value="$resolution"', 1),
         "clearcoat": base.replace('<float name="metallic" value="0.0"/>', '<float name="metallic" value="0.0"/>\n            <float name="clearcoat" value="0.5"/>', 1),
-        "orthographic": base.replace('<sensor type="perspective">', '<sensor type="orthographic">', 1),
+        "thinlens": base.replace('<sensor type="perspective">', '<sensor type="thinlens">', 1),
         "missing-radiance-bitmap": base.replace('<rgb name="radiance" value="10.0"/>', '<texture type="bitmap" name="radiance"><string name="filename" value="x.exr"/></texture>', 1),
     }
     for name, text in xml.items():
