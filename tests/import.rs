@@ -471,6 +471,9 @@ fn bundled_mitsuba_scenes_load_and_render() {
     with_gpu(|ctx| {
         for f in &files {
             let s = Scene::load_with(f, &small).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
+            if f.ends_with("orthographic.xml") {
+                assert_eq!(s.sensors[0].ortho_height, Some(3.0), "{}", f.display());
+            }
             if f.ends_with("normalmap.xml") {
                 assert_eq!(s.materials.iter().filter(|m| m.normal_map.is_some()).count(), 3, "{}", f.display());
             }
