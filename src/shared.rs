@@ -159,8 +159,8 @@ pub struct LightRecord {
     pub outer: f32,
 }
 
-/// Mirror of `SensorRecord`: 64 bytes (`pad` is zero; `ortho_half_height` 0 for a pinhole
-/// camera).
+/// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an
+/// orthographic camera, `lens_radius` 0 but for a thin lens).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct SensorRecord {
@@ -171,7 +171,9 @@ pub struct SensorRecord {
     pub tan_half_fov_y: f32,
     pub aspect: f32,
     pub ortho_half_height: f32,
-    pub pad: u32,
+    pub lens_radius: f32,
+    pub focus_distance: f32,
+    pub pad: [u32; 3],
 }
 
 /// Mirror of `Globals`: 32 bytes (`pad` is zero).

@@ -777,7 +777,11 @@ fn texel_record_layouts_match_reflection() {
             ("tan_half_fov_y", offset_of!(SensorRecord, tan_half_fov_y)),
             ("aspect", offset_of!(SensorRecord, aspect)),
             ("ortho_half_height", offset_of!(SensorRecord, ortho_half_height)),
+            ("lens_radius", offset_of!(SensorRecord, lens_radius)),
+            ("focus_distance", offset_of!(SensorRecord, focus_distance)),
             ("pad1", offset_of!(SensorRecord, pad)),
+            ("pad2", offset_of!(SensorRecord, pad) + 4),
+            ("pad3", offset_of!(SensorRecord, pad) + 8),
         ],
     );
     check(

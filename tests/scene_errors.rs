@@ -465,6 +465,15 @@ fn film_size_and_fov_are_bounded() {
         assert_message(&load_err(name, &BASE.replace("fov_y = 40", to)), &["scene.toml", key]);
     }
     assert_eq!(Scene::load(fixture("ortho", &BASE.replace("fov_y = 40", "ortho_height = 2.5"))).unwrap().sensors[0].ortho_height, Some(2.5));
+    // A thin lens takes an aperture and a distance of focus, both positive, on a pinhole.
+    for (name, to, key) in [
+        ("lens-no-focus", "fov_y = 40\naperture_radius = 0.1", "sensors[0].focus_distance"),
+        ("lens-no-aperture", "fov_y = 40\nfocus_distance = 2", "sensors[0].aperture_radius"),
+        ("lens-zero", "fov_y = 40\naperture_radius = 0\nfocus_distance = 2", "sensors[0].aperture_radius"),
+        ("lens-ortho", "ortho_height = 2\naperture_radius = 0.1\nfocus_distance = 2", "orthographic"),
+    ] {
+        assert_message(&load_err(name, &BASE.replace("fov_y = 40", to)), &["scene.toml", key]);
+    }
 }
 
 #[test]

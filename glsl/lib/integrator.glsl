@@ -540,7 +540,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
     }
 }
 
-// The camera ray of a pixel sample (block 0 of the RNG); pixel (0, 0) is the top left.
+// The camera ray of a pixel sample (block 0 of the RNG: the jitter in the pixel, then the
+// point on a thin lens); pixel (0, 0) is the top left.
 void camera_ray(SensorRecord s, uvec2 pixel, uvec2 size, inout Rng rng, out vec3 o, out vec3 d) {
     rng_seek_bounce(rng, 0u);
     vec2 jitter = rng_next2(rng);
@@ -551,7 +552,19 @@ void camera_ray(SensorRecord s, uvec2 pixel, uvec2 size, inout Rng rng, out vec3
         d = s.forward;
     } else {
         o = s.origin;
-        d = normalize(s.forward + ndc.x * s.tan_half_fov_y * s.aspect * s.right + ndc.y * s.tan_half_fov_y * s.up);
+        vec3 through = s.forward + ndc.x * s.tan_half_fov_y * s.aspect * s.right + ndc.y * s.tan_half_fov_y * s.up;
+        // A thin lens: from a point uniform on the lens (polar map) towards where the
+        // pinhole's ray meets the plane of focus (through's forward component is 1).
+        vec2 u = rng_next2(rng);
+        if (s.lens_radius > 0.0) {
+            float r = s.lens_radius * sqrt(u.x);
+            float phi = 6.28318530717959 * u.y;
+            vec3 lens = r * (cos(phi) * s.right + sin(phi) * s.up);
+            o = s.origin + lens;
+            d = normalize(through * s.focus_distance - lens);
+        } else {
+            d = normalize(through);
+        }
     }
 }
 #endif

@@ -132,10 +132,10 @@ EmitterTri emitter_tri(uint i) {
     return e;
 }
 
-// Sensor `i` (4 texels: origin 0-2, right 3-5, up 6-8, forward 9-11, tan_half_fov_y 12,
-// aspect 13, ortho_half_height 14).
+// Sensor `i` (5 texels: origin 0-2, right 3-5, up 6-8, forward 9-11, tan_half_fov_y 12,
+// aspect 13, ortho_half_height 14, lens_radius 15, focus_distance 16).
 SensorRecord sensor_record(uint i) {
-    int b = int(i) * 4;
+    int b = int(i) * 5;
     SensorRecord s;
     uvec3 forward;
     texel_vec3x3(Sensors, b, s.origin, s.right, s.up, forward);
@@ -144,7 +144,12 @@ SensorRecord sensor_record(uint i) {
     s.tan_half_fov_y = uintBitsToFloat(t3.x);
     s.aspect = uintBitsToFloat(t3.y);
     s.ortho_half_height = uintBitsToFloat(t3.z);
+    s.lens_radius = uintBitsToFloat(t3.w);
+    uvec4 t4 = texel_load(Sensors, b + 4);
+    s.focus_distance = uintBitsToFloat(t4.x);
     s.pad1 = 0u;
+    s.pad2 = 0u;
+    s.pad3 = 0u;
     return s;
 }
 

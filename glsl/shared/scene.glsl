@@ -115,9 +115,11 @@ struct LightRecord {
     float outer;
 };
 
-// A pinhole camera, or an orthographic one where ortho_half_height > 0: its rays leave the
+// A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the
 // plane through origin spanned by right and up (half the view's height along up, that
-// times aspect along right), all along forward. 64 bytes (4 texels).
+// times aspect along right), all along forward; a thin lens where lens_radius > 0: its
+// rays leave a disk of that radius around origin in the same plane, through the point the
+// pinhole's ray reaches at focus_distance along forward. 80 bytes (5 texels).
 struct SensorRecord {
     vec3 origin;
     vec3 right;
@@ -126,7 +128,11 @@ struct SensorRecord {
     float tan_half_fov_y;
     float aspect;
     float ortho_half_height;
+    float lens_radius;
+    float focus_distance;
     uint pad1;
+    uint pad2;
+    uint pad3;
 };
 
 // Scene-wide values. 32 bytes (2 texels).

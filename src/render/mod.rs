@@ -594,7 +594,9 @@ impl GpuScene {
                 tan_half_fov_y: (s.fov_y.to_radians() * 0.5).tan(),
                 aspect,
                 ortho_half_height: s.ortho_height.map_or(0.0, |h| 0.5 * h),
-                pad: 0,
+                lens_radius: s.lens.map_or(0.0, |l| l.aperture_radius),
+                focus_distance: s.lens.map_or(0.0, |l| l.focus_distance),
+                pad: [0; 3],
             })
             .collect();
 

@@ -54,6 +54,10 @@ pub struct SensorFile {
     /// An orthographic camera's view height in world units (its width is that times the
     /// film's aspect ratio). Exactly one of `fov_y` and `ortho_height` is given.
     pub ortho_height: Option<f32>,
+    /// A pinhole camera's thin lens: the radius of its aperture and the distance along the
+    /// view at which it is in focus, both or neither.
+    pub aperture_radius: Option<f32>,
+    pub focus_distance: Option<f32>,
     pub target_image: Option<String>,
 }
 

@@ -95,6 +95,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
             h.tag("orthographic");
             h.f32s(&[height]);
         }
+        if let Some(lens) = s.lens {
+            h.tag("thin lens");
+            h.f32s(&[lens.aperture_radius, lens.focus_distance]);
+        }
     }
     h.tag("materials");
     h.u64(scene.materials.len() as u64);

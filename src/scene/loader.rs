@@ -381,6 +381,21 @@ impl Loader {
             self.invalid(&k, e)
         })?;
         sensor.ortho_height = ortho_height;
+        sensor.lens = match (s.aperture_radius, s.focus_distance) {
+            (None, None) => None,
+            (Some(_), None) => return Err(self.invalid(&format!("{key}.focus_distance"), "is missing (a thin lens needs aperture_radius and focus_distance)")),
+            (None, Some(_)) => return Err(self.invalid(&format!("{key}.aperture_radius"), "is missing (a thin lens needs aperture_radius and focus_distance)")),
+            (Some(_), Some(_)) if ortho_height.is_some() => return Err(self.invalid(key, "an orthographic camera has no thin lens")),
+            (Some(radius), Some(focus)) => {
+                for (name, v) in [("aperture_radius", radius), ("focus_distance", focus)] {
+                    self.finite(&format!("{key}.{name}"), &[v])?;
+                    if !(v > 0.0) {
+                        return Err(self.out_of_range(&format!("{key}.{name}"), format!("{v} is not positive")));
+                    }
+                }
+                Some(ThinLens { aperture_radius: radius, focus_distance: focus })
+            }
+        };
         let target_image = match s.target_image {
             Some(rel) => {
                 let k = format!("{key}.target_image");

@@ -3,7 +3,8 @@
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
 //! `rr_depth`, `<integrator type="direct">` (depth 2); `<sensor
-//! type="perspective|orthographic">` with `fov` and `fov_axis` (perspective) and `to_world`
+//! type="perspective|thinlens|orthographic">` with `fov` and `fov_axis` (perspective and
+//! thin lens), `aperture_radius` and `focus_distance` (thin lens) and `to_world`
 //! (whose scale sets an orthographic camera's extent, uniform in x and y), its `<film
 //! type="hdrfilm">` size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
@@ -432,12 +433,26 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     fn sensor(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
-        let orthographic = match self.plugin_type(node)?.as_str() {
-            "perspective" => false,
+        let kind = self.plugin_type(node)?;
+        let orthographic = match kind.as_str() {
+            "perspective" | "thinlens" => false,
             "orthographic" => true,
-            _ => return Err(self.err(node, "only perspective and orthographic sensors are supported")),
+            _ => return Err(self.err(node, "only perspective, thinlens and orthographic sensors are supported")),
         };
         let mut items = elements(node);
+        let lens = if kind == "thinlens" {
+            let mut get = |name: &str| -> Result<f32, SceneError> {
+                let n = self.take(&mut items, name).ok_or_else(|| self.err(node, format!("a thinlens sensor needs <float name=\"{name}\">")))?;
+                let v = self.float(n)?;
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(self.err(n, format!("{name} = {v} is not positive")));
+                }
+                Ok(v)
+            };
+            Some(ThinLens { aperture_radius: get("aperture_radius")?, focus_distance: get("focus_distance")? })
+        } else {
+            None
+        };
         let fov = if orthographic { 90.0 } else { self.take_float(&mut items, "fov", f32::NAN)? };
         if fov.is_nan() {
             return Err(self.err(node, "give the field of view as <float name=\"fov\">"));
@@ -486,6 +501,8 @@ impl<'a, 'i> Importer<'a, 'i> {
         let forward = to_world.transform_vector3(Vec3::Z);
         let up = to_world.transform_vector3(Vec3::Y);
         let mut sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(node, e))?;
+        // Mitsuba's lens and plane of focus are in camera space: scaled by to_world.
+        sensor.lens = lens.map(|l| ThinLens { aperture_radius: l.aperture_radius * to_world.transform_vector3(Vec3::X).length(), focus_distance: l.focus_distance * forward.length() });
         if orthographic {
             // Mitsuba's orthographic camera sees local x in [-1, 1] across the film's width
             // and y in [-1/aspect, 1/aspect] up its height, scaled by to_world.

@@ -133,7 +133,7 @@ mod tests {
 
     fn sensor(origin: [f32; 3], target: [f32; 3], up: [f32; 3]) -> Result<Sensor, SceneError> {
         let loader = loader::Loader { scene: "s.toml".into(), dir: Default::default() };
-        let raw = file::SensorFile { origin, target, up, fov_y: Some(90.0), ortho_height: None, target_image: None };
+        let raw = file::SensorFile { origin, target, up, fov_y: Some(90.0), ortho_height: None, aperture_radius: None, focus_distance: None, target_image: None };
         loader.sensor("sensors[0]", raw, Film { width: 4, height: 4 })
     }
 

@@ -53,7 +53,18 @@ pub struct Sensor {
     /// film's aspect ratio): its rays leave the plane through `origin` spanned by `right`
     /// and `up`, all along `forward`. `None`: a pinhole camera at `origin`.
     pub ortho_height: Option<f32>,
+    /// A pinhole camera's thin lens (depth of field), if any.
+    pub lens: Option<ThinLens>,
     pub target_image: Option<Texture>,
+}
+
+/// A thin lens in place of a pinhole (Mitsuba's `thinlens`): rays leave a disk of radius
+/// `aperture_radius` around the camera's origin, perpendicular to its view, and what lies
+/// at `focus_distance` along the view is sharp.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ThinLens {
+    pub aperture_radius: f32,
+    pub focus_distance: f32,
 }
 
 impl Sensor {
@@ -67,7 +78,7 @@ impl Sensor {
             return Err("up is zero or parallel to the view direction");
         }
         let right = right.normalize();
-        Ok(Sensor { origin, look_at: target, forward, right, up: right.cross(forward), fov_y, ortho_height: None, target_image: None })
+        Ok(Sensor { origin, look_at: target, forward, right, up: right.cross(forward), fov_y, ortho_height: None, lens: None, target_image: None })
     }
 
     /// The orthographic camera of view height `height` in place of this pinhole one.
@@ -77,7 +88,7 @@ impl Sensor {
 
     /// The ray (origin, unit direction) through normalised device coordinates `ndc` in
     /// [-1, 1]² (x right, y up), for a film of aspect ratio `aspect` = width / height, as
-    /// the kernels' `camera_ray` casts it.
+    /// the kernels' `camera_ray` casts it (a thin lens's from the lens's centre).
     pub fn ray(&self, ndc: Vec2, aspect: f32) -> (Vec3, Vec3) {
         match self.ortho_height {
             Some(h) => (self.origin + 0.5 * h * (ndc.x * aspect * self.right + ndc.y * self.up), self.forward),

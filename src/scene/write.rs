@@ -151,7 +151,12 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 Some(h) => ("ortho_height", Value::Float(num(h))),
                 None => ("fov_y", Value::Float(num(s.fov_y))),
             };
-            table(vec![("origin", arr(&s.origin.to_array())), ("target", arr(&s.look_at.to_array())), ("up", arr(&s.up.to_array())), projection])
+            let mut pairs = vec![("origin", arr(&s.origin.to_array())), ("target", arr(&s.look_at.to_array())), ("up", arr(&s.up.to_array())), projection];
+            if let Some(lens) = s.lens {
+                pairs.push(("aperture_radius", Value::Float(num(lens.aperture_radius))));
+                pairs.push(("focus_distance", Value::Float(num(lens.focus_distance))));
+            }
+            table(pairs)
         })
         .collect();
     root.insert("sensors".into(), Value::Array(sensors));

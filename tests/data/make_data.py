@@ -330,7 +330,7 @@ def errors():
         "medium": base.replace("</scene>", '    <medium type="homogeneous" id="fog"/>\n</scene>', 1),
         "undefined-default": base.replace('value="$res"', 'value="$resolution"', 1),
         "clearcoat": base.replace('<float name="metallic" value="0.0"/>', '<float name="metallic" value="0.0"/>\n            <float name="clearcoat" value="0.5"/>', 1),
-        "thinlens": base.replace('<sensor type="perspective">', '<sensor type="thinlens">', 1),
+        "radiancemeter": base.replace('<sensor type="perspective">', '<sensor type="radiancemeter">', 1),
         "missing-radiance-bitmap": base.replace('<rgb name="radiance" value="10.0"/>', '<texture type="bitmap" name="radiance"><string name="filename" value="x.exr"/></texture>', 1),
     }
     for name, text in xml.items():
