@@ -370,7 +370,7 @@ impl Loader {
             }
             (None, Some(height)) => {
                 self.finite(&format!("{key}.ortho_height"), &[height])?;
-                if !(height > 0.0) {
+                if height <= 0.0 {
                     return Err(self.out_of_range(&format!("{key}.ortho_height"), format!("{height} is not positive")));
                 }
                 (0.0, Some(height))
@@ -389,7 +389,7 @@ impl Loader {
             (Some(radius), Some(focus)) => {
                 for (name, v) in [("aperture_radius", radius), ("focus_distance", focus)] {
                     self.finite(&format!("{key}.{name}"), &[v])?;
-                    if !(v > 0.0) {
+                    if v <= 0.0 {
                         return Err(self.out_of_range(&format!("{key}.{name}"), format!("{v} is not positive")));
                     }
                 }

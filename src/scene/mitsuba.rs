@@ -718,7 +718,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                         let specular = self.float(n)?;
                         let r = (0.08 * f64::from(specular)).sqrt();
                         let eta = ((1.0 + r) / (1.0 - r)) as f32;
-                        if !(specular >= 0.0) || !(MIN_IOR..=MAX_IOR).contains(&eta) {
+                        if specular.is_nan() || specular < 0.0 || !(MIN_IOR..=MAX_IOR).contains(&eta) {
                             return Err(self.err(n, format!("specular = {specular} is outside [0, {:.3}] (an index of refraction in [1, {MAX_IOR}])", max_specular())));
                         }
                         eta
