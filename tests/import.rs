@@ -1533,6 +1533,31 @@ fn principled_index_of_refraction_sets_the_reflectance() {
     }
 }
 
+/// A Mitsuba scene of a 16 × 16 film and an emitting square of side 1 (radiance (2, 1,
+/// 0.5)) facing +z, seen by a sensor of type `sensor` with the parameters `params` and the
+/// transform `to_world`; `square` moves the square after its scaling.
+fn emitting_square_xml(sensor: &str, params: &str, to_world: &str, square: &str) -> String {
+    format!(
+        r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="2"/></integrator>
+    <sensor type="{sensor}">{params}
+        <transform name="to_world">{to_world}</transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.5"/>{square}</transform>
+        <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
+    </shape>
+</scene>"#
+    )
+}
+
+/// Writes `text` to `dir/name` and loads it.
+fn write_and_load(dir: &Path, name: &str, text: &str) -> Result<Scene, SceneError> {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    Scene::load(&path)
+}
+
 /// An orthographic camera (Mitsuba's `orthographic`, glTF's `orthographic`, TOML's
 /// `ortho_height`) sees a parallel projection: an emitting square of side 1 before a
 /// 16 × 16 film whose view is 2 wide fills exactly the film's middle 8 × 8 pixels with its
@@ -1542,24 +1567,10 @@ fn principled_index_of_refraction_sets_the_reflectance() {
 fn orthographic_cameras_see_parallel_projections() {
     let dir = temp_dir("orthographic");
     let xml = |distance: f32, scale: &str| {
-        format!(
-            r#"<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="2"/></integrator>
-    <sensor type="orthographic">
-        <transform name="to_world">{scale}<lookat origin="0.3, -0.2, {distance}" target="0.3, -0.2, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/><rfilter type="box"/></film>
-    </sensor>
-    <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><translate x="0.3" y="-0.2"/></transform>
-        <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
-    </shape>
-</scene>"#
-        )
+        let to_world = format!(r#"{scale}<lookat origin="0.3, -0.2, {distance}" target="0.3, -0.2, 0" up="0, 1, 0"/>"#);
+        emitting_square_xml("orthographic", "", &to_world, r#"<translate x="0.3" y="-0.2"/>"#)
     };
-    let load = |name: &str, text: String| {
-        let path = dir.join(name);
-        std::fs::write(&path, text).unwrap();
-        Scene::load(&path)
-    };
+    let load = |name: &str, text: String| write_and_load(&dir, name, &text);
     // The film's pixels inside the middle `side` × `side` block show the radiance, the
     // others nothing.
     let check = |image: &Image, side: u32, what: &str| {
@@ -1616,24 +1627,10 @@ fn thin_lenses_focus() {
     // The plane at distance 4 seen 2 high: the square of side 1 covers the middle half.
     let fov = 2.0 * 0.25f64.atan().to_degrees();
     let xml = |sensor: &str, lens: &str| {
-        format!(
-            r#"<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="2"/></integrator>
-    <sensor type="{sensor}"><float name="fov" value="{fov}"/>{lens}
-        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
-        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/><rfilter type="box"/></film>
-    </sensor>
-    <shape type="rectangle"><transform name="to_world"><scale value="0.5"/></transform>
-        <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
-    </shape>
-</scene>"#
-        )
+        let params = format!(r#"<float name="fov" value="{fov}"/>{lens}"#);
+        emitting_square_xml(sensor, &params, r#"<lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/>"#, "")
     };
-    let load = |name: &str, text: String| {
-        let path = dir.join(name);
-        std::fs::write(&path, text).unwrap();
-        Scene::load(&path)
-    };
+    let load = |name: &str, text: String| write_and_load(&dir, name, &text);
     let pixel = |image: &Image, x: usize, y: usize| image.data[y * 16 + x][0];
     with_gpu(|ctx| {
         let pinhole = render(ctx, &load("pinhole.xml", xml("perspective", "")).unwrap(), 0, 64, 5);
