@@ -60,7 +60,23 @@ pub struct ValueRef {
     pub offset: i32,
     pub width: u32,
     pub height: u32,
-    pub in_theta: u32,
+    /// [`ValueRef::IN_THETA`] and [`ValueRef::NEAREST`].
+    pub flags: u32,
+}
+
+impl ValueRef {
+    /// The floats are elements of θ (`VALUE_IN_THETA`).
+    pub const IN_THETA: u32 = 1;
+    /// A texture looked up at its nearest texel (`VALUE_NEAREST`).
+    pub const NEAREST: u32 = 2;
+
+    /// The flag of texture filter `f`.
+    pub fn filter_flag(f: crate::scene::Filter) -> u32 {
+        match f {
+            crate::scene::Filter::Bilinear => 0,
+            crate::scene::Filter::Nearest => Self::NEAREST,
+        }
+    }
 }
 
 /// Mirror of `MaterialRecord`: 144 bytes (9 texels).

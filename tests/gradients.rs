@@ -702,6 +702,26 @@ fn emission_texture_gradients_are_exact() {
     });
 }
 
+/// A floor whose diffuse colour is a texture looked up at its nearest texel
+/// (`filter = "nearest"`), optimised as 2 × 2 texels that keep the filter: each point of
+/// the floor reads one texel, in the primal, the replay and the finite differences alike,
+/// so the adjoint is exact per sample, texel by texel.
+#[test]
+fn nearest_texture_gradients_are_exact() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
+        let floor = "type = \"diffuse\"\nbase_color = { texture = \"albedo.exr\", filter = \"nearest\" }";
+        let path = common::scenes::lit_quad("gradients-nearest", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
+        let albedo = vkinverse::image::Image { width: 2, height: 2, data: vec![[0.7, 0.4, 0.2], [0.2, 0.4, 0.7], [0.5; 3], [0.9, 0.1, 0.5]] };
+        vkinverse::image::write_exr(&path.parent().unwrap().join("albedo.exr"), &albedo).unwrap();
+        let scene = Scene::load(path).unwrap();
+        assert_eq!(scene.materials[0].base_color.filter(), vkinverse::scene::Filter::Nearest);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.1)).collect();
+        check("nearest", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
+    });
+}
+
 /// A floor whose left half an alpha test cuts out (a 4 × 1 alpha texture 0, 0, 1, 1 at 0.5),
 /// its diffuse colour a 2 × 2 texture: camera rays, shadow rays and bounces pass through the
 /// cut-out half to the sky and the light, in the primal, the replay and the finite

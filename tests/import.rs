@@ -474,6 +474,11 @@ fn bundled_mitsuba_scenes_load_and_render() {
             if f.ends_with("orthographic.xml") {
                 assert!(s.sensors[0].ortho_height.is_some_and(|h| (h - 3.0).abs() < 1e-5), "{}: {:?}", f.display(), s.sensors[0].ortho_height);
             }
+            if f.ends_with("checkerboard.xml") {
+                // Three nearest-filtered textures, each shape's coordinates moved by its to_uv.
+                assert_eq!(s.materials.iter().filter(|m| m.base_color.filter() == vkinverse::scene::Filter::Nearest).count(), 3, "{}", f.display());
+                assert!(s.meshes.iter().all(|m| m.uvs.iter().any(|t| t[0] > 1.5)), "{}", f.display());
+            }
             if f.ends_with("normalmap.xml") {
                 assert_eq!(s.materials.iter().filter(|m| m.normal_map.is_some()).count(), 3, "{}", f.display());
             }
@@ -683,7 +688,7 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into() })
+    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into(), filter: vkinverse::scene::Filter::Bilinear })
 }
 
 /// `img` equals `expected` to float rounding, pixel by pixel.
@@ -1661,4 +1666,106 @@ fn thin_lenses_focus() {
     });
     let e = load("no-focus.xml", xml("thinlens", r#"<float name="aperture_radius" value="0.125"/>"#)).unwrap_err().to_string();
     assert!(e.contains("focus_distance") && e.contains("line ") && !e.contains('\n'), "{e}");
+}
+
+/// Mitsuba's `checkerboard` texture and a bitmap's `filter_type="nearest"`, each under a
+/// `to_uv` (scale 2, shifted by 1/4 in u), on an emitting square of side 1 seen head-on
+/// through an orthographic view 2 wide on a 16 × 16 film: every pixel of the square lies
+/// within one cell of the pattern, which Mitsuba's rule (color0 where the fractional
+/// parts of u and v are both below or both above 1/2) gives at its centre, and shows that
+/// colour exactly. The same 2 × 2 image filtered bilinearly blurs it. Written back as TOML
+/// the filter and the moved texture coordinates stay.
+#[test]
+fn checkerboards_and_nearest_textures_are_imported() {
+    let dir = temp_dir("checkerboard");
+    let (c0, c1) = ([2.0f32, 1.0, 0.5], [0.25f32, 0.5, 1.0]);
+    vkinverse::image::write_exr(&dir.join("cells.exr"), &Image { width: 2, height: 2, data: vec![c0, c1, c1, c0] }).unwrap();
+    let to_uv = r#"<transform name="to_uv"><scale x="2" y="2"/><translate x="0.25"/></transform>"#;
+    let xml = |texture: &str| {
+        emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "")
+            .replace(r#"<rgb name="radiance" value="2, 1, 0.5"/>"#, texture)
+    };
+    let checker = format!(r#"<texture type="checkerboard" name="radiance"><rgb name="color0" value="2, 1, 0.5"/><rgb name="color1" value="0.25, 0.5, 1"/>{to_uv}</texture>"#);
+    let bitmap = |filter: &str| format!(r#"<texture type="bitmap" name="radiance"><string name="filename" value="cells.exr"/>{filter}{to_uv}</texture>"#);
+    // Mitsuba's colour at pixel (x, y): the square's Mitsuba uv is (x_w + 1/2, y_w + 1/2)
+    // (v up the square here, as Mitsuba's rectangle's), mapped by to_uv.
+    let expected = |x: u32, y: u32| -> [f32; 3] {
+        let (xw, yw) = ((x as f64 + 0.5 - 8.0) / 8.0, (8.0 - y as f64 - 0.5) / 8.0);
+        if xw.abs() > 0.5 || yw.abs() > 0.5 {
+            return [0.0; 3];
+        }
+        let (u, v) = (2.0 * (xw + 0.5) + 0.25, 2.0 * (yw + 0.5));
+        if (u.fract() > 0.5) == (v.fract() > 0.5) { c0 } else { c1 }
+    };
+    let check = |image: &Image, what: &str| {
+        for y in 0..16 {
+            for x in 0..16 {
+                let (got, want) = (image.data[(y * 16 + x) as usize], expected(x, y));
+                assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-5), "{what}: pixel ({x}, {y}) is {got:?}, not {want:?}");
+            }
+        }
+    };
+    with_gpu(|ctx| {
+        for (name, texture) in [("checker.xml", checker.clone()), ("nearest.xml", bitmap(r#"<string name="filter_type" value="nearest"/>"#))] {
+            let s = write_and_load(&dir, name, &xml(&texture)).unwrap();
+            assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+            assert_eq!(s.meshes[0].emission.filter(), vkinverse::scene::Filter::Nearest, "{name}");
+            check(&render(ctx, &s, 0, 16, 3), name);
+            let out = dir.join(format!("out-{name}"));
+            write_final(&out, &s, &[]).unwrap();
+            let text = std::fs::read_to_string(out.join("final/scene.toml")).unwrap();
+            assert!(text.contains(r#"filter = "nearest""#), "{name}: {text}");
+            let t = Scene::load(out.join("final/scene.toml")).unwrap();
+            check(&render(ctx, &t, 0, 16, 3), &format!("{name} written back"));
+        }
+        // Bilinear: the pixels beside each cell edge mix the two colours.
+        let s = write_and_load(&dir, "bilinear.xml", &xml(&bitmap(""))).unwrap();
+        let image = render(ctx, &s, 0, 16, 3);
+        let blurred = (0..256).filter(|&i| expected(i % 16, i / 16) != [0.0; 3] && image.data[i as usize] != expected(i % 16, i / 16)).count();
+        assert!(blurred >= 32, "bilinear filtering left {blurred} of 64 pixels unblurred");
+    });
+    // Errors name the line.
+    for (text, message) in [
+        (xml(&bitmap(r#"<string name="filter_type" value="cubic"/>"#)), "filter_type \"cubic\""),
+        (xml(&checker.replace(r#"<rgb name="color0" value="2, 1, 0.5"/>"#, r#"<texture type="bitmap" name="color0"><string name="filename" value="cells.exr"/></texture>"#)), "colours must be constants"),
+        (xml(r#"<texture type="noise" name="radiance"/>"#), "bitmap and checkerboard"),
+    ] {
+        let e = write_and_load(&dir, "bad.xml", &text).unwrap_err().to_string();
+        assert!(e.contains(message) && e.contains("line ") && !e.contains('\n'), "{e}");
+    }
+    // One shape's textures under different to_uv maps.
+    let two = r#"<bsdf type="diffuse"><texture type="checkerboard" name="reflectance"/></bsdf>"#;
+    let e = write_and_load(&dir, "two.xml", &xml(&checker).replace("<emitter", &format!("{two}<emitter"))).unwrap_err().to_string();
+    assert!(e.contains("different to_uv") && !e.contains('\n'), "{e}");
+}
+
+/// glTF's NEAREST magnification filter: the base colour and normal textures of
+/// `normal-mapped.gltf` under a NEAREST sampler load nearest-filtered, the TOML written
+/// back keeps the filter, and the glTF written back gives a recovered base colour texture
+/// a NEAREST sampler of its own.
+#[test]
+fn gltf_nearest_samplers_are_kept() {
+    use vkinverse::scene::write::Recovered;
+    use vkinverse::scene::{Filter, ParamTarget};
+    let dir = temp_dir("gltf-nearest");
+    std::fs::copy(data("textured/bumps.png"), dir.join("bumps.png")).unwrap();
+    let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    doc["samplers"] = serde_json::json!([{ "magFilter": 9728 }]);
+    doc["textures"][0]["sampler"] = serde_json::json!(0);
+    doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0 });
+    std::fs::write(dir.join("nearest.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
+    let s = Scene::load(dir.join("nearest.gltf")).unwrap();
+    let m = &s.materials[0];
+    assert_eq!((m.base_color.filter(), m.normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    let recovered = Recovered::Texture { width: 2, height: 2, channels: 3, data: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.2, 0.4, 0.6] };
+    let out = dir.join("out");
+    write_final(&out, &s, &[(ParamTarget::BaseColor { material: 0 }, recovered)]).unwrap();
+    let t = Scene::load(out.join("final/scene.toml")).unwrap();
+    assert_eq!((t.materials[0].base_color.filter(), t.materials[0].normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    let g = Scene::load(out.join("final/scene.gltf")).unwrap();
+    assert_eq!(g.materials[0].base_color.filter(), Filter::Nearest);
+    // Without the sampler both are bilinear.
+    doc["textures"][0].as_object_mut().unwrap().remove("sampler");
+    std::fs::write(dir.join("linear.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
+    assert_eq!(Scene::load(dir.join("linear.gltf")).unwrap().materials[0].base_color.filter(), Filter::Bilinear);
 }

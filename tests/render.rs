@@ -528,7 +528,7 @@ fn environment_distribution_matches_its_pdf() {
 fn kernels_read_the_records_the_host_wrote() {
     use vkinverse::bvh::{BvhCwNode, BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
     use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
-    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading};
+    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
     fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
         let bytes: Vec<u8> = b.read().unwrap();
         bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
@@ -582,7 +582,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 if *name == "normal map" {
                     // The quad's u runs along −x: tangent −x, dp/dv (−z) against cross(ng, tangent) (+z).
                     assert!(shading.iter().all(|s| s.tangent == [-1.0, 0.0, 0.0, -1.0]), "{name}: tangents {:?}", shading.iter().map(|s| s.tangent).collect::<Vec<_>>());
-                    assert!(materials[0].normal_map.width == 2 && materials[0].normal_map.in_theta == 0, "{name}: {:?}", materials[0]);
+                    assert!(materials[0].normal_map.width == 2 && materials[0].normal_map.flags & ValueRef::IN_THETA == 0, "{name}: {:?}", materials[0]);
                 }
                 assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights" | "normal map"), "{name} has emitters");
 
@@ -652,7 +652,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 for (m, e) in &mesh_emission {
                     // A constant emission reads the scene's value; an optimised one reads θ.
                     let o = e.offset as usize;
-                    if e.in_theta == 0 {
+                    if e.flags & ValueRef::IN_THETA == 0 {
                         let (want, size): (Vec<f32>, _) = match &scene.meshes[*m as usize].emission {
                             ColorValue::Constant(c) => (c.to_vec(), [0, 0]),
                             ColorValue::Texture(t) => (t.image.data.as_flattened().to_vec(), [t.image.width, t.image.height]),

@@ -653,6 +653,20 @@ fn texture_values_obey_the_rules_of_constants() {
     // A colour texture, like a colour, is non-negative.
     let err = bad_texel("color-range", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"neg.exr\" }"), "neg.exr", (2, 2), [0.5; 3], (1, 2), -0.25);
     assert_message(&err, &["materials.m.base_color.texture", "-0.25", "(1, 0)"]);
+    // A texture's filter is "bilinear" (the default) or "nearest".
+    use vkinverse::scene::Filter;
+    let with = |value: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = {value}"));
+    let nearest = Scene::load(fixture("filter-nearest", &with("{ texture = \"tex.exr\", filter = \"nearest\" }"))).unwrap();
+    assert_eq!(nearest.materials[0].base_color.filter(), Filter::Nearest);
+    let s = Scene::load(fixture("filter-default", &with("{ texture = \"tex.exr\" }"))).unwrap();
+    assert_eq!(s.materials[0].base_color.filter(), Filter::Bilinear);
+    assert_ne!(nearest.content_hash(), s.content_hash(), "the filter changes the render");
+    let named = Scene::load(fixture("filter-bilinear", &with("{ texture = \"tex.exr\", filter = \"bilinear\" }"))).unwrap();
+    assert_eq!(named.content_hash(), s.content_hash(), "bilinear is the default");
+    assert_message(&load_err("filter-unknown", &with("{ texture = \"tex.exr\", filter = \"cubic\" }")), &["materials.m.base_color.filter", "\"cubic\"", "\"bilinear\" or \"nearest\""]);
+    let nmap = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nnormal_map = { texture = \"tex.exr\", filter = \"nearest\" }");
+    assert_eq!(Scene::load(fixture("filter-nmap", &nmap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.filter, Filter::Nearest);
+    assert_message(&load_err("filter-nmap-unknown", &nmap.replace("nearest", "box")), &["materials.m.normal_map.filter", "\"box\""]);
 }
 
 /// A normal map's texels encode unit vectors in [0, 1], its scale is finite and its
@@ -727,6 +741,11 @@ fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
     write_exr(&dir.parent().unwrap().join("halves.exr"), &halves).unwrap();
     let scene = Scene::load(dir.clone()).unwrap();
     assert_eq!(scene.optimise.params[0].init, [0.2, 0.2, 0.8, 0.8, 0.2, 0.2, 0.8, 0.8]);
+    // A start image has no filter of its own.
+    let filtered = std::fs::read_to_string(&dir).unwrap().replace("{ texture = \"halves.exr\" }", "{ texture = \"halves.exr\", filter = \"nearest\" }");
+    std::fs::write(&dir, filtered).unwrap();
+    assert_message(&Scene::load(dir.clone()).unwrap_err(), &["init.filter", "start image"]);
+    std::fs::write(&dir, std::fs::read_to_string(&dir).unwrap().replace(", filter = \"nearest\"", "")).unwrap();
     let layout = vkinverse::render::ParamLayout::new(&scene);
     assert_eq!(layout.initial(), scene.optimise.params[0].init);
 

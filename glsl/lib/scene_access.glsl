@@ -237,10 +237,10 @@ layout(constant_id = 14) const uint CONST_BASE = 0u;
 // Reads element i of a value's data with `read` (texel_float or texel_vec3_at): a
 // constant's from the material data at the end of Theta, an optimised value's from θ, or in
 // parameter state 1 of the finite-difference kernels from θ of the previous iteration.
-#define VALUE_INDEX(r, i) ((r).in_theta == 0u ? int(CONST_BASE) + (i) : (i))
+#define VALUE_INDEX(r, i) (((r).flags & VALUE_IN_THETA) == 0u ? int(CONST_BASE) + (i) : (i))
 #ifdef FD
 #define VALUE_READ(read, r, i, state) \
-    ((state) == 1 && (r).in_theta != 0u ? read(ThetaPrev, i) : read(Theta, VALUE_INDEX(r, i)))
+    ((state) == 1 && ((r).flags & VALUE_IN_THETA) != 0u ? read(ThetaPrev, i) : read(Theta, VALUE_INDEX(r, i)))
 #else
 #define VALUE_READ(read, r, i, state) read(Theta, VALUE_INDEX(r, i))
 #endif
@@ -252,7 +252,8 @@ float value_at(ValueRef r, int index, int state) { return VALUE_READ(texel_float
 // two texel fetches per buffer instead of three.
 vec3 value3_at(ValueRef r, int index, int state) { return VALUE_READ(texel_vec3_at, r, r.offset + index, state); }
 
-// Bilinear lookup footprint: four texel indices (repeat wrapping) and their weights.
+// Lookup footprint: four texel indices (repeat wrapping) and their bilinear weights, or
+// for a nearest-filtered texture the texel whose square holds uv with weight 1 in slot 0.
 // A constant is one "texel" with weight 1 in slot 0.
 void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
     uint width = HAS_TEXTURES ? r.width : 0u;
@@ -262,10 +263,16 @@ void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
         return;
     }
     // uv (0,0) is the bottom-left of the image (OBJ convention); rows are stored top first.
-    vec2 p = vec2(uv.x, 1.0 - uv.y) * vec2(r.width, r.height) - 0.5;
+    ivec2 size = ivec2(r.width, r.height);
+    if ((r.flags & VALUE_NEAREST) != 0u) {
+        ivec2 a = ivec2(mod(floor(vec2(uv.x, 1.0 - uv.y) * vec2(size)), vec2(size)));
+        texel = ivec4(a.y * size.x + a.x, 0, 0, 0);
+        weight = vec4(1.0, 0.0, 0.0, 0.0);
+        return;
+    }
+    vec2 p = vec2(uv.x, 1.0 - uv.y) * vec2(size) - 0.5;
     vec2 f = floor(p);
     vec2 t = p - f;
-    ivec2 size = ivec2(r.width, r.height);
     ivec2 a = ivec2(mod(f, vec2(size)));
     ivec2 b = (a + 1) % size;
     texel = ivec4(a.y * size.x + a.x, a.y * size.x + b.x, b.y * size.x + a.x, b.y * size.x + b.x);
@@ -386,7 +393,7 @@ void grad_flush() {
 // Adds g (the gradient of the loss with respect to the looked-up value) to the gradients
 // of the parameters the lookup read, if they are being optimised.
 void scatter3(ValueRef r, vec2 uv, vec3 g) {
-    if (r.in_theta == 0u || all(equal(g, vec3(0.0)))) return;
+    if ((r.flags & VALUE_IN_THETA) == 0u || all(equal(g, vec3(0.0)))) return;
     ivec4 texel;
     vec4 w;
     footprint(r, uv, texel, w);
@@ -400,7 +407,7 @@ void scatter3(ValueRef r, vec2 uv, vec3 g) {
 }
 
 void scatter1(ValueRef r, vec2 uv, float g) {
-    if (r.in_theta == 0u || g == 0.0) return;
+    if ((r.flags & VALUE_IN_THETA) == 0u || g == 0.0) return;
     ivec4 texel;
     vec4 w;
     footprint(r, uv, texel, w);

@@ -9,13 +9,16 @@
 // Where a material or emission value comes from. 16 bytes.
 // width == 0: a constant of `channels` floats at `offset`; otherwise a width x height
 // texture of `channels` floats per texel, row-major from the top row, at `offset`.
-// in_theta != 0: the floats are elements of θ (they are being optimised); otherwise they
-// are material data, stored in θ's buffer after θ (from CONST_BASE on).
+// flags & VALUE_IN_THETA: the floats are elements of θ (they are being optimised);
+// otherwise they are material data, stored in θ's buffer after θ (from CONST_BASE on).
+// flags & VALUE_NEAREST: a texture looked up at its nearest texel instead of bilinearly.
+#define VALUE_IN_THETA 1u
+#define VALUE_NEAREST 2u
 struct ValueRef {
     int offset;
     uint width;
     uint height;
-    uint in_theta;
+    uint flags;
 };
 
 // One material. 144 bytes (9 texels).

@@ -21,7 +21,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, Filter, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{
     MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
@@ -103,31 +103,34 @@ pub struct GpuScene {
     pub frame: Buffer,
 }
 
-/// Appends a constant or texture to the material data and returns its reference.
-fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize)>) -> ValueRef {
+/// Appends a constant or texture (its image, channels and filter) to the material data and
+/// returns its reference.
+fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize, Filter)>) -> ValueRef {
     let offset = data.len() as i32;
     match texture {
         None => {
             data.extend_from_slice(constant);
-            ValueRef { offset, width: 0, height: 0, in_theta: 0 }
+            ValueRef { offset, width: 0, height: 0, flags: 0 }
         }
-        Some((img, channels)) => {
+        Some((img, channels, filter)) => {
             for px in &img.data {
                 data.extend_from_slice(&px[..channels]);
             }
-            ValueRef { offset, width: img.width, height: img.height, in_theta: 0 }
+            ValueRef { offset, width: img.width, height: img.height, flags: ValueRef::filter_flag(filter) }
         }
     }
 }
 
-fn theta_ref(slot: &ParamSlot) -> ValueRef {
-    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], in_theta: 1 }
+/// The reference to parameter slot `slot`, whose scene value is `scene` (a texture slot
+/// keeps that value's filter).
+fn theta_ref(slot: &ParamSlot, scene: ValueRef) -> ValueRef {
+    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], flags: ValueRef::IN_THETA | scene.flags & ValueRef::NEAREST }
 }
 
 fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     match v {
         ColorValue::Constant(c) => push_value(data, c, None),
-        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3))),
+        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, t.filter))),
     }
 }
 
@@ -138,7 +141,7 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
         None => ValueRef::default(),
         Some(n) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
-            push_value(data, &[], Some((&image, 3)))
+            push_value(data, &[], Some((&image, 3, n.texture.filter)))
         }
     }
 }
@@ -290,7 +293,7 @@ fn plastic_coating(m: &crate::scene::Material) -> Option<([f64; crate::bsdf::TAB
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
-        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1))),
+        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, t.filter))),
     }
 }
 
@@ -360,7 +363,7 @@ impl GpuScene {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let pick = |target, fallback: ValueRef| layout.slot(target).map(theta_ref).unwrap_or(fallback);
+                let pick = |target, fallback: ValueRef| layout.slot(target).map_or(fallback, |s| theta_ref(s, fallback));
                 let base = color_ref(&mut data, &m.base_color);
                 let rough = scalar_ref(&mut data, &m.roughness);
                 let metal = scalar_ref(&mut data, &m.metallic);
@@ -415,13 +418,11 @@ impl GpuScene {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                if let Some(slot) = layout.slot(ParamTarget::Emission { mesh: i }) {
-                    return theta_ref(slot);
-                }
-                match &m.emission {
+                let scene_value = match &m.emission {
                     ColorValue::Texture(t) => *per_image(&mut shared_textures, &t.image, || color_ref(&mut data, &m.emission)),
                     ColorValue::Constant(_) => color_ref(&mut data, &m.emission),
-                }
+                };
+                layout.slot(ParamTarget::Emission { mesh: i }).map_or(scene_value, |s| theta_ref(s, scene_value))
             })
             .collect();
         let lights: Vec<LightRecord> = scene
@@ -444,8 +445,8 @@ impl GpuScene {
                         SpotFalloff::Smooth => crate::constants::FALLOFF_SMOOTH,
                         SpotFalloff::Linear => crate::constants::FALLOFF_LINEAR,
                     },
-                    color: layout.slot(ParamTarget::LightColor { light: i }).map(theta_ref).unwrap_or(color),
-                    intensity: layout.slot(ParamTarget::LightIntensity { light: i }).map(theta_ref).unwrap_or(intensity),
+                    color: layout.slot(ParamTarget::LightColor { light: i }).map_or(color, |s| theta_ref(s, color)),
+                    intensity: layout.slot(ParamTarget::LightIntensity { light: i }).map_or(intensity, |s| theta_ref(s, intensity)),
                     cos_inner: inner.cos(),
                     cos_outer: outer.cos(),
                     inner,
@@ -453,9 +454,10 @@ impl GpuScene {
                 }
             })
             .collect();
-        let env_value = color_ref(&mut data, &scene.environment.value);
+        // The environment map is always bilinear (its sampling assumes so).
+        let env_value = ValueRef { flags: 0, ..color_ref(&mut data, &scene.environment.value) };
         let env_slot = layout.slot(ParamTarget::Environment);
-        let environment = env_slot.map(theta_ref).unwrap_or(env_value);
+        let environment = env_slot.map_or(env_value, |s| theta_ref(s, env_value));
         let has_environment = env_slot.is_some()
             || match &scene.environment.value {
                 ColorValue::Constant(c) => c.iter().any(|&v| v > 0.0),

@@ -2,7 +2,7 @@
 //!
 //! Each `[[optimise.params]]` entry becomes a [`ParamSlot`]: `channels` floats per texel,
 //! `texels` texels (1 for a constant), starting at `offset` in θ. Kernels read a slot
-//! through a `ValueRef` with `in_theta = 1`; the optimiser updates slots in place.
+//! through a `ValueRef` flagged `IN_THETA`; the optimiser updates slots in place.
 
 use crate::scene::write::Recovered;
 use crate::scene::{ParamTarget, Reference, Scene};

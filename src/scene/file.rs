@@ -165,6 +165,8 @@ pub struct MaterialFile {
 pub struct NormalMapFile {
     pub texture: String,
     pub scale: Option<f32>,
+    /// "bilinear" (the default) or "nearest" ([`super::Filter`]).
+    pub filter: Option<String>,
     /// "uv" (the default: y along increasing v, glTF's) or "cross" (y along
     /// cross(n, tangent) everywhere, Mitsuba's).
     pub bitangent: Option<String>,
@@ -174,6 +176,8 @@ pub struct NormalMapFile {
 #[serde(deny_unknown_fields)]
 pub struct TextureRef {
     pub texture: String,
+    /// "bilinear" (the default) or "nearest" ([`super::Filter`]).
+    pub filter: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -60,6 +60,15 @@ pub const SUPPORTED_EXTENSIONS: [&str; 6] = [
     "KHR_materials_ior",
 ];
 
+/// The filter of `texture`'s sampler: nearest where its magnification filter is NEAREST
+/// (the renderer does not minify: its minification filter does not apply).
+fn filter(texture: &gltf::Texture) -> Filter {
+    match texture.sampler().mag_filter() {
+        Some(gltf::texture::MagFilter::Nearest) => Filter::Nearest,
+        _ => Filter::Bilinear,
+    }
+}
+
 /// A texture reference's `KHR_texture_transform`: uv ↦ offset + R(rotation) (scale ∘ uv) in
 /// glTF's texture space (v down the image), R turning counter-clockwise.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -313,7 +322,7 @@ impl Importer<'_> {
             Some(info) if r > 0.0 || g > 0.0 || b > 0.0 => {
                 let (img, path) = self.texture(&info, &format!("{}.emissiveTexture", material_at(m, used_at)))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into() })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
             }
             _ => ColorValue::Constant([r, g, b]),
         };
@@ -339,7 +348,7 @@ impl Importer<'_> {
             Some(info) => {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into() })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
             }
         };
         let (metallic_factor, roughness_factor) = (pbr.metallic_factor(), pbr.roughness_factor());
@@ -350,6 +359,7 @@ impl Importer<'_> {
                 let channel = |c: usize, k: f32| Texture {
                     path: path.clone(),
                     image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), width: img.width, height: img.height }.into(),
+                    filter: filter(&info.texture()),
                 };
                 (ScalarValue::Texture(channel(1, roughness_factor)), ScalarValue::Texture(channel(2, metallic_factor)))
             }
@@ -368,7 +378,7 @@ impl Importer<'_> {
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(NormalMap { texture: Texture { path, image: image.into() }, scale, bitangent: Bitangent::Uv })
+                Some(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()) }, scale, bitangent: Bitangent::Uv })
             }
         };
         let name = match (m.name(), m.index()) {
@@ -614,7 +624,7 @@ impl Importer<'_> {
             Some(info) => match self.texture_alpha(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))? {
                 (Some(img), path) => {
                     let data = img.data.iter().map(|p| [p[0] * factor; 3]).collect();
-                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into() })
+                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
                 }
                 (None, _) => ScalarValue::Constant(factor),
             },

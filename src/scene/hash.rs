@@ -49,6 +49,10 @@ impl Hasher {
     fn texture(&mut self, t: &Texture) {
         self.u32s(&[t.image.width, t.image.height]);
         self.f32s(t.image.data.as_flattened());
+        // Only a nearest filter adds to the hash, so the hashes of bilinear textures stay.
+        if t.filter == Filter::Nearest {
+            self.tag("filter=nearest");
+        }
     }
 
     fn color(&mut self, v: &ColorValue) {

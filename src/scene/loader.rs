@@ -142,16 +142,30 @@ impl Loader {
                 y,
             });
         }
-        Ok(Texture { path, image: image.into() })
+        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear })
+    }
+
+    /// The texture a scene value names at `key` (`{ texture = …, filter = … }`).
+    fn texture_ref(&self, key: &str, t: &file::TextureRef) -> Result<Texture, SceneError> {
+        let filter = self.filter(key, t.filter.as_deref())?;
+        Ok(Texture { filter, ..self.texture(&format!("{key}.texture"), &t.texture)? })
+    }
+
+    /// The filter named at `key`.filter.
+    fn filter(&self, key: &str, name: Option<&str>) -> Result<Filter, SceneError> {
+        match name {
+            None | Some("bilinear") => Ok(Filter::Bilinear),
+            Some("nearest") => Ok(Filter::Nearest),
+            Some(other) => Err(self.invalid(&format!("{key}.filter"), &format!("\"{other}\" is not \"bilinear\" or \"nearest\""))),
+        }
     }
 
     fn color_value(&self, key: &str, input: ColorInput) -> Result<ColorValue, SceneError> {
         Ok(match input {
             ColorInput::Constant(c) => ColorValue::Constant(self.color(key, c)?),
             ColorInput::Texture(t) => {
-                let k = format!("{key}.texture");
-                let tex = self.texture(&k, &t.texture)?;
-                self.texels_in(&k, &tex, 3, 0.0, f32::INFINITY)?;
+                let tex = self.texture_ref(key, &t)?;
+                self.texels_in(&format!("{key}.texture"), &tex, 3, 0.0, f32::INFINITY)?;
                 ColorValue::Texture(tex)
             }
         })
@@ -178,9 +192,8 @@ impl Loader {
                 ScalarValue::Constant(self.in_range(key, v, 0.0, 1.0)?)
             }
             ScalarInput::Texture(t) => {
-                let k = format!("{key}.texture");
-                let tex = self.texture(&k, &t.texture)?;
-                self.texels_in(&k, &tex, 1, 0.0, 1.0)?;
+                let tex = self.texture_ref(key, &t)?;
+                self.texels_in(&format!("{key}.texture"), &tex, 1, 0.0, 1.0)?;
                 ScalarValue::Texture(tex)
             }
         })
@@ -557,7 +570,8 @@ impl Loader {
                 None => None,
                 Some(n) => {
                     let k = format!("{key}.normal_map.texture");
-                    let texture = self.texture(&k, &n.texture)?;
+                    let filter = self.filter(&format!("{key}.normal_map"), n.filter.as_deref())?;
+                    let texture = Texture { filter, ..self.texture(&k, &n.texture)? };
                     self.texels_in_or(&k, &texture, 3, 0.0, 1.0, " (a normal map stores each normal n as (n + 1) / 2)")?;
                     let scale = n.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
@@ -852,6 +866,9 @@ impl Loader {
                     ));
                 };
                 let k = format!("{key}.texture");
+                if t.filter.is_some() {
+                    return Err(self.invalid(&format!("{key}.filter"), "applies to a scene's textures, not to a start image (which is resampled to the parameter's size)"));
+                }
                 let tex = self.texture(&k, &t.texture)?;
                 self.texels_in(&k, &tex, channels as usize, lo, hi)?;
                 tex.image.resample(channels, w, h)

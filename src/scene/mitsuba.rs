@@ -13,11 +13,14 @@
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
 //! wrappers `normalmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR,
-//! Radiance HDR, PNG, JPEG); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
+//! Radiance HDR, PNG, JPEG; `filter_type` bilinear or nearest) and `<texture
+//! type="checkerboard">` (constant colours: a 2 × 2 nearest-filtered image), each with a
+//! `to_uv` map that moves the texture coordinates of the shapes using it (one per
+//! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
 //! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
 //! (else `shape<k>`, the enclosing shape's name, `light<k>`).
 //!
-//! Exact: diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
+//! Exact: bitmap and checkerboard textures, diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
 //! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric,
 //! thindielectric and roughdielectric (glass: [`MaterialKind::Dielectric`],
 //! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), roughconductor
@@ -39,14 +42,21 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use glam::{Mat3, Mat4, Vec3};
+use glam::{Affine2, Mat3, Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
 
 use super::loader::Imported;
 use super::model::*;
 use super::{obj, ply, MaterialKind, SceneError};
 use crate::image::{self, srgb_decode, Image};
+
+/// The 2-D affine map that Mitsuba makes of a texture's 4 × 4 `to_uv`: its upper-left
+/// 2 × 2 block and the x and y of its translation.
+fn uv_affine(m: Mat4) -> Affine2 {
+    Affine2::from_cols(m.x_axis.truncate().truncate(), m.y_axis.truncate().truncate(), m.w_axis.truncate().truncate())
+}
 
 /// Depth that Mitsuba's unlimited `max_depth = -1` becomes: Russian roulette ends nearly
 /// every path long before it.
@@ -100,6 +110,9 @@ struct Importer<'a, 'i> {
     bsdfs: HashMap<String, usize>,
     /// Top-level `<texture id>`s.
     textures: HashMap<String, ColorValue>,
+    /// Each texture image with a `to_uv` other than the identity, and that map (in
+    /// Mitsuba's texture space, v down the image).
+    uv_maps: Vec<(Arc<Image>, Affine2)>,
     out: Imported,
     principled_warned: bool,
 }
@@ -115,6 +128,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         defaults: Vec::new(),
         bsdfs: HashMap::new(),
         textures: HashMap::new(),
+        uv_maps: Vec::new(),
         out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
         principled_warned: false,
     };
@@ -548,25 +562,57 @@ impl<'a, 'i> Importer<'a, 'i> {
     // Materials and textures
     // -----------------------------------------------------------------------------------
 
-    /// A `<texture type="bitmap">`.
+    /// A `<texture type="bitmap|checkerboard">`, its `to_uv` recorded in
+    /// [`Self::uv_maps`].
     fn texture(&mut self, node: Node<'a, 'i>) -> Result<ColorValue, SceneError> {
-        if self.plugin_type(node)? != "bitmap" {
-            return Err(self.err(node, "only bitmap textures are supported"));
-        }
+        let kind = self.plugin_type(node)?;
         let mut items = elements(node);
-        let file = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-        let raw = self.take_bool(&mut items, "raw", false)?;
-        if let Some(n) = self.take(&mut items, "filter_type") {
-            if self.string(n)? != "bilinear" {
-                self.warn(n, "filtered bilinearly");
+        let to_uv = self.take_transform(&mut items, "to_uv")?.map(uv_affine).filter(|a| *a != Affine2::IDENTITY);
+        let texture = match kind.as_str() {
+            "bitmap" => self.bitmap(node, &mut items)?,
+            "checkerboard" => {
+                let mut color = |name: &str, default: f32| match self.take(&mut items, name) {
+                    None => Ok([default; 3]),
+                    Some(n) if n.tag_name().name() == "texture" || n.tag_name().name() == "ref" => Err(self.err(n, "a checkerboard's colours must be constants")),
+                    Some(n) => self.rgb(n),
+                };
+                // Mitsuba's defaults; color0 where the fractional parts of u and v
+                // (Mitsuba's, v down the image) are both below or both above 1/2.
+                let (c0, c1) = (color("color0", 0.4)?, color("color1", 0.2)?);
+                let line = self.doc.text_pos_at(node.range().start).row;
+                Texture {
+                    path: PathBuf::from(format!("{}#checkerboard(line {line})", self.path.display())),
+                    image: Image { width: 2, height: 2, data: vec![c0, c1, c1, c0] }.into(),
+                    filter: Filter::Nearest,
+                }
             }
+            _ => return Err(self.err(node, "only bitmap and checkerboard textures are supported")),
+        };
+        self.rest(&items, node)?;
+        if let Some(a) = to_uv {
+            self.uv_maps.push((texture.image.clone(), a));
         }
-        if let Some(n) = self.take(&mut items, "wrap_mode") {
+        Ok(ColorValue::Texture(texture))
+    }
+
+    /// The image and filter of `<texture type="bitmap">` `node` (its other parameters in
+    /// `items`).
+    fn bitmap(&mut self, node: Node<'a, 'i>, items: &mut Items<'a, 'i>) -> Result<Texture, SceneError> {
+        let file = self.take(items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+        let raw = self.take_bool(items, "raw", false)?;
+        let filter = match self.take(items, "filter_type") {
+            None => Filter::Bilinear,
+            Some(n) => match self.string(n)?.as_str() {
+                "bilinear" => Filter::Bilinear,
+                "nearest" => Filter::Nearest,
+                other => return Err(self.err(n, format!("filter_type \"{other}\" is not bilinear or nearest"))),
+            },
+        };
+        if let Some(n) = self.take(items, "wrap_mode") {
             if self.string(n)? != "repeat" {
                 self.warn(n, "wrapped with repeat");
             }
         }
-        self.rest(&items, node)?;
         let path = self.dir.join(&file);
         let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
         let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
@@ -582,7 +628,38 @@ impl<'a, 'i> Importer<'a, 'i> {
         if image.find_non_finite().is_some() {
             return Err(self.err(node, format!("{} has non-finite pixels", path.display())));
         }
-        Ok(ColorValue::Texture(Texture { path, image: image.into() }))
+        Ok(Texture { path, image: image.into(), filter })
+    }
+
+    /// The `to_uv` of a texture image (identity for one without).
+    fn uv_map(&self, image: &Arc<Image>) -> Affine2 {
+        self.uv_maps.iter().find(|(i, _)| Arc::ptr_eq(i, image)).map_or(Affine2::IDENTITY, |(_, a)| *a)
+    }
+
+    /// The one `to_uv` that every texture of material `material` and of `emission` shares
+    /// (the model has one set of texture coordinates per mesh), at shape `node`.
+    fn shape_uv_map(&self, node: Node, material: usize, emission: &ColorValue) -> Result<Affine2, SceneError> {
+        let m = &self.out.materials[material];
+        let mut images: Vec<&Arc<Image>> = Vec::new();
+        for v in [&m.base_color, emission] {
+            if let ColorValue::Texture(t) = v {
+                images.push(&t.image);
+            }
+        }
+        for v in [Some(&m.roughness), Some(&m.metallic), m.alpha.as_ref().map(|a| &a.value)].into_iter().flatten() {
+            if let ScalarValue::Texture(t) = v {
+                images.push(&t.image);
+            }
+        }
+        if let Some(n) = &m.normal_map {
+            images.push(&n.texture.image);
+        }
+        let mut maps = images.into_iter().map(|i| self.uv_map(i));
+        let first = maps.next().unwrap_or(Affine2::IDENTITY);
+        if maps.any(|a| a != first) {
+            return Err(self.err(node, "the textures of one shape have different to_uv transforms (one set of texture coordinates per mesh)"));
+        }
+        Ok(first)
     }
 
     /// A colour parameter: a constant, a nested bitmap or a `<ref>` to a texture.
@@ -1043,6 +1120,14 @@ impl<'a, 'i> Importer<'a, 'i> {
             None => ColorValue::Constant([0.0; 3]),
         };
         self.rest(&items, node)?;
+        let uv_map = self.shape_uv_map(node, material, &emission)?;
+        if uv_map != Affine2::IDENTITY {
+            // The model's v runs up the image, Mitsuba's down.
+            for t in &mut uvs {
+                let [u, v] = uv_map.transform_point2(Vec2::new(t[0], 1.0 - t[1])).to_array();
+                *t = [u, 1.0 - v];
+            }
+        }
         // Positions and normals to world space (normals by the inverse transpose).
         let nm = Mat3::from_mat4(to_world).inverse().transpose();
         for p in &mut positions {
@@ -1100,7 +1185,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.warn(node, format!("approximate: resampled from Mitsuba's texel positions (pole-to-pole rows) to a grid {}× finer of centred texels", envmap_refinement(map.width)));
                     // Sampling only: the expected image is the same either way.
                     self.take_bool(&mut items, "mis_compensation", false)?;
-                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into() })
+                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into(), filter: Filter::Bilinear })
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {

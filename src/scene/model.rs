@@ -112,6 +112,30 @@ pub struct Texture {
     /// Shared between the values that use one image (a glTF emissive material's texture
     /// on each of its meshes), so that it is held, and uploaded, once.
     pub image: std::sync::Arc<Image>,
+    /// How a lookup between texel centres reads the image.
+    pub filter: Filter,
+}
+
+/// A texture's reconstruction filter. Either way the image repeats beyond [0, 1]².
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Filter {
+    /// The four nearest texels, weighted bilinearly (TOML's default, glTF's LINEAR,
+    /// Mitsuba's `bilinear`).
+    #[default]
+    Bilinear,
+    /// The texel whose square holds the point (TOML's `filter = "nearest"`, glTF's
+    /// NEAREST magnification filter, Mitsuba's `nearest`): a step at every texel edge.
+    Nearest,
+}
+
+impl Filter {
+    /// The name the TOML format gives the filter.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Bilinear => "bilinear",
+            Self::Nearest => "nearest",
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -121,6 +145,14 @@ pub enum ColorValue {
 }
 
 impl ColorValue {
+    /// The texture's filter ([`Filter::Bilinear`] for a constant).
+    pub fn filter(&self) -> Filter {
+        match self {
+            Self::Constant(_) => Filter::Bilinear,
+            Self::Texture(t) => t.filter,
+        }
+    }
+
     /// Whether any channel of the constant, or of any texel, is above zero.
     pub fn any_positive(&self) -> bool {
         match self {
@@ -135,6 +167,16 @@ impl ColorValue {
 pub enum ScalarValue {
     Constant(f32),
     Texture(Texture),
+}
+
+impl ScalarValue {
+    /// The texture's filter ([`Filter::Bilinear`] for a constant).
+    pub fn filter(&self) -> Filter {
+        match self {
+            Self::Constant(_) => Filter::Bilinear,
+            Self::Texture(t) => t.filter,
+        }
+    }
 }
 
 /// A glTF metallic-roughness material. A diffuse one has roughness 1 and metallic 0, which

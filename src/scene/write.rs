@@ -64,12 +64,20 @@ pub(crate) fn file_name(name: &str) -> String {
 }
 
 /// `scene` with every recovered value in place of the scene's own. Recovered textures get
-/// the path `textures/<parameter>.exr` (where [`write_final`] puts them).
+/// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter of
+/// the scene's value.
 pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
     let mut out = scene.clone();
     let texture = |target: ParamTarget, r: &Recovered| {
         let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
-        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into() })
+        let filter = match target {
+            ParamTarget::BaseColor { material } => scene.materials[material].base_color.filter(),
+            ParamTarget::Roughness { material } => scene.materials[material].roughness.filter(),
+            ParamTarget::Metallic { material } => scene.materials[material].metallic.filter(),
+            ParamTarget::Emission { mesh } => scene.meshes[mesh].emission.filter(),
+            ParamTarget::Environment | ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. } => Filter::Bilinear,
+        };
+        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter })
     };
     for (target, r) in values {
         let color = || match texture(*target, r) {
@@ -137,6 +145,16 @@ fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
 fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     use toml::{Table, Value};
     let table = |pairs: Vec<(&str, Value)>| -> Value { Value::Table(pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect::<Table>()) };
+    // `{ texture = file, filter = … }` (the filter only where it is not the default) with
+    // `more` after.
+    let texture_table = |file: String, filter: Filter, more: Vec<(&str, Value)>| -> Value {
+        let mut pairs = vec![("texture", Value::String(file))];
+        if filter != Filter::Bilinear {
+            pairs.push(("filter", Value::String(filter.name().into())));
+        }
+        pairs.extend(more);
+        table(pairs)
+    };
     let mut root = Table::new();
     root.insert("film".into(), table(vec![("width", Value::Integer(scene.film.width.into())), ("height", Value::Integer(scene.film.height.into()))]));
     root.insert(
@@ -162,7 +180,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     root.insert("sensors".into(), Value::Array(sensors));
     let mut materials = Vec::new();
     for m in &scene.materials {
-        let tex = |what: &str, t: &Texture| -> Result<Value, SceneError> { Ok(table(vec![("texture", Value::String(exr(dir, &format!("{}.{what}", m.name), &t.image)?))])) };
+        let tex = |what: &str, t: &Texture| -> Result<Value, SceneError> { Ok(texture_table(exr(dir, &format!("{}.{what}", m.name), &t.image)?, t.filter, vec![])) };
         let mut pairs = vec![("name", Value::String(m.name.clone())), ("type", Value::String(m.kind.as_str().into()))];
         pairs.push((
             "base_color",
@@ -176,11 +194,11 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         }
         if let Some(n) = &m.normal_map {
             let file = exr(dir, &format!("{}.normal_map", m.name), &n.texture.image)?;
-            let mut map = vec![("texture", Value::String(file)), ("scale", Value::Float(num(n.scale)))];
+            let mut map = vec![("scale", Value::Float(num(n.scale)))];
             if n.bitangent != Bitangent::Uv {
                 map.push(("bitangent", Value::String(n.bitangent.as_str().into())));
             }
-            pairs.push(("normal_map", table(map)));
+            pairs.push(("normal_map", texture_table(file, n.texture.filter, map)));
         }
         let scalar = |key: &str, v: &ScalarValue| -> Result<Value, SceneError> {
             Ok(match v {
@@ -240,7 +258,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 "emission",
                 match &m.emission {
                     ColorValue::Constant(c) => arr(c),
-                    ColorValue::Texture(t) => table(vec![("texture", Value::String(exr(dir, &format!("{}.emission", m.name), &t.image)?))]),
+                    ColorValue::Texture(t) => texture_table(exr(dir, &format!("{}.emission", m.name), &t.image)?, t.filter, vec![]),
                 },
             ),
         ];
@@ -414,7 +432,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         }
                     }
                     (ColorValue::Texture(t), alpha_texture) => {
-                        let index = add_png(&mut root, dir, &name, &t.image, true, alpha_texture)?;
+                        let index = add_png(&mut root, dir, &name, &t.image, true, alpha_texture, t.filter)?;
                         let pbr = pbr(&mut root, g);
                         let alpha = match alpha_texture {
                             Some(_) => 1.0,
@@ -439,7 +457,9 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                     }
                     (rough, metal) => {
                         let packed = pack_metallic_roughness(rough, metal);
-                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false, None)?;
+                        // One texture holds both: nearest where either is.
+                        let filter = if rough.filter() == Filter::Nearest || metal.filter() == Filter::Nearest { Filter::Nearest } else { Filter::Bilinear };
+                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false, None, filter)?;
                         let pbr = pbr(&mut root, g);
                         pbr["roughnessFactor"] = json!(1.0);
                         pbr["metallicFactor"] = json!(1.0);
@@ -458,7 +478,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         let peak = t.image.data.iter().flatten().copied().fold(0.0f32, f32::max);
                         let scale = if peak > 1.0 { 1.0 / peak } else { 1.0 };
                         let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), width: t.image.width, height: t.image.height };
-                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true, None)?;
+                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true, None, t.filter)?;
                         ([peak.max(1.0); 3], Some(index))
                     }
                 };
@@ -543,9 +563,10 @@ fn pack_metallic_roughness(rough: &ScalarValue, metal: &ScalarValue) -> Image {
 
 /// Writes `img` as `textures/<name>.png` (sRGB-encoded if `srgb`, else linear 8-bit), with
 /// `alpha`'s R channel (resampled to `img`'s size, nearest texel) as its alpha channel
-/// where given, and adds an image and a texture referring to it; returns the texture
-/// index.
-fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>) -> Result<usize, SceneError> {
+/// where given, and adds an image and a texture referring to it (with a sampler whose
+/// magnification filter is NEAREST for [`Filter::Nearest`]); returns the texture index.
+#[allow(clippy::too_many_arguments)]
+fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>, filter: Filter) -> Result<usize, SceneError> {
     let rel = format!("textures/{}.png", file_name(name));
     let path = dir.join(&rel);
     let encoded = if srgb { img.clone() } else { Image { data: img.data.iter().map(|p| p.map(image::srgb_decode)).collect(), ..img.clone() } };
@@ -554,7 +575,15 @@ fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, al
     // stored bytes are its linear values.
     image::write_png_with_alpha(&path, &encoded, alpha.as_deref()).map_err(|e| write_err(&path, e))?;
     let image_index = push(root, "images", json!({ "uri": rel }));
-    Ok(push(root, "textures", json!({ "source": image_index })))
+    let texture = match filter {
+        Filter::Bilinear => json!({ "source": image_index }),
+        Filter::Nearest => {
+            // NEAREST (9728) magnification, REPEAT wrapping (the default).
+            let sampler = push(root, "samplers", json!({ "magFilter": 9728, "minFilter": 9728 }));
+            json!({ "source": image_index, "sampler": sampler })
+        }
+    };
+    Ok(push(root, "textures", texture))
 }
 
 /// Appends `v` to the array `root[key]` (created if absent) and returns its index.
