@@ -60,7 +60,8 @@ pub struct ValueRef {
     pub offset: i32,
     pub width: u32,
     pub height: u32,
-    /// [`ValueRef::IN_THETA`] and [`ValueRef::NEAREST`].
+    /// [`ValueRef::IN_THETA`], [`ValueRef::NEAREST`] and the wrap modes in u (bits 2–3)
+    /// and v (bits 4–5): 0 repeat, 1 clamp, 2 mirror.
     pub flags: u32,
 }
 
@@ -70,13 +71,23 @@ impl ValueRef {
     /// A texture looked up at its nearest texel (`VALUE_NEAREST`).
     pub const NEAREST: u32 = 2;
 
-    /// The flag of texture filter `f`.
-    pub fn filter_flag(f: crate::scene::Filter) -> u32 {
-        match f {
-            crate::scene::Filter::Bilinear => 0,
-            crate::scene::Filter::Nearest => Self::NEAREST,
-        }
+    /// The flags of texture filter `f` and wrap modes `wrap` (u, v).
+    pub fn sampler_flags(f: crate::scene::Filter, wrap: [crate::scene::Wrap; 2]) -> u32 {
+        use crate::scene::{Filter, Wrap};
+        let code = |w: Wrap| match w {
+            Wrap::Repeat => 0,
+            Wrap::Clamp => 1,
+            Wrap::Mirror => 2,
+        };
+        let filter = match f {
+            Filter::Bilinear => 0,
+            Filter::Nearest => Self::NEAREST,
+        };
+        filter | code(wrap[0]) << 2 | code(wrap[1]) << 4
     }
+
+    /// The sampler bits of the flags (filter and wrap modes).
+    pub const SAMPLER: u32 = Self::NEAREST | 0b11_1100;
 }
 
 /// Mirror of `MaterialRecord`: 144 bytes (9 texels).

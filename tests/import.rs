@@ -475,8 +475,11 @@ fn bundled_mitsuba_scenes_load_and_render() {
                 assert!(s.sensors[0].ortho_height.is_some_and(|h| (h - 3.0).abs() < 1e-5), "{}: {:?}", f.display(), s.sensors[0].ortho_height);
             }
             if f.ends_with("checkerboard.xml") {
-                // Three nearest-filtered textures, each shape's coordinates moved by its to_uv.
-                assert_eq!(s.materials.iter().filter(|m| m.base_color.filter() == vkinverse::scene::Filter::Nearest).count(), 3, "{}", f.display());
+                // Two nearest-filtered textures, each shape's coordinates moved by its to_uv.
+                use vkinverse::scene::{Filter, Wrap};
+                assert_eq!(s.materials.iter().filter(|m| m.base_color.filter() == Filter::Nearest).count(), 2, "{}", f.display());
+                let wraps: Vec<[Wrap; 2]> = s.materials.iter().map(|m| m.base_color.wrap()).collect();
+                assert!(wraps.contains(&[Wrap::Clamp; 2]) && wraps.contains(&[Wrap::Mirror; 2]), "{}: {wraps:?}", f.display());
                 assert!(s.meshes.iter().all(|m| m.uvs.iter().any(|t| t[0] > 1.5)), "{}", f.display());
             }
             if f.ends_with("normalmap.xml") {
@@ -688,7 +691,7 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into(), filter: vkinverse::scene::Filter::Bilinear })
+    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into(), filter: vkinverse::scene::Filter::Bilinear, wrap: [vkinverse::scene::Wrap::Repeat; 2] })
 }
 
 /// `img` equals `expected` to float rounding, pixel by pixel.
@@ -1739,33 +1742,115 @@ fn checkerboards_and_nearest_textures_are_imported() {
     assert!(e.contains("different to_uv") && !e.contains('\n'), "{e}");
 }
 
-/// glTF's NEAREST magnification filter: the base colour and normal textures of
-/// `normal-mapped.gltf` under a NEAREST sampler load nearest-filtered, the TOML written
-/// back keeps the filter, and the glTF written back gives a recovered base colour texture
-/// a NEAREST sampler of its own.
+/// glTF's NEAREST magnification filter and wrapping modes: the base colour and normal
+/// textures of `normal-mapped.gltf` under a NEAREST, CLAMP_TO_EDGE × MIRRORED_REPEAT
+/// sampler load with that filter and those modes, the TOML written back keeps them, and the
+/// glTF written back gives a recovered base colour texture a sampler of its own with them.
 #[test]
 fn gltf_nearest_samplers_are_kept() {
     use vkinverse::scene::write::Recovered;
-    use vkinverse::scene::{Filter, ParamTarget};
+    use vkinverse::scene::{Filter, ParamTarget, Wrap};
     let dir = temp_dir("gltf-nearest");
     std::fs::copy(data("textured/bumps.png"), dir.join("bumps.png")).unwrap();
     let mut doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
-    doc["samplers"] = serde_json::json!([{ "magFilter": 9728 }]);
+    doc["samplers"] = serde_json::json!([{ "magFilter": 9728, "wrapS": 33071, "wrapT": 33648 }]);
     doc["textures"][0]["sampler"] = serde_json::json!(0);
     doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0 });
     std::fs::write(dir.join("nearest.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
     let s = Scene::load(dir.join("nearest.gltf")).unwrap();
     let m = &s.materials[0];
     assert_eq!((m.base_color.filter(), m.normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    assert_eq!((m.base_color.wrap(), m.normal_map.as_ref().unwrap().texture.wrap), ([Wrap::Clamp, Wrap::Mirror], [Wrap::Clamp, Wrap::Mirror]));
     let recovered = Recovered::Texture { width: 2, height: 2, channels: 3, data: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.2, 0.4, 0.6] };
     let out = dir.join("out");
     write_final(&out, &s, &[(ParamTarget::BaseColor { material: 0 }, recovered)]).unwrap();
     let t = Scene::load(out.join("final/scene.toml")).unwrap();
     assert_eq!((t.materials[0].base_color.filter(), t.materials[0].normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    assert_eq!(t.materials[0].base_color.wrap(), [Wrap::Clamp, Wrap::Mirror]);
+    let text = std::fs::read_to_string(out.join("final/scene.toml")).unwrap();
+    assert!(text.contains(r#"wrap = ["clamp", "mirror"]"#), "{text}");
     let g = Scene::load(out.join("final/scene.gltf")).unwrap();
-    assert_eq!(g.materials[0].base_color.filter(), Filter::Nearest);
-    // Without the sampler both are bilinear.
+    assert_eq!((g.materials[0].base_color.filter(), g.materials[0].base_color.wrap()), (Filter::Nearest, [Wrap::Clamp, Wrap::Mirror]));
+    // Without the sampler both are bilinear and repeat.
     doc["textures"][0].as_object_mut().unwrap().remove("sampler");
     std::fs::write(dir.join("linear.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
-    assert_eq!(Scene::load(dir.join("linear.gltf")).unwrap().materials[0].base_color.filter(), Filter::Bilinear);
+    let linear = Scene::load(dir.join("linear.gltf")).unwrap();
+    assert_eq!((linear.materials[0].base_color.filter(), linear.materials[0].base_color.wrap()), (Filter::Bilinear, [Wrap::Repeat; 2]));
+}
+
+/// Wrap modes: a 2 × 2 image of four colours, looked up at its nearest texel, on the
+/// emitting square of [`checkerboards_and_nearest_textures_are_imported`] with a `to_uv`
+/// that maps the square to [−1/2, 3/2]² of the image: with Mitsuba's `wrap_mode` repeat,
+/// clamp and mirror every pixel shows exactly the texel that the mode's rule (OpenGL's
+/// REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT) picks at its centre, also after the write-back
+/// to TOML, which keeps the mode. A bilinear lookup clamped at the edges blends no texel
+/// of the opposite edge into the image's border. An unknown mode is an error naming it.
+#[test]
+fn texture_wrap_modes_are_imported() {
+    use vkinverse::scene::Wrap;
+    let dir = temp_dir("wrap");
+    let colors = [[2.0f32, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0], [1.0, 1.0, 0.0]];
+    vkinverse::image::write_exr(&dir.join("quad.exr"), &Image { width: 2, height: 2, data: colors.to_vec() }).unwrap();
+    let xml = |wrap: &str, filter: &str| {
+        let texture = format!(
+            r#"<texture type="bitmap" name="radiance"><string name="filename" value="quad.exr"/>{filter}<string name="wrap_mode" value="{wrap}"/><transform name="to_uv"><scale x="2" y="2"/><translate x="-0.5" y="-0.5"/></transform></texture>"#
+        );
+        emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "").replace(r#"<rgb name="radiance" value="2, 1, 0.5"/>"#, &texture)
+    };
+    let nearest = r#"<string name="filter_type" value="nearest"/>"#;
+    let wrap_index = |k: i64, mode: Wrap| match mode {
+        Wrap::Repeat => k.rem_euclid(2),
+        Wrap::Clamp => k.clamp(0, 1),
+        Wrap::Mirror => {
+            let m = k.rem_euclid(4);
+            if m < 2 { m } else { 3 - m }
+        }
+    };
+    // The texel at pixel (x, y)'s centre: Mitsuba's uv (x_w + 1/2, y_w + 1/2), v picking
+    // the row from the image's top, mapped by to_uv.
+    let expected = |x: u32, y: u32, mode: Wrap| -> [f32; 3] {
+        let (xw, yw) = ((x as f64 + 0.5 - 8.0) / 8.0, (8.0 - y as f64 - 0.5) / 8.0);
+        if xw.abs() > 0.5 || yw.abs() > 0.5 {
+            return [0.0; 3];
+        }
+        let (u, v) = (2.0 * (xw + 0.5) - 0.5, 2.0 * (yw + 0.5) - 0.5);
+        let (col, row) = (wrap_index((u * 2.0).floor() as i64, mode), wrap_index((v * 2.0).floor() as i64, mode));
+        colors[(row * 2 + col) as usize]
+    };
+    let check = |image: &Image, mode: Wrap, what: &str| {
+        for y in 0..16 {
+            for x in 0..16 {
+                let (got, want) = (image.data[(y * 16 + x) as usize], expected(x, y, mode));
+                assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-5), "{what}: pixel ({x}, {y}) is {got:?}, not {want:?}");
+            }
+        }
+    };
+    with_gpu(|ctx| {
+        for mode in [Wrap::Repeat, Wrap::Clamp, Wrap::Mirror] {
+            let name = format!("{}.xml", mode.name());
+            let s = write_and_load(&dir, &name, &xml(mode.name(), nearest)).unwrap();
+            assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+            assert_eq!(s.meshes[0].emission.wrap(), [mode; 2], "{name}");
+            check(&render(ctx, &s, 0, 16, 3), mode, &name);
+            let out = dir.join(format!("out-{name}"));
+            write_final(&out, &s, &[]).unwrap();
+            let t = Scene::load(out.join("final/scene.toml")).unwrap();
+            assert_eq!(t.meshes[0].emission.wrap(), [mode; 2], "{name} written back");
+            check(&render(ctx, &t, 0, 16, 3), mode, &format!("{name} written back"));
+        }
+        // Bilinear and clamped: the square's corner pixels (texel space within half a texel
+        // of the image's corners, where the lookup only reaches the corner texel) show
+        // exactly the corner texels' colours; repeated, they blend in the other corners.
+        for (mode, exact) in [("clamp", true), ("repeat", false)] {
+            let s = write_and_load(&dir, "bilinear.xml", &xml(mode, "")).unwrap();
+            let image = render(ctx, &s, 0, 16, 3);
+            for (x, y, texel) in [(4u32, 4u32, 2usize), (11, 4, 3), (4, 11, 0), (11, 11, 1)] {
+                let got = image.data[(y * 16 + x) as usize];
+                let same = got.iter().zip(colors[texel]).all(|(g, w)| (g - w).abs() < 1e-5);
+                assert_eq!(same, exact, "bilinear {mode}: pixel ({x}, {y}) is {got:?}, the corner texel {:?}", colors[texel]);
+            }
+        }
+    });
+    let e = write_and_load(&dir, "bad.xml", &xml("border", nearest)).unwrap_err().to_string();
+    assert!(e.contains("wrap_mode \"border\"") && e.contains("line ") && !e.contains('\n'), "{e}");
 }

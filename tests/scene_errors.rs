@@ -667,6 +667,17 @@ fn texture_values_obey_the_rules_of_constants() {
     let nmap = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nnormal_map = { texture = \"tex.exr\", filter = \"nearest\" }");
     assert_eq!(Scene::load(fixture("filter-nmap", &nmap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.filter, Filter::Nearest);
     assert_message(&load_err("filter-nmap-unknown", &nmap.replace("nearest", "box")), &["materials.m.normal_map.filter", "\"box\""]);
+    // Its wrap modes: one for both axes or [u, v], each "repeat" (the default), "clamp" or "mirror".
+    use vkinverse::scene::Wrap;
+    let s = Scene::load(fixture("wrap-one", &with("{ texture = \"tex.exr\", wrap = \"clamp\" }"))).unwrap();
+    assert_eq!(s.materials[0].base_color.wrap(), [Wrap::Clamp; 2]);
+    let pair = Scene::load(fixture("wrap-pair", &with("{ texture = \"tex.exr\", wrap = [\"mirror\", \"repeat\"] }"))).unwrap();
+    assert_eq!(pair.materials[0].base_color.wrap(), [Wrap::Mirror, Wrap::Repeat]);
+    assert_ne!(pair.content_hash(), named.content_hash(), "the wrap modes change the render");
+    assert_message(&load_err("wrap-unknown", &with("{ texture = \"tex.exr\", wrap = \"border\" }")), &["materials.m.base_color.wrap", "\"border\"", "\"clamp\""]);
+    assert_message(&load_err("wrap-three", &with("{ texture = \"tex.exr\", wrap = [\"clamp\", \"clamp\", \"clamp\"] }")), &["wrap mode"]);
+    let nmap_wrap = nmap.replace("filter = \"nearest\"", "wrap = [\"repeat\", \"clamp\"]");
+    assert_eq!(Scene::load(fixture("wrap-nmap", &nmap_wrap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.wrap, [Wrap::Repeat, Wrap::Clamp]);
 }
 
 /// A normal map's texels encode unit vectors in [0, 1], its scale is finite and its

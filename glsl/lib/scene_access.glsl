@@ -252,9 +252,20 @@ float value_at(ValueRef r, int index, int state) { return VALUE_READ(texel_float
 // two texel fetches per buffer instead of three.
 vec3 value3_at(ValueRef r, int index, int state) { return VALUE_READ(texel_vec3_at, r, r.offset + index, state); }
 
-// Lookup footprint: four texel indices (repeat wrapping) and their bilinear weights, or
-// for a nearest-filtered texture the texel whose square holds uv with weight 1 in slot 0.
-// A constant is one "texel" with weight 1 in slot 0.
+// Texel coordinate i (integral) wrapped into [0, n) by mode: 0 repeat, 1 clamp to the edge
+// texel, 2 mirrored repeat (as OpenGL's modes of those names).
+float wrap_texel(float i, float n, uint mode) {
+    if (mode == 1u) return clamp(i, 0.0, n - 1.0);
+    float m = mode == 2u ? 2.0 * n : n;
+    float k = i - m * floor(i / m);
+    // (The clamp guards against rounding at coordinates beyond 2^24 texels.)
+    return clamp(k < n ? k : m - 1.0 - k, 0.0, n - 1.0);
+}
+
+// Lookup footprint: four texel indices and their bilinear weights, or for a
+// nearest-filtered texture the texel whose square holds uv with weight 1 in slot 0; texel
+// coordinates beyond the image wrapped by the value's modes (flag bits 2-3 for u, 4-5 for
+// v). A constant is one "texel" with weight 1 in slot 0.
 void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
     uint width = HAS_TEXTURES ? r.width : 0u;
     if (width == 0u) {
@@ -263,19 +274,22 @@ void footprint(ValueRef r, vec2 uv, out ivec4 texel, out vec4 weight) {
         return;
     }
     // uv (0,0) is the bottom-left of the image (OBJ convention); rows are stored top first.
-    ivec2 size = ivec2(r.width, r.height);
+    vec2 size = vec2(r.width, r.height);
+    uint wu = (r.flags >> 2) & 3u, wv = (r.flags >> 4) & 3u;
     if ((r.flags & VALUE_NEAREST) != 0u) {
-        ivec2 a = ivec2(mod(floor(vec2(uv.x, 1.0 - uv.y) * vec2(size)), vec2(size)));
-        texel = ivec4(a.y * size.x + a.x, 0, 0, 0);
+        vec2 f = floor(vec2(uv.x, 1.0 - uv.y) * size);
+        ivec2 a = ivec2(wrap_texel(f.x, size.x, wu), wrap_texel(f.y, size.y, wv));
+        texel = ivec4(a.y * int(r.width) + a.x, 0, 0, 0);
         weight = vec4(1.0, 0.0, 0.0, 0.0);
         return;
     }
-    vec2 p = vec2(uv.x, 1.0 - uv.y) * vec2(size) - 0.5;
+    vec2 p = vec2(uv.x, 1.0 - uv.y) * size - 0.5;
     vec2 f = floor(p);
     vec2 t = p - f;
-    ivec2 a = ivec2(mod(f, vec2(size)));
-    ivec2 b = (a + 1) % size;
-    texel = ivec4(a.y * size.x + a.x, a.y * size.x + b.x, b.y * size.x + a.x, b.y * size.x + b.x);
+    ivec2 a = ivec2(wrap_texel(f.x, size.x, wu), wrap_texel(f.y, size.y, wv));
+    ivec2 b = ivec2(wrap_texel(f.x + 1.0, size.x, wu), wrap_texel(f.y + 1.0, size.y, wv));
+    int w = int(r.width);
+    texel = ivec4(a.y * w + a.x, a.y * w + b.x, b.y * w + a.x, b.y * w + b.x);
     weight = vec4((1.0 - t.x) * (1.0 - t.y), t.x * (1.0 - t.y), (1.0 - t.x) * t.y, t.x * t.y);
 }
 

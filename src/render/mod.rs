@@ -21,7 +21,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, Filter, LightKind, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
 use crate::constants::{
     MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
@@ -103,34 +103,34 @@ pub struct GpuScene {
     pub frame: Buffer,
 }
 
-/// Appends a constant or texture (its image, channels and filter) to the material data and
-/// returns its reference.
-fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize, Filter)>) -> ValueRef {
+/// Appends a constant or texture (its image, channels and sampler flags,
+/// [`ValueRef::sampler_flags`]) to the material data and returns its reference.
+fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize, u32)>) -> ValueRef {
     let offset = data.len() as i32;
     match texture {
         None => {
             data.extend_from_slice(constant);
             ValueRef { offset, width: 0, height: 0, flags: 0 }
         }
-        Some((img, channels, filter)) => {
+        Some((img, channels, sampler)) => {
             for px in &img.data {
                 data.extend_from_slice(&px[..channels]);
             }
-            ValueRef { offset, width: img.width, height: img.height, flags: ValueRef::filter_flag(filter) }
+            ValueRef { offset, width: img.width, height: img.height, flags: sampler }
         }
     }
 }
 
 /// The reference to parameter slot `slot`, whose scene value is `scene` (a texture slot
-/// keeps that value's filter).
+/// keeps that value's filter and wrap modes).
 fn theta_ref(slot: &ParamSlot, scene: ValueRef) -> ValueRef {
-    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], flags: ValueRef::IN_THETA | scene.flags & ValueRef::NEAREST }
+    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], flags: ValueRef::IN_THETA | scene.flags & ValueRef::SAMPLER }
 }
 
 fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     match v {
         ColorValue::Constant(c) => push_value(data, c, None),
-        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, t.filter))),
+        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, ValueRef::sampler_flags(t.filter, t.wrap)))),
     }
 }
 
@@ -141,7 +141,7 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
         None => ValueRef::default(),
         Some(n) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
-            push_value(data, &[], Some((&image, 3, n.texture.filter)))
+            push_value(data, &[], Some((&image, 3, ValueRef::sampler_flags(n.texture.filter, n.texture.wrap))))
         }
     }
 }
@@ -238,8 +238,9 @@ impl LuminanceTable {
     /// kernels' `footprint`) at any point of the triangle with texture coordinates `uvs`
     /// can read: those in its bounding box in texel space, widened by a texel for the
     /// bilinear neighbours and by one more for rounding. Zero only if every one is black,
-    /// so that a triangle weighted by it is never left unsampled where it could emit.
-    fn footprint_mean(&self, uvs: [[f32; 2]; 3]) -> f32 {
+    /// so that a triangle weighted by it is never left unsampled where it could emit. Along
+    /// an axis that `wrap` does not repeat, every texel counts.
+    fn footprint_mean(&self, uvs: [[f32; 2]; 3], wrap: [Wrap; 2]) -> f32 {
         let (w, h) = (self.width, self.height);
         let lo = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::INFINITY, f32::min);
         let hi = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::NEG_INFINITY, f32::max);
@@ -257,7 +258,12 @@ impl LuminanceTable {
             if end <= n { vec![(start, end)] } else { vec![(start, n), (0, end - n)] }
         };
         // Rows are stored top first: v = 1 is row 0.
-        let (xs, ys) = (ranges(lo(0), hi(0), w), ranges(1.0 - hi(1), 1.0 - lo(1), h));
+        let (xs, ys) = match wrap {
+            [Wrap::Repeat, Wrap::Repeat] => (ranges(lo(0), hi(0), w), ranges(1.0 - hi(1), 1.0 - lo(1), h)),
+            [Wrap::Repeat, _] => (ranges(lo(0), hi(0), w), vec![(0, h)]),
+            [_, Wrap::Repeat] => (vec![(0, w)], ranges(1.0 - hi(1), 1.0 - lo(1), h)),
+            _ => (vec![(0, w)], vec![(0, h)]),
+        };
         let (mut sum, mut count) = (0.0, 0i64);
         for &(x0, x1) in &xs {
             for &(y0, y1) in &ys {
@@ -293,7 +299,7 @@ fn plastic_coating(m: &crate::scene::Material) -> Option<([f64; crate::bsdf::TAB
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
-        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, t.filter))),
+        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, ValueRef::sampler_flags(t.filter, t.wrap)))),
     }
 }
 
@@ -454,7 +460,7 @@ impl GpuScene {
                 }
             })
             .collect();
-        // The environment map is always bilinear (its sampling assumes so).
+        // The environment map is always bilinear and repeating (its sampling assumes so).
         let env_value = ValueRef { flags: 0, ..color_ref(&mut data, &scene.environment.value) };
         let env_slot = layout.slot(ParamTarget::Environment);
         let environment = env_slot.map_or(env_value, |s| theta_ref(s, env_value));
@@ -500,7 +506,7 @@ impl GpuScene {
             let luminance = match &scene.meshes[mesh].emission {
                 _ if optimised_emission => 1.0,
                 ColorValue::Constant(c) => luminance(*c).max(1e-6),
-                ColorValue::Texture(t) => per_image(&mut luminance_tables, &t.image, || LuminanceTable::new(&t.image)).footprint_mean(uvs),
+                ColorValue::Texture(t) => per_image(&mut luminance_tables, &t.image, || LuminanceTable::new(&t.image)).footprint_mean(uvs, t.wrap),
             };
             if mesh_emits[mesh] && area > 0.0 && luminance > 0.0 {
                 weights.push(area * luminance);
@@ -905,14 +911,16 @@ mod tests {
             [[0.5, 0.5]; 3],
         ];
         for uvs in cases {
-            let (got, want) = (table.footprint_mean(uvs), brute(uvs));
+            let (got, want) = (table.footprint_mean(uvs, [Wrap::Repeat; 2]), brute(uvs));
             assert!((got - want).abs() <= 1e-5 * want.abs().max(1.0), "{uvs:?}: {got} vs {want}");
         }
         // Zero only where every reachable texel is black.
         let mut dark = Image::filled(16, 1, [0.0; 3]);
         dark.data[12] = [1.0, 0.0, 0.0];
         let table = LuminanceTable::new(&dark);
-        assert_eq!(table.footprint_mean([[0.1, 0.5], [0.3, 0.5], [0.2, 0.5]]), 0.0);
-        assert!(table.footprint_mean([[0.7, 0.5], [0.72, 0.5], [0.71, 0.5]]) > 0.0, "a lookup at u = 0.72 reads texel 12");
+        assert_eq!(table.footprint_mean([[0.1, 0.5], [0.3, 0.5], [0.2, 0.5]], [Wrap::Repeat; 2]), 0.0);
+        // Clamped in u, every texel of the row counts.
+        assert!(table.footprint_mean([[0.1, 0.5], [0.3, 0.5], [0.2, 0.5]], [Wrap::Clamp, Wrap::Repeat]) > 0.0);
+        assert!(table.footprint_mean([[0.7, 0.5], [0.72, 0.5], [0.71, 0.5]], [Wrap::Repeat; 2]) > 0.0, "a lookup at u = 0.72 reads texel 12");
     }
 }

@@ -167,6 +167,8 @@ pub struct NormalMapFile {
     pub scale: Option<f32>,
     /// "bilinear" (the default) or "nearest" ([`super::Filter`]).
     pub filter: Option<String>,
+    /// As [`TextureRef::wrap`].
+    pub wrap: Option<WrapInput>,
     /// "uv" (the default: y along increasing v, glTF's) or "cross" (y along
     /// cross(n, tangent) everywhere, Mitsuba's).
     pub bitangent: Option<String>,
@@ -178,6 +180,17 @@ pub struct TextureRef {
     pub texture: String,
     /// "bilinear" (the default) or "nearest" ([`super::Filter`]).
     pub filter: Option<String>,
+    /// "repeat" (the default), "clamp" or "mirror" ([`super::Wrap`]), or one for u and one
+    /// for v.
+    pub wrap: Option<WrapInput>,
+}
+
+/// `wrap = "clamp"` or `wrap = ["clamp", "repeat"]` (u, v).
+#[derive(Debug, Deserialize)]
+#[serde(untagged, expecting = "expected a wrap mode or [u, v] wrap modes")]
+pub enum WrapInput {
+    Both(String),
+    Each([String; 2]),
 }
 
 #[derive(Debug, Deserialize)]

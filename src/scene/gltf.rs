@@ -26,8 +26,9 @@
 //! (texture sets other than 0, non-triangle primitives, required extensions other than
 //! the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
-//! (occlusion textures, non-repeating samplers, optional extensions, animation), is a
-//! one-line warning. `alphaMode` `MASK` and `BLEND` are alpha tests ([`AlphaMask`]) on the
+//! (occlusion textures, optional extensions, animation), is a one-line warning.
+//! Samplers' wrapping modes and NEAREST magnification filter are the textures' [`Wrap`]
+//! and [`Filter`]. `alphaMode` `MASK` and `BLEND` are alpha tests ([`AlphaMask`]) on the
 //! base colour's alpha.
 
 use std::collections::{HashMap, HashSet};
@@ -67,6 +68,17 @@ fn filter(texture: &gltf::Texture) -> Filter {
         Some(gltf::texture::MagFilter::Nearest) => Filter::Nearest,
         _ => Filter::Bilinear,
     }
+}
+
+/// The wrapping modes (s, t) of `texture`'s sampler.
+fn wrap(texture: &gltf::Texture) -> [Wrap; 2] {
+    let mode = |m: WrappingMode| match m {
+        WrappingMode::Repeat => Wrap::Repeat,
+        WrappingMode::ClampToEdge => Wrap::Clamp,
+        WrappingMode::MirroredRepeat => Wrap::Mirror,
+    };
+    let s = texture.sampler();
+    [mode(s.wrap_s()), mode(s.wrap_t())]
 }
 
 /// A texture reference's `KHR_texture_transform`: uv ↦ offset + R(rotation) (scale ∘ uv) in
@@ -322,7 +334,7 @@ impl Importer<'_> {
             Some(info) if r > 0.0 || g > 0.0 || b > 0.0 => {
                 let (img, path) = self.texture(&info, &format!("{}.emissiveTexture", material_at(m, used_at)))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
             }
             _ => ColorValue::Constant([r, g, b]),
         };
@@ -348,7 +360,7 @@ impl Importer<'_> {
             Some(info) => {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
+                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
             }
         };
         let (metallic_factor, roughness_factor) = (pbr.metallic_factor(), pbr.roughness_factor());
@@ -360,6 +372,7 @@ impl Importer<'_> {
                     path: path.clone(),
                     image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), width: img.width, height: img.height }.into(),
                     filter: filter(&info.texture()),
+                    wrap: wrap(&info.texture()),
                 };
                 (ScalarValue::Texture(channel(1, roughness_factor)), ScalarValue::Texture(channel(2, metallic_factor)))
             }
@@ -378,7 +391,7 @@ impl Importer<'_> {
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()) }, scale, bitangent: Bitangent::Uv })
+                Some(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) }, scale, bitangent: Bitangent::Uv })
             }
         };
         let name = match (m.name(), m.index()) {
@@ -467,10 +480,6 @@ impl Importer<'_> {
     fn image(&mut self, texture: gltf::Texture, tex_coord: u32, at: &str) -> Result<(Image, PathBuf), SceneError> {
         if tex_coord != 0 {
             return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {tex_coord} is not supported (TEXCOORD_0 only)")));
-        }
-        let sampler = texture.sampler();
-        if sampler.wrap_s() != WrappingMode::Repeat || sampler.wrap_t() != WrappingMode::Repeat {
-            self.warn(format!("textures[{}].sampler", texture.index()), "wrapping modes other than REPEAT are rendered as REPEAT");
         }
         let source = texture.source();
         let index = source.index();
@@ -624,7 +633,7 @@ impl Importer<'_> {
             Some(info) => match self.texture_alpha(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))? {
                 (Some(img), path) => {
                     let data = img.data.iter().map(|p| [p[0] * factor; 3]).collect();
-                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()) })
+                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
                 }
                 (None, _) => ScalarValue::Constant(factor),
             },

@@ -49,9 +49,13 @@ impl Hasher {
     fn texture(&mut self, t: &Texture) {
         self.u32s(&[t.image.width, t.image.height]);
         self.f32s(t.image.data.as_flattened());
-        // Only a nearest filter adds to the hash, so the hashes of bilinear textures stay.
+        // Only a nearest filter and other wrap modes add to the hash, so the hashes of
+        // bilinear, repeating textures stay.
         if t.filter == Filter::Nearest {
             self.tag("filter=nearest");
+        }
+        if t.wrap != [Wrap::Repeat; 2] {
+            self.tag(&format!("wrap={}/{}", t.wrap[0].name(), t.wrap[1].name()));
         }
     }
 

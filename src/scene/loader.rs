@@ -142,13 +142,27 @@ impl Loader {
                 y,
             });
         }
-        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear })
+        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })
     }
 
     /// The texture a scene value names at `key` (`{ texture = …, filter = … }`).
     fn texture_ref(&self, key: &str, t: &file::TextureRef) -> Result<Texture, SceneError> {
         let filter = self.filter(key, t.filter.as_deref())?;
-        Ok(Texture { filter, ..self.texture(&format!("{key}.texture"), &t.texture)? })
+        let wrap = self.wrap(key, t.wrap.as_ref())?;
+        Ok(Texture { filter, wrap, ..self.texture(&format!("{key}.texture"), &t.texture)? })
+    }
+
+    /// The wrap modes named at `key`.wrap: one for both axes or one each for u and v.
+    fn wrap(&self, key: &str, input: Option<&file::WrapInput>) -> Result<[Wrap; 2], SceneError> {
+        let names = match input {
+            None => return Ok([Wrap::Repeat; 2]),
+            Some(file::WrapInput::Both(n)) => [n, n],
+            Some(file::WrapInput::Each([u, v])) => [u, v],
+        };
+        let mode = |n: &String| {
+            Wrap::from_name(n).ok_or_else(|| self.invalid(&format!("{key}.wrap"), &format!("\"{n}\" is not \"repeat\", \"clamp\" or \"mirror\"")))
+        };
+        Ok([mode(names[0])?, mode(names[1])?])
     }
 
     /// The filter named at `key`.filter.
@@ -571,7 +585,8 @@ impl Loader {
                 Some(n) => {
                     let k = format!("{key}.normal_map.texture");
                     let filter = self.filter(&format!("{key}.normal_map"), n.filter.as_deref())?;
-                    let texture = Texture { filter, ..self.texture(&k, &n.texture)? };
+                    let wrap = self.wrap(&format!("{key}.normal_map"), n.wrap.as_ref())?;
+                    let texture = Texture { filter, wrap, ..self.texture(&k, &n.texture)? };
                     self.texels_in_or(&k, &texture, 3, 0.0, 1.0, " (a normal map stores each normal n as (n + 1) / 2)")?;
                     let scale = n.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
@@ -866,8 +881,9 @@ impl Loader {
                     ));
                 };
                 let k = format!("{key}.texture");
-                if t.filter.is_some() {
-                    return Err(self.invalid(&format!("{key}.filter"), "applies to a scene's textures, not to a start image (which is resampled to the parameter's size)"));
+                if t.filter.is_some() || t.wrap.is_some() {
+                    let what = if t.filter.is_some() { "filter" } else { "wrap" };
+                    return Err(self.invalid(&format!("{key}.{what}"), "applies to a scene's textures, not to a start image (which is resampled to the parameter's size)"));
                 }
                 let tex = self.texture(&k, &t.texture)?;
                 self.texels_in(&k, &tex, channels as usize, lo, hi)?;

@@ -13,7 +13,8 @@
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
 //! wrappers `normalmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR,
-//! Radiance HDR, PNG, JPEG; `filter_type` bilinear or nearest) and `<texture
+//! Radiance HDR, PNG, JPEG; `filter_type` bilinear or nearest, `wrap_mode` repeat, clamp
+//! or mirror) and `<texture
 //! type="checkerboard">` (constant colours: a 2 × 2 nearest-filtered image), each with a
 //! `to_uv` map that moves the texture coordinates of the shapes using it (one per
 //! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
@@ -584,6 +585,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     path: PathBuf::from(format!("{}#checkerboard(line {line})", self.path.display())),
                     image: Image { width: 2, height: 2, data: vec![c0, c1, c1, c0] }.into(),
                     filter: Filter::Nearest,
+                    wrap: [Wrap::Repeat; 2],
                 }
             }
             _ => return Err(self.err(node, "only bitmap and checkerboard textures are supported")),
@@ -608,11 +610,13 @@ impl<'a, 'i> Importer<'a, 'i> {
                 other => return Err(self.err(n, format!("filter_type \"{other}\" is not bilinear or nearest"))),
             },
         };
-        if let Some(n) = self.take(items, "wrap_mode") {
-            if self.string(n)? != "repeat" {
-                self.warn(n, "wrapped with repeat");
+        let wrap = match self.take(items, "wrap_mode") {
+            None => Wrap::Repeat,
+            Some(n) => {
+                let mode = self.string(n)?;
+                Wrap::from_name(&mode).ok_or_else(|| self.err(n, format!("wrap_mode \"{mode}\" is not repeat, clamp or mirror")))?
             }
-        }
+        };
         let path = self.dir.join(&file);
         let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
         let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
@@ -628,7 +632,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if image.find_non_finite().is_some() {
             return Err(self.err(node, format!("{} has non-finite pixels", path.display())));
         }
-        Ok(Texture { path, image: image.into(), filter })
+        Ok(Texture { path, image: image.into(), filter, wrap: [wrap; 2] })
     }
 
     /// The `to_uv` of a texture image (identity for one without).
@@ -1185,7 +1189,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.warn(node, format!("approximate: resampled from Mitsuba's texel positions (pole-to-pole rows) to a grid {}× finer of centred texels", envmap_refinement(map.width)));
                     // Sampling only: the expected image is the same either way.
                     self.take_bool(&mut items, "mis_compensation", false)?;
-                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into(), filter: Filter::Bilinear })
+                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {

@@ -114,6 +114,37 @@ pub struct Texture {
     pub image: std::sync::Arc<Image>,
     /// How a lookup between texel centres reads the image.
     pub filter: Filter,
+    /// What lies beyond [0, 1] in u and in v.
+    pub wrap: [Wrap; 2],
+}
+
+/// What a texture holds beyond [0, 1] along one of its axes (and what its bilinear lookup
+/// blends in beyond its edge texels' centres).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Wrap {
+    /// The image again (TOML's default, glTF's REPEAT, Mitsuba's `repeat`).
+    #[default]
+    Repeat,
+    /// The edge texels (glTF's CLAMP_TO_EDGE, Mitsuba's `clamp`).
+    Clamp,
+    /// The image mirrored, every other copy (glTF's MIRRORED_REPEAT, Mitsuba's `mirror`).
+    Mirror,
+}
+
+impl Wrap {
+    /// The name the TOML format gives the mode.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Repeat => "repeat",
+            Self::Clamp => "clamp",
+            Self::Mirror => "mirror",
+        }
+    }
+
+    /// The mode TOML's `name` names.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Repeat, Self::Clamp, Self::Mirror].into_iter().find(|w| w.name() == name)
+    }
 }
 
 /// A texture's reconstruction filter. Either way the image repeats beyond [0, 1]².
@@ -153,6 +184,14 @@ impl ColorValue {
         }
     }
 
+    /// The texture's wrap modes in u and v (repeat for a constant).
+    pub fn wrap(&self) -> [Wrap; 2] {
+        match self {
+            Self::Constant(_) => [Wrap::Repeat; 2],
+            Self::Texture(t) => t.wrap,
+        }
+    }
+
     /// Whether any channel of the constant, or of any texel, is above zero.
     pub fn any_positive(&self) -> bool {
         match self {
@@ -175,6 +214,14 @@ impl ScalarValue {
         match self {
             Self::Constant(_) => Filter::Bilinear,
             Self::Texture(t) => t.filter,
+        }
+    }
+
+    /// The texture's wrap modes in u and v (repeat for a constant).
+    pub fn wrap(&self) -> [Wrap; 2] {
+        match self {
+            Self::Constant(_) => [Wrap::Repeat; 2],
+            Self::Texture(t) => t.wrap,
         }
     }
 }

@@ -64,20 +64,20 @@ pub(crate) fn file_name(name: &str) -> String {
 }
 
 /// `scene` with every recovered value in place of the scene's own. Recovered textures get
-/// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter of
-/// the scene's value.
+/// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter and
+/// wrap modes of the scene's value.
 pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
     let mut out = scene.clone();
     let texture = |target: ParamTarget, r: &Recovered| {
         let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
-        let filter = match target {
-            ParamTarget::BaseColor { material } => scene.materials[material].base_color.filter(),
-            ParamTarget::Roughness { material } => scene.materials[material].roughness.filter(),
-            ParamTarget::Metallic { material } => scene.materials[material].metallic.filter(),
-            ParamTarget::Emission { mesh } => scene.meshes[mesh].emission.filter(),
-            ParamTarget::Environment | ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. } => Filter::Bilinear,
+        let (filter, wrap) = match target {
+            ParamTarget::BaseColor { material } => (scene.materials[material].base_color.filter(), scene.materials[material].base_color.wrap()),
+            ParamTarget::Roughness { material } => (scene.materials[material].roughness.filter(), scene.materials[material].roughness.wrap()),
+            ParamTarget::Metallic { material } => (scene.materials[material].metallic.filter(), scene.materials[material].metallic.wrap()),
+            ParamTarget::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
+            ParamTarget::Environment | ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
         };
-        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter })
+        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap })
     };
     for (target, r) in values {
         let color = || match texture(*target, r) {
@@ -145,12 +145,17 @@ fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
 fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     use toml::{Table, Value};
     let table = |pairs: Vec<(&str, Value)>| -> Value { Value::Table(pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect::<Table>()) };
-    // `{ texture = file, filter = … }` (the filter only where it is not the default) with
-    // `more` after.
-    let texture_table = |file: String, filter: Filter, more: Vec<(&str, Value)>| -> Value {
+    // `{ texture = file, filter = …, wrap = … }` (the filter and wrap modes only where they
+    // are not the defaults) with `more` after.
+    let texture_table = |file: String, t: &Texture, more: Vec<(&str, Value)>| -> Value {
         let mut pairs = vec![("texture", Value::String(file))];
-        if filter != Filter::Bilinear {
-            pairs.push(("filter", Value::String(filter.name().into())));
+        if t.filter != Filter::Bilinear {
+            pairs.push(("filter", Value::String(t.filter.name().into())));
+        }
+        match t.wrap {
+            [Wrap::Repeat, Wrap::Repeat] => {}
+            [u, v] if u == v => pairs.push(("wrap", Value::String(u.name().into()))),
+            [u, v] => pairs.push(("wrap", Value::Array(vec![Value::String(u.name().into()), Value::String(v.name().into())]))),
         }
         pairs.extend(more);
         table(pairs)
@@ -180,7 +185,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     root.insert("sensors".into(), Value::Array(sensors));
     let mut materials = Vec::new();
     for m in &scene.materials {
-        let tex = |what: &str, t: &Texture| -> Result<Value, SceneError> { Ok(texture_table(exr(dir, &format!("{}.{what}", m.name), &t.image)?, t.filter, vec![])) };
+        let tex = |what: &str, t: &Texture| -> Result<Value, SceneError> { Ok(texture_table(exr(dir, &format!("{}.{what}", m.name), &t.image)?, t, vec![])) };
         let mut pairs = vec![("name", Value::String(m.name.clone())), ("type", Value::String(m.kind.as_str().into()))];
         pairs.push((
             "base_color",
@@ -198,7 +203,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
             if n.bitangent != Bitangent::Uv {
                 map.push(("bitangent", Value::String(n.bitangent.as_str().into())));
             }
-            pairs.push(("normal_map", texture_table(file, n.texture.filter, map)));
+            pairs.push(("normal_map", texture_table(file, &n.texture, map)));
         }
         let scalar = |key: &str, v: &ScalarValue| -> Result<Value, SceneError> {
             Ok(match v {
@@ -258,7 +263,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 "emission",
                 match &m.emission {
                     ColorValue::Constant(c) => arr(c),
-                    ColorValue::Texture(t) => texture_table(exr(dir, &format!("{}.emission", m.name), &t.image)?, t.filter, vec![]),
+                    ColorValue::Texture(t) => texture_table(exr(dir, &format!("{}.emission", m.name), &t.image)?, t, vec![]),
                 },
             ),
         ];
@@ -432,7 +437,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         }
                     }
                     (ColorValue::Texture(t), alpha_texture) => {
-                        let index = add_png(&mut root, dir, &name, &t.image, true, alpha_texture, t.filter)?;
+                        let index = add_png(&mut root, dir, &name, &t.image, true, alpha_texture, (t.filter, t.wrap))?;
                         let pbr = pbr(&mut root, g);
                         let alpha = match alpha_texture {
                             Some(_) => 1.0,
@@ -457,9 +462,11 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                     }
                     (rough, metal) => {
                         let packed = pack_metallic_roughness(rough, metal);
-                        // One texture holds both: nearest where either is.
+                        // One texture holds both: nearest where either is, the wrap modes
+                        // of the textured one (the roughness where both are).
                         let filter = if rough.filter() == Filter::Nearest || metal.filter() == Filter::Nearest { Filter::Nearest } else { Filter::Bilinear };
-                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false, None, filter)?;
+                        let wrap = if matches!(rough, ScalarValue::Texture(_)) { rough.wrap() } else { metal.wrap() };
+                        let index = add_png(&mut root, dir, &format!("{}.metallic_roughness", m.name), &packed, false, None, (filter, wrap))?;
                         let pbr = pbr(&mut root, g);
                         pbr["roughnessFactor"] = json!(1.0);
                         pbr["metallicFactor"] = json!(1.0);
@@ -478,7 +485,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         let peak = t.image.data.iter().flatten().copied().fold(0.0f32, f32::max);
                         let scale = if peak > 1.0 { 1.0 / peak } else { 1.0 };
                         let scaled = Image { data: t.image.data.iter().map(|p| p.map(|c| c * scale)).collect(), width: t.image.width, height: t.image.height };
-                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true, None, t.filter)?;
+                        let index = add_png(&mut root, dir, &format!("{}.emission", mesh.name), &scaled, true, None, (t.filter, t.wrap))?;
                         ([peak.max(1.0); 3], Some(index))
                     }
                 };
@@ -564,9 +571,10 @@ fn pack_metallic_roughness(rough: &ScalarValue, metal: &ScalarValue) -> Image {
 /// Writes `img` as `textures/<name>.png` (sRGB-encoded if `srgb`, else linear 8-bit), with
 /// `alpha`'s R channel (resampled to `img`'s size, nearest texel) as its alpha channel
 /// where given, and adds an image and a texture referring to it (with a sampler whose
-/// magnification filter is NEAREST for [`Filter::Nearest`]); returns the texture index.
+/// magnification filter is NEAREST for [`Filter::Nearest`] and whose wrapping modes are
+/// `wrap`'s, where these are not the defaults); returns the texture index.
 #[allow(clippy::too_many_arguments)]
-fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>, filter: Filter) -> Result<usize, SceneError> {
+fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>, (filter, wrap): (Filter, [Wrap; 2])) -> Result<usize, SceneError> {
     let rel = format!("textures/{}.png", file_name(name));
     let path = dir.join(&rel);
     let encoded = if srgb { img.clone() } else { Image { data: img.data.iter().map(|p| p.map(image::srgb_decode)).collect(), ..img.clone() } };
@@ -575,13 +583,22 @@ fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, al
     // stored bytes are its linear values.
     image::write_png_with_alpha(&path, &encoded, alpha.as_deref()).map_err(|e| write_err(&path, e))?;
     let image_index = push(root, "images", json!({ "uri": rel }));
-    let texture = match filter {
-        Filter::Bilinear => json!({ "source": image_index }),
-        Filter::Nearest => {
-            // NEAREST (9728) magnification, REPEAT wrapping (the default).
-            let sampler = push(root, "samplers", json!({ "magFilter": 9728, "minFilter": 9728 }));
-            json!({ "source": image_index, "sampler": sampler })
+    let texture = if filter == Filter::Bilinear && wrap == [Wrap::Repeat; 2] {
+        json!({ "source": image_index })
+    } else {
+        // glTF's codes: NEAREST 9728; REPEAT 10497, CLAMP_TO_EDGE 33071, MIRRORED_REPEAT 33648.
+        let code = |w: Wrap| match w {
+            Wrap::Repeat => 10497,
+            Wrap::Clamp => 33071,
+            Wrap::Mirror => 33648,
+        };
+        let mut sampler = json!({ "wrapS": code(wrap[0]), "wrapT": code(wrap[1]) });
+        if filter == Filter::Nearest {
+            sampler["magFilter"] = json!(9728);
+            sampler["minFilter"] = json!(9728);
         }
+        let sampler = push(root, "samplers", sampler);
+        json!({ "source": image_index, "sampler": sampler })
     };
     Ok(push(root, "textures", texture))
 }
