@@ -42,7 +42,7 @@ use vkinverse::image::Image;
 use vkinverse::ops::BufferOps;
 use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT};
 use vkinverse::render::{GpuScene, Renderer};
-use vkinverse::scene::{Loss, Scene};
+use vkinverse::scene::{Loss, Scene, TextureValue as _};
 
 /// The memory test reads the process's resident set size, which other tests running in
 /// parallel threads would move: it takes this lock for writing, every other test for

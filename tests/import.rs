@@ -12,7 +12,7 @@ use common::with_gpu;
 use vkinverse::image::{srgb_decode, Image};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::write::write_final;
-use vkinverse::scene::{AlphaMode, ColorValue, Distribution, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError};
+use vkinverse::scene::{AlphaMode, ColorValue, Distribution, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError, TextureValue as _};
 
 fn data(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(rel)

@@ -5,7 +5,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use vkinverse::image::{write_exr, Image};
-use vkinverse::scene::{AlphaMode, ColorValue, Distribution, ParamTarget, Reference, ScalarValue, Scene, SceneError};
+use vkinverse::scene::{AlphaMode, ColorValue, Distribution, ParamTarget, Reference, ScalarValue, Scene, SceneError, TextureValue as _};
 
 const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n";
 const BARE_TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
@@ -675,7 +675,7 @@ fn texture_values_obey_the_rules_of_constants() {
     assert_eq!(pair.materials[0].base_color.wrap(), [Wrap::Mirror, Wrap::Repeat]);
     assert_ne!(pair.content_hash(), named.content_hash(), "the wrap modes change the render");
     assert_message(&load_err("wrap-unknown", &with("{ texture = \"tex.exr\", wrap = \"border\" }")), &["materials.m.base_color.wrap", "\"border\"", "\"clamp\""]);
-    assert_message(&load_err("wrap-three", &with("{ texture = \"tex.exr\", wrap = [\"clamp\", \"clamp\", \"clamp\"] }")), &["wrap mode"]);
+    assert_message(&load_err("wrap-three", &with("{ texture = \"tex.exr\", wrap = [\"clamp\", \"clamp\", \"clamp\"] }")), &["scene.toml:13", "texture"]);
     let nmap_wrap = nmap.replace("filter = \"nearest\"", "wrap = [\"repeat\", \"clamp\"]");
     assert_eq!(Scene::load(fixture("wrap-nmap", &nmap_wrap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.wrap, [Wrap::Repeat, Wrap::Clamp]);
 }

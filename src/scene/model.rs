@@ -175,23 +175,29 @@ pub enum ColorValue {
     Texture(Texture),
 }
 
-impl ColorValue {
+/// A value that may be a texture: its filter and wrap modes, the defaults for a constant.
+pub trait TextureValue {
+    /// The texture, None for a constant.
+    fn texture(&self) -> Option<&Texture>;
+
     /// The texture's filter ([`Filter::Bilinear`] for a constant).
-    pub fn filter(&self) -> Filter {
-        match self {
-            Self::Constant(_) => Filter::Bilinear,
-            Self::Texture(t) => t.filter,
-        }
+    fn filter(&self) -> Filter {
+        self.texture().map_or(Filter::Bilinear, |t| t.filter)
     }
 
     /// The texture's wrap modes in u and v (repeat for a constant).
-    pub fn wrap(&self) -> [Wrap; 2] {
-        match self {
-            Self::Constant(_) => [Wrap::Repeat; 2],
-            Self::Texture(t) => t.wrap,
-        }
+    fn wrap(&self) -> [Wrap; 2] {
+        self.texture().map_or([Wrap::Repeat; 2], |t| t.wrap)
     }
+}
 
+impl TextureValue for ColorValue {
+    fn texture(&self) -> Option<&Texture> {
+        if let Self::Texture(t) = self { Some(t) } else { None }
+    }
+}
+
+impl ColorValue {
     /// Whether any channel of the constant, or of any texel, is above zero.
     pub fn any_positive(&self) -> bool {
         match self {
@@ -208,20 +214,11 @@ pub enum ScalarValue {
     Texture(Texture),
 }
 
-impl ScalarValue {
-    /// The texture's filter ([`Filter::Bilinear`] for a constant).
-    pub fn filter(&self) -> Filter {
+impl TextureValue for ScalarValue {
+    fn texture(&self) -> Option<&Texture> {
         match self {
-            Self::Constant(_) => Filter::Bilinear,
-            Self::Texture(t) => t.filter,
-        }
-    }
-
-    /// The texture's wrap modes in u and v (repeat for a constant).
-    pub fn wrap(&self) -> [Wrap; 2] {
-        match self {
-            Self::Constant(_) => [Wrap::Repeat; 2],
-            Self::Texture(t) => t.wrap,
+            Self::Constant(_) => None,
+            Self::Texture(t) => Some(t),
         }
     }
 }
