@@ -73,6 +73,9 @@ def main():
         for c, ch in zip("rgb", cmp["channel_means"]):
             print(f"  {c}: mitsuba {ch['mitsuba']:.5f}  vkinverse {ch['vkinverse']:.5f}  "
                   f"diff {ch['diff'] / ch['vkinverse'] * 100:+.2f} %  z {ch['z']:+.2f}")
+        infl = cmp["block_variance_inflation"]
+        print(f"  block variance over the sum of its pixels' (correlated pixels, e.g. a splatting filter): "
+              f"mitsuba {infl['mitsuba']:.2f}, vkinverse {infl['vkinverse']:.2f}")
         print(f"  blocks: {b['abs_z_over_4']} of {b['count']} beyond 4 se, max |z| {b['max_abs_z']:.2f} "
               f"(worst at row {b['worst']['row']}, col {b['worst']['col']}, {b['worst']['channel']}: "
               f"{b['worst']['relative_diff'] * 100:+.1f} %)")

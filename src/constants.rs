@@ -96,3 +96,7 @@ pub const SCHEDULE_CONSTANT: u32 = 0;
 pub const SCHEDULE_COSINE: u32 = 1;
 /// Step decay.
 pub const SCHEDULE_STEP: u32 = 2;
+
+/// Segments of a pixel filter's sampling table (src/render/filter.rs): its weight and
+/// cumulative mass at this many + 1 offsets.
+pub const FILTER_TABLE_SIZE: u32 = 256;

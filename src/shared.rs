@@ -71,19 +71,19 @@ impl ValueRef {
     /// A texture looked up at its nearest texel (`VALUE_NEAREST`).
     pub const NEAREST: u32 = 2;
 
-    /// The flags of texture filter `f` and wrap modes `wrap` (u, v).
-    pub fn sampler_flags(f: crate::scene::Filter, wrap: [crate::scene::Wrap; 2]) -> u32 {
+    /// The flags of texture `t`'s filter and wrap modes (u, v).
+    pub fn sampler_flags(t: &crate::scene::Texture) -> u32 {
         use crate::scene::{Filter, Wrap};
         let code = |w: Wrap| match w {
             Wrap::Repeat => 0,
             Wrap::Clamp => 1,
             Wrap::Mirror => 2,
         };
-        let filter = match f {
+        let filter = match t.filter {
             Filter::Bilinear => 0,
             Filter::Nearest => Self::NEAREST,
         };
-        filter | code(wrap[0]) << 2 | code(wrap[1]) << 4
+        filter | code(t.wrap[0]) << 2 | code(t.wrap[1]) << 4
     }
 
     /// The sampler bits of the flags (filter and wrap modes).
@@ -133,8 +133,8 @@ pub struct TriShading {
     pub ng: [f32; 3],
     pub material: u32,
     pub emitter_pdf: f32,
-    /// 1: an emitter that shines from both sides; 0: from its front only.
-    pub two_sided: u32,
+    /// [`TriShading::TWO_SIDED`] and [`TriShading::EMITTING_MESH`].
+    pub emitter_flags: u32,
     /// Its material's `one_sided`.
     pub one_sided: u32,
     pub mesh: u32,
@@ -153,6 +153,15 @@ pub struct TriShading {
     /// bitangent's handedness (+1: dp/dv along cross(ng, tangent), -1: against it); zero
     /// elsewhere.
     pub tangent: [f32; 4],
+}
+
+impl TriShading {
+    /// `emitter_flags` bit 0: an emitter that shines from both sides (else from its front
+    /// only).
+    pub const TWO_SIDED: u32 = 1;
+    /// `emitter_flags` bit 1: its mesh emits, or its emission is optimised (whatever
+    /// `emitter_pdf` says): a camera ray passes through it where emitters are hidden.
+    pub const EMITTING_MESH: u32 = 2;
 }
 
 /// Mirror of `EmitterTri`: 80 bytes (5 texels).
@@ -214,7 +223,9 @@ pub struct Globals {
     pub environment_sample_prob: f32,
     /// Delta lights in the `Lights` buffer.
     pub num_lights: u32,
-    pub pad: u32,
+    /// 0: a box pixel filter; else 1 + the offset in the material data of the filter's
+    /// sampling table ([`crate::render::filter`]).
+    pub filter_table: u32,
 }
 
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole

@@ -61,7 +61,7 @@ fn scene_bench_on_cornell_is_consistent() {
     finite_positive("rays/s", b.rays.rays_per_s);
 
     let spec: Vec<&str> = b.specialisation.iter().map(|c| c.name.as_str()).collect();
-    assert_eq!(spec, ["MAX_DEPTH", "RR_DEPTH", "NUM_EMITTERS", "HAS_ENVIRONMENT", "ENVIRONMENT_SAMPLED", "HAS_DELTA_LIGHTS", "HAS_TEXTURES", "HAS_PRINCIPLED", "HAS_NORMALS", "HAS_NORMAL_MAPS", "HAS_EMISSION_TEXTURES", "HAS_ALPHA_MASKS", "HAS_DIELECTRICS", "HAS_ROUGH_DIELECTRICS", "HAS_CONDUCTORS", "HAS_PLASTICS", "CONST_BASE", "BVH_STACK_REGISTERS"]);
+    assert_eq!(spec, ["MAX_DEPTH", "RR_DEPTH", "HIDE_EMITTERS", "NUM_EMITTERS", "HAS_ENVIRONMENT", "ENVIRONMENT_SAMPLED", "HAS_DELTA_LIGHTS", "HAS_TEXTURES", "HAS_PRINCIPLED", "HAS_NORMALS", "HAS_NORMAL_MAPS", "HAS_EMISSION_TEXTURES", "HAS_ALPHA_MASKS", "HAS_DIELECTRICS", "HAS_ROUGH_DIELECTRICS", "HAS_CONDUCTORS", "HAS_PLASTICS", "CONST_BASE", "BVH_STACK_REGISTERS"]);
     let g = &b.specialisation_gain;
     finite_positive("generic trace_primal", g.generic_ms);
     finite_positive("specialisation gain", g.gain);

@@ -702,6 +702,31 @@ fn emission_texture_gradients_are_exact() {
     });
 }
 
+/// Hidden emitters (`hide_emitters = true`): the lit quad of
+/// [`lit_quad`](common::scenes::lit_quad) seen from below its light, so that the camera
+/// sees the light's emitting face, the floor and the sky, and the camera rays pass through
+/// the light and find no sky. The sky and the light still light the floor, through
+/// next-event estimation and BSDF samples: the gradients of both must leave out what the
+/// camera no longer sees, exactly (the image is linear in each, and nothing samples by
+/// them), also for the floor's colour.
+#[test]
+fn hidden_emitter_gradients_are_exact() {
+    shared(|ctx| {
+        let optimise = "[[optimise.params]]\ntarget = \"environment\"\ninit = [0.6, 0.2, 0.8]\nrange = [0.0, 2.0]\n\
+                        [[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [3.0, 9.0, 5.0]\nrange = [0.0, 50.0]\n\
+                        [[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.4, 0.6, 0.5]\nrange = [0.0, 1.0]\n";
+        let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
+        let path = common::scenes::lit_quad("gradients-hidden-emitters", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
+        let toml = std::fs::read_to_string(&path).unwrap();
+        let toml = toml.replace("rr_depth = 5", "rr_depth = 5\nhide_emitters = true").replace("origin = [0, 1.2, 1.8]\ntarget = [0, 0, -0.1]", "origin = [0, 0.6, 1.8]\ntarget = [0, 1.0, -0.5]");
+        std::fs::write(&path, toml).unwrap();
+        let scene = Scene::load(path).unwrap();
+        assert!(scene.integrator.hide_emitters && scene.sensors[0].origin.y == 0.6);
+        let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
+        check("hidden", &measure(&mut b, &[probe(0..3, 0.05), probe(3..6, 0.5), probe(6..9, 0.05)], 4), EPS_EXACT, 0.01);
+    });
+}
+
 /// A floor whose diffuse colour is a texture looked up at its nearest texel
 /// (`filter = "nearest"`), optimised as 2 × 2 texels that keep the filter: each point of
 /// the floor reads one texel, in the primal, the replay and the finite differences alike,

@@ -485,6 +485,9 @@ fn bundled_mitsuba_scenes_load_and_render() {
             if f.ends_with("normalmap.xml") {
                 assert_eq!(s.materials.iter().filter(|m| m.normal_map.is_some()).count(), 3, "{}", f.display());
             }
+            if f.ends_with("hidden_emitters.xml") {
+                assert!(s.integrator.hide_emitters, "{}", f.display());
+            }
             let img = render(ctx, &s, 0, 1, 0);
             assert!(img.data.iter().all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0)), "{}", f.display());
         }
@@ -742,7 +745,8 @@ fn optimise_from_gltf_comes_back_as_gltf() {
 }
 
 /// A Mitsuba area emitter's `radiance` may be a bitmap (nested or by `ref`): the mesh's
-/// emission is then its sRGB-decoded texture; an `rgb` stays a constant.
+/// emission is then its sRGB-decoded texture; an `rgb` stays a constant. An emitting
+/// shape without a BSDF reflects nothing, as in Mitsuba.
 #[test]
 fn mitsuba_area_emitters_take_bitmap_radiance() {
     let dir = temp_dir("mitsuba-emitter-bitmap");
@@ -765,8 +769,12 @@ fn mitsuba_area_emitters_take_bitmap_radiance() {
         assert!(!s.meshes[0].uvs.is_empty());
         assert_eq!(*t.image, decoded);
     }
-    let constant = load("constant", r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape>"#);
+    let constant = load("constant", r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape><shape type="rectangle" id="card"/>"#);
     assert_eq!(constant.meshes[0].emission, ColorValue::Constant([2.0, 1.0, 0.5]));
+    // Without a BSDF an emitting shape reflects nothing (Mitsuba's diffuse 0), another
+    // shape is diffuse 0.5.
+    let reflectance = |m: usize| &constant.materials[constant.meshes[m].material].base_color;
+    assert_eq!((reflectance(0), reflectance(1)), (&ColorValue::Constant([0.0; 3]), &ColorValue::Constant([0.5; 3])));
 }
 
 /// Mitsuba's `normalmap` wraps a BSDF, inside or outside `twosided`: its bitmap (raw) is
@@ -1186,8 +1194,10 @@ fn mitsuba_direct_and_volpath_integrators_map_to_the_path_tracer() {
         assert!(s.warnings.is_empty(), "{integrator}: {:?}", s.warnings);
     }
     assert_eq!(scene(r#"<integrator type="volpath"><integer name="max_depth" value="5"/><integer name="rr_depth" value="3"/></integrator>"#).unwrap().integrator.rr_depth, 3);
+    let hidden = scene(r#"<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>"#).unwrap();
+    assert!(hidden.integrator.hide_emitters && hidden.integrator.max_depth == 2);
     for (integrator, needle) in [
-        (r#"<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>"#, "hide_emitters"),
+        (r#"<integrator type="direct"><boolean name="hide_emitters" value="maybe"/></integrator>"#, "line "),
         (r#"<integrator type="direct"><integer name="bsdf_samples" value="-1"/></integrator>"#, "bsdf_samples is negative"),
         (r#"<integrator type="direct"><integer name="max_depth" value="3"/></integrator>"#, "not supported"),
     ] {
@@ -1853,4 +1863,166 @@ fn texture_wrap_modes_are_imported() {
     });
     let e = write_and_load(&dir, "bad.xml", &xml("border", nearest)).unwrap_err().to_string();
     assert!(e.contains("wrap_mode \"border\"") && e.contains("line ") && !e.contains('\n'), "{e}");
+}
+
+/// Hidden emitters (Mitsuba's `hide_emitters`, the TOML's `[integrator] hide_emitters`):
+/// camera rays pass through every emitting shape and find no environment, while the light
+/// of both still reaches the scene. Seen from the front through an orthographic view, an
+/// emitting square floats before a diffuse wall that a directional light lights at 45°
+/// (no shadow of the square falls on the wall, no light of the one-sided square reaches
+/// it: every pixel is exact). Shown, the square's pixels are its radiance (without a BSDF
+/// it reflects nothing, as in Mitsuba); hidden, they show the wall behind it. At depth 1 under a constant sky the
+/// sky's pixels are the sky's radiance, hidden nothing. The TOML written back keeps the
+/// setting; a TOML over the XML overrides it; the scene hash tells the two apart.
+#[test]
+fn hidden_emitters_are_passed_through() {
+    let dir = temp_dir("hide-emitters");
+    let xml = |hide: bool, depth: u32, sky: &str| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="{depth}"/><boolean name="hide_emitters" value="{hide}"/></integrator>
+    <sensor type="orthographic">
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/><rfilter type="box"/></film>
+    </sensor>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.25"/></transform>
+        <emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter>
+    </shape>
+    <shape type="rectangle"><transform name="to_world"><scale value="0.5"/><translate z="-1"/></transform></shape>
+    <emitter type="directional"><vector name="direction" value="-1, 0, -1"/><rgb name="irradiance" value="3.14159265, 3.14159265, 3.14159265"/></emitter>
+    {sky}
+</scene>"#
+        )
+    };
+    // Diffuse 0.5 under irradiance π at 45°: 0.5 cos 45° on the wall.
+    let lit = 0.5 * std::f32::consts::FRAC_1_SQRT_2;
+    // Pixel (x, y) of the 16 × 16 film sees the square (|x|, |y| < 1/4) within pixels
+    // 6..10 and the wall (side 1) within 4..12.
+    let inside = |x: u32, y: u32, lo: u32| (lo..16 - lo).contains(&x) && (lo..16 - lo).contains(&y);
+    let check = |image: &Image, want: &dyn Fn(u32, u32) -> [f32; 3], what: &str| {
+        for y in 0..16 {
+            for x in 0..16 {
+                let (got, want) = (image.data[(y * 16 + x) as usize], want(x, y));
+                assert!(got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-5), "{what}: pixel ({x}, {y}) is {got:?}, not {want:?}");
+            }
+        }
+    };
+    let shown = |x, y| match (inside(x, y, 6), inside(x, y, 4)) {
+        (true, _) => [2.0, 1.0, 0.5],
+        (false, true) => [lit; 3],
+        _ => [0.0; 3],
+    };
+    let hidden = |x, y| if inside(x, y, 4) { [lit; 3] } else { [0.0; 3] };
+    let sky = r#"<emitter type="constant"><rgb name="radiance" value="0.25, 0.25, 0.25"/></emitter>"#;
+    with_gpu(|ctx| {
+        let s = write_and_load(&dir, "shown.xml", &xml(false, 2, "")).unwrap();
+        assert!(s.warnings.is_empty() && !s.integrator.hide_emitters, "{:?}", s.warnings);
+        check(&render(ctx, &s, 0, 16, 3), &shown, "shown");
+        let h = write_and_load(&dir, "hidden.xml", &xml(true, 2, "")).unwrap();
+        assert!(h.warnings.is_empty() && h.integrator.hide_emitters, "{:?}", h.warnings);
+        assert_ne!(s.content_hash(), h.content_hash(), "hiding emitters changes the render");
+        check(&render(ctx, &h, 0, 16, 3), &hidden, "hidden");
+        let out = dir.join("out");
+        write_final(&out, &h, &[]).unwrap();
+        let t = Scene::load(out.join("final/scene.toml")).unwrap();
+        assert!(t.integrator.hide_emitters, "written back");
+        check(&render(ctx, &t, 0, 16, 3), &hidden, "hidden, written back");
+        // A TOML over the XML shows them again.
+        std::fs::write(dir.join("over.toml"), "import = \"hidden.xml\"\n[integrator]\nhide_emitters = false\n").unwrap();
+        let o = Scene::load(dir.join("over.toml")).unwrap();
+        check(&render(ctx, &o, 0, 16, 3), &shown, "shown by the TOML");
+        // Depth 1 under a sky: the square's radiance and the sky's, or nothing.
+        let s = write_and_load(&dir, "sky-shown.xml", &xml(false, 1, sky)).unwrap();
+        check(&render(ctx, &s, 0, 16, 3), &|x, y| match (inside(x, y, 6), inside(x, y, 4)) {
+            (true, _) => [2.0, 1.0, 0.5],
+            (false, true) => [0.0; 3],
+            _ => [0.25; 3],
+        }, "sky shown");
+        let h = write_and_load(&dir, "sky-hidden.xml", &xml(true, 1, sky)).unwrap();
+        check(&render(ctx, &h, 0, 16, 3), &|_, _| [0.0; 3], "sky hidden");
+    });
+    let e = write_and_load(&dir, "bad.xml", &xml(true, 2, "").replace(r#"value="true""#, r#"value="maybe""#)).unwrap_err().to_string();
+    assert!(e.contains("line ") && !e.contains('\n'), "{e}");
+}
+
+/// Pixel filters (Mitsuba's `rfilter`, the TOML's `[film] filter`): an emitting square
+/// (radiance 1 in green) whose edges lie on pixel boundaries, seen through an orthographic
+/// view and rendered at depth 1, where each sample sees the square or nothing. A pixel's
+/// green is then the probability that its sample's offset from the centre lands on the
+/// square: with a box filter the pixel's coverage (1 inside, 0 outside), with a Gaussian
+/// or tent filter the filter's mass over the square, a product of two one-dimensional
+/// masses computed here from the filter's weight (Simpson's rule); every pixel lies within
+/// 5 binomial standard errors of it (4096 samples). The scene written back as TOML keeps
+/// the filter. Without an `rfilter` Mitsuba's film is Gaussian; unknown parameters and
+/// sizes out of range are errors naming the line.
+#[test]
+fn pixel_filters_weigh_the_image_around_each_pixel() {
+    use vkinverse::scene::PixelFilter;
+    let dir = temp_dir("pixel-filters");
+    let xml = |rfilter: &str| {
+        emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "")
+            .replace(r#"<rfilter type="box"/>"#, rfilter)
+            .replace(r#"<integer name="max_depth" value="2"/>"#, r#"<integer name="max_depth" value="1"/>"#)
+            .replace(r#"value="2, 1, 0.5""#, r#"value="0, 1, 0""#)
+    };
+    // The filter's mass over [a, b] (pixels from the centre).
+    let mass = |f: PixelFilter, a: f64, b: f64| {
+        let r = f64::from(f.radius());
+        let simpson = |a: f64, b: f64| {
+            if b <= a {
+                return 0.0;
+            }
+            let n = 4000;
+            let h = (b - a) / n as f64;
+            (0..=n).map(|i| f.weight(a + i as f64 * h) * if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 }).sum::<f64>() * h / 3.0
+        };
+        simpson(a.max(-r), b.min(r)) / simpson(-r, r)
+    };
+    const SPP: u32 = 4096;
+    let check = |image: &Image, f: PixelFilter, what: &str| {
+        let mut spread = 0;
+        for y in 0..16 {
+            for x in 0..16 {
+                // The square spans pixels [4, 12] on both axes.
+                let along = |c: u32| mass(f, 4.0 - (c as f64 + 0.5), 12.0 - (c as f64 + 0.5));
+                let p = along(x) * along(y);
+                let got = f64::from(image.data[(y * 16 + x) as usize][1]);
+                let se = (p * (1.0 - p) / f64::from(SPP)).sqrt();
+                assert!((got - p).abs() <= 5.0 * se + 1e-4, "{what}: pixel ({x}, {y}) is {got}, the filter's mass {p} (se {se})");
+                spread += (p > 0.0 && p < 1.0) as u32;
+            }
+        }
+        spread
+    };
+    with_gpu(|ctx| {
+        let mut partial = Vec::new();
+        for (name, rfilter, want) in [
+            ("box", r#"<rfilter type="box"/>"#, PixelFilter::Box),
+            ("default", "", PixelFilter::Gaussian { stddev: 0.5 }),
+            ("gaussian", r#"<rfilter type="gaussian"><float name="stddev" value="0.8"/></rfilter>"#, PixelFilter::Gaussian { stddev: 0.8 }),
+            ("tent", r#"<rfilter type="tent"><float name="radius" value="1.5"/></rfilter>"#, PixelFilter::Tent { radius: 1.5 }),
+        ] {
+            let s = write_and_load(&dir, &format!("{name}.xml"), &xml(rfilter)).unwrap();
+            assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
+            assert_eq!(s.pixel_filter, want, "{name}");
+            partial.push(check(&render(ctx, &s, 0, SPP, 5), want, name));
+            if name == "tent" {
+                let out = dir.join("out");
+                write_final(&out, &s, &[]).unwrap();
+                let t = Scene::load(out.join("final/scene.toml")).unwrap();
+                assert_eq!(t.pixel_filter, want, "written back");
+                assert_ne!(t.content_hash(), write_and_load(&dir, "box2.xml", &xml(r#"<rfilter type="box"/>"#)).unwrap().content_hash());
+                check(&render(ctx, &t, 0, SPP, 6), want, "tent, written back");
+            }
+        }
+        // The box covers whole pixels; the others reach across the square's edges.
+        assert_eq!(partial[0], 0);
+        assert!(partial[1..].iter().all(|&n| n >= 48), "{partial:?}");
+    });
+    let e = write_and_load(&dir, "bad.xml", &xml(r#"<rfilter type="gaussian"><float name="radius" value="2"/></rfilter>"#)).unwrap_err().to_string();
+    assert!(e.contains("line ") && !e.contains('\n'), "{e}");
+    let e = write_and_load(&dir, "bad2.xml", &xml(r#"<rfilter type="tent"><float name="radius" value="0"/></rfilter>"#)).unwrap_err().to_string();
+    assert!(e.contains("radius 0") && e.contains("line "), "{e}");
+    let s = write_and_load(&dir, "lanczos.xml", &xml(r#"<rfilter type="lanczos"/>"#)).unwrap();
+    assert!(s.pixel_filter == PixelFilter::Box && s.warnings.len() == 1, "{:?}", s.warnings);
 }

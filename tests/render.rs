@@ -664,7 +664,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 }
                 for e in &emitters {
                     let sh = &shading[e.prim as usize];
-                    assert_eq!((e.ng, e.two_sided, e.pdf, e.emission), (sh.ng, sh.two_sided, sh.emitter_pdf, sh.emission), "{tag}: emitter {}", e.prim);
+                    assert_eq!((e.ng, e.two_sided, e.pdf, e.emission), (sh.ng, sh.emitter_flags & TriShading::TWO_SIDED, sh.emitter_pdf, sh.emission), "{tag}: emitter {}", e.prim);
                 }
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
@@ -739,7 +739,7 @@ fn texel_record_layouts_match_reflection() {
             ("ng", offset_of!(TriShading, ng)),
             ("material", offset_of!(TriShading, material)),
             ("emitter_pdf", offset_of!(TriShading, emitter_pdf)),
-            ("two_sided", offset_of!(TriShading, two_sided)),
+            ("emitter_flags", offset_of!(TriShading, emitter_flags)),
             ("one_sided", offset_of!(TriShading, one_sided)),
             ("mesh", offset_of!(TriShading, mesh)),
             ("emission", offset_of!(TriShading, emission)),
@@ -791,7 +791,7 @@ fn texel_record_layouts_match_reflection() {
             ("environment_scale", offset_of!(Globals, environment_scale)),
             ("environment_sample_prob", offset_of!(Globals, environment_sample_prob)),
             ("num_lights", offset_of!(Globals, num_lights)),
-            ("pad1", offset_of!(Globals, pad)),
+            ("filter_table", offset_of!(Globals, filter_table)),
         ],
     );
     check(

@@ -465,6 +465,30 @@ fn film_size_and_fov_are_bounded() {
         assert_message(&load_err(name, &BASE.replace("fov_y = 40", to)), &["scene.toml", key]);
     }
     assert_eq!(Scene::load(fixture("ortho", &BASE.replace("fov_y = 40", "ortho_height = 2.5"))).unwrap().sensors[0].ortho_height, Some(2.5));
+    // The pixel filter: a known name, its own size key only, in range; the box's hash is
+    // the scene's without the key, the others' differ and `hide_emitters` changes it too.
+    use vkinverse::scene::PixelFilter;
+    for (name, to, key) in [
+        ("filter-name", "filter = \"lanczos\"", "film.filter"),
+        ("filter-stddev-zero", "filter = \"gaussian\"\nfilter_stddev = 0", "film.filter_stddev"),
+        ("filter-stddev-wide", "filter = \"gaussian\"\nfilter_stddev = 5", "film.filter_stddev"),
+        ("filter-radius-nan", "filter = \"tent\"\nfilter_radius = nan", "film.filter_radius"),
+        ("filter-wrong-size", "filter = \"tent\"\nfilter_stddev = 1", "film.filter_stddev"),
+        ("filter-size-alone", "filter_radius = 1", "film.filter_radius"),
+    ] {
+        assert_message(&load_err(name, &BASE.replace("height = 8", &format!("height = 8\n{to}"))), &["scene.toml", key]);
+    }
+    let load = |name: &str, to: &str| Scene::load(fixture(name, &BASE.replace("height = 8", &format!("height = 8\n{to}")))).unwrap();
+    let plain = Scene::load(fixture("filter-none", BASE)).unwrap();
+    assert_eq!(plain.pixel_filter, PixelFilter::Box);
+    assert_eq!(load("filter-box", "filter = \"box\"").content_hash(), plain.content_hash());
+    let gaussian = load("filter-gaussian", "filter = \"gaussian\"");
+    assert_eq!(gaussian.pixel_filter, PixelFilter::Gaussian { stddev: 0.5 });
+    let tent = load("filter-tent", "filter = \"tent\"\nfilter_radius = 2");
+    assert_eq!(tent.pixel_filter, PixelFilter::Tent { radius: 2.0 });
+    assert!(gaussian.content_hash() != plain.content_hash() && tent.content_hash() != plain.content_hash() && tent.content_hash() != gaussian.content_hash());
+    let hidden = Scene::load(fixture("hide-emitters", &BASE.replace("[film]", "[integrator]\nhide_emitters = true\n[film]"))).unwrap();
+    assert!(hidden.integrator.hide_emitters && hidden.content_hash() != plain.content_hash());
     // A thin lens takes an aperture and a distance of focus, both positive, on a pinhole.
     for (name, to, key) in [
         ("lens-no-focus", "fov_y = 40\naperture_radius = 0.1", "sensors[0].focus_distance"),

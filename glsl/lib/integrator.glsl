@@ -63,18 +63,19 @@ float bsdf_table(uint table, int index) { return texel_float(Theta, int(CONST_BA
 
 #ifdef GENERIC
 // The unspecialised build (variant trace_primal_generic) that `vkinverse bench` times
-// against the specialised one: the same four values, read at run time as a pipeline
-// shared by every scene would read them, so both render the same image.
+// against the specialised one: the same values, read at run time as a pipeline shared by
+// every scene would read them, so both render the same image.
 layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
     uint limit_max_depth;
     uint limit_rr_depth;
     uint limit_num_emitters;
-    uint limit_has_environment;
+    uint limit_flags;   // bit 0: HAS_ENVIRONMENT, bit 1: HIDE_EMITTERS
 };
 #define MAX_DEPTH limit_max_depth
 #define RR_DEPTH limit_rr_depth
 #define NUM_EMITTERS limit_num_emitters
-#define HAS_ENVIRONMENT (limit_has_environment != 0u)
+#define HAS_ENVIRONMENT ((limit_flags & 1u) != 0u)
+#define HIDE_EMITTERS ((limit_flags & 2u) != 0u)
 #define ENVIRONMENT_SAMPLED HAS_ENVIRONMENT
 #define CACHE_ALL false
 #else
@@ -96,6 +97,9 @@ layout(constant_id = 10) const bool ENVIRONMENT_SAMPLED = false;
 // would otherwise enter, masked, at every vertex (docs/lavapipe.md). Only the adjoint
 // kernels use it (the compiler drops it from the others).
 layout(constant_id = 11) const bool CACHE_ALL = false;
+// Whether emitters seen directly are hidden (Mitsuba's hide_emitters): camera rays pass
+// through every emitting mesh (cast_closest) and find no environment (trace_path).
+layout(constant_id = 23) const bool HIDE_EMITTERS = false;
 #endif
 
 #ifdef COUNT_RAYS
@@ -133,6 +137,16 @@ bool cast_closest(vec3 o, vec3 d, float tmax, uint depth, bool replay, out Hit h
     atomicAdd(ray_count[workgroup_index()], 1u);
 #endif
     bool found = trace_closest(o, d, tmax, hit);
+    // Hidden emitters: a camera ray goes on through each emitting mesh it meets, from the
+    // hit along the same line, as Mitsuba's skip_area_emitters (t counts from o).
+    if (HIDE_EMITTERS && depth == 1u) {
+        float skipped = 0.0;
+        while (found && (tri_emitter_flags(hit.prim) & 2u) != 0u) {
+            skipped += hit.t;
+            found = trace_closest(o + skipped * d, d, tmax - skipped, hit);
+        }
+        hit.t += skipped;
+    }
 #ifdef ADJOINT
     if (depth <= CACHED_BOUNCES) cached_hits[depth - 1u] = hit;
 #endif
@@ -307,7 +321,8 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             for (int s = 0; s < NSTATES; ++s) beta[s] *= kept;
         }
         if (!found) {
-            if (HAS_ENVIRONMENT) {
+            // (Where emitters are hidden, a camera ray that escapes finds nothing.)
+            if (HAS_ENVIRONMENT && !(HIDE_EMITTERS && depth == 1u)) {
                 float mis = 1.0;
                 // The map's light-sampling density of this direction (it was reached by a
                 // BSDF sample unless the previous vertex is the camera).
@@ -340,7 +355,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 
         // Emission reached by the previous BSDF sample (or seen by the camera). Emitters
         // shine from their front (counter-clockwise) side, two-sided ones from both.
-        if (sh.emitter_pdf > 0.0 && (dot(ng, wo) > 0.0 || sh.two_sided != 0u)) {
+        if (sh.emitter_pdf > 0.0 && (dot(ng, wo) > 0.0 || (sh.emitter_flags & 1u) != 0u)) {
             float mis = 1.0;
             if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
                 // The light-sampling pdf of this point, in solid angle at the previous vertex.
@@ -540,11 +555,43 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
     }
 }
 
-// The camera ray of a pixel sample (block 0 of the RNG: the jitter in the pixel, then the
-// point on a thin lens); pixel (0, 0) is the top left.
+// The offset from a pixel's centre, in pixels along one axis, of a camera sample drawn by
+// uniform number u from the pixel filter's sampling table (Globals.filter_table, in the
+// material data; src/render/filter.rs, whose `sample` is this function): the segment
+// whose cumulative masses bracket u, then the point of its linear density's inverse.
+float filter_offset(uint table, float u) {
+    const int n = int(FILTER_TABLE_SIZE);
+    int base = int(CONST_BASE) + int(table) - 1;
+    float r = texel_float(Theta, base);
+    int w = base + 1;       // weights, n + 1
+    int c = w + n + 1;      // cumulative masses, n + 1
+    int lo = 0;
+    int hi = n;
+    while (hi - lo > 1) {
+        int mid = (lo + hi) / 2;
+        if (texel_float(Theta, c + mid) <= u) lo = mid;
+        else hi = mid;
+    }
+    float c0 = texel_float(Theta, c + lo);
+    float span = texel_float(Theta, c + lo + 1) - c0;
+    float v = span > 0.0 ? clamp((u - c0) / span, 0.0, 1.0) : 0.0;
+    float w0 = texel_float(Theta, w + lo);
+    float w1 = texel_float(Theta, w + lo + 1);
+    float m = v * 0.5 * (w0 + w1);
+    float den = w0 + sqrt(max(w0 * w0 + 2.0 * (w1 - w0) * m, 0.0));
+    float t = den > 0.0 ? min(2.0 * m / den, 1.0) : 0.0;
+    return r * (2.0 * (float(lo) + t) / float(n) - 1.0);
+}
+
+// The camera ray of a pixel sample (block 0 of the RNG: the position in the pixel, then
+// the point on a thin lens); pixel (0, 0) is the top left. With a box filter the position
+// is uniform over the pixel; with another it is drawn from the filter, around the pixel's
+// centre, and may lie in a neighbouring pixel (filter importance sampling).
 void camera_ray(SensorRecord s, uvec2 pixel, uvec2 size, inout Rng rng, out vec3 o, out vec3 d) {
     rng_seek_bounce(rng, 0u);
     vec2 jitter = rng_next2(rng);
+    uint table = scene_globals().filter_table;
+    if (table != 0u) jitter = 0.5 + vec2(filter_offset(table, jitter.x), filter_offset(table, jitter.y));
     vec2 ndc = (vec2(pixel) + jitter) / vec2(size) * 2.0 - 1.0;
     ndc.y = -ndc.y;
     if (s.ortho_half_height > 0.0) {

@@ -76,7 +76,7 @@ MaterialRecord material_record(uint id) {
 }
 
 // Shading data of triangle `prim` (8 texels; words in TriShading's scalar layout: ng 0-2,
-// material 3, emitter_pdf 4, two_sided 5, one_sided 6, mesh 7, emission 8-11, n0 12-14,
+// material 3, emitter_pdf 4, emitter_flags 5, one_sided 6, mesh 7, emission 8-11, n0 12-14,
 // n1 15-17, n2 18-20, uv0 21-22, uv1 23-24, uv2 25-26, alpha_material 27, tangent 28-31). Fetches of fields a
 // caller does not use are dead code: a scene without vertex normals, textures and normal
 // maps reads texels 0-2.
@@ -88,7 +88,7 @@ TriShading tri_shading(uint prim) {
     s.ng = uintBitsToFloat(t0.xyz);
     s.material = t0.w;
     s.emitter_pdf = uintBitsToFloat(t1.x);
-    s.two_sided = t1.y;
+    s.emitter_flags = t1.y;
     s.one_sided = t1.z;
     s.mesh = t1.w;
     s.emission = value_ref(texel_load(Shading, b + 2));
@@ -101,6 +101,12 @@ TriShading tri_shading(uint prim) {
     s.alpha_material = t6.w;
     s.tangent = uintBitsToFloat(texel_load(Shading, b + 7));
     return s;
+}
+
+// The emitter flags of triangle `prim` (TriShading.emitter_flags): one word of its
+// shading record.
+uint tri_emitter_flags(uint prim) {
+    return texel_load(Shading, int(prim) * 8 + 1).y;
 }
 
 // The texture coordinates of triangle `prim` at barycentrics b (the weights of vertices 1
@@ -158,7 +164,7 @@ SensorRecord sensor_record(uint i) {
 Globals scene_globals() {
     uvec4 t0 = texel_load(SceneGlobals, 0);
     uvec4 t1 = texel_load(SceneGlobals, 1);
-    return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), t1.z, 0u);
+    return Globals(value_ref(t0), uintBitsToFloat(t1.x), uintBitsToFloat(t1.y), t1.z, t1.w);
 }
 
 // Delta light `i` (5 texels: position 0-2, kind 3, direction 4-6, falloff 7, color 8-11,

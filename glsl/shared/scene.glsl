@@ -65,7 +65,7 @@ struct TriShading {
     vec3 ng;          // unit geometric normal (front side = counter-clockwise winding)
     uint material;
     float emitter_pdf;  // probability density (area measure) of light sampling picking this point; 0: not an emitter
-    uint two_sided;     // 1: an emitter that shines from both sides; 0: from its front only
+    uint emitter_flags; // bit 0: an emitter that shines from both sides (else from its front only); bit 1: its mesh emits
     uint one_sided;     // its material's one_sided
     uint mesh;
     ValueRef emission;  // its mesh's emission: 3 channels, radiance emitted from the front side
@@ -147,6 +147,8 @@ struct Globals {
     // triangle; 0: the environment is found by BSDF sampling only.
     float environment_sample_prob;
     uint num_lights;  // delta lights (binding Lights), all sampled at every path vertex
-    uint pad1;
+    // 0: a box pixel filter (camera samples uniform over the pixel); else 1 + where in the
+    // material data the filter's sampling table starts (src/render/filter.rs).
+    uint filter_table;
 };
 #endif

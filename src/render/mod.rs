@@ -14,6 +14,7 @@
 //! and a second strategy would only add variance.
 
 pub mod envmap;
+pub mod filter;
 pub mod gradient;
 pub mod params;
 pub mod targets;
@@ -21,7 +22,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff, TextureValue as _};
 use crate::constants::{
     MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
@@ -41,6 +42,8 @@ pub struct GpuScene {
     pub sensors: usize,
     pub max_depth: u32,
     pub rr_depth: u32,
+    /// Whether emitters seen directly are hidden (the kernels' HIDE_EMITTERS).
+    pub hide_emitters: bool,
     pub emitters: u32,
     pub has_environment: bool,
     /// Point, spot and directional lights (all sampled at every path vertex).
@@ -130,7 +133,7 @@ fn theta_ref(slot: &ParamSlot, scene: ValueRef) -> ValueRef {
 fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     match v {
         ColorValue::Constant(c) => push_value(data, c, None),
-        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, ValueRef::sampler_flags(t.filter, t.wrap)))),
+        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, ValueRef::sampler_flags(t)))),
     }
 }
 
@@ -141,7 +144,7 @@ fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
         None => ValueRef::default(),
         Some(n) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
-            push_value(data, &[], Some((&image, 3, ValueRef::sampler_flags(n.texture.filter, n.texture.wrap))))
+            push_value(data, &[], Some((&image, 3, ValueRef::sampler_flags(&n.texture))))
         }
     }
 }
@@ -299,7 +302,7 @@ fn plastic_coating(m: &crate::scene::Material) -> Option<([f64; crate::bsdf::TAB
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
-        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, ValueRef::sampler_flags(t.filter, t.wrap)))),
+        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, ValueRef::sampler_flags(t)))),
     }
 }
 
@@ -423,12 +426,14 @@ impl GpuScene {
             .meshes
             .iter()
             .enumerate()
-            .map(|(i, m)| {
-                let scene_value = match &m.emission {
+            .map(|(i, m)| match layout.slot(ParamTarget::Emission { mesh: i }) {
+                // An optimised emission lives in θ; of the scene's value only its sampler
+                // flags are kept.
+                Some(s) => theta_ref(s, ValueRef { flags: m.emission.texture().map_or(0, ValueRef::sampler_flags), ..ValueRef::default() }),
+                None => match &m.emission {
                     ColorValue::Texture(t) => *per_image(&mut shared_textures, &t.image, || color_ref(&mut data, &m.emission)),
                     ColorValue::Constant(_) => color_ref(&mut data, &m.emission),
-                };
-                layout.slot(ParamTarget::Emission { mesh: i }).map_or(scene_value, |s| theta_ref(s, scene_value))
+                },
             })
             .collect();
         let lights: Vec<LightRecord> = scene
@@ -460,6 +465,15 @@ impl GpuScene {
                 }
             })
             .collect();
+        // The pixel filter's table, after the other material data.
+        let filter_table = match filter::table(scene.pixel_filter) {
+            None => 0,
+            Some(table) => {
+                let at = data.len() as u32;
+                data.extend(table);
+                1 + at
+            }
+        };
         // The environment map is always bilinear and repeating (its sampling assumes so).
         let env_value = ValueRef { flags: 0, ..color_ref(&mut data, &scene.environment.value) };
         let env_slot = layout.slot(ParamTarget::Environment);
@@ -534,7 +548,7 @@ impl GpuScene {
                 ng: ng.into(),
                 material,
                 emitter_pdf: 0.0,
-                two_sided,
+                emitter_flags: two_sided | if mesh_emits[mesh] { TriShading::EMITTING_MESH } else { 0 },
                 one_sided: materials[material as usize].one_sided,
                 mesh: mesh as u32,
                 emission: mesh_emission[mesh],
@@ -569,7 +583,7 @@ impl GpuScene {
             environment_scale: scene.environment.scale,
             environment_sample_prob: Self::environment_sample_prob(environment_distribution.is_some(), emitters.len()),
             num_lights: lights.len() as u32,
-            pad: 0,
+            filter_table,
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
@@ -630,6 +644,7 @@ impl GpuScene {
             sensors: scene.sensors.len(),
             max_depth: scene.integrator.max_depth,
             rr_depth: scene.integrator.rr_depth,
+            hide_emitters: scene.integrator.hide_emitters,
             emitters: emitters.len() as u32,
             has_environment,
             lights: lights.len() as u32,
@@ -714,6 +729,7 @@ impl GpuScene {
         let mut spec = vec![
             ("MAX_DEPTH", SpecValue::U32(self.max_depth)),
             ("RR_DEPTH", SpecValue::U32(self.rr_depth)),
+            ("HIDE_EMITTERS", SpecValue::Bool(self.hide_emitters)),
             ("NUM_EMITTERS", SpecValue::U32(self.emitters)),
             ("HAS_ENVIRONMENT", SpecValue::Bool(self.has_environment)),
             ("ENVIRONMENT_SAMPLED", SpecValue::Bool(self.environment_distribution.is_some())),
@@ -750,7 +766,7 @@ impl GpuScene {
     /// The run-time values of the integrator's limits that the unspecialised variant
     /// `trace_primal_generic` reads (binding `IntegratorLimits`): the same as [`Self::spec`].
     pub fn integrator_limits(&self) -> [u32; 4] {
-        [self.max_depth, self.rr_depth, self.emitters, self.has_environment as u32]
+        [self.max_depth, self.rr_depth, self.emitters, self.has_environment as u32 | (self.hide_emitters as u32) << 1]
     }
 
     /// The scene's BVH on the device.

@@ -33,6 +33,12 @@ pub struct SceneFile {
 pub struct FilmFile {
     pub width: Option<u32>,
     pub height: Option<u32>,
+    /// The pixel filter: "box" (the default), "gaussian" or "tent" ([`super::PixelFilter`]).
+    pub filter: Option<String>,
+    /// A Gaussian filter's standard deviation in pixels (0.5 by default).
+    pub filter_stddev: Option<f32>,
+    /// A tent filter's radius in pixels (1 by default).
+    pub filter_radius: Option<f32>,
 }
 
 #[derive(Debug, Deserialize, Default)]
@@ -40,6 +46,7 @@ pub struct FilmFile {
 pub struct IntegratorFile {
     pub max_depth: Option<u32>,
     pub rr_depth: Option<u32>,
+    pub hide_emitters: Option<bool>,
 }
 
 #[derive(Debug, Deserialize)]

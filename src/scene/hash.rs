@@ -92,8 +92,24 @@ pub fn content_hash(scene: &Scene) -> u64 {
     h.tag(VERSION);
     h.tag("film");
     h.u32s(&[scene.film.width, scene.film.height]);
+    // Only where not the box, so that the hashes of scenes without one stay as they were.
+    match scene.pixel_filter {
+        PixelFilter::Box => {}
+        PixelFilter::Gaussian { stddev } => {
+            h.tag("gaussian");
+            h.f32s(&[stddev]);
+        }
+        PixelFilter::Tent { radius } => {
+            h.tag("tent");
+            h.f32s(&[radius]);
+        }
+    }
     h.tag("integrator");
     h.u32s(&[scene.integrator.max_depth, scene.integrator.rr_depth]);
+    // Only where set, so that the hashes of scenes without it stay as they were.
+    if scene.integrator.hide_emitters {
+        h.tag("hide_emitters");
+    }
     h.tag("sensors");
     h.u64(scene.sensors.len() as u64);
     for s in &scene.sensors {

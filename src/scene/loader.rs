@@ -29,6 +29,8 @@ pub(super) struct Imported {
     pub film: Option<Film>,
     pub max_depth: Option<u32>,
     pub rr_depth: Option<u32>,
+    pub hide_emitters: Option<bool>,
+    pub pixel_filter: Option<PixelFilter>,
     pub sensors: Vec<Sensor>,
     pub materials: Vec<Material>,
     pub meshes: Vec<Mesh>,
@@ -165,6 +167,33 @@ impl Loader {
         Ok([mode(names[0])?, mode(names[1])?])
     }
 
+    /// The pixel filter of `[film]`: its own where it names one, else the imported one.
+    fn pixel_filter(&self, film: &file::FilmFile, imported: Option<PixelFilter>) -> Result<PixelFilter, SceneError> {
+        let size = |key: &str, value: Option<f32>, default: f32, max: f32| {
+            let v = value.unwrap_or(default);
+            if v > 0.0 && v <= max {
+                Ok(v)
+            } else {
+                Err(self.invalid(key, &format!("{v} is not in (0, {max}] pixels")))
+            }
+        };
+        let filter = match film.filter.as_deref() {
+            None => imported.unwrap_or_default(),
+            Some("box") => PixelFilter::Box,
+            Some("gaussian") => PixelFilter::Gaussian { stddev: size("film.filter_stddev", film.filter_stddev, 0.5, MAX_FILTER_RADIUS / 4.0)? },
+            Some("tent") => PixelFilter::Tent { radius: size("film.filter_radius", film.filter_radius, 1.0, MAX_FILTER_RADIUS)? },
+            Some(other) => return Err(self.invalid("film.filter", &format!("\"{other}\" is not \"box\", \"gaussian\" or \"tent\""))),
+        };
+        let given = |key: &str, v: Option<f32>, applies: bool| match (v, applies) {
+            (Some(_), false) => Err(self.invalid(key, &format!("applies to a {} filter only, not to \"{}\"", if key == "film.filter_stddev" { "gaussian" } else { "tent" }, filter.name()))),
+            _ => Ok(()),
+        };
+        let named = film.filter.is_some();
+        given("film.filter_stddev", film.filter_stddev, named && matches!(filter, PixelFilter::Gaussian { .. }))?;
+        given("film.filter_radius", film.filter_radius, named && matches!(filter, PixelFilter::Tent { .. }))?;
+        Ok(filter)
+    }
+
     /// The filter named at `key`.filter.
     fn filter(&self, key: &str, name: Option<&str>) -> Result<Filter, SceneError> {
         match name {
@@ -223,9 +252,11 @@ impl Loader {
         };
         self.in_range("film.width", film.width, 1, MAX_IMAGE_SIDE)?;
         self.in_range("film.height", film.height, 1, MAX_IMAGE_SIDE)?;
+        let pixel_filter = self.pixel_filter(&raw.film, imported.pixel_filter)?;
         let integrator = Integrator {
             max_depth: options.max_depth.or(raw.integrator.max_depth).or(imported.max_depth).unwrap_or(6),
             rr_depth: raw.integrator.rr_depth.or(imported.rr_depth).unwrap_or(5),
+            hide_emitters: raw.integrator.hide_emitters.or(imported.hide_emitters).unwrap_or(false),
         };
         self.in_range("integrator.max_depth", integrator.max_depth, 1, MAX_DEPTH)?;
         self.in_range("integrator.rr_depth", integrator.rr_depth, 1, MAX_DEPTH)?;
@@ -286,6 +317,7 @@ impl Loader {
             path: self.scene,
             source: imported.source,
             film,
+            pixel_filter,
             integrator,
             sensors,
             materials,

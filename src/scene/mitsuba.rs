@@ -2,11 +2,12 @@
 //!
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
-//! `rr_depth`, `<integrator type="direct">` (depth 2); `<sensor
+//! `rr_depth`, `<integrator type="direct">` (depth 2), each's `hide_emitters`; `<sensor
 //! type="perspective|thinlens|orthographic">` with `fov` and `fov_axis` (perspective and
 //! thin lens), `aperture_radius` and `focus_distance` (thin lens) and `to_world`
 //! (whose scale sets an orthographic camera's extent, uniform in x and y), its `<film
-//! type="hdrfilm">` size; `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
+//! type="hdrfilm">` size and `<rfilter type="box|gaussian|tent">` (`stddev`, `radius`;
+//! Gaussian by default, as Mitsuba's); `<shape type="obj|ply|serialized|rectangle|cube|sphere|disk|cylinder">` with
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
@@ -27,8 +28,8 @@
 //! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), roughconductor
 //! ([`MaterialKind::Conductor`], either distribution, a named material's or a given
 //! complex index of refraction), roughplastic ([`MaterialKind::Plastic`]), area
-//! lights, the constant environment, point and directional lights, the film and camera.
-//! Approximate, each with a one-line warning: `principled`
+//! lights, the constant environment, point and directional lights, the film and camera,
+//! the box, gaussian and tent filters. Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert and its dielectric Fresnel term
 //! Schlick's of the same index, `specular` or `eta`), a smooth `conductor` (the smallest roughness), a bitmap `alpha` of
 //! roughconductor or roughdielectric (interpolated as √alpha), a smooth `plastic` (its
@@ -38,7 +39,7 @@
 //! and 96 quads), `envmap` (EXR or Radiance HDR, turned or
 //! mirrored by its `to_world`: resampled from Mitsuba's texel positions to the renderer's,
 //! see [`envmap_from_mitsuba`]), reconstruction filters
-//! other than `box`. Every other element, plugin type or parameter is an error naming its
+//! other than those three (as `box`). Every other element, plugin type or parameter is an error naming its
 //! line.
 
 use std::collections::HashMap;
@@ -419,9 +420,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                 }
                 self.out.max_depth = Some(2);
-                if self.take_bool(&mut items, "hide_emitters", false)? {
-                    return Err(self.err(node, "hide_emitters = true is not supported"));
-                }
+                self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
                 return self.rest(&items, node);
             }
             _ => return Err(self.err(node, "only the path, prb, volpath, volpathmis and direct integrators are supported")),
@@ -441,9 +440,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             let d = self.int(n)?;
             self.out.rr_depth = Some(u32::try_from(d).ok().filter(|d| (1..=MAX_DEPTH).contains(d)).ok_or_else(|| self.err(n, format!("{d} is not in 1..={MAX_DEPTH}")))?);
         }
-        if self.take_bool(&mut items, "hide_emitters", false)? {
-            return Err(self.err(node, "hide_emitters = true is not supported"));
-        }
+        self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
         self.rest(&items, node)
     }
 
@@ -550,11 +547,36 @@ impl<'a, 'i> Importer<'a, 'i> {
         for name in ["pixel_format", "component_format", "file_format", "banner", "sample_border"] {
             self.take(&mut items, name);
         }
-        match self.take_tag(&mut items, "rfilter") {
-            Some(f) if self.plugin_type(f)? == "box" => {}
-            Some(f) => self.warn(f, "rendered with a box filter (uniform samples over each pixel)"),
-            None => self.warn(node, "Mitsuba's default Gaussian reconstruction filter is rendered as a box filter"),
-        }
+        // The pixel filter (Mitsuba's default: a Gaussian of standard deviation 0.5).
+        let filter = match self.take_tag(&mut items, "rfilter") {
+            None => PixelFilter::Gaussian { stddev: 0.5 },
+            Some(f) => {
+                let kind = self.plugin_type(f)?;
+                let mut params = elements(f);
+                let size = |this: &Self, params: &mut Items<'a, 'i>, name: &str, default: f32, max: f32| -> Result<f32, SceneError> {
+                    let v = this.take_float(params, name, default)?;
+                    if v > 0.0 && v <= max {
+                        Ok(v)
+                    } else {
+                        Err(this.err(f, format!("{name} {v} is not in (0, {max}]")))
+                    }
+                };
+                let filter = match kind.as_str() {
+                    "box" => PixelFilter::Box,
+                    "gaussian" => PixelFilter::Gaussian { stddev: size(self, &mut params, "stddev", 0.5, MAX_FILTER_RADIUS / 4.0)? },
+                    "tent" => PixelFilter::Tent { radius: size(self, &mut params, "radius", 1.0, MAX_FILTER_RADIUS)? },
+                    // Filters with negative lobes: a sample's weight would need a sign.
+                    _ => {
+                        self.warn(f, "rendered with a box filter (uniform samples over each pixel); gaussian and tent are exact");
+                        params.clear();
+                        PixelFilter::Box
+                    }
+                };
+                self.rest(&params, f)?;
+                filter
+            }
+        };
+        self.out.pixel_filter = Some(filter);
         self.rest(&items, node)?;
         Ok(film)
     }
@@ -985,15 +1007,17 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
     }
 
-    /// The default material of a shape without a BSDF: Mitsuba's (one-sided) diffuse 0.5.
-    fn default_material(&mut self) -> usize {
-        if let Some(i) = self.out.materials.iter().position(|m| m.name == "default") {
+    /// The default material of a shape without a BSDF: Mitsuba's (one-sided) diffuse 0.5,
+    /// or for an emitting shape (`emitter`) diffuse 0, as Mitsuba gives it.
+    fn default_material(&mut self, emitter: bool) -> usize {
+        let (name, reflectance) = if emitter { ("default_emitter", 0.0) } else { ("default", 0.5) };
+        if let Some(i) = self.out.materials.iter().position(|m| m.name == name) {
             return i;
         }
         self.out.materials.push(Material {
-            name: "default".into(),
+            name: name.into(),
             kind: MaterialKind::Diffuse,
-            base_color: ColorValue::Constant([0.5; 3]),
+            base_color: ColorValue::Constant([reflectance; 3]),
             roughness: ScalarValue::Constant(1.0),
             metallic: ScalarValue::Constant(0.0),
             one_sided: true,
@@ -1108,7 +1132,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let id = self.required(r, "id")?;
                 *self.bsdfs.get(&id).ok_or_else(|| self.err(r, format!("no bsdf with id \"{id}\" defined before it")))?
             }
-            (None, None) => self.default_material(),
+            (None, None) => self.default_material(items.iter().any(|n| n.tag_name().name() == "emitter")),
             (Some(_), Some(r)) => return Err(self.err(r, "a shape takes one bsdf")),
         };
         let emission = match self.take_tag(&mut items, "emitter") {

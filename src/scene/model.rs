@@ -10,6 +10,8 @@ use crate::image::Image;
 
 /// Largest film and texture side accepted; larger values are typos, not scenes.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// The widest pixel filter, in pixels from the centre (a Gaussian's 4σ, a tent's radius).
+pub const MAX_FILTER_RADIUS: f32 = 16.0;
 /// Deepest path accepted; beyond this the GPU's per-path replay state is wasted.
 pub const MAX_DEPTH: u32 = 1024;
 /// A dielectric's index of refraction (interior over exterior) when none is given: glass
@@ -29,12 +31,66 @@ pub struct Film {
     pub height: u32,
 }
 
+/// How a pixel weighs the points of the image plane around its centre (`[film] filter`,
+/// Mitsuba's `rfilter`), separably in x and y. The kernels draw each camera sample's
+/// offset from the pixel's centre in proportion to the weight (filter importance
+/// sampling), so that a pixel's mean is the filter-weighted mean of the image plane, as
+/// a renderer that splats samples onto their neighbours with these weights converges to.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum PixelFilter {
+    /// Uniform over the pixel (the default).
+    #[default]
+    Box,
+    /// Mitsuba's `gaussian`: exp(−x²/2σ²) less its value at the radius 4σ, in pixels.
+    Gaussian { stddev: f32 },
+    /// Mitsuba's `tent`: 1 − |x|/radius, in pixels.
+    Tent { radius: f32 },
+}
+
+impl PixelFilter {
+    /// The widest offset from the pixel's centre, in pixels.
+    pub fn radius(self) -> f32 {
+        match self {
+            PixelFilter::Box => 0.5,
+            PixelFilter::Gaussian { stddev } => 4.0 * stddev,
+            PixelFilter::Tent { radius } => radius,
+        }
+    }
+
+    /// The weight at offset x (in pixels) along one axis, unnormalised.
+    pub fn weight(self, x: f64) -> f64 {
+        let r = f64::from(self.radius());
+        match self {
+            _ if x.abs() > r => 0.0,
+            PixelFilter::Box => 1.0,
+            PixelFilter::Gaussian { stddev } => {
+                let a = -0.5 / (f64::from(stddev) * f64::from(stddev));
+                ((a * x * x).exp() - (a * r * r).exp()).max(0.0)
+            }
+            PixelFilter::Tent { .. } => 1.0 - x.abs() / r,
+        }
+    }
+
+    /// The name `[film] filter` and Mitsuba give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            PixelFilter::Box => "box",
+            PixelFilter::Gaussian { .. } => "gaussian",
+            PixelFilter::Tent { .. } => "tent",
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Integrator {
     /// Longest path in segments: 1 sees emitters only, 2 adds direct light.
     pub max_depth: u32,
     /// Depth from which Russian roulette may end a path.
     pub rr_depth: u32,
+    /// Whether emitters seen directly are hidden (Mitsuba's `hide_emitters`): camera rays
+    /// pass through emitting meshes and find no environment; light reaches the scene
+    /// from both as before.
+    pub hide_emitters: bool,
 }
 
 /// A pinhole or orthographic camera with an orthonormal right-handed basis: it looks along
@@ -708,6 +764,8 @@ pub struct Scene {
     pub path: PathBuf,
     pub source: Source,
     pub film: Film,
+    /// The film's pixel filter (`[film] filter`).
+    pub pixel_filter: PixelFilter,
     pub integrator: Integrator,
     pub sensors: Vec<Sensor>,
     pub materials: Vec<Material>,

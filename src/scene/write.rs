@@ -161,11 +161,18 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         table(pairs)
     };
     let mut root = Table::new();
-    root.insert("film".into(), table(vec![("width", Value::Integer(scene.film.width.into())), ("height", Value::Integer(scene.film.height.into()))]));
-    root.insert(
-        "integrator".into(),
-        table(vec![("max_depth", Value::Integer(scene.integrator.max_depth.into())), ("rr_depth", Value::Integer(scene.integrator.rr_depth.into()))]),
-    );
+    let mut film = vec![("width", Value::Integer(scene.film.width.into())), ("height", Value::Integer(scene.film.height.into()))];
+    match scene.pixel_filter {
+        PixelFilter::Box => {}
+        PixelFilter::Gaussian { stddev } => film.extend([("filter", Value::String("gaussian".into())), ("filter_stddev", Value::Float(num(stddev)))]),
+        PixelFilter::Tent { radius } => film.extend([("filter", Value::String("tent".into())), ("filter_radius", Value::Float(num(radius)))]),
+    }
+    root.insert("film".into(), table(film));
+    let mut integrator = vec![("max_depth", Value::Integer(scene.integrator.max_depth.into())), ("rr_depth", Value::Integer(scene.integrator.rr_depth.into()))];
+    if scene.integrator.hide_emitters {
+        integrator.push(("hide_emitters", Value::Boolean(true)));
+    }
+    root.insert("integrator".into(), table(integrator));
     let sensors = scene
         .sensors
         .iter()
