@@ -33,7 +33,12 @@ fn main() {
 
     let constants = Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap()).join("src/constants.rs");
     println!("cargo:rerun-if-changed={}", constants.display());
-    std::fs::write(out.join("vkinverse_constants.glsl"), glsl_constants(&constants)).unwrap();
+    // Rewritten only when it changes, so that its time stamp moves with its content.
+    let generated = out.join("vkinverse_constants.glsl");
+    let text = glsl_constants(&constants);
+    if std::fs::read_to_string(&generated).ok().as_deref() != Some(text.as_str()) {
+        std::fs::write(&generated, text).unwrap();
+    }
 
     let compiler = shaderc::Compiler::new().expect("shaderc compiler");
     let included: Rc<RefCell<BTreeSet<PathBuf>>> = Rc::default();
@@ -101,7 +106,10 @@ fn main() {
             }
         }
     }
-    for file in included.borrow().iter() {
+    // Not the files this script writes into OUT_DIR (the constants header): their source is
+    // tracked above, and cargo counts a tracked file written during the run as changed
+    // after it, which would rerun the script, and every kernel's compilation, on every build.
+    for file in included.borrow().iter().filter(|f| !f.starts_with(&out)) {
         println!("cargo:rerun-if-changed={}", file.display());
     }
     if !failures.is_empty() {

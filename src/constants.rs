@@ -100,3 +100,14 @@ pub const SCHEDULE_STEP: u32 = 2;
 /// Segments of a pixel filter's sampling table (src/render/filter.rs): its weight and
 /// cumulative mass at this many + 1 offsets.
 pub const FILTER_TABLE_SIZE: u32 = 256;
+
+/// `TriShading::emitter_flags` bit: an emitter that shines from both sides (else from its
+/// front only).
+pub const EMITTER_TWO_SIDED: u32 = 1;
+/// `TriShading::emitter_flags` bit: its mesh emits, or its emission is optimised (whatever
+/// `emitter_pdf` says): a camera ray passes through it where emitters are hidden.
+pub const EMITTER_MESH: u32 = 2;
+
+/// `ValueRef::flags` bit of a material's normal-map slot: it holds a bump map's heights
+/// (one float per texel), its triangles' `tangent` the world-space gradients of u and v.
+pub const VALUE_BUMP: u32 = 64;

@@ -70,6 +70,8 @@ impl ValueRef {
     pub const IN_THETA: u32 = 1;
     /// A texture looked up at its nearest texel (`VALUE_NEAREST`).
     pub const NEAREST: u32 = 2;
+    /// A material's normal-map slot holds a bump map's heights (`VALUE_BUMP`).
+    pub const BUMP: u32 = crate::constants::VALUE_BUMP;
 
     /// The flags of texture `t`'s filter and wrap modes (u, v).
     pub fn sampler_flags(t: &crate::scene::Texture) -> u32 {
@@ -150,18 +152,20 @@ pub struct TriShading {
     /// BVH record's, [`crate::bvh::BvhTriangle::alpha_material`]).
     pub alpha_material: u32,
     /// Normal-mapped materials only: the unit dp/du of the texture coordinates and the
-    /// bitangent's handedness (+1: dp/dv along cross(ng, tangent), -1: against it); zero
-    /// elsewhere.
+    /// bitangent's handedness (+1: dp/dv along cross(ng, tangent), -1: against it).
+    /// Bump-mapped ones: the world-space gradients of u and v on the triangle, in the
+    /// orthonormal basis (t, b) the kernels build from `ng` (`shading_frame`, mirrored by
+    /// `render::tangent_frame`): (∇u·t, ∇u·b, ∇v·t, ∇v·b). Zero elsewhere.
     pub tangent: [f32; 4],
 }
 
 impl TriShading {
     /// `emitter_flags` bit 0: an emitter that shines from both sides (else from its front
     /// only).
-    pub const TWO_SIDED: u32 = 1;
+    pub const TWO_SIDED: u32 = crate::constants::EMITTER_TWO_SIDED;
     /// `emitter_flags` bit 1: its mesh emits, or its emission is optimised (whatever
     /// `emitter_pdf` says): a camera ray passes through it where emitters are hidden.
-    pub const EMITTING_MESH: u32 = 2;
+    pub const EMITTING_MESH: u32 = crate::constants::EMITTER_MESH;
 }
 
 /// Mirror of `EmitterTri`: 80 bytes (5 texels).

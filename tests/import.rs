@@ -190,6 +190,21 @@ fn import_err(file: &str) -> String {
     }
 }
 
+/// Asserts that `result` (case `what`) failed with a one-line message holding every needle.
+fn assert_fails(what: &str, result: Result<Scene, SceneError>, needles: &[&str]) {
+    let msg = result.map(|_| ()).unwrap_err().to_string();
+    assert!(!msg.contains('\n') && needles.iter().all(|n| msg.contains(n)), "{what}: {msg}");
+}
+
+/// Asserts that scene `s` (case `what`) warned `count` times, the first time (if any) about
+/// the frame refinements of Mitsuba's `normalmap` and `bumpmap` that the model leaves out.
+fn assert_refinement_warnings(what: &str, s: &Scene, count: usize) {
+    assert_eq!(s.warnings.len(), count, "{what}: {:?}", s.warnings);
+    if count > 0 {
+        assert!(s.warnings[0].contains("use_shadowing_function") && s.warnings[0].contains("flip_invalid_normals"), "{}", s.warnings[0]);
+    }
+}
+
 /// A Mitsuba scene of `body` (integrator, BSDFs, shapes) seen by an 8 × 8 camera.
 fn small_mitsuba_scene(body: &str) -> String {
     format!(
@@ -817,15 +832,9 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
         assert_eq!((n.texture.image.width, n.texture.image.height), (8, 8), "{name}");
         // Raw bytes: the flat middle texels encode (0, 0, 1) as 128/255, 128/255, 1.
         assert_eq!(n.texture.image.get(3, 3), [128.0 / 255.0, 128.0 / 255.0, 1.0], "{name}");
-        assert_eq!(s.warnings.len(), warnings, "{name}: {:?}", s.warnings);
-        if warnings > 0 {
-            assert!(s.warnings[0].contains("use_shadowing_function") && s.warnings[0].contains("flip_invalid_normals"), "{}", s.warnings[0]);
-        }
+        assert_refinement_warnings(name, &s, warnings);
     }
-    let fails = |name: &str, bsdf: &str, needles: &[&str]| {
-        let msg = load(name, bsdf).map(|_| ()).unwrap_err().to_string();
-        assert!(!msg.contains('\n') && needles.iter().all(|n| msg.contains(n)), "{name}: {msg}");
-    };
+    let fails = |name: &str, bsdf: &str, needles: &[&str]| assert_fails(name, load(name, bsdf), needles);
     fails("constant", &format!(r#"<bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/>{diffuse}</bsdf>"#), &["<rgb name=\"normalmap\">", "bitmap"]);
     fails("no-map", &format!(r#"<bsdf type="normalmap">{diffuse}</bsdf>"#), &["<bsdf type=\"normalmap\">", "needs a `normalmap`"]);
     fails("no-bsdf", &format!(r#"<bsdf type="normalmap">{}</bsdf>"#, map("")), &["normalmap needs one nested <bsdf>"]);
@@ -836,6 +845,70 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
         &format!(r#"<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="{}"/></texture>{diffuse}</bsdf>"#, hdr.display()),
         &["hot.exr", "2 at pixel (0, 0)", "outside [0, 1]"],
     );
+}
+
+/// Mitsuba's `bumpmap` wraps a BSDF: its one texture (a bitmap under any name, or a
+/// `<ref>`) and `scale` become the material's bump map, its frame refinements left out
+/// with a warning unless turned off; no texture, a constant, a bump map inside a normal
+/// map (or another bump map) and a dielectric inside are refused naming the line. The
+/// bundled scenes/mitsuba/bumpmap.xml renders as its TOML written back (`final/`) does,
+/// bit for bit, and differs from the scene without its maps.
+#[test]
+fn mitsuba_bump_maps_wrap_bsdfs() {
+    let dir = temp_dir("mitsuba-bumpmap");
+    let heights = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/mitsuba/meshes/heights.png");
+    let bitmap = |name: &str| format!(r#"<texture type="bitmap" name="{name}"><string name="filename" value="{}"/><boolean name="raw" value="true"/></texture>"#, heights.display());
+    let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>"#;
+    let quiet = r#"<boolean name="use_shadowing_function" value="false"/><boolean name="flip_invalid_normals" value="false"/>"#;
+    let load = |name: &str, bsdf: &str| {
+        let path = dir.join(format!("{name}.xml"));
+        let shapes = format!(
+            r#"    <texture type="bitmap" id="h"><string name="filename" value="{}"/><boolean name="raw" value="true"/></texture>
+    <shape type="rectangle" id="card">{bsdf}</shape>
+    <emitter type="constant"><rgb name="radiance" value="1"/></emitter>"#,
+            heights.display()
+        );
+        std::fs::write(&path, small_mitsuba_scene(&shapes)).unwrap();
+        Scene::load(&path)
+    };
+    for (name, bsdf, scale, one_sided, warnings) in [
+        ("nested", format!(r#"<bsdf type="bumpmap">{}<float name="scale" value="0.2"/>{quiet}{diffuse}</bsdf>"#, bitmap("arbitrary")), 0.2, true, 0),
+        ("ref", format!(r#"<bsdf type="twosided"><bsdf type="bumpmap"><ref id="h"/>{diffuse}</bsdf></bsdf>"#), 1.0, false, 1),
+        ("in-mask", format!(r#"<bsdf type="mask"><float name="opacity" value="1"/><bsdf type="bumpmap">{quiet}{}{diffuse}</bsdf></bsdf>"#, bitmap("bumps")), 1.0, true, 0),
+    ] {
+        let s = load(name, &bsdf).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let m = &s.materials[0];
+        let b = m.bump_map.as_ref().unwrap_or_else(|| panic!("{name}: no bump map"));
+        assert!(m.normal_map.is_none(), "{name}");
+        assert_eq!((b.scale, m.one_sided, (b.texture.image.width, b.texture.image.height)), (scale, one_sided, (16, 16)), "{name}");
+        assert_refinement_warnings(name, &s, warnings);
+    }
+    let fails = |name: &str, bsdf: &str, needles: &[&str]| assert_fails(name, load(name, bsdf), needles);
+    fails("no-texture", &format!(r#"<bsdf type="bumpmap">{diffuse}</bsdf>"#), &["<bsdf type=\"bumpmap\">", "height texture"]);
+    fails("constant", &format!(r#"<bsdf type="bumpmap"><rgb name="h" value="0.5"/>{diffuse}</bsdf>"#), &["<bsdf type=\"bumpmap\">", "height texture"]);
+    fails("no-bsdf", &format!(r#"<bsdf type="bumpmap">{}</bsdf>"#, bitmap("a")), &["bumpmap needs one nested <bsdf>"]);
+    fails("bump-in-bump", &format!(r#"<bsdf type="bumpmap">{}<bsdf type="bumpmap">{}{diffuse}</bsdf></bsdf>"#, bitmap("a"), bitmap("b")), &["bumpmap inside a normalmap or bumpmap"]);
+    fails("glass", &format!(r#"<bsdf type="bumpmap">{}<bsdf type="dielectric"/></bsdf>"#, bitmap("a")), &["dielectric"]);
+    fails("bad-scale", &format!(r#"<bsdf type="bumpmap">{}<float name="scale" value="inf"/>{diffuse}</bsdf>"#, bitmap("a")), &["scale"]);
+
+    // The bundled scene against its written-back TOML, and without its maps.
+    let xml = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/mitsuba/bumpmap.xml");
+    let scene = Scene::load(&xml).unwrap();
+    assert_eq!(scene.materials.iter().filter(|m| m.bump_map.is_some()).count(), 3);
+    let out = dir.join("written");
+    write_final(&out, &scene, &[]).unwrap();
+    let written = Scene::load(out.join("final/scene.toml")).unwrap();
+    let mut flat = scene.clone();
+    for m in &mut flat.materials {
+        m.bump_map = None;
+    }
+    with_gpu(|ctx| {
+        let render = |s: &Scene| Renderer::new(GpuScene::new(ctx, s).unwrap()).unwrap().render(0, 4, 3, |_, _| {}).unwrap();
+        let (a, b, c) = (render(&scene), render(&written), render(&flat));
+        assert!(a.data == b.data, "the written-back TOML renders differently");
+        let changed = a.data.iter().zip(&c.data).filter(|(p, q)| (p[0] - q[0]).abs() > 0.05 * q[0].abs().max(1e-2)).count();
+        assert!(changed > a.data.len() / 10, "the bump maps change only {changed} of {} pixels by 5 %", a.data.len());
+    });
 }
 
 /// Mitsuba's `mask` wraps a BSDF, alone or with `twosided` and `normalmap` in any order:

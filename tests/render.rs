@@ -365,6 +365,88 @@ fn a_constant_normal_map_shades_as_the_vertex_normals_it_encodes() {
     });
 }
 
+/// The diffuse quad of [`normal_quad`] (facing +y, x from −1 to 1 and z from −1 to 1),
+/// its texture coordinates spanning [0.25, 0.75] (u along +x, or −x where `mirrored`; v
+/// along −z) so that a 2 × 2 texture is bilinear across it, with vertex normal `normal`
+/// (if any) and the material line `material`; `heights` (if any) written as height.exr.
+fn bump_quad(name: &str, normal: Option<[f64; 3]>, mirrored: bool, heights: Option<&Image>, material: &str) -> Scene {
+    let u = |x: f32| if mirrored { 1.0 - x } else { x };
+    let mut obj = format!("v -1 0 -1\nv 1 0 -1\nv 1 0 1\nv -1 0 1\nvt {} 0.75\nvt {} 0.75\nvt {} 0.25\nvt {} 0.25\n", u(0.25), u(0.75), u(0.75), u(0.25));
+    match normal {
+        None => obj.push_str("f 1/1 4/4 3/3 2/2\n"),
+        Some(n) => obj.push_str(&format!("vn {} {} {}\nf 1/1/1 4/4/1 3/3/1 2/2/1\n", n[0], n[1], n[2])),
+    }
+    let path = quad_under_map(name, &spot_map(), &obj, material);
+    if let Some(img) = heights {
+        write_exr(&path.with_file_name("height.exr"), img).unwrap();
+    }
+    Scene::load(path).unwrap()
+}
+
+/// A bump map bends the shading normal as Mitsuba's `bumpmap` does: n' is the normalised
+/// cross product of dp/du and dp/dv, each less its part along the unshaded normal n and
+/// plus n times the height's derivative in u or v. On the quad of [`bump_quad`]
+/// (dp/du = (±4, 0, 0), dp/dv = (0, 0, −4)) a 2 × 2 height texture is a plane, so n' is
+/// one vector, computed here in f64 from that definition; the bump-mapped quad renders as
+/// the quad whose vertex normals are n' (all pixels within 1e-4 but for two, as for the
+/// normal maps), with and without vertex normals of its own (whose tilt the definition
+/// mixes with the slope's), for a slope in u, in v, both, mirrored u, and the luminance of
+/// a red ramp. Each tilt changes the image by more than a tenth. A nearest-filtered
+/// ramp (no slope between texel edges, as Mitsuba's) and a constant height (only slopes
+/// count) render as the quad without a map.
+#[test]
+fn a_bump_map_shades_as_the_normal_of_its_slope() {
+    use glam::DVec3;
+    let scale = 1.4; // a slope of 2.8 across dp/du = 4: a tilt of 35 degrees
+    let ramp = |h: [f32; 4], k: [f32; 3]| Image { width: 2, height: 2, data: h.iter().map(|&v| k.map(|c| v * c)).collect() };
+    let grey = [1.0f32; 3];
+    let tilted = DVec3::new(0.3, 0.9, 0.3).normalize();
+    // (name, the height texels (top row first: v = 0.75), their colour, the vertex
+    // normal, mirrored u, the map's extra keys, whether the surface stays flat)
+    let cases: [(&str, [f32; 4], [f32; 3], Option<DVec3>, bool, &str, bool); 8] = [
+        ("u", [0.0, 1.0, 0.0, 1.0], grey, None, false, "", false),
+        ("v", [1.0, 1.0, 0.0, 0.0], grey, None, false, "", false),
+        ("uv-smooth", [1.0, 2.0, 0.0, 1.0], grey, Some(tilted), false, "", false),
+        ("u-smooth", [0.0, 1.0, 0.0, 1.0], grey, Some(DVec3::new(20f64.to_radians().sin(), 20f64.to_radians().cos(), 0.0)), false, "", false),
+        ("u-mirrored", [0.0, 1.0, 0.0, 1.0], grey, None, true, "", false),
+        ("u-red", [0.0, 1.0, 0.0, 1.0], [1.0 / 0.212671, 0.0, 0.0], None, false, "", false),
+        ("nearest", [0.0, 1.0, 0.0, 1.0], grey, None, false, ", filter = \"nearest\"", true),
+        ("offset", [5.0; 4], grey, None, false, "", true),
+    ];
+    let render = |ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene| {
+        let gs = GpuScene::new(ctx, scene).unwrap();
+        let mapped = gs.has_normal_maps;
+        (Renderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
+    };
+    let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
+    let differing = |a: &Image, b: &Image| a.data.iter().zip(&b.data).filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3))).count();
+    with_gpu(|ctx| {
+        for (name, h, colour, normal, mirrored, extra, flat) in cases {
+            let material = format!("bump_map = {{ texture = \"height.exr\", scale = {scale}{extra} }}");
+            let (bumped, has_maps) = render(ctx, &bump_quad(&format!("bump-{name}"), normal.map(|n| n.to_array()), mirrored, Some(&ramp(h, colour)), &material));
+            assert!(has_maps, "{name}: the kernels are built with normal maps");
+            // The height's derivatives (the luminance of the texels, times scale): across
+            // half a unit of u or v between texel centres.
+            let lum = |i: usize| (0.212671 * colour[0] + 0.715160 * colour[1] + 0.072169 * colour[2]) as f64 * h[i] as f64 * scale;
+            let (hu, hv) = ((lum(1) - lum(0)) / 0.5, (lum(0) - lum(2)) / 0.5);
+            let n = normal.unwrap_or(DVec3::Y);
+            let (dp_du, dp_dv) = (DVec3::new(if mirrored { -4.0 } else { 4.0 }, 0.0, 0.0), DVec3::new(0.0, 0.0, -4.0));
+            let along = |d: DVec3, slope: f64| d - n * n.dot(d) + n * slope;
+            let c = along(dp_du, hu).cross(along(dp_dv, hv)).normalize();
+            let expected = if flat { n } else if c.y < 0.0 { -c } else { c };
+            let (reference, _) = render(ctx, &bump_quad(&format!("bump-{name}-vn"), Some(expected.to_array()), false, None, ""));
+            let off = differing(&bumped, &reference);
+            eprintln!("{name}: normal {expected:.4}, mean {:.5} (vertex normals {:.5}); {off} pixels differ", mean(&bumped), mean(&reference));
+            assert!(off <= 2, "{name}: {off} pixels differ from the image of the normal {expected}");
+            if !flat {
+                let (unbumped, _) = render(ctx, &bump_quad(&format!("bump-{name}-plain"), normal.map(|n| n.to_array()), mirrored, None, ""));
+                let change = (mean(&bumped) / mean(&unbumped) - 1.0).abs();
+                assert!(change > 0.1, "{name}: the slope changes the image by only {change}");
+            }
+        }
+    });
+}
+
 /// Per channel: the mean over pixels, its standard error and the variance over pixels
 /// (pixels are independent estimates of one value).
 fn pixel_stats(img: &Image) -> [(f64, f64, f64); 3] {

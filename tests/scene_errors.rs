@@ -722,6 +722,48 @@ fn normal_maps_are_checked() {
     assert_message(&load_err("nmap-key", &with("{ texture = \"tex.exr\", strength = 2 }")), &["strength"]);
 }
 
+/// A bump map's heights are any finite numbers, its scale finite (1 by default); it takes
+/// the texture keys `filter` and `wrap`, and cannot be combined with a normal map or put on
+/// a dielectric; a missing file is named with its key. The map and its scale are part of
+/// the hash; written back (`final/`), it loads as it was.
+#[test]
+fn bump_maps_are_checked() {
+    use vkinverse::scene::{Filter, Wrap};
+    let with = |map: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nbump_map = {map}"));
+    let s = Scene::load(fixture("bump-ok", &with("{ texture = \"tex.exr\", scale = 0.25, filter = \"nearest\", wrap = \"clamp\" }"))).unwrap();
+    let b = s.materials[0].bump_map.as_ref().unwrap();
+    assert_eq!((b.scale, b.texture.filter, b.texture.wrap), (0.25, Filter::Nearest, [Wrap::Clamp; 2]));
+    // tex.exr's texels are (0.25, 0.5, 0.75): the height is scale times their luminance.
+    let luminance = 0.212671 * 0.25 + 0.715160 * 0.5 + 0.072169 * 0.75;
+    assert!((b.heights()[0] - 0.25 * luminance).abs() < 1e-7, "{}", b.heights()[0]);
+    assert_eq!(Scene::load(fixture("bump-default", &with("{ texture = \"tex.exr\" }"))).unwrap().materials[0].bump_map.as_ref().unwrap().scale, 1.0);
+    // Heights may be negative or large, not NaN (the image reader refuses it).
+    let path = fixture("bump-negative", &with("{ texture = \"h.exr\" }"));
+    write_exr(&path.with_file_name("h.exr"), &Image::filled(2, 2, [-3.0, 7.0, 0.5])).unwrap();
+    assert!(Scene::load(&path).is_ok());
+    let err = bad_texel("bump-nan", &with("{ texture = \"h.exr\" }"), "h.exr", (2, 2), [-3.0, 7.0, 0.5], (3, 1), f32::NAN);
+    assert_message(&err, &["materials.m.bump_map.texture", "h.exr", "non-finite", "(1, 1)"]);
+    assert_message(&load_err("bump-scale", &with("{ texture = \"tex.exr\", scale = inf }")), &["materials.m.bump_map.scale"]);
+    assert_message(&load_err("bump-missing", &with("{ texture = \"none.exr\" }")), &["materials.m.bump_map.texture", "none.exr"]);
+    assert_message(&load_err("bump-key", &with("{ texture = \"tex.exr\", bitangent = \"uv\" }")), &["bitangent"]);
+    assert_message(&load_err("bump-filter", &with("{ texture = \"tex.exr\", filter = \"cubic\" }")), &["materials.m.bump_map.filter", "\"cubic\""]);
+    let both = with("{ texture = \"tex.exr\" }\nnormal_map = { texture = \"tex.exr\" }");
+    assert_message(&load_err("bump-and-normal", &both), &["materials.m.bump_map", "normal_map"]);
+    let glass = with("{ texture = \"tex.exr\" }").replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"dielectric\"");
+    assert_message(&load_err("bump-glass", &glass), &["materials.m.bump_map", "dielectric"]);
+    // The hash: a map, its scale; written back, the same scene.
+    let base = Scene::load(fixture("bump-hash-a", BASE)).unwrap().content_hash();
+    let one = Scene::load(fixture("bump-hash-b", &with("{ texture = \"tex.exr\" }"))).unwrap();
+    assert_ne!(base, one.content_hash());
+    assert_ne!(one.content_hash(), Scene::load(fixture("bump-hash-c", &with("{ texture = \"tex.exr\", scale = 2 }"))).unwrap().content_hash());
+    assert_eq!(one.content_hash(), Scene::load(fixture("bump-hash-d", &with("{ texture = \"tex.exr\", scale = 1 }"))).unwrap().content_hash());
+    let out = std::env::temp_dir().join(format!("vkinverse-scene-tests-{}-bump-written", std::process::id()));
+    vkinverse::scene::write::write_final(&out, &one, &[]).unwrap();
+    let again = Scene::load(out.join("final/scene.toml")).unwrap();
+    let b = again.materials[0].bump_map.as_ref().expect("the written bump map");
+    assert_eq!((b.scale, b.heights()), (1.0, one.materials[0].bump_map.as_ref().unwrap().heights()));
+}
+
 /// An alpha is a number or an EXR texture in [0, 1], its mode "mask" (the default) or
 /// "blend", and a mask's cutoff a number in [0, 1] (0.5 by default); mode and cutoff come
 /// only with an alpha, and the alpha cannot be optimised.
@@ -889,7 +931,7 @@ fn dielectrics_are_checked() {
     assert_message(&load_err("glass-ior-zero", &glass("\nior = 0")), &["materials.m.ior", "[0.25, 4]"]);
     assert_message(&load_err("glass-ior-nan", &glass("\nior = nan")), &["materials.m.ior"]);
     assert_message(&load_err("glass-rough", &glass("\nroughness = 0.1")), &["materials.m", "smooth", "roughness"]);
-    for (key, line) in [("one_sided", "one_sided = true"), ("normal_map", "normal_map = { texture = \"tex.exr\" }"), ("alpha", "alpha = 0.5")] {
+    for (key, line) in [("one_sided", "one_sided = true"), ("normal_map", "normal_map = { texture = \"tex.exr\" }"), ("bump_map", "bump_map = { texture = \"tex.exr\" }"), ("alpha", "alpha = 0.5")] {
         assert_message(&load_err(&format!("glass-{key}"), &glass(&format!("\n{line}"))), &[&format!("materials.m.{key}"), "dielectric"]);
     }
     let s = Scene::load(fixture("glass-absorbing", &glass("\nabsorption = [0.5, 0, 2]"))).unwrap();

@@ -441,7 +441,7 @@ void scatter1(ValueRef r, vec2 uv, float g) {
 // interpolated (or geometric) unit normal n: n perturbed by the material's normal map, in
 // the frame of the triangle's tangent made orthogonal to n (Gram-Schmidt), the bitangent
 // cross(n, tangent) times the tangent's handedness, and n. n itself where the material has
-// no map or the triangle no tangent. The map is a material constant: every parameter state
+// no normal map (a bump map: bump_mapped, lib/integrator.glsl) or the triangle no tangent. The map is a material constant: every parameter state
 // sees the same normal.
 vec3 normal_mapped(TriShading sh, vec3 n, vec2 uv) {
     // (Not `if (!HAS_NORMAL_MAPS) return n;`: the reflection cannot fold the negation of a
@@ -449,7 +449,7 @@ vec3 normal_mapped(TriShading sh, vec3 n, vec2 uv) {
     if (HAS_NORMAL_MAPS) {
         ValueRef r = material_record(sh.material).normal_map;
         vec3 t = sh.tangent.xyz - n * dot(n, sh.tangent.xyz);
-        if (r.width != 0u && sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
+        if (r.width != 0u && (r.flags & VALUE_BUMP) == 0u && sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
             t = normalize(t);
             vec3 m = fetch3(r, uv, 0);
             vec3 v = m.x * t + (m.y * sh.tangent.w) * cross(n, t) + m.z * n;

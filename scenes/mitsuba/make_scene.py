@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes the mesh files of scenes/mitsuba/scene.xml, the back wall as OBJ and a wedge
 (a triangular prism) as binary PLY, the normal map of normalmap.xml and
-textured_shapes.xml, the emission texture of textured_light.xml's globe and the lattice
+textured_shapes.xml, the height field of bumpmap.xml, the emission texture of textured_light.xml's globe and the lattice
 opacity of masked.xml. The scene files themselves are written by hand."""
 
 import math
@@ -46,6 +46,17 @@ for y in range(8):
     ay = 20 if y < 3 else (-20 if y > 4 else 0)
     rows.append([texel(-30 if x < 3 else (30 if x > 4 else 0), ay) for x in range(8)])
 (HERE / "meshes" / "bumps.png").write_bytes(png(8, 8, rows))
+
+# The height field of bumpmap.xml: 16 x 16 texels, grey, 8-bit, two periods of a wave
+# along u times one along v, (1 + sin(4 pi x / 16) cos(2 pi y / 16)) / 2.
+heights = []
+for y in range(16):
+    row = []
+    for x in range(16):
+        h = round((1 + math.sin(4 * math.pi * (x + 0.5) / 16) * math.cos(2 * math.pi * (y + 0.5) / 16)) / 2 * 255)
+        row.append((h, h, h))
+    heights.append(row)
+(HERE / "meshes" / "heights.png").write_bytes(png(16, 16, heights))
 
 # The glowing band of textured_light.xml's globe: 32 x 16 texels, black but for three rows
 # (warm on one half of the circumference, cool on the other).

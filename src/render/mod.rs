@@ -22,7 +22,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, MaterialKind, NormalMap, ParamTarget, ScalarValue, Scene, SpotFalloff, TextureValue as _};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, Material, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff, TextureValue as _};
 use crate::constants::{
     MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
@@ -137,10 +137,17 @@ fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     }
 }
 
-/// The material data of a normal map (its decoded, scaled vectors, [`NormalMap::vectors`]),
-/// or a ValueRef of width 0 for none.
-fn normal_map_ref(data: &mut Vec<f32>, n: Option<&NormalMap>) -> ValueRef {
-    match n {
+/// The material data of material `m`'s normal map (its decoded, scaled vectors,
+/// [`crate::scene::NormalMap::vectors`]) or bump map (its heights,
+/// [`crate::scene::BumpMap::heights`], flagged
+/// [`ValueRef::BUMP`]), or a ValueRef of width 0 for neither.
+fn normal_map_ref(data: &mut Vec<f32>, m: &Material) -> ValueRef {
+    if let Some(b) = &m.bump_map {
+        let image = Image { data: b.heights().into_iter().map(|h| [h, 0.0, 0.0]).collect(), width: b.texture.image.width, height: b.texture.image.height };
+        let r = push_value(data, &[], Some((&image, 1, ValueRef::sampler_flags(&b.texture))));
+        return ValueRef { flags: r.flags | ValueRef::BUMP, ..r };
+    }
+    match &m.normal_map {
         None => ValueRef::default(),
         Some(n) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
@@ -186,6 +193,38 @@ fn triangle_tangent(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
     }
     let w = if ng.cross(t).dot(dp_dv) < 0.0 { -1.0 } else { 1.0 };
     [t.x, t.y, t.z, w]
+}
+
+/// The orthonormal pair (t, b) that the kernels' `shading_frame` (lib/bsdf.glsl) builds
+/// for unit normal `n` (Duff et al. 2017), the same arithmetic in the same order.
+pub fn tangent_frame(n: Vec3) -> (Vec3, Vec3) {
+    let s = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    (Vec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x), Vec3::new(b, s + n.y * n.y * a, -n.y))
+}
+
+/// A bump-mapped triangle's tangent record ([`TriShading::tangent`]): the world-space
+/// gradients of its texture coordinates u and v (in its plane: the vectors g with g·e = the
+/// coordinate's change along each edge e) in the basis [`tangent_frame`]`(ng)`. Zero for a
+/// triangle without area.
+fn uv_gradients(p: [Vec3; 3], uv: [[f32; 2]; 3], ng: Vec3) -> [f32; 4] {
+    let (e1, e2) = ((p[1] - p[0]).as_dvec3(), (p[2] - p[0]).as_dvec3());
+    let (a, b, c) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let det = a * c - b * b;
+    if !det.is_finite() || det <= 0.0 || ng == Vec3::ZERO {
+        return [0.0; 4];
+    }
+    // The gradient x e1 + y e2 of a coordinate whose changes along e1 and e2 are d1, d2:
+    // the Gram system [a b; b c] (x, y) = (d1, d2).
+    let gradient = |k: usize| {
+        let (d1, d2) = ((uv[1][k] - uv[0][k]) as f64, (uv[2][k] - uv[0][k]) as f64);
+        (e1 * (c * d1 - b * d2) + e2 * (a * d2 - b * d1)) / det
+    };
+    let (gu, gv) = (gradient(0), gradient(1));
+    let (t, bt) = tangent_frame(ng);
+    let (t, bt) = (t.as_dvec3(), bt.as_dvec3());
+    [gu.dot(t), gu.dot(bt), gv.dot(t), gv.dot(bt)].map(|x| x as f32)
 }
 
 /// What `make` builds for image `img`, built once per image: `cache` holds it by the image's
@@ -324,7 +363,7 @@ fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits
     for mesh in &scene.meshes {
         let material = &scene.materials[mesh.material];
         let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
-        for (what, has, consequence) in [("alpha texture", textured_alpha, " (it is opaque)"), ("normal map", material.normal_map.is_some(), "")] {
+        for (what, has, consequence) in [("alpha texture", textured_alpha, " (it is opaque)"), ("normal map", material.normal_map.is_some(), ""), ("bump map", material.bump_map.is_some(), "")] {
             if has && mesh.uvs.is_empty() {
                 crate::report::warn(&format!(
                     "{}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
@@ -408,7 +447,7 @@ impl GpuScene {
                         Some(AlphaMode::Blend) => -1.0,
                     },
                     ior: if m.kind.has_ior() { m.ior } else { 0.0 },
-                    normal_map: normal_map_ref(&mut data, m.normal_map.as_ref()),
+                    normal_map: normal_map_ref(&mut data, m),
                     alpha: m.alpha.as_ref().map_or(ValueRef::default(), |a| scalar_ref(&mut data, &a.value)),
                     absorption: m.absorption,
                     internal,
@@ -537,7 +576,9 @@ impl GpuScene {
                 });
             }
             let material = geo.triangle_material[t];
-            let tangent = match &scene.materials[material as usize].normal_map {
+            let m = &scene.materials[material as usize];
+            let tangent = match &m.normal_map {
+                _ if m.bump_map.is_some() => uv_gradients([a, b, c], uvs, ng),
                 None => [0.0; 4],
                 Some(n) => {
                     let [x, y, z, w] = triangle_tangent([a, b, c], uvs, ng);
@@ -587,7 +628,7 @@ impl GpuScene {
         };
         let env_data = environment_distribution.as_ref().map(|d| d.gpu_data()).unwrap_or_default();
 
-        let has_normal_maps = shading.iter().any(|s| s.tangent[3] != 0.0);
+        let has_normal_maps = shading.iter().any(|s| s.tangent != [0.0; 4]);
         let has_alpha_masks = alpha_material.iter().any(|&m| m != 0);
         let has_emission_textures = mesh_emission.iter().any(|r| r.width != 0);
         let has_textures = materials

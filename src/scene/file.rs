@@ -136,6 +136,8 @@ pub struct MaterialFile {
     #[serde(default)]
     pub one_sided: bool,
     pub normal_map: Option<NormalMapFile>,
+    /// `bump_map = { texture = "height.exr", scale = 0.01 }`: a height field (model::BumpMap).
+    pub bump_map: Option<BumpMapFile>,
     /// `alpha = 0.4` or `{ texture = "mask.exr" }` (its R channel), in [0, 1]: the surface
     /// is cut out where the alpha is below `alpha_cutoff` (model::AlphaMask).
     pub alpha: Option<ScalarInput>,
@@ -167,6 +169,20 @@ pub struct MaterialFile {
 
 /// `normal_map = { texture = "normals.exr", scale = 1.0 }`: a tangent-space normal map
 /// (model::NormalMap).
+/// `bump_map = { texture = "height.exr", scale = 0.01 }`: the height scale × the texel's
+/// luminance, in scene units (model::BumpMap).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BumpMapFile {
+    pub texture: String,
+    /// 1 by default.
+    pub scale: Option<f32>,
+    /// As [`NormalMapFile::filter`].
+    pub filter: Option<String>,
+    /// As [`TextureRef::wrap`].
+    pub wrap: Option<WrapInput>,
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NormalMapFile {

@@ -406,7 +406,7 @@ impl Importer<'_> {
                 let rough = if kind == MaterialKind::RoughDielectric { roughness } else { ScalarValue::Constant(0.0) };
                 Material { absorption, roughness: rough, ..Material::glass(name, kind, base_color, ior) }
             }
-            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
+            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, bump_map: None, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
         };
         self.out.materials.push(material);
         self.sources.materials.push(m.index());

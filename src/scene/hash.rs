@@ -140,6 +140,11 @@ pub fn content_hash(scene: &Scene) -> u64 {
             h.f32s(&[n.scale]);
             h.tag(n.bitangent.as_str());
         }
+        if let Some(b) = &m.bump_map {
+            h.tag("bump_map");
+            h.texture(&b.texture);
+            h.f32s(&[b.scale]);
+        }
         if let Some(a) = &m.alpha {
             h.tag("alpha");
             h.scalar(&a.value);

@@ -169,19 +169,11 @@ impl Loader {
 
     /// The pixel filter of `[film]`: its own where it names one, else the imported one.
     fn pixel_filter(&self, film: &file::FilmFile, imported: Option<PixelFilter>) -> Result<PixelFilter, SceneError> {
-        let size = |key: &str, value: Option<f32>, default: f32, max: f32| {
-            let v = value.unwrap_or(default);
-            if v > 0.0 && v <= max {
-                Ok(v)
-            } else {
-                Err(self.invalid(key, &format!("{v} is not in (0, {max}] pixels")))
-            }
-        };
         let filter = match film.filter.as_deref() {
             None => imported.unwrap_or_default(),
             Some("box") => PixelFilter::Box,
-            Some("gaussian") => PixelFilter::Gaussian { stddev: size("film.filter_stddev", film.filter_stddev, 0.5, MAX_FILTER_RADIUS / 4.0)? },
-            Some("tent") => PixelFilter::Tent { radius: size("film.filter_radius", film.filter_radius, 1.0, MAX_FILTER_RADIUS)? },
+            Some("gaussian") => PixelFilter::gaussian(film.filter_stddev).map_err(|e| self.invalid("film.filter_stddev", &e))?,
+            Some("tent") => PixelFilter::tent(film.filter_radius).map_err(|e| self.invalid("film.filter_radius", &e))?,
             Some(other) => return Err(self.invalid("film.filter", &format!("\"{other}\" is not \"box\", \"gaussian\" or \"tent\""))),
         };
         let given = |key: &str, v: Option<f32>, applies: bool| match (v, applies) {
@@ -544,7 +536,7 @@ impl Loader {
                             "a dielectric is smooth and takes no roughness or metallic (type = \"rough_dielectric\" has a roughness)"
                         }));
                     }
-                    for (what, given) in [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("alpha", m.alpha.is_some())] {
+                    for (what, given) in [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("bump_map", m.bump_map.is_some()), ("alpha", m.alpha.is_some())] {
                         if given {
                             return Err(self.invalid(&format!("{key}.{what}"), "is not supported on a dielectric"));
                         }
@@ -630,6 +622,20 @@ impl Loader {
                     Some(NormalMap { texture, scale, bitangent })
                 }
             };
+            let bump_map = match m.bump_map {
+                None => None,
+                Some(_) if normal_map.is_some() => return Err(self.invalid(&format!("{key}.bump_map"), "cannot be combined with a normal_map (one perturbs the normal)")),
+                Some(b) => {
+                    let k = format!("{key}.bump_map.texture");
+                    let filter = self.filter(&format!("{key}.bump_map"), b.filter.as_deref())?;
+                    let wrap = self.wrap(&format!("{key}.bump_map"), b.wrap.as_ref())?;
+                    let texture = Texture { filter, wrap, ..self.texture(&k, &b.texture)? };
+                    self.texels_in_or(&k, &texture, 3, f32::MIN, f32::MAX, "")?;
+                    let scale = b.scale.unwrap_or(1.0);
+                    self.finite(&format!("{key}.bump_map.scale"), &[scale])?;
+                    Some(BumpMap { texture, scale })
+                }
+            };
             let alpha = match m.alpha {
                 None => {
                     for (what, given) in [("alpha_mode", m.alpha_mode.is_some()), ("alpha_cutoff", m.alpha_cutoff.is_some())] {
@@ -663,6 +669,7 @@ impl Loader {
                 metallic,
                 one_sided: m.one_sided,
                 normal_map,
+                bump_map,
                 alpha,
                 ior,
                 absorption,

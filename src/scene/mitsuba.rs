@@ -12,7 +12,7 @@
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
 //! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
-//! wrappers `normalmap` and `mask`; `<emitter
+//! wrappers `normalmap`, `bumpmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR,
 //! Radiance HDR, PNG, JPEG; `filter_type` bilinear or nearest, `wrap_mode` repeat, clamp
 //! or mirror) and `<texture
@@ -553,18 +553,14 @@ impl<'a, 'i> Importer<'a, 'i> {
             Some(f) => {
                 let kind = self.plugin_type(f)?;
                 let mut params = elements(f);
-                let size = |this: &Self, params: &mut Items<'a, 'i>, name: &str, default: f32, max: f32| -> Result<f32, SceneError> {
-                    let v = this.take_float(params, name, default)?;
-                    if v > 0.0 && v <= max {
-                        Ok(v)
-                    } else {
-                        Err(this.err(f, format!("{name} {v} is not in (0, {max}]")))
-                    }
+                let mut size = |name: &str, make: fn(Option<f32>) -> Result<PixelFilter, String>| -> Result<PixelFilter, SceneError> {
+                    let v = self.take(&mut params, name).map(|n| self.float(n)).transpose()?;
+                    make(v).map_err(|e| self.err(f, format!("{name} {e}")))
                 };
                 let filter = match kind.as_str() {
                     "box" => PixelFilter::Box,
-                    "gaussian" => PixelFilter::Gaussian { stddev: size(self, &mut params, "stddev", 0.5, MAX_FILTER_RADIUS / 4.0)? },
-                    "tent" => PixelFilter::Tent { radius: size(self, &mut params, "radius", 1.0, MAX_FILTER_RADIUS)? },
+                    "gaussian" => size("stddev", PixelFilter::gaussian)?,
+                    "tent" => size("radius", PixelFilter::tent)?,
                     // Filters with negative lobes: a sample's weight would need a sign.
                     _ => {
                         self.warn(f, "rendered with a box filter (uniform samples over each pixel); gaussian and tent are exact");
@@ -680,6 +676,9 @@ impl<'a, 'i> Importer<'a, 'i> {
         if let Some(n) = &m.normal_map {
             images.push(&n.texture.image);
         }
+        if let Some(b) = &m.bump_map {
+            images.push(&b.texture.image);
+        }
         let mut maps = images.into_iter().map(|i| self.uv_map(i));
         let first = maps.next().unwrap_or(Affine2::IDENTITY);
         if maps.any(|a| a != first) {
@@ -716,13 +715,17 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// Adds the material of `<bsdf>` `node` named `name` and returns its index. The
-    /// wrappers `twosided`, `normalmap` and `mask` may enclose the BSDF, once each, in any
-    /// order.
+    /// wrappers `twosided`, `normalmap` or `bumpmap` (one of the two) and `mask` may enclose
+    /// the BSDF, once each, in any order.
     fn bsdf(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
-        let (mut node, mut one_sided, mut normal_map, mut mask) = (node, true, None, None);
+        let (mut node, mut one_sided, mut normal_map, mut bump_map, mut mask) = (node, true, None, None, None);
         loop {
             let kind = self.plugin_type(node)?;
-            if !(kind == "twosided" && one_sided || kind == "normalmap" && normal_map.is_none() || kind == "mask" && mask.is_none()) {
+            let perturbs = normal_map.is_some() || bump_map.is_some();
+            if (kind == "normalmap" || kind == "bumpmap") && perturbs {
+                return Err(self.err(node, format!("{kind} inside a normalmap or bumpmap is not supported (one perturbation of the normal per BSDF)")));
+            }
+            if !(kind == "twosided" && one_sided || kind == "normalmap" || kind == "bumpmap" || kind == "mask" && mask.is_none()) {
                 break;
             }
             let mut items = elements(node);
@@ -730,16 +733,18 @@ impl<'a, 'i> Importer<'a, 'i> {
             match kind.as_str() {
                 "twosided" => one_sided = false,
                 "normalmap" => normal_map = Some(self.normal_map(&mut items, node)?),
+                "bumpmap" => bump_map = Some(self.bump_map(&mut items, node)?),
                 _ => mask = Some(self.mask(&mut items)?),
             }
             self.rest(&items, node)?;
             node = inner;
         }
         let index = self.bsdf_material(node, name, one_sided)?;
-        if self.out.materials[index].kind.is_dielectric() && (normal_map.is_some() || mask.is_some()) {
-            return Err(self.err(node, "a normalmap or mask around a dielectric is not supported"));
+        if self.out.materials[index].kind.is_dielectric() && (normal_map.is_some() || bump_map.is_some() || mask.is_some()) {
+            return Err(self.err(node, "a normalmap, bumpmap or mask around a dielectric is not supported"));
         }
         self.out.materials[index].normal_map = normal_map;
+        self.out.materials[index].bump_map = bump_map;
         self.out.materials[index].alpha = mask.flatten();
         Ok(index)
     }
@@ -750,6 +755,46 @@ impl<'a, 'i> Importer<'a, 'i> {
     fn mask(&mut self, items: &mut Items<'a, 'i>) -> Result<Option<AlphaMask>, SceneError> {
         let value = self.scalar_param(items, "opacity", 0.5)?;
         Ok(Some(AlphaMask { value, mode: AlphaMode::Blend }).filter(|a| !a.never_cuts()))
+    }
+
+    /// The height field of a `<bsdf type="bumpmap">` (`node`): its one texture (a bitmap or
+    /// a `<ref>` to one, under any name) and `scale` (1 by default).
+    fn bump_map(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<BumpMap, SceneError> {
+        let i = items.iter().position(|n| matches!(n.tag_name().name(), "texture" | "ref")).ok_or_else(|| self.err(node, "bumpmap needs a height texture (a nested <texture>)"))?;
+        let at = items.remove(i);
+        let texture = match at.tag_name().name() {
+            "texture" => self.texture(at)?,
+            _ => {
+                let id = self.required(at, "id")?;
+                self.textures.get(&id).cloned().ok_or_else(|| self.err(at, format!("no texture with id \"{id}\"")))?
+            }
+        };
+        let ColorValue::Texture(texture) = texture else { return Err(self.err(at, "a bump map's heights must be a bitmap texture")) };
+        if let Some((x, y, v)) = texture.image.find_outside(3, f32::MIN, f32::MAX) {
+            return Err(self.err(at, format!("{} has {v} at pixel ({x}, {y})", texture.path.display())));
+        }
+        let scale = self.take_float(items, "scale", 1.0)?;
+        if !scale.is_finite() {
+            return Err(self.err(node, format!("scale {scale} is not finite")));
+        }
+        self.perturbation_refinements(items, node)?;
+        Ok(BumpMap { texture, scale })
+    }
+
+    /// Mitsuba's refinements of a `normalmap`'s or `bumpmap`'s perturbed frame, which the
+    /// model does not make: a warning where they are on (Mitsuba's default).
+    fn perturbation_refinements(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<(), SceneError> {
+        let shadowing = self.take_bool(items, "use_shadowing_function", true)?;
+        let flip = self.take_bool(items, "flip_invalid_normals", true)?;
+        if shadowing || flip {
+            let what: Vec<&str> = [(shadowing, "the shadow-terminator factor (use_shadowing_function)"), (flip, "the turning of normals that face away from the viewer (flip_invalid_normals)")]
+                .iter()
+                .filter(|(on, _)| *on)
+                .map(|(_, w)| *w)
+                .collect();
+            self.warn(node, format!("approximate: rendered without {}", what.join(" and ")));
+        }
+        Ok(())
     }
 
     /// The `normalmap` texture of a `<bsdf type="normalmap">` (`node`): a bitmap whose RGB
@@ -765,17 +810,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if let Some((x, y, v)) = texture.image.find_outside(3, 0.0, 1.0) {
             return Err(self.err(at, format!("{} has {v} at pixel ({x}, {y}), outside [0, 1]", texture.path.display())));
         }
-        // Mitsuba's refinements of the perturbed frame, which the model does not make.
-        let shadowing = self.take_bool(items, "use_shadowing_function", true)?;
-        let flip = self.take_bool(items, "flip_invalid_normals", true)?;
-        if shadowing || flip {
-            let what: Vec<&str> = [(shadowing, "the shadow-terminator factor (use_shadowing_function)"), (flip, "the turning of normals that face away from the viewer (flip_invalid_normals)")]
-                .iter()
-                .filter(|(on, _)| *on)
-                .map(|(_, w)| *w)
-                .collect();
-            self.warn(node, format!("approximate: rendered without {}", what.join(" and ")));
-        }
+        self.perturbation_refinements(items, node)?;
         Ok(NormalMap { texture, scale: 1.0, bitangent: Bitangent::Cross })
     }
 
@@ -793,6 +828,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 metallic: ScalarValue::Constant(0.0),
                 one_sided,
                 normal_map: None,
+                bump_map: None,
                 alpha: None,
                 ior: DEFAULT_IOR,
                 absorption: [0.0; 3],
@@ -838,7 +874,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert, and its dielectric Fresnel term as Schlick's of the same index (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, bump_map: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
@@ -921,7 +957,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
                 Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta, nonlinear, one_sided)
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
+            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
@@ -1022,6 +1058,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             metallic: ScalarValue::Constant(0.0),
             one_sided: true,
             normal_map: None,
+            bump_map: None,
             alpha: None,
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],

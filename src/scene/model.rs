@@ -48,6 +48,18 @@ pub enum PixelFilter {
 }
 
 impl PixelFilter {
+    /// A Gaussian of standard deviation `stddev` pixels (0.5, Mitsuba's, where None), in
+    /// (0, [`MAX_FILTER_RADIUS`] / 4]; Err: the value and the range it is not in.
+    pub fn gaussian(stddev: Option<f32>) -> Result<Self, String> {
+        Ok(Self::Gaussian { stddev: filter_size(stddev, 0.5, MAX_FILTER_RADIUS / 4.0)? })
+    }
+
+    /// A tent of radius `radius` pixels (1 where None), in (0, [`MAX_FILTER_RADIUS`]);
+    /// Err: the value and the range it is not in.
+    pub fn tent(radius: Option<f32>) -> Result<Self, String> {
+        Ok(Self::Tent { radius: filter_size(radius, 1.0, MAX_FILTER_RADIUS)? })
+    }
+
     /// The widest offset from the pixel's centre, in pixels.
     pub fn radius(self) -> f32 {
         match self {
@@ -78,6 +90,16 @@ impl PixelFilter {
             PixelFilter::Gaussian { .. } => "gaussian",
             PixelFilter::Tent { .. } => "tent",
         }
+    }
+}
+
+/// A pixel filter's size: `value` (or `default`) where it is in (0, max].
+fn filter_size(value: Option<f32>, default: f32, max: f32) -> Result<f32, String> {
+    let v = value.unwrap_or(default);
+    if v > 0.0 && v <= max {
+        Ok(v)
+    } else {
+        Err(format!("{v} is not in (0, {max}] pixels"))
     }
 }
 
@@ -294,6 +316,9 @@ pub struct Material {
     pub one_sided: bool,
     /// Perturbs the shading normal (never optimised).
     pub normal_map: Option<NormalMap>,
+    /// Perturbs the shading normal by the slope of a height field (never optimised; not
+    /// with a normal map).
+    pub bump_map: Option<BumpMap>,
     /// Cuts the surface out where its alpha is below a threshold (never optimised).
     pub alpha: Option<AlphaMask>,
     /// A dielectric's index of refraction, its interior (the back of its triangles; a thin
@@ -352,6 +377,7 @@ impl Material {
             metallic: ScalarValue::Constant(0.0),
             one_sided: false,
             normal_map: None,
+            bump_map: None,
             alpha: None,
             ior,
             absorption: [0.0; 3],
@@ -375,6 +401,7 @@ impl Material {
             metallic: ScalarValue::Constant(0.0),
             one_sided,
             normal_map: None,
+            bump_map: None,
             alpha: None,
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],
@@ -398,6 +425,7 @@ impl Material {
             metallic: ScalarValue::Constant(0.0),
             one_sided,
             normal_map: None,
+            bump_map: None,
             alpha: None,
             ior,
             absorption: [0.0; 3],
@@ -549,6 +577,26 @@ pub struct NormalMap {
     pub texture: Texture,
     pub scale: f32,
     pub bitangent: Bitangent,
+}
+
+/// A bump map: the surface seen as displaced along its normal by the height
+/// `scale` × h(u, v), h the texture's value (an RGB texel's luminance, as Mitsuba's
+/// `bumpmap` reads it), interpolated as the texture's filter says. The shading normal
+/// becomes that of the displaced surface to first order, n − ∇h projected as Mitsuba's
+/// `bumpmap` does (the texture coordinates' world-space gradients taken on each triangle).
+/// A nearest-filtered height field is flat between texel edges: it perturbs nothing.
+#[derive(Clone, Debug)]
+pub struct BumpMap {
+    pub texture: Texture,
+    pub scale: f32,
+}
+
+impl BumpMap {
+    /// The heights scale × luminance, one per texel.
+    pub fn heights(&self) -> Vec<f32> {
+        // Mitsuba's `luminance` weights (sRGB primaries, summing to 1), to the digits it uses.
+        self.texture.image.data.iter().map(|p| self.scale * (0.212671 * p[0] + 0.715160 * p[1] + 0.072169 * p[2])).collect()
+    }
 }
 
 /// Which way a normal map's y points.

@@ -212,6 +212,10 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
             }
             pairs.push(("normal_map", texture_table(file, &n.texture, map)));
         }
+        if let Some(b) = &m.bump_map {
+            let file = exr(dir, &format!("{}.bump_map", m.name), &b.texture.image)?;
+            pairs.push(("bump_map", texture_table(file, &b.texture, vec![("scale", Value::Float(num(b.scale)))])));
+        }
         let scalar = |key: &str, v: &ScalarValue| -> Result<Value, SceneError> {
             Ok(match v {
                 ScalarValue::Constant(c) => Value::Float(num(*c)),
