@@ -630,7 +630,6 @@ impl Loader {
                     let filter = self.filter(&format!("{key}.bump_map"), b.filter.as_deref())?;
                     let wrap = self.wrap(&format!("{key}.bump_map"), b.wrap.as_ref())?;
                     let texture = Texture { filter, wrap, ..self.texture(&k, &b.texture)? };
-                    self.texels_in_or(&k, &texture, 3, f32::MIN, f32::MAX, "")?;
                     let scale = b.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.bump_map.scale"), &[scale])?;
                     Some(BumpMap { texture, scale })

@@ -770,9 +770,6 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
         };
         let ColorValue::Texture(texture) = texture else { return Err(self.err(at, "a bump map's heights must be a bitmap texture")) };
-        if let Some((x, y, v)) = texture.image.find_outside(3, f32::MIN, f32::MAX) {
-            return Err(self.err(at, format!("{} has {v} at pixel ({x}, {y})", texture.path.display())));
-        }
         let scale = self.take_float(items, "scale", 1.0)?;
         if !scale.is_finite() {
             return Err(self.err(node, format!("scale {scale} is not finite")));
