@@ -54,7 +54,7 @@ impl PixelFilter {
         Ok(Self::Gaussian { stddev: filter_size(stddev, 0.5, MAX_FILTER_RADIUS / 4.0)? })
     }
 
-    /// A tent of radius `radius` pixels (1 where None), in (0, [`MAX_FILTER_RADIUS`]);
+    /// A tent of radius `radius` pixels (1 where None), in (0, [`MAX_FILTER_RADIUS`]];
     /// Err: the value and the range it is not in.
     pub fn tent(radius: Option<f32>) -> Result<Self, String> {
         Ok(Self::Tent { radius: filter_size(radius, 1.0, MAX_FILTER_RADIUS)? })
