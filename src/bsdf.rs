@@ -1,6 +1,6 @@
 //! f64 mirror of glsl/lib/bsdf.glsl: the reference the GPU functions are tested against,
 //! and the place where the model is checked for energy conservation, reciprocity and
-//! correct derivatives (tests/bsdf.rs).
+//! correct derivatives (tests/suite/bsdf.rs).
 //!
 //! Invariant: every function here computes, step for step, what its GLSL namesake
 //! computes, only in f64 (the same frame construction, the same lobe-selection rule, the

@@ -24,7 +24,7 @@ pub use crate::constants::{
 };
 
 /// Mirror of `Material` (glsl/shared/material.glsl): 64 bytes, offsets checked against the
-/// reflected SPIR-V in tests/bsdf.rs (the kind constants are defined once, in
+/// reflected SPIR-V in tests/suite/bsdf.rs (the kind constants are defined once, in
 /// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
 #[repr(C)]
@@ -234,7 +234,7 @@ pub struct Globals {
 
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
-/// by tests/render.rs.
+/// by tests/suite/render.rs.
 pub const TEXEL_RECORDS: [(&str, usize); 6] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),

@@ -706,7 +706,7 @@ fn glsl_mirrors_constants_and_push_blocks() {
     let codes = [StepRule::Snr, StepRule::Adam, StepRule::Bounded, StepRule::Wiener, StepRule::Newton].map(StepRule::code);
     assert_eq!(codes, [0, 1, 2, 3, 4]);
     assert_eq!([Decay::Constant, Decay::Cosine, Decay::Step].map(Decay::code), [0, 1, 2]);
-    // Push blocks are checked against their mirrors for every kernel (tests/contracts.rs).
+    // Push blocks are checked against their mirrors for every kernel (tests/suite/contracts.rs).
     use std::mem::offset_of;
     let owned = |v: &[(&str, usize)]| v.iter().map(|(n, o)| (n.to_string(), *o)).collect::<Vec<_>>();
     // The diagnostics record, as every kernel that writes or reads it declares it.

@@ -838,7 +838,7 @@ pub const SPP_PER_SUBMISSION: u32 = 4;
 /// decremented by every iteration of every loop of the kernel and never reset, and once
 /// it reaches zero every loop exits after its current iteration. A thread that loops over
 /// too many samples therefore returns truncated paths, silently (1024 spp of the Cornell
-/// box in one dispatch lose 61 % of the image: tests/render.rs). A path vertex costs up to
+/// box in one dispatch lose 61 % of the image: tests/suite/render.rs). A path vertex costs up to
 /// a few hundred iterations on the bundled scenes (the traversal's node and triangle loops,
 /// twice in the adjoint kernels), so every pass splits its samples into dispatches of at
 /// most 16 / max_depth samples (at least 1, at most 4), well inside the cap.

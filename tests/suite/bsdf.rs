@@ -3,7 +3,7 @@
 //! (chi-square), no energy gain (white furnace), derivatives equal to finite differences,
 //! reciprocity. Every threshold is derived in a comment next to it.
 
-mod common;
+use crate::common;
 
 use bytemuck::{Pod, Zeroable};
 use common::{check_layout, with_gpu};

@@ -2,7 +2,7 @@
 //! (`VKINVERSE_VALIDATION=1`), its outputs read back and checked against DESIGN.md's formats,
 //! and bad input checked to give one `vkinverse: error:` line, a non-zero exit and no output.
 
-mod common;
+use crate::common;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};

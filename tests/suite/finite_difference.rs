@@ -1,7 +1,7 @@
 //! The fused finite-difference sample (one trace, both parameter states) against the
 //! straightforward one (one gradient estimate per state with the same seeds).
 
-mod common;
+use crate::common;
 
 use common::with_gpu;
 use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};

@@ -9,7 +9,7 @@
 //! of the parameter error over the last fifth of the iterations — rather than the last
 //! iteration alone, whose value depends on where the wandering happens to stop.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use vkinverse::optim::spec::Spec;

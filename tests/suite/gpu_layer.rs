@@ -1,7 +1,7 @@
 //! The GPU layer on lavapipe: kernels against CPU results, layouts by reflection, the
 //! barrier hazard check, timestamps and typed errors.
 
-mod common;
+use crate::common;
 
 use common::with_gpu;
 use vkinverse::gpu::{

@@ -12,7 +12,7 @@
 //! often as that (z ≈ +10 at the N here), which biased the adjoint upwards in scenes
 //! carried by rare paths (scenes/gap).
 
-mod common;
+use crate::common;
 
 use common::with_gpu;
 use std::sync::Arc;

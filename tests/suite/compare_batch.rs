@@ -2,7 +2,7 @@
 //! validation layer on, their tables read back, and bad input checked to give one
 //! `vkinverse: error:` line.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};

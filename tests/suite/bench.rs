@@ -1,7 +1,7 @@
 //! The scene bench on the Cornell box: every reported figure is finite and positive, and the
 //! figures agree with each other and with the scene.
 
-mod common;
+use crate::common;
 
 use common::{with_gpu, with_gpu_options};
 use vkinverse::scene::Scene;

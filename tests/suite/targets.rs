@@ -1,74 +1,30 @@
 //! The target cache: keyed on the scene's content and the renderer's SPIR-V (another
-//! renderer, here the other BVH layout's build of trace_primal, renders anew), and kept in
-//! the user's cache directory when the scene's cannot be written.
+//! renderer, here the other BVH layout's build of trace_primal, renders anew); the run's
+//! target sample count; the image error.
 
-mod common;
+use crate::common;
 
-use common::scenes::{sphere_obj, temp_dir, write_scene};
+use common::scenes::{renders_targets, sphere_obj, write_scene, TARGET_SCENE};
 use vkinverse::bvh::BvhLayout;
-use vkinverse::render::targets::{cache_dirs, targets};
-use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::Scene;
 use vkinverse::settings::{RunSettings, Settings};
 
-const SCENE: &str = r#"[film]
-width = 8
-height = 8
-[integrator]
-max_depth = 2
-[[sensors]]
-origin = [0, 0, 3]
-target = [0, 0, 0]
-fov_y = 40
-[[materials]]
-name = "m"
-type = "diffuse"
-base_color = [0.5, 0.5, 0.5]
-[[meshes]]
-file = "sphere.obj"
-material = "m"
-[environment]
-constant = [1, 1, 1]
-[optimise]
-[[optimise.params]]
-target = "materials.m.base_color"
-init = 0.2
-range = [0, 1]
-"#;
 
-/// Renders (or loads) the targets with `layout`; true if anything was rendered.
-fn rendered(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene, layout: BvhLayout) -> bool {
-    let renderer = Renderer::new(GpuScene::with_bvh_layout(ctx, scene, layout).unwrap()).unwrap();
-    let mut any = false;
-    targets(&renderer, scene, 4, |_, _, _| any = true).unwrap();
-    any
-}
-
+/// A change of renderer (here the other BVH layout's build of trace_primal) renders its
+/// targets anew, under its own key beside the scene; the same renderer reads them back. (A
+/// scene whose directory cannot take the cache uses the user's: tests/process.rs, since it
+/// sets the process's environment.)
 #[test]
-fn a_renderer_change_invalidates_the_cache_and_a_read_only_scene_uses_the_user_cache() {
-    let user_cache = temp_dir("user-cache");
-    // Only this test binary's process reads the variable.
-    std::env::set_var("VKINVERSE_CACHE_DIR", &user_cache);
-    let path = write_scene("target-cache", SCENE, &sphere_obj(1.0, 1, false));
+fn a_renderer_change_invalidates_the_cache() {
+    let path = write_scene("target-cache", TARGET_SCENE, &sphere_obj(1.0, 1, false));
     let scene = Scene::load(&path).unwrap();
     let beside = scene.dir().join(".vkinverse-cache");
     common::with_gpu(|ctx| {
-        assert!(rendered(ctx, &scene, BvhLayout::Wide), "nothing cached yet");
-        assert!(!rendered(ctx, &scene, BvhLayout::Wide), "the same renderer reads its cached target");
-        assert!(rendered(ctx, &scene, BvhLayout::Binary), "another renderer's SPIR-V is another key");
-        assert!(!rendered(ctx, &scene, BvhLayout::Binary));
+        assert!(renders_targets(ctx, &scene, BvhLayout::Wide), "nothing cached yet");
+        assert!(!renders_targets(ctx, &scene, BvhLayout::Wide), "the same renderer reads its cached target");
+        assert!(renders_targets(ctx, &scene, BvhLayout::Binary), "another renderer's SPIR-V is another key");
+        assert!(!renders_targets(ctx, &scene, BvhLayout::Binary));
         assert_eq!(std::fs::read_dir(&beside).unwrap().count(), 2);
-
-        // A scene directory that cannot take the cache (here a file stands where the cache
-        // directory would be, which stops root too): the user cache takes it.
-        let ro = write_scene("target-cache-ro", SCENE, &sphere_obj(1.0, 1, false));
-        std::fs::write(ro.with_file_name(".vkinverse-cache"), "not a directory").unwrap();
-        let scene = Scene::load(&ro).unwrap();
-        assert_eq!(cache_dirs(&scene)[1], user_cache);
-        let before = std::fs::read_dir(&user_cache).unwrap().count();
-        assert!(rendered(ctx, &scene, BvhLayout::Wide));
-        assert_eq!(std::fs::read_dir(&user_cache).unwrap().count(), before + 1);
-        assert!(!rendered(ctx, &scene, BvhLayout::Wide), "read back from the user cache");
     });
 }
 
@@ -76,7 +32,7 @@ fn a_renderer_change_invalidates_the_cache_and_a_read_only_scene_uses_the_user_c
 /// the engine renders its targets with, and a key of the cache.
 #[test]
 fn the_run_renders_its_targets_at_target_spp() {
-    let scene_text = SCENE.replace("[optimise]\n", "[optimise]\ntarget_spp = 8\n");
+    let scene_text = TARGET_SCENE.replace("[optimise]\n", "[optimise]\ntarget_spp = 8\n");
     let path = write_scene("target-spp", &scene_text, &sphere_obj(1.0, 1, false));
     let scene = Scene::load(&path).unwrap();
     let beside = scene.dir().join(".vkinverse-cache");
@@ -102,11 +58,11 @@ fn the_run_renders_its_targets_at_target_spp() {
     });
 }
 
-/// [`SCENE`] seen from above over a plane, at depth 3: the plane's shadow and the sphere's
+/// [`TARGET_SCENE`] seen from above over a plane, at depth 3: the plane's shadow and the sphere's
 /// reflection of it make every render noisy.
 fn noisy_scene() -> String {
     let floor = "[[materials]]\nname = \"floor\"\ntype = \"diffuse\"\nbase_color = [0.6, 0.6, 0.6]\n[[meshes]]\nfile = \"plane.obj\"\nmaterial = \"floor\"\n";
-    let scene = SCENE.replace("width = 8\nheight = 8", "width = 16\nheight = 16").replace("max_depth = 2", "max_depth = 3").replace("origin = [0, 0, 3]", "origin = [0, 2.5, 3]");
+    let scene = TARGET_SCENE.replace("width = 8\nheight = 8", "width = 16\nheight = 16").replace("max_depth = 2", "max_depth = 3").replace("origin = [0, 0, 3]", "origin = [0, 2.5, 3]");
     scene.replace("[optimise]\n", "[optimise]\ntarget_spp = 64\n") + floor
 }
 

@@ -1,6 +1,6 @@
 //! The forward path tracer on analytic scenes.
 
-mod common;
+use crate::common;
 
 use common::scenes::{sphere_obj, write_scene};
 use common::with_gpu;

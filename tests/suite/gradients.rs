@@ -32,11 +32,11 @@
 //! (they can cancel in f_r), and is stated per test. Every test also asserts that the same
 //! criterion rejects the adjoint with its sign flipped or scaled by 1 ± R (R per test).
 
-mod common;
+use crate::common;
 
 use common::scenes::{lit_quad, temp_dir};
 use common::with_gpu;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 use vkinverse::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
 use vkinverse::image::Image;
 use vkinverse::ops::BufferOps;
@@ -44,15 +44,6 @@ use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::{Loss, Scene, TextureValue as _};
 
-/// The memory test reads the process's resident set size, which other tests running in
-/// parallel threads would move: it takes this lock for writing, every other test for
-/// reading.
-static EXCLUSIVE: RwLock<()> = RwLock::new(());
-
-fn shared<R>(f: impl FnOnce(&Arc<Context>) -> R) -> R {
-    let _guard = EXCLUSIVE.read().unwrap_or_else(|p| p.into_inner());
-    with_gpu(f)
-}
 
 // ---------------------------------------------------------------------------------------
 // Scenes
@@ -478,7 +469,7 @@ const EPS_EXACT: f64 = 1e-4;
 /// significant under every loss.
 #[test]
 fn diffuse_colour_and_emission_gradients_are_exact_for_every_loss() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = r#"
 [[optimise.params]]
 target = "materials.red.base_color"
@@ -519,7 +510,7 @@ range = [0.0, 50.0]
 /// agreed with finite differences to −0.4 % ± 2 % over 400 rounds, too slow for here.)
 #[test]
 fn gradients_are_exact_under_russian_roulette() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let toml = r#"
 [film]
 width = 16
@@ -571,7 +562,7 @@ range = [0.0, 10.0]
 /// for metallic and roughness, 0.1–0.5 % for texels; a 20 % scale error is rejected.
 #[test]
 fn principled_and_texture_gradients_match_finite_differences() {
-    shared(|ctx| check_principled(ctx, &glossy("principled", 16, &principled_optimise(0.3)), &[0, 5, 10, 15]));
+    with_gpu(|ctx| check_principled(ctx, &glossy("principled", 16, &principled_optimise(0.3)), &[0, 5, 10, 15]));
 }
 
 /// The `[optimise]` body of the principled tests: metallic from `metallic`, roughness from
@@ -616,7 +607,7 @@ fn check_principled(ctx: &Arc<Context>, scene: &Scene, texels: &[usize]) {
 /// negative in 48 rounds.
 #[test]
 fn normal_mapped_principled_gradients_match_finite_differences() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let scene = glossy_with("normal-mapped", 16, "normal_map = { texture = \"normals.exr\", scale = 0.8 }", &principled_optimise(0.9));
         assert!(GpuScene::new(ctx, &scene).unwrap().has_normal_maps, "the kernels are built with normal maps");
         check_principled(ctx, &scene, &[5, 10]);
@@ -638,7 +629,7 @@ fn normal_mapped_principled_gradients_match_finite_differences() {
 /// linear part, and h = 0.05 leaves ≲ 1e-4 of truncation, under ε = 1e-3).
 #[test]
 fn environment_gradients_match_finite_differences() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = r#"
 [[optimise.params]]
 target = "environment"
@@ -691,7 +682,7 @@ range = [0.0, 50.0]
 /// adjoint must be exact per sample, texel by texel.
 #[test]
 fn emission_texture_gradients_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [3.0, 9.0, 5.0]\nrange = [0.0, 50.0]\ntexture = [2, 2]\n";
         let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
         let scene = Scene::load(common::scenes::lit_quad("gradients-emission-texture", 16, floor, "constant = [0.1, 0.1, 0.1]", optimise)).unwrap();
@@ -711,7 +702,7 @@ fn emission_texture_gradients_are_exact() {
 /// them), also for the floor's colour.
 #[test]
 fn hidden_emitter_gradients_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"environment\"\ninit = [0.6, 0.2, 0.8]\nrange = [0.0, 2.0]\n\
                         [[optimise.params]]\ntarget = \"meshes.light.emission\"\ninit = [3.0, 9.0, 5.0]\nrange = [0.0, 50.0]\n\
                         [[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.4, 0.6, 0.5]\nrange = [0.0, 1.0]\n";
@@ -733,7 +724,7 @@ fn hidden_emitter_gradients_are_exact() {
 /// so the adjoint is exact per sample, texel by texel.
 #[test]
 fn nearest_texture_gradients_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
         let floor = "type = \"diffuse\"\nbase_color = { texture = \"albedo.exr\", filter = \"nearest\" }";
         let path = common::scenes::lit_quad("gradients-nearest", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
@@ -755,7 +746,7 @@ fn nearest_texture_gradients_are_exact() {
 /// parameter and nothing samples by the colour, so the adjoint is exact per sample.
 #[test]
 fn alpha_tested_gradients_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
         for (name, alpha) in [("gradients-alpha", "alpha = { texture = \"mask.exr\" }"), ("gradients-blend", "alpha = 0.5\nalpha_mode = \"blend\"")] {
             let floor = format!("type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]\n{alpha}");
@@ -801,7 +792,7 @@ fn slab_scene(name: &str, kind: &str, optimise: &str) -> Scene {
 /// of a mass that scales each crossing (twice for a path through the slab and back).
 #[test]
 fn gradients_through_glass_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.95, 0.5, 0.2]\nrange = [0.0, 1.0]\n";
         let scene = slab_scene("gradients-glass", "type = \"dielectric\"", optimise);
@@ -830,7 +821,7 @@ fn gradients_through_glass_are_exact() {
 /// cancel in its gradient.
 #[test]
 fn gradients_through_rough_glass_match_finite_differences() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.6, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.5, 0.95, 0.95]\nrange = [0.0, 1.0]\n\
                         [[optimise.params]]\ntarget = \"materials.glass.roughness\"\ninit = 0.3\nrange = [0.0, 1.0]\n";
@@ -860,7 +851,7 @@ fn gradients_through_rough_glass_match_finite_differences() {
 /// starts too dark in red and too bright in green and blue.
 #[test]
 fn conductor_gradients_match_finite_differences() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.5, 0.95, 0.95]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n\
                         [[optimise.params]]\ntarget = \"materials.floor.roughness\"\ninit = 0.3\nrange = [0.0, 1.0]\n";
         for distribution in ["ggx", "beckmann"] {
@@ -885,7 +876,7 @@ fn conductor_gradients_match_finite_differences() {
 /// dark in red and too bright in green and blue.
 #[test]
 fn plastic_gradients_match_finite_differences() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.3, 0.9, 0.9]\nrange = [0.0, 1.0]\ntexture = [2, 2]\n";
         for (distribution, roughness, nonlinear) in [("ggx", 0.3, false), ("beckmann", 0.5, true)] {
             let floor = format!("type = \"plastic\"\ndistribution = \"{distribution}\"\nbase_color = [0.7, 0.5, 0.3]\nroughness = {roughness}\nior = 1.49\nnonlinear = {nonlinear}");
@@ -910,11 +901,11 @@ fn plastic_gradients_match_finite_differences() {
 /// seed, a mutation that fails here at z = +13.7, +12.9, +12.5) but not the weaker
 /// dependence of pcg4d's streams before their seeds were hashed: that put the adjoint
 /// 5.6e-6 ± 4.4e-6 (40 % ± 30 % of the red gradient) above finite differences along the
-/// same paths with an independent residual at this size, over 2000 rounds; tests/rng.rs
+/// same paths with an independent residual at this size, over 2000 rounds; tests/suite/rng.rs
 /// catches it at z = +16 in a second.
 #[test]
 fn gap_scene_gradient_agrees_with_finite_differences_of_independent_renders() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let mut scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/gap/scene.toml")).unwrap();
         scene.film.width = 32;
         scene.film.height = 32;
@@ -953,7 +944,7 @@ fn gap_scene_gradient_agrees_with_finite_differences_of_independent_renders() {
 /// Measured: 1.8e-6.
 #[test]
 fn gradient_of_two_sensors_is_the_sum_over_sensors() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let second = r#"
 [[sensors]]
 origin = [-0.6, 1.4, 3.2]
@@ -1024,7 +1015,7 @@ range = [0.0, 50.0]
 /// (2) a wall colour at max depth 1, where the image is emitters seen directly.
 #[test]
 fn gradient_is_zero_where_the_image_does_not_depend_on_the_parameter() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         // 4 × 4, at z = 5 (the camera is at z = 3.9 looking down −z), facing +z.
         let backlight = "v -2 -1 5\nv 2 -1 5\nv 2 3 5\nv -2 3 5\nf 1 2 3 4\n";
         let extra = r#"
@@ -1085,60 +1076,6 @@ range = [0.0, 50.0]
     });
 }
 
-// ---------------------------------------------------------------------------------------
-// Tests: memory
-// ---------------------------------------------------------------------------------------
-
-/// Resident pages of this process (the second field of /proc/self/statm).
-fn resident_pages() -> u64 {
-    let statm = std::fs::read_to_string("/proc/self/statm").unwrap();
-    statm.split_whitespace().nth(1).unwrap().parse().unwrap()
-}
-
-fn device_memory(ctx: &Context) -> (usize, u64) {
-    let live = ctx.live_allocations();
-    (live.len(), live.iter().map(|(_, bytes)| bytes).sum())
-}
-
-/// Resident-memory growth allowed over 1000 iterations: 64 pages (256 KiB with 4 KiB
-/// pages). Measured growth over 6 runs: 0 to 10 pages. A leak of 262 bytes per iteration
-/// or more exceeds it.
-const HOST_SLACK_PAGES: u64 = 64;
-
-/// A recorded gradient pass resubmitted 1000 times (8 × 8 film, 1 spp) allocates nothing
-/// on the device and keeps the host's resident memory flat.
-#[test]
-fn thousand_resubmitted_gradient_iterations_keep_memory_constant() {
-    let _alone = EXCLUSIVE.write().unwrap_or_else(|p| p.into_inner());
-    with_gpu(|ctx| {
-        let optimise = r#"
-[[optimise.params]]
-target = "materials.red.base_color"
-init = [0.5, 0.5, 0.5]
-range = [0.0, 1.0]
-"#;
-        let scene = cornell("memory", 8, 4, "", &[], optimise);
-        let mut b = Bench::new(ctx, &scene, Loss::L2, 1, 1, 4);
-        b.grad.write(&[0f32; 3]).unwrap();
-        let iterate = |b: &mut Bench, frames: std::ops::Range<u32>| {
-            for frame in frames {
-                b.scene().set_frame(frame).unwrap();
-                b.cmd.submit_and_wait().unwrap();
-            }
-        };
-        // Warm-up: first submissions may fill driver and validation-layer caches.
-        iterate(&mut b, 0..50);
-        let (device, host) = (device_memory(ctx), resident_pages());
-        iterate(&mut b, 50..1050);
-        let (device_after, host_after) = (device_memory(ctx), resident_pages());
-        eprintln!("memory: device {device:?} → {device_after:?} (allocations, bytes); host {host} → {host_after} resident pages");
-        assert_eq!(device_after, device, "device allocations (count, bytes) changed over 1000 iterations");
-        assert!(host_after <= host + HOST_SLACK_PAGES, "resident memory grew by {} pages over 1000 iterations", host_after - host);
-        let g: Vec<f32> = b.grad.read().unwrap();
-        assert!(g.iter().all(|v| v.is_finite()) && g.iter().any(|&v| v != 0.0), "the loop must have computed gradients: {g:?}");
-    });
-}
-
 /// Delta lights' colour and intensity (a point light and a spot light in the Cornell box,
 /// with its area light on) and the red wall's colour, now also lit by them: light
 /// sampling of delta lights draws nothing random and does not depend on θ, nor does
@@ -1150,7 +1087,7 @@ range = [0.0, 1.0]
 /// significant.
 #[test]
 fn delta_light_gradients_are_exact() {
-    shared(|ctx| {
+    with_gpu(|ctx| {
         let lights = r#"
 [[lights]]
 name = "bulb"

@@ -3,7 +3,7 @@
 //! image, every unsupported feature is an error naming where it is, and the recovered
 //! scene written back as glTF and TOML loads again and renders as the parameters did.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

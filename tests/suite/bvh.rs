@@ -8,7 +8,7 @@
 //! of tmax, or two hits are equally far. Such a ray may go either way in f32; its GPU hit
 //! must still be a real hit of the triangle it names. Borderline rays must stay rare.
 
-mod common;
+use crate::common;
 
 use common::with_gpu;
 use glam::DVec3;
@@ -560,7 +560,7 @@ fn wide_bvh_is_well_formed() {
 
 /// The value of `#define NAME value` in glsl/shared/bvh.glsl.
 fn glsl_define(name: &str) -> String {
-    let src = include_str!("../glsl/shared/bvh.glsl");
+    let src = include_str!("../../glsl/shared/bvh.glsl");
     src.lines()
         .find_map(|l| l.strip_prefix("#define ")?.strip_prefix(name)?.strip_prefix(' ').map(|v| v.trim().to_string()))
         .unwrap_or_else(|| panic!("no #define {name}"))
@@ -588,7 +588,7 @@ fn struct_layouts_match_reflection() {
     };
     let r = reflect("trace_test");
     // Nodes and triangles are read from texel buffers; records_test writes them out as
-    // structs (and tests/render.rs checks that it reads back what the host wrote).
+    // structs (and tests/suite/render.rs checks that it reads back what the host wrote).
     let check = |name: &str, rust: &[(&str, usize)], size: usize| {
         let kernel = if matches!(name, "BvhNode" | "BvhTriangle") { "records_test" } else { "trace_test" };
         common::check_layout(kernel, name, rust, size)

@@ -4,9 +4,14 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-/// A fresh, empty temporary directory for one test.
+/// A fresh, empty temporary directory for one test, named by the process, the test file
+/// that asks for it (through the helpers here, which pass their caller on) and `name`:
+/// the suite's modules share one process, and may pick the same names.
+#[track_caller]
 pub fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vkinverse-test-{}-{name}", std::process::id()));
+    let file = std::panic::Location::caller().file();
+    let module = std::path::Path::new(file).file_stem().and_then(|s| s.to_str()).unwrap_or("test");
+    let dir = std::env::temp_dir().join(format!("vkinverse-test-{}-{module}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -52,6 +57,7 @@ pub fn sphere_obj(radius: f32, levels: u32, inward: bool) -> String {
 }
 
 /// Writes `scene.toml` and `sphere.obj` into a temp dir and returns the scene path.
+#[track_caller]
 pub fn write_scene(name: &str, toml: &str, obj: &str) -> PathBuf {
     let dir = temp_dir(name);
     std::fs::write(dir.join("sphere.obj"), obj).unwrap();
@@ -124,6 +130,7 @@ intensity = 1.0
 }
 
 /// Writes [`delta_lit_toml`] and its plane into a temp dir and returns the scene path.
+#[track_caller]
 pub fn write_delta_lit(name: &str, film: (u32, u32), optimise: &str) -> PathBuf {
     let dir = temp_dir(name);
     std::fs::write(dir.join("plane.obj"), PLANE_OBJ).unwrap();
@@ -182,6 +189,7 @@ pub const QUAD_LIGHT_OBJ: &str = "v -0.3 1.2 -0.8\nv 0.3 1.2 -0.8\nv 0.3 1.2 -0.
 /// body of the quad's material table after its name, `optimise` that of `[optimise]`;
 /// `normals.exr`, a 4 × 4 normal map of tilts up to 30° in every direction, lies beside it
 /// for the floor to name. Returns the scene file's path.
+#[track_caller]
 pub fn lit_quad(name: &str, film: u32, floor: &str, environment: &str, optimise: &str) -> PathBuf {
     let dir = temp_dir(name);
     let mut normals = vkinverse::image::Image::filled(4, 4, [0.5, 0.5, 1.0]);
@@ -235,10 +243,48 @@ emission = [6, 6, 6]
 /// [`lit_quad`] with a diffuse floor (0.7, 0.4, 0.2) under a 16 × 8 lat-long map with one
 /// bright texel (over the quad, about 34° from the zenith) on a dim sky, light-sampled beside
 /// the area light. Returns the scene file's path.
+#[track_caller]
 pub fn sky_lit_quad(name: &str, film: u32, optimise: &str) -> PathBuf {
     let path = lit_quad(name, film, "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]", "file = \"sky.exr\"", optimise);
     let mut sky = vkinverse::image::Image::filled(16, 8, [0.05, 0.06, 0.08]);
     sky.data[2 * 16 + 8] = [60.0, 50.0, 30.0];
     vkinverse::image::write_exr(&path.with_file_name("sky.exr"), &sky).unwrap();
     path
+}
+
+/// An 8 × 8 view of a white sphere under a white sky, its colour the one parameter: the
+/// target cache's tests (`TARGET_SCENE` with `sphere.obj` from [`sphere_obj`]).
+pub const TARGET_SCENE: &str = r#"[film]
+width = 8
+height = 8
+[integrator]
+max_depth = 2
+[[sensors]]
+origin = [0, 0, 3]
+target = [0, 0, 0]
+fov_y = 40
+[[materials]]
+name = "m"
+type = "diffuse"
+base_color = [0.5, 0.5, 0.5]
+[[meshes]]
+file = "sphere.obj"
+material = "m"
+[environment]
+constant = [1, 1, 1]
+[optimise]
+[[optimise.params]]
+target = "materials.m.base_color"
+init = 0.2
+range = [0, 1]
+"#;
+
+/// Renders (or loads from the cache) the targets of `scene` with BVH layout `layout`; true
+/// if anything was rendered.
+pub fn renders_targets(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &vkinverse::scene::Scene, layout: vkinverse::bvh::BvhLayout) -> bool {
+    use vkinverse::render::{GpuScene, Renderer};
+    let renderer = Renderer::new(GpuScene::with_bvh_layout(ctx, scene, layout).unwrap()).unwrap();
+    let mut any = false;
+    vkinverse::render::targets::targets(&renderer, scene, 4, |_, _, _| any = true).unwrap();
+    any
 }

@@ -1,6 +1,6 @@
 //! The fused GPU optimiser passes against the CPU references (float32 on lavapipe vs f64).
 
-mod common;
+use crate::common;
 
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
