@@ -105,24 +105,28 @@ fn main() {
     let mut failures = Vec::new();
     for (i, result) in results.into_inner().unwrap().into_iter().enumerate() {
         let job = &jobs[i];
+        let cached = result.is_none();
+        // Found in the cache; compiled here after all if another build (of other sources)
+        // pruned it since.
+        let result = result.unwrap_or_else(|| {
+            std::fs::read(cache.as_ref().unwrap().join(&keys[i]))
+                .or_else(|_| compile(&shaderc::Compiler::new().expect("shaderc compiler"), job, &root, &out))
+        });
         let spirv = match result {
-            Some(Ok(spirv)) => {
-                if let Some(cache) = &cache {
-                    // Written whole under another name first: a build running beside this
-                    // one never reads half a module.
-                    let tmp = cache.join(format!("{}.{}.tmp", keys[i], std::process::id()));
-                    if std::fs::write(&tmp, &spirv).is_ok() {
-                        let _ = std::fs::rename(&tmp, cache.join(&keys[i]));
-                    }
-                }
-                spirv
-            }
-            Some(Err(e)) => {
+            Ok(spirv) => spirv,
+            Err(e) => {
                 failures.push(format!("{}: {e}", job.name));
                 continue;
             }
-            None => std::fs::read(cache.as_ref().unwrap().join(&keys[i])).unwrap(),
         };
+        if let (Some(cache), false) = (&cache, cached) {
+            // Written whole under another name first: a build running beside this one never
+            // reads half a module.
+            let tmp = cache.join(format!("{}.{}.tmp", keys[i], std::process::id()));
+            if std::fs::write(&tmp, &spirv).is_ok() {
+                let _ = std::fs::rename(&tmp, cache.join(&keys[i]));
+            }
+        }
         let spv = out.join(format!("{}.spv", job.name));
         if std::fs::read(&spv).ok().as_deref() != Some(spirv.as_slice()) {
             std::fs::write(&spv, &spirv).unwrap();
@@ -138,7 +142,10 @@ fn main() {
         prune(cache, &keys);
     }
     table.push_str("];\n");
-    std::fs::write(out.join("shaders.rs"), table).unwrap();
+    let shaders = out.join("shaders.rs");
+    if std::fs::read_to_string(&shaders).ok().as_deref() != Some(table.as_str()) {
+        std::fs::write(&shaders, table).unwrap();
+    }
 }
 
 fn is_kernel(path: &Path) -> bool {
