@@ -61,35 +61,45 @@
 float bsdf_table(uint table, int index) { return texel_float(Theta, int(CONST_BASE) + int(table) + index); }
 
 // The shading normal at a point of triangle `sh` with texture coordinates uv and unit
-// normal n (interpolated, or geometric), bent by the material's bump map, as Mitsuba's
+// normal n (interpolated, or geometric), bent by bump map `r` (the material's) as Mitsuba's
 // `bumpmap` does: dp/du and dp/dv, less their parts along n, gain n times the height's
 // derivatives in u and v, and the normal is their cross product. Written with the
 // world-space gradients of u and v on the triangle (∇u, ∇v: the triangle's tangent
 // record, in the basis shading_frame(ng) builds) and the height's gradient g = h_u ∇u +
 // h_v ∇v, that normal is along n − g + ng (m·g)/(n·ng), m = n − (n·ng) ng: n − g where n
 // is the geometric normal. The heights are bilinear in each texel (a nearest-filtered
-// field has no slope), and their derivatives those of the interpolation, as Mitsuba's
-// eval_1_grad. n itself where the material has no bump map.
-vec3 bump_mapped(TriShading sh, vec3 n, vec2 uv) {
+// field has no slope, and leaves n), and their derivatives those of the interpolation, as
+// Mitsuba's eval_1_grad.
+vec3 bump_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
+    if ((r.flags & VALUE_NEAREST) != 0u) return n;
+    ivec4 texel;
+    vec4 w;
+    footprint(r, uv, texel, w);
+    float h00 = value_at(r, texel.x, 0), h10 = value_at(r, texel.y, 0);
+    float h01 = value_at(r, texel.z, 0), h11 = value_at(r, texel.w, 0);
+    // The interpolation's fractions (footprint's weights are their products); texel rows
+    // run down the image, against v.
+    float tx = w.y + w.w, ty = w.z + w.w;
+    float hu = float(r.width) * mix(h10 - h00, h11 - h01, ty);
+    float hv = -float(r.height) * mix(h01 - h00, h11 - h10, tx);
+    ShadingFrame f = shading_frame(sh.ng);
+    vec3 g = hu * (sh.tangent.x * f.t + sh.tangent.y * f.b) + hv * (sh.tangent.z * f.t + sh.tangent.w * f.b);
+    float a = dot(n, sh.ng);
+    if (abs(a) < 1e-6) return n;
+    vec3 v = n - g + sh.ng * (dot(n - a * sh.ng, g) / a);
+    if (dot(v, v) > 0.0) return normalize(v);
+    return n;
+}
+
+// n perturbed by the material's normal map (normal_mapped, lib/scene_access.glsl) or bump
+// map (bump_mapped), which share the material record's slot (a bump map's heights flagged
+// VALUE_BUMP); n itself where the material has neither.
+vec3 perturbed_normal(TriShading sh, vec3 n, vec2 uv) {
+    // (Not `if (!HAS_NORMAL_MAPS) return n;`: the reflection cannot fold the negation of a
+    // specialisation constant.)
     if (HAS_NORMAL_MAPS) {
         ValueRef r = material_record(sh.material).normal_map;
-        if (r.width == 0u || (r.flags & VALUE_BUMP) == 0u || (r.flags & VALUE_NEAREST) != 0u) return n;
-        ivec4 texel;
-        vec4 w;
-        footprint(r, uv, texel, w);
-        float h00 = value_at(r, texel.x, 0), h10 = value_at(r, texel.y, 0);
-        float h01 = value_at(r, texel.z, 0), h11 = value_at(r, texel.w, 0);
-        // The interpolation's fractions (footprint's weights are their products); texel
-        // rows run down the image, against v.
-        float tx = w.y + w.w, ty = w.z + w.w;
-        float hu = float(r.width) * mix(h10 - h00, h11 - h01, ty);
-        float hv = -float(r.height) * mix(h01 - h00, h11 - h10, tx);
-        ShadingFrame f = shading_frame(sh.ng);
-        vec3 g = hu * (sh.tangent.x * f.t + sh.tangent.y * f.b) + hv * (sh.tangent.z * f.t + sh.tangent.w * f.b);
-        float a = dot(n, sh.ng);
-        if (abs(a) < 1e-6) return n;
-        vec3 v = n - g + sh.ng * (dot(n - a * sh.ng, g) / a);
-        if (dot(v, v) > 0.0) return normalize(v);
+        if (r.width != 0u) return (r.flags & VALUE_BUMP) != 0u ? bump_mapped(sh, r, n, uv) : normal_mapped(sh, r, n, uv);
     }
     return n;
 }
@@ -419,7 +429,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // material's normal or bump map, flipped to the side of wo; the geometric normal likewise.
         vec3 ns = HAS_NORMALS ? w_bary * sh.n0 + hit.u * sh.n1 + hit.v * sh.n2 : vec3(0.0);
         ns = dot(ns, ns) > 0.0 ? normalize(ns) : ng;
-        ns = bump_mapped(sh, normal_mapped(sh, ns, uv), uv);
+        ns = perturbed_normal(sh, ns, uv);
         bool from_behind = dot(ng, wo) < 0.0;
         if (from_behind) ng = -ng;
         if (dot(ns, ng) < 0.0) ns = -ns;

@@ -438,23 +438,18 @@ void scatter1(ValueRef r, vec2 uv, float g) {
 #endif
 
 // The shading normal at a point of triangle `sh` with texture coordinates uv and
-// interpolated (or geometric) unit normal n: n perturbed by the material's normal map, in
-// the frame of the triangle's tangent made orthogonal to n (Gram-Schmidt), the bitangent
-// cross(n, tangent) times the tangent's handedness, and n. n itself where the material has
-// no normal map (a bump map: bump_mapped, lib/integrator.glsl) or the triangle no tangent. The map is a material constant: every parameter state
-// sees the same normal.
-vec3 normal_mapped(TriShading sh, vec3 n, vec2 uv) {
-    // (Not `if (!HAS_NORMAL_MAPS) return n;`: the reflection cannot fold the negation of a
-    // specialisation constant.)
-    if (HAS_NORMAL_MAPS) {
-        ValueRef r = material_record(sh.material).normal_map;
-        vec3 t = sh.tangent.xyz - n * dot(n, sh.tangent.xyz);
-        if (r.width != 0u && (r.flags & VALUE_BUMP) == 0u && sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
-            t = normalize(t);
-            vec3 m = fetch3(r, uv, 0);
-            vec3 v = m.x * t + (m.y * sh.tangent.w) * cross(n, t) + m.z * n;
-            if (dot(v, v) > 0.0) return normalize(v);
-        }
+// interpolated (or geometric) unit normal n, perturbed by normal map `r` (the material's,
+// not a bump map: perturbed_normal, lib/integrator.glsl), in the frame of the triangle's
+// tangent made orthogonal to n (Gram-Schmidt), the bitangent cross(n, tangent) times the
+// tangent's handedness, and n. n itself where the triangle has no tangent. The map is a
+// material constant: every parameter state sees the same normal.
+vec3 normal_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
+    vec3 t = sh.tangent.xyz - n * dot(n, sh.tangent.xyz);
+    if (sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
+        t = normalize(t);
+        vec3 m = fetch3(r, uv, 0);
+        vec3 v = m.x * t + (m.y * sh.tangent.w) * cross(n, t) + m.z * n;
+        if (dot(v, v) > 0.0) return normalize(v);
     }
     return n;
 }
