@@ -22,7 +22,7 @@ pub mod targets;
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, Material, MaterialKind, ParamTarget, ScalarValue, Scene, SpotFalloff, TextureValue as _};
+use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, Material, MaterialKind, ParamTarget, Perturbation, ScalarValue, Scene, SpotFalloff, TextureValue as _};
 use crate::constants::{
     MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
     MATERIAL_THIN_DIELECTRIC,
@@ -142,16 +142,16 @@ fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
 /// [`crate::scene::BumpMap::heights`], flagged
 /// [`ValueRef::BUMP`]), or a ValueRef of width 0 for neither.
 fn normal_map_ref(data: &mut Vec<f32>, m: &Material) -> ValueRef {
-    if let Some(b) = &m.bump_map {
-        let image = Image { data: b.heights().into_iter().map(|h| [h, 0.0, 0.0]).collect(), width: b.texture.image.width, height: b.texture.image.height };
-        let r = push_value(data, &[], Some((&image, 1, ValueRef::sampler_flags(&b.texture))));
-        return ValueRef { flags: r.flags | ValueRef::BUMP, ..r };
-    }
-    match &m.normal_map {
+    match &m.perturbation {
         None => ValueRef::default(),
-        Some(n) => {
+        Some(Perturbation::Normal(n)) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
             push_value(data, &[], Some((&image, 3, ValueRef::sampler_flags(&n.texture))))
+        }
+        Some(Perturbation::Bump(b)) => {
+            let image = Image { data: b.heights().into_iter().map(|h| [h, 0.0, 0.0]).collect(), width: b.texture.image.width, height: b.texture.image.height };
+            let r = push_value(data, &[], Some((&image, 1, ValueRef::sampler_flags(&b.texture))));
+            ValueRef { flags: r.flags | ValueRef::BUMP, ..r }
         }
     }
 }
@@ -363,8 +363,10 @@ fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits
     for mesh in &scene.meshes {
         let material = &scene.materials[mesh.material];
         let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
-        for (what, has, consequence) in [("alpha texture", textured_alpha, " (it is opaque)"), ("normal map", material.normal_map.is_some(), ""), ("bump map", material.bump_map.is_some(), "")] {
-            if has && mesh.uvs.is_empty() {
+        let alpha = textured_alpha.then_some(("alpha texture", " (it is opaque)"));
+        let perturbation = material.perturbation.as_ref().map(|p| (p.what(), ""));
+        for (what, consequence) in [alpha, perturbation].into_iter().flatten() {
+            if mesh.uvs.is_empty() {
                 crate::report::warn(&format!(
                     "{}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
                     scene.path.display(),
@@ -577,10 +579,10 @@ impl GpuScene {
             }
             let material = geo.triangle_material[t];
             let m = &scene.materials[material as usize];
-            let tangent = match &m.normal_map {
-                _ if m.bump_map.is_some() => uv_gradients([a, b, c], uvs, ng),
+            let tangent = match &m.perturbation {
                 None => [0.0; 4],
-                Some(n) => {
+                Some(Perturbation::Bump(_)) => uv_gradients([a, b, c], uvs, ng),
+                Some(Perturbation::Normal(n)) => {
                     let [x, y, z, w] = triangle_tangent([a, b, c], uvs, ng);
                     [x, y, z, if n.bitangent == Bitangent::Cross { w.abs() } else { w }]
                 }

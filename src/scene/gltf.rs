@@ -382,7 +382,7 @@ impl Importer<'_> {
                 return Err(self.err(format!("{at}.pbrMetallicRoughness.{what}"), format!("{v} is outside [0, 1]")));
             }
         }
-        let normal_map = match m.normal_texture() {
+        let perturbation = match m.normal_texture() {
             None => None,
             Some(n) => {
                 let key = format!("{at}.normalTexture");
@@ -391,7 +391,7 @@ impl Importer<'_> {
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) }, scale, bitangent: Bitangent::Uv })
+                Some(Perturbation::Normal(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) }, scale, bitangent: Bitangent::Uv }))
             }
         };
         let name = match (m.name(), m.index()) {
@@ -400,13 +400,13 @@ impl Importer<'_> {
             (None, Some(i)) => format!("material{i}"),
             (None, None) => "default".to_string(),
         };
-        let (ior, glass) = self.transmission(&m, &at, &roughness, &metallic, normal_map.is_some(), alpha.is_some())?;
+        let (ior, glass) = self.transmission(&m, &at, &roughness, &metallic, perturbation.is_some(), alpha.is_some())?;
         let material = match glass {
             Some((kind, absorption)) => {
                 let rough = if kind == MaterialKind::RoughDielectric { roughness } else { ScalarValue::Constant(0.0) };
                 Material { absorption, roughness: rough, ..Material::glass(name, kind, base_color, ior) }
             }
-            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, normal_map, bump_map: None, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
+            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, perturbation, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
         };
         self.out.materials.push(material);
         self.sources.materials.push(m.index());

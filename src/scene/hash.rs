@@ -134,16 +134,19 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.u64(m.one_sided as u64);
         // Hashed only where present, so that the hashes (and cached targets) of scenes
         // without normal maps are what they were before normal maps existed.
-        if let Some(n) = &m.normal_map {
-            h.tag("normal_map");
-            h.texture(&n.texture);
-            h.f32s(&[n.scale]);
-            h.tag(n.bitangent.as_str());
-        }
-        if let Some(b) = &m.bump_map {
-            h.tag("bump_map");
-            h.texture(&b.texture);
-            h.f32s(&[b.scale]);
+        match &m.perturbation {
+            None => {}
+            Some(Perturbation::Normal(n)) => {
+                h.tag("normal_map");
+                h.texture(&n.texture);
+                h.f32s(&[n.scale]);
+                h.tag(n.bitangent.as_str());
+            }
+            Some(Perturbation::Bump(b)) => {
+                h.tag("bump_map");
+                h.texture(&b.texture);
+                h.f32s(&[b.scale]);
+            }
         }
         if let Some(a) = &m.alpha {
             h.tag("alpha");

@@ -604,9 +604,10 @@ impl Loader {
             if m.kind == MaterialKind::Plastic && ior == 1.0 {
                 return Err(self.invalid(&format!("{key}.ior"), "is 1: a plastic's coating needs two different media (it would reflect nothing)"));
             }
-            let normal_map = match m.normal_map {
-                None => None,
-                Some(n) => {
+            let perturbation = match (m.normal_map, m.bump_map) {
+                (None, None) => None,
+                (Some(_), Some(_)) => return Err(self.invalid(&format!("{key}.bump_map"), "cannot be combined with a normal_map (one perturbs the normal)")),
+                (Some(n), None) => {
                     let k = format!("{key}.normal_map.texture");
                     let filter = self.filter(&format!("{key}.normal_map"), n.filter.as_deref())?;
                     let wrap = self.wrap(&format!("{key}.normal_map"), n.wrap.as_ref())?;
@@ -619,20 +620,16 @@ impl Loader {
                         Some("cross") => Bitangent::Cross,
                         Some(other) => return Err(self.invalid(&format!("{key}.normal_map.bitangent"), &format!("\"{other}\" is not \"uv\" or \"cross\""))),
                     };
-                    Some(NormalMap { texture, scale, bitangent })
+                    Some(Perturbation::Normal(NormalMap { texture, scale, bitangent }))
                 }
-            };
-            let bump_map = match m.bump_map {
-                None => None,
-                Some(_) if normal_map.is_some() => return Err(self.invalid(&format!("{key}.bump_map"), "cannot be combined with a normal_map (one perturbs the normal)")),
-                Some(b) => {
+                (None, Some(b)) => {
                     let k = format!("{key}.bump_map.texture");
                     let filter = self.filter(&format!("{key}.bump_map"), b.filter.as_deref())?;
                     let wrap = self.wrap(&format!("{key}.bump_map"), b.wrap.as_ref())?;
                     let texture = Texture { filter, wrap, ..self.texture(&k, &b.texture)? };
                     let scale = b.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.bump_map.scale"), &[scale])?;
-                    Some(BumpMap { texture, scale })
+                    Some(Perturbation::Bump(BumpMap { texture, scale }))
                 }
             };
             let alpha = match m.alpha {
@@ -667,8 +664,7 @@ impl Loader {
                 roughness,
                 metallic,
                 one_sided: m.one_sided,
-                normal_map,
-                bump_map,
+                perturbation,
                 alpha,
                 ior,
                 absorption,

@@ -673,11 +673,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                 images.push(&t.image);
             }
         }
-        if let Some(n) = &m.normal_map {
-            images.push(&n.texture.image);
-        }
-        if let Some(b) = &m.bump_map {
-            images.push(&b.texture.image);
+        if let Some(p) = &m.perturbation {
+            images.push(&p.texture().image);
         }
         let mut maps = images.into_iter().map(|i| self.uv_map(i));
         let first = maps.next().unwrap_or(Affine2::IDENTITY);
@@ -718,11 +715,10 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// wrappers `twosided`, `normalmap` or `bumpmap` (one of the two) and `mask` may enclose
     /// the BSDF, once each, in any order.
     fn bsdf(&mut self, node: Node<'a, 'i>, name: &str) -> Result<usize, SceneError> {
-        let (mut node, mut one_sided, mut normal_map, mut bump_map, mut mask) = (node, true, None, None, None);
+        let (mut node, mut one_sided, mut perturbation, mut mask) = (node, true, None, None);
         loop {
             let kind = self.plugin_type(node)?;
-            let perturbs = normal_map.is_some() || bump_map.is_some();
-            if (kind == "normalmap" || kind == "bumpmap") && perturbs {
+            if (kind == "normalmap" || kind == "bumpmap") && perturbation.is_some() {
                 return Err(self.err(node, format!("{kind} inside a normalmap or bumpmap is not supported (one perturbation of the normal per BSDF)")));
             }
             if !(kind == "twosided" && one_sided || kind == "normalmap" || kind == "bumpmap" || kind == "mask" && mask.is_none()) {
@@ -732,19 +728,18 @@ impl<'a, 'i> Importer<'a, 'i> {
             let inner = self.take_tag(&mut items, "bsdf").ok_or_else(|| self.err(node, format!("{kind} needs one nested <bsdf>")))?;
             match kind.as_str() {
                 "twosided" => one_sided = false,
-                "normalmap" => normal_map = Some(self.normal_map(&mut items, node)?),
-                "bumpmap" => bump_map = Some(self.bump_map(&mut items, node)?),
+                "normalmap" => perturbation = Some(Perturbation::Normal(self.normal_map(&mut items, node)?)),
+                "bumpmap" => perturbation = Some(Perturbation::Bump(self.bump_map(&mut items, node)?)),
                 _ => mask = Some(self.mask(&mut items)?),
             }
             self.rest(&items, node)?;
             node = inner;
         }
         let index = self.bsdf_material(node, name, one_sided)?;
-        if self.out.materials[index].kind.is_dielectric() && (normal_map.is_some() || bump_map.is_some() || mask.is_some()) {
+        if self.out.materials[index].kind.is_dielectric() && (perturbation.is_some() || mask.is_some()) {
             return Err(self.err(node, "a normalmap, bumpmap or mask around a dielectric is not supported"));
         }
-        self.out.materials[index].normal_map = normal_map;
-        self.out.materials[index].bump_map = bump_map;
+        self.out.materials[index].perturbation = perturbation;
         self.out.materials[index].alpha = mask.flatten();
         Ok(index)
     }
@@ -824,8 +819,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 roughness: ScalarValue::Constant(1.0),
                 metallic: ScalarValue::Constant(0.0),
                 one_sided,
-                normal_map: None,
-                bump_map: None,
+                perturbation: None,
                 alpha: None,
                 ior: DEFAULT_IOR,
                 absorption: [0.0; 3],
@@ -871,7 +865,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert, and its dielectric Fresnel term as Schlick's of the same index (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, normal_map: None, bump_map: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, perturbation: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
@@ -1054,8 +1048,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             roughness: ScalarValue::Constant(1.0),
             metallic: ScalarValue::Constant(0.0),
             one_sided: true,
-            normal_map: None,
-            bump_map: None,
+            perturbation: None,
             alpha: None,
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],

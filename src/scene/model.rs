@@ -314,11 +314,8 @@ pub struct Material {
     /// Reflects nothing from behind (the clockwise side of its triangles), as Mitsuba's
     /// BSDFs not wrapped in `twosided`; otherwise both sides shade alike.
     pub one_sided: bool,
-    /// Perturbs the shading normal (never optimised).
-    pub normal_map: Option<NormalMap>,
-    /// Perturbs the shading normal by the slope of a height field (never optimised; not
-    /// with a normal map).
-    pub bump_map: Option<BumpMap>,
+    /// Perturbs the shading normal by a normal map or a bump map (never optimised).
+    pub perturbation: Option<Perturbation>,
     /// Cuts the surface out where its alpha is below a threshold (never optimised).
     pub alpha: Option<AlphaMask>,
     /// A dielectric's index of refraction, its interior (the back of its triangles; a thin
@@ -376,8 +373,7 @@ impl Material {
             roughness: ScalarValue::Constant(0.0),
             metallic: ScalarValue::Constant(0.0),
             one_sided: false,
-            normal_map: None,
-            bump_map: None,
+            perturbation: None,
             alpha: None,
             ior,
             absorption: [0.0; 3],
@@ -400,8 +396,7 @@ impl Material {
             roughness,
             metallic: ScalarValue::Constant(0.0),
             one_sided,
-            normal_map: None,
-            bump_map: None,
+            perturbation: None,
             alpha: None,
             ior: DEFAULT_IOR,
             absorption: [0.0; 3],
@@ -424,8 +419,7 @@ impl Material {
             roughness: ScalarValue::Constant(roughness),
             metallic: ScalarValue::Constant(0.0),
             one_sided,
-            normal_map: None,
-            bump_map: None,
+            perturbation: None,
             alpha: None,
             ior,
             absorption: [0.0; 3],
@@ -579,6 +573,31 @@ pub struct NormalMap {
     pub bitangent: Bitangent,
 }
 
+/// What perturbs a material's shading normal: one map, never both.
+#[derive(Clone, Debug)]
+pub enum Perturbation {
+    Normal(NormalMap),
+    Bump(BumpMap),
+}
+
+impl Perturbation {
+    /// The map's texture.
+    pub fn texture(&self) -> &Texture {
+        match self {
+            Self::Normal(n) => &n.texture,
+            Self::Bump(b) => &b.texture,
+        }
+    }
+
+    /// What the map is called in messages: "normal map" or "bump map".
+    pub fn what(&self) -> &'static str {
+        match self {
+            Self::Normal(_) => "normal map",
+            Self::Bump(_) => "bump map",
+        }
+    }
+}
+
 /// A bump map: the surface seen as displaced along its normal by the height
 /// `scale` × h(u, v), h the texture's value (an RGB texel's luminance, as Mitsuba's
 /// `bumpmap` reads it), interpolated as the texture's filter says. The shading normal
@@ -631,6 +650,22 @@ impl Material {
         matches!(self.base_color, ColorValue::Texture(_))
             || matches!(self.roughness, ScalarValue::Texture(_))
             || matches!(self.metallic, ScalarValue::Texture(_))
+    }
+
+    /// The normal map, where one perturbs the shading normal.
+    pub fn normal_map(&self) -> Option<&NormalMap> {
+        match &self.perturbation {
+            Some(Perturbation::Normal(n)) => Some(n),
+            _ => None,
+        }
+    }
+
+    /// The bump map, where one perturbs the shading normal.
+    pub fn bump_map(&self) -> Option<&BumpMap> {
+        match &self.perturbation {
+            Some(Perturbation::Bump(b)) => Some(b),
+            _ => None,
+        }
     }
 }
 

@@ -204,17 +204,20 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.one_sided {
             pairs.push(("one_sided", Value::Boolean(true)));
         }
-        if let Some(n) = &m.normal_map {
-            let file = exr(dir, &format!("{}.normal_map", m.name), &n.texture.image)?;
-            let mut map = vec![("scale", Value::Float(num(n.scale)))];
-            if n.bitangent != Bitangent::Uv {
-                map.push(("bitangent", Value::String(n.bitangent.as_str().into())));
+        match &m.perturbation {
+            None => {}
+            Some(Perturbation::Normal(n)) => {
+                let file = exr(dir, &format!("{}.normal_map", m.name), &n.texture.image)?;
+                let mut map = vec![("scale", Value::Float(num(n.scale)))];
+                if n.bitangent != Bitangent::Uv {
+                    map.push(("bitangent", Value::String(n.bitangent.as_str().into())));
+                }
+                pairs.push(("normal_map", texture_table(file, &n.texture, map)));
             }
-            pairs.push(("normal_map", texture_table(file, &n.texture, map)));
-        }
-        if let Some(b) = &m.bump_map {
-            let file = exr(dir, &format!("{}.bump_map", m.name), &b.texture.image)?;
-            pairs.push(("bump_map", texture_table(file, &b.texture, vec![("scale", Value::Float(num(b.scale)))])));
+            Some(Perturbation::Bump(b)) => {
+                let file = exr(dir, &format!("{}.bump_map", m.name), &b.texture.image)?;
+                pairs.push(("bump_map", texture_table(file, &b.texture, vec![("scale", Value::Float(num(b.scale)))])));
+            }
         }
         let scalar = |key: &str, v: &ScalarValue| -> Result<Value, SceneError> {
             Ok(match v {

@@ -235,7 +235,7 @@ fn gltf_normal_maps_are_read_rendered_and_written_back() {
     )
     .unwrap();
     let scene = Scene::load(&scene_path).unwrap();
-    let n = scene.materials[0].normal_map.as_ref().expect("the normal map");
+    let n = scene.materials[0].normal_map().expect("the normal map");
     assert_eq!(n.scale, 0.5);
     assert!(n.texture.path.ends_with("bumps.png"), "{}", n.texture.path.display());
     assert_eq!(n.texture.image.get(0, 0), [200.0 / 255.0, 128.0 / 255.0, 230.0 / 255.0]);
@@ -247,12 +247,12 @@ fn gltf_normal_maps_are_read_rendered_and_written_back() {
     let out = dir.join("out");
     write_final(&out, &scene, &[]).unwrap();
     let toml = Scene::load(out.join("final/scene.toml")).unwrap();
-    let written = toml.materials[0].normal_map.as_ref().expect("the TOML's normal map");
+    let written = toml.materials[0].normal_map().expect("the TOML's normal map");
     assert_eq!((written.scale, written.texture.image.data.clone()), (n.scale, n.texture.image.data.clone()));
     let gltf = Scene::load(out.join("final/scene.gltf")).unwrap();
-    assert_eq!(gltf.materials[0].normal_map.as_ref().map(|m| m.scale), Some(0.5), "the written glTF's normal map");
+    assert_eq!(gltf.materials[0].normal_map().map(|m| m.scale), Some(0.5), "the written glTF's normal map");
     let mut flat = scene.clone();
-    flat.materials[0].normal_map = None;
+    flat.materials[0].perturbation = None;
     with_gpu(|ctx| {
         let (mapped, again, unmapped) = (render(ctx, &scene, 0, 8, 3), render(ctx, &toml, 0, 8, 3), render(ctx, &flat, 0, 8, 3));
         let bits = |i: &Image| i.data.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
@@ -498,7 +498,7 @@ fn bundled_mitsuba_scenes_load_and_render() {
                 assert!(s.meshes.iter().all(|m| m.uvs.iter().any(|t| t[0] > 1.5)), "{}", f.display());
             }
             if f.ends_with("normalmap.xml") {
-                assert_eq!(s.materials.iter().filter(|m| m.normal_map.is_some()).count(), 3, "{}", f.display());
+                assert_eq!(s.materials.iter().filter(|m| m.normal_map().is_some()).count(), 3, "{}", f.display());
             }
             if f.ends_with("hidden_emitters.xml") {
                 assert!(s.integrator.hide_emitters, "{}", f.display());
@@ -827,7 +827,7 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
     ] {
         let s = load(name, &bsdf).unwrap_or_else(|e| panic!("{name}: {e}"));
         let m = &s.materials[0];
-        let n = m.normal_map.as_ref().unwrap_or_else(|| panic!("{name}: no normal map"));
+        let n = m.normal_map().unwrap_or_else(|| panic!("{name}: no normal map"));
         assert_eq!((n.scale, n.bitangent, m.one_sided), (1.0, vkinverse::scene::Bitangent::Cross, one_sided), "{name}");
         assert_eq!((n.texture.image.width, n.texture.image.height), (8, 8), "{name}");
         // Raw bytes: the flat middle texels encode (0, 0, 1) as 128/255, 128/255, 1.
@@ -878,8 +878,8 @@ fn mitsuba_bump_maps_wrap_bsdfs() {
     ] {
         let s = load(name, &bsdf).unwrap_or_else(|e| panic!("{name}: {e}"));
         let m = &s.materials[0];
-        let b = m.bump_map.as_ref().unwrap_or_else(|| panic!("{name}: no bump map"));
-        assert!(m.normal_map.is_none(), "{name}");
+        let b = m.bump_map().unwrap_or_else(|| panic!("{name}: no bump map"));
+        assert!(m.normal_map().is_none(), "{name}");
         assert_eq!((b.scale, m.one_sided, (b.texture.image.width, b.texture.image.height)), (scale, one_sided, (16, 16)), "{name}");
         assert_refinement_warnings(name, &s, warnings);
     }
@@ -894,13 +894,13 @@ fn mitsuba_bump_maps_wrap_bsdfs() {
     // The bundled scene against its written-back TOML, and without its maps.
     let xml = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/mitsuba/bumpmap.xml");
     let scene = Scene::load(&xml).unwrap();
-    assert_eq!(scene.materials.iter().filter(|m| m.bump_map.is_some()).count(), 3);
+    assert_eq!(scene.materials.iter().filter(|m| m.bump_map().is_some()).count(), 3);
     let out = dir.join("written");
     write_final(&out, &scene, &[]).unwrap();
     let written = Scene::load(out.join("final/scene.toml")).unwrap();
     let mut flat = scene.clone();
     for m in &mut flat.materials {
-        m.bump_map = None;
+        m.perturbation = None;
     }
     with_gpu(|ctx| {
         let render = |s: &Scene| Renderer::new(GpuScene::new(ctx, s).unwrap()).unwrap().render(0, 4, 3, |_, _| {}).unwrap();
@@ -1842,13 +1842,13 @@ fn gltf_nearest_samplers_are_kept() {
     std::fs::write(dir.join("nearest.gltf"), serde_json::to_string(&doc).unwrap()).unwrap();
     let s = Scene::load(dir.join("nearest.gltf")).unwrap();
     let m = &s.materials[0];
-    assert_eq!((m.base_color.filter(), m.normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
-    assert_eq!((m.base_color.wrap(), m.normal_map.as_ref().unwrap().texture.wrap), ([Wrap::Clamp, Wrap::Mirror], [Wrap::Clamp, Wrap::Mirror]));
+    assert_eq!((m.base_color.filter(), m.normal_map().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    assert_eq!((m.base_color.wrap(), m.normal_map().unwrap().texture.wrap), ([Wrap::Clamp, Wrap::Mirror], [Wrap::Clamp, Wrap::Mirror]));
     let recovered = Recovered::Texture { width: 2, height: 2, channels: 3, data: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.2, 0.4, 0.6] };
     let out = dir.join("out");
     write_final(&out, &s, &[(ParamTarget::BaseColor { material: 0 }, recovered)]).unwrap();
     let t = Scene::load(out.join("final/scene.toml")).unwrap();
-    assert_eq!((t.materials[0].base_color.filter(), t.materials[0].normal_map.as_ref().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
+    assert_eq!((t.materials[0].base_color.filter(), t.materials[0].normal_map().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
     assert_eq!(t.materials[0].base_color.wrap(), [Wrap::Clamp, Wrap::Mirror]);
     let text = std::fs::read_to_string(out.join("final/scene.toml")).unwrap();
     assert!(text.contains(r#"wrap = ["clamp", "mirror"]"#), "{text}");

@@ -689,7 +689,7 @@ fn texture_values_obey_the_rules_of_constants() {
     assert_eq!(named.content_hash(), s.content_hash(), "bilinear is the default");
     assert_message(&load_err("filter-unknown", &with("{ texture = \"tex.exr\", filter = \"cubic\" }")), &["materials.m.base_color.filter", "\"cubic\"", "\"bilinear\" or \"nearest\""]);
     let nmap = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nnormal_map = { texture = \"tex.exr\", filter = \"nearest\" }");
-    assert_eq!(Scene::load(fixture("filter-nmap", &nmap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.filter, Filter::Nearest);
+    assert_eq!(Scene::load(fixture("filter-nmap", &nmap)).unwrap().materials[0].normal_map().unwrap().texture.filter, Filter::Nearest);
     assert_message(&load_err("filter-nmap-unknown", &nmap.replace("nearest", "box")), &["materials.m.normal_map.filter", "\"box\""]);
     // Its wrap modes: one for both axes or [u, v], each "repeat" (the default), "clamp" or "mirror".
     use vkinverse::scene::Wrap;
@@ -701,7 +701,7 @@ fn texture_values_obey_the_rules_of_constants() {
     assert_message(&load_err("wrap-unknown", &with("{ texture = \"tex.exr\", wrap = \"border\" }")), &["materials.m.base_color.wrap", "\"border\"", "\"clamp\""]);
     assert_message(&load_err("wrap-three", &with("{ texture = \"tex.exr\", wrap = [\"clamp\", \"clamp\", \"clamp\"] }")), &["scene.toml:13", "texture"]);
     let nmap_wrap = nmap.replace("filter = \"nearest\"", "wrap = [\"repeat\", \"clamp\"]");
-    assert_eq!(Scene::load(fixture("wrap-nmap", &nmap_wrap)).unwrap().materials[0].normal_map.as_ref().unwrap().texture.wrap, [Wrap::Repeat, Wrap::Clamp]);
+    assert_eq!(Scene::load(fixture("wrap-nmap", &nmap_wrap)).unwrap().materials[0].normal_map().unwrap().texture.wrap, [Wrap::Repeat, Wrap::Clamp]);
 }
 
 /// A normal map's texels encode unit vectors in [0, 1], its scale is finite and its
@@ -710,7 +710,7 @@ fn texture_values_obey_the_rules_of_constants() {
 fn normal_maps_are_checked() {
     let with = |map: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nnormal_map = {map}"));
     let s = Scene::load(fixture("nmap-ok", &with("{ texture = \"tex.exr\", scale = 0.5, bitangent = \"cross\" }"))).unwrap();
-    let n = s.materials[0].normal_map.as_ref().unwrap();
+    let n = s.materials[0].normal_map().unwrap();
     assert_eq!((n.scale, n.bitangent), (0.5, vkinverse::scene::Bitangent::Cross));
     assert_eq!(n.vectors()[0], [(0.5 - 1.0) * 0.5, 0.0, 0.5]);
     let err = bad_texel("nmap-range", &with("{ texture = \"bumps.exr\" }"), "bumps.exr", (2, 2), [0.5, 0.5, 1.0], (3, 2), 1.25);
@@ -731,12 +731,12 @@ fn bump_maps_are_checked() {
     use vkinverse::scene::{Filter, Wrap};
     let with = |map: &str| BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nbump_map = {map}"));
     let s = Scene::load(fixture("bump-ok", &with("{ texture = \"tex.exr\", scale = 0.25, filter = \"nearest\", wrap = \"clamp\" }"))).unwrap();
-    let b = s.materials[0].bump_map.as_ref().unwrap();
+    let b = s.materials[0].bump_map().unwrap();
     assert_eq!((b.scale, b.texture.filter, b.texture.wrap), (0.25, Filter::Nearest, [Wrap::Clamp; 2]));
     // tex.exr's texels are (0.25, 0.5, 0.75): the height is scale times their luminance.
     let luminance = 0.212671 * 0.25 + 0.715160 * 0.5 + 0.072169 * 0.75;
     assert!((b.heights()[0] - 0.25 * luminance).abs() < 1e-7, "{}", b.heights()[0]);
-    assert_eq!(Scene::load(fixture("bump-default", &with("{ texture = \"tex.exr\" }"))).unwrap().materials[0].bump_map.as_ref().unwrap().scale, 1.0);
+    assert_eq!(Scene::load(fixture("bump-default", &with("{ texture = \"tex.exr\" }"))).unwrap().materials[0].bump_map().unwrap().scale, 1.0);
     // Heights may be negative or large, not NaN (the image reader refuses it).
     let path = fixture("bump-negative", &with("{ texture = \"h.exr\" }"));
     write_exr(&path.with_file_name("h.exr"), &Image::filled(2, 2, [-3.0, 7.0, 0.5])).unwrap();
@@ -760,8 +760,8 @@ fn bump_maps_are_checked() {
     let out = std::env::temp_dir().join(format!("vkinverse-scene-tests-{}-bump-written", std::process::id()));
     vkinverse::scene::write::write_final(&out, &one, &[]).unwrap();
     let again = Scene::load(out.join("final/scene.toml")).unwrap();
-    let b = again.materials[0].bump_map.as_ref().expect("the written bump map");
-    assert_eq!((b.scale, b.heights()), (1.0, one.materials[0].bump_map.as_ref().unwrap().heights()));
+    let b = again.materials[0].bump_map().expect("the written bump map");
+    assert_eq!((b.scale, b.heights()), (1.0, one.materials[0].bump_map().unwrap().heights()));
 }
 
 /// An alpha is a number or an EXR texture in [0, 1], its mode "mask" (the default) or
