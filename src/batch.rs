@@ -406,6 +406,9 @@ fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobR
         Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
     };
     let summary = &run.summary;
+    if summary.interrupted {
+        return Err(Error::Interrupted(format!("stopped at iteration {} (its outputs are in {})", summary.iterations, dir.display())));
+    }
     row.iterations = Some(summary.iterations);
     row.time_s = Some(summary.total_time_s);
     row.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
@@ -416,7 +419,9 @@ fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobR
 
 /// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`, each job's
 /// directory treated as `mode` says. A job that fails is recorded with its one-line error
-/// and the batch goes on; only failing to write the table stops it. `on_start` and
+/// and the batch goes on; only failing to write the table stops it, or a Ctrl-C
+/// ([`crate::interrupt`]): the job it stops is recorded as failed, and no further job
+/// starts. `on_start` and
 /// `on_done` bracket each job; `progress` follows its iterations.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
@@ -441,6 +446,11 @@ pub fn run(
     };
     let mut logs = BTreeMap::new();
     for job in jobs {
+        // After a Ctrl-C no further job starts (crate::interrupt); the table holds those
+        // that ran.
+        if crate::interrupt::requested() {
+            break;
+        }
         on_start(job);
         let mut row = JobResult {
             job: job.index,

@@ -141,6 +141,9 @@ pub fn compare(
     // Per run: (summary, parameter-error curve, loss curve).
     let mut results = Vec::new();
     for spec in specs {
+        if crate::interrupt::requested() {
+            return Err(Error::Interrupted(format!("{} was not run; no comparison written", spec.label)));
+        }
         let own = Settings { optimiser: Some(spec.clone()), ..Default::default() };
         let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
         on_start(spec, &st);
@@ -149,6 +152,9 @@ pub fn compare(
             Outcome::Finished(run) => run,
             Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
         };
+        if run.summary.interrupted {
+            return Err(Error::Interrupted(format!("{} stopped at iteration {} (its outputs are in {}); no comparison written", spec.label, run.summary.iterations, dir.display())));
+        }
         let (err, loss) = run.log.curves();
         if settings_json.is_null() {
             settings_json = serde_json::to_value(&run.summary.settings).unwrap_or_default();

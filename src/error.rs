@@ -17,6 +17,9 @@ pub enum Error {
     Io { path: std::path::PathBuf, source: std::io::Error },
     #[error("{0}")]
     Invalid(String),
+    /// A Ctrl-C stopped the work ([`crate::interrupt`]); the message says what was left.
+    #[error("interrupted: {0}")]
+    Interrupted(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

@@ -27,6 +27,7 @@ pub mod error;
 pub mod gpu;
 pub mod gradcheck;
 pub mod image;
+pub mod interrupt;
 pub mod npy;
 pub mod ops;
 pub mod optim;

@@ -334,7 +334,8 @@ per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, ite
 time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
 finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
 points. A failed job does not stop the batch; the exit status
-is non-zero if any failed. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
+is non-zero if any failed. Ctrl-C stops the job it interrupts after its current iteration
+(recorded as failed, its outputs written) and starts no further one (exit status 130). --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
 refusing a job found twice and warning about jobs found nowhere.";
 
 /// Writes to stdout. A reader that closed the pipe early (`vkinverse info | head -1`) has
@@ -464,6 +465,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
     let st = Settings::resolve(&scene.optimise.settings, &a.settings);
     let ctx = context(cli)?;
     let mut progress = RunProgress::new(cli.quiet, "optimise", st.iterations);
+    vkinverse::interrupt::install()?;
     let outcome = vkinverse::optimise::optimise(&ctx, &scene, &st, &a.output, mode(a.resume, a.overwrite), &mut progress);
     progress.finish();
     let run = match outcome? {
@@ -488,6 +490,15 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
         let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
         outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/", a.output.display())?;
     }
+    if run.summary.interrupted {
+        let target = match (st.iterations, st.time_budget) {
+            (Some(n), _) => format!(" of {n}"),
+            (None, Some(t)) => format!(" ({t} s budget)"),
+            (None, None) => String::new(),
+        };
+        let msg = format!("stopped at iteration {}{target}; the same command with --resume continues the run in {}", run.summary.iterations, a.output.display());
+        return Err(vkinverse::error::Error::Interrupted(msg).into());
+    }
     Ok(())
 }
 
@@ -501,6 +512,7 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
     let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     a.start.apply(&mut scene)?;
     let ctx = context(cli)?;
+    vkinverse::interrupt::install()?;
     let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
     let comparison = vkinverse::compare::compare(
         &ctx,
@@ -560,6 +572,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         .collect();
     // One context for every job: device set-up is paid once per batch.
     let ctx = context(cli)?;
+    vkinverse::interrupt::install()?;
     let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
     let results = batch::run(
         &ctx,
@@ -582,6 +595,10 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         },
     )?;
     print_result(a.out.json, &results, || results.table())?;
+    if vkinverse::interrupt::requested() {
+        let msg = format!("{} of {} jobs ran (see {})", results.results.len(), mine.len(), a.out.output.join("results.csv").display());
+        return Err(vkinverse::error::Error::Interrupted(msg).into());
+    }
     let failed = results.failed();
     if failed > 0 {
         return Err(format!("{failed} of {} jobs failed (see {})", results.results.len(), a.out.output.join("results.csv").display()).into());
@@ -760,6 +777,12 @@ fn main() -> ExitCode {
     };
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
+        // A Ctrl-C (vkinverse::interrupt): the shell's status for SIGINT, as a second
+        // Ctrl-C's.
+        Err(e) if matches!(e.downcast_ref(), Some(vkinverse::error::Error::Interrupted(_))) => {
+            eprintln!("vkinverse: {e}");
+            ExitCode::from(130)
+        }
         Err(e) => {
             eprintln!("vkinverse: error: {}", vkinverse::error::one_line(e.as_ref()));
             ExitCode::FAILURE

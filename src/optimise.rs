@@ -48,6 +48,11 @@ pub trait Observer {
     /// The run continues from the checkpoint at `iteration`, with `changes` (one
     /// `key: old -> new` per setting that differs from the checkpoint's).
     fn resumed(&mut self, _iteration: u32, _changes: &[String]) {}
+    /// A Ctrl-C stopped the run after `iteration` ([`crate::interrupt`]); its outputs are
+    /// written next.
+    fn interrupted(&mut self, iteration: u32) {
+        crate::report::notice(&format!("interrupted: stopping at iteration {iteration} and writing the outputs (Ctrl-C again stops at once)"));
+    }
 }
 
 /// An observer that hears nothing.
@@ -178,6 +183,10 @@ pub struct Summary {
     /// where they started from the scene's `init`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub started_from: Option<String>,
+    /// A Ctrl-C stopped the run before its iterations or time budget ran out
+    /// ([`crate::interrupt`]); `optimise --resume` continues it.
+    #[serde(default)]
+    pub interrupted: bool,
 }
 
 /// A finished run: its summary and its log rows.
@@ -441,6 +450,8 @@ struct Loop<'a> {
     gpu_total: f64,
     pass_samples: BTreeMap<String, Vec<f64>>,
     last_loss: f64,
+    /// A Ctrl-C ended the loop.
+    interrupted: bool,
 }
 
 impl Loop<'_> {
@@ -481,6 +492,11 @@ impl Loop<'_> {
         let offset = self.time_offset;
         let timed = |untimed: f64| offset + start.elapsed().as_secs_f64() - untimed;
         while !settings.done(self.iteration, timed(untimed)) {
+            if crate::interrupt::requested() {
+                self.interrupted = true;
+                observer.interrupted(self.iteration);
+                break;
+            }
             let step = engine.step(&mut iteration, self.iteration)?;
             let time_s = timed(untimed);
             for (name, ms) in &step.pass_ms {
@@ -539,6 +555,7 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         gpu_total: 0.0,
         pass_samples: BTreeMap::new(),
         last_loss: f64::NAN,
+        interrupted: false,
     };
     match resume {
         Some((dir, state, log, diag, carry)) => {
@@ -611,6 +628,7 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_t
         meta_n_eff,
         device: ctx.info().name.clone(),
         started_from: scene.optimise.started_from.as_ref().map(|p| p.display().to_string()),
+        interrupted: run.interrupted,
     };
     let path = out_dir.join("summary.json");
     image::write_bytes_atomic(&path, &json_bytes(&summary)?).map_err(io_err(&path))?;

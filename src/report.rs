@@ -21,6 +21,14 @@ pub fn warn(message: &str) {
     }
 }
 
+/// Prints `vkinverse: MESSAGE` on stderr unless quiet: what the run does about something the
+/// user did.
+pub fn notice(message: &str) {
+    if !QUIET.load(Ordering::Relaxed) {
+        eprintln!("vkinverse: {message}");
+    }
+}
+
 /// Progress of a long task on stderr: a bar on a terminal; elsewhere (a log file, a batch
 /// scheduler's output) one line every `VKINVERSE_PROGRESS_SECS` seconds (default 10), so
 /// that a long render is not silent for minutes. Nothing with `quiet`.

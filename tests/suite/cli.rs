@@ -43,6 +43,12 @@ fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
 
 /// [`vkinverse`] with extra environment variables (the debug build's stopping points).
 fn vkinverse_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)]) -> Output {
+    vkinverse_during(args, envs, |_| {})
+}
+
+/// [`vkinverse_env`], calling `during` with the child's process id while it runs (every
+/// 20 ms).
+fn vkinverse_during<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)], mut during: impl FnMut(u32)) -> Output {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
     cmd.args(args).env("VKINVERSE_VALIDATION", "1").envs(envs.iter().copied());
     if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
@@ -69,6 +75,7 @@ fn vkinverse_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)]) -
             let _ = child.wait();
             panic!("vkinverse {:?} still running after {DEADLINE:?}", cmd.get_args().collect::<Vec<_>>());
         }
+        during(child.id());
         std::thread::sleep(Duration::from_millis(20));
     };
     let output = Output { code: status.code(), stdout: out.join().unwrap(), stderr: err.join().unwrap(), wall: start.elapsed() };
@@ -927,6 +934,106 @@ fn killed_at(args: &[String], step: &str) {
     let out = vkinverse_env(args, &[("VKINVERSE_DEBUG_ABORT_AT", step)]);
     let name = step.split(':').next().unwrap();
     assert!(!out.ok() && out.stderr.contains(&format!("aborting at {name}")), "{args:?} did not stop at {step}: {:?}\n{}", out.code, out.stderr);
+}
+
+/// Sends Ctrl-C's signal (SIGINT) to process `pid`.
+fn ctrl_c(pid: u32) {
+    // SAFETY: kill(2) with a child's id and a signal number reads and writes no memory.
+    let sent = unsafe { libc::kill(pid as libc::pid_t, libc::SIGINT) };
+    assert_eq!(sent, 0, "kill -INT {pid}: {}", std::io::Error::last_os_error());
+}
+
+/// Ctrl-C while `optimise` iterates (src/interrupt.rs): the run stops after its current
+/// iteration, writes every output as at any end (its summary says it was interrupted),
+/// exits with 130 and says how to continue; `--resume` then runs it to the iterations
+/// asked for, each iteration logged once.
+#[test]
+fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
+    let dir = temp_dir("interrupt");
+    let mut sent = false;
+    // Once the first checkpoint is committed the loop is iterating.
+    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet"]), &[], |pid| {
+        if !sent && dir.join("checkpoint/current").exists() {
+            ctrl_c(pid);
+            sent = true;
+        }
+    });
+    assert!(sent, "the run ended before its first checkpoint:\n{}", out.stderr);
+    assert_eq!(out.code, Some(130), "{}", out.stderr);
+    let summary = json(&dir.join("summary.json"));
+    let n = summary["iterations"].as_u64().unwrap();
+    assert!((1..100000).contains(&n), "stopped at iteration {n}");
+    assert_eq!(summary["interrupted"], true);
+    let lines: Vec<&str> = out.stderr.lines().collect();
+    assert_eq!(lines, [format!("vkinverse: interrupted: stopped at iteration {n} of 100000; the same command with --resume continues the run in {}", dir.display())]);
+    assert_eq!(read_log(&dir).1.len() as u64, n + 1, "log.csv holds iterations 0..={n}");
+    assert_eq!(json(&committed(&dir).join("state.json"))["iteration"], n);
+    for file in ["final.exr", "error_vs_time.png", "optimiser.csv", "optimiser.png", "params/params.json", "final/scene.toml"] {
+        assert!(dir.join(file).exists(), "{file} not written");
+    }
+    let more = (n + 3).to_string();
+    let out = vkinverse_ok(&optimise_args(&dir, &["--iterations", &more, "--checkpoint-every", "1", "--resume"]));
+    assert!(out.stderr.contains(&format!("resuming from the checkpoint at iteration {n}")), "{}", out.stderr);
+    let summary = json(&dir.join("summary.json"));
+    assert_eq!((summary["iterations"].as_u64(), summary["interrupted"].as_bool()), (Some(n + 3), Some(false)));
+    let iterations: Vec<String> = read_log(&dir).1.iter().map(|r| r[0].clone()).collect();
+    assert_eq!(iterations, (0..=n + 3).map(|i| i.to_string()).collect::<Vec<_>>());
+}
+
+/// Ctrl-C during a batch: the job it stops keeps its outputs and is recorded as failed,
+/// interrupted; no further job starts; the table is written and the exit status is 130.
+#[test]
+fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts() {
+    let dir = temp_dir("interrupt-batch");
+    let jobs = dir.join("jobs.toml");
+    let scene = s(tiny_cornell());
+    std::fs::write(&jobs, format!("iterations = 100000\ncheckpoint_every = 1\n[[jobs]]\nscene = \"{scene}\"\n[[jobs]]\nscene = \"{scene}\"\nseed = 1\n")).unwrap();
+    let out_dir = dir.join("out");
+    let iterating = || std::fs::read_dir(&out_dir).into_iter().flatten().any(|e| e.unwrap().path().join("checkpoint/current").exists());
+    let mut sent = false;
+    let out = vkinverse_during(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], |pid| {
+        if !sent && iterating() {
+            ctrl_c(pid);
+            sent = true;
+        }
+    });
+    assert!(sent, "the batch ended before its first checkpoint:\n{}", out.stderr);
+    assert_eq!(out.code, Some(130), "{}", out.stderr);
+    assert!(out.stderr.trim_end().ends_with(&format!("vkinverse: interrupted: 1 of 2 jobs ran (see {})", out_dir.join("results.csv").display())), "{}", out.stderr);
+    let results = json(&out_dir.join("results.json"));
+    let rows = results["results"].as_array().unwrap();
+    assert_eq!(rows.len(), 1, "{results}");
+    assert_eq!(rows[0]["status"], "failed");
+    assert!(rows[0]["message"].as_str().unwrap().starts_with("interrupted: stopped at iteration"), "{}", rows[0]["message"]);
+    let run = out_dir.join(rows[0]["dir"].as_str().unwrap());
+    assert_eq!(json(&run.join("summary.json"))["interrupted"], true);
+    assert_eq!(dir_names(&out_dir).iter().filter(|n| n.starts_with("job-")).count(), 1, "the second job started");
+}
+
+/// Ctrl-C during a comparison: the run it stops keeps its outputs, the next optimiser
+/// does not start, no comparison is written, and the exit status is 130.
+#[test]
+fn a_ctrl_c_stops_a_comparison_without_a_table() {
+    let out_dir = temp_dir("interrupt-compare").join("out");
+    let mut sent = false;
+    let args = ["--quiet", "compare", &s(tiny_cornell()), "--optimisers", "meta,adam", "--iterations", "100000", "--checkpoint-every", "1", "-o", &s(&out_dir)];
+    let out = vkinverse_during(&args, &[], |pid| {
+        if !sent && out_dir.join("meta/checkpoint/current").exists() {
+            ctrl_c(pid);
+            sent = true;
+        }
+    });
+    assert!(sent, "the comparison ended before its first checkpoint:\n{}", out.stderr);
+    assert_eq!(out.code, Some(130), "{}", out.stderr);
+    let meta = out_dir.join("meta");
+    let n = json(&meta.join("summary.json"))["iterations"].as_u64().unwrap();
+    assert_eq!(
+        out.stderr.lines().collect::<Vec<_>>(),
+        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written", meta.display())]
+    );
+    for name in ["adam", "compare.csv", "compare.json", "error_vs_time.png"] {
+        assert!(!out_dir.join(name).exists(), "{name} written");
+    }
 }
 
 #[test]
