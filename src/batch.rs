@@ -39,7 +39,7 @@ use crate::error::{one_line, Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{optimise, Log, Observer, Outcome, Progress};
+use crate::optimise::{optimise_or_read, Log, Observer, Progress};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::{Scene, SceneError};
@@ -401,10 +401,7 @@ fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobR
     row.optimiser = Some(job.settings.optimiser.as_ref().map_or_else(|| st.optimiser.label.clone(), |s| s.label.clone()));
     row.seed = Some(st.seed);
     row.spp = Some(st.spp);
-    let run = match optimise(ctx, &scene, &st, dir, mode, &mut JobObserver { job, progress })? {
-        Outcome::Finished(run) => run,
-        Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
-    };
+    let run = optimise_or_read(ctx, &scene, &st, dir, mode, &mut JobObserver { job, progress })?;
     let summary = &run.summary;
     if summary.interrupted {
         return Err(Error::Interrupted(format!("stopped at iteration {} (its outputs are in {})", summary.iterations, dir.display())));

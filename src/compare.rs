@@ -23,7 +23,7 @@ use crate::image::write_bytes_atomic;
 use crate::optim::spec::Spec;
 use crate::optim::csv::DiagLog;
 use crate::optim::Optimiser;
-use crate::optimise::{optimise, read_diagnostics, Observer, Outcome, Progress, DIAG_CSV};
+use crate::optimise::{optimise_or_read, read_diagnostics, Observer, Progress, DIAG_CSV};
 use crate::report::{write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::Scene;
@@ -142,18 +142,20 @@ pub fn compare(
     let mut results = Vec::new();
     for spec in specs {
         if crate::interrupt::requested() {
-            return Err(Error::Interrupted(format!("{} was not run; no comparison written", spec.label)));
+            return Err(Error::Interrupted(format!("{} was not run; no comparison written (the same command with --resume continues it)", spec.label)));
         }
         let own = Settings { optimiser: Some(spec.clone()), ..Default::default() };
         let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
         on_start(spec, &st);
         let dir = out_dir.join(spec.dir_name());
-        let run = match optimise(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress })? {
-            Outcome::Finished(run) => run,
-            Outcome::AlreadyDone { .. } => return Err(Error::Invalid(format!("{}: a finished run", dir.display()))),
-        };
+        let run = optimise_or_read(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress })?;
         if run.summary.interrupted {
-            return Err(Error::Interrupted(format!("{} stopped at iteration {} (its outputs are in {}); no comparison written", spec.label, run.summary.iterations, dir.display())));
+            return Err(Error::Interrupted(format!(
+                "{} stopped at iteration {} (its outputs are in {}); no comparison written (the same command with --resume continues it)",
+                spec.label,
+                run.summary.iterations,
+                dir.display()
+            )));
         }
         let (err, loss) = run.log.curves();
         if settings_json.is_null() {

@@ -138,6 +138,11 @@ struct TableOutput {
     /// Replace runs found in OUTDIR's run directories.
     #[arg(long)]
     overwrite: bool,
+    /// Continue the runs found in OUTDIR's run directories from their checkpoints (an
+    /// interrupted batch or comparison): a finished run is taken as it is, a directory
+    /// without a checkpoint is run anew.
+    #[arg(long, conflicts_with = "overwrite")]
+    resume: bool,
     /// Print the table as JSON (compare.json, results.json).
     #[arg(long)]
     json: bool,
@@ -520,7 +525,7 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
         &a.settings,
         &specs,
         &a.out.output,
-        mode(false, a.out.overwrite),
+        mode(a.out.resume, a.out.overwrite),
         |spec, st| {
             bar.borrow().finish();
             *bar.borrow_mut() = ProgressReport::new(cli.quiet, &spec.label, st.iterations.unwrap_or(0) as u64, "iterations");
@@ -539,8 +544,8 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     use vkinverse::batch;
     check_flags(&a.settings)?;
     if !a.merge.is_empty() {
-        if a.settings != Settings::default() {
-            return Err("run settings apply to a job file's runs, not to --merge".into());
+        if a.settings != Settings::default() || a.out.resume || a.out.overwrite {
+            return Err("run settings, --resume and --overwrite apply to a job file's runs, not to --merge".into());
         }
         let (merged, missing) = batch::merge(&a.merge, &a.out.output)?;
         if !missing.is_empty() {
@@ -581,7 +586,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         shard,
         &mine,
         &a.out.output,
-        mode(false, a.out.overwrite),
+        mode(a.out.resume, a.out.overwrite),
         |job| *bar.borrow_mut() = ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations"),
         |_, p| bar.borrow_mut().set(p.iteration as u64, &progress_message(p)),
         |row| {
@@ -596,7 +601,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     )?;
     print_result(a.out.json, &results, || results.table())?;
     if vkinverse::interrupt::requested() {
-        let msg = format!("{} of {} jobs ran (see {})", results.results.len(), mine.len(), a.out.output.join("results.csv").display());
+        let msg = format!("{} of {} jobs ran (see {}); the same command with --resume continues the batch", results.results.len(), mine.len(), a.out.output.join("results.csv").display());
         return Err(vkinverse::error::Error::Interrupted(msg).into());
     }
     let failed = results.failed();

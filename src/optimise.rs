@@ -204,6 +204,32 @@ pub enum Outcome {
     AlreadyDone { iteration: u32 },
 }
 
+impl Run {
+    /// The finished run in `dir`, from its `summary.json` and `log.csv`.
+    pub fn read(dir: &Path) -> Result<Run> {
+        let path = dir.join("summary.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            Error::Invalid(format!("{}: {e} (the run's iterations are done but its outputs are not all written; --overwrite runs it again)", path.display()))
+        })?;
+        let summary = serde_json::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        Ok(Run { summary, log: Log::read(&dir.join("log.csv"))? })
+    }
+}
+
+/// [`optimise`] for the runs of `compare` and `batch`: with [`Mode::Resume`] a directory
+/// without a committed checkpoint (a run that never got to one, or none at all) starts
+/// afresh and a finished run is read back ([`Run::read`]) instead of refused.
+pub fn optimise_or_read(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, dir: &Path, mode: Mode, observer: &mut dyn Observer) -> Result<Run> {
+    let mode = match mode {
+        Mode::Resume if !crate::rundir::has_checkpoint(dir) => Mode::Overwrite,
+        mode => mode,
+    };
+    match optimise(ctx, scene, settings, dir, mode, observer)? {
+        Outcome::Finished(run) => Ok(*run),
+        Outcome::AlreadyDone { .. } => Run::read(dir),
+    }
+}
+
 /// `state.json` of a checkpoint.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct CheckpointState {

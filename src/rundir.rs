@@ -125,7 +125,7 @@ impl RunDir {
     }
 
     fn pointer(&self) -> PathBuf {
-        self.checkpoints().join("current")
+        pointer_path(&self.path)
     }
 
     /// Removes the old run's files: the checkpoint pointer first.
@@ -194,6 +194,17 @@ fn sync_dir(dir: &Path) -> Result<()> {
     #[cfg(not(unix))]
     let _ = dir;
     Ok(())
+}
+
+/// Whether the run directory `path` holds a committed checkpoint (its pointer file), read
+/// without taking the directory's lock.
+pub fn has_checkpoint(path: &Path) -> bool {
+    pointer_path(path).exists()
+}
+
+/// The checkpoint pointer file of run directory `path`.
+fn pointer_path(path: &Path) -> PathBuf {
+    path.join("checkpoint").join("current")
 }
 
 /// A checkpoint's directory name for `iteration`: sorts by iteration.

@@ -983,7 +983,7 @@ fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
 /// Ctrl-C during a batch: the job it stops keeps its outputs and is recorded as failed,
 /// interrupted; no further job starts; the table is written and the exit status is 130.
 #[test]
-fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts() {
+fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() {
     let dir = temp_dir("interrupt-batch");
     let jobs = dir.join("jobs.toml");
     let scene = s(tiny_cornell());
@@ -999,7 +999,8 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts() {
     });
     assert!(sent, "the batch ended before its first checkpoint:\n{}", out.stderr);
     assert_eq!(out.code, Some(130), "{}", out.stderr);
-    assert!(out.stderr.trim_end().ends_with(&format!("vkinverse: interrupted: 1 of 2 jobs ran (see {})", out_dir.join("results.csv").display())), "{}", out.stderr);
+    let said = format!("vkinverse: interrupted: 1 of 2 jobs ran (see {}); the same command with --resume continues the batch", out_dir.join("results.csv").display());
+    assert!(out.stderr.trim_end().ends_with(&said), "{}", out.stderr);
     let results = json(&out_dir.join("results.json"));
     let rows = results["results"].as_array().unwrap();
     assert_eq!(rows.len(), 1, "{results}");
@@ -1008,12 +1009,33 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts() {
     let run = out_dir.join(rows[0]["dir"].as_str().unwrap());
     assert_eq!(json(&run.join("summary.json"))["interrupted"], true);
     assert_eq!(dir_names(&out_dir).iter().filter(|n| n.starts_with("job-")).count(), 1, "the second job started");
+
+    // --resume continues the batch (the flags' iterations replacing the jobs'): the first
+    // job from its checkpoint, the second afresh.
+    let n = json(&run.join("summary.json"))["iterations"].as_u64().unwrap();
+    let total = (n + 2).to_string();
+    let again = ["--quiet", "batch", &s(&jobs), "--resume", "--iterations", &total, "-o", &s(&out_dir)];
+    vkinverse_ok(&again);
+    let results = json(&out_dir.join("results.json"));
+    let rows = results["results"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{results}");
+    for row in rows {
+        assert_eq!((row["status"].as_str(), row["iterations"].as_u64()), (Some("ok"), Some(n + 2)), "{row}");
+    }
+    let iterations: Vec<String> = read_log(&run).1.iter().map(|r| r[0].clone()).collect();
+    assert_eq!(iterations, (0..=n + 2).map(|i| i.to_string()).collect::<Vec<_>>(), "the first job continued where it stopped");
+    // Once more: both runs are finished and read back as they are, not run again.
+    let before = snapshot(&out_dir);
+    vkinverse_ok(&again);
+    assert_eq!(json(&out_dir.join("results.json")), results);
+    let runs = |snap: Vec<(PathBuf, Vec<u8>)>| snap.into_iter().filter(|(p, _)| p.strip_prefix(&out_dir).unwrap().starts_with("job-")).collect::<Vec<_>>();
+    assert!(runs(snapshot(&out_dir)) == runs(before), "a finished job's directory changed");
 }
 
 /// Ctrl-C during a comparison: the run it stops keeps its outputs, the next optimiser
 /// does not start, no comparison is written, and the exit status is 130.
 #[test]
-fn a_ctrl_c_stops_a_comparison_without_a_table() {
+fn a_ctrl_c_stops_a_comparison_without_a_table_and_resume_continues_it() {
     let out_dir = temp_dir("interrupt-compare").join("out");
     let mut sent = false;
     let args = ["--quiet", "compare", &s(tiny_cornell()), "--optimisers", "meta,adam", "--iterations", "100000", "--checkpoint-every", "1", "-o", &s(&out_dir)];
@@ -1029,11 +1051,20 @@ fn a_ctrl_c_stops_a_comparison_without_a_table() {
     let n = json(&meta.join("summary.json"))["iterations"].as_u64().unwrap();
     assert_eq!(
         out.stderr.lines().collect::<Vec<_>>(),
-        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written", meta.display())]
+        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written (the same command with --resume continues it)", meta.display())]
     );
     for name in ["adam", "compare.csv", "compare.json", "error_vs_time.png"] {
         assert!(!out_dir.join(name).exists(), "{name} written");
     }
+    // --resume continues meta's run and starts adam's; the comparison is written.
+    let total = (n + 2).to_string();
+    vkinverse_ok(&["--quiet", "compare", &s(tiny_cornell()), "--optimisers", "meta,adam", "--iterations", &total, "--resume", "-o", &s(&out_dir)]);
+    let runs = json(&out_dir.join("compare.json"))["runs"].as_array().unwrap().clone();
+    assert_eq!(runs.len(), 2);
+    for run in &runs {
+        assert_eq!(run["iterations"].as_u64(), Some(n + 2), "{run}");
+    }
+    assert_eq!(read_log(&meta).1.len() as u64, n + 3, "meta's log holds iterations 0..={}", n + 2);
 }
 
 #[test]
