@@ -402,11 +402,13 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     }
     let ctx = context(cli)?;
+    vkinverse::interrupt::install()?;
     let start = std::time::Instant::now();
-    let image = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, {
+    let progress = {
         let mut progress = ProgressReport::new(cli.quiet, "render", a.spp as u64, "samples");
         move |done, _| progress.set(done as u64, "")
-    })?;
+    };
+    let (image, spp) = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, progress, vkinverse::interrupt::requested)?;
     if ext.as_deref() == Some("png") {
         vkinverse::image::write_png(&a.output, &image)?;
     } else {
@@ -414,7 +416,12 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     }
     if !cli.quiet {
         let secs = start.elapsed().as_secs_f64();
-        eprintln!("rendered {}x{} at {} spp in {secs:.2} s -> {}", image.width, image.height, a.spp, a.output.display());
+        eprintln!("rendered {}x{} at {spp} spp in {secs:.2} s -> {}", image.width, image.height, a.output.display());
+    }
+    if spp < a.spp {
+        // A Ctrl-C: the image holds the samples rendered until then.
+        let msg = format!("stopped at {spp} of {} samples per pixel; {} holds their mean", a.spp, a.output.display());
+        return Err(vkinverse::error::Error::Interrupted(msg).into());
     }
     Ok(())
 }

@@ -878,11 +878,21 @@ pub fn record_samples(
 }
 
 /// Renders sensor `sensor` of `scene` as written (optimised parameters at their reference
-/// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions.
-pub fn render_reference(ctx: &Arc<Context>, scene: &Scene, sensor: u32, spp: u32, seed: u64, progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+/// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions,
+/// and `stop()`, asked after each, may end the render early ([`Renderer::render_until`]).
+/// Returns the image and the samples per pixel it holds.
+pub fn render_reference(
+    ctx: &Arc<Context>,
+    scene: &Scene,
+    sensor: u32,
+    spp: u32,
+    seed: u64,
+    progress: impl FnMut(u32, u32),
+    stop: impl Fn() -> bool,
+) -> gpu::Result<(Image, u32)> {
     let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
     renderer.scene.set_theta(renderer.scene.layout.reference())?;
-    renderer.render(sensor, spp, crate::settings::gpu_seed(seed), progress)
+    renderer.render_until(sensor, spp, crate::settings::gpu_seed(seed), progress, stop)
 }
 
 /// Renders images of a [`GpuScene`] with the primal kernel.
@@ -904,7 +914,15 @@ impl Renderer {
 
     /// Renders sensor `sensor` with `spp` samples per pixel, in submissions of at most
     /// [`SPP_PER_SUBMISSION`] samples; `progress(done, total)` is called after each.
-    pub fn render(&self, sensor: u32, spp: u32, seed: u32, mut progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+    pub fn render(&self, sensor: u32, spp: u32, seed: u32, progress: impl FnMut(u32, u32)) -> gpu::Result<Image> {
+        Ok(self.render_until(sensor, spp, seed, progress, || false)?.0)
+    }
+
+    /// [`Self::render`], asking `stop()` after each submission whether to end early: the
+    /// image is then the mean of the samples rendered so far (the first submission's at
+    /// least), equal up to rounding to a render of that many samples with this seed. Returns the image
+    /// and its samples per pixel.
+    pub fn render_until(&self, sensor: u32, spp: u32, seed: u32, mut progress: impl FnMut(u32, u32), stop: impl Fn() -> bool) -> gpu::Result<(Image, u32)> {
         let ctx = &self.scene.ctx;
         let n = self.scene.pixels();
         let accum = Buffer::zeroed::<[f32; 3]>(ctx, "accum", n, MemoryKind::Device)?;
@@ -930,9 +948,17 @@ impl Renderer {
             cmd.submit_and_wait()?;
             done += chunk;
             progress(done, spp);
+            if done < spp && stop() {
+                break;
+            }
         }
-        let data: Vec<[f32; 3]> = accum.read()?;
-        Ok(Image { width: self.scene.width, height: self.scene.height, data })
+        let mut data: Vec<[f32; 3]> = accum.read()?;
+        if done < spp {
+            // Each sample was weighted 1 / spp.
+            let scale = spp as f32 / done as f32;
+            data.iter_mut().flatten().for_each(|v| *v *= scale);
+        }
+        Ok((Image { width: self.scene.width, height: self.scene.height, data }, done))
     }
 }
 

@@ -9,7 +9,7 @@
 //! (a new build, another BVH layout) renders it anew.
 
 use super::{GpuScene, Renderer};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::image::{self, Image};
 use crate::scene::Scene;
 use std::path::PathBuf;
@@ -47,7 +47,8 @@ fn store(scene: &Scene, name: &str, img: &Image) {
     crate::report::warn(&format!("the rendered target is not cached ({})", failures.join("; ")));
 }
 
-/// One target image per sensor. `progress(sensor, done, total)` reports rendering.
+/// One target image per sensor. `progress(sensor, done, total)` reports rendering; a
+/// Ctrl-C ([`crate::interrupt`]) ends it with [`Error::Interrupted`].
 pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl FnMut(usize, u32, u32)) -> Result<Vec<Image>> {
     let mut out = Vec::new();
     let mut reference_set = false;
@@ -66,7 +67,11 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
             renderer.scene.theta.write(&padded(&renderer.scene, renderer.scene.layout.reference()))?;
             reference_set = true;
         }
-        let img = renderer.render(s as u32, spp, TARGET_SEED, |d, t| progress(s, d, t))?;
+        let (img, done) = renderer.render_until(s as u32, spp, TARGET_SEED, |d, t| progress(s, d, t), crate::interrupt::requested)?;
+        if done < spp {
+            // A Ctrl-C (crate::interrupt): a target of fewer samples is not the target.
+            return Err(Error::Interrupted(format!("while rendering the target of sensor {s} ({done} of {spp} samples per pixel); no iteration ran")));
+        }
         store(scene, &name, &img);
         out.push(img);
     }

@@ -4,113 +4,17 @@
 
 use crate::common;
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
+use common::binary::{json, s, vkinverse, vkinverse_during, vkinverse_env, vkinverse_err, vkinverse_err_env, vkinverse_ok};
 use common::scenes::{temp_dir, write_delta_lit};
 use vkinverse::npy::{self, Array};
 use vkinverse::optim::{self, Range};
 
-/// Longest any one invocation may take before the test fails instead of hanging.
-const DEADLINE: Duration = Duration::from_secs(120);
-
-/// What the validation layer's messages start with on stderr.
-const VALIDATION: &str = "vulkan validation:";
-
 const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
-
-struct Output {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-    wall: Duration,
-}
-
-impl Output {
-    fn ok(&self) -> bool {
-        self.code == Some(0)
-    }
-}
-
-/// Runs the binary with the validation layer on (and on the test device, where one is named)
-/// and fails the test if it outlives [`DEADLINE`], panics, or the layer reports anything.
-fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
-    vkinverse_env(args, &[])
-}
-
-/// [`vkinverse`] with extra environment variables (the debug build's stopping points).
-fn vkinverse_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)]) -> Output {
-    vkinverse_during(args, envs, |_| {})
-}
-
-/// [`vkinverse_env`], calling `during` with the child's process id while it runs (every
-/// 20 ms).
-fn vkinverse_during<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)], mut during: impl FnMut(u32)) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
-    cmd.args(args).env("VKINVERSE_VALIDATION", "1").envs(envs.iter().copied());
-    if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
-        cmd.args(["--device", &device]);
-    }
-    let start = Instant::now();
-    let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("run vkinverse");
-    // Drained on threads so that a chatty child never blocks on a full pipe.
-    let drain = |mut r: Box<dyn Read + Send>| {
-        std::thread::spawn(move || {
-            let mut s = String::new();
-            r.read_to_string(&mut s).expect("read child output");
-            s
-        })
-    };
-    let out = drain(Box::new(child.stdout.take().unwrap()));
-    let err = drain(Box::new(child.stderr.take().unwrap()));
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        if start.elapsed() > DEADLINE {
-            let _ = child.kill();
-            let _ = child.wait();
-            panic!("vkinverse {:?} still running after {DEADLINE:?}", cmd.get_args().collect::<Vec<_>>());
-        }
-        during(child.id());
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let output = Output { code: status.code(), stdout: out.join().unwrap(), stderr: err.join().unwrap(), wall: start.elapsed() };
-    let args: Vec<_> = cmd.get_args().collect();
-    assert!(!output.stderr.contains(VALIDATION), "{args:?}: validation messages:\n{}", output.stderr);
-    assert!(!output.stderr.contains("panicked"), "{args:?}: panic:\n{}", output.stderr);
-    output
-}
-
-/// Runs and requires exit status 0.
-fn vkinverse_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
-    let out = vkinverse(args);
-    let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy().into_owned()).collect();
-    assert!(out.ok(), "vkinverse {shown:?} failed ({:?}):\n{}", out.code, out.stderr);
-    out
-}
-
-/// Runs, requires a non-zero exit and stderr of exactly one `vkinverse: error:` line that
-/// contains every needle; returns that line.
-fn vkinverse_err<S: AsRef<std::ffi::OsStr>>(args: &[S], needles: &[&str]) -> String {
-    vkinverse_err_env(args, &[], needles)
-}
-
-/// [`vkinverse_err`] with extra environment variables.
-fn vkinverse_err_env<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)], needles: &[&str]) -> String {
-    let out = vkinverse_env(args, envs);
-    let shown: Vec<_> = args.iter().map(|a| a.as_ref().to_string_lossy().into_owned()).collect();
-    assert!(!out.ok() && out.code.is_some(), "vkinverse {shown:?} should fail, exited {:?}", out.code);
-    let lines: Vec<&str> = out.stderr.lines().collect();
-    assert!(lines.len() == 1 && lines[0].starts_with("vkinverse: error: "), "{shown:?}: stderr is not one error line:\n{}", out.stderr);
-    for needle in needles {
-        assert!(lines[0].contains(needle), "{shown:?}: {:?} lacks {needle:?}", lines[0]);
-    }
-    lines[0].to_string()
-}
 
 fn bundled_cornell() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell/scene.toml")
@@ -157,10 +61,6 @@ fn replace_once(text: &str, from: &str, to: &str) -> String {
     text.replacen(from, to, 1)
 }
 
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
-
 fn dir_names(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     names.sort();
@@ -184,11 +84,6 @@ fn read_log(dir: &Path) -> (String, Vec<Vec<String>>) {
 
 fn field(row: &[String], i: usize) -> f64 {
     row[i].parse().unwrap_or_else(|_| panic!("log.csv field {i} of {row:?} is not a number"))
-}
-
-fn json(path: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// Checks the bytes are a decodable PNG and returns its size.
@@ -952,7 +847,7 @@ fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     let dir = temp_dir("interrupt");
     let mut sent = false;
     // Once the first checkpoint is committed the loop is iterating.
-    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet"]), &[], |pid| {
+    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet"]), &[], |pid, _| {
         if !sent && dir.join("checkpoint/current").exists() {
             ctrl_c(pid);
             sent = true;
@@ -991,7 +886,7 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     let out_dir = dir.join("out");
     let iterating = || std::fs::read_dir(&out_dir).into_iter().flatten().any(|e| e.unwrap().path().join("checkpoint/current").exists());
     let mut sent = false;
-    let out = vkinverse_during(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], |pid| {
+    let out = vkinverse_during(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], |pid, _| {
         if !sent && iterating() {
             ctrl_c(pid);
             sent = true;
@@ -1032,6 +927,63 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     assert!(runs(snapshot(&out_dir)) == runs(before), "a finished job's directory changed");
 }
 
+/// Ctrl-C during `render`: the image written holds the samples rendered until then, as a
+/// render of that many samples with the same seed does (up to rounding), and the exit
+/// status is 130.
+#[test]
+fn a_ctrl_c_ends_a_render_with_the_samples_so_far() {
+    let dir = temp_dir("interrupt-render");
+    let partial = dir.join("partial.exr");
+    let mut sent = false;
+    let args = ["render", &s(tiny_cornell()), "--spp", "100000000", "--seed", "7", "-o", &s(&partial)];
+    // Every submission prints a progress line: the render is under way once one is there.
+    let out = vkinverse_during(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], |pid, err| {
+        if !sent && err.contains("render: ") {
+            ctrl_c(pid);
+            sent = true;
+        }
+    });
+    assert!(sent, "the render ended before its first submission:\n{}", out.stderr);
+    assert_eq!(out.code, Some(130), "{}", out.stderr);
+    let last = out.stderr.lines().last().unwrap_or_default();
+    let k: u32 = last.strip_prefix("vkinverse: interrupted: stopped at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
+    assert_eq!(last, format!("vkinverse: interrupted: stopped at {k} of 100000000 samples per pixel; {} holds their mean", partial.display()));
+    assert!((1..100000000).contains(&k));
+    let whole = dir.join("whole.exr");
+    vkinverse_ok(&["render", &s(tiny_cornell()), "--spp", &k.to_string(), "--seed", "7", "--quiet", "-o", &s(&whole)]);
+    let (a, b) = (vkinverse::image::read_exr(&partial).unwrap(), vkinverse::image::read_exr(&whole).unwrap());
+    assert_eq!((a.width, a.height), (b.width, b.height));
+    for (p, q) in a.data.iter().flatten().zip(b.data.iter().flatten()) {
+        assert!((p - q).abs() <= 1e-4 * (q.abs() + 1e-3), "{p} against {q} from a render of {k} spp");
+    }
+}
+
+/// Ctrl-C while `optimise` renders its targets: no run is written (nor a partial target
+/// cached), the exit status is 130, and the directory takes a run afterwards.
+#[test]
+fn a_ctrl_c_while_the_targets_render_writes_no_run() {
+    let scene = cornell_copy("interrupt-target");
+    let dir = temp_dir("interrupt-target-run");
+    let mut sent = false;
+    let args = ["optimise", &s(&scene), "--target-spp", "100000000", "--iterations", "2", "-o", &s(&dir)];
+    let out = vkinverse_during(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], |pid, err| {
+        if !sent && err.contains("target: ") {
+            ctrl_c(pid);
+            sent = true;
+        }
+    });
+    assert!(sent, "the targets were rendered before a progress line:\n{}", out.stderr);
+    assert_eq!(out.code, Some(130), "{}", out.stderr);
+    let last = out.stderr.lines().last().unwrap_or_default();
+    assert!(last.starts_with("vkinverse: interrupted: while rendering the target of sensor 0 (") && last.ends_with(" of 100000000 samples per pixel); no iteration ran"), "{}", out.stderr);
+    for file in vkinverse::rundir::RUN_FILES {
+        assert!(!dir.join(file).exists(), "{file} written");
+    }
+    let cache = scene.parent().unwrap().join(".vkinverse-cache");
+    assert!(!cache.exists() || dir_names(&cache).is_empty(), "a partial target cached: {:?}", dir_names(&cache));
+    vkinverse_ok(&["optimise", &s(&scene), "--target-spp", "16", "--iterations", "2", "--quiet", "-o", &s(&dir)]);
+}
+
 /// Ctrl-C during a comparison: the run it stops keeps its outputs, the next optimiser
 /// does not start, no comparison is written, and the exit status is 130.
 #[test]
@@ -1039,7 +991,7 @@ fn a_ctrl_c_stops_a_comparison_without_a_table_and_resume_continues_it() {
     let out_dir = temp_dir("interrupt-compare").join("out");
     let mut sent = false;
     let args = ["--quiet", "compare", &s(tiny_cornell()), "--optimisers", "meta,adam", "--iterations", "100000", "--checkpoint-every", "1", "-o", &s(&out_dir)];
-    let out = vkinverse_during(&args, &[], |pid| {
+    let out = vkinverse_during(&args, &[], |pid, _| {
         if !sent && out_dir.join("meta/checkpoint/current").exists() {
             ctrl_c(pid);
             sent = true;

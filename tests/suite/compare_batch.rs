@@ -6,62 +6,10 @@ use crate::common;
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::OnceLock;
 
+use common::binary::{json, s, vkinverse_err, vkinverse_ok};
 use common::scenes::temp_dir;
-
-/// What the validation layer's messages start with on stderr.
-const VALIDATION: &str = "vulkan validation:";
-
-struct Output {
-    code: Option<i32>,
-    stdout: String,
-    stderr: String,
-}
-
-/// Runs the binary with the validation layer on (and on the test device, where one is named);
-/// fails the test on a panic or a validation message.
-fn vkinverse<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_vkinverse"));
-    cmd.args(args).env("VKINVERSE_VALIDATION", "1");
-    if let Ok(device) = std::env::var("VKINVERSE_TEST_DEVICE") {
-        cmd.args(["--device", &device]);
-    }
-    let out = cmd.output().expect("run vkinverse");
-    let out = Output {
-        code: out.status.code(),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    };
-    let shown: Vec<_> = cmd.get_args().collect();
-    assert!(!out.stderr.contains(VALIDATION), "{shown:?}: validation messages:\n{}", out.stderr);
-    assert!(!out.stderr.contains("panicked"), "{shown:?}: panic:\n{}", out.stderr);
-    out
-}
-
-fn vkinverse_ok<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
-    let out = vkinverse(args);
-    assert_eq!(out.code, Some(0), "failed:\n{}", out.stderr);
-    out
-}
-
-/// Runs, requires a non-zero exit and stderr of exactly one `vkinverse: error:` line that
-/// contains every needle; returns that line.
-fn vkinverse_err<S: AsRef<std::ffi::OsStr>>(args: &[S], needles: &[&str]) -> String {
-    let out = vkinverse(args);
-    assert!(out.code.is_some_and(|c| c != 0), "should fail, exited {:?}", out.code);
-    let lines: Vec<&str> = out.stderr.lines().collect();
-    assert!(lines.len() == 1 && lines[0].starts_with("vkinverse: error: "), "stderr is not one error line:\n{}", out.stderr);
-    for needle in needles {
-        assert!(lines[0].contains(needle), "{:?} lacks {needle:?}", lines[0]);
-    }
-    lines[0].to_string()
-}
-
-fn s(p: &Path) -> String {
-    p.to_string_lossy().into_owned()
-}
 
 /// One directory per test process with `cornell/` (scenes/cornell at 16×16, direct light
 /// only, so its target is rendered once) and `broken/` (a scene file that does not parse).
@@ -117,11 +65,6 @@ fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
         assert_eq!(r.len(), header.len(), "{}: row {r:?}", path.display());
     }
     (header, rows)
-}
-
-fn json(path: &Path) -> serde_json::Value {
-    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 fn num(field: &str) -> f64 {

@@ -742,8 +742,8 @@ fn optimise_from_gltf_comes_back_as_gltf() {
     )
     .unwrap();
     let run = |args: &[&str]| {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_vkinverse")).args(args).env("VKINVERSE_VALIDATION", "1").output().unwrap();
-        (out.status.success(), String::from_utf8_lossy(&out.stderr).into_owned())
+        let out = common::binary::vkinverse(args);
+        (out.ok(), out.stderr)
     };
     let out = dir.join("out");
     let (ok, err) = run(&["optimise", dir.join("opt.toml").to_str().unwrap(), "--quiet", "-o", out.to_str().unwrap()]);

@@ -3,6 +3,7 @@
 //! at the end, fails the test.
 #![allow(dead_code)]
 
+pub mod binary;
 pub mod scenes;
 
 use std::sync::Arc;
