@@ -1,20 +1,28 @@
-//! Stopping a run with Ctrl-C (SIGINT). Once [`install`]ed, the first Ctrl-C asks the
-//! runs in progress to stop: an optimisation ends after its current iteration and writes
-//! its outputs as at any other end (its `summary.json` says `"interrupted": true`, and
-//! `optimise --resume` continues it), and a batch or comparison starts no further run. A
-//! second Ctrl-C ends the process at once with exit status 130, the shell's for SIGINT;
-//! its run directory then holds the last committed checkpoint, as after any kill
-//! (src/rundir.rs). Without [`install`] (a library caller's default) nothing here reacts
-//! to signals and [`requested`] stays false.
+//! Stopping a run with Ctrl-C (SIGINT), or with SIGTERM (a batch scheduler's notice before
+//! it kills a job). Once [`install`]ed, the first such signal asks the work in progress to
+//! stop: an optimisation ends after its current iteration and writes its outputs as at any
+//! other end (its `summary.json` says `"interrupted": true`, and `optimise --resume`
+//! continues it), a batch or comparison starts no further run, and a render keeps the
+//! samples it has. The command then exits with status 128 + the signal's number (130 for
+//! Ctrl-C, 143 for SIGTERM), as the shell reports a process the signal ended. A second
+//! signal ends the process at once with that status; its run directory then holds the
+//! last committed checkpoint, as after any kill (src/rundir.rs). Without [`install`] (a
+//! library caller's default) nothing here reacts to signals and [`requested`] stays false.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, LazyLock, Once};
 
-/// Set by the first Ctrl-C.
+/// Set by the first signal.
 static REQUESTED: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
 
-/// Makes Ctrl-C stop the runs of this process as the module says. Once per process; a
-/// later call does nothing.
+/// The number of the last signal that asked to stop (0: none).
+static SIGNAL: LazyLock<Arc<AtomicUsize>> = LazyLock::new(|| Arc::new(AtomicUsize::new(0)));
+
+/// SIGINT's number, whose exit status stands for a stop without a recorded signal.
+const SIGINT: usize = 2;
+
+/// Makes SIGINT and SIGTERM stop the work of this process as the module says. Once per
+/// process; a later call does nothing.
 pub fn install() -> std::io::Result<()> {
     static INSTALLED: Once = Once::new();
     let mut result = Ok(());
@@ -24,11 +32,15 @@ pub fn install() -> std::io::Result<()> {
 
 #[cfg(unix)]
 fn register() -> std::io::Result<()> {
-    use signal_hook::{consts::SIGINT, flag};
-    // The exit is registered first, so that it sees the flag as the previous Ctrl-C left
-    // it: the first sets the flag, the second finds it set and exits.
-    flag::register_conditional_shutdown(SIGINT, 130, Arc::clone(&REQUESTED))?;
-    flag::register(SIGINT, Arc::clone(&REQUESTED))?;
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::flag;
+    for signal in [SIGINT, SIGTERM] {
+        // The exit is registered first, so that it sees the flag as the previous signal
+        // left it: the first sets the flag, the second finds it set and exits.
+        flag::register_conditional_shutdown(signal, 128 + signal, Arc::clone(&REQUESTED))?;
+        flag::register(signal, Arc::clone(&REQUESTED))?;
+        flag::register_usize(signal, Arc::clone(&SIGNAL), signal as usize)?;
+    }
     Ok(())
 }
 
@@ -37,7 +49,16 @@ fn register() -> std::io::Result<()> {
     Ok(())
 }
 
-/// Whether a Ctrl-C has asked the runs to stop.
+/// Whether a signal has asked the work to stop.
 pub fn requested() -> bool {
     REQUESTED.load(Ordering::Relaxed)
+}
+
+/// The exit status of work a signal stopped: 128 + its number.
+pub fn exit_status() -> u8 {
+    let signal = match SIGNAL.load(Ordering::Relaxed) {
+        0 => SIGINT,
+        s => s,
+    };
+    u8::try_from(128 + signal).unwrap_or(u8::MAX)
 }

@@ -298,7 +298,9 @@ OUTDIR holds one run at a time: a second run into it is refused at once, and a d
 that holds a run is refused unless --resume (continue it: the scene and its parameters
 must be those of the checkpoint; changed settings are listed) or --overwrite (replace
 it). A checkpoint is committed every --checkpoint-every iterations and at the end; a
-kill at any instant leaves the last committed one resumable.";
+kill at any instant leaves the last committed one resumable. Ctrl-C (or SIGTERM) stops the
+run after its current iteration and writes its outputs (exit status 130, or 143); the
+same command with --resume continues it. A second Ctrl-C stops at once.";
 
 const COMPARE_HELP: &str = "\
 Optimiser specs: NAME[@KEY=VALUE]... with NAME adam (keys beta1, beta2, eps) or meta (keys
@@ -307,7 +309,9 @@ hold no comma.
 
 Every run gets the same settings and seed: the same --time-budget (wall time, set-up
 excluded) when given, else the same --iterations (the scene's by default). Each run's
-directory follows optimise's rules (--overwrite replaces earlier runs). Outputs in OUTDIR:
+directory follows optimise's rules (--overwrite replaces earlier runs; --resume continues
+them, reads back the finished ones and starts the missing ones; Ctrl-C stops the run in
+progress and writes no table). Outputs in OUTDIR:
   <label>/            each run's optimise outputs (log.csv, summary.json, ...)
   error_vs_time.png   all runs, log-scale error against wall time
   curves.csv          label,time_s,error: the points of the plot
@@ -339,8 +343,10 @@ per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, ite
 time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
 finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
 points. A failed job does not stop the batch; the exit status
-is non-zero if any failed. Ctrl-C stops the job it interrupts after its current iteration
-(recorded as failed, its outputs written) and starts no further one (exit status 130). --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
+is non-zero if any failed. Ctrl-C (or SIGTERM) stops the job it interrupts after its
+current iteration (recorded as failed, its outputs written) and starts no further one (exit
+status 130, or 143); --resume then continues each job's run from its checkpoint, reads back
+the finished ones and starts the rest. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
 refusing a job found twice and warning about jobs found nowhere.";
 
 /// Writes to stdout. A reader that closed the pipe early (`vkinverse info | head -1`) has
@@ -789,11 +795,11 @@ fn main() -> ExitCode {
     };
     match run(&cli) {
         Ok(()) => ExitCode::SUCCESS,
-        // A Ctrl-C (vkinverse::interrupt): the shell's status for SIGINT, as a second
-        // Ctrl-C's.
+        // A Ctrl-C or SIGTERM (vkinverse::interrupt): the shell's status for the signal,
+        // as a second signal's.
         Err(e) if matches!(e.downcast_ref(), Some(vkinverse::error::Error::Interrupted(_))) => {
             eprintln!("vkinverse: {e}");
-            ExitCode::from(130)
+            ExitCode::from(vkinverse::interrupt::exit_status())
         }
         Err(e) => {
             eprintln!("vkinverse: error: {}", vkinverse::error::one_line(e.as_ref()));

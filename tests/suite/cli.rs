@@ -831,17 +831,28 @@ fn killed_at(args: &[String], step: &str) {
     assert!(!out.ok() && out.stderr.contains(&format!("aborting at {name}")), "{args:?} did not stop at {step}: {:?}\n{}", out.code, out.stderr);
 }
 
+/// Sends `signal` to process `pid`.
+fn send(pid: u32, signal: libc::c_int) {
+    // SAFETY: kill(2) with a child's id and a signal number reads and writes no memory.
+    let sent = unsafe { libc::kill(pid as libc::pid_t, signal) };
+    assert_eq!(sent, 0, "kill -{signal} {pid}: {}", std::io::Error::last_os_error());
+}
+
 /// Sends Ctrl-C's signal (SIGINT) to process `pid`.
 fn ctrl_c(pid: u32) {
-    // SAFETY: kill(2) with a child's id and a signal number reads and writes no memory.
-    let sent = unsafe { libc::kill(pid as libc::pid_t, libc::SIGINT) };
-    assert_eq!(sent, 0, "kill -INT {pid}: {}", std::io::Error::last_os_error());
+    send(pid, libc::SIGINT);
+}
+
+/// The iteration of the committed checkpoint of run directory `dir`, if any (its pointer
+/// names it, zero-padded).
+fn committed_iteration(dir: &Path) -> Option<u64> {
+    std::fs::read_to_string(dir.join("checkpoint/current")).ok()?.trim().parse().ok()
 }
 
 /// Ctrl-C while `optimise` iterates (src/interrupt.rs): the run stops after its current
 /// iteration, writes every output as at any end (its summary says it was interrupted),
-/// exits with 130 and says how to continue; `--resume` then runs it to the iterations
-/// asked for, each iteration logged once.
+/// exits with 130 and says how to continue; `--resume` continues it (SIGTERM stops it
+/// likewise), to the iterations asked for, each iteration logged once.
 #[test]
 fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     let dir = temp_dir("interrupt");
@@ -866,13 +877,26 @@ fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     for file in ["final.exr", "error_vs_time.png", "optimiser.csv", "optimiser.png", "params/params.json", "final/scene.toml"] {
         assert!(dir.join(file).exists(), "{file} not written");
     }
-    let more = (n + 3).to_string();
-    let out = vkinverse_ok(&optimise_args(&dir, &["--iterations", &more, "--checkpoint-every", "1", "--resume"]));
-    assert!(out.stderr.contains(&format!("resuming from the checkpoint at iteration {n}")), "{}", out.stderr);
+    // Resumed, and stopped again by SIGTERM (a batch scheduler's notice) once it has moved
+    // on: the same, with the status 143 that SIGTERM's end has.
+    let mut sent = false;
+    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet", "--resume"]), &[], |pid, _| {
+        if !sent && committed_iteration(&dir).is_some_and(|i| i > n) {
+            send(pid, libc::SIGTERM);
+            sent = true;
+        }
+    });
+    assert!(sent && out.code == Some(143), "{:?}: {}", out.code, out.stderr);
     let summary = json(&dir.join("summary.json"));
-    assert_eq!((summary["iterations"].as_u64(), summary["interrupted"].as_bool()), (Some(n + 3), Some(false)));
+    let m = summary["iterations"].as_u64().unwrap();
+    assert!(m > n && summary["interrupted"] == true, "{summary}");
+    let more = (m + 2).to_string();
+    let out = vkinverse_ok(&optimise_args(&dir, &["--iterations", &more, "--checkpoint-every", "1", "--resume"]));
+    assert!(out.stderr.contains(&format!("resuming from the checkpoint at iteration {m}")), "{}", out.stderr);
+    let summary = json(&dir.join("summary.json"));
+    assert_eq!((summary["iterations"].as_u64(), summary["interrupted"].as_bool()), (Some(m + 2), Some(false)));
     let iterations: Vec<String> = read_log(&dir).1.iter().map(|r| r[0].clone()).collect();
-    assert_eq!(iterations, (0..=n + 3).map(|i| i.to_string()).collect::<Vec<_>>());
+    assert_eq!(iterations, (0..=m + 2).map(|i| i.to_string()).collect::<Vec<_>>());
 }
 
 /// Ctrl-C during a batch: the job it stops keeps its outputs and is recorded as failed,
