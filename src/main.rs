@@ -63,6 +63,11 @@ struct RenderArgs {
     scene: PathBuf,
     #[arg(long, default_value_t = 64)]
     spp: u32,
+    /// Render for at most about this many seconds (from the scene's upload; the
+    /// submission under way when they run out is finished): the image holds the samples
+    /// rendered by then, at most --spp, and the message says how many.
+    #[arg(long, value_name = "SEC", allow_negative_numbers = true)]
+    time_budget: Option<f64>,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long, default_value_t = 0)]
@@ -399,6 +404,9 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     if a.spp == 0 {
         return Err("--spp must be at least 1".into());
     }
+    if let Some(t) = a.time_budget.filter(|t| !(t.is_finite() && *t > 0.0)) {
+        return Err(format!("--time-budget {t} is not positive and finite").into());
+    }
     let scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     if a.sensor as usize >= scene.sensors.len() {
         return Err(format!("--sensor {}: the scene has {} sensor(s)", a.sensor, scene.sensors.len()).into());
@@ -414,7 +422,10 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
         let mut progress = ProgressReport::new(cli.quiet, "render", a.spp as u64, "samples");
         move |done, _| progress.set(done as u64, "")
     };
-    let (image, spp) = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, progress, vkinverse::interrupt::requested)?;
+    let budget = a.time_budget.map(std::time::Duration::from_secs_f64);
+    let out_of_time = || budget.is_some_and(|b| start.elapsed() >= b);
+    let stop = || vkinverse::interrupt::requested() || out_of_time();
+    let (image, spp) = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, progress, stop)?;
     if ext.as_deref() == Some("png") {
         vkinverse::image::write_png(&a.output, &image)?;
     } else {
@@ -422,9 +433,10 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     }
     if !cli.quiet {
         let secs = start.elapsed().as_secs_f64();
-        eprintln!("rendered {}x{} at {spp} spp in {secs:.2} s -> {}", image.width, image.height, a.output.display());
+        let why = if spp < a.spp && out_of_time() { " (the time budget's)" } else { "" };
+        eprintln!("rendered {}x{} at {spp} spp{why} in {secs:.2} s -> {}", image.width, image.height, a.output.display());
     }
-    if spp < a.spp {
+    if spp < a.spp && vkinverse::interrupt::requested() {
         // A Ctrl-C: the image holds the samples rendered until then.
         let msg = format!("stopped at {spp} of {} samples per pixel; {} holds their mean", a.spp, a.output.display());
         return Err(vkinverse::error::Error::Interrupted(msg).into());

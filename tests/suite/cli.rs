@@ -982,6 +982,26 @@ fn a_ctrl_c_ends_a_render_with_the_samples_so_far() {
     }
 }
 
+/// `render --time-budget`: a render that its --spp would keep going for hours stops soon
+/// after the budget runs out, with the samples rendered by then, and says how many; a
+/// budget that is not a positive number is refused.
+#[test]
+fn a_render_stops_at_its_time_budget() {
+    let dir = temp_dir("render-budget");
+    let exr = dir.join("budget.exr");
+    let out = vkinverse_ok(&["render", &s(tiny_cornell()), "--spp", "100000000", "--time-budget", "1", "-o", &s(&exr)]);
+    assert!(out.wall < Duration::from_secs(60), "the render took {:?}", out.wall);
+    let last = out.stderr.lines().last().unwrap_or_default();
+    let k: u32 = last.strip_prefix("rendered 16x16 at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
+    assert!((1..100000000).contains(&k) && last.contains(" spp (the time budget's) in "), "{last}");
+    let image = vkinverse::image::read_exr(&exr).unwrap();
+    let mean = image.data.iter().flatten().map(|&v| v as f64).sum::<f64>() / (3 * image.data.len()) as f64;
+    assert!(image.data.iter().flatten().all(|v| v.is_finite() && *v >= 0.0) && mean > 0.0, "mean {mean}");
+    for bad in ["0", "-1", "nan"] {
+        vkinverse_err(&["render", &s(tiny_cornell()), "--time-budget", bad, "-o", &s(&exr)], &["--time-budget", "not positive and finite"]);
+    }
+}
+
 /// Ctrl-C while `optimise` renders its targets: no run is written (nor a partial target
 /// cached), the exit status is 130, and the directory takes a run afterwards.
 #[test]
