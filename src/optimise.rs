@@ -478,6 +478,8 @@ struct Loop<'a> {
     last_loss: f64,
     /// A Ctrl-C ended the loop.
     interrupted: bool,
+    /// The iteration of the committed checkpoint, where this process knows one.
+    committed: Option<u32>,
 }
 
 impl Loop<'_> {
@@ -488,7 +490,7 @@ impl Loop<'_> {
         Ok(LogRow { iteration: self.iteration, time_s, gpu_time_s: self.gpu_total, loss, param_error: known(e), param_errors: per.into_iter().map(known).collect() })
     }
 
-    fn checkpoint(&self, time_s: f64) -> Result<()> {
+    fn checkpoint(&mut self, time_s: f64) -> Result<()> {
         let state = CheckpointState {
             iteration: self.iteration,
             time_s,
@@ -497,6 +499,7 @@ impl Loop<'_> {
             settings: self.engine.settings.clone(),
         };
         save_checkpoint(self.run_dir, self.engine, &state, &self.log, &self.diag, &self.carry)?;
+        self.committed = Some(self.iteration);
         let path = self.run_dir.path.join("log.csv");
         image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))?;
         if self.engine.carry.is_some() {
@@ -559,7 +562,9 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         _ => None,
     };
     if let Some((_, state, ..)) = &resume {
-        if settings.done(state.iteration, state.time_s) {
+        // A run whose iterations are done but whose outputs are not all written (killed
+        // while it wrote them) goes on to write them.
+        if settings.done(state.iteration, state.time_s) && outputs_written(&run_dir.path, state.iteration) {
             return Ok(Outcome::AlreadyDone { iteration: state.iteration });
         }
         observer.resumed(state.iteration, &state.settings.changes(settings));
@@ -582,11 +587,13 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
         pass_samples: BTreeMap::new(),
         last_loss: f64::NAN,
         interrupted: false,
+        committed: None,
     };
     match resume {
         Some((dir, state, log, diag, carry)) => {
             load_state(&dir, &engine)?;
             (run.iteration, run.time_offset, run.gpu_total, run.log, run.diag, run.carry) = (state.iteration, state.time_s, state.gpu_time_s, log, diag, carry);
+            run.committed = Some(state.iteration);
             run.last_loss = run.log.rows.last().and_then(|r| r.loss).unwrap_or(f64::NAN);
         }
         None => {
@@ -598,9 +605,18 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
     finish(ctx, scene, &engine, run, total_time_s)
 }
 
-/// Commits the last checkpoint and writes the outputs.
-fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, run: Loop, total_time_s: f64) -> Result<Outcome> {
-    run.checkpoint(total_time_s)?;
+/// Whether run directory `dir` holds the outputs of its run at `iteration`: `summary.json`,
+/// which [`finish`] writes last, of that iteration.
+fn outputs_written(dir: &Path, iteration: u32) -> bool {
+    Run::read(dir).is_ok_and(|run| run.summary.iterations == iteration)
+}
+
+/// Commits the last checkpoint, unless it is committed already (a checkpoint is never
+/// written over the committed one: src/rundir.rs), and writes the outputs.
+fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, mut run: Loop, total_time_s: f64) -> Result<Outcome> {
+    if run.committed != Some(run.iteration) {
+        run.checkpoint(total_time_s)?;
+    }
     debug_point("run.checkpointed");
     let out_dir = &run.run_dir.path;
     let settings = &engine.settings;

@@ -24,7 +24,8 @@
 //! `run.locked` (lock held, nothing written), `overwrite.cleared` (the old run's pointer
 //! removed, its other files not yet), `checkpoint.written` (new checkpoint directory
 //! complete, pointer not yet replaced), `checkpoint.committed` (pointer replaced, older
-//! directories not yet removed).
+//! directories not yet removed), `run.checkpointed` (a finished run's last checkpoint
+//! committed, its outputs not yet written).
 
 use crate::error::{Error, Result};
 use crate::image::write_bytes_atomic;
@@ -165,6 +166,10 @@ impl RunDir {
     pub fn commit(&self, name: &str, write: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let root = self.checkpoints();
         let dir = root.join(name);
+        if self.committed()?.as_deref() == Some(dir.as_path()) {
+            // Removing it first would leave nothing resumable until the new one is written.
+            return Err(Error::Invalid(format!("{}: the committed checkpoint; a checkpoint is not written over it", dir.display())));
+        }
         if dir.exists() {
             // A leftover of an interrupted commit (the pointer never named it).
             fs::remove_dir_all(&dir).map_err(io(&dir))?;

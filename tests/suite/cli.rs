@@ -1114,6 +1114,36 @@ fn a_killed_overwrite_never_mixes_two_runs() {
     assert!(!dir.join("checkpoint/current").exists());
 }
 
+/// A run killed after its last checkpoint, while it writes its outputs, gets them from
+/// `--resume`, which after that changes nothing; and a run whose last iteration fell on a
+/// checkpoint commits that iteration once (a second commit of it would remove the
+/// committed checkpoint before writing its replacement, leaving nothing to resume meanwhile).
+#[test]
+fn resume_writes_the_outputs_a_kill_left_out() {
+    // Commits at iterations 2, 4 and 6, and no fourth.
+    let dir = temp_dir("final-commit");
+    let out = vkinverse_env(&optimise_args(&dir, &["--iterations", "6", "--checkpoint-every", "2", "--quiet"]), &[("VKINVERSE_DEBUG_ABORT_AT", "checkpoint.written:4")]);
+    assert!(out.ok(), "a fourth checkpoint was written ({:?}):\n{}", out.code, out.stderr);
+    assert_eq!(json(&dir.join("summary.json"))["iterations"], 6);
+
+    let dir = temp_dir("outputs-kill");
+    let args = optimise_args(&dir, &["--iterations", "3", "--checkpoint-every", "2", "--quiet", "--resume"]);
+    killed_at(&optimise_args(&dir, &["--iterations", "3", "--checkpoint-every", "2", "--quiet"]), "run.checkpointed");
+    assert_eq!(json(&committed(&dir).join("state.json"))["iteration"], 3);
+    assert!(!dir.join("summary.json").exists());
+    vkinverse_ok(&args);
+    assert_eq!(json(&dir.join("summary.json"))["iterations"], 3);
+    for file in ["final.exr", "error_vs_time.png", "optimiser.png", "params/params.json"] {
+        assert!(dir.join(file).exists(), "{file} not written");
+    }
+    let iterations: Vec<String> = read_log(&dir).1.iter().map(|r| r[0].clone()).collect();
+    assert_eq!(iterations, ["0", "1", "2", "3"]);
+    let before = snapshot(&dir);
+    let out = vkinverse_ok(&args);
+    assert!(out.stdout.contains("nothing to do"), "{}", out.stdout);
+    assert!(snapshot(&dir) == before, "a finished run changed");
+}
+
 #[test]
 fn the_checkpoint_swap_survives_a_kill_at_each_step() {
     // (step of the second commit, iteration of the checkpoint a resume finds)
