@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use common::binary::{json, s, vkinverse, vkinverse_during, vkinverse_env, vkinverse_err, vkinverse_err_env, vkinverse_ok};
+use common::binary::{json, s, vkinverse, vkinverse_during, vkinverse_env, vkinverse_err, vkinverse_err_env, vkinverse_ok, Output};
 use common::scenes::{temp_dir, write_delta_lit};
 use vkinverse::npy::{self, Array};
 use vkinverse::optim::{self, Range};
@@ -838,9 +838,18 @@ fn send(pid: u32, signal: libc::c_int) {
     assert_eq!(sent, 0, "kill -{signal} {pid}: {}", std::io::Error::last_os_error());
 }
 
-/// Sends Ctrl-C's signal (SIGINT) to process `pid`.
-fn ctrl_c(pid: u32) {
-    send(pid, libc::SIGINT);
+/// Runs the binary (as [`vkinverse_during`]) and sends it `signal` once, as soon as
+/// `ready(its stderr so far)`; fails the test if it ended before that.
+fn signalled_when<S: AsRef<std::ffi::OsStr>>(args: &[S], envs: &[(&str, &str)], signal: libc::c_int, mut ready: impl FnMut(&str) -> bool) -> Output {
+    let mut sent = false;
+    let out = vkinverse_during(args, envs, |pid, err| {
+        if !sent && ready(err) {
+            send(pid, signal);
+            sent = true;
+        }
+    });
+    assert!(sent, "{:?} ended before it was ready for signal {signal}:\n{}", args.iter().map(|a| a.as_ref().to_string_lossy()).collect::<Vec<_>>(), out.stderr);
+    out
 }
 
 /// The iteration of the committed checkpoint of run directory `dir`, if any (its pointer
@@ -856,15 +865,9 @@ fn committed_iteration(dir: &Path) -> Option<u64> {
 #[test]
 fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     let dir = temp_dir("interrupt");
-    let mut sent = false;
     // Once the first checkpoint is committed the loop is iterating.
-    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet"]), &[], |pid, _| {
-        if !sent && dir.join("checkpoint/current").exists() {
-            ctrl_c(pid);
-            sent = true;
-        }
-    });
-    assert!(sent, "the run ended before its first checkpoint:\n{}", out.stderr);
+    let args = optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet"]);
+    let out = signalled_when(&args, &[], libc::SIGINT, |_| dir.join("checkpoint/current").exists());
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let summary = json(&dir.join("summary.json"));
     let n = summary["iterations"].as_u64().unwrap();
@@ -879,14 +882,9 @@ fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     }
     // Resumed, and stopped again by SIGTERM (a batch scheduler's notice) once it has moved
     // on: the same, with the status 143 that SIGTERM's end has.
-    let mut sent = false;
-    let out = vkinverse_during(&optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet", "--resume"]), &[], |pid, _| {
-        if !sent && committed_iteration(&dir).is_some_and(|i| i > n) {
-            send(pid, libc::SIGTERM);
-            sent = true;
-        }
-    });
-    assert!(sent && out.code == Some(143), "{:?}: {}", out.code, out.stderr);
+    let args = optimise_args(&dir, &["--iterations", "100000", "--checkpoint-every", "1", "--quiet", "--resume"]);
+    let out = signalled_when(&args, &[], libc::SIGTERM, |_| committed_iteration(&dir).is_some_and(|i| i > n));
+    assert_eq!(out.code, Some(143), "{}", out.stderr);
     let summary = json(&dir.join("summary.json"));
     let m = summary["iterations"].as_u64().unwrap();
     assert!(m > n && summary["interrupted"] == true, "{summary}");
@@ -909,14 +907,7 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     std::fs::write(&jobs, format!("iterations = 100000\ncheckpoint_every = 1\n[[jobs]]\nscene = \"{scene}\"\n[[jobs]]\nscene = \"{scene}\"\nseed = 1\n")).unwrap();
     let out_dir = dir.join("out");
     let iterating = || std::fs::read_dir(&out_dir).into_iter().flatten().any(|e| e.unwrap().path().join("checkpoint/current").exists());
-    let mut sent = false;
-    let out = vkinverse_during(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], |pid, _| {
-        if !sent && iterating() {
-            ctrl_c(pid);
-            sent = true;
-        }
-    });
-    assert!(sent, "the batch ended before its first checkpoint:\n{}", out.stderr);
+    let out = signalled_when(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], libc::SIGINT, |_| iterating());
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let said = format!("vkinverse: interrupted: 1 of 2 jobs ran (see {}); the same command with --resume continues the batch", out_dir.join("results.csv").display());
     assert!(out.stderr.trim_end().ends_with(&said), "{}", out.stderr);
@@ -958,16 +949,9 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
 fn a_ctrl_c_ends_a_render_with_the_samples_so_far() {
     let dir = temp_dir("interrupt-render");
     let partial = dir.join("partial.exr");
-    let mut sent = false;
     let args = ["render", &s(tiny_cornell()), "--spp", "100000000", "--seed", "7", "-o", &s(&partial)];
     // Every submission prints a progress line: the render is under way once one is there.
-    let out = vkinverse_during(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], |pid, err| {
-        if !sent && err.contains("render: ") {
-            ctrl_c(pid);
-            sent = true;
-        }
-    });
-    assert!(sent, "the render ended before its first submission:\n{}", out.stderr);
+    let out = signalled_when(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], libc::SIGINT, |err| err.contains("render: "));
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let last = out.stderr.lines().last().unwrap_or_default();
     let k: u32 = last.strip_prefix("vkinverse: interrupted: stopped at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
@@ -1008,15 +992,8 @@ fn a_render_stops_at_its_time_budget() {
 fn a_ctrl_c_while_the_targets_render_writes_no_run() {
     let scene = cornell_copy("interrupt-target");
     let dir = temp_dir("interrupt-target-run");
-    let mut sent = false;
     let args = ["optimise", &s(&scene), "--target-spp", "100000000", "--iterations", "2", "-o", &s(&dir)];
-    let out = vkinverse_during(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], |pid, err| {
-        if !sent && err.contains("target: ") {
-            ctrl_c(pid);
-            sent = true;
-        }
-    });
-    assert!(sent, "the targets were rendered before a progress line:\n{}", out.stderr);
+    let out = signalled_when(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], libc::SIGINT, |err| err.contains("target: "));
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let last = out.stderr.lines().last().unwrap_or_default();
     assert!(last.starts_with("vkinverse: interrupted: while rendering the target of sensor 0 (") && last.ends_with(" of 100000000 samples per pixel); no iteration ran"), "{}", out.stderr);
@@ -1033,15 +1010,8 @@ fn a_ctrl_c_while_the_targets_render_writes_no_run() {
 #[test]
 fn a_ctrl_c_stops_a_comparison_without_a_table_and_resume_continues_it() {
     let out_dir = temp_dir("interrupt-compare").join("out");
-    let mut sent = false;
     let args = ["--quiet", "compare", &s(tiny_cornell()), "--optimisers", "meta,adam", "--iterations", "100000", "--checkpoint-every", "1", "-o", &s(&out_dir)];
-    let out = vkinverse_during(&args, &[], |pid, _| {
-        if !sent && out_dir.join("meta/checkpoint/current").exists() {
-            ctrl_c(pid);
-            sent = true;
-        }
-    });
-    assert!(sent, "the comparison ended before its first checkpoint:\n{}", out.stderr);
+    let out = signalled_when(&args, &[], libc::SIGINT, |_| out_dir.join("meta/checkpoint/current").exists());
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let meta = out_dir.join("meta");
     let n = json(&meta.join("summary.json"))["iterations"].as_u64().unwrap();
