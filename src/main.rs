@@ -500,7 +500,8 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
     progress.finish();
     let run = match outcome? {
         Outcome::Finished(run) => run,
-        Outcome::AlreadyDone { iteration } => {
+        Outcome::AlreadyDone(run) => {
+            let iteration = run.summary.iterations;
             outln!("{}: the run finished at iteration {iteration}; nothing to do, nothing changed (give more --iterations or a longer --time-budget to continue it)", a.output.display())?;
             return Ok(());
         }

@@ -48,7 +48,7 @@ pub trait Observer {
     /// The run continues from the checkpoint at `iteration`, with `changes` (one
     /// `key: old -> new` per setting that differs from the checkpoint's).
     fn resumed(&mut self, _iteration: u32, _changes: &[String]) {}
-    /// A Ctrl-C stopped the run after `iteration` ([`crate::interrupt`]); its outputs are
+    /// A Ctrl-C or SIGTERM stopped the run after `iteration` ([`crate::interrupt`]); its outputs are
     /// written next.
     fn interrupted(&mut self, iteration: u32) {
         crate::report::notice(&format!("interrupted: stopping at iteration {iteration} and writing the outputs (Ctrl-C again stops at once)"));
@@ -183,7 +183,7 @@ pub struct Summary {
     /// where they started from the scene's `init`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub started_from: Option<String>,
-    /// A Ctrl-C stopped the run before its iterations or time budget ran out
+    /// A Ctrl-C or SIGTERM stopped the run before its iterations or time budget ran out
     /// ([`crate::interrupt`]); `optimise --resume` continues it.
     #[serde(default)]
     pub interrupted: bool,
@@ -200,25 +200,25 @@ pub struct Run {
 #[derive(Clone, Debug)]
 pub enum Outcome {
     Finished(Box<Run>),
-    /// `--resume` of a run that had nothing left to do: nothing was changed.
-    AlreadyDone { iteration: u32 },
+    /// `--resume` of a finished run, outputs and all: nothing was changed. The run as its
+    /// `summary.json` and `log.csv` hold it.
+    AlreadyDone(Box<Run>),
 }
 
 impl Run {
-    /// The finished run in `dir`, from its `summary.json` and `log.csv`.
-    pub fn read(dir: &Path) -> Result<Run> {
-        let path = dir.join("summary.json");
-        let text = std::fs::read_to_string(&path).map_err(|e| {
-            Error::Invalid(format!("{}: {e} (the run's iterations are done but its outputs are not all written; --overwrite runs it again)", path.display()))
-        })?;
-        let summary = serde_json::from_str(&text).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-        Ok(Run { summary, log: Log::read(&dir.join("log.csv"))? })
+    /// The run in `dir` whose outputs are written for `iteration`: its `summary.json`
+    /// (which [`finish`] writes last) says that iteration, and its `log.csv` reads. None
+    /// otherwise (a run killed while it wrote its outputs).
+    fn read_finished(dir: &Path, iteration: u32) -> Option<Run> {
+        let text = std::fs::read_to_string(dir.join("summary.json")).ok()?;
+        let summary: Summary = serde_json::from_str(&text).ok().filter(|s: &Summary| s.iterations == iteration)?;
+        Some(Run { summary, log: Log::read(&dir.join("log.csv")).ok()? })
     }
 }
 
 /// [`optimise`] for the runs of `compare` and `batch`: with [`Mode::Resume`] a directory
 /// without a committed checkpoint (a run that never got to one, or none at all) starts
-/// afresh and a finished run is read back ([`Run::read`]) instead of refused.
+/// afresh and a finished run is read back ([`Outcome::AlreadyDone`]) instead of refused.
 pub fn optimise_or_read(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, dir: &Path, mode: Mode, observer: &mut dyn Observer) -> Result<Run> {
     let mode = match mode {
         Mode::Resume if !crate::rundir::has_checkpoint(dir) => Mode::Overwrite,
@@ -226,7 +226,7 @@ pub fn optimise_or_read(ctx: &Arc<Context>, scene: &Scene, settings: &RunSetting
     };
     match optimise(ctx, scene, settings, dir, mode, observer)? {
         Outcome::Finished(run) => Ok(*run),
-        Outcome::AlreadyDone { .. } => Run::read(dir),
+        Outcome::AlreadyDone(run) => Ok(*run),
     }
 }
 
@@ -564,8 +564,10 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
     if let Some((_, state, ..)) = &resume {
         // A run whose iterations are done but whose outputs are not all written (killed
         // while it wrote them) goes on to write them.
-        if settings.done(state.iteration, state.time_s) && outputs_written(&run_dir.path, state.iteration) {
-            return Ok(Outcome::AlreadyDone { iteration: state.iteration });
+        if settings.done(state.iteration, state.time_s) {
+            if let Some(run) = Run::read_finished(&run_dir.path, state.iteration) {
+                return Ok(Outcome::AlreadyDone(Box::new(run)));
+            }
         }
         observer.resumed(state.iteration, &state.settings.changes(settings));
     }
@@ -603,12 +605,6 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
     }
     let total_time_s = run.iterate(observer)?;
     finish(ctx, scene, &engine, run, total_time_s)
-}
-
-/// Whether run directory `dir` holds the outputs of its run at `iteration`: `summary.json`,
-/// which [`finish`] writes last, of that iteration.
-fn outputs_written(dir: &Path, iteration: u32) -> bool {
-    Run::read(dir).is_ok_and(|run| run.summary.iterations == iteration)
 }
 
 /// Commits the last checkpoint, unless it is committed already (a checkpoint is never
