@@ -142,7 +142,7 @@ pub fn compare(
     let mut results = Vec::new();
     for spec in specs {
         if crate::interrupt::requested() {
-            return Err(Error::Interrupted(format!("{} was not run; no comparison written (the same command with --resume continues it)", spec.label)));
+            return Err(Error::Interrupted(format!("{} was not run; no comparison written", spec.label)));
         }
         let own = Settings { optimiser: Some(spec.clone()), ..Default::default() };
         let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
@@ -151,7 +151,7 @@ pub fn compare(
         let run = optimise_or_read(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress })?;
         if run.summary.interrupted {
             return Err(Error::Interrupted(format!(
-                "{} stopped at iteration {} (its outputs are in {}); no comparison written (the same command with --resume continues it)",
+                "{} stopped at iteration {} (its outputs are in {}); no comparison written",
                 spec.label,
                 run.summary.iterations,
                 dir.display()

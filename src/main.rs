@@ -388,6 +388,16 @@ fn context(cli: &Cli) -> std::result::Result<std::sync::Arc<Context>, vkinverse:
     Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, ..Default::default() })
 }
 
+/// How to continue work that a signal stopped (vkinverse::interrupt), given whether its
+/// command replaced an earlier run.
+fn resume_hint(overwrite: bool) -> &'static str {
+    if overwrite {
+        "the same command with --resume instead of --overwrite"
+    } else {
+        "the same command with --resume"
+    }
+}
+
 fn mode(resume: bool, overwrite: bool) -> Mode {
     match (resume, overwrite) {
         (true, _) => Mode::Resume,
@@ -527,7 +537,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             (None, Some(t)) => format!(" ({t} s budget)"),
             (None, None) => String::new(),
         };
-        let msg = format!("stopped at iteration {}{target}; the same command with --resume continues the run in {}", run.summary.iterations, a.output.display());
+        let msg = format!("stopped at iteration {}{target}; {} continues the run in {}", run.summary.iterations, resume_hint(a.overwrite), a.output.display());
         return Err(vkinverse::error::Error::Interrupted(msg).into());
     }
     Ok(())
@@ -557,7 +567,11 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
             *bar.borrow_mut() = ProgressReport::new(cli.quiet, &spec.label, st.iterations.unwrap_or(0) as u64, "iterations");
         },
         |spec, p| bar.borrow_mut().set(p.iteration as u64, &format!("{}: {}", spec.label, progress_message(p))),
-    )?;
+    )
+    .map_err(|e| match e {
+        vkinverse::error::Error::Interrupted(m) => vkinverse::error::Error::Interrupted(format!("{m}; {} continues it", resume_hint(a.out.overwrite))),
+        e => e,
+    })?;
     bar.borrow().finish();
     print_result(a.out.json, &comparison, || comparison.table())?;
     if !a.out.json && !cli.quiet {
@@ -627,7 +641,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     )?;
     print_result(a.out.json, &results, || results.table())?;
     if vkinverse::interrupt::requested() {
-        let msg = format!("{} of {} jobs ran (see {}); the same command with --resume continues the batch", results.results.len(), mine.len(), a.out.output.join("results.csv").display());
+        let msg = format!("{} of {} jobs ran (see {}); {} continues the batch", results.results.len(), mine.len(), a.out.output.join("results.csv").display(), resume_hint(a.out.overwrite));
         return Err(vkinverse::error::Error::Interrupted(msg).into());
     }
     let failed = results.failed();

@@ -1017,7 +1017,7 @@ fn a_ctrl_c_stops_a_comparison_without_a_table_and_resume_continues_it() {
     let n = json(&meta.join("summary.json"))["iterations"].as_u64().unwrap();
     assert_eq!(
         out.stderr.lines().collect::<Vec<_>>(),
-        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written (the same command with --resume continues it)", meta.display())]
+        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written; the same command with --resume continues it", meta.display())]
     );
     for name in ["adam", "compare.csv", "compare.json", "error_vs_time.png"] {
         assert!(!out_dir.join(name).exists(), "{name} written");
