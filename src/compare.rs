@@ -148,15 +148,10 @@ pub fn compare(
         let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
         on_start(spec, &st);
         let dir = out_dir.join(spec.dir_name());
-        let run = optimise_or_read(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress })?;
-        if run.summary.interrupted {
-            return Err(Error::Interrupted(format!(
-                "{} stopped at iteration {} (its outputs are in {}); no comparison written",
-                spec.label,
-                run.summary.iterations,
-                dir.display()
-            )));
-        }
+        let run = optimise_or_read(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress }).map_err(|e| match e {
+            Error::Interrupted(m) => Error::Interrupted(format!("{} {m}; no comparison written", spec.label)),
+            e => e,
+        })?;
         let (err, loss) = run.log.curves();
         if settings_json.is_null() {
             settings_json = serde_json::to_value(&run.summary.settings).unwrap_or_default();

@@ -218,16 +218,20 @@ impl Run {
 
 /// [`optimise`] for the runs of `compare` and `batch`: with [`Mode::Resume`] a directory
 /// without a committed checkpoint (a run that never got to one, or none at all) starts
-/// afresh and a finished run is read back ([`Outcome::AlreadyDone`]) instead of refused.
+/// afresh and a finished run is read back ([`Outcome::AlreadyDone`]) instead of refused;
+/// a run a signal stopped ([`crate::interrupt`]) is [`Error::Interrupted`].
 pub fn optimise_or_read(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, dir: &Path, mode: Mode, observer: &mut dyn Observer) -> Result<Run> {
     let mode = match mode {
         Mode::Resume if !crate::rundir::has_checkpoint(dir) => Mode::Overwrite,
         mode => mode,
     };
-    match optimise(ctx, scene, settings, dir, mode, observer)? {
-        Outcome::Finished(run) => Ok(*run),
-        Outcome::AlreadyDone(run) => Ok(*run),
+    let run = match optimise(ctx, scene, settings, dir, mode, observer)? {
+        Outcome::Finished(run) | Outcome::AlreadyDone(run) => *run,
+    };
+    if run.summary.interrupted {
+        return Err(Error::Interrupted(format!("stopped at iteration {} (its outputs are in {})", run.summary.iterations, dir.display())));
     }
+    Ok(run)
 }
 
 /// `state.json` of a checkpoint.
