@@ -1134,8 +1134,12 @@ range = [0.0, 1.0]
 /// scene without textures (of materials or of emission), principled materials, alpha
 /// tests or dielectrics has their code compiled out. The kernels
 /// with every feature compiled in must compute the same thing: the Cornell box (neither
-/// feature) and the spiral (principled, untextured) render bit-identical images and the
-/// same gradient either way. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
+/// feature) and the spiral (principled, untextured) render the same images and the same
+/// gradient either way. The same image up to rounding: lavapipe renders both bit for bit
+/// alike, while a GPU's compiler fuses multiplies and adds differently in the two builds
+/// (an NVIDIA H200 differed in 22 % of the Cornell box's values, by at most 2 units in the
+/// last place); a feature's code taken where it should not be, or left out, changes
+/// pixels by far more than the bound below. Likewise the adjoint kernels with `CACHE_ALL` (the gradient
 /// replay takes every cast from the cache, its traversal compiled out) and without (it
 /// tests each cast for the cache at run time), and with the per-thread gradient sums
 /// added in an unrolled loop (`LOCAL_GRADS_UNROLLED`) and indexed per lane.
@@ -1189,8 +1193,23 @@ fn feature_specialisation_changes_no_result() {
             }
             (images, grads)
         });
-        let bits = |i: &Image| i.data.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
-        assert_eq!(bits(&images[0]), bits(&images[1]), "{name}: the specialised kernel renders another image");
+        // At most 2e-6 of each value: 17 to 34 units in the last place of an f32.
+        let values = |i: &Image| i.data.iter().flat_map(|p| *p).collect::<Vec<f32>>();
+        let (a, b) = (values(&images[0]), values(&images[1]));
+        let mut differing = 0;
+        let mut worst = 0.0f64;
+        for (x, y) in a.iter().zip(&b) {
+            if x.to_bits() != y.to_bits() {
+                differing += 1;
+                let scale = (*x as f64).abs().max((*y as f64).abs());
+                worst = worst.max((*x as f64 - *y as f64).abs() / scale);
+            }
+        }
+        assert!(
+            worst <= 2e-6,
+            "{name}: the specialised kernel renders another image: {differing} of {} values differ, by up to {worst:.2e} of their value",
+            a.len()
+        );
         let norm = grads[1].iter().map(|v| (*v as f64).abs()).sum::<f64>();
         let diff = grads[0].iter().zip(&grads[1]).map(|(a, b)| (*a as f64 - *b as f64).abs()).sum::<f64>();
         assert!(norm > 0.0, "{name}: a non-zero gradient");
