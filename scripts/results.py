@@ -150,7 +150,7 @@ def load(args):
     by_scene = {}
     for r in results:
         if r["status"] != "ok":
-            print(f"<!-- job {r['job']} {r['label']} failed: {r['message']} -->")
+            print(f"<!-- job {r['job']} {r['label']} {r['status']}: {r['message']} -->")
             continue
         r["raw"] = curve(r["dir"])
         r["smooth"] = smoothed(r["raw"])

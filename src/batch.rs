@@ -39,7 +39,7 @@ use crate::error::{one_line, Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{optimise_or_read, Log, Observer, Progress};
+use crate::optimise::{optimise_or_read, Log, Observer, Progress, Summary};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::{Scene, SceneError};
@@ -270,6 +270,20 @@ impl std::str::FromStr for Shard {
 pub enum Status {
     Ok,
     Failed,
+    /// A Ctrl-C or SIGTERM stopped the job ([`crate::interrupt`]): its outputs are written
+    /// for the iteration it reached, and `--resume` continues it.
+    Interrupted,
+}
+
+impl Status {
+    /// As the table and `results.csv` write it (and `results.json`, through serde).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Status::Ok => "ok",
+            Status::Failed => "failed",
+            Status::Interrupted => "interrupted",
+        }
+    }
 }
 
 /// One row of the results table. Values that a job did not get far enough to know are
@@ -284,7 +298,8 @@ pub struct JobResult {
     pub seed: Option<u64>,
     pub spp: Option<u32>,
     pub status: Status,
-    /// The one-line error of a failed job; empty when ok.
+    /// The one-line error of a failed job, or where an interrupted one stopped; empty
+    /// when ok.
     pub message: String,
     pub iterations: Option<u32>,
     /// Optimisation wall time (as `time_s` in log.csv).
@@ -327,7 +342,6 @@ impl Results {
             v.map(|x| x.to_string()).unwrap_or_default()
         }
         let rows = self.results.iter().map(|r| {
-            let status = if r.status == Status::Ok { "ok" } else { "failed" };
             vec![
                 r.job.to_string(),
                 r.label.clone(),
@@ -335,7 +349,7 @@ impl Results {
                 opt(r.optimiser.as_deref()),
                 opt(r.seed),
                 opt(r.spp),
-                status.to_string(),
+                r.status.as_str().to_string(),
                 r.message.clone(),
                 opt(r.iterations),
                 opt(r.time_s),
@@ -351,15 +365,15 @@ impl Results {
     /// The table printed at the end of a batch or merge.
     pub fn table(&self) -> String {
         let width = self.results.iter().map(|r| r.label.len()).max().unwrap_or(0).max(5);
-        let mut s = format!("{:>4} {:<width$} {:<6} {:>6} {:>9} {:>11} {:>11}  message\n", "job", "label", "status", "iters", "time (s)", "final loss", "final error");
+        let mut s = format!("{:>4} {:<width$} {:<11} {:>6} {:>9} {:>11} {:>11}  message\n", "job", "label", "status", "iters", "time (s)", "final loss", "final error");
         let num = |v: Option<f64>| v.map(|x| format!("{x:.4e}")).unwrap_or_else(|| "-".into());
         for r in &self.results {
             let _ = writeln!(
                 s,
-                "{:>4} {:<width$} {:<6} {:>6} {:>9} {:>11} {:>11}  {}",
+                "{:>4} {:<width$} {:<11} {:>6} {:>9} {:>11} {:>11}  {}",
                 r.job,
                 r.label,
-                if r.status == Status::Ok { "ok" } else { "failed" },
+                r.status.as_str(),
                 r.iterations.map(|i| i.to_string()).unwrap_or_else(|| "-".into()),
                 r.time_s.map(|t| format!("{t:.2}")).unwrap_or_else(|| "-".into()),
                 num(r.final_loss),
@@ -402,20 +416,26 @@ fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobR
     row.seed = Some(st.seed);
     row.spp = Some(st.spp);
     let run = optimise_or_read(ctx, &scene, &st, dir, mode, &mut JobObserver { job, progress })?;
-    let summary = &run.summary;
-    row.iterations = Some(summary.iterations);
-    row.time_s = Some(summary.total_time_s);
-    row.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
-    row.final_error = summary.final_param_error;
-    row.final_image_error = summary.final_image_error;
+    row.record(&run.summary);
     Ok(run.log)
+}
+
+impl JobResult {
+    /// Takes the run's iterations, time and final values from its summary.
+    fn record(&mut self, summary: &Summary) {
+        self.iterations = Some(summary.iterations);
+        self.time_s = Some(summary.total_time_s);
+        self.final_loss = Some(summary.final_loss).filter(|l| l.is_finite());
+        self.final_error = summary.final_param_error;
+        self.final_image_error = summary.final_image_error;
+    }
 }
 
 /// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`, each job's
 /// directory treated as `mode` says. A job that fails is recorded with its one-line error
 /// and the batch goes on; only failing to write the table stops it, or a Ctrl-C
-/// ([`crate::interrupt`]): the job it stops is recorded as failed, and no further job
-/// starts. `on_start` and
+/// ([`crate::interrupt`]): the job it stops is recorded as interrupted, with its values
+/// where it stopped, and no further job starts. `on_start` and
 /// `on_done` bracket each job; `progress` follows its iterations.
 #[allow(clippy::too_many_arguments)]
 pub fn run(
@@ -466,6 +486,15 @@ pub fn run(
         match run_job(ctx, job, &dir, mode, &mut row, &mut progress) {
             Ok(log) => {
                 logs.insert(row.dir.clone(), log);
+            }
+            Err(Error::Interrupted(message)) => {
+                // The run wrote its outputs for the iteration it reached: the row holds
+                // its values there.
+                row.status = Status::Interrupted;
+                row.message = message;
+                if let Some(summary) = Summary::read(&dir) {
+                    row.record(&summary);
+                }
             }
             Err(e) => {
                 row.status = Status::Failed;

@@ -344,12 +344,13 @@ Run settings given as flags (--seed 1, --iterations 50, ...) replace every job's
 Jobs are numbered from 1 (scenes vary slowest, spp fastest, then [[jobs]]). --shard I/N
 runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass index+1).
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
-per job (job, label, scene, optimiser, seed, spp, status ok|failed, message, iterations,
+per job (job, label, scene, optimiser, seed, spp, status ok|failed|interrupted, message, iterations,
 time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
 finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
 points. A failed job does not stop the batch; the exit status
 is non-zero if any failed. Ctrl-C (or SIGTERM) stops the job it interrupts after its
-current iteration (recorded as failed, its outputs written) and starts no further one (exit
+current iteration (recorded as interrupted, with its values there, its outputs written)
+and starts no further one (exit
 status 130, or 143); --resume then continues each job's run from its checkpoint, reads back
 the finished ones and starts the rest. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
 refusing a job found twice and warning about jobs found nowhere.";
@@ -634,7 +635,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
             if !cli.quiet {
                 match row.status {
                     batch::Status::Ok => eprintln!("job {} {}: ok", row.job, row.label),
-                    batch::Status::Failed => eprintln!("job {} {}: failed: {}", row.job, row.label, row.message),
+                    status => eprintln!("job {} {}: {}: {}", row.job, row.label, status.as_str(), row.message),
                 }
             }
         },

@@ -205,13 +205,19 @@ pub enum Outcome {
     AlreadyDone(Box<Run>),
 }
 
+impl Summary {
+    /// The `summary.json` in `dir`; None where there is none or it does not read.
+    pub fn read(dir: &Path) -> Option<Summary> {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).ok()?).ok()
+    }
+}
+
 impl Run {
     /// The run in `dir` whose outputs are written for `iteration`: its `summary.json`
     /// (which [`finish`] writes last) says that iteration, and its `log.csv` reads. None
     /// otherwise (a run killed while it wrote its outputs).
     fn read_finished(dir: &Path, iteration: u32) -> Option<Run> {
-        let text = std::fs::read_to_string(dir.join("summary.json")).ok()?;
-        let summary: Summary = serde_json::from_str(&text).ok().filter(|s: &Summary| s.iterations == iteration)?;
+        let summary = Summary::read(dir).filter(|s| s.iterations == iteration)?;
         Some(Run { summary, log: Log::read(&dir.join("log.csv")).ok()? })
     }
 }
