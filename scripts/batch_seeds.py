@@ -4,12 +4,14 @@ several batches at once (standard library only). On a machine with many cores an
 the batches overlap their CPU work (scene loading, targets, plots) with each other's GPU
 work: pilot 47's 672 jobs took about 3 minutes on an H100 with 10 at once.
 
-    python3 scripts/batch_seeds.py JOBFILE OUTDIR SEED [SEED ...] [--parallel N] [--bin PATH] [-- BATCH_ARGS...]
+    python3 scripts/batch_seeds.py JOBFILE OUTDIR SEED [SEED ...] [--scene NAME]... [--parallel N] [--bin PATH] [-- BATCH_ARGS...]
     python3 scripts/batch_seeds.py scenes/pilot47.toml out/pilot47 0 1 2 3 4 5 6 7 --parallel 10
 
 Each batch writes OUTDIR/SCENE-SEED (read them all with scripts/results.py OUTDIR/*, and
-on a GPU price them at lavapipe's cost with --costs: its docstring says how). Arguments
-after `--` go to every batch (e.g. `-- --iterations 2`). Exits non-zero if any batch did.
+on a GPU price them at lavapipe's cost with --costs: its docstring says how). `--scene NAME`
+(repeatable) runs only those of the job file's scenes. Arguments after `--` go to every
+batch (e.g. `-- --iterations 2`, or `-- --film 256x256` for the protocol at another
+resolution). Exits non-zero if any batch did.
 """
 
 import argparse
@@ -42,6 +44,7 @@ def main():
     ap.add_argument("job_file")
     ap.add_argument("out_dir")
     ap.add_argument("seeds", nargs="+", type=int)
+    ap.add_argument("--scene", action="append", default=[], help="run only this scene of the job file (repeatable)")
     ap.add_argument("--parallel", type=int, default=4, help="batches at once (default 4)")
     ap.add_argument("--bin", default="target/release/vkinverse", help="the vkinverse binary")
     a = ap.parse_args(argv)
@@ -55,6 +58,11 @@ def main():
         sys.exit(f"batch_seeds.py: {a.job_file}: {e}")
     if not scenes:
         sys.exit(f"batch_seeds.py: {a.job_file} names no scene")
+    unknown = [s for s in a.scene if s not in scenes]
+    if unknown:
+        sys.exit(f"batch_seeds.py: --scene {unknown[0]}: {a.job_file} has no such scene (its scenes: {', '.join(scenes)})")
+    if a.scene:
+        scenes = [s for s in scenes if s in a.scene]
     Path(a.out_dir).mkdir(parents=True, exist_ok=True)
 
     def run(scene_seed):

@@ -42,7 +42,7 @@ use crate::optim::spec::{file_safe, Spec};
 use crate::optimise::{optimise_or_read, Log, Observer, Progress, Summary};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::rundir::Mode;
-use crate::scene::{Scene, SceneError};
+use crate::scene::{LoadOptions, Scene, SceneError};
 use crate::settings::{deserialize_table, Settings, SettingsTable};
 use serde::de::MapAccess;
 use serde::{Deserialize, Deserializer, Serialize};
@@ -137,12 +137,21 @@ pub struct Job {
     pub scene: PathBuf,
     /// Shared settings with the job's own on top.
     pub settings: Settings,
+    /// Film size and path depth over the scene file's (the command line's `--film`,
+    /// `--max-depth`).
+    pub load: LoadOptions,
 }
 
 impl Job {
     /// The job with `over` (the command line's settings) on top of its own.
     pub fn overridden(self, over: &Settings) -> Job {
         Job { settings: self.settings.then(over), ..self }
+    }
+
+    /// The job with its scene loaded with `load` (the command line's film size and path
+    /// depth) instead of the scene file's.
+    pub fn loaded_with(self, load: LoadOptions) -> Job {
+        Job { load, ..self }
     }
 
     /// The short name of the job's scene (its directory's for `…/NAME/scene.toml`), which
@@ -181,7 +190,7 @@ fn make_job(index: usize, scene: PathBuf, shared: &Settings, own: &Settings) -> 
     if let Some(lr) = own.lr {
         label = format!("{label}-lr{lr}");
     }
-    Job { index, label: file_safe(&label), scene, settings: shared.then(own) }
+    Job { index, label: file_safe(&label), scene, settings: shared.then(own), load: LoadOptions::default() }
 }
 
 /// Reads and expands a job file; every setting and optimiser spec is checked here, before
@@ -410,7 +419,7 @@ impl Observer for JobObserver<'_> {
 /// Runs one job into `dir`, filling `row` as it learns the job's settings and results;
 /// returns its log.
 fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobResult, progress: &mut dyn FnMut(&Job, &Progress)) -> Result<Log> {
-    let scene = Scene::load(&job.scene)?;
+    let scene = Scene::load_with(&job.scene, &job.load)?;
     let st = Settings::resolve(&scene.optimise.settings, &job.settings);
     row.optimiser = Some(job.settings.optimiser.as_ref().map_or_else(|| st.optimiser.label.clone(), |s| s.label.clone()));
     row.seed = Some(st.seed);

@@ -133,6 +133,10 @@ struct BatchArgs {
     /// another seed).
     #[command(flatten)]
     settings: Settings,
+    /// Film size and path depth for every job's scene (e.g. `--film 256x256` runs the job
+    /// file at another resolution).
+    #[command(flatten)]
+    scene_flags: SceneFlags,
     #[command(flatten)]
     out: TableOutput,
 }
@@ -585,8 +589,8 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     use vkinverse::batch;
     check_flags(&a.settings)?;
     if !a.merge.is_empty() {
-        if a.settings != Settings::default() || a.out.resume || a.out.overwrite {
-            return Err("run settings, --resume and --overwrite apply to a job file's runs, not to --merge".into());
+        if a.settings != Settings::default() || a.scene_flags.film.is_some() || a.scene_flags.max_depth.is_some() || a.out.resume || a.out.overwrite {
+            return Err("run settings, --film, --max-depth, --resume and --overwrite apply to a job file's runs, not to --merge".into());
         }
         let (merged, missing) = batch::merge(&a.merge, &a.out.output)?;
         if !missing.is_empty() {
@@ -599,7 +603,8 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     let Some(jobs_file) = &a.jobs else {
         return Err("give a job file, or --merge with the shards' output directories".into());
     };
-    let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings)).collect();
+    let load = a.scene_flags.options()?;
+    let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings).loaded_with(load)).collect();
     let names: Vec<String> = all.iter().map(batch::Job::scene_name).collect();
     if let Some(unknown) = a.scenes.iter().find(|n| !names.contains(n)) {
         let mut known: Vec<&str> = Vec::new();

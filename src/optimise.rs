@@ -145,6 +145,13 @@ impl Log {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Summary {
     pub scene: String,
+    /// The film the run rendered, [width, height] (the scene's, or `--film`'s); absent in
+    /// the summaries of older runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub film: Option<[u32; 2]>,
+    /// The longest path in segments it traced (the scene's, or `--max-depth`'s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_depth: Option<u32>,
     pub optimiser: String,
     pub settings: RunSettings,
     pub iterations: u32,
@@ -660,6 +667,8 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, mut run: Loop, tot
     let initial_error = run.log.rows.first().and_then(|r| r.param_error);
     let summary = Summary {
         scene: scene.path.display().to_string(),
+        film: Some([scene.film.width, scene.film.height]),
+        max_depth: Some(scene.integrator.max_depth),
         optimiser: settings.optimiser.optimiser.name().into(),
         settings: settings.clone(),
         iterations: run.iteration,

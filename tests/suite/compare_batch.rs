@@ -261,6 +261,34 @@ fn batch_flags_replace_every_jobs_settings() {
     assert!(!bad.exists());
 }
 
+/// `--film` and `--max-depth` load every job's scene at that size and depth (a protocol at
+/// another resolution), each run's summary records what it rendered, and bad values or
+/// their use with --merge are refused before anything is written.
+#[test]
+fn batch_film_and_depth_apply_to_every_job() {
+    let jobs = jobs_file("jobs-film.toml");
+    let out = temp_dir("batch-film");
+    // Shard 1/2: jobs 1 (the product's meta) and 3 (the broken scene, which fails).
+    vkinverse_err(&["--quiet", "batch", &s(&jobs), "--shard", "1/2", "--film", "12x8", "--max-depth", "1", "--iterations", "1", "-o", &s(&out)], &["1 of 2 jobs failed"]);
+    let rows = rows_of(&out);
+    assert_eq!(rows.iter().map(|r| (r[0].as_str(), r[5].as_str())).collect::<Vec<_>>(), [("1", "ok"), ("3", "failed")]);
+    let run = out.join("job-1-cornell-meta");
+    let summary = json(&run.join("summary.json"));
+    assert_eq!((summary["film"].to_string().as_str(), summary["max_depth"].as_u64()), ("[12,8]", Some(1)));
+    let image = vkinverse::image::read_exr(&run.join("final.exr")).unwrap();
+    assert_eq!((image.width, image.height), (12, 8));
+    // Without the flags, the scene's own film (16 × 16 here) and depth (2).
+    let plain = temp_dir("batch-film-plain");
+    vkinverse_ok(&["--quiet", "batch", &s(&jobs), "--scene", "cornell", "--shard", "1/2", "--iterations", "1", "-o", &s(&plain)]);
+    let summary = json(&plain.join("job-1-cornell-meta").join("summary.json"));
+    assert_eq!((summary["film"].to_string().as_str(), summary["max_depth"].as_u64()), ("[16,16]", Some(2)));
+    let bad = temp_dir("batch-film-bad").join("out");
+    vkinverse_err(&["batch", &s(&jobs), "--film", "0x8", "-o", &s(&bad)], &["--film 0x8", "WIDTHxHEIGHT"]);
+    vkinverse_err(&["batch", &s(&jobs), "--max-depth", "0", "-o", &s(&bad)], &["--max-depth 0"]);
+    vkinverse_err(&["batch", "--merge", &s(&out), "--film", "8x8", "-o", &s(&bad)], &["--merge"]);
+    assert!(!bad.exists());
+}
+
 #[test]
 fn batch_runs_the_jobs_of_the_scenes_named() {
     let jobs = jobs_file("jobs-scene.toml");
