@@ -9,9 +9,10 @@ library only):
     python3 scripts/results.py --seeds OUTDIR [OUTDIR ...] > seeds.md   # the same, one row per seed
 
 Any mode takes `--costs OUTDIR` (repeatable) before the output directories: each run's times
-are then its iterations at the median cost per iteration of the runs of the same scene and
-kind (meta or Adam, and the same samples per pixel) in those directories, e.g. runs on a GPU,
-whose clock moves with its load, priced at what lavapipe's runs of the protocol cost.
+are then its iterations at the median cost per iteration of the runs of the same scene,
+kind (meta or Adam, and the same samples per pixel) and film in those directories, e.g. runs
+on a GPU, whose clock moves with its load, priced at what lavapipe's runs of the protocol
+cost (at 256 x 256: `vkinverse batch JOBS --film 256x256 --iterations 10` on lavapipe).
 
 Several output directories (e.g. the shards of one batch) are read as one.
 
@@ -58,6 +59,7 @@ import json
 import math
 import statistics
 import sys
+import tomllib
 from pathlib import Path
 
 # A goal is this multiple of a run's settled error: a run hovers around its own settled
@@ -142,6 +144,20 @@ def rate(job_dir):
     return f"{st['lr']:g}" if st.get("lr_replaces_param_rates") else "scene"
 
 
+def film_of(job_dir, scene):
+    """The film a run rendered, (width, height): from its summary.json, or for runs from
+    before summaries recorded it (which could not change the film of a TOML scene in a
+    batch), from the scene file's [film]; None where neither says."""
+    film = summary(job_dir).get("film")
+    if film:
+        return tuple(film)
+    try:
+        f = tomllib.loads(Path(scene).read_text()).get("film", {})
+        return (f["width"], f["height"])
+    except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, UnicodeDecodeError):
+        return None
+
+
 def load(args):
     results = []
     for arg in args:
@@ -160,6 +176,7 @@ def load(args):
         r["fd_stride"] = settings.get("fd_stride", 1)
         r["fd_spp"] = settings.get("fd_spp", 1)
         r["primal_spp"] = settings.get("primal_spp", 4)
+        r["film"] = film_of(r["dir"], r["scene"])
         by_scene.setdefault(Path(r["scene"]).parent.name, []).append(r)
     return by_scene
 
@@ -430,10 +447,10 @@ def depth(by_scene):
 
 
 def cost_class(r):
-    """What one iteration of a run traces: its kind and sample counts. The meta variants of
-    a step rule trace alike, so they share a class."""
+    """What one iteration of a run traces: its kind, sample counts and film. The meta
+    variants of a step rule trace alike, so they share a class."""
     kind = "meta" if r["optimiser"].startswith("meta") else "adam"
-    return (kind, r["spp"], r["primal_spp"], r["fd_spp"], r["fd_stride"], "carry_adjoint=off" in r["optimiser"])
+    return (kind, r["spp"], r["primal_spp"], r["fd_spp"], r["fd_stride"], "carry_adjoint=off" in r["optimiser"], r["film"])
 
 
 def costs_of(by_scene):
@@ -453,7 +470,8 @@ def priced(by_scene, costs):
         for r in rows:
             cost = costs.get((s, cost_class(r)))
             if cost is None:
-                sys.exit(f"results.py: no run of {s} like {config(r)} (spp {r['spp']}) in the --costs directories to price it by")
+                film = "x".join(map(str, r["film"])) if r["film"] else "an unknown film"
+                sys.exit(f"results.py: no run of {s} like {config(r)} (spp {r['spp']}, {film}) in the --costs directories to price it by")
             r["raw"] = [(i, i * cost, e) for i, _, e in r["raw"]]
             r["smooth"] = smoothed(r["raw"])
             r["time_s"] = r["iterations"] * cost
