@@ -504,6 +504,10 @@ pub fn run(
                 if let Some(summary) = Summary::read(&dir) {
                     row.record(&summary);
                 }
+                // Its curve up to there joins the scene's plot.
+                if let Ok(log) = Log::read(&dir.join("log.csv")) {
+                    logs.insert(row.dir.clone(), log);
+                }
             }
             Err(e) => {
                 row.status = Status::Failed;
@@ -523,14 +527,20 @@ pub fn run(
 }
 
 /// Writes, for each scene of the table, `error_vs_time-<scene>.png` with the curve of every
-/// finished job of that scene and `curves-<scene>.csv` with the points behind it: the
-/// parameter error when every such job has one, else the image loss. `logs` holds each
-/// job's log by its row's `dir`.
+/// finished job of that scene, and of every interrupted one up to where it stopped (its
+/// label followed by ` (interrupted)`), and `curves-<scene>.csv` with the points behind it:
+/// the parameter error when every such job has one, else the image loss. `logs` holds each
+/// job's log by its row's `dir` (an interrupted job's where it could be read).
 fn write_plots(out_dir: &Path, results: &Results, logs: &BTreeMap<String, Log>) -> Result<()> {
     let mut by_scene: BTreeMap<String, Vec<(String, Vec<(f64, f64)>, Vec<(f64, f64)>)>> = Default::default();
-    for r in results.results.iter().filter(|r| r.status == Status::Ok) {
+    for r in &results.results {
+        let label = match r.status {
+            Status::Ok => r.label.clone(),
+            Status::Interrupted if logs.contains_key(&r.dir) => format!("{} (interrupted)", r.label),
+            _ => continue,
+        };
         let (err, loss) = logs.get(&r.dir).map(Log::curves).unwrap_or_default();
-        by_scene.entry(scene_name(Path::new(&r.scene))).or_default().push((r.label.clone(), err, loss));
+        by_scene.entry(scene_name(Path::new(&r.scene))).or_default().push((label, err, loss));
     }
     for (scene, runs) in by_scene {
         let param_error = runs.iter().all(|r| !r.1.is_empty());
@@ -588,8 +598,17 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> 
     // The shards ran in other processes: their logs are read back, from the job
     // directories as the shards were given.
     let mut logs = BTreeMap::new();
-    for r in merged.results.iter().filter(|r| r.status == Status::Ok) {
-        logs.insert(r.dir.clone(), Log::read(&Path::new(&r.dir).join("log.csv"))?);
+    for r in &merged.results {
+        let log = Log::read(&Path::new(&r.dir).join("log.csv"));
+        match (r.status, log) {
+            (Status::Ok, log) => {
+                logs.insert(r.dir.clone(), log?);
+            }
+            (Status::Interrupted, Ok(log)) => {
+                logs.insert(r.dir.clone(), log);
+            }
+            _ => {}
+        }
     }
     write_plots(out_dir, &merged, &logs)?;
     Ok((merged, missing))

@@ -350,8 +350,9 @@ runs jobs I, I+N, I+2N, ... (1 <= I <= N; with a 0-based scheduler index, pass i
 Each job writes OUTDIR/job-<k>-<label>/; OUTDIR/results.csv and results.json hold one row
 per job (job, label, scene, optimiser, seed, spp, status ok|failed|interrupted, message, iterations,
 time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
-finished job's error against time and curves-<scene>.csv (label,time_s,error) holds its
-points. A failed job does not stop the batch; the exit status
+finished job's error against time (an interrupted one's up to where it stopped, labelled
+\"(interrupted)\") and curves-<scene>.csv (label,time_s,error) holds its points.
+--film WxH and --max-depth N load every job's scene at that size and depth. A failed job does not stop the batch; the exit status
 is non-zero if any failed. Ctrl-C (or SIGTERM) stops the job it interrupts after its
 current iteration (recorded as interrupted, with its values there, its outputs written)
 and starts no further one (exit

@@ -924,6 +924,20 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     assert_eq!(rows[0]["final_loss"], summary["final_loss"], "{results}");
     assert!(std::fs::read_to_string(out_dir.join("results.csv")).unwrap().contains(",interrupted,stopped at iteration"));
     assert_eq!(dir_names(&out_dir).iter().filter(|n| n.starts_with("job-")).count(), 1, "the second job started");
+    // The scene's plot has the interrupted job's curve up to where it stopped.
+    let curves = |out_dir: &Path| -> String {
+        let names: Vec<String> = dir_names(out_dir).into_iter().filter(|n| n.starts_with("curves-") && n.ends_with(".csv")).collect();
+        assert_eq!(names.len(), 1, "{names:?}");
+        std::fs::read_to_string(out_dir.join(&names[0])).unwrap()
+    };
+    let label = rows[0]["label"].as_str().unwrap();
+    let stopped = format!("{label} (interrupted),");
+    let points = curves(&out_dir).lines().filter(|l| l.starts_with(&stopped)).count() as u64;
+    assert_eq!(points, summary["iterations"].as_u64().unwrap() + 1, "{}", curves(&out_dir));
+    // So has a merge of the table, which reads the logs back.
+    let merged = dir.join("merged");
+    vkinverse_ok(&["--quiet", "batch", "--merge", &s(&out_dir), "-o", &s(&merged)]);
+    assert_eq!(curves(&merged), curves(&out_dir));
 
     // --resume continues the batch (the flags' iterations replacing the jobs'): the first
     // job from its checkpoint, the second afresh.
@@ -939,6 +953,9 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     }
     let iterations: Vec<String> = read_log(&run).1.iter().map(|r| r[0].clone()).collect();
     assert_eq!(iterations, (0..=n + 2).map(|i| i.to_string()).collect::<Vec<_>>(), "the first job continued where it stopped");
+    // Finished, its curve is the whole run's, under its own label.
+    let text = curves(&out_dir);
+    assert!(!text.contains("(interrupted)") && text.lines().filter(|l| l.starts_with(&format!("{label},"))).count() as u64 == n + 3, "{text}");
     // Once more: both runs are finished and read back as they are, not run again.
     let before = snapshot(&out_dir);
     vkinverse_ok(&again);
