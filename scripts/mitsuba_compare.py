@@ -637,6 +637,8 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
             it += 1
         _, err = proc.communicate()
         wall = time.perf_counter() - t
+        # Mitsuba kept iterating while vkinverse ran: its result is after `it` iterations.
+        m_iterations = it
         dr.set_thread_count(previous_threads)
         if proc.returncode != 0:
             fail(f"vkinverse {' '.join(vk_args[1:])} failed ({proc.returncode}):\n{err.strip()}")
@@ -649,6 +651,7 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
         mitsuba_iterations(0, iters // 2)
         wall, _, _ = run_vk(vk, vk_args[1:])
         mitsuba_iterations(iters // 2, iters - iters // 2)
+        m_iterations = iters
     # The first optimised input's result, as a vector.
     as_vector = lambda v: v if isinstance(v, list) or v is None else [v]
     name, field, init, _, _, _ = inputs[0]
@@ -660,6 +663,7 @@ def compare_optimisation(np, dr, mi, scene, scene_path, vk, target, args, out):
     return {
         "iterations": iters, "spp": spp, "primal_spp": primal_spp, "lr": lr,
         "concurrent": bool(args.concurrent),
+        "mitsuba_iterations": m_iterations,
         # The first iterations compile Dr.Jit's kernels; the median leaves them out (the
         # concurrent mode ran them before timing).
         "mitsuba_per_iter_s": statistics.median(
@@ -727,7 +731,8 @@ def print_tables(a, b, c):
               f"ratio vk/mi {c['vkinverse_per_iter_s'] / c['mitsuba_per_iter_s']:.2f}")
         print(f"  optimised: {', '.join(c['inputs'])}")
         print(f"  {c['input']}: reference {fmt_vec(c['reference'])}, init {fmt_vec(c['init'])}, "
-              f"Mitsuba {fmt_vec(c['mitsuba_final'])}, vkinverse {fmt_vec(c['vkinverse_final'])}")
+              f"Mitsuba {fmt_vec(c['mitsuba_final'])} (after {c.get('mitsuba_iterations', c['iterations'])} iterations), "
+              f"vkinverse {fmt_vec(c['vkinverse_final'])} (after {c['iterations']})")
 
 
 def main():
