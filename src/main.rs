@@ -352,13 +352,13 @@ per job (job, label, scene, optimiser, seed, spp, status ok|failed|interrupted, 
 time_s, final_loss, final_error, final_image_error, dir); per scene, error_vs_time-<scene>.png plots every
 finished job's error against time (an interrupted one's up to where it stopped, labelled
 \"(interrupted)\") and curves-<scene>.csv (label,time_s,error) holds its points.
---film WxH and --max-depth N load every job's scene at that size and depth. A failed job does not stop the batch; the exit status
-is non-zero if any failed. Ctrl-C (or SIGTERM) stops the job it interrupts after its
-current iteration (recorded as interrupted, with its values there, its outputs written)
-and starts no further one (exit
-status 130, or 143); --resume then continues each job's run from its checkpoint, reads back
-the finished ones and starts the rest. --merge OUTDIR... -o OUTDIR joins shards' tables, sorted by job,
-refusing a job found twice and warning about jobs found nowhere.";
+--film WxH and --max-depth N load every job's scene at that size and depth.
+A failed job does not stop the batch; the exit status is non-zero if any failed.
+Ctrl-C (or SIGTERM) stops the job it interrupts after its current iteration (recorded as
+interrupted, with its values there, its outputs written) and starts no further one (exit
+status 130, or 143); --resume then continues each job's run from its checkpoint, reads
+back the finished ones and starts the rest. --merge OUTDIR... -o OUTDIR joins shards'
+tables, sorted by job, refusing a job found twice and warning about jobs found nowhere.";
 
 /// Writes to stdout. A reader that closed the pipe early (`vkinverse info | head -1`) has
 /// what it wanted, so that is not an error; `println!` would panic there instead.
