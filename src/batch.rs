@@ -46,8 +46,8 @@ use crate::scene::{LoadOptions, Scene, SceneError};
 use crate::settings::{deserialize_table, Settings, SettingsTable};
 use serde::de::MapAccess;
 use serde::{Deserialize, Deserializer, Serialize};
-use std::fmt::Write as _;
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -202,7 +202,8 @@ pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
     let check = |at: &str, s: &Settings| s.validate().map_err(|e| bad(format!("{at}{} {}", e.key, e.message)));
     check("", &file.settings)?;
     let dir = path.parent().unwrap_or(Path::new(""));
-    let axes = [("optimisers", file.optimisers.as_ref().map(Vec::len)), ("seeds", file.seeds.as_ref().map(Vec::len)), ("spp", file.spp_axis.as_ref().map(Vec::len))];
+    let axes =
+        [("optimisers", file.optimisers.as_ref().map(Vec::len)), ("seeds", file.seeds.as_ref().map(Vec::len)), ("spp", file.spp_axis.as_ref().map(Vec::len))];
     for (key, len) in axes {
         if len == Some(0) {
             return Err(bad(format!("{key} is an empty list")));
@@ -338,7 +339,8 @@ pub struct Results {
     pub results: Vec<JobResult>,
 }
 
-const CSV_HEADER: [&str; 14] = ["job", "label", "scene", "optimiser", "seed", "spp", "status", "message", "iterations", "time_s", "final_loss", "final_error", "final_image_error", "dir"];
+const CSV_HEADER: [&str; 14] =
+    ["job", "label", "scene", "optimiser", "seed", "spp", "status", "message", "iterations", "time_s", "final_loss", "final_error", "final_image_error", "dir"];
 
 impl Results {
     pub fn failed(&self) -> usize {
@@ -374,7 +376,8 @@ impl Results {
     /// The table printed at the end of a batch or merge.
     pub fn table(&self) -> String {
         let width = self.results.iter().map(|r| r.label.len()).max().unwrap_or(0).max(5);
-        let mut s = format!("{:>4} {:<width$} {:<11} {:>6} {:>9} {:>11} {:>11}  message\n", "job", "label", "status", "iters", "time (s)", "final loss", "final error");
+        let mut s =
+            format!("{:>4} {:<width$} {:<11} {:>6} {:>9} {:>11} {:>11}  message\n", "job", "label", "status", "iters", "time (s)", "final loss", "final error");
         let num = |v: Option<f64>| v.map(|x| format!("{x:.4e}")).unwrap_or_else(|| "-".into());
         for r in &self.results {
             let _ = writeln!(
@@ -460,13 +463,8 @@ pub fn run(
     mut on_done: impl FnMut(&JobResult),
 ) -> Result<Results> {
     std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
-    let mut results = Results {
-        jobs_file: jobs_file.display().to_string(),
-        total_jobs,
-        shard: shard.map(|s| s.to_string()),
-        merged_from: Vec::new(),
-        results: Vec::new(),
-    };
+    let mut results =
+        Results { jobs_file: jobs_file.display().to_string(), total_jobs, shard: shard.map(|s| s.to_string()), merged_from: Vec::new(), results: Vec::new() };
     let mut logs = BTreeMap::new();
     for job in jobs {
         // After a Ctrl-C no further job starts (crate::interrupt); the table holds those

@@ -14,9 +14,9 @@ pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBen
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
 use crate::ops::BufferOps;
-use crate::push::{Count4Push, CountPush, GatherPush};
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{Optimiser, Range};
+use crate::push::{Count4Push, CountPush, GatherPush};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -239,16 +239,10 @@ pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Resul
     let copy4 = ComputePipeline::new(ctx, "copy_vec4", &[])?;
     let copy4_group = copy4.bind(&[("Src", &a), ("Dst", &b)])?;
     let wide_items = [4u32, 16, 64];
-    let wide_pipes = wide_items
-        .iter()
-        .map(|&k| ComputePipeline::new(ctx, "copy_wide", &[("ITEMS", SpecValue::U32(k))]))
-        .collect::<Result<Vec<_>>>()?;
+    let wide_pipes = wide_items.iter().map(|&k| ComputePipeline::new(ctx, "copy_wide", &[("ITEMS", SpecValue::U32(k))])).collect::<Result<Vec<_>>>()?;
     let wide_groups = wide_pipes.iter().map(|p| p.bind(&[("Src", &a), ("Dst", &b)])).collect::<Result<Vec<_>>>()?;
     let wg_sizes = [64u32, 128, 512, 1024];
-    let wg_pipes = wg_sizes
-        .iter()
-        .map(|&w| ComputePipeline::new(ctx, "copy", &[("local_size_x", SpecValue::U32(w))]))
-        .collect::<Result<Vec<_>>>()?;
+    let wg_pipes = wg_sizes.iter().map(|&w| ComputePipeline::new(ctx, "copy", &[("local_size_x", SpecValue::U32(w))])).collect::<Result<Vec<_>>>()?;
     let wg_groups = wg_pipes.iter().map(|p| p.bind(&[("Src", &a), ("Dst", &b)])).collect::<Result<Vec<_>>>()?;
     let (sum, sq) = (ops.reduction(&a, false)?, ops.reduction(&a, true)?);
     // Incoherent float4 reads (glsl/gather.comp): GATHER_THREADS threads, GATHER_ROUNDS

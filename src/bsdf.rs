@@ -10,9 +10,8 @@
 //! f(wo, wi) |cos theta_i|.
 
 use crate::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PLASTIC,
-    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
-    MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
+    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
+    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -326,7 +325,11 @@ fn beckmann_g1(v: DVec3, alpha: f64) -> (f64, f64) {
 pub fn one_plus_erf(x: f64) -> f64 {
     let t = 1.0 / (1.0 + 0.3275911 * x.abs());
     let q = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429)))) * (-x * x).exp();
-    if x < 0.0 { q } else { 2.0 - q }
+    if x < 0.0 {
+        q
+    } else {
+        2.0 - q
+    }
 }
 
 /// The inverse of erf at x given (1 − x)(1 + x), Giles 2010's single-precision
@@ -442,12 +445,20 @@ fn rough_glass_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> Microfa
 /// `rough_glass_half`
 fn rough_glass_half(m: &MaterialF64, wo: DVec3, wi: DVec3) -> DVec3 {
     let h = if wi.z > 0.0 { wo + wi } else { wo + m.ior * wi }.normalize();
-    if h.z < 0.0 { -h } else { h }
+    if h.z < 0.0 {
+        -h
+    } else {
+        h
+    }
 }
 
 /// `rough_glass_tint`
 fn rough_glass_tint(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
-    if t.reflect { DVec3::ONE } else { m.base_color / (m.ior * m.ior) }
+    if t.reflect {
+        DVec3::ONE
+    } else {
+        m.base_color / (m.ior * m.ior)
+    }
 }
 
 /// `rough_glass_value`
@@ -533,7 +544,11 @@ fn plastic_specular_prob(m: &MaterialF64, cos_o: f64) -> f64 {
     let w = 1.0 / (1.0 + ((m.base_color.x + m.base_color.y + m.base_color.z) / 3.0).max(0.0));
     let spec = (1.0 - t) * w;
     let total = spec + t * (1.0 - w);
-    if total > 0.0 { spec / total } else { 1.0 }
+    if total > 0.0 {
+        spec / total
+    } else {
+        1.0
+    }
 }
 
 /// `plastic_pdf`
@@ -604,10 +619,18 @@ fn albedo_by_rule(rule: &[(f64, f64)], beckmann: bool, alpha: f64, eta: f64, mu:
             let (f, cos_t) = dielectric_fresnel(c, eta);
             let g = if transmit {
                 let wt = (c / eta - cos_t) * m - wi / eta;
-                if f < 1.0 && wt.z < 0.0 { g1(wt, m) * (1.0 - f) } else { 0.0 }
+                if f < 1.0 && wt.z < 0.0 {
+                    g1(wt, m) * (1.0 - f)
+                } else {
+                    0.0
+                }
             } else {
                 let wr = 2.0 * c * m - wi;
-                if wr.z > 0.0 { g1(wr, m) * f } else { 0.0 }
+                if wr.z > 0.0 {
+                    g1(wr, m) * f
+                } else {
+                    0.0
+                }
             };
             sum += g * wx * wy * 0.25;
         }
@@ -875,8 +898,7 @@ pub fn eval_grad(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> EvalGrad {
     let f0 = m.f0();
     let fresnel = f0 + (DVec3::ONE - f0) * t.s;
     g.d_base_color = DVec3::splat((1.0 - m.metallic) * t.diffuse + m.metallic * (1.0 - t.s) * t.specular);
-    g.d_metallic =
-        -m.base_color * t.diffuse + (m.base_color - DVec3::splat(m.f0_d())) * ((1.0 - t.s) * t.specular);
+    g.d_metallic = -m.base_color * t.diffuse + (m.base_color - DVec3::splat(m.f0_d())) * ((1.0 - t.s) * t.specular);
     let dalpha = dalpha_droughness(m.roughness);
     if dalpha != 0.0 {
         let a = t.alpha;
@@ -899,7 +921,11 @@ pub fn dielectric_reflectance(m: &MaterialF64, cos_i: f64) -> (f64, f64) {
 /// The transmitted lobe's radiance factor per unit (1 − R) and unit base colour: 1/η², or 1
 /// through a thin sheet (`dielectric_crossing`).
 pub fn dielectric_crossing(m: &MaterialF64) -> f64 {
-    if m.thin() { 1.0 } else { 1.0 / (m.ior * m.ior) }
+    if m.thin() {
+        1.0
+    } else {
+        1.0 / (m.ior * m.ior)
+    }
 }
 
 /// The probability of wi's lobe: R above the surface, 1 − R below (`dielectric_prob`).
@@ -909,7 +935,11 @@ pub fn dielectric_prob(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> f64 {
         return 0.0;
     }
     let (r, _) = dielectric_reflectance(m, cos_i);
-    if wi.dot(n) > 0.0 { r } else { 1.0 - r }
+    if wi.dot(n) > 0.0 {
+        r
+    } else {
+        1.0 - r
+    }
 }
 
 /// The lobe's mass at wi: R, or (1 − R) [`dielectric_crossing`] base_color (`dielectric_mass`).
@@ -919,7 +949,11 @@ pub fn dielectric_mass(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3) -> DVec3
         return DVec3::ZERO;
     }
     let (r, _) = dielectric_reflectance(m, cos_i);
-    if wi.dot(n) > 0.0 { DVec3::splat(r) } else { (1.0 - r) * dielectric_crossing(m) * m.base_color }
+    if wi.dot(n) > 0.0 {
+        DVec3::splat(r)
+    } else {
+        (1.0 - r) * dielectric_crossing(m) * m.base_color
+    }
 }
 
 /// d [`dielectric_mass`] / d base_color per channel (`dielectric_mass_grad`).

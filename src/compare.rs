@@ -20,8 +20,8 @@
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
-use crate::optim::spec::Spec;
 use crate::optim::csv::DiagLog;
+use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
 use crate::optimise::{optimise_or_read, read_diagnostics, Observer, Progress, DIAG_CSV};
 use crate::report::{write_curves, Curve};
@@ -199,14 +199,7 @@ pub fn compare(
             }
         })
         .collect();
-    let comparison = Comparison {
-        scene: scene.path.display().to_string(),
-        metric,
-        baseline: specs[0].label.clone(),
-        settings: settings_json,
-        levels,
-        runs,
-    };
+    let comparison = Comparison { scene: scene.path.display().to_string(), metric, baseline: specs[0].label.clone(), settings: settings_json, levels, runs };
 
     let path = out_dir.join("compare.csv");
     write_bytes_atomic(&path, &comparison.csv()?).map_err(io(&path))?;
@@ -219,7 +212,8 @@ pub fn compare(
     let diags = specs.iter().map(|s| read_diagnostics(&out_dir.join(s.dir_name()).join(DIAG_CSV))).collect::<Result<Vec<_>>>()?;
     let runs: Vec<(&str, &DiagLog)> = specs.iter().map(|s| s.label.as_str()).zip(&diags).collect();
     let path = out_dir.join("optimiser.png");
-    crate::optim::csv::plot(&path, &format!("{}: optimiser diagnostics", comparison.scene), &runs).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    crate::optim::csv::plot(&path, &format!("{}: optimiser diagnostics", comparison.scene), &runs)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     Ok(comparison)
 }
 

@@ -248,7 +248,12 @@ impl Carry {
         profiler.begin_scope(rec, "carry_image")?;
         let n = CountPush { n: self.pixels };
         for c in &self.sensors {
-            rec.transition(&[(&c.fresh, Access::ComputeRead), (&c.cur, Access::ComputeRead), (&c.prev, Access::ComputeRead), (&c.partials, Access::ComputeWrite)])?;
+            rec.transition(&[
+                (&c.fresh, Access::ComputeRead),
+                (&c.cur, Access::ComputeRead),
+                (&c.prev, Access::ComputeRead),
+                (&c.partials, Access::ComputeWrite),
+            ])?;
             rec.dispatch_linear(&self.stats, &c.stats, &n, self.pixels as u64)?;
         }
         rec.transition(&[(&self.count, Access::ComputeRead)])?;
@@ -306,7 +311,14 @@ pub struct Report {
 }
 
 impl Report {
-    fn new(ctx: &Arc<Context>, gradient: &GradientPass, optimiser: Option<&GpuOptimiser>, carry: Option<&Carry>, theta: &Buffer, theta_len: usize) -> gpu::Result<Self> {
+    fn new(
+        ctx: &Arc<Context>,
+        gradient: &GradientPass,
+        optimiser: Option<&GpuOptimiser>,
+        carry: Option<&Carry>,
+        theta: &Buffer,
+        theta_len: usize,
+    ) -> gpu::Result<Self> {
         let mut sources: Vec<(Buffer, u64)> = (0..gradient.sensors()).map(|s| (gradient.loss_buffer(s).clone(), 4)).collect();
         if let Some(opt) = optimiser {
             let (b, n) = opt.records_buffer();

@@ -155,7 +155,15 @@ impl Report {
         for r in &self.rows {
             s += &format!(
                 "{:<32} {:>3} {:>13.5e} {:>9.2e} {:>13.5e} {:>9.2e} {:>+7.2} {:>10.2e}  {}\n",
-                r.param, r.element, r.adjoint, r.adjoint_se, r.finite_difference, r.finite_difference_se, r.z, r.se_needed, r.verdict.as_str()
+                r.param,
+                r.element,
+                r.adjoint,
+                r.adjoint_se,
+                r.finite_difference,
+                r.finite_difference_se,
+                r.z,
+                r.se_needed,
+                r.verdict.as_str()
             );
         }
         s += &format!(
@@ -289,11 +297,7 @@ pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Re
 /// The statistics and verdicts of the samples so far (`rounds` of them).
 fn assess(elements: &[Element], loss: Loss, rounds: u32) -> Report {
     let stats: Vec<((f64, f64), (f64, f64))> = elements.iter().map(|e| (mean_se(&e.adjoint), mean_se(&e.fd))).collect();
-    let typical = if stats.is_empty() {
-        0.0
-    } else {
-        (stats.iter().map(|((a, _), (f, _))| (0.5 * (a + f)).powi(2)).sum::<f64>() / stats.len() as f64).sqrt()
-    };
+    let typical = if stats.is_empty() { 0.0 } else { (stats.iter().map(|((a, _), (f, _))| (0.5 * (a + f)).powi(2)).sum::<f64>() / stats.len() as f64).sqrt() };
     let mut rows = Vec::new();
     let mut rounds_needed = rounds;
     let mut any_fail = false;

@@ -17,28 +17,17 @@ pub enum ImageError {
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: io::Error },
     #[error("{}: not a readable OpenEXR file: {source}", path.display())]
-    Exr {
-        path: PathBuf,
-        source: exr::error::Error,
-    },
+    Exr { path: PathBuf, source: exr::error::Error },
     #[error("{}: no layer has R, G and B channels (channels: {channels})", path.display())]
     MissingRgb { path: PathBuf, channels: String },
     #[error("{}: PNG encoding failed: {source}", path.display())]
-    Png {
-        path: PathBuf,
-        source: png::EncodingError,
-    },
+    Png { path: PathBuf, source: png::EncodingError },
     #[error("{}: not a readable PNG or JPEG image: {message}", path.display())]
     Decode { path: PathBuf, message: String },
     #[error("{}: not a readable Radiance HDR image: {message}", path.display())]
     Hdr { path: PathBuf, message: String },
     #[error("{}: image is {width}x{height} but holds {len} pixels", path.display())]
-    Size {
-        path: PathBuf,
-        width: u32,
-        height: u32,
-        len: usize,
-    },
+    Size { path: PathBuf, width: u32, height: u32, len: usize },
 }
 
 /// A linear RGB float image.
@@ -52,11 +41,7 @@ pub struct Image {
 impl Image {
     /// An image of one colour.
     pub fn filled(width: u32, height: u32, value: [f32; 3]) -> Self {
-        Self {
-            width,
-            height,
-            data: vec![value; width as usize * height as usize],
-        }
+        Self { width, height, data: vec![value; width as usize * height as usize] }
     }
 
     pub fn get(&self, x: u32, y: u32) -> [f32; 3] {
@@ -80,10 +65,7 @@ impl Image {
 
     /// The first pixel (x, y) holding a NaN or an infinity, if any.
     pub fn find_non_finite(&self) -> Option<(u32, u32)> {
-        let i = self
-            .data
-            .iter()
-            .position(|p| p.iter().any(|c| !c.is_finite()))?;
+        let i = self.data.iter().position(|p| p.iter().any(|c| !c.is_finite()))?;
         let w = self.width.max(1) as usize;
         Some(((i % w) as u32, (i / w) as u32))
     }
@@ -99,59 +81,34 @@ impl Image {
         if self.data.len() == self.width as usize * self.height as usize {
             Ok(())
         } else {
-            Err(ImageError::Size {
-                path: path.to_path_buf(),
-                width: self.width,
-                height: self.height,
-                len: self.data.len(),
-            })
+            Err(ImageError::Size { path: path.to_path_buf(), width: self.width, height: self.height, len: self.data.len() })
         }
     }
 }
 
 /// Reads the first layer with R, G and B channels (half, float or uint; alpha is ignored).
 pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
-    let bytes = fs::read(path).map_err(|source| ImageError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = fs::read(path).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })?;
     decode_exr(&bytes, path)
 }
 
 /// Decodes an OpenEXR file already in memory; `path` is only used in error messages.
 pub fn decode_exr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
     use exr::prelude::{read, MetaData, ReadChannels, ReadLayers, RgbChannels, Vec2};
-    let exr_err = |source| ImageError::Exr {
-        path: path.to_path_buf(),
-        source,
-    };
+    let exr_err = |source| ImageError::Exr { path: path.to_path_buf(), source };
     // Checked before decoding because exr's own error for this case does not say which
     // channels the file does have, and that is what the user needs to know.
     let meta = MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_err)?;
-    let has =
-        |h: &exr::meta::header::Header, name: &str| h.channels.list.iter().any(|c| c.name.eq(name));
-    if !meta
-        .headers
-        .iter()
-        .any(|h| has(h, "R") && has(h, "G") && has(h, "B"))
-    {
-        let channels: Vec<String> = meta
-            .headers
-            .iter()
-            .flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string()))
-            .collect();
-        return Err(ImageError::MissingRgb {
-            path: path.to_path_buf(),
-            channels: channels.join(", "),
-        });
+    let has = |h: &exr::meta::header::Header, name: &str| h.channels.list.iter().any(|c| c.name.eq(name));
+    if !meta.headers.iter().any(|h| has(h, "R") && has(h, "G") && has(h, "B")) {
+        let channels: Vec<String> = meta.headers.iter().flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string())).collect();
+        return Err(ImageError::MissingRgb { path: path.to_path_buf(), channels: channels.join(", ") });
     }
     let decoded = read()
         .no_deep_data()
         .largest_resolution_level()
         .rgb_channels(
-            |size: Vec2<usize>, _: &RgbChannels| {
-                Image::filled(size.0 as u32, size.1 as u32, [0.0; 3])
-            },
+            |size: Vec2<usize>, _: &RgbChannels| Image::filled(size.0 as u32, size.1 as u32, [0.0; 3]),
             |img: &mut Image, pos: Vec2<usize>, (r, g, b): (f32, f32, f32)| {
                 let i = pos.1 * img.width as usize + pos.0;
                 img.data[i] = [r, g, b];
@@ -208,14 +165,8 @@ pub fn write_exr(path: &Path, image: &Image) -> Result<(), ImageError> {
     exr::image::Image::from_channels((image.width as usize, image.height as usize), channels)
         .write()
         .to_buffered(&mut bytes)
-        .map_err(|source| ImageError::Exr {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    write_bytes_atomic(path, bytes.get_ref()).map_err(|source| ImageError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+        .map_err(|source| ImageError::Exr { path: path.to_path_buf(), source })?;
+    write_bytes_atomic(path, bytes.get_ref()).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })
 }
 
 /// Writes an 8-bit sRGB PNG atomically: each channel clamped to [0, 1] (NaN as 0), then
@@ -233,10 +184,7 @@ pub fn write_png_with_alpha(path: &Path, image: &Image, alpha: Option<&[f32]>) -
         None => image.data.iter().flatten().map(|&c| srgb_encode(c)).collect(),
         Some(alpha) => image.data.iter().zip(alpha).flat_map(|(p, &a)| [srgb_encode(p[0]), srgb_encode(p[1]), srgb_encode(p[2]), linear8(a)]).collect(),
     };
-    let png_err = |source| ImageError::Png {
-        path: path.to_path_buf(),
-        source,
-    };
+    let png_err = |source| ImageError::Png { path: path.to_path_buf(), source };
     let mut bytes = Vec::new();
     let mut encoder = png::Encoder::new(&mut bytes, image.width, image.height);
     encoder.set_color(if alpha.is_some() { png::ColorType::Rgba } else { png::ColorType::Rgb });
@@ -245,10 +193,7 @@ pub fn write_png_with_alpha(path: &Path, image: &Image, alpha: Option<&[f32]>) -
     let mut writer = encoder.write_header().map_err(png_err)?;
     writer.write_image_data(&pixels).map_err(png_err)?;
     writer.finish().map_err(png_err)?;
-    write_bytes_atomic(path, &bytes).map_err(|source| ImageError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    write_bytes_atomic(path, &bytes).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })
 }
 
 /// An sRGB-encoded value in [0, 1] to linear (IEC 61966-2-1 EOTF), the inverse of the
@@ -271,16 +216,8 @@ pub fn decode_ldr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
 
 /// Linear [0, 1] to 8-bit sRGB (IEC 61966-2-1 OETF).
 fn srgb_encode(linear: f32) -> u8 {
-    let c = if linear.is_nan() {
-        0.0
-    } else {
-        linear.clamp(0.0, 1.0)
-    };
-    let encoded = if c <= 0.003_130_8 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    };
+    let c = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
+    let encoded = if c <= 0.003_130_8 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
     (encoded * 255.0).round() as u8
 }
 
@@ -288,25 +225,13 @@ fn srgb_encode(linear: f32) -> u8 {
 /// and renames it over `path`. The rename is atomic on one file system, which is why the
 /// temporary file lives beside the target rather than in the system temp directory. On any
 /// error the temporary file is removed and `path` is untouched.
-pub fn write_atomic<T, E: From<io::Error>>(
-    path: &Path,
-    write: impl FnOnce(&Path) -> Result<T, E>,
-) -> Result<T, E> {
+pub fn write_atomic<T, E: From<io::Error>>(path: &Path, write: impl FnOnce(&Path) -> Result<T, E>) -> Result<T, E> {
     // Unique per process and call, so concurrent writers of one path never share a temp file.
     static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let name = path.file_name().ok_or_else(|| {
-        io::Error::new(
-            io::ErrorKind::InvalidInput,
-            format!("{}: not a file path", path.display()),
-        )
-    })?;
+    let name = path.file_name().ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, format!("{}: not a file path", path.display())))?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
-    tmp_name.push(format!(
-        ".tmp.{}.{}",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
+    tmp_name.push(format!(".tmp.{}.{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed)));
     let tmp = path.with_file_name(tmp_name);
     let result = write(&tmp).and_then(|value| {
         File::open(&tmp)?.sync_all()?;
@@ -330,22 +255,15 @@ mod tests {
     use super::*;
 
     fn temp_dir(name: &str) -> PathBuf {
-        let dir =
-            std::env::temp_dir().join(format!("vkinverse-image-{name}-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!("vkinverse-image-{name}-{}", std::process::id()));
         let _ = fs::remove_dir_all(&dir);
         fs::create_dir_all(&dir).unwrap();
         dir
     }
 
     fn gradient(w: u32, h: u32) -> Image {
-        let data = (0..w * h)
-            .map(|i| [i as f32 * 0.25, -(i as f32), 1.0e6 + i as f32])
-            .collect();
-        Image {
-            width: w,
-            height: h,
-            data,
-        }
+        let data = (0..w * h).map(|i| [i as f32 * 0.25, -(i as f32), 1.0e6 + i as f32]).collect();
+        Image { width: w, height: h, data }
     }
 
     #[test]
@@ -362,22 +280,14 @@ mod tests {
         let dir = temp_dir("norgb");
         let path = dir.join("y.exr");
         use exr::prelude::WritableImage;
-        exr::prelude::Image::from_channels(
-            (2, 2),
-            exr::prelude::SpecificChannels::build()
-                .with_channel("Y")
-                .with_pixel_fn(|_| (0.5f32,)),
-        )
-        .write()
-        .to_file(&path)
-        .unwrap();
+        exr::prelude::Image::from_channels((2, 2), exr::prelude::SpecificChannels::build().with_channel("Y").with_pixel_fn(|_| (0.5f32,)))
+            .write()
+            .to_file(&path)
+            .unwrap();
         let err = read_exr(&path).unwrap_err();
         assert!(matches!(err, ImageError::MissingRgb { .. }), "{err}");
         let msg = err.to_string();
-        assert!(
-            msg.contains("y.exr") && msg.contains("channels: Y"),
-            "{msg}"
-        );
+        assert!(msg.contains("y.exr") && msg.contains("channels: Y"), "{msg}");
     }
 
     #[test]
@@ -392,20 +302,13 @@ mod tests {
     fn png_is_valid_and_srgb_encoded() {
         let dir = temp_dir("png");
         let path = dir.join("a.png");
-        let img = Image {
-            width: 4,
-            height: 1,
-            data: vec![[0.0, 1.0, 2.0], [0.5, -1.0, f32::NAN], [0.2; 3], [1.0; 3]],
-        };
+        let img = Image { width: 4, height: 1, data: vec![[0.0, 1.0, 2.0], [0.5, -1.0, f32::NAN], [0.2; 3], [1.0; 3]] };
         write_png(&path, &img).unwrap();
         let decoder = png::Decoder::new(File::open(&path).unwrap());
         let mut reader = decoder.read_info().unwrap();
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader.next_frame(&mut buf).unwrap();
-        assert_eq!(
-            (info.width, info.height, info.color_type),
-            (4, 1, png::ColorType::Rgb)
-        );
+        assert_eq!((info.width, info.height, info.color_type), (4, 1, png::ColorType::Rgb));
         assert_eq!(&buf[..6], &[0, 255, 255, 188, 0, 0]);
         assert_eq!(buf[6], 124);
     }
@@ -413,19 +316,9 @@ mod tests {
     #[test]
     fn writers_reject_inconsistent_sizes() {
         let dir = temp_dir("size");
-        let img = Image {
-            width: 3,
-            height: 3,
-            data: vec![[0.0; 3]; 4],
-        };
-        assert!(matches!(
-            write_png(&dir.join("a.png"), &img),
-            Err(ImageError::Size { .. })
-        ));
-        assert!(matches!(
-            write_exr(&dir.join("a.exr"), &img),
-            Err(ImageError::Size { .. })
-        ));
+        let img = Image { width: 3, height: 3, data: vec![[0.0; 3]; 4] };
+        assert!(matches!(write_png(&dir.join("a.png"), &img), Err(ImageError::Size { .. })));
+        assert!(matches!(write_exr(&dir.join("a.exr"), &img), Err(ImageError::Size { .. })));
         assert_eq!(fs::read_dir(&dir).unwrap().count(), 0);
     }
 
@@ -436,10 +329,7 @@ mod tests {
         write_bytes_atomic(&path, b"old").unwrap();
         write_bytes_atomic(&path, b"new content").unwrap();
         assert_eq!(fs::read(&path).unwrap(), b"new content");
-        let names: Vec<_> = fs::read_dir(&dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name())
-            .collect();
+        let names: Vec<_> = fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, vec![std::ffi::OsString::from("out.bin")]);
     }
 

@@ -527,7 +527,14 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
         let err = |e: Option<f64>| e.map(|v| format!("{v:.4e}")).unwrap_or_else(|| "n/a".into());
         outln!(
             "{}: {} iterations of {} in {:.2} s (GPU {:.2} s); loss {:.4e}; parameter RMSE {} -> {}",
-            s.scene, s.iterations, s.optimiser, s.total_time_s, s.total_gpu_time_s, s.final_loss, err(s.initial_param_error), err(s.final_param_error)
+            s.scene,
+            s.iterations,
+            s.optimiser,
+            s.total_time_s,
+            s.total_gpu_time_s,
+            s.final_loss,
+            err(s.initial_param_error),
+            err(s.final_param_error)
         )?;
         let floor = match (s.final_image_error, s.reference_image_error) {
             (Some(e), Some(r)) => format!(" (the reference's {r:.4e}, with the same random numbers: {:+.3e} over it)", e - r),
@@ -535,7 +542,10 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
         };
         outln!("image error of the result: {}{floor}, from two renders of {} spp against the target", err(s.final_image_error), s.image_error_spp)?;
         let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
-        outln!("outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/", a.output.display())?;
+        outln!(
+            "outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/",
+            a.output.display()
+        )?;
     }
     if run.summary.interrupted {
         let target = match (st.iterations, st.time_budget) {
@@ -634,7 +644,10 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         &mine,
         &a.out.output,
         mode(a.out.resume, a.out.overwrite),
-        |job| *bar.borrow_mut() = ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations"),
+        |job| {
+            *bar.borrow_mut() =
+                ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations")
+        },
         |_, p| bar.borrow_mut().set(p.iteration as u64, &progress_message(p)),
         |row| {
             bar.borrow().finish();
@@ -648,7 +661,13 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     )?;
     print_result(a.out.json, &results, || results.table())?;
     if vkinverse::interrupt::requested() {
-        let msg = format!("{} of {} jobs ran (see {}); {} continues the batch", results.results.len(), mine.len(), a.out.output.join("results.csv").display(), resume_hint(a.out.overwrite));
+        let msg = format!(
+            "{} of {} jobs ran (see {}); {} continues the batch",
+            results.results.len(),
+            mine.len(),
+            a.out.output.join("results.csv").display(),
+            resume_hint(a.out.overwrite)
+        );
         return Err(vkinverse::error::Error::Interrupted(msg).into());
     }
     let failed = results.failed();
@@ -730,8 +749,7 @@ fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
     let (trajectory, skipped) = (replay.theta, replay.nonfinite);
     vkinverse::npy::write_rows(&a.output, &trajectory)?;
     if let Some(path) = &a.diagnostics {
-        let steps: Vec<Vec<(String, optim::Diagnostics)>> =
-            replay.diagnostics.iter().map(|d| d.iter().map(|d| ("theta".to_string(), *d)).collect()).collect();
+        let steps: Vec<Vec<(String, optim::Diagnostics)>> = replay.diagnostics.iter().map(|d| d.iter().map(|d| ("theta".to_string(), *d)).collect()).collect();
         optim::csv::write(path, &steps).map_err(|e| format!("{}: {e}", path.display()))?;
     }
     if !cli.quiet {

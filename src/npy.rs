@@ -17,10 +17,7 @@ pub enum NpyError {
     #[error("{}: file not found", .0.display())]
     NotFound(PathBuf),
     #[error("{}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("{}: not a .npy file (bad magic)", .0.display())]
     BadMagic(PathBuf),
     #[error("{}: unsupported .npy format version {major}.{minor} (expected 1.0 or 2.0)", path.display())]
@@ -34,19 +31,11 @@ pub enum NpyError {
     #[error("{}: shape {found:?} is not 1-D or 2-D", path.display())]
     BadShape { path: PathBuf, found: Vec<usize> },
     #[error("{}: truncated data: {found} of {expected} bytes", path.display())]
-    Truncated {
-        path: PathBuf,
-        expected: usize,
-        found: usize,
-    },
+    Truncated { path: PathBuf, expected: usize, found: usize },
     #[error("{}: {extra} bytes after the array data", path.display())]
     TrailingData { path: PathBuf, extra: usize },
     #[error("{}: rows of unequal length ({first} and {other})", path.display())]
-    Ragged {
-        path: PathBuf,
-        first: usize,
-        other: usize,
-    },
+    Ragged { path: PathBuf, first: usize, other: usize },
 }
 
 /// A 1-D or 2-D float32 array in C order.
@@ -61,10 +50,7 @@ impl Array {
     /// A 2-D array from equally long rows.
     pub fn from_rows(rows: &[Vec<f32>]) -> Option<Array> {
         let cols = rows.first().map_or(0, Vec::len);
-        rows.iter().all(|r| r.len() == cols).then(|| Array {
-            shape: vec![rows.len(), cols],
-            data: rows.concat(),
-        })
+        rows.iter().all(|r| r.len() == cols).then(|| Array { shape: vec![rows.len(), cols], data: rows.concat() })
     }
 
     /// Rows of a 2-D array; a 1-D array is one row.
@@ -209,8 +195,7 @@ mod tests {
             out.extend_from_slice(&(h.len() as u32).to_le_bytes());
         }
         out.extend_from_slice(h.as_bytes());
-        data.iter()
-            .for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
+        data.iter().for_each(|x| out.extend_from_slice(&x.to_le_bytes()));
         out
     }
 
@@ -223,18 +208,12 @@ mod tests {
     #[test]
     fn round_trip_1d_and_2d() {
         let p = scratch("rt.npy");
-        let a = Array {
-            shape: vec![2, 3],
-            data: vec![1.0, -2.5, 3.0, f32::MAX, 1e-30, 0.0],
-        };
+        let a = Array { shape: vec![2, 3], data: vec![1.0, -2.5, 3.0, f32::MAX, 1e-30, 0.0] };
         write(&p, &a).unwrap();
         assert_eq!(read(&p).unwrap(), a);
         let bytes = fs::read(&p).unwrap();
         assert_eq!((bytes.len() - 24) % 64, 0);
-        let b = Array {
-            shape: vec![5],
-            data: vec![0.5; 5],
-        };
+        let b = Array { shape: vec![5], data: vec![0.5; 5] };
         write(&p, &b).unwrap();
         assert_eq!(read(&p).unwrap(), b);
         assert_eq!(read(&p).unwrap().rows(), vec![vec![0.5; 5]]);
@@ -242,13 +221,7 @@ mod tests {
         write_rows(&p, &rows).unwrap();
         assert_eq!(read(&p).unwrap().rows(), rows);
         // No temporary file is left beside the target.
-        let leftovers = fs::read_dir(p.parent().unwrap()).unwrap().filter(|e| {
-            e.as_ref()
-                .unwrap()
-                .file_name()
-                .to_string_lossy()
-                .ends_with(".tmp")
-        });
+        let leftovers = fs::read_dir(p.parent().unwrap()).unwrap().filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".tmp"));
         assert_eq!(leftovers.count(), 0);
     }
 
@@ -266,10 +239,7 @@ mod tests {
         assert_eq!(parsed.shape, vec![2, 3]);
         assert_eq!(parsed.data, data);
         let one_d = "{'descr': '<f4', 'fortran_order': False, 'shape': (6,), }";
-        assert_eq!(
-            parse(&numpy_bytes(one_d, &data)).ok().unwrap().shape,
-            vec![6]
-        );
+        assert_eq!(parse(&numpy_bytes(one_d, &data)).ok().unwrap().shape, vec![6]);
         // Version 2.0: 4-byte header length.
         let v2 = numpy_bytes_v(2, GOOD, &data);
         assert_eq!(parse(&v2).ok().unwrap().data, data);
@@ -279,10 +249,7 @@ mod tests {
         let p = scratch("bad.npy");
         fs::write(&p, bytes).unwrap();
         let e = read(&p).unwrap_err().to_string();
-        assert!(
-            e.starts_with(&p.display().to_string()) && !e.contains('\n'),
-            "{e}"
-        );
+        assert!(e.starts_with(&p.display().to_string()) && !e.contains('\n'), "{e}");
         e
     }
 
@@ -290,10 +257,7 @@ mod tests {
     fn malformed_files_give_one_line_errors() {
         let data = [0.0f32; 6];
         let missing = read(Path::new("/nonexistent/dir/x.npy")).unwrap_err();
-        assert!(
-            matches!(missing, NpyError::NotFound(_))
-                && missing.to_string().ends_with("file not found")
-        );
+        assert!(matches!(missing, NpyError::NotFound(_)) && missing.to_string().ends_with("file not found"));
         assert!(error_of(b"PK\x03\x04 not numpy").contains("bad magic"));
         assert!(error_of(b"\x93NU").contains("bad magic"));
         let mut v3 = numpy_bytes(GOOD, &data);
@@ -320,15 +284,9 @@ mod tests {
     #[test]
     fn write_rejects_inconsistent_shapes() {
         let p = scratch("never.npy");
-        let a = Array {
-            shape: vec![2, 2],
-            data: vec![0.0; 3],
-        };
+        let a = Array { shape: vec![2, 2], data: vec![0.0; 3] };
         assert!(matches!(write(&p, &a), Err(NpyError::BadShape { .. })));
-        assert!(matches!(
-            write_rows(&p, &[vec![1.0], vec![1.0, 2.0]]),
-            Err(NpyError::Ragged { .. })
-        ));
+        assert!(matches!(write_rows(&p, &[vec![1.0], vec![1.0, 2.0]]), Err(NpyError::Ragged { .. })));
         assert!(!p.exists());
     }
 }

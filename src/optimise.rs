@@ -426,7 +426,11 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
         // Checkpoints from before the carried image's variance weights have no weight state:
         // its tracked variance starts at 0 and follows the renders from the next carry on.
         // Likewise checkpoints from before the sign run: it starts at 0.
-        let optional = b.name() == "meta nis" || b.name() == "meta run" || b.name() == "carry count" || b.name().starts_with("carried image") || b.name().starts_with("carry state");
+        let optional = b.name() == "meta nis"
+            || b.name() == "meta run"
+            || b.name() == "carry count"
+            || b.name().starts_with("carried image")
+            || b.name().starts_with("carry state");
         if optional && !path.exists() {
             continue;
         }
@@ -471,7 +475,8 @@ fn write_plot(out_dir: &Path, log: &Log, scene: &str, optimiser: &str) -> Result
     let (points, label) = if err.is_empty() { (loss, "image loss") } else { (err, "parameter RMSE") };
     let curves = [crate::report::Curve { name: optimiser.to_string(), points }];
     let path = out_dir.join("error_vs_time.png");
-    crate::report::plot_error_vs_time(&path, &format!("{scene}: {label} vs time"), label, &curves).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
+    crate::report::plot_error_vs_time(&path, &format!("{scene}: {label} vs time"), label, &curves)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))
 }
 
 /// The identity of a run of `scene` (what `--resume` must find unchanged).
@@ -504,7 +509,14 @@ impl Loop<'_> {
     fn row(&self, time_s: f64, loss: Option<f64>, theta: &[f32]) -> Result<LogRow> {
         let (e, per) = self.engine.scene().layout.errors(theta);
         let known = |v: f64| self.has_reference.then_some(v);
-        Ok(LogRow { iteration: self.iteration, time_s, gpu_time_s: self.gpu_total, loss, param_error: known(e), param_errors: per.into_iter().map(known).collect() })
+        Ok(LogRow {
+            iteration: self.iteration,
+            time_s,
+            gpu_time_s: self.gpu_total,
+            loss,
+            param_error: known(e),
+            param_errors: per.into_iter().map(known).collect(),
+        })
     }
 
     fn checkpoint(&mut self, time_s: f64) -> Result<()> {

@@ -247,12 +247,7 @@ pub fn plot_panels(path: &std::path::Path, title: &str, x_label: &str, panels: &
                 }
             }
             if text && !panel.curves.is_empty() {
-                chart
-                    .configure_series_labels()
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .draw()
-                    .map_err(|e| e.to_string())?;
+                chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(|e| e.to_string())?;
             }
         }
         root.present().map_err(|e| e.to_string())?;

@@ -34,7 +34,8 @@ use std::fs::{self, File};
 use std::path::{Path, PathBuf};
 
 /// What a run writes into its directory; a directory holding any of them holds a run.
-pub const RUN_FILES: [&str; 9] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png", "optimiser.csv", "optimiser.png"];
+pub const RUN_FILES: [&str; 9] =
+    ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png", "optimiser.csv", "optimiser.png"];
 
 /// How a run treats a directory that already holds a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -108,11 +109,9 @@ impl RunDir {
         debug_point("run.locked");
         let used: Vec<&str> = RUN_FILES.iter().copied().filter(|f| path.join(f).exists()).collect();
         match mode {
-            Mode::New if !used.is_empty() => Err(Error::Invalid(format!(
-                "{}: holds a run ({}); give --resume to continue it or --overwrite to replace it",
-                path.display(),
-                used.join(", ")
-            ))),
+            Mode::New if !used.is_empty() => {
+                Err(Error::Invalid(format!("{}: holds a run ({}); give --resume to continue it or --overwrite to replace it", path.display(), used.join(", "))))
+            }
             Mode::Resume if !dir.pointer().exists() => {
                 Err(Error::Invalid(format!("{}: no committed checkpoint to resume ({} is missing)", path.display(), dir.pointer().display())))
             }
@@ -283,7 +282,8 @@ mod tests {
         dir.commit(&checkpoint_name(3), |d| {
             fs::write(d.join("x"), "3").unwrap();
             Ok(())
-        }).unwrap();
+        })
+        .unwrap();
         // A leftover of an interrupted commit is not the committed checkpoint.
         fs::create_dir_all(path.join("checkpoint").join(checkpoint_name(9))).unwrap();
         let cp = dir.committed().unwrap().unwrap();
@@ -291,7 +291,8 @@ mod tests {
         dir.commit(&checkpoint_name(6), |d| {
             fs::write(d.join("x"), "6").unwrap();
             Ok(())
-        }).unwrap();
+        })
+        .unwrap();
         let mut names: Vec<_> = fs::read_dir(path.join("checkpoint")).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
         names.sort();
         assert_eq!(names, [checkpoint_name(6), "current".into()]);

@@ -74,8 +74,12 @@ pub fn gpu_seed(seed: u64) -> u32 {
 /// The first type of a list: the resolved type of a setting, which is its layer type unless
 /// the declaration names another.
 macro_rules! first_type {
-    ($t:ty) => { $t };
-    ($t:ty, $u:ty) => { $t };
+    ($t:ty) => {
+        $t
+    };
+    ($t:ty, $u:ty) => {
+        $t
+    };
 }
 
 /// Declares every setting: `NAME: LAYER_TYPE [=> RESOLVED_TYPE] = DEFAULT,` with its doc
@@ -454,7 +458,14 @@ mod tests {
 
     #[test]
     fn one_validate_names_the_key() {
-        for (text, key) in [("spp = 0", "spp"), ("checkpoint_every = 0", "checkpoint_every"), ("lr = -1", "lr"), ("time_budget = nan", "time_budget"), ("iterations = 0", "iterations"), ("fd_stride = 0", "fd_stride")] {
+        for (text, key) in [
+            ("spp = 0", "spp"),
+            ("checkpoint_every = 0", "checkpoint_every"),
+            ("lr = -1", "lr"),
+            ("time_budget = nan", "time_budget"),
+            ("iterations = 0", "iterations"),
+            ("fd_stride = 0", "fd_stride"),
+        ] {
             assert_eq!(layer(text).validate().unwrap_err().key, key, "{text}");
         }
         assert!(layer("spp = 1\nlr = 0.5\noptimiser = 'adam@beta1=0.5'\nloss = 'l1'").validate().is_ok());

@@ -15,10 +15,10 @@ use crate::bvh::{BvhLayout, TraceResult};
 use crate::error::Result;
 use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
 use crate::push::CountPush;
-use crate::settings::{gpu_seed, RunSettings};
 use crate::render::gradient::SEED_PRIMAL;
 use crate::render::{record_samples, GpuScene, TracePush};
 use crate::scene::Scene;
+use crate::settings::{gpu_seed, RunSettings};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -86,11 +86,7 @@ impl Setup {
         let ray_buf = Buffer::from_slice(ctx, "bvh bench rays", &rays, MemoryKind::Device)?;
         let results = Buffer::zeroed::<TraceResult>(ctx, "bvh bench results", rays.len(), MemoryKind::Device)?;
         let trace = |closest: bool| {
-            ComputePipeline::new(
-                ctx,
-                &gs.kernel("trace_test"),
-                &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(!closest))],
-            )
+            ComputePipeline::new(ctx, &gs.kernel("trace_test"), &[("TRACE_CLOSEST", SpecValue::Bool(closest)), ("TRACE_ANY", SpecValue::Bool(!closest))])
         };
         let (closest, any) = (trace(true)?, trace(false)?);
         let primal = ComputePipeline::new(ctx, &gs.kernel("trace_primal"), &gs.spec())?;
@@ -106,8 +102,7 @@ impl Setup {
         let primal_group = primal.bind(&b)?;
         let push = CountPush::new(n);
         let sensors = gs.sensors as u32;
-        let (mut closest_prof, mut any_prof, mut primal_prof) =
-            (Profiler::new(ctx, 1)?, Profiler::new(ctx, 1)?, Profiler::new(ctx, sensors)?);
+        let (mut closest_prof, mut any_prof, mut primal_prof) = (Profiler::new(ctx, 1)?, Profiler::new(ctx, 1)?, Profiler::new(ctx, sensors)?);
         let mut cmd = CommandBuffer::new(ctx, "bvh layout bench")?;
         cmd.record(|rec| {
             closest_prof.reset(rec);
@@ -122,9 +117,7 @@ impl Setup {
                 // Each submission accumulates every sensor's render onto the image.
                 rec.transition(&[(&image, Access::ComputeReadWrite)])?;
                 let push = primal_push(&gs, st, s);
-                primal_prof.scope(rec, "trace_primal", |rec, _| {
-                    record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image])
-                })?;
+                primal_prof.scope(rec, "trace_primal", |rec, _| record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image]))?;
             }
             Ok(())
         })?;

@@ -612,10 +612,7 @@ pub(super) fn camera_rays(scene: &Scene, gs: &GpuScene) -> Vec<TraceRay> {
         for x in 0..w {
             for k in 0..BVH_RAYS_PER_PIXEL {
                 let id = ((y * w + x) * BVH_RAYS_PER_PIXEL + k) * 2;
-                let ndc = glam::Vec2::new(
-                    (x as f32 + hash(id)) / w as f32 * 2.0 - 1.0,
-                    1.0 - (y as f32 + hash(id + 1)) / h as f32 * 2.0,
-                );
+                let ndc = glam::Vec2::new((x as f32 + hash(id)) / w as f32 * 2.0 - 1.0, 1.0 - (y as f32 + hash(id + 1)) / h as f32 * 2.0);
                 let (origin, dir) = sensor.ray(ndc, aspect);
                 rays.push(TraceRay { origin: origin.to_array(), tmax: f32::INFINITY, dir: dir.to_array() });
             }

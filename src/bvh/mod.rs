@@ -420,8 +420,7 @@ impl WideBvh {
                 out.nodes[p].index[k] = at as u32;
             }
             // (child, binary levels below b).
-            let mut slots: Vec<(BvhChild, u32)> =
-                bvh.nodes[b as usize].children().into_iter().filter(|c| c.count != 0).map(|c| (c, 1)).collect();
+            let mut slots: Vec<(BvhChild, u32)> = bvh.nodes[b as usize].children().into_iter().filter(|c| c.count != 0).map(|c| (c, 1)).collect();
             while slots.len() < 4 {
                 let Some(open) = (0..slots.len())
                     .filter(|&i| slots[i].0.is_inner())
@@ -501,11 +500,7 @@ fn build_bvh2(boxes: &[Aabb]) -> Bvh2 {
     let mut reinsertion = ReinsertionOptimizer::default();
     reinsertion.run(&mut bvh2, params.reinsertion_batch_ratio, None);
     collapse(&mut bvh2, params.max_prims_per_leaf.clamp(1, 255), params.collapse_traversal_cost);
-    reinsertion.run(
-        &mut bvh2,
-        params.reinsertion_batch_ratio * params.post_collapse_reinsertion_batch_ratio_multiplier,
-        None,
-    );
+    reinsertion.run(&mut bvh2, params.reinsertion_batch_ratio * params.post_collapse_reinsertion_batch_ratio_multiplier, None);
     bvh2
 }
 
@@ -650,10 +645,7 @@ impl<'a> Flattener<'a> {
         if node.is_leaf() {
             return source;
         }
-        let fits = |c: u32| {
-            src[c as usize].is_leaf()
-                || u64::from(depth) + u64::from(ceil_log2(self.leaf_counts[c as usize])) <= u64::from(self.max_depth)
-        };
+        let fits = |c: u32| src[c as usize].is_leaf() || u64::from(depth) + u64::from(ceil_log2(self.leaf_counts[c as usize])) <= u64::from(self.max_depth);
         if depth <= self.max_depth && fits(node.first_index) && fits(node.first_index + 1) {
             return source;
         }
@@ -755,8 +747,7 @@ fn leaf_counts(nodes: &[Bvh2Node]) -> Vec<u64> {
     // Children come after their parent in pre-order, so the reverse visits them first.
     for &n in order.iter().rev() {
         let node = &nodes[n as usize];
-        counts[n as usize] =
-            if node.is_leaf() { 1 } else { counts[node.first_index as usize] + counts[node.first_index as usize + 1] };
+        counts[n as usize] = if node.is_leaf() { 1 } else { counts[node.first_index as usize] + counts[node.first_index as usize + 1] };
     }
     counts
 }
@@ -788,13 +779,7 @@ pub fn moller_trumbore(v: [DVec3; 3], origin: DVec3, dir: DVec3) -> Option<(f64,
 ///
 /// # Panics
 /// If an index is out of bounds of `positions`.
-pub fn intersect_brute_force(
-    positions: &[[f32; 3]],
-    indices: &[[u32; 3]],
-    origin: [f32; 3],
-    dir: [f32; 3],
-    tmax: f32,
-) -> Option<Hit> {
+pub fn intersect_brute_force(positions: &[[f32; 3]], indices: &[[u32; 3]], origin: [f32; 3], dir: [f32; 3], tmax: f32) -> Option<Hit> {
     let o = DVec3::from(origin.map(f64::from));
     let d = DVec3::from(dir.map(f64::from));
     let mut best: Option<Hit> = None;

@@ -111,10 +111,7 @@ impl Buffer {
 
     fn check_len(&self, bytes: usize) -> Result<()> {
         if bytes as u64 > self.0.len {
-            return Err(GpuError::BufferAccess {
-                name: self.0.name.clone(),
-                what: format!("{bytes} bytes do not fit in {} bytes", self.0.len),
-            });
+            return Err(GpuError::BufferAccess { name: self.0.name.clone(), what: format!("{bytes} bytes do not fit in {} bytes", self.0.len) });
         }
         Ok(())
     }
@@ -167,12 +164,7 @@ impl Buffer {
 
 /// Creates a buffer and binds a new allocation of `location` memory to it; on failure
 /// nothing is left behind.
-pub(crate) fn allocate_bound(
-    ctx: &Context,
-    name: &str,
-    info: &vk::BufferCreateInfo,
-    location: MemoryLocation,
-) -> Result<(vk::Buffer, Allocation)> {
+pub(crate) fn allocate_bound(ctx: &Context, name: &str, info: &vk::BufferCreateInfo, location: MemoryLocation) -> Result<(vk::Buffer, Allocation)> {
     // SAFETY: valid create info on a live device.
     let raw = unsafe { ctx.device.create_buffer(info, None) }.map_err(vk_err("vkCreateBuffer"))?;
     let requirements = unsafe { ctx.device.get_buffer_memory_requirements(raw) };

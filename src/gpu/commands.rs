@@ -59,12 +59,7 @@ impl Recorder<'_> {
         match self.tracked.get_mut(&id) {
             Some(t) => {
                 if t.needs_barrier(access) {
-                    return Err(GpuError::Hazard {
-                        pass: pass.to_string(),
-                        buffer: buf.name().to_string(),
-                        previous: t.last,
-                        now: access,
-                    });
+                    return Err(GpuError::Hazard { pass: pass.to_string(), buffer: buf.name().to_string(), previous: t.last, now: access });
                 }
                 // Reads after a barrier leave it in force for further reads; a write
                 // starts a new epoch that needs its own barrier.
@@ -118,9 +113,7 @@ impl Recorder<'_> {
             );
         }
         // SAFETY: recording into a command buffer in the recording state.
-        unsafe {
-            self.ctx.device.cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().buffer_memory_barriers(&raw))
-        };
+        unsafe { self.ctx.device.cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().buffer_memory_barriers(&raw)) };
         Ok(())
     }
 
@@ -155,11 +148,7 @@ impl Recorder<'_> {
     }
 
     fn global_barrier(&self, src: (vk::PipelineStageFlags2, vk::AccessFlags2), dst: (vk::PipelineStageFlags2, vk::AccessFlags2)) {
-        let mb = [vk::MemoryBarrier2::default()
-            .src_stage_mask(src.0)
-            .src_access_mask(src.1)
-            .dst_stage_mask(dst.0)
-            .dst_access_mask(dst.1)];
+        let mb = [vk::MemoryBarrier2::default().src_stage_mask(src.0).src_access_mask(src.1).dst_stage_mask(dst.0).dst_access_mask(dst.1)];
         // SAFETY: recording into a command buffer in the recording state.
         unsafe { self.ctx.device.cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&mb)) };
     }
@@ -276,9 +265,7 @@ pub(crate) fn create_pool_and_fence(ctx: &Context) -> Result<(vk::CommandPool, v
     // SAFETY: valid create infos; partial objects are destroyed on error.
     let pool = unsafe {
         dev.create_command_pool(
-            &vk::CommandPoolCreateInfo::default()
-                .queue_family_index(ctx.queue_family)
-                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+            &vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family).flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
             None,
         )
     }
@@ -329,10 +316,8 @@ impl CommandBuffer {
         let dev = &self.ctx.device;
         // SAFETY: the buffer is not pending (waited above).
         unsafe {
-            dev.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty())
-                .map_err(vk_err("vkResetCommandBuffer"))?;
-            dev.begin_command_buffer(self.cmd, &vk::CommandBufferBeginInfo::default())
-                .map_err(vk_err("vkBeginCommandBuffer"))?;
+            dev.reset_command_buffer(self.cmd, vk::CommandBufferResetFlags::empty()).map_err(vk_err("vkResetCommandBuffer"))?;
+            dev.begin_command_buffer(self.cmd, &vk::CommandBufferBeginInfo::default()).map_err(vk_err("vkBeginCommandBuffer"))?;
         }
         self.keep = Kept::default();
         let mut rec = Recorder { ctx: &self.ctx, cmd: self.cmd, tracked: HashMap::new(), keep: &mut self.keep };

@@ -198,18 +198,15 @@ impl Context {
     /// integrated > virtual > CPU, or the one named in `options.device`), checks the
     /// features vkinverse needs and creates the device, queue and allocator.
     pub fn new(options: &ContextOptions) -> Result<Arc<Self>> {
-        let validation = options.validation
-            || std::env::var("VKINVERSE_VALIDATION").is_ok_and(|v| v == "1");
+        let validation = options.validation || std::env::var("VKINVERSE_VALIDATION").is_ok_and(|v| v == "1");
         // Released when `new` returns, after an error path's guard has destroyed what it made.
         let _lifecycle = lifecycle();
         let entry = loader()?;
         let messages: Box<Mutex<Vec<String>>> = Box::default();
 
         // SAFETY: plain queries on a loaded entry.
-        let layers = unsafe { entry.enumerate_instance_layer_properties() }
-            .map_err(vk_err("vkEnumerateInstanceLayerProperties"))?;
-        let inst_exts = unsafe { entry.enumerate_instance_extension_properties(None) }
-            .map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?;
+        let layers = unsafe { entry.enumerate_instance_layer_properties() }.map_err(vk_err("vkEnumerateInstanceLayerProperties"))?;
+        let inst_exts = unsafe { entry.enumerate_instance_extension_properties(None) }.map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?;
         let mut layer_names = Vec::new();
         let mut ext_names: Vec<*const i8> = Vec::new();
         let mut flags = vk::InstanceCreateFlags::empty();
@@ -226,25 +223,19 @@ impl Context {
             layer_names.push(VALIDATION_LAYER.as_ptr());
             ext_names.push(ash::ext::debug_utils::NAME.as_ptr());
             // SAFETY: query of the layer's own extensions.
-            let layer_exts = unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
-                .map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?;
+            let layer_exts =
+                unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }.map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?;
             if has_extension(&layer_exts, ash::ext::validation_features::NAME) {
                 ext_names.push(ash::ext::validation_features::NAME.as_ptr());
                 want_validation_features = true;
             }
         }
         let app_name = CString::new("vkinverse").unwrap_or_default();
-        let app = vk::ApplicationInfo::default()
-            .application_name(&app_name)
-            .engine_name(&app_name)
-            .api_version(vk::API_VERSION_1_3);
+        let app = vk::ApplicationInfo::default().application_name(&app_name).engine_name(&app_name).api_version(vk::API_VERSION_1_3);
         let enabled = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
         let mut vfeatures = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enabled);
-        let mut create = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layer_names)
-            .enabled_extension_names(&ext_names)
-            .flags(flags);
+        let mut create =
+            vk::InstanceCreateInfo::default().application_info(&app).enabled_layer_names(&layer_names).enabled_extension_names(&ext_names).flags(flags);
         if want_validation_features {
             create = create.push_next(&mut vfeatures);
         }
@@ -258,19 +249,14 @@ impl Context {
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
             let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-                .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-                )
+                .message_severity(vk::DebugUtilsMessageSeverityFlagsEXT::WARNING | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR)
                 .message_type(
-                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                        | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                        | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+                    vk::DebugUtilsMessageTypeFlagsEXT::GENERAL | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
                 )
                 .pfn_user_callback(Some(debug_callback))
                 .user_data(&*messages as *const Mutex<Vec<String>> as *mut c_void);
             // SAFETY: the user-data box lives in the Context, which destroys the messenger first.
-            let messenger = unsafe { loader.create_debug_utils_messenger(&info, None) }
-                .map_err(vk_err("vkCreateDebugUtilsMessengerEXT"));
+            let messenger = unsafe { loader.create_debug_utils_messenger(&info, None) }.map_err(vk_err("vkCreateDebugUtilsMessengerEXT"));
             match messenger {
                 Ok(m) => Some((loader, m)),
                 Err(e) => {
@@ -299,13 +285,11 @@ impl Context {
         let queue_family = families
             .iter()
             .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0)
-            .ok_or(GpuError::MissingFeature { device: info.name.clone(), feature: "a compute queue with timestamps" })?
-            as u32;
+            .ok_or(GpuError::MissingFeature { device: info.name.clone(), feature: "a compute queue with timestamps" })? as u32;
         let valid_bits = families[queue_family as usize].timestamp_valid_bits;
         let timestamp_mask = if valid_bits >= 64 { u64::MAX } else { (1u64 << valid_bits) - 1 };
 
-        let dev_exts = unsafe { instance.enumerate_device_extension_properties(physical) }
-            .map_err(vk_err("vkEnumerateDeviceExtensionProperties"))?;
+        let dev_exts = unsafe { instance.enumerate_device_extension_properties(physical) }.map_err(vk_err("vkEnumerateDeviceExtensionProperties"))?;
         let mut dev_ext_names = vec![ash::ext::shader_atomic_float::NAME.as_ptr()];
         let portability = c"VK_KHR_portability_subset";
         if has_extension(&dev_exts, portability) {
@@ -316,17 +300,9 @@ impl Context {
         let queue_info = [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&priorities)];
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default().scalar_block_layout(true);
         let mut f13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true).maintenance4(true);
-        let mut fatomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
-            .shader_buffer_float32_atomics(true)
-            .shader_buffer_float32_atomic_add(true);
-        let mut features = vk::PhysicalDeviceFeatures2::default()
-            .push_next(&mut f12)
-            .push_next(&mut f13)
-            .push_next(&mut fatomic);
-        let dev_create = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&queue_info)
-            .enabled_extension_names(&dev_ext_names)
-            .push_next(&mut features);
+        let mut fatomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default().shader_buffer_float32_atomics(true).shader_buffer_float32_atomic_add(true);
+        let mut features = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13).push_next(&mut fatomic);
+        let dev_create = vk::DeviceCreateInfo::default().queue_create_infos(&queue_info).enabled_extension_names(&dev_ext_names).push_next(&mut features);
         // SAFETY: the create info references locals alive for the call; features were checked.
         let device = unsafe { instance.create_device(physical, &dev_create, None) }.map_err(vk_err("vkCreateDevice"))?;
         // SAFETY: family and index 0 were requested in `queue_info`.
@@ -358,8 +334,7 @@ impl Context {
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             timeout: options.timeout.unwrap_or(Duration::from_secs(120)),
             timestamp_mask,
-            device_mappable: !(options.unmappable_device_memory
-                || std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1")),
+            device_mappable: !(options.unmappable_device_memory || std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1")),
             staging: Mutex::new(Staging::default()),
             counters: Counters::default(),
             info,
@@ -380,8 +355,7 @@ impl Context {
             let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
             let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
             let mut fatomic = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
-            let exts = unsafe { instance.enumerate_device_extension_properties(pd) }
-                .map_err(vk_err("vkEnumerateDeviceExtensionProperties"))?;
+            let exts = unsafe { instance.enumerate_device_extension_properties(pd) }.map_err(vk_err("vkEnumerateDeviceExtensionProperties"))?;
             let has_atomic_ext = has_extension(&exts, ash::ext::shader_atomic_float::NAME);
             let mut feats2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12).push_next(&mut f13);
             if has_atomic_ext {
@@ -442,11 +416,7 @@ impl Context {
                 return devices.get(i).map(|d| d.index).ok_or_else(|| GpuError::DeviceNotFound(w.to_string()));
             }
             let lw = w.to_lowercase();
-            return devices
-                .iter()
-                .find(|d| d.name.to_lowercase().contains(&lw))
-                .map(|d| d.index)
-                .ok_or_else(|| GpuError::DeviceNotFound(w.to_string()));
+            return devices.iter().find(|d| d.name.to_lowercase().contains(&lw)).map(|d| d.index).ok_or_else(|| GpuError::DeviceNotFound(w.to_string()));
         }
         let rank = |t: &str| match t {
             "DISCRETE_GPU" => 4,
@@ -456,10 +426,7 @@ impl Context {
             _ => 0,
         };
         // Among devices of the best type, prefer one that has every needed feature.
-        let best = devices
-            .iter()
-            .max_by_key(|d| (check_features(&d.name, &d.features).is_ok(), rank(&d.device_type), usize::MAX - d.index))
-            .map(|d| d.index);
+        let best = devices.iter().max_by_key(|d| (check_features(&d.name, &d.features).is_ok(), rank(&d.device_type), usize::MAX - d.index)).map(|d| d.index);
         best.ok_or(GpuError::NoDevice)
     }
 

@@ -118,14 +118,10 @@ impl ComputePipeline {
         // SAFETY: create infos reference locals alive for each call; on failure every
         // object made so far is destroyed by `Partial`'s drop.
         let mut partial = Partial { dev, set_layout: None, layout: None, module: None };
-        let set_layout = unsafe {
-            dev.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings), None)
-        }
-        .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
+        let set_layout = unsafe { dev.create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings), None) }
+            .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
         partial.set_layout = Some(set_layout);
-        let ranges = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .size(reflection.push_constant_size)];
+        let ranges = [vk::PushConstantRange::default().stage_flags(vk::ShaderStageFlags::COMPUTE).size(reflection.push_constant_size)];
         let set_layouts = [set_layout];
         let mut layout_info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts);
         if reflection.push_constant_size > 0 {
@@ -134,18 +130,14 @@ impl ComputePipeline {
         let layout = unsafe { dev.create_pipeline_layout(&layout_info, None) }.map_err(vk_err("vkCreatePipelineLayout"))?;
         partial.layout = Some(layout);
         let words: Vec<u32> = spirv.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        let module = unsafe { dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
-            .map_err(vk_err("vkCreateShaderModule"))?;
+        let module = unsafe { dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }.map_err(vk_err("vkCreateShaderModule"))?;
         partial.module = Some(module);
         let spec_info = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
-        let stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
-            .name(c"main")
-            .specialization_info(&spec_info);
+        let stage =
+            vk::PipelineShaderStageCreateInfo::default().stage(vk::ShaderStageFlags::COMPUTE).module(module).name(c"main").specialization_info(&spec_info);
         let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
-        let pipeline = unsafe { dev.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }
-            .map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
+        let pipeline =
+            unsafe { dev.create_compute_pipelines(vk::PipelineCache::null(), &info, None) }.map_err(|(_, e)| vk_err("vkCreateComputePipelines")(e))?[0];
         // The module is no longer needed once the pipeline exists.
         unsafe { dev.destroy_shader_module(module, None) };
         std::mem::forget(partial);
@@ -196,16 +188,11 @@ impl ComputePipeline {
         let kernel = &me.reflection.kernel;
         let mut slots: Vec<Option<Buffer>> = vec![None; me.reflection.bindings.len()];
         for (name, buf) in resources {
-            let idx = me
-                .reflection
-                .bindings
-                .iter()
-                .position(|b| b.names.iter().any(|n| n == name))
-                .ok_or_else(|| GpuError::UnknownBinding {
-                    kernel: kernel.clone(),
-                    name: name.to_string(),
-                    known: me.reflection.bindings.iter().map(|b| b.names.join("/")).collect::<Vec<_>>().join(", "),
-                })?;
+            let idx = me.reflection.bindings.iter().position(|b| b.names.iter().any(|n| n == name)).ok_or_else(|| GpuError::UnknownBinding {
+                kernel: kernel.clone(),
+                name: name.to_string(),
+                known: me.reflection.bindings.iter().map(|b| b.names.join("/")).collect::<Vec<_>>().join(", "),
+            })?;
             slots[idx] = Some((*buf).clone());
         }
         let mut bound = Vec::new();
@@ -374,21 +361,15 @@ impl BindGroup {
             views: Vec::new(),
         };
         let layouts = [layout];
-        group.set = unsafe {
-            dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts))
-        }
-        .map_err(vk_err("vkAllocateDescriptorSets"))?[0];
+        group.set = unsafe { dev.allocate_descriptor_sets(&vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts)) }
+            .map_err(vk_err("vkAllocateDescriptorSets"))?[0];
         // One view slot per binding (null for storage buffers), for the descriptor writes.
         let mut views: Vec<[vk::BufferView; 1]> = Vec::with_capacity(bound.len());
         for b in &bound {
             views.push([match b.kind.texel() {
                 None => vk::BufferView::null(),
                 Some(t) => {
-                    let info = vk::BufferViewCreateInfo::default()
-                        .buffer(b.buffer.0.raw)
-                        .format(texel_format(t))
-                        .offset(0)
-                        .range(vk::WHOLE_SIZE);
+                    let info = vk::BufferViewCreateInfo::default().buffer(b.buffer.0.raw).format(texel_format(t)).offset(0).range(vk::WHOLE_SIZE);
                     // SAFETY: the buffer has both texel-buffer usages and a whole number of
                     // texels (checked above); the group destroys the view.
                     let view = unsafe { dev.create_buffer_view(&info, None) }.map_err(vk_err("vkCreateBufferView"))?;
@@ -397,18 +378,13 @@ impl BindGroup {
                 }
             }]);
         }
-        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = bound
-            .iter()
-            .map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: vk::WHOLE_SIZE }])
-            .collect();
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> =
+            bound.iter().map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: vk::WHOLE_SIZE }]).collect();
         let writes: Vec<_> = bound
             .iter()
             .zip(infos.iter().zip(&views))
             .map(|(b, (info, view))| {
-                let w = vk::WriteDescriptorSet::default()
-                    .dst_set(group.set)
-                    .dst_binding(b.binding)
-                    .descriptor_type(descriptor_type(b.kind));
+                let w = vk::WriteDescriptorSet::default().dst_set(group.set).dst_binding(b.binding).descriptor_type(descriptor_type(b.kind));
                 match b.kind {
                     BindingKind::StorageBuffer => w.buffer_info(info),
                     BindingKind::TexelBuffer(_) | BindingKind::ImageBuffer(_) => w.texel_buffer_view(view),

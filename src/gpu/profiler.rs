@@ -78,12 +78,7 @@ impl Profiler {
     }
 
     /// Runs `f` inside scope `name`.
-    pub fn scope<R>(
-        &mut self,
-        rec: &mut Recorder,
-        name: &str,
-        f: impl FnOnce(&mut Recorder, &mut Self) -> Result<R>,
-    ) -> Result<R> {
+    pub fn scope<R>(&mut self, rec: &mut Recorder, name: &str, f: impl FnOnce(&mut Recorder, &mut Self) -> Result<R>) -> Result<R> {
         self.begin(rec, name)?;
         let r = f(rec, self)?;
         self.end(rec)?;
@@ -101,15 +96,8 @@ impl Profiler {
         let mut ticks = vec![0u64; self.used as usize];
         // SAFETY: all `used` queries were written by the submitted recording; WAIT blocks
         // until they are available.
-        unsafe {
-            self.ctx.device.get_query_pool_results(
-                self.pool,
-                0,
-                &mut ticks,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
-            )
-        }
-        .map_err(vk_err("vkGetQueryPoolResults"))?;
+        unsafe { self.ctx.device.get_query_pool_results(self.pool, 0, &mut ticks, vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT) }
+            .map_err(vk_err("vkGetQueryPoolResults"))?;
         let mask = self.ctx.timestamp_mask;
         let period = self.ctx.info().timestamp_period_ns as f64;
         Ok(self

@@ -120,15 +120,8 @@ impl Reflection {
             return Err(err(kernel, "SPIR-V length is not a multiple of 4"));
         }
         let words: Vec<u32> = spirv.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        let entries = ReflectConfig::new()
-            .spv(words)
-            .ref_all_rscs(true)
-            .reflect()
-            .map_err(|e| err(kernel, e.to_string()))?;
-        let entry = entries
-            .into_iter()
-            .find(|e| e.name == "main")
-            .ok_or_else(|| err(kernel, "no entry point named main"))?;
+        let entries = ReflectConfig::new().spv(words).ref_all_rscs(true).reflect().map_err(|e| err(kernel, e.to_string()))?;
+        let entry = entries.into_iter().find(|e| e.name == "main").ok_or_else(|| err(kernel, "no entry point named main"))?;
 
         let mut bindings: Vec<BindingInfo> = Vec::new();
         let mut push_constant_size = 0;
@@ -253,12 +246,7 @@ impl Reflection {
     /// Member names and byte offsets of the struct type called `name`, if the kernel uses it.
     pub fn struct_layout(&self, name: &str) -> Option<Vec<(String, usize)>> {
         let s = self.structs.iter().find(|s| s.name.as_deref() == Some(name))?;
-        Some(
-            s.members
-                .iter()
-                .map(|m| (m.name.clone().unwrap_or_default(), m.offset.unwrap_or(usize::MAX)))
-                .collect(),
-        )
+        Some(s.members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset.unwrap_or(usize::MAX))).collect())
     }
 
     /// Byte size of the struct type called `name` (offset of its last member plus its size).

@@ -16,10 +16,10 @@
 //!
 //! [`ContextOptions::unmappable_device_memory`]: super::ContextOptions::unmappable_device_memory
 
-use super::{vk_err, Context, GpuError, Result};
-use ash::vk;
 use super::buffer::allocate_bound;
 use super::commands::create_pool_and_fence;
+use super::{vk_err, Context, GpuError, Result};
+use ash::vk;
 use gpu_allocator::vulkan::Allocation;
 use gpu_allocator::MemoryLocation;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -192,7 +192,10 @@ impl Parts {
         barrier(
             self.cmd,
             (vk::PipelineStageFlags2::COPY, vk::AccessFlags2::TRANSFER_WRITE),
-            (vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST, vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE | vk::AccessFlags2::HOST_READ),
+            (
+                vk::PipelineStageFlags2::ALL_COMMANDS | vk::PipelineStageFlags2::HOST,
+                vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE | vk::AccessFlags2::HOST_READ,
+            ),
         );
         let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
         let submit = [vk::SubmitInfo2::default().command_buffer_infos(&cmds)];
@@ -226,10 +229,11 @@ impl Staging {
         let parts = self.parts(ctx)?;
         for (k, chunk) in data.chunks(STAGING_BYTES as usize).enumerate() {
             // No copy from the staging buffer is pending: every copy is waited for.
-            let dst = parts.upload.allocation.mapped_slice_mut().ok_or_else(|| GpuError::BufferAccess {
-                name: "staging upload".into(),
-                what: "not mapped".into(),
-            })?;
+            let dst = parts
+                .upload
+                .allocation
+                .mapped_slice_mut()
+                .ok_or_else(|| GpuError::BufferAccess { name: "staging upload".into(), what: "not mapped".into() })?;
             dst[..chunk.len()].copy_from_slice(chunk);
             parts.copy(ctx, Direction::Upload, target, (k as u64) * STAGING_BYTES, chunk.len() as u64)?;
         }
@@ -242,10 +246,11 @@ impl Staging {
         let parts = self.parts(ctx)?;
         for (k, chunk) in out.chunks_mut(STAGING_BYTES as usize).enumerate() {
             parts.copy(ctx, Direction::Readback, target, (k as u64) * STAGING_BYTES, chunk.len() as u64)?;
-            let src = parts.readback.allocation.mapped_slice().ok_or_else(|| GpuError::BufferAccess {
-                name: "staging readback".into(),
-                what: "not mapped".into(),
-            })?;
+            let src = parts
+                .readback
+                .allocation
+                .mapped_slice()
+                .ok_or_else(|| GpuError::BufferAccess { name: "staging readback".into(), what: "not mapped".into() })?;
             chunk.copy_from_slice(&src[..chunk.len()]);
         }
         Counters::add(&ctx.counters.staged_readback, out.len() as u64);

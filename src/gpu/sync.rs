@@ -26,15 +26,12 @@ impl Access {
     /// Whether memory made visible to `self` is visible to `other` too (same stage, and
     /// `self` includes `other`'s kind of access).
     pub fn covers(self, other: Access) -> bool {
-        self == other
-            || (self == Access::ComputeReadWrite && matches!(other, Access::ComputeRead | Access::ComputeWrite))
+        self == other || (self == Access::ComputeReadWrite && matches!(other, Access::ComputeRead | Access::ComputeWrite))
     }
 
     pub(crate) fn stage(self) -> vk::PipelineStageFlags2 {
         match self {
-            Access::ComputeRead | Access::ComputeWrite | Access::ComputeReadWrite => {
-                vk::PipelineStageFlags2::COMPUTE_SHADER
-            }
+            Access::ComputeRead | Access::ComputeWrite | Access::ComputeReadWrite => vk::PipelineStageFlags2::COMPUTE_SHADER,
             Access::TransferRead | Access::TransferWrite => vk::PipelineStageFlags2::TRANSFER,
             Access::HostRead | Access::HostWrite => vk::PipelineStageFlags2::HOST,
         }

@@ -98,9 +98,7 @@ fn short_names<'a>(groups: &[&'a str]) -> BTreeMap<&'a str, String> {
     };
     let most = groups.iter().map(|g| g.split('.').count()).max().unwrap_or(1);
     let distinct: BTreeSet<&str> = groups.iter().copied().collect();
-    let parts = (1..=most)
-        .find(|&k| distinct.iter().map(|g| ending(g, k)).collect::<BTreeSet<_>>().len() == distinct.len())
-        .unwrap_or(most);
+    let parts = (1..=most).find(|&k| distinct.iter().map(|g| ending(g, k)).collect::<BTreeSet<_>>().len() == distinct.len()).unwrap_or(most);
     distinct.into_iter().map(|g| (g, ending(g, parts))).collect()
 }
 
@@ -110,9 +108,8 @@ fn short_names<'a>(groups: &[&'a str]) -> BTreeMap<&'a str, String> {
 pub fn plot(path: &Path, title: &str, runs: &[(&str, &DiagLog)]) -> Result<(), String> {
     let groups: Vec<&str> = runs.iter().flat_map(|(_, log)| log.rows.iter().map(|r| r.1.as_str())).collect();
     let short = short_names(&groups);
-    let name = |label: &str, group: &str, what: &str| {
-        [label, short[group].as_str(), what].iter().filter(|s| !s.is_empty()).copied().collect::<Vec<_>>().join(" ")
-    };
+    let name =
+        |label: &str, group: &str, what: &str| [label, short[group].as_str(), what].iter().filter(|s| !s.is_empty()).copied().collect::<Vec<_>>().join(" ");
     let mut n_eff = Vec::new();
     let mut step = Vec::new();
     let mut noise = Vec::new();

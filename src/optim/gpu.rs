@@ -140,11 +140,7 @@ impl GpuOptimiser {
                 // iterate through it, and the two-trace sample binds it as θ, material
                 // data included.
                 let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (theta.len() / 4) as usize, MemoryKind::Device)?;
-                let halves = if optimiser.needs_halves() {
-                    Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? })
-                } else {
-                    None
-                };
+                let halves = if optimiser.needs_halves() { Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? }) } else { None };
                 // Without the centred estimate the kernel never touches the half buffers.
                 let unused = match &halves {
                     Some(_) => None,
@@ -156,8 +152,18 @@ impl GpuOptimiser {
                     (None, None) => unreachable!("one of the two is set"),
                 };
                 let names = [
-                    "meta mean", "meta sd", "meta rms f", "meta rms d", "meta wsum d", "meta n eff", "meta v", "meta curv",
-                    "meta curv w", "meta last", "meta nis", "meta run",
+                    "meta mean",
+                    "meta sd",
+                    "meta rms f",
+                    "meta rms d",
+                    "meta wsum d",
+                    "meta n eff",
+                    "meta v",
+                    "meta curv",
+                    "meta curv w",
+                    "meta last",
+                    "meta nis",
+                    "meta run",
                 ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 written.extend(meta_state.iter().cloned());
@@ -331,26 +337,13 @@ pub fn replay_gpu(
 
 /// [`replay_gpu`] with every stream (the half-sample sums of the centred variance
 /// estimate too), returning each step's diagnostics; the buffer is one group.
-pub fn replay_gpu_streams(
-    ctx: &Arc<Context>,
-    optimiser: &Optimiser,
-    streams: &Streams,
-    init: &[f32],
-    range: Range,
-    lr: f64,
-) -> gpu::Result<GpuReplay> {
+pub fn replay_gpu_streams(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &Streams, init: &[f32], range: Range, lr: f64) -> gpu::Result<GpuReplay> {
     replay_gpu_groups(ctx, optimiser, streams, init, &[Group { offset: 0, len: init.len(), lr, range }])
 }
 
 /// [`replay_gpu_streams`] with the buffer split into parameter groups, as a scene's
 /// parameters are.
-pub fn replay_gpu_groups(
-    ctx: &Arc<Context>,
-    optimiser: &Optimiser,
-    streams: &Streams,
-    init: &[f32],
-    groups: &[Group],
-) -> gpu::Result<GpuReplay> {
+pub fn replay_gpu_groups(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &Streams, init: &[f32], groups: &[Group]) -> gpu::Result<GpuReplay> {
     streams.check(optimiser).map_err(|e| gpu::GpuError::BufferAccess { name: "replay streams".into(), what: e.to_string() })?;
     let n = init.len();
     let ops = BufferOps::new(ctx)?;

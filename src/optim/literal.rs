@@ -17,11 +17,7 @@ pub struct Moment2 {
 
 impl Moment2 {
     pub fn new(n: usize, decay: f64) -> Self {
-        Moment2 {
-            decay,
-            count: 0,
-            m2: vec![0.0; n],
-        }
+        Moment2 { decay, count: 0, m2: vec![0.0; n] }
     }
 
     pub fn step(&mut self, x: &[f64]) {
@@ -44,12 +40,7 @@ pub struct Meta {
 
 impl Meta {
     pub fn new(n: usize, eta: f64) -> Self {
-        Meta {
-            eta,
-            var: vec![0.0; n],
-            mean: vec![0.0; n],
-            alpha_prev: vec![f64::NEG_INFINITY; n],
-        }
+        Meta { eta, var: vec![0.0; n], mean: vec![0.0; n], alpha_prev: vec![f64::NEG_INFINITY; n] }
     }
 
     /// Returns the step, element by element.
@@ -82,15 +73,7 @@ pub struct Adam {
 
 impl Adam {
     pub fn new(n: usize, lr: f64, beta1: f64, beta2: f64, eps: f64) -> Self {
-        Adam {
-            lr,
-            beta1,
-            beta2,
-            eps,
-            t: 0,
-            m: vec![0.0; n],
-            v: vec![0.0; n],
-        }
+        Adam { lr, beta1, beta2, eps, t: 0, m: vec![0.0; n], v: vec![0.0; n] }
     }
 
     pub fn step(&mut self, g: &[f64]) -> Vec<f64> {
@@ -109,14 +92,7 @@ impl Adam {
 /// The seed's optimisation loop over recorded streams; returns the trajectory
 /// (iterations + 1) × n. Meta's ‖Δπ‖² is that of the previous clamped step; without a
 /// finite-difference row the ΔF terms are skipped as at ‖Δπ‖² = 0.
-pub fn replay_literal(
-    optimiser: &Optimiser,
-    grads: &[Vec<f64>],
-    fd_grads: Option<&[Vec<f64>]>,
-    init: &[f64],
-    range: Range,
-    lr: f64,
-) -> Vec<Vec<f64>> {
+pub fn replay_literal(optimiser: &Optimiser, grads: &[Vec<f64>], fd_grads: Option<&[Vec<f64>]>, init: &[f64], range: Range, lr: f64) -> Vec<Vec<f64>> {
     let n = init.len();
     let mut theta = init.to_vec();
     let mut traj = vec![theta.clone()];
@@ -126,19 +102,12 @@ pub fn replay_literal(
             let mut adam = Adam::new(n, lr, h.beta1, h.beta2, h.eps);
             for g in grads {
                 let step = adam.step(g);
-                theta
-                    .iter_mut()
-                    .zip(&step)
-                    .for_each(|(th, s)| *th = clamp(*th + s));
+                theta.iter_mut().zip(&step).for_each(|(th, s)| *th = clamp(*th + s));
                 traj.push(theta.clone());
             }
         }
         Optimiser::Meta(h) => {
-            let (mut m2f, mut m2d, mut meta) = (
-                Moment2::new(n, h.decay_f),
-                Moment2::new(n, h.decay_d),
-                Meta::new(n, lr),
-            );
+            let (mut m2f, mut m2d, mut meta) = (Moment2::new(n, h.decay_f), Moment2::new(n, h.decay_d), Meta::new(n, lr));
             let mut dpi2 = 0.0f64;
             for (i, f) in grads.iter().enumerate() {
                 m2f.step(f);
@@ -152,15 +121,8 @@ pub fn replay_literal(
                 };
                 let step = meta.step(f, &df, &m2f.m2, &var_d);
                 let prev = theta.clone();
-                theta
-                    .iter_mut()
-                    .zip(&step)
-                    .for_each(|(th, s)| *th = clamp(*th + s));
-                dpi2 = theta
-                    .iter()
-                    .zip(&prev)
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum();
+                theta.iter_mut().zip(&step).for_each(|(th, s)| *th = clamp(*th + s));
+                dpi2 = theta.iter().zip(&prev).map(|(a, b)| (a - b) * (a - b)).sum();
                 traj.push(theta.clone());
             }
         }

@@ -108,11 +108,7 @@ pub enum OptimError {
     #[error("optimiser spec {0}")]
     BadSpec(String),
     #[error("{what} has length {found}, expected {expected}")]
-    Length {
-        what: &'static str,
-        expected: usize,
-        found: usize,
-    },
+    Length { what: &'static str, expected: usize, found: usize },
     #[error("the meta optimiser needs finite-difference gradients")]
     MissingFd,
     #[error("the centred variance estimate (var=centred) needs the half-sample sums of both gradient streams")]
@@ -127,10 +123,7 @@ pub struct Range {
 }
 
 impl Range {
-    pub const UNBOUNDED: Range = Range {
-        lo: f64::NEG_INFINITY,
-        hi: f64::INFINITY,
-    };
+    pub const UNBOUNDED: Range = Range { lo: f64::NEG_INFINITY, hi: f64::INFINITY };
 
     pub fn new(lo: f64, hi: f64) -> Result<Self, OptimError> {
         if lo <= hi {
@@ -172,12 +165,7 @@ pub struct AdamHyper {
 
 impl Default for AdamHyper {
     fn default() -> Self {
-        AdamHyper {
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-            schedule: Schedule::default(),
-        }
+        AdamHyper { beta1: 0.9, beta2: 0.999, eps: 1e-8, schedule: Schedule::default() }
     }
 }
 
@@ -619,9 +607,7 @@ impl Optimiser {
             if (0.0..1.0).contains(&b) {
                 Ok(())
             } else {
-                Err(OptimError::BadHyper(format!(
-                    "{name} = {b} is outside [0, 1)"
-                )))
+                Err(OptimError::BadHyper(format!("{name} = {b} is outside [0, 1)")))
             }
         };
         let eps = match *self {
@@ -669,9 +655,7 @@ impl Optimiser {
         if eps > 0.0 && eps.is_finite() {
             Ok(())
         } else {
-            Err(OptimError::BadHyper(format!(
-                "eps = {eps} must be positive and finite"
-            )))
+            Err(OptimError::BadHyper(format!("eps = {eps} must be positive and finite")))
         }
     }
 }

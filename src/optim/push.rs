@@ -202,4 +202,3 @@ impl From<shared::DiagRecord> for super::reference::DiagRecord<f32> {
         }
     }
 }
-

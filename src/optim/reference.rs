@@ -18,15 +18,7 @@ use std::ops::{Add, Div, Mul, Neg, Sub};
 
 /// The floating-point types the reference runs in.
 pub trait Real:
-    Copy
-    + Debug
-    + Default
-    + PartialOrd
-    + Add<Output = Self>
-    + Sub<Output = Self>
-    + Mul<Output = Self>
-    + Div<Output = Self>
-    + Neg<Output = Self>
+    Copy + Debug + Default + PartialOrd + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self> + Neg<Output = Self>
 {
     const ZERO: Self;
     const ONE: Self;
@@ -334,8 +326,22 @@ pub struct Diagnostics {
 impl Diagnostics {
     /// The column names of [`Diagnostics::csv`], in order.
     pub const COLUMNS: [&'static str; 16] = [
-        "lr", "elements", "n_eff_mean", "n_eff_min", "n_eff_max", "clipped", "rms_f", "rms_df", "sd_fd", "rms_mean",
-        "sd_mean", "sd_f", "step_norm", "rms_step", "newton", "rms_curv",
+        "lr",
+        "elements",
+        "n_eff_mean",
+        "n_eff_min",
+        "n_eff_max",
+        "clipped",
+        "rms_f",
+        "rms_df",
+        "sd_fd",
+        "rms_mean",
+        "sd_mean",
+        "sd_f",
+        "step_norm",
+        "rms_step",
+        "newton",
+        "rms_curv",
     ];
 
     pub fn from_record<R: Real>(r: &DiagRecord<R>, lr: f64) -> Self {
@@ -443,12 +449,7 @@ impl<R: Real> AdamParams<R> {
 
 /// One Adam step of one element: returns (θ', state', diagnostics) or `None` for a
 /// non-finite gradient, in which case θ and the state stay as they are.
-pub fn adam_update<R: Real>(
-    p: &AdamParams<R>,
-    theta: R,
-    g: R,
-    s: AdamElem<R>,
-) -> Option<(R, AdamElem<R>, ElemDiag<R>)> {
+pub fn adam_update<R: Real>(p: &AdamParams<R>, theta: R, g: R, s: AdamElem<R>) -> Option<(R, AdamElem<R>, ElemDiag<R>)> {
     if !g.is_finite() {
         return None;
     }
@@ -577,21 +578,14 @@ pub struct MetaInput<R> {
 /// rule, variance estimate and β_F growth of `p`), given the buffer's ‖Δπ‖² `dpi2` of the
 /// previous step. Returns (θ', state', diagnostics) or `None` for a non-finite input, in
 /// which case θ and the state stay as they are.
-pub fn meta_update<R: Real>(
-    p: &MetaParams<R>,
-    theta: R,
-    x: MetaInput<R>,
-    dpi2: R,
-    s: MetaElem<R>,
-) -> Option<(R, MetaElem<R>, ElemDiag<R>)> {
+pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: R, s: MetaElem<R>) -> Option<(R, MetaElem<R>, ElemDiag<R>)> {
     let (f, df) = (x.f, x.df);
     if !f.is_finite() || !df.is_finite() || (p.centred && !(x.f_half.is_finite() && x.df_half.is_finite())) {
         return None;
     }
     let one = R::ONE;
     // What the two Moment2 EMAs average the squares of.
-    let (sample_f, sample_d) =
-        if p.centred { (centred_sample(f, x.f_half), centred_sample(df, x.df_half)) } else { (f, df) };
+    let (sample_f, sample_d) = if p.centred { (centred_sample(f, x.f_half), centred_sample(df, x.df_half)) } else { (f, df) };
     let kf = f_weight(p.decay_f, p.grow_f, p.t);
     let rms_f = hypot((one - kf).sqrt() * s.rms_f, kf.sqrt() * sample_f);
     let k2 = ema_weight(p.beta2, p.t);
@@ -675,7 +669,11 @@ pub fn meta_update<R: Real>(
             None if mean == R::ZERO => R::MAX,
             None => {
                 let z = p.sig * (sd_step / mean.abs());
-                if z >= one { one } else { z * z }
+                if z >= one {
+                    one
+                } else {
+                    z * z
+                }
             }
         };
         let shrink = if z2 >= one { R::ZERO } else { one - z2 };
@@ -714,9 +712,17 @@ pub fn curvature_of<R: Real>(ls: bool, se: R, curv: R, curv_w: R, sd_d: R) -> R 
 pub fn run_of<R: Real>(run: R, mean: R) -> R {
     let max = R::of(RUN_MAX);
     if mean > R::ZERO {
-        if run > R::ZERO { (run + R::ONE).min(max) } else { R::ONE }
+        if run > R::ZERO {
+            (run + R::ONE).min(max)
+        } else {
+            R::ONE
+        }
     } else if mean < R::ZERO {
-        if run < R::ZERO { (run - R::ONE).max(-max) } else { -R::ONE }
+        if run < R::ZERO {
+            (run - R::ONE).max(-max)
+        } else {
+            -R::ONE
+        }
     } else {
         R::ZERO
     }
@@ -801,24 +807,13 @@ impl<R: Real> BufferOptimiser<R> {
     pub fn new(optimiser: &Optimiser, n: usize, lr: f64, range: Range) -> Result<Self, OptimError> {
         optimiser.validate()?;
         if !(lr >= 0.0 && lr.is_finite()) {
-            return Err(OptimError::BadHyper(format!(
-                "lr = {lr} must be non-negative and finite"
-            )));
+            return Err(OptimError::BadHyper(format!("lr = {lr} must be non-negative and finite")));
         }
         let elems = match *optimiser {
             Optimiser::Adam(h) => Elems::Adam(h, vec![AdamElem::default(); n]),
             Optimiser::Meta(h) => Elems::Meta(h, vec![MetaElem::default(); n]),
         };
-        Ok(BufferOptimiser {
-            elems,
-            lr,
-            range,
-            t: 0,
-            dpi2: R::ZERO,
-            nonfinite: 0,
-            record: DiagRecord::default(),
-            diagnostics: Diagnostics::default(),
-        })
+        Ok(BufferOptimiser { elems, lr, range, t: 0, dpi2: R::ZERO, nonfinite: 0, record: DiagRecord::default(), diagnostics: Diagnostics::default() })
     }
 
     /// One step over the buffer, in place. `fd` is required by Meta and ignored by Adam.
@@ -965,10 +960,8 @@ impl<R: Real> GroupedOptimiser<R> {
     /// `groups`: (offset, length, learning rate, range) of each group.
     pub fn new(optimiser: &Optimiser, groups: &[(usize, usize, f64, Range)]) -> Result<Self, OptimError> {
         let global = matches!(optimiser, Optimiser::Meta(h) if h.dpi == super::StepNorm::Global);
-        let groups = groups
-            .iter()
-            .map(|&(offset, len, lr, range)| Ok((offset, BufferOptimiser::new(optimiser, len, lr, range)?)))
-            .collect::<Result<_, OptimError>>()?;
+        let groups =
+            groups.iter().map(|&(offset, len, lr, range)| Ok((offset, BufferOptimiser::new(optimiser, len, lr, range)?))).collect::<Result<_, OptimError>>()?;
         Ok(GroupedOptimiser { groups, global, dpi2: R::ZERO })
     }
 
@@ -1001,10 +994,6 @@ fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), Op
     if expected == found {
         Ok(())
     } else {
-        Err(OptimError::Length {
-            what,
-            expected,
-            found,
-        })
+        Err(OptimError::Length { what, expected, found })
     }
 }

@@ -110,9 +110,7 @@ impl<'a> Streams<'a> {
     /// Checks that every stream `optimiser` reads is there with one row per gradient row.
     pub fn check(&self, optimiser: &Optimiser) -> Result<(), OptimError> {
         let rows = |what: &'static str, s: Option<&[Vec<f32>]>| match s {
-            Some(s) if s.len() != self.grads.len() => {
-                Err(OptimError::Length { what, expected: self.grads.len(), found: s.len() })
-            }
+            Some(s) if s.len() != self.grads.len() => Err(OptimError::Length { what, expected: self.grads.len(), found: s.len() }),
             _ => Ok(()),
         };
         if optimiser.needs_fd() && self.fd_grads.is_none() {
@@ -141,10 +139,7 @@ pub struct Replay {
 impl Replay {
     /// The trajectory in float32, as written to `.npy`.
     pub fn rows_f32(&self) -> Vec<Vec<f32>> {
-        self.theta
-            .iter()
-            .map(|row| row.iter().map(|&x| x as f32).collect())
-            .collect()
+        self.theta.iter().map(|row| row.iter().map(|&x| x as f32).collect()).collect()
     }
 }
 
@@ -163,13 +158,7 @@ pub fn replay_cpu<R: Real>(
 }
 
 /// Replays every stream in the arithmetic `R` (f64: the reference; f32: the GPU's).
-pub fn replay_streams<R: Real>(
-    optimiser: &Optimiser,
-    streams: &Streams,
-    init: &[f32],
-    range: Range,
-    lr: f64,
-) -> Result<Replay, OptimError> {
+pub fn replay_streams<R: Real>(optimiser: &Optimiser, streams: &Streams, init: &[f32], range: Range, lr: f64) -> Result<Replay, OptimError> {
     streams.check(optimiser)?;
     let n = init.len();
     let to_r = |row: &[f32]| row.iter().map(|&x| R::of(x as f64)).collect::<Vec<R>>();
@@ -183,20 +172,12 @@ pub fn replay_streams<R: Real>(
     traj.push(to_f64(&theta));
     for (i, g) in streams.grads.iter().enumerate() {
         let fd = if optimiser.needs_fd() { row(streams.fd_grads, i) } else { None };
-        let (gh, fh) = if optimiser.needs_halves() {
-            (row(streams.grad_halves, i), row(streams.fd_halves, i))
-        } else {
-            (None, None)
-        };
+        let (gh, fh) = if optimiser.needs_halves() { (row(streams.grad_halves, i), row(streams.fd_halves, i)) } else { (None, None) };
         let grad = to_r(g);
         let input = StepInput { grad: &grad, fd: fd.as_deref(), grad_half: gh.as_deref(), fd_half: fh.as_deref() };
         opt.step_with(&mut theta, input)?;
         traj.push(to_f64(&theta));
         diagnostics.push(*opt.diagnostics());
     }
-    Ok(Replay {
-        theta: traj,
-        nonfinite: opt.nonfinite(),
-        diagnostics,
-    })
+    Ok(Replay { theta: traj, nonfinite: opt.nonfinite(), diagnostics })
 }

@@ -149,9 +149,7 @@ impl FromStr for Schedule {
         let mut parts = text.trim().split('@');
         let mut s = Schedule { decay: parts.next().unwrap_or_default().parse()?, ..Schedule::default() };
         for part in parts {
-            let (key, value) = part
-                .split_once('=')
-                .ok_or_else(|| OptimError::BadHyper(format!("schedule '{text}': '{part}' is not KEY=VALUE")))?;
+            let (key, value) = part.split_once('=').ok_or_else(|| OptimError::BadHyper(format!("schedule '{text}': '{part}' is not KEY=VALUE")))?;
             if key == "schedule" || !s.set(key.trim(), value.trim())? {
                 return Err(OptimError::BadHyper(format!("schedule '{text}': unknown key '{key}' (expected warmup, horizon, floor, every or gamma)")));
             }

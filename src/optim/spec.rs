@@ -72,7 +72,11 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
     let number = || value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")));
     let slot = match (&mut *optimiser, key) {
         (Optimiser::Meta(h), "step") => {
-            h.step = choice(key, value, &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener), ("newton", StepRule::Newton)])?;
+            h.step = choice(
+                key,
+                value,
+                &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener), ("newton", StepRule::Newton)],
+            )?;
             return Ok(true);
         }
         (Optimiser::Meta(h), "var") => {
@@ -147,11 +151,7 @@ impl FromStr for Spec {
             }
             seen.push(key);
             if !set_key(&mut optimiser, key, value).map_err(|e| bad(e.to_string()))? {
-                return Err(bad(format!(
-                    "unknown key '{key}' for {name} (expected {}, or the schedule's {})",
-                    keys(&optimiser),
-                    super::Schedule::KEYS
-                )));
+                return Err(bad(format!("unknown key '{key}' for {name} (expected {}, or the schedule's {})", keys(&optimiser), super::Schedule::KEYS)));
             }
         }
         optimiser.validate().map_err(|e| bad(e.to_string()))?;

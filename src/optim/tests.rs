@@ -67,10 +67,8 @@ fn meta_variants() -> Vec<Optimiser> {
 
 /// Adam, with and without a schedule, and every meta variant.
 fn all_optimisers() -> Vec<Optimiser> {
-    let stepped = Optimiser::Adam(AdamHyper {
-        schedule: Schedule { decay: Decay::Step, every: 10, gamma: 0.5, warmup: 3, ..Default::default() },
-        ..Default::default()
-    });
+    let stepped =
+        Optimiser::Adam(AdamHyper { schedule: Schedule { decay: Decay::Step, every: 10, gamma: 0.5, warmup: 3, ..Default::default() }, ..Default::default() });
     let mut v = vec![adam(), stepped];
     v.extend(meta_variants());
     v
@@ -83,9 +81,7 @@ fn step_bound(opt: &Optimiser, t: u32) -> Option<f64> {
         Optimiser::Adam(_) => Some(ADAM_STEP_BOUND),
         Optimiser::Meta(h) => match h.step {
             StepRule::Snr if h.variance == VarianceEstimate::Centred => None,
-            StepRule::Snr => Some(
-                (1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt(),
-            ),
+            StepRule::Snr => Some((1.0 + (t as f64 - 1.0) * (1.0 / (1.0 - h.decay_f) + 1.0 / (1.0 - h.decay_d))).sqrt()),
             StepRule::Bounded => Some(1.0),
             StepRule::Newton => Some(h.trust),
             StepRule::Adam | StepRule::Wiener => None,
@@ -104,12 +100,8 @@ fn half_of(x: f64, t: u32, _i: usize, salt: u64) -> f64 {
 fn ordinary_streams(seed: u64, iters: usize, n: usize) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
     let mut rng = Rng(seed);
     let offset: Vec<f64> = (0..n).map(|_| 2.0 * rng.normal()).collect();
-    let grads = (0..iters)
-        .map(|_| offset.iter().map(|o| (o + rng.normal()) as f32).collect())
-        .collect();
-    let fds = (0..iters)
-        .map(|_| (0..n).map(|_| (0.1 * rng.normal()) as f32).collect())
-        .collect();
+    let grads = (0..iters).map(|_| offset.iter().map(|o| (o + rng.normal()) as f32).collect()).collect();
+    let fds = (0..iters).map(|_| (0..n).map(|_| (0.1 * rng.normal()) as f32).collect()).collect();
     (grads, fds)
 }
 
@@ -123,29 +115,15 @@ fn reference_equals_seed_transcription() {
     for seed in 0..6 {
         let (grads, fds) = ordinary_streams(seed, 300, 37);
         let init: Vec<f32> = (0..37).map(|i| (i as f32 - 18.0) / 10.0).collect();
-        let f64rows = |rows: &[Vec<f32>]| -> Vec<Vec<f64>> {
-            rows.iter()
-                .map(|r| r.iter().map(|&x| x as f64).collect())
-                .collect()
-        };
+        let f64rows = |rows: &[Vec<f32>]| -> Vec<Vec<f64>> { rows.iter().map(|r| r.iter().map(|&x| x as f64).collect()).collect() };
         let init64: Vec<f64> = init.iter().map(|&x| x as f64).collect();
         for (opt, lr) in [(meta(), 0.02), (adam(), 0.05)] {
             let got = replay_cpu::<f64>(&opt, &grads, Some(&fds), &init, range, lr).unwrap();
-            let want = replay_literal(
-                &opt,
-                &f64rows(&grads),
-                Some(&f64rows(&fds)),
-                &init64,
-                range,
-                lr,
-            );
+            let want = replay_literal(&opt, &f64rows(&grads), Some(&f64rows(&fds)), &init64, range, lr);
             assert_eq!(got.theta.len(), 301);
             for (t, (g, w)) in got.theta.iter().zip(&want).enumerate() {
                 for (a, b) in g.iter().zip(w) {
-                    assert!(
-                        close(*a, *b, 1e-9, 1e-3),
-                        "{opt} seed {seed} t {t}: {a} vs {b}"
-                    );
+                    assert!(close(*a, *b, 1e-9, 1e-3), "{opt} seed {seed} t {t}: {a} vs {b}");
                 }
             }
         }
@@ -161,16 +139,12 @@ fn float32_run_matches_reference() {
         let init = vec![0.25f32; 53];
         for (opt, lr) in [(meta(), 0.01), (adam(), 0.01)] {
             let r64 = replay_cpu::<f64>(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
-            let r32 =
-                replay_cpu::<f32>(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
+            let r32 = replay_cpu::<f32>(&opt, &grads, Some(&fds), &init, Range::UNBOUNDED, lr).unwrap();
             for i in 0..53 {
                 let scale = r64.theta.iter().map(|row| row[i].abs()).fold(0.0, f64::max);
                 for (a, b) in r32.theta.iter().zip(&r64.theta) {
                     let dev = (a[i] - b[i]).abs() / scale;
-                    assert!(
-                        dev < 1e-5,
-                        "{opt} seed {seed} element {i}: relative deviation {dev:e}"
-                    );
+                    assert!(dev < 1e-5, "{opt} seed {seed} element {i}: relative deviation {dev:e}");
                 }
             }
         }
@@ -185,10 +159,7 @@ fn one_minus_pow_is_accurate_in_f32() {
             let got = one_minus_pow(q as f32, t) as f64;
             let q32 = (q as f32) as f64;
             let exact32 = -((t as f64) * (-q32).ln_1p()).exp_m1();
-            assert!(
-                close(got, exact32, 2e-6, 0.0),
-                "q {q} t {t}: {got} vs {exact32}"
-            );
+            assert!(close(got, exact32, 2e-6, 0.0), "q {q} t {t}: {got} vs {exact32}");
             assert!(close(one_minus_pow(q, t), exact, 1e-13, 0.0));
         }
     }
@@ -201,9 +172,7 @@ fn adam_step_bound_constant() {
         .map(|t| {
             let t = t as f64;
             let geo = (1.0 - (b1 * b1 / b2).powf(t)) / (1.0 - b1 * b1 / b2);
-            ((1.0 - b1).powi(2) * (1.0 - b2.powf(t)) / ((1.0 - b1.powf(t)).powi(2) * (1.0 - b2))
-                * geo)
-                .sqrt()
+            ((1.0 - b1).powi(2) * (1.0 - b2.powf(t)) / ((1.0 - b1.powf(t)).powi(2) * (1.0 - b2)) * geo).sqrt()
         })
         .fold(0.0, f64::max);
     assert!(sup < ADAM_STEP_BOUND && sup > 7.2, "{sup}");
@@ -238,15 +207,9 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
             fh.push(R::of(half_of(a, t, i, 21)));
             dh.push(R::of(half_of(b, t, i, 22)));
         }
-        let bad: Vec<bool> = (0..case.n)
-            .map(|i| !f[i].is_finite() || (opt.needs_fd() && !df[i].is_finite()))
-            .collect();
+        let bad: Vec<bool> = (0..case.n).map(|i| !f[i].is_finite() || (opt.needs_fd() && !df[i].is_finite())).collect();
         expected_skips += bad.iter().filter(|&&b| b).count() as u64;
-        let (before, adam_before, meta_before) = (
-            theta.clone(),
-            o.adam_state().map(<[_]>::to_vec),
-            o.meta_state().map(<[_]>::to_vec),
-        );
+        let (before, adam_before, meta_before) = (theta.clone(), o.adam_state().map(<[_]>::to_vec), o.meta_state().map(<[_]>::to_vec));
         let input = StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) };
         o.step_with(&mut theta, input).unwrap();
         let d = o.diagnostics();
@@ -254,25 +217,14 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
         assert_eq!(d.elements, bad.iter().filter(|&&b| !b).count() as u64, "{opt} t {t}");
         for i in 0..case.n {
             let (th, prev) = (theta[i].to_f64(), before[i].to_f64());
-            assert!(
-                th.is_finite() && th >= case.range.lo && th <= case.range.hi,
-                "{opt} t {t} i {i}: θ {th}"
-            );
+            assert!(th.is_finite() && th >= case.range.lo && th <= case.range.hi, "{opt} t {t} i {i}: θ {th}");
             let tol = 1.0 + 1e-5;
             if let Some(bound) = step_bound(opt, t) {
                 let lr_t = case.lr * opt.schedule().factor(t);
-                assert!(
-                    (th - prev).abs() <= lr_t * bound * tol,
-                    "{opt:?} t {t} i {i}: step {}",
-                    th - prev
-                );
+                assert!((th - prev).abs() <= lr_t * bound * tol, "{opt:?} t {t} i {i}: step {}", th - prev);
             }
             if let Some(s) = o.adam_state() {
-                assert!(
-                    s[i].m.is_finite() && s[i].r.is_finite() && s[i].r >= R::ZERO,
-                    "{:?}",
-                    s[i]
-                );
+                assert!(s[i].m.is_finite() && s[i].r.is_finite() && s[i].r >= R::ZERO, "{:?}", s[i]);
                 if bad[i] {
                     assert_eq!((th, s[i]), (prev, adam_before.as_ref().unwrap()[i]));
                 }
@@ -282,10 +234,7 @@ fn run_case<R: Real>(opt: &Optimiser, case: &Case) -> (Vec<Vec<f64>>, u64) {
                 for v in [e.mean, e.sd, e.rms_f, e.rms_d, e.wsum_d, e.n_eff, e.v, e.curv, e.curv_w, e.last] {
                     assert!(v.is_finite(), "{opt} t {t} i {i}: {e:?}");
                 }
-                assert!(
-                    e.sd >= R::ZERO && e.rms_f >= R::ZERO && e.rms_d >= R::ZERO && e.v >= R::ZERO,
-                    "{e:?}"
-                );
+                assert!(e.sd >= R::ZERO && e.rms_f >= R::ZERO && e.rms_d >= R::ZERO && e.v >= R::ZERO, "{e:?}");
                 // The least-squares slope may be negative; the RMS may not.
                 let ls = matches!(opt, Optimiser::Meta(h) if h.curv == CurvatureFit::Ls);
                 assert!((ls || e.curv >= R::ZERO) && e.curv_w >= R::ZERO, "{e:?}");
@@ -328,26 +277,15 @@ fn noise(t: u32, i: usize, salt: u64) -> f64 {
 #[test]
 fn stable_for_tiny_and_huge_gradients() {
     for scale in [1e-30, 1e-20, 1e20, 1e30, 1e38] {
-        let input =
-            |t: u32, i: usize| (scale * (0.5 + noise(t, i, 1)), 0.1 * scale * noise(t, i, 2));
-        let case = Case {
-            n: 16,
-            iters: 60,
-            lr: 0.01,
-            range: Range::UNBOUNDED,
-            init: 0.0,
-            input: &input,
-        };
+        let input = |t: u32, i: usize| (scale * (0.5 + noise(t, i, 1)), 0.1 * scale * noise(t, i, 2));
+        let case = Case { n: 16, iters: 60, lr: 0.01, range: Range::UNBOUNDED, init: 0.0, input: &input };
         for (opt, traj, _) in stable_everywhere(&case) {
             let moved = traj[60].iter().map(|x| x.abs()).fold(0.0, f64::max);
             // Newton's step −⟨F⟩_M/h is a ratio of two quantities of the gradient's scale: no ε
             // enters it, and it moves wherever the estimate is significant, at any scale.
             let newton = matches!(opt, Optimiser::Meta(h) if h.step == StepRule::Newton);
             if scale >= 1.0 {
-                assert!(
-                    moved > 0.01,
-                    "{opt} at scale {scale:e} did not move: {moved}"
-                );
+                assert!(moved > 0.01, "{opt} at scale {scale:e} did not move: {moved}");
             } else if !newton {
                 // ε = 1e-8 dominates the denominator, as in Adam: tiny but finite steps.
                 assert!(moved < 1e-10, "{opt} at scale {scale:e}: {moved}");
@@ -361,20 +299,8 @@ fn scales_1e60_apart_in_one_buffer_follow_one_trajectory() {
     // Every element sees the same normalised stream times its own scale, 1e-30 .. 1e30.
     let n = 31;
     let scale = |i: usize| 10f64.powf(-30.0 + 60.0 * i as f64 / (n - 1) as f64);
-    let input = |t: u32, i: usize| {
-        (
-            scale(i) * (0.3 + noise(t, 0, 3)),
-            0.2 * scale(i) * noise(t, 0, 4),
-        )
-    };
-    let case = Case {
-        n,
-        iters: 80,
-        lr: 0.01,
-        range: Range::UNBOUNDED,
-        init: 0.0,
-        input: &input,
-    };
+    let input = |t: u32, i: usize| (scale(i) * (0.3 + noise(t, 0, 3)), 0.2 * scale(i) * noise(t, 0, 4));
+    let case = Case { n, iters: 80, lr: 0.01, range: Range::UNBOUNDED, init: 0.0, input: &input };
     for (opt, traj, _) in stable_everywhere(&case) {
         // A curvature floor ties each element's least curvature to its group's RMS, whose
         // elements it takes to share one scale (a texture's texels, a colour's channels): in
@@ -386,12 +312,7 @@ fn scales_1e60_apart_in_one_buffer_follow_one_trajectory() {
         let unit = n / 2; // scale 1
         for i in (0..n).filter(|&i| scale(i) >= 1e-2) {
             for row in &traj {
-                assert!(
-                    close(row[i], row[unit], 1e-4, 0.01),
-                    "{opt}: element {i} {} vs {}",
-                    row[i],
-                    row[unit]
-                );
+                assert!(close(row[i], row[unit], 1e-4, 0.01), "{opt}: element {i} {} vs {}", row[i], row[unit]);
             }
         }
     }
@@ -400,14 +321,7 @@ fn scales_1e60_apart_in_one_buffer_follow_one_trajectory() {
 #[test]
 fn zero_gradients_do_not_move() {
     let input = |_: u32, _: usize| (0.0, 0.0);
-    let case = Case {
-        n: 8,
-        iters: 20,
-        lr: 0.1,
-        range: Range::UNBOUNDED,
-        init: 0.5,
-        input: &input,
-    };
+    let case = Case { n: 8, iters: 20, lr: 0.1, range: Range::UNBOUNDED, init: 0.5, input: &input };
     for (opt, traj, _) in stable_everywhere(&case) {
         assert!(traj.iter().flatten().all(|&x| x == 0.5), "{opt}");
     }
@@ -420,8 +334,7 @@ fn zero_steps_skip_the_fd_terms() {
     let mut theta = vec![1.0f32; 4];
     for t in 0..30 {
         let f: Vec<f32> = (0..4).map(|i| 1.0 + noise(t, i, 5) as f32).collect();
-        o.step(&mut theta, &f, Some(&[1e30, -1e30, 5.0, 0.0]))
-            .unwrap();
+        o.step(&mut theta, &f, Some(&[1e30, -1e30, 5.0, 0.0])).unwrap();
         assert_eq!(o.dpi2(), 0.0);
     }
     assert_eq!(theta, vec![1.0; 4]);
@@ -435,20 +348,12 @@ fn zero_steps_skip_the_fd_terms() {
 #[test]
 fn pinned_at_a_bound_stays_there() {
     let input = |t: u32, i: usize| (-1.0 + 0.3 * noise(t, i, 6), 0.1 * noise(t, i, 7));
-    let case = Case {
-        n: 8,
-        iters: 40,
-        lr: 0.05,
-        range: Range::new(0.0, 1.0).unwrap(),
-        init: 1.0,
-        input: &input,
-    };
+    let case = Case { n: 8, iters: 40, lr: 0.05, range: Range::new(0.0, 1.0).unwrap(), init: 1.0, input: &input };
     for (opt, traj, _) in stable_everywhere(&case) {
         assert!(traj.iter().flatten().all(|&x| x == 1.0), "{opt}");
     }
     // Meta: the group never moved, so the ΔF Moment2 never started.
-    let mut o =
-        BufferOptimiser::<f64>::new(&meta(), 1, 0.05, Range::new(0.0, 1.0).unwrap()).unwrap();
+    let mut o = BufferOptimiser::<f64>::new(&meta(), 1, 0.05, Range::new(0.0, 1.0).unwrap()).unwrap();
     let mut theta = vec![1.0];
     for _ in 0..10 {
         o.step(&mut theta, &[-1.0], Some(&[0.3])).unwrap();
@@ -468,19 +373,9 @@ fn sign_flips() {
         let f = if t < 30 { 1.0 } else { -1.0 };
         (f, if t == 30 { -2.0 } else { 0.0 })
     };
-    let case = Case {
-        n: 2,
-        iters: 60,
-        lr: 0.01,
-        range: Range::UNBOUNDED,
-        init: 0.0,
-        input: &alternating,
-    };
+    let case = Case { n: 2, iters: 60, lr: 0.01, range: Range::UNBOUNDED, init: 0.0, input: &alternating };
     stable_everywhere(&case);
-    let case = Case {
-        input: &sudden,
-        ..case
-    };
+    let case = Case { input: &sudden, ..case };
     for (opt, traj, _) in stable_everywhere(&case) {
         let step = |t: usize| traj[t][0] - traj[t - 1][0];
         assert!(step(29) < 0.0, "{opt}");
@@ -504,14 +399,7 @@ fn nonfinite_inputs_are_counted_and_skipped() {
             _ => (f, df),
         }
     };
-    let case = Case {
-        n: 6,
-        iters: 40,
-        lr: 0.02,
-        range: Range::UNBOUNDED,
-        init: 0.0,
-        input: &input,
-    };
+    let case = Case { n: 6, iters: 40, lr: 0.02, range: Range::UNBOUNDED, init: 0.0, input: &input };
     for (opt, traj, count) in stable_everywhere(&case) {
         // Adam reads no ΔF, so a non-finite ΔF alone is no input error for it.
         let per_round = if opt.needs_fd() { 4 } else { 3 };
@@ -551,10 +439,7 @@ fn quadratic_spiky(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, 
     let mut o = BufferOptimiser::<f64>::new(opt, n, lr, Range::new(-4.0, 4.0).unwrap()).unwrap();
     let mut theta = vec![0.0; n];
     let mut prev = theta.clone();
-    let n_eff = |o: &BufferOptimiser<f64>| {
-        o.meta_state()
-            .map_or(0.0, |s| s.iter().map(|e| e.n_eff).sum::<f64>() / n as f64)
-    };
+    let n_eff = |o: &BufferOptimiser<f64>| o.meta_state().map_or(0.0, |s| s.iter().map(|e| e.n_eff).sum::<f64>() / n as f64);
     // (total, half-sample sum) of an estimate with expectation `mean` and noise `sigma`.
     let mut halves = |mean: f64, sigma: f64| {
         let (x, y) = (rng.normal(), rng.normal());
@@ -580,23 +465,14 @@ fn quadratic_spiky(opt: &Optimiser, lr: f64, seed: u64, iters: u32, sigma: f64, 
             n_eff_3q = n_eff(&o);
         }
     }
-    let rmse = (theta
-        .iter()
-        .zip(&target)
-        .map(|(x, y)| (x - y).powi(2))
-        .sum::<f64>()
-        / n as f64)
-        .sqrt();
+    let rmse = (theta.iter().zip(&target).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / n as f64).sqrt();
     let nis = o.meta_state().map_or(0.0, |s| s.iter().map(|e| e.nis).sum::<f64>() / n as f64);
     (rmse, n_eff_3q, n_eff(&o), nis)
 }
 
 fn mean_error(opt: &Optimiser, lr: f64, seeds: std::ops::Range<u64>, iters: u32) -> f64 {
     let k = seeds.end - seeds.start;
-    seeds
-        .map(|s| quadratic(opt, lr, s, iters, 0.01).0)
-        .sum::<f64>()
-        / k as f64
+    seeds.map(|s| quadratic(opt, lr, s, iters, 0.01).0).sum::<f64>() / k as f64
 }
 
 #[test]
@@ -606,20 +482,13 @@ fn meta_beats_adam_on_a_noisy_quadratic() {
     let grid = [0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2];
     for iters in [100, 300] {
         let best = |opt: &Optimiser| {
-            let scored = grid
-                .iter()
-                .map(|&lr| (mean_error(opt, lr, 1000..1004, iters), lr));
-            scored
-                .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a })
-                .1
+            let scored = grid.iter().map(|&lr| (mean_error(opt, lr, 1000..1004, iters), lr));
+            scored.fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a }).1
         };
         let (lr_meta, lr_adam) = (best(&meta()), best(&adam()));
         let err_meta = mean_error(&meta(), lr_meta, 0..8, iters);
         let err_adam = mean_error(&adam(), lr_adam, 0..8, iters);
-        assert!(
-            err_meta < 0.85 * err_adam,
-            "{iters} iterations: meta {err_meta} (lr {lr_meta}) vs adam {err_adam} (lr {lr_adam})"
-        );
+        assert!(err_meta < 0.85 * err_adam, "{iters} iterations: meta {err_meta} (lr {lr_meta}) vs adam {err_adam} (lr {lr_adam})");
     }
 }
 
@@ -630,10 +499,7 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
     // the bound only through the noise of the VF EMA, which vanishes as β_F → 1.
     for (decay_f, at_least) in [(0.9, 0.4), (0.999, 0.9)] {
         // The seed's zero-centred variance: this stream has no half sums.
-        let opt = Optimiser::Meta(MetaHyper {
-            decay_f,
-            ..MetaHyper::seed()
-        });
+        let opt = Optimiser::Meta(MetaHyper { decay_f, ..MetaHyper::seed() });
         let (n, iters) = (64, 400);
         let mut rng = Rng(3);
         let mut o = BufferOptimiser::<f64>::new(&opt, n, 0.01, Range::UNBOUNDED).unwrap();
@@ -643,17 +509,11 @@ fn alpha_approaches_the_averaging_bound_with_exact_fd() {
             o.step(&mut theta, &f, Some(&vec![0.0; n])).unwrap();
         }
         let n_eff = o.meta_state().unwrap().iter().map(|e| e.n_eff).sum::<f64>() / n as f64;
-        assert!(
-            n_eff > at_least * iters as f64,
-            "decay_f {decay_f}: n_eff {n_eff} after {iters} steps"
-        );
+        assert!(n_eff > at_least * iters as f64, "decay_f {decay_f}: n_eff {n_eff} after {iters} steps");
     }
     // The noisy quadratic: exact ⟨ΔF⟩ keep n_eff growing; noisy ones (σ_d = σ) hold it near 2.
     let (_, early, late) = quadratic(&meta(), 0.02, 7, 400, 0.0);
-    assert!(
-        late - early > 20.0,
-        "n_eff {early} -> {late} over the last 100 steps"
-    );
+    assert!(late - early > 20.0, "n_eff {early} -> {late} over the last 100 steps");
     let (_, _, noisy) = quadratic(&meta(), 0.02, 7, 400, 3.0);
     assert!(noisy < 3.0, "n_eff {noisy} with noisy finite differences");
 }
@@ -1005,7 +865,14 @@ fn a_persistent_sign_makes_the_estimate_significant() {
     let (plain, _, pd) = secant_quadratic(base, 1.0, 0.9, 0.01, 60, 0.5);
     let (persist, _, sd) = secant_quadratic(MetaHyper { persist: 3.0, ..base }, 1.0, 0.9, 0.01, 60, 0.5);
     let newton = |d: &[Diagnostics]| d.iter().filter(|d| d.newton > 0.0).count();
-    eprintln!("Newton steps {} / {}, error {:.4} / {:.4} (persist / plain); n_eff at the end {:.1}", newton(&sd), newton(&pd), (persist[59] - 0.9).abs(), (plain[59] - 0.9).abs(), sd[59].n_eff_mean);
+    eprintln!(
+        "Newton steps {} / {}, error {:.4} / {:.4} (persist / plain); n_eff at the end {:.1}",
+        newton(&sd),
+        newton(&pd),
+        (persist[59] - 0.9).abs(),
+        (plain[59] - 0.9).abs(),
+        sd[59].n_eff_mean
+    );
     assert!(newton(&sd) > newton(&pd) + 5, "Newton steps: {} with persist, {} without", newton(&sd), newton(&pd));
     let (e_plain, e_persist) = ((plain[59] - 0.9).abs(), (persist[59] - 0.9).abs());
     assert!(e_persist < 0.5 * e_plain, "error after 60 steps: {e_persist} with persist, {e_plain} without");
@@ -1077,8 +944,7 @@ fn newton_in_f32_follows_f64() {
                 (R::of((x + y) / 2.0), R::of(y / 2.0))
             };
             let (f, fh): (Vec<R>, Vec<R>) = (0..n).map(|i| est(a[i] * (theta[i].to_f64() - target[i]), 3e-5)).unzip();
-            let (df, dh): (Vec<R>, Vec<R>) =
-                (0..n).map(|i| est(a[i] * (theta[i].to_f64() - prev[i].to_f64()), 1e-7)).unzip();
+            let (df, dh): (Vec<R>, Vec<R>) = (0..n).map(|i| est(a[i] * (theta[i].to_f64() - prev[i].to_f64()), 1e-7)).unzip();
             prev.clone_from(&theta);
             let input = StepInput { grad: &f, fd: Some(&df), grad_half: Some(&fh), fd_half: Some(&dh) };
             o.step_with(&mut theta, input).unwrap();
@@ -1171,32 +1037,14 @@ fn missing_halves_are_an_error() {
 
 #[test]
 fn input_errors() {
-    assert!(matches!(
-        "sgd".parse::<Optimiser>(),
-        Err(OptimError::UnknownOptimiser(_))
-    ));
-    assert_eq!(
-        "0,1".parse::<Range>().unwrap(),
-        Range::new(0.0, 1.0).unwrap()
-    );
+    assert!(matches!("sgd".parse::<Optimiser>(), Err(OptimError::UnknownOptimiser(_))));
+    assert_eq!("0,1".parse::<Range>().unwrap(), Range::new(0.0, 1.0).unwrap());
     assert!("1,0".parse::<Range>().is_err() && "x".parse::<Range>().is_err());
     let g = vec![vec![1.0f32; 3]; 2];
-    assert!(matches!(
-        replay_cpu::<f64>(&meta(), &g, None, &[0.0; 3], Range::UNBOUNDED, 0.1),
-        Err(OptimError::MissingFd)
-    ));
-    assert!(matches!(
-        replay_cpu::<f64>(&adam(), &g, None, &[0.0; 2], Range::UNBOUNDED, 0.1),
-        Err(OptimError::Length { .. })
-    ));
-    let bad = Optimiser::Meta(MetaHyper {
-        decay_f: 1.0,
-        ..Default::default()
-    });
-    assert!(matches!(
-        BufferOptimiser::<f64>::new(&bad, 1, 0.1, Range::UNBOUNDED),
-        Err(OptimError::BadHyper(_))
-    ));
+    assert!(matches!(replay_cpu::<f64>(&meta(), &g, None, &[0.0; 3], Range::UNBOUNDED, 0.1), Err(OptimError::MissingFd)));
+    assert!(matches!(replay_cpu::<f64>(&adam(), &g, None, &[0.0; 2], Range::UNBOUNDED, 0.1), Err(OptimError::Length { .. })));
+    let bad = Optimiser::Meta(MetaHyper { decay_f: 1.0, ..Default::default() });
+    assert!(matches!(BufferOptimiser::<f64>::new(&bad, 1, 0.1, Range::UNBOUNDED), Err(OptimError::BadHyper(_))));
 }
 
 /// A texture-like group of `n` elements on a noisy quadratic with per-element curvatures
@@ -1302,7 +1150,11 @@ fn secant_fits(h: MetaHyper, a: f64, step: f64, sigma: f64, iters: u32) -> Vec<(
     let mut state = 0x2545_f491_u64;
     let mut sign = || {
         state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        if state >> 63 == 1 { 1.0 } else { -1.0 }
+        if state >> 63 == 1 {
+            1.0
+        } else {
+            -1.0
+        }
     };
     let mut e = MetaElem::<f64>::default();
     let mut out = Vec::new();

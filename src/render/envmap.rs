@@ -95,13 +95,7 @@ impl EnvDistribution {
         let pmf: Vec<f64> = weight
             .iter()
             .zip(&omega)
-            .map(|(wt, om)| {
-                if total > 0.0 && total.is_finite() {
-                    (1.0 - UNIFORM_SHARE) * wt / total + UNIFORM_SHARE * om / sphere
-                } else {
-                    om / sphere
-                }
-            })
+            .map(|(wt, om)| if total > 0.0 && total.is_finite() { (1.0 - UNIFORM_SHARE) * wt / total + UNIFORM_SHARE * om / sphere } else { om / sphere })
             .collect();
         let norm: f64 = pmf.iter().sum();
         let pmf: Vec<f64> = pmf.iter().map(|p| p / norm).collect();

@@ -74,7 +74,20 @@ mod tests {
             }
             let n = 20_000;
             let h = (b - a) / n as f64;
-            (0..=n).map(|i| f.weight(a + i as f64 * h) * if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 }).sum::<f64>() * h / 3.0
+            (0..=n)
+                .map(|i| {
+                    f.weight(a + i as f64 * h)
+                        * if i == 0 || i == n {
+                            1.0
+                        } else if i % 2 == 1 {
+                            4.0
+                        } else {
+                            2.0
+                        }
+                })
+                .sum::<f64>()
+                * h
+                / 3.0
         };
         let r = f64::from(f.radius());
         simpson(a.max(-r), b.min(r)) / simpson(-r, r)
@@ -86,7 +99,9 @@ mod tests {
     #[test]
     fn samples_follow_their_filters() {
         assert!(table(PixelFilter::Box).is_none());
-        for f in [PixelFilter::Gaussian { stddev: 0.5 }, PixelFilter::Gaussian { stddev: 1.2 }, PixelFilter::Tent { radius: 1.0 }, PixelFilter::Tent { radius: 2.5 }] {
+        for f in
+            [PixelFilter::Gaussian { stddev: 0.5 }, PixelFilter::Gaussian { stddev: 1.2 }, PixelFilter::Tent { radius: 1.0 }, PixelFilter::Tent { radius: 2.5 }]
+        {
             let t = table(f).unwrap();
             assert_eq!(t.len(), 2 * FILTER_TABLE_SIZE + 3);
             const COUNT: usize = 200_000;

@@ -119,8 +119,7 @@ impl GradientPass {
             }
         }
         let spec = scene.spec();
-        let (primal_name, adjoint_name) =
-            if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };
+        let (primal_name, adjoint_name) = if theta_prev.is_some() { ("trace_fd_primal", "trace_fd_adjoint") } else { ("trace_primal", "trace_adjoint") };
         let primal = ComputePipeline::new(ctx, &scene.kernel(primal_name), &spec)?;
         // Small θ is accumulated per thread before the atomics (glsl/lib/scene_access.glsl).
         let mut adjoint_spec = spec.clone();
@@ -196,7 +195,22 @@ impl GradientPass {
                 adjoint_radiance,
             });
         }
-        Ok(Self { primal_kernel: primal_name, adjoint_kernel: adjoint_name, primal, adjoint, loss, sensors, grad, grad_half, fresh_half, spp, primal_spp, seed, stride: 1, phase: 0 })
+        Ok(Self {
+            primal_kernel: primal_name,
+            adjoint_kernel: adjoint_name,
+            primal,
+            adjoint,
+            loss,
+            sensors,
+            grad,
+            grad_half,
+            fresh_half,
+            spp,
+            primal_spp,
+            seed,
+            stride: 1,
+            phase: 0,
+        })
     }
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
@@ -219,14 +233,7 @@ impl GradientPass {
 
     /// Records the primal renders and the loss, and with `adjoint` the adjoint pass, each
     /// in a profiler scope named after its kernel when a profiler is given.
-    pub fn record_passes(
-        &self,
-        rec: &mut Recorder,
-        scene: &GpuScene,
-        ops: &BufferOps,
-        adjoint: bool,
-        mut profiler: Option<&mut Profiler>,
-    ) -> gpu::Result<()> {
+    pub fn record_passes(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, adjoint: bool, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
         for s in 0..self.sensors.len() {
             self.record_sensor_primal(rec, scene, s, profiler.as_deref_mut())?;
             self.record_sensor_rest(rec, scene, ops, s, adjoint, profiler.as_deref_mut())?;

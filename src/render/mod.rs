@@ -20,16 +20,18 @@ pub mod params;
 pub mod targets;
 
 use crate::bvh::{self, BvhBuffers, BvhLayout};
+use crate::constants::{
+    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
+    MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
+};
 use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-use crate::scene::{AlphaMode, Bitangent, ColorValue, LightKind, Wrap, Material, MaterialKind, ParamTarget, Perturbation, ScalarValue, Scene, SpotFalloff, TextureValue as _};
-use crate::constants::{
-    MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
-    MATERIAL_THIN_DIELECTRIC,
+pub use crate::push::TracePush;
+use crate::scene::{
+    AlphaMode, Bitangent, ColorValue, LightKind, Material, MaterialKind, ParamTarget, Perturbation, ScalarValue, Scene, SpotFalloff, TextureValue as _, Wrap,
 };
 use crate::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
 use glam::{Vec2, Vec3};
-pub use crate::push::TracePush;
 pub use params::{ParamLayout, ParamSlot};
 use std::sync::Arc;
 
@@ -297,7 +299,11 @@ impl LuminanceTable {
             let (a, b) = (a as i64, b as i64 + 1);
             let start = a.rem_euclid(n);
             let end = start + (b - a);
-            if end <= n { vec![(start, end)] } else { vec![(start, n), (0, end - n)] }
+            if end <= n {
+                vec![(start, end)]
+            } else {
+                vec![(start, n), (0, end - n)]
+            }
         };
         // Rows are stored top first: v = 1 is row 0.
         let (xs, ys) = match wrap {
@@ -546,7 +552,8 @@ impl GpuScene {
         // value is not known when the table is built).
         let optimised_emission = scene.meshes.iter().enumerate().any(|(i, _)| layout.slot(ParamTarget::Emission { mesh: i }).is_some());
         let mut luminance_tables: Vec<(*const Image, LuminanceTable)> = Vec::new();
-        let mesh_emits: Vec<bool> = scene.meshes.iter().enumerate().map(|(i, m)| layout.slot(ParamTarget::Emission { mesh: i }).is_some() || m.emission.any_positive()).collect();
+        let mesh_emits: Vec<bool> =
+            scene.meshes.iter().enumerate().map(|(i, m)| layout.slot(ParamTarget::Emission { mesh: i }).is_some() || m.emission.any_positive()).collect();
         let mut shading: Vec<TriShading> = Vec::with_capacity(geo.indices.len());
         let mut emitters: Vec<EmitterTri> = Vec::new();
         let mut weights = Vec::new();
@@ -980,7 +987,11 @@ mod tests {
             let hi = |k: usize| uvs.iter().map(|t| t[k]).fold(f32::NEG_INFINITY, f32::max) as f64;
             let axis = |lo: f64, hi: f64, n: i64| -> Vec<i64> {
                 let (a, b) = ((lo * n as f64 - 0.5).floor() as i64 - 1, (hi * n as f64 - 0.5).floor() as i64 + 2);
-                if b - a + 1 >= n { (0..n).collect() } else { (a..=b).map(|x| x.rem_euclid(n)).collect() }
+                if b - a + 1 >= n {
+                    (0..n).collect()
+                } else {
+                    (a..=b).map(|x| x.rem_euclid(n)).collect()
+                }
             };
             let (xs, ys) = (axis(lo(0), hi(0), w as i64), axis(1.0 - hi(1), 1.0 - lo(1), h as i64));
             let texels = &img.data;

@@ -103,11 +103,7 @@ impl ParamLayout {
             .slots
             .iter()
             .map(|s| {
-                let se: f64 = theta[s.offset..s.offset + s.len]
-                    .iter()
-                    .zip(&s.reference)
-                    .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
-                    .sum();
+                let se: f64 = theta[s.offset..s.offset + s.len].iter().zip(&s.reference).map(|(a, b)| (*a as f64 - *b as f64).powi(2)).sum();
                 total += se;
                 (se / s.len.max(1) as f64).sqrt()
             })

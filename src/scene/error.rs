@@ -16,91 +16,46 @@ pub enum SceneError {
 
     /// TOML syntax, an unknown key, a missing key or a value of the wrong type.
     #[error("{}:{line}:{column}: {message}", path.display())]
-    Toml {
-        path: PathBuf,
-        line: usize,
-        column: usize,
-        message: String,
-        source: Box<toml::de::Error>,
-    },
+    Toml { path: PathBuf, line: usize, column: usize, message: String, source: Box<toml::de::Error> },
 
     /// A file named by `key` cannot be read.
     #[error("{}: {key}: cannot read {}: {source}", scene.display(), file.display())]
-    MissingFile {
-        scene: PathBuf,
-        key: String,
-        file: PathBuf,
-        source: io::Error,
-    },
+    MissingFile { scene: PathBuf, key: String, file: PathBuf, source: io::Error },
 
     /// A mesh file (OBJ or PLY) is malformed; `line` is 0 where no single line is at fault.
     #[error("{}{}: {message}", path.display(), if *line > 0 { format!(":{line}") } else { String::new() })]
-    Obj {
-        path: PathBuf,
-        line: usize,
-        message: String,
-    },
+    Obj { path: PathBuf, line: usize, message: String },
 
     /// tobj rejected an OBJ file that passed the line checks.
     #[error("{}: malformed OBJ: {source}", path.display())]
-    ObjParse {
-        path: PathBuf,
-        source: tobj::LoadError,
-    },
+    ObjParse { path: PathBuf, source: tobj::LoadError },
 
     /// An image named by `key` cannot be decoded.
     #[error("{}: {key}: {source}", scene.display())]
-    Image {
-        scene: PathBuf,
-        key: String,
-        source: ImageError,
-    },
+    Image { scene: PathBuf, key: String, source: ImageError },
 
     #[error("{}: {key}: {} has a non-finite value at pixel ({x}, {y})", scene.display(), image.display())]
-    NonFinitePixel {
-        scene: PathBuf,
-        key: String,
-        image: PathBuf,
-        x: u32,
-        y: u32,
-    },
+    NonFinitePixel { scene: PathBuf, key: String, image: PathBuf, x: u32, y: u32 },
 
     #[error("{}: {key}: non-finite value", scene.display())]
     NonFinite { scene: PathBuf, key: String },
 
     /// A value outside what it may be (film size, field of view, init outside range, ...).
     #[error("{}: {key}: {message}", scene.display())]
-    OutOfRange {
-        scene: PathBuf,
-        key: String,
-        message: String,
-    },
+    OutOfRange { scene: PathBuf, key: String, message: String },
 
     /// `key` refers to a material or mesh that the scene does not define.
     #[error("{}: {key}: no {kind} named \"{name}\"", scene.display())]
-    Undefined {
-        scene: PathBuf,
-        key: String,
-        kind: &'static str,
-        name: String,
-    },
+    Undefined { scene: PathBuf, key: String, kind: &'static str, name: String },
 
     #[error("{}: {key}: \"{name}\" is defined more than once", scene.display())]
-    Duplicate {
-        scene: PathBuf,
-        key: String,
-        name: String,
-    },
+    Duplicate { scene: PathBuf, key: String, name: String },
 
     /// A glTF or Mitsuba file that cannot be imported: `location` is a JSON path
     /// (`materials[2].normalTexture`) or an XML line and element (`line 14: <bsdf
     /// type="plastic">`), or empty when the whole file is at fault.
     #[error("{}: {}{message}", path.display(), if location.is_empty() { String::new() } else { format!("{location}: ") })]
-    Import {
-        path: PathBuf,
-        location: String,
-        message: String,
-    },
+    Import { path: PathBuf, location: String, message: String },
 
     /// The recovered scene could not be written.
     #[error("{}: cannot write the recovered scene: {message}", path.display())]
@@ -108,11 +63,7 @@ pub enum SceneError {
 
     /// Any other inconsistency between keys.
     #[error("{}: {key}: {message}", scene.display())]
-    Invalid {
-        scene: PathBuf,
-        key: String,
-        message: String,
-    },
+    Invalid { scene: PathBuf, key: String, message: String },
 }
 
 impl SceneError {
@@ -126,12 +77,6 @@ impl SceneError {
         let line = before.matches('\n').count() + 1;
         let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
         let message = source.message().trim().replace('\n', "; ");
-        Self::Toml {
-            path,
-            line,
-            column,
-            message,
-            source: Box::new(source),
-        }
+        Self::Toml { path, line, column, message, source: Box::new(source) }
     }
 }

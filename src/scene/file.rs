@@ -217,20 +217,14 @@ pub enum WrapInput {
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(
-    untagged,
-    expecting = "expected [r, g, b] or { texture = \"file.exr\" }"
-)]
+#[serde(untagged, expecting = "expected [r, g, b] or { texture = \"file.exr\" }")]
 pub enum ColorInput {
     Constant([f32; 3]),
     Texture(TextureRef),
 }
 
 #[derive(Debug, Deserialize)]
-#[serde(
-    untagged,
-    expecting = "expected a number or { texture = \"file.exr\" }"
-)]
+#[serde(untagged, expecting = "expected a number or { texture = \"file.exr\" }")]
 pub enum ScalarInput {
     Constant(f32),
     Texture(TextureRef),
@@ -344,4 +338,3 @@ pub struct ParamFile {
     pub texture: Option<[u32; 2]>,
     pub lr: Option<f32>,
 }
-

@@ -300,10 +300,7 @@ impl Importer<'_> {
         let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
         // A mirroring transform turns counter-clockwise triangles clockwise.
         let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
-        let indices = flat
-            .chunks_exact(3)
-            .map(|t| if mirrored { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] })
-            .collect();
+        let indices = flat.chunks_exact(3).map(|t| if mirrored { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] }).collect();
         let material = self.material(prim.material(), &at)?;
         let emission = self.emission(&prim.material(), &at)?;
         let m = prim.material();
@@ -391,7 +388,11 @@ impl Importer<'_> {
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(Perturbation::Normal(NormalMap { texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) }, scale, bitangent: Bitangent::Uv }))
+                Some(Perturbation::Normal(NormalMap {
+                    texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) },
+                    scale,
+                    bitangent: Bitangent::Uv,
+                }))
             }
         };
         let name = match (m.name(), m.index()) {
@@ -406,7 +407,22 @@ impl Importer<'_> {
                 let rough = if kind == MaterialKind::RoughDielectric { roughness } else { ScalarValue::Constant(0.0) };
                 Material { absorption, roughness: rough, ..Material::glass(name, kind, base_color, ior) }
             }
-            None => Material { name, kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided: false, perturbation, alpha, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false },
+            None => Material {
+                name,
+                kind: MaterialKind::Principled,
+                base_color,
+                roughness,
+                metallic,
+                one_sided: false,
+                perturbation,
+                alpha,
+                ior,
+                absorption: [0.0; 3],
+                distribution: Distribution::Ggx,
+                eta: [0.0; 3],
+                k: [0.0; 3],
+                nonlinear: false,
+            },
         };
         self.out.materials.push(material);
         self.sources.materials.push(m.index());
@@ -462,7 +478,12 @@ impl Importer<'_> {
             match &shared {
                 None => shared = Some((key, t)),
                 Some((first, s)) if *s != t => {
-                    return Err(self.err(&key, format!("differs from {first}: the textures of one material must share one texture transform (one set of texture coordinates per mesh)")));
+                    return Err(self.err(
+                        &key,
+                        format!(
+                            "differs from {first}: the textures of one material must share one texture transform (one set of texture coordinates per mesh)"
+                        ),
+                    ));
                 }
                 Some(_) => {}
             }
@@ -526,7 +547,15 @@ impl Importer<'_> {
     /// which a material without transmission keeps as its principled model's (its
     /// dielectric reflectance ((ior − 1)/(ior + 1))² at normal incidence, as glTF's).
     /// An index outside [MIN_IOR, MAX_IOR] is an error.
-    fn transmission(&mut self, m: &gltf::Material, at: &str, roughness: &ScalarValue, metallic: &ScalarValue, normal_map: bool, alpha: bool) -> Result<(f32, Option<(MaterialKind, [f32; 3])>), SceneError> {
+    fn transmission(
+        &mut self,
+        m: &gltf::Material,
+        at: &str,
+        roughness: &ScalarValue,
+        metallic: &ScalarValue,
+        normal_map: bool,
+        alpha: bool,
+    ) -> Result<(f32, Option<(MaterialKind, [f32; 3])>), SceneError> {
         let ext = |name: &str| m.extension_value(name);
         let number = |this: &Self, name: &str, field: &str, default: f32| -> Result<f32, SceneError> {
             let key = format!("{at}.extensions.{name}.{field}");
@@ -667,7 +696,8 @@ impl Importer<'_> {
         let origin = world.transform_point3(Vec3::ZERO);
         let forward = world.transform_vector3(Vec3::NEG_Z);
         let up = world.transform_vector3(Vec3::Y);
-        let mut sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(&at, format!("its node's transform is degenerate: {e}")))?;
+        let mut sensor =
+            Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(&at, format!("its node's transform is degenerate: {e}")))?;
         sensor.ortho_height = ortho_height;
         if self.out.sensors.is_empty() {
             let side = GLTF_FILM_SIDE as f32;
@@ -690,9 +720,12 @@ impl Importer<'_> {
         let kind = match light.kind() {
             Kind::Point => LightKind::Point,
             Kind::Directional => LightKind::Directional,
-            Kind::Spot { inner_cone_angle, outer_cone_angle } => LightKind::Spot { inner: inner_cone_angle, outer: outer_cone_angle, falloff: SpotFalloff::Smooth },
+            Kind::Spot { inner_cone_angle, outer_cone_angle } => {
+                LightKind::Spot { inner: inner_cone_angle, outer: outer_cone_angle, falloff: SpotFalloff::Smooth }
+            }
         };
-        let direction = world.transform_vector3(Vec3::NEG_Z).try_normalize().ok_or_else(|| self.err(format!("nodes[{node}]"), "degenerate transform of a light"))?;
+        let direction =
+            world.transform_vector3(Vec3::NEG_Z).try_normalize().ok_or_else(|| self.err(format!("nodes[{node}]"), "degenerate transform of a light"))?;
         let name = match light.name() {
             Some(n) if self.out.lights.iter().any(|l| l.name == n) => format!("{n}#{}", light.index()),
             Some(n) => n.to_string(),
@@ -741,6 +774,7 @@ fn to_image(d: &gltf::image::Data) -> Option<(Image, Option<Image>)> {
     let pixels = || d.pixels.chunks_exact(channels * bytes);
     let c = |px: &[u8], k: usize| value(&px[k * bytes..(k + 1) * bytes]);
     let data: Vec<[f32; 3]> = pixels().map(|px| if channels < 3 { [c(px, 0); 3] } else { [c(px, 0), c(px, 1), c(px, 2)] }).collect();
-    let alpha = (channels == 2 || channels == 4).then(|| Image { width: d.width, height: d.height, data: pixels().map(|px| [c(px, channels - 1); 3]).collect() });
+    let alpha =
+        (channels == 2 || channels == 4).then(|| Image { width: d.width, height: d.height, data: pixels().map(|px| [c(px, channels - 1); 3]).collect() });
     (data.len() == (d.width * d.height) as usize).then_some((Image { width: d.width, height: d.height, data }, alpha))
 }

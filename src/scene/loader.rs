@@ -67,29 +67,18 @@ pub(super) struct Loader {
 
 impl Loader {
     pub fn out_of_range(&self, key: &str, message: String) -> SceneError {
-        SceneError::OutOfRange {
-            scene: self.scene.clone(),
-            key: key.into(),
-            message,
-        }
+        SceneError::OutOfRange { scene: self.scene.clone(), key: key.into(), message }
     }
 
     pub fn invalid(&self, key: &str, message: &str) -> SceneError {
-        SceneError::Invalid {
-            scene: self.scene.clone(),
-            key: key.into(),
-            message: message.into(),
-        }
+        SceneError::Invalid { scene: self.scene.clone(), key: key.into(), message: message.into() }
     }
 
     pub fn finite(&self, key: &str, values: &[f32]) -> Result<(), SceneError> {
         if values.iter().all(|v| v.is_finite()) {
             Ok(())
         } else {
-            Err(SceneError::NonFinite {
-                scene: self.scene.clone(),
-                key: key.into(),
-            })
+            Err(SceneError::NonFinite { scene: self.scene.clone(), key: key.into() })
         }
     }
 
@@ -102,13 +91,7 @@ impl Loader {
         Ok(c)
     }
 
-    fn in_range<T: PartialOrd + std::fmt::Display>(
-        &self,
-        key: &str,
-        v: T,
-        lo: T,
-        hi: T,
-    ) -> Result<T, SceneError> {
+    fn in_range<T: PartialOrd + std::fmt::Display>(&self, key: &str, v: T, lo: T, hi: T) -> Result<T, SceneError> {
         if v >= lo && v <= hi {
             Ok(v)
         } else {
@@ -119,30 +102,15 @@ impl Loader {
     /// Reads a file named at `key`, relative to the scene's directory.
     pub fn read(&self, key: &str, rel: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
         let file = self.dir.join(rel);
-        let bytes = fs::read(&file).map_err(|source| SceneError::MissingFile {
-            scene: self.scene.clone(),
-            key: key.into(),
-            file: file.clone(),
-            source,
-        })?;
+        let bytes = fs::read(&file).map_err(|source| SceneError::MissingFile { scene: self.scene.clone(), key: key.into(), file: file.clone(), source })?;
         Ok((file, bytes))
     }
 
     pub fn texture(&self, key: &str, rel: &str) -> Result<Texture, SceneError> {
         let (path, bytes) = self.read(key, rel)?;
-        let image = image::decode_linear(&bytes, &path).map_err(|source| SceneError::Image {
-            scene: self.scene.clone(),
-            key: key.into(),
-            source,
-        })?;
+        let image = image::decode_linear(&bytes, &path).map_err(|source| SceneError::Image { scene: self.scene.clone(), key: key.into(), source })?;
         if let Some((x, y)) = image.find_non_finite() {
-            return Err(SceneError::NonFinitePixel {
-                scene: self.scene.clone(),
-                key: key.into(),
-                image: path,
-                x,
-                y,
-            });
+            return Err(SceneError::NonFinitePixel { scene: self.scene.clone(), key: key.into(), image: path, x, y });
         }
         Ok(Texture { path, image: image.into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })
     }
@@ -161,9 +129,8 @@ impl Loader {
             Some(file::WrapInput::Both(n)) => [n, n],
             Some(file::WrapInput::Each([u, v])) => [u, v],
         };
-        let mode = |n: &String| {
-            Wrap::from_name(n).ok_or_else(|| self.invalid(&format!("{key}.wrap"), &format!("\"{n}\" is not \"repeat\", \"clamp\" or \"mirror\"")))
-        };
+        let mode =
+            |n: &String| Wrap::from_name(n).ok_or_else(|| self.invalid(&format!("{key}.wrap"), &format!("\"{n}\" is not \"repeat\", \"clamp\" or \"mirror\"")));
         Ok([mode(names[0])?, mode(names[1])?])
     }
 
@@ -177,7 +144,10 @@ impl Loader {
             Some(other) => return Err(self.invalid("film.filter", &format!("\"{other}\" is not \"box\", \"gaussian\" or \"tent\""))),
         };
         let given = |key: &str, v: Option<f32>, applies: bool| match (v, applies) {
-            (Some(_), false) => Err(self.invalid(key, &format!("applies to a {} filter only, not to \"{}\"", if key == "film.filter_stddev" { "gaussian" } else { "tent" }, filter.name()))),
+            (Some(_), false) => Err(self.invalid(
+                key,
+                &format!("applies to a {} filter only, not to \"{}\"", if key == "film.filter_stddev" { "gaussian" } else { "tent" }, filter.name()),
+            )),
             _ => Ok(()),
         };
         let named = film.filter.is_some();
@@ -292,8 +262,7 @@ impl Loader {
                 continue;
             }
             let material = &materials[mesh.material];
-            let textured = material.is_textured()
-                || optimise.params.iter().any(|p| p.texture.is_some() && p.target.material() == Some(mesh.material));
+            let textured = material.is_textured() || optimise.params.iter().any(|p| p.texture.is_some() && p.target.material() == Some(mesh.material));
             let emission_textured = matches!(mesh.emission, ColorValue::Texture(_))
                 || optimise.params.iter().any(|p| p.texture.is_some() && p.target == ParamTarget::Emission { mesh: i });
             let what = if textured {
@@ -394,7 +363,11 @@ impl Loader {
                             file::FalloffType::Smooth => SpotFalloff::Smooth,
                             file::FalloffType::Linear => SpotFalloff::Linear,
                         };
-                        (LightKind::Spot { inner: inner.to_radians(), outer: outer.to_radians(), falloff }, needs("position", l.position)?, direction(l.direction)?)
+                        (
+                            LightKind::Spot { inner: inner.to_radians(), outer: outer.to_radians(), falloff },
+                            needs("position", l.position)?,
+                            direction(l.direction)?,
+                        )
                     }
                 };
                 if l.kind != file::LightType::Spot && (l.inner_angle.is_some() || l.outer_angle.is_some()) {
@@ -452,17 +425,8 @@ impl Loader {
                 let k = format!("{key}.target_image");
                 let t = self.texture(&k, &rel)?;
                 if (t.image.width, t.image.height) != (film.width, film.height) {
-                    return Err(self.invalid(
-                        &k,
-                        &format!(
-                            "{} is {}x{} but the film is {}x{}",
-                            t.path.display(),
-                            t.image.width,
-                            t.image.height,
-                            film.width,
-                            film.height
-                        ),
-                    ));
+                    return Err(self
+                        .invalid(&k, &format!("{} is {}x{} but the film is {}x{}", t.path.display(), t.image.width, t.image.height, film.width, film.height)));
                 }
                 Some(t)
             }
@@ -472,21 +436,12 @@ impl Loader {
         Ok(sensor)
     }
 
-    pub fn check_name(
-        &self,
-        key: &str,
-        name: &str,
-        seen: &mut HashSet<String>,
-    ) -> Result<(), SceneError> {
+    pub fn check_name(&self, key: &str, name: &str, seen: &mut HashSet<String>) -> Result<(), SceneError> {
         if name.is_empty() {
             return Err(self.invalid(key, "name is empty"));
         }
         if !seen.insert(name.to_string()) {
-            return Err(SceneError::Duplicate {
-                scene: self.scene.clone(),
-                key: key.into(),
-                name: name.into(),
-            });
+            return Err(SceneError::Duplicate { scene: self.scene.clone(), key: key.into(), name: name.into() });
         }
         Ok(())
     }
@@ -510,33 +465,30 @@ impl Loader {
             }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
-                    self.scalar_value(
-                        &format!("{key}.roughness"),
-                        m.roughness.unwrap_or(ScalarInput::Constant(0.5)),
-                    )?,
-                    self.scalar_value(
-                        &format!("{key}.metallic"),
-                        m.metallic.unwrap_or(ScalarInput::Constant(0.0)),
-                    )?,
+                    self.scalar_value(&format!("{key}.roughness"), m.roughness.unwrap_or(ScalarInput::Constant(0.5)))?,
+                    self.scalar_value(&format!("{key}.metallic"), m.metallic.unwrap_or(ScalarInput::Constant(0.0)))?,
                 ),
                 MaterialKind::Diffuse => {
                     if m.roughness.is_some() || m.metallic.is_some() {
-                        return Err(
-                            self.invalid(&key, "a diffuse material takes no roughness or metallic")
-                        );
+                        return Err(self.invalid(&key, "a diffuse material takes no roughness or metallic"));
                     }
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
                 }
                 MaterialKind::Dielectric | MaterialKind::ThinDielectric | MaterialKind::RoughDielectric => {
                     let rough = m.kind == MaterialKind::RoughDielectric;
                     if m.metallic.is_some() || (m.roughness.is_some() && !rough) {
-                        return Err(self.invalid(&key, if rough {
-                            "a rough dielectric takes no metallic"
-                        } else {
-                            "a dielectric is smooth and takes no roughness or metallic (type = \"rough_dielectric\" has a roughness)"
-                        }));
+                        return Err(self.invalid(
+                            &key,
+                            if rough {
+                                "a rough dielectric takes no metallic"
+                            } else {
+                                "a dielectric is smooth and takes no roughness or metallic (type = \"rough_dielectric\" has a roughness)"
+                            },
+                        ));
                     }
-                    for (what, given) in [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("bump_map", m.bump_map.is_some()), ("alpha", m.alpha.is_some())] {
+                    for (what, given) in
+                        [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("bump_map", m.bump_map.is_some()), ("alpha", m.alpha.is_some())]
+                    {
                         if given {
                             return Err(self.invalid(&format!("{key}.{what}"), "is not supported on a dielectric"));
                         }
@@ -561,7 +513,10 @@ impl Loader {
                     }
                     let roughness = match m.roughness {
                         Some(ScalarInput::Texture(_)) => {
-                            return Err(self.invalid(&format!("{key}.roughness"), "must be a number for a plastic (its coating's transmittance is tabulated for one roughness)"));
+                            return Err(self.invalid(
+                                &format!("{key}.roughness"),
+                                "must be a number for a plastic (its coating's transmittance is tabulated for one roughness)",
+                            ));
                         }
                         r => r.unwrap_or(ScalarInput::Constant(DEFAULT_MICROFACET_ROUGHNESS)),
                     };
@@ -571,7 +526,9 @@ impl Loader {
             let absorption = match m.absorption {
                 None => [0.0; 3],
                 Some(_) if m.kind == MaterialKind::ThinDielectric || !m.kind.is_dielectric() => {
-                    return Err(self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\" or \"rough_dielectric\")"));
+                    return Err(
+                        self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\" or \"rough_dielectric\")")
+                    );
                 }
                 Some(a) => {
                     self.finite(&format!("{key}.absorption"), &a)?;
@@ -591,7 +548,10 @@ impl Loader {
             let distribution = match m.distribution.as_deref() {
                 None => Distribution::Ggx,
                 Some(_) if !m.kind.has_distribution() => {
-                    return Err(self.invalid(&format!("{key}.distribution"), "is a rough dielectric's, a conductor's or a plastic's (type = \"rough_dielectric\", \"conductor\" or \"plastic\")"));
+                    return Err(self.invalid(
+                        &format!("{key}.distribution"),
+                        "is a rough dielectric's, a conductor's or a plastic's (type = \"rough_dielectric\", \"conductor\" or \"plastic\")",
+                    ));
                 }
                 Some("ggx") => Distribution::Ggx,
                 Some("beckmann") => Distribution::Beckmann,
@@ -651,7 +611,9 @@ impl Loader {
                             AlphaMode::Mask { cutoff: self.in_range(&k, cutoff, 0.0, 1.0)? }
                         }
                         (Some("blend"), None) => AlphaMode::Blend,
-                        (Some("blend"), Some(_)) => return Err(self.invalid(&k, "has no meaning with alpha_mode = \"blend\" (the surface is there with probability alpha)")),
+                        (Some("blend"), Some(_)) => {
+                            return Err(self.invalid(&k, "has no meaning with alpha_mode = \"blend\" (the surface is there with probability alpha)"))
+                        }
                         (Some(other), _) => return Err(self.invalid(&format!("{key}.alpha_mode"), &format!("\"{other}\" is not \"mask\" or \"blend\""))),
                     };
                     Some(AlphaMask { value, mode })
@@ -690,7 +652,9 @@ impl Loader {
             return Ok([[0.0; 3]; 2]);
         }
         match (metal, eta, k) {
-            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => Err(self.invalid(&format!("{key}.metal"), "names a metal's eta and k: give either `metal` or `eta` and `k`")),
+            (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
+                Err(self.invalid(&format!("{key}.metal"), "names a metal's eta and k: give either `metal` or `eta` and `k`"))
+            }
             (_, Some(_), None) => Err(self.invalid(&format!("{key}.k"), "is missing (`eta` and `k` go together)")),
             (_, None, Some(_)) => Err(self.invalid(&format!("{key}.eta"), "is missing (`eta` and `k` go together)")),
             (_, Some(eta), Some(k)) => {
@@ -712,44 +676,25 @@ impl Loader {
         }
     }
 
-    fn meshes(
-        &self,
-        raw: Vec<file::MeshFile>,
-        materials: &[Material],
-    ) -> Result<Vec<Mesh>, SceneError> {
+    fn meshes(&self, raw: Vec<file::MeshFile>, materials: &[Material]) -> Result<Vec<Mesh>, SceneError> {
         let mut seen = HashSet::new();
         let mut out = Vec::with_capacity(raw.len());
         for (i, m) in raw.into_iter().enumerate() {
-            let name = m.name.unwrap_or_else(|| {
-                Path::new(&m.file)
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_default()
-            });
+            let name = m.name.unwrap_or_else(|| Path::new(&m.file).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
             self.check_name(&format!("meshes[{i}] (\"{name}\")"), &name, &mut seen)?;
             let key = format!("meshes.{name}");
-            let material = materials
-                .iter()
-                .position(|mat| mat.name == m.material)
-                .ok_or_else(|| SceneError::Undefined {
-                    scene: self.scene.clone(),
-                    key: format!("{key}.material"),
-                    kind: "material",
-                    name: m.material.clone(),
-                })?;
+            let material = materials.iter().position(|mat| mat.name == m.material).ok_or_else(|| SceneError::Undefined {
+                scene: self.scene.clone(),
+                key: format!("{key}.material"),
+                kind: "material",
+                name: m.material.clone(),
+            })?;
             let emission = self.color_value(&format!("{key}.emission"), m.emission)?;
             let (path, bytes) = self.read(&format!("{key}.file"), &m.file)?;
             let data = obj::load(&path, &bytes)?;
-            for (what, values) in [
-                ("positions", data.positions.as_flattened()),
-                ("normals", data.normals.as_flattened()),
-            ] {
+            for (what, values) in [("positions", data.positions.as_flattened()), ("normals", data.normals.as_flattened())] {
                 if values.iter().any(|v| !v.is_finite()) {
-                    return Err(SceneError::Obj {
-                        path,
-                        line: 0,
-                        message: format!("non-finite {what}"),
-                    });
+                    return Err(SceneError::Obj { path, line: 0, message: format!("non-finite {what}") });
                 }
             }
             out.push(Mesh {
@@ -767,35 +712,20 @@ impl Loader {
         Ok(out)
     }
 
-    fn environment(
-        &self,
-        raw: Option<file::EnvironmentFile>,
-    ) -> Result<Environment, SceneError> {
+    fn environment(&self, raw: Option<file::EnvironmentFile>) -> Result<Environment, SceneError> {
         let Some(env) = raw else {
-            return Ok(Environment {
-                value: ColorValue::Constant([0.0; 3]),
-                scale: 1.0,
-            });
+            return Ok(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 });
         };
         self.finite("environment.scale", &[env.scale])?;
         if env.scale < 0.0 {
-            return Err(
-                self.out_of_range("environment.scale", format!("{} is negative", env.scale))
-            );
+            return Err(self.out_of_range("environment.scale", format!("{} is negative", env.scale)));
         }
         let value = match (env.constant, env.file) {
             (Some(c), None) => ColorValue::Constant(self.color("environment.constant", c)?),
-            (None, Some(rel)) => {
-                ColorValue::Texture(self.texture("environment.file", &rel)?)
-            }
-            _ => {
-                return Err(self.invalid("environment", "give exactly one of `constant` and `file`"))
-            }
+            (None, Some(rel)) => ColorValue::Texture(self.texture("environment.file", &rel)?),
+            _ => return Err(self.invalid("environment", "give exactly one of `constant` and `file`")),
         };
-        Ok(Environment {
-            value,
-            scale: env.scale,
-        })
+        Ok(Environment { value, scale: env.scale })
     }
 
     fn optimise(
@@ -806,9 +736,7 @@ impl Loader {
         lights: &[Light],
         environment: &Environment,
     ) -> Result<Optimise, SceneError> {
-        raw.settings
-            .validate()
-            .map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
+        raw.settings.validate().map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
         let mut seen = HashSet::new();
         let mut params = Vec::with_capacity(raw.params.len());
         for (i, p) in raw.params.into_iter().enumerate() {
@@ -816,11 +744,7 @@ impl Loader {
             self.check_name(&format!("{key}.target"), &p.target, &mut seen)?;
             params.push(self.param(&key, p, materials, meshes, lights, environment)?);
         }
-        Ok(Optimise {
-            settings: raw.settings,
-            params,
-            started_from: None,
-        })
+        Ok(Optimise { settings: raw.settings, params, started_from: None })
     }
 
     pub fn positive(&self, key: &str, v: f32) -> Result<(), SceneError> {
@@ -842,18 +766,14 @@ impl Loader {
         environment: &Environment,
     ) -> Result<Param, SceneError> {
         let target_key = format!("{key}.target");
-        let (target, reference) =
-            self.resolve_target(&target_key, &p.target, materials, meshes, lights, environment)?;
+        let (target, reference) = self.resolve_target(&target_key, &p.target, materials, meshes, lights, environment)?;
         let channels = target.channels();
 
         let range_key = format!("{key}.range");
         self.finite(&range_key, &p.range)?;
         let [lo, hi] = p.range;
         if lo >= hi {
-            return Err(self.out_of_range(
-                &range_key,
-                format!("lower bound {lo} is not below upper bound {hi}"),
-            ));
+            return Err(self.out_of_range(&range_key, format!("lower bound {lo} is not below upper bound {hi}")));
         }
         if let Some(lr) = p.lr {
             self.positive(&format!("{key}.lr"), lr)?;
@@ -866,25 +786,10 @@ impl Loader {
                 return Err(self.invalid(&k, "a light's colour and intensity are constants and cannot be textures"));
             }
         } else if matches!(reference, Reference::Texture(_)) {
-            return Err(self.invalid(
-                key,
-                &format!(
-                    "{} is a texture in the scene; give `texture = [w, h]`",
-                    p.target
-                ),
-            ));
+            return Err(self.invalid(key, &format!("{} is a texture in the scene; give `texture = [w, h]`", p.target)));
         }
         let init = self.init_values(&format!("{key}.init"), p.init, &p.target, channels, p.texture, p.range)?;
-        Ok(Param {
-            name: p.target,
-            target,
-            channels,
-            init,
-            range: p.range,
-            texture: p.texture,
-            lr: p.lr,
-            reference,
-        })
+        Ok(Param { name: p.target, target, channels, init, range: p.range, texture: p.texture, lr: p.lr, reference })
     }
 
     /// The start values of parameter `target` (`channels` per texel, a texture of size
@@ -904,20 +809,18 @@ impl Loader {
         let init = match init {
             InitInput::Scalar(v) => vec![v; channels as usize],
             InitInput::Color(c) if channels == 3 => c.to_vec(),
-            InitInput::Color(_) => {
-                return Err(self.invalid(key, &format!("{target} is a scalar; give one number")))
-            }
+            InitInput::Color(_) => return Err(self.invalid(key, &format!("{target} is a scalar; give one number"))),
             InitInput::Texture(t) => {
                 let Some([w, h]) = texture else {
-                    return Err(self.invalid(
-                        key,
-                        "an image as `init` needs a texture parameter; give `texture = [w, h]`",
-                    ));
+                    return Err(self.invalid(key, "an image as `init` needs a texture parameter; give `texture = [w, h]`"));
                 };
                 let k = format!("{key}.texture");
                 if t.filter.is_some() || t.wrap.is_some() {
                     let what = if t.filter.is_some() { "filter" } else { "wrap" };
-                    return Err(self.invalid(&format!("{key}.{what}"), "applies to a scene's textures, not to a start image (which is resampled to the parameter's size)"));
+                    return Err(self.invalid(
+                        &format!("{key}.{what}"),
+                        "applies to a scene's textures, not to a start image (which is resampled to the parameter's size)",
+                    ));
                 }
                 let tex = self.texture(&k, &t.texture)?;
                 self.texels_in(&k, &tex, channels as usize, lo, hi)?;
@@ -948,34 +851,19 @@ impl Loader {
             ScalarValue::Constant(c) => Reference::Constant(vec![*c]),
             ScalarValue::Texture(t) => Reference::Texture(t.clone()),
         };
-        let undefined = |kind, name: &str| SceneError::Undefined {
-            scene: self.scene.clone(),
-            key: key.into(),
-            kind,
-            name: name.into(),
-        };
+        let undefined = |kind, name: &str| SceneError::Undefined { scene: self.scene.clone(), key: key.into(), kind, name: name.into() };
         if target == "environment" {
             return Ok((ParamTarget::Environment, color(&environment.value)));
         }
-        if let Some((name, property)) = target
-            .strip_prefix("materials.")
-            .and_then(|r| r.rsplit_once('.'))
-        {
+        if let Some((name, property)) = target.strip_prefix("materials.").and_then(|r| r.rsplit_once('.')) {
             let material = materials.iter().position(|m| m.name == name);
             let (material, m) = match material {
-                Some(i) if matches!(property, "base_color" | "roughness" | "metallic") => {
-                    (i, &materials[i])
-                }
-                None if matches!(property, "base_color" | "roughness" | "metallic") => {
-                    return Err(undefined("material", name))
-                }
+                Some(i) if matches!(property, "base_color" | "roughness" | "metallic") => (i, &materials[i]),
+                None if matches!(property, "base_color" | "roughness" | "metallic") => return Err(undefined("material", name)),
                 _ => return Err(self.bad_target(key, target)),
             };
             if property == "metallic" && m.kind != MaterialKind::Principled || property == "roughness" && !m.kind.has_roughness() {
-                return Err(self.invalid(
-                    key,
-                    &format!("material \"{name}\" is {} and has no {property}", m.kind.as_str()),
-                ));
+                return Err(self.invalid(key, &format!("material \"{name}\" is {} and has no {property}", m.kind.as_str())));
             }
             return Ok(match property {
                 "base_color" => (ParamTarget::BaseColor { material }, color(&m.base_color)),
@@ -983,14 +871,8 @@ impl Loader {
                 _ => (ParamTarget::Metallic { material }, scalar(&m.metallic)),
             });
         }
-        if let Some(name) = target
-            .strip_prefix("meshes.")
-            .and_then(|r| r.strip_suffix(".emission"))
-        {
-            let mesh = meshes
-                .iter()
-                .position(|m| m.name == name)
-                .ok_or_else(|| undefined("mesh", name))?;
+        if let Some(name) = target.strip_prefix("meshes.").and_then(|r| r.strip_suffix(".emission")) {
+            let mesh = meshes.iter().position(|m| m.name == name).ok_or_else(|| undefined("mesh", name))?;
             return Ok((ParamTarget::Emission { mesh }, color(&meshes[mesh].emission)));
         }
         if let Some((name, property)) = target.strip_prefix("lights.").and_then(|r| r.rsplit_once('.')) {
@@ -1014,4 +896,3 @@ impl Loader {
         )
     }
 }
-

@@ -122,7 +122,8 @@ struct Importer<'a, 'i> {
 /// Imports the Mitsuba 3 XML scene at `path`.
 pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     let text = std::fs::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
-    let doc = Document::parse(&text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })?;
+    let doc =
+        Document::parse(&text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })?;
     let mut imp = Importer {
         path,
         dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
@@ -275,7 +276,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                 _ => Err(self.err(node, "expected three numbers")),
             };
         }
-        let c = |a| -> Result<f32, SceneError> { Ok(self.attr(node, a)?.map(|s| self.numbers(node, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(0.0)) };
+        let c = |a| -> Result<f32, SceneError> {
+            Ok(self.attr(node, a)?.map(|s| self.numbers(node, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(0.0))
+        };
         Ok(Vec3::new(c("x")?, c("y")?, c("z")?))
     }
 
@@ -294,7 +297,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                         _ => Err(self.err(op, "expected one or three numbers")),
                     };
                 }
-                let c = |a| -> Result<f32, SceneError> { Ok(self.attr(op, a)?.map(|s| self.numbers(op, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(default)) };
+                let c = |a| -> Result<f32, SceneError> {
+                    Ok(self.attr(op, a)?.map(|s| self.numbers(op, &s)).transpose()?.and_then(|v| v.first().copied()).unwrap_or(default))
+                };
                 Ok(Vec3::new(c("x")?, c("y")?, c("z")?))
             };
             let step = match op.tag_name().name() {
@@ -438,7 +443,8 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
         if let Some(n) = self.take(&mut items, "rr_depth") {
             let d = self.int(n)?;
-            self.out.rr_depth = Some(u32::try_from(d).ok().filter(|d| (1..=MAX_DEPTH).contains(d)).ok_or_else(|| self.err(n, format!("{d} is not in 1..={MAX_DEPTH}")))?);
+            self.out.rr_depth =
+                Some(u32::try_from(d).ok().filter(|d| (1..=MAX_DEPTH).contains(d)).ok_or_else(|| self.err(n, format!("{d} is not in 1..={MAX_DEPTH}")))?);
         }
         self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
         self.rest(&items, node)
@@ -514,7 +520,10 @@ impl<'a, 'i> Importer<'a, 'i> {
         let up = to_world.transform_vector3(Vec3::Y);
         let mut sensor = Sensor::looking_at(origin, origin + forward, up, fov_y).map_err(|e| self.err(node, e))?;
         // Mitsuba's lens and plane of focus are in camera space: scaled by to_world.
-        sensor.lens = lens.map(|l| ThinLens { aperture_radius: l.aperture_radius * to_world.transform_vector3(Vec3::X).length(), focus_distance: l.focus_distance * forward.length() });
+        sensor.lens = lens.map(|l| ThinLens {
+            aperture_radius: l.aperture_radius * to_world.transform_vector3(Vec3::X).length(),
+            focus_distance: l.focus_distance * forward.length(),
+        });
         if orthographic {
             // Mitsuba's orthographic camera sees local x in [-1, 1] across the film's width
             // and y in [-1/aspect, 1/aspect] up its height, scaled by to_world.
@@ -592,7 +601,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             "checkerboard" => {
                 let mut color = |name: &str, default: f32| match self.take(&mut items, name) {
                     None => Ok([default; 3]),
-                    Some(n) if n.tag_name().name() == "texture" || n.tag_name().name() == "ref" => Err(self.err(n, "a checkerboard's colours must be constants")),
+                    Some(n) if n.tag_name().name() == "texture" || n.tag_name().name() == "ref" => {
+                        Err(self.err(n, "a checkerboard's colours must be constants"))
+                    }
                     Some(n) => self.rgb(n),
                 };
                 // Mitsuba's defaults; color0 where the fractional parts of u and v
@@ -755,7 +766,10 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// The height field of a `<bsdf type="bumpmap">` (`node`): its one texture (a bitmap or
     /// a `<ref>` to one, under any name) and `scale` (1 by default).
     fn bump_map(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<BumpMap, SceneError> {
-        let i = items.iter().position(|n| matches!(n.tag_name().name(), "texture" | "ref")).ok_or_else(|| self.err(node, "bumpmap needs a height texture (a nested <texture>)"))?;
+        let i = items
+            .iter()
+            .position(|n| matches!(n.tag_name().name(), "texture" | "ref"))
+            .ok_or_else(|| self.err(node, "bumpmap needs a height texture (a nested <texture>)"))?;
         let at = items.remove(i);
         let texture = match at.tag_name().name() {
             "texture" => self.texture(at)?,
@@ -779,11 +793,14 @@ impl<'a, 'i> Importer<'a, 'i> {
         let shadowing = self.take_bool(items, "use_shadowing_function", true)?;
         let flip = self.take_bool(items, "flip_invalid_normals", true)?;
         if shadowing || flip {
-            let what: Vec<&str> = [(shadowing, "the shadow-terminator factor (use_shadowing_function)"), (flip, "the turning of normals that face away from the viewer (flip_invalid_normals)")]
-                .iter()
-                .filter(|(on, _)| *on)
-                .map(|(_, w)| *w)
-                .collect();
+            let what: Vec<&str> = [
+                (shadowing, "the shadow-terminator factor (use_shadowing_function)"),
+                (flip, "the turning of normals that face away from the viewer (flip_invalid_normals)"),
+            ]
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, w)| *w)
+            .collect();
             self.warn(node, format!("approximate: rendered without {}", what.join(" and ")));
         }
         Ok(())
@@ -1070,89 +1087,90 @@ impl<'a, 'i> Importer<'a, 'i> {
         let mut items = elements(node);
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
-        let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind.as_str() {
-            "obj" | "ply" | "serialized" => {
-                let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                let path = self.dir.join(&rel);
-                let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
-                let (p, mut n, mut t, i) = match kind.as_str() {
-                    "obj" => {
-                        // Mitsuba flips OBJ texture coordinates by default, which keeps the
-                        // OBJ convention (v up) that the model uses.
-                        let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
-                        let d = obj::load(&path, &bytes)?;
-                        let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
-                        (d.positions, d.normals, uvs, d.indices)
+        let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) =
+            match kind.as_str() {
+                "obj" | "ply" | "serialized" => {
+                    let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+                    let path = self.dir.join(&rel);
+                    let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                    let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
+                    let (p, mut n, mut t, i) = match kind.as_str() {
+                        "obj" => {
+                            // Mitsuba flips OBJ texture coordinates by default, which keeps the
+                            // OBJ convention (v up) that the model uses.
+                            let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
+                            let d = obj::load(&path, &bytes)?;
+                            let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
+                            (d.positions, d.normals, uvs, d.indices)
+                        }
+                        "ply" => {
+                            let d = ply::load(&path, &bytes)?;
+                            (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                        }
+                        _ => {
+                            let index = match self.take(&mut items, "shape_index") {
+                                Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
+                                None => 0,
+                            };
+                            let d = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
+                            face_normals |= d.face_normals;
+                            // Mitsuba's texture coordinates (v down), as PLY's.
+                            (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                        }
+                    };
+                    if face_normals {
+                        n.clear();
+                    } else if n.is_empty() {
+                        // Mitsuba smooths a mesh without normals unless told not to.
+                        n = vertex_normals(&p, &i);
                     }
-                    "ply" => {
-                        let d = ply::load(&path, &bytes)?;
-                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                    if t.len() != p.len() {
+                        t.clear();
                     }
-                    _ => {
-                        let index = match self.take(&mut items, "shape_index") {
-                            Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
-                            None => 0,
-                        };
-                        let d = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
-                        face_normals |= d.face_normals;
-                        // Mitsuba's texture coordinates (v down), as PLY's.
-                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
+                    (p, n, t, i, path)
+                }
+                "rectangle" => (
+                    vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
+                    vec![[0.0, 0.0, 1.0]; 4],
+                    vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+                    vec![[0, 1, 2], [2, 3, 0]],
+                    self.path.to_path_buf(),
+                ),
+                "cube" => {
+                    let (p, n, t, i) = cube();
+                    (p, n, t, i, self.path.to_path_buf())
+                }
+                "sphere" => {
+                    let center = self.take(&mut items, "center").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                    let radius = self.take_float(&mut items, "radius", 1.0)?;
+                    if radius <= 0.0 {
+                        return Err(self.err(node, "the radius is not positive"));
                     }
-                };
-                if face_normals {
-                    n.clear();
-                } else if n.is_empty() {
-                    // Mitsuba smooths a mesh without normals unless told not to.
-                    n = vertex_normals(&p, &i);
+                    self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
+                    let (p, n, t, i) = sphere(center, radius);
+                    (p, n, t, i, self.path.to_path_buf())
                 }
-                if t.len() != p.len() {
-                    t.clear();
+                "disk" => {
+                    self.warn(node, format!("approximate: tessellated into {SPHERE_SEGMENTS} triangles"));
+                    let (p, n, t, i) = disk();
+                    (p, n, t, i, self.path.to_path_buf())
                 }
-                (p, n, t, i, path)
-            }
-            "rectangle" => (
-                vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
-                vec![[0.0, 0.0, 1.0]; 4],
-                vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
-                vec![[0, 1, 2], [2, 3, 0]],
-                self.path.to_path_buf(),
-            ),
-            "cube" => {
-                let (p, n, t, i) = cube();
-                (p, n, t, i, self.path.to_path_buf())
-            }
-            "sphere" => {
-                let center = self.take(&mut items, "center").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
-                let radius = self.take_float(&mut items, "radius", 1.0)?;
-                if radius <= 0.0 {
-                    return Err(self.err(node, "the radius is not positive"));
+                "cylinder" => {
+                    let p0 = self.take(&mut items, "p0").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                    let p1 = self.take(&mut items, "p1").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::Z);
+                    let radius = self.take_float(&mut items, "radius", 1.0)?;
+                    if radius <= 0.0 {
+                        return Err(self.err(node, "the radius is not positive"));
+                    }
+                    if p0 == p1 {
+                        return Err(self.err(node, "p0 and p1 are the same point"));
+                    }
+                    self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS));
+                    let (p, n, t, i) = cylinder(p0, p1, radius);
+                    (p, n, t, i, self.path.to_path_buf())
                 }
-                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
-                let (p, n, t, i) = sphere(center, radius);
-                (p, n, t, i, self.path.to_path_buf())
-            }
-            "disk" => {
-                self.warn(node, format!("approximate: tessellated into {SPHERE_SEGMENTS} triangles"));
-                let (p, n, t, i) = disk();
-                (p, n, t, i, self.path.to_path_buf())
-            }
-            "cylinder" => {
-                let p0 = self.take(&mut items, "p0").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
-                let p1 = self.take(&mut items, "p1").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::Z);
-                let radius = self.take_float(&mut items, "radius", 1.0)?;
-                if radius <= 0.0 {
-                    return Err(self.err(node, "the radius is not positive"));
-                }
-                if p0 == p1 {
-                    return Err(self.err(node, "p0 and p1 are the same point"));
-                }
-                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS));
-                let (p, n, t, i) = cylinder(p0, p1, radius);
-                (p, n, t, i, self.path.to_path_buf())
-            }
-            _ => return Err(self.err(node, "only obj, ply, serialized, rectangle, cube, sphere, disk and cylinder shapes are supported")),
-        };
+                _ => return Err(self.err(node, "only obj, ply, serialized, rectangle, cube, sphere, disk and cylinder shapes are supported")),
+            };
         let material = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
             (Some(b), None) => self.bsdf(b, &name)?,
             (None, Some(r)) => {
@@ -1237,7 +1255,13 @@ impl<'a, 'i> Importer<'a, 'i> {
                     if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
                         return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));
                     }
-                    self.warn(node, format!("approximate: resampled from Mitsuba's texel positions (pole-to-pole rows) to a grid {}× finer of centred texels", envmap_refinement(map.width)));
+                    self.warn(
+                        node,
+                        format!(
+                            "approximate: resampled from Mitsuba's texel positions (pole-to-pole rows) to a grid {}× finer of centred texels",
+                            envmap_refinement(map.width)
+                        ),
+                    );
                     // Sampling only: the expected image is the same either way.
                     self.take_bool(&mut items, "mis_compensation", false)?;
                     ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })

@@ -37,8 +37,8 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-pub use error::SceneError;
 pub use crate::settings::Loss;
+pub use error::SceneError;
 pub use file::MaterialType as MaterialKind;
 pub use model::*;
 
@@ -107,18 +107,19 @@ impl Scene {
         let pdir = if dir.join("params.json").is_file() { dir.to_path_buf() } else { dir.join("params") };
         let path = pdir.join("params.json");
         let import_err = |message: String| SceneError::Import { path: path.clone(), location: String::new(), message };
-        let text = fs::read_to_string(&path)
-            .map_err(|e| import_err(format!("cannot read an earlier run's parameters: {e}")))?;
-        let values: std::collections::BTreeMap<String, serde_json::Value> = serde_json::from_str(&text)
-            .map_err(|e| import_err(format!("expected an object of parameter values ({e})")))?;
+        let text = fs::read_to_string(&path).map_err(|e| import_err(format!("cannot read an earlier run's parameters: {e}")))?;
+        let values: std::collections::BTreeMap<String, serde_json::Value> =
+            serde_json::from_str(&text).map_err(|e| import_err(format!("expected an object of parameter values ({e})")))?;
         let loader = loader::Loader { scene: path.clone(), dir: pdir };
         for p in &mut self.optimise.params {
             let Some(v) = values.get(&p.name) else {
                 let names: Vec<&str> = values.keys().map(String::as_str).collect();
-                return Err(loader.invalid(&p.name, &format!("no value for this parameter (the file has {})", if names.is_empty() { "none".into() } else { names.join(", ") })));
+                return Err(loader.invalid(
+                    &p.name,
+                    &format!("no value for this parameter (the file has {})", if names.is_empty() { "none".into() } else { names.join(", ") }),
+                ));
             };
-            let init = file::InitInput::deserialize(v)
-                .map_err(|e| loader.invalid(&p.name, &e.to_string()))?;
+            let init = file::InitInput::deserialize(v).map_err(|e| loader.invalid(&p.name, &e.to_string()))?;
             p.init = loader.init_values(&p.name, init, &p.name, p.channels, p.texture, p.range)?;
         }
         self.optimise.started_from = Some(path);
@@ -133,7 +134,8 @@ mod tests {
 
     fn sensor(origin: [f32; 3], target: [f32; 3], up: [f32; 3]) -> Result<Sensor, SceneError> {
         let loader = loader::Loader { scene: "s.toml".into(), dir: Default::default() };
-        let raw = file::SensorFile { origin, target, up, fov_y: Some(90.0), ortho_height: None, aperture_radius: None, focus_distance: None, target_image: None };
+        let raw =
+            file::SensorFile { origin, target, up, fov_y: Some(90.0), ortho_height: None, aperture_radius: None, focus_distance: None, target_image: None };
         loader.sensor("sensors[0]", raw, Film { width: 4, height: 4 })
     }
 

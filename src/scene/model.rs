@@ -271,7 +271,11 @@ pub trait TextureValue {
 
 impl TextureValue for ColorValue {
     fn texture(&self) -> Option<&Texture> {
-        if let Self::Texture(t) = self { Some(t) } else { None }
+        if let Self::Texture(t) = self {
+            Some(t)
+        } else {
+            None
+        }
     }
 }
 
@@ -388,7 +392,14 @@ impl Material {
 impl Material {
     /// A conductor with specular tint `base_color`, `roughness`, `distribution` and complex
     /// index of refraction `eta` + i `k`: no metallic, normal map or alpha.
-    pub fn conductor(name: String, base_color: ColorValue, roughness: ScalarValue, distribution: Distribution, [eta, k]: [[f32; 3]; 2], one_sided: bool) -> Self {
+    pub fn conductor(
+        name: String,
+        base_color: ColorValue,
+        roughness: ScalarValue,
+        distribution: Distribution,
+        [eta, k]: [[f32; 3]; 2],
+        one_sided: bool,
+    ) -> Self {
         Self {
             name,
             kind: MaterialKind::Conductor,

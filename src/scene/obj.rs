@@ -17,61 +17,33 @@ pub struct ObjData {
 }
 
 pub fn load(path: &Path, bytes: &[u8]) -> Result<ObjData, SceneError> {
-    let err = |line, message: String| SceneError::Obj {
-        path: path.to_path_buf(),
-        line,
-        message,
-    };
+    let err = |line, message: String| SceneError::Obj { path: path.to_path_buf(), line, message };
     let text = std::str::from_utf8(bytes).map_err(|e| err(0, format!("not UTF-8 text: {e}")))?;
     check_lines(text).map_err(|(line, message)| err(line, message))?;
 
     // The update covers fields that exist only with tobj's optional features.
     #[allow(clippy::needless_update)]
-    let options = tobj::LoadOptions {
-        single_index: true,
-        triangulate: true,
-        ignore_points: true,
-        ignore_lines: true,
-        ..Default::default()
-    };
+    let options = tobj::LoadOptions { single_index: true, triangulate: true, ignore_points: true, ignore_lines: true, ..Default::default() };
     // Materials come from the scene file, so `mtllib` lines are not followed.
-    let (models, _) =
-        tobj::load_obj_buf(&mut text.as_bytes(), &options, |_| Ok(Default::default())).map_err(
-            |source| SceneError::ObjParse {
-                path: path.to_path_buf(),
-                source,
-            },
-        )?;
+    let (models, _) = tobj::load_obj_buf(&mut text.as_bytes(), &options, |_| Ok(Default::default()))
+        .map_err(|source| SceneError::ObjParse { path: path.to_path_buf(), source })?;
 
     let mut out = ObjData::default();
     for mesh in models.iter().map(|m| &m.mesh) {
         let base = out.positions.len() as u32;
-        out.positions
-            .extend(mesh.positions.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
-        out.normals
-            .extend(mesh.normals.chunks_exact(3).map(|n| [n[0], n[1], n[2]]));
-        out.uvs
-            .extend(mesh.texcoords.chunks_exact(2).map(|t| [t[0], t[1]]));
-        out.indices.extend(
-            mesh.indices
-                .chunks_exact(3)
-                .map(|t| [base + t[0], base + t[1], base + t[2]]),
-        );
+        out.positions.extend(mesh.positions.chunks_exact(3).map(|p| [p[0], p[1], p[2]]));
+        out.normals.extend(mesh.normals.chunks_exact(3).map(|n| [n[0], n[1], n[2]]));
+        out.uvs.extend(mesh.texcoords.chunks_exact(2).map(|t| [t[0], t[1]]));
+        out.indices.extend(mesh.indices.chunks_exact(3).map(|t| [base + t[0], base + t[1], base + t[2]]));
     }
     let n = out.positions.len();
     // With a single index buffer a vertex without a normal gets none, so a file that gives
     // normals (or UVs) to some faces only leaves the arrays shorter than the positions.
     if !out.normals.is_empty() && out.normals.len() != n {
-        return Err(err(
-            0,
-            "normals are given for some faces but not all".into(),
-        ));
+        return Err(err(0, "normals are given for some faces but not all".into()));
     }
     if !out.uvs.is_empty() && out.uvs.len() != n {
-        return Err(err(
-            0,
-            "texture coordinates are given for some faces but not all".into(),
-        ));
+        return Err(err(0, "texture coordinates are given for some faces but not all".into()));
     }
     if out.indices.is_empty() {
         return Err(err(0, "no triangles".into()));
@@ -99,10 +71,7 @@ fn check_lines(text: &str) -> Result<(), (usize, String)> {
             "f" => {
                 let corners: Vec<&str> = words.collect();
                 if corners.len() < 3 {
-                    return Err((
-                        line,
-                        format!("face with {} vertices (at least 3 needed)", corners.len()),
-                    ));
+                    return Err((line, format!("face with {} vertices (at least 3 needed)", corners.len())));
                 }
                 for corner in corners {
                     check_corner(corner, [positions, uvs, normals]).map_err(|m| (line, m))?;
@@ -121,10 +90,7 @@ fn check_lines(text: &str) -> Result<(), (usize, String)> {
             }
         }
         if values < min_values {
-            return Err((
-                line,
-                format!("`{keyword}` needs {min_values} numbers, got {values}"),
-            ));
+            return Err((line, format!("`{keyword}` needs {min_values} numbers, got {values}")));
         }
         *count += 1;
     }
@@ -145,14 +111,10 @@ fn check_corner(corner: &str, counts: [usize; 3]) -> Result<(), String> {
         if part.is_empty() {
             continue;
         }
-        let index: i64 = part
-            .parse()
-            .map_err(|_| format!("malformed face corner `{corner}`"))?;
+        let index: i64 = part.parse().map_err(|_| format!("malformed face corner `{corner}`"))?;
         // OBJ indices are 1-based; negative ones count back from the latest definition.
         if index == 0 || index.unsigned_abs() > count as u64 {
-            return Err(format!(
-                "{kind} index {index} out of bounds ({count} defined so far)"
-            ));
+            return Err(format!("{kind} index {index} out of bounds ({count} defined so far)"));
         }
     }
     Ok(())
@@ -179,10 +141,7 @@ mod tests {
         let obj = load_str(text).unwrap();
         assert_eq!(obj.positions.len(), 7);
         assert_eq!(obj.indices.len(), 3);
-        assert_eq!(
-            obj.indices[2].map(|i| obj.positions[i as usize]),
-            [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]
-        );
+        assert_eq!(obj.indices[2].map(|i| obj.positions[i as usize]), [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]);
         assert!(obj.normals.is_empty() && obj.uvs.is_empty());
     }
 
@@ -193,10 +152,7 @@ mod tests {
         assert_eq!(obj.positions.len(), obj.normals.len());
         assert_eq!(obj.positions.len(), obj.uvs.len());
         let [a, b, _] = obj.indices[0];
-        assert_eq!(
-            (obj.uvs[a as usize], obj.uvs[b as usize]),
-            ([0.0, 0.0], [1.0, 0.0])
-        );
+        assert_eq!((obj.uvs[a as usize], obj.uvs[b as usize]), ([0.0, 0.0], [1.0, 0.0]));
     }
 
     #[test]
@@ -205,10 +161,7 @@ mod tests {
         assert_eq!(err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n"), 4);
         assert_eq!(err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n"), 4);
         assert_eq!(err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/2 2/2 3/2\n"), 4);
-        assert_eq!(
-            err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n"),
-            4
-        );
+        assert_eq!(err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9223372036854775808\n"), 4);
         assert_eq!(err_line("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n"), 4);
         assert_eq!(err_line("v 0 0 0\nv 1e40 0 0\n"), 2);
         assert_eq!(err_line("v 0 NaN 0\n"), 1);

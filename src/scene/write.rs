@@ -588,7 +588,15 @@ fn pack_metallic_roughness(rough: &ScalarValue, metal: &ScalarValue) -> Image {
 /// magnification filter is NEAREST for [`Filter::Nearest`] and whose wrapping modes are
 /// `wrap`'s, where these are not the defaults); returns the texture index.
 #[allow(clippy::too_many_arguments)]
-fn add_png(root: &mut Value, dir: &Path, name: &str, img: &Image, srgb: bool, alpha: Option<&Image>, (filter, wrap): (Filter, [Wrap; 2])) -> Result<usize, SceneError> {
+fn add_png(
+    root: &mut Value,
+    dir: &Path,
+    name: &str,
+    img: &Image,
+    srgb: bool,
+    alpha: Option<&Image>,
+    (filter, wrap): (Filter, [Wrap; 2]),
+) -> Result<usize, SceneError> {
     let rel = format!("textures/{}.png", file_name(name));
     let path = dir.join(&rel);
     let encoded = if srgb { img.clone() } else { Image { data: img.data.iter().map(|p| p.map(image::srgb_decode)).collect(), ..img.clone() } };

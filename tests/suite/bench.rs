@@ -61,7 +61,30 @@ fn scene_bench_on_cornell_is_consistent() {
     finite_positive("rays/s", b.rays.rays_per_s);
 
     let spec: Vec<&str> = b.specialisation.iter().map(|c| c.name.as_str()).collect();
-    assert_eq!(spec, ["MAX_DEPTH", "RR_DEPTH", "HIDE_EMITTERS", "NUM_EMITTERS", "HAS_ENVIRONMENT", "ENVIRONMENT_SAMPLED", "HAS_DELTA_LIGHTS", "HAS_TEXTURES", "HAS_PRINCIPLED", "HAS_NORMALS", "HAS_NORMAL_MAPS", "HAS_EMISSION_TEXTURES", "HAS_ALPHA_MASKS", "HAS_DIELECTRICS", "HAS_ROUGH_DIELECTRICS", "HAS_CONDUCTORS", "HAS_PLASTICS", "CONST_BASE", "BVH_STACK_REGISTERS"]);
+    assert_eq!(
+        spec,
+        [
+            "MAX_DEPTH",
+            "RR_DEPTH",
+            "HIDE_EMITTERS",
+            "NUM_EMITTERS",
+            "HAS_ENVIRONMENT",
+            "ENVIRONMENT_SAMPLED",
+            "HAS_DELTA_LIGHTS",
+            "HAS_TEXTURES",
+            "HAS_PRINCIPLED",
+            "HAS_NORMALS",
+            "HAS_NORMAL_MAPS",
+            "HAS_EMISSION_TEXTURES",
+            "HAS_ALPHA_MASKS",
+            "HAS_DIELECTRICS",
+            "HAS_ROUGH_DIELECTRICS",
+            "HAS_CONDUCTORS",
+            "HAS_PLASTICS",
+            "CONST_BASE",
+            "BVH_STACK_REGISTERS"
+        ]
+    );
     let g = &b.specialisation_gain;
     finite_positive("generic trace_primal", g.generic_ms);
     finite_positive("specialisation gain", g.gain);
@@ -177,10 +200,7 @@ fn optimiser_bench_rounds_stay_within_the_timeout() {
     finite_positive("one round", round_ms);
     let timeout_ms = (3.0 * round_ms).max(2000.0);
     let rounds = (2.0 * timeout_ms / round_ms).ceil() as u32;
-    let options = vkinverse::gpu::ContextOptions {
-        timeout: Some(std::time::Duration::from_secs_f64(timeout_ms * 1e-3)),
-        ..common::options()
-    };
+    let options = vkinverse::gpu::ContextOptions { timeout: Some(std::time::Duration::from_secs_f64(timeout_ms * 1e-3)), ..common::options() };
     let b = with_gpu_options(options, |ctx| vkinverse::bench::optimiser_bandwidth(ctx, elements, rounds))
         .unwrap_or_else(|e| panic!("{rounds} rounds of {round_ms:.0} ms with a {timeout_ms:.0} ms timeout: {e}"));
     assert_eq!(b.iterations, rounds);

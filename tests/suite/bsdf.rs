@@ -12,9 +12,8 @@ use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
 use vkinverse::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC,
-    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN,
-    MATERIAL_THIN_DIELECTRIC,
+    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
+    MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 use vkinverse::stats::ln_gamma;
 
@@ -90,7 +89,6 @@ struct BsdfResult {
 
 use vkinverse::push::BsdfSamplePush as SamplePush;
 
-
 #[test]
 fn struct_layouts_match_reflection() {
     use std::mem::{offset_of, size_of};
@@ -112,12 +110,7 @@ fn struct_layouts_match_reflection() {
     check_layout(
         "bsdf_test",
         "BsdfCase",
-        &[
-            ("n", offset_of!(BsdfCase, n)),
-            ("wo", offset_of!(BsdfCase, wo)),
-            ("wi", offset_of!(BsdfCase, wi)),
-            ("u", offset_of!(BsdfCase, u)),
-        ],
+        &[("n", offset_of!(BsdfCase, n)), ("wo", offset_of!(BsdfCase, wo)), ("wi", offset_of!(BsdfCase, wi)), ("u", offset_of!(BsdfCase, u))],
         size_of::<BsdfCase>(),
     );
     check_layout(
@@ -320,21 +313,12 @@ fn mirror_outputs(m: &MaterialF64, n: DVec3, wo: DVec3, wi: DVec3, u: DVec3) -> 
 
 fn result_outputs(r: &BsdfResult) -> [f64; 21] {
     let mut out = [0.0; 21];
-    let f: Vec<f64> = [
-        &r.value[..],
-        &[r.pdf],
-        &r.sample_wi,
-        &r.sample_weight,
-        &[r.sample_pdf],
-        &[r.sample_ok as f32],
-        &r.d_base_color,
-        &r.d_roughness,
-        &r.d_metallic,
-    ]
-    .concat()
-    .into_iter()
-    .map(|x| x as f64)
-    .collect();
+    let f: Vec<f64> =
+        [&r.value[..], &[r.pdf], &r.sample_wi, &r.sample_weight, &[r.sample_pdf], &[r.sample_ok as f32], &r.d_base_color, &r.d_roughness, &r.d_metallic]
+            .concat()
+            .into_iter()
+            .map(|x| x as f64)
+            .collect();
     out.copy_from_slice(&f);
     out
 }
@@ -553,10 +537,7 @@ fn gpu_matches_cpu_mirror() {
                 max_ratio = max_ratio.max(err / tol);
             }
             if err.is_nan() || err > tol {
-                failures.push(format!(
-                    "case {i} {}: gpu {} cpu {} (tol {tol:e}); {mat:?} {case:?}",
-                    OUTPUT_NAMES[k], gpu[k], cpu[k]
-                ));
+                failures.push(format!("case {i} {}: gpu {} cpu {} (tol {tol:e}); {mat:?} {case:?}", OUTPUT_NAMES[k], gpu[k], cpu[k]));
             }
             if sens[k] <= 1e-6 * cpu[k].abs() && cpu[k] != 0.0 {
                 max_err = max_err.max(err / cpu[k].abs());
@@ -593,8 +574,7 @@ fn simpson(f: &dyn Fn(f64) -> f64, a: f64, b: f64, eps: f64, min_depth: u32) -> 
         if depth >= 24 || (depth >= min_depth && delta.abs() <= 15.0 * eps) {
             return left + right + delta / 15.0;
         }
-        rec(f, [a, m], [fa, flm, fm], left, 0.5 * eps, [depth + 1, min_depth])
-            + rec(f, [m, b], [fm, frm, fb], right, 0.5 * eps, [depth + 1, min_depth])
+        rec(f, [a, m], [fa, flm, fm], left, 0.5 * eps, [depth + 1, min_depth]) + rec(f, [m, b], [fm, frm, fb], right, 0.5 * eps, [depth + 1, min_depth])
     }
     let (fa, fm, fb) = (f(a), f(0.5 * (a + b)), f(b));
     rec(f, [a, b], [fa, fm, fb], (b - a) / 6.0 * (fa + 4.0 * fm + fb), eps, [0, min_depth])
@@ -636,7 +616,11 @@ const PHI_BINS: usize = 32;
 /// The polar angle's bins: the upper hemisphere's THETA_BINS, and as many again below it
 /// for a rough dielectric, whose samples fill the sphere.
 fn theta_bins(m: &MaterialF64) -> usize {
-    if m.rough_glass() { 2 * THETA_BINS } else { THETA_BINS }
+    if m.rough_glass() {
+        2 * THETA_BINS
+    } else {
+        THETA_BINS
+    }
 }
 
 /// Expected fraction of samples per (theta, phi) cell of the local upper hemisphere (the
@@ -717,8 +701,7 @@ fn gpu_samples_follow_bsdf_pdf() {
     // A tilted normal, so that the sampled frame is not the world frame.
     let n = DVec3::new(0.3, -0.5, 0.8).normalize();
     let theta_o_degrees = [5.0f64, 45.0, 80.0];
-    let cases: Vec<(Material, f64)> =
-        materials.iter().flat_map(|m| theta_o_degrees.iter().map(move |&t| (*m, t))).collect();
+    let cases: Vec<(Material, f64)> = materials.iter().flat_map(|m| theta_o_degrees.iter().map(move |&t| (*m, t))).collect();
     // Family-wise significance 1 %, Šidák-corrected over the cases.
     let level = sidak(0.01, cases.len());
 
@@ -732,8 +715,7 @@ fn gpu_samples_follow_bsdf_pdf() {
         let mut p_values = Vec::new();
         for (case, (material, theta_o)) in cases.iter().enumerate() {
             let wo = direction(n, theta_o.to_radians().cos(), 0.7);
-            let push =
-                SamplePush { material: *material, n: f3(n), wo: f3(wo), count: SAMPLES, seed: case as u32 * 7919 + 1 };
+            let push = SamplePush { material: *material, n: f3(n), wo: f3(wo), count: SAMPLES, seed: case as u32 * 7919 + 1 };
             cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, SAMPLES as u64)).unwrap();
             cmd.submit_and_wait().unwrap();
             let samples: Vec<[f32; 3]> = out.read().unwrap();
@@ -764,7 +746,11 @@ fn gpu_samples_follow_bsdf_pdf() {
             let (stat, dof, p) = chi2_test(&observed, &expected);
             println!(
                 "kind {} roughness {} metallic {} ior {} theta_o {theta_o}: chi2 {stat:.1} dof {dof} p {p:.4} (pdf mass {total:.5}, failed {})",
-                material.kind, material.roughness, material.metallic, material.ior, observed[bins * PHI_BINS]
+                material.kind,
+                material.roughness,
+                material.metallic,
+                material.ior,
+                observed[bins * PHI_BINS]
             );
             p_values.push((p, format!("{material:?} theta_o {theta_o}: chi2 {stat:.1}, {dof} dof")));
         }
@@ -773,8 +759,7 @@ fn gpu_samples_follow_bsdf_pdf() {
     let min = p_values.iter().map(|p| p.0).fold(1.0, f64::min);
     let max = p_values.iter().map(|p| p.0).fold(0.0, f64::max);
     println!("p-values in [{min:.4}, {max:.4}], per-case level {level:.2e}");
-    let rejected: Vec<_> =
-        p_values.iter().filter(|p| p.0 < level).map(|p| format!("p = {:.2e}: {}", p.0, p.1)).collect();
+    let rejected: Vec<_> = p_values.iter().filter(|p| p.0 < level).map(|p| format!("p = {:.2e}: {}", p.0, p.1)).collect();
     assert!(rejected.is_empty(), "samples do not follow bsdf_pdf:\n{}", rejected.join("\n"));
 }
 
@@ -847,10 +832,7 @@ fn white_furnace_albedo_is_at_most_one() {
             }
             let mean = sum / SAMPLES as f64;
             let se = ((sum2 / SAMPLES as f64 - mean * mean).max(0.0) / (SAMPLES as f64 - 1.0)).sqrt();
-            let label = format!(
-                "kind {} roughness {} metallic {} cos_o {c}: albedo {mean:.4} +- {se:.4}",
-                m.kind, m.roughness, m.metallic
-            );
+            let label = format!("kind {} roughness {} metallic {} cos_o {c}: albedo {mean:.4} +- {se:.4}", m.kind, m.roughness, m.metallic);
             if m.kind == MATERIAL_PRINCIPLED && mean > worst.0 {
                 worst = (mean, label.clone());
             }
@@ -932,21 +914,9 @@ fn eval_grad_matches_finite_differences() {
         type Shifted = Box<dyn Fn(f64) -> MaterialF64>;
         // (parameter, analytic derivative of the three channels, material with it shifted)
         let params: [(&str, DVec3, Shifted); 5] = [
-            (
-                "base_color.r",
-                DVec3::new(g.d_base_color.x, 0.0, 0.0),
-                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::X * d, ..m }),
-            ),
-            (
-                "base_color.g",
-                DVec3::new(0.0, g.d_base_color.y, 0.0),
-                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Y * d, ..m }),
-            ),
-            (
-                "base_color.b",
-                DVec3::new(0.0, 0.0, g.d_base_color.z),
-                Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Z * d, ..m }),
-            ),
+            ("base_color.r", DVec3::new(g.d_base_color.x, 0.0, 0.0), Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::X * d, ..m })),
+            ("base_color.g", DVec3::new(0.0, g.d_base_color.y, 0.0), Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Y * d, ..m })),
+            ("base_color.b", DVec3::new(0.0, 0.0, g.d_base_color.z), Box::new(move |d| MaterialF64 { base_color: m.base_color + DVec3::Z * d, ..m })),
             ("roughness", g.d_roughness, Box::new(move |d| MaterialF64 { roughness: m.roughness + d, ..m })),
             ("metallic", g.d_metallic, Box::new(move |d| MaterialF64 { metallic: m.metallic + d, ..m })),
         ];
@@ -1093,7 +1063,11 @@ fn rough_dielectric_is_reciprocal() {
             let rel = (reverse[c] - scale * forward[c]).abs() / (scale * forward[c]).abs();
             assert!(rel <= 1e-6, "f(wi, wo) = {reverse} but {scale} f(wo, wi) = {}: {m:?} n {n} wo {wo} wi {wi}", scale * forward);
         }
-        if below { transmitted += 1 } else { reflected += 1 }
+        if below {
+            transmitted += 1
+        } else {
+            reflected += 1
+        }
     }
     // A direction below the surface has a value only where a microfacet refracts wo into
     // it without being seen from behind (about a fifth of the uniform ones drawn here).
@@ -1138,11 +1112,7 @@ fn sample_pdf_and_weight_match_pdf_and_eval() {
         assert!((s.pdf - pdf).abs() <= 1e-9 * pdf, "sample pdf {} vs bsdf_pdf {pdf}: {m:?}", s.pdf);
         let w = value / pdf;
         for c in 0..3 {
-            assert!(
-                (s.weight[c] - w[c]).abs() <= 1e-9 * w[c].abs() + 1e-300,
-                "weight {} vs eval / pdf {w}: {m:?}",
-                s.weight
-            );
+            assert!((s.weight[c] - w[c]).abs() <= 1e-9 * w[c].abs() + 1e-300, "weight {} vs eval / pdf {w}: {m:?}", s.weight);
         }
         count += 1;
     }
@@ -1155,7 +1125,8 @@ fn sample_pdf_and_weight_match_pdf_and_eval() {
 /// refracted radiance's 1/η² and the lobe probabilities' sum.
 #[test]
 fn dielectric_follows_snell_and_fresnel() {
-    let glass = |ior: f64| MaterialF64 { base_color: DVec3::new(1.0, 0.5, 0.25), roughness: 0.0, metallic: 0.0, kind: MATERIAL_DIELECTRIC, ior, ..Default::default() };
+    let glass =
+        |ior: f64| MaterialF64 { base_color: DVec3::new(1.0, 0.5, 0.25), roughness: 0.0, metallic: 0.0, kind: MATERIAL_DIELECTRIC, ior, ..Default::default() };
     let n = DVec3::new(0.0, 0.6, 0.8);
     for eta in [1.5, 1.33, 1.0 / 1.5, 2.4] {
         // Normal incidence: ((η − 1)/(η + 1))², whichever side.
@@ -1220,7 +1191,8 @@ fn dielectric_follows_snell_and_fresnel() {
 #[test]
 fn thin_dielectric_sums_its_internal_reflections() {
     let n = DVec3::new(0.0, 0.6, 0.8);
-    let sheet = MaterialF64 { base_color: DVec3::new(1.0, 0.5, 0.25), roughness: 0.0, metallic: 0.0, kind: MATERIAL_THIN_DIELECTRIC, ior: 1.5, ..Default::default() };
+    let sheet =
+        MaterialF64 { base_color: DVec3::new(1.0, 0.5, 0.25), roughness: 0.0, metallic: 0.0, kind: MATERIAL_THIN_DIELECTRIC, ior: 1.5, ..Default::default() };
     for k in 0..40 {
         let theta = k as f64 / 40.0 * std::f64::consts::FRAC_PI_2;
         let wo = direction(n, theta.cos(), 0.7 * k as f64);
@@ -1264,17 +1236,26 @@ fn plastic_coatings_integrate_their_interface() {
                 let phi = (b as f64 + 0.5) / n as f64 * 2.0 * PI;
                 let wi = DVec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
                 let v = bsdf::eval_local(&m, wo, wi).x * theta.sin() * (PI / n as f64) * (2.0 * PI / n as f64);
-                if wi.z > 0.0 { r += v } else { t += v * eta * eta }
+                if wi.z > 0.0 {
+                    r += v
+                } else {
+                    t += v * eta * eta
+                }
             }
         }
         (r, t)
     };
-    for (beckmann, alpha, eta, mu) in [(false, 0.3, 1.5, 0.7), (true, 0.5, 1.5, 0.95), (false, 0.5, 1.0 / 1.5, 0.9), (true, 0.3, 1.0 / 1.33, 0.4), (true, 0.25, 1.49, 0.2)] {
+    for (beckmann, alpha, eta, mu) in
+        [(false, 0.3, 1.5, 0.7), (true, 0.5, 1.5, 0.95), (false, 0.5, 1.0 / 1.5, 0.9), (true, 0.3, 1.0 / 1.33, 0.4), (true, 0.25, 1.49, 0.2)]
+    {
         let (r, t) = (bsdf::coating_albedo(beckmann, alpha, eta, mu, false), bsdf::coating_albedo(beckmann, alpha, eta, mu, true));
         let (rb, tb) = direct(beckmann, alpha, eta, mu);
         println!("beckmann {beckmann} alpha {alpha} eta {eta:.3} mu {mu}: R {r:.5} (direct {rb:.5}), T {t:.5} (direct {tb:.5})");
         assert!(r + t <= 1.0 + 1e-9, "R + T = {}", r + t);
-        assert!((r - rb).abs() < 0.01 * rb.max(0.02) && (t - tb).abs() < 0.01 * tb.max(0.02), "beckmann {beckmann} alpha {alpha} eta {eta} mu {mu}: R {r} against {rb}, T {t} against {tb}");
+        assert!(
+            (r - rb).abs() < 0.01 * rb.max(0.02) && (t - tb).abs() < 0.01 * tb.max(0.02),
+            "beckmann {beckmann} alpha {alpha} eta {eta} mu {mu}: R {r} against {rb}, T {t} against {tb}"
+        );
     }
     // Nearly smooth (alpha 1e-3): Fresnel's reflectance F and 1 − F, from outside and from
     // inside (where past the critical angle everything comes back).

@@ -14,8 +14,7 @@ use common::with_gpu;
 use glam::DVec3;
 use std::sync::Arc;
 use vkinverse::bvh::{
-    self, Bvh, BvhBuffers, BvhLayout, CwBvh, TraceRay, TraceResult, WideBvh, CW_STACK_SIZE, INNER, NO_HIT, STACK_SIZE,
-    T_MIN, WIDE_STACK_SIZE,
+    self, Bvh, BvhBuffers, BvhLayout, CwBvh, TraceRay, TraceResult, WideBvh, CW_STACK_SIZE, INNER, NO_HIT, STACK_SIZE, T_MIN, WIDE_STACK_SIZE,
 };
 use vkinverse::gpu::Buffer;
 use vkinverse::gpu::{CommandBuffer, ComputePipeline, Context, MemoryKind};
@@ -277,8 +276,7 @@ fn check_against_cpu(label: &str, mesh: &Mesh, rays: &[TraceRay], results: &[Tra
                 let prim = g.hit.prim as usize;
                 assert!(prim < mesh.indices.len(), "{}", what());
                 let v = mesh.indices[prim].map(|k| dvec(mesh.positions[k as usize]));
-                let (t, u, w) = bvh::moller_trumbore(v, dvec(r.origin), dvec(r.dir))
-                    .unwrap_or_else(|| panic!("GPU hit on a parallel triangle: {}", what()));
+                let (t, u, w) = bvh::moller_trumbore(v, dvec(r.origin), dvec(r.dir)).unwrap_or_else(|| panic!("GPU hit on a parallel triangle: {}", what()));
                 assert!((t - f64::from(g.hit.t)).abs() <= 1e-3 * t.abs().max(1.0), "{} (cpu t {t})", what());
                 assert!(u > -1e-3 && w > -1e-3 && u + w < 1.0 + 1e-3, "{} (cpu u {u} v {w})", what());
             }
@@ -291,11 +289,7 @@ fn check_against_cpu(label: &str, mesh: &Mesh, rays: &[TraceRay], results: &[Tra
                 assert_eq!(g.hit.prim, c.prim, "other triangle than the CPU's {c:?}: {}", what());
                 // Relative to t, or absolute below t = 1, where the origin's rounding dominates.
                 assert!((g.hit.t - c.t).abs() <= 1e-4 * c.t.max(1.0), "t differs from the CPU's {c:?}: {}", what());
-                assert!(
-                    (g.hit.u - c.u).abs() <= 1e-3 && (g.hit.v - c.v).abs() <= 1e-3,
-                    "barycentrics differ from {c:?}: {}",
-                    what()
-                );
+                assert!((g.hit.u - c.u).abs() <= 1e-3 && (g.hit.v - c.v).abs() <= 1e-3, "barycentrics differ from {c:?}: {}", what());
             }
         }
     }
@@ -338,11 +332,7 @@ fn walk(mesh: &Mesh, bvh: &Bvh, node: u32, depth: u32, w: &mut Walk) {
             walk(mesh, bvh, c.index, depth + 1, w);
         } else if c.count == 0 {
             assert_eq!(node, 0, "only the root has empty children");
-            assert_eq!(
-                (c.min, c.max),
-                ([f32::INFINITY; 3], [f32::INFINITY; 3]),
-                "an empty child's box is never entered"
-            );
+            assert_eq!((c.min, c.max), ([f32::INFINITY; 3], [f32::INFINITY; 3]), "an empty child's box is never entered");
         } else {
             assert_eq!(c.index, w.next_triangle, "leaves tile the triangle array in depth-first order");
             w.next_triangle += c.count;
@@ -378,14 +368,8 @@ struct Shape {
 fn check_well_formed(mesh: &Mesh, bvh: &Bvh, max_depth: u32) -> Shape {
     assert!(!bvh.nodes.is_empty(), "there is always a root");
     assert_eq!(bvh.triangles.len(), mesh.indices.len());
-    let mut w = Walk {
-        node_seen: vec![false; bvh.nodes.len()],
-        prim_seen: vec![false; mesh.indices.len()],
-        next_triangle: 0,
-        max_depth: 0,
-        max_leaf: 0,
-        leaves: 0,
-    };
+    let mut w =
+        Walk { node_seen: vec![false; bvh.nodes.len()], prim_seen: vec![false; mesh.indices.len()], next_triangle: 0, max_depth: 0, max_leaf: 0, leaves: 0 };
     walk(mesh, bvh, 0, 0, &mut w);
     assert!(w.node_seen.iter().all(|&s| s), "unreachable nodes");
     assert!(w.prim_seen.iter().all(|&s| s), "triangles in no leaf");
@@ -495,13 +479,8 @@ fn check_wide_well_formed(mesh: &Mesh, bvh: &Bvh, max_depth: u32) -> u32 {
     let depth = walk_wide(&wide, 0, 0, &mut seen);
     assert!(seen.iter().all(|&s| s), "unreachable wide nodes");
     assert!(depth <= max_depth, "wide inner node at depth {depth} > {max_depth}");
-    let mut wide_leaves: Vec<_> = wide
-        .nodes
-        .iter()
-        .flat_map(|n| n.slots())
-        .filter(|c| !c.is_inner() && c.count != 0)
-        .map(|c| (c.index, c.count, c.min, c.max))
-        .collect();
+    let mut wide_leaves: Vec<_> =
+        wide.nodes.iter().flat_map(|n| n.slots()).filter(|c| !c.is_inner() && c.count != 0).map(|c| (c.index, c.count, c.min, c.max)).collect();
     let mut leaves = binary_leaves(bvh);
     let key = |l: &(u32, u32, [f32; 3], [f32; 3])| l.0;
     wide_leaves.sort_by_key(key);
@@ -619,41 +598,15 @@ fn struct_layouts_match_reflection() {
         ],
         size_of::<BvhTriangle>(),
     );
-    check(
-        "Hit",
-        &[
-            ("t", offset_of!(Hit, t)),
-            ("prim", offset_of!(Hit, prim)),
-            ("u", offset_of!(Hit, u)),
-            ("v", offset_of!(Hit, v)),
-        ],
-        size_of::<Hit>(),
-    );
+    check("Hit", &[("t", offset_of!(Hit, t)), ("prim", offset_of!(Hit, prim)), ("u", offset_of!(Hit, u)), ("v", offset_of!(Hit, v))], size_of::<Hit>());
     check(
         "TraceRay",
-        &[
-            ("origin", offset_of!(TraceRay, origin)),
-            ("tmax", offset_of!(TraceRay, tmax)),
-            ("dir", offset_of!(TraceRay, dir)),
-        ],
+        &[("origin", offset_of!(TraceRay, origin)), ("tmax", offset_of!(TraceRay, tmax)), ("dir", offset_of!(TraceRay, dir))],
         size_of::<TraceRay>(),
     );
-    check(
-        "TraceResult",
-        &[("hit", offset_of!(TraceResult, hit)), ("any_hit", offset_of!(TraceResult, any_hit))],
-        size_of::<TraceResult>(),
-    );
+    check("TraceResult", &[("hit", offset_of!(TraceResult, hit)), ("any_hit", offset_of!(TraceResult, any_hit))], size_of::<TraceResult>());
     // The byte sizes stated in glsl/shared/bvh.glsl.
-    assert_eq!(
-        [
-            size_of::<BvhNode>(),
-            size_of::<BvhTriangle>(),
-            size_of::<Hit>(),
-            size_of::<TraceRay>(),
-            size_of::<TraceResult>()
-        ],
-        [64, 48, 16, 28, 20]
-    );
+    assert_eq!([size_of::<BvhNode>(), size_of::<BvhTriangle>(), size_of::<Hit>(), size_of::<TraceRay>(), size_of::<TraceResult>()], [64, 48, 16, 28, 20]);
     // The geometry bindings sit where bvh_traverse.glsl's convention puts them.
     for (name, binding) in [("BvhNodes", 10), ("BvhTriangles", 11)] {
         let b = r.binding(name).unwrap_or_else(|| panic!("{name} not bound"));
@@ -736,10 +689,7 @@ fn cornell_box_rays() {
     let mut rays = Vec::new();
     for y in 0..h {
         for x in 0..w {
-            let ndc = glam::Vec2::new(
-                (x as f32 + rng.f32()) / w as f32 * 2.0 - 1.0,
-                1.0 - (y as f32 + rng.f32()) / h as f32 * 2.0,
-            );
+            let ndc = glam::Vec2::new((x as f32 + rng.f32()) / w as f32 * 2.0 - 1.0, 1.0 - (y as f32 + rng.f32()) / h as f32 * 2.0);
             rays.push(ray(sensor.origin.to_array(), sensor.ray_direction(ndc, aspect).to_array(), f32::INFINITY));
         }
     }
@@ -836,10 +786,7 @@ fn single_triangle_policy() {
                         assert!((got - want).abs() <= 1e-5 * want.max(1.0), "{layout:?} {r:?}: {g:?}, want {expected:?}");
                     }
                     let c = cpu.unwrap();
-                    assert!(
-                        (c.t - t).abs() <= 1e-5 * t.max(1.0) && (c.u - u).abs() <= 1e-5 && (c.v - v).abs() <= 1e-5,
-                        "CPU {c:?}"
-                    );
+                    assert!((c.t - t).abs() <= 1e-5 * t.max(1.0) && (c.u - u).abs() <= 1e-5 && (c.v - v).abs() <= 1e-5, "CPU {c:?}");
                 }
             }
         }
@@ -1024,7 +971,11 @@ fn check_cw_well_formed(name: &str, mesh: &Mesh, tree: &CwBvh) -> u32 {
                             Some((first, count)) => {
                                 for t in &tree.triangles[first as usize..(first + count) as usize] {
                                     for v in mesh.indices[t.prim as usize] {
-                                        assert!(inside(mesh.positions[v as usize], &b), "{name}: node {n} child {c} misses a vertex below it: {:?} not in {b:?}, node {node:?} sub {m}", mesh.positions[v as usize]);
+                                        assert!(
+                                            inside(mesh.positions[v as usize], &b),
+                                            "{name}: node {n} child {c} misses a vertex below it: {:?} not in {b:?}, node {node:?} sub {m}",
+                                            mesh.positions[v as usize]
+                                        );
                                     }
                                 }
                             }
@@ -1124,7 +1075,13 @@ fn register_stack_traces_shallow_trees_like_the_array_stack() {
     let borderline = check_against_cpu("register stack", &mesh, &rays, &registers);
     assert!(borderline * 50 < rays.len(), "{borderline} borderline rays");
     for (i, (a, r)) in array.iter().zip(&registers).enumerate() {
-        assert_eq!((a.hit.prim, a.hit.t.to_bits(), a.any_hit), (r.hit.prim, r.hit.t.to_bits(), r.any_hit), "ray {i}: array stack {:?}, registers {:?}", a.hit, r.hit);
+        assert_eq!(
+            (a.hit.prim, a.hit.t.to_bits(), a.any_hit),
+            (r.hit.prim, r.hit.t.to_bits(), r.any_hit),
+            "ray {i}: array stack {:?}, registers {:?}",
+            a.hit,
+            r.hit
+        );
     }
     // The renderer's choice, on the Cornell box's shallow tree.
     let (entries, on) = with_gpu(|ctx| {

@@ -141,12 +141,7 @@ fn info_lists_the_test_device_and_features() {
     assert!(text.contains(device["name"].as_str().unwrap()));
 
     // A reader that stops early closes the pipe: that is not an error and not a panic.
-    let mut child = Command::new(env!("CARGO_BIN_EXE_vkinverse"))
-        .args(["info", "--json"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_vkinverse")).args(["info", "--json"]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
     drop(child.stdout.take());
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -189,21 +184,12 @@ fn render_writes_exr_and_png() {
 /// returns log.csv's param_error column.
 fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     let out_dir = temp_dir(&format!("optimise-{optimiser}"));
-    let out = vkinverse_ok(&[
-        "optimise",
-        &s(tiny_cornell()),
-        "--optimiser",
-        optimiser,
-        "--iterations",
-        &iterations.to_string(),
-        "--lr",
-        "0.05",
-        "-o",
-        &s(&out_dir),
-    ]);
+    let out =
+        vkinverse_ok(&["optimise", &s(tiny_cornell()), "--optimiser", optimiser, "--iterations", &iterations.to_string(), "--lr", "0.05", "-o", &s(&out_dir)]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
     // Meta's defaults carry the primal image and log its weights.
-    let mut expected = vec![".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"];
+    let mut expected =
+        vec![".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"];
     if optimiser == "meta" {
         expected.splice(1..1, ["carry.csv", "carry.png"]);
     }
@@ -218,7 +204,9 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         assert!((d.step_norm - d.rms_step * 3f64.sqrt()).abs() <= 1e-5 * d.step_norm.max(1e-30), "{d:?}");
         assert!(d.rms_f > 0.0 && d.rms_step > 0.0 && d.rms_step <= 0.05 * 8.0, "{d:?}");
         match optimiser {
-            "meta" => assert!(d.n_eff_min >= 1.0 && d.n_eff_max <= (k + 1) as f64 + 1e-3 && d.n_eff_min <= d.n_eff_mean && d.n_eff_mean <= d.n_eff_max, "{d:?}"),
+            "meta" => {
+                assert!(d.n_eff_min >= 1.0 && d.n_eff_max <= (k + 1) as f64 + 1e-3 && d.n_eff_min <= d.n_eff_mean && d.n_eff_mean <= d.n_eff_max, "{d:?}")
+            }
             _ => assert_eq!((d.n_eff_mean, d.sd_fd), (0.0, 0.0)),
         }
     }
@@ -317,7 +305,10 @@ fn optimise_meta_outputs_and_progress() {
 #[test]
 fn fd_stride_runs_the_finite_difference_on_part_of_the_pixels() {
     let out_dir = temp_dir("fd-stride");
-    let args = |stride: &str| ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "--iterations", "8", "--lr", "0.05", "--fd-stride", stride, "--quiet", "-o", &s(&out_dir)].map(String::from);
+    let args = |stride: &str| {
+        ["optimise", &s(tiny_cornell()), "--optimiser", "meta", "--iterations", "8", "--lr", "0.05", "--fd-stride", stride, "--quiet", "-o", &s(&out_dir)]
+            .map(String::from)
+    };
     vkinverse_err(&args("0"), &["--fd-stride", "at least 1"]);
     vkinverse_ok(&args("2"));
     let summary = json(&out_dir.join("summary.json"));
@@ -355,13 +346,29 @@ fn init_from_starts_every_parameter_where_an_earlier_run_ended() {
     // A first run recovers a floor colour texture (4×4) and a light's intensity; runs given
     // `--init-from` its directory start from both, a texture at another size resampled.
     let scene = |name: &str, size: u32, intensity_range: &str| {
-        write_delta_lit(name, (16, 16), &format!(
-            "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.2, 0.2, 0.2]\nrange = [0, 1]\ntexture = [{size}, {size}]\n\
+        write_delta_lit(
+            name,
+            (16, 16),
+            &format!(
+                "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.2, 0.2, 0.2]\nrange = [0, 1]\ntexture = [{size}, {size}]\n\
              [[optimise.params]]\ntarget = \"lights.bulb.intensity\"\ninit = 1.0\nrange = {intensity_range}\n"
-        ))
+            ),
+        )
     };
     let first_out = temp_dir("init-from-first-out");
-    vkinverse_ok(&["optimise", &s(&scene("init-from-first", 4, "[0, 10]")), "--optimiser", "adam", "--iterations", "3", "--lr", "0.1", "--quiet", "-o", &s(&first_out)]);
+    vkinverse_ok(&[
+        "optimise",
+        &s(&scene("init-from-first", 4, "[0, 10]")),
+        "--optimiser",
+        "adam",
+        "--iterations",
+        "3",
+        "--lr",
+        "0.1",
+        "--quiet",
+        "-o",
+        &s(&first_out),
+    ]);
     let recovered = json(&first_out.join("params/params.json"));
     let intensity = recovered["lights.bulb.intensity"].as_f64().unwrap();
     assert!(intensity > 1.1, "the intensity did not move towards 2: {intensity}");
@@ -373,10 +380,27 @@ fn init_from_starts_every_parameter_where_an_earlier_run_ended() {
 
     // The same scene, from the run's directory: every parameter starts where it ended.
     let same_out = temp_dir("init-from-same-out");
-    vkinverse_ok(&["optimise", &s(&scene("init-from-same", 4, "[0, 10]")), "--optimiser", "meta", "--iterations", "1", "--init-from", &s(&first_out), "--quiet", "-o", &s(&same_out)]);
+    vkinverse_ok(&[
+        "optimise",
+        &s(&scene("init-from-same", 4, "[0, 10]")),
+        "--optimiser",
+        "meta",
+        "--iterations",
+        "1",
+        "--init-from",
+        &s(&first_out),
+        "--quiet",
+        "-o",
+        &s(&same_out),
+    ]);
     let (_, same) = read_log(&same_out);
     for i in 4..7 {
-        assert!((field(&same[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i), "column {i}: started at {}, the first run ended at {}", field(&same[0], i), field(end, i));
+        assert!(
+            (field(&same[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i),
+            "column {i}: started at {}, the first run ended at {}",
+            field(&same[0], i),
+            field(end, i)
+        );
     }
     let summary = json(&same_out.join("summary.json"));
     assert!((summary["initial_param_error"].as_f64().unwrap() - field(end, 4)).abs() <= 1e-6 * field(end, 4));
@@ -387,10 +411,27 @@ fn init_from_starts_every_parameter_where_an_earlier_run_ended() {
     // upsampling repeats each texel four times, so the floor's error is the same (its
     // reference is one colour).
     let resized_out = temp_dir("init-from-resized-out");
-    vkinverse_ok(&["optimise", &s(&scene("init-from-resized", 8, "[0, 10]")), "--optimiser", "adam", "--iterations", "1", "--init-from", &s(&first_out.join("params")), "--quiet", "-o", &s(&resized_out)]);
+    vkinverse_ok(&[
+        "optimise",
+        &s(&scene("init-from-resized", 8, "[0, 10]")),
+        "--optimiser",
+        "adam",
+        "--iterations",
+        "1",
+        "--init-from",
+        &s(&first_out.join("params")),
+        "--quiet",
+        "-o",
+        &s(&resized_out),
+    ]);
     let (_, resized) = read_log(&resized_out);
     for i in [5, 6] {
-        assert!((field(&resized[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i), "column {i}: started at {}, the first run ended at {}", field(&resized[0], i), field(end, i));
+        assert!(
+            (field(&resized[0], i) - field(end, i)).abs() <= 1e-6 * field(end, i),
+            "column {i}: started at {}, the first run ended at {}",
+            field(&resized[0], i),
+            field(end, i)
+        );
     }
 
     // Refused, one line each: a value outside this scene's range, a parameter the run did
@@ -411,7 +452,10 @@ fn init_from_starts_every_parameter_where_an_earlier_run_ended() {
     refused(&other, &bad.join("nothing"), &["nothing", "cannot read an earlier run's parameters"]);
     vkinverse_err(&["optimise", &s(&other), "--resume", "--init-from", &s(&first_out), "-o", &s(&out)], &["--init-from", "--resume"]);
     // compare and gradcheck take the same start.
-    vkinverse_err(&["compare", &s(&other), "--optimisers", "adam,meta", "--iterations", "1", "--init-from", &s(&first_out), "-o", &s(&out)], &["lights.spot.intensity", "no value for this parameter"]);
+    vkinverse_err(
+        &["compare", &s(&other), "--optimisers", "adam,meta", "--iterations", "1", "--init-from", &s(&first_out), "-o", &s(&out)],
+        &["lights.spot.intensity", "no value for this parameter"],
+    );
     vkinverse_err(&["gradcheck", &s(&other), "--init-from", &s(&bad.join("nothing"))], &["nothing", "cannot read an earlier run's parameters"]);
 }
 
@@ -771,7 +815,16 @@ fn gradcheck_passes_on_the_cornell_box() {
         // The median of the rounds lies on the side of 0 where most of them are.
         let (median, negative) = (row["adjoint_median"].as_f64().unwrap(), row["adjoint_share_negative"].as_f64().unwrap());
         assert!((0.0..=1.0).contains(&negative), "{row}");
-        assert!(if negative > 0.5 { median < 0.0 } else if negative < 0.5 { median >= 0.0 } else { true }, "{row}");
+        assert!(
+            if negative > 0.5 {
+                median < 0.0
+            } else if negative < 0.5 {
+                median >= 0.0
+            } else {
+                true
+            },
+            "{row}"
+        );
     }
 }
 
@@ -874,7 +927,10 @@ fn a_ctrl_c_stops_the_run_with_its_outputs_and_resume_finishes_it() {
     assert!((1..100000).contains(&n), "stopped at iteration {n}");
     assert_eq!(summary["interrupted"], true);
     let lines: Vec<&str> = out.stderr.lines().collect();
-    assert_eq!(lines, [format!("vkinverse: interrupted: stopped at iteration {n} of 100000; the same command with --resume continues the run in {}", dir.display())]);
+    assert_eq!(
+        lines,
+        [format!("vkinverse: interrupted: stopped at iteration {n} of 100000; the same command with --resume continues the run in {}", dir.display())]
+    );
     assert_eq!(read_log(&dir).1.len() as u64, n + 1, "log.csv holds iterations 0..={n}");
     assert_eq!(json(&committed(&dir).join("state.json"))["iteration"], n);
     for file in ["final.exr", "error_vs_time.png", "optimiser.csv", "optimiser.png", "params/params.json", "final/scene.toml"] {
@@ -904,12 +960,14 @@ fn a_ctrl_c_stops_a_batch_after_the_job_it_interrupts_and_resume_continues_it() 
     let dir = temp_dir("interrupt-batch");
     let jobs = dir.join("jobs.toml");
     let scene = s(tiny_cornell());
-    std::fs::write(&jobs, format!("iterations = 100000\ncheckpoint_every = 1\n[[jobs]]\nscene = \"{scene}\"\n[[jobs]]\nscene = \"{scene}\"\nseed = 1\n")).unwrap();
+    std::fs::write(&jobs, format!("iterations = 100000\ncheckpoint_every = 1\n[[jobs]]\nscene = \"{scene}\"\n[[jobs]]\nscene = \"{scene}\"\nseed = 1\n"))
+        .unwrap();
     let out_dir = dir.join("out");
     let iterating = || std::fs::read_dir(&out_dir).into_iter().flatten().any(|e| e.unwrap().path().join("checkpoint/current").exists());
     let out = signalled_when(&["--quiet", "batch", &s(&jobs), "-o", &s(&out_dir)], &[], libc::SIGINT, |_| iterating());
     assert_eq!(out.code, Some(130), "{}", out.stderr);
-    let said = format!("vkinverse: interrupted: 1 of 2 jobs ran (see {}); the same command with --resume continues the batch", out_dir.join("results.csv").display());
+    let said =
+        format!("vkinverse: interrupted: 1 of 2 jobs ran (see {}); the same command with --resume continues the batch", out_dir.join("results.csv").display());
     assert!(out.stderr.trim_end().ends_with(&said), "{}", out.stderr);
     let results = json(&out_dir.join("results.json"));
     let rows = results["results"].as_array().unwrap();
@@ -976,7 +1034,11 @@ fn a_ctrl_c_ends_a_render_with_the_samples_so_far() {
     let out = signalled_when(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], libc::SIGINT, |err| err.contains("render: "));
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let last = out.stderr.lines().last().unwrap_or_default();
-    let k: u32 = last.strip_prefix("vkinverse: interrupted: stopped at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
+    let k: u32 = last
+        .strip_prefix("vkinverse: interrupted: stopped at ")
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{}", out.stderr));
     assert_eq!(last, format!("vkinverse: interrupted: stopped at {k} of 100000000 samples per pixel; {} holds their mean", partial.display()));
     assert!((1..100000000).contains(&k));
     let whole = dir.join("whole.exr");
@@ -998,7 +1060,8 @@ fn a_render_stops_at_its_time_budget() {
     let out = vkinverse_ok(&["render", &s(tiny_cornell()), "--spp", "100000000", "--time-budget", "1", "-o", &s(&exr)]);
     assert!(out.wall < Duration::from_secs(60), "the render took {:?}", out.wall);
     let last = out.stderr.lines().last().unwrap_or_default();
-    let k: u32 = last.strip_prefix("rendered 16x16 at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
+    let k: u32 =
+        last.strip_prefix("rendered 16x16 at ").and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{}", out.stderr));
     assert!((1..100000000).contains(&k) && last.contains(" spp (the time budget's) in "), "{last}");
     let image = vkinverse::image::read_exr(&exr).unwrap();
     let mean = image.data.iter().flatten().map(|&v| v as f64).sum::<f64>() / (3 * image.data.len()) as f64;
@@ -1018,7 +1081,12 @@ fn a_ctrl_c_while_the_targets_render_writes_no_run() {
     let out = signalled_when(&args, &[("VKINVERSE_PROGRESS_SECS", "0")], libc::SIGINT, |err| err.contains("target: "));
     assert_eq!(out.code, Some(130), "{}", out.stderr);
     let last = out.stderr.lines().last().unwrap_or_default();
-    assert!(last.starts_with("vkinverse: interrupted: while rendering the target of sensor 0 (") && last.ends_with(" of 100000000 samples per pixel); no iteration ran"), "{}", out.stderr);
+    assert!(
+        last.starts_with("vkinverse: interrupted: while rendering the target of sensor 0 (")
+            && last.ends_with(" of 100000000 samples per pixel); no iteration ran"),
+        "{}",
+        out.stderr
+    );
     for file in vkinverse::rundir::RUN_FILES {
         assert!(!dir.join(file).exists(), "{file} written");
     }
@@ -1039,7 +1107,10 @@ fn a_ctrl_c_stops_a_comparison_without_a_table_and_resume_continues_it() {
     let n = json(&meta.join("summary.json"))["iterations"].as_u64().unwrap();
     assert_eq!(
         out.stderr.lines().collect::<Vec<_>>(),
-        [format!("vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written; the same command with --resume continues it", meta.display())]
+        [format!(
+            "vkinverse: interrupted: meta stopped at iteration {n} (its outputs are in {}); no comparison written; the same command with --resume continues it",
+            meta.display()
+        )]
     );
     for name in ["adam", "compare.csv", "compare.json", "error_vs_time.png"] {
         assert!(!out_dir.join(name).exists(), "{name} written");
@@ -1117,7 +1188,10 @@ fn a_killed_overwrite_never_mixes_two_runs() {
 fn resume_writes_the_outputs_a_kill_left_out() {
     // Commits at iterations 2, 4 and 6, and no fourth.
     let dir = temp_dir("final-commit");
-    let out = vkinverse_env(&optimise_args(&dir, &["--iterations", "6", "--checkpoint-every", "2", "--quiet"]), &[("VKINVERSE_DEBUG_ABORT_AT", "checkpoint.written:4")]);
+    let out = vkinverse_env(
+        &optimise_args(&dir, &["--iterations", "6", "--checkpoint-every", "2", "--quiet"]),
+        &[("VKINVERSE_DEBUG_ABORT_AT", "checkpoint.written:4")],
+    );
     assert!(out.ok(), "a fourth checkpoint was written ({:?}):\n{}", out.code, out.stderr);
     assert_eq!(json(&dir.join("summary.json"))["iterations"], 6);
 

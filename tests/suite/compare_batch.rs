@@ -75,21 +75,9 @@ fn num(field: &str) -> f64 {
 fn compare_two_optimisers() {
     let out = temp_dir("compare");
     let cornell = scenes().join("cornell/scene.toml");
-    let printed = vkinverse_ok(&[
-        "compare",
-        &s(&cornell),
-        "--optimisers",
-        "meta,adam@beta1=0.5",
-        "--iterations",
-        "4",
-        "--lr",
-        "0.05",
-        "--seed",
-        "3",
-        "-o",
-        &s(&out),
-    ])
-    .stdout;
+    let printed =
+        vkinverse_ok(&["compare", &s(&cornell), "--optimisers", "meta,adam@beta1=0.5", "--iterations", "4", "--lr", "0.05", "--seed", "3", "-o", &s(&out)])
+            .stdout;
     assert!(printed.contains("meta") && printed.contains("adam@beta1=0.5") && printed.contains("speed-up"), "{printed}");
     for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png", "optimiser.png"] {
         assert!(out.join(name).exists(), "{name} missing");
@@ -105,7 +93,10 @@ fn compare_two_optimisers() {
     assert_eq!(json(&out.join("adam@beta1=0.5/summary.json"))["settings"]["optimiser"], "adam@beta1=0.5");
 
     let (header, rows) = read_csv(&out.join("compare.csv"));
-    assert_eq!(header, ["label", "optimiser", "iterations", "time_s", "final_error", "time_to_2x", "time_to_1x", "time_to_0.5x", "speedup", "image_error_over_reference"]);
+    assert_eq!(
+        header,
+        ["label", "optimiser", "iterations", "time_s", "final_error", "time_to_2x", "time_to_1x", "time_to_0.5x", "speedup", "image_error_over_reference"]
+    );
     assert_eq!(rows.len(), 2);
     assert_eq!((rows[0][0].as_str(), rows[1][0].as_str()), ("meta", "adam@beta1=0.5"));
     for r in &rows {
@@ -121,7 +112,8 @@ fn compare_two_optimisers() {
         assert!((num(&r[9]) - over).abs() <= 1e-9 * over.abs().max(1e-12), "{r:?}: {over}");
     }
     // The runs share their seed, so they share the reference's renders.
-    let floors: Vec<f64> = ["meta", "adam@beta1=0.5"].iter().map(|d| json(&out.join(d).join("summary.json"))["reference_image_error"].as_f64().unwrap()).collect();
+    let floors: Vec<f64> =
+        ["meta", "adam@beta1=0.5"].iter().map(|d| json(&out.join(d).join("summary.json"))["reference_image_error"].as_f64().unwrap()).collect();
     assert_eq!(floors[0], floors[1]);
     // The baseline reaches its own final error (at the latest at its end): speed-up 1.
     assert!((num(&rows[0][8]) - 1.0).abs() < 1e-12, "{:?}", rows[0]);
@@ -178,7 +170,18 @@ fn rows_of(dir: &Path) -> Vec<Vec<String>> {
         .zip(&csv_rows)
         .map(|(r, c)| {
             let keys = ["job", "label", "optimiser", "seed", "spp", "status", "message", "iterations"];
-            let fields: Vec<String> = keys.iter().map(|k| if r[k].is_string() { r[k].as_str().unwrap().to_string() } else if r[k].is_null() { String::new() } else { r[k].to_string() }).collect();
+            let fields: Vec<String> = keys
+                .iter()
+                .map(|k| {
+                    if r[k].is_string() {
+                        r[k].as_str().unwrap().to_string()
+                    } else if r[k].is_null() {
+                        String::new()
+                    } else {
+                        r[k].to_string()
+                    }
+                })
+                .collect();
             // The CSV holds the same values.
             let from_csv: Vec<&String> = [0, 1, 3, 4, 5, 6, 7, 8].iter().map(|&i| &c[i]).collect();
             assert_eq!(from_csv, fields.iter().collect::<Vec<_>>());
@@ -248,7 +251,10 @@ fn batch_flags_replace_every_jobs_settings() {
     // Shard 2/2: jobs 2 (the product's adam) and 4 (spp 1 of its own).
     vkinverse_ok(&["--quiet", "batch", &s(&jobs), "--shard", "2/2", "--seed", "5", "--iterations", "3", "--spp", "2", "-o", &s(&out)]);
     let rows = rows_of(&out);
-    assert_eq!(rows.iter().map(|r| (r[0].as_str(), r[3].as_str(), r[4].as_str(), r[7].as_str())).collect::<Vec<_>>(), [("2", "5", "2", "3"), ("4", "5", "2", "3")]);
+    assert_eq!(
+        rows.iter().map(|r| (r[0].as_str(), r[3].as_str(), r[4].as_str(), r[7].as_str())).collect::<Vec<_>>(),
+        [("2", "5", "2", "3"), ("4", "5", "2", "3")]
+    );
     for dir in ["job-2-cornell-adam", "job-4-cornell-adam@beta1=0.5-spp1"] {
         let summary = json(&out.join(dir).join("summary.json"));
         assert_eq!((summary["settings"]["seed"].as_u64(), summary["iterations"].as_u64()), (Some(5), Some(3)), "{dir}");
@@ -269,7 +275,10 @@ fn batch_film_and_depth_apply_to_every_job() {
     let jobs = jobs_file("jobs-film.toml");
     let out = temp_dir("batch-film");
     // Shard 1/2: jobs 1 (the product's meta) and 3 (the broken scene, which fails).
-    vkinverse_err(&["--quiet", "batch", &s(&jobs), "--shard", "1/2", "--film", "12x8", "--max-depth", "1", "--iterations", "1", "-o", &s(&out)], &["1 of 2 jobs failed"]);
+    vkinverse_err(
+        &["--quiet", "batch", &s(&jobs), "--shard", "1/2", "--film", "12x8", "--max-depth", "1", "--iterations", "1", "-o", &s(&out)],
+        &["1 of 2 jobs failed"],
+    );
     let rows = rows_of(&out);
     assert_eq!(rows.iter().map(|r| (r[0].as_str(), r[5].as_str())).collect::<Vec<_>>(), [("1", "ok"), ("3", "failed")]);
     let run = out.join("job-1-cornell-meta");

@@ -281,7 +281,9 @@ fn carry_pass_follows_its_formula() {
                 cmd.submit_and_wait().unwrap();
                 for (s, [f, c, p]) in bufs.iter().enumerate() {
                     let sq = |a: usize, b: usize| -> f64 {
-                        (0..pixels).map(|i| (0..3).map(|k| (value(s, r, i, a as u32)[k] as f64 - value(s, r, i, b as u32)[k] as f64).powi(2)).sum::<f64>()).sum::<f64>()
+                        (0..pixels)
+                            .map(|i| (0..3).map(|k| (value(s, r, i, a as u32)[k] as f64 - value(s, r, i, b as u32)[k] as f64).powi(2)).sum::<f64>())
+                            .sum::<f64>()
                             / (3 * pixels) as f64
                     };
                     let v_fresh = sq(0, 1) * spp.1 as f64 / (spp.0 + spp.1) as f64;
@@ -323,7 +325,10 @@ fn carry_pass_follows_its_formula() {
                             expected[s][i][k] = mixed;
                             let close = |got: f32, want: f64| (got as f64 - want).abs() <= 1e-4 * (1.0 + want.abs());
                             assert!(close(carried[i][k], mixed), "{mode:?} round {r} sensor {s} pixel {i}: carried {} against {mixed}", carried[i][k]);
-                            assert!(close(fresh[i][k], e) && close(cur[i][k], e), "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one");
+                            assert!(
+                                close(fresh[i][k], e) && close(cur[i][k], e),
+                                "round {r} sensor {s} pixel {i}: the losses' image of θ is not the carried one"
+                            );
                             assert!(close(prev[i][k], e - diff), "round {r} sensor {s} pixel {i}: prev {} against {}", prev[i][k], e - diff);
                         }
                     }
@@ -465,11 +470,21 @@ fn carried_image_variance_weights_estimate_the_variances_they_weigh() {
         assert!(bias[k].abs() < 0.01 * ref_mean[k], "channel {k}: the carried image's mean is off by {} (image mean {})", bias[k], ref_mean[k]);
     }
     let fresh_ratio = state.var_fresh as f64 / (ms_fresh - ref_var);
-    assert!((0.8..1.25).contains(&fresh_ratio), "the fresh render's estimated variance {} against its measured {} (ratio {fresh_ratio})", state.var_fresh, ms_fresh - ref_var);
+    assert!(
+        (0.8..1.25).contains(&fresh_ratio),
+        "the fresh render's estimated variance {} against its measured {} (ratio {fresh_ratio})",
+        state.var_fresh,
+        ms_fresh - ref_var
+    );
     // Tracked through 30 carries (measured: 0.9 of the carried image's squared error, the
     // fresh render's estimate 1.0 of its own).
     let carried_ratio = state.var_carried as f64 / (ms_carried - ref_var).max(1e-12);
-    assert!((0.6..1.7).contains(&carried_ratio), "the carried image's tracked variance {} against its measured {} (ratio {carried_ratio})", state.var_carried, ms_carried - ref_var);
+    assert!(
+        (0.6..1.7).contains(&carried_ratio),
+        "the carried image's tracked variance {} against its measured {} (ratio {carried_ratio})",
+        state.var_carried,
+        ms_carried - ref_var
+    );
     assert!(state.weight > 0.0 && state.weight < 0.5, "weight {} of the fresh render after 30 iterations", state.weight);
     assert!(ms_carried < 0.25 * ms_fresh, "carried image's mean squared error {ms_carried} against a fresh render's {ms_fresh}");
 }

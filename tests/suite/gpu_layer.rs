@@ -5,8 +5,7 @@ use crate::common;
 
 use common::with_gpu;
 use vkinverse::gpu::{
-    check_features, Access, Buffer, CommandBuffer, ComputePipeline, Context, ContextOptions, DeviceFeatures, GpuError,
-    MemoryKind, Profiler, SpecValue,
+    check_features, Access, Buffer, CommandBuffer, ComputePipeline, Context, ContextOptions, DeviceFeatures, GpuError, MemoryKind, Profiler, SpecValue,
 };
 use vkinverse::ops::BufferOps;
 
@@ -34,7 +33,7 @@ fn fill_copy_scale_add_match_cpu() {
             let b = Buffer::zeroed::<f32>(ctx, "b", n, MemoryKind::Device).unwrap();
             let c = Buffer::zeroed::<f32>(ctx, "c", n, MemoryKind::Device).unwrap();
             let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
-                cmd.record(|rec| {
+            cmd.record(|rec| {
                 ops.fill(rec, &c, 2.5)?;
                 ops.copy(rec, &a, &b)?;
                 rec.barrier(&b, Access::ComputeWrite, Access::ComputeReadWrite)?;
@@ -102,10 +101,7 @@ fn resubmitting_a_recording_repeats_its_work() {
         let ops = BufferOps::new(ctx).unwrap();
         let x = Buffer::from_slice(ctx, "x", &[1.0f32; 300], MemoryKind::Device).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
-        cmd.record(|rec| {
-            ops.scale_add(rec, &x, 2.0, 1.0)
-        })
-        .unwrap();
+        cmd.record(|rec| ops.scale_add(rec, &x, 2.0, 1.0)).unwrap();
         for _ in 0..3 {
             cmd.submit_and_wait().unwrap();
         }

@@ -44,7 +44,6 @@ use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT};
 use vkinverse::render::{GpuScene, Renderer};
 use vkinverse::scene::{Loss, Scene, TextureValue as _};
 
-
 // ---------------------------------------------------------------------------------------
 // Scenes
 // ---------------------------------------------------------------------------------------
@@ -230,7 +229,16 @@ fn cpu_loss(loss: Loss, rendered: &Image, target: &Image) -> (f64, Vec<[f64; 3]>
                 let d = i[c] as f64 - t;
                 let (v, dv) = match loss {
                     Loss::L2 => (d * d, 2.0 * d),
-                    Loss::L1 => (d.abs(), if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 }),
+                    Loss::L1 => (
+                        d.abs(),
+                        if d > 0.0 {
+                            1.0
+                        } else if d < 0.0 {
+                            -1.0
+                        } else {
+                            0.0
+                        },
+                    ),
                     Loss::RelativeL2 => {
                         let w = 1.0 / (t * t + 0.01);
                         (d * d * w, 2.0 * d * w)
@@ -709,7 +717,9 @@ fn hidden_emitter_gradients_are_exact() {
         let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
         let path = common::scenes::lit_quad("gradients-hidden-emitters", 16, floor, "constant = [0.2, 0.2, 0.2]", optimise);
         let toml = std::fs::read_to_string(&path).unwrap();
-        let toml = toml.replace("rr_depth = 5", "rr_depth = 5\nhide_emitters = true").replace("origin = [0, 1.2, 1.8]\ntarget = [0, 0, -0.1]", "origin = [0, 0.6, 1.8]\ntarget = [0, 1.0, -0.5]");
+        let toml = toml
+            .replace("rr_depth = 5", "rr_depth = 5\nhide_emitters = true")
+            .replace("origin = [0, 1.2, 1.8]\ntarget = [0, 0, -0.1]", "origin = [0, 0.6, 1.8]\ntarget = [0, 1.0, -0.5]");
         std::fs::write(&path, toml).unwrap();
         let scene = Scene::load(path).unwrap();
         assert!(scene.integrator.hide_emitters && scene.sensors[0].origin.y == 0.6);
@@ -917,7 +927,17 @@ fn gap_scene_gradient_agrees_with_finite_differences_of_independent_renders() {
         assert_eq!(report.rows.len(), 3);
         assert!(report.typical_gradient > 0.0 && report.rows.iter().all(|r| r.se > 0.0), "the wall's colour must matter");
         for r in &report.rows {
-            assert!(r.z.abs() <= vkinverse::gradcheck::Z_FAIL, "{}[{}]: adjoint {:.4e} ± {:.1e} against {:.4e} ± {:.1e} (z {:+.2})", r.param, r.element, r.adjoint, r.adjoint_se, r.finite_difference, r.finite_difference_se, r.z);
+            assert!(
+                r.z.abs() <= vkinverse::gradcheck::Z_FAIL,
+                "{}[{}]: adjoint {:.4e} ± {:.1e} against {:.4e} ± {:.1e} (z {:+.2})",
+                r.param,
+                r.element,
+                r.adjoint,
+                r.adjoint_se,
+                r.finite_difference,
+                r.finite_difference_se,
+                r.z
+            );
         }
         let h = report.combined.expect("40 rounds of 3 elements give the combined statistic");
         assert!(h.p_value >= vkinverse::gradcheck::P_FAIL, "combined: T² {:.2}, p = {:.2e}", h.t2, h.p_value);

@@ -105,9 +105,8 @@ fn same_distribution(a1: &Image, a2: &Image, b: &Image) -> Result<(), String> {
     const BLOCK: u32 = 8;
     for by in 0..a1.height.div_ceil(BLOCK) {
         for bx in 0..a1.width.div_ceil(BLOCK) {
-            let pixels: Vec<(u32, u32)> = (by * BLOCK..((by + 1) * BLOCK).min(a1.height))
-                .flat_map(|y| (bx * BLOCK..((bx + 1) * BLOCK).min(a1.width)).map(move |x| (x, y)))
-                .collect();
+            let pixels: Vec<(u32, u32)> =
+                (by * BLOCK..((by + 1) * BLOCK).min(a1.height)).flat_map(|y| (bx * BLOCK..((bx + 1) * BLOCK).min(a1.width)).map(move |x| (x, y))).collect();
             let n = pixels.len() as f64;
             for c in 0..3 {
                 let mean = |img: &Image| pixels.iter().map(|&(x, y)| img.get(x, y)[c] as f64).sum::<f64>() / n;
@@ -420,14 +419,22 @@ fn gltf_alpha_masks_are_read_rendered_and_written_back() {
         let toml = Scene::load(out.join("final/scene.toml")).unwrap();
         let a = toml.materials[0].alpha.as_ref().expect("final/scene.toml keeps the alpha test");
         let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.toml") };
-        assert_eq!((a.mode, t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>()), (AlphaMode::Mask { cutoff: 0.4 }, vec![0.0, 0.0, 0.8, 0.8]), "final/scene.toml");
+        assert_eq!(
+            (a.mode, t.image.data.iter().map(|p| p[0]).collect::<Vec<_>>()),
+            (AlphaMode::Mask { cutoff: 0.4 }, vec![0.0, 0.0, 0.8, 0.8]),
+            "final/scene.toml"
+        );
         let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
         let a = gltf.materials[0].alpha.as_ref().expect("final/scene.gltf keeps the alpha test");
         let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha in final/scene.gltf") };
         // The alpha in the written PNG, at the base colour texture's size: 2 × 2, the
         // nearest texels of the 4 × 1 alpha.
         let got: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
-        assert!(a.mode == AlphaMode::Mask { cutoff: 0.4 } && got.iter().zip(&[0.0, 0.8, 0.0, 0.8]).all(|(g, w)| (g - w).abs() <= 0.5 / 255.0), "final/scene.gltf alpha {got:?}, {:?}", a.mode);
+        assert!(
+            a.mode == AlphaMode::Mask { cutoff: 0.4 } && got.iter().zip(&[0.0, 0.8, 0.0, 0.8]).all(|(g, w)| (g - w).abs() <= 0.5 / 255.0),
+            "final/scene.gltf alpha {got:?}, {:?}",
+            a.mode
+        );
         let ColorValue::Texture(t) = &gltf.materials[0].base_color else { panic!("the written base colour texture") };
         assert!(t.image.data.iter().flatten().zip(&theta).all(|(g, w)| (g - w).abs() <= 1.2 / 255.0), "{:?}", t.image.data);
     });
@@ -451,7 +458,8 @@ fn gltf_texture_transforms_move_the_texture_coordinates() {
     let transform = serde_json::json!({ "offset": [0.25, -0.5], "rotation": 0.5, "scale": [2.0, 3.0] });
     let moved = write("moved", &|d| {
         d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": transform.clone() });
-        d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 0, "extensions": { "KHR_texture_transform": transform.clone() } });
+        d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =
+            serde_json::json!({ "index": 0, "extensions": { "KHR_texture_transform": transform.clone() } });
     });
     let plain = Scene::load(data("textured/normal-mapped.gltf")).unwrap();
     let s = Scene::load(&moved).unwrap();
@@ -709,7 +717,12 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    ColorValue::Texture(vkinverse::scene::Texture { path: "recovered".into(), image: Image { width: w, height: h, data }.into(), filter: vkinverse::scene::Filter::Bilinear, wrap: [vkinverse::scene::Wrap::Repeat; 2] })
+    ColorValue::Texture(vkinverse::scene::Texture {
+        path: "recovered".into(),
+        image: Image { width: w, height: h, data }.into(),
+        filter: vkinverse::scene::Filter::Bilinear,
+        wrap: [vkinverse::scene::Wrap::Repeat; 2],
+    })
 }
 
 /// `img` equals `expected` to float rounding, pixel by pixel.
@@ -784,7 +797,10 @@ fn mitsuba_area_emitters_take_bitmap_radiance() {
         assert!(!s.meshes[0].uvs.is_empty());
         assert_eq!(*t.image, decoded);
     }
-    let constant = load("constant", r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape><shape type="rectangle" id="card"/>"#);
+    let constant = load(
+        "constant",
+        r#"<shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="2, 1, 0.5"/></emitter></shape><shape type="rectangle" id="card"/>"#,
+    );
     assert_eq!(constant.meshes[0].emission, ColorValue::Constant([2.0, 1.0, 0.5]));
     // Without a BSDF an emitting shape reflects nothing (Mitsuba's diffuse 0), another
     // shape is diffuse 0.5.
@@ -835,14 +851,21 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
         assert_refinement_warnings(name, &s, warnings);
     }
     let fails = |name: &str, bsdf: &str, needles: &[&str]| assert_fails(name, load(name, bsdf), needles);
-    fails("constant", &format!(r#"<bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/>{diffuse}</bsdf>"#), &["<rgb name=\"normalmap\">", "bitmap"]);
+    fails(
+        "constant",
+        &format!(r#"<bsdf type="normalmap"><rgb name="normalmap" value="0.5, 0.5, 1"/>{diffuse}</bsdf>"#),
+        &["<rgb name=\"normalmap\">", "bitmap"],
+    );
     fails("no-map", &format!(r#"<bsdf type="normalmap">{diffuse}</bsdf>"#), &["<bsdf type=\"normalmap\">", "needs a `normalmap`"]);
     fails("no-bsdf", &format!(r#"<bsdf type="normalmap">{}</bsdf>"#, map("")), &["normalmap needs one nested <bsdf>"]);
     let hdr = dir.join("hot.exr");
     vkinverse::image::write_exr(&hdr, &Image::filled(2, 2, [0.5, 0.5, 2.0])).unwrap();
     fails(
         "out-of-range",
-        &format!(r#"<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="{}"/></texture>{diffuse}</bsdf>"#, hdr.display()),
+        &format!(
+            r#"<bsdf type="normalmap"><texture type="bitmap" name="normalmap"><string name="filename" value="{}"/></texture>{diffuse}</bsdf>"#,
+            hdr.display()
+        ),
         &["hot.exr", "2 at pixel (0, 0)", "outside [0, 1]"],
     );
 }
@@ -857,7 +880,9 @@ fn mitsuba_normal_maps_wrap_bsdfs() {
 fn mitsuba_bump_maps_wrap_bsdfs() {
     let dir = temp_dir("mitsuba-bumpmap");
     let heights = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/mitsuba/meshes/heights.png");
-    let bitmap = |name: &str| format!(r#"<texture type="bitmap" name="{name}"><string name="filename" value="{}"/><boolean name="raw" value="true"/></texture>"#, heights.display());
+    let bitmap = |name: &str| {
+        format!(r#"<texture type="bitmap" name="{name}"><string name="filename" value="{}"/><boolean name="raw" value="true"/></texture>"#, heights.display())
+    };
     let diffuse = r#"<bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>"#;
     let quiet = r#"<boolean name="use_shadowing_function" value="false"/><boolean name="flip_invalid_normals" value="false"/>"#;
     let load = |name: &str, bsdf: &str| {
@@ -874,7 +899,13 @@ fn mitsuba_bump_maps_wrap_bsdfs() {
     for (name, bsdf, scale, one_sided, warnings) in [
         ("nested", format!(r#"<bsdf type="bumpmap">{}<float name="scale" value="0.2"/>{quiet}{diffuse}</bsdf>"#, bitmap("arbitrary")), 0.2, true, 0),
         ("ref", format!(r#"<bsdf type="twosided"><bsdf type="bumpmap"><ref id="h"/>{diffuse}</bsdf></bsdf>"#), 1.0, false, 1),
-        ("in-mask", format!(r#"<bsdf type="mask"><float name="opacity" value="1"/><bsdf type="bumpmap">{quiet}{}{diffuse}</bsdf></bsdf>"#, bitmap("bumps")), 1.0, true, 0),
+        (
+            "in-mask",
+            format!(r#"<bsdf type="mask"><float name="opacity" value="1"/><bsdf type="bumpmap">{quiet}{}{diffuse}</bsdf></bsdf>"#, bitmap("bumps")),
+            1.0,
+            true,
+            0,
+        ),
     ] {
         let s = load(name, &bsdf).unwrap_or_else(|e| panic!("{name}: {e}"));
         let m = &s.materials[0];
@@ -887,7 +918,11 @@ fn mitsuba_bump_maps_wrap_bsdfs() {
     fails("no-texture", &format!(r#"<bsdf type="bumpmap">{diffuse}</bsdf>"#), &["<bsdf type=\"bumpmap\">", "height texture"]);
     fails("constant", &format!(r#"<bsdf type="bumpmap"><rgb name="h" value="0.5"/>{diffuse}</bsdf>"#), &["<bsdf type=\"bumpmap\">", "height texture"]);
     fails("no-bsdf", &format!(r#"<bsdf type="bumpmap">{}</bsdf>"#, bitmap("a")), &["bumpmap needs one nested <bsdf>"]);
-    fails("bump-in-bump", &format!(r#"<bsdf type="bumpmap">{}<bsdf type="bumpmap">{}{diffuse}</bsdf></bsdf>"#, bitmap("a"), bitmap("b")), &["bumpmap inside a normalmap or bumpmap"]);
+    fails(
+        "bump-in-bump",
+        &format!(r#"<bsdf type="bumpmap">{}<bsdf type="bumpmap">{}{diffuse}</bsdf></bsdf>"#, bitmap("a"), bitmap("b")),
+        &["bumpmap inside a normalmap or bumpmap"],
+    );
     fails("glass", &format!(r#"<bsdf type="bumpmap">{}<bsdf type="dielectric"/></bsdf>"#, bitmap("a")), &["dielectric"]);
     fails("bad-scale", &format!(r#"<bsdf type="bumpmap">{}<float name="scale" value="inf"/>{diffuse}</bsdf>"#, bitmap("a")), &["scale"]);
 
@@ -1048,7 +1083,10 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
 
     // What the mapping cannot render is refused, naming the element.
     for (bsdf, needles) in [
-        (r#"<bsdf type="plastic" id="p1"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#, &["<bsdf type=\"plastic\" id=\"p1\">", "specular_reflectance 1"][..]),
+        (
+            r#"<bsdf type="plastic" id="p1"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#,
+            &["<bsdf type=\"plastic\" id=\"p1\">", "specular_reflectance 1"][..],
+        ),
         (r#"<bsdf type="plastic" id="p1"><string name="int_ior" value="unobtainium"/></bsdf>"#, &["int_ior \"unobtainium\" is not one of", "bk7"]),
         (r#"<bsdf type="plastic" id="p1"><float name="int_ior" value="1.000277"/></bsdf>"#, &["int_ior and ext_ior are equal"]),
         (r#"<bsdf type="roughplastic" id="p1"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "not supported"]),
@@ -1108,7 +1146,10 @@ fn mitsuba_rough_conductors_keep_their_distribution_and_index() {
     let s = Scene::load(dir.join("good.xml")).unwrap();
     assert!(s.warnings.is_empty(), "{:?}", s.warnings);
     let material = |id: &str| s.materials.iter().find(|m| m.name == id).unwrap_or_else(|| panic!("no material {id}")).clone();
-    let rough = |m: &vkinverse::scene::Material| match m.roughness { ScalarValue::Constant(r) => r, _ => panic!("a constant roughness") };
+    let rough = |m: &vkinverse::scene::Material| match m.roughness {
+        ScalarValue::Constant(r) => r,
+        _ => panic!("a constant roughness"),
+    };
     let (a, b, c) = (material("a"), material("b"), material("c"));
     for m in [&a, &b, &c] {
         assert_eq!(m.kind, vkinverse::scene::MaterialKind::Conductor, "{}", m.name);
@@ -1162,7 +1203,10 @@ fn mitsuba_rough_conductors_keep_their_distribution_and_index() {
     assert!(msg.contains("alpha texel 1.5") && msg.contains("outside [0, 1]") && !msg.contains('\n'), "{msg}");
 
     for (bsdf, needles) in [
-        (r#"<bsdf type="roughconductor" id="a"><string name="material" value="unobtainium"/></bsdf>"#, &["<bsdf type=\"roughconductor\" id=\"a\">", "\"unobtainium\" is not one of", "Au"][..]),
+        (
+            r#"<bsdf type="roughconductor" id="a"><string name="material" value="unobtainium"/></bsdf>"#,
+            &["<bsdf type=\"roughconductor\" id=\"a\">", "\"unobtainium\" is not one of", "Au"][..],
+        ),
         (r#"<bsdf type="roughconductor" id="a"><rgb name="eta" value="0.2"/></bsdf>"#, &["either `material` or both `eta` and `k`"]),
         (r#"<bsdf type="roughconductor" id="a"><rgb name="eta" value="-0.2"/><rgb name="k" value="1"/></bsdf>"#, &["must not be negative"]),
         (r#"<bsdf type="roughconductor" id="a"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "not supported"]),
@@ -1266,7 +1310,13 @@ fn mitsuba_direct_and_volpath_integrators_map_to_the_path_tracer() {
         assert_eq!(s.integrator.max_depth, depth, "{integrator}");
         assert!(s.warnings.is_empty(), "{integrator}: {:?}", s.warnings);
     }
-    assert_eq!(scene(r#"<integrator type="volpath"><integer name="max_depth" value="5"/><integer name="rr_depth" value="3"/></integrator>"#).unwrap().integrator.rr_depth, 3);
+    assert_eq!(
+        scene(r#"<integrator type="volpath"><integer name="max_depth" value="5"/><integer name="rr_depth" value="3"/></integrator>"#)
+            .unwrap()
+            .integrator
+            .rr_depth,
+        3
+    );
     let hidden = scene(r#"<integrator type="direct"><boolean name="hide_emitters" value="true"/></integrator>"#).unwrap();
     assert!(hidden.integrator.hide_emitters && hidden.integrator.max_depth == 2);
     for (integrator, needle) in [
@@ -1325,7 +1375,11 @@ fn mitsuba_dielectrics_are_glass() {
         ("tinted", r#"<bsdf type="dielectric"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#, &["specular_reflectance", "only 1"][..]),
         ("twosided", r#"<bsdf type="twosided"><bsdf type="dielectric"/></bsdf>"#, &["twosided", "two sides"][..]),
         ("mask", r#"<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="dielectric"/></bsdf>"#, &["mask", "dielectric"][..]),
-        ("matched", r#"<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>"#, &["int_ior equals ext_ior"][..]),
+        (
+            "matched",
+            r#"<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>"#,
+            &["int_ior equals ext_ior"][..],
+        ),
         ("anisotropic", r#"<bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#, &["alpha_u"][..]),
         ("range", r#"<bsdf type="dielectric"><float name="int_ior" value="9"/></bsdf>"#, &["int_ior / ext_ior", "outside"][..]),
     ] {
@@ -1387,7 +1441,11 @@ fn gltf_transmission_is_glass() {
     })
     .unwrap();
     assert_eq!(rough.materials[0].kind.as_str(), "thin_dielectric");
-    assert!(rough.warnings.len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)), "{:?}", rough.warnings);
+    assert!(
+        rough.warnings.len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)),
+        "{:?}",
+        rough.warnings
+    );
     // With a volume, a rough material is rough glass, exactly; its roughness is written back.
     let frosted = load("frosted.gltf", &|m| {
         m["pbrMetallicRoughness"]["roughnessFactor"] = serde_json::json!(0.4);
@@ -1420,10 +1478,18 @@ fn gltf_transmission_is_glass() {
     }
     for (name, ext, needle) in [
         ("factor.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 2.0 } }), "KHR_materials_transmission.transmissionFactor"),
-        ("ior.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
+        (
+            "ior.gltf",
+            serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_ior": { "ior": 9.0 } }),
+            "KHR_materials_ior.ior",
+        ),
         ("opaque-ior.gltf", serde_json::json!({ "KHR_materials_ior": { "ior": 9.0 } }), "KHR_materials_ior.ior"),
         ("nan.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": "x" } }), "KHR_materials_transmission.transmissionFactor"),
-        ("attenuation.gltf", serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_volume": { "thicknessFactor": 1.0, "attenuationColor": [0.0, 1.0, 1.0], "attenuationDistance": 1.0 } }), "KHR_materials_volume.attenuationColor"),
+        (
+            "attenuation.gltf",
+            serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 }, "KHR_materials_volume": { "thicknessFactor": 1.0, "attenuationColor": [0.0, 1.0, 1.0], "attenuationDistance": 1.0 } }),
+            "KHR_materials_volume.attenuationColor",
+        ),
     ] {
         let e = load(name, &|m| m["extensions"] = ext.clone()).unwrap_err().to_string();
         assert!(e.contains(needle) && e.contains("materials[0]") && !e.contains('\n'), "{name}: {e}");
@@ -1441,7 +1507,8 @@ fn gltf_transmission_is_glass() {
     })
     .unwrap();
     let sky = dir.join("sky.toml");
-    std::fs::write(&sky, "import = \"clear.gltf\"\n[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 8\n[environment]\nconstant = [1, 1, 1]\n").unwrap();
+    std::fs::write(&sky, "import = \"clear.gltf\"\n[film]\nwidth = 16\nheight = 16\n[integrator]\nmax_depth = 8\n[environment]\nconstant = [1, 1, 1]\n")
+        .unwrap();
     let lit = Scene::load(&sky).unwrap();
     assert_eq!(lit.materials[0].kind.as_str(), clear.materials[0].kind.as_str());
     let img = with_gpu(|ctx| render(ctx, &lit, 0, 4, 1));
@@ -1466,7 +1533,9 @@ fn mitsuba_environment_maps_read_hdr_and_turn_with_to_world() {
     let map = Image {
         width: w,
         height: h,
-        data: (0..h).flat_map(|y| (0..w).map(move |x| [(128 + 8 * x + y) as f32 / 64.0, ((5 * x + 3 * y) % 100 + 1) as f32 / 64.0, (16 * y + x) as f32 / 64.0])).collect(),
+        data: (0..h)
+            .flat_map(|y| (0..w).map(move |x| [(128 + 8 * x + y) as f32 / 64.0, ((5 * x + 3 * y) % 100 + 1) as f32 / 64.0, (16 * y + x) as f32 / 64.0]))
+            .collect(),
     };
     let rolled = Image { data: (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| map.get((x + w / 4) % w, y)).collect(), ..map.clone() };
     std::fs::write(dir.join("sky.hdr"), radiance_hdr(&map)).unwrap();
@@ -1474,7 +1543,9 @@ fn mitsuba_environment_maps_read_hdr_and_turn_with_to_world() {
     vkinverse::image::write_exr(&dir.join("rolled.exr"), &rolled).unwrap();
     let load = |name: &str, file: &str, transform: &str| {
         let path = dir.join(format!("{name}.xml"));
-        let body = format!(r#"<emitter type="envmap"><string name="filename" value="{file}"/><float name="scale" value="2"/><boolean name="mis_compensation" value="true"/>{transform}</emitter>"#);
+        let body = format!(
+            r#"<emitter type="envmap"><string name="filename" value="{file}"/><float name="scale" value="2"/><boolean name="mis_compensation" value="true"/>{transform}</emitter>"#
+        );
         std::fs::write(&path, small_mitsuba_scene(&body)).unwrap();
         Scene::load(&path)
     };
@@ -1593,7 +1664,11 @@ fn principled_index_of_refraction_sets_the_reflectance() {
         sum / N as f64
     };
     let r = (0.08f64 * 2.0).sqrt();
-    let cases = [("default.xml", "", 1.5), ("specular.xml", r#"<float name="specular" value="2"/>"#, ((1.0 + r) / (1.0 - r)) as f32), ("eta.xml", r#"<float name="eta" value="1.2"/>"#, 1.2)];
+    let cases = [
+        ("default.xml", "", 1.5),
+        ("specular.xml", r#"<float name="specular" value="2"/>"#, ((1.0 + r) / (1.0 - r)) as f32),
+        ("eta.xml", r#"<float name="eta" value="1.2"/>"#, 1.2),
+    ];
     let mut means = Vec::new();
     with_gpu(|ctx| {
         for (name, params, ior) in cases {
@@ -1676,7 +1751,9 @@ fn orthographic_cameras_see_parallel_projections() {
         }
     };
     with_gpu(|ctx| {
-        for (name, distance, scale, height, side) in [("near.xml", 3.0, "", 2.0, 8), ("far.xml", 40.0, "", 2.0, 8), ("wide.xml", 3.0, r#"<scale x="2" y="2"/>"#, 4.0, 4)] {
+        for (name, distance, scale, height, side) in
+            [("near.xml", 3.0, "", 2.0, 8), ("far.xml", 40.0, "", 2.0, 8), ("wide.xml", 3.0, r#"<scale x="2" y="2"/>"#, 4.0, 4)]
+        {
             let s = load(name, xml(distance, scale)).unwrap();
             assert!(s.warnings.is_empty(), "{name}: {:?}", s.warnings);
             assert_eq!(s.sensors[0].ortho_height, Some(height), "{name}");
@@ -1725,18 +1802,25 @@ fn thin_lenses_focus() {
     let pixel = |image: &Image, x: usize, y: usize| image.data[y * 16 + x][0];
     with_gpu(|ctx| {
         let pinhole = render(ctx, &load("pinhole.xml", xml("perspective", "")).unwrap(), 0, 64, 5);
-        let sharp_scene = load("sharp.xml", xml("thinlens", r#"<float name="aperture_radius" value="0.125"/><float name="focus_distance" value="4"/>"#)).unwrap();
+        let sharp_scene =
+            load("sharp.xml", xml("thinlens", r#"<float name="aperture_radius" value="0.125"/><float name="focus_distance" value="4"/>"#)).unwrap();
         assert_eq!(sharp_scene.sensors[0].lens, Some(vkinverse::scene::ThinLens { aperture_radius: 0.125, focus_distance: 4.0 }));
         let sharp = render(ctx, &sharp_scene, 0, 64, 5);
         for y in 0..16 {
             for x in 0..16 {
                 let want = if (4..12).contains(&x) && (4..12).contains(&y) { 2.0 } else { 0.0 };
-                assert!((pixel(&pinhole, x, y) - want).abs() < 1e-5 && (pixel(&sharp, x, y) - want).abs() < 1e-5, "pixel ({x}, {y}): pinhole {}, focused lens {}", pixel(&pinhole, x, y), pixel(&sharp, x, y));
+                assert!(
+                    (pixel(&pinhole, x, y) - want).abs() < 1e-5 && (pixel(&sharp, x, y) - want).abs() < 1e-5,
+                    "pixel ({x}, {y}): pinhole {}, focused lens {}",
+                    pixel(&pinhole, x, y),
+                    pixel(&sharp, x, y)
+                );
             }
         }
         // Focused at 2, a point of the plane at 4 spreads over the lens's disk (radius
         // 0.125, one pixel) around where the pinhole sees it.
-        let blurred_scene = load("blurred.xml", xml("thinlens", r#"<float name="aperture_radius" value="0.125"/><float name="focus_distance" value="2"/>"#)).unwrap();
+        let blurred_scene =
+            load("blurred.xml", xml("thinlens", r#"<float name="aperture_radius" value="0.125"/><float name="focus_distance" value="2"/>"#)).unwrap();
         let blurred = render(ctx, &blurred_scene, 0, 64, 5);
         for (x, y) in [(12, 8), (3, 8), (8, 12), (8, 3)] {
             let v = pixel(&blurred, x, y);
@@ -1771,7 +1855,9 @@ fn checkerboards_and_nearest_textures_are_imported() {
         emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "")
             .replace(r#"<rgb name="radiance" value="2, 1, 0.5"/>"#, texture)
     };
-    let checker = format!(r#"<texture type="checkerboard" name="radiance"><rgb name="color0" value="2, 1, 0.5"/><rgb name="color1" value="0.25, 0.5, 1"/>{to_uv}</texture>"#);
+    let checker = format!(
+        r#"<texture type="checkerboard" name="radiance"><rgb name="color0" value="2, 1, 0.5"/><rgb name="color1" value="0.25, 0.5, 1"/>{to_uv}</texture>"#
+    );
     let bitmap = |filter: &str| format!(r#"<texture type="bitmap" name="radiance"><string name="filename" value="cells.exr"/>{filter}{to_uv}</texture>"#);
     // Mitsuba's colour at pixel (x, y): the square's Mitsuba uv is (x_w + 1/2, y_w + 1/2)
     // (v up the square here, as Mitsuba's rectangle's), mapped by to_uv.
@@ -1781,7 +1867,11 @@ fn checkerboards_and_nearest_textures_are_imported() {
             return [0.0; 3];
         }
         let (u, v) = (2.0 * (xw + 0.5) + 0.25, 2.0 * (yw + 0.5));
-        if (u.fract() > 0.5) == (v.fract() > 0.5) { c0 } else { c1 }
+        if (u.fract() > 0.5) == (v.fract() > 0.5) {
+            c0
+        } else {
+            c1
+        }
     };
     let check = |image: &Image, what: &str| {
         for y in 0..16 {
@@ -1813,7 +1903,13 @@ fn checkerboards_and_nearest_textures_are_imported() {
     // Errors name the line.
     for (text, message) in [
         (xml(&bitmap(r#"<string name="filter_type" value="cubic"/>"#)), "filter_type \"cubic\""),
-        (xml(&checker.replace(r#"<rgb name="color0" value="2, 1, 0.5"/>"#, r#"<texture type="bitmap" name="color0"><string name="filename" value="cells.exr"/></texture>"#)), "colours must be constants"),
+        (
+            xml(&checker.replace(
+                r#"<rgb name="color0" value="2, 1, 0.5"/>"#,
+                r#"<texture type="bitmap" name="color0"><string name="filename" value="cells.exr"/></texture>"#,
+            )),
+            "colours must be constants",
+        ),
         (xml(r#"<texture type="noise" name="radiance"/>"#), "bitmap and checkerboard"),
     ] {
         let e = write_and_load(&dir, "bad.xml", &text).unwrap_err().to_string();
@@ -1878,7 +1974,8 @@ fn texture_wrap_modes_are_imported() {
         let texture = format!(
             r#"<texture type="bitmap" name="radiance"><string name="filename" value="quad.exr"/>{filter}<string name="wrap_mode" value="{wrap}"/><transform name="to_uv"><scale x="2" y="2"/><translate x="-0.5" y="-0.5"/></transform></texture>"#
         );
-        emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "").replace(r#"<rgb name="radiance" value="2, 1, 0.5"/>"#, &texture)
+        emitting_square_xml("orthographic", "", r#"<lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/>"#, "")
+            .replace(r#"<rgb name="radiance" value="2, 1, 0.5"/>"#, &texture)
     };
     let nearest = r#"<string name="filter_type" value="nearest"/>"#;
     let wrap_index = |k: i64, mode: Wrap| match mode {
@@ -1886,7 +1983,11 @@ fn texture_wrap_modes_are_imported() {
         Wrap::Clamp => k.clamp(0, 1),
         Wrap::Mirror => {
             let m = k.rem_euclid(4);
-            if m < 2 { m } else { 3 - m }
+            if m < 2 {
+                m
+            } else {
+                3 - m
+            }
         }
     };
     // The texel at pixel (x, y)'s centre: Mitsuba's uv (x_w + 1/2, y_w + 1/2), v picking
@@ -2006,11 +2107,15 @@ fn hidden_emitters_are_passed_through() {
         check(&render(ctx, &o, 0, 16, 3), &shown, "shown by the TOML");
         // Depth 1 under a sky: the square's radiance and the sky's, or nothing.
         let s = write_and_load(&dir, "sky-shown.xml", &xml(false, 1, sky)).unwrap();
-        check(&render(ctx, &s, 0, 16, 3), &|x, y| match (inside(x, y, 6), inside(x, y, 4)) {
-            (true, _) => [2.0, 1.0, 0.5],
-            (false, true) => [0.0; 3],
-            _ => [0.25; 3],
-        }, "sky shown");
+        check(
+            &render(ctx, &s, 0, 16, 3),
+            &|x, y| match (inside(x, y, 6), inside(x, y, 4)) {
+                (true, _) => [2.0, 1.0, 0.5],
+                (false, true) => [0.0; 3],
+                _ => [0.25; 3],
+            },
+            "sky shown",
+        );
         let h = write_and_load(&dir, "sky-hidden.xml", &xml(true, 1, sky)).unwrap();
         check(&render(ctx, &h, 0, 16, 3), &|_, _| [0.0; 3], "sky hidden");
     });
@@ -2047,7 +2152,20 @@ fn pixel_filters_weigh_the_image_around_each_pixel() {
             }
             let n = 4000;
             let h = (b - a) / n as f64;
-            (0..=n).map(|i| f.weight(a + i as f64 * h) * if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 }).sum::<f64>() * h / 3.0
+            (0..=n)
+                .map(|i| {
+                    f.weight(a + i as f64 * h)
+                        * if i == 0 || i == n {
+                            1.0
+                        } else if i % 2 == 1 {
+                            4.0
+                        } else {
+                            2.0
+                        }
+                })
+                .sum::<f64>()
+                * h
+                / 3.0
         };
         simpson(a.max(-r), b.min(r)) / simpson(-r, r)
     };

@@ -5,7 +5,10 @@ use crate::common;
 use common::with_gpu;
 use vkinverse::optim::gpu::{replay_gpu_groups, replay_gpu_streams, Group};
 use vkinverse::optim::reference::{GroupedOptimiser, StepInput};
-use vkinverse::optim::{self, AdamHyper, CurvatureFit, Decay, Diagnostics, FdVariance, MetaHyper, Multiple, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams, VarianceEstimate};
+use vkinverse::optim::{
+    self, AdamHyper, CurvatureFit, Decay, Diagnostics, FdVariance, MetaHyper, Multiple, Optimiser, Range, Schedule, Shrink, StepNorm, StepRule, Streams,
+    VarianceEstimate,
+};
 
 /// Adam with and without a schedule and every meta variant: each step rule with each
 /// variance estimate, β_F growth, and a schedule with warm-up.
@@ -23,7 +26,15 @@ fn variants() -> Vec<Optimiser> {
         }
     }
     v.push(Optimiser::Meta(MetaHyper { step: StepRule::Wiener, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, ..MetaHyper::seed() }));
-    v.push(Optimiser::Meta(MetaHyper { step: StepRule::Newton, variance: VarianceEstimate::Centred, fdvar: FdVariance::Raw, sig: 1.0, settle: 0.5, decay_h: 0.8, ..MetaHyper::seed() }));
+    v.push(Optimiser::Meta(MetaHyper {
+        step: StepRule::Newton,
+        variance: VarianceEstimate::Centred,
+        fdvar: FdVariance::Raw,
+        sig: 1.0,
+        settle: 0.5,
+        decay_h: 0.8,
+        ..MetaHyper::seed()
+    }));
     v.push(Optimiser::Meta(MetaHyper { calib: 0.95, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { shrink: Shrink::Group, ..MetaHyper::default() }));
     v.push(Optimiser::Meta(MetaHyper { curv: CurvatureFit::Ls, ..MetaHyper::default() }));
@@ -45,10 +56,7 @@ fn variants() -> Vec<Optimiser> {
 
 /// Half-sample sums of a stream: a share of each value that varies by row and element.
 fn halves_of(rows: &[Vec<f32>], salt: u64) -> Vec<Vec<f32>> {
-    rows.iter()
-        .enumerate()
-        .map(|(i, r)| r.iter().zip(noise(salt + i as u64, r.len())).map(|(x, u)| x * (0.5 + 0.3 * u)).collect())
-        .collect()
+    rows.iter().enumerate().map(|(i, r)| r.iter().zip(noise(salt + i as u64, r.len())).map(|(x, u)| x * (0.5 + 0.3 * u)).collect()).collect()
 }
 
 /// |a − b| within `rel` of their magnitude plus `scale`.
@@ -105,12 +113,7 @@ fn gpu_trajectories_match_the_f64_reference() {
             // elements (n/50) until the f32 and f64 runs part (`parted`), and afterwards on
             // all but about as many elements as they disagree on; a kernel that steps
             // otherwise moves most elements.
-            let parted = cpu32
-                .theta
-                .iter()
-                .zip(&cpu.theta)
-                .position(|(a, b)| a.iter().zip(b).any(|(x, y)| (x - y).abs() > 1e-5))
-                .unwrap_or(cpu.theta.len());
+            let parted = cpu32.theta.iter().zip(&cpu.theta).position(|(a, b)| a.iter().zip(b).any(|(x, y)| (x - y).abs() > 1e-5)).unwrap_or(cpu.theta.len());
             let flipped_by_precision = (0..n).filter(|&i| cpu32.theta.iter().zip(&cpu.theta).any(|(a, b)| (a[i] - b[i]).abs() > 1e-5)).count();
             // Against the f64 reference: relative to the parameter's scale (the range is
             // [0, 1]); float32 rounding over 60 steps stays below 1e-5 of it.
@@ -172,12 +175,7 @@ fn gpu_trajectories_match_the_f64_reference() {
                         "step_norm" | "rms_step" | "newton" => (1e-2, 1e-5),
                         _ => (1e-4, 1e-9),
                     };
-                    assert!(
-                        close(*x, y, rel, scale),
-                        "{opt:?} step {}: {} GPU {x} vs f64 {y}",
-                        t + 1,
-                        Diagnostics::COLUMNS[k]
-                    );
+                    assert!(close(*x, y, rel, scale), "{opt:?} step {}: {} GPU {x} vs f64 {y}", t + 1, Diagnostics::COLUMNS[k]);
                 }
             }
         }
@@ -223,11 +221,15 @@ fn parameter_groups_step_independently() {
             }
         }
         // The global norm changes the trajectory (the groups' steps differ in size).
-        let group_norm = Optimiser::Meta(MetaHyper { dpi: StepNorm::Group, ..match global { Optimiser::Meta(h) => h, _ => unreachable!() } });
-        let (a, b) = (
-            replay_gpu_groups(ctx, &global, &streams, &init, &groups).unwrap(),
-            replay_gpu_groups(ctx, &group_norm, &streams, &init, &groups).unwrap(),
-        );
+        let group_norm = Optimiser::Meta(MetaHyper {
+            dpi: StepNorm::Group,
+            ..match global {
+                Optimiser::Meta(h) => h,
+                _ => unreachable!(),
+            }
+        });
+        let (a, b) =
+            (replay_gpu_groups(ctx, &global, &streams, &init, &groups).unwrap(), replay_gpu_groups(ctx, &group_norm, &streams, &init, &groups).unwrap());
         assert_ne!(a.theta.last(), b.theta.last());
     });
 }

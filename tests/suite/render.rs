@@ -123,10 +123,7 @@ emission = [1.0, 2.0, 0.5]
                 let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
                 let se = (var / n).sqrt();
                 let expected = (le[c] * series) as f64;
-                assert!(
-                    (mean - expected).abs() <= 5.0 * se + 1e-4 * expected,
-                    "depth {max_depth} channel {c}: mean {mean} expected {expected} (se {se})"
-                );
+                assert!((mean - expected).abs() <= 5.0 * se + 1e-4 * expected, "depth {max_depth} channel {c}: mean {mean} expected {expected} (se {se})");
             }
         }
     });
@@ -205,12 +202,9 @@ fn bilinear(img: &Image, uv: [f64; 2]) -> [f64; 3] {
     let a = [(f[0] as i64).rem_euclid(w), (f[1] as i64).rem_euclid(h)];
     let b = [(a[0] + 1) % w, (a[1] + 1) % h];
     let mut v = [0.0; 3];
-    for (x, y, wt) in [
-        (a[0], a[1], (1.0 - t[0]) * (1.0 - t[1])),
-        (b[0], a[1], t[0] * (1.0 - t[1])),
-        (a[0], b[1], (1.0 - t[0]) * t[1]),
-        (b[0], b[1], t[0] * t[1]),
-    ] {
+    for (x, y, wt) in
+        [(a[0], a[1], (1.0 - t[0]) * (1.0 - t[1])), (b[0], a[1], t[0] * (1.0 - t[1])), (a[0], b[1], (1.0 - t[0]) * t[1]), (b[0], b[1], t[0] * t[1])]
+    {
         let px = img.get(x as u32, y as u32);
         for c in 0..3 {
             v[c] += wt * px[c] as f64;
@@ -347,12 +341,7 @@ fn a_constant_normal_map_shades_as_the_vertex_normals_it_encodes() {
             let (mapped, has_maps) = render(ctx, &normal_quad(&format!("nmap-{name}"), Shading::Map(map), mirrored));
             assert!(has_maps, "{name}: the kernels are built with normal maps");
             let (vertex, _) = render(ctx, &normal_quad(&format!("nmap-{name}-vn"), Shading::Vertex(world), mirrored));
-            let off = mapped
-                .data
-                .iter()
-                .zip(&vertex.data)
-                .filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3)))
-                .count();
+            let off = mapped.data.iter().zip(&vertex.data).filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3))).count();
             eprintln!("{name}: mean {:.5} (vertex normals {:.5}, geometric {:.5}); {off} pixels differ", mean(&mapped), mean(&vertex), mean(&flat));
             assert!(off <= 2, "{name}: {off} pixels differ from the vertex normals' image");
             let change = (mean(&vertex) / mean(&flat) - 1.0).abs();
@@ -419,11 +408,13 @@ fn a_bump_map_shades_as_the_normal_of_its_slope() {
         (Renderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
     };
     let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
-    let differing = |a: &Image, b: &Image| a.data.iter().zip(&b.data).filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3))).count();
+    let differing =
+        |a: &Image, b: &Image| a.data.iter().zip(&b.data).filter(|(p, q)| (0..3).any(|k| (p[k] - q[k]).abs() > 1e-4 * q[k].abs().max(1e-3))).count();
     with_gpu(|ctx| {
         for (name, h, colour, normal, mirrored, extra, flat) in cases {
             let material = format!("bump_map = {{ texture = \"height.exr\", scale = {scale}{extra} }}");
-            let (bumped, has_maps) = render(ctx, &bump_quad(&format!("bump-{name}"), normal.map(|n| n.to_array()), mirrored, Some(&ramp(h, colour)), &material));
+            let (bumped, has_maps) =
+                render(ctx, &bump_quad(&format!("bump-{name}"), normal.map(|n| n.to_array()), mirrored, Some(&ramp(h, colour)), &material));
             assert!(has_maps, "{name}: the kernels are built with normal maps");
             // The height's derivatives (the luminance of the texels, times scale): across
             // half a unit of u or v between texel centres.
@@ -433,7 +424,13 @@ fn a_bump_map_shades_as_the_normal_of_its_slope() {
             let (dp_du, dp_dv) = (DVec3::new(if mirrored { -4.0 } else { 4.0 }, 0.0, 0.0), DVec3::new(0.0, 0.0, -4.0));
             let along = |d: DVec3, slope: f64| d - n * n.dot(d) + n * slope;
             let c = along(dp_du, hu).cross(along(dp_dv, hv)).normalize();
-            let expected = if flat { n } else if c.y < 0.0 { -c } else { c };
+            let expected = if flat {
+                n
+            } else if c.y < 0.0 {
+                -c
+            } else {
+                c
+            };
             let (reference, _) = render(ctx, &bump_quad(&format!("bump-{name}-vn"), Some(expected.to_array()), false, None, ""));
             let off = differing(&bumped, &reference);
             eprintln!("{name}: normal {expected:.4}, mean {:.5} (vertex normals {:.5}); {off} pixels differ", mean(&bumped), mean(&reference));
@@ -663,7 +660,11 @@ fn kernels_read_the_records_the_host_wrote() {
                 assert_eq!(shading.len(), triangles.len(), "{name}: one shading record per triangle");
                 if *name == "normal map" {
                     // The quad's u runs along −x: tangent −x, dp/dv (−z) against cross(ng, tangent) (+z).
-                    assert!(shading.iter().all(|s| s.tangent == [-1.0, 0.0, 0.0, -1.0]), "{name}: tangents {:?}", shading.iter().map(|s| s.tangent).collect::<Vec<_>>());
+                    assert!(
+                        shading.iter().all(|s| s.tangent == [-1.0, 0.0, 0.0, -1.0]),
+                        "{name}: tangents {:?}",
+                        shading.iter().map(|s| s.tangent).collect::<Vec<_>>()
+                    );
                     assert!(materials[0].normal_map.width == 2 && materials[0].normal_map.flags & ValueRef::IN_THETA == 0, "{name}: {:?}", materials[0]);
                 }
                 assert!(!emitters.is_empty() || matches!(*name, "env quad" | "lights" | "normal map"), "{name} has emitters");
@@ -746,7 +747,12 @@ fn kernels_read_the_records_the_host_wrote() {
                 }
                 for e in &emitters {
                     let sh = &shading[e.prim as usize];
-                    assert_eq!((e.ng, e.two_sided, e.pdf, e.emission), (sh.ng, sh.emitter_flags & TriShading::TWO_SIDED, sh.emitter_pdf, sh.emission), "{tag}: emitter {}", e.prim);
+                    assert_eq!(
+                        (e.ng, e.two_sided, e.pdf, e.emission),
+                        (sh.ng, sh.emitter_flags & TriShading::TWO_SIDED, sh.emitter_pdf, sh.emission),
+                        "{tag}: emitter {}",
+                        e.prim
+                    );
                 }
                 let cdfs: Vec<f32> = emitters.iter().map(|e| e.cdf).collect();
                 assert_eq!(read::<f32>(&o_cdfs)[..cdfs.len()], cdfs[..], "{tag}: emitter cdfs");
@@ -771,7 +777,12 @@ fn kernels_read_the_records_the_host_wrote() {
                 for (base, floats) in [(0, &data), (data.len(), &theta)] {
                     for i in 0..floats.len().saturating_sub(2) {
                         let want = [floats[i], floats[i + 1], floats[i + 2]].map(f32::to_bits);
-                        assert_eq!(triples[base + i].map(f32::to_bits), want, "{tag}: the vec3 at float {i} of {}", if base == 0 { "material data" } else { "θ" });
+                        assert_eq!(
+                            triples[base + i].map(f32::to_bits),
+                            want,
+                            "{tag}: the vec3 at float {i} of {}",
+                            if base == 0 { "material data" } else { "θ" }
+                        );
                     }
                 }
                 if *name == "env quad" {
@@ -939,7 +950,8 @@ fn many_samples_per_pixel_in_one_pass_render_the_same_image() {
         let ops = BufferOps::new(ctx).unwrap();
         let zero = Image { width: gs.width, height: gs.height, data: vec![[0.0; 3]; gs.pixels()] };
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, None, &grad, None).unwrap();
+        let pass =
+            GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, None, &grad, None).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "primal").unwrap();
         cmd.record(|rec| pass.record_loss(rec, gs, &ops)).unwrap();
         cmd.submit_and_wait().unwrap();
@@ -986,7 +998,20 @@ fn the_adjoint_pass_renders_theta_with_its_own_samples() {
             cmd.submit_and_wait().unwrap();
         };
         // The primal kernel with the adjoint pass's seed and samples.
-        let primal = GradientPass::new(gs, &ops, std::slice::from_ref(&zero), loss, 1, spp, seed.wrapping_add(SEED_ADJOINT).wrapping_sub(SEED_PRIMAL), &gs.theta, None, &grad, None).unwrap();
+        let primal = GradientPass::new(
+            gs,
+            &ops,
+            std::slice::from_ref(&zero),
+            loss,
+            1,
+            spp,
+            seed.wrapping_add(SEED_ADJOINT).wrapping_sub(SEED_PRIMAL),
+            &gs.theta,
+            None,
+            &grad,
+            None,
+        )
+        .unwrap();
         run(&primal, false);
         let want = primal.rendered(0, gs).unwrap();
         // A pass's own primal image as its target makes every pixel's adjoint weight 0.
@@ -1004,7 +1029,12 @@ fn the_adjoint_pass_renders_theta_with_its_own_samples() {
             for (i, (a, b)) in got.iter().zip(&want.data).enumerate() {
                 for c in 0..3 {
                     total += b[c] as f64;
-                    assert!((a[c] - b[c]).abs() <= 1e-5 * (1.0 + b[c].abs()), "{what}: pixel {i} channel {c}: adjoint pass {} against the primal kernel {}", a[c], b[c]);
+                    assert!(
+                        (a[c] - b[c]).abs() <= 1e-5 * (1.0 + b[c].abs()),
+                        "{what}: pixel {i} channel {c}: adjoint pass {} against the primal kernel {}",
+                        a[c],
+                        b[c]
+                    );
                 }
             }
             assert!(total > 0.0, "{what}: a black image tests nothing");
@@ -1159,7 +1189,12 @@ fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
         // the constant scene shows the noise.
         let (a, b, again) = (render(&textured, 1), render(&split, 1), render(&split, 2));
         for img in [&a, &b] {
-            assert!(exact(img, LAMP_RED) >= 4 && exact(img, LAMP_BLUE) >= 4, "the lamp's halves in view: {} red, {} blue pixels", exact(img, LAMP_RED), exact(img, LAMP_BLUE));
+            assert!(
+                exact(img, LAMP_RED) >= 4 && exact(img, LAMP_BLUE) >= 4,
+                "the lamp's halves in view: {} red, {} blue pixels",
+                exact(img, LAMP_RED),
+                exact(img, LAMP_BLUE)
+            );
         }
         let (qa, qb, qc) = (quadrant_sums(&a), quadrant_sums(&b), quadrant_sums(&again));
         for q in 0..4 {
@@ -1237,7 +1272,13 @@ fn cutout_scene(name: &str, cutout: Cutout, lamp_cut: bool, grey: f32) -> Scene 
         _ => String::new(),
     };
     std::fs::write(dir.join("object.obj"), object).unwrap();
-    let object = |material: &str, emission: &str| if cutout == Cutout::Absent { String::new() } else { format!("[[meshes]]\nfile = \"object.obj\"\nmaterial = \"{material}\"\n{emission}") };
+    let object = |material: &str, emission: &str| {
+        if cutout == Cutout::Absent {
+            String::new()
+        } else {
+            format!("[[meshes]]\nfile = \"object.obj\"\nmaterial = \"{material}\"\n{emission}")
+        }
+    };
     let meshes = if lamp_cut {
         format!("[[materials]]\nname = \"lamp\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n{alpha}{}", object("lamp", "emission = [3, 3, 3]\n"))
     } else {
@@ -1313,7 +1354,10 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
         for q in 0..4 {
             for c in 0..3 {
                 let noise = (again[q][c] / b[q][c] - 1.0).abs();
-                eprintln!("lamp, quadrant {q}, channel {c}: cut out {:.4}, half {:.4} (two seeds of the half differ by {noise:.4}), whole {:.4}", a[q][c], b[q][c], w[q][c]);
+                eprintln!(
+                    "lamp, quadrant {q}, channel {c}: cut out {:.4}, half {:.4} (two seeds of the half differ by {noise:.4}), whole {:.4}",
+                    a[q][c], b[q][c], w[q][c]
+                );
                 // (The top-left quadrant sees the lamp's cut-out half against the black
                 // sky: nothing there but for the whole lamp.)
                 let agree = if b[q][c] == 0.0 { a[q][c] == 0.0 } else { (a[q][c] / b[q][c] - 1.0).abs() < 0.02 };
@@ -1339,7 +1383,8 @@ fn blended_surfaces_are_there_with_probability_alpha() {
         assert!(solid.materials[1].alpha.is_some() && !GpuScene::new(ctx, &solid).unwrap().has_alpha_masks, "an alpha of 1 is no test");
         let bits = |i: &Image| i.data.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
         assert_eq!(bits(&image(&solid)), bits(&image(&whole)), "an alpha of 1 renders as the opaque occluder");
-        let render = |scene: &Scene, seed: u32| quadrant_sums(&Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap());
+        let render =
+            |scene: &Scene, seed: u32| quadrant_sums(&Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap());
         let alpha = 0.3;
         for lamp in [false, true] {
             let tag = if lamp { "lamp" } else { "occluder" };
@@ -1349,7 +1394,10 @@ fn blended_surfaces_are_there_with_probability_alpha() {
             for q in 0..4 {
                 for c in 0..3 {
                     let want = alpha * whole[q][c] + (1.0 - alpha) * absent[q][c];
-                    eprintln!("{tag}, quadrant {q}, channel {c}: blend {:.4}, expected {want:.4} (opaque {:.4}, absent {:.4})", blend[q][c], whole[q][c], absent[q][c]);
+                    eprintln!(
+                        "{tag}, quadrant {q}, channel {c}: blend {:.4}, expected {want:.4} (opaque {:.4}, absent {:.4})",
+                        blend[q][c], whole[q][c], absent[q][c]
+                    );
                     let agree = if want == 0.0 { blend[q][c] == 0.0 } else { (blend[q][c] / want - 1.0).abs() < 0.03 };
                     assert!(agree, "{tag}, quadrant {q}, channel {c}: the blend {} against {want}", blend[q][c]);
                 }
@@ -1425,7 +1473,11 @@ fn tinted_glass_transmits_through_each_crossing() {
         // 2F/(1 + F), or let through once, tinted by t.
         for (kind, obj, expected) in [
             ("dielectric", CUBE_OBJ, [0, 1, 2].map(|c| f + (1.0 - f) * (tint[c] as f64).powi(2))),
-            ("thin_dielectric", "v -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\nf 1 2 3 4\n", [0, 1, 2].map(|c| 2.0 * f / (1.0 + f) + (1.0 - 2.0 * f / (1.0 + f)) * tint[c] as f64)),
+            (
+                "thin_dielectric",
+                "v -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1\nf 1 2 3 4\n",
+                [0, 1, 2].map(|c| 2.0 * f / (1.0 + f) + (1.0 - 2.0 * f / (1.0 + f)) * tint[c] as f64),
+            ),
         ] {
             let scene = glass_scene(&format!("glass-box-{kind}"), kind, obj, 10.0, tint, ior as f32, 16);
             check(kind, &scene, expected);
@@ -1441,7 +1493,8 @@ fn tinted_glass_transmits_through_each_crossing() {
         let rough = glass_scene_with("rough-box", "rough_dielectric", CUBE_OBJ, 10.0, tint, ior as f32, "roughness = 0", 16);
         assert!(GpuScene::new(ctx, &rough).unwrap().has_rough_dielectrics);
         check("rough box", &rough, [0, 1, 2].map(|c| f + (1.0 - f) * (tint[c] as f64).powi(2)));
-        let rough = glass_scene_with("rough-box-absorbing", "rough_dielectric", CUBE_OBJ, 4.0, [1.0; 3], ior as f32, "roughness = 0\nabsorption = [0, 0.25, 1]", 32);
+        let rough =
+            glass_scene_with("rough-box-absorbing", "rough_dielectric", CUBE_OBJ, 4.0, [1.0; 3], ior as f32, "roughness = 0\nabsorption = [0, 0.25, 1]", 32);
         check("rough absorbing", &rough, absorbed);
     });
 }
@@ -1496,7 +1549,11 @@ fn light_through_rough_glass(distribution: &str) {
     let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
         Some(s) if s.wi.y < 0.0 => {
             let q = p + (-1.0 / s.wi.y) * s.wi;
-            if q.x.abs() < 1.5 && q.z.abs() < 1.5 { s.weight * le } else { DVec3::ZERO }
+            if q.x.abs() < 1.5 && q.z.abs() < 1.5 {
+                s.weight * le
+            } else {
+                DVec3::ZERO
+            }
         }
         _ => DVec3::ZERO,
     });
@@ -1600,7 +1657,11 @@ fn light_reflects_off_conductors() {
         let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
             Some(s) => {
                 let q = p + ((1.0 - p.y) / s.wi.y) * s.wi;
-                if q.x.abs() < 1.0 && (-2.5..-0.5).contains(&q.z) { s.weight * le } else { DVec3::ZERO }
+                if q.x.abs() < 1.0 && (-2.5..-0.5).contains(&q.z) {
+                    s.weight * le
+                } else {
+                    DVec3::ZERO
+                }
             }
             None => DVec3::ZERO,
         });
@@ -1654,7 +1715,11 @@ fn light_reflects_off_plastics() {
         let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
             Some(s) if s.wi.y > 0.0 => {
                 let q = p + ((1.0 - p.y) / s.wi.y) * s.wi;
-                if q.x.abs() < 1.0 && (-2.5..-0.5).contains(&q.z) { s.weight * le } else { DVec3::ZERO }
+                if q.x.abs() < 1.0 && (-2.5..-0.5).contains(&q.z) {
+                    s.weight * le
+                } else {
+                    DVec3::ZERO
+                }
             }
             _ => DVec3::ZERO,
         });

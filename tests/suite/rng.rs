@@ -16,8 +16,8 @@ use crate::common;
 
 use common::with_gpu;
 use std::sync::Arc;
-use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind};
 use vkinverse::engine::SEED_FD;
+use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind};
 use vkinverse::push::RngTestPush;
 use vkinverse::render::gradient::{SEED_ADJOINT, SEED_PRIMAL};
 use vkinverse::settings::gpu_seed;

@@ -41,19 +41,12 @@ fn bad_texel(name: &str, scene: &str, file: &str, (w, h): (u32, u32), fill: [f32
 
 /// A fresh directory holding `tri.obj`, `bare.obj`, `tex.exr` (4x4) and `scene.toml`.
 fn fixture(name: &str, scene: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!(
-        "vkinverse-scene-tests-{}-{name}",
-        std::process::id()
-    ));
+    let dir = std::env::temp_dir().join(format!("vkinverse-scene-tests-{}-{name}", std::process::id()));
     let _ = fs::remove_dir_all(&dir);
     fs::create_dir_all(&dir).unwrap();
     fs::write(dir.join("tri.obj"), TRIANGLE).unwrap();
     fs::write(dir.join("bare.obj"), BARE_TRIANGLE).unwrap();
-    write_exr(
-        &dir.join("tex.exr"),
-        &Image::filled(4, 4, [0.25, 0.5, 0.75]),
-    )
-    .unwrap();
+    write_exr(&dir.join("tex.exr"), &Image::filled(4, 4, [0.25, 0.5, 0.75])).unwrap();
     fs::write(dir.join("scene.toml"), scene).unwrap();
     dir.join("scene.toml")
 }
@@ -82,26 +75,13 @@ fn with_optimise(params: &str) -> String {
 fn bundled_scenes_load() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
     let cornell = Scene::load(root.join("cornell/scene.toml")).unwrap();
-    assert_eq!(
-        (
-            cornell.film.width,
-            cornell.film.height,
-            cornell.integrator.max_depth
-        ),
-        (64, 64, 4)
-    );
+    assert_eq!((cornell.film.width, cornell.film.height, cornell.integrator.max_depth), (64, 64, 4));
     assert_eq!(cornell.meshes.len(), 8);
     assert_eq!(cornell.triangle_count(), 6 * 2 + 2 * 5 * 2);
     let red = cornell.material_index("red").unwrap();
-    assert_eq!(
-        cornell.meshes[cornell.mesh_index("left").unwrap()].material,
-        red
-    );
+    assert_eq!(cornell.meshes[cornell.mesh_index("left").unwrap()].material, red);
     let p = &cornell.optimise.params[0];
-    assert_eq!(
-        (p.target, p.channels, p.init.as_slice()),
-        (ParamTarget::BaseColor { material: red }, 3, &[0.5; 3][..])
-    );
+    assert_eq!((p.target, p.channels, p.init.as_slice()), (ParamTarget::BaseColor { material: red }, 3, &[0.5; 3][..]));
     assert!(matches!(&p.reference, Reference::Constant(c) if c == &[0.63, 0.065, 0.05]));
     let light = &cornell.meshes[cornell.mesh_index("light").unwrap()];
     assert!(matches!(light.emission, ColorValue::Constant(c) if c[0] > 0.0) && light.positions.iter().all(|p| p[1] > 1.9));
@@ -112,18 +92,12 @@ fn bundled_scenes_load() {
     let lrs: Vec<Option<f32>> = spiral.optimise.params.iter().map(|p| p.lr).collect();
     assert_eq!(lrs, [None, Some(0.01), Some(0.01)]);
     assert!(matches!(spiral.environment.value, ColorValue::Constant(c) if c[2] > 0.0));
-    assert!(spiral
-        .meshes
-        .iter()
-        .any(|m| !m.normals.is_empty() && !m.uvs.is_empty()));
+    assert!(spiral.meshes.iter().any(|m| !m.normals.is_empty() && !m.uvs.is_empty()));
 
     // The paper's texture scenes: each optimises one texture.
     let ajar = Scene::load(root.join("ajar/scene.toml")).unwrap();
     let glossy = Scene::load(root.join("glossy/scene.toml")).unwrap();
-    let textures: Vec<_> = [&ajar, &glossy]
-        .iter()
-        .map(|s| (s.optimise.params.len(), s.optimise.params[0].channels, s.optimise.params[0].texture))
-        .collect();
+    let textures: Vec<_> = [&ajar, &glossy].iter().map(|s| (s.optimise.params.len(), s.optimise.params[0].channels, s.optimise.params[0].texture)).collect();
     assert_eq!(textures, [(1, 3, Some([32, 32])), (1, 1, Some([8, 8]))]);
 
     for scene in [&cornell, &spiral, &ajar, &glossy] {
@@ -134,10 +108,7 @@ fn bundled_scenes_load() {
         assert_eq!(g.triangle_material.len(), g.indices.len());
         assert_eq!(g.triangle_mesh.len(), g.indices.len());
         assert!(g.indices.iter().flatten().all(|&i| (i as usize) < n));
-        assert!(g
-            .triangle_material
-            .iter()
-            .all(|&m| (m as usize) < scene.materials.len()));
+        assert!(g.triangle_material.iter().all(|&m| (m as usize) < scene.materials.len()));
         // The material follows the mesh a triangle came from.
         for (t, &mesh) in g.triangle_mesh.iter().enumerate() {
             assert_eq!(g.triangle_material[t] as usize, scene.meshes[mesh as usize].material);
@@ -157,70 +128,41 @@ fn defaults_and_resolved_parameters() {
          [[optimise.params]]\ntarget = \"environment\"\ninit = [1, 2, 3]\nrange = [0, 4]\ntexture = [8, 4]\n"
     );
     let scene = Scene::load(fixture("defaults", &text)).unwrap();
-    assert_eq!(
-        (scene.integrator.max_depth, scene.integrator.rr_depth),
-        (6, 5)
-    );
+    assert_eq!((scene.integrator.max_depth, scene.integrator.rr_depth), (6, 5));
     let o = &scene.optimise;
     // The scene's settings layer holds what it sets; the rest are the defaults.
     let run = vkinverse::settings::RunSettings::of_scene(&scene);
-    assert_eq!(
-        (run.iterations, run.spp, run.fd_spp, run.primal_spp, run.lr, run.seed),
-        (Some(500), 2, 1, 4, 0.02, 0)
-    );
+    assert_eq!((run.iterations, run.spp, run.fd_spp, run.primal_spp, run.lr, run.seed), (Some(500), 2, 1, 4, 0.02, 0));
     assert_eq!(o.settings.optimiser.as_ref().map(|s| s.label.as_str()), Some("adam"));
     assert_eq!(o.settings.loss, None);
     assert_eq!(run.loss.as_str(), "l2");
-    let [rough, emission, env] = &o.params[..] else {
-        panic!("three params expected")
-    };
-    assert_eq!(
-        (rough.target, rough.channels, rough.texture),
-        (ParamTarget::Roughness { material: 0 }, 1, Some([16, 8]))
-    );
+    let [rough, emission, env] = &o.params[..] else { panic!("three params expected") };
+    assert_eq!((rough.target, rough.channels, rough.texture), (ParamTarget::Roughness { material: 0 }, 1, Some([16, 8])));
     assert!(matches!(&rough.reference, Reference::Constant(v) if v == &[0.5]));
-    assert_eq!(
-        (emission.target, emission.init.as_slice(), emission.lr),
-        (ParamTarget::Emission { mesh: 1 }, &[1.0; 3][..], Some(0.5))
-    );
+    assert_eq!((emission.target, emission.init.as_slice(), emission.lr), (ParamTarget::Emission { mesh: 1 }, &[1.0; 3][..], Some(0.5)));
     assert!(matches!(&emission.reference, Reference::Constant(v) if v == &[2.0; 3]));
     assert_eq!(env.target, ParamTarget::Environment);
-    assert!(
-        matches!(&env.reference, Reference::Texture(t) if t.image.get(3, 3) == [0.25, 0.5, 0.75])
-    );
+    assert!(matches!(&env.reference, Reference::Texture(t) if t.image.get(3, 3) == [0.25, 0.5, 0.75]));
     assert_eq!(scene.environment.scale, 2.0);
 }
 
 #[test]
 fn content_hash_follows_the_reference_scene_only() {
     let base = Scene::load(fixture("hash-a", BASE)).unwrap().content_hash();
-    assert_eq!(
-        base,
-        Scene::load(fixture("hash-a", BASE)).unwrap().content_hash()
-    );
+    assert_eq!(base, Scene::load(fixture("hash-a", BASE)).unwrap().content_hash());
     let optimise = format!("# comment\n{BASE}\n[optimise]\nlr = 0.5\n");
-    assert_eq!(
-        base,
-        Scene::load(fixture("hash-b", &optimise))
-            .unwrap()
-            .content_hash()
-    );
+    assert_eq!(base, Scene::load(fixture("hash-b", &optimise)).unwrap().content_hash());
     let film = BASE.replace("height = 8", "height = 9");
-    assert_ne!(
-        base,
-        Scene::load(fixture("hash-c", &film))
-            .unwrap()
-            .content_hash()
-    );
+    assert_ne!(base, Scene::load(fixture("hash-c", &film)).unwrap().content_hash());
     let path = fixture("hash-d", BASE);
-    fs::write(
-        path.with_file_name("tri.obj"),
-        TRIANGLE.replace("v 0 1 0", "v 0 2 0"),
-    )
-    .unwrap();
+    fs::write(path.with_file_name("tri.obj"), TRIANGLE.replace("v 0 1 0", "v 0 2 0")).unwrap();
     assert_ne!(base, Scene::load(&path).unwrap().content_hash());
     // A normal map, its scale and its convention are part of the reference scene.
-    let mapped = |name: &str, map: &str| Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nnormal_map = {map}")))).unwrap().content_hash();
+    let mapped = |name: &str, map: &str| {
+        Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\nnormal_map = {map}"))))
+            .unwrap()
+            .content_hash()
+    };
     let plain = mapped("hash-e", "{ texture = \"tex.exr\" }");
     assert_ne!(base, plain);
     assert_ne!(plain, mapped("hash-f", "{ texture = \"tex.exr\", scale = 0.5 }"));
@@ -233,7 +175,9 @@ fn content_hash_follows_the_reference_scene_only() {
     assert_ne!(textured, emitting("hash-j", "[0.25, 0.5, 0.75]"));
     assert_eq!(emitting("hash-k", "[0, 0, 0]"), base, "no emission and black emission hash alike");
     // An alpha test and its cutoff are too.
-    let cut = |name: &str, alpha: &str| Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\n{alpha}")))).unwrap().content_hash();
+    let cut = |name: &str, alpha: &str| {
+        Scene::load(fixture(name, &BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = [0.5, 0.5, 0.5]\n{alpha}")))).unwrap().content_hash()
+    };
     let masked = cut("hash-l", "alpha = { texture = \"tex.exr\" }");
     assert_ne!(masked, base);
     assert_ne!(masked, cut("hash-m", "alpha = { texture = \"tex.exr\" }\nalpha_cutoff = 0.3"));
@@ -286,10 +230,16 @@ fn emission_textures_are_checked() {
     let err = load_err("emission-no-uvs", &emitting("bare.obj", "{ texture = \"tex.exr\" }"));
     assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
     assert_message(&err, &["meshes.bare", "its emission is textured", "texture coordinates"]);
-    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.bare.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n", emitting("bare.obj", "[1, 1, 1]"));
+    let optimised = format!(
+        "{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.bare.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n",
+        emitting("bare.obj", "[1, 1, 1]")
+    );
     assert_message(&load_err("emission-param-no-uvs", &optimised), &["meshes.bare", "its emission is textured", "texture coordinates"]);
     // With texture coordinates the same parameter loads, its reference the scene's texture.
-    let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.tri.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n", emitting("tri.obj", "{ texture = \"tex.exr\" }"));
+    let optimised = format!(
+        "{}\n[optimise]\n[[optimise.params]]\ntarget = \"meshes.tri.emission\"\ninit = 1\nrange = [0, 4]\ntexture = [2, 2]\n",
+        emitting("tri.obj", "{ texture = \"tex.exr\" }")
+    );
     let s = Scene::load(fixture("emission-param", &optimised)).unwrap();
     assert!(matches!(s.optimise.params[0].reference, Reference::Texture(_)));
     assert_eq!(vkinverse::render::ParamLayout::new(&s).initial().len(), 12, "2 × 2 texels of 3 channels");
@@ -304,16 +254,10 @@ fn toml_syntax_error_names_the_line() {
 
 #[test]
 fn unknown_key_is_named() {
-    let err = load_err(
-        "unknown",
-        &BASE.replace("fov_y = 40", "fov_y = 40\nfocus = 2"),
-    );
+    let err = load_err("unknown", &BASE.replace("fov_y = 40", "fov_y = 40\nfocus = 2"));
     assert!(matches!(err, SceneError::Toml { line: 9, .. }), "{err:?}");
     assert_message(&err, &["scene.toml:9:", "unknown field `focus`"]);
-    let err = load_err(
-        "bad-type",
-        &BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = \"red\""),
-    );
+    let err = load_err("bad-type", &BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = \"red\""));
     assert_message(&err, &["scene.toml:13:", "texture"]);
 }
 
@@ -326,51 +270,25 @@ fn missing_files_name_key_and_path() {
     let tex = BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"absent.exr\" }");
     let err = load_err("missing-tex", &tex);
     assert!(matches!(err, SceneError::MissingFile { .. }), "{err:?}");
-    assert_message(
-        &err,
-        &["scene.toml", "materials.m.base_color.texture", "absent.exr"],
-    );
+    assert_message(&err, &["scene.toml", "materials.m.base_color.texture", "absent.exr"]);
 
-    let err = load_err(
-        "missing-target",
-        &BASE.replace("fov_y = 40", "fov_y = 40\ntarget_image = \"t.exr\""),
-    );
+    let err = load_err("missing-target", &BASE.replace("fov_y = 40", "fov_y = 40\ntarget_image = \"t.exr\""));
     assert_message(&err, &["sensors[0].target_image", "t.exr"]);
-    assert!(matches!(
-        Scene::load("/nonexistent/scene.toml"),
-        Err(SceneError::ReadScene { .. })
-    ));
+    assert!(matches!(Scene::load("/nonexistent/scene.toml"), Err(SceneError::ReadScene { .. })));
 }
 
 #[test]
 fn malformed_obj_names_file_and_line() {
     for (name, obj, line, needle) in [
-        (
-            "obj-index",
-            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
-            4,
-            "vertex index 4",
-        ),
-        (
-            "obj-nan",
-            "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n",
-            2,
-            "non-finite",
-        ),
+        ("obj-index", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "vertex index 4"),
+        ("obj-nan", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", 2, "non-finite"),
         ("obj-nofaces", "v 0 0 0\nv 1 0 0\nv 0 1 0\n", 0, "no faces"),
     ] {
         let path = fixture(name, BASE);
         fs::write(path.with_file_name("tri.obj"), obj).unwrap();
         let err = Scene::load(&path).unwrap_err();
-        assert!(
-            matches!(err, SceneError::Obj { line: l, .. } if l == line),
-            "{err:?}"
-        );
-        let located = if line > 0 {
-            format!("tri.obj:{line}:")
-        } else {
-            "tri.obj:".into()
-        };
+        assert!(matches!(err, SceneError::Obj { line: l, .. } if l == line), "{err:?}");
+        let located = if line > 0 { format!("tri.obj:{line}:") } else { "tri.obj:".into() };
         assert_message(&err, &[&located, needle]);
     }
 }
@@ -378,57 +296,25 @@ fn malformed_obj_names_file_and_line() {
 #[test]
 fn exr_without_rgb_is_named() {
     use exr::prelude::{SpecificChannels, WritableImage};
-    let path = fixture(
-        "exr-y",
-        &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"y.exr\" }"),
-    );
-    let channels = SpecificChannels::build()
-        .with_channel("Y")
-        .with_pixel_fn(|_| (0.5f32,));
-    exr::prelude::Image::from_channels((2, 2), channels)
-        .write()
-        .to_file(path.with_file_name("y.exr"))
-        .unwrap();
+    let path = fixture("exr-y", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"y.exr\" }"));
+    let channels = SpecificChannels::build().with_channel("Y").with_pixel_fn(|_| (0.5f32,));
+    exr::prelude::Image::from_channels((2, 2), channels).write().to_file(path.with_file_name("y.exr")).unwrap();
     let err = Scene::load(&path).unwrap_err();
-    assert!(
-        matches!(
-            err,
-            SceneError::Image {
-                source: vkinverse::image::ImageError::MissingRgb { .. },
-                ..
-            }
-        ),
-        "{err:?}"
-    );
-    assert_message(
-        &err,
-        &["scene.toml", "materials.m.base_color.texture", "y.exr", "Y"],
-    );
+    assert!(matches!(err, SceneError::Image { source: vkinverse::image::ImageError::MissingRgb { .. }, .. }), "{err:?}");
+    assert_message(&err, &["scene.toml", "materials.m.base_color.texture", "y.exr", "Y"]);
 }
 
 #[test]
 fn non_finite_values_are_rejected() {
     let err = bad_texel("nan-pixel", &BASE.replace("[0.5, 0.5, 0.5]", "{ texture = \"nan.exr\" }"), "nan.exr", (3, 2), [0.1; 3], (4, 1), f32::INFINITY);
-    assert!(
-        matches!(err, SceneError::NonFinitePixel { x: 1, y: 1, .. }),
-        "{err:?}"
-    );
-    assert_message(
-        &err,
-        &["materials.m.base_color.texture", "nan.exr", "(1, 1)"],
-    );
+    assert!(matches!(err, SceneError::NonFinitePixel { x: 1, y: 1, .. }), "{err:?}");
+    assert_message(&err, &["materials.m.base_color.texture", "nan.exr", "(1, 1)"]);
 
-    let err = load_err(
-        "nan-color",
-        &BASE.replace("[0.5, 0.5, 0.5]", "[0.5, nan, 0.5]"),
-    );
+    let err = load_err("nan-color", &BASE.replace("[0.5, 0.5, 0.5]", "[0.5, nan, 0.5]"));
     assert!(matches!(err, SceneError::NonFinite { .. }), "{err:?}");
     assert_message(&err, &["scene.toml", "materials.m.base_color"]);
 
-    let err = load_err(
-        "nan-init",
-        &with_optimise("target = \"materials.m.base_color\"\ninit = nan\nrange = [0, 1]"),
-    );
+    let err = load_err("nan-init", &with_optimise("target = \"materials.m.base_color\"\ninit = nan\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::NonFinite { .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].init"]);
 }
@@ -440,18 +326,10 @@ fn film_size_and_fov_are_bounded() {
         ("film-huge", "height = 8", "height = 20000", "film.height"),
         ("fov-zero", "fov_y = 40", "fov_y = 0", "sensors[0].fov_y"),
         ("fov-180", "fov_y = 40", "fov_y = 180", "sensors[0].fov_y"),
-        (
-            "roughness",
-            "type = \"principled\"",
-            "type = \"principled\"\nroughness = 1.5",
-            "materials.m.roughness",
-        ),
+        ("roughness", "type = \"principled\"", "type = \"principled\"\nroughness = 1.5", "materials.m.roughness"),
     ] {
         let err = load_err(name, &BASE.replace(from, to));
-        assert!(
-            matches!(err, SceneError::OutOfRange { .. }),
-            "{name}: {err:?}"
-        );
+        assert!(matches!(err, SceneError::OutOfRange { .. }), "{name}: {err:?}");
         assert_message(&err, &["scene.toml", key]);
     }
     // A sensor is a pinhole camera (fov_y) or an orthographic one (ortho_height), one of
@@ -502,75 +380,35 @@ fn film_size_and_fov_are_bounded() {
 
 #[test]
 fn names_must_be_defined_and_unique() {
-    let err = load_err(
-        "undefined-material",
-        &BASE.replace("material = \"m\"", "material = \"wall\""),
-    );
-    assert!(
-        matches!(
-            err,
-            SceneError::Undefined {
-                kind: "material",
-                ..
-            }
-        ),
-        "{err:?}"
-    );
+    let err = load_err("undefined-material", &BASE.replace("material = \"m\"", "material = \"wall\""));
+    assert!(matches!(err, SceneError::Undefined { kind: "material", .. }), "{err:?}");
     assert_message(&err, &["scene.toml", "meshes.tri.material", "\"wall\""]);
 
-    let dup = BASE.replace(
-        "[[meshes]]",
-        "[[materials]]\nname = \"m\"\ntype = \"diffuse\"\nbase_color = [1, 1, 1]\n\n[[meshes]]",
-    );
+    let dup = BASE.replace("[[meshes]]", "[[materials]]\nname = \"m\"\ntype = \"diffuse\"\nbase_color = [1, 1, 1]\n\n[[meshes]]");
     let err = load_err("duplicate-material", &dup);
     assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
     assert_message(&err, &["materials[1].name", "\"m\""]);
 
-    let err = load_err(
-        "duplicate-mesh",
-        &format!("{BASE}\n[[meshes]]\nfile = \"tri.obj\"\nmaterial = \"m\"\n"),
-    );
+    let err = load_err("duplicate-mesh", &format!("{BASE}\n[[meshes]]\nfile = \"tri.obj\"\nmaterial = \"m\"\n"));
     assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
     assert_message(&err, &["meshes[1]", "\"tri\""]);
 }
 
 #[test]
 fn optimise_targets_must_exist() {
-    let err = load_err(
-        "target-material",
-        &with_optimise("target = \"materials.wall.base_color\"\ninit = 0.5\nrange = [0, 1]"),
-    );
-    assert!(
-        matches!(
-            err,
-            SceneError::Undefined {
-                kind: "material",
-                ..
-            }
-        ),
-        "{err:?}"
-    );
+    let err = load_err("target-material", &with_optimise("target = \"materials.wall.base_color\"\ninit = 0.5\nrange = [0, 1]"));
+    assert!(matches!(err, SceneError::Undefined { kind: "material", .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].target", "\"wall\""]);
 
-    let err = load_err(
-        "target-mesh",
-        &with_optimise("target = \"meshes.lamp.emission\"\ninit = 0.5\nrange = [0, 1]"),
-    );
-    assert!(
-        matches!(err, SceneError::Undefined { kind: "mesh", .. }),
-        "{err:?}"
-    );
+    let err = load_err("target-mesh", &with_optimise("target = \"meshes.lamp.emission\"\ninit = 0.5\nrange = [0, 1]"));
+    assert!(matches!(err, SceneError::Undefined { kind: "mesh", .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].target", "\"lamp\""]);
 
-    let err = load_err(
-        "target-property",
-        &with_optimise("target = \"materials.m.colour\"\ninit = 0.5\nrange = [0, 1]"),
-    );
+    let err = load_err("target-property", &with_optimise("target = \"materials.m.colour\"\ninit = 0.5\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].target", "materials.m.colour"]);
 
-    let twice =
-        "target = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n[[optimise.params]]\n\
+    let twice = "target = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n[[optimise.params]]\n\
                  target = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]";
     let err = load_err("target-twice", &with_optimise(twice));
     assert!(matches!(err, SceneError::Duplicate { .. }), "{err:?}");
@@ -579,37 +417,22 @@ fn optimise_targets_must_exist() {
 
 #[test]
 fn init_and_range_are_checked() {
-    let err = load_err(
-        "init-outside",
-        &with_optimise(
-            "target = \"materials.m.base_color\"\ninit = [0.5, 1.5, 0.5]\nrange = [0, 1]",
-        ),
-    );
+    let err = load_err("init-outside", &with_optimise("target = \"materials.m.base_color\"\ninit = [0.5, 1.5, 0.5]\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].init", "1.5"]);
 
-    let err = load_err(
-        "range-empty",
-        &with_optimise("target = \"materials.m.base_color\"\ninit = 0.5\nrange = [1, 1]"),
-    );
+    let err = load_err("range-empty", &with_optimise("target = \"materials.m.base_color\"\ninit = 0.5\nrange = [1, 1]"));
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].range"]);
 
-    let err = load_err(
-        "init-channels",
-        &with_optimise(
-            "target = \"materials.m.roughness\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]",
-        ),
-    );
+    let err = load_err("init-channels", &with_optimise("target = \"materials.m.roughness\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
     assert_message(&err, &["optimise.params[0].init"]);
 }
 
 #[test]
 fn inconsistent_scenes_are_rejected() {
-    let no_uvs = BASE
-        .replace("tri.obj", "bare.obj")
-        .replace("[0.5, 0.5, 0.5]", "{ texture = \"tex.exr\" }");
+    let no_uvs = BASE.replace("tri.obj", "bare.obj").replace("[0.5, 0.5, 0.5]", "{ texture = \"tex.exr\" }");
     let err = load_err("no-uvs", &no_uvs);
     assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
     assert_message(&err, &["meshes.bare", "texture coordinates"]);
@@ -619,26 +442,16 @@ fn inconsistent_scenes_are_rejected() {
     let err = load_err("param-texture", &needs_texture);
     assert_message(&err, &["optimise.params[0]", "texture = [w, h]"]);
 
-    let err = load_err(
-        "env-both",
-        &format!("{BASE}\n[environment]\nconstant = [1, 1, 1]\nfile = \"tex.exr\"\n"),
-    );
+    let err = load_err("env-both", &format!("{BASE}\n[environment]\nconstant = [1, 1, 1]\nfile = \"tex.exr\"\n"));
     assert_message(&err, &["scene.toml", "environment", "exactly one"]);
 
-    let err = load_err(
-        "diffuse-roughness",
-        &BASE.replace("\"principled\"", "\"diffuse\"\nroughness = 0.3"),
-    );
+    let err = load_err("diffuse-roughness", &BASE.replace("\"principled\"", "\"diffuse\"\nroughness = 0.3"));
     assert_message(&err, &["materials.m", "diffuse"]);
 
     let sized = BASE.replace("fov_y = 40", "fov_y = 40\ntarget_image = \"tex.exr\"");
     let err = load_err("target-size", &sized);
     assert_message(&err, &["sensors[0].target_image", "4x4", "8x8"]);
-    assert!(Scene::load(fixture(
-        "target-ok",
-        &sized.replace("width = 8\nheight = 8", "width = 4\nheight = 4")
-    ))
-    .is_ok());
+    assert!(Scene::load(fixture("target-ok", &sized.replace("width = 8\nheight = 8", "width = 4\nheight = 4"))).is_ok());
 }
 
 #[test]
@@ -657,7 +470,8 @@ fn lights_and_imports_are_checked() {
     }
     let twice = format!("{}[[lights]]\nname = \"key\"\ntype = \"point\"\nposition = [0, 2, 0]\n", light("type = \"point\"\nposition = [0, 1, 0]"));
     assert_message(&load_err("light-twice", &twice), &["lights[1].name", "\"key\" is defined more than once"]);
-    let target = |t: &str| format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"{t}\"\ninit = 1\nrange = [0, 2]\n", light("type = \"point\"\nposition = [0, 1, 0]"));
+    let target =
+        |t: &str| format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"{t}\"\ninit = 1\nrange = [0, 2]\n", light("type = \"point\"\nposition = [0, 1, 0]"));
     assert_message(&load_err("light-property", &target("lights.key.radius")), &["optimise.params[0].target", "lights.NAME.color|intensity"]);
     assert_message(&load_err("light-undefined", &target("lights.fill.intensity")), &["no light named \"fill\""]);
     let ok = Scene::load(fixture("light-ok", &target("lights.key.intensity"))).unwrap();
@@ -687,7 +501,10 @@ fn texture_values_obey_the_rules_of_constants() {
     assert_ne!(nearest.content_hash(), s.content_hash(), "the filter changes the render");
     let named = Scene::load(fixture("filter-bilinear", &with("{ texture = \"tex.exr\", filter = \"bilinear\" }"))).unwrap();
     assert_eq!(named.content_hash(), s.content_hash(), "bilinear is the default");
-    assert_message(&load_err("filter-unknown", &with("{ texture = \"tex.exr\", filter = \"cubic\" }")), &["materials.m.base_color.filter", "\"cubic\"", "\"bilinear\" or \"nearest\""]);
+    assert_message(
+        &load_err("filter-unknown", &with("{ texture = \"tex.exr\", filter = \"cubic\" }")),
+        &["materials.m.base_color.filter", "\"cubic\"", "\"bilinear\" or \"nearest\""],
+    );
     let nmap = BASE.replace("base_color = [0.5, 0.5, 0.5]", "base_color = [0.5, 0.5, 0.5]\nnormal_map = { texture = \"tex.exr\", filter = \"nearest\" }");
     assert_eq!(Scene::load(fixture("filter-nmap", &nmap)).unwrap().materials[0].normal_map().unwrap().texture.filter, Filter::Nearest);
     assert_message(&load_err("filter-nmap-unknown", &nmap.replace("nearest", "box")), &["materials.m.normal_map.filter", "\"box\""]);
@@ -698,7 +515,10 @@ fn texture_values_obey_the_rules_of_constants() {
     let pair = Scene::load(fixture("wrap-pair", &with("{ texture = \"tex.exr\", wrap = [\"mirror\", \"repeat\"] }"))).unwrap();
     assert_eq!(pair.materials[0].base_color.wrap(), [Wrap::Mirror, Wrap::Repeat]);
     assert_ne!(pair.content_hash(), named.content_hash(), "the wrap modes change the render");
-    assert_message(&load_err("wrap-unknown", &with("{ texture = \"tex.exr\", wrap = \"border\" }")), &["materials.m.base_color.wrap", "\"border\"", "\"clamp\""]);
+    assert_message(
+        &load_err("wrap-unknown", &with("{ texture = \"tex.exr\", wrap = \"border\" }")),
+        &["materials.m.base_color.wrap", "\"border\"", "\"clamp\""],
+    );
     assert_message(&load_err("wrap-three", &with("{ texture = \"tex.exr\", wrap = [\"clamp\", \"clamp\", \"clamp\"] }")), &["scene.toml:13", "texture"]);
     let nmap_wrap = nmap.replace("filter = \"nearest\"", "wrap = [\"repeat\", \"clamp\"]");
     assert_eq!(Scene::load(fixture("wrap-nmap", &nmap_wrap)).unwrap().materials[0].normal_map().unwrap().texture.wrap, [Wrap::Repeat, Wrap::Clamp]);
@@ -788,7 +608,10 @@ fn alpha_tests_are_checked() {
     assert_message(&load_err("alpha-cutoff-nan", &with("alpha = 0.5\nalpha_cutoff = nan")), &["materials.m.alpha_cutoff"]);
     assert_message(&load_err("alpha-cutoff-alone", &with("alpha_cutoff = 0.5")), &["materials.m.alpha_cutoff", "needs an alpha"]);
     assert_message(&load_err("alpha-mode-alone", &with("alpha_mode = \"blend\"")), &["materials.m.alpha_mode", "needs an alpha"]);
-    assert_message(&load_err("alpha-mode-unknown", &with("alpha = 0.5\nalpha_mode = \"add\"")), &["materials.m.alpha_mode", "\"add\"", "\"mask\" or \"blend\""]);
+    assert_message(
+        &load_err("alpha-mode-unknown", &with("alpha = 0.5\nalpha_mode = \"add\"")),
+        &["materials.m.alpha_mode", "\"add\"", "\"mask\" or \"blend\""],
+    );
     assert_message(&load_err("alpha-blend-cutoff", &with("alpha = 0.5\nalpha_mode = \"blend\"\nalpha_cutoff = 0.5")), &["materials.m.alpha_cutoff", "blend"]);
     assert_message(&load_err("alpha-malformed", &with("alpha = \"mask.exr\"")), &["expected a number or { texture"]);
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.alpha\"\ninit = 1\nrange = [0, 1]\n", with("alpha = 1"));
@@ -813,7 +636,8 @@ fn optimise_settings_are_checked_by_the_one_validate() {
 #[test]
 fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
     // A 2×1 image (0.2 | 0.8) as the start of a 4×2 roughness texture: nearest texels.
-    let dir = fixture("init-image", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"halves.exr\" }\nrange = [0, 1]\ntexture = [4, 2]"));
+    let dir =
+        fixture("init-image", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"halves.exr\" }\nrange = [0, 1]\ntexture = [4, 2]"));
     let halves = Image { width: 2, height: 1, data: vec![[0.2, 0.9, 0.9], [0.8, 0.9, 0.9]] };
     write_exr(&dir.parent().unwrap().join("halves.exr"), &halves).unwrap();
     let scene = Scene::load(dir.clone()).unwrap();
@@ -830,11 +654,17 @@ fn an_image_as_init_is_resampled_to_the_texture_and_checked() {
     let err = load_err("init-image-constant", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"tex.exr\" }\nrange = [0, 1]"));
     assert_message(&err, &["init", "texture = [w, h]"]);
     // A missing image names its key and file.
-    let err = load_err("init-image-missing", &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"nope.exr\" }\nrange = [0, 1]\ntexture = [2, 2]"));
+    let err = load_err(
+        "init-image-missing",
+        &with_optimise("target = \"materials.m.roughness\"\ninit = { texture = \"nope.exr\" }\nrange = [0, 1]\ntexture = [2, 2]"),
+    );
     assert!(matches!(err, SceneError::MissingFile { .. }), "{err:?}");
     assert_message(&err, &["init.texture", "nope.exr"]);
     // Texels outside the parameter's range (tex.exr holds 0.25, 0.5, 0.75).
-    let err = load_err("init-image-range", &with_optimise("target = \"materials.m.base_color\"\ninit = { texture = \"tex.exr\" }\nrange = [0, 0.6]\ntexture = [2, 2]"));
+    let err = load_err(
+        "init-image-range",
+        &with_optimise("target = \"materials.m.base_color\"\ninit = { texture = \"tex.exr\" }\nrange = [0, 0.6]\ntexture = [2, 2]"),
+    );
     assert!(matches!(err, SceneError::OutOfRange { .. }), "{err:?}");
     assert_message(&err, &["init.texture", "0.75", "[0, 0.6]"]);
     // A malformed `init` says what it takes.
@@ -853,7 +683,11 @@ fn conductors_are_checked() {
     let m = &s.materials[0];
     assert_eq!((m.kind.as_str(), m.distribution, m.eta, m.k), ("conductor", Distribution::Ggx, [0.0; 3], [1.0; 3]));
     assert!(matches!(m.roughness, ScalarValue::Constant(r) if r == 0.3) && matches!(m.base_color, ColorValue::Constant(c) if c == [1.0; 3]), "{m:?}");
-    let s = Scene::load(fixture("metal-gold", &metal("\nmetal = \"Au\"\nroughness = 0.1\ndistribution = \"beckmann\"\nbase_color = [0.9, 0.9, 0.8]\none_sided = true"))).unwrap();
+    let s = Scene::load(fixture(
+        "metal-gold",
+        &metal("\nmetal = \"Au\"\nroughness = 0.1\ndistribution = \"beckmann\"\nbase_color = [0.9, 0.9, 0.8]\none_sided = true"),
+    ))
+    .unwrap();
     let m = &s.materials[0];
     assert_eq!([m.eta, m.k], vkinverse::scene::metal("Au").unwrap());
     assert!(m.distribution == Distribution::Beckmann && m.one_sided && matches!(m.roughness, ScalarValue::Constant(r) if r == 0.1));
@@ -876,7 +710,8 @@ fn conductors_are_checked() {
     let principled = BASE.replace("type = \"principled\"", "type = \"principled\"\ndistribution = \"beckmann\"");
     assert_message(&load_err("principled-distribution", &principled), &["materials.m.distribution", "conductor"]);
     for (target, init) in [("roughness", "0.5"), ("base_color", "[0.5, 0.5, 0.5]")] {
-        let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.{target}\"\ninit = {init}\nrange = [0, 1]\n", metal("\nmetal = \"Cu\""));
+        let optimised =
+            format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.{target}\"\ninit = {init}\nrange = [0, 1]\n", metal("\nmetal = \"Cu\""));
         Scene::load(fixture(&format!("metal-param-{target}"), &optimised)).unwrap();
     }
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n", metal(""));
@@ -894,9 +729,13 @@ fn plastics_are_checked() {
     let m = &s.materials[0];
     assert_eq!((m.kind.as_str(), m.distribution, m.ior, m.nonlinear), ("plastic", Distribution::Ggx, 1.5, false));
     assert!(matches!(m.roughness, ScalarValue::Constant(r) if r == 0.3) && matches!(m.base_color, ColorValue::Constant(c) if c == [0.5; 3]), "{m:?}");
-    let s = Scene::load(fixture("plastic-set", &plastic("\nroughness = 0.1\ndistribution = \"beckmann\"\nior = 1.33\nnonlinear = true\none_sided = true"))).unwrap();
+    let s = Scene::load(fixture("plastic-set", &plastic("\nroughness = 0.1\ndistribution = \"beckmann\"\nior = 1.33\nnonlinear = true\none_sided = true")))
+        .unwrap();
     let m = &s.materials[0];
-    assert!(m.distribution == Distribution::Beckmann && m.ior == 1.33 && m.nonlinear && m.one_sided && matches!(m.roughness, ScalarValue::Constant(r) if r == 0.1), "{m:?}");
+    assert!(
+        m.distribution == Distribution::Beckmann && m.ior == 1.33 && m.nonlinear && m.one_sided && matches!(m.roughness, ScalarValue::Constant(r) if r == 0.1),
+        "{m:?}"
+    );
     let no_base = BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"plastic\"");
     assert_message(&load_err("plastic-no-base", &no_base), &["materials.m.base_color", "missing"]);
     assert_message(&load_err("plastic-rough-texture", &plastic("\nroughness = { texture = \"tex.exr\" }")), &["materials.m.roughness", "number", "plastic"]);
@@ -931,7 +770,12 @@ fn dielectrics_are_checked() {
     assert_message(&load_err("glass-ior-zero", &glass("\nior = 0")), &["materials.m.ior", "[0.25, 4]"]);
     assert_message(&load_err("glass-ior-nan", &glass("\nior = nan")), &["materials.m.ior"]);
     assert_message(&load_err("glass-rough", &glass("\nroughness = 0.1")), &["materials.m", "smooth", "roughness"]);
-    for (key, line) in [("one_sided", "one_sided = true"), ("normal_map", "normal_map = { texture = \"tex.exr\" }"), ("bump_map", "bump_map = { texture = \"tex.exr\" }"), ("alpha", "alpha = 0.5")] {
+    for (key, line) in [
+        ("one_sided", "one_sided = true"),
+        ("normal_map", "normal_map = { texture = \"tex.exr\" }"),
+        ("bump_map", "bump_map = { texture = \"tex.exr\" }"),
+        ("alpha", "alpha = 0.5"),
+    ] {
         assert_message(&load_err(&format!("glass-{key}"), &glass(&format!("\n{line}"))), &[&format!("materials.m.{key}"), "dielectric"]);
     }
     let s = Scene::load(fixture("glass-absorbing", &glass("\nabsorption = [0.5, 0, 2]"))).unwrap();
@@ -940,7 +784,10 @@ fn dielectrics_are_checked() {
     assert_message(&load_err("glass-absorption-nan", &glass("\nabsorption = [0.5, nan, 2]")), &["materials.m.absorption"]);
     let thin = BASE.replace("type = \"principled\"\nbase_color = [0.5, 0.5, 0.5]", "type = \"thin_dielectric\"\nabsorption = [1, 1, 1]");
     assert_message(&load_err("thin-absorption", &thin), &["materials.m.absorption", "refracting dielectric"]);
-    assert_message(&load_err("principled-absorption", &BASE.replace("type = \"principled\"", "type = \"principled\"\nabsorption = [1, 1, 1]")), &["materials.m.absorption"]);
+    assert_message(
+        &load_err("principled-absorption", &BASE.replace("type = \"principled\"", "type = \"principled\"\nabsorption = [1, 1, 1]")),
+        &["materials.m.absorption"],
+    );
     // A principled material's index sets its dielectric reflectance; a diffuse one has none.
     let principled = |extra: &str| BASE.replace("type = \"principled\"", &format!("type = \"principled\"{extra}"));
     assert_eq!(Scene::load(fixture("ior-principled", &principled("\nior = 2"))).unwrap().materials[0].ior, 2.0);

@@ -9,7 +9,6 @@ use vkinverse::bvh::BvhLayout;
 use vkinverse::scene::Scene;
 use vkinverse::settings::{RunSettings, Settings};
 
-
 /// A change of renderer (here the other BVH layout's build of trace_primal) renders its
 /// targets anew, under its own key beside the scene; the same renderer reads them back. (A
 /// scene whose directory cannot take the cache uses the user's: tests/process.rs, since it
@@ -37,7 +36,8 @@ fn the_run_renders_its_targets_at_target_spp() {
     let scene = Scene::load(&path).unwrap();
     let beside = scene.dir().join(".vkinverse-cache");
     let cached = || -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(&beside).map(|d| d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect()).unwrap_or_default();
+        let mut names: Vec<String> =
+            std::fs::read_dir(&beside).map(|d| d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect()).unwrap_or_default();
         names.sort();
         names
     };
@@ -62,7 +62,10 @@ fn the_run_renders_its_targets_at_target_spp() {
 /// reflection of it make every render noisy.
 fn noisy_scene() -> String {
     let floor = "[[materials]]\nname = \"floor\"\ntype = \"diffuse\"\nbase_color = [0.6, 0.6, 0.6]\n[[meshes]]\nfile = \"plane.obj\"\nmaterial = \"floor\"\n";
-    let scene = TARGET_SCENE.replace("width = 8\nheight = 8", "width = 16\nheight = 16").replace("max_depth = 2", "max_depth = 3").replace("origin = [0, 0, 3]", "origin = [0, 2.5, 3]");
+    let scene = TARGET_SCENE
+        .replace("width = 8\nheight = 8", "width = 16\nheight = 16")
+        .replace("max_depth = 2", "max_depth = 3")
+        .replace("origin = [0, 0, 3]", "origin = [0, 2.5, 3]");
     scene.replace("[optimise]\n", "[optimise]\ntarget_spp = 64\n") + floor
 }
 
