@@ -35,11 +35,12 @@
 //! `error_vs_time-<scene>.png` (every finished job's curve) and `curves-<scene>.csv` (the
 //! points behind it). `merge` joins the tables of shards.
 
+use crate::cancel::Cancel;
+use crate::device::Device;
 use crate::error::{one_line, Error, Result};
-use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{optimise_or_read, Log, Observer, Progress, Summary};
+use crate::optimise::{optimise_or_read, Log, Observer, RunOptions, Summary};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::{LoadOptions, Scene, SceneError};
@@ -49,7 +50,6 @@ use serde::{Deserialize, Deserializer, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 /// A number or a list of numbers (`spp`).
 #[derive(Deserialize)]
@@ -407,27 +407,15 @@ impl Results {
     }
 }
 
-/// Forwards a job's progress to the batch's callback with its job.
-struct JobObserver<'a> {
-    job: &'a Job,
-    progress: &'a mut dyn FnMut(&Job, &Progress),
-}
-
-impl Observer for JobObserver<'_> {
-    fn iteration(&mut self, p: &Progress) {
-        (self.progress)(self.job, p)
-    }
-}
-
 /// Runs one job into `dir`, filling `row` as it learns the job's settings and results;
 /// returns its log.
-fn run_job(ctx: &Arc<Context>, job: &Job, dir: &Path, mode: Mode, row: &mut JobResult, progress: &mut dyn FnMut(&Job, &Progress)) -> Result<Log> {
+fn run_job(device: &Device, job: &Job, dir: &Path, mode: Mode, cancel: &Cancel, row: &mut JobResult, observer: &mut dyn Observer) -> Result<Log> {
     let scene = Scene::load_with(&job.scene, &job.load)?;
     let st = Settings::resolve(&scene.optimise.settings, &job.settings);
     row.optimiser = Some(job.settings.optimiser.as_ref().map_or_else(|| st.optimiser.label.clone(), |s| s.label.clone()));
     row.seed = Some(st.seed);
     row.spp = Some(st.spp);
-    let run = optimise_or_read(ctx, &scene, &st, dir, mode, &mut JobObserver { job, progress })?;
+    let run = optimise_or_read(device, &scene, &st, dir, mode, cancel, observer)?;
     row.record(&run.summary);
     Ok(run.log)
 }
@@ -443,36 +431,37 @@ impl JobResult {
     }
 }
 
-/// Runs `jobs` (a shard's or all) one after another on `ctx` into `out_dir`, each job's
-/// directory treated as `mode` says. A job that fails is recorded with its one-line error
-/// and the batch goes on; only failing to write the table stops it, or a Ctrl-C
-/// ([`crate::interrupt`]): the job it stops is recorded as interrupted, with its values
-/// where it stopped, and no further job starts. `on_start` and
-/// `on_done` bracket each job; `progress` follows its iterations.
-#[allow(clippy::too_many_arguments)]
-pub fn run(
-    ctx: &Arc<Context>,
-    jobs_file: &Path,
-    total_jobs: usize,
-    shard: Option<Shard>,
-    jobs: &[Job],
-    out_dir: &Path,
-    mode: Mode,
-    mut on_start: impl FnMut(&Job),
-    mut progress: impl FnMut(&Job, &Progress),
-    mut on_done: impl FnMut(&JobResult),
-) -> Result<Results> {
+/// The jobs of a batch: those of `jobs_file` (`total_jobs` of them) that this process runs
+/// (a shard's, or all).
+#[derive(Clone, Copy)]
+pub struct Plan<'a> {
+    pub jobs_file: &'a Path,
+    pub total_jobs: usize,
+    pub shard: Option<Shard>,
+    pub jobs: &'a [Job],
+}
+
+/// Runs the plan's jobs one after another on `device` into the output directory of
+/// `options` (required), each job's directory treated as its mode says. A job that fails is
+/// recorded with its one-line error and the batch goes on; only failing to write the table
+/// stops it, or a cancellation: the job it stops is recorded as interrupted, with its values
+/// where it stopped, and no further job starts. The observer hears each job start
+/// (`job N LABEL`) and end, and its iterations.
+pub fn run(device: &Device, plan: Plan, options: &RunOptions, observer: &mut dyn Observer) -> Result<Results> {
+    let Plan { jobs_file, total_jobs, shard, jobs } = plan;
+    let out_dir = options.out_dir.ok_or_else(|| Error::Invalid("a batch needs an output directory".into()))?;
+    let (mode, cancel) = (options.mode, &options.cancel);
     std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
     let mut results =
         Results { jobs_file: jobs_file.display().to_string(), total_jobs, shard: shard.map(|s| s.to_string()), merged_from: Vec::new(), results: Vec::new() };
     let mut logs = BTreeMap::new();
     for job in jobs {
-        // After a Ctrl-C no further job starts (crate::interrupt); the table holds those
-        // that ran.
-        if crate::interrupt::requested() {
+        // After a cancellation no further job starts; the table holds those that ran.
+        if cancel.is_cancelled() {
             break;
         }
-        on_start(job);
+        let label = format!("job {} {}", job.index, job.label);
+        observer.run_started(&label, job.settings.iterations);
         let mut row = JobResult {
             job: job.index,
             label: job.label.clone(),
@@ -490,7 +479,7 @@ pub fn run(
             dir: job.dir_name(),
         };
         let dir = out_dir.join(job.dir_name());
-        match run_job(ctx, job, &dir, mode, &mut row, &mut progress) {
+        match run_job(device, job, &dir, mode, cancel, &mut row, observer) {
             Ok(log) => {
                 logs.insert(row.dir.clone(), log);
             }
@@ -516,7 +505,10 @@ pub fn run(
                 }
             }
         }
-        on_done(&row);
+        match row.status {
+            Status::Ok => observer.run_ended(&label, "ok"),
+            status => observer.run_ended(&label, &format!("{}: {}", status.as_str(), row.message)),
+        }
         results.results.push(row);
         results.write(out_dir)?;
         write_plots(out_dir, &results, &logs)?;

@@ -227,7 +227,8 @@ const GATHER_TABLE: u64 = 4096;
 /// reductions over `elements` floats and incoherent float4 reads through a storage buffer
 /// and a texel buffer (`gather`, `gather_texel`), `iterations` times each, one round per
 /// submission.
-pub fn buffer_bench(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<BufferBench> {
+pub fn buffer_bench(device: &crate::device::Device, elements: u64, iterations: u32) -> Result<BufferBench> {
+    let ctx = device.ctx();
     let n = elements - elements % 4;
     let iterations = iterations.max(1);
     let ops = BufferOps::new(ctx)?;

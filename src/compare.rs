@@ -17,21 +17,19 @@
 //! its own final error divided by the run's time to reach that error; it is empty when the
 //! run never reaches it, or when either time is 0 (the error started below the level).
 
+use crate::device::Device;
 use crate::error::{Error, Result};
-use crate::gpu::Context;
 use crate::image::write_bytes_atomic;
 use crate::optim::csv::DiagLog;
 use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
-use crate::optimise::{optimise_or_read, read_diagnostics, Observer, Progress, DIAG_CSV};
+use crate::optimise::{optimise_or_read, read_diagnostics, Observer, RunOptions, DIAG_CSV};
 use crate::report::{write_curves, Curve};
-use crate::rundir::Mode;
 use crate::scene::Scene;
 use crate::settings::{RunSettings, Settings};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
-use std::sync::Arc;
 
 /// Error levels, as multiples of the first run's final error.
 pub const LEVELS: [f64; 3] = [2.0, 1.0, 0.5];
@@ -103,35 +101,16 @@ fn factor_name(f: f64) -> String {
     format!("{f}x")
 }
 
-/// Forwards a run's progress to the comparison's callback with its spec.
-struct SpecObserver<'a, F: FnMut(&Spec, &Progress)> {
-    spec: &'a Spec,
-    progress: &'a mut F,
-}
-
-impl<F: FnMut(&Spec, &Progress)> Observer for SpecObserver<'_, F> {
-    fn iteration(&mut self, p: &Progress) {
-        (self.progress)(self.spec, p)
-    }
-}
-
-/// Runs every spec on `scene` with `over` (the settings given outside the scene) into
-/// `out_dir`, each run's directory treated as `mode` says, and writes the comparison.
-/// `on_start` is called before each run, `progress` after each iteration.
-#[allow(clippy::too_many_arguments)]
-pub fn compare(
-    ctx: &Arc<Context>,
-    scene: &Scene,
-    over: &Settings,
-    specs: &[Spec],
-    out_dir: &Path,
-    mode: Mode,
-    mut on_start: impl FnMut(&Spec, &RunSettings),
-    mut progress: impl FnMut(&Spec, &Progress),
-) -> Result<Comparison> {
+/// Runs every spec on `scene` with `over` (the settings given outside the scene) into the
+/// output directory of `options` (required), each run's directory treated as its mode says,
+/// and writes the comparison. The observer hears each run start and its iterations; a
+/// cancellation ends the comparison with [`Error::Interrupted`] and writes no table.
+pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], options: &RunOptions, observer: &mut dyn Observer) -> Result<Comparison> {
     if specs.is_empty() {
         return Err(Error::Invalid("no optimisers to compare".into()));
     }
+    let out_dir = options.out_dir.ok_or_else(|| Error::Invalid("a comparison needs an output directory".into()))?;
+    let (mode, cancel) = (options.mode, &options.cancel);
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |source| Error::Io { path, source }
@@ -141,14 +120,14 @@ pub fn compare(
     // Per run: (summary, parameter-error curve, loss curve).
     let mut results = Vec::new();
     for spec in specs {
-        if crate::interrupt::requested() {
+        if cancel.is_cancelled() {
             return Err(Error::Interrupted(format!("{} was not run; no comparison written", spec.label)));
         }
         let own = Settings { optimiser: Some(spec.clone()), ..Default::default() };
-        let st = Settings::resolve(&scene.optimise.settings, &over.then(&own));
-        on_start(spec, &st);
+        let st: RunSettings = Settings::resolve(&scene.optimise.settings, &over.then(&own));
+        observer.run_started(&spec.label, st.iterations);
         let dir = out_dir.join(spec.dir_name());
-        let run = optimise_or_read(ctx, scene, &st, &dir, mode, &mut SpecObserver { spec, progress: &mut progress }).map_err(|e| match e {
+        let run = optimise_or_read(device, scene, &st, &dir, mode, cancel, observer).map_err(|e| match e {
             Error::Interrupted(m) => Error::Interrupted(format!("{} {m}; no comparison written", spec.label)),
             e => e,
         })?;

@@ -18,16 +18,19 @@
 //! [`crate::settings::gpu_seed`]; the finite-difference sample adds [`SEED_FD`] so that its
 //! random numbers are independent of the proportional sample's.
 
+use crate::cancel::Cancel;
+use crate::device::Device;
 use crate::error::{Error, Result};
-use crate::gpu::{self, Access, Buffer, CommandBuffer, ComputePipeline, Context, MaybeProfiler, MemoryKind, Profiler, Recorder, ScopeTime};
+use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Recorder, ScopeTime};
 use crate::image::Image;
+use crate::observer::Observer;
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{CarryWeight, Diagnostics, MetaHyper, Optimiser, Range};
 use crate::push::{CarryWeightPush, CountPush};
-use crate::render::gradient::GradientPass;
-use crate::render::targets::{padded, targets};
-use crate::render::{GpuScene, Renderer};
+use crate::render::gradient::{GradientInputs, GradientPass};
+use crate::render::targets::{padded, targets, TargetSource};
+use crate::render::{GpuScene, PrimalRenderer};
 use crate::scene::Scene;
 use crate::settings::{gpu_seed, Loss, RunSettings};
 use std::collections::BTreeMap;
@@ -46,28 +49,18 @@ pub enum FdSample {
 
 impl FdSample {
     /// Records ⟨ΔF⟩ into `fd_grad` (which the optimiser pass reads and clears).
-    pub fn record(&self, rec: &mut Recorder, gs: &GpuScene, ops: &BufferOps, fd_grad: &Buffer, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    pub fn record(&self, rec: &mut Recorder, gs: &GpuScene, ops: &BufferOps, fd_grad: &Buffer) -> gpu::Result<()> {
         match self {
-            FdSample::Fused(pass) => pass.record_passes(rec, gs, ops, true, profiler),
+            FdSample::Fused(pass) => pass.record_passes(rec, gs, ops, true),
             FdSample::TwoTrace { cur, prv, at_cur, at_prev } => {
-                rec.transition(&[(at_cur, Access::TransferWrite), (at_prev, Access::TransferWrite)])?;
                 rec.zero(at_cur)?;
                 rec.zero(at_prev)?;
-                cur.record_passes(rec, gs, ops, true, profiler.as_deref_mut())?;
-                prv.record_passes(rec, gs, ops, true, profiler.as_deref_mut())?;
-                rec.transition(&[(at_cur, Access::ComputeRead), (at_prev, Access::ComputeRead), (fd_grad, Access::ComputeWrite)])?;
-                profiler.begin_scope(rec, "sub")?;
+                cur.record_passes(rec, gs, ops, true)?;
+                prv.record_passes(rec, gs, ops, true)?;
+                rec.begin_scope("sub")?;
                 ops.sub(rec, at_cur, at_prev, fd_grad)?;
-                profiler.end_scope(rec)
+                rec.end_scope()
             }
-        }
-    }
-
-    /// Profiler scopes one recording opens for `sensors` sensors.
-    fn scopes(&self, sensors: u32) -> u32 {
-        match self {
-            FdSample::Fused(_) => 3 * sensors,
-            FdSample::TwoTrace { .. } => 6 * sensors + 1,
         }
     }
 }
@@ -94,15 +87,11 @@ pub struct Carry {
     push: CarryWeightPush,
 }
 
-/// One sensor's images: the fresh render of θ_i, the finite-difference sample's images of
-/// θ_i and θ_{i-1}, the carried image, the statistics' partial sums, the weight's state, and
-/// the passes' bind groups over them.
+/// One sensor's carried image, the weight's state, and the passes' bind groups over them and
+/// the images they read (the fresh render of θ_i, the finite-difference sample's images of
+/// θ_i and θ_{i-1}, the statistics' partial sums).
 struct CarrySensor {
-    fresh: Buffer,
-    cur: Buffer,
-    prev: Buffer,
     carried: Buffer,
-    partials: Buffer,
     /// (w, the carried image's variance, the fresh render's, the bound on the difference's,
     /// the adjoint render's weight u), per pixel and channel, after the last iteration.
     state: Buffer,
@@ -186,18 +175,7 @@ impl Carry {
                 }
                 _ => None,
             };
-            sensors.push(CarrySensor {
-                fresh: (*fresh).clone(),
-                cur: (*cur).clone(),
-                prev: (*prev).clone(),
-                carried,
-                partials,
-                state,
-                image: image_group,
-                stats: stats_group,
-                weight: weight_group,
-                adjoint: adjoint_mix,
-            });
+            sensors.push(CarrySensor { carried, state, image: image_group, stats: stats_group, weight: weight_group, adjoint: adjoint_mix });
         }
         // The least weight of an iteration's new samples: the fresh render's alone, or shared
         // with the adjoint render by their samples, so that the carried image's memory at the
@@ -230,50 +208,33 @@ impl Carry {
 
     /// Records the mix of every sensor's adjoint render into its carried image (after the
     /// adjoint pass; nothing without `carry_adjoint`).
-    pub fn record_adjoint(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    pub fn record_adjoint(&self, rec: &mut Recorder) -> gpu::Result<()> {
         let Some(mix) = &self.adjoint else { return Ok(()) };
-        profiler.begin_scope(rec, "carry_adjoint")?;
+        rec.begin_scope("carry_adjoint")?;
         let n = CountPush { n: self.pixels };
         for c in &self.sensors {
-            if let Some((render, group)) = &c.adjoint {
-                rec.transition(&[(render, Access::ComputeRead), (&c.carried, Access::ComputeReadWrite), (&c.state, Access::ComputeRead)])?;
+            if let Some((_, group)) = &c.adjoint {
                 rec.dispatch_linear(mix, group, &n, self.pixels as u64)?;
             }
         }
-        profiler.end_scope(rec)
+        rec.end_scope()
     }
 
     /// Records the passes over every sensor's images and the count's increment.
-    pub fn record(&self, rec: &mut Recorder, ops: &BufferOps, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        profiler.begin_scope(rec, "carry_image")?;
+    pub fn record(&self, rec: &mut Recorder, ops: &BufferOps) -> gpu::Result<()> {
+        rec.begin_scope("carry_image")?;
         let n = CountPush { n: self.pixels };
         for c in &self.sensors {
-            rec.transition(&[
-                (&c.fresh, Access::ComputeRead),
-                (&c.cur, Access::ComputeRead),
-                (&c.prev, Access::ComputeRead),
-                (&c.partials, Access::ComputeWrite),
-            ])?;
             rec.dispatch_linear(&self.stats, &c.stats, &n, self.pixels as u64)?;
         }
-        rec.transition(&[(&self.count, Access::ComputeRead)])?;
         for c in &self.sensors {
-            rec.transition(&[(&c.partials, Access::ComputeRead), (&c.state, Access::ComputeReadWrite)])?;
             rec.dispatch_groups(&self.weight, &c.weight, &self.push, [1, 1, 1])?;
         }
         for c in &self.sensors {
-            rec.transition(&[
-                (&c.fresh, Access::ComputeReadWrite),
-                (&c.cur, Access::ComputeReadWrite),
-                (&c.prev, Access::ComputeReadWrite),
-                (&c.carried, Access::ComputeReadWrite),
-                (&c.state, Access::ComputeRead),
-            ])?;
             rec.dispatch_linear(&self.image, &c.image, &n, self.pixels as u64)?;
         }
-        rec.transition(&[(&self.count, Access::ComputeReadWrite)])?;
         ops.scale_add(rec, &self.count, 1.0, 1.0)?;
-        profiler.end_scope(rec)
+        rec.end_scope()
     }
 
     /// Sensor s's carried image (after the recorded work ran).
@@ -334,23 +295,18 @@ impl Report {
         Ok(Report { buffer, sources, sensors: gradient.sensors(), carried, theta_len })
     }
 
-    /// Records the copies into the report, after everything that writes its sources.
+    /// Records the copies into the report, after everything that writes its sources. The
+    /// copies write disjoint ranges of the report, so they go as one unordered batch.
     pub fn record(&self, rec: &mut Recorder) -> gpu::Result<()> {
-        let mut t: Vec<(&Buffer, Access)> = self.sources.iter().map(|(b, _)| (b, Access::TransferRead)).collect();
-        t.push((&self.buffer, Access::TransferWrite));
-        rec.transition(&t)?;
-        let mut at = 0;
-        for (k, (b, n)) in self.sources.iter().enumerate() {
-            if k > 0 {
-                // The copies write disjoint ranges, which the command tracker (whole buffers)
-                // cannot tell apart; a transfer-to-transfer barrier costs next to nothing.
-                rec.barrier(&self.buffer, Access::TransferWrite, Access::TransferWrite)?;
+        rec.unordered(|rec| {
+            let mut at = 0;
+            for (b, n) in &self.sources {
+                rec.copy_range(b, 0, &self.buffer, at, *n)?;
+                at += n;
             }
-            rec.copy_range(b, 0, &self.buffer, at, *n)?;
-            at += n;
-        }
-        // The recording's closing barrier makes the copies visible to the host.
-        Ok(())
+            // The recording's closing barrier makes the copies visible to the host.
+            Ok(())
+        })
     }
 
     /// (total loss, the optimiser's record bytes, each carried sensor's state, θ) from the
@@ -386,7 +342,7 @@ pub fn param_groups(gs: &GpuScene, settings: &RunSettings) -> Vec<Group> {
 
 /// The passes of one iteration, on one scene; see the module documentation.
 pub struct Engine {
-    pub renderer: Renderer,
+    pub renderer: PrimalRenderer,
     pub ops: BufferOps,
     /// One target image per sensor.
     pub targets: Vec<Image>,
@@ -405,26 +361,29 @@ pub struct Engine {
 }
 
 impl Engine {
-    /// Uploads `scene`, renders or loads its targets (`on_targets(sensor, done, total)`
-    /// reports rendering) and builds every pass the settings' optimiser needs.
-    pub fn new(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, on_targets: impl FnMut(usize, u32, u32)) -> Result<Self> {
-        Self::build(ctx, scene, settings, true, on_targets)
+    /// Uploads `scene`, renders or loads its targets (the observer hears the renders, and
+    /// `cancel` stops them) and builds every pass the settings' optimiser needs.
+    pub fn new(device: &Device, scene: &Scene, settings: &RunSettings, observer: &mut dyn Observer, cancel: &Cancel) -> Result<Self> {
+        Self::build(device, scene, settings, true, observer, cancel)
     }
 
     /// The gradient estimate alone, without finite-difference sample or optimiser (for
     /// checking gradients).
-    pub fn gradient_only(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings) -> Result<Self> {
-        Self::build(ctx, scene, settings, false, |_, _, _| {})
+    pub fn gradient_only(device: &Device, scene: &Scene, settings: &RunSettings) -> Result<Self> {
+        Self::build(device, scene, settings, false, &mut (), &Cancel::new())
     }
 
-    fn build(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, optimise: bool, on_targets: impl FnMut(usize, u32, u32)) -> Result<Self> {
+    fn build(device: &Device, scene: &Scene, settings: &RunSettings, optimise: bool, observer: &mut dyn Observer, cancel: &Cancel) -> Result<Self> {
         // The optimiser (its spec with the run's schedule) is checked before any GPU work.
         let optimiser = match optimise {
             true => Some(settings.optimiser().map_err(|e| Error::Invalid(format!("{}: {}", e.key, e.message)))?),
             false => None,
         };
-        let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
-        let targets = targets(&renderer, scene, settings.target_spp, on_targets)?;
+        let ctx = device.ctx();
+        let config = device.config();
+        let renderer = PrimalRenderer::new(GpuScene::configured(ctx, scene, config)?)?;
+        let source = TargetSource { spp: settings.target_spp, cache_dir: config.cache_dir.as_deref(), cancel };
+        let targets = targets(&renderer, scene, source, observer)?;
         let ops = BufferOps::new(ctx)?;
         let gs = &renderer.scene;
         let n = gs.layout.len.max(1);
@@ -439,8 +398,21 @@ impl Engine {
         };
         let halves = opt.as_ref().and_then(|o| o.halves.as_ref());
         let seed = gpu_seed(settings.seed);
-        let gradient =
-            GradientPass::new(gs, &ops, &targets, settings.loss, settings.spp, settings.primal_spp, seed, &gs.theta, None, &grad, halves.map(|h| &h.grad))?;
+        let gradient = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: &targets,
+                loss: settings.loss,
+                spp: settings.spp,
+                primal_spp: settings.primal_spp,
+                seed,
+                theta: &gs.theta,
+                theta_prev: None,
+                grad: &grad,
+                grad_half: halves.map(|h| &h.grad),
+            },
+        )?;
         let report = Report::new(ctx, &gradient, opt.as_ref(), None, &gs.theta, gs.layout.len)?;
         let mut engine = Engine { renderer, ops, targets, settings: settings.clone(), grad, fd_grad, gradient, fd: None, carry: None, optimiser: opt, report };
         let fd = match engine.optimiser.as_ref() {
@@ -483,7 +455,11 @@ impl Engine {
     /// Another gradient estimate on this scene and its targets, adding into `grad`.
     pub fn extra_gradient(&self, spp: u32, primal_spp: u32, seed: u32, grad: &Buffer) -> Result<GradientPass> {
         let gs = self.scene();
-        Ok(GradientPass::new(gs, &self.ops, &self.targets, self.loss(), spp, primal_spp, seed, &gs.theta, None, grad, None)?)
+        Ok(GradientPass::new(
+            gs,
+            &self.ops,
+            &GradientInputs { targets: &self.targets, loss: self.loss(), spp, primal_spp, seed, theta: &gs.theta, theta_prev: None, grad, grad_half: None },
+        )?)
     }
 
     /// ⟨ΔF⟩ between θ (the scene's) and `theta_prev` (set to the initial values) at the
@@ -498,7 +474,21 @@ impl Engine {
         let loss = self.loss();
         let stride = self.settings.fd_stride;
         if !two_trace {
-            let mut pass = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, Some(theta_prev), &self.fd_grad, fd_half)?;
+            let mut pass = GradientPass::new(
+                gs,
+                &self.ops,
+                &GradientInputs {
+                    targets: &self.targets,
+                    loss,
+                    spp,
+                    primal_spp: spp,
+                    seed,
+                    theta: &gs.theta,
+                    theta_prev: Some(theta_prev),
+                    grad: &self.fd_grad,
+                    grad_half: fd_half,
+                },
+            )?;
             pass.stride = stride;
             return Ok(FdSample::Fused(pass));
         }
@@ -511,64 +501,65 @@ impl Engine {
         // The primal images of the difference use fd_spp samples too: with common random
         // numbers most of their noise cancels in the difference.
         // Both traces take the same pixels: the checkerboard follows the iteration.
-        let mut cur = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, &gs.theta, None, &at_cur, None)?;
-        let mut prv = GradientPass::new(gs, &self.ops, &self.targets, loss, spp, spp, seed, theta_prev, None, &at_prev, None)?;
+        let mut cur = GradientPass::new(
+            gs,
+            &self.ops,
+            &GradientInputs { targets: &self.targets, loss, spp, primal_spp: spp, seed, theta: &gs.theta, theta_prev: None, grad: &at_cur, grad_half: None },
+        )?;
+        let mut prv = GradientPass::new(
+            gs,
+            &self.ops,
+            &GradientInputs { targets: &self.targets, loss, spp, primal_spp: spp, seed, theta: theta_prev, theta_prev: None, grad: &at_prev, grad_half: None },
+        )?;
         (cur.stride, prv.stride) = (stride, stride);
         Ok(FdSample::TwoTrace { cur, prv, at_cur, at_prev })
     }
 
     /// Records the proportional gradient estimate.
-    pub fn record_gradient(&self, rec: &mut Recorder, profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        self.gradient.record_passes(rec, self.scene(), &self.ops, true, profiler)
+    pub fn record_gradient(&self, rec: &mut Recorder) -> gpu::Result<()> {
+        self.gradient.record_passes(rec, self.scene(), &self.ops, true)
     }
 
     /// Records the finite-difference sample, if the optimiser takes one.
-    pub fn record_fd(&self, rec: &mut Recorder, profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    pub fn record_fd(&self, rec: &mut Recorder) -> gpu::Result<()> {
         match &self.fd {
-            Some(fd) => fd.record(rec, self.scene(), &self.ops, &self.fd_grad, profiler),
+            Some(fd) => fd.record(rec, self.scene(), &self.ops, &self.fd_grad),
             None => Ok(()),
         }
     }
 
     /// Records `optimiser`'s pass in a scope named after its kernel.
-    pub fn record_step(&self, rec: &mut Recorder, optimiser: &GpuOptimiser, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        profiler.begin_scope(rec, optimiser.kernel())?;
+    pub fn record_step(&self, rec: &mut Recorder, optimiser: &GpuOptimiser) -> gpu::Result<()> {
+        rec.begin_scope(optimiser.kernel())?;
         optimiser.record(rec, &self.ops)?;
-        profiler.end_scope(rec)
+        rec.end_scope()
     }
 
     /// Records the whole iteration: gradient, finite-difference sample (with the carried
     /// image between their primal passes and their losses), optimiser step, and the copies
     /// of its results into the report.
-    pub fn record(&self, rec: &mut Recorder, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    pub fn record(&self, rec: &mut Recorder) -> gpu::Result<()> {
         match (&self.carry, &self.fd) {
             (Some(carry), Some(FdSample::Fused(fd))) => {
                 // Both samples' primal images first: the carried image replaces them before
                 // the losses read them.
                 let gs = self.scene();
-                self.gradient.record_primal(rec, gs, profiler.as_deref_mut())?;
-                fd.record_primal(rec, gs, profiler.as_deref_mut())?;
-                carry.record(rec, &self.ops, profiler.as_deref_mut())?;
-                self.gradient.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
-                fd.record_loss_adjoint(rec, gs, &self.ops, profiler.as_deref_mut())?;
-                carry.record_adjoint(rec, profiler.as_deref_mut())?;
+                self.gradient.record_primal(rec, gs)?;
+                fd.record_primal(rec, gs)?;
+                carry.record(rec, &self.ops)?;
+                self.gradient.record_loss_adjoint(rec, gs, &self.ops)?;
+                fd.record_loss_adjoint(rec, gs, &self.ops)?;
+                carry.record_adjoint(rec)?;
             }
             _ => {
-                self.record_gradient(rec, profiler.as_deref_mut())?;
-                self.record_fd(rec, profiler.as_deref_mut())?;
+                self.record_gradient(rec)?;
+                self.record_fd(rec)?;
             }
         }
         if let Some(opt) = &self.optimiser {
-            self.record_step(rec, opt, profiler)?;
+            self.record_step(rec, opt)?;
         }
         self.report.record(rec)
-    }
-
-    /// Profiler scopes that [`Self::record`] opens.
-    pub fn scopes(&self) -> u32 {
-        let sensors = self.scene().sensors as u32;
-        let carry = self.carry.as_ref().map_or(0, |c| 1 + c.adjoint.is_some() as u32);
-        3 * sensors + self.fd.as_ref().map_or(0, |fd| fd.scopes(sensors)) + carry + 1
     }
 
     /// Runs the rendering passes once, untimed, and clears what they accumulated: lavapipe
@@ -577,13 +568,12 @@ impl Engine {
     pub fn warm_up(&self) -> Result<()> {
         let mut warm = CommandBuffer::new(&self.scene().ctx, "warm-up")?;
         warm.record(|rec| {
-            self.record_gradient(rec, None)?;
-            self.record_fd(rec, None)?;
+            self.record_gradient(rec)?;
+            self.record_fd(rec)?;
             let mut sums = vec![&self.grad, &self.fd_grad];
             if let Some(h) = self.optimiser.as_ref().and_then(|o| o.halves.as_ref()) {
                 sums.extend([&h.grad, &h.fd_grad]);
             }
-            rec.transition(&sums.iter().map(|b| (*b, Access::TransferWrite)).collect::<Vec<_>>())?;
             for b in sums {
                 rec.zero(b)?;
             }
@@ -596,12 +586,9 @@ impl Engine {
     /// The iteration recorded once, with a profiler scope per pass, to be resubmitted.
     pub fn iteration(&self) -> Result<Iteration> {
         let ctx = &self.scene().ctx;
-        let mut profiler = Profiler::new(ctx, self.scopes())?;
+        let mut profiler = Profiler::new(ctx, Profiler::SCOPES)?;
         let mut cmd = CommandBuffer::new(ctx, "iteration")?;
-        cmd.record(|rec| {
-            profiler.reset(rec);
-            self.record(rec, Some(&mut profiler))
-        })?;
+        cmd.record_profiled(&mut profiler, |rec| self.record(rec))?;
         Ok(Iteration { cmd, profiler })
     }
 

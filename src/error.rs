@@ -17,9 +17,13 @@ pub enum Error {
     Io { path: std::path::PathBuf, source: std::io::Error },
     #[error("{0}")]
     Invalid(String),
-    /// A Ctrl-C stopped the work ([`crate::interrupt`]); the message says what was left.
+    /// The work was cancelled ([`crate::Cancel`]); the message says what was left.
     #[error("interrupted: {0}")]
     Interrupted(String),
+    /// The validation layer ([`crate::Config::validation`]) reported something during the
+    /// call: a bug of vkinverse or of the driver.
+    #[error("the Vulkan validation layer reported {count} message(s); the first: {first}")]
+    Validation { count: usize, first: String },
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

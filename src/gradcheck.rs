@@ -35,13 +35,12 @@
 
 use crate::engine::Engine;
 use crate::error::Result;
-use crate::gpu::{CommandBuffer, Context};
+use crate::gpu::CommandBuffer;
 use crate::render::gradient::GradientPass;
 use crate::scene::Scene;
 use crate::settings::{Loss, RunSettings};
 use crate::stats::{hotelling, mean_se, median, Hotelling};
 use serde::Serialize;
-use std::sync::Arc;
 
 /// |z| above which an element fails: 4 standard errors, a false alarm rate of 6e-5 per
 /// element for normal estimates.
@@ -199,15 +198,16 @@ struct Element {
 }
 
 /// Checks every optimised parameter of `scene` at its initial values.
-pub fn gradcheck(ctx: &Arc<Context>, scene: &Scene, opts: &Options) -> Result<Report> {
+pub fn gradcheck(device: &crate::device::Device, scene: &Scene, opts: &Options) -> Result<Report> {
+    let ctx = device.ctx();
     // The gradient estimate of an optimisation iteration at the options' sample counts.
     let mut settings = RunSettings::of_scene(scene);
     (settings.spp, settings.primal_spp, settings.seed) = (opts.spp, opts.primal_spp, opts.seed as u64);
-    let engine = Engine::gradient_only(ctx, scene, &settings)?;
+    let engine = Engine::gradient_only(device, scene, &settings)?;
     let (gs, ops, grad, pass, target_images) = (engine.scene(), &engine.ops, &engine.grad, &engine.gradient, &engine.targets);
     let n = gs.layout.len.max(1);
     let mut grad_cmd = CommandBuffer::new(ctx, "gradient")?;
-    grad_cmd.record(|rec| engine.record_gradient(rec, None))?;
+    grad_cmd.record(|rec| engine.record_gradient(rec))?;
     // Two independent primal renders per evaluation: for l2 and relative_l2 the product
     // (I1 − T)(I2 − T) has expectation (E[I] − T)², so the finite difference does not also
     // pick up the derivative of the image variance, which the plain loss (I − T)² carries.

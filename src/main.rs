@@ -1,14 +1,15 @@
 //! The vkinverse command line: parse, call the library, print.
 
+mod cli;
+
 use clap::{Args, Parser, Subcommand};
+use cli::interrupt;
+use cli::progress::{warn, Terminal};
+use cli::settings_args::SettingsArgs;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
-use vkinverse::gpu::{Context, ContextOptions};
-use vkinverse::optimise::{Observer, Outcome, Progress};
-use vkinverse::report::ProgressReport;
-use vkinverse::rundir::Mode;
-use vkinverse::settings::Settings;
+use vkinverse::{Config, Device, Mode, Outcome, RunOptions, Settings};
 
 type Result<T = ()> = std::result::Result<T, Box<dyn std::error::Error>>;
 
@@ -82,7 +83,7 @@ struct RenderArgs {
 struct OptimiseArgs {
     scene: PathBuf,
     #[command(flatten)]
-    settings: Settings,
+    settings: SettingsArgs,
     #[command(flatten)]
     scene_flags: SceneFlags,
     #[command(flatten)]
@@ -106,7 +107,7 @@ struct CompareArgs {
     #[arg(long, allow_hyphen_values = true)]
     optimisers: String,
     #[command(flatten)]
-    settings: Settings,
+    settings: SettingsArgs,
     #[command(flatten)]
     scene_flags: SceneFlags,
     #[command(flatten)]
@@ -132,7 +133,7 @@ struct BatchArgs {
     /// Run settings given here replace every job's (e.g. `--seed 1` runs the job file at
     /// another seed).
     #[command(flatten)]
-    settings: Settings,
+    settings: SettingsArgs,
     /// Film size and path depth for every job's scene (e.g. `--film 256x256` runs the job
     /// file at another resolution).
     #[command(flatten)]
@@ -289,12 +290,10 @@ impl SceneFlags {
 
 /// Loads a scene file of any format with the command line's scene flags, printing what the
 /// import approximated or left out (one line each) unless --quiet.
-fn load_scene(cli: &Cli, path: &std::path::Path, flags: &SceneFlags) -> std::result::Result<vkinverse::scene::Scene, Box<dyn std::error::Error>> {
-    let scene = vkinverse::scene::Scene::load_with(path, &flags.options()?)?;
-    if !cli.quiet {
-        for w in &scene.warnings {
-            eprintln!("vkinverse: warning: {w}");
-        }
+fn load_scene(cli: &Cli, path: &std::path::Path, flags: &SceneFlags) -> std::result::Result<vkinverse::Scene, Box<dyn std::error::Error>> {
+    let scene = vkinverse::Scene::load_with(path, &flags.options()?)?;
+    for w in scene.warnings.iter().chain(&scene.render_warnings()) {
+        warn(cli.quiet, w);
     }
     Ok(scene)
 }
@@ -390,11 +389,26 @@ fn check_flags(settings: &Settings) -> Result {
     Ok(())
 }
 
-fn context(cli: &Cli) -> std::result::Result<std::sync::Arc<Context>, vkinverse::gpu::GpuError> {
-    Context::new(&ContextOptions { device: cli.device.clone(), validation: cli.validation, ..Default::default() })
+/// The configuration of the device: the environment's (`vkinverse::config::ENVIRONMENT`),
+/// with `--device` and `--validation` over it. Values of the environment that cannot be
+/// used are warned about.
+fn config(cli: &Cli) -> Config {
+    let (mut config, warnings) = Config::from_env();
+    for w in warnings {
+        warn(cli.quiet, &w);
+    }
+    if let Some(d) = &cli.device {
+        config.device = Some(d.clone());
+    }
+    config.validation |= cli.validation;
+    config
 }
 
-/// How to continue work that a signal stopped (vkinverse::interrupt), given whether its
+fn device(cli: &Cli) -> vkinverse::Result<Device> {
+    Device::new(&config(cli))
+}
+
+/// How to continue work that a signal stopped (`cli::interrupt`), given whether its
 /// command replaced an earlier run.
 fn resume_hint(overwrite: bool) -> &'static str {
     if overwrite {
@@ -410,6 +424,12 @@ fn mode(resume: bool, overwrite: bool) -> Mode {
         (_, true) => Mode::Overwrite,
         _ => Mode::New,
     }
+}
+
+/// Run options into `output` with the signal handler's cancellation token.
+fn run_options(output: &std::path::Path, mode: Mode) -> Result<RunOptions<'_>> {
+    interrupt::install()?;
+    Ok(RunOptions { out_dir: Some(output), mode, cancel: interrupt::token() })
 }
 
 fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
@@ -431,17 +451,17 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     if let Some(dir) = a.output.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     }
-    let ctx = context(cli)?;
-    vkinverse::interrupt::install()?;
+    let device = device(cli)?;
+    interrupt::install()?;
     let start = std::time::Instant::now();
-    let progress = {
-        let mut progress = ProgressReport::new(cli.quiet, "render", a.spp as u64, "samples");
-        move |done, _| progress.set(done as u64, "")
-    };
+    let mut progress = cli::progress::ProgressReport::new(cli.quiet, "render", a.spp as u64, "samples");
     let budget = a.time_budget.map(std::time::Duration::from_secs_f64);
     let out_of_time = || budget.is_some_and(|b| start.elapsed() >= b);
-    let stop = || vkinverse::interrupt::requested() || out_of_time();
-    let (image, spp) = vkinverse::render::render_reference(&ctx, &scene, a.sensor, a.spp, a.seed, progress, stop)?;
+    let stop = || interrupt::requested() || out_of_time();
+    let renderer = vkinverse::Renderer::new(&device, &scene)?;
+    let options = vkinverse::RenderOptions { sensor: a.sensor, spp: a.spp, seed: a.seed };
+    let (image, spp) = renderer.render_until(&options, |done, _| progress.set(done as u64, ""), stop)?;
+    progress.finish();
     if ext.as_deref() == Some("png") {
         vkinverse::image::write_png(&a.output, &image)?;
     } else {
@@ -452,67 +472,24 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
         let why = if spp < a.spp && out_of_time() { " (the time budget's)" } else { "" };
         eprintln!("rendered {}x{} at {spp} spp{why} in {secs:.2} s -> {}", image.width, image.height, a.output.display());
     }
-    if spp < a.spp && vkinverse::interrupt::requested() {
+    if spp < a.spp && interrupt::requested() {
         // A Ctrl-C: the image holds the samples rendered until then.
         let msg = format!("stopped at {spp} of {} samples per pixel; {} holds their mean", a.spp, a.output.display());
-        return Err(vkinverse::error::Error::Interrupted(msg).into());
+        return Err(vkinverse::Error::Interrupted(msg).into());
     }
     Ok(())
 }
 
-/// What `optimise` shows while it runs: target rendering, iterations, a resume.
-struct RunProgress {
-    quiet: bool,
-    targets: ProgressReport,
-    iterations: ProgressReport,
-}
-
-impl RunProgress {
-    fn new(quiet: bool, label: &str, iterations: Option<u32>) -> Self {
-        RunProgress {
-            quiet,
-            targets: ProgressReport::new(quiet, "target", 0, "samples"),
-            iterations: ProgressReport::new(quiet, label, iterations.unwrap_or(0) as u64, "iterations"),
-        }
-    }
-
-    fn finish(&self) {
-        self.targets.finish();
-        self.iterations.finish();
-    }
-}
-
-fn progress_message(p: &Progress) -> String {
-    let err = p.param_error.map(|e| format!(" param RMSE {e:.3e}")).unwrap_or_default();
-    format!("loss {:.3e}{err}", p.loss)
-}
-
-impl Observer for RunProgress {
-    fn target_progress(&mut self, _sensor: usize, done: u32, total: u32) {
-        self.targets.set_total(total as u64);
-        self.targets.set(done as u64, "");
-    }
-    fn iteration(&mut self, p: &Progress) {
-        self.iterations.set(p.iteration as u64, &progress_message(p));
-    }
-    fn resumed(&mut self, iteration: u32, changes: &[String]) {
-        if !self.quiet {
-            let changed = if changes.is_empty() { "no settings changed".to_string() } else { format!("changed settings: {}", changes.join(", ")) };
-            eprintln!("resuming from the checkpoint at iteration {iteration}; {changed}");
-        }
-    }
-}
-
 fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
     // Flags first: a typo on the command line is reported before the scene is read.
-    check_flags(&a.settings)?;
+    check_flags(&a.settings.0)?;
     let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     a.start.apply(&mut scene)?;
-    let st = Settings::resolve(&scene.optimise.settings, &a.settings);
-    let ctx = context(cli)?;
-    let mut progress = RunProgress::new(cli.quiet, "optimise", st.iterations);
-    vkinverse::interrupt::install()?;
-    let outcome = vkinverse::optimise::optimise(&ctx, &scene, &st, &a.output, mode(a.resume, a.overwrite), &mut progress);
+    let st = a.settings.0.resolve_for(&scene);
+    let device = device(cli)?;
+    let mut progress = Terminal::new(cli.quiet, "optimise", st.iterations);
+    let options = run_options(&a.output, mode(a.resume, a.overwrite))?;
+    let outcome = vkinverse::optimise(&device, &scene, &st, &options, &mut progress);
     progress.finish();
     let run = match outcome? {
         Outcome::Finished(run) => run,
@@ -554,7 +531,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             (None, None) => String::new(),
         };
         let msg = format!("stopped at iteration {}{target}; {} continues the run in {}", run.summary.iterations, resume_hint(a.overwrite), a.output.display());
-        return Err(vkinverse::error::Error::Interrupted(msg).into());
+        return Err(vkinverse::Error::Interrupted(msg).into());
     }
     Ok(())
 }
@@ -562,33 +539,20 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
 fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
     // Flags first: a typo on the command line is reported before the scene is read.
     let specs = vkinverse::optim::spec::parse_list(&a.optimisers).map_err(|e| format!("--optimisers: {e}"))?;
-    if a.settings.optimiser.is_some() {
+    if a.settings.0.optimiser.is_some() {
         return Err("compare takes --optimisers (a list), not --optimiser".into());
     }
-    check_flags(&a.settings)?;
+    check_flags(&a.settings.0)?;
     let mut scene = load_scene(cli, &a.scene, &a.scene_flags)?;
     a.start.apply(&mut scene)?;
-    let ctx = context(cli)?;
-    vkinverse::interrupt::install()?;
-    let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
-    let comparison = vkinverse::compare::compare(
-        &ctx,
-        &scene,
-        &a.settings,
-        &specs,
-        &a.out.output,
-        mode(a.out.resume, a.out.overwrite),
-        |spec, st| {
-            bar.borrow().finish();
-            *bar.borrow_mut() = ProgressReport::new(cli.quiet, &spec.label, st.iterations.unwrap_or(0) as u64, "iterations");
-        },
-        |spec, p| bar.borrow_mut().set(p.iteration as u64, &format!("{}: {}", spec.label, progress_message(p))),
-    )
-    .map_err(|e| match e {
-        vkinverse::error::Error::Interrupted(m) => vkinverse::error::Error::Interrupted(format!("{m}; {} continues it", resume_hint(a.out.overwrite))),
+    let device = device(cli)?;
+    let options = run_options(&a.out.output, mode(a.out.resume, a.out.overwrite))?;
+    let mut progress = Terminal::new(cli.quiet, "", None);
+    let comparison = vkinverse::compare::compare(&device, &scene, &a.settings.0, &specs, &options, &mut progress).map_err(|e| match e {
+        vkinverse::Error::Interrupted(m) => vkinverse::Error::Interrupted(format!("{m}; {} continues it", resume_hint(a.out.overwrite))),
         e => e,
     })?;
-    bar.borrow().finish();
+    progress.finish();
     print_result(a.out.json, &comparison, || comparison.table())?;
     if !a.out.json && !cli.quiet {
         outln!("outputs in {}: error_vs_time.png optimiser.png curves.csv compare.csv compare.json and one directory per optimiser", a.out.output.display())?;
@@ -598,15 +562,15 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
 
 fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
     use vkinverse::batch;
-    check_flags(&a.settings)?;
+    check_flags(&a.settings.0)?;
     if !a.merge.is_empty() {
-        if a.settings != Settings::default() || a.scene_flags.film.is_some() || a.scene_flags.max_depth.is_some() || a.out.resume || a.out.overwrite {
+        if a.settings.0 != Settings::default() || a.scene_flags.film.is_some() || a.scene_flags.max_depth.is_some() || a.out.resume || a.out.overwrite {
             return Err("run settings, --film, --max-depth, --resume and --overwrite apply to a job file's runs, not to --merge".into());
         }
         let (merged, missing) = batch::merge(&a.merge, &a.out.output)?;
         if !missing.is_empty() {
             let list: Vec<String> = missing.iter().map(usize::to_string).collect();
-            vkinverse::report::warn(&format!("job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs));
+            warn(cli.quiet, &format!("job(s) {} of {} are in none of the tables", list.join(", "), merged.total_jobs));
         }
         return print_result(a.out.json, &merged, || merged.table());
     }
@@ -615,7 +579,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         return Err("give a job file, or --merge with the shards' output directories".into());
     };
     let load = a.scene_flags.options()?;
-    let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings).loaded_with(load)).collect();
+    let all: Vec<batch::Job> = batch::load_jobs(jobs_file)?.into_iter().map(|job| job.overridden(&a.settings.0).loaded_with(load)).collect();
     let names: Vec<String> = all.iter().map(batch::Job::scene_name).collect();
     if let Some(unknown) = a.scenes.iter().find(|n| !names.contains(n)) {
         let mut known: Vec<&str> = Vec::new();
@@ -632,35 +596,15 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
         .filter(|(j, name)| shard.iter().all(|s| s.has(j.index)) && (a.scenes.is_empty() || a.scenes.contains(name)))
         .map(|(j, _)| j.clone())
         .collect();
-    // One context for every job: device set-up is paid once per batch.
-    let ctx = context(cli)?;
-    vkinverse::interrupt::install()?;
-    let bar = std::cell::RefCell::new(ProgressReport::new(true, "", 0, ""));
-    let results = batch::run(
-        &ctx,
-        jobs_file,
-        all.len(),
-        shard,
-        &mine,
-        &a.out.output,
-        mode(a.out.resume, a.out.overwrite),
-        |job| {
-            *bar.borrow_mut() =
-                ProgressReport::new(cli.quiet, &format!("job {} {}", job.index, job.label), job.settings.iterations.unwrap_or(0) as u64, "iterations")
-        },
-        |_, p| bar.borrow_mut().set(p.iteration as u64, &progress_message(p)),
-        |row| {
-            bar.borrow().finish();
-            if !cli.quiet {
-                match row.status {
-                    batch::Status::Ok => eprintln!("job {} {}: ok", row.job, row.label),
-                    status => eprintln!("job {} {}: {}: {}", row.job, row.label, status.as_str(), row.message),
-                }
-            }
-        },
-    )?;
+    // One device for every job: its set-up is paid once per batch.
+    let device = device(cli)?;
+    let options = run_options(&a.out.output, mode(a.out.resume, a.out.overwrite))?;
+    let plan = batch::Plan { jobs_file, total_jobs: all.len(), shard, jobs: &mine };
+    let mut progress = Terminal::new(cli.quiet, "", None);
+    let results = batch::run(&device, plan, &options, &mut progress)?;
+    progress.finish();
     print_result(a.out.json, &results, || results.table())?;
-    if vkinverse::interrupt::requested() {
+    if interrupt::requested() {
         let msg = format!(
             "{} of {} jobs ran (see {}); {} continues the batch",
             results.results.len(),
@@ -668,7 +612,7 @@ fn run_batch(cli: &Cli, a: &BatchArgs) -> Result {
             a.out.output.join("results.csv").display(),
             resume_hint(a.out.overwrite)
         );
-        return Err(vkinverse::error::Error::Interrupted(msg).into());
+        return Err(vkinverse::Error::Interrupted(msg).into());
     }
     let failed = results.failed();
     if failed > 0 {
@@ -693,7 +637,7 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
         return Err(format!("{}: no [[optimise.params]] to check", scene.path.display()).into());
     }
     a.start.apply(&mut scene)?;
-    let ctx = context(cli)?;
+    let device = device(cli)?;
     let opts = vkinverse::gradcheck::Options {
         spp: a.spp,
         primal_spp: a.primal_spp.unwrap_or(a.spp),
@@ -701,7 +645,7 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
         max_rounds: a.max_rounds,
         ..Default::default()
     };
-    let report = vkinverse::gradcheck::gradcheck(&ctx, &scene, &opts)?;
+    let report = vkinverse::gradcheck::gradcheck(&device, &scene, &opts)?;
     if a.json {
         outln!("{}", serde_json::to_string_pretty(&report)?)?;
     } else {
@@ -723,40 +667,39 @@ fn run_gradcheck(cli: &Cli, a: &GradcheckArgs) -> Result {
 }
 
 fn run_replay(cli: &Cli, a: &ReplayArgs) -> Result {
-    use vkinverse::optim;
-    let spec: optim::spec::Spec = a.optimiser.parse().map_err(|e| format!("--optimiser {}: {e}", a.optimiser))?;
-    // A cosine schedule without a horizon decays over the replayed iterations.
-    let opt = spec.optimiser;
+    use vkinverse::replay;
+    let spec: vkinverse::Spec = a.optimiser.parse().map_err(|e| format!("--optimiser {}: {e}", a.optimiser))?;
     let range = match &a.range {
         Some(r) => r.parse().map_err(|e| format!("--range {r}: {e}"))?,
-        None => optim::Range::UNBOUNDED,
+        None => replay::Range::UNBOUNDED,
     };
     if !(a.lr.is_finite() && a.lr > 0.0) {
         return Err(format!("--lr {}: must be positive and finite", a.lr).into());
     }
-    let mut input = optim::replay::ReplayInput::load(&a.grads, a.fd_grads.as_deref(), a.init.as_deref(), opt.needs_fd())?;
-    match (&a.halves, opt.needs_halves()) {
-        (Some(list), _) => {
+    let halves = match &a.halves {
+        Some(list) => {
             let (gh, fh) = list.split_once(',').ok_or_else(|| format!("--halves {list}: expected GH.npy,FH.npy"))?;
-            input.load_halves(gh.as_ref(), fh.as_ref())?;
+            Some((PathBuf::from(gh), PathBuf::from(fh)))
         }
-        (None, true) => return Err("--optimiser with var=centred needs --halves GH.npy,FH.npy (the half-pixel sums of both streams)".into()),
-        (None, false) => {}
-    }
-    let opt = opt.resolve(input.grads.len() as u32);
-    let ctx = context(cli)?;
-    let replay = optim::gpu::replay_gpu_streams(&ctx, &opt, &input.streams(), &input.init, range, a.lr)?;
-    let (trajectory, skipped) = (replay.theta, replay.nonfinite);
-    vkinverse::npy::write_rows(&a.output, &trajectory)?;
+        None => None,
+    };
+    let files = replay::Files {
+        grads: &a.grads,
+        fd_grads: a.fd_grads.as_deref(),
+        init: a.init.as_deref(),
+        halves: halves.as_ref().map(|(g, f)| (g.as_path(), f.as_path())),
+    };
+    let device = device(cli)?;
+    let result = replay::replay(&device, &spec, &files, range, a.lr)?;
+    vkinverse::npy::write_rows(&a.output, &result.trajectory)?;
     if let Some(path) = &a.diagnostics {
-        let steps: Vec<Vec<(String, optim::Diagnostics)>> = replay.diagnostics.iter().map(|d| d.iter().map(|d| ("theta".to_string(), *d)).collect()).collect();
-        optim::csv::write(path, &steps).map_err(|e| format!("{}: {e}", path.display()))?;
+        result.write_diagnostics(path)?;
     }
     if !cli.quiet {
-        eprintln!("replayed {} iterations of {} parameters -> {}", input.grads.len(), input.init.len(), a.output.display());
+        eprintln!("replayed {} iterations of {} parameters -> {}", result.iterations, result.parameters, a.output.display());
     }
-    if skipped > 0 {
-        vkinverse::report::warn(&format!("{skipped} non-finite gradient elements were skipped (theta left unchanged there)"));
+    if result.nonfinite > 0 {
+        warn(cli.quiet, &format!("{} non-finite gradient elements were skipped (theta left unchanged there)", result.nonfinite));
     }
     Ok(())
 }
@@ -779,32 +722,31 @@ fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
         if elements < 4 {
             return Err(format!("--elements {elements}: must be at least 4").into());
         }
-        let result = vkinverse::bench::buffer_bench(&context(cli)?, elements, a.iterations)?;
+        let result = vkinverse::bench::buffer_bench(&device(cli)?, elements, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     };
     let scene = load_scene(cli, path, &a.scene_flags)?;
-    let ctx = context(cli)?;
+    let device = device(cli)?;
     if a.bvh_layouts {
-        let result = vkinverse::bench::layout_bench(&ctx, &scene, a.iterations)?;
+        let result = vkinverse::bench::layout_bench(&device, &scene, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     }
     let warm_up = match a.warm_up {
         Some(s) if !(0.0..=3600.0).contains(&s) => return Err(format!("--warm-up {s}: must be between 0 and 3600 seconds").into()),
         Some(s) => s,
         // A CPU device runs at its clock from the first round; a GPU's idles low.
-        None if ctx.info().device_type == "CPU" => 0.0,
+        None if device.info().device_type == "CPU" => 0.0,
         None => GPU_WARM_UP_SECONDS,
     };
-    let result = vkinverse::bench::scene_bench(&ctx, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS), Duration::from_secs_f64(warm_up))?;
+    let result = vkinverse::bench::scene_bench(&device, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS), Duration::from_secs_f64(warm_up))?;
     print_result(a.json, &result, || result.table())
 }
 
 fn run(cli: &Cli) -> Result {
-    vkinverse::report::set_quiet(cli.quiet);
     match &cli.command {
         Command::Info { json } => {
-            let ctx = context(cli)?;
-            let text = if *json { format!("{}\n", vkinverse::report::info_json(&ctx)) } else { vkinverse::report::info_text(&ctx) };
+            let device = device(cli)?;
+            let text = if *json { format!("{}\n", device.info_json()) } else { device.info_text() };
             out(format_args!("{text}"))?;
             Ok(())
         }
@@ -849,9 +791,9 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         // A Ctrl-C or SIGTERM (vkinverse::interrupt): the shell's status for the signal,
         // as a second signal's.
-        Err(e) if matches!(e.downcast_ref(), Some(vkinverse::error::Error::Interrupted(_))) => {
+        Err(e) if matches!(e.downcast_ref(), Some(vkinverse::Error::Interrupted(_))) => {
             eprintln!("vkinverse: {e}");
-            ExitCode::from(vkinverse::interrupt::exit_status())
+            ExitCode::from(interrupt::exit_status())
         }
         Err(e) => {
             eprintln!("vkinverse: error: {}", vkinverse::error::one_line(e.as_ref()));

@@ -28,7 +28,7 @@ pub enum NpyError {
     WrongDtype { path: PathBuf, found: String },
     #[error("{}: Fortran-order arrays are not supported (save C order)", .0.display())]
     FortranOrder(PathBuf),
-    #[error("{}: shape {found:?} is not 1-D or 2-D", path.display())]
+    #[error("{}: shape {found:?} has not 1 to {MAX_AXES} axes", path.display())]
     BadShape { path: PathBuf, found: Vec<usize> },
     #[error("{}: truncated data: {found} of {expected} bytes", path.display())]
     Truncated { path: PathBuf, expected: usize, found: usize },
@@ -38,10 +38,13 @@ pub enum NpyError {
     Ragged { path: PathBuf, first: usize, other: usize },
 }
 
-/// A 1-D or 2-D float32 array in C order.
+/// Most axes of an array: three texel axes of a grid parameter and its channels.
+pub const MAX_AXES: usize = 4;
+
+/// A float32 array of 1 to [`MAX_AXES`] axes in C order.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Array {
-    /// `[n]` or `[rows, cols]`.
+    /// `[n]`, `[rows, cols]`, ...
     pub shape: Vec<usize>,
     pub data: Vec<f32>,
 }
@@ -73,7 +76,7 @@ pub fn read(path: &Path) -> Result<Array, NpyError> {
 /// over 64 KiB).
 pub fn write(path: &Path, array: &Array) -> Result<(), NpyError> {
     let len: usize = array.shape.iter().product();
-    if !(1..=2).contains(&array.shape.len()) || len != array.data.len() {
+    if !(1..=MAX_AXES).contains(&array.shape.len()) || len != array.data.len() {
         return Err(NpyError::BadShape { path: path.into(), found: array.shape.clone() });
     }
     let shape: Vec<u64> = array.shape.iter().map(|&d| d as u64).collect();
@@ -133,7 +136,7 @@ impl Malformed {
 }
 
 /// Parses the file's bytes: npyz reads the header; this checks what vkinverse needs
-/// (versions 1.0 and 2.0, '<f4', C order, 1-D or 2-D, the exact data length) and puts
+/// (versions 1.0 and 2.0, '<f4', C order, 1 to 4 axes, the exact data length) and puts
 /// npyz's messages on one line.
 fn parse(bytes: &[u8]) -> Result<Array, Malformed> {
     if bytes.len() < 8 || &bytes[..6] != MAGIC {
@@ -154,7 +157,7 @@ fn parse(bytes: &[u8]) -> Result<Array, Malformed> {
         return Err(Malformed::Fortran);
     }
     let shape: Vec<usize> = npy.shape().iter().map(|&d| d as usize).collect();
-    if !(1..=2).contains(&shape.len()) {
+    if !(1..=MAX_AXES).contains(&shape.len()) {
         return Err(Malformed::Shape(shape));
     }
     let expected = shape.iter().try_fold(4usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| Malformed::Shape(shape.clone()))?;
@@ -269,8 +272,10 @@ mod tests {
         assert!(error_of(&numpy_bytes(be, &data)).contains("dtype '>f4'"));
         let fortran = "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }";
         assert!(error_of(&numpy_bytes(fortran, &data)).contains("Fortran"));
-        let three_d = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 2, 3), }";
-        assert!(error_of(&numpy_bytes(three_d, &data)).contains("not 1-D or 2-D"));
+        let five_d = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 1, 1, 2, 3), }";
+        assert!(error_of(&numpy_bytes(five_d, &data)).contains("has not 1 to 4 axes"));
+        let four_d = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 1, 2, 3), }";
+        assert_eq!(parse(&numpy_bytes(four_d, &data)).ok().map(|a| a.shape), Some(vec![1, 1, 2, 3]));
         let full = numpy_bytes(GOOD, &data);
         assert!(error_of(&full[..full.len() - 5]).contains("truncated data: 19 of 24 bytes"));
         assert!(error_of(&full[..40]).contains("ends inside the header"));

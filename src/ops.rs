@@ -1,7 +1,7 @@
 //! Buffer kernels every later pass reuses: fill, copy, scale-add and reductions (sum and
 //! sum of squares), recorded into a [`Recorder`].
 
-use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, Result, SpecValue};
+use crate::gpu::{BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, Result, SpecValue};
 use crate::push::{CountPush, FillPush, ScaleAddPush};
 use std::sync::Arc;
 
@@ -85,12 +85,10 @@ impl BufferOps {
     }
 
     /// Records `grad[i] += fresh[2i] + fresh[2i + 1]; half[i] += fresh[2i + 1]; fresh[2i] =
-    /// fresh[2i + 1] = 0` over `grad`'s elements (glsl/merge_half.comp), each buffer made
-    /// ready for it.
+    /// fresh[2i + 1] = 0` over `grad`'s elements (glsl/merge_half.comp).
     pub fn merge_half(&self, rec: &mut Recorder, grad: &Buffer, half: &Buffer, fresh: &Buffer) -> Result<()> {
         let group = self.merge_half.bind(&[("Grad", grad), ("GradHalf", half), ("Fresh", fresh)])?;
         let n = (Self::elements(fresh) / 2).min(Self::elements(grad)).min(Self::elements(half));
-        rec.transition(&[(grad, Access::ComputeReadWrite), (half, Access::ComputeReadWrite), (fresh, Access::ComputeReadWrite)])?;
         rec.dispatch_linear(&self.merge_half, &group, &CountPush::new(n), n)
     }
 
@@ -116,15 +114,11 @@ impl BufferOps {
         Ok(Reduction { levels, result: input })
     }
 
-    /// Records a prepared reduction; afterwards `reduction.result()` holds the value.
-    /// Barriers order each level after whatever last touched its input and output (the
+    /// Records a prepared reduction; afterwards `reduction.result()` holds the value. The
+    /// recorder orders each level after whatever last touched its input and output (the
     /// previous level's partial sums, or earlier passes in the same recording).
     pub fn record_reduction(&self, rec: &mut Recorder, reduction: &Reduction) -> Result<()> {
-        for (group, n, square, out) in &reduction.levels {
-            let input = group.buffers().find(|b| !b.same(out));
-            if let Some(input) = input {
-                rec.transition(&[(input, Access::ComputeRead), (out, Access::ComputeWrite)])?;
-            }
+        for (group, n, square, _) in &reduction.levels {
             let pipe = if *square { &self.reduce_sq } else { &self.reduce_sum };
             let groups = n.div_ceil(reduce_chunk(pipe)).max(1);
             rec.dispatch_linear(pipe, group, &CountPush::new(*n), groups * pipe.local_size()[0] as u64)?;

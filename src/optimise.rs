@@ -16,62 +16,24 @@
 //! `--resume` checks) are those of [`crate::rundir`]. The log rows are also returned in
 //! memory ([`Run::log`]).
 
+use crate::cancel::Cancel;
+use crate::device::Device;
 use crate::engine::{CarryState, Engine};
 use crate::error::{Error, Result};
-use crate::gpu::{Buffer, Context};
+use crate::gpu::Buffer;
 use crate::image::{self, Image};
 use crate::optim::csv::DiagLog;
-use crate::rundir::{checkpoint_name, debug_point, Mode, RunDir, RunIdentity};
+use crate::rundir::{checkpoint_name, Mode, RunDir, RunIdentity};
 use crate::scene::write::file_name;
 use crate::scene::Scene;
 use crate::settings::{gpu_seed, RunSettings};
+use crate::tensor::{ParamValue, Shape};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
-/// Progress reported after every iteration.
-pub struct Progress {
-    pub iteration: u32,
-    pub time_s: f64,
-    pub loss: f64,
-    pub param_error: Option<f64>,
-}
-
-/// What a caller hears about a run while it goes.
-pub trait Observer {
-    /// A target image is being rendered: `done` of `total` samples of sensor `sensor`.
-    fn target_progress(&mut self, _sensor: usize, _done: u32, _total: u32) {}
-    /// An iteration finished.
-    fn iteration(&mut self, _progress: &Progress) {}
-    /// The run continues from the checkpoint at `iteration`, with `changes` (one
-    /// `key: old -> new` per setting that differs from the checkpoint's).
-    fn resumed(&mut self, _iteration: u32, _changes: &[String]) {}
-    /// A Ctrl-C or SIGTERM stopped the run after `iteration` ([`crate::interrupt`]); its outputs are
-    /// written next.
-    fn interrupted(&mut self, iteration: u32) {
-        crate::report::notice(&format!("interrupted: stopping at iteration {iteration} and writing the outputs (Ctrl-C again stops at once)"));
-    }
-}
-
-/// An observer that hears nothing.
-impl Observer for () {}
-
-/// One row of `log.csv`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LogRow {
-    pub iteration: u32,
-    /// Wall time since the first iteration started, without evaluation renders, logging
-    /// and checkpoints.
-    pub time_s: f64,
-    pub gpu_time_s: f64,
-    /// None for row 0 (the start, before any render).
-    pub loss: Option<f64>,
-    /// Parameter RMSE overall and per parameter; None when the reference is unknown.
-    pub param_error: Option<f64>,
-    pub param_errors: Vec<Option<f64>>,
-}
+pub use crate::observer::{LogRow, Observer};
 
 /// The rows of `log.csv` and the parameter names of its columns.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -196,11 +158,13 @@ pub struct Summary {
     pub interrupted: bool,
 }
 
-/// A finished run: its summary and its log rows.
+/// A finished run: its summary, its log rows and the parameters' final values.
 #[derive(Clone, Debug)]
 pub struct Run {
     pub summary: Summary,
     pub log: Log,
+    /// Every optimised parameter's final value, in the scene's order.
+    pub params: Vec<(String, ParamValue)>,
 }
 
 /// What [`optimise`] did.
@@ -208,8 +172,17 @@ pub struct Run {
 pub enum Outcome {
     Finished(Box<Run>),
     /// `--resume` of a finished run, outputs and all: nothing was changed. The run as its
-    /// `summary.json` and `log.csv` hold it.
+    /// `summary.json`, `log.csv` and `params/` hold it.
     AlreadyDone(Box<Run>),
+}
+
+impl Outcome {
+    /// The run, finished now or before.
+    pub fn into_run(self) -> Run {
+        match self {
+            Outcome::Finished(run) | Outcome::AlreadyDone(run) => *run,
+        }
+    }
 }
 
 impl Summary {
@@ -225,22 +198,31 @@ impl Run {
     /// otherwise (a run killed while it wrote its outputs).
     fn read_finished(dir: &Path, iteration: u32) -> Option<Run> {
         let summary = Summary::read(dir).filter(|s| s.iterations == iteration)?;
-        Some(Run { summary, log: Log::read(&dir.join("log.csv")).ok()? })
+        let log = Log::read(&dir.join("log.csv")).ok()?;
+        let params = read_params(dir, &log.params).ok()?;
+        Some(Run { summary, log, params })
     }
 }
 
 /// [`optimise`] for the runs of `compare` and `batch`: with [`Mode::Resume`] a directory
 /// without a committed checkpoint (a run that never got to one, or none at all) starts
 /// afresh and a finished run is read back ([`Outcome::AlreadyDone`]) instead of refused;
-/// a run a signal stopped ([`crate::interrupt`]) is [`Error::Interrupted`].
-pub fn optimise_or_read(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, dir: &Path, mode: Mode, observer: &mut dyn Observer) -> Result<Run> {
+/// a run that was cancelled is [`Error::Interrupted`].
+pub fn optimise_or_read(
+    device: &Device,
+    scene: &Scene,
+    settings: &RunSettings,
+    dir: &Path,
+    mode: Mode,
+    cancel: &Cancel,
+    observer: &mut dyn Observer,
+) -> Result<Run> {
     let mode = match mode {
         Mode::Resume if !crate::rundir::has_checkpoint(dir) => Mode::Overwrite,
         mode => mode,
     };
-    let run = match optimise(ctx, scene, settings, dir, mode, observer)? {
-        Outcome::Finished(run) | Outcome::AlreadyDone(run) => *run,
-    };
+    let options = RunOptions { out_dir: Some(dir), mode, cancel: cancel.clone() };
+    let run = optimise(device, scene, settings, &options, observer)?.into_run();
     if run.summary.interrupted {
         return Err(Error::Interrupted(format!("stopped at iteration {} (its outputs are in {})", run.summary.iterations, dir.display())));
     }
@@ -448,26 +430,48 @@ fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
     Ok(())
 }
 
-/// Writes `params/`: `params.json` with every constant parameter, one EXR per texture.
-fn write_params(dir: &Path, engine: &Engine, theta: &[f32]) -> Result<()> {
+/// Writes `params/`: every parameter as `NAME.npy` (float32, its array shape: `[channels]`
+/// for a constant, `[height, width, channels]` for a texture, `[depth, height, width,
+/// channels]` for a grid), `params.json` with every constant's value and every texture's
+/// EXR (`{ "texture": "NAME.exr" }`, which `--init-from` reads).
+fn write_params(dir: &Path, values: &[(String, ParamValue)]) -> Result<()> {
     let pdir = dir.join("params");
     std::fs::create_dir_all(&pdir).map_err(io_err(&pdir))?;
     let mut json = serde_json::Map::new();
-    for s in &engine.scene().layout.slots {
-        let v = &theta[s.offset..s.offset + s.len];
-        if s.size == [0, 0] {
-            json.insert(s.name.clone(), if v.len() == 1 { serde_json::json!(v[0]) } else { serde_json::json!(v) });
-        } else {
-            let c = s.channels as usize;
-            let data = v.chunks(c).map(|t| if c == 1 { [t[0]; 3] } else { [t[0], t[1], t[2]] }).collect();
-            let img = Image { width: s.size[0], height: s.size[1], data };
-            let path = pdir.join(format!("{}.exr", file_name(&s.name)));
-            image::write_exr(&path, &img)?;
-            json.insert(s.name.clone(), serde_json::json!({ "texture": path.file_name().map(|f| f.to_string_lossy().into_owned()) }));
+    for (name, v) in values {
+        let array = crate::npy::Array { shape: v.shape.array(), data: v.data.clone() };
+        crate::npy::write(&pdir.join(format!("{}.npy", file_name(name))), &array)?;
+        match v.shape.texture_size() {
+            _ if v.shape.is_constant() => {
+                json.insert(name.clone(), if v.data.len() == 1 { serde_json::json!(v.data[0]) } else { serde_json::json!(v.data) });
+            }
+            Some([width, height]) => {
+                let c = v.shape.channels() as usize;
+                let data = v.data.chunks(c).map(|t| if c == 1 { [t[0]; 3] } else { [t[0], t[1], t[2]] }).collect();
+                let path = pdir.join(format!("{}.exr", file_name(name)));
+                image::write_exr(&path, &Image { width, height, data })?;
+                json.insert(name.clone(), serde_json::json!({ "texture": path.file_name().map(|f| f.to_string_lossy().into_owned()) }));
+            }
+            // Other shapes are in their .npy alone.
+            None => {}
         }
     }
     let path = pdir.join("params.json");
     image::write_bytes_atomic(&path, &json_bytes(&serde_json::Value::Object(json))?).map_err(io_err(&path))
+}
+
+/// Reads `params/NAME.npy` of every parameter `names` lists, as [`write_params`] wrote them.
+fn read_params(dir: &Path, names: &[String]) -> Result<Vec<(String, ParamValue)>> {
+    names
+        .iter()
+        .map(|name| {
+            let path = dir.join("params").join(format!("{}.npy", file_name(name)));
+            let a = crate::npy::read(&path)?;
+            let value = Shape::from_array(&a.shape).and_then(|shape| ParamValue::new(shape, a.data));
+            let value = value.ok_or_else(|| Error::Invalid(format!("{}: shape {:?} is no parameter's", path.display(), a.shape)))?;
+            Ok((name.clone(), value))
+        })
+        .collect()
 }
 
 fn write_plot(out_dir: &Path, log: &Log, scene: &str, optimiser: &str) -> Result<()> {
@@ -484,10 +488,31 @@ pub fn identity(scene: &Scene, engine_layout: &crate::render::ParamLayout) -> Ru
     RunIdentity { scene_hash: format!("{:016x}", scene.content_hash()), params: engine_layout.slots.iter().map(|s| (s.name.clone(), s.len)).collect() }
 }
 
+/// Where a run keeps its files, how it treats a run found there, and the token that stops
+/// it.
+#[derive(Clone, Debug)]
+pub struct RunOptions<'a> {
+    /// The run directory; `None`: the run keeps everything in memory (no checkpoints, no
+    /// files) and cannot be resumed.
+    pub out_dir: Option<&'a Path>,
+    /// How a run found in `out_dir` is treated.
+    pub mode: Mode,
+    /// Stops the run after its current iteration, with its outputs written (a resume
+    /// continues it).
+    pub cancel: Cancel,
+}
+
+impl<'a> RunOptions<'a> {
+    /// A new run into `out_dir` (refused if it holds one), not cancelled.
+    pub fn new(out_dir: Option<&'a Path>) -> Self {
+        RunOptions { out_dir, mode: Mode::New, cancel: Cancel::new() }
+    }
+}
+
 /// The loop's state: where it is and what it has logged.
 struct Loop<'a> {
     engine: &'a Engine,
-    run_dir: &'a RunDir,
+    run_dir: Option<&'a RunDir>,
     identity: RunIdentity,
     has_reference: bool,
     log: Log,
@@ -498,7 +523,7 @@ struct Loop<'a> {
     gpu_total: f64,
     pass_samples: BTreeMap<String, Vec<f64>>,
     last_loss: f64,
-    /// A Ctrl-C ended the loop.
+    /// A cancellation or the observer ended the loop before the settings did.
     interrupted: bool,
     /// The iteration of the committed checkpoint, where this process knows one.
     committed: Option<u32>,
@@ -519,7 +544,23 @@ impl Loop<'_> {
         })
     }
 
+    /// Writes the logs so far into the run directory: `log.csv`, `optimiser.csv` and (meta's
+    /// carried image) `carry.csv`.
+    fn write_logs(&self, dir: &Path) -> Result<()> {
+        let path = dir.join("log.csv");
+        image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))?;
+        if self.engine.carry.is_some() {
+            let path = dir.join(CARRY_CSV);
+            image::write_bytes_atomic(&path, self.carry.to_csv().as_bytes()).map_err(io_err(&path))?;
+        }
+        let path = dir.join(DIAG_CSV);
+        image::write_bytes_atomic(&path, self.diag.to_csv().as_bytes()).map_err(io_err(&path))
+    }
+
+    /// Commits a checkpoint of where the run stands and updates the logs (nothing without a
+    /// run directory).
     fn checkpoint(&mut self, time_s: f64) -> Result<()> {
+        let Some(run_dir) = self.run_dir else { return Ok(()) };
         let state = CheckpointState {
             iteration: self.iteration,
             time_s,
@@ -527,20 +568,14 @@ impl Loop<'_> {
             identity: self.identity.clone(),
             settings: self.engine.settings.clone(),
         };
-        save_checkpoint(self.run_dir, self.engine, &state, &self.log, &self.diag, &self.carry)?;
+        save_checkpoint(run_dir, self.engine, &state, &self.log, &self.diag, &self.carry)?;
         self.committed = Some(self.iteration);
-        let path = self.run_dir.path.join("log.csv");
-        image::write_bytes_atomic(&path, &self.log.to_csv()?).map_err(io_err(&path))?;
-        if self.engine.carry.is_some() {
-            let path = self.run_dir.path.join(CARRY_CSV);
-            image::write_bytes_atomic(&path, self.carry.to_csv().as_bytes()).map_err(io_err(&path))?;
-        }
-        let path = self.run_dir.path.join(DIAG_CSV);
-        image::write_bytes_atomic(&path, self.diag.to_csv().as_bytes()).map_err(io_err(&path))
+        self.write_logs(&run_dir.path)
     }
 
-    /// Iterates until the settings say stop; returns the total optimisation time.
-    fn iterate(&mut self, observer: &mut dyn Observer) -> Result<f64> {
+    /// Iterates until the settings say stop, `cancel` is set or the observer breaks;
+    /// returns the total optimisation time.
+    fn iterate(&mut self, observer: &mut dyn Observer, cancel: &Cancel) -> Result<f64> {
         let engine = self.engine;
         let settings = &engine.settings;
         let mut iteration = engine.iteration()?;
@@ -550,9 +585,9 @@ impl Loop<'_> {
         let offset = self.time_offset;
         let timed = |untimed: f64| offset + start.elapsed().as_secs_f64() - untimed;
         while !settings.done(self.iteration, timed(untimed)) {
-            if crate::interrupt::requested() {
+            if cancel.is_cancelled() {
                 self.interrupted = true;
-                observer.interrupted(self.iteration);
+                observer.notice(&format!("interrupted: stopping at iteration {} and writing the outputs", self.iteration));
                 break;
             }
             let step = engine.step(&mut iteration, self.iteration)?;
@@ -563,50 +598,80 @@ impl Loop<'_> {
             self.gpu_total += step.gpu_ms() * 1e-3;
             self.iteration += 1;
             self.last_loss = step.loss;
+            let row = self.row(time_s, Some(step.loss), &step.theta)?;
+            let flow = observer.iteration(&row, &step.diagnostics);
             let names = engine.scene().layout.slots.iter().map(|s| s.name.clone());
             self.diag.push(self.iteration, names.zip(step.diagnostics));
             self.carry.rows.extend(step.carry.iter().enumerate().map(|(s, c)| (self.iteration, s, *c)));
-            let row = self.row(time_s, Some(step.loss), &step.theta)?;
-            observer.iteration(&Progress { iteration: self.iteration, time_s, loss: step.loss, param_error: row.param_error });
             self.log.rows.push(row);
             if self.iteration.is_multiple_of(settings.checkpoint_every) {
                 self.checkpoint(time_s)?;
             }
             untimed += timed(untimed) - time_s;
+            if flow.is_break() && !settings.done(self.iteration, timed(untimed)) {
+                self.interrupted = true;
+                break;
+            }
         }
         Ok(timed(untimed))
     }
 }
 
-/// Runs the optimisation of `scene` with `settings` into `out_dir`, treating a run found
-/// there as `mode` says; `observer` hears progress.
-pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_dir: &Path, mode: Mode, observer: &mut dyn Observer) -> Result<Outcome> {
+/// Optimises `scene`'s parameters with `settings`, from their `init` values towards the
+/// scene's targets (its sensors' target images, or renders of its own values). With a run
+/// directory the run writes the outputs of the run-directory contract there (log, summary,
+/// parameters, the recovered scene, plots, checkpoints), treating a run found there as
+/// `options.mode` says. `observer` hears every iteration and may stop the run.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::{Config, Device, RunOptions, Scene, Settings};
+/// let device = Device::new(&Config::from_env().0)?;
+/// let scene = Scene::load("scenes/cornell/scene.toml")?;
+/// let settings = Settings { iterations: Some(3), target_spp: Some(16), ..Settings::default() };
+/// let run = vkinverse::optimise(&device, &scene, &settings.resolve_for(&scene), &RunOptions::new(None), &mut ())?.into_run();
+/// assert_eq!(run.log.rows.len(), 4, "the start and three iterations");
+/// assert_eq!(run.params[0].0, "materials.red.base_color");
+/// # Ok(())
+/// # }
+/// ```
+pub fn optimise(device: &Device, scene: &Scene, settings: &RunSettings, options: &RunOptions, observer: &mut dyn Observer) -> Result<Outcome> {
+    let outcome = run_optimisation(device, scene, settings, options, observer)?;
+    device.validated(outcome)
+}
+
+fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, options: &RunOptions, observer: &mut dyn Observer) -> Result<Outcome> {
     if scene.optimise.params.is_empty() {
         return Err(Error::Invalid(format!("{}: no [[optimise.params]] to optimise", scene.path.display())));
     }
-    let run_dir = RunDir::open(out_dir, mode)?;
+    let mode = options.mode;
+    let run_dir = match options.out_dir {
+        Some(dir) => Some(RunDir::open(dir, mode, &device.config().debug_stops)?),
+        None if mode == Mode::Resume => return Err(Error::Invalid("a resume needs the run directory to resume".into())),
+        None => None,
+    };
     let identity = identity(scene, &crate::render::ParamLayout::new(scene));
-    let resume = match mode {
-        Mode::Resume => Some(read_checkpoint(&run_dir, &identity, settings)?),
+    let resume = match (&run_dir, mode) {
+        (Some(dir), Mode::Resume) => Some(read_checkpoint(dir, &identity, settings)?),
         _ => None,
     };
-    if let Some((_, state, ..)) = &resume {
+    if let (Some((_, state, ..)), Some(dir)) = (&resume, &run_dir) {
         // A run whose iterations are done but whose outputs are not all written (killed
         // while it wrote them) goes on to write them.
         if settings.done(state.iteration, state.time_s) {
-            if let Some(run) = Run::read_finished(&run_dir.path, state.iteration) {
+            if let Some(run) = Run::read_finished(&dir.path, state.iteration) {
                 return Ok(Outcome::AlreadyDone(Box::new(run)));
             }
         }
         observer.resumed(state.iteration, &state.settings.changes(settings));
     }
-    let engine = Engine::new(ctx, scene, settings, |s, d, t| observer.target_progress(s, d, t))?;
+    let engine = Engine::new(device, scene, settings, observer, &options.cancel)?;
     engine.warm_up()?;
     let has_reference = scene.sensors.iter().all(|s| s.target_image.is_none());
     let params = engine.scene().layout.slots.iter().map(|s| s.name.clone()).collect();
     let mut run = Loop {
         engine: &engine,
-        run_dir: &run_dir,
+        run_dir: run_dir.as_ref(),
         identity,
         has_reference,
         log: Log { params, rows: Vec::new() },
@@ -632,42 +697,49 @@ pub fn optimise(ctx: &Arc<Context>, scene: &Scene, settings: &RunSettings, out_d
             run.log.rows.push(row);
         }
     }
-    let total_time_s = run.iterate(observer)?;
-    finish(ctx, scene, &engine, run, total_time_s)
+    let total_time_s = run.iterate(observer, &options.cancel)?;
+    finish(device, scene, &engine, run, total_time_s)
 }
 
 /// Commits the last checkpoint, unless it is committed already (a checkpoint is never
-/// written over the committed one: src/rundir.rs), and writes the outputs.
-fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, mut run: Loop, total_time_s: f64) -> Result<Outcome> {
+/// written over the committed one: src/rundir.rs), and writes the outputs: all of them,
+/// the logs included, so that a run resumed after its last checkpoint was committed (killed
+/// before its outputs were written) rebuilds every one from the checkpoint.
+fn finish(device: &Device, scene: &Scene, engine: &Engine, mut run: Loop, total_time_s: f64) -> Result<Outcome> {
     if run.committed != Some(run.iteration) {
         run.checkpoint(total_time_s)?;
     }
-    debug_point("run.checkpointed");
-    let out_dir = &run.run_dir.path;
+    if let Some(dir) = run.run_dir {
+        dir.debug_point("run.checkpointed");
+        run.write_logs(&dir.path)?;
+    }
     let settings = &engine.settings;
     let theta = engine.theta()?;
-    write_params(out_dir, engine, &theta)?;
-    crate::scene::write::write_final(out_dir, scene, &engine.scene().layout.recovered(&theta))?;
+    let layout = &engine.scene().layout;
     let eval_spp = settings.primal_spp.max(64);
     let seeds = [gpu_seed(settings.seed) ^ 0x5EED, gpu_seed(settings.seed) ^ 0x5EED_B0B0];
     let (final_image_error, images) = engine.image_error(None, eval_spp, seeds)?;
-    image::write_exr(&out_dir.join("final.exr"), &images[0])?;
     // The same renders of the reference (common random numbers: the same seeds), whose
     // error is what the target's own noise leaves.
     let reference_image_error = match run.has_reference {
-        true => Some(engine.image_error(Some(&engine.scene().layout.reference()), eval_spp, seeds)?.0),
+        true => Some(engine.image_error(Some(&layout.reference()), eval_spp, seeds)?.0),
         false => None,
     };
-    write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;
-    let path = out_dir.join("optimiser.png");
-    let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);
-    crate::optim::csv::plot(&path, &title, &[("", &run.diag)]).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    if engine.carry.is_some() {
-        let path = out_dir.join(CARRY_PNG);
-        let title = format!("{}: {} carried primal image", scene.path.display(), settings.optimiser.label);
-        run.carry.plot(&path, &title).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    if let Some(dir) = run.run_dir {
+        let out_dir = &dir.path;
+        write_params(out_dir, &layout.values(&theta))?;
+        crate::scene::write::write_final(out_dir, scene, &layout.recovered(&theta))?;
+        image::write_exr(&out_dir.join("final.exr"), &images[0])?;
+        write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;
+        let path = out_dir.join("optimiser.png");
+        let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);
+        crate::optim::csv::plot(&path, &title, &[("", &run.diag)]).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        if engine.carry.is_some() {
+            let path = out_dir.join(CARRY_PNG);
+            let title = format!("{}: {} carried primal image", scene.path.display(), settings.optimiser.label);
+            run.carry.plot(&path, &title).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+        }
     }
-    let layout = &engine.scene().layout;
     let opt = engine.optimiser()?;
     let pass_ms = run.pass_samples.into_iter().map(|(k, mut v)| (k, crate::bench::median(&mut v))).collect();
     let meta_n_eff = opt.meta_n_eff()?.map(|n_eff| {
@@ -695,13 +767,16 @@ fn finish(ctx: &Arc<Context>, scene: &Scene, engine: &Engine, mut run: Loop, tot
         pass_ms,
         nonfinite_gradients: opt.nonfinite_count()?,
         meta_n_eff,
-        device: ctx.info().name.clone(),
+        device: device.info().name.clone(),
         started_from: scene.optimise.started_from.as_ref().map(|p| p.display().to_string()),
         interrupted: run.interrupted,
     };
-    let path = out_dir.join("summary.json");
-    image::write_bytes_atomic(&path, &json_bytes(&summary)?).map_err(io_err(&path))?;
-    Ok(Outcome::Finished(Box::new(Run { summary, log: run.log })))
+    if let Some(dir) = run.run_dir {
+        let path = dir.path.join("summary.json");
+        image::write_bytes_atomic(&path, &json_bytes(&summary)?).map_err(io_err(&path))?;
+    }
+    let params = layout.values(&theta);
+    Ok(Outcome::Finished(Box::new(Run { summary, log: run.log, params })))
 }
 
 #[cfg(test)]

@@ -18,15 +18,17 @@
 //!   a complete checkpoint. Directories the pointer does not name are leftovers of an
 //!   interrupted commit and are ignored (and removed by the next commit).
 //!
-//! Debug builds stop at named steps for tests: `VKINVERSE_DEBUG_ABORT_AT=STEP[:N]` aborts
-//! the process the N-th time (default 1) it reaches STEP, `VKINVERSE_DEBUG_PAUSE_AT=STEP`
-//! prints `vkinverse: paused at STEP` to stderr and sleeps a minute there. The steps:
+//! Debug builds stop at named steps for tests ([`crate::config::DebugStops`]; the command
+//! line's `VKINVERSE_DEBUG_ABORT_AT=STEP[:N]` aborts the process the N-th time, default 1,
+//! it reaches STEP, `VKINVERSE_DEBUG_PAUSE_AT=STEP` prints `vkinverse: paused at STEP` to
+//! stderr and sleeps a minute there). The steps:
 //! `run.locked` (lock held, nothing written), `overwrite.cleared` (the old run's pointer
 //! removed, its other files not yet), `checkpoint.written` (new checkpoint directory
 //! complete, pointer not yet replaced), `checkpoint.committed` (pointer replaced, older
 //! directories not yet removed), `run.checkpointed` (a finished run's last checkpoint
 //! committed, its outputs not yet written).
 
+use crate::config::DebugStops;
 use crate::error::{Error, Result};
 use crate::image::write_bytes_atomic;
 use serde::{Deserialize, Serialize};
@@ -52,11 +54,15 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
     move |source| Error::Io { path: path.to_path_buf(), source }
 }
 
-/// Stops the process at `step` when a debug build is told to (module documentation).
-pub fn debug_point(step: &str) {
+/// How many times this process reached each step, for [`DebugStops::abort_at`]'s count.
+#[cfg(debug_assertions)]
+static REACHED: std::sync::Mutex<Vec<(String, u32)>> = std::sync::Mutex::new(Vec::new());
+
+/// Stops the process at `step` when a debug build is told to by `stops` (module
+/// documentation).
+fn debug_point(stops: &DebugStops, step: &str) {
     #[cfg(debug_assertions)]
     {
-        static REACHED: std::sync::Mutex<Vec<(String, u32)>> = std::sync::Mutex::new(Vec::new());
         let count = {
             let mut reached = REACHED.lock().unwrap_or_else(|e| e.into_inner());
             match reached.iter_mut().find(|(s, _)| s == step) {
@@ -70,31 +76,36 @@ pub fn debug_point(step: &str) {
                 }
             }
         };
-        if let Ok(at) = std::env::var("VKINVERSE_DEBUG_ABORT_AT") {
-            let (name, nth) = at.split_once(':').map_or((at.as_str(), 1), |(s, n)| (s, n.parse().unwrap_or(1)));
-            if name == step && nth == count {
+        if let Some((name, nth)) = &stops.abort_at {
+            if name == step && *nth == count {
                 eprintln!("vkinverse: aborting at {step}");
                 std::process::abort();
             }
         }
-        if std::env::var("VKINVERSE_DEBUG_PAUSE_AT").is_ok_and(|s| s == step) {
+        if stops.pause_at.as_deref() == Some(step) {
             eprintln!("vkinverse: paused at {step}");
             std::thread::sleep(std::time::Duration::from_secs(60));
         }
     }
     #[cfg(not(debug_assertions))]
-    let _ = step;
+    let _ = (stops, step);
 }
 
 /// A run directory held by this process (the lock is released on drop).
 pub struct RunDir {
     pub path: PathBuf,
     _lock: File,
+    stops: DebugStops,
 }
 
 impl RunDir {
+    /// Stops the process at `step` where the debug stops say so.
+    pub fn debug_point(&self, step: &str) {
+        debug_point(&self.stops, step);
+    }
+
     /// Creates (if need be) and locks `path`, then applies `mode` to a run found there.
-    pub fn open(path: &Path, mode: Mode) -> Result<RunDir> {
+    pub fn open(path: &Path, mode: Mode, stops: &DebugStops) -> Result<RunDir> {
         fs::create_dir_all(path).map_err(io(path))?;
         let lock_path = path.join(".lock");
         let lock = File::options().create(true).truncate(false).write(true).open(&lock_path).map_err(io(&lock_path))?;
@@ -105,8 +116,8 @@ impl RunDir {
             }
             Err(fs::TryLockError::Error(e)) => return Err(io(&lock_path)(e)),
         }
-        let dir = RunDir { path: path.to_path_buf(), _lock: lock };
-        debug_point("run.locked");
+        let dir = RunDir { path: path.to_path_buf(), _lock: lock, stops: stops.clone() };
+        dir.debug_point("run.locked");
         let used: Vec<&str> = RUN_FILES.iter().copied().filter(|f| path.join(f).exists()).collect();
         match mode {
             Mode::New if !used.is_empty() => {
@@ -134,7 +145,7 @@ impl RunDir {
         if pointer.exists() {
             fs::remove_file(&pointer).map_err(io(&pointer))?;
         }
-        debug_point("overwrite.cleared");
+        self.debug_point("overwrite.cleared");
         for name in RUN_FILES {
             let p = self.path.join(name);
             let removed = if p.is_dir() { fs::remove_dir_all(&p) } else { fs::remove_file(&p) };
@@ -176,10 +187,10 @@ impl RunDir {
         fs::create_dir_all(&dir).map_err(io(&dir))?;
         write(&dir)?;
         sync_dir(&dir)?;
-        debug_point("checkpoint.written");
+        self.debug_point("checkpoint.written");
         write_bytes_atomic(&self.pointer(), format!("{name}\n").as_bytes()).map_err(io(&self.pointer()))?;
         sync_dir(&root)?;
-        debug_point("checkpoint.committed");
+        self.debug_point("checkpoint.committed");
         for entry in fs::read_dir(&root).map_err(io(&root))? {
             let entry = entry.map_err(io(&root))?;
             let p = entry.path();
@@ -277,7 +288,7 @@ mod tests {
     #[test]
     fn commits_replace_the_pointer_and_then_the_old_directory() {
         let path = scratch("commit");
-        let dir = RunDir::open(&path, Mode::New).unwrap();
+        let dir = RunDir::open(&path, Mode::New, &DebugStops::default()).unwrap();
         assert_eq!(dir.committed().unwrap(), None);
         dir.commit(&checkpoint_name(3), |d| {
             fs::write(d.join("x"), "3").unwrap();
@@ -305,18 +316,18 @@ mod tests {
     #[test]
     fn a_second_holder_and_a_used_directory_are_refused() {
         let path = scratch("lock");
-        let first = RunDir::open(&path, Mode::New).unwrap();
-        let busy = RunDir::open(&path, Mode::Overwrite).err().unwrap().to_string();
+        let first = RunDir::open(&path, Mode::New, &DebugStops::default()).unwrap();
+        let busy = RunDir::open(&path, Mode::Overwrite, &DebugStops::default()).err().unwrap().to_string();
         assert!(busy.contains("another run") && busy.contains(&path.display().to_string()), "{busy}");
         first.commit("0000000001", |_| Ok(())).unwrap();
         drop(first);
-        let used = RunDir::open(&path, Mode::New).err().unwrap().to_string();
+        let used = RunDir::open(&path, Mode::New, &DebugStops::default()).err().unwrap().to_string();
         assert!(used.contains("--resume") && used.contains("checkpoint"), "{used}");
         assert!(path.join("checkpoint/current").exists(), "a refusal deletes nothing");
-        RunDir::open(&path, Mode::Resume).unwrap();
-        drop(RunDir::open(&path, Mode::Overwrite).unwrap());
+        RunDir::open(&path, Mode::Resume, &DebugStops::default()).unwrap();
+        drop(RunDir::open(&path, Mode::Overwrite, &DebugStops::default()).unwrap());
         assert!(!path.join("checkpoint").exists());
-        let none = RunDir::open(&path, Mode::Resume).err().unwrap().to_string();
+        let none = RunDir::open(&path, Mode::Resume, &DebugStops::default()).err().unwrap().to_string();
         assert!(none.contains("no committed checkpoint"), "{none}");
     }
 }

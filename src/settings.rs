@@ -3,9 +3,10 @@
 //! Every setting is declared once, in the [`settings!`] invocation below: its name, type,
 //! default and documentation. From that one declaration come
 //! - [`Settings`], one layer of settings, every value optional: the same struct is the
-//!   command line's flags (clap, flattened into `optimise`, `compare`), the scene's
-//!   `[optimise]` table and a job file's shared settings and `[[jobs]]` entries (serde,
-//!   through [`SettingsTable`], which keeps toml's line numbers in errors);
+//!   command line's flags (which the binary declares from [`Settings::FIELDS`] and sets
+//!   with [`Settings::set`]), the scene's `[optimise]` table and a job file's shared
+//!   settings and `[[jobs]]` entries (serde, through [`SettingsTable`], which keeps toml's
+//!   line numbers in errors), and a binding's keywords;
 //! - [`RunSettings`], the settings of one run with every value resolved;
 //! - the per-setting plumbing: layering ([`Settings::then`]), key lists, table
 //!   deserialization, the list of changed settings reported on `--resume`.
@@ -82,22 +83,46 @@ macro_rules! first_type {
     };
 }
 
-/// Declares every setting: `NAME: LAYER_TYPE [=> RESOLVED_TYPE] = DEFAULT,` with its doc
-/// comment and its clap attributes. The resolved type must be `From` the layer type.
+/// How a setting is given on a command line: a flag with a value (shown as `value`), or a
+/// switch that may take `true` or `false` (`--fd-two-trace`, `--fd-two-trace false`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Arity {
+    Value(&'static str),
+    Switch,
+}
+
+/// One setting as a command line or a binding declares it: its key (`fd_spp`; the flag is
+/// `--fd-spp`), how it takes its value and its help text. Made from the one declaration
+/// that also parses and documents it, so that no help text can go stale.
+#[derive(Clone, Copy, Debug)]
+pub struct Field {
+    pub key: &'static str,
+    pub arity: Arity,
+    pub help: &'static str,
+}
+
+impl Field {
+    /// The key as a command-line flag: `--fd-spp`.
+    pub fn flag(&self) -> String {
+        format!("--{}", self.key.replace('_', "-"))
+    }
+}
+
+/// Declares every setting: `NAME: LAYER_TYPE [=> RESOLVED_TYPE] = DEFAULT, ARITY;` with its
+/// doc comment, which is its help text. The resolved type must be `From` the layer type,
+/// and the layer type `FromStr` (its text on a command line).
 macro_rules! settings {
     ($(
         $(#[doc = $doc:literal])*
-        #[arg($($arg:tt)*)]
-        $name:ident : $ty:ty $(=> $resolved:ty)? = $default:expr;
+        $name:ident : $ty:ty $(=> $resolved:ty)? = $default:expr, $arity:expr;
     )*) => {
-        /// One layer of run settings (command line, scene `[optimise]`, job file); `None`
-        /// leaves the value to the layers below.
-        #[derive(Clone, Debug, Default, PartialEq, clap::Args, Serialize, Deserialize)]
+        /// One layer of run settings (command line, scene `[optimise]`, job file, a
+        /// binding's keywords); `None` leaves the value to the layers below.
+        #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
         #[serde(deny_unknown_fields)]
         pub struct Settings {
             $(
                 $(#[doc = $doc])*
-                #[arg($($arg)*)]
                 #[serde(default, skip_serializing_if = "Option::is_none")]
                 pub $name: Option<$ty>,
             )*
@@ -115,6 +140,26 @@ macro_rules! settings {
         impl Settings {
             /// Every setting's key, as in TOML; on the command line `_` is `-`.
             pub const KEYS: &'static [&'static str] = &[$(stringify!($name)),*];
+
+            /// Every setting with its arity and help text, in declaration order.
+            pub const FIELDS: &'static [Field] = &[$(Field {
+                key: stringify!($name),
+                arity: $arity,
+                help: concat!($($doc, "\n"),*),
+            }),*];
+
+            /// Sets setting `key` from its text (as a command line gives it); the error
+            /// names what is wrong with the value. An unknown key is an error too.
+            pub fn set(&mut self, key: &str, text: &str) -> Result<(), Invalid> {
+                match key {
+                    $( stringify!($name) => {
+                        let value = text.trim().parse::<$ty>().map_err(|e| Invalid { key: stringify!($name), message: format!("'{text}': {e}") })?;
+                        self.$name = Some(value);
+                    } )*
+                    _ => return Err(Invalid { key: "setting", message: format!("unknown setting '{key}' (expected one of {})", Self::KEYS.join(", ")) }),
+                }
+                Ok(())
+            }
 
             /// `self` with every value that `over` sets replaced by `over`'s.
             fn overlay(&self, over: &Settings) -> Settings {
@@ -163,57 +208,43 @@ macro_rules! settings {
 settings! {
     /// Optimiser spec NAME[@KEY=VALUE]...: meta or adam, with hyperparameters
     /// (`adam@beta1=0.5`).
-    #[arg(long, value_name = "SPEC", allow_hyphen_values = true)]
-    optimiser: Spec = Spec::default();
+    optimiser: Spec = Spec::default(), Arity::Value("SPEC");
     /// Image loss: l2, l1 or relative_l2.
-    #[arg(long, value_name = "LOSS")]
-    loss: Loss = Loss::L2;
+    loss: Loss = Loss::L2, Arity::Value("LOSS");
     /// Iterations (with a time budget: at most this many).
-    #[arg(long, value_name = "N")]
-    iterations: u32 => Option<u32> = Some(500);
+    iterations: u32 => Option<u32> = Some(500), Arity::Value("N");
     /// Stop after this many seconds of optimisation (instead of, or on top of, iterations).
-    #[arg(long, value_name = "SEC", allow_negative_numbers = true)]
-    time_budget: f64 => Option<f64> = None;
+    time_budget: f64 => Option<f64> = None, Arity::Value("SEC");
     /// Samples per pixel of the gradient estimate's adjoint pass.
-    #[arg(long, value_name = "N")]
-    spp: u32 = 2;
+    spp: u32 = 2, Arity::Value("N");
     /// Samples per pixel of the meta-estimator's finite-difference sample.
-    #[arg(long, value_name = "N")]
-    fd_spp: u32 = 1;
+    fd_spp: u32 = 1, Arity::Value("N");
     /// The meta-estimator's finite-difference sample traces every N-th pixel of each row
     /// (2: a checkerboard that moves every iteration), each weighted N times: 1/N of its
     /// cost, N times its variance. Above 1 the losses read each iteration's own primal
     /// render (meta's carried image needs the sample on every pixel).
-    #[arg(long, value_name = "N")]
-    fd_stride: u32 = 1;
+    fd_stride: u32 = 1, Arity::Value("N");
     /// Samples per pixel of the gradient estimate's primal render.
-    #[arg(long, value_name = "N")]
-    primal_spp: u32 = 4;
+    primal_spp: u32 = 4, Arity::Value("N");
     /// Samples per pixel of the target images rendered from the scene's reference values
     /// (a sensor without `target_image`); a glossy scene may need more for a target whose
     /// noise does not move the loss's optimum.
-    #[arg(long, value_name = "N")]
-    target_spp: u32 = 1024;
+    target_spp: u32 = 1024, Arity::Value("N");
     /// Learning rate: the typical parameter change per iteration (given here, it replaces
     /// the scene's per-parameter rates).
-    #[arg(long, value_name = "X", allow_negative_numbers = true)]
-    lr: f64 = 0.02;
+    lr: f64 = 0.02, Arity::Value("X");
     /// Learning-rate schedule DECAY[@KEY=VALUE]...: constant, cosine (keys horizon, floor)
     /// or step (every, gamma), each with an optional warmup; given, it replaces the
     /// optimiser spec's own. A cosine without a horizon decays over the run's iterations.
-    #[arg(long, value_name = "SCHEDULE")]
-    schedule: Schedule => Option<Schedule> = None;
+    schedule: Schedule => Option<Schedule> = None, Arity::Value("SCHEDULE");
     /// Seed of every random-number stream of the run.
-    #[arg(long, value_name = "S")]
-    seed: u64 = 0;
+    seed: u64 = 0, Arity::Value("S");
     /// Commit a checkpoint every N iterations (and at the end).
-    #[arg(long, value_name = "N")]
-    checkpoint_every: u32 = 50;
+    checkpoint_every: u32 = 50, Arity::Value("N");
     /// Meta: trace each parameter state separately for the finite-difference sample instead
     /// of the fused single trace (for comparison; with `var=zero`, since two traces cannot
     /// split their pixels for the centred variance estimate).
-    #[arg(long, num_args = 0..=1, default_missing_value = "true", value_name = "BOOL")]
-    fd_two_trace: bool = false;
+    fd_two_trace: bool = false, Arity::Switch;
 }
 
 /// A bad setting: its key (as in TOML) and what is wrong.
@@ -276,6 +307,13 @@ impl Settings {
             run.iterations = None;
         }
         run
+    }
+}
+
+impl Settings {
+    /// The run settings of `scene` with this layer on top (defaults below the scene's).
+    pub fn resolve_for(&self, scene: &crate::scene::Scene) -> RunSettings {
+        Settings::resolve(&scene.optimise.settings, self)
     }
 }
 
@@ -474,6 +512,25 @@ mod tests {
         assert!(err.contains("sppp"), "{err}");
         let err = toml::from_str::<Settings>("optimiser = 'sgd'").unwrap_err().to_string();
         assert!(err.contains("unknown optimiser 'sgd'"), "{err}");
+    }
+
+    #[test]
+    fn fields_declare_every_key_and_set_parses_their_text() {
+        let keys: Vec<&str> = Settings::FIELDS.iter().map(|f| f.key).collect();
+        assert_eq!(keys, Settings::KEYS);
+        assert!(Settings::FIELDS.iter().all(|f| !f.help.trim().is_empty()), "every setting has help text");
+        let spp = Settings::FIELDS.iter().find(|f| f.key == "fd_spp").unwrap();
+        assert_eq!((spp.flag(), spp.arity), ("--fd-spp".to_string(), Arity::Value("N")));
+        let mut s = Settings::default();
+        for (key, text) in [("spp", "3"), ("lr", "0.5"), ("optimiser", "adam@beta1=0.5"), ("loss", "l1"), ("fd_two_trace", "true"), ("schedule", "cosine")] {
+            s.set(key, text).unwrap_or_else(|e| panic!("{key} = {text}: {}", e.message));
+        }
+        assert_eq!(s, layer("spp = 3\nlr = 0.5\noptimiser = 'adam@beta1=0.5'\nloss = 'l1'\nfd_two_trace = true\nschedule = 'cosine'"));
+        let e = s.set("spp", "three").unwrap_err();
+        assert_eq!(e.key, "spp");
+        assert!(e.message.contains("'three'"), "{}", e.message);
+        assert!(s.set("optimiser", "sgd").unwrap_err().message.contains("unknown optimiser 'sgd'"));
+        assert!(s.set("sppp", "1").unwrap_err().message.contains("unknown setting 'sppp'"));
     }
 
     #[test]

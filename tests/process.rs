@@ -1,49 +1,23 @@
-//! Tests that measure or change what belongs to the whole process: its resident memory and
-//! its environment. They have a binary of their own, since the suite's (`tests/suite/`) runs
-//! many tests at once in one process, and take one lock, so that here too they run one at
-//! a time.
+//! Tests that measure what belongs to the whole process: its resident memory. They have a
+//! binary of their own, since the suite's (`tests/suite/`) runs many tests at once in one
+//! process, and take one lock, so that here too they run one at a time.
 
 #[path = "suite/common/mod.rs"]
 mod common;
 
 use std::sync::{Arc, Mutex};
 
-use common::scenes::{renders_targets, sphere_obj, temp_dir, write_scene, TARGET_SCENE};
 use common::with_gpu;
-use vkinverse::bvh::BvhLayout;
 use vkinverse::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
 use vkinverse::ops::BufferOps;
-use vkinverse::render::gradient::GradientPass;
-use vkinverse::render::targets::cache_dirs;
-use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::render::gradient::{GradientInputs, GradientPass};
+use vkinverse::render::{GpuScene, PrimalRenderer};
 use vkinverse::scene::{Film, LoadOptions, Loss, Scene};
 
 static ALONE: Mutex<()> = Mutex::new(());
 
 fn alone() -> std::sync::MutexGuard<'static, ()> {
     ALONE.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-/// A scene directory that cannot take the target cache (a file stands where the cache
-/// directory would be, which stops root too) has its targets cached in the user's cache
-/// directory (`VKINVERSE_CACHE_DIR` here), and read back from there.
-#[test]
-fn a_read_only_scene_uses_the_user_cache() {
-    let _alone = alone();
-    let user_cache = temp_dir("user-cache");
-    // Set while the lock keeps this binary's other test (and its contexts, whose driver
-    // reads the environment) from running.
-    std::env::set_var("VKINVERSE_CACHE_DIR", &user_cache);
-    let path = write_scene("target-cache-ro", TARGET_SCENE, &sphere_obj(1.0, 1, false));
-    std::fs::write(path.with_file_name(".vkinverse-cache"), "not a directory").unwrap();
-    let scene = Scene::load(&path).unwrap();
-    assert_eq!(cache_dirs(&scene)[1], user_cache);
-    with_gpu(|ctx| {
-        let before = std::fs::read_dir(&user_cache).unwrap().count();
-        assert!(renders_targets(ctx, &scene, BvhLayout::Wide));
-        assert_eq!(std::fs::read_dir(&user_cache).unwrap().count(), before + 1);
-        assert!(!renders_targets(ctx, &scene, BvhLayout::Wide), "read back from the user cache");
-    });
 }
 
 /// Resident pages of this process (the second field of /proc/self/statm).
@@ -72,7 +46,7 @@ fn thousand_resubmitted_gradient_iterations_keep_memory_constant() {
     let options = LoadOptions { film: Some(Film { width: 8, height: 8 }), max_depth: Some(4) };
     let scene = Scene::load_with(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml"), &options).unwrap();
     with_gpu(|ctx: &Arc<Context>| {
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let gs = &renderer.scene;
         gs.set_theta(gs.layout.reference()).unwrap();
         gs.set_frame(0).unwrap();
@@ -80,7 +54,22 @@ fn thousand_resubmitted_gradient_iterations_keep_memory_constant() {
         gs.set_theta(gs.layout.initial()).unwrap();
         let ops = BufferOps::new(ctx).unwrap();
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len, MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &targets, Loss::L2, 1, 1, 1, &gs.theta, None, &grad, None).unwrap();
+        let pass = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: &targets,
+                loss: Loss::L2,
+                spp: 1,
+                primal_spp: 1,
+                seed: 1,
+                theta: &gs.theta,
+                theta_prev: None,
+                grad: &grad,
+                grad_half: None,
+            },
+        )
+        .unwrap();
         let mut cmd = CommandBuffer::new(ctx, "gradient").unwrap();
         cmd.record(|rec| pass.record(rec, gs, &ops)).unwrap();
         let iterate = |cmd: &mut CommandBuffer, frames: std::ops::Range<u32>| {

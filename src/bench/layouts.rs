@@ -13,7 +13,7 @@ use super::median;
 use super::scene::camera_rays;
 use crate::bvh::{BvhLayout, TraceResult};
 use crate::error::Result;
-use crate::gpu::{Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
+use crate::gpu::{BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
 use crate::push::CountPush;
 use crate::render::gradient::SEED_PRIMAL;
 use crate::render::{record_samples, GpuScene, TracePush};
@@ -108,16 +108,13 @@ impl Setup {
             closest_prof.reset(rec);
             any_prof.reset(rec);
             primal_prof.reset(rec);
-            rec.transition(&[(&results, Access::ComputeWrite)])?;
             closest_prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(&closest, &closest_group, &push, n))?;
-            // Both kernels write the results.
-            rec.barrier(&results, Access::ComputeWrite, Access::ComputeWrite)?;
+            // Both kernels write the results (the recorder orders them).
             any_prof.scope(rec, "trace_test", |rec, _| rec.dispatch_linear(&any, &any_group, &push, n))?;
             for s in 0..sensors {
                 // Each submission accumulates every sensor's render onto the image.
-                rec.transition(&[(&image, Access::ComputeReadWrite)])?;
                 let push = primal_push(&gs, st, s);
-                primal_prof.scope(rec, "trace_primal", |rec, _| record_samples(rec, &gs, &primal, &primal_group, push, push.spp, &[&image]))?;
+                primal_prof.scope(rec, "trace_primal", |rec, _| record_samples(rec, &gs, &primal, &primal_group, push, push.spp))?;
             }
             Ok(())
         })?;
@@ -178,9 +175,8 @@ fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &RunSettings) -> Res
     cmd.record(|rec| {
         for s in 0..gs.sensors as u32 {
             // Each sensor's render and count accumulate onto the previous one's.
-            rec.transition(&[(&image, Access::ComputeReadWrite), (&counters, Access::ComputeReadWrite)])?;
             let push = primal_push(gs, st, s);
-            record_samples(rec, gs, &counting, &group, push, push.spp, &[&image, &counters])?;
+            record_samples(rec, gs, &counting, &group, push, push.spp)?;
         }
         Ok(())
     })?;
@@ -189,7 +185,8 @@ fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &RunSettings) -> Res
 }
 
 /// Runs the comparison over `rounds` rounds.
-pub fn layout_bench(ctx: &Arc<Context>, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
+pub fn layout_bench(device: &crate::device::Device, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
+    let ctx = device.ctx();
     let rounds = rounds.max(1);
     let st = RunSettings::of_scene(scene);
     let mut setups = BvhLayout::ALL.map(|layout| Setup::new(ctx, scene, &st, layout)).into_iter().collect::<Result<Vec<_>>>()?;

@@ -260,11 +260,12 @@ pub(super) fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 /// passes on a synthetic θ of `optimiser_elements` parameters.
 /// `warm_up`: how long to repeat the scene's iteration, untimed, before timing it (at least
 /// once).
-pub fn scene_bench(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimiser_elements: u64, warm_up: Duration) -> Result<SceneBench> {
+pub fn scene_bench(device: &crate::device::Device, scene: &Scene, iterations: u32, optimiser_elements: u64, warm_up: Duration) -> Result<SceneBench> {
+    let ctx = device.ctx();
     let iterations = iterations.max(1);
     // First, so that its buffers (large at 16M parameters) are gone before the scene's.
     let optimisers = optimiser_bandwidth(ctx, optimiser_elements, iterations)?;
-    measure_scene(ctx, scene, iterations, optimisers, warm_up)
+    measure_scene(device, scene, iterations, optimisers, warm_up)
 }
 
 /// The bench's own passes beside the engine's: the other optimiser, the two-trace
@@ -288,8 +289,6 @@ struct Variant {
     pipe: ComputePipeline,
     group: BindGroup,
     image: Buffer,
-    /// The buffers its dispatches add to: the image, and any other (ray counters).
-    accumulated: Vec<Buffer>,
 }
 
 impl Variant {
@@ -315,29 +314,16 @@ impl Variant {
         b.push(("Accum", &image));
         b.extend_from_slice(extra);
         let group = pipe.bind(&b)?;
-        Ok(Variant { pipe, group, accumulated: vec![image.clone()], image })
+        Ok(Variant { pipe, group, image })
     }
 
-    /// The variant with `b` among the buffers its dispatches add to.
-    fn accumulating(mut self, b: &Buffer) -> Self {
-        self.accumulated.push(b.clone());
-        self
-    }
-
-    /// Adds its render of every sensor at the primal pass's push constants to its image.
-    fn record(&self, rec: &mut crate::gpu::Recorder, engine: &Engine, mut prof: Option<&mut Profiler>) -> gpu::Result<()> {
+    /// Adds its render of every sensor at the primal pass's push constants to its image
+    /// (the renders accumulate into one image), each in a scope called `trace_primal`.
+    fn record(&self, rec: &mut crate::gpu::Recorder, engine: &Engine) -> gpu::Result<()> {
         let gs = engine.scene();
-        let acc: Vec<&Buffer> = self.accumulated.iter().collect();
-        let rw: Vec<(&Buffer, Access)> = acc.iter().map(|&b| (b, Access::ComputeReadWrite)).collect();
         for s in 0..gs.sensors as u32 {
-            // The renders accumulate into one image.
-            rec.transition(&rw)?;
             let push = engine.gradient.primal_push(gs, s);
-            let pass = |rec: &mut crate::gpu::Recorder| record_samples(rec, gs, &self.pipe, &self.group, push, push.spp, &acc);
-            match prof.as_deref_mut() {
-                Some(p) => p.scope(rec, "trace_primal", |rec, _| pass(rec))?,
-                None => pass(rec)?,
-            }
+            rec.scope("trace_primal", |rec| record_samples(rec, gs, &self.pipe, &self.group, push, push.spp))?;
         }
         Ok(())
     }
@@ -380,12 +366,12 @@ fn count_rays(ctx: &Arc<Context>, engine: &Engine, x: &Extras) -> Result<(u64, [
     let gs = engine.scene();
     let specialised = Variant::new(ctx, gs, "trace_primal", &gs.spec(), "image specialised", &[])?;
     let counters = Buffer::zeroed::<u32>(ctx, "ray count", gs.pixels().div_ceil(specialised.pipe.local_size()[0] as usize), MemoryKind::Device)?;
-    let counting = Variant::new(ctx, gs, "trace_primal_count", &gs.spec(), "image counted", &[("RayCount", &counters)])?.accumulating(&counters);
+    let counting = Variant::new(ctx, gs, "trace_primal_count", &gs.spec(), "image counted", &[("RayCount", &counters)])?;
     gs.set_frame(0)?;
     let mut check = CommandBuffer::new(ctx, "ray count")?;
     check.record(|rec| {
         for v in [&specialised, &x.generic, &x.sampled, &counting] {
-            v.record(rec, engine, None)?;
+            v.record(rec, engine)?;
         }
         Ok(())
     })?;
@@ -410,37 +396,37 @@ fn record_timed(cmd: &mut CommandBuffer, profs: &mut [Profiler], engine: &Engine
         }
         let [grad, fd, fd_two, opt, iter, eq, generic, sampled] = profs else { unreachable!("one profiler per group") };
         iter.begin(rec, "iteration")?;
-        engine.record_gradient(rec, Some(grad))?;
-        engine.record_fd(rec, Some(fd))?;
-        x.fd_two.record(rec, gs, ops, &engine.fd_grad, Some(fd_two))?;
-        engine.record_step(rec, engine.optimiser.as_ref().expect("the engine's optimiser"), Some(opt))?;
-        engine.record_step(rec, &x.adam, Some(opt))?;
-        // The copy reads θ, which the optimisers wrote.
-        rec.transition(&[(&gs.theta, Access::ComputeRead), (&x.theta_copy, Access::ComputeWrite)])?;
-        opt.scope(rec, "copy", |rec, _| ops.copy(rec, &gs.theta, &x.theta_copy))?;
+        rec.with_profiler(grad, |rec| engine.record_gradient(rec))?;
+        rec.with_profiler(fd, |rec| engine.record_fd(rec))?;
+        rec.with_profiler(fd_two, |rec| x.fd_two.record(rec, gs, ops, &engine.fd_grad))?;
+        rec.with_profiler(opt, |rec| {
+            engine.record_step(rec, engine.optimiser.as_ref().expect("the engine's optimiser"))?;
+            engine.record_step(rec, &x.adam)?;
+            // The copy reads θ, which the optimisers wrote.
+            rec.scope("copy", |rec| ops.copy(rec, &gs.theta, &x.theta_copy))
+        })?;
         // What the host reads back, as an optimisation's iteration records it.
         engine.report.record(rec)?;
         iter.end(rec)?;
-        x.equal.record_passes(rec, gs, ops, true, Some(eq))?;
-        x.generic.record(rec, engine, Some(generic))?;
-        x.sampled.record(rec, engine, Some(sampled))?;
+        rec.with_profiler(eq, |rec| x.equal.record_passes(rec, gs, ops, true))?;
+        rec.with_profiler(generic, |rec| x.generic.record(rec, engine))?;
+        rec.with_profiler(sampled, |rec| x.sampled.record(rec, engine))?;
         Ok(())
     })?;
     Ok(())
 }
 
-fn measure_scene(ctx: &Arc<Context>, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth, warm_up: Duration) -> Result<SceneBench> {
+fn measure_scene(device: &crate::device::Device, scene: &Scene, iterations: u32, optimisers: OptimiserBandwidth, warm_up: Duration) -> Result<SceneBench> {
     let mut st = RunSettings::of_scene(scene);
     if !st.optimiser.optimiser.needs_fd() {
         st.optimiser = Spec::default();
     }
     st.fd_two_trace = false;
-    let engine = Engine::new(ctx, scene, &st, |_, _, _| {})?;
+    let ctx = device.ctx();
+    let engine = Engine::new(device, scene, &st, &mut (), &crate::cancel::Cancel::new())?;
     let x = extras(ctx, &engine)?;
     let (rays, [generic_image_rel_diff, count_image_rel_diff, sampled_image_rel_diff]) = count_rays(ctx, &engine, &x)?;
-    let sensors = engine.scene().sensors as u32;
-    let sizes = [3 * sensors, 3 * sensors, 6 * sensors + 1, 3, 1, 3 * sensors, sensors, sensors];
-    let mut profs = sizes.iter().map(|&n| Profiler::new(ctx, n)).collect::<gpu::Result<Vec<_>>>()?;
+    let mut profs = GROUPS.iter().map(|_| Profiler::new(ctx, Profiler::SCOPES)).collect::<gpu::Result<Vec<_>>>()?;
     let mut cmd = CommandBuffer::new(ctx, "bench iteration")?;
     record_timed(&mut cmd, &mut profs, &engine, &x)?;
     // Warm-up: lavapipe (and some drivers) compile a pipeline on its first dispatch, and a

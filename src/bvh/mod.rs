@@ -245,36 +245,15 @@ pub enum BvhLayout {
 }
 
 impl BvhLayout {
-    /// The layout named by the environment variable `VKINVERSE_BVH_LAYOUT` (`binary`,
-    /// `wide` or `cw8`: a device where another layout measures faster picks it there),
-    /// else [`BvhLayout::default`]. An unknown name is ignored with a warning.
-    pub fn from_env() -> BvhLayout {
-        match std::env::var("VKINVERSE_BVH_LAYOUT") {
-            Ok(name) => name.parse().unwrap_or_else(|e| {
-                eprintln!("warning: VKINVERSE_BVH_LAYOUT: {e}; using {}", BvhLayout::default().name());
-                BvhLayout::default()
-            }),
-            Err(_) => BvhLayout::default(),
-        }
-    }
-
     pub const ALL: [BvhLayout; 3] = [BvhLayout::Binary, BvhLayout::Wide, BvhLayout::Cw8];
 
     /// Whether the traversal of these buffers keeps its stack in registers
     /// (`BVH_STACK_REGISTERS`): the compressed layout's, where its stack never holds more than
-    /// [`CW_STACK_REGISTERS`] entries, unless the environment variable `VKINVERSE_BVH_STACK` is
-    /// `array` (to measure one against the other, or on a device where the array measures
-    /// faster). Any other value than `array` or `auto` is ignored with a warning.
-    pub fn stack_in_registers(bufs: &BvhBuffers) -> bool {
-        let fits = bufs.layout == BvhLayout::Cw8 && bufs.stack_entries <= CW_STACK_REGISTERS;
-        match std::env::var("VKINVERSE_BVH_STACK").as_deref() {
-            Ok("array") => false,
-            Ok("auto") | Err(_) => fits,
-            Ok(other) => {
-                eprintln!("warning: VKINVERSE_BVH_STACK: '{other}' is not array or auto; using auto");
-                fits
-            }
-        }
+    /// [`CW_STACK_REGISTERS`] entries, unless `array` asks for the array (to measure one
+    /// against the other, or on a device where the array measures faster:
+    /// [`crate::Config::bvh_stack_array`]).
+    pub fn stack_in_registers(bufs: &BvhBuffers, array: bool) -> bool {
+        bufs.layout == BvhLayout::Cw8 && bufs.stack_entries <= CW_STACK_REGISTERS && !array
     }
 
     /// The name of the build of `kernel` (e.g. `trace_primal`) that traces this layout.

@@ -1,18 +1,29 @@
-//! Command buffers recorded once and submitted many times, with checked barriers.
+//! Command buffers recorded once and submitted many times, with derived barriers.
 //!
-//! The [`Recorder`] remembers, per buffer, the last access it recorded, the last write, and
-//! what the last barrier made that buffer visible to. Any access after a write (or a write
-//! after a read) that no barrier covers is a [`GpuError::Hazard`] at record time, also a
-//! read of another kind after a barrier that made the write visible to one kind of read
-//! only (a transfer read after write → compute read). Lavapipe runs
-//! dispatches in order, so a missing barrier never shows in its results: this check is
-//! what catches one in tests.
+//! A pass is declared once: its kernel's bindings carry their access, reflected from the
+//! SPIR-V ([`super::BindGroup`]). The [`Recorder`] remembers, per buffer, the last access it
+//! recorded, the last write, and what the barriers since made that write visible to; before
+//! each dispatch, copy or fill it records the barrier that the buffer's previous use
+//! requires (a read after a write waits for the write, a write after anything waits for the
+//! last access), and none where none is needed (reads after reads).
+//!
+//! Hand-written barriers stay possible ([`Recorder::barrier`]); in debug builds their
+//! declared previous access is checked against the recorded one. Passes batched on purpose
+//! — dispatches that write disjoint parts of one buffer, or add into it with atomics — go in
+//! [`Recorder::unordered`], where no barrier is derived between them; a read of what
+//! another dispatch of the batch wrote (or a write over what it read) is then a
+//! [`GpuError::Hazard`] at record time, since nothing orders them.
+//!
+//! With a profiler attached ([`CommandBuffer::record_profiled`], [`Recorder::with_profiler`])
+//! every dispatch outside a named scope is timed in a scope named after its kernel
+//! (consecutive dispatches of one kernel share one), and [`Recorder::scope`] names a pass of
+//! several dispatches.
 //!
 //! Each recording starts with a global barrier (everything earlier submitted → this
 //! submission) and ends with one (this submission → host reads), so state never has to
 //! be tracked across submissions.
 
-use super::{vk_err, Access, BindGroup, Buffer, ComputePipeline, Context, GpuError, PushBlock, Result};
+use super::{vk_err, Access, BindGroup, Buffer, ComputePipeline, Context, GpuError, Profiler, PushBlock, Result};
 use ash::vk;
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -27,6 +38,8 @@ struct Track {
     written: Option<Access>,
     /// What the barriers since the last write made it visible to.
     visible_to: Vec<Access>,
+    /// The unordered batch of the last access, if it was in one.
+    batch: Option<u32>,
 }
 
 impl Track {
@@ -37,12 +50,29 @@ impl Track {
     }
 }
 
-/// Records commands into a [`CommandBuffer`]; see the module doc for the hazard check.
+/// What a recording tracks across the recorders that add to it.
+#[derive(Default)]
+struct State {
+    tracked: HashMap<u64, Track>,
+    /// Unordered batches opened so far (their numbers).
+    batches: u32,
+    /// Barriers recorded (derived or hand-written), for tests and benchmarks.
+    barriers: u32,
+}
+
+/// Records commands into a [`CommandBuffer`]; see the module doc for the derived barriers.
 pub struct Recorder<'a> {
     ctx: &'a Arc<Context>,
     cmd: vk::CommandBuffer,
-    tracked: HashMap<u64, Track>,
+    state: &'a mut State,
     keep: &'a mut Kept,
+    profiler: Option<&'a mut Profiler>,
+    /// Named scopes open on the attached profiler.
+    named: usize,
+    /// The kernel whose automatic scope is open on the attached profiler.
+    auto: Option<String>,
+    /// The unordered batch open, if any.
+    batch: Option<u32>,
 }
 
 /// What a recording uses, kept alive for as long as it may execute.
@@ -54,13 +84,44 @@ struct Kept {
 }
 
 impl Recorder<'_> {
-    fn track(&mut self, pass: &str, buf: &Buffer, access: Access) -> Result<()> {
-        let id = buf.0.id;
-        match self.tracked.get_mut(&id) {
-            Some(t) => {
-                if t.needs_barrier(access) {
-                    return Err(GpuError::Hazard { pass: pass.to_string(), buffer: buf.name().to_string(), previous: t.last, now: access });
+    /// Records the barriers that `list`'s accesses need after what this recording did with
+    /// each buffer, then tracks the accesses. Inside an unordered batch no barrier is
+    /// derived between its own accesses.
+    fn access(&mut self, pass: &str, list: &[(&Buffer, Access)]) -> Result<()> {
+        let mut pending = Vec::new();
+        for (buf, access) in list {
+            if let Some(t) = self.state.tracked.get(&buf.0.id) {
+                let same_batch = self.batch.is_some() && t.batch == self.batch;
+                if same_batch {
+                    // Nothing orders the batch's dispatches: only writes (to disjoint parts,
+                    // or atomic) may follow writes.
+                    if t.written.is_some() && !access.writes() || !t.last.writes() && access.writes() {
+                        return Err(GpuError::Hazard { pass: pass.to_string(), buffer: buf.name().to_string(), previous: t.last, now: *access });
+                    }
+                } else if t.needs_barrier(*access) {
+                    // A read waits for the last write; a write for the last access, which
+                    // follows every earlier one.
+                    let from = match t.written {
+                        Some(w) if !access.writes() => w,
+                        _ => t.last,
+                    };
+                    pending.push((*buf, from, *access));
                 }
+            }
+        }
+        if !pending.is_empty() {
+            self.barriers(&pending)?;
+        }
+        for (buf, access) in list {
+            self.track(buf, *access);
+        }
+        Ok(())
+    }
+
+    fn track(&mut self, buf: &Buffer, access: Access) {
+        let batch = self.batch;
+        match self.state.tracked.get_mut(&buf.0.id) {
+            Some(t) => {
                 // Reads after a barrier leave it in force for further reads; a write
                 // starts a new epoch that needs its own barrier.
                 if access.writes() {
@@ -68,14 +129,14 @@ impl Recorder<'_> {
                     t.written = Some(access);
                 }
                 t.last = access;
+                t.batch = batch;
             }
             None => {
                 let written = access.writes().then_some(access);
-                self.tracked.insert(id, Track { last: access, written, visible_to: Vec::new() });
+                self.state.tracked.insert(buf.0.id, Track { last: access, written, visible_to: Vec::new(), batch });
                 self.keep.buffers.push(buf.clone());
             }
         }
-        Ok(())
     }
 
     /// Records one barrier per `(buffer, previous access, next access)`. In debug builds
@@ -83,7 +144,7 @@ impl Recorder<'_> {
     pub fn barriers(&mut self, list: &[(&Buffer, Access, Access)]) -> Result<()> {
         let mut raw = Vec::with_capacity(list.len());
         for (buf, from, to) in list {
-            match self.tracked.get_mut(&buf.0.id) {
+            match self.state.tracked.get_mut(&buf.0.id) {
                 Some(t) => {
                     // The declared previous access covers the last one, or is the last write
                     // (made visible to another kind of read after reads of one kind).
@@ -92,10 +153,12 @@ impl Recorder<'_> {
                         return Err(GpuError::BarrierMismatch { buffer: buf.name().to_string(), declared: *from, actual: t.last });
                     }
                     t.visible_to.push(*to);
+                    // A barrier orders what follows after the batch's accesses.
+                    t.batch = None;
                 }
                 None => {
                     let written = from.writes().then_some(*from);
-                    self.tracked.insert(buf.0.id, Track { last: *from, written, visible_to: vec![*to] });
+                    self.state.tracked.insert(buf.0.id, Track { last: *from, written, visible_to: vec![*to], batch: None });
                     self.keep.buffers.push((*buf).clone());
                 }
             }
@@ -112,22 +175,21 @@ impl Recorder<'_> {
                     .size(vk::WHOLE_SIZE),
             );
         }
+        self.state.barriers += raw.len() as u32;
         // SAFETY: recording into a command buffer in the recording state.
         unsafe { self.ctx.device.cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().buffer_memory_barriers(&raw)) };
         Ok(())
     }
 
-    /// Makes `buf` ready for `to`, taking the previous access from what this recording
-    /// last did with it (nothing is needed for a buffer this recording has not touched:
-    /// the recording's opening barrier covers earlier submissions). For passes that are
-    /// composed without knowing what ran before them.
+    /// Makes `buf` ready for `to` ahead of time, taking the previous access from what this
+    /// recording last did with it (nothing is needed for a buffer this recording has not
+    /// touched: the recording's opening barrier covers earlier submissions). Dispatches,
+    /// copies and fills do this themselves.
     pub fn transition(&mut self, list: &[(&Buffer, Access)]) -> Result<()> {
         let mut pending = Vec::new();
         for (buf, to) in list {
-            if let Some(t) = self.tracked.get(&buf.0.id) {
+            if let Some(t) = self.state.tracked.get(&buf.0.id) {
                 if t.needs_barrier(*to) {
-                    // A read waits for the last write; a write for the last access, which
-                    // follows every earlier one.
                     let from = match t.written {
                         Some(w) if !to.writes() => w,
                         _ => t.last,
@@ -147,14 +209,120 @@ impl Recorder<'_> {
         self.barriers(&[(buf, from, to)])
     }
 
+    /// Barriers recorded so far in this recording, derived or hand-written.
+    pub fn barrier_count(&self) -> u32 {
+        self.state.barriers
+    }
+
+    /// Records `f`'s commands as one unordered batch: no barrier is derived between them
+    /// (they write disjoint parts of their buffers, or add with atomics); barriers from
+    /// what came before, and to what comes after, are derived as usual.
+    pub fn unordered<R>(&mut self, f: impl FnOnce(&mut Self) -> Result<R>) -> Result<R> {
+        let outer = self.batch;
+        self.state.batches += 1;
+        self.batch = Some(self.state.batches);
+        let r = f(self);
+        self.batch = outer;
+        r
+    }
+
     fn global_barrier(&self, src: (vk::PipelineStageFlags2, vk::AccessFlags2), dst: (vk::PipelineStageFlags2, vk::AccessFlags2)) {
         let mb = [vk::MemoryBarrier2::default().src_stage_mask(src.0).src_access_mask(src.1).dst_stage_mask(dst.0).dst_access_mask(dst.1)];
         // SAFETY: recording into a command buffer in the recording state.
         unsafe { self.ctx.device.cmd_pipeline_barrier2(self.cmd, &vk::DependencyInfo::default().memory_barriers(&mb)) };
     }
 
+    /// Records `f` with `profiler` attached instead of any other: its dispatches are timed
+    /// there ([`Self::scope`] and the kernels' own scopes). The profiler must have been
+    /// reset in this recording ([`Profiler::reset`]).
+    pub fn with_profiler<R>(&mut self, profiler: &mut Profiler, f: impl FnOnce(&mut Recorder) -> Result<R>) -> Result<R> {
+        self.close_auto()?;
+        let mut inner = Recorder {
+            ctx: self.ctx,
+            cmd: self.cmd,
+            state: &mut *self.state,
+            keep: &mut *self.keep,
+            profiler: Some(profiler),
+            named: 0,
+            auto: None,
+            batch: self.batch,
+        };
+        let r = f(&mut inner)?;
+        inner.finish_scopes()?;
+        Ok(r)
+    }
+
+    /// Opens scope `name` on the attached profiler (nothing without one): the dispatches
+    /// until [`Self::end_scope`] are timed together under that name.
+    pub fn begin_scope(&mut self, name: &str) -> Result<()> {
+        self.close_auto()?;
+        self.named += 1;
+        let (dev, cmd) = (&self.ctx.device, self.cmd);
+        match self.profiler.as_deref_mut() {
+            Some(p) => p.begin_raw(dev, cmd, name),
+            None => Ok(()),
+        }
+    }
+
+    /// Closes the scope [`Self::begin_scope`] opened.
+    pub fn end_scope(&mut self) -> Result<()> {
+        self.close_auto()?;
+        if self.named == 0 {
+            return Err(GpuError::Profiler("end_scope() without begin_scope()".into()));
+        }
+        self.named -= 1;
+        let (dev, cmd) = (&self.ctx.device, self.cmd);
+        match self.profiler.as_deref_mut() {
+            Some(p) => p.end_raw(dev, cmd),
+            None => Ok(()),
+        }
+    }
+
+    /// Records `f` inside scope `name`.
+    pub fn scope<R>(&mut self, name: &str, f: impl FnOnce(&mut Self) -> Result<R>) -> Result<R> {
+        self.begin_scope(name)?;
+        let r = f(self)?;
+        self.end_scope()?;
+        Ok(r)
+    }
+
+    /// Opens kernel `kernel`'s automatic scope, unless it is open already or a named
+    /// scope is.
+    fn auto_scope(&mut self, kernel: &str) -> Result<()> {
+        if self.profiler.is_none() || self.named > 0 || self.auto.as_deref() == Some(kernel) {
+            return Ok(());
+        }
+        self.close_auto()?;
+        let (dev, cmd) = (&self.ctx.device, self.cmd);
+        if let Some(p) = self.profiler.as_deref_mut() {
+            p.begin_raw(dev, cmd, kernel)?;
+        }
+        self.auto = Some(kernel.to_string());
+        Ok(())
+    }
+
+    fn close_auto(&mut self) -> Result<()> {
+        if self.auto.take().is_some() {
+            let (dev, cmd) = (&self.ctx.device, self.cmd);
+            if let Some(p) = self.profiler.as_deref_mut() {
+                p.end_raw(dev, cmd)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Closes the automatic scope and checks that every named one was closed.
+    fn finish_scopes(&mut self) -> Result<()> {
+        self.close_auto()?;
+        if self.named > 0 {
+            return Err(GpuError::Profiler(format!("{} scope(s) never ended", self.named)));
+        }
+        Ok(())
+    }
+
     /// Dispatches `groups` workgroups of `pipeline` with `group` bound and `push` as push
-    /// constants (which must have exactly the reflected size).
+    /// constants (which must have exactly the reflected size), after the barriers its
+    /// bindings' accesses need.
     pub fn dispatch_groups<P: PushBlock>(&mut self, pipeline: &ComputePipeline, group: &BindGroup, push: &P, groups: [u32; 3]) -> Result<()> {
         let kernel = pipeline.name();
         pipeline.check_push::<P>()?;
@@ -165,7 +333,7 @@ impl Recorder<'_> {
                 return Err(GpuError::DispatchTooLarge { kernel: kernel.into(), groups: *g as u64, max: m });
             }
         }
-        // Merge the accesses of a buffer bound twice before checking hazards.
+        // Merge the accesses of a buffer bound twice.
         let mut accesses: Vec<(&Buffer, Access)> = Vec::new();
         for (_, buf, access) in &group.0.buffers {
             match accesses.iter_mut().find(|(b, _)| b.0.id == buf.0.id) {
@@ -174,12 +342,11 @@ impl Recorder<'_> {
                 None => accesses.push((buf, *access)),
             }
         }
-        for (buf, access) in accesses {
-            self.track(kernel, buf, access)?;
-        }
+        self.access(kernel, &accesses)?;
         if groups.contains(&0) {
             return Ok(());
         }
+        self.auto_scope(kernel)?;
         self.keep.pipelines.push(pipeline.clone());
         self.keep.groups.push(group.clone());
         let (raw, layout) = pipeline.raw();
@@ -225,8 +392,8 @@ impl Recorder<'_> {
 
     /// Copies `bytes` bytes of `src` from `src_offset` to `dst` at `dst_offset`.
     pub fn copy_range(&mut self, src: &Buffer, src_offset: u64, dst: &Buffer, dst_offset: u64, bytes: u64) -> Result<()> {
-        self.track("copy", src, Access::TransferRead)?;
-        self.track("copy", dst, Access::TransferWrite)?;
+        self.close_auto()?;
+        self.access("copy", &[(src, Access::TransferRead), (dst, Access::TransferWrite)])?;
         if bytes == 0 {
             return Ok(());
         }
@@ -239,23 +406,24 @@ impl Recorder<'_> {
 
     /// Sets every byte of `buf` to zero.
     pub fn zero(&mut self, buf: &Buffer) -> Result<()> {
-        self.track("zero", buf, Access::TransferWrite)?;
+        self.close_auto()?;
+        self.access("zero", &[(buf, Access::TransferWrite)])?;
         // SAFETY: fill of a whole live buffer with transfer-dst usage.
         unsafe { self.ctx.device.cmd_fill_buffer(self.cmd, buf.0.raw, 0, vk::WHOLE_SIZE, 0) };
         Ok(())
     }
 
-    pub(crate) fn reset_queries(&mut self, pool: vk::QueryPool, count: u32) {
-        // SAFETY: outside any render pass; the pool has at least `count` queries.
-        unsafe { self.ctx.device.cmd_reset_query_pool(self.cmd, pool, 0, count) };
+    /// The device and the command buffer being recorded, for the profiler's commands.
+    pub(crate) fn raw(&self) -> (&ash::Device, vk::CommandBuffer) {
+        (&self.ctx.device, self.cmd)
     }
+}
 
-    pub(crate) fn write_timestamp(&mut self, pool: vk::QueryPool, index: u32) {
-        // ALL_COMMANDS: the timestamp is written once all earlier commands completed, so a
-        // scope measures the work recorded inside it.
-        // SAFETY: the query was reset earlier in this command buffer.
-        unsafe { self.ctx.device.cmd_write_timestamp2(self.cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, index) };
-    }
+/// Writes timestamp `index` of `pool` into `cmd` once all earlier commands completed
+/// (ALL_COMMANDS), so a scope measures the work recorded inside it.
+pub(crate) fn write_timestamp(device: &ash::Device, cmd: vk::CommandBuffer, pool: vk::QueryPool, index: u32) {
+    // SAFETY: the query was reset earlier in this command buffer.
+    unsafe { device.cmd_write_timestamp2(cmd, vk::PipelineStageFlags2::ALL_COMMANDS, pool, index) };
 }
 
 /// A resettable command pool with one primary command buffer, and an unsignalled fence;
@@ -312,6 +480,16 @@ impl CommandBuffer {
     /// Records the commands issued by `f`, replacing any earlier recording. The recording
     /// keeps the pipelines, bind groups and buffers it uses alive.
     pub fn record(&mut self, f: impl FnOnce(&mut Recorder) -> Result<()>) -> Result<()> {
+        self.record_with(None, f)
+    }
+
+    /// [`Self::record`] with `profiler` attached (and reset): every pass is timed in it, in
+    /// a scope named after its kernel or the scope the pass opened.
+    pub fn record_profiled(&mut self, profiler: &mut Profiler, f: impl FnOnce(&mut Recorder) -> Result<()>) -> Result<()> {
+        self.record_with(Some(profiler), f)
+    }
+
+    fn record_with(&mut self, mut profiler: Option<&mut Profiler>, f: impl FnOnce(&mut Recorder) -> Result<()>) -> Result<()> {
         self.wait()?;
         let dev = &self.ctx.device;
         // SAFETY: the buffer is not pending (waited above).
@@ -320,13 +498,17 @@ impl CommandBuffer {
             dev.begin_command_buffer(self.cmd, &vk::CommandBufferBeginInfo::default()).map_err(vk_err("vkBeginCommandBuffer"))?;
         }
         self.keep = Kept::default();
-        let mut rec = Recorder { ctx: &self.ctx, cmd: self.cmd, tracked: HashMap::new(), keep: &mut self.keep };
+        let mut state = State::default();
+        if let Some(p) = profiler.as_deref_mut() {
+            p.reset_raw(dev, self.cmd);
+        }
+        let mut rec = Recorder { ctx: &self.ctx, cmd: self.cmd, state: &mut state, keep: &mut self.keep, profiler, named: 0, auto: None, batch: None };
         // Everything submitted before (and host writes) → this submission.
         rec.global_barrier(
             (vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_WRITE),
             (vk::PipelineStageFlags2::ALL_COMMANDS, vk::AccessFlags2::MEMORY_READ | vk::AccessFlags2::MEMORY_WRITE),
         );
-        let result = f(&mut rec);
+        let result = f(&mut rec).and_then(|()| rec.finish_scopes());
         // This submission → host reads after the fence (a fence alone does not make
         // device writes visible to the host).
         rec.global_barrier(

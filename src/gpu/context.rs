@@ -52,16 +52,13 @@ fn loader() -> Result<ash::Entry> {
 pub struct ContextOptions {
     /// Device index or a case-insensitive part of its name; `None` picks the best device.
     pub device: Option<String>,
-    /// Enable the Khronos validation layer with synchronization validation. Also turned on
-    /// by the environment variable `VKINVERSE_VALIDATION=1`.
+    /// Enable the Khronos validation layer with synchronization validation.
     pub validation: bool,
     /// Longest wait for one submission; `None` means 120 s (lavapipe is slow).
     pub timeout: Option<Duration>,
     /// Never map device-local buffers, even where the driver makes them host-visible (as
     /// lavapipe does): every write and read of a [`MemoryKind::Device`] buffer then goes
-    /// through the staging buffers, as on a discrete GPU. Also turned on by the
-    /// environment variable `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1` (CI runs the tests
-    /// once so).
+    /// through the staging buffers, as on a discrete GPU (CI runs the tests once so).
     ///
     /// [`MemoryKind::Device`]: super::MemoryKind::Device
     pub unmappable_device_memory: bool,
@@ -198,7 +195,7 @@ impl Context {
     /// integrated > virtual > CPU, or the one named in `options.device`), checks the
     /// features vkinverse needs and creates the device, queue and allocator.
     pub fn new(options: &ContextOptions) -> Result<Arc<Self>> {
-        let validation = options.validation || std::env::var("VKINVERSE_VALIDATION").is_ok_and(|v| v == "1");
+        let validation = options.validation;
         // Released when `new` returns, after an error path's guard has destroyed what it made.
         let _lifecycle = lifecycle();
         let entry = loader()?;
@@ -334,7 +331,7 @@ impl Context {
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             timeout: options.timeout.unwrap_or(Duration::from_secs(120)),
             timestamp_mask,
-            device_mappable: !(options.unmappable_device_memory || std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1")),
+            device_mappable: !options.unmappable_device_memory,
             staging: Mutex::new(Staging::default()),
             counters: Counters::default(),
             info,

@@ -8,9 +8,8 @@
 //! - [`ComputePipeline`]: built from SPIR-V whose bindings, push-constant size and
 //!   workgroup size are reflected, bound by GLSL name into a [`BindGroup`].
 //! - [`CommandBuffer`] / [`Recorder`]: recorded once, submitted many times; every buffer
-//!   access is tracked, and a read or write after a write with no barrier between is an
-//!   error while recording ([`GpuError::Hazard`]).
-//! - [`Profiler`]: named timestamp scopes.
+//!   access is tracked and the barriers it needs are derived from its previous use.
+//! - [`Profiler`]: named timestamp scopes, one per pass.
 
 mod buffer;
 mod commands;
@@ -25,7 +24,7 @@ pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DescriptorLimits, DeviceFeatures, DeviceInfo};
 pub use pipeline::{check_descriptor_limits, texel_padded, BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
-pub use profiler::{MaybeProfiler, Profiler, ScopeTime};
+pub use profiler::{Profiler, ScopeTime};
 pub use staging::{TransferStats, STAGING_BYTES};
 pub use sync::Access;
 
@@ -111,7 +110,7 @@ pub enum GpuError {
     PushConstantSize { kernel: String, expected: u32, got: usize },
     #[error("kernel '{kernel}': push block members {reflected} do not match the host's {host}")]
     PushLayout { kernel: String, reflected: String, host: String },
-    #[error("hazard in '{pass}': buffer '{buffer}' accessed as {now:?} after {previous:?} with no barrier between")]
+    #[error("hazard in '{pass}': buffer '{buffer}' accessed as {now:?} after {previous:?} within one unordered batch")]
     Hazard { pass: String, buffer: String, previous: Access, now: Access },
     #[error("barrier on buffer '{buffer}' declares previous access {declared:?}, but the last access was {actual:?}")]
     BarrierMismatch { buffer: String, declared: Access, actual: Access },

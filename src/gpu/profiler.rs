@@ -1,8 +1,12 @@
-//! Named GPU timestamp scopes: `profiler.begin(rec, "trace_primal")` … `end(rec)`.
+//! Named GPU timestamp scopes. A profiler attached to a recording
+//! ([`super::CommandBuffer::record_profiled`]) times every pass in a scope named after its
+//! kernel, or after the scope the pass opened ([`Recorder::scope`]); a profiler used on its
+//! own opens scopes explicitly (`profiler.begin(rec, "trace_primal")` … `end(rec)`).
 //!
 //! Scopes nest; each result carries its depth. Scope names are the kernel/pass names, so
 //! a table of results reads like the pass list.
 
+use super::commands::write_timestamp;
 use super::{vk_err, Context, GpuError, Recorder, Result};
 use ash::vk;
 use std::sync::Arc;
@@ -33,6 +37,10 @@ pub struct Profiler {
 }
 
 impl Profiler {
+    /// Scopes a profiler takes per recording when nothing says otherwise: far more than an
+    /// iteration opens (a few per sensor and pass), at 16 bytes of query pool each.
+    pub const SCOPES: u32 = 1024;
+
     /// A profiler for up to `max_scopes` scopes per recording.
     pub fn new(ctx: &Arc<Context>, max_scopes: u32) -> Result<Self> {
         let capacity = max_scopes * 2;
@@ -45,10 +53,39 @@ impl Profiler {
     /// Starts a new recording: forgets earlier scopes and resets the queries on the GPU.
     /// Call first inside every `CommandBuffer::record` that uses this profiler.
     pub fn reset(&mut self, rec: &mut Recorder) {
+        let (device, cmd) = rec.raw();
+        self.reset_raw(device, cmd);
+    }
+
+    fn forget(&mut self) {
         self.scopes.clear();
         self.open.clear();
         self.used = 0;
-        rec.reset_queries(self.pool, self.capacity.max(1));
+    }
+
+    /// [`Self::reset`] into command buffer `cmd` being recorded.
+    pub(crate) fn reset_raw(&mut self, device: &ash::Device, cmd: ash::vk::CommandBuffer) {
+        self.forget();
+        // SAFETY: outside any render pass; the pool has `capacity` queries.
+        unsafe { device.cmd_reset_query_pool(cmd, self.pool, 0, self.capacity.max(1)) };
+    }
+
+    /// Opens scope `name` in command buffer `cmd` being recorded.
+    pub(crate) fn begin_raw(&mut self, device: &ash::Device, cmd: ash::vk::CommandBuffer, name: &str) -> Result<()> {
+        let q = self.next_query()?;
+        write_timestamp(device, cmd, self.pool, q);
+        self.scopes.push(Scope { name: name.into(), depth: self.open.len(), begin: q, end: None });
+        self.open.push(self.scopes.len() - 1);
+        Ok(())
+    }
+
+    /// Closes the innermost open scope in command buffer `cmd` being recorded.
+    pub(crate) fn end_raw(&mut self, device: &ash::Device, cmd: ash::vk::CommandBuffer) -> Result<()> {
+        let idx = self.open.pop().ok_or_else(|| GpuError::Profiler("end() without begin()".into()))?;
+        let q = self.next_query()?;
+        write_timestamp(device, cmd, self.pool, q);
+        self.scopes[idx].end = Some(q);
+        Ok(())
     }
 
     fn next_query(&mut self) -> Result<u32> {
@@ -61,20 +98,14 @@ impl Profiler {
 
     /// Opens scope `name` (nested inside any open scope).
     pub fn begin(&mut self, rec: &mut Recorder, name: &str) -> Result<()> {
-        let q = self.next_query()?;
-        rec.write_timestamp(self.pool, q);
-        self.scopes.push(Scope { name: name.into(), depth: self.open.len(), begin: q, end: None });
-        self.open.push(self.scopes.len() - 1);
-        Ok(())
+        let (device, cmd) = rec.raw();
+        self.begin_raw(device, cmd, name)
     }
 
     /// Closes the innermost open scope.
     pub fn end(&mut self, rec: &mut Recorder) -> Result<()> {
-        let idx = self.open.pop().ok_or_else(|| GpuError::Profiler("end() without begin()".into()))?;
-        let q = self.next_query()?;
-        rec.write_timestamp(self.pool, q);
-        self.scopes[idx].end = Some(q);
-        Ok(())
+        let (device, cmd) = rec.raw();
+        self.end_raw(device, cmd)
     }
 
     /// Runs `f` inside scope `name`.
@@ -116,24 +147,6 @@ impl Profiler {
     /// Sum of the times of every scope called `name`.
     pub fn total_ms(times: &[ScopeTime], name: &str) -> f64 {
         times.iter().filter(|t| t.name == name).map(|t| t.ms).sum()
-    }
-}
-
-/// A profiler that may be absent: a pass records its scopes only when it is given one.
-pub trait MaybeProfiler {
-    /// Opens scope `name` when there is a profiler.
-    fn begin_scope(&mut self, rec: &mut Recorder, name: &str) -> Result<()>;
-    /// Closes the scope `begin_scope` opened.
-    fn end_scope(&mut self, rec: &mut Recorder) -> Result<()>;
-}
-
-impl MaybeProfiler for Option<&mut Profiler> {
-    fn begin_scope(&mut self, rec: &mut Recorder, name: &str) -> Result<()> {
-        self.as_deref_mut().map_or(Ok(()), |p| p.begin(rec, name))
-    }
-
-    fn end_scope(&mut self, rec: &mut Recorder) -> Result<()> {
-        self.as_deref_mut().map_or(Ok(()), |p| p.end(rec))
     }
 }
 

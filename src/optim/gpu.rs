@@ -17,7 +17,7 @@ use super::push::{AdamPush, DiagPush, GroupSlots, MetaPush};
 use super::reference::{DiagRecord, Diagnostics};
 use super::replay::Streams;
 use super::{Optimiser, Range};
-use crate::gpu::{self, Access, BindGroup, Buffer, ComputePipeline, Context, MemoryKind, Recorder};
+use crate::gpu::{self, BindGroup, Buffer, ComputePipeline, Context, MemoryKind, Recorder};
 use crate::ops::BufferOps;
 use crate::shared;
 use std::sync::Arc;
@@ -58,11 +58,8 @@ pub struct GpuOptimiser {
     diag_pipeline: ComputePipeline,
     diag_group: BindGroup,
     passes: Vec<Pass>,
-    /// Buffers the passes write, for the barriers in front of them.
-    written: Vec<Buffer>,
     /// The optimiser's own state arrays (what a checkpoint must save besides θ).
     state: Vec<Buffer>,
-    partials: Buffer,
     /// One [`shared::DiagRecord`] per group: the last step's diagnostics.
     diag: Buffer,
     /// θ of the previous iteration (meta only): the finite-difference pass reads it.
@@ -106,14 +103,12 @@ impl GpuOptimiser {
         let diag_pipeline = ComputePipeline::new(ctx, "optim_diag", &[])?;
         let diag_group = diag_pipeline.bind(&[("DiagPartial", &partials), ("Diag", &diag)])?;
         let diag_push = |(g, count): (GroupSlots, u32)| DiagPush { first: g.first_partial, count, group: g.group };
-        let mut written = vec![theta.clone(), grad.clone(), nonfinite.clone(), partials.clone()];
         let mut passes = Vec::new();
         let mut state = Vec::new();
         let (pipeline, theta_prev, halves) = match optimiser {
             Optimiser::Adam(h) => {
                 let pipeline = ComputePipeline::new(ctx, "optim_adam", &[])?;
                 let (m, r) = (zeros("adam m")?, zeros("adam r")?);
-                written.extend([m.clone(), r.clone()]);
                 state.extend([m.clone(), r.clone()]);
                 for (g, s) in groups.iter().zip(&slots) {
                     let group = pipeline.bind(&[
@@ -166,8 +161,6 @@ impl GpuOptimiser {
                     "meta run",
                 ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
-                written.extend(meta_state.iter().cloned());
-                written.extend([fd.clone(), theta_prev.clone(), grad_half.clone(), fd_half.clone()]);
                 state.extend(meta_state.iter().cloned());
                 state.push(theta_prev.clone());
                 for (g, s) in groups.iter().zip(&slots) {
@@ -203,47 +196,23 @@ impl GpuOptimiser {
         };
         // The diagnostics hold the meta-estimator's ‖Δπ‖² between iterations.
         state.push(diag.clone());
-        Ok(Self {
-            optimiser: *optimiser,
-            groups: groups.to_vec(),
-            pipeline,
-            diag_pipeline,
-            diag_group,
-            passes,
-            written,
-            state,
-            partials,
-            diag,
-            theta_prev,
-            halves,
-            nonfinite,
-        })
+        Ok(Self { optimiser: *optimiser, groups: groups.to_vec(), pipeline, diag_pipeline, diag_group, passes, state, diag, theta_prev, halves, nonfinite })
     }
 
     /// Records every group's pass, then the merge of each group's diagnostics (for meta,
     /// the next iteration's ‖Δπ‖²).
+    ///
+    /// Groups touch disjoint ranges, and each merge writes its own slot, but storage
+    /// buffers are bound whole, so the recorder orders the dispatches as it would any others
+    /// (the validation layer's synchronization check sees whole bindings too).
     pub fn record(&self, rec: &mut Recorder, _ops: &BufferOps) -> gpu::Result<()> {
-        let ready: Vec<(&Buffer, Access)> = self.written.iter().map(|b| (b, Access::ComputeReadWrite)).collect();
-        rec.transition(&ready)?;
-        // The passes read ‖Δπ‖² from the previous iteration's merge.
-        rec.transition(&[(&self.diag, Access::ComputeRead)])?;
-        for (k, p) in self.passes.iter().enumerate() {
-            if k > 0 {
-                // Groups touch disjoint ranges, but the tracker sees whole buffers: order them.
-                rec.transition(&ready)?;
-            }
+        for p in &self.passes {
             match &p.push {
                 Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
                 Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
             }
         }
-        // Every pass has read its ‖Δπ‖² and written its records before the merge.
-        rec.transition(&[(&self.partials, Access::ComputeRead), (&self.diag, Access::ComputeWrite)])?;
-        for (k, p) in self.passes.iter().enumerate() {
-            if k > 0 {
-                // Each merge writes its own slot, but the tracker sees the whole buffer.
-                rec.transition(&[(&self.diag, Access::ComputeWrite)])?;
-            }
+        for p in &self.passes {
             rec.dispatch_groups(&self.diag_pipeline, &self.diag_group, &p.diag_push, [1, 1, 1])?;
         }
         Ok(())

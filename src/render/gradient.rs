@@ -8,7 +8,7 @@
 
 use super::{record_samples, GpuScene, TracePush};
 use crate::constants::{LOCAL_GRADS_CAPACITY, LOSS_L1, LOSS_L2, LOSS_RELATIVE_L2};
-use crate::gpu::{self, Access, Buffer, ComputePipeline, MaybeProfiler, MemoryKind, Profiler, Recorder, SpecValue};
+use crate::gpu::{self, Buffer, ComputePipeline, MemoryKind, Recorder, SpecValue};
 use crate::image::Image;
 use crate::ops::{BufferOps, Reduction};
 use crate::push::LossPush;
@@ -41,8 +41,28 @@ struct PrevBuffers {
     loss_group: gpu::BindGroup,
 }
 
+/// What one gradient estimate computes: `targets` (one image per sensor, of the film's
+/// size) under `loss`, with `spp` samples per pixel in the adjoint pass and `primal_spp` in
+/// the primal render, seeded by `seed`. The passes read parameters from `theta` (the scene's
+/// θ or another state of it) and add dLoss/dθ into `grad`. `theta_prev` and `grad_half`:
+/// see [`GradientPass::new`].
+#[derive(Clone, Copy)]
+pub struct GradientInputs<'a> {
+    pub targets: &'a [Image],
+    pub loss: Loss,
+    pub spp: u32,
+    pub primal_spp: u32,
+    pub seed: u32,
+    pub theta: &'a Buffer,
+    pub theta_prev: Option<&'a Buffer>,
+    pub grad: &'a Buffer,
+    pub grad_half: Option<&'a Buffer>,
+}
+
 /// The pipelines and buffers of the gradient estimate.
 pub struct GradientPass {
+    /// The loss the `loss` kernel was built for.
+    loss_kind: Loss,
     /// The kernels' names, which name their profiler scopes.
     primal_kernel: &'static str,
     adjoint_kernel: &'static str,
@@ -79,10 +99,8 @@ fn loss_index(loss: Loss) -> u32 {
 }
 
 impl GradientPass {
-    /// `targets`: one image per sensor, of the film's size. The passes read parameters
-    /// from `theta` (the scene's θ or another state of it) and add into `grad`.
-    /// Also adds the contributions of a random half of the pixels (drawn anew every
-    /// iteration) into `grad_half` when given. The two halves are independent
+    /// The estimate of `inputs` ([`GradientInputs`]). Also adds the contributions of a
+    /// random half of the pixels (drawn anew every iteration) into `grad_half` when given. The two halves are independent
     /// estimates, whose difference gives the optimiser's centred variance estimate. Halves of
     /// the samples would not be: every sample of a pixel shares its primal image, and so the
     /// image's noise.
@@ -95,20 +113,8 @@ impl GradientPass {
     ///
     /// `theta` and `theta_prev` are shaped like the scene's θ buffer: θ padded to whole
     /// texels, then the scene's material data ([`crate::render::targets::padded`]).
-    #[allow(clippy::too_many_arguments)]
-    pub fn new(
-        scene: &GpuScene,
-        ops: &BufferOps,
-        targets: &[Image],
-        loss: Loss,
-        spp: u32,
-        primal_spp: u32,
-        seed: u32,
-        theta: &Buffer,
-        theta_prev: Option<&Buffer>,
-        grad: &Buffer,
-        grad_half: Option<&Buffer>,
-    ) -> gpu::Result<Self> {
+    pub fn new(scene: &GpuScene, ops: &BufferOps, inputs: &GradientInputs) -> gpu::Result<Self> {
+        let GradientInputs { targets, loss, spp, primal_spp, seed, theta, theta_prev, grad, grad_half } = *inputs;
         let ctx = &scene.ctx;
         for b in std::iter::once(theta).chain(theta_prev) {
             if b.len() != scene.theta.len() {
@@ -137,6 +143,7 @@ impl GradientPass {
             None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,
         };
         let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
+        let loss_kind = loss;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
         let n = scene.pixels();
@@ -196,6 +203,7 @@ impl GradientPass {
             });
         }
         Ok(Self {
+            loss_kind,
             primal_kernel: primal_name,
             adjoint_kernel: adjoint_name,
             primal,
@@ -215,41 +223,47 @@ impl GradientPass {
 
     /// Records the estimate for every sensor. Afterwards `grad` holds dLoss/dθ added to
     /// whatever it held, and `loss_value(s)` sensor s's loss.
+    /// With a profiler attached to the recording, each pass is in a scope named after its
+    /// kernel (`trace_primal` or `trace_fd_primal`, `loss` with its reduction,
+    /// `trace_adjoint` or `trace_fd_adjoint`), once per sensor.
     pub fn record(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
-        self.record_passes(rec, scene, ops, true, None)
-    }
-
-    /// [`Self::record`] with each pass in a profiler scope named after its kernel
-    /// (`trace_primal` or `trace_fd_primal`, `loss` with its reduction, `trace_adjoint` or
-    /// `trace_fd_adjoint`), once per sensor.
-    pub fn record_profiled(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, profiler: &mut Profiler) -> gpu::Result<()> {
-        self.record_passes(rec, scene, ops, true, Some(profiler))
+        self.record_passes(rec, scene, ops, true)
     }
 
     /// Records only the primal renders and the loss (for finite differences of the loss).
     pub fn record_loss(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
-        self.record_passes(rec, scene, ops, false, None)
+        self.record_passes(rec, scene, ops, false)
     }
 
-    /// Records the primal renders and the loss, and with `adjoint` the adjoint pass, each
-    /// in a profiler scope named after its kernel when a profiler is given.
-    pub fn record_passes(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, adjoint: bool, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    /// Records the primal renders and the loss, and with `adjoint` the adjoint pass.
+    pub fn record_passes(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, adjoint: bool) -> gpu::Result<()> {
         for s in 0..self.sensors.len() {
-            self.record_sensor_primal(rec, scene, s, profiler.as_deref_mut())?;
-            self.record_sensor_rest(rec, scene, ops, s, adjoint, profiler.as_deref_mut())?;
+            self.record_sensor_primal(rec, scene, s)?;
+            self.record_sensor_rest(rec, scene, ops, s, adjoint)?;
         }
         Ok(())
     }
 
+    /// The loss this estimate differentiates.
+    pub fn loss(&self) -> Loss {
+        self.loss_kind
+    }
+
+    /// Records sensor `s`'s whole estimate: its primal render, loss and adjoint pass.
+    pub fn record_sensor(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, s: usize) -> gpu::Result<()> {
+        self.record_sensor_primal(rec, scene, s)?;
+        self.record_sensor_rest(rec, scene, ops, s, true)
+    }
+
     /// Records the primal renders of every sensor (the first half of [`Self::record_passes`],
     /// for a pass that changes the images before their loss).
-    pub fn record_primal(&self, rec: &mut Recorder, scene: &GpuScene, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_primal(rec, scene, s, profiler.as_deref_mut()))
+    pub fn record_primal(&self, rec: &mut Recorder, scene: &GpuScene) -> gpu::Result<()> {
+        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_primal(rec, scene, s))
     }
 
     /// Records the losses and the adjoint passes of every sensor (the second half).
-    pub fn record_loss_adjoint(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
-        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_rest(rec, scene, ops, s, true, profiler.as_deref_mut()))
+    pub fn record_loss_adjoint(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps) -> gpu::Result<()> {
+        (0..self.sensors.len()).try_for_each(|s| self.record_sensor_rest(rec, scene, ops, s, true))
     }
 
     /// The images of sensor `s` (one per parameter state) with their adjoint images,
@@ -263,67 +277,56 @@ impl GradientPass {
         states
     }
 
-    fn record_sensor_primal(&self, rec: &mut Recorder, scene: &GpuScene, s: usize, mut profiler: Option<&mut Profiler>) -> gpu::Result<()> {
+    fn record_sensor_primal(&self, rec: &mut Recorder, scene: &GpuScene, s: usize) -> gpu::Result<()> {
         let b = &self.sensors[s];
-        let states = self.states(s);
-        for (rendered, _, _, _) in &states {
-            rec.transition(&[(rendered, Access::TransferWrite)])?;
+        // The primal pass accumulates into the cleared images.
+        for (rendered, _, _, _) in &self.states(s) {
             rec.zero(rendered)?;
-            // The primal pass accumulates into the cleared image.
-            rec.barrier(rendered, Access::TransferWrite, Access::ComputeReadWrite)?;
         }
         let p = self.primal_push(scene, s as u32);
-        profiler.begin_scope(rec, self.primal_kernel)?;
         // Short dispatches (see render::spp_per_dispatch), each adding to the images.
-        let images: Vec<&Buffer> = states.iter().map(|(rendered, _, _, _)| *rendered).collect();
-        record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp, &images)?;
-        profiler.end_scope(rec)
+        rec.scope(self.primal_kernel, |rec| record_samples(rec, scene, &self.primal, &b.primal_group, p, self.primal_spp))
     }
 
-    fn record_sensor_rest(
-        &self,
-        rec: &mut Recorder,
-        scene: &GpuScene,
-        ops: &BufferOps,
-        s: usize,
-        adjoint: bool,
-        mut profiler: Option<&mut Profiler>,
-    ) -> gpu::Result<()> {
+    fn record_sensor_rest(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, s: usize, adjoint: bool) -> gpu::Result<()> {
         let n = scene.pixels();
         let b = &self.sensors[s];
         let lp = LossPush { n: n as u32, scale: (1.0 / (3.0 * n as f64)) as f32 };
-        profiler.begin_scope(rec, "loss")?;
-        for (rendered, adjoint, partials, group) in &self.states(s) {
-            rec.barrier(rendered, Access::ComputeReadWrite, Access::ComputeRead)?;
-            rec.transition(&[(adjoint, Access::ComputeWrite), (partials, Access::ComputeWrite)])?;
-            rec.dispatch_linear(&self.loss, group, &lp, n as u64)?;
-            // The adjoint pass reads the adjoint image.
-            rec.transition(&[(adjoint, Access::ComputeRead)])?;
-        }
-        // The loss partials (of θ, the reported loss) are reduced.
-        let half = self.fresh_half.as_ref().unwrap_or(&self.grad_half);
-        rec.transition(&[(&b.partials, Access::ComputeRead), (&self.grad, Access::ComputeReadWrite), (half, Access::ComputeReadWrite)])?;
-        ops.record_reduction(rec, &b.reduction)?;
-        profiler.end_scope(rec)?;
+        rec.scope("loss", |rec| {
+            for (_, _, _, group) in &self.states(s) {
+                rec.dispatch_linear(&self.loss, group, &lp, n as u64)?;
+            }
+            // The loss partials (of θ, the reported loss) are reduced.
+            ops.record_reduction(rec, &b.reduction)
+        })?;
         if !adjoint {
             return Ok(());
         }
-        profiler.begin_scope(rec, self.adjoint_kernel)?;
+        self.record_sensor_adjoint(rec, scene, ops, s)
+    }
+
+    /// Records sensor `s`'s adjoint pass alone: it reads the sensor's adjoint image as the
+    /// loss left it, or as the host wrote it ([`Self::adjoint_image`]).
+    pub fn record_sensor_adjoint(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, s: usize) -> gpu::Result<()> {
+        let b = &self.sensors[s];
         // Every stride-th pixel stands for `stride` of them.
         let p = self.trace_push(scene, s as u32, self.spp, self.seed.wrapping_add(SEED_ADJOINT), self.stride as f32 / self.spp as f32);
-        let mut sums = vec![&self.grad, half];
-        if let Some(r) = &b.adjoint_radiance {
-            // The pass adds its render into the cleared image.
-            rec.transition(&[(r, Access::TransferWrite)])?;
-            rec.zero(r)?;
-            rec.barrier(r, Access::TransferWrite, Access::ComputeReadWrite)?;
-            sums.push(r);
-        }
-        record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp, &sums)?;
-        if let Some(fresh) = &self.fresh_half {
-            ops.merge_half(rec, &self.grad, &self.grad_half, fresh)?;
-        }
-        profiler.end_scope(rec)
+        rec.scope(self.adjoint_kernel, |rec| {
+            if let Some(r) = &b.adjoint_radiance {
+                // The pass adds its render into the cleared image.
+                rec.zero(r)?;
+            }
+            record_samples(rec, scene, &self.adjoint, &b.adjoint_group, p, self.spp)?;
+            match &self.fresh_half {
+                Some(fresh) => ops.merge_half(rec, &self.grad, &self.grad_half, fresh),
+                None => Ok(()),
+            }
+        })
+    }
+
+    /// Sensor s's adjoint image dLoss/dImage, which the loss writes and the adjoint pass reads.
+    pub fn adjoint_image(&self, s: usize) -> &Buffer {
+        &self.sensors[s].adjoint
     }
 
     /// Sensor s's primal image buffer (of θ; after the primal pass, before the loss reads it).

@@ -24,7 +24,7 @@ use crate::constants::{
     MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
     MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
-use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
+use crate::gpu::{self, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
 pub use crate::push::TracePush;
 use crate::scene::{
@@ -93,6 +93,9 @@ pub struct GpuScene {
     /// [`crate::constants::LOCAL_GRADS_UNROLL_MAX`] elements.
     pub local_grads_unrolled: bool,
     pub triangles: usize,
+    /// The compressed BVH's traversal stack in an array instead of registers
+    /// ([`crate::Config::bvh_stack_array`]).
+    pub bvh_stack_array: bool,
     globals: Globals,
     bvh: BvhBuffers,
     buffers: Vec<(&'static str, Buffer)>,
@@ -129,7 +132,8 @@ fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, us
 /// The reference to parameter slot `slot`, whose scene value is `scene` (a texture slot
 /// keeps that value's filter and wrap modes).
 fn theta_ref(slot: &ParamSlot, scene: ValueRef) -> ValueRef {
-    ValueRef { offset: slot.offset as i32, width: slot.size[0], height: slot.size[1], flags: ValueRef::IN_THETA | scene.flags & ValueRef::SAMPLER }
+    let [width, height] = slot.shape.texture_size().unwrap_or([0, 0]);
+    ValueRef { offset: slot.offset as i32, width, height, flags: ValueRef::IN_THETA | scene.flags & ValueRef::SAMPLER }
 }
 
 fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
@@ -351,42 +355,6 @@ fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     }
 }
 
-/// Warns about what the scene asks for and will not get: light (no emitting triangle of
-/// non-zero area and no environment: it renders black; an emitting mesh whose triangles all
-/// have zero area, which an emitter table cannot sample), or a normal map or an alpha texture
-/// on a mesh without texture coordinates (neither is applied: the map has no tangents, the
-/// alpha nowhere to be looked up).
-fn warn_about_scene(scene: &Scene, geo: &crate::scene::SceneGeometry, mesh_emits: &[bool], emitters: usize, has_environment: bool) {
-    for (i, (mesh, &emits)) in scene.meshes.iter().zip(mesh_emits).enumerate() {
-        let has_area = geo.indices.iter().zip(&geo.triangle_mesh).filter(|(_, m)| **m as usize == i).any(|(idx, _)| {
-            let [a, b, c] = idx.map(|k| Vec3::from(geo.positions[k as usize]));
-            (b - a).cross(c - a).length() > 0.0
-        });
-        if emits && !has_area {
-            crate::report::warn(&format!("{}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", scene.path.display(), mesh.name));
-        }
-    }
-    for mesh in &scene.meshes {
-        let material = &scene.materials[mesh.material];
-        let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
-        let alpha = textured_alpha.then_some(("alpha texture", " (it is opaque)"));
-        let perturbation = material.perturbation.as_ref().map(|p| (p.what(), ""));
-        for (what, consequence) in [alpha, perturbation].into_iter().flatten() {
-            if mesh.uvs.is_empty() {
-                crate::report::warn(&format!(
-                    "{}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
-                    scene.path.display(),
-                    mesh.name,
-                    material.name
-                ));
-            }
-        }
-    }
-    if emitters == 0 && !has_environment {
-        crate::report::warn(&format!("{}: no light (no emitting mesh of non-zero area and no environment): the scene renders black", scene.path.display()));
-    }
-}
-
 /// A device buffer holding `v` followed by zeros up to a whole number of 16-byte texels
 /// (at least one, so that an empty array still has a buffer to bind), for kernels that read
 /// it as a uniform texel buffer.
@@ -400,9 +368,16 @@ pub fn texel_buffer<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, v: &[T]) -
 
 impl GpuScene {
     /// Builds the BVH and uploads geometry, materials, lights, sensors and θ (set to the
-    /// parameters' initial values). The BVH layout is [`BvhLayout::from_env`].
+    /// parameters' initial values), with the default BVH layout.
     pub fn new(ctx: &Arc<Context>, scene: &Scene) -> gpu::Result<Self> {
-        Self::with_bvh_layout(ctx, scene, BvhLayout::from_env())
+        Self::with_bvh_layout(ctx, scene, BvhLayout::default())
+    }
+
+    /// [`Self::new`] with the BVH layout and traversal stack that `config` asks for.
+    pub fn configured(ctx: &Arc<Context>, scene: &Scene, config: &crate::Config) -> gpu::Result<Self> {
+        let mut gs = Self::with_bvh_layout(ctx, scene, config.bvh_layout)?;
+        gs.bvh_stack_array = config.bvh_stack_array;
+        Ok(gs)
     }
 
     /// [`Self::new`] with the BVH in `bvh_layout`; the scene's kernels are then the builds
@@ -533,8 +508,7 @@ impl GpuScene {
         // The environment map's texels as the kernels first see them: θ's start value for
         // an optimised map, the scene's map otherwise. A constant has no distribution.
         let env_texels: Option<(Vec<f32>, u32, u32)> = match env_slot {
-            Some(slot) if slot.size[0] > 0 && slot.size[1] > 0 => Some((slot.init.clone(), slot.size[0], slot.size[1])),
-            Some(_) => None,
+            Some(slot) => slot.shape.texture_size().map(|[w, h]| (slot.init.clone(), w, h)),
             None => match &scene.environment.value {
                 ColorValue::Texture(t) => Some((t.image.data.iter().flatten().copied().collect(), t.image.width, t.image.height)),
                 ColorValue::Constant(_) => None,
@@ -612,7 +586,6 @@ impl GpuScene {
                 tangent,
             });
         }
-        warn_about_scene(scene, &geo, &mesh_emits, emitters.len(), has_environment);
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -712,6 +685,7 @@ impl GpuScene {
             replay_cached: scene.integrator.max_depth <= crate::constants::CACHED_BOUNCES,
             local_grads_unrolled: (1..=crate::constants::LOCAL_GRADS_UNROLL_MAX as usize).contains(&layout.len),
             triangles: geo.indices.len(),
+            bvh_stack_array: false,
             globals,
             layout,
             bvh,
@@ -797,7 +771,7 @@ impl GpuScene {
             self.const_base_spec(),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {
-            spec.push(("BVH_STACK_REGISTERS", SpecValue::Bool(BvhLayout::stack_in_registers(&self.bvh))));
+            spec.push(("BVH_STACK_REGISTERS", SpecValue::Bool(BvhLayout::stack_in_registers(&self.bvh, self.bvh_stack_array))));
         }
         spec
     }
@@ -857,25 +831,12 @@ pub fn spp_per_dispatch(max_depth: u32) -> u32 {
 
 /// Records `pipeline` (a trace kernel taking [`TracePush`]) over `spp` samples per pixel
 /// starting at `push.first_sample`, in dispatches of at most
-/// [`spp_per_dispatch`]`(scene.max_depth)` samples, with a barrier between dispatches on
-/// each buffer of `accumulated` (what every dispatch reads and adds to).
-pub fn record_samples(
-    rec: &mut Recorder,
-    scene: &GpuScene,
-    pipeline: &ComputePipeline,
-    group: &BindGroup,
-    push: TracePush,
-    spp: u32,
-    accumulated: &[&Buffer],
-) -> gpu::Result<()> {
+/// [`spp_per_dispatch`]`(scene.max_depth)` samples, each adding to what the previous one
+/// accumulated (the recorder puts the barrier between them).
+pub fn record_samples(rec: &mut Recorder, scene: &GpuScene, pipeline: &ComputePipeline, group: &BindGroup, push: TracePush, spp: u32) -> gpu::Result<()> {
     let step = spp_per_dispatch(scene.max_depth);
     let mut done = 0;
     while done < spp {
-        if done > 0 {
-            // The previous dispatch added into these; the next adds to its sums.
-            let ready: Vec<(&Buffer, Access)> = accumulated.iter().map(|b| (*b, Access::ComputeReadWrite)).collect();
-            rec.transition(&ready)?;
-        }
         let chunk = step.min(spp - done);
         let p = TracePush { spp: chunk, first_sample: push.first_sample + done, ..push };
         rec.dispatch_linear(pipeline, group, &p, p.invocations())?;
@@ -886,7 +847,7 @@ pub fn record_samples(
 
 /// Renders sensor `sensor` of `scene` as written (optimised parameters at their reference
 /// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions,
-/// and `stop()`, asked after each, may end the render early ([`Renderer::render_until`]).
+/// and `stop()`, asked after each, may end the render early ([`PrimalRenderer::render_until`]).
 /// Returns the image and the samples per pixel it holds.
 pub fn render_reference(
     ctx: &Arc<Context>,
@@ -897,18 +858,18 @@ pub fn render_reference(
     progress: impl FnMut(u32, u32),
     stop: impl Fn() -> bool,
 ) -> gpu::Result<(Image, u32)> {
-    let renderer = Renderer::new(GpuScene::new(ctx, scene)?)?;
+    let renderer = PrimalRenderer::new(GpuScene::new(ctx, scene)?)?;
     renderer.scene.set_theta(renderer.scene.layout.reference())?;
     renderer.render_until(sensor, spp, crate::settings::gpu_seed(seed), progress, stop)
 }
 
 /// Renders images of a [`GpuScene`] with the primal kernel.
-pub struct Renderer {
+pub struct PrimalRenderer {
     pub scene: GpuScene,
     primal: ComputePipeline,
 }
 
-impl Renderer {
+impl PrimalRenderer {
     pub fn new(scene: GpuScene) -> gpu::Result<Self> {
         let primal = ComputePipeline::new(&scene.ctx, &scene.kernel("trace_primal"), &scene.spec())?;
         Ok(Self { scene, primal })
@@ -951,7 +912,7 @@ impl Renderer {
                 stride: 1,
                 phase: 0,
             };
-            cmd.record(|rec| record_samples(rec, &self.scene, &self.primal, &group, push, chunk, &[&accum]))?;
+            cmd.record(|rec| record_samples(rec, &self.scene, &self.primal, &group, push, chunk))?;
             cmd.submit_and_wait()?;
             done += chunk;
             progress(done, spp);

@@ -1,20 +1,18 @@
 //! The optimised parameters laid out in one flat float buffer θ.
 //!
-//! Each `[[optimise.params]]` entry becomes a [`ParamSlot`]: `channels` floats per texel,
-//! `texels` texels (1 for a constant), starting at `offset` in θ. Kernels read a slot
-//! through a `ValueRef` flagged `IN_THETA`; the optimiser updates slots in place.
+//! Each `[[optimise.params]]` entry becomes a [`ParamSlot`]: `shape.len()` floats (its
+//! texels, each of its channels) starting at `offset` in θ, whatever its shape. Kernels read
+//! a slot through a `ValueRef` flagged `IN_THETA`; the optimiser updates slots in place.
 
-use crate::scene::write::Recovered;
 use crate::scene::{ParamTarget, Reference, Scene};
+use crate::tensor::{ParamValue, Shape};
 
 /// One optimised parameter.
 #[derive(Clone, Debug)]
 pub struct ParamSlot {
     pub name: String,
     pub target: ParamTarget,
-    pub channels: u32,
-    /// Texture size, or `[0, 0]` for a constant.
-    pub size: [u32; 2],
+    pub shape: Shape,
     pub offset: usize,
     pub len: usize,
     pub range: [f32; 2],
@@ -24,6 +22,13 @@ pub struct ParamSlot {
     pub init: Vec<f32>,
     /// The scene's own values resampled to this slot's layout (`len` floats).
     pub reference: Vec<f32>,
+}
+
+impl ParamSlot {
+    /// The slot's values in θ.
+    pub fn value(&self, theta: &[f32]) -> ParamValue {
+        ParamValue { shape: self.shape, data: theta[self.offset..self.offset + self.len].to_vec() }
+    }
 }
 
 /// All parameter slots and the total length of θ.
@@ -37,22 +42,22 @@ impl ParamLayout {
     pub fn new(scene: &Scene) -> Self {
         let mut layout = ParamLayout::default();
         for p in &scene.optimise.params {
-            let size = p.texture.unwrap_or([0, 0]);
-            let texels = if p.texture.is_some() { (size[0] * size[1]) as usize } else { 1 };
-            let len = texels * p.channels as usize;
+            let len = p.shape.len();
             let init: Vec<f32> = p.init.iter().copied().cycle().take(len).collect();
-            let reference = match &p.reference {
-                Reference::Constant(v) => v.iter().copied().cycle().take(len).collect(),
+            // A texture is resampled to a texture parameter's size, and to one texel (its
+            // mean) for a constant one.
+            let per_texel = match &p.reference {
+                Reference::Constant(v) => v.clone(),
                 Reference::Texture(t) => {
-                    let (w, h) = if p.texture.is_some() { (size[0], size[1]) } else { (1, 1) };
-                    t.image.resample(p.channels, w, h)
+                    let [w, h] = p.shape.texture_size().unwrap_or([1, 1]);
+                    t.image.resample(p.shape.channels(), w, h)
                 }
             };
+            let reference = per_texel.iter().copied().cycle().take(len).collect();
             layout.slots.push(ParamSlot {
                 name: p.name.clone(),
                 target: p.target,
-                channels: p.channels,
-                size,
+                shape: p.shape,
                 offset: layout.len,
                 len,
                 range: p.range,
@@ -80,20 +85,19 @@ impl ParamLayout {
         self.slots.iter().flat_map(|s| s.reference.iter().copied()).collect()
     }
 
-    /// Every slot's values in θ as a recovered parameter, for writing the scene back.
-    pub fn recovered(&self, theta: &[f32]) -> Vec<(ParamTarget, Recovered)> {
-        self.slots
-            .iter()
-            .map(|s| {
-                let v = theta[s.offset..s.offset + s.len].to_vec();
-                let r = if s.size == [0, 0] {
-                    Recovered::Constant(v)
-                } else {
-                    Recovered::Texture { width: s.size[0], height: s.size[1], channels: s.channels, data: v }
-                };
-                (s.target, r)
-            })
-            .collect()
+    /// Every slot's values in θ with its target, for writing the scene back.
+    pub fn recovered(&self, theta: &[f32]) -> Vec<(ParamTarget, ParamValue)> {
+        self.slots.iter().map(|s| (s.target, s.value(theta))).collect()
+    }
+
+    /// Every slot's values in θ by name, in the scene's order.
+    pub fn values(&self, theta: &[f32]) -> Vec<(String, ParamValue)> {
+        self.slots.iter().map(|s| (s.name.clone(), s.value(theta))).collect()
+    }
+
+    /// The slot named `name`.
+    pub fn named(&self, name: &str) -> Option<&ParamSlot> {
+        self.slots.iter().find(|s| s.name == name)
     }
 
     /// Root-mean-square error of θ against the reference, overall and per slot.

@@ -1,55 +1,68 @@
 //! Target images: a sensor's `target_image`, or the reference scene rendered at high spp
-//! and cached beside the scene (`.vkinverse-cache/`), or in the user's cache directory
-//! (`$XDG_CACHE_HOME/vkinverse`, `~/.cache/vkinverse`; `VKINVERSE_CACHE_DIR` replaces it)
-//! when the scene's directory cannot be written. The cache is optional: when neither can be
-//! written the target is used uncached, with a warning.
+//! and cached beside the scene (`.vkinverse-cache/`), or in the configured cache directory
+//! ([`crate::Config::cache_dir`]; the command line's is the user's cache directory) when the
+//! scene's directory cannot be written. The cache is optional: when neither can be written
+//! the target is used uncached, with a warning.
 //!
 //! A cached target is keyed by the scene's content hash, the SPIR-V of the kernel that
 //! renders it, the sensor and the sample count: editing the scene or changing the renderer
 //! (a new build, another BVH layout) renders it anew.
 
-use super::{GpuScene, Renderer};
+use super::{GpuScene, PrimalRenderer};
+use crate::cancel::Cancel;
 use crate::error::{Error, Result};
 use crate::image::{self, Image};
+use crate::observer::Observer;
 use crate::scene::Scene;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Seed of rendered targets: far from the optimisation's seeds.
 const TARGET_SEED: u32 = 0x7A46_E701;
 
 /// FNV-1a 64 of the renderer's kernel: part of the cache key.
-fn kernel_hash(renderer: &Renderer) -> u64 {
+fn kernel_hash(renderer: &PrimalRenderer) -> u64 {
     let spirv = crate::gpu::shaders::get(renderer.kernel()).unwrap_or_default();
     spirv.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3))
 }
 
 /// The cache file's name for `sensor` at `spp` samples.
-pub fn cache_name(scene: &Scene, renderer: &Renderer, sensor: usize, spp: u32) -> String {
+pub fn cache_name(scene: &Scene, renderer: &PrimalRenderer, sensor: usize, spp: u32) -> String {
     format!("target-{:016x}-{:016x}-s{sensor}-{spp}spp.exr", scene.content_hash(), kernel_hash(renderer))
 }
 
-/// Where cached targets may live, in order: beside the scene, then the user's cache.
-pub fn cache_dirs(scene: &Scene) -> Vec<PathBuf> {
-    let user = std::env::var_os("VKINVERSE_CACHE_DIR").map(PathBuf::from).or_else(|| dirs::cache_dir().map(|d| d.join("vkinverse")));
-    std::iter::once(scene.dir().join(".vkinverse-cache")).chain(user).collect()
+/// Where cached targets may live, in order: beside the scene, then `cache_dir`.
+pub fn cache_dirs(scene: &Scene, cache_dir: Option<&Path>) -> Vec<PathBuf> {
+    std::iter::once(scene.dir().join(".vkinverse-cache")).chain(cache_dir.map(Path::to_path_buf)).collect()
 }
 
-/// Writes `img` as `name` into the first cache directory that takes it.
-fn store(scene: &Scene, name: &str, img: &Image) {
+/// Writes `img` as `name` into the first cache directory that takes it, or says why none
+/// did.
+fn store(dirs: &[PathBuf], name: &str, img: &Image, observer: &mut dyn Observer) {
     let mut failures = Vec::new();
-    for dir in cache_dirs(scene) {
-        let written = std::fs::create_dir_all(&dir).map_err(|e| e.to_string()).and_then(|()| image::write_exr(&dir.join(name), img).map_err(|e| e.to_string()));
+    for dir in dirs {
+        let written = std::fs::create_dir_all(dir).map_err(|e| e.to_string()).and_then(|()| image::write_exr(&dir.join(name), img).map_err(|e| e.to_string()));
         match written {
             Ok(()) => return,
             Err(e) => failures.push(format!("{}: {e}", dir.display())),
         }
     }
-    crate::report::warn(&format!("the rendered target is not cached ({})", failures.join("; ")));
+    observer.warning(&format!("the rendered target is not cached ({})", failures.join("; ")));
 }
 
-/// One target image per sensor. `progress(sensor, done, total)` reports rendering; a
-/// Ctrl-C ([`crate::interrupt`]) ends it with [`Error::Interrupted`].
-pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl FnMut(usize, u32, u32)) -> Result<Vec<Image>> {
+/// Where target images come from besides the scene: the sample count of a rendered one,
+/// the cache beside the scene's and the token that stops a render.
+#[derive(Clone, Copy)]
+pub struct TargetSource<'a> {
+    pub spp: u32,
+    pub cache_dir: Option<&'a Path>,
+    pub cancel: &'a Cancel,
+}
+
+/// One target image per sensor. The observer hears the renders' progress and a target that
+/// could not be cached; a cancellation ends a render with [`Error::Interrupted`].
+pub fn targets(renderer: &PrimalRenderer, scene: &Scene, source: TargetSource, observer: &mut dyn Observer) -> Result<Vec<Image>> {
+    let spp = source.spp;
+    let dirs = cache_dirs(scene, source.cache_dir);
     let mut out = Vec::new();
     let mut reference_set = false;
     for (s, sensor) in scene.sensors.iter().enumerate() {
@@ -58,7 +71,7 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
             continue;
         }
         let name = cache_name(scene, renderer, s, spp);
-        let cached = cache_dirs(scene).iter().find_map(|d| image::read_exr(&d.join(&name)).ok());
+        let cached = dirs.iter().find_map(|d| image::read_exr(&d.join(&name)).ok());
         if let Some(img) = cached.filter(|img| img.width == scene.film.width && img.height == scene.film.height) {
             out.push(img);
             continue;
@@ -67,12 +80,12 @@ pub fn targets(renderer: &Renderer, scene: &Scene, spp: u32, mut progress: impl 
             renderer.scene.theta.write(&padded(&renderer.scene, renderer.scene.layout.reference()))?;
             reference_set = true;
         }
-        let (img, done) = renderer.render_until(s as u32, spp, TARGET_SEED, |d, t| progress(s, d, t), crate::interrupt::requested)?;
+        let (img, done) = renderer.render_until(s as u32, spp, TARGET_SEED, |d, t| observer.target_progress(s, d, t), || source.cancel.is_cancelled())?;
         if done < spp {
-            // A Ctrl-C (crate::interrupt): a target of fewer samples is not the target.
+            // Cancelled: a target of fewer samples is not the target.
             return Err(Error::Interrupted(format!("while rendering the target of sensor {s} ({done} of {spp} samples per pixel); no iteration ran")));
         }
-        store(scene, &name, &img);
+        store(&dirs, &name, &img, observer);
         out.push(img);
     }
     if reference_set {

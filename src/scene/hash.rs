@@ -212,7 +212,7 @@ pub fn content_hash(scene: &Scene) -> u64 {
     // scene value as it is.
     h.tag("resampled");
     for p in &scene.optimise.params {
-        if let (Some(size), Reference::Texture(_)) = (p.texture, &p.reference) {
+        if let (Some(size), Reference::Texture(_)) = (p.shape.texture_size(), &p.reference) {
             h.tag(&p.name);
             h.u32s(&size);
         }

@@ -19,6 +19,7 @@ use super::file::{self, ColorInput, InitInput, ScalarInput, SceneFile};
 use super::model::*;
 use super::{obj, LoadOptions, MaterialKind, SceneError};
 use crate::image;
+use crate::tensor::Shape;
 
 /// What an imported glTF or Mitsuba file contributes: its sensors, materials, meshes
 /// (whose material indices are into `materials`) and lights, all checked by the importer,
@@ -262,9 +263,9 @@ impl Loader {
                 continue;
             }
             let material = &materials[mesh.material];
-            let textured = material.is_textured() || optimise.params.iter().any(|p| p.texture.is_some() && p.target.material() == Some(mesh.material));
+            let textured = material.is_textured() || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target.material() == Some(mesh.material));
             let emission_textured = matches!(mesh.emission, ColorValue::Texture(_))
-                || optimise.params.iter().any(|p| p.texture.is_some() && p.target == ParamTarget::Emission { mesh: i });
+                || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target == ParamTarget::Emission { mesh: i });
             let what = if textured {
                 format!("material \"{}\" is textured", material.name)
             } else if emission_textured {
@@ -788,30 +789,27 @@ impl Loader {
         } else if matches!(reference, Reference::Texture(_)) {
             return Err(self.invalid(key, &format!("{} is a texture in the scene; give `texture = [w, h]`", p.target)));
         }
-        let init = self.init_values(&format!("{key}.init"), p.init, &p.target, channels, p.texture, p.range)?;
-        Ok(Param { name: p.target, target, channels, init, range: p.range, texture: p.texture, lr: p.lr, reference })
+        let shape = match p.texture {
+            Some([w, h]) => Shape::texture(w, h, channels),
+            None => Shape::constant(channels),
+        };
+        let init = self.init_values(&format!("{key}.init"), p.init, &p.target, shape, p.range)?;
+        Ok(Param { name: p.target, target, shape, init, range: p.range, lr: p.lr, reference })
     }
 
-    /// The start values of parameter `target` (`channels` per texel, a texture of size
-    /// `texture` or a constant, in `range`) that `init` (read at `key`) gives: a number for
-    /// every channel, a colour, or an image (relative to the loader's directory) resampled
-    /// to the texture's size.
-    pub fn init_values(
-        &self,
-        key: &str,
-        init: InitInput,
-        target: &str,
-        channels: u32,
-        texture: Option<[u32; 2]>,
-        range: [f32; 2],
-    ) -> Result<Vec<f32>, SceneError> {
+    /// The start values of parameter `target` (of `shape`, in `range`) that `init` (read
+    /// at `key`) gives: a number for every channel, a colour, or an image (relative to the
+    /// loader's directory) resampled to the texture's size; a number or a colour is
+    /// repeated for every texel.
+    pub fn init_values(&self, key: &str, init: InitInput, target: &str, shape: Shape, range: [f32; 2]) -> Result<Vec<f32>, SceneError> {
         let [lo, hi] = range;
-        let init = match init {
+        let channels = shape.channels();
+        let texel = match init {
             InitInput::Scalar(v) => vec![v; channels as usize],
             InitInput::Color(c) if channels == 3 => c.to_vec(),
             InitInput::Color(_) => return Err(self.invalid(key, &format!("{target} is a scalar; give one number"))),
             InitInput::Texture(t) => {
-                let Some([w, h]) = texture else {
+                let Some([w, h]) = shape.texture_size() else {
                     return Err(self.invalid(key, "an image as `init` needs a texture parameter; give `texture = [w, h]`"));
                 };
                 let k = format!("{key}.texture");
@@ -827,6 +825,7 @@ impl Loader {
                 tex.image.resample(channels, w, h)
             }
         };
+        let init: Vec<f32> = texel.iter().copied().cycle().take(shape.len()).collect();
         self.finite(key, &init)?;
         if let Some(v) = init.iter().find(|&&v| v < lo || v > hi) {
             return Err(self.out_of_range(key, format!("{v} is outside the range [{lo}, {hi}]")));

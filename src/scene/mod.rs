@@ -21,6 +21,7 @@
 //! node and material names, Mitsuba `id`s), and `meshes.NAME.emission`,
 //! `materials.NAME.base_color` and `lights.NAME.intensity` targets use them.
 
+mod checks;
 mod error;
 mod file;
 mod gltf;
@@ -120,7 +121,7 @@ impl Scene {
                 ));
             };
             let init = file::InitInput::deserialize(v).map_err(|e| loader.invalid(&p.name, &e.to_string()))?;
-            p.init = loader.init_values(&p.name, init, &p.name, p.channels, p.texture, p.range)?;
+            p.init = loader.init_values(&p.name, init, &p.name, p.shape, p.range)?;
         }
         self.optimise.started_from = Some(path);
         Ok(())

@@ -805,14 +805,14 @@ pub struct Param {
     /// The target as written, e.g. `materials.wall.base_color`; unique within a scene.
     pub name: String,
     pub target: ParamTarget,
-    pub channels: u32,
-    /// Start value, one per channel (a scalar `init` is repeated), or with an image as
-    /// `init` every texel's, row by row (the image resampled to `texture`'s size).
+    /// A constant of the target's channels, or a texture of them (`texture = [w, h]`).
+    pub shape: crate::tensor::Shape,
+    /// Start values, `shape.len()` floats: a scalar `init` repeated for every channel and
+    /// texel, a colour for every texel, or an image's texels row by row (the image
+    /// resampled to the texture's size).
     pub init: Vec<f32>,
     /// Inclusive bounds, `range[0] < range[1]`.
     pub range: [f32; 2],
-    /// Optimise as a texture of this width and height instead of one constant.
-    pub texture: Option<[u32; 2]>,
     /// Learning rate for this parameter instead of the run's `lr` (unless a rate given
     /// outside the scene replaces it).
     pub lr: Option<f32>,
@@ -895,6 +895,14 @@ impl Scene {
     /// rendered targets.
     pub fn content_hash(&self) -> u64 {
         self.content_hash
+    }
+
+    /// What the scene asks for and will not get when it is rendered (no light, a texture
+    /// without texture coordinates to look it up, ...), one line each. Unlike
+    /// [`Self::warnings`] (what loading approximated), these hold for a scene built in code
+    /// too.
+    pub fn render_warnings(&self) -> Vec<String> {
+        super::checks::lighting_warnings(self)
     }
 
     pub fn material_index(&self, name: &str) -> Option<usize> {

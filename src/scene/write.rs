@@ -23,33 +23,23 @@ use serde_json::{json, Value};
 use super::model::*;
 use super::{MaterialKind, SceneError};
 use crate::image::{self, Image};
+use crate::tensor::ParamValue;
 
-/// A recovered parameter value: a constant (one float per channel) or a texture of
-/// `channels` floats per texel, rows from the top.
-#[derive(Clone, Debug)]
-pub enum Recovered {
-    Constant(Vec<f32>),
-    Texture { width: u32, height: u32, channels: u32, data: Vec<f32> },
+/// A recovered parameter's value as an image (a 2-D shape), or None.
+fn value_image(v: &ParamValue) -> Option<Image> {
+    let [width, height] = v.shape.texture_size()?;
+    let c = v.shape.channels() as usize;
+    let data = v.data.chunks(c).map(|t| if c == 1 { [t[0]; 3] } else { [t[0], t[1], t[2]] }).collect();
+    Some(Image { width, height, data })
 }
 
-impl Recovered {
-    fn image(&self) -> Option<Image> {
-        match self {
-            Recovered::Constant(_) => None,
-            Recovered::Texture { width, height, channels, data } => {
-                let c = *channels as usize;
-                let data = data.chunks(c).map(|t| if c == 1 { [t[0]; 3] } else { [t[0], t[1], t[2]] }).collect();
-                Some(Image { width: *width, height: *height, data })
-            }
-        }
-    }
-
-    fn constant3(&self) -> [f32; 3] {
-        match self {
-            Recovered::Constant(v) if v.len() >= 3 => [v[0], v[1], v[2]],
-            Recovered::Constant(v) => [v.first().copied().unwrap_or(0.0); 3],
-            Recovered::Texture { .. } => [0.0; 3],
-        }
+/// A recovered constant's first three channels (one channel repeated); zeros for a texture.
+fn constant3(v: &ParamValue) -> [f32; 3] {
+    match v.data.as_slice() {
+        _ if !v.shape.is_constant() => [0.0; 3],
+        [r, g, b, ..] => [*r, *g, *b],
+        [x] => [*x; 3],
+        _ => [0.0; 3],
     }
 }
 
@@ -66,9 +56,9 @@ pub(crate) fn file_name(name: &str) -> String {
 /// `scene` with every recovered value in place of the scene's own. Recovered textures get
 /// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter and
 /// wrap modes of the scene's value.
-pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
+pub fn apply(scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Scene {
     let mut out = scene.clone();
-    let texture = |target: ParamTarget, r: &Recovered| {
+    let texture = |target: ParamTarget, r: &ParamValue| {
         let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
         let (filter, wrap) = match target {
             ParamTarget::BaseColor { material } => (scene.materials[material].base_color.filter(), scene.materials[material].base_color.wrap()),
@@ -77,16 +67,16 @@ pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
             ParamTarget::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
             ParamTarget::Environment | ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
         };
-        r.image().map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap })
+        value_image(r).map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap })
     };
     for (target, r) in values {
         let color = || match texture(*target, r) {
             Some(t) => ColorValue::Texture(t),
-            None => ColorValue::Constant(r.constant3()),
+            None => ColorValue::Constant(constant3(r)),
         };
         let scalar = || match texture(*target, r) {
             Some(t) => ScalarValue::Texture(t),
-            None => ScalarValue::Constant(r.constant3()[0]),
+            None => ScalarValue::Constant(constant3(r)[0]),
         };
         match *target {
             ParamTarget::BaseColor { material } => out.materials[material].base_color = color(),
@@ -94,8 +84,8 @@ pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
             ParamTarget::Metallic { material } => out.materials[material].metallic = scalar(),
             ParamTarget::Emission { mesh } => out.meshes[mesh].emission = color(),
             ParamTarget::Environment => out.environment.value = color(),
-            ParamTarget::LightColor { light } => out.lights[light].color = r.constant3(),
-            ParamTarget::LightIntensity { light } => out.lights[light].intensity = r.constant3()[0],
+            ParamTarget::LightColor { light } => out.lights[light].color = constant3(r),
+            ParamTarget::LightIntensity { light } => out.lights[light].intensity = constant3(r)[0],
         }
     }
     out
@@ -103,7 +93,7 @@ pub fn apply(scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Scene {
 
 /// Writes `out_dir/final/` for `scene` with the recovered `values` (see the module
 /// documentation).
-pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Result<(), SceneError> {
+pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Result<(), SceneError> {
     let recovered = apply(scene, values);
     let tmp = out_dir.join("final.tmp");
     let _ = std::fs::remove_dir_all(&tmp);
@@ -400,7 +390,7 @@ fn urlencoding_decode(uri: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
-fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTarget, Recovered)]) -> Result<(), SceneError> {
+fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Result<(), SceneError> {
     let (mut root, blob) = read_gltf(&source.path)?;
     let from = source.path.parent().map(Path::to_path_buf).unwrap_or_default();
     // Buffers and images travel with the document.

@@ -14,7 +14,7 @@ fn finite_positive(what: &str, v: f64) {
 fn scene_bench_on_cornell_is_consistent() {
     let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
     // Two iterations: the medians are means, so per-pass sums compare with the total.
-    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(ctx, &scene, 2, 1 << 16, std::time::Duration::ZERO).unwrap());
+    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(&common::device(ctx), &scene, 2, 1 << 16, std::time::Duration::ZERO).unwrap());
     // Without a warm-up time, one untimed round: the one that compiles the pipelines.
     assert_eq!(b.warm_up.rounds, 1);
 
@@ -146,7 +146,7 @@ fn scene_bench_on_cornell_is_consistent() {
 #[test]
 fn bvh_layout_bench_on_cornell_is_consistent() {
     let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
-    let b = with_gpu(|ctx| vkinverse::bench::layout_bench(ctx, &scene, 2).unwrap());
+    let b = with_gpu(|ctx| vkinverse::bench::layout_bench(&common::device(ctx), &scene, 2).unwrap());
     let names: Vec<&str> = b.layouts.iter().map(|l| l.layout.as_str()).collect();
     assert_eq!(names, ["binary", "wide", "cw8"]);
     for l in &b.layouts {
@@ -173,7 +173,7 @@ fn bvh_layout_bench_on_cornell_is_consistent() {
 /// buffer and a texel buffer among them, has a finite positive time and rate.
 #[test]
 fn buffer_bench_reports_every_kernel() {
-    let b = with_gpu(|ctx| vkinverse::bench::buffer_bench(ctx, 1 << 14, 1).unwrap());
+    let b = with_gpu(|ctx| vkinverse::bench::buffer_bench(&common::device(ctx), 1 << 14, 1).unwrap());
     let names: Vec<&str> = b.kernels.iter().map(|k| k.name.as_str()).collect();
     for wanted in ["copy", "copy_vec4", "fill", "scale_add", "reduce_sum", "gather", "gather_texel"] {
         assert!(names.contains(&wanted), "{wanted} missing from {names:?}");

@@ -11,19 +11,21 @@
 
 use crate::common;
 
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use vkinverse::optim::spec::Spec;
-use vkinverse::optimise::{optimise, Observer, Outcome, Progress};
-use vkinverse::rundir::Mode;
+use vkinverse::optimise::{optimise, Observer, Outcome};
 use vkinverse::scene::{Film, LoadOptions, Scene};
 use vkinverse::settings::RunSettings;
+use vkinverse::{Diagnostics, LogRow, Mode, RunOptions};
 
 /// Collects the parameter error after every iteration.
 struct Errors(Vec<f64>);
 
 impl Observer for Errors {
-    fn iteration(&mut self, p: &Progress) {
+    fn iteration(&mut self, p: &LogRow, _: &[Diagnostics]) -> ControlFlow<()> {
         self.0.push(p.param_error.expect("reference scene"));
+        ControlFlow::Continue(())
     }
 }
 
@@ -42,7 +44,10 @@ fn run(scene_name: &str, optimiser: &str) -> (f64, f64) {
     let out = std::env::temp_dir().join(format!("vkinverse-convergence-{scene_name}-{optimiser}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let mut errors = Errors(Vec::new());
-    let outcome = common::with_gpu(|ctx| optimise(ctx, &scene, &settings, &out, Mode::New, &mut errors).expect("optimisation runs"));
+    let outcome = common::with_gpu(|ctx| {
+        optimise(&common::device(ctx), &scene, &settings, &RunOptions { out_dir: Some(&out), mode: Mode::New, cancel: Default::default() }, &mut errors)
+            .expect("optimisation runs")
+    });
     let Outcome::Finished(run) = outcome else { panic!("a new run finishes") };
     let (summary, errors) = (run.summary, errors.0);
     let _ = std::fs::remove_dir_all(&out);
@@ -85,8 +90,9 @@ fn spiral_adam() {
 struct Timed(Vec<(f64, f64)>);
 
 impl Observer for Timed {
-    fn iteration(&mut self, p: &Progress) {
+    fn iteration(&mut self, p: &LogRow, _: &[Diagnostics]) -> ControlFlow<()> {
         self.0.push((p.time_s, p.param_error.expect("reference scene")));
+        ControlFlow::Continue(())
     }
 }
 
@@ -104,7 +110,10 @@ fn timed_run(scene: &Scene, optimiser: &str, spp: u32, iterations: u32, seed: u6
     let out = std::env::temp_dir().join(format!("vkinverse-equal-time-{optimiser}-{seed}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
     let mut curve = Timed(Vec::new());
-    common::with_gpu(|ctx| optimise(ctx, scene, &settings, &out, Mode::New, &mut curve).expect("optimisation runs"));
+    common::with_gpu(|ctx| {
+        optimise(&common::device(ctx), scene, &settings, &RunOptions { out_dir: Some(&out), mode: Mode::New, cancel: Default::default() }, &mut curve)
+            .expect("optimisation runs")
+    });
     let _ = std::fs::remove_dir_all(&out);
     curve.0
 }

@@ -6,20 +6,25 @@ use crate::common;
 use common::with_gpu;
 use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};
 use vkinverse::ops::BufferOps;
-use vkinverse::render::gradient::GradientPass;
+use vkinverse::render::gradient::{GradientInputs, GradientPass};
 use vkinverse::render::targets::{padded, targets};
-use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::render::{GpuScene, PrimalRenderer};
 use vkinverse::scene::Scene;
 
 /// What a finite-difference sample of a scene needs: the scene, its renderer (θ at the
 /// scene's init), cheap targets, the buffer operations and θ_{i-1} with every element moved
 /// by `shift` inside its range.
-fn fd_setup(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene_path: &str, shift: f32) -> (Scene, Renderer, Vec<vkinverse::image::Image>, BufferOps, Buffer) {
+fn fd_setup(
+    ctx: &std::sync::Arc<vkinverse::gpu::Context>,
+    scene_path: &str,
+    shift: f32,
+) -> (Scene, PrimalRenderer, Vec<vkinverse::image::Image>, BufferOps, Buffer) {
     let scene = Scene::load(scene_path).unwrap();
-    let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+    let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
     let gs = &renderer.scene;
     // Target quality is irrelevant to these comparisons: few samples keep the tests short.
-    let imgs = targets(&renderer, &scene, 16, |_, _, _| {}).unwrap();
+    let source = vkinverse::render::targets::TargetSource { spp: 16, cache_dir: None, cancel: &vkinverse::Cancel::new() };
+    let imgs = targets(&renderer, &scene, source, &mut ()).unwrap();
     let ops = BufferOps::new(ctx).unwrap();
     let theta = gs.layout.initial();
     let mut prev_vals = theta.clone();
@@ -46,9 +51,34 @@ fn fd_samples(scene_path: &str, shift: f32, spp: u32, rounds: u32) -> (Vec<Vec<f
         let g_prev = Buffer::zeroed::<f32>(ctx, "prev", n, MemoryKind::Device).unwrap();
         let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
         let seed = 77;
-        let fused = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, Some(&theta_prev), &fused_grad, None).unwrap();
-        let cur = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &gs.theta, None, &g_cur, None).unwrap();
-        let prv = GradientPass::new(gs, &ops, &imgs, loss, spp, spp, seed, &theta_prev, None, &g_prev, None).unwrap();
+        let fused = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: &imgs,
+                loss,
+                spp,
+                primal_spp: spp,
+                seed,
+                theta: &gs.theta,
+                theta_prev: Some(&theta_prev),
+                grad: &fused_grad,
+                grad_half: None,
+            },
+        )
+        .unwrap();
+        let cur = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs { targets: &imgs, loss, spp, primal_spp: spp, seed, theta: &gs.theta, theta_prev: None, grad: &g_cur, grad_half: None },
+        )
+        .unwrap();
+        let prv = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs { targets: &imgs, loss, spp, primal_spp: spp, seed, theta: &theta_prev, theta_prev: None, grad: &g_prev, grad_half: None },
+        )
+        .unwrap();
         let mut cmd_fused = CommandBuffer::new(ctx, "fused").unwrap();
         cmd_fused.record(|rec| fused.record(rec, gs, &ops)).unwrap();
         let mut cmd_two = CommandBuffer::new(ctx, "two").unwrap();
@@ -129,7 +159,22 @@ fn strided_samples_of_all_phases_average_to_the_full_sample() {
         let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
         let sample = |stride: u32, phase: u32, frame: u32| -> Vec<f32> {
             let grad = Buffer::zeroed::<f32>(ctx, "fd", n, MemoryKind::Device).unwrap();
-            let mut pass = GradientPass::new(gs, &ops, &imgs, loss, 1, 1, 5, &gs.theta, Some(&theta_prev), &grad, None).unwrap();
+            let mut pass = GradientPass::new(
+                gs,
+                &ops,
+                &GradientInputs {
+                    targets: &imgs,
+                    loss,
+                    spp: 1,
+                    primal_spp: 1,
+                    seed: 5,
+                    theta: &gs.theta,
+                    theta_prev: Some(&theta_prev),
+                    grad: &grad,
+                    grad_half: None,
+                },
+            )
+            .unwrap();
             (pass.stride, pass.phase) = (stride, phase);
             let mut cmd = CommandBuffer::new(ctx, "strided").unwrap();
             cmd.record(|rec| pass.record(rec, gs, &ops)).unwrap();
@@ -257,8 +302,8 @@ fn carry_pass_follows_its_formula() {
             let carry = Carry::new(ctx, pixels, &triples, w_min, mode, spp, adjoint).unwrap();
             let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
             cmd.record(|rec| {
-                carry.record(rec, &ops, None)?;
-                carry.record_adjoint(rec, None)
+                carry.record(rec, &ops)?;
+                carry.record_adjoint(rec)
             })
             .unwrap();
             // cur and prev differ by a small step, fresh by noise of the size of cur's.
@@ -353,7 +398,7 @@ fn carry_weight_survives_a_non_finite_render() {
         let (f, c, p) = (mk("fresh"), mk("cur"), mk("prev"));
         let carry = Carry::new(ctx, pixels, &[(&f, &c, &p)], 0.01, CarryWeight::Variance, (4, 1), None).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
-        cmd.record(|rec| carry.record(rec, &ops, None)).unwrap();
+        cmd.record(|rec| carry.record(rec, &ops)).unwrap();
         let image = |r: u32, kind: u32| -> Vec<[f32; 3]> { (0..pixels).map(|i| [((i as u32 * 7 + r * 13 + kind * 5) % 11) as f32 * 0.1; 3]).collect() };
         for r in 0..4u32 {
             let mut fresh = image(r, 0);
@@ -392,7 +437,7 @@ fn carried_run(spec: &str) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 3]>, vkin
     let mut settings = RunSettings::of_scene(&scene);
     settings.optimiser = spec.parse::<Spec>().unwrap();
     with_gpu(|ctx| {
-        let engine = Engine::new(ctx, &scene, &settings, |_, _, _| {}).unwrap();
+        let engine = Engine::new(&crate::common::device(ctx), &scene, &settings, &mut (), &Default::default()).unwrap();
         let mut iteration = engine.iteration().unwrap();
         let iterations = 30;
         let mut theta_of_last = engine.theta().unwrap();
@@ -500,9 +545,40 @@ fn a_theta_buffer_without_the_material_data_is_refused() {
         let bare = vkinverse::render::texel_buffer(ctx, "bare theta", &gs.layout.initial()).unwrap();
         assert!(bare.len() < gs.theta.len(), "the Cornell box has material data after θ");
         for (theta, prev) in [(&bare, None), (&gs.theta, Some(&bare))] {
-            let e = GradientPass::new(gs, &ops, &imgs, vkinverse::settings::Loss::L2, 1, 1, 5, theta, prev, &grad, None).err().expect("refused");
+            let e = GradientPass::new(
+                gs,
+                &ops,
+                &GradientInputs {
+                    targets: &imgs,
+                    loss: vkinverse::settings::Loss::L2,
+                    spp: 1,
+                    primal_spp: 1,
+                    seed: 5,
+                    theta,
+                    theta_prev: prev,
+                    grad: &grad,
+                    grad_half: None,
+                },
+            )
+            .err()
+            .expect("refused");
             assert!(e.to_string().contains("bare theta") && e.to_string().contains(&gs.theta.len().to_string()), "{e}");
         }
-        GradientPass::new(gs, &ops, &imgs, vkinverse::settings::Loss::L2, 1, 1, 5, &gs.theta, Some(&theta_prev), &grad, None).unwrap();
+        GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: &imgs,
+                loss: vkinverse::settings::Loss::L2,
+                spp: 1,
+                primal_spp: 1,
+                seed: 5,
+                theta: &gs.theta,
+                theta_prev: Some(&theta_prev),
+                grad: &grad,
+                grad_half: None,
+            },
+        )
+        .unwrap();
     });
 }

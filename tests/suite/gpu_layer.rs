@@ -5,7 +5,8 @@ use crate::common;
 
 use common::with_gpu;
 use vkinverse::gpu::{
-    check_features, Access, Buffer, CommandBuffer, ComputePipeline, Context, ContextOptions, DeviceFeatures, GpuError, MemoryKind, Profiler, SpecValue,
+    check_features, Access, Buffer, CommandBuffer, ComputePipeline, Context, ContextOptions, DeviceFeatures, GpuError, MemoryKind, Profiler, Recorder,
+    SpecValue,
 };
 use vkinverse::ops::BufferOps;
 
@@ -122,77 +123,102 @@ fn struct_layouts_match_reflection() {
     common::check_layout("layout_probe", "ProbeStruct", &rust, std::mem::size_of::<ProbeStruct>());
 }
 
+/// Each dispatch, copy and fill gets the barrier its buffers' previous use needs, and no
+/// other: read after write and write after read one each, reads after reads none. The
+/// validation layer's synchronization check (on in every test) fails the test on any
+/// barrier missing, and the results show the ordering. An unordered batch derives none
+/// between its own commands and refuses a dependency inside it; a hand-written barrier is
+/// checked against the recorded access and counts for the derived one.
 #[test]
-fn missing_barrier_is_a_hazard() {
+fn barriers_are_derived_from_each_buffers_previous_use() {
     with_gpu(|ctx| {
         let ops = BufferOps::new(ctx).unwrap();
         let a = Buffer::zeroed::<f32>(ctx, "a", 100, MemoryKind::Device).unwrap();
         let b = Buffer::zeroed::<f32>(ctx, "b", 100, MemoryKind::Device).unwrap();
         let c = Buffer::zeroed::<f32>(ctx, "c", 100, MemoryKind::Device).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
+        // Records `f` and returns the barriers the recording holds.
+        let barriers = |cmd: &mut CommandBuffer, f: &dyn Fn(&mut Recorder) -> vkinverse::gpu::Result<()>| -> u32 {
+            let mut n = 0;
+            cmd.record(|rec| {
+                f(rec)?;
+                n = rec.barrier_count();
+                Ok(())
+            })
+            .unwrap();
+            cmd.submit_and_wait().unwrap();
+            n
+        };
 
-        // Read after write with no barrier.
-        let err = cmd
-            .record(|rec| {
+        // Read after write, twice: a fill, then a chain of copies that read what came before.
+        let n = barriers(&mut cmd, &|rec| {
+            ops.fill(rec, &a, 3.0)?;
+            ops.copy(rec, &a, &b)?;
+            ops.copy(rec, &b, &c)
+        });
+        assert_eq!(n, 2, "a and b, each read after its write");
+        assert_eq!(c.read::<f32>().unwrap(), vec![3.0f32; 100]);
+
+        // Write after read: the fill waits for the copy that reads a.
+        let n = barriers(&mut cmd, &|rec| {
+            ops.copy(rec, &a, &b)?;
+            ops.fill(rec, &a, 5.0)
+        });
+        assert_eq!(n, 1);
+        assert_eq!((b.read::<f32>().unwrap()[0], a.read::<f32>().unwrap()[0]), (3.0, 5.0), "the copy read a before the fill");
+
+        // Reads after reads need nothing.
+        assert_eq!(
+            barriers(&mut cmd, &|rec| {
                 ops.copy(rec, &a, &b)?;
-                ops.copy(rec, &b, &c)?;
-                Ok(())
-            })
-            .unwrap_err();
-        match err {
-            GpuError::Hazard { buffer, previous, now, .. } => {
-                assert_eq!(buffer, "b");
-                assert_eq!(previous, Access::ComputeWrite);
-                assert_eq!(now, Access::ComputeRead);
-            }
-            other => panic!("expected a hazard, got {other}"),
-        }
+                ops.copy(rec, &a, &c)
+            }),
+            0
+        );
 
-        // Write after read with no barrier.
-        let err = cmd
-            .record(|rec| {
-                ops.copy(rec, &a, &b)?;
-                ops.fill(rec, &a, 1.0)?;
-                Ok(())
-            })
-            .unwrap_err();
-        assert!(matches!(err, GpuError::Hazard { ref buffer, .. } if buffer == "a"), "{err}");
-
-        // A barrier to the wrong stage does not cover the access.
-        let err = cmd
-            .record(|rec| {
-                ops.copy(rec, &a, &b)?;
-                rec.barrier(&b, Access::ComputeWrite, Access::TransferRead)?;
-                ops.copy(rec, &b, &c)?;
-                Ok(())
-            })
-            .unwrap_err();
-        assert!(matches!(err, GpuError::Hazard { .. }), "{err}");
-
-        // A barrier that made a write visible to compute reads does not cover a transfer
-        // read after those reads; `transition` adds the barrier from the write, and the
-        // copy then reads what the kernel wrote (the validation layer checks the sync).
-        let err = cmd
-            .record(|rec| {
-                ops.fill(rec, &b, 2.0)?;
-                rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
-                ops.copy(rec, &b, &c)?;
-                rec.copy(&b, &a, 400)?;
-                Ok(())
-            })
-            .unwrap_err();
-        assert!(matches!(err, GpuError::Hazard { ref buffer, now: Access::TransferRead, .. } if buffer == "b"), "{err}");
-        cmd.record(|rec| {
+        // A write made visible to compute reads is not visible to a transfer read: the
+        // transfer copy gets a barrier of its own from the write.
+        let n = barriers(&mut cmd, &|rec| {
             ops.fill(rec, &b, 2.0)?;
-            rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
             ops.copy(rec, &b, &c)?;
-            rec.transition(&[(&b, Access::TransferRead), (&a, Access::TransferWrite)])?;
-            rec.copy(&b, &a, 400)?;
-            Ok(())
-        })
-        .unwrap();
-        cmd.submit_and_wait().unwrap();
+            rec.copy(&b, &a, 400)
+        });
+        assert_eq!(n, 2, "b to compute reads, then b to transfer reads (a is not touched before in this recording)");
         assert_eq!(a.read::<f32>().unwrap(), vec![2.0f32; 100]);
+
+        // A hand-written barrier covers the access it declares; none is derived after it.
+        assert_eq!(
+            barriers(&mut cmd, &|rec| {
+                ops.fill(rec, &b, 4.0)?;
+                rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
+                ops.copy(rec, &b, &c)
+            }),
+            1
+        );
+        assert_eq!(c.read::<f32>().unwrap(), vec![4.0f32; 100]);
+
+        // An unordered batch: copies into disjoint halves of one buffer need no barrier
+        // between them; the read of a after the batch waits for both, and the write of c
+        // for the batch's read of it.
+        let n = barriers(&mut cmd, &|rec| {
+            rec.unordered(|rec| {
+                rec.copy_range(&b, 0, &a, 0, 200)?;
+                rec.copy_range(&c, 200, &a, 200, 200)
+            })?;
+            ops.copy(rec, &a, &c)
+        });
+        assert_eq!(n, 2, "a read and c written after the batch, nothing inside it");
+        assert_eq!(c.read::<f32>().unwrap(), vec![4.0f32; 100]);
+        // A dependency inside a batch has nothing to order it: refused while recording.
+        let err = cmd
+            .record(|rec| {
+                rec.unordered(|rec| {
+                    ops.fill(rec, &a, 1.0)?;
+                    ops.copy(rec, &a, &b)
+                })
+            })
+            .unwrap_err();
+        assert!(matches!(err, GpuError::Hazard { ref buffer, previous: Access::ComputeWrite, now: Access::ComputeRead, .. } if buffer == "a"), "{err}");
 
         // A barrier that misdeclares the previous access is caught in debug builds.
         if cfg!(debug_assertions) {
@@ -205,18 +231,38 @@ fn missing_barrier_is_a_hazard() {
                 .unwrap_err();
             assert!(matches!(err, GpuError::BarrierMismatch { .. }), "{err}");
         }
+    });
+}
 
-        // With the barrier, the same recording is fine, and several readers may follow.
-        cmd.record(|rec| {
+/// With a profiler attached, a dispatch outside any named scope is timed in a scope named
+/// after its kernel (consecutive dispatches of one kernel in one scope), and a named scope
+/// takes the dispatches inside it.
+#[test]
+fn attached_profilers_time_every_pass_by_kernel() {
+    with_gpu(|ctx| {
+        let ops = BufferOps::new(ctx).unwrap();
+        let a = Buffer::zeroed::<f32>(ctx, "a", 1 << 16, MemoryKind::Device).unwrap();
+        let b = Buffer::zeroed::<f32>(ctx, "b", 1 << 16, MemoryKind::Device).unwrap();
+        let mut prof = Profiler::new(ctx, Profiler::SCOPES).unwrap();
+        let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
+        cmd.record_profiled(&mut prof, |rec| {
+            ops.fill(rec, &a, 1.0)?;
+            ops.fill(rec, &b, 2.0)?;
             ops.copy(rec, &a, &b)?;
-            rec.barrier(&b, Access::ComputeWrite, Access::ComputeRead)?;
-            ops.copy(rec, &b, &c)?;
-            rec.barrier(&c, Access::ComputeWrite, Access::ComputeWrite)?;
-            ops.copy(rec, &b, &c)?;
-            Ok(())
+            rec.scope("named", |rec| {
+                ops.fill(rec, &a, 3.0)?;
+                ops.copy(rec, &a, &b)
+            })
         })
         .unwrap();
         cmd.submit_and_wait().unwrap();
+        let names: Vec<(String, usize)> = prof.results().unwrap().into_iter().map(|t| (t.name, t.depth)).collect();
+        let want = [("fill", 0), ("copy", 0), ("named", 0)].map(|(n, d)| (n.to_string(), d));
+        assert_eq!(names, want);
+        assert_eq!(b.read::<f32>().unwrap()[0], 3.0);
+        // A scope left open is an error.
+        let err = cmd.record_profiled(&mut prof, |rec| rec.begin_scope("open")).unwrap_err();
+        assert!(err.to_string().contains("never ended"), "{err}");
     });
 }
 

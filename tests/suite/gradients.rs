@@ -40,8 +40,8 @@ use std::sync::Arc;
 use vkinverse::gpu::{Buffer, CommandBuffer, Context, MemoryKind};
 use vkinverse::image::Image;
 use vkinverse::ops::BufferOps;
-use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT};
-use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::render::gradient::{GradientInputs, GradientPass, SEED_ADJOINT};
+use vkinverse::render::{GpuScene, PrimalRenderer};
 use vkinverse::scene::{Loss, Scene, TextureValue as _};
 
 // ---------------------------------------------------------------------------------------
@@ -258,7 +258,7 @@ const TARGET_SEED: u32 = 0x7A46_E701;
 
 /// A scene on the device and one recorded gradient estimate of it.
 struct Bench {
-    renderer: Renderer,
+    renderer: PrimalRenderer,
     grad: Buffer,
     pass: GradientPass,
     cmd: CommandBuffer,
@@ -271,7 +271,7 @@ impl Bench {
     /// Targets are the reference scene rendered at `target_spp` (any fixed image defines
     /// a loss; its noise does not matter).
     fn new(ctx: &Arc<Context>, scene: &Scene, loss: Loss, spp: u32, primal_spp: u32, target_spp: u32) -> Self {
-        let renderer = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
+        let renderer = PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
         let gs = &renderer.scene;
         gs.set_theta(gs.layout.reference()).unwrap();
         gs.set_frame(0).unwrap();
@@ -279,13 +279,18 @@ impl Bench {
         Self::with_targets(renderer, targets, loss, spp, primal_spp)
     }
 
-    fn with_targets(renderer: Renderer, targets: Vec<Image>, loss: Loss, spp: u32, primal_spp: u32) -> Self {
+    fn with_targets(renderer: PrimalRenderer, targets: Vec<Image>, loss: Loss, spp: u32, primal_spp: u32) -> Self {
         let gs = &renderer.scene;
         let ctx = &gs.ctx;
         gs.set_theta(gs.layout.initial()).unwrap();
         let ops = BufferOps::new(ctx).unwrap();
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass = GradientPass::new(gs, &ops, &targets, loss, spp, primal_spp, 1, &gs.theta, None, &grad, None).unwrap();
+        let pass = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs { targets: &targets, loss, spp, primal_spp, seed: 1, theta: &gs.theta, theta_prev: None, grad: &grad, grad_half: None },
+        )
+        .unwrap();
         let mut cmd = CommandBuffer::new(ctx, "gradient").unwrap();
         cmd.record(|rec| pass.record(rec, gs, &ops)).unwrap();
         Bench { renderer, grad, pass, cmd, targets, loss, _ops: ops }
@@ -394,7 +399,7 @@ fn measure_at(b: &mut Bench, theta0: &[f32], probes: &[Probe], rounds: u32) -> V
             let width = if p.forward { p.h } else { 2.0 * p.h } as f64;
             for &k in &p.elements {
                 let slot = layout.slots.iter().find(|s| k >= s.offset && k < s.offset + s.len).unwrap();
-                let channels = if slot.channels == 3 { (k - slot.offset) % 3..(k - slot.offset) % 3 + 1 } else { 0..3 };
+                let channels = if slot.shape.channels() == 3 { (k - slot.offset) % 3..(k - slot.offset) % 3 + 1 } else { 0..3 };
                 let (mut fd, mut magnitude) = (0.0, 0.0);
                 for (s, delta) in deltas.iter().enumerate() {
                     for (px, d) in delta.iter().enumerate() {
@@ -922,7 +927,7 @@ fn gap_scene_gradient_agrees_with_finite_differences_of_independent_renders() {
         scene.optimise.params.retain(|p| p.name.starts_with("materials.left."));
         assert_eq!(scene.optimise.params.len(), 1, "the gap scene optimises its left wall's colour");
         let opts = vkinverse::gradcheck::Options { spp: 16, primal_spp: 16, rounds: Some(40), ..Default::default() };
-        let report = vkinverse::gradcheck::gradcheck(ctx, &scene, &opts).unwrap();
+        let report = vkinverse::gradcheck::gradcheck(&common::device(ctx), &scene, &opts).unwrap();
         eprintln!("{}", report.table());
         assert_eq!(report.rows.len(), 3);
         assert!(report.typical_gradient > 0.0 && report.rows.iter().all(|r| r.se > 0.0), "the wall's colour must matter");
@@ -988,7 +993,7 @@ range = [0.0, 50.0]
         let bench = |sensors: &[usize]| {
             let mut scene = both.clone();
             scene.sensors = sensors.iter().map(|&s| both.sensors[s].clone()).collect();
-            let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+            let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
             let black = vec![Image::filled(film, film, [0.0; 3]); sensors.len()];
             Bench::with_targets(renderer, black, Loss::L2, spp, spp)
         };
@@ -1201,7 +1206,7 @@ fn feature_specialisation_changes_no_result() {
                     // The per-thread gradient sums indexed per lane.
                     gs.local_grads_unrolled = false;
                 }
-                let renderer = Renderer::new(gs).unwrap();
+                let renderer = PrimalRenderer::new(gs).unwrap();
                 renderer.scene.set_theta(renderer.scene.layout.reference()).unwrap();
                 renderer.scene.set_frame(0).unwrap();
                 let target = renderer.render(0, 4, TARGET_SEED, |_, _| {}).unwrap();

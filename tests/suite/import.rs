@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use common::scenes::temp_dir;
 use common::with_gpu;
 use vkinverse::image::{srgb_decode, Image};
-use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::render::{GpuScene, PrimalRenderer};
 use vkinverse::scene::write::write_final;
 use vkinverse::scene::{AlphaMode, ColorValue, Distribution, Film, LightKind, LoadOptions, ScalarValue, Scene, SceneError, TextureValue as _};
 
@@ -22,7 +22,7 @@ fn data(rel: &str) -> PathBuf {
 const BOX: LoadOptions = LoadOptions { film: Some(Film { width: 24, height: 24 }), max_depth: Some(4) };
 
 fn render(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene, sensor: u32, spp: u32, seed: u32) -> Image {
-    let r = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
+    let r = PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
     r.scene.set_theta(r.scene.layout.reference()).unwrap();
     r.render(sensor, spp, seed, |_, _| {}).unwrap()
 }
@@ -318,7 +318,7 @@ fn gltf_emissive_textures_are_read_rendered_and_written_back() {
         let total: f64 = flat.data.iter().map(|p| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
         assert!(total > 0.0 && diff > 0.2 * total, "the texture changes the image by only {:.4} (relative L1)", diff / total);
 
-        let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let layout = r.scene.layout.clone();
         let theta: Vec<f32> = (0..12).map(|k| 0.6 * (k + 1) as f32).collect();
         r.scene.set_theta(theta.clone()).unwrap();
@@ -669,7 +669,7 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
     let scene = Scene::load(&scene_path).unwrap();
     let out = dir.join("out");
     with_gpu(|ctx| {
-        let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let layout = r.scene.layout.clone();
         // Recovered values: the start values moved somewhere, a texture with a gradient.
         let mut theta = layout.initial();
@@ -735,7 +735,7 @@ fn assert_close(img: &Image, expected: &Image, what: &str) {
 }
 
 fn render_sensor0(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene) -> Image {
-    let r = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
+    let r = PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap();
     r.render(0, 4, 5, |_, _| {}).unwrap()
 }
 
@@ -938,7 +938,7 @@ fn mitsuba_bump_maps_wrap_bsdfs() {
         m.perturbation = None;
     }
     with_gpu(|ctx| {
-        let render = |s: &Scene| Renderer::new(GpuScene::new(ctx, s).unwrap()).unwrap().render(0, 4, 3, |_, _| {}).unwrap();
+        let render = |s: &Scene| PrimalRenderer::new(GpuScene::new(ctx, s).unwrap()).unwrap().render(0, 4, 3, |_, _| {}).unwrap();
         let (a, b, c) = (render(&scene), render(&written), render(&flat));
         assert!(a.data == b.data, "the written-back TOML renders differently");
         let changed = a.data.iter().zip(&c.data).filter(|(p, q)| (p[0] - q[0]).abs() > 0.05 * q[0].abs().max(1e-2)).count();
@@ -1927,7 +1927,6 @@ fn checkerboards_and_nearest_textures_are_imported() {
 /// glTF written back gives a recovered base colour texture a sampler of its own with them.
 #[test]
 fn gltf_nearest_samplers_are_kept() {
-    use vkinverse::scene::write::Recovered;
     use vkinverse::scene::{Filter, ParamTarget, Wrap};
     let dir = temp_dir("gltf-nearest");
     std::fs::copy(data("textured/bumps.png"), dir.join("bumps.png")).unwrap();
@@ -1940,7 +1939,7 @@ fn gltf_nearest_samplers_are_kept() {
     let m = &s.materials[0];
     assert_eq!((m.base_color.filter(), m.normal_map().unwrap().texture.filter), (Filter::Nearest, Filter::Nearest));
     assert_eq!((m.base_color.wrap(), m.normal_map().unwrap().texture.wrap), ([Wrap::Clamp, Wrap::Mirror], [Wrap::Clamp, Wrap::Mirror]));
-    let recovered = Recovered::Texture { width: 2, height: 2, channels: 3, data: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.2, 0.4, 0.6] };
+    let recovered = vkinverse::ParamValue { shape: vkinverse::Shape::texture(2, 2, 3), data: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.2, 0.4, 0.6] };
     let out = dir.join("out");
     write_final(&out, &s, &[(ParamTarget::BaseColor { material: 0 }, recovered)]).unwrap();
     let t = Scene::load(out.join("final/scene.toml")).unwrap();

@@ -360,10 +360,13 @@ fn mean_var(xs: &[f64]) -> (f64, f64) {
 }
 
 /// A bundled scene's renderer, a 16-spp target of it and the buffer kernels.
-fn with_target(ctx: &std::sync::Arc<vkinverse::gpu::Context>, name: &str) -> (vkinverse::render::Renderer, vkinverse::image::Image, vkinverse::ops::BufferOps) {
-    use vkinverse::render::{GpuScene, Renderer};
+fn with_target(
+    ctx: &std::sync::Arc<vkinverse::gpu::Context>,
+    name: &str,
+) -> (vkinverse::render::PrimalRenderer, vkinverse::image::Image, vkinverse::ops::BufferOps) {
+    use vkinverse::render::{GpuScene, PrimalRenderer};
     let scene = vkinverse::scene::Scene::load(format!("{}/scenes/{name}/scene.toml", env!("CARGO_MANIFEST_DIR"))).unwrap();
-    let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+    let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
     let target = renderer.render(0, 16, 7, |_, _| {}).unwrap();
     (renderer, target, vkinverse::ops::BufferOps::new(ctx).unwrap())
 }
@@ -382,11 +385,21 @@ fn split_and_plain(
     plain: &vkinverse::gpu::Buffer,
 ) -> (vkinverse::gpu::CommandBuffer, vkinverse::gpu::CommandBuffer) {
     use vkinverse::gpu::{Access, CommandBuffer};
-    use vkinverse::render::gradient::GradientPass;
+    use vkinverse::render::gradient::{GradientInputs, GradientPass};
     use vkinverse::scene::Loss;
     let targets = std::slice::from_ref(target);
-    let split = GradientPass::new(gs, ops, targets, Loss::L2, spp, 4, 3, &gs.theta, None, grad, Some(half)).unwrap();
-    let unsplit = GradientPass::new(gs, ops, targets, Loss::L2, spp, 4, 3, &gs.theta, None, plain, None).unwrap();
+    let split = GradientPass::new(
+        gs,
+        ops,
+        &GradientInputs { targets, loss: Loss::L2, spp, primal_spp: 4, seed: 3, theta: &gs.theta, theta_prev: None, grad, grad_half: Some(half) },
+    )
+    .unwrap();
+    let unsplit = GradientPass::new(
+        gs,
+        ops,
+        &GradientInputs { targets, loss: Loss::L2, spp, primal_spp: 4, seed: 3, theta: &gs.theta, theta_prev: None, grad: plain, grad_half: None },
+    )
+    .unwrap();
     let mut cmd = CommandBuffer::new(ctx, "halves").unwrap();
     cmd.record(|rec| {
         rec.transition(&[(grad, Access::TransferWrite), (half, Access::TransferWrite)])?;

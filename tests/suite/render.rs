@@ -4,7 +4,7 @@ use crate::common;
 
 use common::scenes::{sphere_obj, write_scene};
 use common::with_gpu;
-use vkinverse::render::{GpuScene, Renderer};
+use vkinverse::render::{GpuScene, PrimalRenderer};
 use vkinverse::scene::{ColorValue, Scene};
 
 const ENV: [f32; 3] = [0.8, 0.6, 0.4];
@@ -56,7 +56,7 @@ fn white_furnace_convex_object_is_exact() {
     with_gpu(|ctx| {
         for max_depth in [1u32, 2, 5] {
             let scene = convex_scene(max_depth);
-            let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+            let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
             let img = r.render(0, 8, 1, |_, _| {}).unwrap();
             let hit_value = if max_depth == 1 { 0.0 } else { RHO };
             let (w, h) = (img.width, img.height);
@@ -112,7 +112,7 @@ emission = [1.0, 2.0, 0.5]
 "#
             );
             let scene = Scene::load(write_scene(&format!("inside{max_depth}"), &toml, &sphere_obj(2.0, 3, true))).unwrap();
-            let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+            let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
             let img = r.render(0, 16, 7, |_, _| {}).unwrap();
             let series: f32 = (0..max_depth).map(|k| RHO.powi(k as i32)).sum();
             let le = [1.0f32, 2.0, 0.5];
@@ -133,7 +133,7 @@ emission = [1.0, 2.0, 0.5]
 fn same_seed_same_image() {
     with_gpu(|ctx| {
         let scene = Scene::load("scenes/cornell/scene.toml").unwrap();
-        let r = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let a = r.render(0, 2, 3, |_, _| {}).unwrap();
         let b = r.render(0, 2, 3, |_, _| {}).unwrap();
         let c = r.render(0, 2, 4, |_, _| {}).unwrap();
@@ -155,7 +155,7 @@ fn bvh_layouts_render_the_same() {
         let scene = Scene::load(format!("scenes/{name}/scene.toml")).unwrap();
         let images = with_gpu(|ctx| {
             vkinverse::bvh::BvhLayout::ALL.map(|layout| {
-                let r = Renderer::new(GpuScene::with_bvh_layout(ctx, &scene, layout).unwrap()).unwrap();
+                let r = PrimalRenderer::new(GpuScene::with_bvh_layout(ctx, &scene, layout).unwrap()).unwrap();
                 r.render(0, 2, 7, |_, _| {}).unwrap()
             })
         });
@@ -332,7 +332,7 @@ fn a_constant_normal_map_shades_as_the_vertex_normals_it_encodes() {
     let render = |ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene| {
         let gs = GpuScene::new(ctx, scene).unwrap();
         let mapped = gs.has_normal_maps;
-        (Renderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
+        (PrimalRenderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
     };
     let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
     with_gpu(|ctx| {
@@ -405,7 +405,7 @@ fn a_bump_map_shades_as_the_normal_of_its_slope() {
     let render = |ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &Scene| {
         let gs = GpuScene::new(ctx, scene).unwrap();
         let mapped = gs.has_normal_maps;
-        (Renderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
+        (PrimalRenderer::new(gs).unwrap().render(0, 16, 5, |_, _| {}).unwrap(), mapped)
     };
     let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
     let differing =
@@ -479,7 +479,7 @@ fn environment_map_sampling_is_unbiased_and_reduces_variance() {
         let mut stats = Vec::new();
         for sampled in [true, false] {
             gs.set_environment_sampling(sampled).unwrap();
-            let r = Renderer::new(gs).unwrap();
+            let r = PrimalRenderer::new(gs).unwrap();
             let img = r.render(0, spp, 5, |_, _| {}).unwrap();
             gs = r.scene;
             let s = pixel_stats(&img);
@@ -501,7 +501,7 @@ fn environment_map_sampling_is_unbiased_and_reduces_variance() {
         }
 
         let uniform = Image::filled(1, 1, [0.8, 0.6, 0.4]);
-        let r = Renderer::new(GpuScene::new(ctx, &env_lit_quad("env-uniform", &uniform)).unwrap()).unwrap();
+        let r = PrimalRenderer::new(GpuScene::new(ctx, &env_lit_quad("env-uniform", &uniform)).unwrap()).unwrap();
         let img = r.render(0, spp, 5, |_, _| {}).unwrap();
         let s = pixel_stats(&img);
         for (c, l) in [0.8f64, 0.6, 0.4].into_iter().enumerate() {
@@ -939,19 +939,33 @@ fn many_samples_per_pixel_in_one_pass_render_the_same_image() {
     use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};
     use vkinverse::image::Image;
     use vkinverse::ops::BufferOps;
-    use vkinverse::render::gradient::GradientPass;
+    use vkinverse::render::gradient::{GradientInputs, GradientPass};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::load(root.join("scenes/cornell/scene.toml")).unwrap();
     with_gpu(|ctx| {
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let gs = &renderer.scene;
         let spp = 1024;
         let split = renderer.render(0, spp, 5, |_, _| {}).unwrap();
         let ops = BufferOps::new(ctx).unwrap();
         let zero = Image { width: gs.width, height: gs.height, data: vec![[0.0; 3]; gs.pixels()] };
         let grad = Buffer::zeroed::<f32>(ctx, "grad", gs.layout.len.max(1), MemoryKind::Device).unwrap();
-        let pass =
-            GradientPass::new(gs, &ops, &[zero], vkinverse::settings::RunSettings::of_scene(&scene).loss, 1, spp, 9, &gs.theta, None, &grad, None).unwrap();
+        let pass = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: &[zero],
+                loss: vkinverse::settings::RunSettings::of_scene(&scene).loss,
+                spp: 1,
+                primal_spp: spp,
+                seed: 9,
+                theta: &gs.theta,
+                theta_prev: None,
+                grad: &grad,
+                grad_half: None,
+            },
+        )
+        .unwrap();
         let mut cmd = CommandBuffer::new(ctx, "primal").unwrap();
         cmd.record(|rec| pass.record_loss(rec, gs, &ops)).unwrap();
         cmd.submit_and_wait().unwrap();
@@ -974,12 +988,12 @@ fn the_adjoint_pass_renders_theta_with_its_own_samples() {
     use vkinverse::gpu::{Buffer, CommandBuffer, MemoryKind};
     use vkinverse::image::Image;
     use vkinverse::ops::BufferOps;
-    use vkinverse::render::gradient::{GradientPass, SEED_ADJOINT, SEED_PRIMAL};
+    use vkinverse::render::gradient::{GradientInputs, GradientPass, SEED_ADJOINT, SEED_PRIMAL};
     use vkinverse::render::spp_per_dispatch;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let scene = Scene::load(root.join("scenes/cornell/scene.toml")).unwrap();
     with_gpu(|ctx| {
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         let gs = &renderer.scene;
         let ops = BufferOps::new(ctx).unwrap();
         let loss = vkinverse::settings::RunSettings::of_scene(&scene).loss;
@@ -992,7 +1006,7 @@ fn the_adjoint_pass_renders_theta_with_its_own_samples() {
             cmd.record(|rec| {
                 rec.transition(&[(&grad, vkinverse::gpu::Access::TransferWrite)])?;
                 rec.zero(&grad)?;
-                pass.record_passes(rec, gs, &ops, adjoint, None)
+                pass.record_passes(rec, gs, &ops, adjoint)
             })
             .unwrap();
             cmd.submit_and_wait().unwrap();
@@ -1001,25 +1015,47 @@ fn the_adjoint_pass_renders_theta_with_its_own_samples() {
         let primal = GradientPass::new(
             gs,
             &ops,
-            std::slice::from_ref(&zero),
-            loss,
-            1,
-            spp,
-            seed.wrapping_add(SEED_ADJOINT).wrapping_sub(SEED_PRIMAL),
-            &gs.theta,
-            None,
-            &grad,
-            None,
+            &GradientInputs {
+                targets: std::slice::from_ref(&zero),
+                loss,
+                spp: 1,
+                primal_spp: spp,
+                seed: seed.wrapping_add(SEED_ADJOINT).wrapping_sub(SEED_PRIMAL),
+                theta: &gs.theta,
+                theta_prev: None,
+                grad: &grad,
+                grad_half: None,
+            },
         )
         .unwrap();
         run(&primal, false);
         let want = primal.rendered(0, gs).unwrap();
         // A pass's own primal image as its target makes every pixel's adjoint weight 0.
-        let first = GradientPass::new(gs, &ops, std::slice::from_ref(&zero), loss, spp, 1, seed, &gs.theta, None, &grad, None).unwrap();
+        let first = GradientPass::new(
+            gs,
+            &ops,
+            &GradientInputs {
+                targets: std::slice::from_ref(&zero),
+                loss,
+                spp,
+                primal_spp: 1,
+                seed,
+                theta: &gs.theta,
+                theta_prev: None,
+                grad: &grad,
+                grad_half: None,
+            },
+        )
+        .unwrap();
         run(&first, false);
         let own = first.rendered(0, gs).unwrap();
         for (what, target) in [("a black target", zero), ("its own primal image as the target", own)] {
-            let pass = GradientPass::new(gs, &ops, &[target], loss, spp, 1, seed, &gs.theta, None, &grad, None).unwrap();
+            let pass = GradientPass::new(
+                gs,
+                &ops,
+                &GradientInputs { targets: &[target], loss, spp, primal_spp: 1, seed, theta: &gs.theta, theta_prev: None, grad: &grad, grad_half: None },
+            )
+            .unwrap();
             run(&pass, true);
             let g: Vec<f32> = grad.read().unwrap();
             let no_gradient = g.iter().all(|&x| x == 0.0);
@@ -1058,7 +1094,7 @@ fn delta_lights_over_a_diffuse_plane_match_the_closed_form() {
     assert_eq!(scene.lights.len(), 4);
     let spp = 64;
     let image = with_gpu(|ctx| {
-        let renderer = Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let renderer = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
         assert_eq!(renderer.scene.lights, 4);
         renderer.render(0, spp, 3, |_, _| {}).unwrap()
     });
@@ -1180,7 +1216,7 @@ fn textured_emission_lights_as_the_constant_emitters_of_its_texels() {
     with_gpu(|ctx| {
         let render = |scene: &Scene, seed: u32| {
             let gs = GpuScene::new(ctx, scene).unwrap();
-            Renderer::new(gs).unwrap().render(0, 512, seed, |_, _| {}).unwrap()
+            PrimalRenderer::new(gs).unwrap().render(0, 512, seed, |_, _| {}).unwrap()
         };
         let textured = lamp_scene("emission-texture", true, LAMP_RED, LAMP_BLUE);
         assert!(GpuScene::new(ctx, &textured).unwrap().has_emission_textures);
@@ -1228,7 +1264,7 @@ fn textured_emitters_are_sampled_by_the_texels_they_reach() {
         let (a, b) = (table(&textured), table(&split));
         assert_eq!(a.len(), 2, "the white half's two triangles: {a:?}");
         assert_eq!(a, b, "the textured lamp's emitter table against the two meshes'");
-        let render = |scene: &Scene| Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 256, 1, |_, _| {}).unwrap();
+        let render = |scene: &Scene| PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 256, 1, |_, _| {}).unwrap();
         let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
         let (x, y) = (mean(&render(&textured)), mean(&render(&split)));
         assert!((x / y - 1.0).abs() < 0.01, "mean {x} against {y}");
@@ -1325,7 +1361,7 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
     with_gpu(|ctx| {
         let render = |scene: &Scene, spp: u32, seed: u32| {
             let gs = GpuScene::new(ctx, scene).unwrap();
-            Renderer::new(gs).unwrap().render(0, spp, seed, |_, _| {}).unwrap()
+            PrimalRenderer::new(gs).unwrap().render(0, spp, seed, |_, _| {}).unwrap()
         };
         let masked = cutout_scene("alpha-occluder", Cutout::Masked, false, 0.5);
         assert!(GpuScene::new(ctx, &masked).unwrap().has_alpha_masks);
@@ -1378,13 +1414,14 @@ fn alpha_tests_cut_surfaces_out_for_every_ray() {
 #[test]
 fn blended_surfaces_are_there_with_probability_alpha() {
     with_gpu(|ctx| {
-        let image = |scene: &Scene| Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 16, 1, |_, _| {}).unwrap();
+        let image = |scene: &Scene| PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 16, 1, |_, _| {}).unwrap();
         let (solid, whole) = (cutout_scene("blend-solid", Cutout::Blend(1.0), false, 0.5), cutout_scene("blend-solid-whole", Cutout::Whole, false, 0.5));
         assert!(solid.materials[1].alpha.is_some() && !GpuScene::new(ctx, &solid).unwrap().has_alpha_masks, "an alpha of 1 is no test");
         let bits = |i: &Image| i.data.iter().flat_map(|p| p.map(f32::to_bits)).collect::<Vec<_>>();
         assert_eq!(bits(&image(&solid)), bits(&image(&whole)), "an alpha of 1 renders as the opaque occluder");
-        let render =
-            |scene: &Scene, seed: u32| quadrant_sums(&Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap());
+        let render = |scene: &Scene, seed: u32| {
+            quadrant_sums(&PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 512, seed, |_, _| {}).unwrap())
+        };
         let alpha = 0.3;
         for lamp in [false, true] {
             let tag = if lamp { "lamp" } else { "occluder" };
@@ -1438,7 +1475,7 @@ fn clear_glass_in_a_furnace_passes_all_light() {
             let scene = glass_scene(&format!("glass-furnace-{ior}"), "dielectric", &sphere_obj(1.0, 3, false), 40.0, [1.0; 3], ior, 512);
             let gs = GpuScene::new(ctx, &scene).unwrap();
             assert!(gs.has_dielectrics);
-            let img = Renderer::new(gs).unwrap().render(0, 16, 3, |_, _| {}).unwrap();
+            let img = PrimalRenderer::new(gs).unwrap().render(0, 16, 3, |_, _| {}).unwrap();
             let mut lowest = f32::INFINITY;
             for px in &img.data {
                 for c in 0..3 {
@@ -1534,7 +1571,7 @@ fn light_through_rough_glass(distribution: &str) {
     );
     std::fs::write(dir.join("scene.toml"), toml).unwrap();
     let scene = Scene::load(dir.join("scene.toml")).unwrap();
-    let img = with_gpu(|ctx| Renderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap().render(0, 64, 9, |_, _| {}).unwrap());
+    let img = with_gpu(|ctx| PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap().render(0, 64, 9, |_, _| {}).unwrap());
 
     // The reference: E[weight · (the refracted ray reaches the light)] · le over uniform
     // points of the film (the camera of `camera_ray`: square film, so aspect 1).
@@ -1643,7 +1680,7 @@ fn light_reflects_off_conductors() {
         let img = with_gpu(|ctx| {
             let gs = GpuScene::new(ctx, &scene).unwrap();
             assert!(gs.has_conductors && !gs.has_principled && !gs.has_dielectrics);
-            Renderer::new(gs).unwrap().render(0, 64, 9, |_, _| {}).unwrap()
+            PrimalRenderer::new(gs).unwrap().render(0, 64, 9, |_, _| {}).unwrap()
         });
 
         let m = vkinverse::bsdf::MaterialF64 {
@@ -1697,7 +1734,7 @@ fn light_reflects_off_plastics() {
         let img = with_gpu(|ctx| {
             let gs = GpuScene::new(ctx, &scene).unwrap();
             assert!(gs.has_plastics && !gs.has_principled && !gs.has_conductors && !gs.has_dielectrics);
-            Renderer::new(gs).unwrap().render(0, 64, 9, |_, _| {}).unwrap()
+            PrimalRenderer::new(gs).unwrap().render(0, 64, 9, |_, _| {}).unwrap()
         });
 
         let beckmann = distribution == "beckmann";
@@ -1730,7 +1767,7 @@ fn light_reflects_off_plastics() {
 /// Checks that the mean of `scene`'s image over the environment's radiance is `expected`
 /// per channel, within 5 standard errors of its pixels (64 spp each).
 fn check_glass_mean(ctx: &std::sync::Arc<vkinverse::gpu::Context>, what: &str, scene: &Scene, expected: [f64; 3]) {
-    let img = Renderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 64, 5, |_, _| {}).unwrap();
+    let img = PrimalRenderer::new(GpuScene::new(ctx, scene).unwrap()).unwrap().render(0, 64, 5, |_, _| {}).unwrap();
     for c in 0..3 {
         let v: Vec<f64> = img.data.iter().map(|p| p[c] as f64 / ENV[c] as f64).collect();
         let n = v.len() as f64;

@@ -81,13 +81,13 @@ fn bundled_scenes_load() {
     let red = cornell.material_index("red").unwrap();
     assert_eq!(cornell.meshes[cornell.mesh_index("left").unwrap()].material, red);
     let p = &cornell.optimise.params[0];
-    assert_eq!((p.target, p.channels, p.init.as_slice()), (ParamTarget::BaseColor { material: red }, 3, &[0.5; 3][..]));
+    assert_eq!((p.target, p.shape.channels(), p.init.as_slice()), (ParamTarget::BaseColor { material: red }, 3, &[0.5; 3][..]));
     assert!(matches!(&p.reference, Reference::Constant(c) if c == &[0.63, 0.065, 0.05]));
     let light = &cornell.meshes[cornell.mesh_index("light").unwrap()];
     assert!(matches!(light.emission, ColorValue::Constant(c) if c[0] > 0.0) && light.positions.iter().all(|p| p[1] > 1.9));
 
     let spiral = Scene::load(root.join("spiral/scene.toml")).unwrap();
-    let channels: Vec<u32> = spiral.optimise.params.iter().map(|p| p.channels).collect();
+    let channels: Vec<u32> = spiral.optimise.params.iter().map(|p| p.shape.channels()).collect();
     assert_eq!(channels, [3, 1, 1]);
     let lrs: Vec<Option<f32>> = spiral.optimise.params.iter().map(|p| p.lr).collect();
     assert_eq!(lrs, [None, Some(0.01), Some(0.01)]);
@@ -97,7 +97,8 @@ fn bundled_scenes_load() {
     // The paper's texture scenes: each optimises one texture.
     let ajar = Scene::load(root.join("ajar/scene.toml")).unwrap();
     let glossy = Scene::load(root.join("glossy/scene.toml")).unwrap();
-    let textures: Vec<_> = [&ajar, &glossy].iter().map(|s| (s.optimise.params.len(), s.optimise.params[0].channels, s.optimise.params[0].texture)).collect();
+    let textures: Vec<_> =
+        [&ajar, &glossy].iter().map(|s| (s.optimise.params.len(), s.optimise.params[0].shape.channels(), s.optimise.params[0].shape.texture_size())).collect();
     assert_eq!(textures, [(1, 3, Some([32, 32])), (1, 1, Some([8, 8]))]);
 
     for scene in [&cornell, &spiral, &ajar, &glossy] {
@@ -137,7 +138,7 @@ fn defaults_and_resolved_parameters() {
     assert_eq!(o.settings.loss, None);
     assert_eq!(run.loss.as_str(), "l2");
     let [rough, emission, env] = &o.params[..] else { panic!("three params expected") };
-    assert_eq!((rough.target, rough.channels, rough.texture), (ParamTarget::Roughness { material: 0 }, 1, Some([16, 8])));
+    assert_eq!((rough.target, rough.shape.channels(), rough.shape.texture_size()), (ParamTarget::Roughness { material: 0 }, 1, Some([16, 8])));
     assert!(matches!(&rough.reference, Reference::Constant(v) if v == &[0.5]));
     assert_eq!((emission.target, emission.init.as_slice(), emission.lr), (ParamTarget::Emission { mesh: 1 }, &[1.0; 3][..], Some(0.5)));
     assert!(matches!(&emission.reference, Reference::Constant(v) if v == &[2.0; 3]));

@@ -4,15 +4,14 @@
 
 use crate::common;
 
-use common::scenes::{renders_targets, sphere_obj, write_scene, TARGET_SCENE};
+use common::scenes::{renders_targets, sphere_obj, temp_dir, write_scene, TARGET_SCENE};
+use common::with_gpu;
 use vkinverse::bvh::BvhLayout;
 use vkinverse::scene::Scene;
 use vkinverse::settings::{RunSettings, Settings};
 
 /// A change of renderer (here the other BVH layout's build of trace_primal) renders its
-/// targets anew, under its own key beside the scene; the same renderer reads them back. (A
-/// scene whose directory cannot take the cache uses the user's: tests/process.rs, since it
-/// sets the process's environment.)
+/// targets anew, under its own key beside the scene; the same renderer reads them back.
 #[test]
 fn a_renderer_change_invalidates_the_cache() {
     let path = write_scene("target-cache", TARGET_SCENE, &sphere_obj(1.0, 1, false));
@@ -44,14 +43,22 @@ fn the_run_renders_its_targets_at_target_spp() {
     common::with_gpu(|ctx| {
         let from_scene = RunSettings::of_scene(&scene);
         assert_eq!(from_scene.target_spp, 8);
-        let mut rendered = Vec::new();
-        vkinverse::engine::Engine::new(ctx, &scene, &from_scene, |_, done, total| rendered.push((done, total))).unwrap();
+        struct Rendered(Vec<(u32, u32)>);
+        impl vkinverse::Observer for Rendered {
+            fn target_progress(&mut self, _: usize, done: u32, total: u32) {
+                self.0.push((done, total));
+            }
+        }
+        let mut progress = Rendered(Vec::new());
+        let device = common::device(ctx);
+        vkinverse::engine::Engine::new(&device, &scene, &from_scene, &mut progress, &Default::default()).unwrap();
+        let rendered = progress.0;
         assert_eq!(rendered.last(), Some(&(8, 8)), "progress reports the target's samples");
         assert!(matches!(cached().as_slice(), [one] if one.ends_with("-s0-8spp.exr")), "{:?}", cached());
         // Given outside the scene it wins, and is cached under its own key.
         let over = Settings { target_spp: Some(16), ..Default::default() };
         let run = Settings::resolve(&scene.optimise.settings, &over);
-        vkinverse::engine::Engine::new(ctx, &scene, &run, |_, _, _| {}).unwrap();
+        vkinverse::engine::Engine::new(&device, &scene, &run, &mut (), &Default::default()).unwrap();
         let names = cached();
         assert_eq!(names.len(), 2, "{names:?}");
         assert!(names.iter().any(|n| n.ends_with("-s0-16spp.exr")), "{names:?}");
@@ -86,7 +93,7 @@ fn image_error_leaves_out_the_renders_noise() {
     std::fs::write(path.with_file_name("plane.obj"), common::scenes::PLANE_OBJ).unwrap();
     let scene = Scene::load(&path).unwrap();
     common::with_gpu(|ctx| {
-        let engine = vkinverse::engine::Engine::new(ctx, &scene, &RunSettings::of_scene(&scene), |_, _, _| {}).unwrap();
+        let engine = vkinverse::engine::Engine::new(&common::device(ctx), &scene, &RunSettings::of_scene(&scene), &mut (), &Default::default()).unwrap();
         let theta = engine.theta().unwrap();
         let reference = engine.scene().layout.reference();
         assert_ne!(theta, reference);
@@ -107,5 +114,23 @@ fn image_error_leaves_out_the_renders_noise() {
         assert!(naive - clean > 4.0 * miss, "the mean's squared difference adds the renders' variance: {naive:.4e} against {clean:.4e}");
         assert!(at_ref.abs() < 0.3 * (naive_ref - at_ref), "at the reference only the target's noise: {at_ref:.4e}, the 8-spp mean's {naive_ref:.4e}");
         assert!(clean > 10.0 * at_ref.abs());
+    });
+}
+
+/// A scene directory that cannot take the target cache (a file stands where the cache
+/// directory would be, which stops root too) has its targets cached in the configured cache
+/// directory (the user's, on the command line), and read back from there.
+#[test]
+fn a_read_only_scene_uses_the_configured_cache() {
+    let user_cache = temp_dir("user-cache");
+    let path = write_scene("target-cache-ro", TARGET_SCENE, &sphere_obj(1.0, 1, false));
+    std::fs::write(path.with_file_name(".vkinverse-cache"), "not a directory").unwrap();
+    let scene = Scene::load(&path).unwrap();
+    assert_eq!(vkinverse::render::targets::cache_dirs(&scene, Some(&user_cache))[1], user_cache);
+    with_gpu(|ctx| {
+        let before = std::fs::read_dir(&user_cache).unwrap().count();
+        assert!(common::scenes::renders_targets_cached(ctx, &scene, BvhLayout::Wide, Some(&user_cache)));
+        assert_eq!(std::fs::read_dir(&user_cache).unwrap().count(), before + 1);
+        assert!(!common::scenes::renders_targets_cached(ctx, &scene, BvhLayout::Wide, Some(&user_cache)), "read back from the user cache");
     });
 }

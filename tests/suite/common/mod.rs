@@ -25,6 +25,11 @@ fn context_with(options: ContextOptions) -> Arc<Context> {
     Context::new(&options).expect("Vulkan context with validation (needs mesa-vulkan-drivers and vulkan-validationlayers)")
 }
 
+/// The library's device over a test context, with the default configuration.
+pub fn device(ctx: &Arc<Context>) -> vkinverse::Device {
+    vkinverse::Device::from_context(ctx.clone(), vkinverse::Config::default())
+}
+
 /// Runs `f` on a fresh validating context, then checks that the validation layer said
 /// nothing and that `f` freed every allocation.
 pub fn with_gpu<R>(f: impl FnOnce(&Arc<Context>) -> R) -> R {

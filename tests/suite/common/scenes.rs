@@ -282,9 +282,27 @@ range = [0, 1]
 /// Renders (or loads from the cache) the targets of `scene` with BVH layout `layout`; true
 /// if anything was rendered.
 pub fn renders_targets(ctx: &std::sync::Arc<vkinverse::gpu::Context>, scene: &vkinverse::scene::Scene, layout: vkinverse::bvh::BvhLayout) -> bool {
-    use vkinverse::render::{GpuScene, Renderer};
-    let renderer = Renderer::new(GpuScene::with_bvh_layout(ctx, scene, layout).unwrap()).unwrap();
+    renders_targets_cached(ctx, scene, layout, None)
+}
+
+/// [`renders_targets`] with `cache_dir` as the cache when the scene's own directory cannot
+/// take it.
+pub fn renders_targets_cached(
+    ctx: &std::sync::Arc<vkinverse::gpu::Context>,
+    scene: &vkinverse::scene::Scene,
+    layout: vkinverse::bvh::BvhLayout,
+    cache_dir: Option<&std::path::Path>,
+) -> bool {
+    use vkinverse::render::{GpuScene, PrimalRenderer};
+    let renderer = PrimalRenderer::new(GpuScene::with_bvh_layout(ctx, scene, layout).unwrap()).unwrap();
     let mut any = false;
-    vkinverse::render::targets::targets(&renderer, scene, 4, |_, _, _| any = true).unwrap();
+    struct Rendered<'a>(&'a mut bool);
+    impl vkinverse::Observer for Rendered<'_> {
+        fn target_progress(&mut self, _: usize, _: u32, _: u32) {
+            *self.0 = true;
+        }
+    }
+    let source = vkinverse::render::targets::TargetSource { spp: 4, cache_dir, cancel: &vkinverse::Cancel::new() };
+    vkinverse::render::targets::targets(&renderer, scene, source, &mut Rendered(&mut any)).unwrap();
     any
 }

@@ -1,16 +1,16 @@
 //! Stopping a run with Ctrl-C (SIGINT), or with SIGTERM (a batch scheduler's notice before
-//! it kills a job). Once [`install`]ed, the first such signal asks the work in progress to
-//! stop: an optimisation ends after its current iteration and writes its outputs as at any
-//! other end (its `summary.json` says `"interrupted": true`, and `optimise --resume`
-//! continues it), a batch or comparison starts no further run, and a render keeps the
-//! samples it has. The command then exits with status 128 + the signal's number (130 for
-//! Ctrl-C, 143 for SIGTERM), as the shell reports a process the signal ended. A second
-//! signal ends the process at once with that status; its run directory then holds the
-//! last committed checkpoint, as after any kill (src/rundir.rs). Without [`install`] (a
-//! library caller's default) nothing here reacts to signals and [`requested`] stays false.
+//! it kills a job). Once [`install`]ed, the first such signal cancels the library's work
+//! through the [`Cancel`] token of [`token`]: an optimisation ends after its current
+//! iteration and writes its outputs as at any other end (its `summary.json` says
+//! `"interrupted": true`, and `optimise --resume` continues it), a batch or comparison
+//! starts no further run, and a render keeps the samples it has. The command then exits
+//! with status 128 + the signal's number (130 for Ctrl-C, 143 for SIGTERM), as the shell
+//! reports a process the signal ended. A second signal ends the process at once with that
+//! status; its run directory then holds the last committed checkpoint, as after any kill.
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, LazyLock, Once};
+use vkinverse::Cancel;
 
 /// Set by the first signal.
 static REQUESTED: LazyLock<Arc<AtomicBool>> = LazyLock::new(|| Arc::new(AtomicBool::new(false)));
@@ -52,6 +52,11 @@ fn register() -> std::io::Result<()> {
 /// Whether a signal has asked the work to stop.
 pub fn requested() -> bool {
     REQUESTED.load(Ordering::Relaxed)
+}
+
+/// The token the first signal cancels.
+pub fn token() -> Cancel {
+    Cancel::from_flag(Arc::clone(&REQUESTED))
 }
 
 /// The exit status of work a signal stopped: 128 + its number.

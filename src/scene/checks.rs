@@ -1,0 +1,52 @@
+//! Warnings about what a scene asks for and will not get when it is rendered, one line
+//! each ([`Scene::render_warnings`]).
+
+use super::model::{ParamTarget, ScalarValue, Scene};
+use glam::Vec3;
+
+/// What the scene will not get: light (no emitting triangle of non-zero area, no delta
+/// light and no environment: it renders black), light from an emitting mesh whose triangles
+/// all have zero area (an emitter table cannot sample them), or a normal map or an alpha
+/// texture on a mesh without texture coordinates (neither is applied: the map has no
+/// tangents, the alpha nowhere to be looked up).
+pub(crate) fn lighting_warnings(scene: &Scene) -> Vec<String> {
+    let mut out = Vec::new();
+    let path = scene.path.display();
+    let optimised = |target: ParamTarget| scene.optimise.params.iter().any(|p| p.target == target);
+    let mut lit_by_meshes = false;
+    for (i, mesh) in scene.meshes.iter().enumerate() {
+        let emits = optimised(ParamTarget::Emission { mesh: i }) || mesh.emission.any_positive();
+        if !emits {
+            continue;
+        }
+        let has_area = mesh.indices.iter().any(|idx| {
+            let [a, b, c] = idx.map(|k| Vec3::from(mesh.positions[k as usize]));
+            (b - a).cross(c - a).length() > 0.0
+        });
+        if has_area {
+            lit_by_meshes = true;
+        } else {
+            out.push(format!("{path}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", mesh.name));
+        }
+    }
+    for mesh in &scene.meshes {
+        let material = &scene.materials[mesh.material];
+        let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
+        let alpha = textured_alpha.then_some(("alpha texture", " (it is opaque)"));
+        let perturbation = material.perturbation.as_ref().map(|p| (p.what(), ""));
+        for (what, consequence) in [alpha, perturbation].into_iter().flatten() {
+            if mesh.uvs.is_empty() {
+                out.push(format!(
+                    "{path}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
+                    mesh.name, material.name
+                ));
+            }
+        }
+    }
+    let environment = optimised(ParamTarget::Environment) || (scene.environment.value.any_positive() && scene.environment.scale > 0.0);
+    let lights = !scene.lights.is_empty();
+    if !lit_by_meshes && !environment && !lights {
+        out.push(format!("{path}: no light (no emitting mesh of non-zero area, no light and no environment): the scene renders black"));
+    }
+    out
+}
