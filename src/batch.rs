@@ -40,7 +40,7 @@ use crate::device::Device;
 use crate::error::{one_line, Error, Result};
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
-use crate::optimise::{optimise_or_read, Log, Observer, RunOptions, Summary};
+use crate::run::{optimise_or_read, Log, Observer, RunOptions, Summary};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::rundir::Mode;
 use crate::scene::{LoadOptions, Scene, SceneError};
@@ -280,7 +280,7 @@ impl std::str::FromStr for Shard {
 pub enum Status {
     Ok,
     Failed,
-    /// A Ctrl-C or SIGTERM stopped the job ([`crate::interrupt`]): its outputs are written
+    /// A Ctrl-C or SIGTERM stopped the job (a cancellation): its outputs are written
     /// for the iteration it reached, and `--resume` continues it.
     Interrupted,
 }
@@ -347,7 +347,7 @@ impl Results {
         self.results.iter().filter(|r| r.status == Status::Failed).count()
     }
 
-    /// `results.csv`: [`CSV_HEADER`], one row per job, unknown values empty.
+    /// `results.csv`: its header (`CSV_HEADER`), one row per job, unknown values empty.
     pub fn csv(&self) -> Result<Vec<u8>> {
         fn opt<T: ToString>(v: Option<T>) -> String {
             v.map(|x| x.to_string()).unwrap_or_default()

@@ -4,7 +4,7 @@
 //! kernel's, in one run, plus the costs that bound small workloads: a minimal dispatch
 //! and a submit + fence round trip. A host memcpy of the same size is the ceiling. The
 //! fused optimiser passes are measured the same way ([`optimiser_bandwidth`]), on a
-//! synthetic θ, for both benches. The scene bench is in [`scene`].
+//! synthetic θ, for both benches. The scene bench is in `bench/scene.rs`.
 
 mod layouts;
 mod scene;
@@ -16,7 +16,7 @@ use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, Memory
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{Optimiser, Range};
-use crate::push::{Count4Push, CountPush, GatherPush};
+use crate::kernels::{Count4Push, CountPush, GatherPush};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::sync::Arc;

@@ -23,7 +23,7 @@ use crate::image::write_bytes_atomic;
 use crate::optim::csv::DiagLog;
 use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
-use crate::optimise::{optimise_or_read, read_diagnostics, Observer, RunOptions, DIAG_CSV};
+use crate::run::{optimise_or_read, read_diagnostics, Observer, RunOptions, DIAG_CSV};
 use crate::report::{write_curves, Curve};
 use crate::scene::Scene;
 use crate::settings::{RunSettings, Settings};

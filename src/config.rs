@@ -37,11 +37,13 @@ pub struct Config {
     /// measure one against the other, or where the array measures faster).
     pub bvh_stack_array: bool,
     /// Stops at named steps of a run, for tests of what a kill leaves behind (debug builds
-    /// only; [`crate::rundir`]).
+    /// only; the run directory's module names the steps).
     pub debug_stops: DebugStops,
 }
 
-/// Where a debug build stops a run ([`crate::rundir`] names the steps).
+/// Where a debug build stops a run (the run directory's module names the steps:
+/// `run.locked`, `overwrite.cleared`, `checkpoint.written`, `checkpoint.committed`,
+/// `run.checkpointed`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct DebugStops {
     /// Abort the process the N-th time (the number, from 1) it reaches the step.

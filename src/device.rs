@@ -33,7 +33,8 @@ impl Device {
         Ok(Device { ctx, config: config.clone() })
     }
 
-    /// A device over a context the GPU layer made (tests, and the layers below the API).
+    /// A device over a context the GPU layer made (vkinverse's own tests).
+    #[cfg(feature = "internals")]
     pub fn from_context(ctx: Arc<Context>, config: Config) -> Device {
         Device { ctx, config }
     }

@@ -27,7 +27,7 @@ use crate::observer::Observer;
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{CarryWeight, Diagnostics, MetaHyper, Optimiser, Range};
-use crate::push::{CarryWeightPush, CountPush};
+use crate::kernels::{CarryWeightPush, CountPush};
 use crate::render::gradient::{GradientInputs, GradientPass};
 use crate::render::targets::{padded, targets, TargetSource};
 use crate::render::{GpuScene, PrimalRenderer};

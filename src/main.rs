@@ -518,7 +518,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
             _ => String::new(),
         };
         outln!("image error of the result: {}{floor}, from two renders of {} spp against the target", err(s.final_image_error), s.image_error_spp)?;
-        let carry = if a.output.join(vkinverse::optimise::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
+        let carry = if a.output.join(vkinverse::run::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
         outln!(
             "outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/",
             a.output.display()
@@ -538,7 +538,7 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
 
 fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
     // Flags first: a typo on the command line is reported before the scene is read.
-    let specs = vkinverse::optim::spec::parse_list(&a.optimisers).map_err(|e| format!("--optimisers: {e}"))?;
+    let specs = vkinverse::Spec::parse_list(&a.optimisers).map_err(|e| format!("--optimisers: {e}"))?;
     if a.settings.0.optimiser.is_some() {
         return Err("compare takes --optimisers (a list), not --optimiser".into());
     }

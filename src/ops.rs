@@ -2,7 +2,7 @@
 //! sum of squares), recorded into a [`Recorder`].
 
 use crate::gpu::{BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, Result, SpecValue};
-use crate::push::{CountPush, FillPush, ScaleAddPush};
+use crate::kernels::{CountPush, FillPush, ScaleAddPush};
 use std::sync::Arc;
 
 /// Elements summed by one reduce workgroup: local size × ITEMS (glsl/reduce.comp).

@@ -1,6 +1,6 @@
 //! Run settings: what an optimisation run does, given in layers.
 //!
-//! Every setting is declared once, in the [`settings!`] invocation below: its name, type,
+//! Every setting is declared once, in the `settings!` invocation below: its name, type,
 //! default and documentation. From that one declaration come
 //! - [`Settings`], one layer of settings, every value optional: the same struct is the
 //!   command line's flags (which the binary declares from [`Settings::FIELDS`] and sets
@@ -206,7 +206,7 @@ macro_rules! settings {
 }
 
 settings! {
-    /// Optimiser spec NAME[@KEY=VALUE]...: meta or adam, with hyperparameters
+    /// Optimiser spec `NAME[@KEY=VALUE]...`: meta or adam, with hyperparameters
     /// (`adam@beta1=0.5`).
     optimiser: Spec = Spec::default(), Arity::Value("SPEC");
     /// Image loss: l2, l1 or relative_l2.
@@ -233,7 +233,7 @@ settings! {
     /// Learning rate: the typical parameter change per iteration (given here, it replaces
     /// the scene's per-parameter rates).
     lr: f64 = 0.02, Arity::Value("X");
-    /// Learning-rate schedule DECAY[@KEY=VALUE]...: constant, cosine (keys horizon, floor)
+    /// Learning-rate schedule `DECAY[@KEY=VALUE]...`: constant, cosine (keys horizon, floor)
     /// or step (every, gamma), each with an optional warmup; given, it replaces the
     /// optimiser spec's own. A cosine without a horizon decays over the run's iterations.
     schedule: Schedule => Option<Schedule> = None, Arity::Value("SCHEDULE");

@@ -14,7 +14,7 @@ use super::scene::camera_rays;
 use crate::bvh::{BvhLayout, TraceResult};
 use crate::error::Result;
 use crate::gpu::{BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, SpecValue};
-use crate::push::CountPush;
+use crate::kernels::CountPush;
 use crate::render::gradient::SEED_PRIMAL;
 use crate::render::{record_samples, GpuScene, TracePush};
 use crate::scene::Scene;

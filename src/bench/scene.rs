@@ -38,7 +38,7 @@ use crate::gpu::{self, Access, BindGroup, Buffer, CommandBuffer, ComputePipeline
 use crate::optim::gpu::GpuOptimiser;
 use crate::optim::spec::Spec;
 use crate::optim::Optimiser;
-use crate::push::CountPush;
+use crate::kernels::CountPush;
 use crate::render::gradient::GradientPass;
 use crate::render::{record_samples, GpuScene};
 use crate::scene::Scene;
@@ -193,7 +193,7 @@ pub struct WarmUp {
     pub seconds: f64,
 }
 
-/// Means per iteration of [`crate::gpu::TransferStats`] over the timed iterations.
+/// Means per iteration of the context's transfer statistics over the timed iterations.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct TransferPerIteration {
     /// False when device memory is read and written through the staging buffers (a

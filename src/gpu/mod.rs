@@ -56,7 +56,6 @@ impl PushBlock for () {
 
 /// Implements [`PushBlock`] for a `#[repr(C)]` struct from its field names, in order:
 /// `push_block!(TracePush { width, height, ... });`.
-#[macro_export]
 macro_rules! push_block {
     ($ty:ty { $($field:ident),* $(,)? }) => {
         impl $crate::gpu::PushBlock for $ty {
@@ -64,6 +63,7 @@ macro_rules! push_block {
         }
     };
 }
+pub(crate) use push_block;
 
 /// Errors of the GPU layer. Vulkan failures keep their `vk::Result`.
 #[derive(Debug, thiserror::Error)]

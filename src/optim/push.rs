@@ -1,7 +1,7 @@
 //! Push-constant blocks of `glsl/optim_adam.comp`, `glsl/optim_meta.comp` and
 //! `glsl/optim_diag.comp` (scalar layout, 4-byte members). Field names and order are those of
 //! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
-//! (`crate::push`).
+//! (`crate::kernels`).
 
 use super::{AdamHyper, CurvatureFit, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
 use crate::shared;

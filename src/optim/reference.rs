@@ -324,7 +324,7 @@ pub struct Diagnostics {
 }
 
 impl Diagnostics {
-    /// The column names of [`Diagnostics::csv`], in order.
+    /// The column names of a diagnostics row (`optimiser.csv`), in order.
     pub const COLUMNS: [&'static str; 16] = [
         "lr",
         "elements",

@@ -31,6 +31,12 @@ impl Default for Spec {
 }
 
 impl Spec {
+    /// A comma-separated list of specs (`meta,adam@beta1=0.5`), as `compare --optimisers`
+    /// takes it.
+    pub fn parse_list(text: &str) -> Result<Vec<Spec>, OptimError> {
+        parse_list(text)
+    }
+
     /// The label with every character that is awkward in a file name replaced by `_`.
     pub fn dir_name(&self) -> String {
         file_safe(&self.label)

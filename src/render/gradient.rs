@@ -11,7 +11,7 @@ use crate::constants::{LOCAL_GRADS_CAPACITY, LOSS_L1, LOSS_L2, LOSS_RELATIVE_L2}
 use crate::gpu::{self, Buffer, ComputePipeline, MemoryKind, Recorder, SpecValue};
 use crate::image::Image;
 use crate::ops::{BufferOps, Reduction};
-use crate::push::LossPush;
+use crate::kernels::LossPush;
 use crate::settings::Loss;
 
 /// Seed offsets of the passes within an iteration: independent streams.

@@ -26,7 +26,7 @@ use crate::constants::{
 };
 use crate::gpu::{self, BindGroup, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Recorder, SpecValue, TEXEL_BYTES};
 use crate::image::Image;
-pub use crate::push::TracePush;
+pub use crate::kernels::TracePush;
 use crate::scene::{
     AlphaMode, Bitangent, ColorValue, LightKind, Material, MaterialKind, ParamTarget, Perturbation, ScalarValue, Scene, SpotFalloff, TextureValue as _, Wrap,
 };

@@ -5,7 +5,7 @@
 //!
 //! Layout: [`model`] (the types), `loader` (the TOML format, and the checks every
 //! loader's output passes), `gltf`, `mitsuba` and `ply` (importers), `hash` (the content
-//! hash) and [`write`] (the recovered scene written back as TOML and glTF).
+//! hash) and `write` (the recovered scene written back as TOML and glTF).
 //!
 //! Invariants of a loaded [`Scene`], all checked before a load returns:
 //! - every number is finite; film sizes are in 1..=16384; fields of view in (0, 180);

@@ -891,7 +891,7 @@ impl Scene {
     }
 
     /// A hash of everything that determines the reference rendering (see
-    /// [`super::hash`]): stable across runs and platforms, so it can key a cache of
+    /// the `hash` module): stable across runs and platforms, so it can key a cache of
     /// rendered targets.
     pub fn content_hash(&self) -> u64 {
         self.content_hash

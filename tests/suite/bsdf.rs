@@ -87,7 +87,7 @@ struct BsdfResult {
     d_metallic: [f32; 3],
 }
 
-use vkinverse::push::BsdfSamplePush as SamplePush;
+use vkinverse::kernels::BsdfSamplePush as SamplePush;
 
 #[test]
 fn struct_layouts_match_reflection() {
@@ -455,7 +455,7 @@ fn run_bsdf_test(ctx: &std::sync::Arc<vkinverse::gpu::Context>, cases: &[(Materi
     let tbuf = Buffer::from_slice(ctx, "tables", &coating_tables().0, MemoryKind::Upload).unwrap();
     let group = pipe.bind(&[("Materials", &mbuf), ("Cases", &cbuf), ("Results", &rbuf), ("Tables", &tbuf)]).unwrap();
     let mut cmd = CommandBuffer::new(ctx, "bsdf_test").unwrap();
-    let push = vkinverse::push::CountPush::new(cases.len() as u64);
+    let push = vkinverse::kernels::CountPush::new(cases.len() as u64);
     cmd.record(|rec| rec.dispatch_linear(&pipe, &group, &push, cases.len() as u64)).unwrap();
     cmd.submit_and_wait().unwrap();
     rbuf.read().unwrap()

@@ -190,7 +190,7 @@ fn run_trace(ctx: &Arc<Context>, pipe: &ComputePipeline, bufs: &BvhBuffers, rays
     let mut binds = vec![("Rays", &ray_buf), ("Results", &out)];
     binds.extend(bufs.bindings());
     let group = pipe.bind(&binds).unwrap();
-    let push = vkinverse::push::CountPush::new(rays.len() as u64);
+    let push = vkinverse::kernels::CountPush::new(rays.len() as u64);
     let mut cmd = CommandBuffer::new(ctx, "trace_test").unwrap();
     cmd.record(|rec| rec.dispatch_linear(pipe, &group, &push, rays.len() as u64)).unwrap();
     cmd.submit_and_wait().unwrap();

@@ -5,7 +5,7 @@
 use vkinverse::gpu::reflect::Reflection;
 use vkinverse::gpu::shaders::KERNELS;
 
-/// Every kernel with a push block has a mirror (`vkinverse::push::mirror`) whose members
+/// Every kernel with a push block has a mirror (`vkinverse::kernels::mirror`) whose members
 /// (names and byte offsets, in order) and size are the reflected ones; a kernel without one
 /// has the empty mirror.
 #[test]
@@ -13,7 +13,7 @@ fn every_push_block_matches_its_mirror() {
     assert!(KERNELS.len() > 20, "{} kernels", KERNELS.len());
     for (kernel, spirv) in KERNELS {
         let r = Reflection::new(kernel, spirv).unwrap();
-        let (members, size) = vkinverse::push::mirror(kernel).unwrap_or_else(|| panic!("{kernel}: no Rust mirror of its push block"));
+        let (members, size) = vkinverse::kernels::mirror(kernel).unwrap_or_else(|| panic!("{kernel}: no Rust mirror of its push block"));
         let reflected: Vec<(&str, usize)> = r.push_members.iter().map(|(n, o)| (n.as_str(), *o)).collect();
         assert_eq!(reflected, members, "{kernel}: push block members and offsets");
         assert_eq!(r.push_constant_size as usize, size, "{kernel}: push block size");

@@ -14,7 +14,7 @@ use crate::common;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use vkinverse::optim::spec::Spec;
-use vkinverse::optimise::{optimise, Observer, Outcome};
+use vkinverse::run::{optimise, Observer, Outcome};
 use vkinverse::scene::{Film, LoadOptions, Scene};
 use vkinverse::settings::RunSettings;
 use vkinverse::{Diagnostics, LogRow, Mode, RunOptions};

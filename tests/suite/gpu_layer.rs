@@ -87,7 +87,7 @@ fn dispatch_folds_more_than_65535_workgroups() {
         assert_eq!(fill.local_size(), [64, 1, 1]);
         let buf = Buffer::zeroed::<f32>(ctx, "big", n, MemoryKind::Device).unwrap();
         let group = fill.bind(&[("Dst", &buf)]).unwrap();
-        let push = vkinverse::push::FillPush { n: n as u32, value: 7.0 };
+        let push = vkinverse::kernels::FillPush { n: n as u32, value: 7.0 };
         let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
         cmd.record(|rec| rec.dispatch_linear(&fill, &group, &push, n as u64)).unwrap();
         cmd.submit_and_wait().unwrap();
@@ -342,11 +342,11 @@ fn typed_errors() {
         assert!(matches!(e, GpuError::UnboundBinding { ref name, .. } if name == "Dst"), "{e}");
         let group = copy.bind(&[("Src", &a), ("Dst", &a)]).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
-        let wrong_size = vkinverse::push::FillPush { n: 4, value: 0.0 };
+        let wrong_size = vkinverse::kernels::FillPush { n: 4, value: 0.0 };
         let e = cmd.record(|rec| rec.dispatch_linear(&copy, &group, &wrong_size, 4)).unwrap_err();
         assert!(matches!(e, GpuError::PushConstantSize { expected: 4, got: 8, .. }), "{e}");
         // The right size with another member is refused too, naming both layouts.
-        let e = cmd.record(|rec| rec.dispatch_linear(&copy, &group, &vkinverse::push::Count4Push { n4: 1 }, 4)).unwrap_err();
+        let e = cmd.record(|rec| rec.dispatch_linear(&copy, &group, &vkinverse::kernels::Count4Push { n4: 1 }, 4)).unwrap_err();
         assert!(matches!(e, GpuError::PushLayout { .. }) && e.to_string().contains("n@0") && e.to_string().contains("n4@0"), "{e}");
         let e = ComputePipeline::new(ctx, "copy", &[("NOPE", SpecValue::U32(1))]).err().unwrap();
         assert!(matches!(e, GpuError::UnknownSpecConstant { .. }), "{e}");
@@ -421,7 +421,7 @@ fn texel_buffer_reads_match_storage_buffer_reads_and_cpu() {
         let (threads, rounds) = (1000usize, 64u32);
         let want = gather_reference(&table, threads, rounds);
         let t = Buffer::from_slice(ctx, "table", &table, MemoryKind::Device).unwrap();
-        let push = vkinverse::push::GatherPush { threads: threads as u32, table_len: table.len() as u32, rounds };
+        let push = vkinverse::kernels::GatherPush { threads: threads as u32, table_len: table.len() as u32, rounds };
         let mut profiler = Profiler::new(ctx, 8).unwrap();
         let mut outs = Vec::new();
         let mut cmd = CommandBuffer::new(ctx, "gather").unwrap();

@@ -700,7 +700,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 let group = pipeline.bind(&b).unwrap();
                 let counts = [materials.len(), shading.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len(), lights.len()];
                 let c = counts.map(|c| c as u32);
-                let push = vkinverse::push::RecordsPush {
+                let push = vkinverse::kernels::RecordsPush {
                     materials: c[0],
                     triangles: c[1],
                     emitters: c[2],

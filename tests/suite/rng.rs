@@ -18,7 +18,7 @@ use common::with_gpu;
 use std::sync::Arc;
 use vkinverse::engine::SEED_FD;
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind};
-use vkinverse::push::RngTestPush;
+use vkinverse::kernels::RngTestPush;
 use vkinverse::render::gradient::{SEED_ADJOINT, SEED_PRIMAL};
 use vkinverse::settings::gpu_seed;
 

@@ -5,7 +5,7 @@
 
 use crate::gpu::PushBlock;
 use crate::optim::push::{AdamPush, DiagPush, MetaPush};
-use crate::push_block;
+use crate::gpu::push_block;
 use crate::shared::Material;
 use bytemuck::{Pod, Zeroable};
 

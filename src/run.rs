@@ -1,6 +1,6 @@
 //! `vkinverse optimise`: the optimisation loop and its outputs.
 //!
-//! The [`Engine`] records one iteration once — the proportional gradient estimate (primal →
+//! The engine (`crate::engine`) records one iteration once — the proportional gradient estimate (primal →
 //! loss → adjoint), for the meta-estimator the finite-difference sample (the gradient at
 //! θ_i minus the gradient at θ_{i−1} with the same random numbers, both states evaluated
 //! along one trace), then the fused optimiser passes — and this loop resubmits it. Between
@@ -10,10 +10,10 @@
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
 //! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, the
 //! optimiser's diagnostics of every iteration and parameter group (`optimiser.csv`, reduced
-//! on the GPU, and their plot `optimiser.png`; [`crate::optim::csv`]), and the
+//! on the GPU, and their plot `optimiser.png`; `optim::csv`), and the
 //! recovered scene in `final/` (`crate::scene::write`). The
 //! directory's rules (lock, refusal of a used directory, crash-safe checkpoints, what
-//! `--resume` checks) are those of [`crate::rundir`]. The log rows are also returned in
+//! `--resume` checks) are those of the `rundir` module. The log rows are also returned in
 //! memory ([`Run::log`]).
 
 use crate::cancel::Cancel;
@@ -122,7 +122,7 @@ pub struct Summary {
     pub final_loss: f64,
     pub final_param_error: Option<f64>,
     pub initial_param_error: Option<f64>,
-    /// The image error of the optimised scene ([`Engine::image_error`]): the mean squared
+    /// The image error of the optimised scene (the engine's `image_error`): the mean squared
     /// difference between its expected image and the target, per pixel and channel,
     /// estimated from two independent renders of `image_error_spp` samples without their
     /// noise. Unlike the parameter error it needs no reference and measures what the loss
@@ -153,7 +153,7 @@ pub struct Summary {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub started_from: Option<String>,
     /// A Ctrl-C or SIGTERM stopped the run before its iterations or time budget ran out
-    /// ([`crate::interrupt`]); `optimise --resume` continues it.
+    /// (a [`crate::Cancel`], or the observer); a resume continues it.
     #[serde(default)]
     pub interrupted: bool,
 }
