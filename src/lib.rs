@@ -113,3 +113,8 @@ pub use rundir::Mode;
 pub use scene::Scene;
 pub use settings::{Loss, RunSettings, Settings};
 pub use tensor::{ParamValue, Shape};
+
+/// The README's Rust examples, run as doctests.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
