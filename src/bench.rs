@@ -13,10 +13,10 @@ pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
+use crate::kernels::{Count4Push, CountPush, GatherPush};
 use crate::ops::BufferOps;
 use crate::optim::gpu::{GpuOptimiser, Group};
 use crate::optim::{Optimiser, Range};
-use crate::kernels::{Count4Push, CountPush, GatherPush};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::sync::Arc;

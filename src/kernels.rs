@@ -1,10 +1,9 @@
 //! `#[repr(C)]` mirrors of every kernel's push-constant block (scalar layout), each a
-//! [`PushBlock`] whose members every dispatch checks against the reflected SPIR-V.
-//! [`mirror`] names the block of each kernel; a test checks every kernel against it, so a
-//! new kernel without a mirror, or a drift on either side, fails.
+//! [`PushBlock`](crate::gpu::PushBlock) whose members every dispatch checks against the reflected SPIR-V. A test
+//! (tests/suite/contracts.rs) names the block of each kernel and checks every kernel
+//! against it, so a new kernel without a mirror, or a drift on either side, fails.
 
-use crate::gpu::PushBlock;
-use crate::optim::push::{AdamPush, DiagPush, MetaPush};
+
 use crate::gpu::push_block;
 use crate::shared::Material;
 use bytemuck::{Pod, Zeroable};
@@ -168,89 +167,4 @@ pub struct RngTestPush {
 }
 push_block!(RngTestPush { n, sample_index, seed, frame, dims });
 
-push_block!(AdamPush {
-    n,
-    offset,
-    group,
-    first_partial,
-    lr,
-    beta1,
-    beta2,
-    eps,
-    lo,
-    hi,
-    sched_decay,
-    sched_warmup,
-    sched_horizon,
-    sched_every,
-    sched_floor,
-    sched_gamma,
-});
-push_block!(MetaPush {
-    n,
-    offset,
-    group,
-    first_partial,
-    lr,
-    decay_f,
-    decay_d,
-    eps,
-    lo,
-    hi,
-    beta2,
-    grow_f,
-    step_rule,
-    centred,
-    groups,
-    global_dpi,
-    sched_decay,
-    sched_warmup,
-    sched_horizon,
-    sched_every,
-    sched_floor,
-    sched_gamma,
-    fd_raw,
-    decay_h,
-    sig,
-    settle,
-    trust,
-    persist,
-    calib,
-    flags,
-    curv_se,
-    curv_floor,
-});
-push_block!(DiagPush { first, count, group });
 
-/// A push block's members (name, byte offset) and size.
-pub type Layout = (&'static [(&'static str, usize)], usize);
-
-fn layout<P: PushBlock>() -> Layout {
-    (P::MEMBERS, std::mem::size_of::<P>())
-}
-
-/// The host mirror of kernel `kernel`'s push block (`()` for none); None for a kernel
-/// that has no mirror.
-pub fn mirror(kernel: &str) -> Option<Layout> {
-    // A kernel's BVH-layout builds (`_wide`, `_cw8`) share its block; copy_wide is a kernel
-    // of its own.
-    let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
-    Some(match base {
-        "copy" | "sub" | "merge_half" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" | "carry_adjoint" => layout::<CountPush>(),
-        "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
-        "fill" => layout::<FillPush>(),
-        "scale_add" => layout::<ScaleAddPush>(),
-        "gather" | "gather_texel" => layout::<GatherPush>(),
-        "loss" => layout::<LossPush>(),
-        "carry_weight" => layout::<CarryWeightPush>(),
-        "records_test" => layout::<RecordsPush>(),
-        "bsdf_sample_test" => layout::<BsdfSamplePush>(),
-        "rng_test" => layout::<RngTestPush>(),
-        "optim_adam" => layout::<AdamPush>(),
-        "optim_meta" => layout::<MetaPush>(),
-        "optim_diag" => layout::<DiagPush>(),
-        "layout_probe" => layout::<()>(),
-        k if k.starts_with("trace_") => layout::<TracePush>(),
-        _ => return None,
-    })
-}

@@ -3,11 +3,90 @@
 
 use crate::device::Device;
 use crate::error::{Error, Result};
-use crate::optim::replay::ReplayInput;
 use crate::optim::spec::Spec;
 use std::path::Path;
 
 pub use crate::optim::Range;
+
+/// The input of `vkinverse replay`, read from `.npy` files and checked: equally long rows,
+/// the finite-difference stream of the same shape, finite start values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReplayInput {
+    pub grads: Vec<Vec<f32>>,
+    pub fd_grads: Option<Vec<Vec<f32>>>,
+    pub init: Vec<f32>,
+    /// The half-sample sums of both streams (the centred variance estimate).
+    pub halves: Option<(Vec<Vec<f32>>, Vec<Vec<f32>>)>,
+}
+
+impl ReplayInput {
+    /// Reads `grads` (`[iterations, n]`), `fd_grads` (the same shape; required when
+    /// `needs_fd`) and `init` (n finite values; zeros when absent).
+    pub fn load(grads: &Path, fd_grads: Option<&Path>, init: Option<&Path>, needs_fd: bool) -> Result<Self> {
+        let bad = |path: &Path, what: String| Error::Invalid(format!("{}: {what}", path.display()));
+        let g = crate::npy::read(grads)?;
+        if g.shape.len() != 2 {
+            return Err(bad(grads, format!("expected shape [iterations, n], got {:?}", g.shape)));
+        }
+        let n = g.shape[1];
+        let fd = match (fd_grads, needs_fd) {
+            (Some(p), _) => {
+                let a = crate::npy::read(p)?;
+                if a.shape != g.shape {
+                    return Err(bad(p, format!("shape {:?} differs from the gradients' {:?}", a.shape, g.shape)));
+                }
+                Some(a.rows())
+            }
+            (None, true) => return Err(Error::Invalid("--optimiser meta needs FD_GRADS.npy (finite-difference samples) after GRADS.npy".into())),
+            (None, false) => None,
+        };
+        let init = match init {
+            Some(p) => {
+                let a = crate::npy::read(p)?;
+                if a.data.len() != n {
+                    return Err(bad(p, format!("{} values, the gradients have {n} per row", a.data.len())));
+                }
+                if let Some((i, v)) = a.data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                    return Err(bad(p, format!("value {i} is {v}: start values must be finite")));
+                }
+                a.data
+            }
+            None => vec![0.0; n],
+        };
+        Ok(ReplayInput { grads: g.rows(), fd_grads: fd, init, halves: None })
+    }
+
+    /// Reads the half-sample sums of the gradients and of the finite differences, each of
+    /// the gradients' shape.
+    pub fn load_halves(&mut self, grads: &Path, fd_grads: &Path) -> Result<()> {
+        let read = |path: &Path| -> Result<Vec<Vec<f32>>> {
+            let a = crate::npy::read(path)?;
+            let rows = a.rows();
+            if rows.len() != self.grads.len() || rows.iter().any(|r| r.len() != self.init.len()) {
+                return Err(Error::Invalid(format!(
+                    "{}: shape {:?} differs from the gradients' [{}, {}]",
+                    path.display(),
+                    a.shape,
+                    self.grads.len(),
+                    self.init.len()
+                )));
+            }
+            Ok(rows)
+        };
+        self.halves = Some((read(grads)?, read(fd_grads)?));
+        Ok(())
+    }
+
+    /// The streams, for the replays.
+    pub fn streams(&self) -> crate::optim::replay::Streams<'_> {
+        crate::optim::replay::Streams {
+            grads: &self.grads,
+            fd_grads: self.fd_grads.as_deref(),
+            grad_halves: self.halves.as_ref().map(|h| h.0.as_slice()),
+            fd_halves: self.halves.as_ref().map(|h| h.1.as_slice()),
+        }
+    }
+}
 
 /// The input files: `grads`, float32 `[iterations, n]` (proportional gradients), and for
 /// meta `fd_grads` of the same shape (finite-difference samples); `init`, the `n` start

@@ -310,19 +310,7 @@ impl Settings {
     }
 }
 
-impl Settings {
-    /// The run settings of `scene` with this layer on top (defaults below the scene's).
-    pub fn resolve_for(&self, scene: &crate::scene::Scene) -> RunSettings {
-        Settings::resolve(&scene.optimise.settings, self)
-    }
-}
-
 impl RunSettings {
-    /// The settings of a scene alone.
-    pub fn of_scene(scene: &crate::scene::Scene) -> RunSettings {
-        Settings::resolve(&scene.optimise.settings, &Settings::default())
-    }
-
     /// The optimiser of the run: the spec's, with the settings' schedule when one is given
     /// and a cosine without a horizon decaying over the run's iterations (a run with a time
     /// budget alone must give the horizon).

@@ -72,21 +72,6 @@ impl ValueRef {
     /// A material's normal-map slot holds a bump map's heights (`VALUE_BUMP`).
     pub const BUMP: u32 = crate::constants::VALUE_BUMP;
 
-    /// The flags of texture `t`'s filter and wrap modes (u, v).
-    pub fn sampler_flags(t: &crate::scene::Texture) -> u32 {
-        use crate::scene::{Filter, Wrap};
-        let code = |w: Wrap| match w {
-            Wrap::Repeat => 0,
-            Wrap::Clamp => 1,
-            Wrap::Mirror => 2,
-        };
-        let filter = match t.filter {
-            Filter::Bilinear => 0,
-            Filter::Nearest => Self::NEAREST,
-        };
-        filter | code(t.wrap[0]) << 2 | code(t.wrap[1]) << 4
-    }
-
     /// The sampler bits of the flags (filter and wrap modes).
     pub const SAMPLER: u32 = Self::NEAREST | 0b11_1100;
 }

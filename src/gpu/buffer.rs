@@ -4,7 +4,7 @@
 //! alive. Zero-length buffers are legal at this level (a kernel over 0 elements); they
 //! are backed by a 16-byte allocation because Vulkan forbids empty buffers.
 
-use super::staging::Counters;
+use super::transfers::Counters;
 use super::{vk_err, Context, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};

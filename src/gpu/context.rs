@@ -3,7 +3,8 @@
 //! Invariant: every GPU object holds an `Arc<Context>`, so the device (and the allocator,
 //! which must go before it) is destroyed only after the last object using it.
 
-use super::staging::{Counters, Staging, TransferStats, STAGING_NAME};
+use super::staging::{Staging, STAGING_NAME};
+use super::transfers::{Counters, TransferStats};
 use super::{vk_err, GpuError, Result};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};

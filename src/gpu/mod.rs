@@ -19,13 +19,15 @@ mod profiler;
 pub mod reflect;
 mod staging;
 mod sync;
+mod transfers;
 
 pub use buffer::{Buffer, MemoryKind};
 pub use commands::{CommandBuffer, Recorder};
 pub use context::{check_features, Context, ContextOptions, DescriptorLimits, DeviceFeatures, DeviceInfo};
 pub use pipeline::{check_descriptor_limits, texel_padded, BindGroup, ComputePipeline, SpecValue, TEXEL_BYTES};
 pub use profiler::{Profiler, ScopeTime};
-pub use staging::{TransferStats, STAGING_BYTES};
+pub use staging::STAGING_BYTES;
+pub use transfers::TransferStats;
 pub use sync::Access;
 
 use ash::vk;

@@ -4,6 +4,7 @@
 //! (`crate::kernels`).
 
 use super::{AdamHyper, CurvatureFit, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
+use crate::gpu::push_block;
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
 
@@ -202,3 +203,57 @@ impl From<shared::DiagRecord> for super::reference::DiagRecord<f32> {
         }
     }
 }
+
+push_block!(AdamPush {
+    n,
+    offset,
+    group,
+    first_partial,
+    lr,
+    beta1,
+    beta2,
+    eps,
+    lo,
+    hi,
+    sched_decay,
+    sched_warmup,
+    sched_horizon,
+    sched_every,
+    sched_floor,
+    sched_gamma,
+});
+push_block!(MetaPush {
+    n,
+    offset,
+    group,
+    first_partial,
+    lr,
+    decay_f,
+    decay_d,
+    eps,
+    lo,
+    hi,
+    beta2,
+    grow_f,
+    step_rule,
+    centred,
+    groups,
+    global_dpi,
+    sched_decay,
+    sched_warmup,
+    sched_horizon,
+    sched_every,
+    sched_floor,
+    sched_gamma,
+    fd_raw,
+    decay_h,
+    sig,
+    settle,
+    trust,
+    persist,
+    calib,
+    flags,
+    curv_se,
+    curv_floor,
+});
+push_block!(DiagPush { first, count, group });

@@ -111,8 +111,23 @@ pub struct GpuScene {
     pub frame: Buffer,
 }
 
+/// The [`ValueRef`] flags of texture `t`'s filter and wrap modes (u, v).
+pub fn sampler_flags(t: &crate::scene::Texture) -> u32 {
+    use crate::scene::{Filter, Wrap};
+    let code = |w: Wrap| match w {
+        Wrap::Repeat => 0,
+        Wrap::Clamp => 1,
+        Wrap::Mirror => 2,
+    };
+    let filter = match t.filter {
+        Filter::Bilinear => 0,
+        Filter::Nearest => ValueRef::NEAREST,
+    };
+    filter | code(t.wrap[0]) << 2 | code(t.wrap[1]) << 4
+}
+
 /// Appends a constant or texture (its image, channels and sampler flags,
-/// [`ValueRef::sampler_flags`]) to the material data and returns its reference.
+/// [`sampler_flags`]) to the material data and returns its reference.
 fn push_value(data: &mut Vec<f32>, constant: &[f32], texture: Option<(&Image, usize, u32)>) -> ValueRef {
     let offset = data.len() as i32;
     match texture {
@@ -139,7 +154,7 @@ fn theta_ref(slot: &ParamSlot, scene: ValueRef) -> ValueRef {
 fn color_ref(data: &mut Vec<f32>, v: &ColorValue) -> ValueRef {
     match v {
         ColorValue::Constant(c) => push_value(data, c, None),
-        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, ValueRef::sampler_flags(t)))),
+        ColorValue::Texture(t) => push_value(data, &[], Some((&t.image, 3, sampler_flags(t)))),
     }
 }
 
@@ -152,11 +167,11 @@ fn normal_map_ref(data: &mut Vec<f32>, m: &Material) -> ValueRef {
         None => ValueRef::default(),
         Some(Perturbation::Normal(n)) => {
             let image = Image { data: n.vectors(), width: n.texture.image.width, height: n.texture.image.height };
-            push_value(data, &[], Some((&image, 3, ValueRef::sampler_flags(&n.texture))))
+            push_value(data, &[], Some((&image, 3, sampler_flags(&n.texture))))
         }
         Some(Perturbation::Bump(b)) => {
             let image = Image { data: b.heights().into_iter().map(|h| [h, 0.0, 0.0]).collect(), width: b.texture.image.width, height: b.texture.image.height };
-            let r = push_value(data, &[], Some((&image, 1, ValueRef::sampler_flags(&b.texture))));
+            let r = push_value(data, &[], Some((&image, 1, sampler_flags(&b.texture))));
             ValueRef { flags: r.flags | ValueRef::BUMP, ..r }
         }
     }
@@ -351,7 +366,7 @@ fn plastic_coating(m: &crate::scene::Material) -> Option<([f64; crate::bsdf::TAB
 fn scalar_ref(data: &mut Vec<f32>, v: &ScalarValue) -> ValueRef {
     match v {
         ScalarValue::Constant(c) => push_value(data, &[*c], None),
-        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, ValueRef::sampler_flags(t)))),
+        ScalarValue::Texture(t) => push_value(data, &[], Some((&t.image, 1, sampler_flags(t)))),
     }
 }
 
@@ -451,7 +466,7 @@ impl GpuScene {
             .map(|(i, m)| match layout.slot(ParamTarget::Emission { mesh: i }) {
                 // An optimised emission lives in θ; of the scene's value only its sampler
                 // flags are kept.
-                Some(s) => theta_ref(s, ValueRef { flags: m.emission.texture().map_or(0, ValueRef::sampler_flags), ..ValueRef::default() }),
+                Some(s) => theta_ref(s, ValueRef { flags: m.emission.texture().map_or(0, sampler_flags), ..ValueRef::default() }),
                 None => match &m.emission {
                     ColorValue::Texture(t) => *per_image(&mut shared_textures, &t.image, || color_ref(&mut data, &m.emission)),
                     ColorValue::Constant(_) => color_ref(&mut data, &m.emission),

@@ -4,12 +4,22 @@
 use super::model::{ParamTarget, ScalarValue, Scene};
 use glam::Vec3;
 
+impl Scene {
+    /// What the scene asks for and will not get when it is rendered (no light, a texture
+    /// without texture coordinates to look it up, ...), one line each. Unlike
+    /// [`Self::warnings`] (what loading approximated), these hold for a scene built in code
+    /// too.
+    pub fn render_warnings(&self) -> Vec<String> {
+        lighting_warnings(self)
+    }
+}
+
 /// What the scene will not get: light (no emitting triangle of non-zero area, no delta
 /// light and no environment: it renders black), light from an emitting mesh whose triangles
 /// all have zero area (an emitter table cannot sample them), or a normal map or an alpha
 /// texture on a mesh without texture coordinates (neither is applied: the map has no
 /// tangents, the alpha nowhere to be looked up).
-pub(crate) fn lighting_warnings(scene: &Scene) -> Vec<String> {
+fn lighting_warnings(scene: &Scene) -> Vec<String> {
     let mut out = Vec::new();
     let path = scene.path.display();
     let optimised = |target: ParamTarget| scene.optimise.params.iter().any(|p| p.target == target);

@@ -37,7 +37,7 @@ use std::path::{Path, PathBuf};
 use glam::{Mat3, Mat4, Vec3};
 use gltf::texture::WrappingMode;
 
-use super::loader::Imported;
+use super::model::Imported;
 use super::model::*;
 use super::{MaterialKind, SceneError, GLTF_FILM_SIDE, GLTF_MAX_DEPTH};
 use crate::image::{srgb_decode, Image};

@@ -21,26 +21,6 @@ use super::{obj, LoadOptions, MaterialKind, SceneError};
 use crate::image;
 use crate::tensor::Shape;
 
-/// What an imported glTF or Mitsuba file contributes: its sensors, materials, meshes
-/// (whose material indices are into `materials`) and lights, all checked by the importer,
-/// and the film, depths and environment it suggests, which the TOML may override.
-#[derive(Default)]
-pub(super) struct Imported {
-    pub source: Source,
-    pub film: Option<Film>,
-    pub max_depth: Option<u32>,
-    pub rr_depth: Option<u32>,
-    pub hide_emitters: Option<bool>,
-    pub pixel_filter: Option<PixelFilter>,
-    pub sensors: Vec<Sensor>,
-    pub materials: Vec<Material>,
-    pub meshes: Vec<Mesh>,
-    pub lights: Vec<Light>,
-    pub environment: Option<Environment>,
-    /// One line each: what the import approximated or left out.
-    pub warnings: Vec<String>,
-}
-
 /// Loads the TOML scene at `path` (text `text`), with the file it imports.
 pub(super) fn load(path: &Path, text: &str, options: &LoadOptions) -> Result<Scene, SceneError> {
     let raw: SceneFile = toml::from_str(text).map_err(|e| SceneError::toml(path.to_path_buf(), text, e))?;

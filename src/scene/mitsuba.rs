@@ -49,7 +49,7 @@ use std::sync::Arc;
 use glam::{Affine2, Mat3, Mat4, Vec2, Vec3};
 use roxmltree::{Document, Node};
 
-use super::loader::Imported;
+use super::model::Imported;
 use super::model::*;
 use super::{obj, ply, MaterialKind, SceneError};
 use crate::image::{self, srgb_decode, Image};

@@ -71,6 +71,20 @@ impl Format {
     }
 }
 
+impl crate::settings::Settings {
+    /// The run settings of `scene` with this layer on top (defaults below the scene's).
+    pub fn resolve_for(&self, scene: &Scene) -> crate::settings::RunSettings {
+        crate::settings::Settings::resolve(&scene.optimise.settings, self)
+    }
+}
+
+impl crate::settings::RunSettings {
+    /// The settings of a scene alone.
+    pub fn of_scene(scene: &Scene) -> crate::settings::RunSettings {
+        crate::settings::Settings::default().resolve_for(scene)
+    }
+}
+
 /// Film side of a bare glTF scene along the camera's longer axis.
 pub const GLTF_FILM_SIDE: u32 = 512;
 /// Path depth of a bare glTF scene.

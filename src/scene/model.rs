@@ -897,14 +897,6 @@ impl Scene {
         self.content_hash
     }
 
-    /// What the scene asks for and will not get when it is rendered (no light, a texture
-    /// without texture coordinates to look it up, ...), one line each. Unlike
-    /// [`Self::warnings`] (what loading approximated), these hold for a scene built in code
-    /// too.
-    pub fn render_warnings(&self) -> Vec<String> {
-        super::checks::lighting_warnings(self)
-    }
-
     pub fn material_index(&self, name: &str) -> Option<usize> {
         self.materials.iter().position(|m| m.name == name)
     }
@@ -945,4 +937,24 @@ impl Scene {
         }
         g
     }
+}
+
+/// What an imported glTF or Mitsuba file contributes: its sensors, materials, meshes
+/// (whose material indices are into `materials`) and lights, all checked by the importer,
+/// and the film, depths and environment it suggests, which the TOML may override.
+#[derive(Default)]
+pub(crate) struct Imported {
+    pub source: Source,
+    pub film: Option<Film>,
+    pub max_depth: Option<u32>,
+    pub rr_depth: Option<u32>,
+    pub hide_emitters: Option<bool>,
+    pub pixel_filter: Option<PixelFilter>,
+    pub sensors: Vec<Sensor>,
+    pub materials: Vec<Material>,
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub environment: Option<Environment>,
+    /// One line each: what the import approximated or left out.
+    pub warnings: Vec<String>,
 }

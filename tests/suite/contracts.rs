@@ -4,8 +4,44 @@
 
 use vkinverse::gpu::reflect::Reflection;
 use vkinverse::gpu::shaders::KERNELS;
+use vkinverse::gpu::PushBlock;
+use vkinverse::kernels::*;
+use vkinverse::optim::push::{AdamPush, DiagPush, MetaPush};
 
-/// Every kernel with a push block has a mirror (`vkinverse::kernels::mirror`) whose members
+/// A push block's members (name, byte offset) and size.
+type Layout = (&'static [(&'static str, usize)], usize);
+
+fn layout<P: PushBlock>() -> Layout {
+    (P::MEMBERS, std::mem::size_of::<P>())
+}
+
+/// The host mirror of kernel `kernel`'s push block (`()` for none); None for a kernel
+/// that has no mirror.
+fn mirror(kernel: &str) -> Option<Layout> {
+    // A kernel's BVH-layout builds (`_wide`, `_cw8`) share its block; copy_wide is a kernel
+    // of its own.
+    let base = if kernel == "copy_wide" { kernel } else { kernel.strip_suffix("_wide").or_else(|| kernel.strip_suffix("_cw8")).unwrap_or(kernel) };
+    Some(match base {
+        "copy" | "sub" | "merge_half" | "reduce" | "trace_test" | "bsdf_test" | "carry_image" | "carry_stats" | "carry_adjoint" => layout::<CountPush>(),
+        "copy_vec4" | "copy_wide" => layout::<Count4Push>(),
+        "fill" => layout::<FillPush>(),
+        "scale_add" => layout::<ScaleAddPush>(),
+        "gather" | "gather_texel" => layout::<GatherPush>(),
+        "loss" => layout::<LossPush>(),
+        "carry_weight" => layout::<CarryWeightPush>(),
+        "records_test" => layout::<RecordsPush>(),
+        "bsdf_sample_test" => layout::<BsdfSamplePush>(),
+        "rng_test" => layout::<RngTestPush>(),
+        "optim_adam" => layout::<AdamPush>(),
+        "optim_meta" => layout::<MetaPush>(),
+        "optim_diag" => layout::<DiagPush>(),
+        "layout_probe" => layout::<()>(),
+        k if k.starts_with("trace_") => layout::<TracePush>(),
+        _ => return None,
+    })
+}
+
+/// Every kernel with a push block has a mirror ([`mirror`]) whose members
 /// (names and byte offsets, in order) and size are the reflected ones; a kernel without one
 /// has the empty mirror.
 #[test]
@@ -13,7 +49,7 @@ fn every_push_block_matches_its_mirror() {
     assert!(KERNELS.len() > 20, "{} kernels", KERNELS.len());
     for (kernel, spirv) in KERNELS {
         let r = Reflection::new(kernel, spirv).unwrap();
-        let (members, size) = vkinverse::kernels::mirror(kernel).unwrap_or_else(|| panic!("{kernel}: no Rust mirror of its push block"));
+        let (members, size) = mirror(kernel).unwrap_or_else(|| panic!("{kernel}: no Rust mirror of its push block"));
         let reflected: Vec<(&str, usize)> = r.push_members.iter().map(|(n, o)| (n.as_str(), *o)).collect();
         assert_eq!(reflected, members, "{kernel}: push block members and offsets");
         assert_eq!(r.push_constant_size as usize, size, "{kernel}: push block size");
@@ -48,4 +84,96 @@ fn shared_constants_are_generated_from_one_definition() {
             }
         }
     }
+}
+
+/// The modules of `src/` (the command line's `main.rs` and `cli/` aside) import each other
+/// without a loop: top-level modules through `crate::NAME`, and the files of each module
+/// directory through `super::NAME`. A loop would mean two layers that cannot be read, built
+/// or changed one without the other.
+#[test]
+fn modules_import_each_other_without_loops() {
+    use std::collections::{BTreeMap, BTreeSet};
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    // The identifiers that follow `prefix` in `text`, comments stripped.
+    let refs = |text: &str, prefix: &str| -> BTreeSet<String> {
+        let code: String = text.lines().map(|l| l.split("//").next().unwrap_or("")).collect::<Vec<_>>().join("\n");
+        code.match_indices(prefix)
+            .filter(|(at, _)| !code[..*at].ends_with(|c: char| c.is_alphanumeric() || c == '_' || c == ':'))
+            .map(|(at, _)| code[at + prefix.len()..].chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect())
+            .collect()
+    };
+    let stem = |p: &std::path::Path| p.file_stem().unwrap().to_string_lossy().into_owned();
+    let rs_files = |dir: &std::path::Path| -> Vec<std::path::PathBuf> {
+        let mut v: Vec<_> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "rs")).collect();
+        v.sort();
+        v
+    };
+    // Every graph: (what, node -> nodes it imports).
+    let mut graphs: Vec<(String, BTreeMap<String, BTreeSet<String>>)> = Vec::new();
+    let mut top: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    let mut dirs = Vec::new();
+    for entry in std::fs::read_dir(&src).unwrap() {
+        let path = entry.unwrap().path();
+        let name = stem(&path);
+        if ["main", "lib", "cli"].contains(&name.as_str()) {
+            continue;
+        }
+        let files = if path.is_dir() {
+            dirs.push(path.clone());
+            let mut all = Vec::new();
+            let mut stack = vec![path.clone()];
+            while let Some(d) = stack.pop() {
+                for e in std::fs::read_dir(&d).unwrap() {
+                    let p = e.unwrap().path();
+                    if p.is_dir() {
+                        stack.push(p);
+                    } else if p.extension().is_some_and(|e| e == "rs") {
+                        all.push(p);
+                    }
+                }
+            }
+            all
+        } else {
+            vec![path.clone()]
+        };
+        let uses = top.entry(name.clone()).or_default();
+        for f in files {
+            uses.extend(refs(&std::fs::read_to_string(&f).unwrap(), "crate::").into_iter().filter(|m| *m != name));
+        }
+    }
+    let known: BTreeSet<String> = top.keys().cloned().collect();
+    for uses in top.values_mut() {
+        uses.retain(|m| known.contains(m));
+    }
+    graphs.push(("src/".into(), top));
+    for dir in dirs {
+        let files: Vec<String> = rs_files(&dir).iter().map(|p| stem(p)).filter(|s| s != "mod").collect();
+        let module = stem(&dir);
+        let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for f in &files {
+            let text = std::fs::read_to_string(dir.join(format!("{f}.rs"))).unwrap();
+            let uses: BTreeSet<String> =
+                refs(&text, "super::").into_iter().chain(refs(&text, &format!("crate::{module}::"))).filter(|m| m != f && files.contains(m)).collect();
+            g.insert(f.clone(), uses);
+        }
+        graphs.push((format!("src/{module}/"), g));
+    }
+    for (what, g) in &graphs {
+        // A node is on a loop when it reaches itself.
+        for start in g.keys() {
+            let mut seen = BTreeSet::new();
+            let mut stack: Vec<(String, Vec<String>)> = g[start].iter().map(|n| (n.clone(), vec![start.clone(), n.clone()])).collect();
+            while let Some((node, path)) = stack.pop() {
+                assert!(node != *start, "{what}: modules import each other in a loop: {}", path.join(" -> "));
+                if seen.insert(node.clone()) {
+                    for next in g.get(&node).into_iter().flatten() {
+                        let mut p = path.clone();
+                        p.push(next.clone());
+                        stack.push((next.clone(), p));
+                    }
+                }
+            }
+        }
+    }
+    assert!(graphs[0].1.len() > 20, "the top-level modules were found: {:?}", graphs[0].1.keys());
 }
