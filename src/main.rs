@@ -39,11 +39,11 @@ enum Command {
     /// Render one sensor of a scene to EXR (linear) or PNG (tone-mapped sRGB).
     Render(RenderArgs),
     /// Recover the scene's optimised parameters from its target images.
-    #[command(after_help = OPTIMISE_HELP)]
+    #[command(after_help = format!("{OPTIMISE_HELP}\n\nOptimiser specs (--optimiser): NAME[@KEY=VALUE]..., keys:\n{}", vkinverse::Spec::keys_help()))]
     Optimise(OptimiseArgs),
     /// Run several optimisers on one scene at equal cost and seed; plot and tabulate their
     /// error against run time.
-    #[command(after_help = COMPARE_HELP)]
+    #[command(after_help = format!("Optimiser specs: NAME[@KEY=VALUE]..., with NAME adam or meta and these keys:\n{}{COMPARE_HELP}", vkinverse::Spec::keys_help()))]
     Compare(CompareArgs),
     /// Run a list of optimisation jobs (or one shard of it) on one device, with one results
     /// table; or merge the tables of shards.
@@ -311,9 +311,7 @@ run after its current iteration and writes its outputs (exit status 130, or 143)
 same command with --resume continues it. A second Ctrl-C stops at once.";
 
 const COMPARE_HELP: &str = "\
-Optimiser specs: NAME[@KEY=VALUE]... with NAME adam (keys beta1, beta2, eps) or meta (keys
-decay_f, decay_d, eps); unset keys keep their defaults. `@` separates keys so that specs
-hold no comma.
+Unset keys keep their defaults. `@` separates keys so that specs hold no comma.
 
 Every run gets the same settings and seed: the same --time-budget (wall time, set-up
 excluded) when given, else the same --iterations (the scene's by default). Each run's

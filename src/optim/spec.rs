@@ -2,13 +2,9 @@
 //! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@step=snr@var=zero`.
 //!
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
-//! list of specs splits without quoting. Keys are the fields of [`AdamHyper`] (`beta1`,
-//! `beta2`, `eps`) or [`MetaHyper`] (`decay_f`, `decay_d`, `eps`, `step` = snr|adam|bounded|wiener|newton,
-//! `beta2`, `var` = zero|centred, `grow_f`, `dpi` = group|global, `fdvar` = scaled|raw, and
-//! for `step` = newton `decay_h`, `sig`, `multiple` = none|bonferroni, `settle`, `trust`, `persist`, `shrink` = element|group, `curv` = rms|ls,
-//! `curv_se`, `curv_floor`; `carry`, the least weight of the fresh primal image in the
-//! carried one, `carry_weight` = fixed|variance, `carry_adjoint` = on|off), and for both the learning-rate schedule's
-//! (`schedule` = constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
+//! list of specs splits without quoting. The keys of each optimiser are in [`ADAM_KEYS`] and
+//! [`META_KEYS`], and for both the learning-rate schedule's (`schedule` =
+//! constant|cosine|step, `warmup`, `horizon`, `floor`, `every`, `gamma`; see
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
@@ -37,6 +33,12 @@ impl Spec {
         parse_list(text)
     }
 
+    /// Every optimiser's hyperparameter keys with their values and what they do, one line
+    /// each: the help text of a spec.
+    pub fn keys_help() -> String {
+        help()
+    }
+
     /// The label with every character that is awkward in a file name replaced by `_`.
     pub fn dir_name(&self) -> String {
         file_safe(&self.label)
@@ -48,12 +50,110 @@ pub fn file_safe(text: &str) -> String {
     text.chars().map(|c| if c.is_ascii_alphanumeric() || "._@=-".contains(c) { c } else { '_' }).collect()
 }
 
+/// One hyperparameter key of a spec: its name, the values it takes, what it does, and how
+/// it is set. The tables below are the one declaration that both parses a spec and
+/// documents it ([`help`]), so that no help text can go stale.
+pub struct Key<H: 'static> {
+    pub name: &'static str,
+    /// `number`, or the names it takes (`snr|adam`).
+    pub values: &'static str,
+    pub help: &'static str,
+    set: fn(&mut H, &str) -> Result<(), OptimError>,
+}
+
+/// `value` as a number for key `key`.
+fn number(key: &str, value: &str) -> Result<f64, OptimError> {
+    value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")))
+}
+
+/// A key that sets a number field.
+macro_rules! number_key {
+    ($h:ty, $name:ident, $help:literal) => {
+        Key::<$h> {
+            name: stringify!($name),
+            values: "number",
+            help: $help,
+            set: |h, v| {
+                h.$name = number(stringify!($name), v)?;
+                Ok(())
+            },
+        }
+    };
+}
+
+/// A key that sets a field to one of named options.
+macro_rules! choice_key {
+    ($h:ty, $name:literal, $field:ident, $help:literal, [$($option:literal => $value:expr),+ $(,)?]) => {
+        Key::<$h> {
+            name: $name,
+            values: concat!($($option, "|"),+),
+            help: $help,
+            set: |h, v| {
+                h.$field = choice($name, v, &[$(($option, $value)),+])?;
+                Ok(())
+            },
+        }
+    };
+}
+
+/// Adam's keys.
+pub const ADAM_KEYS: &[Key<AdamHyper>] = &[
+    number_key!(AdamHyper, beta1, "decay of the first moment's EMA"),
+    number_key!(AdamHyper, beta2, "decay of the second moment's EMA"),
+    number_key!(AdamHyper, eps, "added to the step's denominator"),
+];
+
+/// The meta-estimator's keys.
+pub const META_KEYS: &[Key<MetaHyper>] = &[
+    number_key!(MetaHyper, decay_f, "decay of the EMA of the fresh gradients' second moment"),
+    number_key!(MetaHyper, decay_d, "decay of the EMA of the finite differences' second moment"),
+    number_key!(MetaHyper, eps, "added to the step's denominator"),
+    choice_key!(MetaHyper, "step", step, "how the estimate becomes a step", ["snr" => StepRule::Snr, "adam" => StepRule::Adam, "bounded" => StepRule::Bounded, "wiener" => StepRule::Wiener, "newton" => StepRule::Newton]),
+    number_key!(MetaHyper, beta2, "Adam's beta2, for step=adam"),
+    choice_key!(MetaHyper, "var", variance, "the fresh gradients' variance estimate", ["zero" => VarianceEstimate::Zero, "centred" => VarianceEstimate::Centred]),
+    number_key!(MetaHyper, grow_f, "how fast the fresh gradients' variance may grow"),
+    choice_key!(MetaHyper, "dpi", dpi, "the step length the finite differences' variance scales with", ["group" => StepNorm::Group, "global" => StepNorm::Global]),
+    choice_key!(MetaHyper, "fdvar", fdvar, "the finite differences' variance model", ["scaled" => FdVariance::Scaled, "raw" => FdVariance::Raw]),
+    number_key!(MetaHyper, decay_h, "step=newton: decay of each earlier secant's weight"),
+    number_key!(MetaHyper, sig, "step=newton: the significance Newton's step needs, in standard deviations"),
+    choice_key!(MetaHyper, "multiple", multiple, "step=newton: how the significance depends on the group's size", ["none" => Multiple::None, "bonferroni" => Multiple::Bonferroni]),
+    number_key!(MetaHyper, settle, "step=newton: the fraction of the Wiener step taken where Newton's is shorter"),
+    number_key!(MetaHyper, trust, "step=newton: how far past lr a step may reach while its direction holds"),
+    number_key!(MetaHyper, persist, "step=newton: a run of one sign this many times n_eff long is significant"),
+    choice_key!(MetaHyper, "curv", curv, "step=newton: how the curvature is fitted to the secants", ["rms" => CurvatureFit::Rms, "ls" => CurvatureFit::Ls]),
+    number_key!(MetaHyper, curv_se, "curv=ls: standard errors of the slope added"),
+    number_key!(MetaHyper, curv_floor, "step=newton: the least curvature, as a fraction of the group's RMS"),
+    number_key!(MetaHyper, calib, "decay of the calibration of the estimate's variance (0: none)"),
+    choice_key!(MetaHyper, "shrink", shrink, "step=newton: the James-Stein factor of each element or of the group", ["element" => Shrink::Element, "group" => Shrink::Group]),
+    number_key!(MetaHyper, carry, "the least weight of the fresh render in the carried primal image (0: none carried)"),
+    choice_key!(MetaHyper, "carry_weight", carry_weight, "how the fresh render is weighed into the carried image", ["fixed" => CarryWeight::Fixed, "variance" => CarryWeight::Variance]),
+    choice_key!(MetaHyper, "carry_adjoint", carry_adjoint, "mix the adjoint pass's render into the carried image", ["on" => true, "off" => false]),
+];
+
 /// The keys each optimiser accepts besides the schedule's, for error messages.
-fn keys(o: &Optimiser) -> &'static str {
-    match o {
-        Optimiser::Adam(_) => "beta1, beta2, eps",
-        Optimiser::Meta(_) => "decay_f, decay_d, eps, step, beta2, var, grow_f, dpi, fdvar, decay_h, sig, multiple, settle, trust, persist, curv, curv_se, curv_floor, calib, shrink, carry, carry_weight, carry_adjoint",
+fn keys(o: &Optimiser) -> String {
+    let names: Vec<&str> = match o {
+        Optimiser::Adam(_) => ADAM_KEYS.iter().map(|k| k.name).collect(),
+        Optimiser::Meta(_) => META_KEYS.iter().map(|k| k.name).collect(),
+    };
+    names.join(", ")
+}
+
+/// Every optimiser's keys, one line each (`  NAME=VALUES  what it does`), then the
+/// schedule's: the help text of the spec, made from the tables that parse it.
+pub fn help() -> String {
+    fn lines<H>(out: &mut String, keys: &[Key<H>]) {
+        for k in keys {
+            let values = k.values.trim_end_matches('|');
+            out.push_str(&format!("    {}={values}: {}\n", k.name, k.help));
+        }
     }
+    let mut out = String::from("  adam\n");
+    lines(&mut out, ADAM_KEYS);
+    out.push_str("  meta\n");
+    lines(&mut out, META_KEYS);
+    out.push_str(&format!("  both: the learning-rate schedule's keys {}\n", super::Schedule::KEYS));
+    out
 }
 
 /// The option named `value` of a key with named options, or an error listing them.
@@ -75,69 +175,16 @@ pub fn set_key(optimiser: &mut Optimiser, key: &str, value: &str) -> Result<bool
     if optimiser.schedule_mut().set(key, value)? {
         return Ok(true);
     }
-    let number = || value.parse::<f64>().map_err(|_| OptimError::BadHyper(format!("{key} = '{value}' is not a number")));
-    let slot = match (&mut *optimiser, key) {
-        (Optimiser::Meta(h), "step") => {
-            h.step = choice(
-                key,
-                value,
-                &[("snr", StepRule::Snr), ("adam", StepRule::Adam), ("bounded", StepRule::Bounded), ("wiener", StepRule::Wiener), ("newton", StepRule::Newton)],
-            )?;
-            return Ok(true);
+    fn apply<H>(keys: &[Key<H>], h: &mut H, key: &str, value: &str) -> Result<bool, OptimError> {
+        match keys.iter().find(|k| k.name == key) {
+            Some(k) => (k.set)(h, value).map(|()| true),
+            None => Ok(false),
         }
-        (Optimiser::Meta(h), "var") => {
-            h.variance = choice(key, value, &[("zero", VarianceEstimate::Zero), ("centred", VarianceEstimate::Centred)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "dpi") => {
-            h.dpi = choice(key, value, &[("group", StepNorm::Group), ("global", StepNorm::Global)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "shrink") => {
-            h.shrink = choice(key, value, &[("element", Shrink::Element), ("group", Shrink::Group)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "multiple") => {
-            h.multiple = choice(key, value, &[("none", Multiple::None), ("bonferroni", Multiple::Bonferroni)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "curv") => {
-            h.curv = choice(key, value, &[("rms", CurvatureFit::Rms), ("ls", CurvatureFit::Ls)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "carry_weight") => {
-            h.carry_weight = choice(key, value, &[("fixed", CarryWeight::Fixed), ("variance", CarryWeight::Variance)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "carry_adjoint") => {
-            h.carry_adjoint = choice(key, value, &[("on", true), ("off", false)])?;
-            return Ok(true);
-        }
-        (Optimiser::Meta(h), "fdvar") => {
-            h.fdvar = choice(key, value, &[("scaled", FdVariance::Scaled), ("raw", FdVariance::Raw)])?;
-            return Ok(true);
-        }
-        (Optimiser::Adam(AdamHyper { beta1, .. }), "beta1") => beta1,
-        (Optimiser::Adam(AdamHyper { beta2, .. }), "beta2") => beta2,
-        (Optimiser::Adam(AdamHyper { eps, .. }), "eps") => eps,
-        (Optimiser::Meta(MetaHyper { decay_f, .. }), "decay_f") => decay_f,
-        (Optimiser::Meta(MetaHyper { decay_d, .. }), "decay_d") => decay_d,
-        (Optimiser::Meta(MetaHyper { eps, .. }), "eps") => eps,
-        (Optimiser::Meta(MetaHyper { beta2, .. }), "beta2") => beta2,
-        (Optimiser::Meta(MetaHyper { grow_f, .. }), "grow_f") => grow_f,
-        (Optimiser::Meta(MetaHyper { decay_h, .. }), "decay_h") => decay_h,
-        (Optimiser::Meta(MetaHyper { sig, .. }), "sig") => sig,
-        (Optimiser::Meta(MetaHyper { settle, .. }), "settle") => settle,
-        (Optimiser::Meta(MetaHyper { trust, .. }), "trust") => trust,
-        (Optimiser::Meta(MetaHyper { persist, .. }), "persist") => persist,
-        (Optimiser::Meta(MetaHyper { curv_se, .. }), "curv_se") => curv_se,
-        (Optimiser::Meta(MetaHyper { curv_floor, .. }), "curv_floor") => curv_floor,
-        (Optimiser::Meta(MetaHyper { calib, .. }), "calib") => calib,
-        (Optimiser::Meta(MetaHyper { carry, .. }), "carry") => carry,
-        _ => return Ok(false),
-    };
-    *slot = number()?;
-    Ok(true)
+    }
+    match optimiser {
+        Optimiser::Adam(h) => apply(ADAM_KEYS, h, key, value),
+        Optimiser::Meta(h) => apply(META_KEYS, h, key, value),
+    }
 }
 
 impl FromStr for Spec {
@@ -202,6 +249,24 @@ mod tests {
         assert_eq!("meta".parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let list = parse_list("meta,adam,adam@beta1=0.5").unwrap();
         assert_eq!(list.iter().map(|s| s.label.as_str()).collect::<Vec<_>>(), ["meta", "adam", "adam@beta1=0.5"]);
+    }
+
+    #[test]
+    fn help_and_parsing_come_from_one_table() {
+        let text = help();
+        for (name, values) in ADAM_KEYS.iter().map(|k| (k.name, k.values)).chain(META_KEYS.iter().map(|k| (k.name, k.values))) {
+            assert!(text.contains(&format!("    {name}={}:", values.trim_end_matches('|'))), "{name} in:\n{text}");
+            // Every key the help lists is one a spec takes: its first value parses (a
+            // number key's 0.5 may be out of its range, which validation names).
+            let value = if values == "number" { "0.5" } else { values.split('|').next().unwrap() };
+            let optimiser = if ADAM_KEYS.iter().any(|k| k.name == name) && !META_KEYS.iter().any(|k| k.name == name) { "adam" } else { "meta" };
+            match format!("{optimiser}@{name}={value}").parse::<Spec>() {
+                Ok(_) => {}
+                Err(e) => assert!(e.to_string().contains("outside"), "{name}={value}: {e}"),
+            }
+        }
+        let unknown = "meta@nope=1".parse::<Spec>().unwrap_err().to_string();
+        assert!(META_KEYS.iter().all(|k| unknown.contains(k.name)), "{unknown}");
     }
 
     #[test]
