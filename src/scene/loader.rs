@@ -17,6 +17,7 @@ use glam::Vec3;
 
 use super::file::{self, ColorInput, InitInput, ScalarInput, SceneFile};
 use super::model::*;
+use super::targets::{Parts, TargetError, TARGET_FORMS};
 use super::{obj, LoadOptions, MaterialKind, SceneError};
 use crate::image;
 use crate::tensor::Shape;
@@ -747,7 +748,8 @@ impl Loader {
         environment: &Environment,
     ) -> Result<Param, SceneError> {
         let target_key = format!("{key}.target");
-        let (target, reference) = self.resolve_target(&target_key, &p.target, materials, meshes, lights, environment)?;
+        let parts = Parts { materials, meshes, lights, environment };
+        let (target, reference) = self.resolve_target(&target_key, &p.target, &parts)?;
         let channels = target.channels();
 
         let range_key = format!("{key}.range");
@@ -763,7 +765,7 @@ impl Loader {
             let k = format!("{key}.texture");
             self.in_range(&k, w, 1, MAX_IMAGE_SIDE)?;
             self.in_range(&k, h, 1, MAX_IMAGE_SIDE)?;
-            if matches!(target, ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. }) {
+            if !target.texturable() {
                 return Err(self.invalid(&k, "a light's colour and intensity are constants and cannot be textures"));
             }
         } else if matches!(reference, Reference::Texture(_)) {
@@ -813,65 +815,17 @@ impl Loader {
         Ok(init)
     }
 
-    fn resolve_target(
-        &self,
-        key: &str,
-        target: &str,
-        materials: &[Material],
-        meshes: &[Mesh],
-        lights: &[Light],
-        environment: &Environment,
-    ) -> Result<(ParamTarget, Reference), SceneError> {
-        let color = |v: &ColorValue| match v {
-            ColorValue::Constant(c) => Reference::Constant(c.to_vec()),
-            ColorValue::Texture(t) => Reference::Texture(t.clone()),
-        };
-        let scalar = |v: &ScalarValue| match v {
-            ScalarValue::Constant(c) => Reference::Constant(vec![*c]),
-            ScalarValue::Texture(t) => Reference::Texture(t.clone()),
-        };
-        let undefined = |kind, name: &str| SceneError::Undefined { scene: self.scene.clone(), key: key.into(), kind, name: name.into() };
-        if target == "environment" {
-            return Ok((ParamTarget::Environment, color(&environment.value)));
+    /// The target named `target` (read at `key`) and the scene's own value of it.
+    fn resolve_target(&self, key: &str, target: &str, parts: &Parts) -> Result<(ParamTarget, Reference), SceneError> {
+        match ParamTarget::parse(target, parts) {
+            Ok(t) => Ok((t, t.reference(parts))),
+            Err(TargetError::Malformed) => Err(self.bad_target(key, target)),
+            Err(TargetError::Undefined { kind, name }) => Err(SceneError::Undefined { scene: self.scene.clone(), key: key.into(), kind, name }),
+            Err(TargetError::Invalid(why)) => Err(self.invalid(key, &why)),
         }
-        if let Some((name, property)) = target.strip_prefix("materials.").and_then(|r| r.rsplit_once('.')) {
-            let material = materials.iter().position(|m| m.name == name);
-            let (material, m) = match material {
-                Some(i) if matches!(property, "base_color" | "roughness" | "metallic") => (i, &materials[i]),
-                None if matches!(property, "base_color" | "roughness" | "metallic") => return Err(undefined("material", name)),
-                _ => return Err(self.bad_target(key, target)),
-            };
-            if property == "metallic" && m.kind != MaterialKind::Principled || property == "roughness" && !m.kind.has_roughness() {
-                return Err(self.invalid(key, &format!("material \"{name}\" is {} and has no {property}", m.kind.as_str())));
-            }
-            return Ok(match property {
-                "base_color" => (ParamTarget::BaseColor { material }, color(&m.base_color)),
-                "roughness" => (ParamTarget::Roughness { material }, scalar(&m.roughness)),
-                _ => (ParamTarget::Metallic { material }, scalar(&m.metallic)),
-            });
-        }
-        if let Some(name) = target.strip_prefix("meshes.").and_then(|r| r.strip_suffix(".emission")) {
-            let mesh = meshes.iter().position(|m| m.name == name).ok_or_else(|| undefined("mesh", name))?;
-            return Ok((ParamTarget::Emission { mesh }, color(&meshes[mesh].emission)));
-        }
-        if let Some((name, property)) = target.strip_prefix("lights.").and_then(|r| r.rsplit_once('.')) {
-            if !matches!(property, "color" | "intensity") {
-                return Err(self.bad_target(key, target));
-            }
-            let light = lights.iter().position(|l| l.name == name).ok_or_else(|| undefined("light", name))?;
-            let l = &lights[light];
-            return Ok(match property {
-                "color" => (ParamTarget::LightColor { light }, Reference::Constant(l.color.to_vec())),
-                _ => (ParamTarget::LightIntensity { light }, Reference::Constant(vec![l.intensity])),
-            });
-        }
-        Err(self.bad_target(key, target))
     }
 
     fn bad_target(&self, key: &str, target: &str) -> SceneError {
-        self.invalid(
-            key,
-            &format!("\"{target}\" is not materials.NAME.base_color|roughness|metallic, meshes.NAME.emission, lights.NAME.color|intensity or environment"),
-        )
+        self.invalid(key, &format!("\"{target}\" is not {TARGET_FORMS}"))
     }
 }

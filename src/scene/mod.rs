@@ -31,6 +31,7 @@ mod mitsuba;
 pub mod model;
 mod obj;
 mod ply;
+mod targets;
 pub mod write;
 
 use std::fs;

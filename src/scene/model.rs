@@ -773,24 +773,6 @@ pub enum ParamTarget {
     LightIntensity { light: usize },
 }
 
-impl ParamTarget {
-    /// The material whose property this is, if any.
-    pub fn material(self) -> Option<usize> {
-        match self {
-            Self::BaseColor { material } | Self::Roughness { material } | Self::Metallic { material } => Some(material),
-            _ => None,
-        }
-    }
-
-    /// 3 for colours, emission and environment; 1 for roughness, metallic and intensity.
-    pub fn channels(self) -> u32 {
-        match self {
-            Self::Roughness { .. } | Self::Metallic { .. } | Self::LightIntensity { .. } => 1,
-            _ => 3,
-        }
-    }
-}
-
 /// The scene's own value of a parameter, against which parameter error is measured.
 #[derive(Clone, Debug)]
 pub enum Reference {

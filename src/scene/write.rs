@@ -33,16 +33,6 @@ fn value_image(v: &ParamValue) -> Option<Image> {
     Some(Image { width, height, data })
 }
 
-/// A recovered constant's first three channels (one channel repeated); zeros for a texture.
-fn constant3(v: &ParamValue) -> [f32; 3] {
-    match v.data.as_slice() {
-        _ if !v.shape.is_constant() => [0.0; 3],
-        [r, g, b, ..] => [*r, *g, *b],
-        [x] => [*x; 3],
-        _ => [0.0; 3],
-    }
-}
-
 fn write_err(path: &Path, message: impl std::fmt::Display) -> SceneError {
     SceneError::Write { path: path.to_path_buf(), message: message.to_string() }
 }
@@ -58,36 +48,14 @@ pub(crate) fn file_name(name: &str) -> String {
 /// wrap modes of the scene's value.
 pub fn apply(scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Scene {
     let mut out = scene.clone();
-    let texture = |target: ParamTarget, r: &ParamValue| {
-        let name = scene.optimise.params.iter().find(|p| p.target == target).map_or("param".to_string(), |p| p.name.clone());
-        let (filter, wrap) = match target {
-            ParamTarget::BaseColor { material } => (scene.materials[material].base_color.filter(), scene.materials[material].base_color.wrap()),
-            ParamTarget::Roughness { material } => (scene.materials[material].roughness.filter(), scene.materials[material].roughness.wrap()),
-            ParamTarget::Metallic { material } => (scene.materials[material].metallic.filter(), scene.materials[material].metallic.wrap()),
-            ParamTarget::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
-            ParamTarget::Environment | ParamTarget::LightColor { .. } | ParamTarget::LightIntensity { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
-        };
-        value_image(r).map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap })
-    };
-    for (target, r) in values {
-        let color = || match texture(*target, r) {
-            Some(t) => ColorValue::Texture(t),
-            None => ColorValue::Constant(constant3(r)),
-        };
-        let scalar = || match texture(*target, r) {
-            Some(t) => ScalarValue::Texture(t),
-            None => ScalarValue::Constant(constant3(r)[0]),
-        };
-        match *target {
-            ParamTarget::BaseColor { material } => out.materials[material].base_color = color(),
-            ParamTarget::Roughness { material } => out.materials[material].roughness = scalar(),
-            ParamTarget::Metallic { material } => out.materials[material].metallic = scalar(),
-            ParamTarget::Emission { mesh } => out.meshes[mesh].emission = color(),
-            ParamTarget::Environment => out.environment.value = color(),
-            ParamTarget::LightColor { light } => out.lights[light].color = constant3(r),
-            ParamTarget::LightIntensity { light } => out.lights[light].intensity = constant3(r)[0],
-        }
+    for (target, value) in values {
+        let name = scene.optimise.params.iter().find(|p| p.target == *target).map_or("param".to_string(), |p| p.name.clone());
+        let (filter, wrap) = target.sampler(scene);
+        let texture =
+            value_image(value).map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap });
+        target.set(&mut out, value, texture);
     }
+    out.content_hash = super::hash::content_hash(&out);
     out
 }
 

@@ -119,10 +119,10 @@ fn modules_import_each_other_without_loops() {
             continue;
         }
         let files = if path.is_dir() {
-            dirs.push(path.clone());
             let mut all = Vec::new();
             let mut stack = vec![path.clone()];
             while let Some(d) = stack.pop() {
+                dirs.push(d.clone());
                 for e in std::fs::read_dir(&d).unwrap() {
                     let p = e.unwrap().path();
                     if p.is_dir() {

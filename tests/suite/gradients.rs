@@ -622,7 +622,7 @@ fn check_principled(ctx: &Arc<Context>, scene: &Scene, texels: &[usize]) {
 fn normal_mapped_principled_gradients_match_finite_differences() {
     with_gpu(|ctx| {
         let scene = glossy_with("normal-mapped", 16, "normal_map = { texture = \"normals.exr\", scale = 0.8 }", &principled_optimise(0.9));
-        assert!(GpuScene::new(ctx, &scene).unwrap().has_normal_maps, "the kernels are built with normal maps");
+        assert!(GpuScene::new(ctx, &scene).unwrap().has("HAS_NORMAL_MAPS"), "the kernels are built with normal maps");
         check_principled(ctx, &scene, &[5, 10]);
     });
 }
@@ -700,7 +700,7 @@ fn emission_texture_gradients_are_exact() {
         let floor = "type = \"diffuse\"\nbase_color = [0.7, 0.4, 0.2]";
         let scene = Scene::load(common::scenes::lit_quad("gradients-emission-texture", 16, floor, "constant = [0.1, 0.1, 0.1]", optimise)).unwrap();
         let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
-        assert!(b.scene().has_emission_textures);
+        assert!(b.scene().has("HAS_EMISSION_TEXTURES"));
         let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.5)).collect();
         check("l2", &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
     });
@@ -770,7 +770,7 @@ fn alpha_tested_gradients_are_exact() {
             vkinverse::image::write_exr(&path.parent().unwrap().join("mask.exr"), &mask).unwrap();
             let scene = Scene::load(path).unwrap();
             let mut b = Bench::new(ctx, &scene, Loss::L2, 4, 4, 16);
-            assert!(b.scene().has_alpha_masks);
+            assert!(b.scene().has("HAS_ALPHA_MASKS"));
             let texels: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.1)).collect();
             check(name, &measure(&mut b, &texels, 4), EPS_EXACT, 0.01);
         }
@@ -812,7 +812,7 @@ fn gradients_through_glass_are_exact() {
                         [[optimise.params]]\ntarget = \"materials.glass.base_color\"\ninit = [0.95, 0.5, 0.2]\nrange = [0.0, 1.0]\n";
         let scene = slab_scene("gradients-glass", "type = \"dielectric\"", optimise);
         let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
-        assert!(b.scene().has_dielectrics);
+        assert!(b.scene().has("HAS_DIELECTRICS"));
         // The tint's step is short: a path that crosses the slab k times is a polynomial of
         // degree k in it, whose central difference is exact only for k ≤ 2.
         let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
@@ -844,7 +844,7 @@ fn gradients_through_rough_glass_match_finite_differences() {
             let kind = format!("type = \"rough_dielectric\"\ndistribution = \"{distribution}\"\nroughness = 0.4");
             let scene = slab_scene(&format!("gradients-rough-glass-{distribution}"), &kind, optimise);
             let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
-            assert!(b.scene().has_dielectrics && b.scene().has_rough_dielectrics);
+            assert!(b.scene().has("HAS_DIELECTRICS") && b.scene().has("HAS_ROUGH_DIELECTRICS"));
             let probes: Vec<Probe> = (0..5).map(|t| probe(3 * t..3 * t + 3, if t < 4 { 0.05 } else { 0.005 })).collect();
             check(distribution, &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
             let mut b = Bench::new(ctx, &scene, Loss::L2, 64, 64, 64);
@@ -873,7 +873,7 @@ fn conductor_gradients_match_finite_differences() {
             let floor = format!("type = \"conductor\"\nmetal = \"Au\"\ndistribution = \"{distribution}\"\nbase_color = [0.9, 0.8, 0.7]\nroughness = 0.4");
             let scene = Scene::load(lit_quad(&format!("gradients-conductor-{distribution}"), 16, &floor, "constant = [0.2, 0.2, 0.2]", optimise)).unwrap();
             let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
-            assert!(b.scene().has_conductors && !b.scene().has_principled);
+            assert!(b.scene().has("HAS_CONDUCTORS") && !b.scene().has("HAS_PRINCIPLED"));
             let probes: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.05)).collect();
             check(distribution, &measure(&mut b, &probes, 32), EPS_EXACT, 0.01);
             let mut b = Bench::new(ctx, &scene, Loss::L2, 64, 64, 64);
@@ -897,7 +897,7 @@ fn plastic_gradients_match_finite_differences() {
             let floor = format!("type = \"plastic\"\ndistribution = \"{distribution}\"\nbase_color = [0.7, 0.5, 0.3]\nroughness = {roughness}\nior = 1.49\nnonlinear = {nonlinear}");
             let scene = Scene::load(lit_quad(&format!("gradients-plastic-{distribution}"), 16, &floor, "constant = [0.2, 0.2, 0.2]", optimise)).unwrap();
             let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 16);
-            assert!(b.scene().has_plastics && !b.scene().has_principled);
+            assert!(b.scene().has("HAS_PLASTICS") && !b.scene().has("HAS_PRINCIPLED"));
             let probes: Vec<Probe> = (0..4).map(|t| probe(3 * t..3 * t + 3, 0.05)).collect();
             check(distribution, &measure(&mut b, &probes, 48), EPS_EXACT, 0.2);
         }
@@ -1177,30 +1177,21 @@ fn feature_specialisation_changes_no_result() {
             let mut grads = Vec::new();
             for every_feature in [false, true] {
                 let mut gs = GpuScene::new(ctx, &scene).unwrap();
-                assert!(!gs.has_textures, "{name} has no texture");
-                assert!(!gs.has_normal_maps, "{name} has no normal map");
-                assert!(!gs.has_emission_textures, "{name} has no emission texture");
-                assert!(!gs.has_alpha_masks, "{name} has no alpha test");
-                assert!(!gs.has_dielectrics, "{name} has no dielectric");
-                assert!(!gs.has_rough_dielectrics, "{name} has no rough dielectric");
-                assert!(!gs.has_conductors, "{name} has no conductor");
-                assert!(!gs.has_plastics, "{name} has no plastic");
-                assert_eq!(gs.has_principled, principled, "{name}: principled materials");
+                assert!(!gs.has("HAS_TEXTURES"), "{name} has no texture");
+                assert!(!gs.has("HAS_NORMAL_MAPS"), "{name} has no normal map");
+                assert!(!gs.has("HAS_EMISSION_TEXTURES"), "{name} has no emission texture");
+                assert!(!gs.has("HAS_ALPHA_MASKS"), "{name} has no alpha test");
+                assert!(!gs.has("HAS_DIELECTRICS"), "{name} has no dielectric");
+                assert!(!gs.has("HAS_ROUGH_DIELECTRICS"), "{name} has no rough dielectric");
+                assert!(!gs.has("HAS_CONDUCTORS"), "{name} has no conductor");
+                assert!(!gs.has("HAS_PLASTICS"), "{name} has no plastic");
+                assert_eq!(gs.has("HAS_PRINCIPLED"), principled, "{name}: principled materials");
                 // The spiral's meshes have vertex normals, the Cornell box's none.
-                assert_eq!(gs.has_normals, principled, "{name}: vertex normals");
+                assert_eq!(gs.has("HAS_NORMALS"), principled, "{name}: vertex normals");
                 assert!(gs.replay_cached, "{name}: every cast of a path fits the replay cache");
                 assert!(gs.local_grads_unrolled, "{name}: few parameters, summed in an unrolled loop");
                 if every_feature {
-                    gs.has_textures = true;
-                    gs.has_principled = true;
-                    gs.has_normals = true;
-                    gs.has_normal_maps = true;
-                    gs.has_emission_textures = true;
-                    gs.has_alpha_masks = true;
-                    gs.has_dielectrics = true;
-                    gs.has_rough_dielectrics = true;
-                    gs.has_conductors = true;
-                    gs.has_plastics = true;
+                    gs.every_feature = true;
                     // The gradient replay tests each cast for the cache at run time.
                     gs.replay_cached = false;
                     // The per-thread gradient sums indexed per lane.
@@ -1255,7 +1246,7 @@ fn scene_features_are_detected() {
     let scene = Scene::load(format!("{}/scenes/glossy/scene.toml", env!("CARGO_MANIFEST_DIR"))).unwrap();
     let (textures, principled, normals) = with_gpu(|ctx| {
         let gs = GpuScene::new(ctx, &scene).unwrap();
-        (gs.has_textures, gs.has_principled, gs.has_normals)
+        (gs.has("HAS_TEXTURES"), gs.has("HAS_PRINCIPLED"), gs.has("HAS_NORMALS"))
     });
     assert!(textures && principled && normals);
 }
