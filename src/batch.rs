@@ -35,14 +35,12 @@
 //! `error_vs_time-<scene>.png` (every finished job's curve) and `curves-<scene>.csv` (the
 //! points behind it). `merge` joins the tables of shards.
 
-use crate::cancel::Cancel;
 use crate::device::Device;
 use crate::error::{one_line, Error, Result};
 use crate::image::write_bytes_atomic;
 use crate::optim::spec::{file_safe, Spec};
 use crate::report::{csv_bytes, write_curves, Curve};
 use crate::run::{optimise_or_read, Log, Observer, RunOptions, Summary};
-use crate::rundir::Mode;
 use crate::scene::{LoadOptions, Scene, SceneError};
 use crate::settings::{deserialize_table, Settings, SettingsTable};
 use serde::de::MapAccess;
@@ -409,13 +407,13 @@ impl Results {
 
 /// Runs one job into `dir`, filling `row` as it learns the job's settings and results;
 /// returns its log.
-fn run_job(device: &Device, job: &Job, dir: &Path, mode: Mode, cancel: &Cancel, row: &mut JobResult, observer: &mut dyn Observer) -> Result<Log> {
+fn run_job(device: &Device, job: &Job, options: &RunOptions, row: &mut JobResult, observer: &mut dyn Observer) -> Result<Log> {
     let scene = Scene::load_with(&job.scene, &job.load)?;
     let st = Settings::resolve(&scene.optimise.settings, &job.settings);
     row.optimiser = Some(job.settings.optimiser.as_ref().map_or_else(|| st.optimiser.label.clone(), |s| s.label.clone()));
     row.seed = Some(st.seed);
     row.spp = Some(st.spp);
-    let run = optimise_or_read(device, &scene, &st, dir, mode, cancel, observer)?;
+    let run = optimise_or_read(device, &scene, &st, options, observer)?;
     row.record(&run.summary);
     Ok(run.log)
 }
@@ -479,7 +477,8 @@ pub fn run(device: &Device, plan: Plan, options: &RunOptions, observer: &mut dyn
             dir: job.dir_name(),
         };
         let dir = out_dir.join(job.dir_name());
-        match run_job(device, job, &dir, mode, cancel, &mut row, observer) {
+        let options = RunOptions { out_dir: Some(&dir), mode, cancel: cancel.clone() };
+        match run_job(device, job, &options, &mut row, observer) {
             Ok(log) => {
                 logs.insert(row.dir.clone(), log);
             }

@@ -15,7 +15,7 @@ pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBen
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
 use crate::kernels::{Count4Push, CountPush, GatherPush};
 use crate::ops::BufferOps;
-use crate::optim::gpu::{GpuOptimiser, Group};
+use crate::optim::gpu::{GpuOptimiser, Group, OptimiserBuffers};
 use crate::optim::{Optimiser, Range};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -104,8 +104,9 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
     let copy_dst = Buffer::new(ctx, "bench theta copy", n as u64 * 4, MemoryKind::Device)?;
     let frame = Buffer::from_slice(ctx, "bench frame", &[0u32], MemoryKind::Upload)?;
     let groups = [Group { offset: 0, len: n, lr: 0.02, range: Range::UNBOUNDED }];
-    let meta = GpuOptimiser::new(ctx, &ops, &Optimiser::Meta(Default::default()), &theta, &grad, Some(&fd_grad), &frame, &groups)?;
-    let adam = GpuOptimiser::new(ctx, &ops, &Optimiser::Adam(Default::default()), &theta, &grad, None, &frame, &groups)?;
+    let buffers = OptimiserBuffers { theta: &theta, grad: &grad, fd_grad: Some(&fd_grad), frame: &frame, groups: &groups };
+    let meta = GpuOptimiser::new(ctx, &Optimiser::Meta(Default::default()), &buffers)?;
+    let adam = GpuOptimiser::new(ctx, &Optimiser::Adam(Default::default()), &OptimiserBuffers { fd_grad: None, ..buffers })?;
 
     let mut profiler = Profiler::new(ctx, 3)?;
     let mut cmd = CommandBuffer::new(ctx, "optimiser bench")?;
@@ -227,6 +228,8 @@ const GATHER_TABLE: u64 = 4096;
 /// reductions over `elements` floats and incoherent float4 reads through a storage buffer
 /// and a texel buffer (`gather`, `gather_texel`), `iterations` times each, one round per
 /// submission.
+/// Not split: one recording of every kernel, each in its scope, read back together; the
+/// kernels' set-up and their scopes are the function.
 pub fn buffer_bench(device: &crate::device::Device, elements: u64, iterations: u32) -> Result<BufferBench> {
     let ctx = device.ctx();
     let n = elements - elements % 4;

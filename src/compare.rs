@@ -127,7 +127,7 @@ pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], 
         let st: RunSettings = Settings::resolve(&scene.optimise.settings, &over.then(&own));
         observer.run_started(&spec.label, st.iterations);
         let dir = out_dir.join(spec.dir_name());
-        let run = optimise_or_read(device, scene, &st, &dir, mode, cancel, observer).map_err(|e| match e {
+        let run = optimise_or_read(device, scene, &st, &RunOptions { out_dir: Some(&dir), mode, cancel: cancel.clone() }, observer).map_err(|e| match e {
             Error::Interrupted(m) => Error::Interrupted(format!("{} {m}; no comparison written", spec.label)),
             e => e,
         })?;

@@ -25,7 +25,7 @@ use crate::gpu::{self, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKi
 use crate::image::Image;
 use crate::observer::Observer;
 use crate::ops::BufferOps;
-use crate::optim::gpu::{GpuOptimiser, Group};
+use crate::optim::gpu::{GpuOptimiser, Group, OptimiserBuffers};
 use crate::optim::{CarryWeight, Diagnostics, MetaHyper, Optimiser, Range};
 use crate::kernels::{CarryWeightPush, CountPush};
 use crate::render::gradient::{GradientInputs, GradientPass};
@@ -137,22 +137,25 @@ impl CarryState {
     }
 }
 
+/// What a [`Carry`] carries: `images`, one (fresh, cur, prev) triple of `pixels` RGB pixels
+/// per sensor, the fresh render at `spp.0` samples per pixel and the finite-difference
+/// images at `spp.1`; the fresh image's least weight `w_min`, and how it is weighed above
+/// that. With `adjoint` (one render per sensor, at `adjoint.1` samples per pixel), each
+/// sensor's adjoint render of θ_i is mixed into its carried image after the adjoint pass
+/// ([`Carry::record_adjoint`]).
+pub struct CarryInputs<'a> {
+    pub pixels: usize,
+    pub images: &'a [(&'a Buffer, &'a Buffer, &'a Buffer)],
+    pub w_min: f64,
+    pub weight: CarryWeight,
+    pub spp: (u32, u32),
+    pub adjoint: Option<(Vec<&'a Buffer>, u32)>,
+}
+
 impl Carry {
-    /// A carry over `images`, one (fresh, cur, prev) triple of `pixels` RGB pixels per
-    /// sensor: the fresh render at `spp.0` samples per pixel, the finite-difference images at
-    /// `spp.1`; the fresh image's least weight `w_min`, and how it is weighed above that.
-    /// With `adjoint` (one render per sensor, at `adjoint.1` samples per pixel), each
-    /// sensor's adjoint render of θ_i is mixed into its carried image after the adjoint pass
-    /// ([`Self::record_adjoint`]).
-    pub fn new(
-        ctx: &Arc<Context>,
-        pixels: usize,
-        images: &[(&Buffer, &Buffer, &Buffer)],
-        w_min: f64,
-        weight: CarryWeight,
-        spp: (u32, u32),
-        adjoint: Option<(Vec<&Buffer>, u32)>,
-    ) -> gpu::Result<Self> {
+    /// The carry of `inputs` ([`CarryInputs`]).
+    pub fn new(ctx: &Arc<Context>, inputs: CarryInputs) -> gpu::Result<Self> {
+        let CarryInputs { pixels, images, w_min, weight, spp, adjoint } = inputs;
         let image = ComputePipeline::new(ctx, "carry_image", &[])?;
         let mix = adjoint.as_ref().map(|_| ComputePipeline::new(ctx, "carry_adjoint", &[])).transpose()?;
         let stats = ComputePipeline::new(ctx, "carry_stats", &[])?;
@@ -203,7 +206,8 @@ impl Carry {
             let renders = (0..gradient.sensors()).map(|s| gradient.adjoint_radiance(s).expect("the gradient estimate's adjoint pass renders θ")).collect();
             (renders, gradient.spp)
         });
-        Self::new(ctx, gs.pixels(), &images, h.carry, h.carry_weight, (gradient.primal_spp, fd.primal_spp), adjoint)
+        let spp = (gradient.primal_spp, fd.primal_spp);
+        Self::new(ctx, CarryInputs { pixels: gs.pixels(), images: &images, w_min: h.carry, weight: h.carry_weight, spp, adjoint })
     }
 
     /// Records the mix of every sensor's adjoint render into its carried image (after the
@@ -393,7 +397,7 @@ impl Engine {
         // Built before the gradient passes: with the centred variance estimate the optimiser
         // owns the half-pixel sums those passes add into.
         let opt = match &optimiser {
-            Some(o) => Some(GpuOptimiser::new(ctx, &ops, o, &gs.theta, &grad, Some(&fd_grad), &gs.frame, &groups)?),
+            Some(o) => Some(GpuOptimiser::new(ctx, o, &OptimiserBuffers { theta: &gs.theta, grad: &grad, fd_grad: Some(&fd_grad), frame: &gs.frame, groups: &groups })?),
             None => None,
         };
         let halves = opt.as_ref().and_then(|o| o.halves.as_ref());
@@ -449,7 +453,8 @@ impl Engine {
     pub fn extra_optimiser(&self, optimiser: &Optimiser) -> Result<GpuOptimiser> {
         let gs = self.scene();
         let groups = param_groups(gs, &self.settings);
-        Ok(GpuOptimiser::new(&gs.ctx, &self.ops, optimiser, &gs.theta, &self.grad, Some(&self.fd_grad), &gs.frame, &groups)?)
+        let buffers = OptimiserBuffers { theta: &gs.theta, grad: &self.grad, fd_grad: Some(&self.fd_grad), frame: &gs.frame, groups: &groups };
+        Ok(GpuOptimiser::new(&gs.ctx, optimiser, &buffers)?)
     }
 
     /// Another gradient estimate on this scene and its targets, adding into `grad`.

@@ -208,20 +208,13 @@ impl Run {
 /// without a committed checkpoint (a run that never got to one, or none at all) starts
 /// afresh and a finished run is read back ([`Outcome::AlreadyDone`]) instead of refused;
 /// a run that was cancelled is [`Error::Interrupted`].
-pub fn optimise_or_read(
-    device: &Device,
-    scene: &Scene,
-    settings: &RunSettings,
-    dir: &Path,
-    mode: Mode,
-    cancel: &Cancel,
-    observer: &mut dyn Observer,
-) -> Result<Run> {
-    let mode = match mode {
+pub fn optimise_or_read(device: &Device, scene: &Scene, settings: &RunSettings, options: &RunOptions, observer: &mut dyn Observer) -> Result<Run> {
+    let dir = options.out_dir.ok_or_else(|| Error::Invalid("a run of a comparison or batch needs its directory".into()))?;
+    let mode = match options.mode {
         Mode::Resume if !crate::rundir::has_checkpoint(dir) => Mode::Overwrite,
         mode => mode,
     };
-    let options = RunOptions { out_dir: Some(dir), mode, cancel: cancel.clone() };
+    let options = RunOptions { mode, ..options.clone() };
     let run = optimise(device, scene, settings, &options, observer)?.into_run();
     if run.summary.interrupted {
         return Err(Error::Interrupted(format!("stopped at iteration {} (its outputs are in {})", run.summary.iterations, dir.display())));
@@ -782,6 +775,30 @@ fn finish(device: &Device, scene: &Scene, engine: &Engine, mut run: Loop, total_
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Parameters of every shape go through `params/` alike: a constant, a texture and a 3-D
+    /// grid are written as `NAME.npy` in their array shapes and read back value for value;
+    /// the constant and the texture are also in `params.json` (the texture as its EXR).
+    #[test]
+    fn params_of_every_shape_round_trip_through_npy() {
+        let dir = std::env::temp_dir().join(format!("vkinverse-params-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let ramp = |n: usize| (0..n).map(|i| i as f32 * 0.25).collect::<Vec<f32>>();
+        let values = vec![
+            ("materials.wall.base_color".to_string(), ParamValue { shape: Shape::constant(3), data: ramp(3) }),
+            ("materials.wall.roughness".to_string(), ParamValue { shape: Shape::texture(4, 2, 1), data: ramp(8) }),
+            ("media.smoke.density".to_string(), ParamValue { shape: Shape::grid(4, 3, 2, 1), data: ramp(24) }),
+        ];
+        write_params(&dir, &values).unwrap();
+        let names: Vec<String> = values.iter().map(|(n, _)| n.clone()).collect();
+        assert_eq!(read_params(&dir, &names).unwrap(), values);
+        assert_eq!(crate::npy::read(&dir.join("params/media.smoke.density.npy")).unwrap().shape, vec![2, 3, 4, 1]);
+        let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("params/params.json")).unwrap()).unwrap();
+        assert_eq!(json["materials.wall.base_color"], serde_json::json!([0.0, 0.25, 0.5]));
+        assert_eq!(json["materials.wall.roughness"]["texture"], "materials.wall.roughness.exr");
+        assert!(json.get("media.smoke.density").is_none(), "a grid is in its .npy alone");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn carry_log_round_trips_and_names_bad_lines() {

@@ -195,6 +195,9 @@ impl Context {
     /// Creates the instance (with validation when asked), picks a device (discrete >
     /// integrated > virtual > CPU, or the one named in `options.device`), checks the
     /// features vkinverse needs and creates the device, queue and allocator.
+    /// Not split: instance, messenger, device and allocator are made in order under one
+    /// lock and one guard that destroys what an error leaves behind; split, each part would
+    /// carry the guard's state.
     pub fn new(options: &ContextOptions) -> Result<Arc<Self>> {
         let validation = options.validation;
         // Released when `new` returns, after an error path's guard has destroyed what it made.

@@ -115,6 +115,8 @@ fn collect_structs(ty: &Type, out: &mut Vec<spirq::ty::StructType>) {
 
 impl Reflection {
     /// Reflects the single compute entry point `main` of `spirv`.
+    /// Not split: one walk over the entry point's variables and types, each collected where
+    /// the walk meets it.
     pub fn new(kernel: &str, spirv: &[u8]) -> Result<Self> {
         if !spirv.len().is_multiple_of(4) {
             return Err(err(kernel, "SPIR-V length is not a multiple of 4"));

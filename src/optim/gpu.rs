@@ -50,6 +50,18 @@ pub struct Halves {
     pub fd_grad: Buffer,
 }
 
+/// What the optimiser passes read and write: θ, the gradient and for meta the
+/// finite-difference sample (both read and cleared by the passes), the iteration counter
+/// (step t = iteration + 1), and θ's parameter groups.
+#[derive(Clone, Copy)]
+pub struct OptimiserBuffers<'a> {
+    pub theta: &'a Buffer,
+    pub grad: &'a Buffer,
+    pub fd_grad: Option<&'a Buffer>,
+    pub frame: &'a Buffer,
+    pub groups: &'a [Group],
+}
+
 /// The fused optimiser passes of one θ buffer.
 pub struct GpuOptimiser {
     optimiser: Optimiser,
@@ -71,19 +83,11 @@ pub struct GpuOptimiser {
 }
 
 impl GpuOptimiser {
-    /// Builds the passes. `grad` (and for meta `fd_grad`) are read and cleared by the
-    /// passes; `frame` holds the iteration counter (step t = iteration + 1).
-    #[allow(clippy::too_many_arguments)]
-    pub fn new(
-        ctx: &Arc<Context>,
-        _ops: &BufferOps,
-        optimiser: &Optimiser,
-        theta: &Buffer,
-        grad: &Buffer,
-        fd_grad: Option<&Buffer>,
-        frame: &Buffer,
-        groups: &[Group],
-    ) -> gpu::Result<Self> {
+    /// Builds the passes of `optimiser` over `buffers`.
+    ///
+    /// Not split: one arm per optimiser, each binding its own state arrays per group.
+    pub fn new(ctx: &Arc<Context>, optimiser: &Optimiser, buffers: &OptimiserBuffers) -> gpu::Result<Self> {
+        let OptimiserBuffers { theta, grad, fd_grad, frame, groups } = *buffers;
         // The state arrays cover θ's elements, the groups' extent in whole texels (θ's
         // buffer may hold more after them: a scene's material data, which no optimiser reads
         // or moves).
@@ -288,24 +292,10 @@ pub struct GpuReplay {
     pub records: Vec<Vec<DiagRecord<f32>>>,
 }
 
-/// Runs the GPU optimiser passes on recorded gradient streams (`vkinverse replay`):
-/// `grads` and `fd_grads` are `iterations` rows of `init.len()` values; returns the
-/// trajectory, `iterations + 1` rows, and the count of skipped non-finite elements.
-pub fn replay_gpu(
-    ctx: &Arc<Context>,
-    optimiser: &Optimiser,
-    grads: &[Vec<f32>],
-    fd_grads: Option<&[Vec<f32>]>,
-    init: &[f32],
-    range: Range,
-    lr: f64,
-) -> gpu::Result<(Vec<Vec<f32>>, u32)> {
-    let r = replay_gpu_streams(ctx, optimiser, &Streams::new(grads, fd_grads), init, range, lr)?;
-    Ok((r.theta, r.nonfinite))
-}
-
-/// [`replay_gpu`] with every stream (the half-sample sums of the centred variance
-/// estimate too), returning each step's diagnostics; the buffer is one group.
+/// Runs the GPU optimiser passes on recorded gradient streams (`vkinverse replay`), the
+/// half-sample sums of the centred variance estimate too, returning the trajectory
+/// (`iterations + 1` rows), the count of skipped non-finite elements and each step's
+/// diagnostics; the buffer is one group.
 pub fn replay_gpu_streams(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &Streams, init: &[f32], range: Range, lr: f64) -> gpu::Result<GpuReplay> {
     replay_gpu_groups(ctx, optimiser, streams, init, &[Group { offset: 0, len: init.len(), lr, range }])
 }
@@ -320,7 +310,7 @@ pub fn replay_gpu_groups(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &St
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Upload)?;
     let fd = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Upload)?;
     let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
-    let opt = GpuOptimiser::new(ctx, &ops, optimiser, &theta, &grad, Some(&fd), &frame, groups)?;
+    let opt = GpuOptimiser::new(ctx, optimiser, &OptimiserBuffers { theta: &theta, grad: &grad, fd_grad: Some(&fd), frame: &frame, groups })?;
     let mut cmd = gpu::CommandBuffer::new(ctx, "replay")?;
     cmd.record(|rec| opt.record(rec, &ops))?;
     let mut out = GpuReplay { theta: vec![init.to_vec()], nonfinite: 0, diagnostics: Vec::new(), records: Vec::new() };

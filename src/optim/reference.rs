@@ -578,6 +578,9 @@ pub struct MetaInput<R> {
 /// rule, variance estimate and β_F growth of `p`), given the buffer's ‖Δπ‖² `dpi2` of the
 /// previous step. Returns (θ', state', diagnostics) or `None` for a non-finite input, in
 /// which case θ and the state stay as they are.
+///
+/// Not split: it mirrors glsl/optim_meta.comp statement by statement, so that the two can
+/// be read side by side; the GPU pass is checked against it element by element.
 pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: R, s: MetaElem<R>) -> Option<(R, MetaElem<R>, ElemDiag<R>)> {
     let (f, df) = (x.f, x.df);
     if !f.is_finite() || !df.is_finite() || (p.centred && !(x.f_half.is_finite() && x.df_half.is_finite())) {

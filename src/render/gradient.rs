@@ -113,6 +113,9 @@ impl GradientPass {
     ///
     /// `theta` and `theta_prev` are shaped like the scene's θ buffer: θ padded to whole
     /// texels, then the scene's material data ([`crate::render::targets::padded`]).
+    ///
+    /// Not split: the pipelines, then each sensor's buffers and bind groups, which refer to
+    /// each other by name.
     pub fn new(scene: &GpuScene, ops: &BufferOps, inputs: &GradientInputs) -> gpu::Result<Self> {
         let GradientInputs { targets, loss, spp, primal_spp, seed, theta, theta_prev, grad, grad_half } = *inputs;
         let ctx = &scene.ctx;

@@ -289,24 +289,6 @@ pub fn record_samples(rec: &mut Recorder, scene: &GpuScene, pipeline: &ComputePi
     Ok(())
 }
 
-/// Renders sensor `sensor` of `scene` as written (optimised parameters at their reference
-/// values) with `spp` samples per pixel; `progress(done, total)` follows the submissions,
-/// and `stop()`, asked after each, may end the render early ([`PrimalRenderer::render_until`]).
-/// Returns the image and the samples per pixel it holds.
-pub fn render_reference(
-    ctx: &Arc<Context>,
-    scene: &Scene,
-    sensor: u32,
-    spp: u32,
-    seed: u64,
-    progress: impl FnMut(u32, u32),
-    stop: impl Fn() -> bool,
-) -> gpu::Result<(Image, u32)> {
-    let renderer = PrimalRenderer::new(GpuScene::new(ctx, scene)?)?;
-    renderer.scene.set_theta(renderer.scene.layout.reference())?;
-    renderer.render_until(sensor, spp, crate::settings::gpu_seed(seed), progress, stop)
-}
-
 /// Renders images of a [`GpuScene`] with the primal kernel.
 pub struct PrimalRenderer {
     pub scene: GpuScene,

@@ -87,6 +87,9 @@ impl Hasher {
 }
 
 /// The content hash of `scene` (see the module documentation).
+///
+/// Not split: the order in which the fields are hashed is the hash; one function keeps it
+/// readable from top to bottom.
 pub fn content_hash(scene: &Scene) -> u64 {
     let mut h = Hasher(Xxh3::new());
     h.tag(VERSION);

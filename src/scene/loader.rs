@@ -428,6 +428,8 @@ impl Loader {
         Ok(())
     }
 
+    /// Not split: one arm per material type, each checking that type's keys in the
+    /// order the format documents them; the checks share the loop's name and key bookkeeping.
     fn materials(&self, raw: Vec<file::MaterialFile>) -> Result<Vec<Material>, SceneError> {
         let mut seen = HashSet::new();
         let mut out = Vec::with_capacity(raw.len());

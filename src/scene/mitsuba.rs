@@ -825,6 +825,8 @@ impl<'a, 'i> Importer<'a, 'i> {
 
     /// Adds the material of BSDF `node` (any type but twosided) named `name`; `one_sided`
     /// when it is not wrapped in a twosided: black from behind, as in Mitsuba.
+    /// Not split: one arm per Mitsuba BSDF plugin, each mapping that plugin's properties,
+    /// as Mitsuba's plugin documentation lists them.
     fn bsdf_material(&mut self, node: Node<'a, 'i>, name: &str, one_sided: bool) -> Result<usize, SceneError> {
         let kind = self.plugin_type(node)?;
         let mut items = elements(node);
@@ -963,7 +965,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(node, "only specular_reflectance 1 is supported"));
                 }
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
-                Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta, nonlinear, one_sided)
+                Material { nonlinear, one_sided, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
             }
             _ => return Err(self.err(node, "only diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
         };
@@ -1081,6 +1083,8 @@ impl<'a, 'i> Importer<'a, 'i> {
     // Shapes and emitters
     // -----------------------------------------------------------------------------------
 
+    /// Not split: one arm per Mitsuba shape plugin, each making that shape's mesh, then
+    /// what every shape shares (its BSDF, emitter and transform).
     fn shape(&mut self, node: Node<'a, 'i>, count: usize) -> Result<(), SceneError> {
         let kind = self.plugin_type(node)?;
         let name = self.attr(node, "id")?.unwrap_or_else(|| format!("shape{count}"));

@@ -421,8 +421,9 @@ impl Material {
     /// A plastic with diffuse reflectance `base_color` under a coating of index `ior`
     /// (interior over exterior) on microfacets of `roughness` (a constant: the coating's
     /// transmittance is tabulated for it) and `distribution`: no metallic, normal map or
-    /// alpha.
-    pub fn plastic(name: String, base_color: ColorValue, roughness: f32, distribution: Distribution, ior: f32, nonlinear: bool, one_sided: bool) -> Self {
+    /// alpha, linear and two-sided (set `nonlinear` and `one_sided` after).
+    pub fn plastic(name: String, base_color: ColorValue, roughness: f32, distribution: Distribution, ior: f32) -> Self {
+        let (nonlinear, one_sided) = (false, false);
         Self {
             name,
             kind: MaterialKind::Plastic,

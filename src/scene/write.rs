@@ -100,6 +100,9 @@ fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
     Ok(rel)
 }
 
+/// The recovered scene as `scene.toml`, its textures and imported meshes written beside it
+/// in `dir`. Not split: one block per table of the format, in the format's order, so that
+/// the writer reads against the loader.
 fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     use toml::{Table, Value};
     let table = |pairs: Vec<(&str, Value)>| -> Value { Value::Table(pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect::<Table>()) };
@@ -358,6 +361,9 @@ fn urlencoding_decode(uri: &str) -> String {
     String::from_utf8_lossy(&out).into_owned()
 }
 
+/// The recovered values written into the imported glTF document (`scene.gltf` in `dir`).
+/// Not split: one arm per parameter kind, each patching the JSON the way glTF stores that
+/// value, around one read and one write of the document.
 fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Result<(), SceneError> {
     let (mut root, blob) = read_gltf(&source.path)?;
     let from = source.path.parent().map(Path::to_path_buf).unwrap_or_default();

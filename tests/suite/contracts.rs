@@ -177,3 +177,66 @@ fn modules_import_each_other_without_loops() {
     }
     assert!(graphs[0].1.len() > 20, "the top-level modules were found: {:?}", graphs[0].1.keys());
 }
+
+/// A function of `src/` (tests aside) longer than 100 lines says why it is not split: a
+/// `Not split:` line in the comment above it.
+#[test]
+fn long_functions_say_why_they_are_not_split() {
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut stack = vec![src];
+    let mut unexplained = Vec::new();
+    let mut seen = 0;
+    while let Some(dir) = stack.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+                continue;
+            }
+            if path.extension().is_none_or(|e| e != "rs") || path.file_name().is_some_and(|f| f == "tests.rs") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let lines: Vec<&str> = text.lines().collect();
+            let mut i = 0;
+            while i < lines.len() {
+                let line = lines[i];
+                if line.trim_start().starts_with("#[cfg(test)]") {
+                    // The tests below a module's code.
+                    break;
+                }
+                let trimmed = line.trim_start();
+                let is_fn = ["fn ", "pub fn ", "pub(crate) fn ", "pub(super) fn ", "const fn ", "pub const fn ", "unsafe fn ", "pub unsafe fn "]
+                    .iter()
+                    .any(|p| trimmed.starts_with(p));
+                if !is_fn {
+                    i += 1;
+                    continue;
+                }
+                let indent = line.len() - trimmed.len();
+                // Its body ends at the closing brace at its own indentation.
+                let mut end = i;
+                while end < lines.len() && !lines[end].trim_end().ends_with('{') && !lines[end].trim_end().ends_with(';') {
+                    end += 1;
+                }
+                if end >= lines.len() || lines[end].trim_end().ends_with(';') {
+                    i += 1;
+                    continue;
+                }
+                let close = (end + 1..lines.len())
+                    .find(|&k| lines[k].len() > indent && lines[k].starts_with(&" ".repeat(indent)) && lines[k][indent..].starts_with('}'));
+                let Some(close) = close.or_else(|| (end + 1..lines.len()).find(|&k| lines[k] == "}")) else { break };
+                seen += 1;
+                if close - i + 1 > 100 {
+                    let above = lines[i.saturating_sub(12)..i].join("\n");
+                    if !above.contains("Not split:") {
+                        unexplained.push(format!("{}:{} ({} lines)", path.display(), i + 1, close - i + 1));
+                    }
+                }
+                i = close + 1;
+            }
+        }
+    }
+    assert!(seen > 500, "the functions were found: {seen}");
+    assert!(unexplained.is_empty(), "functions over 100 lines without a `Not split:` comment:\n{}", unexplained.join("\n"));
+}

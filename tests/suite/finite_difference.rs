@@ -285,7 +285,7 @@ fn fused_equals_two_trace_with_delta_lights() {
 /// written, by its inverse-variance weight against the carried image's tracked variance.
 #[test]
 fn carry_pass_follows_its_formula() {
-    use vkinverse::engine::Carry;
+    use vkinverse::engine::{Carry, CarryInputs};
     use vkinverse::optim::CarryWeight;
     with_gpu(|ctx| {
         let (pixels, rounds, spp) = (1000usize, 6u32, (4u32, 1u32));
@@ -299,7 +299,7 @@ fn carry_pass_follows_its_formula() {
         let mut floors_met = [false; 2];
         for (mode, w_min, with_adjoint) in [(CarryWeight::Fixed, 0.3f64, false), (CarryWeight::Variance, 0.02, false), (CarryWeight::Variance, 0.9, true)] {
             let adjoint = with_adjoint.then(|| (adjoint_renders.iter().collect::<Vec<_>>(), s_a));
-            let carry = Carry::new(ctx, pixels, &triples, w_min, mode, spp, adjoint).unwrap();
+            let carry = Carry::new(ctx, CarryInputs { pixels, images: &triples, w_min, weight: mode, spp, adjoint }).unwrap();
             let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
             cmd.record(|rec| {
                 carry.record(rec, &ops)?;
@@ -389,14 +389,15 @@ fn carry_pass_follows_its_formula() {
 /// tracked variance, and the next iteration weighs finite renders again.
 #[test]
 fn carry_weight_survives_a_non_finite_render() {
-    use vkinverse::engine::Carry;
+    use vkinverse::engine::{Carry, CarryInputs};
     use vkinverse::optim::CarryWeight;
     with_gpu(|ctx| {
         let pixels = 300usize;
         let ops = BufferOps::new(ctx).unwrap();
         let mk = |name: &str| Buffer::zeroed::<[f32; 3]>(ctx, name, pixels, MemoryKind::Device).unwrap();
         let (f, c, p) = (mk("fresh"), mk("cur"), mk("prev"));
-        let carry = Carry::new(ctx, pixels, &[(&f, &c, &p)], 0.01, CarryWeight::Variance, (4, 1), None).unwrap();
+        let carry =
+            Carry::new(ctx, CarryInputs { pixels, images: &[(&f, &c, &p)], w_min: 0.01, weight: CarryWeight::Variance, spp: (4, 1), adjoint: None }).unwrap();
         let mut cmd = CommandBuffer::new(ctx, "carry").unwrap();
         cmd.record(|rec| carry.record(rec, &ops)).unwrap();
         let image = |r: u32, kind: u32| -> Vec<[f32; 3]> { (0..pixels).map(|i| [((i as u32 * 7 + r * 13 + kind * 5) % 11) as f32 * 0.1; 3]).collect() };

@@ -16,9 +16,16 @@ pub fn context() -> Arc<Context> {
     context_with(options())
 }
 
-/// The options of [`context`]: validation on, the device `VKINVERSE_TEST_DEVICE` names.
+/// The options of [`context`]: validation on, the device `VKINVERSE_TEST_DEVICE` names, and
+/// device memory never mapped with `VKINVERSE_UNMAPPABLE_DEVICE_MEMORY=1` (the tests read
+/// the environment; the library does not).
 pub fn options() -> ContextOptions {
-    ContextOptions { device: std::env::var("VKINVERSE_TEST_DEVICE").ok(), validation: true, ..Default::default() }
+    ContextOptions {
+        device: std::env::var("VKINVERSE_TEST_DEVICE").ok(),
+        validation: true,
+        unmappable_device_memory: std::env::var("VKINVERSE_UNMAPPABLE_DEVICE_MEMORY").is_ok_and(|v| v == "1"),
+        ..Default::default()
+    }
 }
 
 fn context_with(options: ContextOptions) -> Arc<Context> {
