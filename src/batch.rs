@@ -445,6 +445,25 @@ pub struct Plan<'a> {
 /// stops it, or a cancellation: the job it stops is recorded as interrupted, with its values
 /// where it stopped, and no further job starts. The observer hears each job start
 /// (`job N LABEL`) and end, and its iterations.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::batch::{load_jobs, run, Plan};
+/// use vkinverse::{Config, Device, Mode, RunOptions};
+/// let dir = std::env::temp_dir().join(format!("vkinverse-doc-batch-{}", std::process::id()));
+/// std::fs::create_dir_all(&dir).unwrap();
+/// let cornell = std::fs::canonicalize("scenes/cornell/scene.toml").unwrap();
+/// let text = format!("iterations = 2\ntarget_spp = 16\nscenes = [{:?}]\noptimisers = [\"meta\", \"adam\"]\n", cornell);
+/// std::fs::write(dir.join("jobs.toml"), text).unwrap();
+/// let jobs = load_jobs(&dir.join("jobs.toml"))?;
+/// let plan = Plan { jobs_file: &dir.join("jobs.toml"), total_jobs: jobs.len(), shard: None, jobs: &jobs };
+/// let out = dir.join("out");
+/// let options = RunOptions { out_dir: Some(&out), mode: Mode::Overwrite, cancel: Default::default() };
+/// let results = run(&Device::new(&Config::from_env().0)?, plan, &options, &mut ())?;
+/// assert_eq!((results.results.len(), results.failed()), (2, 0));
+/// # Ok(())
+/// # }
+/// ```
 pub fn run(device: &Device, plan: Plan, options: &RunOptions, observer: &mut dyn Observer) -> Result<Results> {
     let Plan { jobs_file, total_jobs, shard, jobs } = plan;
     let out_dir = options.out_dir.ok_or_else(|| Error::Invalid("a batch needs an output directory".into()))?;

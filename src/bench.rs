@@ -230,6 +230,15 @@ const GATHER_TABLE: u64 = 4096;
 /// submission.
 /// Not split: one recording of every kernel, each in its scope, read back together; the
 /// kernels' set-up and their scopes are the function.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// let device = vkinverse::Device::new(&vkinverse::Config::from_env().0)?;
+/// let bench = vkinverse::bench::buffer_bench(&device, 1 << 14, 1)?;
+/// println!("{}", bench.table());
+/// # Ok(())
+/// # }
+/// ```
 pub fn buffer_bench(device: &crate::device::Device, elements: u64, iterations: u32) -> Result<BufferBench> {
     let ctx = device.ctx();
     let n = elements - elements % 4;

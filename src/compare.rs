@@ -105,6 +105,24 @@ fn factor_name(f: f64) -> String {
 /// output directory of `options` (required), each run's directory treated as its mode says,
 /// and writes the comparison. The observer hears each run start and its iterations; a
 /// cancellation ends the comparison with [`Error::Interrupted`] and writes no table.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::scene::{Film, LoadOptions};
+/// use vkinverse::{Config, Device, Mode, RunOptions, Scene, Settings, Spec};
+/// let device = Device::new(&Config::from_env().0)?;
+/// let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: None };
+/// let scene = Scene::load_with("scenes/cornell/scene.toml", &small)?;
+/// let dir = std::env::temp_dir().join(format!("vkinverse-doc-compare-{}", std::process::id()));
+/// let over = Settings { iterations: Some(3), target_spp: Some(16), ..Settings::default() };
+/// let options = RunOptions { out_dir: Some(&dir), mode: Mode::Overwrite, cancel: Default::default() };
+/// let specs = Spec::parse_list("meta,adam")?;
+/// let comparison = vkinverse::compare::compare(&device, &scene, &over, &specs, &options, &mut ())?;
+/// assert_eq!(comparison.runs.len(), 2);
+/// assert!(dir.join("compare.csv").is_file() && dir.join("adam/log.csv").is_file());
+/// # Ok(())
+/// # }
+/// ```
 pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], options: &RunOptions, observer: &mut dyn Observer) -> Result<Comparison> {
     if specs.is_empty() {
         return Err(Error::Invalid("no optimisers to compare".into()));

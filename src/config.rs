@@ -4,7 +4,7 @@
 //! [`Config::from_env`], and a library caller sets its fields (or calls the same
 //! function) itself.
 
-use crate::bvh::BvhLayout;
+pub use crate::bvh::BvhLayout;
 use std::path::PathBuf;
 use std::time::Duration;
 

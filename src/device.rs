@@ -12,10 +12,11 @@ pub use crate::gpu::{DeviceFeatures, DeviceInfo};
 /// clone (clones share the device); the device is released when the last clone, and
 /// everything made on it, is gone.
 ///
-/// ```no_run
+/// ```
 /// # fn main() -> vkinverse::Result<()> {
-/// let device = vkinverse::Device::new(&vkinverse::Config::default())?;
+/// let device = vkinverse::Device::new(&vkinverse::Config::from_env().0)?;
 /// println!("rendering on {}", device.info().name);
+/// assert!(device.devices().iter().any(|d| d.name == device.info().name));
 /// # Ok(())
 /// # }
 /// ```

@@ -198,6 +198,19 @@ struct Element {
 }
 
 /// Checks every optimised parameter of `scene` at its initial values.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::scene::{Film, LoadOptions};
+/// use vkinverse::{Config, Device, Scene};
+/// let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
+/// let scene = Scene::load_with("scenes/cornell/scene.toml", &small)?;
+/// let options = vkinverse::gradcheck::Options { spp: 8, primal_spp: 8, rounds: Some(4), ..Default::default() };
+/// let report = vkinverse::gradcheck::gradcheck(&Device::new(&Config::from_env().0)?, &scene, &options)?;
+/// assert_eq!(report.rows.len(), 3, "the red wall's three channels");
+/// # Ok(())
+/// # }
+/// ```
 pub fn gradcheck(device: &crate::device::Device, scene: &Scene, opts: &Options) -> Result<Report> {
     let ctx = device.ctx();
     // The gradient estimate of an optimisation iteration at the options' sample counts.

@@ -87,6 +87,14 @@ impl Image {
 }
 
 /// Reads the first layer with R, G and B channels (half, float or uint; alpha is ignored).
+///
+/// ```
+/// use vkinverse::image::{read_exr, write_exr, Image};
+/// let path = std::env::temp_dir().join(format!("vkinverse-doc-image-{}.exr", std::process::id()));
+/// let image = Image::filled(4, 2, [0.25, 0.5, 1.0]);
+/// write_exr(&path, &image).unwrap();
+/// assert_eq!(read_exr(&path).unwrap(), image);
+/// ```
 pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
     let bytes = fs::read(path).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })?;
     decode_exr(&bytes, path)

@@ -67,6 +67,14 @@ impl Array {
 }
 
 /// Reads a `.npy` float32 array.
+///
+/// ```
+/// use vkinverse::npy::{read, write, Array};
+/// let path = std::env::temp_dir().join(format!("vkinverse-doc-npy-{}.npy", std::process::id()));
+/// let grid = Array { shape: vec![2, 3, 4, 1], data: (0..24).map(|i| i as f32).collect() };
+/// write(&path, &grid).unwrap();
+/// assert_eq!(read(&path).unwrap(), grid);
+/// ```
 pub fn read(path: &Path) -> Result<Array, NpyError> {
     let bytes = fs::read(path).map_err(|e| io_error(path, e))?;
     parse(&bytes).map_err(|e| e.at(path))

@@ -195,18 +195,16 @@ impl Renderer {
         Ok(())
     }
 
-    /// Records and runs the passes `record` adds for sensor `sensor`, with the estimate's
-    /// spp and seed, and reads the gradient back by parameter.
+    /// Records and runs the passes `record` adds for the options' sensor, with their spp
+    /// and seed, and reads the gradient back by parameter.
     fn run_gradient(
         &self,
         options: &RenderOptions,
-        primal_spp: u32,
         record: impl FnOnce(&mut crate::gpu::Recorder, &GradientPass, &BufferOps, usize) -> crate::gpu::Result<()>,
     ) -> Result<Vec<(String, ParamValue)>> {
         self.check(options)?;
         let mut g = self.gradients()?;
         g.pass.spp = options.spp;
-        g.pass.primal_spp = primal_spp;
         g.pass.seed = gpu_seed(options.seed);
         let gs = &self.primal.scene;
         gs.set_frame(0)?;
@@ -231,33 +229,17 @@ impl Renderer {
         self.check_image("the adjoint image", adjoint)?;
         let gs = &self.primal.scene;
         self.gradients()?.pass.adjoint_image(options.sensor as usize).write(&adjoint.data)?;
-        self.run_gradient(options, 1, |rec, pass, ops, s| pass.record_sensor_adjoint(rec, gs, ops, s))
+        self.run_gradient(options, |rec, pass, ops, s| pass.record_sensor_adjoint(rec, gs, ops, s))
     }
 
     /// A built-in loss of a render against `target`, and its gradient with respect to every
-    /// parameter: the loss of a render of `primal_spp` samples per pixel, differentiated at
-    /// `options.spp` with independent random numbers (so the estimate is unbiased for L2).
+    /// parameter: the loss of [`Self::render`] at `primal_spp` samples per pixel with
+    /// `options`' sensor and seed, and [`Self::gradient`] of its adjoint with `options` (its
+    /// own random numbers, so that the estimate is unbiased for L2).
     pub fn loss_gradient(&self, loss: Loss, target: &Image, primal_spp: u32, options: &RenderOptions) -> Result<(f64, Vec<(String, ParamValue)>)> {
         self.check_image("the target", target)?;
-        if primal_spp == 0 {
-            return Err(Error::Invalid("primal_spp must be at least 1".into()));
-        }
-        let gs = &self.primal.scene;
-        let s = options.sensor as usize;
-        {
-            let mut g = self.gradients()?;
-            if g.pass.loss() != loss {
-                let ops = BufferOps::new(&gs.ctx)?;
-                let blank: Vec<Image> = (0..gs.sensors).map(|_| Image::filled(gs.width, gs.height, [0.0; 3])).collect();
-                let grad = g.pass.grad.clone();
-                let inputs =
-                    GradientInputs { targets: &blank, loss, spp: 1, primal_spp: 1, seed: 0, theta: &gs.theta, theta_prev: None, grad: &grad, grad_half: None };
-                *g = Gradients { pass: GradientPass::new(gs, &ops, &inputs)?, ops };
-            }
-            g.pass.target(s).write(&target.data)?;
-        }
-        let grads = self.run_gradient(options, primal_spp, |rec, pass, ops, s| pass.record_sensor(rec, gs, ops, s))?;
-        let value = self.gradients()?.pass.loss_value(s)? as f64;
-        Ok((value, grads))
+        let image = self.render(&RenderOptions { spp: primal_spp, ..*options })?;
+        let (value, adjoint) = loss.evaluate(&image, target);
+        Ok((value, self.gradient(&adjoint, options)?))
     }
 }

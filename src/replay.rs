@@ -122,6 +122,23 @@ impl Replay {
 
 /// Replays the streams of `files` through optimiser `spec` with learning rate `lr`, θ kept
 /// in `range`.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::npy::{write_rows};
+/// use vkinverse::replay::{replay, Files, Range};
+/// let dir = std::env::temp_dir().join(format!("vkinverse-doc-replay-{}", std::process::id()));
+/// std::fs::create_dir_all(&dir).unwrap();
+/// // Ten iterations of a constant gradient on two parameters.
+/// write_rows(&dir.join("grads.npy"), &vec![vec![1.0, -1.0]; 10])?;
+/// let files = Files { grads: &dir.join("grads.npy"), fd_grads: None, init: None, halves: None };
+/// let device = vkinverse::Device::new(&vkinverse::Config::from_env().0)?;
+/// let result = replay(&device, &"adam".parse()?, &files, Range::UNBOUNDED, 0.1)?;
+/// let last = result.trajectory.last().unwrap();
+/// assert!(last[0] < 0.0 && last[1] > 0.0, "each parameter moved against its gradient: {last:?}");
+/// # Ok(())
+/// # }
+/// ```
 pub fn replay(device: &Device, spec: &Spec, files: &Files, range: Range, lr: f64) -> Result<Replay> {
     let opt = spec.optimiser;
     let mut input = ReplayInput::load(files.grads, files.fd_grads, files.init, opt.needs_fd())?;

@@ -51,6 +51,45 @@ impl Loss {
     }
 }
 
+impl Loss {
+    /// The loss of `image` against `target` (the mean over pixels and channels) and its
+    /// gradient with respect to the image, dL/dImage: what the `loss` kernel computes
+    /// (glsl/loss.comp), in double precision. The images have the same size.
+    ///
+    /// ```
+    /// use vkinverse::{Image, Loss};
+    /// let (value, adjoint) = Loss::L2.evaluate(&Image::filled(2, 2, [1.0; 3]), &Image::filled(2, 2, [0.5; 3]));
+    /// assert_eq!(value, 0.25);
+    /// assert_eq!(adjoint.data[0], [2.0 * 0.5 / 12.0; 3]);
+    /// ```
+    pub fn evaluate(self, image: &crate::image::Image, target: &crate::image::Image) -> (f64, crate::image::Image) {
+        let scale = 1.0 / (3.0 * image.data.len().max(1) as f64);
+        let mut total = 0.0;
+        let data = image
+            .data
+            .iter()
+            .zip(&target.data)
+            .map(|(i, t)| {
+                [0, 1, 2].map(|c| {
+                    let (i, t) = (f64::from(i[c]), f64::from(t[c]));
+                    let d = i - t;
+                    let (value, gradient) = match self {
+                        Loss::L2 => (d * d, 2.0 * d),
+                        Loss::L1 => (d.abs(), if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 }),
+                        Loss::RelativeL2 => {
+                            let w = 1.0 / (t * t + 0.01);
+                            (d * d * w, 2.0 * d * w)
+                        }
+                    };
+                    total += value;
+                    (gradient * scale) as f32
+                })
+            })
+            .collect();
+        (total * scale, crate::image::Image { width: image.width, height: image.height, data })
+    }
+}
+
 impl fmt::Display for Loss {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())
@@ -150,6 +189,14 @@ macro_rules! settings {
 
             /// Sets setting `key` from its text (as a command line gives it); the error
             /// names what is wrong with the value. An unknown key is an error too.
+            ///
+            /// ```
+            /// let mut settings = vkinverse::Settings::default();
+            /// settings.set("fd_spp", "2").unwrap();
+            /// settings.set("optimiser", "adam@beta1=0.5").unwrap();
+            /// assert_eq!(settings.fd_spp, Some(2));
+            /// assert!(settings.set("spp", "two").is_err());
+            /// ```
             pub fn set(&mut self, key: &str, text: &str) -> Result<(), Invalid> {
                 match key {
                     $( stringify!($name) => {

@@ -185,6 +185,18 @@ fn count_primal_rays(ctx: &Arc<Context>, gs: &GpuScene, st: &RunSettings) -> Res
 }
 
 /// Runs the comparison over `rounds` rounds.
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::scene::{Film, LoadOptions};
+/// let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
+/// let scene = vkinverse::Scene::load_with("scenes/cornell/scene.toml", &small)?;
+/// let device = vkinverse::Device::new(&vkinverse::Config::from_env().0)?;
+/// let bench = vkinverse::bench::layout_bench(&device, &scene, 1)?;
+/// println!("{}", bench.table());
+/// # Ok(())
+/// # }
+/// ```
 pub fn layout_bench(device: &crate::device::Device, scene: &Scene, rounds: u32) -> Result<LayoutBench> {
     let ctx = device.ctx();
     let rounds = rounds.max(1);

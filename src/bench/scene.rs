@@ -260,6 +260,18 @@ pub(super) fn rel_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
 /// passes on a synthetic θ of `optimiser_elements` parameters.
 /// `warm_up`: how long to repeat the scene's iteration, untimed, before timing it (at least
 /// once).
+///
+/// ```
+/// # fn main() -> vkinverse::Result<()> {
+/// use vkinverse::scene::{Film, LoadOptions};
+/// let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
+/// let scene = vkinverse::Scene::load_with("scenes/cornell/scene.toml", &small)?;
+/// let device = vkinverse::Device::new(&vkinverse::Config::from_env().0)?;
+/// let bench = vkinverse::bench::scene_bench(&device, &scene, 1, 1 << 10, std::time::Duration::ZERO)?;
+/// assert!(bench.iteration_ms > 0.0);
+/// # Ok(())
+/// # }
+/// ```
 pub fn scene_bench(device: &crate::device::Device, scene: &Scene, iterations: u32, optimiser_elements: u64, warm_up: Duration) -> Result<SceneBench> {
     let ctx = device.ctx();
     let iterations = iterations.max(1);

@@ -61,8 +61,6 @@ pub struct GradientInputs<'a> {
 
 /// The pipelines and buffers of the gradient estimate.
 pub struct GradientPass {
-    /// The loss the `loss` kernel was built for.
-    loss_kind: Loss,
     /// The kernels' names, which name their profiler scopes.
     primal_kernel: &'static str,
     adjoint_kernel: &'static str,
@@ -146,7 +144,6 @@ impl GradientPass {
             None => Buffer::zeroed::<f32>(ctx, "grad half (unused)", 1, MemoryKind::Device)?,
         };
         let adjoint = ComputePipeline::new(ctx, &scene.kernel(adjoint_name), &adjoint_spec)?;
-        let loss_kind = loss;
         let loss = ComputePipeline::new(ctx, "loss", &[("LOSS", SpecValue::U32(loss_index(loss)))])?;
         let grad = grad.clone();
         let n = scene.pixels();
@@ -206,7 +203,6 @@ impl GradientPass {
             });
         }
         Ok(Self {
-            loss_kind,
             primal_kernel: primal_name,
             adjoint_kernel: adjoint_name,
             primal,
@@ -245,17 +241,6 @@ impl GradientPass {
             self.record_sensor_rest(rec, scene, ops, s, adjoint)?;
         }
         Ok(())
-    }
-
-    /// The loss this estimate differentiates.
-    pub fn loss(&self) -> Loss {
-        self.loss_kind
-    }
-
-    /// Records sensor `s`'s whole estimate: its primal render, loss and adjoint pass.
-    pub fn record_sensor(&self, rec: &mut Recorder, scene: &GpuScene, ops: &BufferOps, s: usize) -> gpu::Result<()> {
-        self.record_sensor_primal(rec, scene, s)?;
-        self.record_sensor_rest(rec, scene, ops, s, true)
     }
 
     /// Records the primal renders of every sensor (the first half of [`Self::record_passes`],

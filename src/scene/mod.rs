@@ -94,6 +94,12 @@ pub const GLTF_MAX_DEPTH: u32 = 8;
 impl Scene {
     /// Loads and validates `path` (`.toml`, `.gltf`, `.glb` or `.xml`) and everything it
     /// refers to.
+    ///
+    /// ```
+    /// let scene = vkinverse::Scene::load("scenes/cornell/scene.toml").unwrap();
+    /// assert_eq!((scene.film.width, scene.sensors.len()), (64, 1));
+    /// assert_eq!(scene.optimise.params[0].name, "materials.red.base_color");
+    /// ```
     pub fn load(path: impl AsRef<Path>) -> Result<Self, SceneError> {
         Self::load_with(path, &LoadOptions::default())
     }

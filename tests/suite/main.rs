@@ -7,6 +7,7 @@
 
 mod common;
 
+mod api;
 mod bench;
 mod bsdf;
 mod bvh;

@@ -1,0 +1,192 @@
+//! The public library API as a caller uses it: a run stopped by its cancellation token or
+//! by its observer, with its outputs written and resumable; parameters read and set by
+//! name; gradients for an image adjoint against the built-in loss and against finite
+//! differences; two devices of other configurations in one process.
+
+use crate::common;
+use common::scenes::temp_dir;
+use std::ops::ControlFlow;
+use vkinverse::scene::{Film, LoadOptions};
+use vkinverse::{Cancel, Config, Device, Diagnostics, Image, Loss, Mode, Observer, Outcome, RenderOptions, Renderer, RunOptions, Scene, Settings};
+
+fn bundled(name: &str, side: u32) -> Scene {
+    let path = format!("{}/scenes/{name}/scene.toml", env!("CARGO_MANIFEST_DIR"));
+    Scene::load_with(path, &LoadOptions { film: Some(Film { width: side, height: side }), max_depth: None }).unwrap()
+}
+
+/// A validating device on the test device.
+fn device(config: Config) -> Device {
+    let options = common::options();
+    Device::new(&Config { device: options.device, validation: true, unmappable_device_memory: options.unmappable_device_memory, ..config }).unwrap()
+}
+
+/// Cancels its token once iteration `at` has run.
+struct CancelAt {
+    at: u32,
+    token: Cancel,
+    seen: Vec<u32>,
+}
+
+impl Observer for CancelAt {
+    fn iteration(&mut self, row: &vkinverse::LogRow, diagnostics: &[Diagnostics]) -> ControlFlow<()> {
+        assert_eq!(diagnostics.len(), 1, "one parameter, one group of diagnostics");
+        self.seen.push(row.iteration);
+        if row.iteration == self.at {
+            self.token.cancel();
+        }
+        ControlFlow::Continue(())
+    }
+}
+
+/// A run whose token is cancelled during iteration 3 stops after it, writes its outputs as
+/// at any other end (summary, log, parameters) and says it was interrupted; a resume then
+/// runs the rest.
+#[test]
+fn a_cancel_token_stops_a_run_after_an_iteration_with_its_outputs_written() {
+    let scene = bundled("cornell", 16);
+    let dir = temp_dir("api-cancel");
+    let settings = Settings { iterations: Some(8), target_spp: Some(16), ..Settings::default() }.resolve_for(&scene);
+    let device = device(Config::default());
+    let token = Cancel::new();
+    let mut observer = CancelAt { at: 3, token: token.clone(), seen: Vec::new() };
+    let options = RunOptions { out_dir: Some(&dir), mode: Mode::New, cancel: token };
+    let run = vkinverse::optimise(&device, &scene, &settings, &options, &mut observer).unwrap().into_run();
+    assert_eq!(observer.seen, [1, 2, 3]);
+    assert!(run.summary.interrupted);
+    assert_eq!((run.summary.iterations, run.log.rows.len()), (3, 4));
+    assert_eq!(vkinverse::run::Summary::read(&dir).map(|s| (s.iterations, s.interrupted)), Some((3, true)));
+    assert!(dir.join("params/materials.red.base_color.npy").is_file() && dir.join("final.exr").is_file());
+    // The resume continues where the cancellation stopped.
+    let options = RunOptions { out_dir: Some(&dir), mode: Mode::Resume, cancel: Cancel::new() };
+    let mut observer = CancelAt { at: 0, token: Cancel::new(), seen: Vec::new() };
+    let Outcome::Finished(run) = vkinverse::optimise(&device, &scene, &settings, &options, &mut observer).unwrap() else { panic!("the resumed run finishes") };
+    assert_eq!(observer.seen, [4, 5, 6, 7, 8]);
+    assert!(!run.summary.interrupted);
+    assert_eq!(run.log.rows.len(), 9);
+    assert_eq!(vkinverse::run::Log::read(&dir.join("log.csv")).unwrap().rows.len(), 9);
+}
+
+/// Breaks after iteration `at`.
+struct BreakAt(u32);
+
+impl Observer for BreakAt {
+    fn iteration(&mut self, row: &vkinverse::LogRow, _: &[Diagnostics]) -> ControlFlow<()> {
+        if row.iteration == self.0 {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    }
+}
+
+/// An observer's Break stops a run after that iteration, here one kept in memory (no run
+/// directory), whose result still carries the parameters where it stopped.
+#[test]
+fn an_observer_stops_a_run_by_breaking() {
+    let scene = bundled("cornell", 16);
+    let settings = Settings { iterations: Some(8), target_spp: Some(16), ..Settings::default() }.resolve_for(&scene);
+    let run = vkinverse::optimise(&device(Config::default()), &scene, &settings, &RunOptions::new(None), &mut BreakAt(2)).unwrap().into_run();
+    assert!(run.summary.interrupted);
+    assert_eq!((run.summary.iterations, run.log.rows.len()), (2, 3));
+    let (name, value) = &run.params[0];
+    assert_eq!((name.as_str(), value.shape.array()), ("materials.red.base_color", vec![3]));
+    assert_ne!(value.data, [0.5; 3], "two steps moved the wall's colour from its start");
+    // A resume needs the run directory.
+    let options = RunOptions { mode: Mode::Resume, ..RunOptions::new(None) };
+    let err = vkinverse::optimise(&device(Config::default()), &scene, &settings, &options, &mut ()).unwrap_err();
+    assert!(err.to_string().contains("run directory"), "{err}");
+}
+
+/// Parameters are read and set by name: the scene's own value first; a value of the wrong
+/// length, a name the scene does not optimise (the error lists the names it does) or a
+/// value that is not finite are refused and change nothing; values are clamped into the
+/// range; the scene the renderer holds has the value set, and a new content hash.
+#[test]
+fn parameters_are_read_and_set_by_name() {
+    let scene = bundled("spiral", 16);
+    let mut r = Renderer::new(&device(Config::default()), &scene).unwrap();
+    let names: Vec<String> = r.params().into_iter().map(|p| p.name).collect();
+    assert_eq!(names.len(), 3, "{names:?}");
+    let info = &r.params()[0];
+    let before = r.param(&info.name).unwrap();
+    assert_eq!(before.shape.array(), vec![3]);
+    let wrong = r.set_param(&info.name, &[0.5; 2]).unwrap_err().to_string();
+    assert!(wrong.contains("2 values") && wrong.contains("[3]"), "{wrong}");
+    let unknown = r.set_param("materials.nothing.base_color", &[0.5; 3]).unwrap_err().to_string();
+    assert!(names.iter().all(|n| unknown.contains(n.as_str())), "the error lists the parameters: {unknown}");
+    let nan = r.set_param(&info.name, &[0.5, f32::NAN, 0.5]).unwrap_err().to_string();
+    assert!(nan.contains("NaN"), "{nan}");
+    assert_eq!(r.param(&info.name).unwrap(), before, "refused values change nothing");
+    let hash = r.scene().content_hash();
+    let [lo, hi] = info.range;
+    r.set_param(&info.name, &[lo - 1.0, 0.5 * (lo + hi), hi + 1.0]).unwrap();
+    assert_eq!(r.param(&info.name).unwrap().data, [lo, 0.5 * (lo + hi), hi]);
+    assert_ne!(r.scene().content_hash(), hash, "the scene holds the new value");
+}
+
+/// The built-in loss's gradient is the gradient of its adjoint: `loss_gradient` equals
+/// `gradient` of `Loss::evaluate`'s adjoint of a render with the same seed (the loss value
+/// for value; the gradients to 1e-5, the order of the float atomics that sum them varying).
+/// And `gradient` is the derivative of the image's mean: against central finite differences
+/// with common random numbers (diffuse surfaces, so sampling does not depend on the colour),
+/// within 2 % at 1024 samples per pixel on a 16 × 16 film (0.2–0.3 % seen).
+#[test]
+fn gradients_for_an_image_adjoint_match_the_loss_and_finite_differences() {
+    let scene = bundled("cornell", 16);
+    let mut r = Renderer::new(&device(Config::default()), &scene).unwrap();
+    let target = r.render(&RenderOptions { spp: 64, seed: 99, ..Default::default() }).unwrap();
+    let name = "materials.red.base_color";
+    r.set_param(name, &[0.4, 0.3, 0.2]).unwrap();
+    let options = RenderOptions { spp: 4, seed: 7, ..Default::default() };
+    for loss in [Loss::L2, Loss::L1, Loss::RelativeL2] {
+        let (value, built_in) = r.loss_gradient(loss, &target, 4, &options).unwrap();
+        let image = r.render(&RenderOptions { spp: 4, ..options }).unwrap();
+        let (expected, adjoint) = loss.evaluate(&image, &target);
+        assert_eq!(value, expected, "{loss}");
+        let again = r.gradient(&adjoint, &options).unwrap();
+        for (x, y) in built_in[0].1.data.iter().zip(&again[0].1.data) {
+            assert!((x - y).abs() <= 1e-5 * x.abs().max(y.abs()), "{loss}: {built_in:?} against {again:?}");
+        }
+    }
+    // d mean(I) / dθ against finite differences of the mean.
+    let n = 16 * 16;
+    let mean_adjoint = Image::filled(16, 16, [1.0 / (3.0 * n as f32); 3]);
+    let high = RenderOptions { spp: 1024, seed: 3, ..Default::default() };
+    let grad = r.gradient(&mean_adjoint, &high).unwrap()[0].1.data.clone();
+    let base = r.param(name).unwrap().data;
+    let h = 0.05;
+    for c in 0..3 {
+        let mut mean_at = |delta: f32| {
+            let mut v = base.clone();
+            v[c] += delta;
+            r.set_param(name, &v).unwrap();
+            let img = r.render(&RenderOptions { seed: 11, ..high }).unwrap();
+            img.data.iter().flatten().map(|&x| f64::from(x)).sum::<f64>() / (3 * n) as f64
+        };
+        let fd = (mean_at(h) - mean_at(-h)) / (2.0 * f64::from(h));
+        let g = f64::from(grad[c]);
+        eprintln!("channel {c}: gradient {g:.6}, finite difference {fd:.6}");
+        assert!((g - fd).abs() <= 0.02 * fd.abs(), "channel {c}: gradient {g}, finite difference {fd}");
+    }
+}
+
+/// Two devices of other configurations (BVH layouts, the traversal stack, the cache) render
+/// two scenes in one process, interleaved, each exactly as it does alone.
+#[test]
+fn devices_of_other_configurations_do_not_interfere() {
+    let (cornell, spiral) = (bundled("cornell", 16), bundled("spiral", 16));
+    let config_a = Config { bvh_layout: vkinverse::config::BvhLayout::Binary, cache_dir: Some(temp_dir("api-cache-a")), ..Config::default() };
+    let config_b = Config { bvh_stack_array: true, cache_dir: Some(temp_dir("api-cache-b")), ..Config::default() };
+    let options = |seed| RenderOptions { spp: 8, seed, ..Default::default() };
+    let alone_a = Renderer::new(&device(config_a.clone()), &cornell).unwrap().render(&options(1)).unwrap();
+    let alone_b = Renderer::new(&device(config_b.clone()), &spiral).unwrap().render(&options(2)).unwrap();
+    let (a, b) = (device(config_a), device(config_b));
+    let mut ra = Renderer::new(&a, &cornell).unwrap();
+    let rb = Renderer::new(&b, &spiral).unwrap();
+    for _ in 0..2 {
+        ra.set_param("materials.red.base_color", &[0.63, 0.065, 0.05]).unwrap();
+        assert_eq!(rb.render(&options(2)).unwrap(), alone_b);
+        assert_eq!(ra.render(&options(1)).unwrap(), alone_a);
+    }
+    assert_eq!((a.config().bvh_layout, b.config().bvh_stack_array), (vkinverse::config::BvhLayout::Binary, true));
+}
