@@ -103,6 +103,8 @@ pub use cancel::Cancel;
 pub use config::Config;
 pub use device::{Device, DeviceFeatures, DeviceInfo};
 pub use error::{Error, Result};
+/// The vector types of the scene model (positions, directions).
+pub use glam;
 pub use image::Image;
 pub use observer::{LogRow, Observer};
 pub use optim::spec::Spec;

@@ -75,7 +75,16 @@ impl Loss {
                     let d = i - t;
                     let (value, gradient) = match self {
                         Loss::L2 => (d * d, 2.0 * d),
-                        Loss::L1 => (d.abs(), if d > 0.0 { 1.0 } else if d < 0.0 { -1.0 } else { 0.0 }),
+                        Loss::L1 => (
+                            d.abs(),
+                            if d > 0.0 {
+                                1.0
+                            } else if d < 0.0 {
+                                -1.0
+                            } else {
+                                0.0
+                            },
+                        ),
                         Loss::RelativeL2 => {
                             let w = 1.0 / (t * t + 0.01);
                             (d * d * w, 2.0 * d * w)

@@ -229,6 +229,12 @@ impl Loader {
             }
         }
         for mesh in &meshes {
+            if mesh.material >= materials.len() {
+                return Err(self.invalid(
+                    &format!("meshes.{}.material", mesh.name),
+                    &format!("material {} does not exist (the scene has {})", mesh.material, materials.len()),
+                ));
+            }
             self.check_mesh(mesh)?;
         }
         for light in &lights {

@@ -86,6 +86,110 @@ impl crate::settings::RunSettings {
     }
 }
 
+/// A scene built in code: what [`Scene::from_parts`] checks and joins, as a loader checks a
+/// file's contents.
+#[derive(Clone, Debug)]
+pub struct SceneParts {
+    pub film: Film,
+    pub integrator: Integrator,
+    pub sensors: Vec<Sensor>,
+    pub materials: Vec<Material>,
+    /// Each mesh's `material` indexes `materials`.
+    pub meshes: Vec<Mesh>,
+    pub lights: Vec<Light>,
+    pub environment: Environment,
+    /// The scene's layer of run settings (its `[optimise]` table's).
+    pub settings: crate::settings::Settings,
+    pub params: Vec<ParamSpec>,
+}
+
+impl Default for SceneParts {
+    fn default() -> Self {
+        SceneParts {
+            film: Film { width: 256, height: 256 },
+            integrator: Integrator { max_depth: 6, rr_depth: 5, hide_emitters: false },
+            sensors: Vec::new(),
+            materials: Vec::new(),
+            meshes: Vec::new(),
+            lights: Vec::new(),
+            environment: Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 },
+            settings: Default::default(),
+            params: Vec::new(),
+        }
+    }
+}
+
+/// An optimised parameter of a scene built in code, as a `[[optimise.params]]` entry gives
+/// it: its target (`materials.NAME.base_color`), its start value (one number, or one per
+/// channel), its range, and optionally a texture size and its own learning rate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamSpec {
+    pub target: String,
+    pub init: Vec<f32>,
+    pub range: [f32; 2],
+    pub texture: Option<[u32; 2]>,
+    pub lr: Option<f32>,
+}
+
+impl ParamSpec {
+    /// A constant parameter of `target` starting at `init`, within `range`.
+    pub fn new(target: &str, init: &[f32], range: [f32; 2]) -> Self {
+        ParamSpec { target: target.to_string(), init: init.to_vec(), range, texture: None, lr: None }
+    }
+}
+
+impl Scene {
+    /// The scene of `parts`, checked as a loaded scene is (every invariant of this module),
+    /// its paths relative to the current directory.
+    ///
+    /// ```
+    /// use glam::Vec3;
+    /// use vkinverse::scene::{ColorValue, Film, Material, Mesh, ParamSpec, SceneParts, Sensor};
+    /// let quad = |y: f32| vec![[-1.0, y, -1.0], [1.0, y, -1.0], [1.0, y, 1.0], [-1.0, y, 1.0]];
+    /// let mut light = Mesh::new("light", quad(2.0), vec![[0, 1, 2], [0, 2, 3]], 0);
+    /// light.emission = ColorValue::Constant([5.0; 3]);
+    /// let parts = SceneParts {
+    ///     film: Film { width: 8, height: 8 },
+    ///     sensors: vec![Sensor::looking_at(Vec3::new(0.0, 1.0, 4.0), Vec3::new(0.0, 1.0, 0.0), Vec3::Y, 40.0).unwrap()],
+    ///     materials: vec![Material::diffuse("floor", ColorValue::Constant([0.5; 3]))],
+    ///     meshes: vec![Mesh::new("floor", quad(0.0), vec![[0, 2, 1], [0, 3, 2]], 0), light],
+    ///     params: vec![ParamSpec::new("materials.floor.base_color", &[0.2], [0.0, 1.0])],
+    ///     ..SceneParts::default()
+    /// };
+    /// let scene = vkinverse::Scene::from_parts(parts).unwrap();
+    /// assert_eq!(scene.optimise.params[0].init, [0.2; 3]);
+    /// ```
+    pub fn from_parts(parts: SceneParts) -> Result<Scene, SceneError> {
+        let dir = std::env::current_dir().unwrap_or_default();
+        let loader = loader::Loader { scene: dir.join("scene (built in code)"), dir };
+        let mut params = Vec::with_capacity(parts.params.len());
+        for (i, p) in parts.params.into_iter().enumerate() {
+            let init = match p.init.as_slice() {
+                [v] => file::InitInput::Scalar(*v),
+                [r, g, b] => file::InitInput::Color([*r, *g, *b]),
+                _ => {
+                    return Err(loader.invalid(&format!("optimise.params[{i}].init"), &format!("{} values: give one number, or one per channel", p.init.len())))
+                }
+            };
+            params.push(file::ParamFile { init, target: p.target, range: p.range, texture: p.texture, lr: p.lr });
+        }
+        let raw = file::SceneFile { optimise: Some(crate::settings::OptimiseTable { settings: parts.settings, params }), ..Default::default() };
+        let imported = model::Imported {
+            film: Some(parts.film),
+            max_depth: Some(parts.integrator.max_depth),
+            rr_depth: Some(parts.integrator.rr_depth),
+            hide_emitters: Some(parts.integrator.hide_emitters),
+            sensors: parts.sensors,
+            materials: parts.materials,
+            meshes: parts.meshes,
+            lights: parts.lights,
+            environment: Some(parts.environment),
+            ..Default::default()
+        };
+        loader.build(raw, Some(imported), &LoadOptions::default())
+    }
+}
+
 /// Film side of a bare glTF scene along the camera's longer axis.
 pub const GLTF_FILM_SIDE: u32 = 512;
 /// Path depth of a bare glTF scene.

@@ -365,6 +365,26 @@ impl Distribution {
 }
 
 impl Material {
+    /// A Lambertian material of reflectance `base_color`, both sides alike.
+    pub fn diffuse(name: &str, base_color: ColorValue) -> Self {
+        Self {
+            name: name.to_string(),
+            kind: MaterialKind::Diffuse,
+            base_color,
+            roughness: ScalarValue::Constant(1.0),
+            metallic: ScalarValue::Constant(0.0),
+            one_sided: false,
+            perturbation: None,
+            alpha: None,
+            ior: DEFAULT_IOR,
+            absorption: [0.0; 3],
+            distribution: Distribution::Ggx,
+            eta: [0.0; 3],
+            k: [0.0; 3],
+            nonlinear: false,
+        }
+    }
+
     /// Glass of `kind` (any dielectric kind) with transmittance `base_color` and index of
     /// refraction `ior`: no metallic, normal map or alpha, both sides alike, roughness 0 and
     /// GGX (a rough dielectric's caller sets its own).
@@ -677,6 +697,25 @@ impl Material {
         match &self.perturbation {
             Some(Perturbation::Bump(b)) => Some(b),
             _ => None,
+        }
+    }
+}
+
+impl Mesh {
+    /// A mesh of `positions` and triangles `indices` (counter-clockwise from the front)
+    /// with material `material` (an index into the scene's materials): no normals, texture
+    /// coordinates or emission.
+    pub fn new(name: &str, positions: Vec<[f32; 3]>, indices: Vec<[u32; 3]>, material: usize) -> Self {
+        Mesh {
+            name: name.to_string(),
+            path: PathBuf::from(format!("{name} (built in code)")),
+            positions,
+            normals: Vec::new(),
+            uvs: Vec::new(),
+            indices,
+            material,
+            emission: ColorValue::Constant([0.0; 3]),
+            two_sided_emission: false,
         }
     }
 }

@@ -190,3 +190,31 @@ fn devices_of_other_configurations_do_not_interfere() {
     }
     assert_eq!((a.config().bvh_layout, b.config().bvh_stack_array), (vkinverse::config::BvhLayout::Binary, true));
 }
+
+/// A scene built in code is checked as a loaded one is, and renders: a lit floor under an
+/// emitting quad, its colour an optimised parameter; a mistake in it is a load error.
+#[test]
+fn a_scene_built_in_code_renders() {
+    use vkinverse::glam::Vec3;
+    use vkinverse::scene::{ColorValue, Material, Mesh, ParamSpec, SceneParts, Sensor};
+    let quad = |y: f32| vec![[-1.0, y, -1.0], [1.0, y, -1.0], [1.0, y, 1.0], [-1.0, y, 1.0]];
+    let mut light = Mesh::new("light", quad(2.0), vec![[0, 1, 2], [0, 2, 3]], 0);
+    light.emission = ColorValue::Constant([5.0; 3]);
+    let parts = SceneParts {
+        film: Film { width: 8, height: 8 },
+        sensors: vec![Sensor::looking_at(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, Vec3::Y, 50.0).unwrap()],
+        materials: vec![Material::diffuse("floor", ColorValue::Constant([0.5; 3]))],
+        meshes: vec![Mesh::new("floor", quad(0.0), vec![[0, 2, 1], [0, 3, 2]], 0), light],
+        params: vec![ParamSpec::new("materials.floor.base_color", &[0.2], [0.0, 1.0])],
+        ..SceneParts::default()
+    };
+    let scene = Scene::from_parts(parts.clone()).unwrap();
+    let r = Renderer::new(&device(Config::default()), &scene).unwrap();
+    let image = r.render(&RenderOptions { spp: 16, ..Default::default() }).unwrap();
+    assert!(image.data.iter().filter(|p| p[0] > 0.0).count() > 16, "the floor is lit");
+    // A mesh whose material does not exist is refused as a file's would be.
+    let mut bad = parts;
+    bad.meshes[0].material = 7;
+    let err = Scene::from_parts(bad).unwrap_err().to_string();
+    assert!(err.contains("floor"), "{err}");
+}
