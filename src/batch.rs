@@ -194,7 +194,7 @@ fn make_job(index: usize, scene: PathBuf, shared: &Settings, own: &Settings) -> 
 /// Reads and expands a job file; every setting and optimiser spec is checked here, before
 /// any job runs (scenes are loaded by their jobs, so a broken one fails only its job).
 pub fn load_jobs(path: &Path) -> Result<Vec<Job>> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+    let text = crate::files::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     let file: JobFile = toml::from_str(&text).map_err(|e| SceneError::toml(path.to_path_buf(), &text, e))?;
     let bad = |what: String| Error::Invalid(format!("{}: {what}", path.display()));
     let check = |at: &str, s: &Settings| s.validate().map_err(|e| bad(format!("{at}{} {}", e.key, e.message)));
@@ -468,7 +468,8 @@ pub fn run(device: &Device, plan: Plan, options: &RunOptions, observer: &mut dyn
     let Plan { jobs_file, total_jobs, shard, jobs } = plan;
     let out_dir = options.out_dir.ok_or_else(|| Error::Invalid("a batch needs an output directory".into()))?;
     let (mode, cancel) = (options.mode, &options.cancel);
-    std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
+    // Held for the whole batch: no other run writes into the directory meanwhile.
+    let _lock = crate::rundir::RunDir::open_table(out_dir, mode, &device.config().debug_stops)?;
     let mut results =
         Results { jobs_file: jobs_file.display().to_string(), total_jobs, shard: shard.map(|s| s.to_string()), merged_from: Vec::new(), results: Vec::new() };
     let mut logs = BTreeMap::new();
@@ -601,7 +602,8 @@ pub fn merge(dirs: &[PathBuf], out_dir: &Path) -> Result<(Results, Vec<usize>)> 
     let mut merged = merged.ok_or_else(|| Error::Invalid("nothing to merge: give the shards' output directories".into()))?;
     merged.results.sort_by_key(|r| r.job);
     let missing = (1..=merged.total_jobs).filter(|k| !origin.contains_key(k)).collect();
-    std::fs::create_dir_all(out_dir).map_err(|source| Error::Io { path: out_dir.to_path_buf(), source })?;
+    // The merged table replaces one merged before; a single run's directory is refused.
+    let _lock = crate::rundir::RunDir::open_table(out_dir, crate::rundir::Mode::Resume, &Default::default())?;
     merged.write(out_dir)?;
     // The shards ran in other processes: their logs are read back, from the job
     // directories as the shards were given.

@@ -133,7 +133,8 @@ pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], 
         let path = path.to_path_buf();
         move |source| Error::Io { path, source }
     };
-    std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
+    // Held for the whole comparison: no other run writes into the directory meanwhile.
+    let _lock = crate::rundir::RunDir::open_table(out_dir, mode, &device.config().debug_stops)?;
     let mut settings_json = serde_json::Value::Null;
     // Per run: (summary, parameter-error curve, loss curve).
     let mut results = Vec::new();

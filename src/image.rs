@@ -26,6 +26,8 @@ pub enum ImageError {
     Decode { path: PathBuf, message: String },
     #[error("{}: not a readable Radiance HDR image: {message}", path.display())]
     Hdr { path: PathBuf, message: String },
+    #[error("{}: {width}x{height} pixels: each side must be in 1..={}", path.display(), MAX_IMAGE_SIDE)]
+    TooLarge { path: PathBuf, width: u64, height: u64 },
     #[error("{}: image is {width}x{height} but holds {len} pixels", path.display())]
     Size { path: PathBuf, width: u32, height: u32, len: usize },
 }
@@ -86,6 +88,19 @@ impl Image {
     }
 }
 
+/// The longest side of an image read or made (film, texture, target): 16384, which bounds
+/// an image's memory (4 GiB of float RGB) before it is decoded.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Refuses a `width` × `height` image beyond [`MAX_IMAGE_SIDE`] (or of no pixels).
+fn check_size(path: &Path, width: u64, height: u64) -> Result<(), ImageError> {
+    let max = u64::from(MAX_IMAGE_SIDE);
+    if width == 0 || height == 0 || width > max || height > max {
+        return Err(ImageError::TooLarge { path: path.to_path_buf(), width, height });
+    }
+    Ok(())
+}
+
 /// Reads the first layer with R, G and B channels (half, float or uint; alpha is ignored).
 ///
 /// ```
@@ -96,7 +111,7 @@ impl Image {
 /// assert_eq!(read_exr(&path).unwrap(), image);
 /// ```
 pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
-    let bytes = fs::read(path).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })?;
+    let bytes = crate::files::read(path).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })?;
     decode_exr(&bytes, path)
 }
 
@@ -107,6 +122,10 @@ pub fn decode_exr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
     // Checked before decoding because exr's own error for this case does not say which
     // channels the file does have, and that is what the user needs to know.
     let meta = MetaData::read_from_buffered(Cursor::new(bytes), false).map_err(exr_err)?;
+    // Every layer's size before any pixel is allocated: a small file may claim a huge one.
+    for h in &meta.headers {
+        check_size(path, h.layer_size.0 as u64, h.layer_size.1 as u64)?;
+    }
     let has = |h: &exr::meta::header::Header, name: &str| h.channels.list.iter().any(|c| c.name.eq(name));
     if !meta.headers.iter().any(|h| has(h, "R") && has(h, "G") && has(h, "B")) {
         let channels: Vec<String> = meta.headers.iter().flat_map(|h| h.channels.list.iter().map(|c| c.name.to_string())).collect();
@@ -139,7 +158,10 @@ pub fn is_radiance_hdr(bytes: &[u8]) -> bool {
 /// only used in error messages.
 pub fn decode_hdr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
     let hdr_err = |message: String| ImageError::Hdr { path: path.to_path_buf(), message };
-    let img = ::image::load_from_memory_with_format(bytes, ::image::ImageFormat::Hdr).map_err(|e| hdr_err(e.to_string()))?;
+    let reader = || ::image::ImageReader::with_format(Cursor::new(bytes), ::image::ImageFormat::Hdr);
+    let (width, height) = reader().into_dimensions().map_err(|e| hdr_err(e.to_string()))?;
+    check_size(path, width.into(), height.into())?;
+    let img = reader().decode().map_err(|e| hdr_err(e.to_string()))?;
     Ok(rgb_image(&img))
 }
 
@@ -218,8 +240,11 @@ pub fn srgb_decode(encoded: f32) -> f32 {
 /// transfer function applied; grey images are repeated into R, G and B, alpha is dropped).
 /// `path` is only used in error messages.
 pub fn decode_ldr(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
-    let img = ::image::load_from_memory(bytes).map_err(|e| ImageError::Decode { path: path.to_path_buf(), message: e.to_string() })?;
-    Ok(rgb_image(&img))
+    let decode_err = |e: ::image::ImageError| ImageError::Decode { path: path.to_path_buf(), message: e.to_string() };
+    let reader = || ::image::ImageReader::new(Cursor::new(bytes)).with_guessed_format().map_err(|e| ImageError::Io { path: path.to_path_buf(), source: e });
+    let (width, height) = reader()?.into_dimensions().map_err(decode_err)?;
+    check_size(path, width.into(), height.into())?;
+    Ok(rgb_image(&reader()?.decode().map_err(decode_err)?))
 }
 
 /// Linear [0, 1] to 8-bit sRGB (IEC 61966-2-1 OETF).

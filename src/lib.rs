@@ -69,6 +69,7 @@ internal_modules! {
     bvh;
     constants;
     engine;
+    files;
     gpu;
     kernels;
     ops;

@@ -785,7 +785,29 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match run(&cli) {
+    // A panic is a bug of vkinverse's (or of a crate it uses) on this input: one line that
+    // names the command, not a backtrace (RUST_BACKTRACE=1 shows one too).
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let message =
+            info.payload().downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| info.payload().downcast_ref::<String>().cloned()).unwrap_or_default();
+        let at = info.location().map(|l| format!(" at {}:{}", l.file(), l.line())).unwrap_or_default();
+        let command: Vec<String> = std::env::args().skip(1).collect();
+        eprintln!(
+            "vkinverse: internal error: {}{at} (while running `vkinverse {}`); please report it with its input",
+            message.replace('\n', "; "),
+            command.join(" ")
+        );
+        if std::env::var_os("RUST_BACKTRACE").is_some() {
+            default_hook(info);
+        }
+    }));
+    let outcome = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(&cli))) {
+        Ok(outcome) => outcome,
+        // The hook said what happened; 70 is sysexits' EX_SOFTWARE.
+        Err(_) => return ExitCode::from(70),
+    };
+    match outcome {
         Ok(()) => ExitCode::SUCCESS,
         // A Ctrl-C or SIGTERM (vkinverse::interrupt): the shell's status for the signal,
         // as a second signal's.

@@ -76,7 +76,7 @@ impl Array {
 /// assert_eq!(read(&path).unwrap(), grid);
 /// ```
 pub fn read(path: &Path) -> Result<Array, NpyError> {
-    let bytes = fs::read(path).map_err(|e| io_error(path, e))?;
+    let bytes = crate::files::read(path).map_err(|e| io_error(path, e))?;
     parse(&bytes).map_err(|e| e.at(path))
 }
 

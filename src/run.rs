@@ -577,6 +577,8 @@ impl Loop<'_> {
         let mut untimed = 0.0;
         let offset = self.time_offset;
         let timed = |untimed: f64| offset + start.elapsed().as_secs_f64() - untimed;
+        // How many iterations in a row had a zero gradient in every parameter.
+        let mut zero_gradients = 0u32;
         while !settings.done(self.iteration, timed(untimed)) {
             if cancel.is_cancelled() {
                 self.interrupted = true;
@@ -585,6 +587,7 @@ impl Loop<'_> {
             }
             let step = engine.step(&mut iteration, self.iteration)?;
             let time_s = timed(untimed);
+            check_progress(&step, self.iteration + 1, &mut zero_gradients)?;
             for (name, ms) in &step.pass_ms {
                 self.pass_samples.entry(name.clone()).or_default().push(*ms);
             }
@@ -608,6 +611,30 @@ impl Loop<'_> {
         }
         Ok(timed(untimed))
     }
+}
+
+/// Iterations in a row with a zero gradient in every parameter after which a run stops.
+pub const ZERO_GRADIENT_ITERATIONS: u32 = 20;
+
+/// Stops a run going nowhere with an error naming the likely cause: a loss that is not
+/// finite (the image overflows single precision), or a gradient that has been zero in every
+/// parameter for [`ZERO_GRADIENT_ITERATIONS`] iterations (nothing the parameters change
+/// reaches the image). `zero` counts the latter across iterations.
+fn check_progress(step: &crate::engine::Step, iteration: u32, zero: &mut u32) -> Result<()> {
+    if !step.loss.is_finite() {
+        return Err(Error::Invalid(format!(
+            "the loss is {} at iteration {iteration}: the rendered image is not finite in single precision (an emitter, light or environment too bright?)",
+            step.loss
+        )));
+    }
+    let all_zero = !step.diagnostics.is_empty() && step.diagnostics.iter().all(|d| d.rms_f == 0.0);
+    *zero = if all_zero { *zero + 1 } else { 0 };
+    if *zero >= ZERO_GRADIENT_ITERATIONS {
+        return Err(Error::Invalid(format!(
+            "the gradient has been zero in every parameter for {ZERO_GRADIENT_ITERATIONS} iterations (to iteration {iteration}): the parameters do not change the image (no light reaches what they change, or it is too faint?)"
+        )));
+    }
+    Ok(())
 }
 
 /// Optimises `scene`'s parameters with `settings`, from their `init` values towards the

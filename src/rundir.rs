@@ -39,6 +39,12 @@ use std::path::{Path, PathBuf};
 pub const RUN_FILES: [&str; 9] =
     ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final", "error_vs_time.png", "optimiser.csv", "optimiser.png"];
 
+/// What only a single optimisation writes at the top of its directory.
+const SINGLE_RUN_FILES: [&str; 6] = ["checkpoint", "log.csv", "summary.json", "params", "final.exr", "final"];
+
+/// What a comparison or a batch writes at the top of its directory.
+const TABLE_FILES: [&str; 3] = ["compare.json", "compare.csv", "results.csv"];
+
 /// How a run treats a directory that already holds a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Mode {
@@ -104,8 +110,46 @@ impl RunDir {
         debug_point(&self.stops, step);
     }
 
-    /// Creates (if need be) and locks `path`, then applies `mode` to a run found there.
+    /// Creates (if need be) and locks `path`, then applies `mode` to a run found there. A
+    /// directory that holds a comparison's or a batch's table is refused whatever the mode:
+    /// replacing its run files would leave a mix of the two.
     pub fn open(path: &Path, mode: Mode, stops: &DebugStops) -> Result<RunDir> {
+        let dir = Self::lock(path, stops)?;
+        if let Some(table) = TABLE_FILES.iter().find(|f| path.join(f).exists()) {
+            return Err(Error::Invalid(format!("{}: holds a comparison's or a batch's results ({table}); give an optimisation a directory of its own", path.display())));
+        }
+        dir.apply(mode)
+    }
+
+    /// Opens and locks the output directory of a comparison or a batch, whose runs have
+    /// directories of their own below it. A new one is refused where the directory holds
+    /// results already; a directory that holds a single optimisation's run is refused
+    /// unless `mode` replaces it (a resume does not continue it as a comparison).
+    pub fn open_table(path: &Path, mode: Mode, stops: &DebugStops) -> Result<RunDir> {
+        let dir = Self::lock(path, stops)?;
+        let single: Vec<&str> = SINGLE_RUN_FILES.iter().copied().filter(|f| path.join(f).exists()).collect();
+        let table: Vec<&str> = TABLE_FILES.iter().copied().filter(|f| path.join(f).exists()).collect();
+        match mode {
+            Mode::Overwrite if !single.is_empty() => dir.clear().map(|()| dir),
+            _ if !single.is_empty() => Err(Error::Invalid(format!(
+                "{}: holds an optimisation's run ({}); give --overwrite to replace it, or another directory",
+                path.display(),
+                single.join(", ")
+            ))),
+            Mode::New if !table.is_empty() => Err(Error::Invalid(format!(
+                "{}: holds results ({}); give --resume to continue them or --overwrite to replace them",
+                path.display(),
+                table.join(", ")
+            ))),
+            _ => Ok(dir),
+        }
+    }
+
+    /// Creates (if need be) and locks `path`.
+    fn lock(path: &Path, stops: &DebugStops) -> Result<RunDir> {
+        if path.exists() && !path.is_dir() {
+            return Err(Error::Invalid(format!("{}: is a file, not a directory", path.display())));
+        }
         fs::create_dir_all(path).map_err(io(path))?;
         let lock_path = path.join(".lock");
         let lock = File::options().create(true).truncate(false).write(true).open(&lock_path).map_err(io(&lock_path))?;
@@ -118,6 +162,13 @@ impl RunDir {
         }
         let dir = RunDir { path: path.to_path_buf(), _lock: lock, stops: stops.clone() };
         dir.debug_point("run.locked");
+        Ok(dir)
+    }
+
+    /// Applies `mode` to the run this locked directory holds, if any.
+    fn apply(self, mode: Mode) -> Result<RunDir> {
+        let path = self.path.clone();
+        let (dir, path) = (self, path.as_path());
         let used: Vec<&str> = RUN_FILES.iter().copied().filter(|f| path.join(f).exists()).collect();
         match mode {
             Mode::New if !used.is_empty() => {

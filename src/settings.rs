@@ -269,7 +269,8 @@ settings! {
     loss: Loss = Loss::L2, Arity::Value("LOSS");
     /// Iterations (with a time budget: at most this many).
     iterations: u32 => Option<u32> = Some(500), Arity::Value("N");
-    /// Stop after this many seconds of optimisation (instead of, or on top of, iterations).
+    /// Stop after this many seconds of optimisation (instead of, or on top of, iterations);
+    /// an iteration of the mean length so far that would end past it is not started.
     time_budget: f64 => Option<f64> = None, Arity::Value("SEC");
     /// Samples per pixel of the gradient estimate's adjoint pass.
     spp: u32 = 2, Arity::Value("N");
@@ -385,9 +386,13 @@ impl RunSettings {
         Ok(opt)
     }
 
-    /// Whether the run is over after `iteration` iterations and `time_s` seconds.
+    /// Whether the run is over after `iteration` iterations and `time_s` seconds: its
+    /// iterations done, or its time budget reached, or too near to start another iteration
+    /// of the mean length so far (so that a budget is overrun by less than an iteration,
+    /// beyond the first).
     pub fn done(&self, iteration: u32, time_s: f64) -> bool {
-        self.iterations.is_some_and(|n| iteration >= n) || self.time_budget.is_some_and(|b| time_s >= b)
+        let per_iteration = if iteration > 0 { time_s / f64::from(iteration) } else { 0.0 };
+        self.iterations.is_some_and(|n| iteration >= n) || self.time_budget.is_some_and(|b| time_s >= b || time_s + per_iteration > b)
     }
 }
 
@@ -527,6 +532,17 @@ mod tests {
         assert_eq!(Settings::resolve(&Settings::default(), &Settings::default()).iterations, Some(500));
         // A rate from outside the scene replaces the per-parameter rates.
         assert!(Settings::resolve(&scene, &layer("lr = 0.5")).lr_replaces_param_rates);
+    }
+
+    #[test]
+    fn a_time_budget_starts_no_iteration_that_would_end_past_it() {
+        let run = Settings::resolve(&layer("time_budget = 10"), &Settings::default());
+        assert!(!run.done(0, 0.0));
+        assert!(!run.done(4, 7.9), "8 s for 4 iterations: the fifth ends at 9.9");
+        assert!(run.done(4, 8.1), "the fifth would end at 10.1");
+        assert!(run.done(1, 49.0), "an overrun first iteration ends the run");
+        let counted = Settings::resolve(&layer("iterations = 3"), &Settings::default());
+        assert!(!counted.done(2, 1e9) && counted.done(3, 0.0));
     }
 
     #[test]

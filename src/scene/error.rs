@@ -76,7 +76,12 @@ impl SceneError {
         let before = &text[..offset];
         let line = before.matches('\n').count() + 1;
         let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-        let message = source.message().trim().replace('\n', "; ");
+        let message = match source.message().trim() {
+            // toml's error for a value cut short names no problem.
+            "" if offset >= text.trim_end().len() => "the file ends where a value should be".to_string(),
+            "" => "malformed TOML here".to_string(),
+            m => m.replace('\n', "; "),
+        };
         Self::Toml { path, line, column, message, source: Box::new(source) }
     }
 }

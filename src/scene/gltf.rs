@@ -119,23 +119,26 @@ fn err(path: &Path, location: impl Into<String>, message: impl Into<String>) -> 
     SceneError::Import { path: path.to_path_buf(), location: location.into(), message: message.into() }
 }
 
-/// Imports the glTF or GLB file at `path`.
+/// Imports the glTF or GLB file at `path`. Its buffers are loaded (a file's first
+/// `byteLength` bytes) and the document checked ([`super::gltf_check`]) before the `gltf`
+/// crate reads anything from them.
 pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
-    let bytes = std::fs::read(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
-    let mut warnings = check_extensions(path, &bytes)?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
+    let bytes = crate::files::read(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+    let (json, bin): (std::borrow::Cow<[u8]>, Option<Vec<u8>>) = if bytes.starts_with(b"glTF") {
+        let glb = gltf::binary::Glb::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid GLB file: {e}")))?;
+        (glb.json.into_owned().into(), glb.bin.map(|b| b.into_owned()))
+    } else {
+        (bytes.as_slice().into(), None)
+    };
+    let root: serde_json::Value = serde_json::from_slice(&json).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+    let mut warnings = check_extensions(path, &root)?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-    let mut blob = gltf.blob;
+    let buffers = load_buffers(path, &root, &base, bin)?;
+    let lengths: Vec<u64> = buffers.iter().map(|b| b.len() as u64).collect();
+    super::gltf_check::check(&root, &lengths).map_err(|(at, what)| err(path, at, what))?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
     let doc = gltf.document;
-    let mut buffers = Vec::new();
-    for b in doc.buffers() {
-        let location = format!("buffers[{}]", b.index());
-        let data = gltf::buffer::Data::from_source_and_blob(b.source(), Some(&base), &mut blob).map_err(|e| err(path, &location, e.to_string()))?;
-        if data.len() < b.length() {
-            return Err(err(path, location, format!("holds {} bytes, {} declared", data.len(), b.length())));
-        }
-        buffers.push(data);
-    }
+    let buffers = buffers.into_iter().map(gltf::buffer::Data).collect();
     if doc.animations().next().is_some() {
         warnings.push("animations are ignored: the scene is rendered at rest".into());
     }
@@ -164,20 +167,85 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     Ok(imp.out)
 }
 
+/// A URI's `%XX` escapes decoded (glTF URIs are percent-encoded).
+fn percent_decode(uri: &str) -> String {
+    let bytes = uri.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let hex = |b: u8| (b as char).to_digit(16);
+        match (bytes[i], bytes.get(i + 1).copied().and_then(hex), bytes.get(i + 2).copied().and_then(hex)) {
+            (b'%', Some(h), Some(l)) => {
+                out.push((h * 16 + l) as u8);
+                i += 3;
+            }
+            (b, _, _) => {
+                out.push(b);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// The bytes of a `data:` URI (base64), or of the file a relative URI names under `base`
+/// (its first `max` bytes).
+fn uri_bytes(uri: &str, base: &Path, max: u64) -> Result<Vec<u8>, String> {
+    if let Some(data) = uri.strip_prefix("data:") {
+        let (_, payload) = data.split_once(";base64,").ok_or("a data URI that is not base64")?;
+        return base64::decode(payload).map_err(|e| format!("its base64 does not decode: {e}"));
+    }
+    let file = base.join(percent_decode(uri));
+    crate::files::read_prefix(&file, max).map_err(|e| format!("{}: {e}", file.display()))
+}
+
+/// Every buffer's bytes: a GLB's binary chunk, a data URI's or a file's, at most its
+/// `byteLength` (a buffer that holds fewer is an error naming it).
+fn load_buffers(path: &Path, root: &serde_json::Value, base: &Path, mut bin: Option<Vec<u8>>) -> Result<Vec<Vec<u8>>, SceneError> {
+    let list = root.get("buffers").and_then(|b| b.as_array()).map(Vec::as_slice).unwrap_or(&[]);
+    let mut out = Vec::with_capacity(list.len());
+    for (i, b) in list.iter().enumerate() {
+        let location = format!("buffers[{i}]");
+        let declared = b.get("byteLength").and_then(|l| l.as_u64()).ok_or_else(|| err(path, &location, "has no byteLength"))?;
+        let mut data = match b.get("uri").and_then(|u| u.as_str()) {
+            Some(uri) => uri_bytes(uri, base, declared).map_err(|e| err(path, &location, e))?,
+            None => bin.take().ok_or_else(|| err(path, &location, "has no uri and the file no binary chunk for it"))?,
+        };
+        if (data.len() as u64) < declared {
+            return Err(err(path, location, format!("holds {} bytes, {declared} declared", data.len())));
+        }
+        data.truncate(declared as usize);
+        out.push(data);
+    }
+    Ok(out)
+}
+
+/// An image's pixels as stored (no colour transform), grey repeated, and its alpha channel
+/// (grey repeated) where it has one; its size checked against [`super::MAX_IMAGE_SIDE`]
+/// before it is decoded.
+fn decode_image(bytes: &[u8]) -> Result<(Image, Option<Image>), String> {
+    let reader = || image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| e.to_string());
+    let (w, h) = reader()?.into_dimensions().map_err(|e| e.to_string())?;
+    let max = super::MAX_IMAGE_SIDE;
+    if w == 0 || h == 0 || w > max || h > max {
+        return Err(format!("{w}x{h} pixels: each side must be in 1..={max}"));
+    }
+    let decoded = reader()?.decode().map_err(|e| e.to_string())?;
+    let has_alpha = decoded.color().has_alpha();
+    let rgba = decoded.to_rgba32f();
+    let data = rgba.pixels().map(|p| [p[0], p[1], p[2]]).collect();
+    let alpha = has_alpha.then(|| Image { width: w, height: h, data: rgba.pixels().map(|p| [p[3]; 3]).collect() });
+    Ok((Image { width: w, height: h, data }, alpha))
+}
+
 /// Finds every `extensions` object in the document: an extension this importer does not
 /// read is an error (at its JSON path) when the file lists it in `extensionsRequired`,
 /// else a warning.
-fn check_extensions(path: &Path, bytes: &[u8]) -> Result<Vec<String>, SceneError> {
-    let json: std::borrow::Cow<[u8]> = if bytes.starts_with(b"glTF") {
-        gltf::binary::Glb::from_slice(bytes).map_err(|e| err(path, "", format!("not a valid GLB file: {e}")))?.json
-    } else {
-        bytes.into()
-    };
-    let root: serde_json::Value = serde_json::from_slice(&json).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+fn check_extensions(path: &Path, root: &serde_json::Value) -> Result<Vec<String>, SceneError> {
     let required: HashSet<&str> =
         root.get("extensionsRequired").and_then(|v| v.as_array()).map(|a| a.iter().filter_map(|v| v.as_str()).collect()).unwrap_or_default();
     let mut found = Vec::new();
-    walk_extensions(&root, String::new(), &mut found);
+    walk_extensions(root, String::new(), &mut found);
     let mut warnings = Vec::new();
     for (location, name) in found {
         if SUPPORTED_EXTENSIONS.contains(&name.as_str()) {
@@ -301,6 +369,7 @@ impl Importer<'_> {
         // A mirroring transform turns counter-clockwise triangles clockwise.
         let mirrored = Mat3::from_mat4(world).determinant() < 0.0;
         let indices = flat.chunks_exact(3).map(|t| if mirrored { [t[0], t[2], t[1]] } else { [t[0], t[1], t[2]] }).collect();
+        check_triangles(&self.out.meshes, flat.len() / 3).map_err(|e| self.err(&at, e))?;
         let material = self.material(prim.material(), &at)?;
         let emission = self.emission(&prim.material(), &at)?;
         let m = prim.material();
@@ -511,9 +580,16 @@ impl Importer<'_> {
         if let Some(img) = self.images.get(&index) {
             return Ok((img.clone(), path));
         }
-        let data = gltf::image::Data::from_source(source.source(), Some(&self.base), &self.buffers)
-            .map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode {}: {e}", path.display())))?;
-        let (img, alpha) = to_image(&data).ok_or_else(|| self.err(format!("images[{index}]"), format!("pixel format {:?} is not supported", data.format)))?;
+        let bytes = match source.source() {
+            gltf::image::Source::View { view, .. } => {
+                // Inside its buffer (gltf_check).
+                let buffer = &self.buffers[view.buffer().index()].0;
+                Ok(buffer[view.offset()..view.offset() + view.length()].to_vec())
+            }
+            gltf::image::Source::Uri { uri, .. } => uri_bytes(uri, &self.base, crate::files::MAX_INPUT_BYTES),
+        };
+        let (img, alpha) =
+            bytes.and_then(|b| decode_image(&b)).map_err(|e| self.err(format!("images[{index}]"), format!("cannot decode {}: {e}", path.display())))?;
         self.images.insert(index, img.clone());
         self.alphas.insert(index, alpha);
         Ok((img, path))
@@ -748,33 +824,4 @@ impl Importer<'_> {
             }
         }
     }
-}
-
-/// Pixels of a decoded glTF image as RGB values in [0, 1] (grey repeated), and its alpha
-/// channel (grey and alpha images: the second channel), where it has one.
-fn to_image(d: &gltf::image::Data) -> Option<(Image, Option<Image>)> {
-    use gltf::image::Format::*;
-    let (channels, bytes) = match d.format {
-        R8 => (1, 1),
-        R8G8 => (2, 1),
-        R8G8B8 => (3, 1),
-        R8G8B8A8 => (4, 1),
-        R16 => (1, 2),
-        R16G16 => (2, 2),
-        R16G16B16 => (3, 2),
-        R16G16B16A16 => (4, 2),
-        R32G32B32FLOAT => (3, 4),
-        R32G32B32A32FLOAT => (4, 4),
-    };
-    let value = |b: &[u8]| match bytes {
-        1 => b[0] as f32 / 255.0,
-        2 => u16::from_ne_bytes([b[0], b[1]]) as f32 / 65535.0,
-        _ => f32::from_ne_bytes([b[0], b[1], b[2], b[3]]),
-    };
-    let pixels = || d.pixels.chunks_exact(channels * bytes);
-    let c = |px: &[u8], k: usize| value(&px[k * bytes..(k + 1) * bytes]);
-    let data: Vec<[f32; 3]> = pixels().map(|px| if channels < 3 { [c(px, 0); 3] } else { [c(px, 0), c(px, 1), c(px, 2)] }).collect();
-    let alpha =
-        (channels == 2 || channels == 4).then(|| Image { width: d.width, height: d.height, data: pixels().map(|px| [c(px, channels - 1); 3]).collect() });
-    (data.len() == (d.width * d.height) as usize).then_some((Image { width: d.width, height: d.height, data }, alpha))
 }

@@ -10,7 +10,6 @@
 //! TOML's alone. Command-line `--film` and `--max-depth` ([`LoadOptions`]) override both.
 
 use std::collections::HashSet;
-use std::fs;
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
@@ -84,7 +83,8 @@ impl Loader {
     /// Reads a file named at `key`, relative to the scene's directory.
     pub fn read(&self, key: &str, rel: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
         let file = self.dir.join(rel);
-        let bytes = fs::read(&file).map_err(|source| SceneError::MissingFile { scene: self.scene.clone(), key: key.into(), file: file.clone(), source })?;
+        let bytes =
+            crate::files::read(&file).map_err(|source| SceneError::MissingFile { scene: self.scene.clone(), key: key.into(), file: file.clone(), source })?;
         Ok((file, bytes))
     }
 
@@ -240,10 +240,14 @@ impl Loader {
         for light in &lights {
             self.check_light(light)?;
         }
+        for material in &materials {
+            self.check_material(material)?;
+        }
         let environment = match raw.environment {
             Some(env) => self.environment(Some(env))?,
             None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
         };
+        self.check_environment(&environment)?;
         let optimise = self.optimise(raw.optimise.unwrap_or_default(), &materials, &meshes, &lights, &environment)?;
         for (i, mesh) in meshes.iter().enumerate() {
             if !mesh.uvs.is_empty() {
@@ -289,6 +293,8 @@ impl Loader {
             Some("has no triangles".to_string())
         } else if m.positions.iter().flatten().chain(m.normals.iter().flatten()).chain(m.uvs.iter().flatten()).any(|v| !v.is_finite()) {
             Some("has a non-finite vertex value".into())
+        } else if let Some(v) = m.positions.iter().flatten().find(|v| v.abs() > MAX_COORDINATE) {
+            Some(format!("has a vertex coordinate of {v}, beyond the ±{MAX_COORDINATE:e} the BVH is built for"))
         } else if m.indices.iter().flatten().any(|&i| i as usize >= n) {
             Some("has a vertex index out of bounds".into())
         } else if !(m.normals.is_empty() || m.normals.len() == n) || !(m.uvs.is_empty() || m.uvs.len() == n) {
@@ -307,12 +313,38 @@ impl Loader {
         }
     }
 
+    /// Checks what every loader must guarantee of a material's values: a base colour that is
+    /// a finite, non-negative colour, and a roughness and metallic in [0, 1] (constants or
+    /// every texel), as the TOML's own rules say.
+    fn check_material(&self, m: &Material) -> Result<(), SceneError> {
+        let key = format!("materials.{}", m.name);
+        match &m.base_color {
+            ColorValue::Constant(c) => self.color(&format!("{key}.base_color"), *c).map(|_| ())?,
+            ColorValue::Texture(t) => self.texels_in(&format!("{key}.base_color"), t, 3, 0.0, f32::INFINITY)?,
+        }
+        for (name, v) in [("roughness", &m.roughness), ("metallic", &m.metallic)] {
+            let k = format!("{key}.{name}");
+            match v {
+                ScalarValue::Constant(x) => {
+                    self.finite(&k, &[*x])?;
+                    self.in_range(&k, *x, 0.0, 1.0)?;
+                }
+                ScalarValue::Texture(t) => self.texels_in(&k, t, 1, 0.0, 1.0)?,
+            }
+        }
+        Ok(())
+    }
+
     fn check_light(&self, l: &Light) -> Result<(), SceneError> {
         let key = format!("lights.{}", l.name);
         self.finite(&key, &[l.position.to_array(), l.direction.to_array(), l.color, [l.intensity, 0.0, 0.0]].concat())?;
         self.color(&format!("{key}.color"), l.color)?;
         if l.intensity < 0.0 {
             return Err(self.out_of_range(&format!("{key}.intensity"), format!("{} is negative", l.intensity)));
+        }
+        // What the kernels multiply must stay finite in single precision.
+        if l.color.iter().any(|c| !(c * l.intensity).is_finite()) {
+            return Err(self.out_of_range(&key, format!("its colour {:?} times its intensity {} overflows single precision", l.color, l.intensity)));
         }
         if l.kind != LightKind::Point && (l.direction.length() - 1.0).abs() > 1e-3 {
             return Err(self.invalid(&format!("{key}.direction"), "the direction is zero"));
@@ -687,6 +719,7 @@ impl Loader {
                     return Err(SceneError::Obj { path, line: 0, message: format!("non-finite {what}") });
                 }
             }
+            check_triangles(&out, data.indices.len()).map_err(|e| self.invalid(&format!("{key}.file"), &format!("{}: {e}", path.display())))?;
             out.push(Mesh {
                 name,
                 path,
@@ -702,6 +735,18 @@ impl Loader {
         Ok(out)
     }
 
+    /// An imported environment obeys the TOML's rule too: finite, non-negative radiance.
+    fn check_environment(&self, environment: &Environment) -> Result<(), SceneError> {
+        match &environment.value {
+            ColorValue::Constant(c) => self.color("environment", *c).map(|_| ())?,
+            ColorValue::Texture(t) => self.texels_in("environment", t, 3, 0.0, f32::INFINITY)?,
+        }
+        if !(environment.scale.is_finite() && environment.scale >= 0.0) {
+            return Err(self.out_of_range("environment.scale", format!("{} is not finite and non-negative", environment.scale)));
+        }
+        Ok(())
+    }
+
     fn environment(&self, raw: Option<file::EnvironmentFile>) -> Result<Environment, SceneError> {
         let Some(env) = raw else {
             return Ok(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 });
@@ -712,7 +757,11 @@ impl Loader {
         }
         let value = match (env.constant, env.file) {
             (Some(c), None) => ColorValue::Constant(self.color("environment.constant", c)?),
-            (None, Some(rel)) => ColorValue::Texture(self.texture("environment.file", &rel)?),
+            (None, Some(rel)) => {
+                let t = self.texture("environment.file", &rel)?;
+                self.texels_in("environment.file", &t, 3, 0.0, f32::INFINITY)?;
+                ColorValue::Texture(t)
+            }
             _ => return Err(self.invalid("environment", "give exactly one of `constant` and `file`")),
         };
         Ok(Environment { value, scale: env.scale })

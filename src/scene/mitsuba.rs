@@ -119,9 +119,53 @@ struct Importer<'a, 'i> {
     principled_warned: bool,
 }
 
+/// Deepest nesting of elements read: far beyond a scene's (a shape in a BSDF in a twosided
+/// in a scene is 4), and shallow enough for the parser's recursion.
+const MAX_XML_DEPTH: usize = 64;
+
+/// The line where elements first nest deeper than [`MAX_XML_DEPTH`], and that depth; None
+/// within it. A scan of tags, before the parser (which recurses into every element) sees
+/// the text: comments, CDATA, declarations and processing instructions are skipped.
+fn too_deep(text: &str) -> Option<(usize, usize)> {
+    let bytes = text.as_bytes();
+    let (mut depth, mut i) = (0usize, 0usize);
+    let skip_to = |from: usize, end: &[u8]| bytes[from..].windows(end.len()).position(|w| w == end).map_or(bytes.len(), |p| from + p + end.len());
+    while let Some(p) = bytes[i..].iter().position(|&b| b == b'<') {
+        let at = i + p;
+        let rest = &bytes[at..];
+        i = if rest.starts_with(b"<!--") {
+            skip_to(at, b"-->")
+        } else if rest.starts_with(b"<![CDATA[") {
+            skip_to(at, b"]]>")
+        } else if rest.starts_with(b"<?") {
+            skip_to(at, b"?>")
+        } else if rest.starts_with(b"<!") || rest.starts_with(b"</") {
+            depth = depth.saturating_sub(usize::from(rest.starts_with(b"</")));
+            skip_to(at, b">")
+        } else {
+            let end = skip_to(at, b">");
+            if end < 2 || bytes[end - 2] != b'/' {
+                depth += 1;
+                if depth > MAX_XML_DEPTH {
+                    return Some((text[..at].matches('\n').count() + 1, depth));
+                }
+            }
+            end
+        };
+    }
+    None
+}
+
 /// Imports the Mitsuba 3 XML scene at `path`.
 pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
-    let text = std::fs::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+    let text = crate::files::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+    if let Some((line, depth)) = too_deep(&text) {
+        return Err(SceneError::Import {
+            path: path.to_path_buf(),
+            location: format!("line {line}"),
+            message: format!("elements nested {depth} deep; at most {MAX_XML_DEPTH}"),
+        });
+    }
     let doc =
         Document::parse(&text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })?;
     let mut imp = Importer {
@@ -647,7 +691,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
         };
         let path = self.dir.join(&file);
-        let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+        let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
         let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
         let image = if is_linear {
             image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?
@@ -732,7 +776,10 @@ impl<'a, 'i> Importer<'a, 'i> {
             if (kind == "normalmap" || kind == "bumpmap") && perturbation.is_some() {
                 return Err(self.err(node, format!("{kind} inside a normalmap or bumpmap is not supported (one perturbation of the normal per BSDF)")));
             }
-            if !(kind == "twosided" && one_sided || kind == "normalmap" || kind == "bumpmap" || kind == "mask" && mask.is_none()) {
+            if kind == "twosided" && !one_sided || kind == "mask" && mask.is_some() {
+                return Err(self.err(node, format!("{kind} inside a {kind} is not supported (one {kind} per BSDF)")));
+            }
+            if !(kind == "twosided" || kind == "normalmap" || kind == "bumpmap" || kind == "mask") {
                 break;
             }
             let mut items = elements(node);
@@ -1096,7 +1143,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 "obj" | "ply" | "serialized" => {
                     let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
                     let path = self.dir.join(&rel);
-                    let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                    let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
                     let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
                     let (p, mut n, mut t, i) = match kind.as_str() {
                         "obj" => {
@@ -1224,6 +1271,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if uvs.len() != positions.len() {
             uvs.clear();
         }
+        check_triangles(&self.out.meshes, indices.len()).map_err(|e| self.err(node, e))?;
         self.out.meshes.push(Mesh { name, path: file, positions, normals, uvs, indices, material, emission, two_sided_emission: false });
         Ok(())
     }
@@ -1254,7 +1302,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                     let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
                     let path = self.dir.join(&rel);
-                    let bytes = std::fs::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                    let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
                     let map = image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
                     if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
                         return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));

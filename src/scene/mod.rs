@@ -25,6 +25,7 @@ mod checks;
 mod error;
 mod file;
 mod gltf;
+mod gltf_check;
 mod hash;
 mod loader;
 mod mitsuba;
@@ -34,7 +35,6 @@ mod ply;
 mod targets;
 pub mod write;
 
-use std::fs;
 use std::path::Path;
 
 use serde::Deserialize;
@@ -217,7 +217,7 @@ impl Scene {
             Some(Format::Mitsuba) => mitsuba::import(path)?,
             // Anything else is read as TOML, whose errors then say what is wrong.
             _ => {
-                let text = fs::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
+                let text = crate::files::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
                 return loader::load(path, &text, options);
             }
         };
@@ -233,7 +233,7 @@ impl Scene {
         let pdir = if dir.join("params.json").is_file() { dir.to_path_buf() } else { dir.join("params") };
         let path = pdir.join("params.json");
         let import_err = |message: String| SceneError::Import { path: path.clone(), location: String::new(), message };
-        let text = fs::read_to_string(&path).map_err(|e| import_err(format!("cannot read an earlier run's parameters: {e}")))?;
+        let text = crate::files::read_to_string(&path).map_err(|e| import_err(format!("cannot read an earlier run's parameters: {e}")))?;
         let values: std::collections::BTreeMap<String, serde_json::Value> =
             serde_json::from_str(&text).map_err(|e| import_err(format!("expected an object of parameter values ({e})")))?;
         let loader = loader::Loader { scene: path.clone(), dir: pdir };

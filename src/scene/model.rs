@@ -9,7 +9,24 @@ use super::file::MaterialType as MaterialKind;
 use crate::image::Image;
 
 /// Largest film and texture side accepted; larger values are typos, not scenes.
-pub const MAX_IMAGE_SIDE: u32 = 16384;
+pub const MAX_IMAGE_SIDE: u32 = crate::image::MAX_IMAGE_SIDE;
+
+/// Most triangles a scene may hold: refused as a file is read, before its memory is spent
+/// (a device holds fewer still: its buffer limits are checked when the scene is uploaded).
+pub const MAX_TRIANGLES: usize = 1 << 24;
+
+/// Refuses `more` triangles on top of `meshes`' beyond [`MAX_TRIANGLES`].
+pub(crate) fn check_triangles(meshes: &[Mesh], more: usize) -> Result<(), String> {
+    let total = meshes.iter().map(|m| m.indices.len()).sum::<usize>() + more;
+    if total > MAX_TRIANGLES {
+        return Err(format!("{total} triangles, more than the {MAX_TRIANGLES} a scene may hold"));
+    }
+    Ok(())
+}
+
+/// Largest magnitude of a vertex coordinate: far beyond any scene's, and well inside what
+/// the BVH build handles (it fails near 1e19).
+pub const MAX_COORDINATE: f32 = 1e12;
 /// The widest pixel filter, in pixels from the centre (a Gaussian's 4σ, a tent's radius).
 pub const MAX_FILTER_RADIUS: f32 = 16.0;
 /// Deepest path accepted; beyond this the GPU's per-path replay state is wasted.

@@ -20,6 +20,8 @@ pub fn load(path: &Path, bytes: &[u8]) -> Result<ObjData, SceneError> {
     let err = |line, message: String| SceneError::Obj { path: path.to_path_buf(), line, message };
     let text = std::str::from_utf8(bytes).map_err(|e| err(0, format!("not UTF-8 text: {e}")))?;
     check_lines(text).map_err(|(line, message)| err(line, message))?;
+    // tobj reads a comment after a vertex's numbers as more numbers: without them.
+    let text: String = text.lines().map(|l| l.split('#').next().unwrap_or("")).collect::<Vec<_>>().join("\n");
 
     // The update covers fields that exist only with tobj's optional features.
     #[allow(clippy::needless_update)]

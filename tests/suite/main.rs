@@ -18,6 +18,7 @@ mod convergence;
 mod finite_difference;
 mod gpu_layer;
 mod gradients;
+mod hostile;
 mod import;
 mod optim_gpu;
 mod render;
