@@ -878,22 +878,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         let kind = self.plugin_type(node)?;
         let mut items = elements(node);
         let material = match kind.as_str() {
-            "diffuse" => Material {
-                name: name.into(),
-                kind: MaterialKind::Diffuse,
-                base_color: self.color_param(&mut items, "reflectance", [0.5; 3])?,
-                roughness: ScalarValue::Constant(1.0),
-                metallic: ScalarValue::Constant(0.0),
-                one_sided,
-                perturbation: None,
-                alpha: None,
-                ior: DEFAULT_IOR,
-                absorption: [0.0; 3],
-                distribution: Distribution::Ggx,
-                eta: [0.0; 3],
-                k: [0.0; 3],
-                nonlinear: false,
-            },
+            "diffuse" => Material { one_sided, ..Material::diffuse(name, self.color_param(&mut items, "reflectance", [0.5; 3])?) },
             "principled" => {
                 let base_color = self.color_param(&mut items, "base_color", [0.5; 3])?;
                 let roughness = self.scalar_param(&mut items, "roughness", 0.5)?;
