@@ -240,3 +240,26 @@ fn the_binary_turns_a_refusal_into_one_line_and_a_non_zero_exit() {
     assert!(out.stderr.contains("cli-stride.gltf") && !out.stderr.contains("panicked"), "{}", out.stderr);
     assert!(!path.with_extension("exr").exists(), "a refused render left an image");
 }
+
+/// An emitter of 1e30 or 1e-30 once ran to the end with a loss of inf or 0 and parameters
+/// that never moved, exiting 0. Now the run stops with an error naming the likely cause.
+#[test]
+fn an_emitter_too_bright_or_too_faint_stops_the_run_with_its_cause() {
+    let cornell = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell");
+    for (name, emission, needles) in
+        [("bright", "1e30", &["the loss is inf", "too bright"][..]), ("faint", "1e-30", &["the gradient has been zero", "20 iterations"][..])]
+    {
+        let dir = temp(&format!("emitter-{name}"));
+        let copied = std::process::Command::new("cp").arg("-r").arg(cornell.join(".")).arg(&dir).status().unwrap();
+        assert!(copied.success(), "cp -r {}", cornell.display());
+        let text = fs::read_to_string(dir.join("scene.toml")).unwrap();
+        assert!(text.contains("emission = [17.0, 12.0, 4.0]") && text.contains("width = 64"), "the Cornell scene changed");
+        let text = text
+            .replacen("emission = [17.0, 12.0, 4.0]", &format!("emission = [{emission}, {emission}, {emission}]"), 1)
+            .replacen("width = 64", "width = 16", 1)
+            .replacen("height = 64", "height = 16", 1);
+        fs::write(dir.join("scene.toml"), text).unwrap();
+        let err = vkinverse_err(&["optimise", &s(&dir.join("scene.toml")), "--iterations", "30", "--quiet", "-o", &s(&dir.join("run"))], needles);
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
