@@ -1092,22 +1092,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if let Some(i) = self.out.materials.iter().position(|m| m.name == name) {
             return i;
         }
-        self.out.materials.push(Material {
-            name: name.into(),
-            kind: MaterialKind::Diffuse,
-            base_color: ColorValue::Constant([reflectance; 3]),
-            roughness: ScalarValue::Constant(1.0),
-            metallic: ScalarValue::Constant(0.0),
-            one_sided: true,
-            perturbation: None,
-            alpha: None,
-            ior: DEFAULT_IOR,
-            absorption: [0.0; 3],
-            distribution: Distribution::Ggx,
-            eta: [0.0; 3],
-            k: [0.0; 3],
-            nonlinear: false,
-        });
+        self.out.materials.push(Material { one_sided: true, ..Material::diffuse(name, ColorValue::Constant([reflectance; 3])) });
         self.out.materials.len() - 1
     }
 
