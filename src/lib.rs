@@ -70,6 +70,8 @@ internal_modules! {
     constants;
     engine;
     files;
+    /// Fuzz targets for every input format.
+    fuzz;
     gpu;
     kernels;
     ops;

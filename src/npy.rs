@@ -77,7 +77,12 @@ impl Array {
 /// ```
 pub fn read(path: &Path) -> Result<Array, NpyError> {
     let bytes = crate::files::read(path).map_err(|e| io_error(path, e))?;
-    parse(&bytes).map_err(|e| e.at(path))
+    parse_bytes(&bytes, path)
+}
+
+/// Parses a `.npy` file's bytes; `path` names it in errors.
+pub fn parse_bytes(bytes: &[u8], path: &Path) -> Result<Array, NpyError> {
+    parse(bytes).map_err(|e| e.at(path))
 }
 
 /// Writes a `.npy` float32 array atomically (npyz picks version 1.0, or 2.0 for a header
@@ -113,6 +118,28 @@ fn io_error(path: &Path, e: std::io::Error) -> NpyError {
     } else {
         NpyError::Io { path: path.into(), source: e }
     }
+}
+
+/// The deepest nesting of brackets in the header of `.npy` bytes (after the magic and
+/// version checks); None where the header's length runs past the file.
+fn header_nesting(bytes: &[u8]) -> Option<usize> {
+    let (start, len): (usize, usize) = match bytes[6] {
+        1 => (10, usize::from(u16::from_le_bytes([*bytes.get(8)?, *bytes.get(9)?]))),
+        _ => (12, u32::from_le_bytes(bytes.get(8..12)?.try_into().ok()?) as usize),
+    };
+    let header = bytes.get(start..start.checked_add(len)?)?;
+    let (mut depth, mut deepest) = (0usize, 0usize);
+    for &b in header {
+        match b {
+            b'(' | b'[' | b'{' => {
+                depth += 1;
+                deepest = deepest.max(depth);
+            }
+            b')' | b']' | b'}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    Some(deepest)
 }
 
 /// A parse error before the path is known.
@@ -152,6 +179,11 @@ fn parse(bytes: &[u8]) -> Result<Array, Malformed> {
     }
     if !matches!((bytes[6], bytes[7]), (1, 0) | (2, 0)) {
         return Err(Malformed::Version(bytes[6], bytes[7]));
+    }
+    // npyz's header parser takes exponential time in nested brackets; a header nests two
+    // deep (a dict holding the shape's tuple).
+    if let Some(depth) = header_nesting(bytes).filter(|&d| d > 2) {
+        return Err(Malformed::Header(format!("the header nests brackets {depth} deep (a .npy header nests 2)")));
     }
     let npy = npyz::NpyFile::new(bytes).map_err(|e| match e.kind() {
         std::io::ErrorKind::UnexpectedEof => Malformed::Header("the file ends inside the header".into()),

@@ -125,6 +125,15 @@ fn err(path: &Path, location: impl Into<String>, message: impl Into<String>) -> 
 pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     let bytes = crate::files::read(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
     let (json, bin): (std::borrow::Cow<[u8]>, Option<Vec<u8>>) = if bytes.starts_with(b"glTF") {
+        // The gltf crate subtracts the header's size from its declared length unchecked.
+        let declared = bytes.get(8..12).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+        if !declared.is_some_and(|l| (12..=bytes.len()).contains(&l)) {
+            return Err(err(
+                path,
+                "",
+                format!("not a valid GLB file: the header's length ({}) is not between 12 and the file's {} bytes", declared.unwrap_or(0), bytes.len()),
+            ));
+        }
         let glb = gltf::binary::Glb::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid GLB file: {e}")))?;
         (glb.json.into_owned().into(), glb.bin.map(|b| b.into_owned()))
     } else {

@@ -79,6 +79,9 @@ pub fn check(root: &Value, buffer_lengths: &[u64]) -> Result<(), Problem> {
         match (image.get("uri").and_then(Value::as_str), uint(image, "bufferView")) {
             (None, None) => return bad(at, "has neither a uri nor a bufferView".into()),
             (_, Some(v)) if v as usize >= views.len() => return bad(format!("{at}.bufferView"), format!("buffer view {v} does not exist")),
+            (_, Some(_)) if image.get("mimeType").and_then(Value::as_str).is_none() => {
+                return bad(at, "has a bufferView but no mimeType (the glTF specification requires one)".into())
+            }
             _ => {}
         }
     }
@@ -252,6 +255,7 @@ mod tests {
         assert!(problem(d).contains("accessor 7 does not exist"));
         assert!(problem(doc(json!({ "images": [{}] }))).contains("neither a uri nor a bufferView"));
         assert!(problem(doc(json!({ "images": [{ "bufferView": 9 }] }))).contains("buffer view 9"));
+        assert!(problem(doc(json!({ "images": [{ "bufferView": 0 }] }))).contains("no mimeType"));
         assert!(problem(doc(json!({ "textures": [{ "source": 0 }] }))).contains("image 0 does not exist"));
     }
 

@@ -106,6 +106,10 @@ type Items<'a, 'i> = Vec<Node<'a, 'i>>;
 struct Importer<'a, 'i> {
     path: &'a Path,
     dir: PathBuf,
+    /// Where relative file names are looked for after `dir`: the `<path>`s, then the
+    /// included files' directories.
+    search: Vec<PathBuf>,
+    expanded: &'a Expanded,
     doc: &'a Document<'i>,
     defaults: Vec<(String, String)>,
     /// Material index of each top-level `<bsdf id>`.
@@ -115,8 +119,13 @@ struct Importer<'a, 'i> {
     /// Each texture image with a `to_uv` other than the identity, and that map (in
     /// Mitsuba's texture space, v down the image).
     uv_maps: Vec<(Arc<Image>, Affine2)>,
+    /// Radiance of each top-level `<emitter type="area" id>`, for the shapes that refer
+    /// to it.
+    area_emitters: HashMap<String, ColorValue>,
     out: Imported,
     principled_warned: bool,
+    /// A `direct` integrator's emitter samples (warned about with delta lights).
+    direct_emitter_samples: Option<i64>,
 }
 
 /// Deepest nesting of elements read: far beyond a scene's (a shape in a BSDF in a twosided
@@ -159,28 +168,147 @@ fn too_deep(text: &str) -> Option<(usize, usize)> {
 /// Imports the Mitsuba 3 XML scene at `path`.
 pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     let text = crate::files::read_to_string(path).map_err(|source| SceneError::ReadScene { path: path.to_path_buf(), source })?;
-    if let Some((line, depth)) = too_deep(&text) {
+    let mut expanded = Expanded { text: String::new(), spans: Vec::new(), dirs: Vec::new(), includes: 0 };
+    expanded.include(path, &text, false, &mut vec![path.to_path_buf()])?;
+    let doc = parse(path, &expanded.text)?;
+    let mut imp = Importer {
+        path,
+        dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
+        search: expanded.dirs.clone(),
+        expanded: &expanded,
+        doc: &doc,
+        defaults: Vec::new(),
+        bsdfs: HashMap::new(),
+        textures: HashMap::new(),
+        area_emitters: HashMap::new(),
+        uv_maps: Vec::new(),
+        out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
+        principled_warned: false,
+        direct_emitter_samples: None,
+    };
+    imp.scene(doc.root_element())?;
+    imp.finish();
+    Ok(imp.out)
+}
+
+/// `text` (of `path`) parsed, after the nesting check.
+fn parse<'t>(path: &Path, text: &'t str) -> Result<Document<'t>, SceneError> {
+    if let Some((line, depth)) = too_deep(text) {
         return Err(SceneError::Import {
             path: path.to_path_buf(),
             location: format!("line {line}"),
             message: format!("elements nested {depth} deep; at most {MAX_XML_DEPTH}"),
         });
     }
-    let doc =
-        Document::parse(&text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })?;
-    let mut imp = Importer {
-        path,
-        dir: path.parent().map(Path::to_path_buf).unwrap_or_default(),
-        doc: &doc,
-        defaults: Vec::new(),
-        bsdfs: HashMap::new(),
-        textures: HashMap::new(),
-        uv_maps: Vec::new(),
-        out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
-        principled_warned: false,
-    };
-    imp.scene(doc.root_element())?;
-    Ok(imp.out)
+    Document::parse(text).map_err(|e| SceneError::Import { path: path.to_path_buf(), location: String::new(), message: format!("malformed XML: {e}") })
+}
+
+/// Most `<include>`s read in one import, and most bytes of scene text they make: far
+/// beyond a real scene's, and a bound on a file that includes another many times over.
+const MAX_INCLUDES: usize = 256;
+const MAX_EXPANDED_BYTES: usize = 64 << 20;
+
+/// The scene text with every `<include filename>` replaced by the children of the included
+/// file's `<scene>` (recursively, as Mitsuba reads them), and where each piece came from,
+/// for error locations.
+struct Expanded {
+    text: String,
+    /// (first line of the piece in `text`, its file, its first line there), in order.
+    spans: Vec<(usize, PathBuf, usize)>,
+    /// The directories of the included files: searched for relative file names after the
+    /// scene's own and its `<path>`s.
+    dirs: Vec<PathBuf>,
+    includes: usize,
+}
+
+impl Expanded {
+    /// Appends `text` of `path` (only its root's children when `inner`), with its includes
+    /// expanded; `stack` holds the files being included, outermost first.
+    fn include(&mut self, path: &Path, text: &str, inner: bool, stack: &mut Vec<PathBuf>) -> Result<(), SceneError> {
+        let doc = parse(path, text)?;
+        let root = doc.root_element();
+        let err = |node: Node, message: String| SceneError::Import {
+            path: path.to_path_buf(),
+            location: format!("line {}: <{}>", doc.text_pos_at(node.range().start).row, node.tag_name().name()),
+            message,
+        };
+        if inner && root.tag_name().name() != "scene" {
+            return Err(err(root, "an included file's root element must be <scene>".into()));
+        }
+        let (start, end) = match (inner, root.first_child(), root.last_child()) {
+            (false, _, _) => (0, text.len()),
+            (true, Some(first), Some(last)) => (first.range().start, last.range().end),
+            (true, _, _) => return Ok(()),
+        };
+        let mut at = start;
+        for node in root.children().filter(|n| n.is_element() && n.tag_name().name() == "include") {
+            self.push(path, text, at, node.range().start)?;
+            let rel = node.attribute("filename").ok_or_else(|| err(node, "<include> needs a filename".into()))?;
+            let dir = path.parent().unwrap_or(Path::new(""));
+            let file = dir.join(rel);
+            let canonical = std::fs::canonicalize(&file).map_err(|e| err(node, format!("cannot read {}: {e}", file.display())))?;
+            if let Some(i) = stack.iter().position(|p| std::fs::canonicalize(p).is_ok_and(|c| c == canonical)) {
+                let chain: Vec<String> = stack[i..].iter().chain([&file]).map(|p| p.display().to_string()).collect();
+                return Err(err(node, format!("include loop: {}", chain.join(" includes "))));
+            }
+            self.includes += 1;
+            if self.includes > MAX_INCLUDES {
+                return Err(err(node, format!("more than {MAX_INCLUDES} includes")));
+            }
+            let included = crate::files::read_to_string(&file).map_err(|e| err(node, format!("cannot read {}: {e}", file.display())))?;
+            if let Some(d) = file.parent().filter(|d| !self.dirs.iter().any(|x| x == d)) {
+                self.dirs.push(d.to_path_buf());
+            }
+            stack.push(file.clone());
+            self.include(&file, &included, true, stack)?;
+            stack.pop();
+            at = node.range().end;
+        }
+        self.push(path, text, at, end)
+    }
+
+    fn push(&mut self, path: &Path, text: &str, from: usize, to: usize) -> Result<(), SceneError> {
+        if to <= from {
+            return Ok(());
+        }
+        let out_line = self.text.matches('\n').count() + 1;
+        let line = text[..from].matches('\n').count() + 1;
+        self.spans.push((out_line, path.to_path_buf(), line));
+        self.text.push_str(&text[from..to]);
+        if self.text.len() > MAX_EXPANDED_BYTES {
+            return Err(SceneError::Import {
+                path: path.to_path_buf(),
+                location: String::new(),
+                message: format!("the scene and its includes exceed {} MiB", MAX_EXPANDED_BYTES >> 20),
+            });
+        }
+        Ok(())
+    }
+
+    /// The file and line of line `row` of the expanded text.
+    fn origin(&self, row: u32) -> (&Path, usize) {
+        let row = row as usize;
+        let i = self.spans.partition_point(|s| s.0 <= row).saturating_sub(1);
+        match self.spans.get(i) {
+            Some((out, file, line)) => (file, line + row.saturating_sub(*out)),
+            None => (Path::new(""), row),
+        }
+    }
+}
+
+/// The rotation by `angle` radians about `axis` as Mitsuba builds it: Rodrigues' formula
+/// with the axis as given, which is a rotation only for a unit axis.
+fn rotation(axis: Vec3, angle: f32) -> Mat4 {
+    let (s, c) = angle.sin_cos();
+    let cm = 1.0 - c;
+    let Vec3 { x, y, z } = axis;
+    let (xy, xz, yz) = (x * y * cm, x * z * cm, y * z * cm);
+    Mat4::from_cols(
+        glam::Vec4::new(x * x * cm + c, xy + z * s, xz - y * s, 0.0),
+        glam::Vec4::new(xy - z * s, y * y * cm + c, yz + x * s, 0.0),
+        glam::Vec4::new(xz + y * s, yz - x * s, z * z * cm + c, 0.0),
+        glam::Vec4::W,
+    )
 }
 
 fn elements<'a, 'i>(node: Node<'a, 'i>) -> Items<'a, 'i> {
@@ -191,7 +319,11 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// `line N: <tag type=".." name=".." id="..">` of `node`.
     fn loc(&self, node: Node) -> String {
         let pos = self.doc.text_pos_at(node.range().start);
-        let mut s = format!("line {}: <{}", pos.row, node.tag_name().name());
+        let (file, line) = self.expanded.origin(pos.row);
+        let mut s = match file == self.path {
+            true => format!("line {line}: <{}", node.tag_name().name()),
+            false => format!("{} line {line}: <{}", file.display(), node.tag_name().name()),
+        };
         for a in ["type", "name", "id"] {
             if let Some(v) = node.attribute(a) {
                 s += &format!(" {a}=\"{v}\"");
@@ -227,6 +359,16 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(Some(v))
     }
 
+    /// A file name as Mitsuba resolves it: relative to the scene's directory, then to each
+    /// `<path>` and included file's directory; the scene's directory where none has it.
+    fn resolve(&self, rel: &str) -> PathBuf {
+        let rel = Path::new(rel);
+        if rel.is_absolute() {
+            return rel.to_path_buf();
+        }
+        std::iter::once(&self.dir).chain(&self.search).map(|d| d.join(rel)).find(|p| p.exists()).unwrap_or_else(|| self.dir.join(rel))
+    }
+
     fn required(&self, node: Node, name: &str) -> Result<String, SceneError> {
         self.attr(node, name)?.ok_or_else(|| self.err(node, format!("the `{name}` attribute is missing")))
     }
@@ -250,7 +392,7 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// Errors on the first child that no reader took.
     fn rest(&self, items: &Items, owner: Node) -> Result<(), SceneError> {
         match items.first() {
-            Some(n) => Err(self.err(*n, format!("not supported in {}", self.loc(owner)))),
+            Some(n) => Err(self.err(*n, format!("unsupported in {}", self.loc(owner)))),
             None => Ok(()),
         }
     }
@@ -295,18 +437,111 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
     }
 
-    /// `<rgb>`, a uniform `<spectrum>` or a `<float>` as an RGB triple.
-    fn rgb(&self, node: Node) -> Result<[f32; 3], SceneError> {
+    /// `<rgb>`, a `<spectrum>` or a `<float>` as an RGB triple. A spectrum (a uniform
+    /// value, a `wavelength:value` list, a file of such pairs, or `type="uniform"`,
+    /// `"regular"`, `"irregular"` or `"blackbody"`) is converted as Mitsuba's RGB variants
+    /// convert it ([`spectrum`](super::spectrum)): as a radiance for parameters named
+    /// `radiance`, `intensity` or `irradiance`, as a reflectance (clamped to [0, 1], with a
+    /// warning) otherwise.
+    fn rgb(&mut self, node: Node) -> Result<[f32; 3], SceneError> {
+        if node.tag_name().name() == "spectrum" {
+            return self.spectrum(node);
+        }
         let v = match node.tag_name().name() {
-            "rgb" | "spectrum" | "float" => self.numbers(node, &self.required(node, "value")?)?,
+            "rgb" | "float" => self.numbers(node, &self.required(node, "value")?)?,
             _ => return Err(self.err(node, "expected <rgb>, <spectrum> or <float>")),
         };
         match (node.tag_name().name(), v.as_slice()) {
             (_, &[x]) => Ok([x; 3]),
             ("rgb", &[r, g, b]) => Ok([r, g, b]),
-            ("spectrum", _) => Err(self.err(node, "only uniform spectra (one value) are supported")),
             _ => Err(self.err(node, "expected one or three numbers")),
         }
+    }
+
+    fn spectrum(&mut self, node: Node) -> Result<[f32; 3], SceneError> {
+        use super::spectrum::{blackbody, list_to_rgb, SpectrumKind};
+        let kind = match node.attribute("name") {
+            Some("radiance" | "intensity" | "irradiance") => SpectrumKind::Radiance,
+            _ => SpectrumKind::Reflectance,
+        };
+        let pairs = |text: &str| -> Result<Vec<(f32, f32)>, String> {
+            text.split(',')
+                .map(str::trim)
+                .filter(|p| !p.is_empty())
+                .map(|p| {
+                    let (w, v) = p.split_once(':').ok_or_else(|| format!("`{p}` is not wavelength:value"))?;
+                    match (w.trim().parse::<f32>(), v.trim().parse::<f32>()) {
+                        (Ok(w), Ok(v)) if w.is_finite() && v.is_finite() => Ok((w, v)),
+                        _ => Err(format!("`{p}` is not wavelength:value")),
+                    }
+                })
+                .collect()
+        };
+        let mut items = elements(node);
+        let plugin = self.attr(node, "type")?;
+        let result = match (plugin.as_deref(), self.attr(node, "value")?, self.attr(node, "filename")?) {
+            (None, Some(v), None) if !v.contains(':') => {
+                let v = self.numbers(node, &v)?;
+                let &[x] = v.as_slice() else { return Err(self.err(node, "a spectrum's value is one number or a wavelength:value list")) };
+                return Ok([x; 3]);
+            }
+            (None, Some(v), None) => pairs(&v).and_then(|p| list_to_rgb(&p, kind)),
+            (None, None, Some(file)) => {
+                let path = self.resolve(&file);
+                let text = crate::files::read_to_string(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                let list: String = text
+                    .lines()
+                    .map(|l| l.split('#').next().unwrap_or("").trim())
+                    .filter(|l| !l.is_empty())
+                    .map(|l| l.split_whitespace().collect::<Vec<_>>().join(":"))
+                    .collect::<Vec<_>>()
+                    .join(",");
+                pairs(&list).map_err(|e| format!("{}: {e}", path.display())).and_then(|p| list_to_rgb(&p, kind))
+            }
+            (Some("uniform"), None, None) => {
+                let v = self.take_float(&mut items, "value", 1.0)?;
+                self.rest(&items, node)?;
+                return Ok([v; 3]);
+            }
+            (Some("blackbody"), None, None) => {
+                let t = self.take(&mut items, "temperature").ok_or_else(|| self.err(node, "a blackbody needs <float name=\"temperature\">"))?;
+                let t = self.float(t)?;
+                self.rest(&items, node)?;
+                blackbody(t).map(|rgb| (rgb, false))
+            }
+            (Some("regular"), None, None) => {
+                let lo = self.take_float(&mut items, "wavelength_min", f32::NAN)?;
+                let hi = self.take_float(&mut items, "wavelength_max", f32::NAN)?;
+                let values = self.take(&mut items, "values").map(|n| self.string(n)).transpose()?.unwrap_or_default();
+                self.rest(&items, node)?;
+                let values = self.numbers(node, &values)?;
+                let n = values.len();
+                if n < 2 || lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+                    return Err(self.err(node, "a regular spectrum needs wavelength_min < wavelength_max and two or more values"));
+                }
+                let points: Vec<(f32, f32)> = values.iter().enumerate().map(|(i, &v)| (lo + (hi - lo) * i as f32 / (n - 1) as f32, v)).collect();
+                list_to_rgb(&points, kind)
+            }
+            (Some("irregular"), None, None) => {
+                let w = self.take(&mut items, "wavelengths").map(|n| self.string(n)).transpose()?.unwrap_or_default();
+                let v = self.take(&mut items, "values").map(|n| self.string(n)).transpose()?.unwrap_or_default();
+                self.rest(&items, node)?;
+                let (w, v) = (self.numbers(node, &w)?, self.numbers(node, &v)?);
+                if w.len() != v.len() {
+                    return Err(self.err(node, format!("{} wavelengths and {} values", w.len(), v.len())));
+                }
+                list_to_rgb(&w.into_iter().zip(v).collect::<Vec<_>>(), kind)
+            }
+            (Some(other), _, _) => {
+                return Err(self.err(node, format!("spectrum type \"{other}\" is unsupported (uniform, regular, irregular and blackbody are)")))
+            }
+            _ => return Err(self.err(node, "give a spectrum's value or filename")),
+        };
+        let (rgb, clamped) = result.map_err(|e| self.err(node, e))?;
+        if clamped {
+            self.warn(node, format!("the spectrum is outside the sRGB gamut: clamped to {rgb:?}, as Mitsuba clamps it"));
+        }
+        Ok(rgb)
     }
 
     fn point(&self, node: Node) -> Result<Vec3, SceneError> {
@@ -326,11 +561,24 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(Vec3::new(c("x")?, c("y")?, c("z")?))
     }
 
-    /// A `<transform>`: each child is applied after those before it.
-    fn transform(&self, node: Node) -> Result<Mat4, SceneError> {
+    /// A `<transform>`: each child is applied after those before it. A `<rotate>` about an
+    /// axis that is not a unit vector shears, as in Mitsuba, with a warning.
+    fn transform(&mut self, node: Node<'a, 'i>) -> Result<Mat4, SceneError> {
         if node.tag_name().name() != "transform" {
             return Err(self.err(node, "expected a <transform>"));
         }
+        let mut shears = Vec::new();
+        let m = self.transform_steps(node, &mut shears)?;
+        for op in shears {
+            self.warn(
+                op,
+                "the axis is not a unit vector: the rotation also shears and scales, as Mitsuba computes it (normalise the axis for a pure rotation)",
+            );
+        }
+        Ok(m)
+    }
+
+    fn transform_steps(&self, node: Node<'a, 'i>, shears: &mut Vec<Node<'a, 'i>>) -> Result<Mat4, SceneError> {
         let mut m = Mat4::IDENTITY;
         for op in elements(node) {
             let xyz = |default: f32| -> Result<Vec3, SceneError> {
@@ -350,10 +598,16 @@ impl<'a, 'i> Importer<'a, 'i> {
                 "translate" => Mat4::from_translation(xyz(0.0)?),
                 "scale" => Mat4::from_scale(xyz(1.0)?),
                 "rotate" => {
-                    let axis = xyz(0.0)?.try_normalize().ok_or_else(|| self.err(op, "the rotation axis is zero"))?;
+                    let axis = xyz(0.0)?;
+                    if axis == Vec3::ZERO {
+                        return Err(self.err(op, "the rotation axis is zero"));
+                    }
                     let angle = self.numbers(op, &self.required(op, "angle")?)?;
                     let &[angle] = angle.as_slice() else { return Err(self.err(op, "expected one angle")) };
-                    Mat4::from_axis_angle(axis, angle.to_radians())
+                    if (axis.length() - 1.0).abs() > 1e-3 {
+                        shears.push(op);
+                    }
+                    rotation(axis, angle.to_radians())
                 }
                 "matrix" => {
                     let v = self.numbers(op, &self.required(op, "value")?)?;
@@ -378,7 +632,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     let new_up = dir.cross(left);
                     Mat4::from_cols(left.extend(0.0), new_up.extend(0.0), dir.extend(0.0), origin.extend(1.0))
                 }
-                _ => return Err(self.err(op, format!("not supported in {}", self.loc(node)))),
+                _ => return Err(self.err(op, format!("unsupported in {}", self.loc(node)))),
             };
             m = step * m;
         }
@@ -388,7 +642,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(m)
     }
 
-    fn take_transform(&self, items: &mut Items<'a, 'i>, name: &str) -> Result<Option<Mat4>, SceneError> {
+    fn take_transform(&mut self, items: &mut Items<'a, 'i>, name: &str) -> Result<Option<Mat4>, SceneError> {
         self.take(items, name).map(|n| self.transform(n)).transpose()
     }
 
@@ -400,7 +654,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(self.take(items, name).map(|n| self.boolean(n)).transpose()?.unwrap_or(default))
     }
 
-    fn take_rgb(&self, items: &mut Items<'a, 'i>, name: &str, default: [f32; 3]) -> Result<[f32; 3], SceneError> {
+    fn take_rgb(&mut self, items: &mut Items<'a, 'i>, name: &str, default: [f32; 3]) -> Result<[f32; 3], SceneError> {
         Ok(self.take(items, name).map(|n| self.rgb(n)).transpose()?.unwrap_or(default))
     }
 
@@ -421,12 +675,24 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.defaults.push((name, value));
             }
         }
+        // Search paths next: file names anywhere may use them.
+        for n in children.iter().filter(|n| n.tag_name().name() == "path") {
+            let dir = self.dir.join(self.required(*n, "value")?);
+            self.search.insert(self.search.len() - self.expanded.dirs.len(), dir);
+        }
         let mut shapes = 0;
         let mut lights = 0;
+        let mut integrators = 0;
         for n in children {
             match n.tag_name().name() {
-                "default" => {}
-                "integrator" => self.integrator(n)?,
+                "default" | "path" => {}
+                "integrator" => {
+                    integrators += 1;
+                    if integrators > 1 {
+                        return Err(self.err(n, "a second <integrator>: a scene has one"));
+                    }
+                    self.integrator(n)?
+                }
                 "sensor" => self.sensor(n)?,
                 "bsdf" => {
                     let id = self.required(n, "id")?;
@@ -442,19 +708,63 @@ impl<'a, 'i> Importer<'a, 'i> {
                     shapes += 1;
                     self.shape(n, shapes)?;
                 }
+                "emitter" if n.attribute("type") == Some("area") => {
+                    let id = self.attr(n, "id")?.ok_or_else(|| self.err(n, "an area emitter belongs inside a <shape>, or has an id that shapes refer to"))?;
+                    let radiance = self.area_emitter(n)?;
+                    self.area_emitters.insert(id, radiance);
+                }
                 "emitter" => {
                     lights += 1;
                     self.emitter(n, lights)?;
                 }
-                _ => return Err(self.err(n, "not supported in <scene>")),
+                tag => return Err(self.err(n, format!("<{tag}> is unsupported in <scene>"))),
             }
         }
+        if integrators == 0 {
+            // Mitsuba's default integrator: path, of unlimited depth.
+            self.out.max_depth = Some(UNLIMITED_DEPTH);
+            self.warn(root, format!("no <integrator>: Mitsuba's default (path, unlimited depth) is rendered at depth {UNLIMITED_DEPTH}"));
+        }
         Ok(())
+    }
+
+    /// The radiance of an area emitter (inside a shape, or at the top level with an id).
+    fn area_emitter(&mut self, e: Node<'a, 'i>) -> Result<ColorValue, SceneError> {
+        let mut em = elements(e);
+        let radiance = self.color_param(&mut em, "radiance", [1.0; 3])?;
+        self.rest(&em, e)?;
+        Ok(radiance)
+    }
+
+    /// Warnings that need the whole scene.
+    fn finish(&mut self) {
+        if let Some(n) = self.direct_emitter_samples.filter(|&n| n > 1) {
+            if let Some(light) = self.out.lights.first() {
+                let line = format!(
+                    "{}: <integrator type=\"direct\">: Mitsuba weights point, spot and directional lights (here \"{}\") by emitter_samples ({n}); vkinverse counts them once, as Mitsuba's path integrator does",
+                    self.path.display(),
+                    light.name
+                );
+                self.out.warnings.push(line);
+            }
+        }
     }
 
     fn integrator(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
         let kind = self.plugin_type(node)?;
         let mut items = elements(node);
+        if kind == "moment" || kind == "aov" {
+            // Wrappers that write extra images beside the inner integrator's.
+            self.take(&mut items, "aovs");
+            let inner =
+                self.take_tag(&mut items, "integrator").or_else(|| items.iter().position(|n| n.tag_name().name() == "integrator").map(|i| items.remove(i)));
+            let inner = inner.ok_or_else(|| {
+                self.err(node, format!("an {kind} integrator without a nested integrator is unsupported (its extra images are not rendered)"))
+            })?;
+            self.rest(&items, node)?;
+            self.warn(node, format!("rendered as the integrator inside it; the {kind} images are not written"));
+            return self.integrator(inner);
+        }
         match kind.as_str() {
             // Without media (which are refused) volpath and volpathmis render what path does.
             "path" | "prb" | "volpath" | "volpathmis" => {}
@@ -463,8 +773,12 @@ impl<'a, 'i> Importer<'a, 'i> {
             "direct" => {
                 for key in ["emitter_samples", "bsdf_samples", "shading_samples"] {
                     if let Some(n) = self.take(&mut items, key) {
-                        if self.int(n)? < 0 {
+                        let v = self.int(n)?;
+                        if v < 0 {
                             return Err(self.err(n, format!("{key} is negative")));
+                        }
+                        if key != "bsdf_samples" {
+                            self.direct_emitter_samples = Some(v);
                         }
                     }
                 }
@@ -472,18 +786,30 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
                 return self.rest(&items, node);
             }
-            _ => return Err(self.err(node, "only the path, prb, volpath, volpathmis and direct integrators are supported")),
+            _ => {
+                return Err(self.err(
+                    node,
+                    format!("integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis and direct are, and moment or aov around one of them)"),
+                ))
+            }
         }
-        if let Some(n) = self.take(&mut items, "max_depth") {
-            let d = self.int(n)?;
-            self.out.max_depth = Some(match d {
-                -1 => {
-                    self.warn(n, format!("unlimited depth becomes {UNLIMITED_DEPTH}"));
-                    UNLIMITED_DEPTH
-                }
-                d if d >= 1 && d <= MAX_DEPTH as i64 => d as u32,
-                _ => return Err(self.err(n, format!("{d} is not -1 or in 1..={MAX_DEPTH}"))),
-            });
+        match self.take(&mut items, "max_depth") {
+            Some(n) => {
+                let d = self.int(n)?;
+                self.out.max_depth = Some(match d {
+                    -1 => {
+                        self.warn(n, format!("unlimited depth becomes {UNLIMITED_DEPTH}"));
+                        UNLIMITED_DEPTH
+                    }
+                    d if d >= 1 && d <= MAX_DEPTH as i64 => d as u32,
+                    _ => return Err(self.err(n, format!("{d} is not -1 or in 1..={MAX_DEPTH}"))),
+                });
+            }
+            None => {
+                // Mitsuba's default is −1, unlimited.
+                self.warn(node, format!("no max_depth: Mitsuba's default (unlimited) becomes {UNLIMITED_DEPTH}"));
+                self.out.max_depth = Some(UNLIMITED_DEPTH);
+            }
         }
         if let Some(n) = self.take(&mut items, "rr_depth") {
             let d = self.int(n)?;
@@ -499,7 +825,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         let orthographic = match kind.as_str() {
             "perspective" | "thinlens" => false,
             "orthographic" => true,
-            _ => return Err(self.err(node, "only perspective, thinlens and orthographic sensors are supported")),
+            _ => return Err(self.err(node, format!("sensor \"{kind}\" is unsupported (perspective, thinlens and orthographic are)"))),
         };
         let mut items = elements(node);
         let lens = if kind == "thinlens" {
@@ -515,11 +841,39 @@ impl<'a, 'i> Importer<'a, 'i> {
         } else {
             None
         };
-        let fov = if orthographic { 90.0 } else { self.take_float(&mut items, "fov", f32::NAN)? };
-        if fov.is_nan() {
-            return Err(self.err(node, "give the field of view as <float name=\"fov\">"));
+        if kind == "perspective" {
+            // Mitsuba reads it on every projective camera; a pinhole has no plane of focus.
+            if let Some(n) = self.take(&mut items, "focus_distance") {
+                self.float(n)?;
+            }
         }
-        let axis = if orthographic { "x".into() } else { self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| "x".into()) };
+        let (fov, default_axis) = match (orthographic, self.take(&mut items, "fov"), self.take(&mut items, "focal_length")) {
+            (true, _, _) => (90.0, "x"),
+            (false, Some(f), None) => (self.float(f)?, "x"),
+            (false, None, f) => {
+                // Mitsuba's default: a 50 mm lens on 35 mm film, across the film's diagonal.
+                let mm = match f {
+                    None => 50.0,
+                    Some(f) => {
+                        let text = self.string(f)?;
+                        text.trim()
+                            .trim_end_matches("mm")
+                            .trim()
+                            .parse::<f32>()
+                            .ok()
+                            .filter(|v| v.is_finite() && *v > 0.0)
+                            .ok_or_else(|| self.err(f, format!("focal_length \"{text}\" is not a length in mm")))?
+                    }
+                };
+                (2.0 * (36.0f32.hypot(24.0) / (2.0 * mm)).atan().to_degrees(), "diagonal")
+            }
+            (false, Some(_), Some(f)) => return Err(self.err(f, "give fov or focal_length, not both")),
+        };
+        let axis = if orthographic {
+            "x".into()
+        } else {
+            self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| default_axis.into())
+        };
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         for clip in ["near_clip", "far_clip"] {
             if let Some(n) = self.take(&mut items, clip) {
@@ -583,7 +937,7 @@ impl<'a, 'i> Importer<'a, 'i> {
 
     fn film(&mut self, node: Node<'a, 'i>) -> Result<Film, SceneError> {
         if self.plugin_type(node)? != "hdrfilm" {
-            return Err(self.err(node, "only hdrfilm is supported"));
+            return Err(self.err(node, format!("film \"{}\" is unsupported (hdrfilm is)", self.plugin_type(node)?)));
         }
         let mut items = elements(node);
         let mut side = |name: &str, default: u32| -> Result<u32, SceneError> {
@@ -661,7 +1015,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     wrap: [Wrap::Repeat; 2],
                 }
             }
-            _ => return Err(self.err(node, "only bitmap and checkerboard textures are supported")),
+            _ => return Err(self.err(node, format!("texture \"{kind}\" is unsupported (bitmap and checkerboard are)"))),
         };
         self.rest(&items, node)?;
         if let Some(a) = to_uv {
@@ -690,7 +1044,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 Wrap::from_name(&mode).ok_or_else(|| self.err(n, format!("wrap_mode \"{mode}\" is not repeat, clamp or mirror")))?
             }
         };
-        let path = self.dir.join(&file);
+        let path = self.resolve(&file);
         let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
         let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
         let image = if is_linear {
@@ -999,7 +1353,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
                 Material { nonlinear, one_sided, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
             }
-            _ => return Err(self.err(node, "only diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric BSDFs are supported")),
+            _ => return Err(self.err(node, format!("bsdf \"{kind}\" is unsupported (diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric are)"))),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
@@ -1108,110 +1462,123 @@ impl<'a, 'i> Importer<'a, 'i> {
         let mut items = elements(node);
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
-        let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) =
-            match kind.as_str() {
-                "obj" | "ply" | "serialized" => {
-                    let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                    let path = self.dir.join(&rel);
-                    let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                    let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
-                    let (p, mut n, mut t, i) = match kind.as_str() {
-                        "obj" => {
-                            // Mitsuba flips OBJ texture coordinates by default, which keeps the
-                            // OBJ convention (v up) that the model uses.
-                            let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
-                            let d = obj::load(&path, &bytes)?;
-                            let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
-                            (d.positions, d.normals, uvs, d.indices)
-                        }
-                        "ply" => {
-                            let d = ply::load(&path, &bytes)?;
-                            (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
-                        }
-                        _ => {
-                            let index = match self.take(&mut items, "shape_index") {
-                                Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
-                                None => 0,
-                            };
-                            let d = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
-                            face_normals |= d.face_normals;
-                            // Mitsuba's texture coordinates (v down), as PLY's.
-                            (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
-                        }
-                    };
-                    if face_normals {
-                        n.clear();
-                    } else if n.is_empty() {
-                        // Mitsuba smooths a mesh without normals unless told not to.
-                        n = vertex_normals(&p, &i);
+        let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind
+            .as_str()
+        {
+            "obj" | "ply" | "serialized" => {
+                let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+                let path = self.resolve(&rel);
+                let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
+                let (p, mut n, mut t, i) = match kind.as_str() {
+                    "obj" => {
+                        // Mitsuba flips OBJ texture coordinates by default, which keeps the
+                        // OBJ convention (v up) that the model uses.
+                        let flip = self.take_bool(&mut items, "flip_tex_coords", true)?;
+                        let d = obj::load(&path, &bytes)?;
+                        let uvs = if flip { d.uvs } else { d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect() };
+                        (d.positions, d.normals, uvs, d.indices)
                     }
-                    if t.len() != p.len() {
-                        t.clear();
+                    "ply" => {
+                        let d = ply::load(&path, &bytes)?;
+                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
                     }
-                    (p, n, t, i, path)
-                }
-                "rectangle" => (
-                    vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
-                    vec![[0.0, 0.0, 1.0]; 4],
-                    vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
-                    vec![[0, 1, 2], [2, 3, 0]],
-                    self.path.to_path_buf(),
-                ),
-                "cube" => {
-                    let (p, n, t, i) = cube();
-                    (p, n, t, i, self.path.to_path_buf())
-                }
-                "sphere" => {
-                    let center = self.take(&mut items, "center").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
-                    let radius = self.take_float(&mut items, "radius", 1.0)?;
-                    if radius <= 0.0 {
-                        return Err(self.err(node, "the radius is not positive"));
+                    _ => {
+                        let index = match self.take(&mut items, "shape_index") {
+                            Some(n) => u32::try_from(self.int(n)?).map_err(|_| self.err(n, "shape_index is negative"))?,
+                            None => 0,
+                        };
+                        let d = serialized_mesh(&bytes, index).map_err(|e| self.err(node, format!("{}: {e}", path.display())))?;
+                        face_normals |= d.face_normals;
+                        // Mitsuba's texture coordinates (v down), as PLY's.
+                        (d.positions, d.normals, d.uvs.iter().map(|&[u, v]| [u, 1.0 - v]).collect(), d.indices)
                     }
-                    self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
-                    let (p, n, t, i) = sphere(center, radius);
-                    (p, n, t, i, self.path.to_path_buf())
+                };
+                if face_normals {
+                    n.clear();
+                } else if n.is_empty() {
+                    // Mitsuba smooths a mesh without normals unless told not to.
+                    n = vertex_normals(&p, &i);
                 }
-                "disk" => {
-                    self.warn(node, format!("approximate: tessellated into {SPHERE_SEGMENTS} triangles"));
-                    let (p, n, t, i) = disk();
-                    (p, n, t, i, self.path.to_path_buf())
+                if t.len() != p.len() {
+                    t.clear();
                 }
-                "cylinder" => {
-                    let p0 = self.take(&mut items, "p0").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
-                    let p1 = self.take(&mut items, "p1").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::Z);
-                    let radius = self.take_float(&mut items, "radius", 1.0)?;
-                    if radius <= 0.0 {
-                        return Err(self.err(node, "the radius is not positive"));
-                    }
-                    if p0 == p1 {
-                        return Err(self.err(node, "p0 and p1 are the same point"));
-                    }
-                    self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS));
-                    let (p, n, t, i) = cylinder(p0, p1, radius);
-                    (p, n, t, i, self.path.to_path_buf())
+                (p, n, t, i, path)
+            }
+            "rectangle" => (
+                vec![[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]],
+                vec![[0.0, 0.0, 1.0]; 4],
+                vec![[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],
+                vec![[0, 1, 2], [2, 3, 0]],
+                self.path.to_path_buf(),
+            ),
+            "cube" => {
+                let (p, n, t, i) = cube();
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            "sphere" => {
+                let center = self.take(&mut items, "center").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                let radius = self.take_float(&mut items, "radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(self.err(node, "the radius is not positive"));
                 }
-                _ => return Err(self.err(node, "only obj, ply, serialized, rectangle, cube, sphere, disk and cylinder shapes are supported")),
-            };
+                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
+                let (p, n, t, i) = sphere(center, radius);
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            "disk" => {
+                self.warn(node, format!("approximate: tessellated into {SPHERE_SEGMENTS} triangles"));
+                let (p, n, t, i) = disk();
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            "cylinder" => {
+                let p0 = self.take(&mut items, "p0").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::ZERO);
+                let p1 = self.take(&mut items, "p1").map(|n| self.point(n)).transpose()?.unwrap_or(Vec3::Z);
+                let radius = self.take_float(&mut items, "radius", 1.0)?;
+                if radius <= 0.0 {
+                    return Err(self.err(node, "the radius is not positive"));
+                }
+                if p0 == p1 {
+                    return Err(self.err(node, "p0 and p1 are the same point"));
+                }
+                self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS));
+                let (p, n, t, i) = cylinder(p0, p1, radius);
+                (p, n, t, i, self.path.to_path_buf())
+            }
+            _ => return Err(self.err(node, format!("shape \"{kind}\" is unsupported (obj, ply, serialized, rectangle, cube, sphere, disk and cylinder are)"))),
+        };
+        // A <ref> may name an area emitter declared at the top level.
+        let mut emitter_ref = None;
+        while let Some(i) = items.iter().position(|n| n.tag_name().name() == "ref" && n.attribute("id").is_some_and(|id| self.area_emitters.contains_key(id))) {
+            let r = items.remove(i);
+            if emitter_ref.is_some() {
+                return Err(self.err(r, "a shape takes one emitter"));
+            }
+            emitter_ref = Some(self.area_emitters[r.attribute("id").unwrap_or_default()].clone());
+        }
         let material = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
             (Some(b), None) => self.bsdf(b, &name)?,
             (None, Some(r)) => {
                 let id = self.required(r, "id")?;
-                *self.bsdfs.get(&id).ok_or_else(|| self.err(r, format!("no bsdf with id \"{id}\" defined before it")))?
+                *self.bsdfs.get(&id).ok_or_else(|| {
+                    let mut known: Vec<&str> = self.bsdfs.keys().map(String::as_str).collect();
+                    known.sort();
+                    self.err(r, format!("no bsdf or area emitter with id \"{id}\" defined before it (bsdfs: {})", known.join(", ")))
+                })?
             }
-            (None, None) => self.default_material(items.iter().any(|n| n.tag_name().name() == "emitter")),
+            (None, None) => self.default_material(emitter_ref.is_some() || items.iter().any(|n| n.tag_name().name() == "emitter")),
             (Some(_), Some(r)) => return Err(self.err(r, "a shape takes one bsdf")),
         };
-        let emission = match self.take_tag(&mut items, "emitter") {
-            Some(e) => {
+        let emission = match (self.take_tag(&mut items, "emitter"), emitter_ref) {
+            (Some(e), None) => {
                 if self.plugin_type(e)? != "area" {
                     return Err(self.err(e, "a shape's emitter must be an area light"));
                 }
-                let mut em = elements(e);
-                let radiance = self.color_param(&mut em, "radiance", [1.0; 3])?;
-                self.rest(&em, e)?;
-                radiance
+                self.area_emitter(e)?
             }
-            None => ColorValue::Constant([0.0; 3]),
+            (None, Some(radiance)) => radiance,
+            (None, None) => ColorValue::Constant([0.0; 3]),
+            (Some(e), Some(_)) => return Err(self.err(e, "a shape takes one emitter")),
         };
         self.rest(&items, node)?;
         let uv_map = self.shape_uv_map(node, material, &emission)?;
@@ -1271,7 +1638,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                         return Err(self.err(node, "an environment map's to_world must be a rotation (scaling or shearing it is not supported)"));
                     }
                     let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                    let path = self.dir.join(&rel);
+                    let path = self.resolve(&rel);
                     let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
                     let map = image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
                     if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
@@ -1327,8 +1694,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let irradiance = self.take_rgb(&mut items, "irradiance", [1.0; 3])?;
                 self.out.lights.push(light(LightKind::Directional, Vec3::ZERO, direction, irradiance));
             }
-            "area" => return Err(self.err(node, "an area emitter belongs inside a <shape>")),
-            _ => return Err(self.err(node, "only area, constant, envmap, point, spot and directional emitters are supported")),
+            _ => return Err(self.err(node, format!("emitter \"{kind}\" is unsupported (area, constant, envmap, point, spot and directional are)"))),
         }
         self.rest(&items, node)
     }

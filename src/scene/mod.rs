@@ -32,6 +32,7 @@ mod mitsuba;
 pub mod model;
 mod obj;
 mod ply;
+mod spectrum;
 mod targets;
 pub mod write;
 
