@@ -12,6 +12,22 @@ impl Scene {
     pub fn render_warnings(&self) -> Vec<String> {
         lighting_warnings(self)
     }
+
+    /// Whether anything lights the scene: an emitting mesh with a triangle of non-zero
+    /// area, a light, or an environment (emitting or optimised ones count).
+    pub fn has_light(&self) -> bool {
+        let optimised = |target: ParamTarget| self.optimise.params.iter().any(|p| p.target == target);
+        let meshes = self.meshes.iter().enumerate().any(|(i, mesh)| (optimised(ParamTarget::Emission { mesh: i }) || mesh.emission.any_positive()) && has_area(mesh));
+        let environment = optimised(ParamTarget::Environment) || (self.environment.value.any_positive() && self.environment.scale > 0.0);
+        meshes || environment || !self.lights.is_empty()
+    }
+}
+
+fn has_area(mesh: &super::model::Mesh) -> bool {
+    mesh.indices.iter().any(|idx| {
+        let [a, b, c] = idx.map(|k| Vec3::from(mesh.positions[k as usize]));
+        (b - a).cross(c - a).length() > 0.0
+    })
 }
 
 /// What the scene will not get: light (no emitting triangle of non-zero area, no delta
@@ -23,19 +39,9 @@ fn lighting_warnings(scene: &Scene) -> Vec<String> {
     let mut out = Vec::new();
     let path = scene.path.display();
     let optimised = |target: ParamTarget| scene.optimise.params.iter().any(|p| p.target == target);
-    let mut lit_by_meshes = false;
     for (i, mesh) in scene.meshes.iter().enumerate() {
         let emits = optimised(ParamTarget::Emission { mesh: i }) || mesh.emission.any_positive();
-        if !emits {
-            continue;
-        }
-        let has_area = mesh.indices.iter().any(|idx| {
-            let [a, b, c] = idx.map(|k| Vec3::from(mesh.positions[k as usize]));
-            (b - a).cross(c - a).length() > 0.0
-        });
-        if has_area {
-            lit_by_meshes = true;
-        } else {
+        if emits && !has_area(mesh) {
             out.push(format!("{path}: mesh \"{}\" emits but all its triangles have zero area: it gives no light", mesh.name));
         }
     }
@@ -53,9 +59,7 @@ fn lighting_warnings(scene: &Scene) -> Vec<String> {
             }
         }
     }
-    let environment = optimised(ParamTarget::Environment) || (scene.environment.value.any_positive() && scene.environment.scale > 0.0);
-    let lights = !scene.lights.is_empty();
-    if !lit_by_meshes && !environment && !lights {
+    if !scene.has_light() {
         out.push(format!("{path}: no light (no emitting mesh of non-zero area, no light and no environment): the scene renders black"));
     }
     out

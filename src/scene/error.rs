@@ -44,9 +44,10 @@ pub enum SceneError {
     #[error("{}: {key}: {message}", scene.display())]
     OutOfRange { scene: PathBuf, key: String, message: String },
 
-    /// `key` refers to a material or mesh that the scene does not define.
-    #[error("{}: {key}: no {kind} named \"{name}\"", scene.display())]
-    Undefined { scene: PathBuf, key: String, kind: &'static str, name: String },
+    /// `key` refers to a material or mesh that the scene does not define; `known` lists
+    /// the names of that kind that it does ([`known_names`]).
+    #[error("{}: {key}: no {kind} named \"{name}\" ({known})", scene.display())]
+    Undefined { scene: PathBuf, key: String, kind: &'static str, name: String, known: String },
 
     #[error("{}: {key}: \"{name}\" is defined more than once", scene.display())]
     Duplicate { scene: PathBuf, key: String, name: String },
@@ -83,5 +84,16 @@ impl SceneError {
             m => m.replace('\n', "; "),
         };
         Self::Toml { path, line, column, message, source: Box::new(source) }
+    }
+}
+
+/// "the scene has NAME, NAME, ..." for an error about a name that is not there (the first
+/// 12, then how many more), or "the scene has none".
+pub fn known_names<'a>(names: impl IntoIterator<Item = &'a str>) -> String {
+    let names: Vec<String> = names.into_iter().map(|n| format!("\"{n}\"")).collect();
+    match names.len() {
+        0 => "the scene has none".into(),
+        n if n <= 12 => format!("the scene has {}", names.join(", ")),
+        n => format!("the scene has {} and {} more", names[..12].join(", "), n - 12),
     }
 }

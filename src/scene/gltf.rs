@@ -16,6 +16,8 @@
 //! view 2·ymag high); and
 //! `KHR_lights_punctual` lights, their intensities taken as the renderer's radiant
 //! intensity (point, spot) and irradiance (directional) with no photometric conversion.
+//! A file without a camera gets one that frames its meshes' bounding box (on a 512² film),
+//! and one without light a uniform environment of radiance 1, each announced in a warning.
 //!
 //! Names: a mesh is its node's name (else the glTF mesh's, else `node<i>`), with
 //! `.primitive<j>` added when the mesh has several primitives; materials and lights keep
@@ -172,6 +174,10 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         imp.node(&node, Mat4::IDENTITY)?;
     }
     imp.uniquify();
+    if imp.out.sensors.is_empty() {
+        // The loader adds a camera that frames the model, on a square film.
+        imp.out.film = Some(Film { width: GLTF_FILM_SIDE, height: GLTF_FILM_SIDE });
+    }
     imp.out.source = Source::Gltf(imp.sources);
     Ok(imp.out)
 }

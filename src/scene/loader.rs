@@ -40,6 +40,28 @@ pub(super) fn load(path: &Path, text: &str, options: &LoadOptions) -> Result<Sce
     loader.build(raw, imported, options)
 }
 
+/// Vertical field of view of the camera that frames a glTF model without one, in degrees.
+const FRAMING_FOV_Y: f32 = 45.0;
+
+/// A camera for a glTF model without one, as model viewers frame it: looking down −z (the
+/// glTF's forward) at the centre of the meshes' bounding box, with +y up, from as far as
+/// makes the box's bounding sphere fit the film; and the line that announces it.
+fn framing_sensor(meshes: &[Mesh], film: Film) -> (Sensor, String) {
+    let (lo, hi) = meshes.iter().flat_map(|m| &m.positions).fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(Vec3::from(*p)), hi.max(Vec3::from(*p))));
+    let centre = (lo + hi) * 0.5;
+    let radius = ((hi - lo).length() * 0.5).max(1e-3);
+    let half_v = (FRAMING_FOV_Y * 0.5).to_radians();
+    let half_h = (half_v.tan() * film.width as f32 / film.height as f32).atan();
+    let distance = radius / half_v.min(half_h).sin();
+    let origin = centre + Vec3::Z * distance;
+    let sensor = Sensor::looking_at(origin, centre, Vec3::Y, FRAMING_FOV_Y).expect("a camera looking down -z with +y up");
+    let note = format!(
+        "no camera: one with a {FRAMING_FOV_Y}° vertical field of view looks down -z at the model's centre ({:.3}, {:.3}, {:.3}) from {distance:.3} away, framing it",
+        centre.x, centre.y, centre.z
+    );
+    (sensor, note)
+}
+
 /// State of one load: the scene file (named in errors) and where relative paths start.
 pub(super) struct Loader {
     pub scene: PathBuf,
@@ -208,14 +230,21 @@ impl Loader {
         for (i, s) in raw.sensors.into_iter().enumerate() {
             sensors.push(self.sensor(&format!("sensors[{i}]"), s, film)?);
         }
-        if sensors.is_empty() {
-            let what = if imported.source == Source::Toml { "" } else { " (the imported file has no camera)" };
-            return Err(self.invalid("sensors", &format!("at least one sensor is needed{what}")));
-        }
         let mut materials = imported.materials;
         materials.extend(self.materials(raw.materials)?);
         let mut meshes = imported.meshes;
         meshes.extend(self.meshes(raw.meshes, &materials)?);
+        let mut notes = Vec::new();
+        let gltf = matches!(imported.source, Source::Gltf(_));
+        if sensors.is_empty() {
+            if !(gltf && !meshes.is_empty()) {
+                let what = if imported.source == Source::Toml { "" } else { " (the imported file has no camera)" };
+                return Err(self.invalid("sensors", &format!("at least one sensor is needed{what}")));
+            }
+            let (sensor, note) = framing_sensor(&meshes, film);
+            sensors.push(sensor);
+            notes.push(format!("{}: {note}", self.scene.display()));
+        }
         let mut lights = imported.lights;
         lights.extend(self.lights(raw.lights)?);
         for (kind, names) in [
@@ -243,6 +272,7 @@ impl Loader {
         for material in &materials {
             self.check_material(material)?;
         }
+        let own_environment = raw.environment.is_some() || imported.environment.is_some();
         let environment = match raw.environment {
             Some(env) => self.environment(Some(env))?,
             None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
@@ -281,6 +311,12 @@ impl Loader {
             warnings: imported.warnings,
             content_hash: 0,
         };
+        if gltf && !own_environment && !scene.has_light() {
+            // A model without lights, as viewers show it: under a white sky.
+            scene.environment = Environment { value: ColorValue::Constant([1.0; 3]), scale: 1.0 };
+            notes.push(format!("{}: no light: the model is lit by a uniform environment of radiance 1 (give lights or an [environment] to change it)", scene.path.display()));
+        }
+        scene.warnings.extend(notes);
         scene.content_hash = super::hash::content_hash(&scene);
         Ok(scene)
     }
@@ -710,6 +746,7 @@ impl Loader {
                 key: format!("{key}.material"),
                 kind: "material",
                 name: m.material.clone(),
+                known: super::error::known_names(materials.iter().map(|m| m.name.as_str())),
             })?;
             let emission = self.color_value(&format!("{key}.emission"), m.emission)?;
             let (path, bytes) = self.read(&format!("{key}.file"), &m.file)?;
@@ -877,7 +914,7 @@ impl Loader {
         match ParamTarget::parse(target, parts) {
             Ok(t) => Ok((t, t.reference(parts))),
             Err(TargetError::Malformed) => Err(self.bad_target(key, target)),
-            Err(TargetError::Undefined { kind, name }) => Err(SceneError::Undefined { scene: self.scene.clone(), key: key.into(), kind, name }),
+            Err(TargetError::Undefined { kind, name, known }) => Err(SceneError::Undefined { scene: self.scene.clone(), key: key.into(), kind, name, known }),
             Err(TargetError::Invalid(why)) => Err(self.invalid(key, &why)),
         }
     }

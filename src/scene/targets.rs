@@ -21,7 +21,7 @@ pub(crate) enum TargetError {
     /// Not of any target's form.
     Malformed,
     /// Names a `kind` (material, mesh, light) the scene has no `name` of.
-    Undefined { kind: &'static str, name: String },
+    Undefined { kind: &'static str, name: String, known: String },
     /// Names a property the thing it names does not have.
     Invalid(String),
 }
@@ -46,7 +46,14 @@ fn scalar_reference(v: &ScalarValue) -> Reference {
 impl ParamTarget {
     /// The target that `name` names in a scene of `parts`.
     pub(crate) fn parse(name: &str, parts: &Parts) -> Result<ParamTarget, TargetError> {
-        let undefined = |kind, name: &str| TargetError::Undefined { kind, name: name.to_string() };
+        let undefined = |kind, name: &str| {
+            let known = match kind {
+                "material" => super::error::known_names(parts.materials.iter().map(|m| m.name.as_str())),
+                "mesh" => super::error::known_names(parts.meshes.iter().map(|m| m.name.as_str())),
+                _ => super::error::known_names(parts.lights.iter().map(|l| l.name.as_str())),
+            };
+            TargetError::Undefined { kind, name: name.to_string(), known }
+        };
         if name == "environment" {
             return Ok(ParamTarget::Environment);
         }

@@ -134,6 +134,20 @@ def box_gltf(binary):
     return doc, bytes(blob)
 
 
+def bare_glb():
+    """The box as a GLB without camera or light (its lamp does not emit): what a model from
+    a sample collection often is."""
+    doc, blob = box_gltf(binary=True)
+    doc["nodes"] = [n for n in doc["nodes"] if "mesh" in n]
+    doc["scenes"] = [{"nodes": list(range(len(doc["nodes"])))}]
+    for key in ["cameras", "extensions", "extensionsUsed"]:
+        del doc[key]
+    for m in doc["materials"]:
+        m.pop("emissiveFactor", None)
+        m.pop("extensions", None)
+    return glb(doc, blob)
+
+
 def glb(doc, blob):
     js = json.dumps(doc, separators=(",", ":")).encode()
     js += b" " * (-len(js) % 4)
@@ -164,6 +178,7 @@ def box():
     doc, blob = box_gltf(binary=False)
     write(d / "box.gltf", json.dumps(doc, indent=1))
     write(d / "box.glb", glb(*box_gltf(binary=True)))
+    write(d / "bare.glb", bare_glb())
     shapes = "    <!-- Flat faces, as in scene.toml, whose OBJs carry no normals: without face_normals\n         the import, like Mitsuba, smooths each mesh with computed vertex normals. -->\n" + "".join(
         f'    <shape type="obj" id="{n}">\n        <string name="filename" value="{n}.obj"/>\n        <boolean name="face_normals" value="true"/>\n        <ref id="{MESH_MATERIAL[n]}"/>\n'
         + (f'        <emitter type="area"><rgb name="radiance" value="{MATERIALS[MESH_MATERIAL[n]][3]}"/></emitter>\n' if MATERIALS[MESH_MATERIAL[n]][3] else "")
@@ -325,7 +340,7 @@ def errors():
     xml = {
         "dielectric": base.replace('<bsdf type="principled">', '<bsdf type="dielectric">', 1),
         "bsplinecurve": base.replace('<shape type="obj" id="floor">', '<shape type="bsplinecurve" id="floor">', 1),
-        "unknown-parameter": base.replace('<float name="fov"', '<float name="focus_distance" value="2"/>\n        <float name="fov"', 1),
+        "unknown-parameter": base.replace('<float name="fov"', '<float name="lens_tilt" value="2"/>\n        <float name="fov"', 1),
         "aov": base.replace('<integrator type="path">', '<integrator type="aov">', 1),
         "medium": base.replace("</scene>", '    <medium type="homogeneous" id="fog"/>\n</scene>', 1),
         "undefined-default": base.replace('value="$res"', 'value="$resolution"', 1),

@@ -383,7 +383,7 @@ fn film_size_and_fov_are_bounded() {
 fn names_must_be_defined_and_unique() {
     let err = load_err("undefined-material", &BASE.replace("material = \"m\"", "material = \"wall\""));
     assert!(matches!(err, SceneError::Undefined { kind: "material", .. }), "{err:?}");
-    assert_message(&err, &["scene.toml", "meshes.tri.material", "\"wall\""]);
+    assert_message(&err, &["scene.toml", "meshes.tri.material", "\"wall\"", "the scene has \"m\""]);
 
     let dup = BASE.replace("[[meshes]]", "[[materials]]\nname = \"m\"\ntype = \"diffuse\"\nbase_color = [1, 1, 1]\n\n[[meshes]]");
     let err = load_err("duplicate-material", &dup);
@@ -399,11 +399,11 @@ fn names_must_be_defined_and_unique() {
 fn optimise_targets_must_exist() {
     let err = load_err("target-material", &with_optimise("target = \"materials.wall.base_color\"\ninit = 0.5\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::Undefined { kind: "material", .. }), "{err:?}");
-    assert_message(&err, &["optimise.params[0].target", "\"wall\""]);
+    assert_message(&err, &["optimise.params[0].target", "\"wall\"", "the scene has \"m\""]);
 
     let err = load_err("target-mesh", &with_optimise("target = \"meshes.lamp.emission\"\ninit = 0.5\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::Undefined { kind: "mesh", .. }), "{err:?}");
-    assert_message(&err, &["optimise.params[0].target", "\"lamp\""]);
+    assert_message(&err, &["optimise.params[0].target", "\"lamp\"", "the scene has \"tri\""]);
 
     let err = load_err("target-property", &with_optimise("target = \"materials.m.colour\"\ninit = 0.5\nrange = [0, 1]"));
     assert!(matches!(err, SceneError::Invalid { .. }), "{err:?}");
