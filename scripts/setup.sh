@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Installs what vkinverse needs on Debian/Ubuntu: the Vulkan loader, Mesa's lavapipe (a
 # CPU Vulkan driver, so no GPU is needed), the validation layers used by the tests, and
-# the shader compiler libraries that build.rs links (shaderc, glslang, SPIRV-Tools).
+# the shader compiler libraries that build.rs links (shaderc, glslang, SPIRV-Tools), and
+# Python's venv and pip for the Python package (python/).
 set -euo pipefail
-packages=(mesa-vulkan-drivers libvulkan1 vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools fonts-dejavu-core)
+packages=(mesa-vulkan-drivers libvulkan1 vulkan-validationlayers libshaderc-dev glslang-dev spirv-tools fonts-dejavu-core python3-venv python3-pip)
 missing=()
 for p in "${packages[@]}"; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -36,7 +36,7 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Render one sensor of a scene to EXR (linear) or PNG (tone-mapped sRGB).
+    /// Render one sensor of a scene to EXR (linear), NPY (linear float32 [height, width, 3]) or PNG (tone-mapped sRGB).
     Render(RenderArgs),
     /// Recover the scene's optimised parameters from its target images.
     #[command(after_help = format!("{OPTIMISE_HELP}\n\nOptimiser specs (--optimiser): NAME[@KEY=VALUE]..., keys:\n{}", vkinverse::Spec::keys_help()))]
@@ -432,8 +432,8 @@ fn run_options(output: &std::path::Path, mode: Mode) -> Result<RunOptions<'_>> {
 
 fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     let ext = a.output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if !matches!(ext.as_deref(), Some("exr" | "png")) {
-        return Err(format!("{}: output must end in .exr or .png", a.output.display()).into());
+    if !matches!(ext.as_deref(), Some("exr" | "png" | "npy")) {
+        return Err(format!("{}: output must end in .exr, .npy or .png", a.output.display()).into());
     }
     if a.spp == 0 {
         return Err("--spp must be at least 1".into());
@@ -462,6 +462,9 @@ fn run_render(cli: &Cli, a: &RenderArgs) -> Result {
     progress.finish();
     if ext.as_deref() == Some("png") {
         vkinverse::image::write_png(&a.output, &image)?;
+    } else if ext.as_deref() == Some("npy") {
+        let data = image.data.as_flattened().to_vec();
+        vkinverse::npy::write(&a.output, &vkinverse::npy::Array { shape: vec![image.height as usize, image.width as usize, 3], data })?;
     } else {
         vkinverse::image::write_exr(&a.output, &image)?;
     }

@@ -17,7 +17,8 @@ impl Scene {
     /// area, a light, or an environment (emitting or optimised ones count).
     pub fn has_light(&self) -> bool {
         let optimised = |target: ParamTarget| self.optimise.params.iter().any(|p| p.target == target);
-        let meshes = self.meshes.iter().enumerate().any(|(i, mesh)| (optimised(ParamTarget::Emission { mesh: i }) || mesh.emission.any_positive()) && has_area(mesh));
+        let meshes =
+            self.meshes.iter().enumerate().any(|(i, mesh)| (optimised(ParamTarget::Emission { mesh: i }) || mesh.emission.any_positive()) && has_area(mesh));
         let environment = optimised(ParamTarget::Environment) || (self.environment.value.any_positive() && self.environment.scale > 0.0);
         meshes || environment || !self.lights.is_empty()
     }

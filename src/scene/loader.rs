@@ -47,7 +47,10 @@ const FRAMING_FOV_Y: f32 = 45.0;
 /// glTF's forward) at the centre of the meshes' bounding box, with +y up, from as far as
 /// makes the box's bounding sphere fit the film; and the line that announces it.
 fn framing_sensor(meshes: &[Mesh], film: Film) -> (Sensor, String) {
-    let (lo, hi) = meshes.iter().flat_map(|m| &m.positions).fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(Vec3::from(*p)), hi.max(Vec3::from(*p))));
+    let (lo, hi) = meshes
+        .iter()
+        .flat_map(|m| &m.positions)
+        .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(Vec3::from(*p)), hi.max(Vec3::from(*p))));
     let centre = (lo + hi) * 0.5;
     let radius = ((hi - lo).length() * 0.5).max(1e-3);
     let half_v = (FRAMING_FOV_Y * 0.5).to_radians();
@@ -237,7 +240,7 @@ impl Loader {
         let mut notes = Vec::new();
         let gltf = matches!(imported.source, Source::Gltf(_));
         if sensors.is_empty() {
-            if !(gltf && !meshes.is_empty()) {
+            if !gltf || meshes.is_empty() {
                 let what = if imported.source == Source::Toml { "" } else { " (the imported file has no camera)" };
                 return Err(self.invalid("sensors", &format!("at least one sensor is needed{what}")));
             }
@@ -314,7 +317,10 @@ impl Loader {
         if gltf && !own_environment && !scene.has_light() {
             // A model without lights, as viewers show it: under a white sky.
             scene.environment = Environment { value: ColorValue::Constant([1.0; 3]), scale: 1.0 };
-            notes.push(format!("{}: no light: the model is lit by a uniform environment of radiance 1 (give lights or an [environment] to change it)", scene.path.display()));
+            notes.push(format!(
+                "{}: no light: the model is lit by a uniform environment of radiance 1 (give lights or an [environment] to change it)",
+                scene.path.display()
+            ));
         }
         scene.warnings.extend(notes);
         scene.content_hash = super::hash::content_hash(&scene);

@@ -1,0 +1,228 @@
+"""The Python package on the machine's Vulkan device (lavapipe in CI): renders against the
+command line's, gradients against finite differences, the autograd wrappers, optimisation
+runs (built-in and Python losses, stopped and resumed) and bad input.
+
+Run from the repository root: python3 -m pytest python/tests (or python3 -m unittest
+discover -s python/tests). The JAX and PyTorch tests need those packages; where one is
+missing its tests are reported as skipped, never as passed.
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import unittest
+from pathlib import Path
+
+import numpy as np
+
+import vkinverse as vk
+
+ROOT = Path(__file__).resolve().parents[2]
+CORNELL = ROOT / "scenes" / "cornell" / "scene.toml"
+RED = "materials.red.base_color"
+
+
+def binary():
+    """The command line's binary, built by cargo for the test run."""
+    for profile in ["debug", "release"]:
+        exe = ROOT / "target" / profile / "vkinverse"
+        if exe.exists():
+            return exe
+    raise unittest.SkipTest("no target/*/vkinverse: build the binary first (cargo build)")
+
+
+def cornell(film=(32, 32)):
+    return vk.Scene(CORNELL, film=film)
+
+
+def fd_of_mean(scene, name, channel, h=0.05, spp=256, seed=7):
+    """d mean(image) / d value[channel], by central differences of two renders with the
+    same seed (their noise mostly cancels)."""
+    base = np.array(scene.params[name])
+    values = []
+    for sign in (1, -1):
+        v = base.copy()
+        v[channel] += sign * h
+        scene.params[name] = v
+        values.append(float(np.mean(vk.render(scene, spp=spp, seed=seed))))
+    scene.params[name] = base
+    return (values[0] - values[1]) / (2 * h)
+
+
+class RenderTests(unittest.TestCase):
+    def test_render_equals_the_command_line_value_for_value(self):
+        scene = vk.Scene(CORNELL)
+        image = vk.render(scene, spp=4, seed=3)
+        self.assertEqual(image.shape, (64, 64, 3))
+        self.assertEqual(image.dtype, np.float32)
+        with tempfile.TemporaryDirectory() as d:
+            out = Path(d) / "cli.npy"
+            subprocess.run([binary(), "render", CORNELL, "--spp", "4", "--seed", "3", "-o", out, "--quiet"], check=True)
+            cli = np.load(out)
+        np.testing.assert_array_equal(image, cli)
+
+    def test_params_read_set_clamp_and_render_differently(self):
+        scene = cornell()
+        self.assertEqual(list(scene.params), [RED])
+        np.testing.assert_allclose(scene.params[RED], [0.63, 0.065, 0.05], rtol=1e-6)
+        before = vk.render(scene, spp=4)
+        scene.params[RED] = np.array([5.0, 0.9, -1.0])  # clamped into [0, 1]
+        lo, hi = scene.params.range(RED)
+        np.testing.assert_allclose(scene.params[RED], [hi, 0.9, lo])
+        after = vk.render(scene, spp=4)
+        self.assertGreater(np.abs(after - before).max(), 0.01)
+        self.assertFalse(scene.params[RED].flags.writeable, "a read-only view, not a copy to write into")
+
+    def test_bad_input_raises_with_the_one_line_message(self):
+        scene = cornell()
+        with self.assertRaisesRegex(ValueError, r"shape \(2,\) given, the parameter's is \(3,\)"):
+            scene.params[RED] = [0.1, 0.2]
+        with self.assertRaisesRegex(KeyError, "the scene's parameters: materials.red.base_color"):
+            scene.params["materials.nope.base_color"] = [0.1, 0.2, 0.3]
+        with self.assertRaisesRegex(ValueError, "not a finite number"):
+            scene.params[RED] = [0.1, float("nan"), 0.3]
+        with self.assertRaisesRegex(ValueError, "no_such_scene.toml"):
+            vk.Scene(ROOT / "no_such_scene.toml")
+        with self.assertRaisesRegex(ValueError, r"adjoint: shape \(4, 4, 3\)"):
+            vk.gradient(scene, np.zeros((4, 4, 3)))
+        with self.assertRaisesRegex(ValueError, "spp"):
+            vk.optimise(scene, iterations=1, spp=0, quiet=True)
+        with self.assertRaisesRegex(ValueError, "no_such_setting"):
+            vk.optimise(scene, iterations=1, no_such_setting=3, quiet=True)
+        for e in [ValueError("x"), vk.Error("y")]:
+            self.assertNotIn("\n", str(e))
+
+
+class GradientTests(unittest.TestCase):
+    def test_gradient_agrees_with_finite_differences(self):
+        scene = cornell()
+        w, h = scene.film
+        adjoint = np.full((h, w, 3), 1.0 / (w * h * 3), dtype=np.float32)
+        estimates = np.array([vk.gradient(scene, adjoint, spp=64, seed=s)[RED] for s in range(4)])
+        mean, se = estimates.mean(axis=0), estimates.std(axis=0, ddof=1) / 2
+        for c in range(3):
+            fd = fd_of_mean(scene, RED, c)
+            self.assertLess(abs(mean[c] - fd), 4 * se[c] + 0.05 * abs(fd) + 1e-4, f"channel {c}: {mean[c]} vs finite differences {fd}")
+        self.assertTrue(np.all(mean > 0), "a brighter wall brightens the image")
+
+
+class JaxTests(unittest.TestCase):
+    def setUp(self):
+        try:
+            import jax  # noqa: F401
+        except ImportError:
+            self.skipTest("jax is not installed")
+
+    def test_jax_grad_is_vkinverse_gradient_and_agrees_with_finite_differences(self):
+        import jax
+        import jax.numpy as jnp
+
+        import vkinverse.jax as vkj
+
+        scene = cornell()
+        color = jnp.array(scene.params[RED])
+
+        def mean_image(c):
+            return jnp.mean(vkj.render(scene, {RED: c}, spp=16, seed=5, grad_spp=64))
+
+        value = mean_image(color)
+        self.assertAlmostEqual(float(value), float(np.mean(vk.render(scene, spp=16, seed=5))), places=6)
+        g = np.array(jax.grad(mean_image)(color))
+        w, h = scene.film
+        direct = vk.gradient(scene, np.full((h, w, 3), 1.0 / (w * h * 3), np.float32), spp=64, seed=6)[RED]
+        np.testing.assert_allclose(g, direct, rtol=1e-5, atol=1e-7)
+        fd = [fd_of_mean(scene, RED, c) for c in range(3)]
+        np.testing.assert_allclose(g, fd, rtol=0.25, atol=2e-3)
+
+
+class TorchTests(unittest.TestCase):
+    def setUp(self):
+        try:
+            import torch  # noqa: F401
+        except ImportError:
+            self.skipTest("torch is not installed")
+
+    def test_torch_backward_is_vkinverse_gradient(self):
+        import torch
+
+        import vkinverse.torch as vkt
+
+        scene = cornell()
+        color = torch.tensor(np.array(scene.params[RED]), requires_grad=True)
+        image = vkt.render(scene, {RED: color}, spp=16, seed=5, grad_spp=64)
+        image.mean().backward()
+        w, h = scene.film
+        direct = vk.gradient(scene, np.full((h, w, 3), 1.0 / (w * h * 3), np.float32), spp=64, seed=6)[RED]
+        np.testing.assert_allclose(color.grad.numpy(), direct, rtol=1e-5, atol=1e-7)
+        fd = [fd_of_mean(scene, RED, c) for c in range(3)]
+        np.testing.assert_allclose(color.grad.numpy(), fd, rtol=0.25, atol=2e-3)
+
+
+class OptimiseTests(unittest.TestCase):
+    def setUp(self):
+        self.dir = Path(tempfile.mkdtemp(prefix="vkinverse-py-"))
+
+    def tearDown(self):
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def test_builtin_loss_run_recovers_the_wall_and_logs_every_iteration(self):
+        scene = cornell()
+        rows = []
+        result = vk.optimise(scene, optimiser="adam", iterations=60, lr=0.05, target_spp=256, callback=rows.append, quiet=True)
+        self.assertEqual(len(rows), 60)
+        self.assertEqual(list(result.log["iteration"]), list(range(61)))
+        error = np.abs(result.params[RED] - np.array([0.63, 0.065, 0.05])).max()
+        self.assertLess(error, 0.08, f"recovered {result.params[RED]}")
+        self.assertLess(result.log["param_error"][-1], result.log["param_error"][0] / 3)
+
+    def test_python_l1_loss_recovers_the_wall(self):
+        scene = cornell()
+        target = np.array(vk.render(scene, spp=256, seed=99))
+        truth = np.array(scene.params[RED])
+
+        def l1(image):
+            d = image - target
+            return float(np.abs(d).mean()), (np.sign(d) / d.size).astype(np.float32)
+
+        calls = []
+        start = np.frombuffer(scene._native.param_start(RED)[0], np.float32)
+        result = vk.optimise(scene, optimiser="adam", iterations=60, loss=l1, lr=0.05, callback=calls.append, quiet=True)
+        self.assertEqual(len(calls), 60)
+        error = np.abs(result.params[RED] - truth).max()
+        self.assertLess(error, 0.08, f"recovered {result.params[RED]} of {truth}")
+        self.assertLess(error, np.abs(start - truth).max() / 3, f"from {start}")
+        # The loss is of a 4-spp render: its noise floor, not its trend, ends the run.
+        self.assertTrue(np.all(np.isfinite(result.log["loss"])))
+        with self.assertRaisesRegex(ValueError, "a Python loss runs with adam"):
+            vk.optimise(scene, optimiser="meta", loss=l1, iterations=1, quiet=True)
+
+    def test_callback_false_stops_and_the_run_resumes(self):
+        scene = cornell()
+        out = self.dir / "run"
+        first = vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, checkpoint_every=2, out_dir=out, callback=lambda row: row["iteration"] < 3, quiet=True)
+        self.assertTrue(first.interrupted)
+        self.assertEqual(first.log["iteration"][-1], 3)
+        self.assertTrue((out / "log.csv").exists())
+        rest = vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, checkpoint_every=2, out_dir=out, resume=True, quiet=True)
+        self.assertFalse(rest.interrupted)
+        self.assertEqual(list(rest.log["iteration"]), list(range(7)))
+
+    def test_ctrl_c_raises_keyboard_interrupt_and_leaves_a_resumable_run(self):
+        scene = cornell()
+        out = self.dir / "run"
+
+        def interrupt(row):
+            if row["iteration"] == 2:
+                signal.raise_signal(signal.SIGINT)
+
+        with self.assertRaises(KeyboardInterrupt):
+            vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, out_dir=out, callback=interrupt, quiet=True)
+        self.assertTrue((out / "log.csv").exists(), os.listdir(out))
+        rest = vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, out_dir=out, resume=True, quiet=True)
+        self.assertEqual(rest.log["iteration"][-1], 6)
+
+
+if __name__ == "__main__":
+    unittest.main()

@@ -1,0 +1,319 @@
+"""vkinverse: inverse path tracing on any Vulkan device.
+
+Load a scene (TOML, glTF/GLB or Mitsuba XML), render it, differentiate any image loss
+with respect to its optimised parameters, and recover them from target images with Adam
+or the gradient meta-estimator::
+
+    import vkinverse as vk
+    scene = vk.Scene("scenes/cornell/scene.toml")
+    image = vk.render(scene, spp=64)                  # float32 [H, W, 3]
+    grads = vk.gradient(scene, 2 * (image - target))  # {name: array shaped like the parameter}
+    result = vk.optimise(scene, iterations=100)       # result.params, result.log
+
+Parameters are named by the targets of the scene's ``[[optimise.params]]``
+(``materials.red.base_color``). Errors are ``ValueError`` for bad input and
+:class:`vkinverse.Error` for the rest, with the command line's one-line messages.
+"""
+
+import os
+import sys
+from collections.abc import MutableMapping
+
+import numpy as np
+
+from . import _native
+from ._native import Error
+
+__all__ = ["Error", "ParameterError", "Result", "Scene", "devices", "gradient", "optimise", "render"]
+
+
+class ParameterError(KeyError, ValueError):
+    """A parameter name that the scene does not have (a KeyError of ``scene.params``, and a
+    ValueError as all bad input is)."""
+
+    def __str__(self):
+        return str(self.args[0]) if self.args else ""
+
+
+def devices():
+    """Names of the Vulkan devices, in index order (``device=`` takes an index or part of a
+    name)."""
+    return _native.devices()
+
+
+def _array(data, shape):
+    """A read-only float32 view of native bytes (no copy)."""
+    a = np.frombuffer(data, dtype=np.float32).reshape(shape)
+    a.flags.writeable = False
+    return a
+
+
+def _floats(value, what):
+    a = np.ascontiguousarray(value, dtype=np.float32)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{what}: holds a value that is not a finite number")
+    return a
+
+
+class Params(MutableMapping):
+    """The scene's optimised parameters: name -> float32 array (a colour is shape (3,), a
+    texture (H, W, C)). Setting one checks its shape and clamps it into its range."""
+
+    def __init__(self, native):
+        self._native = native
+
+    def _info(self):
+        return {name: (tuple(shape), rng) for name, shape, rng in self._native.param_info()}
+
+    def _unknown(self, name, info):
+        known = ", ".join(info) or "none: the scene has no [[optimise.params]]"
+        return ParameterError(f"no parameter named '{name}' (the scene's parameters: {known})")
+
+    def __getitem__(self, name):
+        info = self._info()
+        if name not in info:
+            raise self._unknown(name, info)
+        data, shape = self._native.get_param(name)
+        return _array(data, shape)
+
+    def __setitem__(self, name, value):
+        info = self._info()
+        if name not in info:
+            raise self._unknown(name, info)
+        a = _floats(value, name)
+        if a.shape != info[name][0]:
+            raise ValueError(f"{name}: shape {a.shape} given, the parameter's is {info[name][0]}")
+        self._native.set_param(name, a.ravel().tolist())
+
+    def __delitem__(self, name):
+        raise TypeError("a scene's parameters cannot be removed")
+
+    def __iter__(self):
+        return iter(self._info())
+
+    def __len__(self):
+        return len(self._native.param_info())
+
+    def shape(self, name):
+        """The parameter's array shape."""
+        return self._info()[name][0]
+
+    def range(self, name):
+        """The parameter's (lo, hi): values set are clamped into it."""
+        return self._info()[name][1]
+
+    def __repr__(self):
+        return "Params(" + ", ".join(f"{n}: {s}" for n, (s, _) in self._info().items()) + ")"
+
+
+class Scene:
+    """A scene loaded from ``path`` (.toml, .gltf/.glb or .xml) and uploaded to a device.
+
+    ``film=(width, height)`` and ``max_depth`` override the file's; ``device`` is an index
+    or part of a device's name (default: the best device). ``scene.params`` reads and sets
+    the values it renders with."""
+
+    def __init__(self, path, film=None, max_depth=None, device=None):
+        if film is not None:
+            film = (int(film[0]), int(film[1]))
+        self._native = _native.NativeScene(os.fspath(path), film, max_depth, None if device is None else str(device))
+        self.params = Params(self._native)
+
+    @property
+    def film(self):
+        """(width, height) of the images it renders."""
+        return self._native.film()
+
+    @property
+    def sensors(self):
+        """The number of sensors (cameras)."""
+        return self._native.sensor_count()
+
+    @property
+    def warnings(self):
+        """What loading approximated and what the scene will not get, one line each."""
+        return self._native.warnings()
+
+    @property
+    def path(self):
+        return self._native.path()
+
+    def __repr__(self):
+        w, h = self.film
+        return f"Scene({str(self.path)!r}, film={w}x{h}, params={list(self.params)})"
+
+
+def render(scene, spp=64, seed=0, sensor=0):
+    """Renders a sensor: float32 array [height, width, 3] of linear RGB. The same seed and
+    spp give the same image."""
+    data, h, w = scene._native.render(int(spp), int(seed), int(sensor))
+    return _array(data, (h, w, 3))
+
+
+def gradient(scene, adjoint, spp=16, seed=0, sensor=0):
+    """Every parameter's gradient for the image-space adjoint ``adjoint`` = dL/dImage
+    (float32 [height, width, 3]): {name: array shaped like the parameter}."""
+    w, h = scene.film
+    a = _floats(adjoint, "adjoint")
+    if a.shape != (h, w, 3):
+        raise ValueError(f"adjoint: shape {a.shape}, the film's image is {(h, w, 3)}")
+    grads = scene._native.gradient(a.tobytes(), h, w, int(spp), int(seed), int(sensor))
+    return {name: _array(data, shape) for name, data, shape in grads}
+
+
+class Result:
+    """An optimisation's outcome: ``params`` {name: final array}, ``log`` {column: numpy
+    array} (the columns of log.csv: iteration, time_s, gpu_time_s, loss, param_error and
+    one param_error.NAME per parameter), ``interrupted`` (stopped by the callback or
+    Ctrl-C) and ``out_dir``."""
+
+    def __init__(self, params, log, interrupted, out_dir):
+        self.params = params
+        self.log = log
+        self.interrupted = interrupted
+        self.out_dir = out_dir
+
+    def __repr__(self):
+        n = len(self.log.get("iteration", []))
+        return f"Result(params={list(self.params)}, rows={n}, interrupted={self.interrupted})"
+
+
+class _Progress:
+    """One line of progress on stderr (tqdm's bar where it is installed)."""
+
+    def __init__(self, total, quiet):
+        self.total, self.quiet, self.bar = total, quiet, None
+        if not quiet:
+            try:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=total, unit="it")
+            except ImportError:
+                pass
+
+    def update(self, row):
+        if self.quiet:
+            return
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(loss=row.get("loss"))
+        else:
+            total = f"/{self.total}" if self.total else ""
+            line = f"iteration {row['iteration']}{total}  loss {row.get('loss', float('nan')):.4g}"
+            if sys.stderr.isatty():
+                print("\r" + line, end="", file=sys.stderr)
+            elif row["iteration"] % max(1, (self.total or 100) // 10) == 0:
+                print(line, file=sys.stderr)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+        elif not self.quiet and sys.stderr.isatty():
+            print(file=sys.stderr)
+
+
+def _setting_text(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, callback=None, out_dir=None, quiet=False, resume=False, overwrite=False, **settings):
+    """Recovers the scene's optimised parameters from target images.
+
+    - ``optimiser``: a spec, ``meta`` or ``adam`` with hyperparameters (``adam@beta1=0.5``).
+    - ``loss``: ``l2``, ``l1`` or ``relative_l2``, or a Python function ``image ->
+      (value, dL/dimage)``. A Python loss runs with ``adam`` (one call per iteration, on
+      that iteration's primal render).
+    - ``targets``: one float32 [H, W, 3] image per sensor; without them the targets are
+      rendered from the scene's own values, as the command line does.
+    - ``callback(row)``: each iteration's log row as a dict; returning False stops the run.
+    - ``out_dir``: a run directory (checkpoints, log.csv, params/, plots), resumable with
+      ``resume=True``.
+    - ``**settings``: any setting of ``vkinverse optimise`` by its name (``spp``,
+      ``primal_spp``, ``fd_spp``, ``lr``, ``time_budget``, ``seed``, ...).
+
+    The run starts from each parameter's ``init``. Ctrl-C stops it after the current
+    iteration (its outputs written) and raises KeyboardInterrupt."""
+    if callable(loss):
+        return _optimise_python_loss(scene, loss, optimiser, iterations, targets, callback, quiet, settings)
+    pairs = [("optimiser", str(optimiser)), ("loss", str(loss))]
+    if iterations is not None:
+        pairs.append(("iterations", str(int(iterations))))
+    pairs += [(k, _setting_text(v)) for k, v in settings.items()]
+    native_targets = None
+    if targets is not None:
+        if isinstance(targets, np.ndarray):
+            targets = [targets]
+        native_targets = []
+        for i, t in enumerate(targets):
+            a = _floats(t, f"targets[{i}]")
+            if a.ndim != 3 or a.shape[2] != 3:
+                raise ValueError(f"targets[{i}]: shape {a.shape}, expected [height, width, 3]")
+            native_targets.append((a.tobytes(), a.shape[0], a.shape[1]))
+    progress = _Progress(iterations, quiet)
+
+    def hear(row):
+        progress.update(row)
+        if callback is not None:
+            return callback(row)
+        return True
+
+    try:
+        params, log, interrupted = scene._native.optimise(pairs, native_targets, hear, None if out_dir is None else os.fspath(out_dir), resume, overwrite)
+    finally:
+        progress.close()
+    return Result({n: _array(d, s) for n, d, s in params}, {k: np.asarray(v) for k, v in log.items()}, interrupted, out_dir)
+
+
+def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, quiet, settings):
+    """Adam on a Python loss: each iteration renders (primal_spp), calls the loss on the
+    image, and steps every parameter along the gradient of its adjoint (spp)."""
+    name = str(optimiser).split("@")[0]
+    if name != "adam":
+        raise ValueError(f"optimiser {optimiser!r}: a Python loss runs with adam (meta needs the loss's image gradient at two states, which this loop does not give yet)")
+    if targets is not None:
+        raise ValueError("targets: a Python loss holds its own targets")
+    unknown = set(settings) - {"lr", "spp", "primal_spp", "seed", "beta1", "beta2"}
+    if unknown:
+        raise ValueError(f"{sorted(unknown)}: not settings of a Python-loss run (lr, spp, primal_spp, seed, beta1, beta2)")
+    spp, primal_spp, seed = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("seed", 0))
+    beta1, beta2, eps = float(settings.get("beta1", 0.9)), float(settings.get("beta2", 0.999)), 1e-8
+    names = list(scene.params)
+    lrs, theta = {}, {}
+    for n in names:
+        init, lr = scene._native.param_start(n)
+        theta[n] = np.frombuffer(init, dtype=np.float32).reshape(scene.params.shape(n)).copy()
+        lrs[n] = float(settings.get("lr", lr if lr is not None else 0.02))
+        scene.params[n] = theta[n]
+    m = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
+    v = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
+    log = {"iteration": [], "time_s": [], "loss": []}
+    progress = _Progress(iterations, quiet)
+    import time
+
+    start, interrupted = time.perf_counter(), False
+    try:
+        for it in range(1, int(iterations) + 1):
+            image = render(scene, spp=primal_spp, seed=2 * (seed * 1000003 + it))
+            value, adjoint = loss_fn(image)
+            grads = gradient(scene, adjoint, spp=spp, seed=2 * (seed * 1000003 + it) + 1)
+            for n in names:
+                g = grads[n].astype(np.float64)
+                m[n] = beta1 * m[n] + (1 - beta1) * g
+                v[n] = beta2 * v[n] + (1 - beta2) * g * g
+                step = lrs[n] * (m[n] / (1 - beta1**it)) / (np.sqrt(v[n] / (1 - beta2**it)) + eps)
+                lo, hi = scene.params.range(n)
+                theta[n] = np.clip(theta[n] - step, lo, hi).astype(np.float32)
+                scene.params[n] = theta[n]
+            row = {"iteration": it, "time_s": time.perf_counter() - start, "loss": float(value)}
+            for k in log:
+                log[k].append(row[k])
+            progress.update(row)
+            if callback is not None and callback(row) is False:
+                interrupted = True
+                break
+    finally:
+        progress.close()
+    return Result({n: theta[n] for n in names}, {k: np.asarray(c) for k, c in log.items()}, interrupted, None)
+
