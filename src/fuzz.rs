@@ -104,7 +104,9 @@ impl Fixture {
             }
             Target::Exr => crate::image::decode_exr(data, &input).map(image).map_err(|e| crate::error::one_line(&e)),
             Target::Hdr => crate::image::decode_hdr(data, &input).map(image).map_err(|e| crate::error::one_line(&e)),
-            Target::Npy => crate::npy::parse_bytes(data, &input).map(|a| assert_eq!(a.data.len(), a.shape.iter().product::<usize>())).map_err(|e| crate::error::one_line(&e)),
+            Target::Npy => crate::npy::parse_bytes(data, &input)
+                .map(|a| assert_eq!(Some(a.data.len()), a.shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d))))
+                .map_err(|e| crate::error::one_line(&e)),
         }
     }
 

@@ -120,14 +120,18 @@ fn io_error(path: &Path, e: std::io::Error) -> NpyError {
     }
 }
 
-/// The deepest nesting of brackets in the header of `.npy` bytes (after the magic and
-/// version checks); None where the header's length runs past the file.
-fn header_nesting(bytes: &[u8]) -> Option<usize> {
+/// The header text of `.npy` bytes (after the magic and version checks); None where its
+/// declared length runs past the file.
+fn header_text(bytes: &[u8]) -> Option<&[u8]> {
     let (start, len): (usize, usize) = match bytes[6] {
         1 => (10, usize::from(u16::from_le_bytes([*bytes.get(8)?, *bytes.get(9)?]))),
         _ => (12, u32::from_le_bytes(bytes.get(8..12)?.try_into().ok()?) as usize),
     };
-    let header = bytes.get(start..start.checked_add(len)?)?;
+    bytes.get(start..start.checked_add(len)?)
+}
+
+/// The deepest nesting of brackets in a header.
+fn nesting(header: &[u8]) -> usize {
     let (mut depth, mut deepest) = (0usize, 0usize);
     for &b in header {
         match b {
@@ -139,7 +143,20 @@ fn header_nesting(bytes: &[u8]) -> Option<usize> {
             _ => {}
         }
     }
-    Some(deepest)
+    deepest
+}
+
+/// The sides of the header's `'shape': (A, B, ...)`: None where the header has no `'shape'`
+/// key (npyz reports that), Some(None) where its value is not a tuple of integers.
+fn declared_shape(header: &[u8]) -> Option<Option<Vec<u64>>> {
+    let text = String::from_utf8_lossy(header);
+    let after = &text[text.find("'shape'")? + "'shape'".len()..];
+    let tuple = || -> Option<Vec<u64>> {
+        let rest = after.trim_start().strip_prefix(':')?.trim_start().strip_prefix('(')?;
+        let close = rest.find(')')?;
+        rest[..close].split(',').map(str::trim).filter(|d| !d.is_empty()).map(|d| d.parse::<u64>().ok()).collect()
+    };
+    Some(tuple())
 }
 
 /// A parse error before the path is known.
@@ -182,8 +199,20 @@ fn parse(bytes: &[u8]) -> Result<Array, Malformed> {
     }
     // npyz's header parser takes exponential time in nested brackets; a header nests two
     // deep (a dict holding the shape's tuple).
-    if let Some(depth) = header_nesting(bytes).filter(|&d| d > 2) {
-        return Err(Malformed::Header(format!("the header nests brackets {depth} deep (a .npy header nests 2)")));
+    if let Some(header) = header_text(bytes) {
+        let depth = nesting(header);
+        if depth > 2 {
+            return Err(Malformed::Header(format!("the header nests brackets {depth} deep (a .npy header nests 2)")));
+        }
+        // npyz multiplies the shape's sides unchecked, in any order (and evaluates arithmetic
+        // in them): their product without the zeros must fit.
+        match declared_shape(header) {
+            Some(Some(shape)) if shape.iter().try_fold(4u64, |acc, &d| acc.checked_mul(d.max(1))).is_none() => {
+                return Err(Malformed::Shape(shape.iter().map(|&d| usize::try_from(d).unwrap_or(usize::MAX)).collect()));
+            }
+            Some(None) => return Err(Malformed::Header("the shape is not a tuple of non-negative integers".into())),
+            _ => {}
+        }
     }
     let npy = npyz::NpyFile::new(bytes).map_err(|e| match e.kind() {
         std::io::ErrorKind::UnexpectedEof => Malformed::Header("the file ends inside the header".into()),

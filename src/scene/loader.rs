@@ -46,7 +46,7 @@ const FRAMING_FOV_Y: f32 = 45.0;
 /// A camera for a glTF model without one, as model viewers frame it: looking down −z (the
 /// glTF's forward) at the centre of the meshes' bounding box, with +y up, from as far as
 /// makes the box's bounding sphere fit the film; and the line that announces it.
-fn framing_sensor(meshes: &[Mesh], film: Film) -> (Sensor, String) {
+fn framing_sensor(meshes: &[Mesh], film: Film) -> Result<(Sensor, String), String> {
     let (lo, hi) = meshes
         .iter()
         .flat_map(|m| &m.positions)
@@ -57,12 +57,14 @@ fn framing_sensor(meshes: &[Mesh], film: Film) -> (Sensor, String) {
     let half_h = (half_v.tan() * film.width as f32 / film.height as f32).atan();
     let distance = radius / half_v.min(half_h).sin();
     let origin = centre + Vec3::Z * distance;
-    let sensor = Sensor::looking_at(origin, centre, Vec3::Y, FRAMING_FOV_Y).expect("a camera looking down -z with +y up");
+    // Only a model far out of scale with its distance from the origin (1e12 away and 1e-3
+    // across) leaves no room in float32 between the camera and what it looks at.
+    let sensor = Sensor::looking_at(origin, centre, Vec3::Y, FRAMING_FOV_Y).map_err(|e| format!("no camera, and none frames the model: {e}"))?;
     let note = format!(
         "no camera: one with a {FRAMING_FOV_Y}° vertical field of view looks down -z at the model's centre ({:.3}, {:.3}, {:.3}) from {distance:.3} away, framing it",
         centre.x, centre.y, centre.z
     );
-    (sensor, note)
+    Ok((sensor, note))
 }
 
 /// State of one load: the scene file (named in errors) and where relative paths start.
@@ -244,7 +246,7 @@ impl Loader {
                 let what = if imported.source == Source::Toml { "" } else { " (the imported file has no camera)" };
                 return Err(self.invalid("sensors", &format!("at least one sensor is needed{what}")));
             }
-            let (sensor, note) = framing_sensor(&meshes, film);
+            let (sensor, note) = framing_sensor(&meshes, film).map_err(|e| self.invalid("sensors", &e))?;
             sensors.push(sensor);
             notes.push(format!("{}: {note}", self.scene.display()));
         }
@@ -282,23 +284,7 @@ impl Loader {
         };
         self.check_environment(&environment)?;
         let optimise = self.optimise(raw.optimise.unwrap_or_default(), &materials, &meshes, &lights, &environment)?;
-        for (i, mesh) in meshes.iter().enumerate() {
-            if !mesh.uvs.is_empty() {
-                continue;
-            }
-            let material = &materials[mesh.material];
-            let textured = material.is_textured() || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target.material() == Some(mesh.material));
-            let emission_textured = matches!(mesh.emission, ColorValue::Texture(_))
-                || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target == ParamTarget::Emission { mesh: i });
-            let what = if textured {
-                format!("material \"{}\" is textured", material.name)
-            } else if emission_textured {
-                "its emission is textured".to_string()
-            } else {
-                continue;
-            };
-            return Err(self.invalid(&format!("meshes.{}", mesh.name), &format!("{what} but {} has no texture coordinates", mesh.path.display())));
-        }
+        self.check_texture_coordinates(&meshes, &materials, &optimise)?;
         let mut scene = Scene {
             path: self.scene,
             source: imported.source,
@@ -325,6 +311,29 @@ impl Loader {
         scene.warnings.extend(notes);
         scene.content_hash = super::hash::content_hash(&scene);
         Ok(scene)
+    }
+
+    /// A mesh whose material is textured (or optimised as a texture), or whose emission is,
+    /// has texture coordinates.
+    fn check_texture_coordinates(&self, meshes: &[Mesh], materials: &[Material], optimise: &Optimise) -> Result<(), SceneError> {
+        for (i, mesh) in meshes.iter().enumerate() {
+            if !mesh.uvs.is_empty() {
+                continue;
+            }
+            let material = &materials[mesh.material];
+            let textured = material.is_textured() || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target.material() == Some(mesh.material));
+            let emission_textured = matches!(mesh.emission, ColorValue::Texture(_))
+                || optimise.params.iter().any(|p| !p.shape.is_constant() && p.target == ParamTarget::Emission { mesh: i });
+            let what = if textured {
+                format!("material \"{}\" is textured", material.name)
+            } else if emission_textured {
+                "its emission is textured".to_string()
+            } else {
+                continue;
+            };
+            return Err(self.invalid(&format!("meshes.{}", mesh.name), &format!("{what} but {} has no texture coordinates", mesh.path.display())));
+        }
+        Ok(())
     }
 
     /// Checks what every loader must guarantee of a mesh (the module's invariants).

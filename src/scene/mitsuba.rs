@@ -1,5 +1,16 @@
 //! Mitsuba 3 XML import (a subset, parsed with `roxmltree`).
 //!
+//! Files as Mitsuba reads them: `<include filename>` splices the included scene's children
+//! in (loops refused; errors name the included file and its line); `<path value>` adds a
+//! directory where file names are looked for (after the scene's own, before the included
+//! files'); textures, BSDFs, area emitters and samplers with an `id` may be referred to
+//! from anywhere in the file; plugin types are read case-insensitively; spectra (uniform,
+//! `wavelength:value` lists, files, `regular`, `irregular`, `blackbody`) become RGB as in
+//! Mitsuba's RGB variants ([`super::spectrum`]); a perspective sensor without `fov` has
+//! Mitsuba's 50 mm default; a missing integrator or `max_depth` is Mitsuba's unlimited
+//! depth (64 here, with a warning); `<rotate>` uses Mitsuba's arithmetic (a non-unit axis
+//! shears, with a warning); `moment` and `aov` wrappers render the integrator inside them.
+//!
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
 //! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
 //! `rr_depth`, `<integrator type="direct">` (depth 2), each's `hide_emitters`; `<sensor
@@ -122,6 +133,8 @@ struct Importer<'a, 'i> {
     /// Radiance of each top-level `<emitter type="area" id>`, for the shapes that refer
     /// to it.
     area_emitters: HashMap<String, ColorValue>,
+    /// Ids of top-level samplers (a sensor may refer to one).
+    samplers: Vec<String>,
     out: Imported,
     principled_warned: bool,
     /// A `direct` integrator's emitter samples (warned about with delta lights).
@@ -181,6 +194,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         bsdfs: HashMap::new(),
         textures: HashMap::new(),
         area_emitters: HashMap::new(),
+        samplers: Vec::new(),
         uv_maps: Vec::new(),
         out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
         principled_warned: false,
@@ -373,8 +387,9 @@ impl<'a, 'i> Importer<'a, 'i> {
         self.attr(node, name)?.ok_or_else(|| self.err(node, format!("the `{name}` attribute is missing")))
     }
 
+    /// The plugin's type, in lower case (Blender's exporter writes "Rectangle").
     fn plugin_type(&self, node: Node) -> Result<String, SceneError> {
-        self.required(node, "type")
+        Ok(self.required(node, "type")?.to_ascii_lowercase())
     }
 
     /// Removes and returns the parameter child named `name`.
@@ -680,12 +695,40 @@ impl<'a, 'i> Importer<'a, 'i> {
             let dir = self.dir.join(self.required(*n, "value")?);
             self.search.insert(self.search.len() - self.expanded.dirs.len(), dir);
         }
+        // Definitions that others refer to by id, wherever they are declared (Mitsuba
+        // resolves references over the whole file): textures, then BSDFs, then area emitters
+        // and samplers.
+        let definition = |n: &Node, tag: &str| n.tag_name().name() == tag && n.attribute("id").is_some();
+        for n in children.iter().filter(|n| definition(n, "texture")) {
+            let id = self.required(*n, "id")?;
+            let value = self.texture(*n)?;
+            self.textures.insert(id, value);
+        }
+        for n in children.iter().filter(|n| definition(n, "bsdf")) {
+            let id = self.required(*n, "id")?;
+            let index = self.bsdf(*n, &id)?;
+            self.bsdfs.insert(id, index);
+        }
+        let area: Vec<Node> =
+            children.iter().copied().filter(|n| definition(n, "emitter") && n.attribute("type").is_some_and(|t| t.eq_ignore_ascii_case("area"))).collect();
+        for n in area.iter() {
+            let id = self.required(*n, "id")?;
+            let radiance = self.area_emitter(*n)?;
+            self.area_emitters.insert(id, radiance);
+        }
+        for n in children.iter().filter(|n| definition(n, "sampler")) {
+            // The sample count is the command line's; a sensor may refer to it.
+            self.plugin_type(*n)?;
+            self.samplers.push(self.required(*n, "id")?);
+        }
         let mut shapes = 0;
         let mut lights = 0;
         let mut integrators = 0;
         for n in children {
             match n.tag_name().name() {
                 "default" | "path" => {}
+                "texture" | "bsdf" | "sampler" if n.attribute("id").is_some() => {}
+                "emitter" if area.contains(&n) => {}
                 "integrator" => {
                     integrators += 1;
                     if integrators > 1 {
@@ -694,24 +737,13 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.integrator(n)?
                 }
                 "sensor" => self.sensor(n)?,
-                "bsdf" => {
-                    let id = self.required(n, "id")?;
-                    let index = self.bsdf(n, &id)?;
-                    self.bsdfs.insert(id, index);
-                }
-                "texture" => {
-                    let id = self.required(n, "id")?;
-                    let value = self.texture(n)?;
-                    self.textures.insert(id, value);
-                }
+                "bsdf" | "texture" | "sampler" => return Err(self.err(n, "the `id` attribute is missing")),
                 "shape" => {
                     shapes += 1;
                     self.shape(n, shapes)?;
                 }
-                "emitter" if n.attribute("type") == Some("area") => {
-                    let id = self.attr(n, "id")?.ok_or_else(|| self.err(n, "an area emitter belongs inside a <shape>, or has an id that shapes refer to"))?;
-                    let radiance = self.area_emitter(n)?;
-                    self.area_emitters.insert(id, radiance);
+                "emitter" if self.plugin_type(n)? == "area" => {
+                    return Err(self.err(n, "an area emitter belongs inside a <shape>, or has an id that shapes refer to"));
                 }
                 "emitter" => {
                     lights += 1;
@@ -820,6 +852,34 @@ impl<'a, 'i> Importer<'a, 'i> {
         self.rest(&items, node)
     }
 
+    /// A sensor's field of view in degrees and the axis it is along by default: its `fov`,
+    /// or its `focal_length` (35 mm film, across the diagonal), or Mitsuba's 50 mm default;
+    /// 90 (unused) for an orthographic one.
+    fn field_of_view(&mut self, items: &mut Items<'a, 'i>, orthographic: bool) -> Result<(f32, &'static str), SceneError> {
+        Ok(match (orthographic, self.take(items, "fov"), self.take(items, "focal_length")) {
+            (true, _, _) => (90.0, "x"),
+            (false, Some(f), None) => (self.float(f)?, "x"),
+            (false, None, f) => {
+                // Mitsuba's default: a 50 mm lens on 35 mm film, across the film's diagonal.
+                let mm = match f {
+                    None => 50.0,
+                    Some(f) => {
+                        let text = self.string(f)?;
+                        text.trim()
+                            .trim_end_matches("mm")
+                            .trim()
+                            .parse::<f32>()
+                            .ok()
+                            .filter(|v| v.is_finite() && *v > 0.0)
+                            .ok_or_else(|| self.err(f, format!("focal_length \"{text}\" is not a length in mm")))?
+                    }
+                };
+                (2.0 * (36.0f32.hypot(24.0) / (2.0 * mm)).atan().to_degrees(), "diagonal")
+            }
+            (false, Some(_), Some(f)) => return Err(self.err(f, "give fov or focal_length, not both")),
+        })
+    }
+
     fn sensor(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
         let kind = self.plugin_type(node)?;
         let orthographic = match kind.as_str() {
@@ -847,28 +907,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.float(n)?;
             }
         }
-        let (fov, default_axis) = match (orthographic, self.take(&mut items, "fov"), self.take(&mut items, "focal_length")) {
-            (true, _, _) => (90.0, "x"),
-            (false, Some(f), None) => (self.float(f)?, "x"),
-            (false, None, f) => {
-                // Mitsuba's default: a 50 mm lens on 35 mm film, across the film's diagonal.
-                let mm = match f {
-                    None => 50.0,
-                    Some(f) => {
-                        let text = self.string(f)?;
-                        text.trim()
-                            .trim_end_matches("mm")
-                            .trim()
-                            .parse::<f32>()
-                            .ok()
-                            .filter(|v| v.is_finite() && *v > 0.0)
-                            .ok_or_else(|| self.err(f, format!("focal_length \"{text}\" is not a length in mm")))?
-                    }
-                };
-                (2.0 * (36.0f32.hypot(24.0) / (2.0 * mm)).atan().to_degrees(), "diagonal")
-            }
-            (false, Some(_), Some(f)) => return Err(self.err(f, "give fov or focal_length, not both")),
-        };
+        let (fov, default_axis) = self.field_of_view(&mut items, orthographic)?;
         let axis = if orthographic {
             "x".into()
         } else {
@@ -890,6 +929,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             // command line sets the sample count.
             self.plugin_type(s)?;
         }
+        items.retain(|n| !(n.tag_name().name() == "ref" && n.attribute("id").is_some_and(|id| self.samplers.iter().any(|s| s == id))));
         self.rest(&items, node)?;
         let film = *self.out.film.get_or_insert(film);
         let aspect = film.width as f32 / film.height as f32;
@@ -1367,7 +1407,22 @@ impl<'a, 'i> Importer<'a, 'i> {
         if !rough {
             return Ok((0.0, Distribution::Ggx));
         }
-        let alpha = self.take_float(items, "alpha", 0.1)?;
+        let alpha = match (self.take(items, "alpha_u"), self.take(items, "alpha_v")) {
+            (None, None) => self.take_float(items, "alpha", 0.1)?,
+            (Some(u), Some(v)) if u.tag_name().name() == "float" && v.tag_name().name() == "float" => {
+                let (au, av) = (self.float(u)?, self.float(v)?);
+                let alpha = (au * av).max(0.0).sqrt();
+                self.warn(
+                    node,
+                    format!("approximate: anisotropic roughness (alpha_u {au}, alpha_v {av}) is rendered isotropic at their geometric mean {alpha}"),
+                );
+                alpha
+            }
+            (Some(n), _) | (_, Some(n)) => {
+                return Err(self
+                    .err(n, "anisotropic roughness is supported as two <float>s alpha_u and alpha_v (rendered isotropic); textures of them are unsupported"))
+            }
+        };
         if !(0.0..=1.0).contains(&alpha) {
             return Err(self.err(node, format!("alpha {alpha} is outside [0, 1]")));
         }
@@ -1563,7 +1618,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 *self.bsdfs.get(&id).ok_or_else(|| {
                     let mut known: Vec<&str> = self.bsdfs.keys().map(String::as_str).collect();
                     known.sort();
-                    self.err(r, format!("no bsdf or area emitter with id \"{id}\" defined before it (bsdfs: {})", known.join(", ")))
+                    self.err(r, format!("no bsdf or area emitter with id \"{id}\" (bsdfs: {})", known.join(", ")))
                 })?
             }
             (None, None) => self.default_material(emitter_ref.is_some() || items.iter().any(|n| n.tag_name().name() == "emitter")),

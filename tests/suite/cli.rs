@@ -168,7 +168,7 @@ fn render_writes_exr_and_png() {
 
     // Each bad argument is one error line, and nothing new appears in the directory.
     let bad = dir.join("bad.exr");
-    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("bad.jpg"))], &["bad.jpg", ".exr or .png"]);
+    vkinverse_err(&["render", &s(&scene), "--spp", "1", "-o", &s(&dir.join("bad.jpg"))], &["bad.jpg", ".exr, .npy or .png"]);
     vkinverse_err(&["render", &s(&scene), "--spp", "0", "-o", &s(&bad)], &["--spp"]);
     vkinverse_err(&["render", &s(&scene), "--spp", "1", "--sensor", "5", "-o", &s(&bad)], &["--sensor 5", "1 sensor"]);
     vkinverse_err(&["render", &s(&scene), "--spp", "abc", "-o", &s(&bad)], &["--spp", "abc"]);

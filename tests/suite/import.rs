@@ -217,6 +217,11 @@ fn import_err(file: &str) -> String {
     }
 }
 
+/// A scene's warnings without the notice that a glTF without light is lit by a white sky.
+fn approximations(s: &Scene) -> Vec<&String> {
+    s.warnings.iter().filter(|w| !w.contains("no light: the model is lit by a uniform environment")).collect()
+}
+
 /// Asserts that `result` (case `what`) failed with a one-line message holding every needle.
 fn assert_fails(what: &str, result: Result<Scene, SceneError>, needles: &[&str]) {
     let msg = result.map(|_| ()).unwrap_err().to_string();
@@ -395,14 +400,14 @@ fn gltf_alpha_masks_are_read_rendered_and_written_back() {
     };
     let small = LoadOptions { film: Some(Film { width: 16, height: 16 }), max_depth: Some(2) };
     let masked = Scene::load_with(write("masked.gltf", &|_| {}), &small).unwrap();
-    assert!(masked.warnings.is_empty(), "{:?}", masked.warnings);
+    assert!(approximations(&masked).is_empty(), "{:?}", masked.warnings);
     let a = masked.materials[0].alpha.clone().expect("an alpha test");
     let ScalarValue::Texture(t) = &a.value else { panic!("a textured alpha: {a:?}") };
     let alphas: Vec<f32> = t.image.data.iter().map(|p| p[0]).collect();
     assert_eq!((a.mode, alphas), (AlphaMode::Mask { cutoff: 0.4 }, vec![0.0, 0.0, 0.8, 0.8]));
     let blend = Scene::load_with(write("blend.gltf", &|m| m["alphaMode"] = serde_json::json!("BLEND")), &small).unwrap();
     assert_eq!(blend.materials[0].alpha.as_ref().map(|a| a.mode), Some(AlphaMode::Blend));
-    assert!(blend.warnings.is_empty(), "{:?}", blend.warnings);
+    assert!(approximations(&blend).is_empty(), "{:?}", blend.warnings);
     // A BLEND material whose texture's alpha is 1 everywhere (common in exported assets) is
     // no test.
     vkinverse::image::write_png_with_alpha(&dir.join("solid.png"), &dark, Some(&[1.0; 4])).unwrap();
@@ -493,7 +498,7 @@ fn gltf_texture_transforms_move_the_texture_coordinates() {
     });
     let plain = Scene::load(data("textured/normal-mapped.gltf")).unwrap();
     let s = Scene::load(&moved).unwrap();
-    assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    assert!(approximations(&s).is_empty(), "{:?}", s.warnings);
     let (r, c) = (0.5f32.sin(), 0.5f32.cos());
     for (got, uv) in s.meshes[0].uvs.iter().zip(&plain.meshes[0].uvs) {
         // Back to glTF's v, transformed, and down again.
@@ -1411,7 +1416,7 @@ fn mitsuba_dielectrics_are_glass() {
             r#"<bsdf type="roughdielectric"><float name="int_ior" value="1.2"/><float name="ext_ior" value="1.2"/></bsdf>"#,
             &["int_ior equals ext_ior"][..],
         ),
-        ("anisotropic", r#"<bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/></bsdf>"#, &["alpha_u"][..]),
+        ("anisotropic", r#"<bsdf type="roughdielectric"><float name="alpha_u" value="0.1"/></bsdf>"#, &["alpha_u", "two <float>s"][..]),
         ("range", r#"<bsdf type="dielectric"><float name="int_ior" value="9"/></bsdf>"#, &["int_ior / ext_ior", "outside"][..]),
     ] {
         let e = load(name, bsdf).expect_err(name).to_string();
@@ -1462,10 +1467,10 @@ fn gltf_transmission_is_glass() {
     // What remains of white light after the distance is the colour: −ln(colour) / distance.
     let want = [0.5f32, 1.0, 0.25].map(|c| -c.ln() / 2.0);
     assert!(g.absorption.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-6), "{:?} against {want:?}", g.absorption);
-    assert!(solid.warnings.is_empty(), "{:?}", solid.warnings);
+    assert!(approximations(&solid).is_empty(), "{:?}", solid.warnings);
     let thin = load("thin.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 1.0 } })).unwrap();
     assert_eq!((thin.materials[0].kind.as_str(), thin.materials[0].ior), ("thin_dielectric", 1.5));
-    assert!(thin.warnings.is_empty(), "{:?}", thin.warnings);
+    assert!(approximations(&thin).is_empty(), "{:?}", thin.warnings);
     let rough = load("rough.gltf", &|m| {
         m["pbrMetallicRoughness"]["roughnessFactor"] = serde_json::json!(0.3);
         m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 0.7 } });
@@ -1473,7 +1478,7 @@ fn gltf_transmission_is_glass() {
     .unwrap();
     assert_eq!(rough.materials[0].kind.as_str(), "thin_dielectric");
     assert!(
-        rough.warnings.len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)),
+        approximations(&rough).len() == 1 && ["transmission 0.7", "roughness", "materials[0]"].iter().all(|n| rough.warnings[0].contains(n)),
         "{:?}",
         rough.warnings
     );
@@ -1488,7 +1493,7 @@ fn gltf_transmission_is_glass() {
     .unwrap();
     let f = &frosted.materials[0];
     assert_eq!((f.kind.as_str(), f.ior), ("rough_dielectric", 1.5));
-    assert!(matches!(f.roughness, ScalarValue::Constant(r) if r == 0.4) && frosted.warnings.is_empty(), "{f:?} {:?}", frosted.warnings);
+    assert!(matches!(f.roughness, ScalarValue::Constant(r) if r == 0.4) && approximations(&frosted).is_empty(), "{f:?} {:?}", frosted.warnings);
     let out = dir.join("out-frosted");
     write_final(&out, &frosted, &[]).unwrap();
     for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
@@ -1498,10 +1503,10 @@ fn gltf_transmission_is_glass() {
     }
     let weak = load("weak.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_transmission": { "transmissionFactor": 0.2 } })).unwrap();
     assert_eq!(weak.materials[0].kind.as_str(), "principled");
-    assert!(weak.warnings.len() == 1 && weak.warnings[0].contains("0.2"), "{:?}", weak.warnings);
+    assert!(approximations(&weak).len() == 1 && weak.warnings[0].contains("0.2"), "{:?}", weak.warnings);
     let index = load("index.gltf", &|m| m["extensions"] = serde_json::json!({ "KHR_materials_ior": { "ior": 2.0 } })).unwrap();
     // Without transmission the index is the principled model's: its dielectric reflectance.
-    assert!(index.materials[0].kind.as_str() == "principled" && index.materials[0].ior == 2.0 && index.warnings.is_empty(), "{:?}", index.warnings);
+    assert!(index.materials[0].kind.as_str() == "principled" && index.materials[0].ior == 2.0 && approximations(&index).is_empty(), "{:?}", index.warnings);
     let out = dir.join("out-index");
     write_final(&out, &index, &[]).unwrap();
     for written in [Scene::load(out.join("final/scene.toml")).unwrap(), Scene::load(out.join("final/scene.gltf")).unwrap()] {
