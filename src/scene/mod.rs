@@ -35,6 +35,7 @@ mod ply;
 mod spectrum;
 mod targets;
 pub mod write;
+mod write_xml;
 
 use std::path::Path;
 

@@ -2,7 +2,8 @@
 //! format, self-contained but for the original OBJ files of a TOML scene: imported meshes
 //! as OBJ in `meshes/`, every texture as EXR in `textures/`), and for a glTF scene (or a
 //! TOML that imports one) `scene.gltf`: the source document with the recovered factors,
-//! textures and lights written into it, its buffers and images beside it.
+//! textures and lights written into it, its buffers and images beside it; for a Mitsuba
+//! scene `scene.xml`, the source file with the recovered values ([`super::write_xml`]).
 //!
 //! In the glTF, recovered textures are PNG: base colour and emission sRGB-encoded (an
 //! emission texture divided by its peak where that is above 1, the peak going into
@@ -72,6 +73,9 @@ pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, ParamV
     image::write_bytes_atomic(&tmp.join("scene.toml"), toml.as_bytes()).map_err(|e| write_err(&tmp.join("scene.toml"), e))?;
     if let Source::Gltf(source) = &scene.source {
         write_gltf(&tmp, source, &recovered, values)?;
+    }
+    if let Source::Mitsuba(source) = &scene.source {
+        super::write_xml::write_mitsuba(&tmp, source, &recovered, values)?;
     }
     let dst = out_dir.join("final");
     let old = out_dir.join("final.old");
