@@ -179,9 +179,9 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
         }
         let range = node.range();
         let whole = &text[range.clone()];
-        if whole.ends_with("/>") {
+        if let Some(open) = whole.strip_suffix("/>") {
             let tag = node.tag_name().name();
-            edits.push((range.clone(), format!("{}>{insert}</{tag}>", whole[..whole.len() - 2].trim_end())));
+            edits.push((range.clone(), format!("{}>{insert}</{tag}>", open.trim_end())));
         } else {
             let at = range.start + whole.find('>').map_or(0, |i| i + 1);
             edits.push((at..at, insert));
