@@ -4,28 +4,16 @@ smoothness prior on the texture, differentiated through vkinverse's renderer.
     python3 examples/torch_texture.py [--iterations 150] [--film 64]
 """
 
-import argparse
-from pathlib import Path
-
-import numpy as np
 import torch
 
-import vkinverse as vk
 import vkinverse.torch as vkt
-
-ROOT = Path(__file__).resolve().parents[1]
-NAME = "materials.metal.roughness"
+from texture_fit import NAME, START, finish, report, setup
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--iterations", type=int, default=150)
-    ap.add_argument("--film", type=int, default=64)
-    args = ap.parse_args()
-    scene = vk.Scene(ROOT / "scenes/glossy/scene.toml", film=(args.film, args.film))
-    truth = np.array(scene.params[NAME])
-    target = torch.from_numpy(np.array(vk.render(scene, spp=512, seed=1)))
-    rough = torch.full(truth.shape, 0.4, requires_grad=True)
+    args, scene, truth, target = setup(__doc__.splitlines()[0])
+    target = torch.from_numpy(target)
+    rough = torch.full(truth.shape, START, requires_grad=True)
     opt = torch.optim.Adam([rough], lr=0.03)
     lo, hi = scene.params.range(NAME)
     for it in range(args.iterations):
@@ -37,12 +25,8 @@ def main():
         opt.step()
         with torch.no_grad():
             rough.clamp_(lo, hi)
-        if it % 25 == 0 or it == args.iterations - 1:
-            print(f"iteration {it}: loss {loss.item():.4g}, texture RMSE {np.sqrt(np.mean((rough.detach().numpy() - truth) ** 2)):.4f}")
-    start = np.sqrt(np.mean((0.4 - truth) ** 2))
-    end = np.sqrt(np.mean((rough.detach().numpy() - truth) ** 2))
-    print(f"roughness texture RMSE {start:.4f} -> {end:.4f}")
-    assert end < start, "the texture did not move towards the truth"
+        report(it, args.iterations, loss.item(), rough.detach().numpy(), truth)
+    finish(rough.detach().numpy(), truth)
 
 
 if __name__ == "__main__":
