@@ -95,9 +95,14 @@ impl NativeScene {
         result.map_err(error)
     }
 
-    fn scene(&self) -> PyResult<Scene> {
+    /// `f` of the renderer, with the GIL held (for what takes no GPU work).
+    fn read<T>(&self, f: impl FnOnce(&Renderer) -> T) -> PyResult<T> {
         let slot = self.renderer.lock().map_err(|_| Error::new_err("the scene is poisoned"))?;
-        Ok(slot.as_ref().ok_or_else(|| Error::new_err("the scene is in use by another thread"))?.scene().clone())
+        Ok(f(slot.as_ref().ok_or_else(|| Error::new_err("the scene is in use by another thread"))?))
+    }
+
+    fn scene(&self) -> PyResult<Scene> {
+        self.read(|r| r.scene().clone())
     }
 }
 
@@ -119,25 +124,21 @@ impl NativeScene {
 
     /// (name, shape, (lo, hi)) of every optimised parameter, in the scene's order.
     fn param_info(&self) -> PyResult<ParamInfos> {
-        let slot = self.renderer.lock().map_err(|_| Error::new_err("the scene is poisoned"))?;
-        let r = slot.as_ref().ok_or_else(|| Error::new_err("the scene is in use by another thread"))?;
-        Ok(r.params().into_iter().map(|p| (p.name, p.shape.array(), (p.range[0], p.range[1]))).collect())
+        self.read(|r| r.params().into_iter().map(|p| (p.name, p.shape.array(), (p.range[0], p.range[1]))).collect())
     }
 
     /// The value of parameter `name`: float32 bytes and its shape.
     fn get_param<'py>(&self, py: Python<'py>, name: &str) -> PyResult<(Bound<'py, PyBytes>, Vec<usize>)> {
-        let slot = self.renderer.lock().map_err(|_| Error::new_err("the scene is poisoned"))?;
-        let r = slot.as_ref().ok_or_else(|| Error::new_err("the scene is in use by another thread"))?;
-        let v = r.param(name).map_err(error)?;
+        let v = self.read(|r| r.param(name))?.map_err(error)?;
         Ok((floats(py, &v.data), v.shape.array()))
     }
 
     /// Where an optimisation of parameter `name` starts (its `init`, float32 bytes) and its
     /// own learning rate, if the scene gives one.
     fn param_start<'py>(&self, py: Python<'py>, name: &str) -> PyResult<(Bound<'py, PyBytes>, Option<f32>)> {
-        let scene = self.scene()?;
-        let p = scene.optimise.params.iter().find(|p| p.name == name).ok_or_else(|| PyValueError::new_err(format!("no parameter named '{name}'")))?;
-        Ok((floats(py, &p.init), p.lr))
+        let start = self.read(|r| r.scene().optimise.params.iter().find(|p| p.name == name).map(|p| (p.init.clone(), p.lr)))?;
+        let (init, lr) = start.ok_or_else(|| PyValueError::new_err(format!("no parameter named '{name}'")))?;
+        Ok((floats(py, &init), lr))
     }
 
     /// Sets parameter `name` to float32 `values` (its length checked, clamped to its range).
@@ -164,17 +165,15 @@ impl NativeScene {
 
     /// The film's (width, height), the number of sensors, and the warnings of loading.
     fn film(&self) -> PyResult<(u32, u32)> {
-        let s = self.scene()?;
-        Ok((s.film.width, s.film.height))
+        self.read(|r| (r.scene().film.width, r.scene().film.height))
     }
 
     fn sensor_count(&self) -> PyResult<usize> {
-        Ok(self.scene()?.sensors.len())
+        self.read(|r| r.scene().sensors.len())
     }
 
     fn warnings(&self) -> PyResult<Vec<String>> {
-        let s = self.scene()?;
-        Ok(s.warnings.iter().cloned().chain(s.render_warnings()).collect())
+        self.read(|r| r.scene().warnings.iter().cloned().chain(r.scene().render_warnings()).collect())
     }
 
     fn path(&self) -> PathBuf {

@@ -98,7 +98,7 @@ fn arr(v: &[f32]) -> toml::Value {
 }
 
 /// Writes `t` as `textures/<name>.exr` under `dir` and returns the relative path.
-fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
+pub(super) fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
     let rel = format!("textures/{}.exr", file_name(name));
     image::write_exr(&dir.join(&rel), image).map_err(|e| write_err(&dir.join(&rel), e))?;
     Ok(rel)

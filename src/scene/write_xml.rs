@@ -68,9 +68,7 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
         let pname = recovered.optimise.params.iter().find(|p| p.target == *target).map_or("param".to_string(), |p| p.name.clone());
         let texture = |image: &Image, transform: fn(f32) -> f32| -> Result<String, SceneError> {
             let data = image.data.iter().map(|p| p.map(transform)).collect();
-            let rel = format!("textures/{}.exr", super::write::file_name(&pname));
-            crate::image::write_exr(&dir.join(&rel), &Image { width: image.width, height: image.height, data }).map_err(|e| werr(&dir.join(&rel), &e))?;
-            Ok(rel)
+            super::write::exr(dir, &pname, &Image { width: image.width, height: image.height, data })
         };
         let color_xml = |name: &str, v: &ColorValue| -> Result<String, SceneError> {
             Ok(match v {
