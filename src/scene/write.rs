@@ -75,7 +75,7 @@ pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, ParamV
         write_gltf(&tmp, source, &recovered, values)?;
     }
     if let Source::Mitsuba(source) = &scene.source {
-        super::write_xml::write_mitsuba(&tmp, source, &recovered, values)?;
+        super::write_xml::write_mitsuba(&tmp, source, &recovered, values, &|name, image| exr(&tmp, name, image))?;
     }
     let dst = out_dir.join("final");
     let old = out_dir.join("final.old");
@@ -98,7 +98,7 @@ fn arr(v: &[f32]) -> toml::Value {
 }
 
 /// Writes `t` as `textures/<name>.exr` under `dir` and returns the relative path.
-pub(super) fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
+fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
     let rel = format!("textures/{}.exr", file_name(name));
     image::write_exr(&dir.join(&rel), image).map_err(|e| write_err(&dir.join(&rel), e))?;
     Ok(rel)

@@ -53,9 +53,19 @@ fn bitmap(name: &str, file: &str) -> String {
     format!(r#"<texture type="bitmap" name="{name}"><string name="filename" value="{file}"/></texture>"#)
 }
 
+/// Writes a recovered texture (its parameter's name, the image) beside the XML and returns
+/// its path relative to it.
+pub(super) type WriteTexture<'a> = &'a dyn Fn(&str, &Image) -> Result<String, SceneError>;
+
 /// Writes `dir/scene.xml` from the Mitsuba file `source` with `recovered`'s values of the
-/// optimised parameters `values` (their textures as EXR under `dir/textures/`).
-pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values: &[(ParamTarget, ParamValue)]) -> Result<(), SceneError> {
+/// optimised parameters `values`, their textures through `write_texture`.
+pub(super) fn write_mitsuba(
+    dir: &Path,
+    source: &Path,
+    recovered: &Scene,
+    values: &[(ParamTarget, ParamValue)],
+    write_texture: WriteTexture,
+) -> Result<(), SceneError> {
     let werr = |path: &Path, e: &dyn std::fmt::Display| SceneError::Write { path: path.to_path_buf(), message: e.to_string() };
     let text = crate::files::read_to_string(source).map_err(|e| werr(source, &e))?;
     let doc = Document::parse(&text).map_err(|e| werr(source, &e))?;
@@ -68,7 +78,13 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
         let pname = recovered.optimise.params.iter().find(|p| p.target == *target).map_or("param".to_string(), |p| p.name.clone());
         let texture = |image: &Image, transform: fn(f32) -> f32| -> Result<String, SceneError> {
             let data = image.data.iter().map(|p| p.map(transform)).collect();
-            super::write::exr(dir, &pname, &Image { width: image.width, height: image.height, data })
+            write_texture(&pname, &Image { width: image.width, height: image.height, data })
+        };
+        let scalar_xml = |name: &str, v: &ScalarValue, transform: fn(f32) -> f32| -> Result<String, SceneError> {
+            Ok(match v {
+                ScalarValue::Constant(x) => float(name, transform(*x)),
+                ScalarValue::Texture(t) => bitmap(name, &texture(&t.image, transform)?),
+            })
         };
         let color_xml = |name: &str, v: &ColorValue| -> Result<String, SceneError> {
             Ok(match v {
@@ -79,17 +95,10 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
         match *target {
             ParamTarget::BaseColor { material } | ParamTarget::Roughness { material } | ParamTarget::Metallic { material } => {
                 let m = &recovered.materials[material];
-                let outer = by_id("bsdf", &m.name).or_else(|| by_id("shape", &m.name).and_then(|s| s.children().find(|n| n.tag_name().name() == "bsdf")));
-                let Some(mut bsdf) = outer else {
+                let Some(bsdf) = material_bsdf(root, &m.name) else {
                     skipped.push(format!("{pname}: no <bsdf id=\"{0}\"> or <shape id=\"{0}\"> in this file", m.name));
                     continue;
                 };
-                while bsdf.attribute("type").is_some_and(|t| WRAPPERS.contains(&t.to_ascii_lowercase().as_str())) {
-                    match bsdf.children().find(|n| n.tag_name().name() == "bsdf") {
-                        Some(inner) => bsdf = inner,
-                        None => break,
-                    }
-                }
                 let kind = bsdf.attribute("type").unwrap_or_default().to_ascii_lowercase();
                 match *target {
                     ParamTarget::BaseColor { .. } => {
@@ -102,28 +111,10 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
                         };
                         found.push((bsdf, name, color_xml(name, &m.base_color)?));
                     }
-                    ParamTarget::Roughness { .. } if kind == "principled" => {
-                        let xml = match &m.roughness {
-                            ScalarValue::Constant(r) => float("roughness", *r),
-                            ScalarValue::Texture(t) => bitmap("roughness", &texture(&t.image, |x| x)?),
-                        };
-                        found.push((bsdf, "roughness", xml));
-                    }
-                    ParamTarget::Roughness { .. } if kind.starts_with("rough") => {
-                        let xml = match &m.roughness {
-                            ScalarValue::Constant(r) => float("alpha", r * r),
-                            ScalarValue::Texture(t) => bitmap("alpha", &texture(&t.image, |x| x * x)?),
-                        };
-                        found.push((bsdf, "alpha", xml));
-                    }
+                    ParamTarget::Roughness { .. } if kind == "principled" => found.push((bsdf, "roughness", scalar_xml("roughness", &m.roughness, |x| x)?)),
+                    ParamTarget::Roughness { .. } if kind.starts_with("rough") => found.push((bsdf, "alpha", scalar_xml("alpha", &m.roughness, |x| x * x)?)),
                     ParamTarget::Roughness { .. } => skipped.push(format!("{pname}: the BSDF of \"{}\" is a smooth {kind}", m.name)),
-                    _ => {
-                        let xml = match &m.metallic {
-                            ScalarValue::Constant(v) => float("metallic", *v),
-                            ScalarValue::Texture(t) => bitmap("metallic", &texture(&t.image, |x| x)?),
-                        };
-                        found.push((bsdf, "metallic", xml));
-                    }
+                    _ => found.push((bsdf, "metallic", scalar_xml("metallic", &m.metallic, |x| x)?)),
                 }
             }
             ParamTarget::Emission { mesh } => {
@@ -156,6 +147,29 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
             }
         }
     }
+    let out = edited(&text, root, found, &source_dir, &skipped);
+    let path = dir.join("scene.xml");
+    crate::image::write_bytes_atomic(&path, out.as_bytes()).map_err(|e| werr(&path, &e))
+}
+
+/// The innermost BSDF (inside its wrappers) of material `name`: a top-level `<bsdf id>`, or
+/// the inline BSDF of a `<shape id>`.
+fn material_bsdf<'a, 'i>(root: Node<'a, 'i>, name: &str) -> Option<Node<'a, 'i>> {
+    let by_id = |tag: &str| root.children().find(|n| n.is_element() && n.tag_name().name() == tag && n.attribute("id") == Some(name));
+    let mut bsdf = by_id("bsdf").or_else(|| by_id("shape").and_then(|s| s.children().find(|n| n.tag_name().name() == "bsdf")))?;
+    while bsdf.attribute("type").is_some_and(|t| WRAPPERS.contains(&t.to_ascii_lowercase().as_str())) {
+        match bsdf.children().find(|n| n.tag_name().name() == "bsdf") {
+            Some(inner) => bsdf = inner,
+            None => break,
+        }
+    }
+    Some(bsdf)
+}
+
+/// `text` (whose document's root is `root`) with each (element, parameter, XML) of `found`
+/// set (an existing parameter replaced, a missing one added), its includes and search
+/// paths absolute, `source_dir` the first search path and `skipped` in a comment.
+fn edited(text: &str, root: Node, found: Vec<(Node, &str, String)>, source_dir: &Path, skipped: &[String]) -> String {
     let mut sets: BTreeMap<usize, Sets> = BTreeMap::new();
     for (node, name, xml) in found {
         let entry = sets.entry(node.range().start).or_default();
@@ -204,10 +218,9 @@ pub(super) fn write_mitsuba(dir: &Path, source: &Path, recovered: &Scene, values
     }
     edits.push((first..first, head));
     edits.sort_by_key(|(r, _)| std::cmp::Reverse((r.start, r.end)));
-    let mut out = text.clone();
+    let mut out = text.to_string();
     for (range, with) in edits {
         out.replace_range(range, &with);
     }
-    let path = dir.join("scene.xml");
-    crate::image::write_bytes_atomic(&path, out.as_bytes()).map_err(|e| werr(&path, &e))
+    out
 }
