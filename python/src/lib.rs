@@ -231,9 +231,9 @@ impl NativeScene {
         let options = RunOptions { out_dir: out_dir.as_deref(), mode, cancel: vkinverse::Cancel::new() };
         let mut observer = PyObserver { callback, error: None, cancel: options.cancel.clone() };
         let device = self.device.clone();
-        // The GIL is held during the run: the observer calls back into Python every
-        // iteration (and checks for Ctrl-C there).
-        let outcome = vkinverse::optimise(&device, &scene, &run_settings, &options, &mut observer);
+        // The GIL is released during the run; the observer takes it for each iteration's
+        // callback (and checks for Ctrl-C there).
+        let outcome = py.allow_threads(|| vkinverse::optimise(&device, &scene, &run_settings, &options, &mut observer));
         if let Some(e) = observer.error.take() {
             return Err(e);
         }
