@@ -383,6 +383,14 @@ impl<'a, 'i> Importer<'a, 'i> {
         std::iter::once(&self.dir).chain(&self.search).map(|d| d.join(rel)).find(|p| p.exists()).unwrap_or_else(|| self.dir.join(rel))
     }
 
+    /// The file `rel` names (resolved as [`Self::resolve`] does) and its bytes; a file that
+    /// cannot be read is an error at `node`.
+    fn read_file(&self, node: Node, rel: &str) -> Result<(PathBuf, Vec<u8>), SceneError> {
+        let path = self.resolve(rel);
+        let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+        Ok((path, bytes))
+    }
+
     fn required(&self, node: Node, name: &str) -> Result<String, SceneError> {
         self.attr(node, name)?.ok_or_else(|| self.err(node, format!("the `{name}` attribute is missing")))
     }
@@ -479,18 +487,16 @@ impl<'a, 'i> Importer<'a, 'i> {
             Some("radiance" | "intensity" | "irradiance") => SpectrumKind::Radiance,
             _ => SpectrumKind::Reflectance,
         };
+        // One (wavelength, value) of an entry `whole`, split into `w` and `v`.
+        let point = |whole: &str, w: &str, v: &str| -> Result<(f32, f32), String> {
+            match (w.trim().parse::<f32>(), v.trim().parse::<f32>()) {
+                (Ok(w), Ok(v)) if w.is_finite() && v.is_finite() => Ok((w, v)),
+                _ => Err(format!("`{whole}` is not wavelength:value")),
+            }
+        };
         let pairs = |text: &str| -> Result<Vec<(f32, f32)>, String> {
-            text.split(',')
-                .map(str::trim)
-                .filter(|p| !p.is_empty())
-                .map(|p| {
-                    let (w, v) = p.split_once(':').ok_or_else(|| format!("`{p}` is not wavelength:value"))?;
-                    match (w.trim().parse::<f32>(), v.trim().parse::<f32>()) {
-                        (Ok(w), Ok(v)) if w.is_finite() && v.is_finite() => Ok((w, v)),
-                        _ => Err(format!("`{p}` is not wavelength:value")),
-                    }
-                })
-                .collect()
+            let entries = text.split(',').map(str::trim).filter(|p| !p.is_empty());
+            entries.map(|p| p.split_once(':').map_or_else(|| Err(format!("`{p}` is not wavelength:value")), |(w, v)| point(p, w, v))).collect()
         };
         let mut items = elements(node);
         let plugin = self.attr(node, "type")?;
@@ -502,16 +508,17 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             (None, Some(v), None) => pairs(&v).and_then(|p| list_to_rgb(&p, kind)),
             (None, None, Some(file)) => {
-                let path = self.resolve(&file);
-                let text = crate::files::read_to_string(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
-                let list: String = text
-                    .lines()
-                    .map(|l| l.split('#').next().unwrap_or("").trim())
-                    .filter(|l| !l.is_empty())
-                    .map(|l| l.split_whitespace().collect::<Vec<_>>().join(":"))
-                    .collect::<Vec<_>>()
-                    .join(",");
-                pairs(&list).map_err(|e| format!("{}: {e}", path.display())).and_then(|p| list_to_rgb(&p, kind))
+                let (path, bytes) = self.read_file(node, &file)?;
+                let text = String::from_utf8_lossy(&bytes);
+                // Lines of `wavelength value`, `#` starting a comment.
+                let entries = text.lines().map(|l| l.split('#').next().unwrap_or("").trim()).filter(|l| !l.is_empty());
+                let points: Result<Vec<(f32, f32)>, String> = entries
+                    .map(|l| match *l.split_whitespace().collect::<Vec<_>>() {
+                        [w, v] => point(l, w, v),
+                        _ => Err(format!("`{l}` is not wavelength:value")),
+                    })
+                    .collect();
+                points.map_err(|e| format!("{}: {e}", path.display())).and_then(|p| list_to_rgb(&p, kind))
             }
             (Some("uniform"), None, None) => {
                 let v = self.take_float(&mut items, "value", 1.0)?;
@@ -1084,8 +1091,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 Wrap::from_name(&mode).ok_or_else(|| self.err(n, format!("wrap_mode \"{mode}\" is not repeat, clamp or mirror")))?
             }
         };
-        let path = self.resolve(&file);
-        let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+        let (path, bytes) = self.read_file(node, &file)?;
         let is_linear = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("hdr"));
         let image = if is_linear {
             image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?
@@ -1522,8 +1528,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         {
             "obj" | "ply" | "serialized" => {
                 let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                let path = self.resolve(&rel);
-                let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                let (path, bytes) = self.read_file(node, &rel)?;
                 let mut face_normals = self.take_bool(&mut items, "face_normals", false)?;
                 let (p, mut n, mut t, i) = match kind.as_str() {
                     "obj" => {
@@ -1693,8 +1698,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                         return Err(self.err(node, "an environment map's to_world must be a rotation (scaling or shearing it is not supported)"));
                     }
                     let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
-                    let path = self.resolve(&rel);
-                    let bytes = crate::files::read(&path).map_err(|e| self.err(node, format!("cannot read {}: {e}", path.display())))?;
+                    let (path, bytes) = self.read_file(node, &rel)?;
                     let map = image::decode_linear(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
                     if map.width < 2 || map.height < 3 || map.find_non_finite().is_some() {
                         return Err(self.err(node, format!("{} is smaller than 2 × 3 or has non-finite pixels", path.display())));

@@ -71,7 +71,6 @@ pub(super) fn write_mitsuba(
     let doc = Document::parse(&text).map_err(|e| werr(source, &e))?;
     let root = doc.root_element();
     let source_dir = std::fs::canonicalize(source.parent().unwrap_or(Path::new("."))).map_err(|e| werr(source, &e))?;
-    let by_id = |tag: &str, id: &str| root.children().find(|n| n.is_element() && n.tag_name().name() == tag && n.attribute("id") == Some(id));
     let mut found: Vec<(Node, &str, String)> = Vec::new();
     let mut skipped = Vec::new();
     for (target, _) in values {
@@ -119,14 +118,14 @@ pub(super) fn write_mitsuba(
             }
             ParamTarget::Emission { mesh } => {
                 let mesh = &recovered.meshes[mesh];
-                match by_id("shape", &mesh.name).and_then(|s| s.children().find(|n| n.tag_name().name() == "emitter")) {
+                match by_id(root, "shape", &mesh.name).and_then(|s| s.children().find(|n| n.tag_name().name() == "emitter")) {
                     Some(e) => found.push((e, "radiance", color_xml("radiance", &mesh.emission)?)),
                     None => skipped.push(format!("{pname}: no <shape id=\"{}\"> with an <emitter> in this file", mesh.name)),
                 }
             }
             ParamTarget::LightColor { light } | ParamTarget::LightIntensity { light } => {
                 let l = &recovered.lights[light];
-                match by_id("emitter", &l.name) {
+                match by_id(root, "emitter", &l.name) {
                     Some(e) => {
                         let name = if e.attribute("type") == Some("directional") { "irradiance" } else { "intensity" };
                         found.push((e, name, rgb(name, l.color.map(|c| c * l.intensity))));
@@ -152,11 +151,16 @@ pub(super) fn write_mitsuba(
     crate::image::write_bytes_atomic(&path, out.as_bytes()).map_err(|e| werr(&path, &e))
 }
 
+/// The top-level `<tag id="id">`.
+fn by_id<'a, 'i>(root: Node<'a, 'i>, tag: &str, id: &str) -> Option<Node<'a, 'i>> {
+    root.children().find(|n| n.is_element() && n.tag_name().name() == tag && n.attribute("id") == Some(id))
+}
+
 /// The innermost BSDF (inside its wrappers) of material `name`: a top-level `<bsdf id>`, or
 /// the inline BSDF of a `<shape id>`.
 fn material_bsdf<'a, 'i>(root: Node<'a, 'i>, name: &str) -> Option<Node<'a, 'i>> {
-    let by_id = |tag: &str| root.children().find(|n| n.is_element() && n.tag_name().name() == tag && n.attribute("id") == Some(name));
-    let mut bsdf = by_id("bsdf").or_else(|| by_id("shape").and_then(|s| s.children().find(|n| n.tag_name().name() == "bsdf")))?;
+    let inline = || by_id(root, "shape", name).and_then(|s| s.children().find(|n| n.tag_name().name() == "bsdf"));
+    let mut bsdf = by_id(root, "bsdf", name).or_else(inline)?;
     while bsdf.attribute("type").is_some_and(|t| WRAPPERS.contains(&t.to_ascii_lowercase().as_str())) {
         match bsdf.children().find(|n| n.tag_name().name() == "bsdf") {
             Some(inner) => bsdf = inner,

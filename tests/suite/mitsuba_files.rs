@@ -64,6 +64,18 @@ fn spectra_are_converted_as_mitsubas_rgb_variants_do() {
     let sky = constant(&env.value).map(|v| v * env.scale);
     assert!(close(sky, [0.440534, 0.414483, 0.439763], 0.02), "{sky:?}");
     assert!(s.warnings.is_empty(), "{:?}", s.warnings);
+    // The same list from a file of `wavelength value` lines, with a comment.
+    let dir = std::env::temp_dir().join(format!("vkinverse-spectrum-file-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("flat.spd"), "# a flat radiance\n400 1\n700 1\n").unwrap();
+    let xml = std::fs::read_to_string(data("mitsuba/spectra.xml")).unwrap().replace(r#"value="400:1, 700:1""#, r#"filename="flat.spd""#);
+    std::fs::write(dir.join("s.xml"), xml).unwrap();
+    let from_file = Scene::load(dir.join("s.xml")).unwrap();
+    assert_eq!(constant(&from_file.meshes[0].emission), lamp);
+    std::fs::write(dir.join("flat.spd"), "400 1 2\n700 1\n").unwrap();
+    let msg = Scene::load(dir.join("s.xml")).map(|_| ()).unwrap_err().to_string();
+    assert!(msg.contains("flat.spd") && msg.contains("`400 1 2` is not wavelength:value"), "{msg}");
+    std::fs::remove_dir_all(&dir).unwrap();
     // A spectrum that is not one is named as such.
     let dir = std::env::temp_dir().join(format!("vkinverse-spectrum-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
