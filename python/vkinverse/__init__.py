@@ -280,6 +280,7 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     spp, primal_spp, seed = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("seed", 0))
     beta1, beta2, eps = float(settings.get("beta1", 0.9)), float(settings.get("beta2", 0.999)), 1e-8
     names = list(scene.params)
+    ranges = {n: scene.params.range(n) for n in names}
     lrs, theta = {}, {}
     for n in names:
         init, lr = scene._native.param_start(n)
@@ -303,7 +304,7 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
                 m[n] = beta1 * m[n] + (1 - beta1) * g
                 v[n] = beta2 * v[n] + (1 - beta2) * g * g
                 step = lrs[n] * (m[n] / (1 - beta1**it)) / (np.sqrt(v[n] / (1 - beta2**it)) + eps)
-                lo, hi = scene.params.range(n)
+                lo, hi = ranges[n]
                 theta[n] = np.clip(theta[n] - step, lo, hi).astype(np.float32)
                 scene.params[n] = theta[n]
             row = {"iteration": it, "time_s": time.perf_counter() - start, "loss": float(value)}
