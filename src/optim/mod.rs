@@ -508,27 +508,27 @@ impl MetaHyper {
 /// variance estimate and the raw ⟨ΔF⟩ variance of decay 0.3, with the seed's other decay and ε, each parameter
 /// group's own step norm, constant β_F and rate. Chosen
 /// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
-/// (scenes/pilot.toml, scenes/pilot2.toml), `fdvar=raw` (scenes/pilot3.toml), which lets the
+/// (experiments/pilots/pilot.toml, experiments/pilots/pilot2.toml), `fdvar=raw` (experiments/pilots/pilot3.toml), which lets the
 /// estimate average for parameters that change how paths are sampled, then Newton's rule
-/// (scenes/pilot6.toml), whose settled error relative to the best Adam has the smaller
-/// geometric mean over the six bundled scenes, and its sig and settle (scenes/pilot7.toml:
+/// (experiments/pilots/pilot6.toml), whose settled error relative to the best Adam has the smaller
+/// geometric mean over the six bundled scenes, and its sig and settle (experiments/pilots/pilot7.toml:
 /// no other setting tried was better on every scene), then the group's James–Stein factor
-/// (scenes/pilot10.toml, scenes/pilot11.toml: the smaller geometric mean over four seeds),
+/// (experiments/pilots/pilot10.toml, experiments/pilots/pilot11.toml: the smaller geometric mean over four seeds),
 /// then the carried primal image with the fresh render's weight down to 0.05
-/// (scenes/pilot14.toml, scenes/pilot15.toml: the smallest geometric mean of 0.1, 0.05, 0.02
+/// (experiments/pilots/pilot14.toml, experiments/pilots/pilot15.toml: the smallest geometric mean of 0.1, 0.05, 0.02
 /// and 0.01, two seeds), then its inverse-variance weights down to 0.01
-/// (scenes/pilot17.toml: the same geometric mean without a tuned floor, and below the best
+/// (experiments/pilots/pilot17.toml: the same geometric mean without a tuned floor, and below the best
 /// Adam on ajar), then a shorter memory of the ⟨ΔF⟩ variance, `decay_d` = 0.3
-/// (scenes/pilot28.toml, scenes/pilot29.toml: the smaller geometric mean at two seeds; the
+/// (experiments/pilots/pilot28.toml, experiments/pilots/pilot29.toml: the smaller geometric mean at two seeds; the
 /// variance of a long step's ⟨ΔF⟩ no longer holds n_eff down for tens of short steps after
 /// it), then the adjoint pass's render taken into the carried image, `carry_adjoint`, with
-/// the fresh render at 2 spp instead of 4 in the bundled scenes' settings (scenes/pilot35.toml,
-/// scenes/pilot36.toml: a smaller geometric mean at two seeds for less tracing), then each
-/// element's own James–Stein factor again (scenes/pilot47.toml, eight seeds on a GPU priced
-/// at lavapipe's cost per iteration, and scenes/pilot48.toml on lavapipe: at or below the
+/// the fresh render at 2 spp instead of 4 in the bundled scenes' settings (experiments/pilots/pilot35.toml,
+/// experiments/pilots/pilot36.toml: a smaller geometric mean at two seeds for less tracing), then each
+/// element's own James–Stein factor again (experiments/pilots/pilot47.toml, eight seeds on a GPU priced
+/// at lavapipe's cost per iteration, and experiments/pilots/pilot48.toml on lavapipe: at or below the
 /// best Adam at 3 spp on 45 of 48 scene-seeds against 35, and Adam at 64 spp's error 10×
 /// sooner on two scenes at 7 of 8 seeds against 5), then the significance by the group's
-/// size, `multiple = bonferroni` at `sig` = 1.5 (scenes/pilot62.toml, eight seeds priced at
+/// size, `multiple = bonferroni` at `sig` = 1.5 (experiments/pilots/pilot62.toml, eight seeds priced at
 /// lavapipe's cost against pilot 47's Adam runs on a GPU: the goal on 20 of 48
 /// scene-seeds against 17, the spiral at 5 of 8 against 1, settled error 0.36 of the best
 /// Adam-3's against 0.38, at or below it on 45 of 48 for both; Adam-64's error 10× sooner
