@@ -1,5 +1,5 @@
 //! Scenes from glTF 2.0 and Mitsuba 3 XML: the files under tests/data/ (written by
-//! tests/data/make_data.py) load to the same model as their TOML twin and render the same
+//! scripts/make_scenes.py) load to the same model as their TOML twin and render the same
 //! image, every unsupported feature is an error naming where it is, and the recovered
 //! scene written back as glTF and TOML loads again and renders as the parameters did.
 
