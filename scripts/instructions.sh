@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Instructions a render executes per sample per pixel, counted by valgrind (cachegrind
 # without its cache simulation): deterministic, unlike timings on a busy machine, so two
-# builds can be compared to a fraction of a per cent (docs/lavapipe.md, "Counting
+# builds can be compared to a fraction of a per cent (experiments/lavapipe-speed.md, "Counting
 # instructions instead of timing"). Two renders at SPP1 and SPP2 samples per pixel; their
 # difference over SPP2 - SPP1 leaves out start-up (shader compilation, scene upload).
 #

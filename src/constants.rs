@@ -57,7 +57,7 @@ pub const LOCAL_GRADS_CAPACITY: u32 = 32;
 
 /// Up to this many parameters, the adjoint kernels add each gradient contribution to all of
 /// the per-thread sums in an unrolled loop (the `LOCAL_GRADS_UNROLLED` specialization
-/// constant) rather than indexing them per lane; measured on lavapipe (docs/lavapipe.md).
+/// constant) rather than indexing them per lane; measured on lavapipe (experiments/lavapipe-speed.md).
 pub const LOCAL_GRADS_UNROLL_MAX: u32 = 16;
 
 /// Path vertices whose ray casts the adjoint kernels cache between a path's two replays

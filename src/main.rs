@@ -713,7 +713,7 @@ const BUFFER_BENCH_ELEMENTS: u64 = 16 << 20;
 const SCENE_BENCH_ELEMENTS: u64 = 1 << 20;
 
 /// `bench SCENE`'s default `--warm-up` on a GPU: NVIDIA's H100 and H200 idled at a few
-/// hundred MHz, and benches that started cold ran up to 6x slower (docs/gpu.md).
+/// hundred MHz, and benches that started cold ran up to 6x slower (experiments/gpu-runs.md).
 const GPU_WARM_UP_SECONDS: f64 = 2.0;
 
 fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {

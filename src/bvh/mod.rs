@@ -238,7 +238,7 @@ pub enum BvhLayout {
     /// [`BvhWideNode`]: 4-ary, kernels built with `BVH_WIDE` (suffix `_wide`).
     Wide,
     /// [`BvhCwNode`]: compressed 8-ary (Ylitie et al. 2017), kernels built with `BVH_CW8`
-    /// (suffix `_cw8`). The default: the fastest on lavapipe at 256x256 (docs/lavapipe.md,
+    /// (suffix `_cw8`). The default: the fastest on lavapipe at 256x256 (experiments/lavapipe-speed.md,
     /// `vkinverse bench SCENE --bvh-layouts`).
     #[default]
     Cw8,

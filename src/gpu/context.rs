@@ -24,7 +24,7 @@ static LOADER: OnceLock<std::result::Result<ash::Entry, String>> = OnceLock::new
 /// and `vkCreateDevice`/`vkDestroyDevice` from different threads are legal Vulkan, but the
 /// loader keeps process-global lists of instances and devices that some releases do not
 /// lock everywhere, and NVIDIA's driver crashed when one thread destroyed an instance while
-/// others created theirs (the test suite at 16 threads, `docs/gpu.md`). The validation
+/// others created theirs (the test suite at 16 threads, `experiments/gpu-runs.md`). The validation
 /// layer of Debian 12 (1.3.239) crashed in `vkCreateComputePipelines` on one device while
 /// another thread was in `vkCreateDevice` (`gpu_layer` on lavapipe, about 1 run in 30), so
 /// pipelines are made and destroyed only while no device is. Contexts are made rarely (one

@@ -507,7 +507,7 @@ impl MetaHyper {
 /// element's own James–Stein factor), the centred
 /// variance estimate and the raw ⟨ΔF⟩ variance of decay 0.3, with the seed's other decay and ε, each parameter
 /// group's own step norm, constant β_F and rate. Chosen
-/// by the pilot runs of docs/results.md: the centred estimate and the Wiener rule
+/// by the pilot runs of experiments/history.md: the centred estimate and the Wiener rule
 /// (experiments/pilots/pilot.toml, experiments/pilots/pilot2.toml), `fdvar=raw` (experiments/pilots/pilot3.toml), which lets the
 /// estimate average for parameters that change how paths are sampled, then Newton's rule
 /// (experiments/pilots/pilot6.toml), whose settled error relative to the best Adam has the smaller
