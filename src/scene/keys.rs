@@ -1,9 +1,9 @@
 //! The keys a scene file accepts, read from the loader's own serde types: a deserializer
-//! that builds each type once and records, for every struct it is asked for, the field
-//! names that serde passes to `deserialize_struct` (the names `deny_unknown_fields`
-//! checks), under the section's path (`camera` keys under `sensors`, a normal map's
-//! under `materials.normal_map`). The `[optimise]` table is read by hand
-//! ([`crate::settings::deserialize_table`]); its keys are its own keys and the run
+//! that builds each type from made-up values and records, for every struct it is asked
+//! for, the field names that serde passes to `deserialize_struct` (the names
+//! `deny_unknown_fields` checks), under the section's path (a camera's keys under
+//! `sensors`, a normal map's under `materials.normal_map`). The `[optimise]` table is read
+//! by hand ([`crate::settings::deserialize_table`]); its keys are its own keys and the run
 //! settings, the same lists its reader accepts.
 
 use std::cell::RefCell;
