@@ -194,3 +194,58 @@ fn the_minimal_scene_loads() {
     assert_eq!((scene.sensors.len(), scene.materials.len(), scene.meshes.len(), scene.lights.len()), (1, 1, 1, 1));
     assert_eq!(scene.optimise.params.len(), 1);
 }
+
+/// Every TOML example of the page is TOML, and every key in it is one the loader accepts
+/// where the example puts it. An example is a scene (`[film]`, `[[sensors]]`, `import`)
+/// where its keys are top-level keys; else its keys belong to its heading's section, or
+/// else to a section that has them all (`alpha = …` to `materials`).
+#[test]
+fn every_example_uses_accepted_keys() {
+    let accepted = scene_keys();
+    let sections: BTreeSet<&str> = accepted.iter().map(|(s, _)| s.as_str()).collect();
+    let (mut heading, mut parent, mut errors, mut examples) = ("", "", Vec::new(), 0);
+    let mut lines = DOC.lines().enumerate();
+    while let Some((i, line)) = lines.next() {
+        if line.starts_with('#') {
+            let title = line.trim_start_matches('#').trim();
+            let opened = SECTIONS.iter().find(|(h, _)| *h == title).map(|(_, s)| *s);
+            heading = opened.unwrap_or(if line.starts_with("###") { parent } else { "" });
+            if !line.starts_with("###") {
+                parent = heading;
+            }
+        }
+        if line != "```toml" {
+            continue;
+        }
+        let text: Vec<&str> = lines.by_ref().map(|(_, l)| l).take_while(|l| *l != "```").collect();
+        let table: toml::Table = toml::from_str(&text.join("\n")).unwrap_or_else(|e| panic!("{DOC_PATH}:{}: the example is not TOML: {e}", i + 1));
+        let holds = |section: &str| table.keys().all(|k| accepted.contains(&(section.to_string(), k.as_str())));
+        let section = ["", heading].into_iter().chain(sections.iter().copied()).find(|s| holds(s)).unwrap_or(heading);
+        check_keys(section, &table, &accepted, &sections, &mut |key| errors.push(format!("{DOC_PATH}:{}: the example's `{key}` is not accepted", i + 1)));
+        examples += 1;
+    }
+    assert!(errors.is_empty(), "{}", errors.join("\n"));
+    assert!(examples > 10, "{examples} examples");
+}
+
+/// Calls `bad` with every key of `table` (at `section`) that the loader does not accept
+/// there, and follows nested tables into their sections: a key's own section where there
+/// is one, else the texture reference's.
+fn check_keys(section: &str, table: &toml::Table, accepted: &BTreeSet<(String, &str)>, sections: &BTreeSet<&str>, bad: &mut dyn FnMut(String)) {
+    for (key, value) in table {
+        if !accepted.contains(&(section.to_string(), key.as_str())) {
+            bad(path(section, key));
+            continue;
+        }
+        let inner = path(section, key);
+        let own = if sections.contains(inner.as_str()) { inner.as_str() } else { TEXTURE_SECTION };
+        let tables: Vec<&toml::Table> = match value {
+            toml::Value::Table(t) => vec![t],
+            toml::Value::Array(items) => items.iter().filter_map(toml::Value::as_table).collect(),
+            _ => Vec::new(),
+        };
+        for t in tables {
+            check_keys(own, t, accepted, sections, bad);
+        }
+    }
+}
