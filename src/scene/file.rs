@@ -87,6 +87,28 @@ pub enum MaterialType {
 }
 
 impl MaterialType {
+    /// Every material type.
+    pub const ALL: [MaterialType; 7] =
+        [Self::Principled, Self::Diffuse, Self::Dielectric, Self::ThinDielectric, Self::RoughDielectric, Self::Conductor, Self::Plastic];
+
+    /// Whether a `[[materials]]` entry of this type may give `key`: the loader rejects
+    /// every other material key for the type, naming it.
+    pub fn accepts(self, key: &str) -> bool {
+        match key {
+            "name" | "type" | "base_color" => true,
+            // A plastic's roughness is its coating's (a number, never optimised).
+            "roughness" => self.has_roughness() || self == Self::Plastic,
+            "metallic" => self == Self::Principled,
+            "one_sided" | "normal_map" | "bump_map" | "alpha" | "alpha_mode" | "alpha_cutoff" => !self.is_dielectric(),
+            "ior" => self.has_ior(),
+            "absorption" => matches!(self, Self::Dielectric | Self::RoughDielectric),
+            "distribution" => self.has_distribution(),
+            "nonlinear" => self == Self::Plastic,
+            "metal" | "eta" | "k" => self == Self::Conductor,
+            _ => false,
+        }
+    }
+
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Principled => "principled",

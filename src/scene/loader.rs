@@ -525,15 +525,18 @@ impl Loader {
         for (i, m) in raw.into_iter().enumerate() {
             self.check_name(&format!("materials[{i}].name"), &m.name, &mut seen)?;
             let key = format!("materials.{}", m.name);
+            let kind = m.kind;
+            // A key this type does not take (MaterialKind::accepts, the list the format documents).
+            let refuses = |what: &str, given: bool| given && !kind.accepts(what);
             let base_color = match (m.base_color, m.kind) {
                 (Some(c), _) => self.color_value(&format!("{key}.base_color"), c)?,
                 (None, kind) if kind.is_dielectric() || kind == MaterialKind::Conductor => ColorValue::Constant([1.0; 3]),
                 (None, _) => return Err(self.invalid(&format!("{key}.base_color"), "is missing")),
             };
-            if m.ior.is_some() && !m.kind.has_ior() {
+            if refuses("ior", m.ior.is_some()) {
                 return Err(self.invalid(&format!("{key}.ior"), "is a dielectric's, a plastic's or a principled material's (type = \"dielectric\", \"thin_dielectric\", \"rough_dielectric\", \"plastic\" or \"principled\")"));
             }
-            if m.nonlinear.is_some() && m.kind != MaterialKind::Plastic {
+            if refuses("nonlinear", m.nonlinear.is_some()) {
                 return Err(self.invalid(&format!("{key}.nonlinear"), "is a plastic's (type = \"plastic\")"));
             }
             let (roughness, metallic) = match m.kind {
@@ -542,14 +545,14 @@ impl Loader {
                     self.scalar_value(&format!("{key}.metallic"), m.metallic.unwrap_or(ScalarInput::Constant(0.0)))?,
                 ),
                 MaterialKind::Diffuse => {
-                    if m.roughness.is_some() || m.metallic.is_some() {
+                    if refuses("roughness", m.roughness.is_some()) || refuses("metallic", m.metallic.is_some()) {
                         return Err(self.invalid(&key, "a diffuse material takes no roughness or metallic"));
                     }
                     (ScalarValue::Constant(1.0), ScalarValue::Constant(0.0))
                 }
                 MaterialKind::Dielectric | MaterialKind::ThinDielectric | MaterialKind::RoughDielectric => {
                     let rough = m.kind == MaterialKind::RoughDielectric;
-                    if m.metallic.is_some() || (m.roughness.is_some() && !rough) {
+                    if refuses("metallic", m.metallic.is_some()) || refuses("roughness", m.roughness.is_some()) {
                         return Err(self.invalid(
                             &key,
                             if rough {
@@ -562,7 +565,7 @@ impl Loader {
                     for (what, given) in
                         [("one_sided", m.one_sided), ("normal_map", m.normal_map.is_some()), ("bump_map", m.bump_map.is_some()), ("alpha", m.alpha.is_some())]
                     {
-                        if given {
+                        if refuses(what, given) {
                             return Err(self.invalid(&format!("{key}.{what}"), "is not supported on a dielectric"));
                         }
                     }
@@ -574,14 +577,14 @@ impl Loader {
                     (roughness, ScalarValue::Constant(0.0))
                 }
                 MaterialKind::Conductor => {
-                    if m.metallic.is_some() {
+                    if refuses("metallic", m.metallic.is_some()) {
                         return Err(self.invalid(&format!("{key}.metallic"), "is not a conductor's (its reflectance comes from eta and k)"));
                     }
                     let roughness = m.roughness.unwrap_or(ScalarInput::Constant(DEFAULT_MICROFACET_ROUGHNESS));
                     (self.scalar_value(&format!("{key}.roughness"), roughness)?, ScalarValue::Constant(0.0))
                 }
                 MaterialKind::Plastic => {
-                    if m.metallic.is_some() {
+                    if refuses("metallic", m.metallic.is_some()) {
                         return Err(self.invalid(&format!("{key}.metallic"), "is not a plastic's (its base is diffuse, its coating a dielectric)"));
                     }
                     let roughness = match m.roughness {
@@ -598,7 +601,7 @@ impl Loader {
             };
             let absorption = match m.absorption {
                 None => [0.0; 3],
-                Some(_) if m.kind == MaterialKind::ThinDielectric || !m.kind.is_dielectric() => {
+                Some(_) if refuses("absorption", true) => {
                     return Err(
                         self.invalid(&format!("{key}.absorption"), "is a refracting dielectric's interior (type = \"dielectric\" or \"rough_dielectric\")")
                     );
@@ -620,7 +623,7 @@ impl Loader {
             };
             let distribution = match m.distribution.as_deref() {
                 None => Distribution::Ggx,
-                Some(_) if !m.kind.has_distribution() => {
+                Some(_) if refuses("distribution", true) => {
                     return Err(self.invalid(
                         &format!("{key}.distribution"),
                         "is a rough dielectric's, a conductor's or a plastic's (type = \"rough_dielectric\", \"conductor\" or \"plastic\")",
@@ -716,12 +719,12 @@ impl Loader {
     /// "none", a perfect mirror, by default), or `eta` and `k` given together, each finite and
     /// at least 0. Zero for the other kinds, which may give none of the three.
     fn complex_ior(&self, key: &str, kind: MaterialKind, metal: Option<&str>, eta: Option<[f32; 3]>, k: Option<[f32; 3]>) -> Result<[[f32; 3]; 2], SceneError> {
-        if kind != MaterialKind::Conductor {
-            for (what, given) in [("metal", metal.is_some()), ("eta", eta.is_some()), ("k", k.is_some())] {
-                if given {
-                    return Err(self.invalid(&format!("{key}.{what}"), "is a conductor's (type = \"conductor\")"));
-                }
+        for (what, given) in [("metal", metal.is_some()), ("eta", eta.is_some()), ("k", k.is_some())] {
+            if given && !kind.accepts(what) {
+                return Err(self.invalid(&format!("{key}.{what}"), "is a conductor's (type = \"conductor\")"));
             }
+        }
+        if kind != MaterialKind::Conductor {
             return Ok([[0.0; 3]; 2]);
         }
         match (metal, eta, k) {

@@ -27,6 +27,7 @@ mod file;
 mod gltf;
 mod gltf_check;
 mod hash;
+mod keys;
 mod loader;
 mod mitsuba;
 pub mod model;
@@ -44,6 +45,7 @@ use serde::Deserialize;
 pub use crate::settings::Loss;
 pub use error::SceneError;
 pub use file::MaterialType as MaterialKind;
+pub use keys::{scene_keys, TEXTURE_SECTION};
 pub use model::*;
 
 /// Settings given outside the scene file that change what is rendered (the command line's
