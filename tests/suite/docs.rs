@@ -249,3 +249,22 @@ fn check_keys(section: &str, table: &toml::Table, accepted: &BTreeSet<(String, &
         }
     }
 }
+
+/// The README's scene, written beside the Cornell box's meshes, loads with what it says:
+/// two materials, three meshes, one parameter to recover.
+#[test]
+fn the_readme_scene_loads() {
+    let readme = include_str!("../../README.md");
+    let start = readme.find("```toml\n").expect("a TOML example in the README") + "```toml\n".len();
+    let text = &readme[start..start + readme[start..].find("```").unwrap()];
+    let dir = temp_dir("readme");
+    let meshes = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/meshes");
+    std::fs::create_dir_all(dir.join("meshes")).unwrap();
+    for name in ["left.obj", "back.obj", "light.obj"] {
+        std::fs::copy(format!("{meshes}/{name}"), dir.join("meshes").join(name)).unwrap();
+    }
+    std::fs::write(dir.join("scene.toml"), text).unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("the README's scene: {e}"));
+    assert_eq!((scene.materials.len(), scene.meshes.len(), scene.optimise.params.len()), (2, 3, 1));
+    assert_eq!(scene.optimise.params[0].target, "materials.red.base_color");
+}
