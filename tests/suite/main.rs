@@ -15,6 +15,7 @@ mod cli;
 mod compare_batch;
 mod contracts;
 mod convergence;
+mod docs;
 mod finite_difference;
 mod fuzz;
 mod gpu_layer;
