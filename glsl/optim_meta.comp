@@ -1,12 +1,11 @@
 #version 460
 // Fused meta-estimator pass over one parameter group (Balint et al. 2023): one invocation
-// per element loads its state, steps both Moment2 EMAs, Adam's second moment, the
+// per element loads its state, steps both Moment2 EMAs, the Wiener step's second moment, the
 // meta-estimate and the secant curvature, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
 // records theta_prev <- theta and clears the gradient buffers for the next iteration's
 // accumulation. Each workgroup writes the diagnostics record of its elements to
 // partials[first_partial + workgroup]; optim_diag merges them into diag[group], whose sum
-// of squared steps is the |dpi|^2 this pass reads at the next iteration (or the sum over
-// all groups' slots, global_dpi). Non-finite inputs
+// of squared steps is the |dpi|^2 this pass reads at the next iteration. Non-finite inputs
 // leave the element unchanged (step 0) and are counted in `nonfinite` (never reset here).
 
 layout(local_size_x = 256) in;
@@ -38,11 +37,6 @@ layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
 // The iteration counter (host-written before each submission): step t = iteration + 1,
 // so a recording resubmitted every iteration needs no new push constants.
 layout(set = 0, binding = 19, scalar) readonly buffer Frame { uint frame_iteration; };
-// The variance calibration's NIS EMA (MetaElem.nis; untouched with calib = 0).
-layout(set = 0, binding = 20, scalar) buffer MetaNis { float meta_nis[]; };
-// The meta-estimate's sign run (MetaElem.run).
-layout(set = 0, binding = 21, scalar) buffer MetaRun { float meta_run[]; };
-
 layout(push_constant, scalar) uniform Push {
     uint n;
     uint offset;        // first element of this parameter group in every array
@@ -54,12 +48,9 @@ layout(push_constant, scalar) uniform Push {
     float eps;
     float lo;
     float hi;
-    float beta2;
-    float grow_f;
-    uint step_rule;
+    float beta2;      // the decay of the Wiener step's normaliser v (META_BETA2)
+    uint step_rule;   // STEP_*
     uint centred;
-    uint groups;      // number of parameter groups (slots of diag)
-    uint global_dpi;  // nonzero: |dpi|^2 of all groups' steps, else of this group's
     uint sched_decay;
     uint sched_warmup;
     uint sched_horizon;
@@ -70,14 +61,6 @@ layout(push_constant, scalar) uniform Push {
     float decay_h;    // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;        // STEP_NEWTON: the significance its Newton step needs
     float settle;     // STEP_NEWTON: the Wiener step's fraction where Newton's is shorter
-    float trust;      // STEP_NEWTON: the longest step, in lr, while its direction holds
-    float persist;    // STEP_NEWTON: a sign run of persist*n_eff estimates is significant
-    float calib;      // the decay of the variance calibration's NIS EMA (0: none)
-    uint flags;       // STEP_NEWTON: META_SHRINK_GROUP (the group's James-Stein factor,
-                      // group_z2), META_CURV_LS (the secants' least-squares slope, curvature_of)
-    float curv_se;    // STEP_NEWTON, curv_ls: the slope's standard errors in quadrature
-    float curv_floor; // STEP_NEWTON: the fraction of the group's RMS curvature below which
-                      // no element's curvature is taken (curv_floor_of; 0: none)
 } pc;
 
 void main() {
@@ -91,29 +74,18 @@ void main() {
                                   pc.sched_floor, pc.sched_gamma);
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
-                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.grow_f,
-                                  pc.fd_raw != 0u, pc.decay_h, pc.sig, pc.settle, pc.trust, pc.persist,
-                                  (pc.flags & META_CURV_LS) != 0u, pc.curv_se, pc.calib,
-                                  (pc.flags & META_SHRINK_GROUP) != 0u, 0.0, 0.0);
-        // From the group's record of its previous step, where the spec asks for them.
-        if (p.shrink_group) p.group_z2 = group_z2(pc.sig, diag[pc.group]);
-        if (pc.curv_floor > 0.0) p.h_floor = curv_floor_of(pc.curv_floor, diag[pc.group]);
+                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.fd_raw != 0u,
+                                  pc.decay_h, pc.sig, pc.settle);
         MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
-                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i], meta_nis[i],
-                              meta_run[i]);
+                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i]);
         MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
                                 centred ? fd_grad_half[i] : 0.0);
         float th = theta[i];
         // theta_prev is the previous iterate for the next finite-difference pass, so it is
         // written for skipped elements too (their step is 0).
         theta_prev[i] = th;
-        Ssq dpi = diag[pc.group].step;
-        if (pc.global_dpi != 0u) {
-            dpi = Ssq(0.0, 0.0);
-            for (uint g = 0u; g < pc.groups; ++g) dpi = ssq_merge(dpi, diag[g].step);
-        }
         ElemDiag d;
-        if (meta_update(p, th, x, ssq_total(dpi), s, d)) {
+        if (meta_update(p, th, x, ssq_total(diag[pc.group].step), s, d)) {
             theta[i] = th;
             meta_mean[i] = s.mean;
             meta_sd[i] = s.sd;
@@ -125,8 +97,6 @@ void main() {
             meta_curv[i] = s.curv;
             meta_curv_w[i] = s.curv_w;
             meta_last[i] = s.last;
-            meta_nis[i] = s.nis;
-            meta_run[i] = s.run;
             rec = diag_of(d);
         } else {
             // The element did not move: the next finite difference spans no step of it.

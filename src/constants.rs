@@ -75,20 +75,9 @@ pub const LOSS_RELATIVE_L2: u32 = 2;
 /// `StepRule::code` (src/optim/mod.rs) of the meta-estimator's step rules, as the fused pass
 /// (glsl/lib/optim.glsl) numbers them: the seed's −lr·⟨F⟩_M/√V_M.
 pub const STEP_SNR: u32 = 0;
-/// Adam's normalisation of the meta-estimate.
-pub const STEP_ADAM: u32 = 1;
-/// The seed's rule bounded by lr.
-pub const STEP_BOUNDED: u32 = 2;
-/// Adam's normalisation times the estimate's Wiener gain.
-pub const STEP_WIENER: u32 = 3;
 /// Newton's step on the secant curvature of the finite-difference samples where the
 /// estimate is significant, else the Wiener step scaled down.
-pub const STEP_NEWTON: u32 = 4;
-/// Bits of the fused meta pass's `flags` (src/optim/push.rs): the group's James–Stein
-/// factor (`shrink = group`).
-pub const META_SHRINK_GROUP: u32 = 1;
-/// The secants' least-squares slope as the curvature (`curv = ls`).
-pub const META_CURV_LS: u32 = 2;
+pub const STEP_NEWTON: u32 = 1;
 
 /// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
 pub const SCHEDULE_CONSTANT: u32 = 0;

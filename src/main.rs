@@ -43,7 +43,7 @@ enum Command {
     Optimise(OptimiseArgs),
     /// Run several optimisers on one scene at equal cost and seed; plot and tabulate their
     /// error against run time.
-    #[command(after_help = format!("Optimiser specs: NAME[@KEY=VALUE]..., with NAME adam or meta and these keys:\n{}{COMPARE_HELP}", vkinverse::Spec::keys_help()))]
+    #[command(after_help = format!("Optimiser specs: NAME[@KEY=VALUE]..., with NAME adam, meta or meta-seed (the seed's configuration) and these keys (docs/optimisers.md):\n{}{COMPARE_HELP}", vkinverse::Spec::keys_help()))]
     Compare(CompareArgs),
     /// Run a list of optimisation jobs (or one shard of it) on one device, with one results
     /// table; or merge the tables of shards.
@@ -186,7 +186,7 @@ struct GradcheckArgs {
 
 #[derive(Args)]
 struct ReplayArgs {
-    /// An optimiser spec: meta or adam, with optional @KEY=VALUE hyperparameters.
+    /// An optimiser spec: meta, meta-seed or adam, with optional @KEY=VALUE hyperparameters.
     #[arg(long)]
     optimiser: String,
     #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]

@@ -394,18 +394,12 @@ fn read_checkpoint(run_dir: &RunDir, identity: &RunIdentity, settings: &RunSetti
 fn load_state(dir: &Path, engine: &Engine) -> Result<()> {
     for (b, saved) in state_buffers(engine)? {
         let path = dir.join(format!("{}.npy", file_name(b.name())));
-        // Checkpoints from before the variance calibration have no NIS EMA: it stays at
-        // its initial zero, the state of an element that has not stepped with it yet.
-        // Likewise checkpoints from before the carried image (or of a run without it) have
-        // none: its count stays 0, and the first carry takes the fresh image alone.
-        // Checkpoints from before the carried image's variance weights have no weight state:
-        // its tracked variance starts at 0 and follows the renders from the next carry on.
-        // Likewise checkpoints from before the sign run: it starts at 0.
-        let optional = b.name() == "meta nis"
-            || b.name() == "meta run"
-            || b.name() == "carry count"
-            || b.name().starts_with("carried image")
-            || b.name().starts_with("carry state");
+        // Checkpoints from before the carried image (or of a run without it) have none: its
+        // count stays 0, and the first carry takes the fresh image alone. Checkpoints from
+        // before the carried image's variance weights have no weight state: its tracked
+        // variance starts at 0 and follows the renders from the next carry on. Files of
+        // state the optimiser no longer keeps are not read.
+        let optional = b.name() == "carry count" || b.name().starts_with("carried image") || b.name().starts_with("carry state");
         if optional && !path.exists() {
             continue;
         }

@@ -262,7 +262,7 @@ macro_rules! settings {
 }
 
 settings! {
-    /// Optimiser spec `NAME[@KEY=VALUE]...`: meta or adam, with hyperparameters
+    /// Optimiser spec `NAME[@KEY=VALUE]...`: meta, meta-seed (the seed's configuration) or adam, with hyperparameters
     /// (`adam@beta1=0.5`).
     optimiser: Spec = Spec::default(), Arity::Value("SPEC");
     /// Image loss: l2, l1 or relative_l2.

@@ -30,8 +30,8 @@
 //    (Ssq, glsl/shared/optim.glsl), never as plain squares.
 //
 // Variants of the meta-estimator (src/optim/mod.rs): the step rule (STEP_*), the centred
-// variance estimate from half-sample sums, beta_F growth, and the learning-rate schedule
-// (SCHEDULE_*), a pure function of the step number.
+// variance estimate from half-sample sums, the dF variance model, and the learning-rate
+// schedule (SCHEDULE_*), a pure function of the step number.
 //
 // STEP_NEWTON's curvature is the RMS of the secants dF/dpi of the element's own steps,
 // weighted by dpi^2 (a fit of dF = h dpi); it is kept as its root and the root of its
@@ -48,9 +48,6 @@ const float PI = 3.14159265358979;
 #include "vkinverse_constants.glsl"  // STEP_*, SCHEDULE_*
 // The seed's regulariser in the alpha denominator: alpha = VF / (VF + var + 1e-30).
 const float META_ALPHA_REG = 1e-30;
-// The cap on one step's normalised innovation squared in the variance calibration (a
-// 10-sigma innovation): one wild sample cannot freeze the step rule for long.
-const float META_NIS_MAX = 100.0;
 
 bool is_finite(float x) { return !isnan(x) && !isinf(x); }
 
@@ -217,13 +214,10 @@ struct MetaElem {
     float rms_d;  // sqrt(Moment2 of <dF>/|dpi| or of its centred samples), with wsum_d
     float wsum_d; // 1 - decay_d^count of the dF Moment2's own samples
     float n_eff;  // 1/(1 - alpha_prev): effective number of averaged samples
-    float v;      // Adam's bias-corrected sqrt(v) of <F> (beta2): the normaliser of STEP_ADAM
+    float v;      // the bias-corrected sqrt(v) of <F> (beta2): the Wiener step's normaliser
     float curv;   // STEP_NEWTON: sqrt(sum w (dF/dpi)^2 / sum w), w = dpi^2, the secant curvature
-                  // (curv_ls: sum w (dF/dpi) / sum w, the least-squares slope)
     float curv_w; // sqrt(sum w), each earlier weight forgotten by decay_h per new sample
     float last;   // the element's last step theta_i - theta_{i-1}: the dpi of the next dF
-    float nis;    // the bias-corrected EMA of the normalised innovation squared (calib > 0)
-    float run;    // +k (-k) after k consecutive positive (negative) estimates (persist)
 };
 
 struct MetaParams {
@@ -235,21 +229,12 @@ struct MetaParams {
     float lo;
     float hi;
     uint step_rule; // STEP_*
-    float beta2;
+    float beta2;    // the decay of the Wiener step's normaliser v
     bool centred;   // variance EMAs of centred half-sample differences instead of squares
-    float grow_f;   // beta_F growth exponent (0: the seed's constant decay)
     bool fd_raw;    // Moment2 of dF itself instead of dF/|dpi| (then times |dpi|^2)
     float decay_h;  // STEP_NEWTON: the curvature fit's forgetting per sample
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
-    float trust;    // STEP_NEWTON: the longest step, in lr, while the direction holds (trust_reach)
-    float persist;  // STEP_NEWTON: a sign run of persist*n_eff estimates is significant (0: off)
-    bool curv_ls;   // STEP_NEWTON: the secants' least-squares slope instead of their RMS
-    float curv_se;  // STEP_NEWTON, curv_ls: the slope's standard errors added in quadrature
-    float calib;    // the decay of the NIS EMA that calibrates the step rule's variance (0: none)
-    bool shrink_group; // STEP_NEWTON: group_z2 replaces each element's (sig sd/mean)^2
-    float group_z2;    // the group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 from its previous step
-    float h_floor;     // STEP_NEWTON: the least curvature an element takes (curv_floor_of)
 };
 
 // One element's inputs: <F>, <dF> and (centred) the sums of half of their samples.
@@ -260,70 +245,9 @@ struct MetaInput {
     float df_half;
 };
 
-// Weight of the t-th sample of the <F> Moment2: the bias-corrected EMA weight, or with
-// beta_F growth min(that, (1-b)(t(1-b))^-grow), never below the running mean's 1/t.
-float f_weight(float decay, float grow, uint t) {
-    float k = ema_weight(decay, t);
-    if (grow <= 0.0) return k;
-    float tt = float(max(t, 1u));
-    float q = 1.0 - decay;
-    return max(min(k, q * pow(tt * q, -grow)), 1.0 / tt);
-}
-
 // The centred variance sample of an estimate x from the sum of half of its samples: the
 // halves A = 2 half and B = 2 (x - half) give (A - B)/2 = x - 2 half. Saturates.
 float centred_sample(float x, float half_sum) { return sat(2.0 * sat(0.5 * x - half_sum)); }
-
-// The group's (1 + sig sqrt(2/k)) |sd|^2/|mean|^2 over its k elements, from its
-// diagnostics record r of its previous step (the first step's is empty: FLT_MAX, no Newton
-// step): a chi-square test of the group's estimate against noise alone, then James-Stein's
-// factor (group_z2 in src/optim/reference.rs, which this mirrors).
-float group_z2(float sig, DiagRecord r) {
-    if (r.mean.scale == 0.0 || r.mean.sum == 0.0 || r.count <= 0.0) return FLT_MAX;
-    float q = r.sd.scale / r.mean.scale;
-    float chi = 1.0 + sig * sqrt(2.0 / r.count);
-    return sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum));
-}
-
-// The least curvature an element of a group takes: `frac` times the RMS over the group's
-// elements of the curvatures of its previous step (its diagnostics record r), 0 for frac 0
-// or an empty record. An element whose own secants say almost nothing changes (a texel
-// barely seen, whose finite differences are noise around 0) would otherwise divide its
-// noisy estimate by a near-zero curvature and take the whole lr. Mirrors curv_floor_of in
-// src/optim/reference.rs.
-float curv_floor_of(float frac, DiagRecord r) {
-    if (frac <= 0.0 || r.count <= 0.0 || r.curv.scale == 0.0) return 0.0;
-    return sat(frac * sat(r.curv.scale * sqrt(r.curv.sum / r.count)));
-}
-
-// The sign run after an estimate `mean`: one longer where it keeps the run's sign, +-1
-// where it starts a new one, 0 where it is 0; within +-RUN_MAX. Mirrors run_of in
-// src/optim/reference.rs.
-const float RUN_MAX = 1e6;
-float run_of(float run, float mean) {
-    if (mean > 0.0) return run > 0.0 ? min(run + 1.0, RUN_MAX) : 1.0;
-    if (mean < 0.0) return run < 0.0 ? max(run - 1.0, -RUN_MAX) : -1.0;
-    return 0.0;
-}
-
-// The curvature Newton's step divides by, from the fit's state `curv` (the secants' RMS, or
-// with `ls` their least-squares slope) and curv_w = sqrt(sum dpi^2): the RMS itself, or the
-// slope's positive part in quadrature with `se` standard errors sd_d/curv_w of the slope.
-// Mirrors curvature_of in src/optim/reference.rs.
-float curvature_of(bool ls, float se, float curv, float curv_w, float sd_d) {
-    if (!ls) return curv;
-    float noise = curv_w > 0.0 ? sat(se * sat(sd_d / curv_w)) : 0.0;
-    return hypot_safe(max(curv, 0.0), noise);
-}
-
-// The longest step STEP_NEWTON may take: lr, or where trust > 1 and the step keeps the
-// direction of the element's previous step `last`, twice that step's length, within
-// trust*lr. Mirrors trust_reach in src/optim/reference.rs.
-float trust_reach(float lr, float trust, float step, float last) {
-    bool holds = (step > 0.0 && last > 0.0) || (step < 0.0 && last < 0.0);
-    if (trust > 1.0 && holds) return min(max(sat(2.0 * abs(last)), lr), sat(trust * lr));
-    return lr;
-}
 
 // One meta-estimator step of one element from its inputs and the buffer's |dpi|^2 of the
 // previous step. False for a non-finite input: nothing is changed.
@@ -337,7 +261,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     // What the two Moment2 EMAs average the squares of.
     float sample_f = p.centred ? centred_sample(f, x.f_half) : f;
     float sample_d = p.centred ? centred_sample(df, x.df_half) : df;
-    float kf = f_weight(p.decay_f, p.grow_f, p.t);
+    float kf = ema_weight(p.decay_f, p.t);
     float rms_f = hypot_safe(sqrt(1.0 - kf) * s.rms_f, sqrt(kf) * sample_f);
     float k2 = ema_weight(p.beta2, p.t);
     float v = hypot_safe(sqrt(1.0 - k2) * s.v, sqrt(k2) * f);
@@ -367,24 +291,9 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float weighted = inverse_variance_weight(reg, rms_f);
     float gain = max(weighted, bound);
     float pred = sat(s.mean + df);
-
-    // The variance calibration: the fresh sample's innovation against the prediction, over
-    // the innovation's predicted standard deviation (before this sample), squared and capped
-    // at META_NIS_MAX; its EMA, where above 1, scales the variance the step rule sees. The
-    // first step has no prediction (n_eff 0).
-    float nis = s.nis;
-    if (p.calib > 0.0 && s.n_eff > 0.0) {
-        float spread = hypot_safe(s.rms_f, sd_pred);
-        float r = spread > 0.0 ? abs(sat(f - pred)) / spread : 0.0;
-        float r2 = min(r * r, META_NIS_MAX);
-        float kn = ema_weight(p.calib, p.t - 1u);
-        nis = (1.0 - kn) * s.nis + kn * r2;
-    }
     float half_diff = 0.5 * f - 0.5 * pred;
     float mean = sat(pred + gain * half_diff + gain * half_diff);
     float sd = hypot_safe((1.0 - gain) * sd_pred, gain * rms_f);
-    // The standard deviation the step rule sees.
-    float sd_step = sat(sd * sqrt(max(nis, 1.0)));
 
     // The secant curvature along the element's own last step (where dF spans it).
     float curv = s.curv;
@@ -394,53 +303,41 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
         float kw = abs(s.last) / curv_w;
         float k = kw * kw;
         float secant = sat(df / s.last);
-        curv = p.curv_ls ? sat((1.0 - k) * curv + k * secant) : hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * secant);
+        curv = hypot_safe(sqrt(1.0 - k) * curv, sqrt(k) * secant);
     }
-    float h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
-    if (h > 0.0) h = max(h, p.h_floor);
+    float h = curv;
 
     float ratio;
-    if (p.step_rule == STEP_ADAM) ratio = mean / (v + p.eps);
-    else if (p.step_rule == STEP_BOUNDED) ratio = mean / (hypot_safe(mean, sd_step) + p.eps);
-    else if (p.step_rule == STEP_WIENER || p.step_rule == STEP_NEWTON)
-        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd_step);
-    else ratio = mean / (sd_step + p.eps);
+    if (p.step_rule == STEP_NEWTON)
+        // The Wiener step: the estimate over v, shrunk by its own significance.
+        ratio = mean == 0.0 ? 0.0 : (mean / (v + p.eps)) * inverse_variance_weight(abs(mean), sd);
+    else ratio = mean / (sd + p.eps);
     float step = sat(-p.lr * ratio);
     bool newton = false;
     float n_eff = 1.0 / gain;
-    float run = run_of(s.run, mean);
-    // With the least-squares fit a secant may give no positive curvature: then no Newton
-    // step, but the settle step within lr as near an optimum.
-    if (p.step_rule == STEP_NEWTON && (h > 0.0 || (p.curv_ls && curv_w > 0.0))) {
+    if (p.step_rule == STEP_NEWTON && h > 0.0) {
         // Newton's step -mean/h shrunk by the positive-part James-Stein factor
-        // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0) or the
-        // group's, or the Wiener step times settle, whichever is longer, within |step| <= lr.
+        // 1 - (sig sd/mean)^2 (zero unless mean is sig standard deviations from 0), or the
+        // Wiener step times settle, whichever is longer, within |step| <= lr.
         float z2;
-        if (p.shrink_group) {
-            // The group's z^2 sees the element's variance calibration as sd_step does.
-            z2 = sat(p.group_z2 * max(nis, 1.0));
-        } else if (mean == 0.0) {
+        if (mean == 0.0) {
             z2 = FLT_MAX;
         } else {
-            float z = p.sig * (sd_step / abs(mean));
+            float z = p.sig * (sd / abs(mean));
             z2 = z >= 1.0 ? 1.0 : z * z;
         }
         float shrink = z2 >= 1.0 ? 0.0 : 1.0 - z2;
-        // A run of persist*n_eff estimates of one sign (persist independent estimates'
-        // worth) is significant by itself: Newton's step is then not shrunk.
-        if (p.persist > 0.0 && abs(run) >= p.persist * max(n_eff, 1.0)) shrink = 1.0;
-        float newton_step = h > 0.0 ? sat(-mean / h) * shrink : 0.0;
-        float reach = trust_reach(p.lr, p.trust, newton_step, s.last);
-        newton_step = clamp(newton_step, -reach, reach);
+        float newton_step = sat(-mean / h) * shrink;
+        newton_step = clamp(newton_step, -p.lr, p.lr);
         float settle_step = p.settle * step;
         newton = abs(newton_step) > abs(settle_step);
-        step = clamp(newton ? newton_step : settle_step, -reach, reach);
+        step = clamp(newton ? newton_step : settle_step, -p.lr, p.lr);
     }
     float next = min(max(sat(theta + step), p.lo), p.hi);
     float taken = next - theta;
     d = ElemDiag(n_eff, weighted < bound, newton, f, df, sd_d, taken, mean, sd, rms_f, h);
     theta = next;
-    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken, nis, run);
+    s = MetaElem(mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, taken);
     return true;
 }
 

@@ -221,7 +221,7 @@ def _setting_text(value):
 def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, callback=None, out_dir=None, quiet=False, resume=False, overwrite=False, **settings):
     """Recovers the scene's optimised parameters from target images.
 
-    - ``optimiser``: a spec, ``meta`` or ``adam`` with hyperparameters (``adam@beta1=0.5``).
+    - ``optimiser``: a spec, ``meta``, ``meta-seed`` or ``adam`` with hyperparameters (``adam@beta1=0.5``).
     - ``loss``: ``l2``, ``l1`` or ``relative_l2``, or a Python function ``image ->
       (value, dL/dimage)``. A Python loss runs with ``adam`` (one call per iteration, on
       that iteration's primal render).

@@ -161,8 +161,6 @@ impl GpuOptimiser {
                     "meta curv",
                     "meta curv w",
                     "meta last",
-                    "meta nis",
-                    "meta run",
                 ];
                 let meta_state: Vec<Buffer> = names.iter().map(|n| zeros(n)).collect::<gpu::Result<_>>()?;
                 state.extend(meta_state.iter().cloned());
@@ -185,14 +183,12 @@ impl GpuOptimiser {
                         ("MetaCurv", &meta_state[7]),
                         ("MetaCurvW", &meta_state[8]),
                         ("MetaLast", &meta_state[9]),
-                        ("MetaNis", &meta_state[10]),
-                        ("MetaRun", &meta_state[11]),
                         ("Diag", &diag),
                         ("DiagPartial", &partials),
                         ("NonFinite", &nonfinite),
                         ("Frame", frame),
                     ])?;
-                    let push = MetaPush::new(h, s.0, groups.len() as u32, g.lr, g.range);
+                    let push = MetaPush::new(h, s.0, g.lr, g.range);
                     passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, diag_push: diag_push(*s) });
                 }
                 (pipeline, Some(theta_prev), halves)

@@ -3,7 +3,7 @@
 //! the GLSL `Push` blocks; every dispatch checks them against the reflected SPIR-V
 //! (`crate::kernels`).
 
-use super::{AdamHyper, CurvatureFit, FdVariance, MetaHyper, Range, Schedule, Shrink, StepNorm, VarianceEstimate};
+use super::{AdamHyper, FdVariance, MetaHyper, Range, Schedule, VarianceEstimate, META_BETA2};
 use crate::gpu::push_block;
 use crate::shared;
 use bytemuck::{Pod, Zeroable};
@@ -88,8 +88,8 @@ impl AdamPush {
     }
 }
 
-/// `optim_meta.comp`'s `Push` block: 128 bytes (Vulkan's least guaranteed push-constant size). The step number comes from the `Frame`
-/// buffer (iteration + 1).
+/// `optim_meta.comp`'s `Push` block: 92 bytes (within the 128 every Vulkan device accepts).
+/// The step number comes from the `Frame` buffer (iteration + 1).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MetaPush {
@@ -103,13 +103,10 @@ pub struct MetaPush {
     pub eps: f32,
     pub lo: f32,
     pub hi: f32,
+    /// [`META_BETA2`]: the decay of the Wiener step's normaliser.
     pub beta2: f32,
-    pub grow_f: f32,
     pub step_rule: u32,
     pub centred: u32,
-    /// Number of groups; with `global_dpi` the pass reads all their steps.
-    pub groups: u32,
-    pub global_dpi: u32,
     pub sched_decay: u32,
     pub sched_warmup: u32,
     pub sched_horizon: u32,
@@ -120,18 +117,10 @@ pub struct MetaPush {
     pub decay_h: f32,
     pub sig: f32,
     pub settle: f32,
-    pub trust: f32,
-    pub persist: f32,
-    pub calib: f32,
-    /// META_SHRINK_GROUP | META_CURV_LS (src/constants.rs): two switches in one word, so
-    /// that the block stays within the 128 bytes every Vulkan device accepts.
-    pub flags: u32,
-    pub curv_se: f32,
-    pub curv_floor: f32,
 }
 
 impl MetaPush {
-    pub fn new(h: &MetaHyper, g: GroupSlots, groups: u32, lr: f64, range: Range) -> Self {
+    pub fn new(h: &MetaHyper, g: GroupSlots, lr: f64, range: Range) -> Self {
         let (lo, hi) = range_f32(range);
         let sc = SchedulePush::from(&h.schedule);
         MetaPush {
@@ -145,12 +134,9 @@ impl MetaPush {
             eps: h.eps as f32,
             lo,
             hi,
-            beta2: h.beta2 as f32,
-            grow_f: h.grow_f as f32,
+            beta2: META_BETA2 as f32,
             step_rule: h.step.code(),
             centred: u32::from(h.variance == VarianceEstimate::Centred),
-            groups,
-            global_dpi: u32::from(h.dpi == StepNorm::Global),
             sched_decay: sc.decay,
             sched_warmup: sc.warmup,
             sched_horizon: sc.horizon,
@@ -161,13 +147,6 @@ impl MetaPush {
             decay_h: h.decay_h as f32,
             sig: h.sig_for(g.n as usize) as f32,
             settle: h.settle as f32,
-            trust: h.trust as f32,
-            persist: h.persist as f32,
-            calib: h.calib as f32,
-            flags: if h.shrink == Shrink::Group { crate::constants::META_SHRINK_GROUP } else { 0 }
-                | if h.curv == CurvatureFit::Ls { crate::constants::META_CURV_LS } else { 0 },
-            curv_se: h.curv_se as f32,
-            curv_floor: h.curv_floor as f32,
         }
     }
 }
@@ -234,11 +213,8 @@ push_block!(MetaPush {
     lo,
     hi,
     beta2,
-    grow_f,
     step_rule,
     centred,
-    groups,
-    global_dpi,
     sched_decay,
     sched_warmup,
     sched_horizon,
@@ -249,11 +225,5 @@ push_block!(MetaPush {
     decay_h,
     sig,
     settle,
-    trust,
-    persist,
-    calib,
-    flags,
-    curv_se,
-    curv_floor,
 });
 push_block!(DiagPush { first, count, group });

@@ -12,7 +12,7 @@
 //! and sums of squares kept as a scale and a scaled sum, [`Ssq`], so that they cannot
 //! overflow); the meta-estimator's ‖Δπ‖² is the record's sum of squared steps.
 
-use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, StepRule, VarianceEstimate, ALPHA_REG, NIS_MAX};
+use super::{AdamHyper, MetaHyper, OptimError, Optimiser, Range, StepRule, VarianceEstimate, ALPHA_REG, META_BETA2};
 use std::fmt::Debug;
 use std::ops::{Add, Div, Mul, Neg, Sub};
 
@@ -115,19 +115,6 @@ fn inverse_variance_weight<R: Real>(s_a: R, s_b: R) -> R {
     let a = s_a / big;
     let b = s_b / big;
     a * a / (a * a + b * b)
-}
-
-/// Weight of the t-th sample of the ⟨F⟩ Moment2: the seed's bias-corrected EMA weight, or
-/// with β_F growth (`grow` > 0, supplementary A) min(that, (1−β)·(t(1−β))^−grow), never below
-/// the running mean's 1/t. Before t = 1/(1−β) the growth term exceeds the EMA weight.
-pub fn f_weight<R: Real>(decay: R, grow: R, t: u32) -> R {
-    let k = ema_weight(decay, t);
-    if grow <= R::ZERO {
-        return k;
-    }
-    let tt = R::of(t.max(1) as f64);
-    let q = R::ONE - decay;
-    k.min(q * (tt * q).powf(-grow)).max(R::ONE / tt)
 }
 
 /// The centred variance sample of an estimate from its total `x` (all samples) and `half`
@@ -480,7 +467,7 @@ pub struct MetaElem<R> {
     /// 1/(1 − α_prev): the effective number of samples averaged so far. The seed's clip
     /// α ≤ 1/(2 − α_prev) reads 1 − α ≥ 1/(1 + n_eff); n_eff = 0 is α_prev = −∞.
     pub n_eff: R,
-    /// Adam's bias-corrected √v̂ of ⟨F⟩ (β2), the normaliser of `step = adam`.
+    /// The bias-corrected √v̂ of ⟨F⟩ ([`META_BETA2`]), the normaliser of the Wiener step.
     pub v: R,
     /// The secant curvature of `step = newton`: √(Σ w·(ΔF/Δθ)²/Σ w) over the element's
     /// steps, w = Δθ², each earlier weight forgotten by `decay_h` per new secant.
@@ -489,11 +476,6 @@ pub struct MetaElem<R> {
     pub curv_w: R,
     /// The element's last step θ_i − θ_{i−1}, the Δθ of the next ⟨ΔF⟩ (0 after a skip).
     pub last: R,
-    /// The bias-corrected EMA of the normalised innovation squared (`calib` > 0).
-    pub nis: R,
-    /// The meta-estimate's run: +k (−k) after k consecutive steps with a positive
-    /// (negative) estimate, 0 after a zero one (`persist`).
-    pub run: R,
 }
 
 /// Meta's per-step parameters (the push constants of `optim_meta.comp`). `t` counts from 1;
@@ -508,29 +490,15 @@ pub struct MetaParams<R> {
     pub lo: R,
     pub hi: R,
     pub step: StepRule,
+    /// The decay of the Wiener step's normaliser √v̂ ([`META_BETA2`]).
     pub beta2: R,
     pub centred: bool,
-    pub grow_f: R,
     /// Moment2 of ⟨ΔF⟩ itself rather than of ⟨ΔF⟩/‖Δπ‖ ([`super::FdVariance::Raw`]).
     pub fd_raw: bool,
     /// `step = newton`: the curvature fit's forgetting, significance and settle fraction.
     pub decay_h: R,
     pub sig: R,
     pub settle: R,
-    pub trust: R,
-    pub persist: R,
-    /// The least-squares curvature fit ([`super::CurvatureFit::Ls`]) and its standard errors.
-    pub curv_ls: bool,
-    pub curv_se: R,
-    /// The decay of the variance calibration's NIS EMA (0: none).
-    pub calib: R,
-    /// `step = newton` with [`super::Shrink::Group`]: the group's [`group_z2`] from its
-    /// previous step, which replaces each element's (sig·sd/⟨F⟩_M)² in the James–Stein
-    /// factor; `None`: each element's own.
-    pub group_z2: Option<R>,
-    /// `step = newton`: the least curvature an element takes, [`curv_floor_of`] the group's
-    /// previous step (0: none).
-    pub h_floor: R,
 }
 
 impl<R: Real> MetaParams<R> {
@@ -546,20 +514,12 @@ impl<R: Real> MetaParams<R> {
             lo: R::of(range.lo),
             hi: R::of(range.hi),
             step: h.step,
-            beta2: R::of(h.beta2),
+            beta2: R::of(META_BETA2),
             centred: h.variance == VarianceEstimate::Centred,
-            grow_f: R::of(h.grow_f),
             fd_raw: h.fdvar == super::FdVariance::Raw,
             decay_h: R::of(h.decay_h),
             sig: R::of(h.sig_for(k)),
             settle: R::of(h.settle),
-            trust: R::of(h.trust),
-            persist: R::of(h.persist),
-            curv_ls: h.curv == super::CurvatureFit::Ls,
-            curv_se: R::of(h.curv_se),
-            calib: R::of(h.calib),
-            group_z2: None,
-            h_floor: R::ZERO,
         }
     }
 }
@@ -575,7 +535,7 @@ pub struct MetaInput<R> {
 }
 
 /// One meta-estimator step of one element (supplementary B, Moment2 + Meta, with the step
-/// rule, variance estimate and β_F growth of `p`), given the buffer's ‖Δπ‖² `dpi2` of the
+/// rule, variance estimate and ⟨ΔF⟩ variance model of `p`), given the buffer's ‖Δπ‖² `dpi2` of the
 /// previous step. Returns (θ', state', diagnostics) or `None` for a non-finite input, in
 /// which case θ and the state stay as they are.
 ///
@@ -589,7 +549,7 @@ pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: 
     let one = R::ONE;
     // What the two Moment2 EMAs average the squares of.
     let (sample_f, sample_d) = if p.centred { (centred_sample(f, x.f_half), centred_sample(df, x.df_half)) } else { (f, df) };
-    let kf = f_weight(p.decay_f, p.grow_f, p.t);
+    let kf = ema_weight(p.decay_f, p.t);
     let rms_f = hypot((one - kf).sqrt() * s.rms_f, kf.sqrt() * sample_f);
     let k2 = ema_weight(p.beta2, p.t);
     let v = hypot((one - k2).sqrt() * s.v, k2.sqrt() * f);
@@ -616,162 +576,56 @@ pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: 
     let weighted = inverse_variance_weight(reg, rms_f);
     let gain = weighted.max(bound);
     let pred = sat(s.mean + df);
-
-    // The variance calibration: the fresh sample's innovation against the prediction, over
-    // the innovation's predicted standard deviation (before this sample), squared and capped
-    // at NIS_MAX; its EMA, where above 1, scales the variance the step rule sees. The first
-    // step has no prediction (n_eff 0).
-    let mut nis = s.nis;
-    if p.calib > R::ZERO && s.n_eff > R::ZERO {
-        let spread = hypot(s.rms_f, sd_pred);
-        let r = if spread > R::ZERO { sat(f - pred).abs() / spread } else { R::ZERO };
-        let r2 = (r * r).min(R::of(NIS_MAX));
-        let kn = ema_weight(p.calib, p.t - 1);
-        nis = (one - kn) * s.nis + kn * r2;
-    }
     let half_diff = R::of(0.5) * f - R::of(0.5) * pred;
     let mean = sat(pred + gain * half_diff + gain * half_diff);
     let sd = hypot((one - gain) * sd_pred, gain * rms_f);
-    // The standard deviation the step rule sees.
-    let sd_step = sat(sd * nis.max(one).sqrt());
 
     // The secant curvature along the element's own last step (where ΔF spans it): the RMS
-    // of ΔF/Δθ weighted by Δθ² (or with curv_ls their weighted mean, the least-squares
-    // slope), each earlier weight forgotten by decay_h.
+    // of ΔF/Δθ weighted by Δθ², each earlier weight forgotten by decay_h.
     let (mut curv, mut curv_w) = (s.curv, s.curv_w);
     if dpi2 > R::ZERO && dpi2.is_finite() && s.last != R::ZERO {
         curv_w = hypot(p.decay_h.sqrt() * s.curv_w, s.last);
         let kw = s.last.abs() / curv_w;
         let k = kw * kw;
         let secant = sat(df / s.last);
-        curv = if p.curv_ls { sat((one - k) * curv + k * secant) } else { hypot((one - k).sqrt() * curv, k.sqrt() * secant) };
+        curv = hypot((one - k).sqrt() * curv, k.sqrt() * secant);
     }
-    let h = curvature_of(p.curv_ls, p.curv_se, curv, curv_w, sd_d);
-    let h = if h > R::ZERO { h.max(p.h_floor) } else { h };
+    let h = curv;
 
     let ratio = match p.step {
-        StepRule::Snr => mean / (sd_step + p.eps),
-        StepRule::Adam => mean / (v + p.eps),
-        StepRule::Bounded => mean / (hypot(mean, sd_step) + p.eps),
-        StepRule::Wiener | StepRule::Newton if mean == R::ZERO => R::ZERO,
-        StepRule::Wiener | StepRule::Newton => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd_step),
+        StepRule::Snr => mean / (sd + p.eps),
+        StepRule::Newton if mean == R::ZERO => R::ZERO,
+        // The Wiener step: the estimate over √v̂, shrunk by its own significance.
+        StepRule::Newton => (mean / (v + p.eps)) * inverse_variance_weight(mean.abs(), sd),
     };
     let mut step = sat(-p.lr * ratio);
     let mut newton = false;
     let n_eff = one / gain;
-    let run = run_of(s.run, mean);
-    // With the least-squares fit a secant may give no positive curvature: then no Newton
-    // step, but the settle step within lr as near an optimum.
-    if p.step == StepRule::Newton && (h > R::ZERO || (p.curv_ls && curv_w > R::ZERO)) {
+    if p.step == StepRule::Newton && h > R::ZERO {
         // Newton's step −mean/h shrunk by the positive-part James–Stein factor
-        // 1 − (sig·sd/mean)² (or the group's), or the Wiener step times settle, whichever is
-        // longer, within lr.
-        // The group's z² sees the element's variance calibration as sd_step does.
-        let z2 = match p.group_z2 {
-            Some(z2) => sat(z2 * nis.max(one)),
-            None if mean == R::ZERO => R::MAX,
-            None => {
-                let z = p.sig * (sd_step / mean.abs());
-                if z >= one {
-                    one
-                } else {
-                    z * z
-                }
+        // 1 − (sig·sd/mean)², or the Wiener step times settle, whichever is longer, within
+        // lr.
+        let z2 = if mean == R::ZERO {
+            R::MAX
+        } else {
+            let z = p.sig * (sd / mean.abs());
+            if z >= one {
+                one
+            } else {
+                z * z
             }
         };
         let shrink = if z2 >= one { R::ZERO } else { one - z2 };
-        // A run of persist·n_eff estimates of one sign (persist independent estimates'
-        // worth) is significant by itself: Newton's step is then not shrunk.
-        let shrink = if p.persist > R::ZERO && run.abs() >= p.persist * n_eff.max(one) { one } else { shrink };
-        let newton_step = if h > R::ZERO { sat(-mean / h) * shrink } else { R::ZERO };
-        let reach = trust_reach(p.lr, p.trust, newton_step, s.last);
-        let newton_step = newton_step.max(-reach).min(reach);
+        let newton_step = sat(-mean / h) * shrink;
+        let newton_step = newton_step.max(-p.lr).min(p.lr);
         let settle_step = p.settle * step;
         newton = newton_step.abs() > settle_step.abs();
-        step = if newton { newton_step } else { settle_step }.max(-reach).min(reach);
+        step = if newton { newton_step } else { settle_step }.max(-p.lr).min(p.lr);
     }
     let next = sat(theta + step).max(p.lo).min(p.hi);
     let taken = next - theta;
     let diag = ElemDiag { n_eff, clipped: weighted < bound, newton, f, df, sd_d, step: taken, mean, sd, sd_f: rms_f, curv: h };
-    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken, nis, run }, diag))
-}
-
-/// The curvature Newton's step divides by, from the fit's state `curv` (the RMS of the
-/// secants, or with `ls` their least-squares slope) and `curv_w` = √ΣΔθ²: the RMS itself, or
-/// the slope's positive part in quadrature with `se` standard errors sd_d/√ΣΔθ² of the slope
-/// (sd_d: the standard deviation of one ⟨ΔF⟩). Mirrored by curvature_of in
-/// glsl/lib/optim.glsl.
-pub fn curvature_of<R: Real>(ls: bool, se: R, curv: R, curv_w: R, sd_d: R) -> R {
-    if !ls {
-        return curv;
-    }
-    let noise = if curv_w > R::ZERO { sat(se * sat(sd_d / curv_w)) } else { R::ZERO };
-    hypot(curv.max(R::ZERO), noise)
-}
-
-/// The sign run after an estimate `mean`: one longer where it keeps the run's sign, ±1 where
-/// it starts a new one, 0 where it is 0; kept within ±RUN_MAX. Mirrored by run_of in
-/// glsl/lib/optim.glsl.
-pub fn run_of<R: Real>(run: R, mean: R) -> R {
-    let max = R::of(RUN_MAX);
-    if mean > R::ZERO {
-        if run > R::ZERO {
-            (run + R::ONE).min(max)
-        } else {
-            R::ONE
-        }
-    } else if mean < R::ZERO {
-        if run < R::ZERO {
-            (run - R::ONE).max(-max)
-        } else {
-            -R::ONE
-        }
-    } else {
-        R::ZERO
-    }
-}
-
-/// The longest run [`run_of`] counts (exact in f32).
-pub const RUN_MAX: f64 = 1e6;
-
-/// The longest step `step = newton` may take: lr, or where `trust` > 1 and the step keeps
-/// the direction of the element's previous step `last`, twice that step's length, within
-/// trust·lr. Mirrored by trust_reach in glsl/lib/optim.glsl.
-pub fn trust_reach<R: Real>(lr: R, trust: R, step: R, last: R) -> R {
-    let holds = (step > R::ZERO && last > R::ZERO) || (step < R::ZERO && last < R::ZERO);
-    if trust > R::ONE && holds {
-        sat(R::of(2.0) * last.abs()).max(lr).min(sat(trust * lr))
-    } else {
-        lr
-    }
-}
-
-/// What [`super::Shrink::Group`] puts in place of each element's (sig·sd/⟨F⟩_M)²: the
-/// group's (1 + sig·√(2/k))·‖sd‖²/‖⟨F⟩_M‖² over its k elements, from its diagnostics record
-/// `r` of the previous step (the first step's is empty: R::MAX, no Newton step). Where the
-/// estimate is noise alone, ‖⟨F⟩_M‖²/‖sd‖² is a χ² over k with mean 1 and standard
-/// deviation √(2/k), so the factor 1 − z² is positive only where the group stands sig
-/// standard deviations of that above noise, and is then James–Stein's. The sums' ratio is
-/// taken from their Ssq form, so that it neither overflows nor vanishes where the sums
-/// would. Mirrored by group_z2 in glsl/lib/optim.glsl.
-pub fn group_z2<R: Real>(sig: R, r: &DiagRecord<R>) -> R {
-    if r.mean.scale == R::ZERO || r.mean.sum == R::ZERO || r.count <= R::ZERO {
-        return R::MAX;
-    }
-    let q = r.sd.scale / r.mean.scale;
-    let chi = R::ONE + sig * (R::of(2.0) / r.count).sqrt();
-    sat(sat(chi * q) * q * (r.sd.sum / r.mean.sum))
-}
-
-/// The least curvature an element of a group takes ([`super::MetaHyper::curv_floor`]):
-/// `frac` times the RMS over the group's elements of the curvatures in its diagnostics record
-/// `r` of the previous step; 0 for `frac` 0 or an empty record. Mirrored by curv_floor_of
-/// in glsl/lib/optim.glsl.
-pub fn curv_floor_of<R: Real>(frac: R, r: &DiagRecord<R>) -> R {
-    if frac <= R::ZERO || r.count <= R::ZERO || r.curv.scale == R::ZERO {
-        return R::ZERO;
-    }
-    sat(frac * sat(r.curv.scale * (r.curv.sum / r.count).sqrt()))
+    Some((next, MetaElem { mean, sd, rms_f, rms_d, wsum_d, n_eff, v, curv, curv_w, last: taken }, diag))
 }
 
 /// Hyperparameters and per-element state of one parameter buffer.
@@ -827,13 +681,7 @@ impl<R: Real> BufferOptimiser<R> {
 
     /// [`Self::step`] with every input, the half-sample sums included.
     pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
-        self.step_at(theta, input, None)
-    }
-
-    /// [`Self::step_with`] with the ‖Δπ‖² of the previous step given (the global norm of a
-    /// [`GroupedOptimiser`]) instead of the buffer's own.
-    fn step_at(&mut self, theta: &mut [R], input: StepInput<R>, dpi2: Option<R>) -> Result<u64, OptimError> {
-        let dpi2_prev = dpi2.unwrap_or(self.dpi2);
+        let dpi2_prev = self.dpi2;
         let n = self.len();
         check_len("theta", n, theta.len())?;
         check_len("gradient", n, input.grad.len())?;
@@ -858,11 +706,7 @@ impl<R: Real> BufferOptimiser<R> {
             Elems::Meta(h, state) => {
                 let fd = input.fd.ok_or(OptimError::MissingFd)?;
                 check_len("finite-difference gradient", n, fd.len())?;
-                let mut p = MetaParams::<R>::new(h, n, t, self.lr, self.range);
-                if h.shrink == super::Shrink::Group {
-                    p.group_z2 = Some(group_z2(p.sig, &self.record));
-                }
-                p.h_floor = curv_floor_of(R::of(h.curv_floor), &self.record);
+                let p = MetaParams::<R>::new(h, n, t, self.lr, self.range);
                 lr_t = p.lr.to_f64();
                 let halves = if p.centred {
                     let (gh, fh) = input.grad_half.zip(input.fd_half).ok_or(OptimError::MissingHalves)?;
@@ -949,29 +793,24 @@ impl<R: Real> BufferOptimiser<R> {
 }
 
 /// The parameter groups of one θ buffer as the GPU passes run them: each group (a range of
-/// the buffer) has its own state, rate and range; with the global step norm
-/// ([`super::StepNorm::Global`]) every group's ΔF terms scale with the ‖Δπ‖² of all groups'
-/// previous steps together.
+/// the buffer) has its own state, rate and range, and its ΔF terms scale with its own
+/// previous step.
 #[derive(Clone, Debug)]
 pub struct GroupedOptimiser<R> {
     groups: Vec<(usize, BufferOptimiser<R>)>,
-    global: bool,
-    dpi2: R,
 }
 
 impl<R: Real> GroupedOptimiser<R> {
     /// `groups`: (offset, length, learning rate, range) of each group.
     pub fn new(optimiser: &Optimiser, groups: &[(usize, usize, f64, Range)]) -> Result<Self, OptimError> {
-        let global = matches!(optimiser, Optimiser::Meta(h) if h.dpi == super::StepNorm::Global);
         let groups =
             groups.iter().map(|&(offset, len, lr, range)| Ok((offset, BufferOptimiser::new(optimiser, len, lr, range)?))).collect::<Result<_, OptimError>>()?;
-        Ok(GroupedOptimiser { groups, global, dpi2: R::ZERO })
+        Ok(GroupedOptimiser { groups })
     }
 
     /// One step of every group over the whole buffer; returns the elements skipped.
     pub fn step_with(&mut self, theta: &mut [R], input: StepInput<R>) -> Result<u64, OptimError> {
         let mut skipped = 0;
-        let mut all = Ssq::default();
         for (offset, o) in &mut self.groups {
             let r = *offset..*offset + o.len();
             let input = StepInput {
@@ -980,10 +819,8 @@ impl<R: Real> GroupedOptimiser<R> {
                 grad_half: input.grad_half.map(|s| &s[r.clone()]),
                 fd_half: input.fd_half.map(|s| &s[r.clone()]),
             };
-            skipped += o.step_at(&mut theta[r.clone()], input, self.global.then_some(self.dpi2))?;
-            all = all.merge(o.record().step);
+            skipped += o.step_with(&mut theta[r.clone()], input)?;
         }
-        self.dpi2 = all.total();
         Ok(skipped)
     }
 

@@ -1,5 +1,7 @@
 //! Optimiser specs as `compare --optimisers` and job files name them:
-//! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@step=snr@var=zero`.
+//! `NAME[@KEY=VALUE]...`, e.g. `adam`, `adam@beta1=0.5@beta2=0.99`, `meta@step=snr@var=zero`,
+//! `meta-seed@decay_f=0.5`. NAME is `adam`, `meta` (the meta-estimator's defaults) or
+//! `meta-seed` (the meta-estimator in the seed's configuration, [`MetaHyper::seed`]).
 //!
 //! `@` separates the hyperparameters so that a spec holds no comma and a comma-separated
 //! list of specs splits without quoting. The keys of each optimiser are in [`ADAM_KEYS`] and
@@ -8,7 +10,7 @@
 //! [`super::schedule`]); the rest keep their defaults. The learning rate itself is a run
 //! setting (`--lr`), not a hyperparameter.
 
-use super::{AdamHyper, CarryWeight, CurvatureFit, FdVariance, MetaHyper, Multiple, OptimError, Optimiser, Shrink, StepNorm, StepRule, VarianceEstimate};
+use super::{AdamHyper, CarryWeight, FdVariance, MetaHyper, OptimError, Optimiser, StepRule, VarianceEstimate};
 use std::str::FromStr;
 
 /// An optimiser with its hyperparameters and the text that named it, which labels its
@@ -103,28 +105,17 @@ pub const ADAM_KEYS: &[Key<AdamHyper>] = &[
     number_key!(AdamHyper, eps, "added to the step's denominator"),
 ];
 
-/// The meta-estimator's keys.
+/// The meta-estimator's keys (for `meta` and `meta-seed`).
 pub const META_KEYS: &[Key<MetaHyper>] = &[
     number_key!(MetaHyper, decay_f, "decay of the EMA of the fresh gradients' second moment"),
     number_key!(MetaHyper, decay_d, "decay of the EMA of the finite differences' second moment"),
     number_key!(MetaHyper, eps, "added to the step's denominator"),
-    choice_key!(MetaHyper, "step", step, "how the estimate becomes a step", ["snr" => StepRule::Snr, "adam" => StepRule::Adam, "bounded" => StepRule::Bounded, "wiener" => StepRule::Wiener, "newton" => StepRule::Newton]),
-    number_key!(MetaHyper, beta2, "Adam's beta2, for step=adam"),
+    choice_key!(MetaHyper, "step", step, "how the estimate becomes a step", ["snr" => StepRule::Snr, "newton" => StepRule::Newton]),
     choice_key!(MetaHyper, "var", variance, "the fresh gradients' variance estimate", ["zero" => VarianceEstimate::Zero, "centred" => VarianceEstimate::Centred]),
-    number_key!(MetaHyper, grow_f, "how fast the fresh gradients' variance may grow"),
-    choice_key!(MetaHyper, "dpi", dpi, "the step length the finite differences' variance scales with", ["group" => StepNorm::Group, "global" => StepNorm::Global]),
     choice_key!(MetaHyper, "fdvar", fdvar, "the finite differences' variance model", ["scaled" => FdVariance::Scaled, "raw" => FdVariance::Raw]),
     number_key!(MetaHyper, decay_h, "step=newton: decay of each earlier secant's weight"),
-    number_key!(MetaHyper, sig, "step=newton: the significance Newton's step needs, in standard deviations"),
-    choice_key!(MetaHyper, "multiple", multiple, "step=newton: how the significance depends on the group's size", ["none" => Multiple::None, "bonferroni" => Multiple::Bonferroni]),
+    number_key!(MetaHyper, sig, "step=newton: the significance Newton's step needs, in standard deviations, for a group of one element"),
     number_key!(MetaHyper, settle, "step=newton: the fraction of the Wiener step taken where Newton's is shorter"),
-    number_key!(MetaHyper, trust, "step=newton: how far past lr a step may reach while its direction holds"),
-    number_key!(MetaHyper, persist, "step=newton: a run of one sign this many times n_eff long is significant"),
-    choice_key!(MetaHyper, "curv", curv, "step=newton: how the curvature is fitted to the secants", ["rms" => CurvatureFit::Rms, "ls" => CurvatureFit::Ls]),
-    number_key!(MetaHyper, curv_se, "curv=ls: standard errors of the slope added"),
-    number_key!(MetaHyper, curv_floor, "step=newton: the least curvature, as a fraction of the group's RMS"),
-    number_key!(MetaHyper, calib, "decay of the calibration of the estimate's variance (0: none)"),
-    choice_key!(MetaHyper, "shrink", shrink, "step=newton: the James-Stein factor of each element or of the group", ["element" => Shrink::Element, "group" => Shrink::Group]),
     number_key!(MetaHyper, carry, "the least weight of the fresh render in the carried primal image (0: none carried)"),
     choice_key!(MetaHyper, "carry_weight", carry_weight, "how the fresh render is weighed into the carried image", ["fixed" => CarryWeight::Fixed, "variance" => CarryWeight::Variance]),
     choice_key!(MetaHyper, "carry_adjoint", carry_adjoint, "mix the adjoint pass's render into the carried image", ["on" => true, "off" => false]),
@@ -150,7 +141,7 @@ pub fn help() -> String {
     }
     let mut out = String::from("  adam\n");
     lines(&mut out, ADAM_KEYS);
-    out.push_str("  meta\n");
+    out.push_str("  meta, meta-seed\n");
     lines(&mut out, META_KEYS);
     out.push_str(&format!("  both: the learning-rate schedule's keys {}\n", super::Schedule::KEYS));
     out
@@ -240,15 +231,30 @@ mod tests {
         assert_eq!(s.label, "adam@beta1=0.5@beta2=0.99");
         let m: Spec = "meta@decay_f=0.99".parse().unwrap();
         assert_eq!(m.optimiser, Optimiser::Meta(MetaHyper { decay_f: 0.99, ..Default::default() }));
-        let m: Spec = "meta@step=bounded@var=centred@grow_f=0.5@beta2=0.99@schedule=cosine@warmup=5".parse().unwrap();
+        let m: Spec = "meta@step=snr@var=centred@schedule=cosine@warmup=5".parse().unwrap();
         let Optimiser::Meta(h) = m.optimiser else { panic!() };
-        assert_eq!((h.step, h.variance, h.grow_f, h.beta2), (StepRule::Bounded, VarianceEstimate::Centred, 0.5, 0.99));
+        assert_eq!((h.step, h.variance), (StepRule::Snr, VarianceEstimate::Centred));
         assert_eq!((h.schedule.decay, h.schedule.warmup), (super::super::Decay::Cosine, 5));
         let a: Spec = "adam@schedule=step@every=50@gamma=0.3".parse().unwrap();
         assert_eq!(a.optimiser.schedule().factor(50), 0.3);
         assert_eq!("meta".parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
         let list = parse_list("meta,adam,adam@beta1=0.5").unwrap();
         assert_eq!(list.iter().map(|s| s.label.as_str()).collect::<Vec<_>>(), ["meta", "adam", "adam@beta1=0.5"]);
+    }
+
+    #[test]
+    fn meta_seed_is_the_seed_configuration() {
+        let s: Spec = "meta-seed".parse().unwrap();
+        assert_eq!((s.label.as_str(), s.optimiser), ("meta-seed", Optimiser::Meta(MetaHyper::seed())));
+        let Optimiser::Meta(h) = "meta-seed@decay_f=0.5".parse::<Spec>().unwrap().optimiser else { panic!() };
+        assert_eq!(h, MetaHyper { decay_f: 0.5, ..MetaHyper::seed() });
+        // The seed spelled out with the default's keys.
+        let spelled = "meta@step=snr@var=zero@fdvar=scaled@decay_d=0.9@sig=3@carry=0@carry_weight=fixed@carry_adjoint=off";
+        assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::seed()));
+        let list = parse_list("meta,meta-seed").unwrap();
+        assert_eq!(list.iter().map(|s| s.dir_name()).collect::<Vec<_>>(), ["meta", "meta-seed"]);
+        let msg = "meta-seed@beta1=0.5".parse::<Spec>().unwrap_err().to_string();
+        assert!(msg.contains("unknown key 'beta1' for meta-seed") && msg.contains("carry_adjoint"), "{msg}");
     }
 
     #[test]
@@ -270,6 +276,19 @@ mod tests {
     }
 
     #[test]
+    fn removed_keys_are_unknown() {
+        let msg = |s: &str| s.parse::<Spec>().unwrap_err().to_string();
+        for key in ["beta2=0.99", "grow_f=0.5", "dpi=global", "multiple=none", "trust=4", "persist=2", "curv=ls", "curv_se=3", "curv_floor=0.1", "calib=0.99", "shrink=group"] {
+            let name = key.split('=').next().unwrap();
+            let m = msg(&format!("meta@{key}"));
+            assert!(m.contains(&format!("unknown key '{name}' for meta (expected decay_f, decay_d, eps, step, var, fdvar")), "{m}");
+        }
+        for rule in ["adam", "bounded", "wiener"] {
+            assert!(msg(&format!("meta@step={rule}")).contains("expected snr or newton"), "{rule}");
+        }
+    }
+
+    #[test]
     fn errors_name_the_problem() {
         let msg = |s: &str| s.parse::<Spec>().unwrap_err().to_string();
         assert!(msg("adam@decay_f=0.5").contains("unknown key 'decay_f' for adam"), "{}", msg("adam@decay_f=0.5"));
@@ -278,31 +297,16 @@ mod tests {
         assert!(msg("adam@beta1=1.5").contains("beta1 = 1.5"));
         assert!(msg("adam@eps=1@eps=2").contains("eps given twice"));
         assert!(msg("sgd").contains("unknown optimiser 'sgd'"));
-        assert!(msg("meta@step=secant").contains("expected snr, adam, bounded, wiener or newton"));
+        assert!(msg("meta@step=secant").contains("expected snr or newton"));
         assert!(msg("meta@settle=2").contains("settle = 2"));
         assert!(msg("meta@carry=1.5").contains("carry = 1.5 is outside [0, 1]"));
         assert!(msg("adam@carry=0.1").contains("unknown key 'carry' for adam"));
         assert!(msg("meta@decay_h=1").contains("decay_h = 1"));
         assert!(msg("meta@sig=-1").contains("sig = -1"));
-        assert!(msg("meta@calib=1").contains("calib = 1 is outside [0, 1)"));
-        assert!(msg("meta@trust=0.5").contains("trust = 0.5 is outside [1, 1000]"));
-        assert!(msg("meta@persist=-1").contains("persist = -1 is outside [0, 1000]"));
-        assert!(msg("meta@curv=mean").contains("curv = 'mean' (expected rms or ls)"));
-        assert!(msg("meta@curv_se=-1").contains("curv_se = -1 is outside [0, 1000]"));
-        assert!(msg("meta@curv_floor=2").contains("curv_floor = 2 is outside [0, 1]"));
-        assert!(msg("meta@curv_floor=nan").contains("curv_floor = NaN is outside [0, 1]"));
-        let Optimiser::Meta(h) = "meta@curv_floor=0.1".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h, MetaHyper { curv_floor: 0.1, ..MetaHyper::default() });
-        let Optimiser::Meta(h) = "meta@curv=ls@curv_se=3".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h, MetaHyper { curv: crate::optim::CurvatureFit::Ls, curv_se: 3.0, ..MetaHyper::default() });
-        // The README's spelling of the defaults is the defaults.
-        let spelled = "meta@step=newton@var=centred@fdvar=raw@dpi=group@grow_f=0@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=1.5@multiple=bonferroni@settle=0.3@trust=1@persist=0@curv=rms@curv_floor=0@shrink=element@calib=0@carry=0.01@carry_weight=variance@carry_adjoint=on";
-        assert!(include_str!("../../README.md").contains(spelled));
+        // docs/optimisers.md's spelling of the defaults is the defaults.
+        let spelled = "meta@step=newton@var=centred@fdvar=raw@decay_f=0.9@decay_d=0.3@decay_h=0.9@sig=1.5@settle=0.3@carry=0.01@carry_weight=variance@carry_adjoint=on";
+        assert!(include_str!("../../docs/optimisers.md").contains(spelled));
         assert_eq!(spelled.parse::<Spec>().unwrap().optimiser, Optimiser::Meta(MetaHyper::default()));
-        let Optimiser::Meta(h) = "meta@trust=4".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h, MetaHyper { trust: 4.0, ..MetaHyper::default() });
-        let Optimiser::Meta(h) = "meta@calib=0.99".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h.calib, 0.99);
         let Optimiser::Meta(h) = "meta@step=newton@sig=2@settle=0.5@decay_h=0.8".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!((h.step, h.sig, h.settle, h.decay_h), (StepRule::Newton, 2.0, 0.5, 0.8));
         let Optimiser::Meta(h) = "meta@carry=0".parse::<Spec>().unwrap().optimiser else { panic!() };
@@ -317,17 +321,10 @@ mod tests {
         let Optimiser::Meta(h) = "meta@carry_weight=variance@carry=0.01".parse::<Spec>().unwrap().optimiser else { panic!() };
         assert_eq!((h.carry_weight, h.carry), (crate::optim::CarryWeight::Variance, 0.01));
         assert!(msg("meta@var=mad").contains("expected zero or centred"));
-        assert!(msg("meta@dpi=all").contains("expected group or global"));
         assert!(msg("meta@fdvar=log").contains("expected scaled or raw"));
-        assert!(msg("meta@shrink=all").contains("expected element or group"));
-        let Optimiser::Meta(h) = "meta@shrink=group".parse::<Spec>().unwrap().optimiser else { unreachable!() };
-        assert_eq!(h.shrink, Shrink::Group);
         let Optimiser::Meta(h) = "meta@fdvar=raw".parse::<Spec>().unwrap().optimiser else { unreachable!() };
         assert_eq!(h.fdvar, FdVariance::Raw);
-        let Optimiser::Meta(h) = "meta@dpi=global".parse::<Spec>().unwrap().optimiser else { panic!() };
-        assert_eq!(h.dpi, StepNorm::Global);
-        assert!(msg("adam@step=adam").contains("unknown key 'step' for adam"));
-        assert!(msg("meta@grow_f=2").contains("grow_f = 2"));
+        assert!(msg("adam@step=newton").contains("unknown key 'step' for adam"));
         assert!(msg("meta@schedule=cosine@floor=2").contains("floor = 2"));
         assert!(msg("adam@every=x").contains("every = 'x'"));
         assert!(parse_list("meta,,adam").unwrap_err().to_string().contains("empty entry"));

@@ -138,7 +138,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// most 1. Measured on lavapipe (a loaded 2-core machine, whose load moves the iteration
 /// counts Adam gets by meta's time between 95 and 225): 0.21, 0.36, 0.52 for seeds 1-3
 /// (0.26, 0.35, 0.33 with the earlier `decay_d=0.9`); the seed's configuration
-/// (`meta@step=snr@var=zero@dpi=group@fdvar=scaled@decay_d=0.9`, before the carried image) gave 2.7, 1.5, 2.3 and fails.
+/// (`meta-seed`, before the carried image) gave 2.7, 1.5, 2.3 and fails.
 #[test]
 fn meta_defaults_settle_at_or_below_adam_at_equal_time() {
     let scene = small_cornell();
