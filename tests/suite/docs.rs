@@ -271,12 +271,11 @@ fn the_readme_scene_loads() {
     std::fs::write(dir.join("scene.toml"), text).unwrap();
     let scene = Scene::load(dir.join("scene.toml")).unwrap_or_else(|e| panic!("the README's scene: {e}"));
     assert_eq!((scene.materials.len(), scene.meshes.len(), scene.optimise.params.len()), (2, 3, 1));
-    assert_eq!(scene.optimise.params[0].target, "materials.red.base_color");
+    assert_eq!(scene.optimise.params[0].name, "materials.red.base_color");
 }
 
 // What the documentation and the bundled files promise, against the code: the spec key
 // table of docs/optimisers.md, and the job files and scenes that are read as they are.
-
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
