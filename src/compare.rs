@@ -215,7 +215,10 @@ pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], 
     crate::optim::csv::plot(&path, &format!("{}: optimiser diagnostics", comparison.scene), &runs)
         .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let dirs: Vec<std::path::PathBuf> = specs.iter().map(|s| out_dir.join(s.dir_name())).collect();
-    crate::preview::write_finals(out_dir, scene.sensors.len(), &dirs.iter().map(|d| d.as_path()).collect::<Vec<_>>())?;
+    if let Some(missing) = crate::preview::write_finals(out_dir, scene.sensors.len(), &dirs.iter().map(|d| d.as_path()).collect::<Vec<_>>())? {
+        observer
+            .warning(&format!("finals.png not written: {} is missing (a run from before runs wrote their pictures; --overwrite reruns it)", missing.display()));
+    }
     Ok(comparison)
 }
 

@@ -22,7 +22,7 @@
 
 use crate::error::{Error, Result};
 use crate::image::{read_exr, write_exr, write_panels, Image};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 pub use crate::image::{difference_over_mean, PANEL_GAP};
 
@@ -73,16 +73,23 @@ pub fn write_run_pictures(dir: &Path, targets: &[Image], starts: &[Image], final
 
 /// Writes a comparison's `finals.png` (`finals-K.png` per sensor of several) into
 /// `out_dir`: the target, then the final image of each run in `runs` (their directories,
-/// in order), read from the runs' EXRs.
-pub fn write_finals(out_dir: &Path, sensors: usize, runs: &[&Path]) -> Result<()> {
-    let Some(first) = runs.first() else { return Ok(()) };
+/// in order), read from the runs' EXRs. Where a run lacks one of them (a run finished
+/// before runs wrote their pictures, read back by a resume) nothing is written and the
+/// missing file is returned.
+pub fn write_finals(out_dir: &Path, sensors: usize, runs: &[&Path]) -> Result<Option<PathBuf>> {
+    let Some(first) = runs.first() else { return Ok(None) };
+    let targets = (0..sensors).map(|k| first.join(sensor_file("target", "exr", k, sensors)));
+    let finals = runs.iter().flat_map(|r| (0..sensors).map(move |k| r.join(sensor_file("final", "exr", k, sensors))));
+    if let Some(missing) = targets.chain(finals).find(|p| !p.exists()) {
+        return Ok(Some(missing));
+    }
     for k in 0..sensors {
         let target = read_exr(&first.join(sensor_file("target", "exr", k, sensors)))?;
         let finals: Vec<Image> = runs.iter().map(|r| read_exr(&r.join(sensor_file("final", "exr", k, sensors)))).collect::<std::result::Result<_, _>>()?;
         let panels: Vec<&Image> = std::iter::once(&target).chain(&finals).collect();
         write_panels(&out_dir.join(sensor_file(FINALS, "png", k, sensors)), &panels)?;
     }
-    Ok(())
+    Ok(None)
 }
 
 #[cfg(test)]

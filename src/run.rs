@@ -9,9 +9,8 @@
 //!
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
 //! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, the
-//! per-sensor pictures `target.exr`, `start.exr` and `preview.png` (target | start | final
-//! | difference; `crate::preview`, which also says how a scene of several sensors names
-//! them), the
+//! per-sensor pictures `target.exr`, `start.exr` and `preview.png` (target | start |
+//! final | difference; `crate::preview`, which also names them for several sensors), the
 //! optimiser's diagnostics of every iteration and parameter group (`optimiser.csv`, reduced
 //! on the GPU, and their plot `optimiser.png`; `optim::csv`), and the
 //! recovered scene in `final/` (`crate::scene::write`). The

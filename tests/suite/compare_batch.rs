@@ -143,6 +143,14 @@ fn compare_two_optimisers() {
     let adam = read_exr(&out.join("adam@beta1=0.5/final.exr")).unwrap();
     assert_eq!(read_exr(&out.join("adam@beta1=0.5/target.exr")).unwrap(), meta[0].0, "the runs share their target");
     assert_panels(&out.join("finals.png"), &[meta[0].0.clone(), meta[0].2.clone(), adam]);
+    // A finished run without its pictures (one from before runs wrote them), read back by a
+    // resume: no finals.png, and a warning naming the missing file.
+    std::fs::remove_file(out.join("adam@beta1=0.5/final.exr")).unwrap();
+    std::fs::remove_file(out.join("finals.png")).unwrap();
+    let args = ["compare", &s(&cornell), "--optimisers", "meta,adam@beta1=0.5", "--iterations", "4", "--lr", "0.05", "--seed", "3", "--resume", "-o", &s(&out)];
+    let resumed = vkinverse_ok(&args).stderr;
+    assert!(resumed.contains("finals.png not written") && resumed.contains("final.exr is missing"), "{resumed}");
+    assert!(!out.join("finals.png").exists());
 
     let bytes = std::fs::read(out.join("error_vs_time.png")).unwrap();
     let info = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("error_vs_time.png decodes");
