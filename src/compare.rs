@@ -9,7 +9,9 @@
 //! - `optimiser.png`: every run's optimiser diagnostics (`optimiser.csv`) overlaid;
 //! - `compare.csv` and `compare.json`: per run the final error, the wall time at which the
 //!   error first reached each of [`LEVELS`] times the first run's final error, and the
-//!   speed-up over the first run.
+//!   speed-up over the first run;
+//! - `finals.png` (`finals-K.png` for sensor K of several): the target, then every run's
+//!   final image in the order of the runs, side by side (`crate::preview`).
 //!
 //! The levels are relative to the first run (the baseline): 2× its final error is where the
 //! runs are well under way, 1× is where the baseline ends, ½× is where only a faster
@@ -212,6 +214,11 @@ pub fn compare(device: &Device, scene: &Scene, over: &Settings, specs: &[Spec], 
     let path = out_dir.join("optimiser.png");
     crate::optim::csv::plot(&path, &format!("{}: optimiser diagnostics", comparison.scene), &runs)
         .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let dirs: Vec<std::path::PathBuf> = specs.iter().map(|s| out_dir.join(s.dir_name())).collect();
+    if let Some(missing) = crate::preview::write_finals(out_dir, scene.sensors.len(), &dirs.iter().map(|d| d.as_path()).collect::<Vec<_>>())? {
+        observer
+            .warning(&format!("finals.png not written: {} is missing (a run from before runs wrote their pictures; --overwrite reruns it)", missing.display()));
+    }
     Ok(comparison)
 }
 

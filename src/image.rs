@@ -30,6 +30,8 @@ pub enum ImageError {
     TooLarge { path: PathBuf, width: u64, height: u64 },
     #[error("{}: image is {width}x{height} but holds {len} pixels", path.display())]
     Size { path: PathBuf, width: u32, height: u32, len: usize },
+    #[error("{}: the panels differ in size ({}x{} and {}x{})", path.display(), first.0, first.1, other.0, other.1)]
+    Panels { path: PathBuf, first: (u32, u32), other: (u32, u32) },
 }
 
 /// A linear RGB float image.
@@ -211,19 +213,78 @@ pub fn write_png_with_alpha(path: &Path, image: &Image, alpha: Option<&[f32]>) -
     image.check_size(path)?;
     let linear8 = |a: f32| (a.clamp(0.0, 1.0) * 255.0).round() as u8;
     let pixels: Vec<u8> = match alpha {
-        None => image.data.iter().flatten().map(|&c| srgb_encode(c)).collect(),
+        None => srgb_bytes(image),
         Some(alpha) => image.data.iter().zip(alpha).flat_map(|(p, &a)| [srgb_encode(p[0]), srgb_encode(p[1]), srgb_encode(p[2]), linear8(a)]).collect(),
     };
+    let color = if alpha.is_some() { png::ColorType::Rgba } else { png::ColorType::Rgb };
+    encode_png(path, image.width, image.height, color, &pixels)
+}
+
+/// The 8-bit sRGB bytes [`write_png`] stores for `image`: R, G, B per pixel, row by row.
+pub fn srgb_bytes(image: &Image) -> Vec<u8> {
+    image.data.iter().flatten().map(|&c| srgb_encode(c)).collect()
+}
+
+/// Encodes 8-bit `pixels` (`color`, row by row) as an sRGB PNG and writes it atomically.
+fn encode_png(path: &Path, width: u32, height: u32, color: png::ColorType, pixels: &[u8]) -> Result<(), ImageError> {
     let png_err = |source| ImageError::Png { path: path.to_path_buf(), source };
     let mut bytes = Vec::new();
-    let mut encoder = png::Encoder::new(&mut bytes, image.width, image.height);
-    encoder.set_color(if alpha.is_some() { png::ColorType::Rgba } else { png::ColorType::Rgb });
+    let mut encoder = png::Encoder::new(&mut bytes, width, height);
+    encoder.set_color(color);
     encoder.set_depth(png::BitDepth::Eight);
     encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
     let mut writer = encoder.write_header().map_err(png_err)?;
-    writer.write_image_data(&pixels).map_err(png_err)?;
+    writer.write_image_data(pixels).map_err(png_err)?;
     writer.finish().map_err(png_err)?;
     write_bytes_atomic(path, &bytes).map_err(|source| ImageError::Io { path: path.to_path_buf(), source })
+}
+
+/// The white columns between the panels of [`write_panels`], in pixels.
+pub const PANEL_GAP: u32 = 2;
+
+/// Writes `panels` side by side, left to right, as one 8-bit sRGB PNG, atomically: each
+/// panel tone-mapped as [`write_png`] does (so that its pixels are those `write_png` would
+/// store for it alone), [`PANEL_GAP`] white columns between neighbours. The panels must
+/// share one size W × H; the picture is n·W + (n − 1)·`PANEL_GAP` by H.
+pub fn write_panels(path: &Path, panels: &[&Image]) -> Result<(), ImageError> {
+    let Some(first) = panels.first() else {
+        return Err(ImageError::TooLarge { path: path.to_path_buf(), width: 0, height: 0 });
+    };
+    let (w, h) = (first.width, first.height);
+    for p in panels {
+        p.check_size(path)?;
+        if (p.width, p.height) != (w, h) {
+            return Err(ImageError::Panels { path: path.to_path_buf(), first: (w, h), other: (p.width, p.height) });
+        }
+    }
+    let n = panels.len() as u32;
+    let width = n * w + (n - 1) * PANEL_GAP;
+    check_size(path, width.into(), h.into())?;
+    let encoded: Vec<Vec<u8>> = panels.iter().map(|p| srgb_bytes(p)).collect();
+    let gap = vec![255u8; 3 * PANEL_GAP as usize];
+    let mut pixels = Vec::with_capacity(3 * (width * h) as usize);
+    for y in 0..h as usize {
+        for (k, panel) in encoded.iter().enumerate() {
+            if k > 0 {
+                pixels.extend_from_slice(&gap);
+            }
+            let row = 3 * w as usize;
+            pixels.extend_from_slice(&panel[y * row..(y + 1) * row]);
+        }
+    }
+    encode_png(path, width, h, png::ColorType::Rgb, &pixels)
+}
+
+/// |`a` − `b`| per pixel and channel, divided by the mean of `b` (over its pixels and
+/// channels, finite values only; 1 where that mean is not positive): a difference as large
+/// as `b`'s mean brightness is 1, white once tone-mapped. Both images must be of one size.
+pub fn difference_over_mean(a: &Image, b: &Image) -> Image {
+    let values = b.data.iter().flatten().filter(|c| c.is_finite());
+    let (sum, count) = values.fold((0.0f64, 0usize), |(s, n), &c| (s + f64::from(c), n + 1));
+    let mean = sum / count.max(1) as f64;
+    let scale = if mean > 0.0 && mean.is_finite() { (1.0 / mean) as f32 } else { 1.0 };
+    let data = a.data.iter().zip(&b.data).map(|(pa, pb)| [0, 1, 2].map(|c| (pa[c] - pb[c]).abs() * scale)).collect();
+    Image { width: a.width, height: a.height, data }
 }
 
 /// An sRGB-encoded value in [0, 1] to linear (IEC 61966-2-1 EOTF), the inverse of the

@@ -44,9 +44,9 @@
 //! SPIR-V); `ops` (buffer kernels) and `bvh`; [`scene`], [`image`] and [`npy`] (input and
 //! output); `bsdf` (the material model's CPU reference), `render` (the scene on the device,
 //! the renderer, the gradient passes, the targets) and `optim` (the optimisers); [`settings`];
-//! `engine` (an iteration's passes) and `rundir` (the run directory); [`run`] and the
-//! tools. The internal modules are public with the `internals` feature, for vkinverse's own
-//! tests.
+//! `engine` (an iteration's passes), [`preview`] (the result pictures) and `rundir` (the
+//! run directory); [`run`] and the tools. The internal modules are public with the
+//! `internals` feature, for vkinverse's own tests.
 
 /// Declares modules that are public with the `internals` feature (vkinverse's own test
 /// suite turns it on) and crate-private otherwise.
@@ -91,6 +91,7 @@ pub mod error;
 pub mod gradcheck;
 pub mod image;
 pub mod npy;
+pub mod preview;
 pub mod replay;
 pub mod run;
 pub mod scene;

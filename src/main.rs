@@ -308,7 +308,12 @@ must be those of the checkpoint; changed settings are listed) or --overwrite (re
 it). A checkpoint is committed every --checkpoint-every iterations and at the end; a
 kill at any instant leaves the last committed one resumable. Ctrl-C (or SIGTERM) stops the
 run after its current iteration and writes its outputs (exit status 130, or 143); the
-same command with --resume continues it. A second Ctrl-C stops at once.";
+same command with --resume continues it. A second Ctrl-C stops at once.
+
+preview.png shows, left to right, the target, the start (the initial parameters), the
+result (final.exr) and |final - target| divided by the target's mean value, each as
+`render -o IMAGE.png` writes an image; target.exr and start.exr hold the first two. A
+scene of several sensors gets preview-K.png, target-K.exr, start-K.exr, final-K.exr.";
 
 const COMPARE_HELP: &str = "\
 Unset keys keep their defaults. `@` separates keys so that specs hold no comma.
@@ -321,6 +326,8 @@ progress and writes no table). Outputs in OUTDIR:
   <label>/            each run's optimise outputs (log.csv, summary.json, ...)
   error_vs_time.png   all runs, log-scale error against wall time
   curves.csv          label,time_s,error: the points of the plot
+  finals.png          the target, then each run's final image in --optimisers order, side
+                      by side (finals-K.png for sensor K of several)
   compare.csv, .json  per run: final error; time_to_2x, time_to_1x, time_to_0.5x: the wall
                       time at which its error first reached 2, 1 and 0.5 times the first
                       run's final error; speedup: the first run's time to its final error
@@ -520,8 +527,12 @@ fn run_optimise(cli: &Cli, a: &OptimiseArgs) -> Result {
         };
         outln!("image error of the result: {}{floor}, from two renders of {} spp against the target", err(s.final_image_error), s.image_error_spp)?;
         let carry = if a.output.join(vkinverse::run::CARRY_CSV).exists() { " carry.csv carry.png" } else { "" };
+        let pictures = match scene.sensors.len() {
+            1 => "target.exr start.exr preview.png".to_string(),
+            n => format!("target-K.exr start-K.exr final-K.exr preview-K.png (K = 0..{})", n - 1),
+        };
         outln!(
-            "outputs in {}: log.csv summary.json params/ final.exr final/ error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/",
+            "outputs in {}: log.csv summary.json params/ final.exr final/ {pictures} error_vs_time.png optimiser.csv optimiser.png{carry} checkpoint/",
             a.output.display()
         )?;
     }
@@ -556,7 +567,14 @@ fn run_compare(cli: &Cli, a: &CompareArgs) -> Result {
     progress.finish();
     print_result(a.out.json, &comparison, || comparison.table())?;
     if !a.out.json && !cli.quiet {
-        outln!("outputs in {}: error_vs_time.png optimiser.png curves.csv compare.csv compare.json and one directory per optimiser", a.out.output.display())?;
+        let finals = match scene.sensors.len() {
+            1 => "finals.png".to_string(),
+            n => format!("finals-K.png (K = 0..{})", n - 1),
+        };
+        outln!(
+            "outputs in {}: error_vs_time.png optimiser.png {finals} curves.csv compare.csv compare.json and one directory per optimiser",
+            a.out.output.display()
+        )?;
     }
     Ok(())
 }

@@ -9,6 +9,8 @@
 //!
 //! Outputs in OUTDIR (names and formats as in the design document): `log.csv`,
 //! `summary.json`, `params/`, `final.exr`, `error_vs_time.png`, `checkpoint/`, the
+//! per-sensor pictures `target.exr`, `start.exr` and `preview.png` (target | start |
+//! final | difference; `crate::preview`, which also names them for several sensors), the
 //! optimiser's diagnostics of every iteration and parameter group (`optimiser.csv`, reduced
 //! on the GPU, and their plot `optimiser.png`; `optim::csv`), and the
 //! recovered scene in `final/` (`crate::scene::write`). The
@@ -659,6 +661,9 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         return Err(Error::Invalid(format!("{}: no [[optimise.params]] to optimise", scene.path.display())));
     }
     let mode = options.mode;
+    if let Some(dir) = options.out_dir {
+        check_targets_outside(scene, dir)?;
+    }
     let run_dir = match options.out_dir {
         Some(dir) => Some(RunDir::open(dir, mode, &device.config().debug_stops)?),
         None if mode == Mode::Resume => return Err(Error::Invalid("a resume needs the run directory to resume".into())),
@@ -715,6 +720,23 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
     finish(device, scene, &engine, run, total_time_s)
 }
 
+/// Refuses a run directory `dir` in which the run would write a picture over one of the
+/// scene's target images (a scene whose `target_image` is `OUTDIR/target.exr`).
+fn check_targets_outside(scene: &Scene, dir: &Path) -> Result<()> {
+    let Ok(dir) = dir.canonicalize() else { return Ok(()) };
+    for sensor in &scene.sensors {
+        let Some(path) = sensor.target_image.as_ref().and_then(|t| t.path.canonicalize().ok()) else { continue };
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if path.parent() == Some(dir.as_path()) && crate::preview::is_sensor_file(&name) {
+            return Err(Error::Invalid(format!(
+                "{}: the run would write its {name} over the scene's target image; give the run another directory",
+                dir.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Commits the last checkpoint, unless it is committed already (a checkpoint is never
 /// written over the committed one: src/rundir.rs), and writes the outputs: all of them,
 /// the logs included, so that a run resumed after its last checkpoint was committed (killed
@@ -743,7 +765,9 @@ fn finish(device: &Device, scene: &Scene, engine: &Engine, mut run: Loop, total_
         let out_dir = &dir.path;
         write_params(out_dir, &layout.values(&theta))?;
         crate::scene::write::write_final(out_dir, scene, &layout.recovered(&theta))?;
-        image::write_exr(&out_dir.join("final.exr"), &images[0])?;
+        // The start: the same renders with the initial parameters.
+        let starts = engine.image_error(Some(&layout.initial()), eval_spp, seeds)?.1;
+        crate::preview::write_run_pictures(out_dir, &engine.targets, &starts, &images)?;
         write_plot(out_dir, &run.log, &scene.path.display().to_string(), settings.optimiser.optimiser.name())?;
         let path = out_dir.join("optimiser.png");
         let title = format!("{}: {} diagnostics", scene.path.display(), settings.optimiser.label);

@@ -6,9 +6,10 @@
 //!   system drops the lock when the process ends, however it ends.
 //! - **A used directory** (one holding any of [`RUN_FILES`]) is refused unless the run
 //!   resumes it ([`Mode::Resume`]) or replaces it ([`Mode::Overwrite`]); a refusal deletes
-//!   nothing. Replacing removes the old run's files before the new run writes any, the
-//!   checkpoint pointer first, so a kill midway leaves neither a resumable old run nor a
-//!   mix.
+//!   nothing. Replacing removes the old run's files (those of [`RUN_FILES`] and every
+//!   sensor's pictures, [`crate::preview::SENSOR_FILES`]) before the new run writes any,
+//!   the checkpoint pointer first, so a kill midway leaves neither a resumable old run nor
+//!   a mix.
 //! - **Checkpoints** are numbered directories `checkpoint/<iteration>/` (θ and the
 //!   optimiser state as `.npy`, `state.json`, the log rows so far as `log.csv`, the
 //!   optimiser diagnostics so far as `optimiser.csv`) and the
@@ -197,7 +198,15 @@ impl RunDir {
             fs::remove_file(&pointer).map_err(io(&pointer))?;
         }
         self.debug_point("overwrite.cleared");
-        for name in RUN_FILES {
+        let pictures = fs::read_dir(&self.path).map_err(io(&self.path))?;
+        let mut names: Vec<String> = RUN_FILES.iter().map(|f| f.to_string()).collect();
+        for entry in pictures {
+            let name = entry.map_err(io(&self.path))?.file_name().to_string_lossy().into_owned();
+            if crate::preview::is_sensor_file(&name) {
+                names.push(name);
+            }
+        }
+        for name in names {
             let p = self.path.join(name);
             let removed = if p.is_dir() { fs::remove_dir_all(&p) } else { fs::remove_file(&p) };
             match removed {

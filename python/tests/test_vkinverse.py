@@ -210,6 +210,9 @@ class OptimiseTests(unittest.TestCase):
         rest = vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, checkpoint_every=2, out_dir=out, resume=True, quiet=True)
         self.assertFalse(rest.interrupted)
         self.assertEqual(list(rest.log["iteration"]), list(range(7)))
+        # The run's pictures, as the command line writes them.
+        for name in ["preview.png", "target.exr", "start.exr", "final.exr"]:
+            self.assertTrue((out / name).exists(), name)
 
     def test_ctrl_c_raises_keyboard_interrupt_and_leaves_a_resumable_run(self):
         scene = cornell()

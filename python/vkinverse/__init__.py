@@ -228,8 +228,8 @@ def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, c
     - ``targets``: one float32 [H, W, 3] image per sensor; without them the targets are
       rendered from the scene's own values, as the command line does.
     - ``callback(row)``: each iteration's log row as a dict; returning False stops the run.
-    - ``out_dir``: a run directory (checkpoints, log.csv, params/, plots), resumable with
-      ``resume=True``.
+    - ``out_dir``: a run directory (checkpoints, log.csv, params/, plots, preview.png:
+      target | start | final | difference), resumable with ``resume=True``.
     - ``**settings``: any setting of ``vkinverse optimise`` by its name (``spp``,
       ``primal_spp``, ``fd_spp``, ``lr``, ``time_budget``, ``seed``, ...).
 

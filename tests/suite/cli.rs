@@ -10,6 +10,7 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use common::binary::{json, s, vkinverse, vkinverse_during, vkinverse_env, vkinverse_err, vkinverse_err_env, vkinverse_ok, Output};
+use common::pictures::assert_run_pictures;
 use common::scenes::{temp_dir, write_delta_lit};
 use vkinverse::npy::{self, Array};
 use vkinverse::optim::{self, Range};
@@ -188,8 +189,21 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
         vkinverse_ok(&["optimise", &s(tiny_cornell()), "--optimiser", optimiser, "--iterations", &iterations.to_string(), "--lr", "0.05", "-o", &s(&out_dir)]);
     assert!(out.stdout.contains(&format!("{iterations} iterations of {optimiser}")), "{}", out.stdout);
     // Meta's defaults carry the primal image and log its weights.
-    let mut expected =
-        vec![".lock", "checkpoint", "error_vs_time.png", "final", "final.exr", "log.csv", "optimiser.csv", "optimiser.png", "params", "summary.json"];
+    let mut expected = vec![
+        ".lock",
+        "checkpoint",
+        "error_vs_time.png",
+        "final",
+        "final.exr",
+        "log.csv",
+        "optimiser.csv",
+        "optimiser.png",
+        "params",
+        "preview.png",
+        "start.exr",
+        "summary.json",
+        "target.exr",
+    ];
     if optimiser == "meta" {
         expected.splice(1..1, ["carry.csv", "carry.png"]);
     }
@@ -279,8 +293,13 @@ fn optimise_and_check(optimiser: &str, iterations: usize) -> Vec<f64> {
     let rmse = (red.iter().zip([0.63, 0.065, 0.05]).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / 3.0).sqrt();
     assert!((rmse - errors[iterations]).abs() < 1e-4, "params.json error {rmse}, log {}", errors[iterations]);
 
-    let final_image = vkinverse::image::read_exr(&out_dir.join("final.exr")).unwrap();
-    assert_eq!((final_image.width, final_image.height), (16, 16));
+    // The pictures: target, start and final EXRs and the preview of the three and their
+    // difference; the result is nearer the target than the start (the renders share their
+    // random numbers, so most of what differs is the red wall).
+    let pictures = assert_run_pictures(&out_dir, 1, (16, 16));
+    let (target, start, fin) = &pictures[0];
+    let distance = |a: &vkinverse::Image| a.data.iter().flatten().zip(target.data.iter().flatten()).map(|(x, t)| f64::from((x - t).abs())).sum::<f64>();
+    assert!(distance(fin) < distance(start), "the result is no nearer the target than the start: {} against {}", distance(fin), distance(start));
     png_size(&out_dir.join("error_vs_time.png"));
     let state = json(&committed(&out_dir).join("state.json"));
     assert_eq!(state["iteration"], iterations);
@@ -300,6 +319,45 @@ fn optimise_adam_outputs_and_progress() {
 fn optimise_meta_outputs_and_progress() {
     let errors = optimise_and_check("meta", 8);
     assert!(errors[8] < 0.8 * errors[0], "meta did not approach the reference: {errors:?}");
+}
+
+/// A scene of two sensors gets its pictures per sensor (`preview-K.png`, `target-K.exr`,
+/// `start-K.exr`, `final-K.exr`, and `final.exr` as sensor 0's); `--overwrite` with a scene
+/// of one sensor removes them all.
+#[test]
+fn a_scene_of_two_sensors_gets_pictures_per_sensor() {
+    let second = "fov_y = 39.3\n\n[[sensors]]\norigin = [-0.6, 1.4, 3.2]\ntarget = [0.2, 0.8, 0]\nup = [0, 1, 0]\nfov_y = 45\n";
+    let scene = edited_cornell("two-sensors", |t| replace_once(t, "fov_y = 39.3\n", second));
+    let out_dir = temp_dir("two-sensors-out");
+    let out = vkinverse_ok(&["optimise", &s(&scene), "--optimiser", "adam", "--iterations", "2", "--target-spp", "16", "-o", &s(&out_dir)]);
+    assert!(out.stdout.contains("preview-K.png (K = 0..1)"), "{}", out.stdout);
+    let names = dir_names(&out_dir);
+    for k in 0..2 {
+        for stem in ["final", "start", "target"] {
+            assert!(names.contains(&format!("{stem}-{k}.exr")), "{stem}-{k}.exr missing from {names:?}");
+        }
+    }
+    assert!(!names.iter().any(|n| ["preview.png", "start.exr", "target.exr"].contains(&n.as_str())), "{names:?}");
+    let pictures = assert_run_pictures(&out_dir, 2, (16, 16));
+    assert_ne!(pictures[0].0, pictures[1].0, "the two sensors' targets are one image");
+
+    vkinverse_ok(&["optimise", &s(tiny_cornell()), "--iterations", "1", "--quiet", "--overwrite", "-o", &s(&out_dir)]);
+    let names = dir_names(&out_dir);
+    assert!(!names.iter().any(|n| n.contains('-')), "the first run's per-sensor pictures are left: {names:?}");
+    assert_run_pictures(&out_dir, 1, (16, 16));
+}
+
+/// A run directory holding the scene's target image as `target.exr` is refused before
+/// the run writes its own `target.exr` over it.
+#[test]
+fn a_run_does_not_write_over_the_scenes_target_image() {
+    let scene = edited_cornell("target-in-outdir", |t| replace_once(t, "fov_y = 39.3", "fov_y = 39.3\ntarget_image = \"target.exr\""));
+    let dir = scene.parent().unwrap();
+    let target = dir.join("target.exr");
+    vkinverse::image::write_exr(&target, &vkinverse::Image::filled(16, 16, [0.25; 3])).unwrap();
+    let before = std::fs::read(&target).unwrap();
+    vkinverse_err(&["optimise", &s(&scene), "--iterations", "1", "-o", &s(dir)], &["target.exr", "another directory"]);
+    assert_eq!(std::fs::read(&target).unwrap(), before);
 }
 
 #[test]

@@ -7,8 +7,10 @@ use crate::common;
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+use vkinverse::image::read_exr;
 
 use common::binary::{json, s, vkinverse_err, vkinverse_ok};
+use common::pictures::{assert_panels, assert_run_pictures};
 use common::scenes::temp_dir;
 
 /// One directory per test process with `cornell/` (scenes/cornell at 16×16, direct light
@@ -79,7 +81,7 @@ fn compare_two_optimisers() {
         vkinverse_ok(&["compare", &s(&cornell), "--optimisers", "meta,adam@beta1=0.5", "--iterations", "4", "--lr", "0.05", "--seed", "3", "-o", &s(&out)])
             .stdout;
     assert!(printed.contains("meta") && printed.contains("adam@beta1=0.5") && printed.contains("speed-up"), "{printed}");
-    for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png", "optimiser.png"] {
+    for name in ["meta", "adam@beta1=0.5", "compare.csv", "compare.json", "curves.csv", "error_vs_time.png", "optimiser.png", "finals.png"] {
         assert!(out.join(name).exists(), "{name} missing");
     }
     // Each run is a full optimise run with the same settings and seed.
@@ -135,6 +137,20 @@ fn compare_two_optimisers() {
     assert_eq!(summary["metric"], "param_error");
     assert_eq!(summary["baseline"], "meta");
     assert_eq!(summary["runs"].as_array().map(Vec::len), Some(2));
+
+    // finals.png: the target, then each run's final image in --optimisers order.
+    let meta = assert_run_pictures(&out.join("meta"), 1, (16, 16));
+    let adam = read_exr(&out.join("adam@beta1=0.5/final.exr")).unwrap();
+    assert_eq!(read_exr(&out.join("adam@beta1=0.5/target.exr")).unwrap(), meta[0].0, "the runs share their target");
+    assert_panels(&out.join("finals.png"), &[meta[0].0.clone(), meta[0].2.clone(), adam]);
+    // A finished run without its pictures (one from before runs wrote them), read back by a
+    // resume: no finals.png, and a warning naming the missing file.
+    std::fs::remove_file(out.join("adam@beta1=0.5/final.exr")).unwrap();
+    std::fs::remove_file(out.join("finals.png")).unwrap();
+    let args = ["compare", &s(&cornell), "--optimisers", "meta,adam@beta1=0.5", "--iterations", "4", "--lr", "0.05", "--seed", "3", "--resume", "-o", &s(&out)];
+    let resumed = vkinverse_ok(&args).stderr;
+    assert!(resumed.contains("finals.png not written") && resumed.contains("final.exr is missing"), "{resumed}");
+    assert!(!out.join("finals.png").exists());
 
     let bytes = std::fs::read(out.join("error_vs_time.png")).unwrap();
     let info = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().expect("error_vs_time.png decodes");

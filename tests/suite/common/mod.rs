@@ -4,6 +4,7 @@
 #![allow(dead_code)]
 
 pub mod binary;
+pub mod pictures;
 pub mod scenes;
 
 use std::sync::Arc;
