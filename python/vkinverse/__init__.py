@@ -417,6 +417,8 @@ def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet
     spp, primal_spp, fd_spp = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("fd_spp", 1))
     seed = int(settings.get("seed", 0))
     names = list(scene.params)
+    if not names:
+        raise ValueError("the scene has no [[optimise.params]]: nothing to optimise")
     # The spec is parsed (and refused with the library's message) before anything renders.
     shapes = {n: scene.params.shape(n) for n in names}
     probe = HostOptimiser(spec, [(int(np.prod(shapes[n], dtype=np.int64)), 0.0, *scene.params.range(n)) for n in names])
