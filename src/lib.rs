@@ -112,7 +112,7 @@ pub use glam;
 pub use image::Image;
 pub use observer::{LogRow, Observer};
 pub use optim::spec::Spec;
-pub use optim::Diagnostics;
+pub use optim::{Diagnostics, HostGroup, HostOptimiser, HostStep};
 pub use renderer::{ParamInfo, RenderOptions, Renderer};
 pub use run::{optimise, Outcome, Run, RunOptions};
 pub use rundir::Mode;

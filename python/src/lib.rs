@@ -254,6 +254,81 @@ impl NativeScene {
     }
 }
 
+/// float32 values from little-endian bytes.
+fn floats_of(bytes: &[u8], what: &str) -> PyResult<Vec<f32>> {
+    if !bytes.len().is_multiple_of(4) {
+        return Err(PyValueError::new_err(format!("{what}: {} bytes are not float32 values", bytes.len())));
+    }
+    Ok(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect())
+}
+
+/// The library's optimiser on host arrays (`vkinverse::HostOptimiser`): a spec over
+/// parameter groups (len, lr, lo, hi) laid one after the other in a flat float32 buffer.
+#[pyclass(module = "vkinverse._native")]
+struct HostOptimiser {
+    inner: vkinverse::HostOptimiser,
+}
+
+#[pymethods]
+impl HostOptimiser {
+    #[new]
+    #[pyo3(signature = (spec, groups, iterations=None))]
+    fn new(spec: &str, groups: Vec<(usize, f64, f64, f64)>, iterations: Option<u32>) -> PyResult<Self> {
+        let groups: Vec<vkinverse::HostGroup> =
+            groups.into_iter().map(|(len, lr, lo, hi)| vkinverse::HostGroup { len, lr, range: vkinverse::replay::Range { lo, hi } }).collect();
+        let inner = vkinverse::HostOptimiser::new(spec, &groups, iterations).map_err(|e| error(e.into()))?;
+        Ok(HostOptimiser { inner })
+    }
+
+    /// The optimiser's name: `adam` or `meta`.
+    fn kind(&self) -> &'static str {
+        self.inner.optimiser().name()
+    }
+
+    /// Whether a step needs the finite-difference sample (meta).
+    fn needs_fd(&self) -> bool {
+        self.inner.optimiser().needs_fd()
+    }
+
+    /// Whether a step needs the half-sample sums of both streams (meta with `var=centred`).
+    fn needs_halves(&self) -> bool {
+        self.inner.optimiser().needs_halves()
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// One step: θ, the gradient and (meta) the finite-difference sample and (centred) the
+    /// half-sample sums, each float32 bytes of the buffer's length. Returns (θ' as float32
+    /// bytes, the number of elements skipped for a non-finite input).
+    #[pyo3(signature = (theta, grad, fd=None, grad_half=None, fd_half=None))]
+    fn step<'py>(
+        &mut self,
+        py: Python<'py>,
+        theta: &[u8],
+        grad: &[u8],
+        fd: Option<&[u8]>,
+        grad_half: Option<&[u8]>,
+        fd_half: Option<&[u8]>,
+    ) -> PyResult<(Bound<'py, PyBytes>, u64)> {
+        let mut theta = floats_of(theta, "theta")?;
+        let grad = floats_of(grad, "grad")?;
+        let fd = fd.map(|b| floats_of(b, "fd")).transpose()?;
+        let grad_half = grad_half.map(|b| floats_of(b, "grad_half")).transpose()?;
+        let fd_half = fd_half.map(|b| floats_of(b, "fd_half")).transpose()?;
+        let input = vkinverse::HostStep { grad: &grad, fd: fd.as_deref(), grad_half: grad_half.as_deref(), fd_half: fd_half.as_deref() };
+        let skipped = self.inner.step(&mut theta, input).map_err(|e| error(e.into()))?;
+        Ok((floats(py, &theta), skipped))
+    }
+
+    /// The last step's diagnostics, one {column: value} per group (the columns of
+    /// optimiser.csv).
+    fn diagnostics(&self) -> Vec<Vec<(&'static str, f64)>> {
+        self.inner.diagnostics().iter().map(|d| vkinverse::Diagnostics::COLUMNS.iter().copied().zip(d.values()).collect()).collect()
+    }
+}
+
 /// The run's observer: each log row to the Python callback, Ctrl-C between iterations.
 struct PyObserver {
     callback: Option<PyObject>,
@@ -311,6 +386,7 @@ impl Observer for PyObserver {
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(devices, m)?)?;
     m.add_class::<NativeScene>()?;
+    m.add_class::<HostOptimiser>()?;
     m.add("Error", m.py().get_type::<Error>())?;
     Ok(())
 }

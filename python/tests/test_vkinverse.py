@@ -197,8 +197,72 @@ class OptimiseTests(unittest.TestCase):
         self.assertLess(error, np.abs(start - truth).max() / 3, f"from {start}")
         # The loss is of a 4-spp render: its noise floor, not its trend, ends the run.
         self.assertTrue(np.all(np.isfinite(result.log["loss"])))
-        with self.assertRaisesRegex(ValueError, "a Python loss runs with adam"):
-            vk.optimise(scene, optimiser="meta", loss=l1, iterations=1, quiet=True)
+        with self.assertRaisesRegex(ValueError, "out_dir: a Python-loss run writes no run directory"):
+            vk.optimise(scene, optimiser="adam", loss=l1, iterations=1, out_dir=self.dir / "run", quiet=True)
+
+    def python_meta_run(self, spec, iterations=60):
+        """A Python L1 loss run with the meta-estimator `spec`: (result, truth, start, the
+        images the loss was called on)."""
+        scene = cornell()
+        target = np.array(vk.render(scene, spp=256, seed=99))
+        truth = np.array(scene.params[RED])
+        images = []
+
+        def l1(image):
+            images.append(np.array(image))
+            d = image - target
+            return float(np.abs(d).mean()), (np.sign(d) / d.size).astype(np.float32)
+
+        start = np.frombuffer(scene._native.param_start(RED)[0], np.float32)
+        rows = []
+        result = vk.optimise(scene, optimiser=spec, iterations=iterations, loss=l1, lr=0.05, callback=rows.append, quiet=True)
+        self.assertEqual(len(rows), iterations)
+        self.assertEqual(list(result.log["iteration"]), list(range(1, iterations + 1)))
+        self.assertTrue(np.all(np.isfinite(result.log["loss"])))
+        # Three calls per iteration (the primal render, then θ_i and θ_{i-1} with one seed),
+        # one at the first, which has no θ_{i-1}.
+        self.assertEqual(len(images), 1 + 3 * (iterations - 1))
+        return result, truth, start, images
+
+    def test_python_l1_loss_with_meta_recovers_the_wall(self):
+        result, truth, start, images = self.python_meta_run("meta")
+        error = np.abs(result.params[RED] - truth).max()
+        self.assertLess(error, 0.08, f"recovered {result.params[RED]} of {truth}")
+        self.assertLess(error, np.abs(start - truth).max() / 3, f"from {start}")
+        # The finite difference's two renders share their random numbers: they differ by
+        # the step of the red wall alone, far less than two renders of one θ with seeds of
+        # their own (the primal render and the first of them).
+        crn = np.mean([np.abs(images[k + 1] - images[k + 2]).mean() for k in range(1, len(images), 3)])
+        independent = np.mean([np.abs(images[k] - images[k + 1]).mean() for k in range(1, len(images), 3)])
+        self.assertLess(crn, independent / 5, f"{crn} vs {independent}")
+
+    def test_python_l1_loss_with_meta_seed_recovers_the_wall(self):
+        result, truth, start, _ = self.python_meta_run("meta-seed")
+        error = np.abs(result.params[RED] - truth).max()
+        self.assertLess(error, 0.08, f"recovered {result.params[RED]} of {truth}")
+        self.assertLess(error, np.abs(start - truth).max() / 3, f"from {start}")
+
+    def test_python_loss_with_meta_refuses_what_it_cannot_do(self):
+        scene = cornell()
+
+        def l2(image):
+            return float((image**2).mean()), (2 * image / image.size).astype(np.float32)
+
+        for spec, message in [
+            ("meta@carry=0.1", "carried primal image needs a built-in loss"),
+            ("meta@decay_f=2", "decay_f"),
+            ("metta", "unknown optimiser"),
+        ]:
+            with self.assertRaisesRegex(ValueError, message):
+                vk.optimise(scene, optimiser=spec, loss=l2, iterations=1, quiet=True)
+        with self.assertRaisesRegex(ValueError, "target_spp"):
+            vk.optimise(scene, optimiser="meta", loss=l2, iterations=1, target_spp=4, quiet=True)
+        with self.assertRaisesRegex(ValueError, "out_dir"):
+            vk.optimise(scene, optimiser="meta", loss=l2, iterations=1, out_dir=self.dir / "run", quiet=True)
+        # carry=0 spelled out is what a Python loss runs anyway.
+        result = vk.optimise(scene, optimiser="meta@carry=0", loss=l2, iterations=2, quiet=True)
+        self.assertEqual(len(result.log["loss"]), 2)
+
 
     def test_callback_false_stops_and_the_run_resumes(self):
         scene = cornell()
@@ -227,6 +291,72 @@ class OptimiseTests(unittest.TestCase):
         self.assertTrue((out / "log.csv").exists(), os.listdir(out))
         rest = vk.optimise(scene, optimiser="adam", iterations=6, target_spp=16, out_dir=out, resume=True, quiet=True)
         self.assertEqual(rest.log["iteration"][-1], 6)
+
+
+
+class HostOptimiserTests(unittest.TestCase):
+    def test_steps_equal_the_gpu_passes_of_the_command_lines_replay(self):
+        """The same streams (gradients, finite differences, half-sample sums) through
+        vk.HostOptimiser and through `vkinverse replay` (the renderer's optimiser passes):
+        the same trajectory, to float32 rounding."""
+        exe = binary()
+        rng = np.random.default_rng(3)
+        steps, n = 12, 5
+        init = rng.uniform(0.2, 0.8, n).astype(np.float32)
+        streams = {
+            "grads": (rng.normal(0, 1, (steps, n)) + 0.5).astype(np.float32),
+            "fd": rng.normal(0, 0.1, (steps, n)).astype(np.float32),
+        }
+        streams["gh"] = (streams["grads"] / 2 + rng.normal(0, 0.2, (steps, n))).astype(np.float32)
+        streams["fh"] = (streams["fd"] / 2 + rng.normal(0, 0.02, (steps, n))).astype(np.float32)
+        d = Path(tempfile.mkdtemp(prefix="vkinverse-py-"))
+        try:
+            np.save(d / "init.npy", init)
+            for k, a in streams.items():
+                np.save(d / f"{k}.npy", a)
+            for spec in ["meta", "meta-seed", "meta@fdvar=scaled@step=snr", "adam"]:
+                args = [exe, "replay", "--optimiser", spec, "--lr", "0.05", "--range", "0,1", "--init", d / "init.npy"]
+                args += [d / "grads.npy", d / "fd.npy", "--halves", f"{d / 'gh.npy'},{d / 'fh.npy'}", "-o", d / "traj.npy"]
+                subprocess.run([str(a) for a in args], check=True, capture_output=True)
+                expected = np.load(d / "traj.npy")
+                opt = vk.HostOptimiser(spec, [(n, 0.05, 0.0, 1.0)])
+                theta, trajectory = init, [init]
+                for i in range(steps):
+                    theta = opt.step(theta, streams["grads"][i], streams["fd"][i], streams["gh"][i], streams["fh"][i])
+                    trajectory.append(theta)
+                np.testing.assert_allclose(np.array(trajectory), expected, rtol=0, atol=2e-6, err_msg=spec)
+                self.assertGreater(np.abs(expected[-1] - init).max(), 0.1, f"{spec}: the streams move θ")
+                diag = opt.diagnostics()
+                self.assertEqual(len(diag), 1)
+                self.assertEqual(diag[0]["elements"], n)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
+    def test_meta_with_exact_gradients_finds_a_quadratics_minimum(self):
+        """f(θ) = Σ c·(θ − θ*)²/2 in two groups with exact ⟨F⟩ = c·(θ − θ*) and exact
+        ⟨ΔF⟩: meta settles at θ* (halves equal to half the total: no variance)."""
+        c = np.array([1.0, 4.0, 0.5], np.float32)
+        best = np.array([0.3, -0.2, 0.7], np.float32)
+        opt = vk.HostOptimiser("meta", [(1, 0.1, -1.0, 1.0), (2, 0.1, -1.0, 1.0)])
+        self.assertEqual((opt.kind, opt.needs_fd, opt.needs_halves, len(opt)), ("meta", True, True, 3))
+        theta, prev = np.zeros(3, np.float32), np.zeros(3, np.float32)
+        for _ in range(200):
+            g, fd = c * (theta - best), c * (theta - prev)
+            prev = theta
+            theta = opt.step(theta, g, fd, g / 2, fd / 2)
+        np.testing.assert_allclose(theta, best, atol=1e-3)
+        self.assertEqual(len(opt.diagnostics()), 2)
+
+    def test_bad_input_raises(self):
+        with self.assertRaisesRegex(ValueError, "unknown optimiser"):
+            vk.HostOptimiser("nope", [(1, 0.1, 0.0, 1.0)])
+        with self.assertRaisesRegex(ValueError, "range"):
+            vk.HostOptimiser("meta", [(1, 0.1, 1.0, 0.0)])
+        opt = vk.HostOptimiser("meta", [(2, 0.1, 0.0, 1.0)])
+        with self.assertRaisesRegex(ValueError, "half-sample"):
+            opt.step(np.zeros(2), np.ones(2), np.zeros(2))
+        with self.assertRaisesRegex(ValueError, "length 3, expected 2"):
+            opt.step(np.zeros(2), np.ones(3), np.zeros(2), np.zeros(2), np.zeros(2))
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ import numpy as np
 from . import _native
 from ._native import Error
 
-__all__ = ["Error", "ParameterError", "Result", "Scene", "devices", "gradient", "optimise", "render"]
+__all__ = ["Error", "HostOptimiser", "ParameterError", "Result", "Scene", "devices", "gradient", "optimise", "render"]
 
 
 class ParameterError(KeyError, ValueError):
@@ -224,7 +224,15 @@ def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, c
     - ``optimiser``: a spec, ``meta``, ``meta-seed`` or ``adam`` with hyperparameters (``adam@beta1=0.5``).
     - ``loss``: ``l2``, ``l1`` or ``relative_l2``, or a Python function ``image ->
       (value, dL/dimage)``. A Python loss runs with ``adam`` (one call per iteration, on
-      that iteration's primal render).
+      that iteration's primal render) or the meta-estimator (``meta``, ``meta-seed``: 3
+      calls per iteration, 1 at the first: the primal render of θ_i, then the two renders of
+      θ_i and θ_{i-1} with one seed whose gradients' difference is the finite-difference
+      sample). The meta-estimator's carried primal image needs a built-in loss: with a
+      Python loss meta runs with ``carry=0`` (``meta`` is ``meta@carry=0``), and a spec that
+      sets ``carry`` above 0 is a ValueError. A Python-loss run takes the settings ``lr``,
+      ``spp``, ``primal_spp``, ``seed`` (adam also ``beta1``, ``beta2``; meta ``fd_spp``),
+      no ``targets`` and no ``out_dir``; its log has the columns iteration, time_s and
+      loss.
     - ``targets``: one float32 [H, W, 3] image per sensor; without them the targets are
       rendered from the scene's own values, as the command line does.
     - ``callback(row)``: each iteration's log row as a dict; returning False stops the run.
@@ -236,7 +244,7 @@ def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, c
     The run starts from each parameter's ``init``. Ctrl-C stops it after the current
     iteration (its outputs written) and raises KeyboardInterrupt."""
     if callable(loss):
-        return _optimise_python_loss(scene, loss, optimiser, iterations, targets, callback, quiet, settings)
+        return _optimise_python_loss(scene, loss, optimiser, iterations, targets, callback, out_dir, quiet, settings)
     pairs = [("optimiser", str(optimiser)), ("loss", str(loss))]
     if iterations is not None:
         pairs.append(("iterations", str(int(iterations))))
@@ -266,27 +274,46 @@ def optimise(scene, optimiser="meta", iterations=200, loss="l2", targets=None, c
     return Result({n: _array(d, s) for n, d, s in params}, {k: np.asarray(v) for k, v in log.items()}, interrupted, out_dir)
 
 
-def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, quiet, settings):
-    """Adam on a Python loss: each iteration renders (primal_spp), calls the loss on the
-    image, and steps every parameter along the gradient of its adjoint (spp)."""
-    name = str(optimiser).split("@")[0]
-    if name != "adam":
-        raise ValueError(f"optimiser {optimiser!r}: a Python loss runs with adam (meta needs the loss's image gradient at two states, which this loop does not give yet)")
+def _python_loss_settings(settings, allowed):
+    unknown = set(settings) - set(allowed)
+    if unknown:
+        raise ValueError(f"{sorted(unknown)}: not settings of a Python-loss run ({', '.join(allowed)})")
+
+
+def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, out_dir, quiet, settings):
+    """A run on a Python loss: ``adam`` or the meta-estimator (``meta``, ``meta-seed``)."""
     if targets is not None:
         raise ValueError("targets: a Python loss holds its own targets")
-    unknown = set(settings) - {"lr", "spp", "primal_spp", "seed", "beta1", "beta2"}
-    if unknown:
-        raise ValueError(f"{sorted(unknown)}: not settings of a Python-loss run (lr, spp, primal_spp, seed, beta1, beta2)")
-    spp, primal_spp, seed = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("seed", 0))
-    beta1, beta2, eps = float(settings.get("beta1", 0.9)), float(settings.get("beta2", 0.999)), 1e-8
+    if out_dir is not None:
+        raise ValueError("out_dir: a Python-loss run writes no run directory (its parameters and log are returned in the Result)")
+    name = str(optimiser).split("@")[0]
+    if name == "adam":
+        return _optimise_python_loss_adam(scene, loss_fn, iterations, callback, quiet, settings)
+    return _optimise_python_loss_meta(scene, loss_fn, str(optimiser), iterations, callback, quiet, settings)
+
+
+def _start(scene, settings):
+    """Each parameter's start value (its ``init``, set on the scene), learning rate (the
+    ``lr`` setting, else the scene's rate for it, else 0.02) and range, in the scene's
+    order."""
     names = list(scene.params)
-    ranges = {n: scene.params.range(n) for n in names}
-    lrs, theta = {}, {}
+    theta, lrs, ranges = {}, {}, {}
     for n in names:
         init, lr = scene._native.param_start(n)
         theta[n] = np.frombuffer(init, dtype=np.float32).reshape(scene.params.shape(n)).copy()
         lrs[n] = float(settings.get("lr", lr if lr is not None else 0.02))
+        ranges[n] = scene.params.range(n)
         scene.params[n] = theta[n]
+    return names, theta, lrs, ranges
+
+
+def _optimise_python_loss_adam(scene, loss_fn, iterations, callback, quiet, settings):
+    """Adam on a Python loss: each iteration renders (primal_spp), calls the loss on the
+    image, and steps every parameter along the gradient of its adjoint (spp)."""
+    _python_loss_settings(settings, ["lr", "spp", "primal_spp", "seed", "beta1", "beta2"])
+    spp, primal_spp, seed = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("seed", 0))
+    beta1, beta2, eps = float(settings.get("beta1", 0.9)), float(settings.get("beta2", 0.999)), 1e-8
+    names, theta, lrs, ranges = _start(scene, settings)
     m = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
     v = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
     log = {"iteration": [], "time_s": [], "loss": []}
@@ -318,3 +345,145 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
         progress.close()
     return Result({n: theta[n] for n in names}, {k: np.asarray(c) for k, c in log.items()}, interrupted, None)
 
+
+class HostOptimiser:
+    """The library's optimiser passes on the host (the f64 reference that the GPU passes
+    are checked against), for a loop that produces the gradients itself: ``spec`` as
+    ``optimise`` takes it, over parameter groups ``[(length, lr, lo, hi), ...]`` laid one
+    after the other in one flat float32 vector. ``iterations`` is the horizon of a cosine
+    schedule that gives none.
+
+    ``step(theta, grad, fd=None, grad_half=None, fd_half=None)`` returns the new θ: ``grad``
+    is the gradient estimate ⟨F_i⟩; the meta-estimator also takes the finite-difference
+    sample ⟨ΔF_i⟩ = g(θ_i) − g(θ_{i−1}) with common random numbers (unused at the first
+    step), and with ``var=centred`` (the ``meta`` default) the sums of half of the samples
+    of each. ``diagnostics()`` are the last step's, one dict per group (the columns of
+    optimiser.csv)."""
+
+    def __init__(self, spec, groups, iterations=None):
+        groups = [(int(n), float(lr), float(lo), float(hi)) for n, lr, lo, hi in groups]
+        self._native = _native.HostOptimiser(str(spec), groups, None if iterations is None else int(iterations))
+        self.kind = self._native.kind()
+        self.needs_fd = self._native.needs_fd()
+        self.needs_halves = self._native.needs_halves()
+        self.skipped = 0
+
+    def __len__(self):
+        return len(self._native)
+
+    def step(self, theta, grad, fd=None, grad_half=None, fd_half=None):
+        def raw(a):
+            return None if a is None else np.ascontiguousarray(a, dtype=np.float32).ravel().tobytes()
+
+        data, skipped = self._native.step(raw(theta), raw(grad), raw(fd), raw(grad_half), raw(fd_half))
+        self.skipped += skipped
+        return np.frombuffer(data, dtype=np.float32).copy()
+
+    def diagnostics(self):
+        return [dict(d) for d in self._native.diagnostics()]
+
+
+def _explicit_carry(spec):
+    """The value of ``carry`` where the spec text sets it (``meta@carry=0.1``), else None."""
+    for item in spec.split("@")[1:]:
+        key, _, value = item.partition("=")
+        if key.strip() == "carry":
+            return float(value)
+    return None
+
+
+def _flat(arrays, names):
+    return np.concatenate([np.asarray(arrays[n], dtype=np.float32).ravel() for n in names])
+
+
+def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet, settings):
+    """The meta-estimator on a Python loss. Per iteration i (seeds derived from ``seed`` and
+    i, each parameter one group):
+
+    1. the primal image of θ_i (``primal_spp``) -> loss -> adjoint;
+    2. ⟨F_i⟩ = gradient(θ_i, adjoint, ``spp``), and with ``var=centred`` the same pass on
+       the adjoint of a random half of the pixels (the half-sample sum);
+    3. from i = 2: ⟨ΔF_i⟩ with common random numbers: θ_i and θ_{i−1} rendered with one
+       seed at ``fd_spp`` -> loss on each -> adjoints; gradient(θ_i, its adjoint) −
+       gradient(θ_{i−1}, its adjoint), both with that seed (and again on the half of the
+       pixels for ``var=centred``). The first step has no θ_{i−1}: ⟨ΔF_1⟩ = 0, as in the
+       engine, whose optimiser skips the ΔF terms on a step that follows no step;
+    4. the step of the library's optimiser pass (``HostOptimiser``), clamped to the ranges.
+
+    The loss is called 3 times per iteration (once at the first). The carried primal image
+    (``carry``) needs the engine's own loss: here the losses read each iteration's own
+    renders (``carry=0``), and a spec that sets ``carry`` above 0 is refused."""
+    _python_loss_settings(settings, ["lr", "spp", "primal_spp", "fd_spp", "seed"])
+    spp, primal_spp, fd_spp = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("fd_spp", 1))
+    seed = int(settings.get("seed", 0))
+    names = list(scene.params)
+    if not names:
+        raise ValueError("the scene has no [[optimise.params]]: nothing to optimise")
+    # The spec is parsed (and refused with the library's message) before anything renders.
+    shapes = {n: scene.params.shape(n) for n in names}
+    probe = HostOptimiser(spec, [(int(np.prod(shapes[n], dtype=np.int64)), 0.0, *scene.params.range(n)) for n in names])
+    if probe.kind != "meta" or not probe.needs_fd:
+        raise ValueError(f"optimiser {spec!r}: a Python loss runs with adam, meta or meta-seed")
+    carry = _explicit_carry(spec)
+    if carry is not None and carry > 0:
+        raise ValueError(f"optimiser {spec!r}: carry = {carry}: the carried primal image needs a built-in loss (a Python loss runs meta with carry=0)")
+    names, theta, lrs, ranges = _start(scene, settings)
+    groups = [(theta[n].size, lrs[n], *ranges[n]) for n in names]
+    opt = HostOptimiser(spec, groups, iterations)
+    sizes = [theta[n].size for n in names]
+    x = _flat(theta, names)
+    x_prev = None
+    w, h = scene.film
+    log = {"iteration": [], "time_s": [], "loss": []}
+    progress = _Progress(iterations, quiet)
+    import time
+
+    def set_all(values):
+        for n, part in zip(names, np.split(values, np.cumsum(sizes)[:-1])):
+            scene.params[n] = part.reshape(shapes[n])
+
+    def grad_at(adjoint, spp_, seed_, mask):
+        """The flat gradient of `adjoint` and, where `mask` is given, of its half on `mask`."""
+        adjoint = np.asarray(adjoint, dtype=np.float32)
+        full = _flat(gradient(scene, adjoint, spp=spp_, seed=seed_), names)
+        if mask is None:
+            return full, None
+        return full, _flat(gradient(scene, adjoint * mask, spp=spp_, seed=seed_), names)
+
+    start, interrupted = time.perf_counter(), False
+    try:
+        for it in range(1, int(iterations) + 1):
+            base = 4 * (seed * 1000003 + it)
+            mask = None
+            if opt.needs_halves:
+                # A random half of the pixels, drawn anew each iteration.
+                rng = np.random.default_rng([seed, it])
+                mask = (rng.random((h, w, 1)) < 0.5).astype(np.float32)
+            set_all(x)
+            value, adjoint = loss_fn(render(scene, spp=primal_spp, seed=base))
+            f, f_half = grad_at(adjoint, spp, base + 1, mask)
+            if x_prev is None:
+                fd = np.zeros_like(f)
+                fd_half = None if mask is None else np.zeros_like(f)
+            else:
+                _, adj_cur = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
+                at_cur, at_cur_half = grad_at(adj_cur, fd_spp, base + 2, mask)
+                set_all(x_prev)
+                _, adj_prev = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
+                at_prev, at_prev_half = grad_at(adj_prev, fd_spp, base + 2, mask)
+                fd = at_cur - at_prev
+                fd_half = None if mask is None else at_cur_half - at_prev_half
+            x_prev = x
+            x = opt.step(x, f, fd, f_half, fd_half)
+            set_all(x)
+            row = {"iteration": it, "time_s": time.perf_counter() - start, "loss": float(value)}
+            for k in log:
+                log[k].append(row[k])
+            progress.update(row)
+            if callback is not None and callback(row) is False:
+                interrupted = True
+                break
+    finally:
+        progress.close()
+    params = {n: part.reshape(shapes[n]) for n, part in zip(names, np.split(x, np.cumsum(sizes)[:-1]))}
+    return Result(params, {k: np.asarray(c) for k, c in log.items()}, interrupted, None)

@@ -40,6 +40,23 @@ class Scene:
 def render(scene: Scene, spp: int = 64, seed: int = 0, sensor: int = 0) -> Array: ...
 def gradient(scene: Scene, adjoint: npt.ArrayLike, spp: int = 16, seed: int = 0, sensor: int = 0) -> Dict[str, Array]: ...
 
+class HostOptimiser:
+    kind: str
+    needs_fd: bool
+    needs_halves: bool
+    skipped: int
+    def __init__(self, spec: str, groups: Sequence[Tuple[int, float, float, float]], iterations: Optional[int] = None) -> None: ...
+    def __len__(self) -> int: ...
+    def step(
+        self,
+        theta: npt.ArrayLike,
+        grad: npt.ArrayLike,
+        fd: Optional[npt.ArrayLike] = None,
+        grad_half: Optional[npt.ArrayLike] = None,
+        fd_half: Optional[npt.ArrayLike] = None,
+    ) -> Array: ...
+    def diagnostics(self) -> List[Dict[str, float]]: ...
+
 class Result:
     params: Dict[str, Array]
     log: Dict[str, npt.NDArray[Any]]

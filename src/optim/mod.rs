@@ -10,6 +10,8 @@
 //!   f32 to reproduce the GPU's arithmetic). `glsl/lib/optim.glsl` is the same code in GLSL.
 //! - [`literal`]: the seed pseudocode (Moment2 + Meta) and textbook Adam transcribed in plain
 //!   f64; tests show that [`reference`] equals it on ordinary gradient streams.
+//! - [`host`]: the reference behind a spec over float32 buffers, for callers that produce
+//!   the gradient streams themselves (the Python package's loop over a Python loss).
 //! - [`replay`]: batch driver over recorded gradient streams (`vkinverse replay`).
 //! - [`push`]: the kernels' push-constant blocks.
 //!
@@ -64,6 +66,7 @@
 
 pub mod csv;
 pub mod gpu;
+pub mod host;
 pub mod literal;
 pub mod push;
 pub mod reference;
@@ -73,6 +76,7 @@ pub mod spec;
 #[cfg(test)]
 mod tests;
 
+pub use host::{HostGroup, HostOptimiser, HostStep};
 pub use reference::{AdamElem, BufferOptimiser, Diagnostics, GroupedOptimiser, MetaElem, Real};
 pub use replay::{replay_cpu, Replay, Streams};
 pub use schedule::{Decay, Schedule};

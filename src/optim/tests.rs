@@ -932,3 +932,43 @@ fn bonferroni_significance_keeps_a_groups_false_steps_at_one_elements() {
     assert_eq!(h.sig_for(1), 2.0);
     assert_eq!(h.sig_for(64), bonferroni_sig(2.0, 64));
 }
+
+/// [`HostOptimiser`] over two groups steps as the f64 replay of each group alone, up to
+/// θ's float32 storage between steps, and checks its inputs' lengths.
+#[test]
+fn host_optimiser_steps_each_group_as_the_reference_replay() {
+    let mut rng = Rng(11);
+    let (steps, sizes) = (20, [3usize, 2]);
+    let n: usize = sizes.iter().sum();
+    let mut row = |scale: f64, shift: f64| (0..n).map(|_| (shift + scale * rng.normal()) as f32).collect::<Vec<f32>>();
+    let grads: Vec<Vec<f32>> = (0..steps).map(|_| row(1.0, 0.5)).collect();
+    let fd: Vec<Vec<f32>> = (0..steps).map(|_| row(0.1, 0.0)).collect();
+    let init = vec![0.4f32; n];
+    let range = Range::new(0.0, 1.0).unwrap();
+    for spec in ["meta-seed", "meta@var=zero", "adam"] {
+        let s: spec::Spec = spec.parse().unwrap();
+        let groups: Vec<HostGroup> = sizes.iter().zip([0.05, 0.02]).map(|(&len, lr)| HostGroup { len, lr, range }).collect();
+        let mut host = HostOptimiser::new(spec, &groups, None).unwrap();
+        let mut theta = init.clone();
+        for i in 0..steps {
+            host.step(&mut theta, HostStep { grad: &grads[i], fd: Some(&fd[i]), ..Default::default() }).unwrap();
+        }
+        let mut offset = 0;
+        for g in &groups {
+            let part = |rows: &[Vec<f32>]| rows.iter().map(|r| r[offset..offset + g.len].to_vec()).collect::<Vec<_>>();
+            let r = replay_cpu::<f64>(&s.optimiser, &part(&grads), Some(&part(&fd)), &init[offset..offset + g.len], range, g.lr).unwrap();
+            for (a, b) in theta[offset..offset + g.len].iter().zip(r.theta.last().unwrap()) {
+                assert!((*a as f64 - b).abs() < 1e-5, "{spec}: {a} vs {b}");
+            }
+            offset += g.len;
+        }
+        assert_eq!(host.diagnostics().len(), 2);
+        assert!((theta[0] - init[0]).abs() > 0.05, "{spec}: the streams move θ");
+    }
+    let mut host = HostOptimiser::new("meta", &[HostGroup { len: 2, lr: 0.1, range }], None).unwrap();
+    let err = host.step(&mut [0.0; 2], HostStep { grad: &[1.0; 2], fd: Some(&[0.0; 2]), ..Default::default() }).unwrap_err();
+    assert!(matches!(err, OptimError::MissingHalves), "{err}");
+    let err = host.step(&mut [0.0; 2], HostStep { grad: &[1.0; 3], ..Default::default() }).unwrap_err();
+    assert!(matches!(err, OptimError::Length { what: "gradient", expected: 2, found: 3 }), "{err}");
+    assert!(HostOptimiser::new("meta", &[HostGroup { len: 1, lr: 0.1, range: Range { lo: 1.0, hi: 0.0 } }], None).is_err());
+}
