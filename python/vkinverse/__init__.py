@@ -280,18 +280,6 @@ def _python_loss_settings(settings, allowed):
         raise ValueError(f"{sorted(unknown)}: not settings of a Python-loss run ({', '.join(allowed)})")
 
 
-def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, out_dir, quiet, settings):
-    """A run on a Python loss: ``adam`` or the meta-estimator (``meta``, ``meta-seed``)."""
-    if targets is not None:
-        raise ValueError("targets: a Python loss holds its own targets")
-    if out_dir is not None:
-        raise ValueError("out_dir: a Python-loss run writes no run directory (its parameters and log are returned in the Result)")
-    name = str(optimiser).split("@")[0]
-    if name == "adam":
-        return _optimise_python_loss_adam(scene, loss_fn, iterations, callback, quiet, settings)
-    return _optimise_python_loss_meta(scene, loss_fn, str(optimiser), iterations, callback, quiet, settings)
-
-
 def _start(scene, settings):
     """Each parameter's start value (its ``init``, set on the scene), learning rate (the
     ``lr`` setting, else the scene's rate for it, else 0.02) and range, in the scene's
@@ -305,45 +293,6 @@ def _start(scene, settings):
         ranges[n] = scene.params.range(n)
         scene.params[n] = theta[n]
     return names, theta, lrs, ranges
-
-
-def _optimise_python_loss_adam(scene, loss_fn, iterations, callback, quiet, settings):
-    """Adam on a Python loss: each iteration renders (primal_spp), calls the loss on the
-    image, and steps every parameter along the gradient of its adjoint (spp)."""
-    _python_loss_settings(settings, ["lr", "spp", "primal_spp", "seed", "beta1", "beta2"])
-    spp, primal_spp, seed = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("seed", 0))
-    beta1, beta2, eps = float(settings.get("beta1", 0.9)), float(settings.get("beta2", 0.999)), 1e-8
-    names, theta, lrs, ranges = _start(scene, settings)
-    m = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
-    v = {n: np.zeros_like(theta[n], dtype=np.float64) for n in names}
-    log = {"iteration": [], "time_s": [], "loss": []}
-    progress = _Progress(iterations, quiet)
-    import time
-
-    start, interrupted = time.perf_counter(), False
-    try:
-        for it in range(1, int(iterations) + 1):
-            image = render(scene, spp=primal_spp, seed=2 * (seed * 1000003 + it))
-            value, adjoint = loss_fn(image)
-            grads = gradient(scene, adjoint, spp=spp, seed=2 * (seed * 1000003 + it) + 1)
-            for n in names:
-                g = grads[n].astype(np.float64)
-                m[n] = beta1 * m[n] + (1 - beta1) * g
-                v[n] = beta2 * v[n] + (1 - beta2) * g * g
-                step = lrs[n] * (m[n] / (1 - beta1**it)) / (np.sqrt(v[n] / (1 - beta2**it)) + eps)
-                lo, hi = ranges[n]
-                theta[n] = np.clip(theta[n] - step, lo, hi).astype(np.float32)
-                scene.params[n] = theta[n]
-            row = {"iteration": it, "time_s": time.perf_counter() - start, "loss": float(value)}
-            for k in log:
-                log[k].append(row[k])
-            progress.update(row)
-            if callback is not None and callback(row) is False:
-                interrupted = True
-                break
-    finally:
-        progress.close()
-    return Result({n: theta[n] for n in names}, {k: np.asarray(c) for k, c in log.items()}, interrupted, None)
 
 
 class HostOptimiser:
@@ -396,24 +345,34 @@ def _flat(arrays, names):
     return np.concatenate([np.asarray(arrays[n], dtype=np.float32).ravel() for n in names])
 
 
-def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet, settings):
-    """The meta-estimator on a Python loss. Per iteration i (seeds derived from ``seed`` and
-    i, each parameter one group):
+def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, out_dir, quiet, settings):
+    """A run on a Python loss, stepped by the library's optimiser passes on the host
+    (``HostOptimiser``; each parameter one group). Per iteration i (seeds derived from
+    ``seed`` and i):
 
     1. the primal image of θ_i (``primal_spp``) -> loss -> adjoint;
     2. ⟨F_i⟩ = gradient(θ_i, adjoint, ``spp``), and with ``var=centred`` the same pass on
        the adjoint of a random half of the pixels (the half-sample sum);
-    3. from i = 2: ⟨ΔF_i⟩ with common random numbers: θ_i and θ_{i−1} rendered with one
-       seed at ``fd_spp`` -> loss on each -> adjoints; gradient(θ_i, its adjoint) −
-       gradient(θ_{i−1}, its adjoint), both with that seed (and again on the half of the
-       pixels for ``var=centred``). The first step has no θ_{i−1}: ⟨ΔF_1⟩ = 0, as in the
-       engine, whose optimiser skips the ΔF terms on a step that follows no step;
-    4. the step of the library's optimiser pass (``HostOptimiser``), clamped to the ranges.
+    3. the meta-estimator, from i = 2: ⟨ΔF_i⟩ with common random numbers: θ_i and θ_{i−1}
+       rendered with one seed at ``fd_spp`` -> loss on each -> adjoints; gradient(θ_i, its
+       adjoint) − gradient(θ_{i−1}, its adjoint), both with that seed (and again on the
+       half of the pixels for ``var=centred``). The first step has no θ_{i−1}: ⟨ΔF_1⟩ = 0,
+       as in the engine, whose optimiser skips the ΔF terms on a step that follows no step;
+    4. the step, clamped to the ranges.
 
-    The loss is called 3 times per iteration (once at the first). The carried primal image
-    (``carry``) needs the engine's own loss: here the losses read each iteration's own
-    renders (``carry=0``), and a spec that sets ``carry`` above 0 is refused."""
-    _python_loss_settings(settings, ["lr", "spp", "primal_spp", "fd_spp", "seed"])
+    The loss is called once per iteration with Adam, 3 times with the meta-estimator (once
+    at the first). The carried primal image (``carry``) needs the engine's own loss: here
+    the losses read each iteration's own renders (``carry=0``), and a spec that sets
+    ``carry`` above 0 is refused."""
+    if targets is not None:
+        raise ValueError("targets: a Python loss holds its own targets")
+    if out_dir is not None:
+        raise ValueError("out_dir: a Python-loss run writes no run directory (its parameters and log are returned in the Result)")
+    spec = str(optimiser)
+    is_adam = spec.split("@")[0] == "adam"
+    _python_loss_settings(settings, ["lr", "spp", "primal_spp", "seed"] + (["beta1", "beta2"] if is_adam else ["fd_spp"]))
+    # Adam's decays given as settings join its spec.
+    spec += "".join(f"@{k}={float(settings[k])}" for k in ("beta1", "beta2") if k in settings)
     spp, primal_spp, fd_spp = int(settings.get("spp", 2)), int(settings.get("primal_spp", 4)), int(settings.get("fd_spp", 1))
     seed = int(settings.get("seed", 0))
     names = list(scene.params)
@@ -422,14 +381,13 @@ def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet
     # The spec is parsed (and refused with the library's message) before anything renders.
     shapes = {n: scene.params.shape(n) for n in names}
     probe = HostOptimiser(spec, [(int(np.prod(shapes[n], dtype=np.int64)), 0.0, *scene.params.range(n)) for n in names])
-    if probe.kind != "meta" or not probe.needs_fd:
+    if probe.kind not in ("adam", "meta"):
         raise ValueError(f"optimiser {spec!r}: a Python loss runs with adam, meta or meta-seed")
     carry = _explicit_carry(spec)
     if carry is not None and carry > 0:
         raise ValueError(f"optimiser {spec!r}: carry = {carry}: the carried primal image needs a built-in loss (a Python loss runs meta with carry=0)")
     names, theta, lrs, ranges = _start(scene, settings)
-    groups = [(theta[n].size, lrs[n], *ranges[n]) for n in names]
-    opt = HostOptimiser(spec, groups, iterations)
+    opt = HostOptimiser(spec, [(theta[n].size, lrs[n], *ranges[n]) for n in names], iterations)
     sizes = [theta[n].size for n in names]
     x = _flat(theta, names)
     x_prev = None
@@ -462,10 +420,11 @@ def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet
             set_all(x)
             value, adjoint = loss_fn(render(scene, spp=primal_spp, seed=base))
             f, f_half = grad_at(adjoint, spp, base + 1, mask)
-            if x_prev is None:
+            fd = fd_half = None
+            if opt.needs_fd and x_prev is None:
                 fd = np.zeros_like(f)
                 fd_half = None if mask is None else np.zeros_like(f)
-            else:
+            elif opt.needs_fd:
                 _, adj_cur = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
                 at_cur, at_cur_half = grad_at(adj_cur, fd_spp, base + 2, mask)
                 set_all(x_prev)
@@ -487,3 +446,5 @@ def _optimise_python_loss_meta(scene, loss_fn, spec, iterations, callback, quiet
         progress.close()
     params = {n: part.reshape(shapes[n]) for n, part in zip(names, np.split(x, np.cumsum(sizes)[:-1]))}
     return Result(params, {k: np.asarray(c) for k, c in log.items()}, interrupted, None)
+
+
