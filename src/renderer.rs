@@ -44,6 +44,9 @@ pub struct ParamInfo {
 struct Gradients {
     pass: GradientPass,
     ops: BufferOps,
+    /// The sum over a random half of the pixels, for the pass built to split
+    /// ([`Renderer::gradient_with_half`]).
+    half: Option<crate::gpu::Buffer>,
 }
 
 /// A scene uploaded to a device: the BVH built, the kernels specialised for it, and its
@@ -76,6 +79,8 @@ pub struct Renderer {
     /// θ as the device holds it (the optimised parameters, in layout order).
     theta: Vec<f32>,
     gradients: RefCell<Option<Gradients>>,
+    /// The adjoint pass that also sums half of the pixels, built on first use.
+    split_gradients: RefCell<Option<Gradients>>,
 }
 
 impl Renderer {
@@ -85,7 +90,8 @@ impl Renderer {
         let primal = PrimalRenderer::new(gs)?;
         let theta = primal.scene.layout.reference();
         primal.scene.set_theta(theta.clone())?;
-        let renderer = Renderer { device: device.clone(), scene: scene.clone(), primal, theta, gradients: RefCell::new(None) };
+        let renderer =
+            Renderer { device: device.clone(), scene: scene.clone(), primal, theta, gradients: RefCell::new(None), split_gradients: RefCell::new(None) };
         device.validated(renderer)
     }
 
@@ -160,12 +166,16 @@ impl Renderer {
     }
 
     /// The gradient passes, built on first use.
-    fn gradients(&self) -> Result<std::cell::RefMut<'_, Gradients>> {
-        let mut slot = self.gradients.borrow_mut();
+    /// The adjoint pass, built on first use; `split` the one that also sums half of the
+    /// pixels.
+    fn gradients(&self, split: bool) -> Result<std::cell::RefMut<'_, Gradients>> {
+        let mut slot = if split { self.split_gradients.borrow_mut() } else { self.gradients.borrow_mut() };
         if slot.is_none() {
             let gs = &self.primal.scene;
             let ops = BufferOps::new(&gs.ctx)?;
-            let grad = crate::gpu::Buffer::zeroed::<f32>(&gs.ctx, "grad", gs.layout.len.max(1), MemoryKind::Device)?;
+            let zeroed = |name| crate::gpu::Buffer::zeroed::<f32>(&gs.ctx, name, gs.layout.len.max(1), MemoryKind::Device);
+            let grad = zeroed("grad")?;
+            let half = if split { Some(zeroed("grad half")?) } else { None };
             let blank: Vec<Image> = (0..gs.sensors).map(|_| Image::filled(gs.width, gs.height, [0.0; 3])).collect();
             let inputs = GradientInputs {
                 targets: &blank,
@@ -176,10 +186,10 @@ impl Renderer {
                 theta: &gs.theta,
                 theta_prev: None,
                 grad: &grad,
-                grad_half: None,
+                grad_half: half.as_ref(),
             };
             let pass = GradientPass::new(gs, &ops, &inputs)?;
-            *slot = Some(Gradients { pass, ops });
+            *slot = Some(Gradients { pass, ops, half });
         }
         Ok(std::cell::RefMut::map(slot, |g| g.as_mut().expect("built above")))
     }
@@ -197,13 +207,14 @@ impl Renderer {
 
     /// Records and runs the passes `record` adds for the options' sensor, with their spp
     /// and seed, and reads the gradient back by parameter.
-    fn run_gradient(
-        &self,
-        options: &RenderOptions,
-        record: impl FnOnce(&mut crate::gpu::Recorder, &GradientPass, &BufferOps, usize) -> crate::gpu::Result<()>,
-    ) -> Result<Vec<(String, ParamValue)>> {
+    /// Runs the adjoint pass of `adjoint` (written into sensor `options.sensor`'s adjoint
+    /// image) and reads its gradient, and with `split` also the sum over half of the pixels.
+    fn run_gradient(&self, adjoint: &Image, options: &RenderOptions, split: bool) -> Result<(Vec<(String, ParamValue)>, Option<Vec<(String, ParamValue)>>)> {
         self.check(options)?;
-        let mut g = self.gradients()?;
+        self.check_image("the adjoint image", adjoint)?;
+        let mut g = self.gradients(split)?;
+        let sensor = options.sensor as usize;
+        g.pass.adjoint_image(sensor).write(&adjoint.data)?;
         g.pass.spp = options.spp;
         g.pass.seed = gpu_seed(options.seed);
         let gs = &self.primal.scene;
@@ -212,12 +223,22 @@ impl Renderer {
         let mut cmd = CommandBuffer::new(&gs.ctx, "gradient")?;
         cmd.record(|rec| {
             rec.zero(&g.pass.grad)?;
-            record(rec, &g.pass, &g.ops, options.sensor as usize)
+            if let Some(half) = &g.half {
+                rec.zero(half)?;
+            }
+            g.pass.record_sensor_adjoint(rec, gs, &g.ops, sensor)
         })?;
         cmd.submit_and_wait()?;
-        let mut grad: Vec<f32> = g.pass.grad.read()?;
-        grad.truncate(gs.layout.len);
-        self.device.validated(gs.layout.values(&grad))
+        let read = |b: &crate::gpu::Buffer| -> Result<Vec<(String, ParamValue)>> {
+            let mut v: Vec<f32> = b.read()?;
+            v.truncate(gs.layout.len);
+            self.device.validated(gs.layout.values(&v))
+        };
+        let half = match &g.half {
+            Some(h) => Some(read(h)?),
+            None => None,
+        };
+        Ok((read(&g.pass.grad)?, half))
     }
 
     /// The gradient of a loss L with respect to every parameter, given the loss's gradient
@@ -226,10 +247,16 @@ impl Renderer {
     /// numbers. Unbiased when `adjoint` does not depend on those numbers (compute it from a
     /// render with another seed).
     pub fn gradient(&self, adjoint: &Image, options: &RenderOptions) -> Result<Vec<(String, ParamValue)>> {
-        self.check_image("the adjoint image", adjoint)?;
-        let gs = &self.primal.scene;
-        self.gradients()?.pass.adjoint_image(options.sensor as usize).write(&adjoint.data)?;
-        self.run_gradient(options, |rec, pass, ops, s| pass.record_sensor_adjoint(rec, gs, ops, s))
+        Ok(self.run_gradient(adjoint, options, false)?.0)
+    }
+
+    /// [`Self::gradient`], and from the same pass the part of it that comes from a random
+    /// half of the pixels (drawn from the seed): two independent halves of the estimate,
+    /// whose difference estimates its variance, for the meta-estimator's centred variance
+    /// (`var=centred`). Whole pixels, not samples: a pixel's samples share its adjoint.
+    pub fn gradient_with_half(&self, adjoint: &Image, options: &RenderOptions) -> Result<(Vec<(String, ParamValue)>, Vec<(String, ParamValue)>)> {
+        let (full, half) = self.run_gradient(adjoint, options, true)?;
+        Ok((full, half.expect("the split pass sums a half")))
     }
 
     /// A built-in loss of a render against `target`, and its gradient with respect to every

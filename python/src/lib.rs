@@ -163,6 +163,26 @@ impl NativeScene {
         Ok(grads.into_iter().map(|(name, v)| (name, floats(py, &v.data), v.shape.array())).collect())
     }
 
+    /// `gradient`, and from the same pass the sum over a random half of the pixels (drawn
+    /// from the seed): (full, half), each as `gradient` returns it.
+    #[allow(clippy::too_many_arguments)]
+    fn gradient_with_half<'py>(
+        &self,
+        py: Python<'py>,
+        adjoint: &[u8],
+        height: u32,
+        width: u32,
+        spp: u32,
+        seed: u64,
+        sensor: u32,
+    ) -> PyResult<(Arrays<'py>, Arrays<'py>)> {
+        let adjoint = image_from_bytes(adjoint, height, width, "adjoint")?;
+        let options = RenderOptions { sensor, spp, seed };
+        let (full, half) = self.with(py, move |r| r.gradient_with_half(&adjoint, &options))?;
+        let arrays = |g: Vec<(String, vkinverse::ParamValue)>| g.into_iter().map(|(name, v)| (name, floats(py, &v.data), v.shape.array())).collect();
+        Ok((arrays(full), arrays(half)))
+    }
+
     /// The film's (width, height), the number of sensors, and the warnings of loading.
     fn film(&self) -> PyResult<(u32, u32)> {
         self.read(|r| (r.scene().film.width, r.scene().film.height))

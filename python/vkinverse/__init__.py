@@ -351,12 +351,13 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     ``seed`` and i):
 
     1. the primal image of θ_i (``primal_spp``) -> loss -> adjoint;
-    2. ⟨F_i⟩ = gradient(θ_i, adjoint, ``spp``), and with ``var=centred`` the same pass on
-       the adjoint of a random half of the pixels (the half-sample sum);
+    2. ⟨F_i⟩ = gradient(θ_i, adjoint, ``spp``), and with ``var=centred`` from the same pass
+       its part from a random half of the pixels (the half-sample sum);
     3. the meta-estimator, from i = 2: ⟨ΔF_i⟩ with common random numbers: θ_i and θ_{i−1}
        rendered with one seed at ``fd_spp`` -> loss on each -> adjoints; gradient(θ_i, its
-       adjoint) − gradient(θ_{i−1}, its adjoint), both with that seed (and again on the
-       half of the pixels for ``var=centred``). The first step has no θ_{i−1}: ⟨ΔF_1⟩ = 0,
+       adjoint) − gradient(θ_{i−1}, its adjoint), both with that seed (for ``var=centred``
+       with their parts from one half of the pixels, the same for both: it is drawn from
+       the seed). The first step has no θ_{i−1}: ⟨ΔF_1⟩ = 0,
        as in the engine, whose optimiser skips the ΔF terms on a step that follows no step;
     4. the step, clamped to the ranges.
 
@@ -400,38 +401,38 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
         for n, part in zip(names, np.split(values, np.cumsum(sizes)[:-1])):
             scene.params[n] = part.reshape(shapes[n])
 
-    def grad_at(adjoint, spp_, seed_, mask):
-        """The flat gradient of `adjoint` and, where `mask` is given, of its half on `mask`."""
-        adjoint = np.asarray(adjoint, dtype=np.float32)
-        full = _flat(gradient(scene, adjoint, spp=spp_, seed=seed_), names)
-        if mask is None:
-            return full, None
-        return full, _flat(gradient(scene, adjoint * mask, spp=spp_, seed=seed_), names)
+    def grad_at(adjoint, spp_, seed_, halves):
+        """The flat gradient of `adjoint` and, with `halves`, its part from a random half of
+        the pixels (drawn from the seed), from the same pass."""
+        a = _floats(adjoint, "the loss's dL/dimage")
+        if a.shape != (h, w, 3):
+            raise ValueError(f"the loss's dL/dimage: shape {a.shape}, the film's image is {(h, w, 3)}")
+        if not halves:
+            return _flat(gradient(scene, a, spp=spp_, seed=seed_), names), None
+        full, half = scene._native.gradient_with_half(a.tobytes(), h, w, int(spp_), int(seed_), 0)
+        as_dict = lambda g: {n: _array(d, s) for n, d, s in g}  # noqa: E731
+        return _flat(as_dict(full), names), _flat(as_dict(half), names)
 
     start, interrupted = time.perf_counter(), False
     try:
         for it in range(1, int(iterations) + 1):
             base = 4 * (seed * 1000003 + it)
-            mask = None
-            if opt.needs_halves:
-                # A random half of the pixels, drawn anew each iteration.
-                rng = np.random.default_rng([seed, it])
-                mask = (rng.random((h, w, 1)) < 0.5).astype(np.float32)
+            halves = opt.needs_halves
             set_all(x)
             value, adjoint = loss_fn(render(scene, spp=primal_spp, seed=base))
-            f, f_half = grad_at(adjoint, spp, base + 1, mask)
+            f, f_half = grad_at(adjoint, spp, base + 1, halves)
             fd = fd_half = None
             if opt.needs_fd and x_prev is None:
                 fd = np.zeros_like(f)
-                fd_half = None if mask is None else np.zeros_like(f)
+                fd_half = np.zeros_like(f) if halves else None
             elif opt.needs_fd:
                 _, adj_cur = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
-                at_cur, at_cur_half = grad_at(adj_cur, fd_spp, base + 2, mask)
+                at_cur, at_cur_half = grad_at(adj_cur, fd_spp, base + 2, halves)
                 set_all(x_prev)
                 _, adj_prev = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
-                at_prev, at_prev_half = grad_at(adj_prev, fd_spp, base + 2, mask)
+                at_prev, at_prev_half = grad_at(adj_prev, fd_spp, base + 2, halves)
                 fd = at_cur - at_prev
-                fd_half = None if mask is None else at_cur_half - at_prev_half
+                fd_half = at_cur_half - at_prev_half if halves else None
             x_prev = x
             x = opt.step(x, f, fd, f_half, fd_half)
             set_all(x)

@@ -1,7 +1,7 @@
 //! The public library API as a caller uses it: a run stopped by its cancellation token or
 //! by its observer, with its outputs written and resumable; parameters read and set by
 //! name; gradients for an image adjoint against the built-in loss and against finite
-//! differences; two devices of other configurations in one process.
+//! differences, and their half-pixel sums; two devices of other configurations in one process.
 
 use crate::common;
 use common::scenes::temp_dir;
@@ -168,6 +168,35 @@ fn gradients_for_an_image_adjoint_match_the_loss_and_finite_differences() {
         eprintln!("channel {c}: gradient {g:.6}, finite difference {fd:.6}");
         assert!((g - fd).abs() <= 0.02 * fd.abs(), "channel {c}: gradient {g}, finite difference {fd}");
     }
+}
+
+/// `gradient_with_half`: its full gradient is `gradient`'s for the same seed, and its half is
+/// the part from a random half of the whole pixels, drawn from the seed. With the adjoint of
+/// one pixel on the red wall, the half is either all of the gradient or none of it, and over
+/// 24 seeds each happens at least twice (a fair draw fails that with probability 3e-6).
+#[test]
+fn gradient_with_half_sums_a_half_of_whole_pixels_drawn_from_the_seed() {
+    let scene = bundled("cornell", 16);
+    let r = Renderer::new(&device(Config::default()), &scene).unwrap();
+    let mut adjoint = Image::filled(16, 16, [0.0; 3]);
+    adjoint.data[8 * 16 + 1] = [1.0; 3];
+    let (mut all, mut none) = (0, 0);
+    for seed in 0..24 {
+        let options = RenderOptions { spp: 4, seed, ..Default::default() };
+        let (full, half) = r.gradient_with_half(&adjoint, &options).unwrap();
+        let plain = r.gradient(&adjoint, &options).unwrap();
+        let (full, half, plain) = (&full[0].1.data, &half[0].1.data, &plain[0].1.data);
+        assert!(full[0] > 0.0, "seed {seed}: the red wall's pixel has a red gradient: {full:?}");
+        let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(y.abs()));
+        assert!(close(full, plain), "seed {seed}: {full:?} against gradient's {plain:?}");
+        if close(half, full) {
+            all += 1;
+        } else {
+            assert!(half.iter().all(|&v| v == 0.0), "seed {seed}: half {half:?} of {full:?} is neither all nor none");
+            none += 1;
+        }
+    }
+    assert!(all >= 2 && none >= 2, "the pixel was in the half at {all} of 24 seeds");
 }
 
 /// Two devices of other configurations (BVH layouts, the traversal stack, the cache) render
