@@ -108,7 +108,18 @@ impl GpuScene {
         // its length is a whole number of texels (the padding is never read or moved), and
         // the material data follow it in the same buffer.
         let const_base = gpu::texel_padded(layout.len) as u32;
-        let theta = texel_buffer(ctx, "theta", &targets::with_constants(const_base, &data.data, layout.initial()))?;
+        let contents = targets::with_constants(const_base, &data.data, layout.initial());
+        // Textures are most of a large scene's data: a buffer beyond the device's range
+        // says how much of it they are.
+        let bytes = (contents.len() * 4) as u64;
+        let max = ctx.info().max_storage_buffer_range;
+        if bytes > max && data.textures > 0 {
+            let (w, h) = data.largest_texture;
+            let mib = (data.texture_floats * 4) as f64 / (1024.0 * 1024.0);
+            let name = format!("theta: the parameters and material data, {mib:.1} MiB of it in {} texture(s), the largest {w} x {h}; smaller textures fit", data.textures);
+            return Err(gpu::GpuError::BufferTooLarge { name, size: bytes, max });
+        }
+        let theta = texel_buffer(ctx, "theta", &contents)?;
         Ok(Self {
             ctx: ctx.clone(),
             width: scene.film.width,

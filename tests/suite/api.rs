@@ -247,3 +247,34 @@ fn a_scene_built_in_code_renders() {
     let err = Scene::from_parts(bad).unwrap_err().to_string();
     assert!(err.contains("floor"), "{err}");
 }
+
+/// Textures beyond what the device's buffer range holds: the error says that the textures
+/// are what does not fit, with their size, in one line. A 4096 × 4096 colour texture is
+/// 192 MiB, above lavapipe's (and most GPUs') 128 MiB range.
+#[test]
+fn textures_too_large_for_the_device_are_named_in_the_error() {
+    use std::sync::Arc;
+    use vkinverse::glam::Vec3;
+    use vkinverse::scene::{ColorValue, Material, Mesh, SceneParts, Sensor, Texture};
+    let d = device(Config::default());
+    let max = d.info().max_storage_buffer_range;
+    let side = 4096u32;
+    assert!(u64::from(side).pow(2) * 12 > max, "the device's storage-buffer range {max} holds a {side}-texel texture: the test needs a larger one");
+    let image = Image::filled(side, side, [0.5; 3]);
+    let texture = Texture { path: "big.exr".into(), image: Arc::new(image), filter: Default::default(), wrap: Default::default() };
+    let quad = vec![[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]];
+    let mut floor = Mesh::new("floor", quad, vec![[0, 2, 1], [0, 3, 2]], 0);
+    floor.uvs = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+    floor.emission = ColorValue::Constant([1.0; 3]);
+    let parts = SceneParts {
+        film: Film { width: 8, height: 8 },
+        sensors: vec![Sensor::looking_at(Vec3::new(0.0, 3.0, 3.0), Vec3::ZERO, Vec3::Y, 50.0).unwrap()],
+        materials: vec![Material::diffuse("floor", ColorValue::Texture(texture))],
+        meshes: vec![floor],
+        ..SceneParts::default()
+    };
+    let scene = Scene::from_parts(parts).unwrap();
+    let err = Renderer::new(&d, &scene).err().expect("the texture does not fit").to_string();
+    assert!(!err.contains('\n'), "one line: {err}");
+    assert!(err.contains("192.0 MiB of it in 1 texture(s), the largest 4096 x 4096") && err.contains(&max.to_string()), "{err}");
+}

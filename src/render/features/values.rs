@@ -27,6 +27,11 @@ pub fn sampler_flags(t: &Texture) -> u32 {
 #[derive(Default)]
 pub struct MaterialData {
     pub data: Vec<f32>,
+    /// The textures stored, their floats in `data`, and the largest one's (width, height):
+    /// what an error names when the data do not fit the device.
+    pub textures: usize,
+    pub texture_floats: usize,
+    pub largest_texture: (u32, u32),
     /// Textures stored already, by the address of their image, their channels and sampler
     /// flags (one shared image: several meshes' emission texture).
     stored: Vec<((*const Image, usize, u32), ValueRef)>,
@@ -46,6 +51,11 @@ impl MaterialData {
         let offset = self.data.len() as i32;
         for px in &img.data {
             self.data.extend_from_slice(&px[..channels]);
+        }
+        self.textures += 1;
+        self.texture_floats += img.data.len() * channels;
+        if u64::from(img.width) * u64::from(img.height) > u64::from(self.largest_texture.0) * u64::from(self.largest_texture.1) {
+            self.largest_texture = (img.width, img.height);
         }
         ValueRef { offset, width: img.width, height: img.height, flags: sampler }
     }
