@@ -54,6 +54,11 @@ fn devices() -> PyResult<Vec<String>> {
 
 /// (name, float32 bytes, shape) of each parameter's value or gradient.
 type Arrays<'py> = Vec<(String, Bound<'py, PyBytes>, Vec<usize>)>;
+
+/// Named parameter values as (name, float32 bytes, shape) each.
+fn arrays<'py>(py: Python<'py>, values: &[(String, vkinverse::ParamValue)]) -> Arrays<'py> {
+    values.iter().map(|(name, v)| (name.clone(), floats(py, &v.data), v.shape.array())).collect()
+}
 /// (name, shape, (lo, hi)) of each parameter.
 type ParamInfos = Vec<(String, Vec<usize>, (f32, f32))>;
 
@@ -66,7 +71,7 @@ fn image_from_bytes(bytes: &[u8], height: u32, width: u32, what: &str) -> PyResu
     if bytes.len() != n * 12 {
         return Err(PyValueError::new_err(format!("{what}: {} bytes for {height} x {width} x 3 float32", bytes.len())));
     }
-    let values: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let values = floats_of(bytes, what)?;
     if let Some(v) = values.iter().find(|v| !v.is_finite()) {
         return Err(PyValueError::new_err(format!("{what}: {v} is not a finite number")));
     }
@@ -160,7 +165,7 @@ impl NativeScene {
         let adjoint = image_from_bytes(adjoint, height, width, "adjoint")?;
         let options = RenderOptions { sensor, spp, seed };
         let grads = self.with(py, move |r| r.gradient(&adjoint, &options))?;
-        Ok(grads.into_iter().map(|(name, v)| (name, floats(py, &v.data), v.shape.array())).collect())
+        Ok(arrays(py, &grads))
     }
 
     /// `gradient`, and from the same pass the sum over a random half of the pixels (drawn
@@ -179,8 +184,7 @@ impl NativeScene {
         let adjoint = image_from_bytes(adjoint, height, width, "adjoint")?;
         let options = RenderOptions { sensor, spp, seed };
         let (full, half) = self.with(py, move |r| r.gradient_with_half(&adjoint, &options))?;
-        let arrays = |g: Vec<(String, vkinverse::ParamValue)>| g.into_iter().map(|(name, v)| (name, floats(py, &v.data), v.shape.array())).collect();
-        Ok((arrays(full), arrays(half)))
+        Ok((arrays(py, &full), arrays(py, &half)))
     }
 
     /// The film's (width, height), the number of sensors, and the warnings of loading.
@@ -269,7 +273,7 @@ impl NativeScene {
             let column: Vec<f64> = rows.iter().map(|r| r.param_errors.get(k).copied().flatten().unwrap_or(f64::NAN)).collect();
             log.set_item(format!("param_error.{name}"), column)?;
         }
-        let params = run.params.iter().map(|(name, v)| (name.clone(), floats(py, &v.data), v.shape.array())).collect();
+        let params = arrays(py, &run.params);
         Ok((params, log, run.summary.interrupted))
     }
 }

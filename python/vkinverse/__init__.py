@@ -153,12 +153,23 @@ def render(scene, spp=64, seed=0, sensor=0):
 def gradient(scene, adjoint, spp=16, seed=0, sensor=0):
     """Every parameter's gradient for the image-space adjoint ``adjoint`` = dL/dImage
     (float32 [height, width, 3]): {name: array shaped like the parameter}."""
+    grads = scene._native.gradient(*_adjoint(scene, adjoint, "adjoint"), int(spp), int(seed), int(sensor))
+    return _named(grads)
+
+
+def _adjoint(scene, adjoint, what):
+    """An adjoint image as the native calls take it: (float32 bytes, height, width), its
+    shape checked against the film."""
     w, h = scene.film
-    a = _floats(adjoint, "adjoint")
+    a = _floats(adjoint, what)
     if a.shape != (h, w, 3):
-        raise ValueError(f"adjoint: shape {a.shape}, the film's image is {(h, w, 3)}")
-    grads = scene._native.gradient(a.tobytes(), h, w, int(spp), int(seed), int(sensor))
-    return {name: _array(data, shape) for name, data, shape in grads}
+        raise ValueError(f"{what}: shape {a.shape}, the film's image is {(h, w, 3)}")
+    return a.tobytes(), h, w
+
+
+def _named(arrays):
+    """{name: array} of native (name, bytes, shape) triples."""
+    return {name: _array(data, shape) for name, data, shape in arrays}
 
 
 class Result:
@@ -392,7 +403,6 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     sizes = [theta[n].size for n in names]
     x = _flat(theta, names)
     x_prev = None
-    w, h = scene.film
     log = {"iteration": [], "time_s": [], "loss": []}
     progress = _Progress(iterations, quiet)
     import time
@@ -404,14 +414,11 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     def grad_at(adjoint, spp_, seed_, halves):
         """The flat gradient of `adjoint` and, with `halves`, its part from a random half of
         the pixels (drawn from the seed), from the same pass."""
-        a = _floats(adjoint, "the loss's dL/dimage")
-        if a.shape != (h, w, 3):
-            raise ValueError(f"the loss's dL/dimage: shape {a.shape}, the film's image is {(h, w, 3)}")
+        a = _adjoint(scene, adjoint, "the loss's dL/dimage")
         if not halves:
-            return _flat(gradient(scene, a, spp=spp_, seed=seed_), names), None
-        full, half = scene._native.gradient_with_half(a.tobytes(), h, w, int(spp_), int(seed_), 0)
-        as_dict = lambda g: {n: _array(d, s) for n, d, s in g}  # noqa: E731
-        return _flat(as_dict(full), names), _flat(as_dict(half), names)
+            return _flat(_named(scene._native.gradient(*a, int(spp_), int(seed_), 0)), names), None
+        full, half = scene._native.gradient_with_half(*a, int(spp_), int(seed_), 0)
+        return _flat(_named(full), names), _flat(_named(half), names)
 
     start, interrupted = time.perf_counter(), False
     try:
