@@ -183,6 +183,23 @@ pub struct LightRecord {
     pub outer: f32,
 }
 
+/// Mirror of `MediumRecord`: 80 bytes (5 texels); `max_steps` 0 where the scene has no
+/// medium.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MediumRecord {
+    pub box_min: [f32; 3],
+    pub step: f32,
+    pub box_max: [f32; 3],
+    pub scale: f32,
+    pub density: ValueRef,
+    pub emission: ValueRef,
+    pub density_depth: u32,
+    pub emission_depth: u32,
+    pub max_steps: u32,
+    pub pad: u32,
+}
+
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an
 /// orthographic camera, `lens_radius` 0 but for a thin lens).
 #[repr(C)]
@@ -219,12 +236,13 @@ pub struct Globals {
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/suite/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 6] = [
+pub const TEXEL_RECORDS: [(&str, usize); 7] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
     ("SensorRecord", std::mem::size_of::<SensorRecord>()),
     ("LightRecord", std::mem::size_of::<LightRecord>()),
+    ("MediumRecord", std::mem::size_of::<MediumRecord>()),
     ("Globals", std::mem::size_of::<Globals>()),
 ];
 const _: () = {

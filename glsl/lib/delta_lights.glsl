@@ -83,7 +83,14 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
         delta_light_incidence(l, p_off, wi, tmax, g);
         vec3 o = through ? ray_origin(p, ng, wi) : p_off;
         if (g <= 0.0 || !passes_side(wi, ng, ns, through) || delta_light_blocked(o, wi, tmax)) continue;
+        float tr[NSTATES];
+        if (HAS_MEDIA) {
+            medium_transmittance(o, wi, tmax, tr);
+        } else {
+            for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+        }
 #ifdef ADJOINT
+        vec3 before[NSTATES] = radiance;
         // Every state reads the same parameters: their derivatives are summed before one
         // scatter each (the material's with the vertex's others, MatGrad).
         vec3 k_bsdf[NSTATES];
@@ -93,7 +100,7 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
         for (int s = 0; s < NSTATES; ++s) {
             vec3 color = fetch3(l.color, vec2(0.0), s);
             float intensity = fetch1(l.intensity, vec2(0.0), s);
-            vec3 le = color * (intensity * g);
+            vec3 le = color * (intensity * g * tr[s]);
             vec3 f = bsdf_eval(mat[s], ns, wo, wi);
             vec3 c = beta[s] * f * le;
             radiance[s] += c;
@@ -101,7 +108,7 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
             remaining[s] -= c;
             vec3 k = state_sign(s) * delta[s] * beta[s];
             k_bsdf[s] = k * le;
-            vec3 dle = k * f * g;  // d(loss)/d(color × intensity), per channel
+            vec3 dle = k * f * (g * tr[s]);  // d(loss)/d(color × intensity), per channel
             g_color += dle * intensity;
             g_intensity += dot(dle, color);
 #endif
@@ -111,6 +118,7 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
             add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
             scatter3(l.color, vec2(0.0), g_color);
             scatter1(l.intensity, vec2(0.0), g_intensity);
+            if (HAS_MEDIA) medium_transmittance_grad(o, wi, tmax, medium_sample_weight(before, radiance, delta));
         }
 #endif
     }

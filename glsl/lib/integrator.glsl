@@ -327,6 +327,7 @@ void add_light_sample(Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[
 #endif
 }
 
+#include "lib/media.glsl"
 #include "lib/delta_lights.glsl"
 
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
@@ -359,6 +360,14 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         rng_seek_bounce(rng, depth);
         Hit hit;
         bool found = cast_closest(o, d, 1e30, depth, replay, hit);
+        // The medium between the ray's origin and what it finds (or its way out).
+        if (HAS_MEDIA) {
+#ifdef ADJOINT
+            medium_segment(o, d, found ? hit.t : 1e30, beta, radiance, remaining, delta, grad_pass);
+#else
+            medium_segment(o, d, found ? hit.t : 1e30, beta, radiance);
+#endif
+        }
         // Beer-Lambert over the ray inside an interior (all of it, if it escapes there).
         if (HAS_DIELECTRICS && any(greaterThan(absorption, vec3(0.0)))) {
             vec3 kept = found ? exp(-absorption * hit.t) : vec3(0.0);
@@ -494,11 +503,21 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 ValueRef emission = light.emission;
                 vec3 le[NSTATES];
-                for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, light_uv, s);
+                float tr[NSTATES];
+                float t_shadow = dist * (1.0 - 1e-4);
+                if (HAS_MEDIA) {
+                    medium_transmittance(o_l, wi, t_shadow, tr);
+                } else {
+                    for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+                }
+                for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(emission, light_uv, s) * tr[s];
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
+                vec3 before[NSTATES] = radiance;
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
+                for (int s = 0; s < NSTATES; ++s) dle[s] *= tr[s];
                 if (grad_pass) scatter3(emission, light_uv, state_sum(dle));
+                if (HAS_MEDIA && grad_pass) medium_transmittance_grad(o_l, wi, t_shadow, medium_sample_weight(before, radiance, delta));
 #else
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif
@@ -513,10 +532,19 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             if (pdf_light > 0.0 && passes_side(wi, ng, ns, rough) && !cast_any(o_e, wi, 1e30, depth, replay)) {
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 vec3 le[NSTATES];
-                for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s);
+                float tr[NSTATES];
+                if (HAS_MEDIA) {
+                    medium_transmittance(o_e, wi, 1e30, tr);
+                } else {
+                    for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+                }
+                for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s) * tr[s];
 #ifdef ADJOINT
                 vec3 dle[NSTATES];
+                vec3 before[NSTATES] = radiance;
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
+                for (int s = 0; s < NSTATES; ++s) dle[s] *= tr[s];
+                if (HAS_MEDIA && grad_pass) medium_transmittance_grad(o_e, wi, 1e30, medium_sample_weight(before, radiance, delta));
                 if (grad_pass) {
                     vec2 env_uv = environment_uv(wi);
                     float scale = scene_globals().environment_scale;

@@ -118,6 +118,23 @@ struct LightRecord {
     float outer;
 };
 
+// The scene's medium (src/render/features/media.rs): a box of emitting and absorbing
+// medium whose density and emission are constants (width 0) or grids of width × height ×
+// depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
+// 80 bytes (5 texels).
+struct MediumRecord {
+    vec3 box_min;
+    float step;       // marching step along a ray, world units
+    vec3 box_max;
+    float scale;      // extinction = scale × density
+    ValueRef density;   // 1 channel
+    ValueRef emission;  // 3 channels
+    uint density_depth;
+    uint emission_depth;
+    uint max_steps;   // most steps of one march (a longer one takes longer steps)
+    uint pad;
+};
+
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the
 // plane through origin spanned by right and up (half the view's height along up, that
 // times aspect along right), all along forward; a thin lens where lens_radius > 0: its

@@ -52,6 +52,7 @@ impl ParamLayout {
                     let [w, h] = p.shape.texture_size().unwrap_or([1, 1]);
                     t.image.resample(p.shape.channels(), w, h)
                 }
+                Reference::Grid(v) => crate::scene::media::resample(v, p.shape),
             };
             let reference = per_texel.iter().copied().cycle().take(len).collect();
             layout.slots.push(ParamSlot {

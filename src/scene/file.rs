@@ -23,6 +23,8 @@ pub struct SceneFile {
     #[serde(default)]
     pub lights: Vec<LightFile>,
     pub environment: Option<EnvironmentFile>,
+    #[serde(default)]
+    pub media: Vec<MediumFile>,
     pub optimise: Option<crate::settings::OptimiseTable<ParamFile>>,
 }
 
@@ -358,5 +360,29 @@ pub struct ParamFile {
     pub init: InitInput,
     pub range: [f32; 2],
     pub texture: Option<[u32; 2]>,
+    /// A medium's grid parameter's size `[x, y, z]` (a medium's grid target only).
+    pub grid: Option<[u32; 3]>,
     pub lr: Option<f32>,
+}
+
+/// A medium's density or emission: a number, a colour, or a `.npy` grid.
+#[derive(Debug, Deserialize, Clone)]
+#[serde(untagged, expecting = "expected a number, [r, g, b] or \"file.npy\"")]
+pub enum GridInput {
+    Scalar(f32),
+    Color([f32; 3]),
+    File(String),
+}
+
+/// `[[media]]`: a box of emitting and absorbing medium.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MediumFile {
+    pub name: String,
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+    pub density: GridInput,
+    pub emission: Option<GridInput>,
+    pub scale: Option<f32>,
+    pub step: Option<f32>,
 }

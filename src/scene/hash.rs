@@ -210,6 +210,19 @@ pub fn content_hash(scene: &Scene) -> u64 {
     h.tag("environment");
     h.color(&scene.environment.value);
     h.f32s(&[scene.environment.scale]);
+    // Only where there are media, so that the hashes of scenes without stay as they were.
+    if !scene.media.is_empty() {
+        h.tag("media");
+        h.u64(scene.media.len() as u64);
+        for m in &scene.media {
+            h.f32s(&[m.min, m.max].concat());
+            h.f32s(&[m.scale, m.step]);
+            for v in [&m.density, &m.emission] {
+                h.u32s(&v.shape.array().iter().map(|&d| d as u32).collect::<Vec<_>>());
+                h.f32s(&v.data);
+            }
+        }
+    }
     // Only a texture optimised at another resolution than the scene's changes the
     // reference render (its reference is resampled); every other parameter renders its
     // scene value as it is.
@@ -218,6 +231,12 @@ pub fn content_hash(scene: &Scene) -> u64 {
         if let (Some(size), Reference::Texture(_)) = (p.shape.texture_size(), &p.reference) {
             h.tag(&p.name);
             h.u32s(&size);
+        }
+        if let Reference::Grid(v) = &p.reference {
+            if v.shape.dims() != p.shape.dims() {
+                h.tag(&p.name);
+                h.u32s(p.shape.dims());
+            }
         }
     }
     h.0.digest()

@@ -283,7 +283,12 @@ impl Loader {
             None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
         };
         self.check_environment(&environment)?;
-        let optimise = self.optimise(raw.optimise.unwrap_or_default(), &materials, &meshes, &lights, &environment)?;
+        let mut media = imported.media;
+        media.extend(self.media(raw.media)?);
+        let optimise = self.optimise(
+            raw.optimise.unwrap_or_default(),
+            &Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media },
+        )?;
         self.check_texture_coordinates(&meshes, &materials, &optimise)?;
         let mut scene = Scene {
             path: self.scene,
@@ -296,6 +301,7 @@ impl Loader {
             meshes,
             lights,
             environment,
+            media,
             optimise,
             warnings: imported.warnings,
             content_hash: 0,
@@ -822,21 +828,14 @@ impl Loader {
         Ok(Environment { value, scale: env.scale })
     }
 
-    fn optimise(
-        &self,
-        raw: crate::settings::OptimiseTable<file::ParamFile>,
-        materials: &[Material],
-        meshes: &[Mesh],
-        lights: &[Light],
-        environment: &Environment,
-    ) -> Result<Optimise, SceneError> {
+    fn optimise(&self, raw: crate::settings::OptimiseTable<file::ParamFile>, parts: &Parts) -> Result<Optimise, SceneError> {
         raw.settings.validate().map_err(|e| self.out_of_range(&format!("optimise.{}", e.key), e.message))?;
         let mut seen = HashSet::new();
         let mut params = Vec::with_capacity(raw.params.len());
         for (i, p) in raw.params.into_iter().enumerate() {
             let key = format!("optimise.params[{i}]");
             self.check_name(&format!("{key}.target"), &p.target, &mut seen)?;
-            params.push(self.param(&key, p, materials, meshes, lights, environment)?);
+            params.push(self.param(&key, p, parts)?);
         }
         Ok(Optimise { settings: raw.settings, params, started_from: None })
     }
@@ -850,18 +849,9 @@ impl Loader {
         }
     }
 
-    fn param(
-        &self,
-        key: &str,
-        p: file::ParamFile,
-        materials: &[Material],
-        meshes: &[Mesh],
-        lights: &[Light],
-        environment: &Environment,
-    ) -> Result<Param, SceneError> {
+    fn param(&self, key: &str, p: file::ParamFile, parts: &Parts) -> Result<Param, SceneError> {
         let target_key = format!("{key}.target");
-        let parts = Parts { materials, meshes, lights, environment };
-        let (target, reference) = self.resolve_target(&target_key, &p.target, &parts)?;
+        let (target, reference) = self.resolve_target(&target_key, &p.target, parts)?;
         let channels = target.channels();
 
         let range_key = format!("{key}.range");
@@ -883,9 +873,27 @@ impl Loader {
         } else if matches!(reference, Reference::Texture(_)) {
             return Err(self.invalid(key, &format!("{} is a texture in the scene; give `texture = [w, h]`", p.target)));
         }
-        let shape = match p.texture {
-            Some([w, h]) => Shape::texture(w, h, channels),
-            None => Shape::constant(channels),
+        if let Some(sides) = p.grid {
+            let k = format!("{key}.grid");
+            if target.medium().is_none() {
+                return Err(self.invalid(&k, "only a medium's density and emission are grids"));
+            }
+            for s in sides {
+                self.in_range(&k, s, 1, super::media::MAX_GRID_SIDE)?;
+            }
+            if sides.iter().map(|&s| s as usize).product::<usize>() > super::media::MAX_GRID_VOXELS {
+                return Err(self.out_of_range(&k, format!("{sides:?} is more than {} voxels", super::media::MAX_GRID_VOXELS)));
+            }
+        }
+        if target.medium().is_some() && lo < 0.0 {
+            return Err(self.out_of_range(&range_key, format!("a medium's values are not negative; the range starts at {lo}")));
+        }
+        let shape = match (p.texture, p.grid, &reference) {
+            (Some([w, h]), _, _) => Shape::texture(w, h, channels),
+            (None, Some([x, y, z]), _) => Shape::grid(x, y, z, channels),
+            // A medium's grid is optimised at its own resolution unless `grid` gives one.
+            (None, None, Reference::Grid(v)) if !v.shape.is_constant() => Shape::from_dims(v.shape.dims(), channels).unwrap_or(Shape::constant(channels)),
+            _ => Shape::constant(channels),
         };
         let init = self.init_values(&format!("{key}.init"), p.init, &p.target, shape, p.range)?;
         Ok(Param { name: p.target, target, shape, init, range: p.range, lr: p.lr, reference })

@@ -29,6 +29,7 @@ mod gltf_check;
 mod hash;
 mod keys;
 mod loader;
+pub mod media;
 mod mitsuba;
 pub mod model;
 mod obj;
@@ -102,6 +103,7 @@ pub struct SceneParts {
     pub meshes: Vec<Mesh>,
     pub lights: Vec<Light>,
     pub environment: Environment,
+    pub media: Vec<Medium>,
     /// The scene's layer of run settings (its `[optimise]` table's).
     pub settings: crate::settings::Settings,
     pub params: Vec<ParamSpec>,
@@ -117,6 +119,7 @@ impl Default for SceneParts {
             meshes: Vec::new(),
             lights: Vec::new(),
             environment: Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 },
+            media: Vec::new(),
             settings: Default::default(),
             params: Vec::new(),
         }
@@ -132,13 +135,15 @@ pub struct ParamSpec {
     pub init: Vec<f32>,
     pub range: [f32; 2],
     pub texture: Option<[u32; 2]>,
+    /// A medium's grid parameter's size `[x, y, z]`.
+    pub grid: Option<[u32; 3]>,
     pub lr: Option<f32>,
 }
 
 impl ParamSpec {
     /// A constant parameter of `target` starting at `init`, within `range`.
     pub fn new(target: &str, init: &[f32], range: [f32; 2]) -> Self {
-        ParamSpec { target: target.to_string(), init: init.to_vec(), range, texture: None, lr: None }
+        ParamSpec { target: target.to_string(), init: init.to_vec(), range, texture: None, grid: None, lr: None }
     }
 }
 
@@ -175,7 +180,7 @@ impl Scene {
                     return Err(loader.invalid(&format!("optimise.params[{i}].init"), &format!("{} values: give one number, or one per channel", p.init.len())))
                 }
             };
-            params.push(file::ParamFile { init, target: p.target, range: p.range, texture: p.texture, lr: p.lr });
+            params.push(file::ParamFile { init, target: p.target, range: p.range, texture: p.texture, grid: p.grid, lr: p.lr });
         }
         let raw = file::SceneFile { optimise: Some(crate::settings::OptimiseTable { settings: parts.settings, params }), ..Default::default() };
         let imported = model::Imported {
@@ -188,6 +193,7 @@ impl Scene {
             meshes: parts.meshes,
             lights: parts.lights,
             environment: Some(parts.environment),
+            media: parts.media,
             ..Default::default()
         };
         loader.build(raw, Some(imported), &LoadOptions::default())

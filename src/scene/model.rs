@@ -817,17 +817,74 @@ pub struct Environment {
     pub scale: f32,
 }
 
+/// An axis-aligned box filled with a medium that absorbs and emits light (no scattering):
+/// a ray through it keeps exp(−∫σ) of what lies behind and gains ∫ σ·L_e·exp(−∫σ), where
+/// σ = `scale` × density. Density and emission are constants or 3-D grids over the box,
+/// looked up trilinearly between voxel centres (clamped at the faces).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Medium {
+    pub name: String,
+    /// The box's corners in world space, `min` below `max` on every axis.
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+    /// The density before `scale`: one channel, [`crate::tensor::Shape::constant`] or
+    /// a grid (x along the box's x axis, fastest in memory).
+    pub density: crate::tensor::ParamValue,
+    /// The radiance emitted per unit of absorbed light: three channels, constant or a grid.
+    pub emission: crate::tensor::ParamValue,
+    /// Extinction per unit length of density 1.
+    pub scale: f32,
+    /// The ray-marching step, in voxels of the finer of the two grids (a constant counts
+    /// as one voxel across the box).
+    pub step: f32,
+}
+
+impl Medium {
+    /// The step in world units along a ray: `step` voxels of the finest grid's smallest voxel side.
+    pub fn world_step(&self) -> f32 {
+        let mut side = f32::INFINITY;
+        for v in [&self.density, &self.emission] {
+            let dims = v.shape.dims();
+            for axis in 0..3 {
+                let n = if dims.len() == 3 { dims[2 - axis] } else { 1 };
+                side = side.min((self.max[axis] - self.min[axis]) / n as f32);
+            }
+        }
+        self.step * side
+    }
+}
+
 /// What an optimised parameter stands for. Indices are into `Scene::materials` / `meshes`
 /// / `lights`. An environment parameter replaces the environment's value before `scale`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ParamTarget {
-    BaseColor { material: usize },
-    Roughness { material: usize },
-    Metallic { material: usize },
-    Emission { mesh: usize },
+    BaseColor {
+        material: usize,
+    },
+    Roughness {
+        material: usize,
+    },
+    Metallic {
+        material: usize,
+    },
+    Emission {
+        mesh: usize,
+    },
     Environment,
-    LightColor { light: usize },
-    LightIntensity { light: usize },
+    LightColor {
+        light: usize,
+    },
+    LightIntensity {
+        light: usize,
+    },
+    /// A medium's density (before its `scale`): one channel, a constant or a grid.
+    MediumDensity {
+        medium: usize,
+    },
+    /// A medium's emitted radiance: three channels, a constant or a grid.
+    MediumEmission {
+        medium: usize,
+    },
 }
 
 /// The scene's own value of a parameter, against which parameter error is measured.
@@ -837,6 +894,8 @@ pub enum Reference {
     Constant(Vec<f32>),
     /// A texture in the scene; its resolution may differ from the parameter's.
     Texture(Texture),
+    /// A medium's grid (or constant); its resolution may differ from the parameter's.
+    Grid(crate::tensor::ParamValue),
 }
 
 #[derive(Clone, Debug)]
@@ -905,6 +964,8 @@ pub struct Scene {
     pub meshes: Vec<Mesh>,
     pub lights: Vec<Light>,
     pub environment: Environment,
+    /// Boxes of emitting and absorbing medium, in the order of the file's `[[media]]`.
+    pub media: Vec<Medium>,
     pub optimise: Optimise,
     /// What loading approximated or left out, one line each (printed by the command line).
     pub warnings: Vec<String>,
@@ -994,6 +1055,7 @@ pub(crate) struct Imported {
     pub meshes: Vec<Mesh>,
     pub lights: Vec<Light>,
     pub environment: Option<Environment>,
+    pub media: Vec<Medium>,
     /// One line each: what the import approximated or left out.
     pub warnings: Vec<String>,
 }

@@ -4,7 +4,9 @@
 //! recovered value is written back into the scene. Which feature reads it from θ on the
 //! device is that feature's (`render::features`); the file formats write the scene back.
 
-use super::model::{ColorValue, Environment, Filter, Light, Material, Mesh, ParamTarget, Reference, ScalarValue, Scene, Texture, TextureValue as _, Wrap};
+use super::model::{
+    ColorValue, Environment, Filter, Light, Material, Medium, Mesh, ParamTarget, Reference, ScalarValue, Scene, Texture, TextureValue as _, Wrap,
+};
 use crate::tensor::ParamValue;
 
 /// The parts of a scene that targets name, as a loader has them before the scene exists.
@@ -13,6 +15,7 @@ pub(crate) struct Parts<'a> {
     pub meshes: &'a [Mesh],
     pub lights: &'a [Light],
     pub environment: &'a Environment,
+    pub media: &'a [Medium],
 }
 
 /// Why a target's name names nothing.
@@ -27,7 +30,8 @@ pub(crate) enum TargetError {
 }
 
 /// The forms of a target's name, for errors.
-pub(crate) const TARGET_FORMS: &str = "materials.NAME.base_color|roughness|metallic, meshes.NAME.emission, lights.NAME.color|intensity or environment";
+pub(crate) const TARGET_FORMS: &str =
+    "materials.NAME.base_color|roughness|metallic, meshes.NAME.emission, lights.NAME.color|intensity, media.NAME.density|emission or environment";
 
 fn color_reference(v: &ColorValue) -> Reference {
     match v {
@@ -50,6 +54,7 @@ impl ParamTarget {
             let known = match kind {
                 "material" => super::error::known_names(parts.materials.iter().map(|m| m.name.as_str())),
                 "mesh" => super::error::known_names(parts.meshes.iter().map(|m| m.name.as_str())),
+                "medium" => super::error::known_names(parts.media.iter().map(|m| m.name.as_str())),
                 _ => super::error::known_names(parts.lights.iter().map(|l| l.name.as_str())),
             };
             TargetError::Undefined { kind, name: name.to_string(), known }
@@ -83,13 +88,20 @@ impl ParamTarget {
             let light = parts.lights.iter().position(|l| l.name == light_name).ok_or_else(|| undefined("light", light_name))?;
             return Ok(if property == "color" { ParamTarget::LightColor { light } } else { ParamTarget::LightIntensity { light } });
         }
+        if let Some((medium_name, property)) = name.strip_prefix("media.").and_then(|r| r.rsplit_once('.')) {
+            if !matches!(property, "density" | "emission") {
+                return Err(TargetError::Malformed);
+            }
+            let medium = parts.media.iter().position(|m| m.name == medium_name).ok_or_else(|| undefined("medium", medium_name))?;
+            return Ok(if property == "density" { ParamTarget::MediumDensity { medium } } else { ParamTarget::MediumEmission { medium } });
+        }
         Err(TargetError::Malformed)
     }
 
     /// 3 for colours, emission and environment; 1 for roughness, metallic and intensity.
     pub fn channels(self) -> u32 {
         match self {
-            Self::Roughness { .. } | Self::Metallic { .. } | Self::LightIntensity { .. } => 1,
+            Self::Roughness { .. } | Self::Metallic { .. } | Self::LightIntensity { .. } | Self::MediumDensity { .. } => 1,
             _ => 3,
         }
     }
@@ -97,7 +109,15 @@ impl ParamTarget {
     /// Whether the target may be optimised as a texture (a light's colour and intensity
     /// are constants).
     pub fn texturable(self) -> bool {
-        !matches!(self, Self::LightColor { .. } | Self::LightIntensity { .. })
+        !matches!(self, Self::LightColor { .. } | Self::LightIntensity { .. } | Self::MediumDensity { .. } | Self::MediumEmission { .. })
+    }
+
+    /// The medium whose density or emission this is, if any (a grid, not a texture).
+    pub fn medium(self) -> Option<usize> {
+        match self {
+            Self::MediumDensity { medium } | Self::MediumEmission { medium } => Some(medium),
+            _ => None,
+        }
     }
 
     /// The material whose property this is, if any.
@@ -118,6 +138,8 @@ impl ParamTarget {
             Self::Environment => color_reference(&parts.environment.value),
             Self::LightColor { light } => Reference::Constant(parts.lights[light].color.to_vec()),
             Self::LightIntensity { light } => Reference::Constant(vec![parts.lights[light].intensity]),
+            Self::MediumDensity { medium } => Reference::Grid(parts.media[medium].density.clone()),
+            Self::MediumEmission { medium } => Reference::Grid(parts.media[medium].emission.clone()),
         }
     }
 
@@ -129,7 +151,9 @@ impl ParamTarget {
             Self::Roughness { material } => (scene.materials[material].roughness.filter(), scene.materials[material].roughness.wrap()),
             Self::Metallic { material } => (scene.materials[material].metallic.filter(), scene.materials[material].metallic.wrap()),
             Self::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
-            Self::Environment | Self::LightColor { .. } | Self::LightIntensity { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
+            Self::Environment | Self::LightColor { .. } | Self::LightIntensity { .. } | Self::MediumDensity { .. } | Self::MediumEmission { .. } => {
+                (Filter::Bilinear, [Wrap::Repeat; 2])
+            }
         }
     }
 
@@ -153,6 +177,8 @@ impl ParamTarget {
             Self::Environment => scene.environment.value = color(),
             Self::LightColor { light } => scene.lights[light].color = constant,
             Self::LightIntensity { light } => scene.lights[light].intensity = constant[0],
+            Self::MediumDensity { medium } => scene.media[medium].density = value.clone(),
+            Self::MediumEmission { medium } => scene.media[medium].emission = value.clone(),
         }
     }
 }

@@ -66,7 +66,7 @@ pub fn write_final(out_dir: &Path, scene: &Scene, values: &[(ParamTarget, ParamV
     let recovered = apply(scene, values);
     let tmp = out_dir.join("final.tmp");
     let _ = std::fs::remove_dir_all(&tmp);
-    for sub in ["meshes", "textures"] {
+    for sub in ["meshes", "textures", "grids"] {
         std::fs::create_dir_all(tmp.join(sub)).map_err(|e| write_err(&tmp, e))?;
     }
     let toml = toml_text(&recovered, &tmp)?;
@@ -284,6 +284,31 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         ColorValue::Texture(t) => ("file", Value::String(exr(dir, "environment", &t.image)?)),
     };
     root.insert("environment".into(), table(vec![env, ("scale", Value::Float(num(scene.environment.scale)))]));
+    let mut media = Vec::new();
+    for m in &scene.media {
+        let mut pairs = vec![("name", Value::String(m.name.clone())), ("min", arr(&m.min)), ("max", arr(&m.max))];
+        for (key, v) in [("density", &m.density), ("emission", &m.emission)] {
+            let value = if v.shape.is_constant() {
+                if v.data.len() == 1 {
+                    Value::Float(num(v.data[0]))
+                } else {
+                    arr(&v.data)
+                }
+            } else {
+                let rel = format!("grids/{}.npy", file_name(&format!("{}.{key}", m.name)));
+                let array = crate::npy::Array { shape: v.shape.array(), data: v.data.clone() };
+                crate::npy::write(&dir.join(&rel), &array).map_err(|e| write_err(&dir.join(&rel), e))?;
+                Value::String(rel)
+            };
+            pairs.push((key, value));
+        }
+        pairs.push(("scale", Value::Float(num(m.scale))));
+        pairs.push(("step", Value::Float(num(m.step))));
+        media.push(table(pairs));
+    }
+    if !media.is_empty() {
+        root.insert("media".into(), Value::Array(media));
+    }
     let text = toml::to_string(&root).map_err(|e| write_err(dir, e))?;
     Ok(format!("# The recovered scene: the optimised values in place of the scene's own.\n{text}"))
 }
@@ -503,7 +528,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                 entry["color"] = json!([num(color[0]), num(color[1]), num(color[2])]);
                 entry["intensity"] = json!(num(intensity));
             }
-            ParamTarget::Environment => {}
+            ParamTarget::Environment | ParamTarget::MediumDensity { .. } | ParamTarget::MediumEmission { .. } => {}
         }
     }
     let text = serde_json::to_string_pretty(&root).map_err(|e| write_err(dir, e))?;

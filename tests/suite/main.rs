@@ -22,6 +22,7 @@ mod gpu_layer;
 mod gradients;
 mod hostile;
 mod import;
+mod media;
 mod mitsuba_files;
 mod optim_gpu;
 mod render;

@@ -10,6 +10,7 @@
 //! | [`environment`] | `EnvDistribution` | `HAS_ENVIRONMENT`, `ENVIRONMENT_SAMPLED` | the environment |
 //! | [`emitters`]: area emitters and light sampling | `Emitters` | `NUM_EMITTERS`, `HAS_EMISSION_TEXTURES` | emission |
 //! | [`geometry`]: meshes and the BVH | the BVH's, `Shading` | `HAS_NORMALS`, `HAS_NORMAL_MAPS`, `HAS_ALPHA_MASKS`, `BVH_STACK_REGISTERS` | |
+//! | [`media`]: a box of emitting and absorbing medium | `Media` | `HAS_MEDIA` | density, emission (grids) |
 //!
 //! Textures (`HAS_TEXTURES`) are looked up wherever a feature's value is one
 //! ([`values`]). A new feature is a module here that implements [`Feature`], the GLSL it
@@ -20,6 +21,7 @@ pub mod environment;
 pub mod geometry;
 pub mod lights;
 pub mod materials;
+pub mod media;
 pub mod sensors;
 pub mod values;
 
@@ -60,6 +62,7 @@ pub struct Features {
     pub environment: environment::Environment,
     pub emitters: emitters::Emitters,
     pub geometry: geometry::Geometry,
+    pub media: media::Media,
 }
 
 impl Features {
@@ -72,12 +75,13 @@ impl Features {
         let geo = up.scene.flatten();
         let emitters = emitters::Emitters::build(up, &geo)?;
         let geometry = geometry::Geometry::build(up, geo, &materials, &emitters, bvh_layout)?;
-        Ok(Features { sensors, materials, lights, environment, emitters, geometry })
+        let media = media::Media::build(up)?;
+        Ok(Features { sensors, materials, lights, environment, emitters, geometry, media })
     }
 
     /// Every feature: the one registration a new feature needs besides its build.
-    pub fn all(&self) -> [&dyn Feature; 6] {
-        [&self.sensors, &self.materials, &self.lights, &self.environment, &self.emitters, &self.geometry]
+    pub fn all(&self) -> [&dyn Feature; 7] {
+        [&self.sensors, &self.materials, &self.lights, &self.environment, &self.emitters, &self.geometry, &self.media]
     }
 
     /// Whether any feature's value is a texture (`HAS_TEXTURES`).

@@ -1,0 +1,233 @@
+// The scene's medium (src/render/features/media.rs): a box that absorbs and emits light,
+// with no scattering. Along a ray it is marched in steps of equal length, stratified with
+// one jitter per ray: step k of length dt at density σ_k keeps a_k = exp(−σ_k dt) of what
+// lies behind it and adds L_e,k (1 − a_k), each times the transmittance of the steps
+// before it. The jitter is a hash of the ray's bits, so that the primal and gradient
+// replays of a path, and both parameter states of the finite-difference kernels, march
+// the same points.
+//
+// Gradients (ADJOINT) by path replay in closed form, in O(1) memory: with R_k the radiance
+// still to be accounted for where step k begins (the primal's minus what the replay has
+// gathered so far, beta_k the throughput there),
+//     dL/dσ_k = dt (beta_k L_e,k − R_k),    dL/dL_e,k = beta_k (1 − a_k),
+// with no division by a transmittance, so that opaque steps (σ dt of 1e4) stay finite. A
+// shadow ray's contribution c (which includes its transmittance) has dc/dσ_k = −dt c.
+// Each is scattered to the 8 voxels of the step's trilinear lookup.
+#ifndef MEDIA_GLSL
+#define MEDIA_GLSL
+
+TEXEL_BUFFER(0, 29) Media;
+// Whether the scene has a medium: without one every function here is compiled out.
+layout(constant_id = 24) const bool HAS_MEDIA = false;
+
+MediumRecord medium_record() {
+    uvec4 t0 = texel_load(Media, 0);
+    uvec4 t1 = texel_load(Media, 1);
+    uvec4 t4 = texel_load(Media, 4);
+    MediumRecord m;
+    m.box_min = uintBitsToFloat(t0.xyz);
+    m.step = uintBitsToFloat(t0.w);
+    m.box_max = uintBitsToFloat(t1.xyz);
+    m.scale = uintBitsToFloat(t1.w);
+    m.density = value_ref(texel_load(Media, 2));
+    m.emission = value_ref(texel_load(Media, 3));
+    m.density_depth = t4.x;
+    m.emission_depth = t4.y;
+    m.max_steps = t4.z;
+    m.pad = 0u;
+    return m;
+}
+
+// The part [t0, t1] of ray (o, d) over [0, tmax] that lies in the medium's box; false
+// where none does.
+bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, out float t0, out float t1) {
+    // A zero direction component gets a tiny one of its sign (no 0 · ∞).
+    vec3 dd = mix(d, vec3(1e-30), equal(d, vec3(0.0)));
+    vec3 ta = (m.box_min - o) / dd;
+    vec3 tb = (m.box_max - o) / dd;
+    vec3 lo = min(ta, tb);
+    vec3 hi = max(ta, tb);
+    t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
+    t1 = min(min(hi.x, hi.y), min(hi.z, tmax));
+    return m.max_steps != 0u && t0 < t1;
+}
+
+// The 8 taps of a trilinear lookup at q (unit coordinates in the box) in a grid of
+// r.width × r.height × depth voxels: element indices (times `channels`) and weights.
+void grid_taps(ValueRef r, uint depth, uint channels, vec3 q, out int index[8], out float weight[8]) {
+    vec3 n = vec3(r.width, r.height, depth);
+    vec3 g = clamp(q * n - 0.5, vec3(0.0), n - 1.0);
+    vec3 f = floor(g);
+    vec3 t = g - f;
+    ivec3 a = ivec3(f);
+    ivec3 b = min(a + 1, ivec3(n) - 1);
+    int w = int(r.width), h = int(r.height);
+    for (int k = 0; k < 8; ++k) {
+        bvec3 hi = bvec3((k & 1) != 0, (k & 2) != 0, (k & 4) != 0);
+        ivec3 v = ivec3(mix(a, b, hi));
+        vec3 wt = mix(1.0 - t, t, hi);
+        index[k] = ((v.z * h + v.y) * w + v.x) * int(channels);
+        weight[k] = wt.x * wt.y * wt.z;
+    }
+}
+
+// A one-channel grid value (a constant where r.width is 0) at q in parameter state `state`.
+float grid1(ValueRef r, uint depth, vec3 q, int state) {
+    if (r.width == 0u) return value_at(r, 0, state);
+    int index[8];
+    float weight[8];
+    grid_taps(r, depth, 1u, q, index, weight);
+    float v = 0.0;
+    for (int k = 0; k < 8; ++k) v += weight[k] * value_at(r, index[k], state);
+    return v;
+}
+
+// A three-channel grid value at q in parameter state `state`.
+vec3 grid3(ValueRef r, uint depth, vec3 q, int state) {
+    if (r.width == 0u) return value3_at(r, 0, state);
+    int index[8];
+    float weight[8];
+    grid_taps(r, depth, 3u, q, index, weight);
+    vec3 v = vec3(0.0);
+    for (int k = 0; k < 8; ++k) v += weight[k] * value3_at(r, index[k], state);
+    return v;
+}
+
+// The march of ray (o, d) over [t0, t1]: its steps, their length, and the jitter.
+void medium_steps(MediumRecord m, vec3 o, vec3 d, float t0, float t1, out uint n, out float dt, out float u) {
+    float len = t1 - t0;
+    n = uint(clamp(ceil(len / m.step), 1.0, float(m.max_steps)));
+    dt = len / float(n);
+    uvec3 ob = floatBitsToUint(o);
+    uvec3 db = floatBitsToUint(d);
+    u = float(pcg4d(uvec4(ob.x ^ db.y, ob.y ^ db.z, ob.z ^ db.x, floatBitsToUint(t1) ^ 0x4d454449u)).x >> 8u) * (1.0 / 16777216.0);
+}
+
+// Where step k's sample point lies, in the box's unit coordinates.
+vec3 medium_point(MediumRecord m, vec3 o, vec3 d, float t0, float dt, uint k, float u) {
+    vec3 p = o + (t0 + (float(k) + u) * dt) * d;
+    return (p - m.box_min) / (m.box_max - m.box_min);
+}
+
+#ifdef ADJOINT
+void grid_scatter1(ValueRef r, uint depth, vec3 q, float g) {
+    if ((r.flags & VALUE_IN_THETA) == 0u || g == 0.0) return;
+    if (r.width == 0u) {
+        grad_add(r.offset, g);
+        return;
+    }
+    int index[8];
+    float weight[8];
+    grid_taps(r, depth, 1u, q, index, weight);
+    for (int k = 0; k < 8; ++k) {
+        if (weight[k] != 0.0) grad_add(r.offset + index[k], weight[k] * g);
+    }
+}
+
+void grid_scatter3(ValueRef r, uint depth, vec3 q, vec3 g) {
+    if ((r.flags & VALUE_IN_THETA) == 0u || all(equal(g, vec3(0.0)))) return;
+    int index[8];
+    float weight[8];
+    if (r.width == 0u) {
+        index[0] = 0;
+        weight[0] = 1.0;
+        for (int k = 1; k < 8; ++k) weight[k] = 0.0;
+    } else {
+        grid_taps(r, depth, 3u, q, index, weight);
+    }
+    for (int k = 0; k < 8; ++k) {
+        if (weight[k] == 0.0) continue;
+        int base = r.offset + index[k];
+        grad_add(base, weight[k] * g.x);
+        grad_add(base + 1, weight[k] * g.y);
+        grad_add(base + 2, weight[k] * g.z);
+    }
+}
+#endif
+
+// The medium along [0, tmax] of a path's ray (o, d): each state's emission gathered into
+// radiance (times beta) and beta attenuated. ADJOINT: also takes the emission off
+// remaining[] and, in the gradient replay, scatters the derivatives above.
+void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                    , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+#endif
+) {
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (!medium_clip(m, o, d, tmax, t0, t1)) return;
+    uint n;
+    float dt, u;
+    medium_steps(m, o, d, t0, t1, n, dt, u);
+    for (uint k = 0u; k < n; ++k) {
+        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+#ifdef ADJOINT
+        float g_sigma = 0.0;
+        vec3 g_le = vec3(0.0);
+#endif
+        for (int s = 0; s < NSTATES; ++s) {
+            float sigma = m.scale * grid1(m.density, m.density_depth, q, s);
+            vec3 le = grid3(m.emission, m.emission_depth, q, s);
+            float a = exp(-sigma * dt);
+            vec3 c = beta[s] * le * (1.0 - a);
+            radiance[s] += c;
+#ifdef ADJOINT
+            vec3 kd = state_sign(s) * delta[s];
+            g_sigma += dot(kd, dt * (beta[s] * le - remaining[s]));
+            g_le += kd * beta[s] * (1.0 - a);
+            remaining[s] -= c;
+#endif
+            beta[s] *= a;
+        }
+#ifdef ADJOINT
+        if (grad_pass) {
+            grid_scatter1(m.density, m.density_depth, q, g_sigma * m.scale);
+            grid_scatter3(m.emission, m.emission_depth, q, g_le);
+        }
+#endif
+    }
+}
+
+// Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
+void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
+    for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (!medium_clip(m, o, d, tmax, t0, t1)) return;
+    uint n;
+    float dt, u;
+    medium_steps(m, o, d, t0, t1, n, dt, u);
+    float tau[NSTATES];
+    for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
+    for (uint k = 0u; k < n; ++k) {
+        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+        for (int s = 0; s < NSTATES; ++s) tau[s] += m.scale * grid1(m.density, m.density_depth, q, s) * dt;
+    }
+    for (int s = 0; s < NSTATES; ++s) tr[s] = exp(-tau[s]);
+}
+
+#ifdef ADJOINT
+// Scatters the derivative of the loss through the transmittance of shadow ray (o, d) over
+// [0, tmax], given g = Σ_s sign_s ⟨δ_s, c_s⟩ of the contributions c_s that it carried.
+void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g) {
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (g == 0.0 || !medium_clip(m, o, d, tmax, t0, t1)) return;
+    uint n;
+    float dt, u;
+    medium_steps(m, o, d, t0, t1, n, dt, u);
+    for (uint k = 0u; k < n; ++k) {
+        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+        grid_scatter1(m.density, m.density_depth, q, -dt * m.scale * g);
+    }
+}
+
+// Σ_s sign_s ⟨δ_s, after_s − before_s⟩: what medium_transmittance_grad needs of a light
+// sample that added after − before to each state's radiance.
+float medium_sample_weight(vec3 before[NSTATES], vec3 after[NSTATES], vec3 delta[NSTATES]) {
+    float g = 0.0;
+    for (int s = 0; s < NSTATES; ++s) g += state_sign(s) * dot(delta[s], after[s] - before[s]);
+    return g;
+}
+#endif
+#endif

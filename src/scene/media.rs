@@ -1,0 +1,178 @@
+//! The `[[media]]` tables: boxes of emitting and absorbing medium, their density and
+//! emission as constants or `.npy` grids, and the trilinear resampling that turns a grid
+//! into a parameter's resolution.
+
+use std::collections::HashSet;
+
+use super::file::{GridInput, MediumFile};
+use super::loader::Loader;
+use super::model::Medium;
+use super::SceneError;
+use crate::tensor::{ParamValue, Shape};
+
+/// Most voxels along one axis of a medium's grid.
+pub const MAX_GRID_SIDE: u32 = 1024;
+/// Most voxels a medium's grid may hold (before its channels).
+pub const MAX_GRID_VOXELS: usize = 1 << 24;
+/// The marching step's default, in voxels.
+pub const DEFAULT_STEP: f32 = 0.5;
+/// Most steps a ray takes through one medium: a longer march takes longer steps.
+pub const MAX_STEPS: u32 = 1024;
+
+impl Loader {
+    /// The scene's media, checked: unique names, a box of positive size, finite values
+    /// that are not negative, a positive scale and step.
+    pub(super) fn media(&self, raw: Vec<MediumFile>) -> Result<Vec<Medium>, SceneError> {
+        let mut seen = HashSet::new();
+        let mut out = Vec::with_capacity(raw.len());
+        for (i, m) in raw.into_iter().enumerate() {
+            let key = format!("media[{i}]");
+            self.check_name(&format!("{key}.name"), &m.name, &mut seen)?;
+            let key = format!("media.{}", m.name);
+            self.finite(&format!("{key}.min"), &m.min)?;
+            self.finite(&format!("{key}.max"), &m.max)?;
+            if let Some(axis) = (0..3).find(|&a| m.min[a] >= m.max[a]) {
+                let name = ["x", "y", "z"][axis];
+                return Err(self.out_of_range(&format!("{key}.max"), format!("{name} {} is not above min's {}", m.max[axis], m.min[axis])));
+            }
+            let density = self.grid(&format!("{key}.density"), &m.density, 1)?;
+            let emission = match &m.emission {
+                Some(e) => self.grid(&format!("{key}.emission"), e, 3)?,
+                None => ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
+            };
+            let scale = m.scale.unwrap_or(1.0);
+            self.positive(&format!("{key}.scale"), scale)?;
+            let step = m.step.unwrap_or(DEFAULT_STEP);
+            self.positive(&format!("{key}.step"), step)?;
+            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step });
+        }
+        if out.len() > 1 {
+            return Err(self.invalid("media", &format!("{} media: a scene holds at most one", out.len())));
+        }
+        Ok(out)
+    }
+
+    /// A density (`channels` 1) or emission (3) value: a number (every channel), a colour
+    /// (3 channels only) or a `.npy` grid of shape [z, y, x] or [z, y, x, channels].
+    fn grid(&self, key: &str, input: &GridInput, channels: u32) -> Result<ParamValue, SceneError> {
+        let value = match input {
+            GridInput::Scalar(v) => ParamValue { shape: Shape::constant(channels), data: vec![*v; channels as usize] },
+            GridInput::Color(c) if channels == 3 => ParamValue { shape: Shape::constant(3), data: c.to_vec() },
+            GridInput::Color(_) => return Err(self.invalid(key, "a density has one channel; give one number or a grid")),
+            GridInput::File(rel) => {
+                let (path, bytes) = self.read(key, rel)?;
+                let array = crate::npy::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
+                let dims: &[usize] = match array.shape.as_slice() {
+                    [z, y, x] if channels == 1 => &[*z, *y, *x],
+                    [z, y, x, c] if *c == channels as usize => &[*z, *y, *x],
+                    other => {
+                        let want = if channels == 1 { "[z, y, x] or [z, y, x, 1]" } else { "[z, y, x, 3]" };
+                        return Err(self.invalid(key, &format!("{} has shape {other:?}; a grid here is {want}", path.display())));
+                    }
+                };
+                let mut sides = [0u32; 3];
+                for (s, &d) in sides.iter_mut().zip(dims) {
+                    *s = u32::try_from(d)
+                        .ok()
+                        .filter(|d| (1..=MAX_GRID_SIDE).contains(d))
+                        .ok_or_else(|| self.out_of_range(key, format!("{} has a side of {d} voxels; a side is 1 to {MAX_GRID_SIDE}", path.display())))?;
+                }
+                let shape = Shape::grid(sides[2], sides[1], sides[0], channels);
+                if shape.texels() > MAX_GRID_VOXELS {
+                    return Err(self.out_of_range(key, format!("{} has {} voxels; at most {MAX_GRID_VOXELS}", path.display(), shape.texels())));
+                }
+                ParamValue { shape, data: array.data }
+            }
+        };
+        self.finite(key, &value.data)?;
+        if let Some(v) = value.data.iter().find(|&&v| v < 0.0) {
+            return Err(self.out_of_range(key, format!("{v} is negative")));
+        }
+        Ok(value)
+    }
+}
+
+/// `value` (a constant or a grid) resampled to `shape`'s grid (or to one voxel, its mean,
+/// for a constant `shape`): trilinear between voxel centres, clamped at the faces, as the
+/// kernels look it up. Channels must agree.
+pub fn resample(value: &ParamValue, shape: Shape) -> Vec<f32> {
+    let c = value.shape.channels() as usize;
+    if shape.is_constant() {
+        let n = value.shape.texels().max(1) as f64;
+        return (0..c).map(|k| (value.data.iter().skip(k).step_by(c).map(|&v| v as f64).sum::<f64>() / n) as f32).collect();
+    }
+    if value.shape.is_constant() {
+        return value.data.iter().copied().cycle().take(shape.len()).collect();
+    }
+    let src = grid_dims(value.shape);
+    let dst = grid_dims(shape);
+    let mut out = Vec::with_capacity(shape.len());
+    for z in 0..dst[2] {
+        for y in 0..dst[1] {
+            for x in 0..dst[0] {
+                let p = [x, y, z].map(|i| i as f32 + 0.5);
+                let q = [0, 1, 2].map(|a| p[a] / dst[a] as f32);
+                out.extend(trilinear(value, src, q));
+            }
+        }
+    }
+    out
+}
+
+/// The grid's voxels along x, y and z.
+pub fn grid_dims(shape: Shape) -> [usize; 3] {
+    match *shape.dims() {
+        [d, h, w] => [w as usize, h as usize, d as usize],
+        _ => [1, 1, 1],
+    }
+}
+
+/// The value of grid `value` (of `dims` voxels) at `q` in the box's unit coordinates.
+pub fn trilinear(value: &ParamValue, dims: [usize; 3], q: [f32; 3]) -> Vec<f32> {
+    let c = value.shape.channels() as usize;
+    let mut lo = [0usize; 3];
+    let mut hi = [0usize; 3];
+    let mut t = [0f32; 3];
+    for a in 0..3 {
+        let n = dims[a];
+        let p = (q[a] * n as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+        let f = p.floor();
+        lo[a] = f as usize;
+        hi[a] = (lo[a] + 1).min(n - 1);
+        t[a] = p - f;
+    }
+    let mut v = vec![0.0f32; c];
+    for corner in 0..8 {
+        let pick = |a: usize| corner >> a & 1 == 1;
+        let idx = [0, 1, 2].map(|a| if pick(a) { hi[a] } else { lo[a] });
+        let w: f32 = (0..3).map(|a| if pick(a) { t[a] } else { 1.0 - t[a] }).product();
+        if w == 0.0 {
+            continue;
+        }
+        let base = ((idx[2] * dims[1] + idx[1]) * dims[0] + idx[0]) * c;
+        for (out, &x) in v.iter_mut().zip(&value.data[base..base + c]) {
+            *out += w * x;
+        }
+    }
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resampling_keeps_a_linear_ramp_between_the_outer_voxel_centres() {
+        // v = x over 4 voxels: 0.5, 1.5, 2.5, 3.5 at the centres.
+        let src = ParamValue { shape: Shape::grid(4, 1, 1, 1), data: vec![0.5, 1.5, 2.5, 3.5] };
+        let out = resample(&src, Shape::grid(8, 1, 1, 1));
+        // Centres of 8 voxels at x = 0.25, 0.75, …: the ramp, clamped to [0.5, 3.5].
+        let want = [0.5f32, 0.75, 1.25, 1.75, 2.25, 2.75, 3.25, 3.5];
+        for (a, b) in out.iter().zip(want) {
+            assert!((a - b).abs() < 1e-6, "{out:?}");
+        }
+        assert_eq!(resample(&src, Shape::constant(1)), vec![2.0]);
+        let constant = ParamValue { shape: Shape::constant(3), data: vec![1.0, 2.0, 3.0] };
+        assert_eq!(resample(&constant, Shape::grid(2, 1, 1, 3)), vec![1.0, 2.0, 3.0, 1.0, 2.0, 3.0]);
+    }
+}
