@@ -31,6 +31,7 @@ const SECTIONS: &[(&str, &str)] = &[
     ("Meshes", "meshes"),
     ("Lights", "lights"),
     ("Environment", "environment"),
+    ("Media", "media"),
     ("Optimisation", "optimise"),
     ("Parameters", "optimise.params"),
 ];

@@ -583,3 +583,40 @@ fn a_theta_buffer_without_the_material_data_is_refused() {
         .unwrap();
     });
 }
+
+/// A medium's density and emission grids (4³, random) over a floor lit by a point light
+/// and the sky: the fused sample marches both states along the same steps (one jitter per
+/// ray), and its shadow rays' transmittance per state, so it equals the two-trace sample up
+/// to float summation order.
+#[test]
+fn fused_equals_two_trace_through_a_medium() {
+    let dir = common::scenes::temp_dir("fd-medium");
+    let n = 4usize;
+    let value = |i: usize, k: u32| ((i as u32).wrapping_mul(2_654_435_761).wrapping_add(k) >> 8) as f32 / (1u32 << 24) as f32;
+    let density = vkinverse::npy::Array { shape: vec![n, n, n], data: (0..n * n * n).map(|i| 0.3 + 1.5 * value(i, 1)).collect() };
+    let emission = vkinverse::npy::Array { shape: vec![n, n, n, 3], data: (0..n * n * n * 3).map(|i| 0.05 + 0.4 * value(i, 7)).collect() };
+    vkinverse::npy::write(&dir.join("density.npy"), &density).unwrap();
+    vkinverse::npy::write(&dir.join("emission.npy"), &emission).unwrap();
+    std::fs::write(dir.join("floor.obj"), "v -3 -1 -3\nv 3 -1 -3\nv 3 -1 3\nv -3 -1 3\nf 1 3 2\nf 1 4 3\n").unwrap();
+    let toml = "[film]\nwidth = 10\nheight = 10\n[integrator]\nmax_depth = 3\n\
+                [[sensors]]\norigin = [0.6, 1.4, 4]\ntarget = [0, -0.2, 0]\nfov_y = 40\n\
+                [environment]\nconstant = [0.1, 0.2, 0.3]\n\
+                [[materials]]\nname = \"floor\"\ntype = \"diffuse\"\nbase_color = [0.6, 0.5, 0.4]\n\
+                [[meshes]]\nname = \"floor\"\nfile = \"floor.obj\"\nmaterial = \"floor\"\n\
+                [[lights]]\nname = \"bulb\"\ntype = \"point\"\nposition = [1.5, 2, 1]\nintensity = 6\n\
+                [[media]]\nname = \"cloud\"\nmin = [-1, -0.8, -1]\nmax = [1, 0.8, 1]\ndensity = \"density.npy\"\nemission = \"emission.npy\"\n\
+                [[optimise.params]]\ntarget = \"media.cloud.density\"\ninit = 1.0\nrange = [0, 10]\n\
+                [[optimise.params]]\ntarget = \"media.cloud.emission\"\ninit = 0.2\nrange = [0, 10]\n";
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    let (fused, two) = fd_samples(dir.join("scene.toml").to_str().unwrap(), 0.05, 2, 2);
+    let mut worst = 0f32;
+    for (a, b) in fused.iter().zip(&two) {
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for (x, y) in a.iter().zip(b) {
+            worst = worst.max((x - y).abs() / scale);
+            assert!((x - y).abs() <= 1e-5 * scale, "fused {x} vs two-trace {y} (largest element {scale})");
+        }
+        assert!(a.iter().filter(|v| v.abs() > 1e-7).count() > a.len() / 2, "a 0.05 step changes most elements' gradient");
+    }
+    eprintln!("fused against two-trace through a medium: largest difference {worst:.1e} of the largest element");
+}
