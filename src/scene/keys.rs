@@ -298,6 +298,7 @@ mod tests {
             ("meshes", "two_sided"),
             ("lights", "falloff"),
             ("environment", "scale"),
+            ("media", "density"),
             ("optimise", "params"),
             ("optimise", "fd_two_trace"),
             ("optimise.params", "init"),
@@ -306,6 +307,6 @@ mod tests {
             assert!(keys.contains(&(section.to_string(), key)), "{section}.{key} in {keys:?}");
         }
         let sections: BTreeSet<&str> = keys.iter().map(|(s, _)| s.as_str()).collect();
-        assert_eq!(sections.len(), 13, "{sections:?}");
+        assert_eq!(sections.len(), 14, "{sections:?}");
     }
 }

@@ -822,3 +822,49 @@ fn dielectrics_are_checked() {
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.metallic\"\ninit = 0.5\nrange = [0, 1]\n", rough(""));
     assert_message(&load_err("rough-metallic-param", &optimised), &["optimise.params[0].target", "rough_dielectric", "metallic"]);
 }
+
+/// Every bad `[[media]]` entry or medium parameter is one line naming the key and what is
+/// wrong with it.
+#[test]
+fn bad_media_are_named() {
+    let medium = |keys: &str| format!("{BASE}\n[[media]]\nname = \"fog\"\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n{keys}\n");
+    let cases: &[(&str, String, &[&str])] = &[
+        (
+            "inverted",
+            format!("{BASE}\n[[media]]\nname = \"fog\"\nmin = [0, 0, 0]\nmax = [1, -1, 1]\ndensity = 1\n"),
+            &["media.fog.max", "y -1 is not above min's 0"],
+        ),
+        ("negative", medium("density = -1"), &["media.fog.density", "-1 is negative"]),
+        ("colour density", medium("density = [1, 2, 3]"), &["media.fog.density", "one channel"]),
+        ("missing grid", medium("density = \"none.npy\""), &["media.fog.density", "none.npy"]),
+        ("zero scale", medium("density = 1\nscale = 0"), &["media.fog.scale", "not positive"]),
+        (
+            "two",
+            format!("{}[[media]]\nname = \"mist\"\nmin = [0, 0, 0]\nmax = [1, 1, 1]\ndensity = 1\n", medium("density = 1")),
+            &["media", "2 media: a scene holds at most one"],
+        ),
+        (
+            "negative range",
+            format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"media.fog.density\"\ninit = 1\nrange = [-1, 2]\n"),
+            &["optimise.params[0].range", "not negative"],
+        ),
+        (
+            "grid on a colour",
+            format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = 0.5\nrange = [0, 1]\ngrid = [2, 2, 2]\n"),
+            &["optimise.params[0].grid", "only a medium's density and emission are grids"],
+        ),
+        (
+            "unknown medium",
+            format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"media.smoke.density\"\ninit = 1\nrange = [0, 2]\n"),
+            &["no medium named \"smoke\"", "\"fog\""],
+        ),
+    ];
+    for (name, scene, needles) in cases {
+        let err = load_err(&format!("media-{name}"), scene);
+        assert_message(&err, needles);
+    }
+    // A grid of the wrong shape names the file and the shapes a grid may have.
+    let path = fixture("media-shape", &medium("density = \"flat.npy\""));
+    vkinverse::npy::write(&path.with_file_name("flat.npy"), &vkinverse::npy::Array { shape: vec![4, 4], data: vec![1.0; 16] }).unwrap();
+    assert_message(&Scene::load(&path).unwrap_err(), &["media.fog.density", "flat.npy", "[z, y, x]"]);
+}
