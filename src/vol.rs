@@ -261,7 +261,9 @@ mod tests {
         extra.push(0);
         assert!(error_of(&extra).contains("1 bytes after"));
         let mut nan = good.clone();
-        let at = HEADER_BYTES + 4 * (3 * (3 * 1 + 2) + 1);
+        // Voxel (2, 1, 0) of 3 × 2 × 2 is the sixth; its channel 1 the 17th value.
+        let (x, y, nx, c) = (2, 1, 3, 3);
+        let at = HEADER_BYTES + 4 * ((y * nx + x) * c + 1);
         nan[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
         assert!(error_of(&nan).contains("voxel (2, 1, 0) channel 1 is NaN"), "{}", error_of(&nan));
         let mut inf = good;

@@ -66,7 +66,8 @@ impl Loader {
                 let grid = crate::vol::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
                 if grid.channels != channels {
                     let what = if channels == 1 { "a density has 1" } else { "an emission has 3" };
-                    return Err(self.invalid(key, &format!("{} has {} channels; {what}", path.display(), grid.channels)));
+                    let has = if grid.channels == 1 { "1 channel".to_string() } else { format!("{} channels", grid.channels) };
+                    return Err(self.invalid(key, &format!("{} has {has}; {what}", path.display())));
                 }
                 let [x, y, z] = grid.size;
                 (ParamValue { shape: Shape::grid(x, y, z, channels), data: grid.data }, GridFormat::Vol)

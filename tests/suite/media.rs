@@ -302,13 +302,14 @@ fn vol_grids_of_the_wrong_channels_are_refused() {
     let (density, emission) = random_grids();
     for (key, file, grid, needle) in [
         ("density", "e.vol", as_vol(&emission), "has 3 channels; a density has 1"),
-        ("emission", "d.vol", as_vol(&density), "has 1 channels; an emission has 3"),
+        ("emission", "d.vol", as_vol(&density), "has 1 channel; an emission has 3"),
     ] {
         let dir = temp_dir(&format!("channels-{key}"));
         vol::write(&dir.join(file), &grid).unwrap();
+        let density = if key == "emission" { "density = 1.0\n" } else { "" };
         let toml = format!(
             "[film]\nwidth = 4\nheight = 4\n[[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\nfov_y = 40\n\
-             [[media]]\nname = \"fog\"\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n{key} = \"{file}\"\n"
+             [[media]]\nname = \"fog\"\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n{density}{key} = \"{file}\"\n"
         );
         std::fs::write(dir.join("scene.toml"), toml).unwrap();
         let err = Scene::load(dir.join("scene.toml")).unwrap_err().to_string();
