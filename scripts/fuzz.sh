@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Fuzzes every input parser with libFuzzer for SECONDS in all (default 3600), split evenly
-# between the targets (all nine, or those named):
-#     scripts/fuzz.sh [SECONDS] [toml gltf glb xml ply obj exr hdr npy]
+# between the targets (all ten, or those named):
+#     scripts/fuzz.sh [SECONDS] [toml gltf glb xml ply obj exr hdr npy vol]
 # It installs the nightly toolchain and cargo-fuzz where they are missing. Seeds are the
 # bundled and test files of each format; the corpus grows in fuzz/corpus/TARGET. A crash
 # is kept in fuzz/artifacts/TARGET/: copy it to tests/data/fuzz/TARGET/ as a regression file
@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 total=${1:-3600}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(toml gltf glb xml ply obj exr hdr npy)
+[ ${#targets[@]} -gt 0 ] || targets=(toml gltf glb xml ply obj exr hdr npy vol)
 
 rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 command -v cargo-fuzz > /dev/null || cargo install cargo-fuzz

@@ -24,10 +24,12 @@ pub enum Target {
     Exr,
     Hdr,
     Npy,
+    Vol,
 }
 
 impl Target {
-    pub const ALL: [Target; 9] = [Target::Toml, Target::Gltf, Target::Glb, Target::Xml, Target::Ply, Target::Obj, Target::Exr, Target::Hdr, Target::Npy];
+    pub const ALL: [Target; 10] =
+        [Target::Toml, Target::Gltf, Target::Glb, Target::Xml, Target::Ply, Target::Obj, Target::Exr, Target::Hdr, Target::Npy, Target::Vol];
 
     /// The target's name, which is also its files' extension.
     pub fn name(self) -> &'static str {
@@ -41,6 +43,7 @@ impl Target {
             Target::Exr => "exr",
             Target::Hdr => "hdr",
             Target::Npy => "npy",
+            Target::Vol => "vol",
         }
     }
 
@@ -106,6 +109,9 @@ impl Fixture {
             Target::Hdr => crate::image::decode_hdr(data, &input).map(image).map_err(|e| crate::error::one_line(&e)),
             Target::Npy => crate::npy::parse_bytes(data, &input)
                 .map(|a| assert_eq!(Some(a.data.len()), a.shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d))))
+                .map_err(|e| crate::error::one_line(&e)),
+            Target::Vol => crate::vol::parse_bytes(data, &input)
+                .map(|g| assert_eq!(g.data.len(), g.size.iter().map(|&s| s as usize).product::<usize>() * g.channels as usize))
                 .map_err(|e| crate::error::one_line(&e)),
         }
     }

@@ -96,6 +96,7 @@ pub mod replay;
 pub mod run;
 pub mod scene;
 pub mod settings;
+pub mod vol;
 
 mod cancel;
 mod device;

@@ -365,9 +365,9 @@ pub struct ParamFile {
     pub lr: Option<f32>,
 }
 
-/// A medium's density or emission: a number, a colour, or a `.npy` grid.
+/// A medium's density or emission: a number, a colour, or a grid file (`.npy` or `.vol`).
 #[derive(Debug, Deserialize, Clone)]
-#[serde(untagged, expecting = "expected a number, [r, g, b] or \"file.npy\"")]
+#[serde(untagged, expecting = "expected a number, [r, g, b], \"file.npy\" or \"file.vol\"")]
 pub enum GridInput {
     Scalar(f32),
     Color([f32; 3]),

@@ -285,6 +285,9 @@ impl Loader {
         self.check_environment(&environment)?;
         let mut media = imported.media;
         media.extend(self.media(raw.media)?);
+        if media.len() > 1 {
+            return Err(self.invalid("media", &format!("{} media, the imported file's and the scene's: a scene holds at most one", media.len())));
+        }
         let optimise = self.optimise(
             raw.optimise.unwrap_or_default(),
             &Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media },

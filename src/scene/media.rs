@@ -1,12 +1,12 @@
 //! The `[[media]]` tables: boxes of emitting and absorbing medium, their density and
-//! emission as constants or `.npy` grids, and the trilinear resampling that turns a grid
-//! into a parameter's resolution.
+//! emission as constants or grids (`.npy`, or Mitsuba's `.vol`), and the trilinear
+//! resampling that turns a grid into a parameter's resolution.
 
 use std::collections::HashSet;
 
 use super::file::{GridInput, MediumFile};
 use super::loader::Loader;
-use super::model::Medium;
+use super::model::{GridFormat, Medium};
 use super::SceneError;
 use crate::tensor::{ParamValue, Shape};
 
@@ -35,16 +35,16 @@ impl Loader {
                 let name = ["x", "y", "z"][axis];
                 return Err(self.out_of_range(&format!("{key}.max"), format!("{name} {} is not above min's {}", m.max[axis], m.min[axis])));
             }
-            let density = self.grid(&format!("{key}.density"), &m.density, 1)?;
-            let emission = match &m.emission {
+            let (density, density_format) = self.grid(&format!("{key}.density"), &m.density, 1)?;
+            let (emission, emission_format) = match &m.emission {
                 Some(e) => self.grid(&format!("{key}.emission"), e, 3)?,
-                None => ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
+                None => (ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] }, GridFormat::Npy),
             };
             let scale = m.scale.unwrap_or(1.0);
             self.positive(&format!("{key}.scale"), scale)?;
             let step = m.step.unwrap_or(DEFAULT_STEP);
             self.positive(&format!("{key}.step"), step)?;
-            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step });
+            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, formats: [density_format, emission_format] });
         }
         if out.len() > 1 {
             return Err(self.invalid("media", &format!("{} media: a scene holds at most one", out.len())));
@@ -53,12 +53,25 @@ impl Loader {
     }
 
     /// A density (`channels` 1) or emission (3) value: a number (every channel), a colour
-    /// (3 channels only) or a `.npy` grid of shape [z, y, x] or [z, y, x, channels].
-    fn grid(&self, key: &str, input: &GridInput, channels: u32) -> Result<ParamValue, SceneError> {
-        let value = match input {
-            GridInput::Scalar(v) => ParamValue { shape: Shape::constant(channels), data: vec![*v; channels as usize] },
-            GridInput::Color(c) if channels == 3 => ParamValue { shape: Shape::constant(3), data: c.to_vec() },
+    /// (3 channels only), a `.npy` grid of shape [z, y, x] or [z, y, x, channels], or a
+    /// Mitsuba `.vol` grid of `channels` channels (whose bounding box is not used: the
+    /// medium's `min` and `max` place it). The format is the file's.
+    fn grid(&self, key: &str, input: &GridInput, channels: u32) -> Result<(ParamValue, GridFormat), SceneError> {
+        let (value, format) = match input {
+            GridInput::Scalar(v) => (ParamValue { shape: Shape::constant(channels), data: vec![*v; channels as usize] }, GridFormat::Npy),
+            GridInput::Color(c) if channels == 3 => (ParamValue { shape: Shape::constant(3), data: c.to_vec() }, GridFormat::Npy),
             GridInput::Color(_) => return Err(self.invalid(key, "a density has one channel; give one number or a grid")),
+            GridInput::File(rel) if GridFormat::of(rel) == GridFormat::Vol => {
+                let (path, bytes) = self.read(key, rel)?;
+                let grid = crate::vol::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
+                if grid.channels != channels {
+                    let what = if channels == 1 { "a density has 1" } else { "an emission has 3" };
+                    let has = if grid.channels == 1 { "1 channel".to_string() } else { format!("{} channels", grid.channels) };
+                    return Err(self.invalid(key, &format!("{} has {has}; {what}", path.display())));
+                }
+                let [x, y, z] = grid.size;
+                (ParamValue { shape: Shape::grid(x, y, z, channels), data: grid.data }, GridFormat::Vol)
+            }
             GridInput::File(rel) => {
                 let (path, bytes) = self.read(key, rel)?;
                 let array = crate::npy::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
@@ -81,14 +94,14 @@ impl Loader {
                 if shape.texels() > MAX_GRID_VOXELS {
                     return Err(self.out_of_range(key, format!("{} has {} voxels; at most {MAX_GRID_VOXELS}", path.display(), shape.texels())));
                 }
-                ParamValue { shape, data: array.data }
+                (ParamValue { shape, data: array.data }, GridFormat::Npy)
             }
         };
         self.finite(key, &value.data)?;
         if let Some(v) = value.data.iter().find(|&&v| v < 0.0) {
             return Err(self.out_of_range(key, format!("{v} is negative")));
         }
-        Ok(value)
+        Ok((value, format))
     }
 }
 

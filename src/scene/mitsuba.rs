@@ -30,8 +30,10 @@
 //! type="checkerboard">` (constant colours: a 2 × 2 nearest-filtered image), each with a
 //! `to_uv` map that moves the texture coordinates of the shapes using it (one per
 //! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
-//! `<ref>`. Names: a shape's mesh, bsdf's material and emitter's light are its `id`
-//! (else `shape<k>`, the enclosing shape's name, `light<k>`).
+//! `<ref>`; an absorbing `<medium type="homogeneous|heterogeneous">` inside a `null`-BSDF
+//! box under `volpath` or `volpathmis` ([`media`]). Names: a shape's mesh, bsdf's material
+//! and emitter's light are its `id` (else `shape<k>`, the enclosing shape's name,
+//! `light<k>`); a medium's is its `id`, else its shape's name.
 //!
 //! Exact: bitmap and checkerboard textures, diffuse (black from behind unless wrapped in twosided, as in Mitsuba), twosided,
 //! `mask` (a coverage: rays pass through with probability 1 − opacity), dielectric,
@@ -64,6 +66,8 @@ use super::model::Imported;
 use super::model::*;
 use super::{obj, ply, MaterialKind, SceneError};
 use crate::image::{self, srgb_decode, Image};
+
+mod media;
 
 /// The 2-D affine map that Mitsuba makes of a texture's 4 × 4 `to_uv`: its upper-left
 /// 2 × 2 block and the x and y of its translation.
@@ -139,6 +143,15 @@ struct Importer<'a, 'i> {
     principled_warned: bool,
     /// A `direct` integrator's emitter samples (warned about with delta lights).
     direct_emitter_samples: Option<i64>,
+    /// The integrator's type (inside a `moment` or `aov`); None without one.
+    integrator_kind: Option<String>,
+    /// Top-level `<medium id>`s, for the shapes whose interior they are.
+    media: HashMap<String, media::MediumDef<'a, 'i>>,
+    /// Top-level `<bsdf type="null" id>`s (a medium's shape's), and those a medium's shape used.
+    null_bsdfs: HashMap<String, Node<'a, 'i>>,
+    null_used: Vec<String>,
+    /// The shape whose interior is the scene's medium.
+    medium_shape: Option<Node<'a, 'i>>,
 }
 
 /// Deepest nesting of elements read: far beyond a scene's (a shape in a BSDF in a twosided
@@ -199,8 +212,14 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         out: Imported { source: Source::Mitsuba(path.to_path_buf()), ..Default::default() },
         principled_warned: false,
         direct_emitter_samples: None,
+        integrator_kind: None,
+        media: HashMap::new(),
+        null_bsdfs: HashMap::new(),
+        null_used: Vec::new(),
+        medium_shape: None,
     };
     imp.scene(doc.root_element())?;
+    imp.check_media()?;
     imp.finish();
     Ok(imp.out)
 }
@@ -713,8 +732,18 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
         for n in children.iter().filter(|n| definition(n, "bsdf")) {
             let id = self.required(*n, "id")?;
+            if self.plugin_type(*n)? == "null" {
+                // Only around a medium (checked once the shapes are read).
+                self.null_bsdfs.insert(id, *n);
+                continue;
+            }
             let index = self.bsdf(*n, &id)?;
             self.bsdfs.insert(id, index);
+        }
+        for n in children.iter().filter(|n| definition(n, "medium")) {
+            let id = self.required(*n, "id")?;
+            let medium = self.medium_def(*n)?;
+            self.media.insert(id, medium);
         }
         let area: Vec<Node> =
             children.iter().copied().filter(|n| definition(n, "emitter") && n.attribute("type").is_some_and(|t| t.eq_ignore_ascii_case("area"))).collect();
@@ -734,7 +763,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         for n in children {
             match n.tag_name().name() {
                 "default" | "path" => {}
-                "texture" | "bsdf" | "sampler" if n.attribute("id").is_some() => {}
+                "texture" | "bsdf" | "sampler" | "medium" if n.attribute("id").is_some() => {}
                 "emitter" if area.contains(&n) => {}
                 "integrator" => {
                     integrators += 1;
@@ -745,6 +774,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 }
                 "sensor" => self.sensor(n)?,
                 "bsdf" | "texture" | "sampler" => return Err(self.err(n, "the `id` attribute is missing")),
+                "medium" => return Err(self.err(n, "a top-level <medium> needs an id that a shape's <ref name=\"interior\"> names")),
                 "shape" => {
                     shapes += 1;
                     self.shape(n, shapes)?;
@@ -804,8 +834,11 @@ impl<'a, 'i> Importer<'a, 'i> {
             self.warn(node, format!("rendered as the integrator inside it; the {kind} images are not written"));
             return self.integrator(inner);
         }
+        self.integrator_kind = Some(kind.clone());
         match kind.as_str() {
-            // Without media (which are refused) volpath and volpathmis render what path does.
+            // Without media, volpath and volpathmis render what path does; with an absorbing
+            // medium, they attenuate as vkinverse does (path, prb and direct ignore media,
+            // which is refused).
             "path" | "prb" | "volpath" | "volpathmis" => {}
             // Emitters seen and direct illumination: the path tracer at depth 2. Its sample
             // counts per strategy change the noise only.
@@ -1607,6 +1640,12 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             _ => return Err(self.err(node, format!("shape \"{kind}\" is unsupported (obj, ply, serialized, rectangle, cube, sphere, disk and cylinder are)"))),
         };
+        if let Some(exterior) = self.take(&mut items, "exterior") {
+            return Err(self.err(exterior, "an exterior medium is unsupported (a shape's interior medium, with a null BSDF, is)"));
+        }
+        if let Some(interior) = self.take(&mut items, "interior") {
+            return self.medium_shape(node, &name, interior, to_world, &positions, &indices, items);
+        }
         // A <ref> may name an area emitter declared at the top level.
         let mut emitter_ref = None;
         while let Some(i) = items.iter().position(|n| n.tag_name().name() == "ref" && n.attribute("id").is_some_and(|id| self.area_emitters.contains_key(id))) {
@@ -1620,6 +1659,10 @@ impl<'a, 'i> Importer<'a, 'i> {
             (Some(b), None) => self.bsdf(b, &name)?,
             (None, Some(r)) => {
                 let id = self.required(r, "id")?;
+                if let Some(&null) = self.null_bsdfs.get(&id) {
+                    // A null BSDF around no medium: refused as the BSDF it is.
+                    self.bsdf(null, &id)?;
+                }
                 *self.bsdfs.get(&id).ok_or_else(|| {
                     let mut known: Vec<&str> = self.bsdfs.keys().map(String::as_str).collect();
                     known.sort();

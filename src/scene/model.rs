@@ -837,6 +837,38 @@ pub struct Medium {
     /// The ray-marching step, in voxels of the finer of the two grids (a constant counts
     /// as one voxel across the box).
     pub step: f32,
+    /// The file formats the density's and the emission's grids came in (`.npy` for a
+    /// constant): the recovered scene writes each grid back in its own.
+    pub formats: [GridFormat; 2],
+}
+
+/// The file format of a medium's grid.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GridFormat {
+    /// numpy's `.npy`, shape [z, y, x] or [z, y, x, channels].
+    #[default]
+    Npy,
+    /// Mitsuba's `.vol` ([`crate::vol`]).
+    Vol,
+}
+
+impl GridFormat {
+    /// The format a grid file's name gives: `.vol` (any case) is Mitsuba's, any other `.npy`.
+    pub fn of(path: &str) -> GridFormat {
+        if std::path::Path::new(path).extension().is_some_and(|e| e.eq_ignore_ascii_case("vol")) {
+            GridFormat::Vol
+        } else {
+            GridFormat::Npy
+        }
+    }
+
+    /// The extension of its files, without the dot.
+    pub fn extension(self) -> &'static str {
+        match self {
+            GridFormat::Npy => "npy",
+            GridFormat::Vol => "vol",
+        }
+    }
 }
 
 impl Medium {

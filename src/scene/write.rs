@@ -295,9 +295,22 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                     arr(&v.data)
                 }
             } else {
-                let rel = format!("grids/{}.npy", file_name(&format!("{}.{key}", m.name)));
-                let array = crate::npy::Array { shape: v.shape.array(), data: v.data.clone() };
-                crate::npy::write(&dir.join(&rel), &array).map_err(|e| write_err(&dir.join(&rel), e))?;
+                // Each grid goes back in the format it came in.
+                let format = m.formats[usize::from(key == "emission")];
+                let rel = format!("grids/{}.{}", file_name(&format!("{}.{key}", m.name)), format.extension());
+                let path = dir.join(&rel);
+                match format {
+                    GridFormat::Npy => {
+                        let array = crate::npy::Array { shape: v.shape.array(), data: v.data.clone() };
+                        crate::npy::write(&path, &array).map_err(|e| write_err(&path, e))?;
+                    }
+                    GridFormat::Vol => {
+                        let [x, y, z] = super::media::grid_dims(v.shape).map(|d| d as u32);
+                        let bbox = [m.min[0], m.min[1], m.min[2], m.max[0], m.max[1], m.max[2]];
+                        let grid = crate::vol::Grid { size: [x, y, z], channels: v.shape.channels(), bbox, data: v.data.clone() };
+                        crate::vol::write(&path, &grid).map_err(|e| write_err(&path, e))?;
+                    }
+                }
                 Value::String(rel)
             };
             pairs.push((key, value));

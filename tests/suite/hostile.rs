@@ -231,6 +231,63 @@ fn an_imported_environment_obeys_the_toml_value_policy() {
     refused(&xml, &["environment", "-1"]);
 }
 
+/// A `.vol` header of `size` voxels and `channels` (version 3, float32), then `data`.
+fn vol_bytes(size: [i32; 3], channels: i32, data: &[f32]) -> Vec<u8> {
+    let mut b = b"VOL\x03".to_vec();
+    for v in [1].iter().chain(&size).chain([&channels]) {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in [0.0f32, 0.0, 0.0, 1.0, 1.0, 1.0].iter().chain(data) {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b
+}
+
+/// Hostile Mitsuba `.vol` grids as a medium's density: each is refused in one line naming
+/// the key and the file, before anything of the claimed size is allocated.
+#[test]
+fn hostile_vol_grids_are_refused_in_one_line() {
+    let dir = temp("vol");
+    let scene = dir.join("scene.toml");
+    fs::write(
+        &scene,
+        "[film]\nwidth = 4\nheight = 4\n[[sensors]]\norigin = [0, 0, 3]\ntarget = [0, 0, 0]\nfov_y = 40\n\
+         [[media]]\nname = \"fog\"\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\ndensity = \"bad.vol\"\n",
+    )
+    .unwrap();
+    let good = vol_bytes([2, 2, 2], 1, &[0.5; 8]);
+    let edit = |at: usize, bytes: &[u8]| {
+        let mut b = good.clone();
+        b[at..at + bytes.len()].copy_from_slice(bytes);
+        b
+    };
+    let mut nan = good.clone();
+    nan.truncate(good.len() - 4);
+    nan.extend_from_slice(&f32::NAN.to_le_bytes());
+    let cases: Vec<(Vec<u8>, &[&str])> = vec![
+        (Vec::new(), &["bad magic"]),
+        (b"VOL".to_vec(), &["ends inside the 48-byte header (3 bytes)"]),
+        (good[..30].to_vec(), &["ends inside the 48-byte header (30 bytes)"]),
+        (edit(0, b"\x93NUMPY"), &["bad magic"]),
+        (edit(3, &[2]), &["unsupported .vol version 2"]),
+        (edit(4, &3i32.to_le_bytes()), &["unsupported .vol encoding 3"]),
+        (edit(8, &(-1i32).to_le_bytes()), &["x has -1 voxels"]),
+        (edit(16, &i32::MAX.to_le_bytes()), &["z has 2147483647 voxels"]),
+        (vol_bytes([1024, 1024, 1024], 1, &[]), &["1073741824 voxels; at most"]),
+        (vol_bytes([100, 100, 100], 1, &[0.5; 8]), &["truncated data: 32 of 4000000 bytes"]),
+        (edit(20, &i32::MIN.to_le_bytes()), &["-2147483648 channels"]),
+        ([good.clone(), vec![0; 7]].concat(), &["7 bytes after the grid data"]),
+        (nan, &["voxel (1, 1, 1) channel 0 is NaN"]),
+        (vol_bytes([2, 2, 2], 1, &[-0.5; 8]), &["-0.5 is negative"]),
+        (vol_bytes([1, 1, 1], 3, &[0.5; 3]), &["has 3 channels; a density has 1"]),
+    ];
+    for (bytes, needles) in cases {
+        fs::write(dir.join("bad.vol"), &bytes).unwrap();
+        let err = refused(&scene, needles);
+        assert!(err.contains("media.fog.density") && (err.contains("bad.vol") || err.contains("negative")), "{err}");
+    }
+}
+
 #[test]
 fn the_binary_turns_a_refusal_into_one_line_and_a_non_zero_exit() {
     let path = box_variant("cli-stride", |d| d["bufferViews"][0]["byteStride"] = json!(4));

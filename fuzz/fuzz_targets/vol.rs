@@ -1,0 +1,2 @@
+#![no_main]
+vkinverse_fuzz::target!(Vol);

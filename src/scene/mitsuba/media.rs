@@ -1,0 +1,322 @@
+//! Mitsuba media that vkinverse renders as they are: an absorbing (albedo 0) `homogeneous`
+//! or `heterogeneous` medium, the interior of a shape with a `null` BSDF whose surface is an
+//! axis-aligned box, rendered by `volpath` or `volpathmis`. The medium's box is the shape's
+//! world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
+//! one-channel `gridvolume` whose `to_world` places it on that box) and its `scale` is
+//! Mitsuba's; it emits nothing. Everything else about a medium is refused in one line that
+//! names the plugin and the property.
+
+use glam::{Mat3, Mat4, Vec3};
+use roxmltree::Node;
+
+use super::{elements, Importer, Items};
+use crate::scene::media::DEFAULT_STEP;
+use crate::scene::model::{GridFormat, Medium};
+use crate::scene::SceneError;
+use crate::tensor::{ParamValue, Shape};
+
+/// A medium's `sigma_t` or `albedo` as read.
+#[derive(Clone)]
+pub(super) enum Values<'a, 'i> {
+    Constant([f32; 3]),
+    /// A `gridvolume`: its grid, its `to_world` and `use_grid_bbox`, and its element.
+    Grid {
+        grid: crate::vol::Grid,
+        to_world: Mat4,
+        use_grid_bbox: bool,
+        node: Node<'a, 'i>,
+    },
+}
+
+/// A `<medium>` as read, before the shape around it gives it its box.
+#[derive(Clone)]
+pub(super) struct MediumDef<'a, 'i> {
+    node: Node<'a, 'i>,
+    sigma_t: Values<'a, 'i>,
+    scale: f32,
+}
+
+/// Relative tolerance of the box checks (of the box's largest side).
+const BOX_TOLERANCE: f32 = 1e-4;
+
+impl<'a, 'i> Importer<'a, 'i> {
+    /// A `<medium>` (inside a shape or at the top level with an id): refused unless it only
+    /// absorbs.
+    pub(super) fn medium_def(&mut self, node: Node<'a, 'i>) -> Result<MediumDef<'a, 'i>, SceneError> {
+        let kind = self.plugin_type(node)?;
+        if kind != "homogeneous" && kind != "heterogeneous" {
+            return Err(self.err(node, format!("medium \"{kind}\" is unsupported (absorbing homogeneous and heterogeneous media are)")));
+        }
+        let mut items = elements(node);
+        // Mitsuba's default albedo is 0.75.
+        let albedo = match self.take(&mut items, "albedo") {
+            Some(n) => match self.medium_values(n, true)? {
+                Values::Constant(c) => c.into_iter().fold(0.0, f32::max),
+                Values::Grid { grid, .. } => grid.data.iter().copied().fold(0.0, f32::max),
+            },
+            None => 0.75,
+        };
+        if albedo != 0.0 {
+            return Err(self.err(node, format!("{kind} medium with albedo {albedo}: scattering media are not supported; only absorbing ones (albedo 0)")));
+        }
+        let sigma_t = match self.take(&mut items, "sigma_t") {
+            Some(n) => {
+                let v = self.medium_values(n, false)?;
+                match &v {
+                    Values::Constant(c) if c[0] != c[1] || c[1] != c[2] => {
+                        return Err(self.err(n, format!("sigma_t {c:?} differs between channels: a medium's density has one channel")))
+                    }
+                    Values::Grid { grid, node, .. } if grid.channels != 1 => {
+                        return Err(self.err(*node, format!("sigma_t has {} channels: a medium's density has one", grid.channels)))
+                    }
+                    Values::Grid { node, .. } if kind == "homogeneous" => {
+                        return Err(self.err(*node, "a homogeneous medium's sigma_t is a constant (a grid is a heterogeneous medium's)"))
+                    }
+                    _ => {}
+                }
+                v
+            }
+            None => Values::Constant([1.0; 3]),
+        };
+        let scale = self.take_float(&mut items, "scale", 1.0)?;
+        if scale <= 0.0 {
+            return Err(self.err(node, format!("scale {scale} is not positive")));
+        }
+        // With albedo 0 nothing scatters: the phase function is never used, and sampling
+        // emitters or not changes the noise only.
+        self.take_tag(&mut items, "phase");
+        self.take(&mut items, "phase");
+        if let Some(n) = self.take(&mut items, "sample_emitters") {
+            self.boolean(n)?;
+        }
+        self.rest(&items, node)?;
+        Ok(MediumDef { node, sigma_t, scale })
+    }
+
+    /// A medium's property: a `<float>`, an `<rgb>` (or, for a reflectance such as
+    /// `albedo`, a `<spectrum>`), or a `<volume>` of type `constvolume` or `gridvolume`.
+    fn medium_values(&mut self, node: Node<'a, 'i>, reflectance: bool) -> Result<Values<'a, 'i>, SceneError> {
+        let property = node.attribute("name").unwrap_or("value").to_string();
+        match node.tag_name().name() {
+            "float" => Ok(Values::Constant([self.float(node)?; 3])),
+            "rgb" => Ok(Values::Constant(self.rgb(node)?)),
+            "spectrum" if reflectance => Ok(Values::Constant(self.rgb(node)?)),
+            "spectrum" => Err(self.err(node, format!("{property} as a <spectrum> is unsupported (a <float>, an <rgb> or a <volume> is)"))),
+            "volume" => {
+                let kind = self.plugin_type(node)?;
+                let mut items = elements(node);
+                match kind.as_str() {
+                    "constvolume" | "const" => {
+                        let value = self.take(&mut items, "value").ok_or_else(|| self.err(node, "a constvolume needs a `value`"))?;
+                        let value = match value.tag_name().name() {
+                            "float" | "rgb" => self.medium_values(value, reflectance)?,
+                            _ => return Err(self.err(value, "expected a <float> or an <rgb>")),
+                        };
+                        self.rest(&items, node)?;
+                        Ok(value)
+                    }
+                    "gridvolume" | "grid" => self.grid_volume(node, items),
+                    _ => Err(self.err(node, format!("volume \"{kind}\" is unsupported (constvolume and gridvolume are)"))),
+                }
+            }
+            _ => Err(self.err(node, format!("{property}: expected a <float>, an <rgb> or a <volume>"))),
+        }
+    }
+
+    /// A `gridvolume`: its `.vol` file ([`crate::vol`]) and where `to_world` puts it.
+    fn grid_volume(&mut self, node: Node<'a, 'i>, mut items: Items<'a, 'i>) -> Result<Values<'a, 'i>, SceneError> {
+        let rel = self.take(&mut items, "filename").map(|n| self.string(n)).transpose()?.ok_or_else(|| self.err(node, "no filename"))?;
+        let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
+        if let Some(n) = self.take(&mut items, "filter_type") {
+            let filter = self.string(n)?;
+            if filter != "trilinear" {
+                return Err(self.err(n, format!("filter_type \"{filter}\" is unsupported (trilinear is)")));
+            }
+        }
+        if let Some(n) = self.take(&mut items, "wrap_mode") {
+            let wrap = self.string(n)?;
+            if wrap != "clamp" {
+                return Err(self.err(n, format!("wrap_mode \"{wrap}\" is unsupported (clamp is)")));
+            }
+        }
+        // Colour conversion (of three channels), hardware interpolation and the majorant
+        // change nothing here.
+        for key in ["raw", "accel"] {
+            if let Some(n) = self.take(&mut items, key) {
+                self.boolean(n)?;
+            }
+        }
+        if let Some(n) = self.take(&mut items, "max_value") {
+            self.float(n)?;
+        }
+        let use_grid_bbox = self.take_bool(&mut items, "use_grid_bbox", false)?;
+        self.rest(&items, node)?;
+        let (path, bytes) = self.read_file(node, &rel)?;
+        let grid = crate::vol::parse_bytes(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
+        Ok(Values::Grid { grid, to_world, use_grid_bbox, node })
+    }
+
+    /// A shape with an interior medium (`interior`: a `<medium>` or a `<ref>` to one):
+    /// the medium in the shape's box, and no mesh (its null BSDF shows nothing).
+    /// `positions` are the shape's, before `to_world`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn medium_shape(
+        &mut self,
+        node: Node<'a, 'i>,
+        name: &str,
+        interior: Node<'a, 'i>,
+        to_world: Mat4,
+        positions: &[[f32; 3]],
+        indices: &[[u32; 3]],
+        mut items: Items<'a, 'i>,
+    ) -> Result<(), SceneError> {
+        let (def, id) = match interior.tag_name().name() {
+            "medium" => (self.medium_def(interior)?, self.attr(interior, "id")?),
+            "ref" => {
+                let id = self.required(interior, "id")?;
+                let def = self.media.get(&id).cloned().ok_or_else(|| self.err(interior, format!("no <medium> with id \"{id}\"")))?;
+                (def, Some(id))
+            }
+            _ => return Err(self.err(interior, "expected a <medium> or a <ref> to one")),
+        };
+        let null = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
+            (Some(b), None) => self.plugin_type(b)? == "null" && elements(b).is_empty(),
+            (None, Some(r)) => {
+                let id = self.required(r, "id")?;
+                let null = self.null_bsdfs.contains_key(&id);
+                if null && !self.null_used.contains(&id) {
+                    self.null_used.push(id);
+                }
+                null
+            }
+            _ => false,
+        };
+        if !null {
+            return Err(self.err(node, "a shape around a medium needs a null BSDF (a visible surface around a medium is unsupported)"));
+        }
+        self.rest(&items, node)?;
+        let world: Vec<Vec3> = positions.iter().map(|&p| to_world.transform_point3(Vec3::from(p))).collect();
+        let (min, max) = self.medium_box(node, &world, indices)?;
+        let density = match &def.sigma_t {
+            Values::Constant(c) => ParamValue { shape: Shape::constant(1), data: vec![c[0]] },
+            Values::Grid { grid, to_world, use_grid_bbox, node: at } => {
+                let (lo, hi) = match use_grid_bbox {
+                    true => (Vec3::from_slice(&grid.bbox[..3]), Vec3::from_slice(&grid.bbox[3..])),
+                    false => (Vec3::ZERO, Vec3::ONE),
+                };
+                let linear = Mat3::from_mat4(*to_world);
+                let diagonal = Vec3::new(linear.x_axis.x, linear.y_axis.y, linear.z_axis.z);
+                let off = linear - Mat3::from_diagonal(diagonal);
+                if !(off.abs_diff_eq(Mat3::ZERO, 1e-6 * diagonal.abs().max_element()) && diagonal.min_element() > 0.0) {
+                    return Err(self.err(*at, "the grid's to_world turns or mirrors it (a translation and a positive scale are supported)"));
+                }
+                let (a, b) = (to_world.transform_point3(lo), to_world.transform_point3(hi));
+                let tolerance = BOX_TOLERANCE * (max - min).max_element();
+                if !(lo.cmplt(hi).all() && a.abs_diff_eq(min, tolerance) && b.abs_diff_eq(max, tolerance)) {
+                    return Err(self.err(
+                        *at,
+                        format!("the grid spans {a} to {b} and its shape {min} to {max}: a grid must fill its medium's box (its to_world maps the unit cube onto the box)"),
+                    ));
+                }
+                let [x, y, z] = grid.size;
+                ParamValue { shape: Shape::grid(x, y, z, 1), data: grid.data.clone() }
+            }
+        };
+        if let Some(v) = density.data.iter().find(|&&v| v < 0.0) {
+            return Err(self.err(def.node, format!("sigma_t holds {v}, below 0")));
+        }
+        if self.medium_shape.is_some() {
+            return Err(self.err(node, "a second medium: a scene holds at most one"));
+        }
+        self.medium_shape = Some(node);
+        let format = if matches!(def.sigma_t, Values::Grid { .. }) { GridFormat::Vol } else { GridFormat::Npy };
+        self.out.media.push(Medium {
+            name: id.unwrap_or_else(|| name.to_string()),
+            min: min.to_array(),
+            max: max.to_array(),
+            density,
+            emission: ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
+            scale: def.scale,
+            step: DEFAULT_STEP,
+            formats: [format, GridFormat::Npy],
+        });
+        Ok(())
+    }
+
+    /// The world bounds of a medium's shape, which must be a closed axis-aligned box: every
+    /// vertex on a corner of the bounds, the faces' area the box's.
+    fn medium_box(&self, node: Node<'a, 'i>, world: &[Vec3], indices: &[[u32; 3]]) -> Result<(Vec3, Vec3), SceneError> {
+        let not_a_box = |why: String| {
+            self.err(node, format!("the shape around a medium must be an axis-aligned box (a cube or a box mesh, turned by multiples of 90° at most): {why}"))
+        };
+        let min = world.iter().copied().fold(Vec3::INFINITY, Vec3::min);
+        let max = world.iter().copied().fold(Vec3::NEG_INFINITY, Vec3::max);
+        let side = max - min;
+        if side.is_nan() || side.min_element() <= 0.0 {
+            return Err(not_a_box(format!("its bounds {min} to {max} are flat")));
+        }
+        let tolerance = BOX_TOLERANCE * side.max_element();
+        let on_corner = |p: Vec3| (0..3).all(|a| (p[a] - min[a]).abs() <= tolerance || (p[a] - max[a]).abs() <= tolerance);
+        if let Some(p) = world.iter().find(|&&p| !on_corner(p)) {
+            return Err(not_a_box(format!("vertex {p} is not a corner of its bounds")));
+        }
+        let area: f32 = indices
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| world.get(i as usize).copied().unwrap_or(Vec3::ZERO));
+                0.5 * (b - a).cross(c - a).length()
+            })
+            .sum();
+        let want = 2.0 * (side.x * side.y + side.y * side.z + side.z * side.x);
+        if (area - want).abs() > 1e-3 * want {
+            return Err(not_a_box(format!("its faces' area {area} is not its bounds' {want}")));
+        }
+        Ok((min, max))
+    }
+
+    /// What a scene with a medium must also be for Mitsuba to render the medium as vkinverse
+    /// does: a volumetric integrator, no camera inside the box and no surface inside it (at
+    /// a surface inside a medium, Mitsuba's volpath leaves the medium).
+    pub(super) fn check_media(&mut self) -> Result<(), SceneError> {
+        let unused: Vec<String> = self.null_bsdfs.keys().filter(|id| !self.null_used.contains(id)).cloned().collect();
+        if let Some(id) = unused.into_iter().min() {
+            // A null BSDF that bounds no medium: refused as every other unsupported BSDF.
+            let node = self.null_bsdfs[&id];
+            self.bsdf(node, &id)?;
+        }
+        let (Some(node), Some(m)) = (self.medium_shape, self.out.media.first()) else { return Ok(()) };
+        let (min, max) = (Vec3::from(m.min), Vec3::from(m.max));
+        let inset = BOX_TOLERANCE * (max - min).max_element();
+        let (inner_min, inner_max) = (min + inset, max - inset);
+        match self.integrator_kind.as_deref() {
+            Some("volpath" | "volpathmis") => {}
+            other => {
+                let kind = other.unwrap_or("path");
+                return Err(
+                    self.err(node, format!("Mitsuba's {kind} integrator renders no medium: a scene with a medium is imported for volpath or volpathmis"))
+                );
+            }
+        }
+        if let Some(s) = self.out.sensors.iter().find(|s| s.origin.cmpgt(inner_min).all() && s.origin.cmplt(inner_max).all()) {
+            return Err(self.err(node, format!("a sensor at {} is inside the medium's box (a sensor's own medium is unsupported)", s.origin)));
+        }
+        for mesh in &self.out.meshes {
+            let inside = mesh.indices.iter().any(|t| {
+                let corners = t.map(|i| mesh.positions.get(i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p)));
+                let lo = corners.iter().copied().fold(Vec3::INFINITY, Vec3::min);
+                let hi = corners.iter().copied().fold(Vec3::NEG_INFINITY, Vec3::max);
+                hi.cmpgt(inner_min).all() && lo.cmplt(inner_max).all()
+            });
+            if inside {
+                return Err(self.err(
+                    node,
+                    format!(
+                        "shape \"{}\" reaches into the medium's box: Mitsuba's volpath leaves a medium at a surface inside it, so this is unsupported",
+                        mesh.name
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
