@@ -4,12 +4,15 @@
 //! kernel's, in one run, plus the costs that bound small workloads: a minimal dispatch
 //! and a submit + fence round trip. A host memcpy of the same size is the ceiling. The
 //! fused optimiser passes are measured the same way ([`optimiser_bandwidth`]), on a
-//! synthetic θ, for both benches. The scene bench is in `bench/scene.rs`.
+//! synthetic θ, for every bench. The scene bench is in `bench/scene.rs`, the medium bench
+//! in `bench/media.rs`.
 
 mod layouts;
+mod media;
 mod scene;
 
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};
+pub use media::{media_bench, MediaBench, MediaCase, MediaOptions, MediaPass};
 pub use scene::{scene_bench, BvhThroughput, PassTime, Ratios, RayCount, SceneBench, SpecConstant, SpecialisationGain, TransferPerIteration};
 
 use crate::gpu::{Access, Buffer, CommandBuffer, ComputePipeline, Context, MemoryKind, Profiler, Result, ScopeTime, SpecValue};
@@ -67,9 +70,14 @@ pub struct OptimiserPass {
     pub params_per_s: f64,
     /// GB/s relative to the `copy` kernel in the same submissions.
     pub ratio_to_copy: f64,
+    /// GB/s relative to the `copy_vec4` kernel (float4 loads and stores) in the same
+    /// submissions: the fastest plain copy, against which the optimiser passes' goal is
+    /// stated (at least 0.5).
+    pub ratio_to_copy_vec4: f64,
 }
 
-/// The optimiser passes (`optim_meta`, `optim_adam`) and `copy` over `elements` floats.
+/// The optimiser passes (`optim_meta`, `optim_adam`), `copy` and `copy_vec4` over
+/// `elements` floats.
 #[derive(Clone, Debug, Serialize)]
 pub struct OptimiserBandwidth {
     pub elements: u64,
@@ -80,7 +88,7 @@ pub struct OptimiserBandwidth {
 /// Bytes per parameter of each pass: the arrays of glsl/optim_meta.comp and
 /// glsl/optim_adam.comp, each read or written once per element (the per-workgroup ‖Δπ‖²
 /// partial sums, one float per 256 parameters, are left out).
-const OPTIMISER_BYTES: [(&str, u64); 3] = [
+const OPTIMISER_BYTES: [(&str, u64); 4] = [
     // with the defaults (the centred variance): reads θ, grad, fd_grad, their two
     // half-sample sums and the 12 meta state arrays (src/optim/gpu.rs); writes θ_prev, θ,
     // the 12 state arrays and clears grad, fd_grad and both half sums: 17 + 18 floats.
@@ -88,12 +96,14 @@ const OPTIMISER_BYTES: [(&str, u64); 3] = [
     // reads θ, grad, m, r; writes θ, m, r and clears grad: 4 + 4 floats.
     ("optim_adam", 4 * 8),
     ("copy", 4 * 2),
+    ("copy_vec4", 4 * 2),
 ];
 
 /// Times the fused meta and Adam passes (default hyperparameters, unbounded range, zero
-/// gradients) and the copy kernel over `elements` parameters, `iterations` times each.
+/// gradients) and the copy kernels (scalar and float4) over `elements` parameters (rounded
+/// up to a multiple of 4, the float4 copy's unit), `iterations` times each.
 pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<OptimiserBandwidth> {
-    let n = elements.max(1) as usize;
+    let n = elements.max(1).next_multiple_of(4) as usize;
     let iterations = iterations.max(1);
     let ops = BufferOps::new(ctx)?;
     let theta = Buffer::zeroed::<f32>(ctx, "bench theta", n, MemoryKind::Device)?;
@@ -107,8 +117,11 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
     let buffers = OptimiserBuffers { theta: &theta, grad: &grad, fd_grad: Some(&fd_grad), frame: &frame, groups: &groups };
     let meta = GpuOptimiser::new(ctx, &Optimiser::Meta(Default::default()), &buffers)?;
     let adam = GpuOptimiser::new(ctx, &Optimiser::Adam(Default::default()), &OptimiserBuffers { fd_grad: None, ..buffers })?;
+    let copy4 = ComputePipeline::new(ctx, "copy_vec4", &[])?;
+    let copy4_group = copy4.bind(&[("Src", &theta), ("Dst", &copy_dst)])?;
+    let n4 = (n / 4) as u64;
 
-    let mut profiler = Profiler::new(ctx, 3)?;
+    let mut profiler = Profiler::new(ctx, 4)?;
     let mut cmd = CommandBuffer::new(ctx, "optimiser bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
@@ -117,12 +130,14 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
         // copy reads θ, which both passes wrote.
         rec.transition(&[(&theta, Access::ComputeRead), (&copy_dst, Access::ComputeWrite)])?;
         profiler.scope(rec, "copy", |rec, _| ops.copy(rec, &theta, &copy_dst))?;
+        rec.barrier(&copy_dst, Access::ComputeWrite, Access::ComputeWrite)?;
+        profiler.scope(rec, "copy_vec4", |rec, _| rec.dispatch_linear(&copy4, &copy4_group, &Count4Push { n4: n4 as u32 }, n4))?;
         Ok(())
     })?;
     let times = timed_scopes(&mut cmd, &profiler, iterations)?;
     let median_of = |name: &str| median_ms(&times, name);
     let gbps = |name: &str, bytes: u64| bytes as f64 * n as f64 / (median_of(name) * 1e-3).max(1e-12) / 1e9;
-    let copy_gbps = gbps("copy", 8);
+    let (copy_gbps, copy4_gbps) = (gbps("copy", 8), gbps("copy_vec4", 8));
     let passes = OPTIMISER_BYTES
         .iter()
         .map(|&(name, bytes)| OptimiserPass {
@@ -132,6 +147,7 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
             gb_per_s: gbps(name, bytes),
             params_per_s: n as f64 / (median_of(name) * 1e-3).max(1e-12),
             ratio_to_copy: gbps(name, bytes) / copy_gbps,
+            ratio_to_copy_vec4: gbps(name, bytes) / copy4_gbps,
         })
         .collect();
     Ok(OptimiserBandwidth { elements: n as u64, iterations, passes })
@@ -146,17 +162,18 @@ impl OptimiserBandwidth {
             "optimiser passes on {} parameters (zero gradients), median of {} runs; bytes = state arrays read + written",
             self.elements, self.iterations
         );
-        let _ = writeln!(s, "{:<16} {:>12} {:>10} {:>10} {:>12} {:>10}", "pass", "bytes/param", "median ms", "GB/s", "Mparams/s", "vs copy");
+        let _ = writeln!(s, "{:<16} {:>12} {:>10} {:>10} {:>12} {:>10} {:>10}", "pass", "bytes/param", "median ms", "GB/s", "Mparams/s", "vs copy", "vs vec4");
         for p in &self.passes {
             let _ = writeln!(
                 s,
-                "{:<16} {:>12} {:>10.3} {:>10.2} {:>12.1} {:>10.2}",
+                "{:<16} {:>12} {:>10.3} {:>10.2} {:>12.1} {:>10.2} {:>10.2}",
                 p.name,
                 p.bytes_per_param,
                 p.median_ms,
                 p.gb_per_s,
                 p.params_per_s * 1e-6,
-                p.ratio_to_copy
+                p.ratio_to_copy,
+                p.ratio_to_copy_vec4
             );
         }
         s

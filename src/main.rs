@@ -54,8 +54,9 @@ enum Command {
     Gradcheck(GradcheckArgs),
     /// Run the GPU optimiser passes on gradient streams from .npy files.
     Replay(ReplayArgs),
-    /// Measure GPU passes with timestamps: a scene's iteration pass by pass, or without a
-    /// scene the buffer kernels' bandwidth; both time the optimiser passes on a synthetic θ.
+    /// Measure GPU passes with timestamps: a scene's iteration pass by pass, without a scene
+    /// the buffer kernels' bandwidth, or with --media a synthetic medium's passes; each
+    /// times the optimiser passes on a synthetic θ.
     Bench(BenchArgs),
 }
 
@@ -227,11 +228,24 @@ struct BenchArgs {
     /// over `--iterations` rounds.
     #[arg(long)]
     bvh_layouts: bool,
-    /// With a scene: repeat its iteration untimed for this many seconds before timing it,
+    /// With a scene (or --media): repeat its iteration untimed for this many seconds before timing it,
     /// so that a GPU whose clocks idle low has raised them [default: 0 on a CPU device
     /// (lavapipe), 2 on others]
     #[arg(long, value_name = "SECONDS")]
     warm_up: Option<f64>,
+    /// Without a scene: time the passes of a synthetic medium instead (a box of emitting and
+    /// absorbing medium with smooth random density and emission grids, both optimised, seen
+    /// by one camera; no meshes), for every grid side of --media-grids on every film side
+    /// of --media-films, and the optimiser passes on a θ of 4·N³ parameters for the largest
+    /// grid N (or --elements).
+    #[arg(long, conflicts_with_all = ["scene", "bvh_layouts"])]
+    media: bool,
+    /// With --media: the grids' sides, comma-separated.
+    #[arg(long, value_name = "N,...", value_delimiter = ',', default_value = "64,128", requires = "media")]
+    media_grids: Vec<u32>,
+    /// With --media: the (square) films' sides, comma-separated.
+    #[arg(long, value_name = "N,...", value_delimiter = ',', default_value = "64,256", requires = "media")]
+    media_films: Vec<u32>,
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -735,6 +749,18 @@ const SCENE_BENCH_ELEMENTS: u64 = 1 << 20;
 const GPU_WARM_UP_SECONDS: f64 = 2.0;
 
 fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
+    if a.media {
+        let device = device(cli)?;
+        let options = vkinverse::bench::MediaOptions {
+            grids: a.media_grids.clone(),
+            films: a.media_films.clone(),
+            iterations: a.iterations,
+            optimiser_elements: a.elements,
+            warm_up: Duration::from_secs_f64(bench_warm_up(a.warm_up, &device)?),
+        };
+        let result = vkinverse::bench::media_bench(&device, &options)?;
+        return print_result(a.json, &result, || result.table());
+    }
     let Some(path) = &a.scene else {
         let elements = a.elements.unwrap_or(BUFFER_BENCH_ELEMENTS);
         // Buffers are copied as vec4s, so fewer than 4 elements leave nothing to measure.
@@ -750,15 +776,20 @@ fn run_bench(cli: &Cli, a: &BenchArgs) -> Result {
         let result = vkinverse::bench::layout_bench(&device, &scene, a.iterations)?;
         return print_result(a.json, &result, || result.table());
     }
-    let warm_up = match a.warm_up {
-        Some(s) if !(0.0..=3600.0).contains(&s) => return Err(format!("--warm-up {s}: must be between 0 and 3600 seconds").into()),
-        Some(s) => s,
-        // A CPU device runs at its clock from the first round; a GPU's idles low.
-        None if device.info().device_type == "CPU" => 0.0,
-        None => GPU_WARM_UP_SECONDS,
-    };
+    let warm_up = bench_warm_up(a.warm_up, &device)?;
     let result = vkinverse::bench::scene_bench(&device, &scene, a.iterations, a.elements.unwrap_or(SCENE_BENCH_ELEMENTS), Duration::from_secs_f64(warm_up))?;
     print_result(a.json, &result, || result.table())
+}
+
+/// `--warm-up`, checked, or its default for `device`.
+fn bench_warm_up(given: Option<f64>, device: &vkinverse::Device) -> std::result::Result<f64, String> {
+    match given {
+        Some(s) if !(0.0..=3600.0).contains(&s) => Err(format!("--warm-up {s}: must be between 0 and 3600 seconds")),
+        Some(s) => Ok(s),
+        // A CPU device runs at its clock from the first round; a GPU's idles low.
+        None if device.info().device_type == "CPU" => Ok(0.0),
+        None => Ok(GPU_WARM_UP_SECONDS),
+    }
 }
 
 fn run(cli: &Cli) -> Result {

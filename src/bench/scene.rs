@@ -210,10 +210,10 @@ pub struct TransferPerIteration {
 
 /// Per-submission sums of the scopes of each name, collected over submissions.
 #[derive(Default)]
-struct Samples(BTreeMap<String, Vec<f64>>);
+pub(super) struct Samples(BTreeMap<String, Vec<f64>>);
 
 impl Samples {
-    fn add(&mut self, times: &[ScopeTime]) {
+    pub(super) fn add(&mut self, times: &[ScopeTime]) {
         let mut sums: BTreeMap<&str, f64> = BTreeMap::new();
         for t in times {
             *sums.entry(&t.name).or_default() += t.ms;
@@ -223,12 +223,12 @@ impl Samples {
         }
     }
 
-    fn median(&self, name: &str) -> f64 {
+    pub(super) fn median(&self, name: &str) -> f64 {
         median(&mut self.0.get(name).cloned().unwrap_or_default())
     }
 
     /// The median over submissions of the sum of every scope.
-    fn total(&self) -> f64 {
+    pub(super) fn total(&self) -> f64 {
         let n = self.0.values().map(Vec::len).max().unwrap_or(0);
         let mut sums: Vec<f64> = (0..n).map(|i| self.0.values().filter_map(|v| v.get(i)).sum()).collect();
         median(&mut sums)

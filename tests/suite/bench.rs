@@ -83,7 +83,8 @@ fn scene_bench_on_cornell_is_consistent() {
             "HAS_NORMALS",
             "HAS_NORMAL_MAPS",
             "HAS_ALPHA_MASKS",
-            "BVH_STACK_REGISTERS"
+            "BVH_STACK_REGISTERS",
+            "HAS_MEDIA"
         ]
     );
     let g = &b.specialisation_gain;
@@ -131,12 +132,14 @@ fn scene_bench_on_cornell_is_consistent() {
 
     assert_eq!(b.optimisers.elements, 1 << 16);
     let opt: Vec<&str> = b.optimisers.passes.iter().map(|p| p.name.as_str()).collect();
-    assert_eq!(opt, ["optim_meta", "optim_adam", "copy"]);
+    assert_eq!(opt, ["optim_meta", "optim_adam", "copy", "copy_vec4"]);
     for p in &b.optimisers.passes {
         finite_positive(&p.name, p.gb_per_s);
         finite_positive(&p.name, p.params_per_s);
         finite_positive(&p.name, p.ratio_to_copy);
+        finite_positive(&p.name, p.ratio_to_copy_vec4);
     }
+    assert_eq!(b.optimisers.passes[3].ratio_to_copy_vec4, 1.0);
 
     let json = serde_json::to_value(&b).unwrap();
     for key in ["passes", "rays", "specialisation", "specialisation_gain", "ratios", "bvh", "memory_bytes", "optimisers"] {
@@ -208,4 +211,72 @@ fn optimiser_bench_rounds_stay_within_the_timeout() {
     for p in &b.passes {
         finite_positive(&p.name, p.median_ms);
     }
+}
+
+/// The medium bench on a small grid and film: every pass has a finite positive time, the
+/// voxel lookups follow from the host's step count (steps × 8 taps × 2 grids × states ×
+/// marches), a ray's steps are bounded by the box's diagonal, and the optimiser passes run
+/// over a θ of the grid's size, against the float4 copy.
+#[test]
+fn media_bench_reports_every_pass() {
+    let options = vkinverse::bench::MediaOptions { grids: vec![12], films: vec![16], iterations: 2, ..Default::default() };
+    let b = with_gpu(|ctx| vkinverse::bench::media_bench(&common::device(ctx), &options).unwrap());
+    assert_eq!(b.cases.len(), 1);
+    let c = &b.cases[0];
+    assert_eq!((c.grid, c.width, c.height, c.parameters), (12, 16, 16, 4 * 12 * 12 * 12));
+    let names: Vec<String> = c.passes.iter().map(|p| format!("{}/{}", p.group, p.name)).collect();
+    assert_eq!(
+        names,
+        [
+            "gradient/trace_primal",
+            "gradient/loss",
+            "gradient/trace_adjoint",
+            "finite_difference/trace_fd_primal",
+            "finite_difference/loss",
+            "finite_difference/trace_fd_adjoint"
+        ]
+    );
+    // Half a voxel of a 2-wide box of 12 voxels.
+    assert!((c.step - 2.0 / 12.0 * 0.5).abs() < 1e-6, "step {}", c.step);
+    assert!(c.crossing_fraction > 0.5 && c.crossing_fraction <= 1.0, "{}", c.crossing_fraction);
+    // A crossing ray takes at least one step and at most the diagonal's.
+    let most = (2.0 * 3f64.sqrt() / c.step as f64).ceil();
+    assert!(c.steps_per_crossing_ray >= 1.0 && c.steps_per_crossing_ray <= most, "{} steps (at most {most})", c.steps_per_crossing_ray);
+    assert!((c.steps_per_ray - c.steps_per_crossing_ray * c.crossing_fraction).abs() < 1e-9 * c.steps_per_ray.max(1.0));
+    let primal_lookups = c.passes[0].voxel_lookups.unwrap();
+    let film_steps = c.steps_per_ray * 256.0;
+    assert_eq!(primal_lookups, film_steps.round() as u64 * 16);
+    for (i, factor) in [(2, 2), (3, 2), (5, 4)] {
+        assert_eq!(c.passes[i].voxel_lookups, Some(primal_lookups * factor), "{}", names[i]);
+    }
+    for p in &c.passes {
+        finite_positive(&p.name, p.median_ms);
+        assert_eq!(p.voxel_lookups.is_some(), p.name != "loss");
+        assert_eq!(p.spp, p.voxel_lookups.map(|_| 1));
+        if let Some(rate) = p.lookups_per_s {
+            finite_positive(&p.name, rate);
+        }
+    }
+    finite_positive("adjoint / primal", c.adjoint_over_primal);
+    finite_positive("fd / gradient", c.fd_over_gradient);
+    assert_eq!(b.optimisers.elements, 4 * 12 * 12 * 12);
+    let opt: Vec<&str> = b.optimisers.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(opt, ["optim_meta", "optim_adam", "copy", "copy_vec4"]);
+    for p in &b.optimisers.passes {
+        finite_positive(&p.name, p.ratio_to_copy_vec4);
+    }
+    let table = b.table();
+    assert!(table.contains("12^3") && table.contains("trace_fd_adjoint") && table.contains("vs vec4"), "{table}");
+    let json = serde_json::to_value(&b).unwrap();
+    assert!(json["cases"][0]["passes"][0].get("lookups_per_s").is_some());
+}
+
+/// `vkinverse bench --media`'s arguments are checked before anything is measured (the
+/// measurement itself is media_bench_reports_every_pass's: a second run would double the
+/// pipelines' compilation time on lavapipe).
+#[test]
+fn bench_media_arguments_are_checked() {
+    common::binary::vkinverse_err(&["bench", "--media-grids", "8"], &["--media"]);
+    common::binary::vkinverse_err(&["bench", "--media", "--media-grids", "1"], &["grid side 1"]);
+    common::binary::vkinverse_err(&["bench", "--media", "--media-films", "0"], &["film side 0"]);
 }
