@@ -58,6 +58,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "scenes" / "smoke" / "scene.toml"
 HELDOUT = ROOT / "scenes" / "smoke" / "heldout.toml"
+BIN = ROOT / "target" / "release" / "vkinverse"
 # The MAPE's offset in the denominator, |x - y| / (|y| + EPS).
 EPS = 0.01
 
@@ -142,14 +143,15 @@ def heldout_scene(run, heldout):
     return path
 
 
-def evaluate(run, heldout=HELDOUT, film=None, spp=64, seed=0, bin_path=None):
+def evaluate(run, heldout=HELDOUT, film=None, spp=64, seed=0, bin_path=BIN):
     """The held-out and grid errors of a finished run (see the module's doc)."""
     run = Path(run)
     summary = json.loads((run / "summary.json").read_text())
     film = film or "x".join(map(str, summary["film"]))
     scene = heldout_scene(run, heldout)
-    sensors = len(tomllib.loads(heldout.read_text())["sensors"])
-    sky = tomllib.loads(heldout.read_text()).get("environment", {}).get("constant")
+    held = tomllib.loads(heldout.read_text())
+    sensors = len(held["sensors"])
+    sky = held.get("environment", {}).get("constant")
     threshold = 2 * max(sky) if sky else 0.0
     num = den = 0.0
     errors, smoke = [], []
@@ -256,7 +258,7 @@ def run_arms(args):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--bin", type=Path, default=ROOT / "target" / "release" / "vkinverse", help="the vkinverse binary")
+    parser.add_argument("--bin", type=Path, default=BIN, help="the vkinverse binary")
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel of the held-out renders")
     sub = parser.add_subparsers(dest="mode", required=True)
     ev = sub.add_parser("eval", help="held-out MAPE and grid RMSE of finished runs")
