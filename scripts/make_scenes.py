@@ -96,6 +96,15 @@ def rgbe(rows):
     return header + bytes(body)
 
 
+def npy(shape, values):
+    """A little-endian float32 NumPy array file (format 1.0, C order) of `shape` from a flat
+    list of values."""
+    header = "{'descr': '<f4', 'fortran_order': False, 'shape': (%s), }" % (", ".join(str(n) for n in shape) + ("," if len(shape) == 1 else ""))
+    header += " " * (-(10 + len(header) + 1) % 64) + "\n"
+    assert len(values) == math.prod(shape)
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode("latin1") + struct.pack(f"<{len(values)}f", *values)
+
+
 def write_obj(path, comment, positions, faces, uvs=None, normals=None):
     """faces: lists of 1-based vertex indices (counter-clockwise seen from the front); uvs
     and normals, when given, are indexed like the positions; no comment line when comment
@@ -200,7 +209,7 @@ def room(m, back_comment="back wall, z = -1, facing +z", back_uv=False, left=Tru
 
 
 # ---------------------------------------------------------------------------------------
-# bundled: scenes/ajar, scenes/glossy, scenes/gap.
+# bundled: scenes/ajar, scenes/glossy, scenes/gap, scenes/smoke.
 
 
 def ajar(root):
@@ -269,9 +278,83 @@ def gap(root):
     quad(m / "light.obj", "area light 2 cm under the ceiling, y = 1.98, facing +y", (-0.15, 1.98, 0.15), (0.15, 1.98, 0.15), (0.15, 1.98, -0.15), (-0.15, 1.98, -0.15))
 
 
+def smoothstep(a, b, t):
+    t = min(max((t - a) / (b - a), 0.0), 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+LATTICE = {}
+
+
+def lattice_value(i, j, k, seed):
+    """A value in [0, 1) at integer lattice point (i, j, k): an integer hash of the point
+    and the seed (remembered in LATTICE)."""
+    key = (i, j, k, seed)
+    if key not in LATTICE:
+        h = (i * 73856093 ^ j * 19349663 ^ k * 83492791 ^ seed * 2654435761) & 0xFFFFFFFF
+        h ^= h >> 13
+        h = (h * 0x5BD1E995) & 0xFFFFFFFF
+        h ^= h >> 15
+        LATTICE[key] = (h & 0xFFFFFF) / 16777216.0
+    return LATTICE[key]
+
+
+def value_noise(u, v, w, cells, seed):
+    """Value noise in [0, 1) at (u, v, w) in the unit cube: lattice values `cells` apart per
+    side, interpolated with smoothstep weights."""
+    x, y, z = u * cells, v * cells, w * cells
+    i, j, k = math.floor(x), math.floor(y), math.floor(z)
+    fx, fy, fz = x - i, y - j, z - k
+    sx, sy, sz = fx * fx * (3 - 2 * fx), fy * fy * (3 - 2 * fy), fz * fz * (3 - 2 * fz)
+    total = 0.0
+    for a, wa in ((0, 1 - sx), (1, sx)):
+        for b, wb in ((0, 1 - sy), (1, sy)):
+            for c, wc in ((0, 1 - sz), (1, sz)):
+                total += wa * wb * wc * lattice_value(i + a, j + b, k + c, seed)
+    return total
+
+
+# The smoke's puffs: centre (in the box's [-1, 1] coordinates), standard deviation, weight.
+SMOKE_PUFFS = [((0.0, 0.35, 0.0), 0.2, 1.0), ((-0.32, 0.48, 0.12), 0.13, 0.8), ((0.3, 0.42, -0.12), 0.12, 0.7), ((0.05, -0.5, 0.05), 0.14, 0.9)]
+
+
+def smoke_density(x, y, z):
+    """The smoke's density at (x, y, z) in the box's [-1, 1] coordinates: a rising, winding
+    plume under a cap of puffs and over a puff at its foot, broken up by three octaves of
+    value noise; 0 to 4, and 0 at the box's faces."""
+    cx = 0.14 * math.sin(3.0 * y + 0.5)
+    cz = 0.10 * math.cos(2.5 * y)
+    r = 0.07 + 0.07 * (y + 0.7)
+    plume = math.exp(-((x - cx) ** 2 + (z - cz) ** 2) / (2 * r * r)) * smoothstep(-0.75, -0.5, y) * (1 - smoothstep(0.25, 0.55, y))
+    puffs = sum(wt * math.exp(-((x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2) / (2 * s * s)) for c, s, wt in SMOKE_PUFFS)
+    u, v, w = (x + 1) / 2, (y + 1) / 2, (z + 1) / 2
+    n = 0.5 * value_noise(u, v, w, 5, 1) + 0.3 * value_noise(u, v, w, 11, 2) + 0.2 * value_noise(u, v, w, 23, 3)
+    raw = (plume + puffs) * (2.2 * n - 0.35)
+    return 4.0 * (1.0 - math.exp(-1.6 * max(raw - 0.05, 0.0)))
+
+
+def smoke_emission(d):
+    """A temperature-like colour for density d: dim red where the smoke is thin, through
+    orange to a pale yellow in the dense core."""
+    t = d / 4.0
+    return (0.08 + 1.5 * smoothstep(0.0, 0.45, t), 0.04 + 1.0 * smoothstep(0.15, 0.75, t), 0.03 + 0.6 * smoothstep(0.45, 1.0, t))
+
+
+def smoke(root):
+    """An emitting and absorbing medium, 64^3 voxels of smoke-like density and a coloured
+    emission that follows it (the volume experiment of Bálint et al. 2023)."""
+    n = 64
+    centres = [2 * (i + 0.5) / n - 1 for i in range(n)]
+    density = [smoke_density(x, y, z) for z in centres for y in centres for x in centres]
+    emission = [c for d in density for c in smoke_emission(d)]
+    write(root / "grids" / "density.npy", npy((n, n, n), density))
+    write(root / "grids" / "emission.npy", npy((n, n, n, 3), emission))
+
+
 def bundled():
-    """scenes/ajar, scenes/glossy and scenes/gap: meshes and reference textures."""
-    for scene in [ajar, glossy, gap]:
+    """scenes/ajar, scenes/glossy and scenes/gap: meshes and reference textures; scenes/smoke:
+    its density and emission grids."""
+    for scene in [ajar, glossy, gap, smoke]:
         scene(ROOT / "scenes" / scene.__name__)
 
 

@@ -333,13 +333,13 @@ fn optimiser_key_table_and_parser_agree() {
     }
 }
 
-/// Files under `dir` (recursively) named `name`.
-fn files_named(dir: &Path, name: &str, out: &mut Vec<PathBuf>) {
+/// Files under `dir` (recursively) whose name ends with `suffix`.
+fn files_ending(dir: &Path, suffix: &str, out: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).unwrap() {
         let path = entry.unwrap().path();
         if path.is_dir() {
-            files_named(&path, name, out);
-        } else if path.file_name().is_some_and(|n| n == name) {
+            files_ending(&path, suffix, out);
+        } else if path.file_name().is_some_and(|n| n.to_string_lossy().ends_with(suffix)) {
             out.push(path);
         }
     }
@@ -360,11 +360,34 @@ fn job_files_and_scenes_parse() {
         let expanded = vkinverse::batch::load_jobs(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert!(!expanded.is_empty(), "{}", path.display());
     }
+    // Every scene file under scenes/: each scene.toml and its variants (atref.toml,
+    // smoke/heldout.toml, …).
     let mut scenes = Vec::new();
-    files_named(&root().join("scenes"), "scene.toml", &mut scenes);
+    files_ending(&root().join("scenes"), ".toml", &mut scenes);
     scenes.sort();
-    assert!(scenes.len() >= 6, "{scenes:?}");
+    assert!(scenes.len() >= 9, "{scenes:?}");
     for path in &scenes {
         vkinverse::Scene::load(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     }
+}
+
+/// The smoke scene (experiments/volume.md): its held-out views show the training scene's
+/// medium from cameras that are not among its training cameras.
+#[test]
+fn the_smoke_scenes_held_out_views_are_new_views_of_the_same_medium() {
+    let train = Scene::load(root().join("scenes/smoke/scene.toml")).unwrap();
+    let held = Scene::load(root().join("scenes/smoke/heldout.toml")).unwrap();
+    assert_eq!((train.media.len(), train.meshes.len(), train.sensors.len(), held.sensors.len()), (1, 0, 8, 2));
+    assert_eq!(train.media[0].density.shape.array(), vec![64, 64, 64, 1]);
+    assert_eq!(train.media[0].emission.shape.array(), vec![64, 64, 64, 3]);
+    let (a, b) = (&train.media[0], &held.media[0]);
+    assert_eq!((&a.name, a.min, a.max, a.scale, a.step), (&b.name, b.min, b.max, b.scale, b.step));
+    assert!(a.density == b.density && a.emission == b.emission, "heldout.toml's grids are not scene.toml's");
+    assert_eq!((train.film.width, train.film.height), (held.film.width, held.film.height));
+    for h in &held.sensors {
+        assert!(train.sensors.iter().all(|t| t.origin != h.origin), "a held-out view at {:?} is a training view", h.origin);
+    }
+    let targets: Vec<&str> = train.optimise.params.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(targets, ["media.smoke.density", "media.smoke.emission"]);
+    assert!(held.optimise.params.is_empty());
 }
