@@ -7,6 +7,11 @@
 
 use std::fmt;
 
+/// Most voxels along one axis of a grid (a medium's density or emission).
+pub const MAX_GRID_SIDE: u32 = 1024;
+/// Most voxels a grid may hold (before its channels).
+pub const MAX_GRID_VOXELS: usize = 1 << 24;
+
 /// Texels along up to three axes (outermost first: depth, height, width), times `channels`
 /// floats per texel, stored row-major with the channels innermost.
 #[derive(Clone, Copy, PartialEq, Eq, Hash)]

@@ -15,7 +15,7 @@
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
-pub use crate::scene::media::{MAX_GRID_SIDE, MAX_GRID_VOXELS};
+pub use crate::tensor::{MAX_GRID_SIDE, MAX_GRID_VOXELS};
 
 /// Most channels a grid may hold (Mitsuba's grids hold 1, 3 or 6).
 pub const MAX_CHANNELS: u32 = 6;

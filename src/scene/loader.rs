@@ -278,20 +278,12 @@ impl Loader {
             self.check_material(material)?;
         }
         let own_environment = raw.environment.is_some() || imported.environment.is_some();
-        let environment = match raw.environment {
-            Some(env) => self.environment(Some(env))?,
-            None => imported.environment.unwrap_or(Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 }),
-        };
+        let black = || Environment { value: ColorValue::Constant([0.0; 3]), scale: 1.0 };
+        let environment = if raw.environment.is_some() { self.environment(raw.environment)? } else { imported.environment.unwrap_or_else(black) };
         self.check_environment(&environment)?;
-        let mut media = imported.media;
-        media.extend(self.media(raw.media)?);
-        if media.len() > 1 {
-            return Err(self.invalid("media", &format!("{} media, the imported file's and the scene's: a scene holds at most one", media.len())));
-        }
-        let optimise = self.optimise(
-            raw.optimise.unwrap_or_default(),
-            &Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media },
-        )?;
+        let media = self.all_media(imported.media, raw.media)?;
+        let parts = Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media };
+        let optimise = self.optimise(raw.optimise.unwrap_or_default(), &parts)?;
         self.check_texture_coordinates(&meshes, &materials, &optimise)?;
         let mut scene = Scene {
             path: self.scene,
@@ -320,6 +312,16 @@ impl Loader {
         scene.warnings.extend(notes);
         scene.content_hash = super::hash::content_hash(&scene);
         Ok(scene)
+    }
+
+    /// The imported file's media and the scene's own: at most one in all.
+    fn all_media(&self, imported: Vec<Medium>, raw: Vec<file::MediumFile>) -> Result<Vec<Medium>, SceneError> {
+        let mut media = imported;
+        media.extend(self.media(raw)?);
+        if media.len() > 1 {
+            return Err(self.invalid("media", &format!("{} media, the imported file's and the scene's: a scene holds at most one", media.len())));
+        }
+        Ok(media)
     }
 
     /// A mesh whose material is textured (or optimised as a texture), or whose emission is,
@@ -882,10 +884,10 @@ impl Loader {
                 return Err(self.invalid(&k, "only a medium's density and emission are grids"));
             }
             for s in sides {
-                self.in_range(&k, s, 1, super::media::MAX_GRID_SIDE)?;
+                self.in_range(&k, s, 1, crate::tensor::MAX_GRID_SIDE)?;
             }
-            if sides.iter().map(|&s| s as usize).product::<usize>() > super::media::MAX_GRID_VOXELS {
-                return Err(self.out_of_range(&k, format!("{sides:?} is more than {} voxels", super::media::MAX_GRID_VOXELS)));
+            if sides.iter().map(|&s| s as usize).product::<usize>() > crate::tensor::MAX_GRID_VOXELS {
+                return Err(self.out_of_range(&k, format!("{sides:?} is more than {} voxels", crate::tensor::MAX_GRID_VOXELS)));
             }
         }
         if target.medium().is_some() && lo < 0.0 {

@@ -10,10 +10,7 @@ use super::model::{GridFormat, Medium};
 use super::SceneError;
 use crate::tensor::{ParamValue, Shape};
 
-/// Most voxels along one axis of a medium's grid.
-pub const MAX_GRID_SIDE: u32 = 1024;
-/// Most voxels a medium's grid may hold (before its channels).
-pub const MAX_GRID_VOXELS: usize = 1 << 24;
+pub use crate::tensor::{MAX_GRID_SIDE, MAX_GRID_VOXELS};
 /// The marching step's default, in voxels.
 pub const DEFAULT_STEP: f32 = 0.5;
 /// Most steps a ray takes through one medium: a longer march takes longer steps.
