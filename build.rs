@@ -10,8 +10,9 @@
 //! The constants shared with the host are defined once, in `src/constants.rs`; this script
 //! writes them as `$OUT_DIR/vkinverse_constants.glsl`, which kernels `#include`.
 //!
-//! Compiling the kernels is most of a clean build, so it is done once per source, not
-//! once per profile: the kernels compile in parallel, and each one's SPIR-V is kept in
+//! The SPIR-V is not optimised unless `VKINVERSE_SPIRV_OPT=1` is set at build time
+//! ([`spirv_opt`]). Compiling is done once per source, not once per profile: the kernels
+//! compile in parallel, and each one's SPIR-V is kept in
 //! `target/spirv-cache/`, named by a hash of everything its compilation reads (its own
 //! file, every file under `glsl/` that is not a kernel, the constants, its macros and the
 //! compiler's options). A release build after a test build, or clippy after either, finds
@@ -25,7 +26,7 @@ use std::sync::Mutex;
 
 /// Part of every cache key: changing how kernels are compiled (the options below, the
 /// include rules) must change this.
-const COMPILE_SETTINGS: &str = "vulkan1.3 spirv1.6 performance debug-info include:requester,glsl,out_dir v1";
+const COMPILE_SETTINGS: &str = "vulkan1.3 spirv1.6 debug-info include:requester,glsl,out_dir v2";
 
 /// One SPIR-V module to build: a kernel file, or one of its variants.
 struct Job {
@@ -59,6 +60,8 @@ fn main() {
     // What every kernel may include: the library files and the constants.
     let mut shared = xxhash_rust::xxh3::Xxh3::new();
     shared.update(COMPILE_SETTINGS.as_bytes());
+    println!("cargo:rerun-if-env-changed=VKINVERSE_SPIRV_OPT");
+    shared.update(if spirv_opt() { b"spirv-opt performance" } else { b"unoptimised" });
     shared.update(constants_glsl.as_bytes());
     for file in files.iter().filter(|f| !is_kernel(f)) {
         shared.update(file.strip_prefix(&root).unwrap().display().to_string().as_bytes());
@@ -146,6 +149,14 @@ fn main() {
     }
 }
 
+/// Whether the kernels go through spirv-opt's performance passes (`VKINVERSE_SPIRV_OPT=1`).
+/// They do not by default: the drivers optimise the SPIR-V they are given, and on lavapipe
+/// the unoptimised kernels run as fast (docs/performance.md) while a clean build compiles
+/// them in seconds instead of many minutes.
+fn spirv_opt() -> bool {
+    std::env::var("VKINVERSE_SPIRV_OPT").is_ok_and(|v| v == "1")
+}
+
 fn is_kernel(path: &Path) -> bool {
     path.extension().is_some_and(|e| e == "comp")
 }
@@ -217,7 +228,11 @@ fn compile(compiler: &shaderc::Compiler, job: &Job, root: &Path, out: &Path) -> 
     let mut options = shaderc::CompileOptions::new().unwrap();
     options.set_target_env(shaderc::TargetEnv::Vulkan, shaderc::EnvVersion::Vulkan1_3 as u32);
     options.set_target_spirv(shaderc::SpirvVersion::V1_6);
-    options.set_optimization_level(shaderc::OptimizationLevel::Performance);
+    if spirv_opt() {
+        options.set_optimization_level(shaderc::OptimizationLevel::Performance);
+    } else {
+        options.set_optimization_level(shaderc::OptimizationLevel::Zero);
+    }
     options.set_generate_debug_info();
     for (k, v) in &job.defines {
         options.add_macro_definition(k, v.as_deref());
