@@ -183,7 +183,7 @@ pub struct LightRecord {
     pub outer: f32,
 }
 
-/// Mirror of `MediumRecord`: 80 bytes (5 texels); `max_steps` 0 where the scene has no
+/// Mirror of `MediumRecord`: 96 bytes (6 texels); `max_steps` 0 where the scene has no
 /// medium.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -198,6 +198,9 @@ pub struct MediumRecord {
     pub emission_depth: u32,
     pub max_steps: u32,
     pub pad: u32,
+    pub albedo: f32,
+    pub g: f32,
+    pub pad2: [u32; 2],
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

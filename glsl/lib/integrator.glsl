@@ -330,6 +330,130 @@ void add_light_sample(Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[
 #include "lib/media.glsl"
 #include "lib/delta_lights.glsl"
 
+#ifdef SCATTERING
+// Next-event estimation at a collision p inside a scattering medium, reached along d: one
+// light sample (an emissive triangle, or the environment map when env_nee) and every delta
+// light, each weighted by the phase function hg (of mean cosine g) and the transmittance of
+// its shadow ray, MIS against phase sampling as at a surface.
+void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, float p_env, uint depth, bool replay,
+                       vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                       , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+#endif
+) {
+    if (NUM_EMITTERS != 0u && !env_nee) {
+        vec3 pl;
+        vec2 bary;
+        EmitterTri light = sample_emitter(u_light, pl, bary);
+        vec3 to_l = pl - p;
+        float dist2 = dot(to_l, to_l);
+        float dist = sqrt(dist2);
+        vec3 wi = to_l / dist;
+        float cos_l = dot(light.ng, -wi);
+        if (light.two_sided != 0u) cos_l = abs(cos_l);
+        vec2 light_uv = vec2(0.0);
+        if (HAS_EMISSION_TEXTURES) {
+            light_uv = triangle_uv(light.prim, bary);
+        } else if (HAS_ALPHA_MASKS) {
+            light_uv = triangle_uv(light.prim, bary);
+        }
+        bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv, uvec4(floatBitsToUint(pl), light.prim));
+        float t_shadow = dist * (1.0 - 1e-4);
+        if (!cut && cos_l > 0.0 && light.pdf > 0.0 && !cast_any(p, wi, t_shadow, depth, replay)) {
+            float pdf_light = (1.0 - p_env) * light.pdf * dist2 / cos_l;
+            float ph = hg_phase(g, d, wi);
+            float w = power_heuristic(pdf_light, ph) * ph / pdf_light;
+            float tr[NSTATES];
+            medium_transmittance(p, wi, t_shadow, tr);
+#ifdef ADJOINT
+            vec3 before[NSTATES] = radiance;
+            vec3 g_em = vec3(0.0);
+#endif
+            for (int s = 0; s < NSTATES; ++s) {
+                vec3 c = beta[s] * fetch3(light.emission, light_uv, s) * (w * tr[s]);
+                radiance[s] += c;
+#ifdef ADJOINT
+                remaining[s] -= c;
+                g_em += state_sign(s) * delta[s] * beta[s] * (w * tr[s]);
+#endif
+            }
+#ifdef ADJOINT
+            if (grad_pass) {
+                scatter3(light.emission, light_uv, g_em);
+                medium_transmittance_grad(p, wi, t_shadow, medium_sample_weight(before, radiance, delta));
+            }
+#endif
+        }
+    }
+    if (HAS_ENVIRONMENT && env_nee) {
+        float density;
+        vec3 wi = environment_sample(u_light.xy, density);
+        float pdf_light = p_env * density;
+        if (pdf_light > 0.0 && !cast_any(p, wi, 1e30, depth, replay)) {
+            float ph = hg_phase(g, d, wi);
+            float w = power_heuristic(pdf_light, ph) * ph / pdf_light;
+            float tr[NSTATES];
+            medium_transmittance(p, wi, 1e30, tr);
+#ifdef ADJOINT
+            vec3 before[NSTATES] = radiance;
+            vec3 g_env = vec3(0.0);
+#endif
+            for (int s = 0; s < NSTATES; ++s) {
+                vec3 c = beta[s] * environment_radiance(wi, s) * (w * tr[s]);
+                radiance[s] += c;
+#ifdef ADJOINT
+                remaining[s] -= c;
+                g_env += state_sign(s) * delta[s] * beta[s] * (w * tr[s]);
+#endif
+            }
+#ifdef ADJOINT
+            if (grad_pass) {
+                scatter3(scene_globals().environment, environment_uv(wi), g_env * scene_globals().environment_scale);
+                medium_transmittance_grad(p, wi, 1e30, medium_sample_weight(before, radiance, delta));
+            }
+#endif
+        }
+    }
+    if (HAS_DELTA_LIGHTS) {
+        uint n = scene_globals().num_lights;
+        for (uint i = 0u; i < n; ++i) {
+            LightRecord l = light_record(i);
+            vec3 wi;
+            float tmax, gl;
+            delta_light_incidence(l, p, wi, tmax, gl);
+            if (gl <= 0.0 || delta_light_blocked(p, wi, tmax)) continue;
+            float ph = hg_phase(g, d, wi);
+            float tr[NSTATES];
+            medium_transmittance(p, wi, tmax, tr);
+#ifdef ADJOINT
+            vec3 before[NSTATES] = radiance;
+            vec3 g_color = vec3(0.0);
+            float g_intensity = 0.0;
+#endif
+            for (int s = 0; s < NSTATES; ++s) {
+                vec3 color = fetch3(l.color, vec2(0.0), s);
+                float intensity = fetch1(l.intensity, vec2(0.0), s);
+                vec3 c = beta[s] * color * (intensity * gl * ph * tr[s]);
+                radiance[s] += c;
+#ifdef ADJOINT
+                remaining[s] -= c;
+                vec3 dle = state_sign(s) * delta[s] * beta[s] * (gl * ph * tr[s]);
+                g_color += dle * intensity;
+                g_intensity += dot(dle, color);
+#endif
+            }
+#ifdef ADJOINT
+            if (grad_pass) {
+                scatter3(l.color, vec2(0.0), g_color);
+                scatter1(l.intensity, vec2(0.0), g_intensity);
+                medium_transmittance_grad(p, wi, tmax, medium_sample_weight(before, radiance, delta));
+            }
+#endif
+        }
+    }
+}
+#endif
+
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
 // parameter state. Primal: returns each state's radiance in `radiance`. ADJOINT: `L` is
 // that radiance (from a primal replay) and `delta` each state's pixel adjoint (dLoss/dI
@@ -360,14 +484,60 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         rng_seek_bounce(rng, depth);
         Hit hit;
         bool found = cast_closest(o, d, 1e30, depth, replay, hit);
-        // The medium between the ray's origin and what it finds (or its way out).
-        if (HAS_MEDIA) {
+        // The medium between the ray's origin and what it finds (or its way out): its
+        // emission gathered, or (scattering) where the ray collides in it sampled. A
+        // collision is a path vertex: light samples weighted by the phase function, then
+        // a direction sampled from it.
+        if (HAS_MEDIA && !HAS_SCATTERING_MEDIA) {
 #ifdef ADJOINT
             medium_segment(o, d, found ? hit.t : 1e30, beta, radiance, remaining, delta, grad_pass);
 #else
             medium_segment(o, d, found ? hit.t : 1e30, beta, radiance);
 #endif
         }
+#ifdef SCATTERING
+        if (HAS_MEDIA) {
+            // The bounce's numbers, in the order a surface draws them (one more for the
+            // collision's distance, which a surface does not use).
+            vec3 u_light = rng_next3(rng);
+            vec3 u_bsdf = rng_next3(rng);
+            float u_rr = rng_next(rng);
+            float u_select = rng_next(rng);
+            float u_flight = rng_next(rng);
+            float ts;
+#ifdef ADJOINT
+            bool collided = medium_free_flight(o, d, found ? hit.t : 1e30, u_flight, beta, ts, remaining, delta, grad_pass);
+#else
+            bool collided = medium_free_flight(o, d, found ? hit.t : 1e30, u_flight, beta, ts);
+#endif
+            if (collided) {
+                if (depth >= MAX_DEPTH) break;
+                vec3 p = o + ts * d;
+                float g = medium_record().g;
+                bool env_nee = ENVIRONMENT_SAMPLED && u_select < p_env;
+#ifdef ADJOINT
+                medium_vertex_nee(p, d, g, u_light, env_nee, p_env, depth, replay, beta, radiance, remaining, delta, grad_pass);
+#else
+                medium_vertex_nee(p, d, g, u_light, env_nee, p_env, depth, replay, beta, radiance);
+#endif
+                vec3 wi = hg_sample(g, d, u_bsdf.xy);
+                prev_bsdf_pdf = hg_phase(g, d, wi);
+                if (depth >= RR_DEPTH) {
+                    float q = min(max_component(beta[0]), 0.95);
+                    if (u_rr >= q) break;
+                    for (int s = 0; s < NSTATES; ++s) beta[s] /= q;
+                }
+                bool alive = false;
+                for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
+                if (!alive) break;
+                o = p;
+                d = wi;
+                continue;
+            }
+            // No collision: the surface's bounce draws its numbers afresh.
+            rng_seek_bounce(rng, depth);
+        }
+#endif
         // Beer-Lambert over the ray inside an interior (all of it, if it escapes there).
         if (HAS_DIELECTRICS && any(greaterThan(absorption, vec3(0.0)))) {
             vec3 kept = found ? exp(-absorption * hit.t) : vec3(0.0);

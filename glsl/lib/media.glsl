@@ -19,11 +19,21 @@
 TEXEL_BUFFER(0, 29) Media;
 // Whether the scene has a medium: without one every function here is compiled out.
 layout(constant_id = 24) const bool HAS_MEDIA = false;
+// Whether the medium scatters (albedo > 0): its rays then sample where they collide
+// (medium_free_flight) instead of gathering its emission (medium_segment). A variant of
+// its own (SCATTERING, the kernels' _scatter builds): the collision and its light samples
+// would double every kernel's compile time.
+#ifdef SCATTERING
+#define HAS_SCATTERING_MEDIA true
+#else
+#define HAS_SCATTERING_MEDIA false
+#endif
 
 MediumRecord medium_record() {
     uvec4 t0 = texel_load(Media, 0);
     uvec4 t1 = texel_load(Media, 1);
     uvec4 t4 = texel_load(Media, 4);
+    uvec4 t5 = texel_load(Media, 5);
     MediumRecord m;
     m.box_min = uintBitsToFloat(t0.xyz);
     m.step = uintBitsToFloat(t0.w);
@@ -35,6 +45,10 @@ MediumRecord medium_record() {
     m.emission_depth = t4.y;
     m.max_steps = t4.z;
     m.pad = 0u;
+    m.albedo = uintBitsToFloat(t5.x);
+    m.g = uintBitsToFloat(t5.y);
+    m.pad2 = 0u;
+    m.pad3 = 0u;
     return m;
 }
 
@@ -187,6 +201,107 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 #endif
     }
 }
+
+#ifdef SCATTERING
+// A scattering medium along [0, tmax] of a path's ray (o, d): where the ray first
+// collides, sampled with state 0's densities by inverting the march's transmittance (the
+// medium piecewise constant along the ray: step k holds the density of its sample point).
+// Returns whether it collides, at distance ts, and weighs each state's beta by its own
+// probability of this outcome over state 0's: albedo σ_s(x) e^(−τ_s) / (σ_0(x) e^(−τ_0))
+// at a collision, e^(τ_0 − τ_s) beyond (in closed form: no ratio of transmittances).
+// ADJOINT, gradient replay: the derivative of each state's log-weight with the sampling
+// held fixed (detached), times Σ_s sign δ_s · remaining_s (everything the path gathers
+// from here on): −scale dt_j per step crossed, and +scale / σ_s(x) at the collision.
+bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 beta[NSTATES], out float ts
+#ifdef ADJOINT
+                        , vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+#endif
+) {
+    ts = 0.0;
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (!medium_clip(m, o, d, tmax, t0, t1)) return false;
+    uint n;
+    float dt, u;
+    medium_steps(m, o, d, t0, t1, n, dt, u);
+    // The optical depth at which the ray collides (state 0).
+    float target = -log(max(1.0 - u_flight, 1e-30));
+    float tau[NSTATES];
+    for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
+    bool collided = false;
+    uint hit_step = n;
+    float offset = 0.0;
+    float sigma_hit[NSTATES];
+    for (uint k = 0u; k < n; ++k) {
+        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+        float sigma[NSTATES];
+        for (int s = 0; s < NSTATES; ++s) sigma[s] = m.scale * grid1(m.density, m.density_depth, q, s);
+        float step_tau = sigma[0] * dt;
+        if (tau[0] + step_tau >= target && sigma[0] > 0.0) {
+            offset = (target - tau[0]) / sigma[0];
+            for (int s = 0; s < NSTATES; ++s) {
+                tau[s] += sigma[s] * offset;
+                sigma_hit[s] = sigma[s];
+            }
+            collided = true;
+            hit_step = k;
+            break;
+        }
+        for (int s = 0; s < NSTATES; ++s) tau[s] += sigma[s] * dt;
+    }
+    for (int s = 0; s < NSTATES; ++s) {
+        float w = exp(tau[0] - tau[s]);
+        if (collided) w *= s == 0 ? m.albedo : m.albedo * sigma_hit[s] / sigma_hit[0];
+        beta[s] *= w;
+    }
+    if (collided) ts = t0 + float(hit_step) * dt + offset;
+#ifdef ADJOINT
+    if (grad_pass) {
+        float g_all = 0.0;
+        float g_hit = 0.0;
+        for (int s = 0; s < NSTATES; ++s) {
+            float gs = state_sign(s) * dot(delta[s], remaining[s]);
+            g_all += gs;
+            if (collided && sigma_hit[s] > 0.0) g_hit += gs / sigma_hit[s];
+        }
+        uint last = collided ? hit_step + 1u : n;
+        for (uint k = 0u; k < last; ++k) {
+            vec3 q = medium_point(m, o, d, t0, dt, k, u);
+            float len = collided && k == hit_step ? offset : dt;
+            float g = -len * g_all;
+            if (collided && k == hit_step) g += g_hit;
+            grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+        }
+    }
+#endif
+    return collided;
+}
+
+// The Henyey-Greenstein phase function of mean cosine g between the propagation
+// directions d (in) and wi (out), per steradian.
+float hg_phase(float g, vec3 d, vec3 wi) {
+    float c = dot(d, wi);
+    float den = 1.0 + g * g - 2.0 * g * c;
+    return (1.0 - g * g) / (4.0 * 3.14159265358979 * den * sqrt(den));
+}
+
+// A direction sampled from the Henyey-Greenstein phase function around d (its density is
+// hg_phase(g, d, wi)).
+vec3 hg_sample(float g, vec3 d, vec2 u) {
+    float c;
+    if (abs(g) < 1e-3) {
+        c = 1.0 - 2.0 * u.x;
+    } else {
+        float s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u.x);
+        c = (1.0 + g * g - s * s) / (2.0 * g);
+    }
+    c = clamp(c, -1.0, 1.0);
+    float sn = sqrt(max(0.0, 1.0 - c * c));
+    float phi = 2.0 * 3.14159265358979 * u.y;
+    ShadingFrame f = shading_frame(d);
+    return shading_to_world(f, vec3(sn * cos(phi), sn * sin(phi), c));
+}
+#endif
 
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {

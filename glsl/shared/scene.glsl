@@ -121,7 +121,8 @@ struct LightRecord {
 // The scene's medium (src/render/features/media.rs): a box of emitting and absorbing
 // medium whose density and emission are constants (width 0) or grids of width × height ×
 // depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
-// 80 bytes (5 texels).
+// albedo > 0: a scattering medium (HAS_SCATTERING_MEDIA), its phase function
+// Henyey-Greenstein's of mean cosine g. 96 bytes (6 texels).
 struct MediumRecord {
     vec3 box_min;
     float step;       // marching step along a ray, world units
@@ -133,6 +134,10 @@ struct MediumRecord {
     uint emission_depth;
     uint max_steps;   // most steps of one march (a longer one takes longer steps)
     uint pad;
+    float albedo;
+    float g;
+    uint pad2;
+    uint pad3;
 };
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the

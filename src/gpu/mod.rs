@@ -124,6 +124,9 @@ pub enum GpuError {
     Timeout(u64),
     #[error("the Vulkan device was lost")]
     DeviceLost,
+    /// A scene the kernels cannot render in the configuration asked for.
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// Result of the GPU layer.

@@ -95,6 +95,13 @@ impl GpuScene {
     pub fn with_bvh_layout(ctx: &Arc<Context>, scene: &Scene, bvh_layout: BvhLayout) -> gpu::Result<Self> {
         let layout = ParamLayout::new(scene);
         let mut data = features::values::MaterialData::default();
+        if scene.media.iter().any(|m| m.albedo > 0.0) && bvh_layout != BvhLayout::Cw8 {
+            return Err(gpu::GpuError::Unsupported(format!(
+                "a scattering medium renders with the default BVH layout ({}), not {}",
+                BvhLayout::Cw8.name(),
+                bvh_layout.name()
+            )));
+        }
         let features = Features::build(&mut Upload { ctx, scene, layout: &layout, data: &mut data }, bvh_layout)?;
         let env = &features.environment;
         let globals = Globals {
@@ -254,8 +261,13 @@ impl GpuScene {
     }
 
     /// The build of a kernel that traces the scene's BVH (e.g. `trace_primal`) for the
-    /// BVH's layout.
+    /// BVH's layout; for a scene whose medium scatters, of the four passes' builds with
+    /// the collision code (`trace_primal_scatter_cw8`, ...: the compressed layout only,
+    /// which [`Self::with_bvh_layout`] then requires).
     pub fn kernel(&self, kernel: &str) -> String {
+        if self.features.media.scattering && SCATTER_KERNELS.contains(&kernel) {
+            return self.bvh().layout.kernel(&format!("{kernel}_scatter"));
+        }
         self.bvh().layout.kernel(kernel)
     }
 
@@ -264,6 +276,9 @@ impl GpuScene {
         (self.width * self.height) as usize
     }
 }
+
+/// The passes that have a build for scattering media (glsl/trace_primal.comp's SCATTERING).
+const SCATTER_KERNELS: [&str; 4] = ["trace_primal", "trace_adjoint", "trace_fd_primal", "trace_fd_adjoint"];
 
 /// Samples per pixel per submission: keeps each submission short on slow devices.
 pub const SPP_PER_SUBMISSION: u32 = 4;

@@ -385,4 +385,6 @@ pub struct MediumFile {
     pub emission: Option<GridInput>,
     pub scale: Option<f32>,
     pub step: Option<f32>,
+    pub albedo: Option<f32>,
+    pub g: Option<f32>,
 }

@@ -41,7 +41,23 @@ impl Loader {
             self.positive(&format!("{key}.scale"), scale)?;
             let step = m.step.unwrap_or(DEFAULT_STEP);
             self.positive(&format!("{key}.step"), step)?;
-            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, formats: [density_format, emission_format] });
+            let albedo = m.albedo.unwrap_or(0.0);
+            self.finite(&format!("{key}.albedo"), &[albedo])?;
+            if !(0.0..=1.0).contains(&albedo) {
+                return Err(self.out_of_range(&format!("{key}.albedo"), format!("{albedo} is outside [0, 1]")));
+            }
+            let g = m.g.unwrap_or(0.0);
+            self.finite(&format!("{key}.g"), &[g])?;
+            if g.abs() >= 0.99 {
+                return Err(self.out_of_range(&format!("{key}.g"), format!("{g} is outside (-0.99, 0.99)")));
+            }
+            if albedo > 0.0 && emission.data.iter().any(|&v| v > 0.0) {
+                return Err(self.invalid(
+                    &format!("{key}.emission"),
+                    "a scattering medium (albedo above 0) emits nothing here; give emission 0, or albedo 0 for an emitting one",
+                ));
+            }
+            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, albedo, g, formats: [density_format, emission_format] });
         }
         if out.len() > 1 {
             return Err(self.invalid("media", &format!("{} media: a scene holds at most one", out.len())));

@@ -817,10 +817,12 @@ pub struct Environment {
     pub scale: f32,
 }
 
-/// An axis-aligned box filled with a medium that absorbs and emits light (no scattering):
-/// a ray through it keeps exp(−∫σ) of what lies behind and gains ∫ σ·L_e·exp(−∫σ), where
-/// σ = `scale` × density. Density and emission are constants or 3-D grids over the box,
-/// looked up trilinearly between voxel centres (clamped at the faces).
+/// An axis-aligned box filled with a medium: a ray through it keeps exp(−∫σ) of what lies
+/// behind, where σ = `scale` × density. With `albedo` 0 it absorbs and emits (a ray gains
+/// ∫ σ·L_e·exp(−∫σ)); with `albedo` above 0 it scatters that part of what it stops by a
+/// Henyey–Greenstein phase function of asymmetry `g`, and emits nothing. Density and
+/// emission are constants or 3-D grids over the box, looked up trilinearly between voxel
+/// centres (clamped at the faces).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Medium {
     pub name: String,
@@ -837,6 +839,10 @@ pub struct Medium {
     /// The ray-marching step, in voxels of the finer of the two grids (a constant counts
     /// as one voxel across the box).
     pub step: f32,
+    /// The part of the extinction that scatters, in [0, 1]: 0 absorbs only.
+    pub albedo: f32,
+    /// The phase function's mean cosine, in (−1, 1): 0 isotropic, above 0 forward.
+    pub g: f32,
     /// The file formats the density's and the emission's grids came in (`.npy` for a
     /// constant): the recovered scene writes each grid back in its own.
     pub formats: [GridFormat; 2],

@@ -317,6 +317,10 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         }
         pairs.push(("scale", Value::Float(num(m.scale))));
         pairs.push(("step", Value::Float(num(m.step))));
+        if m.albedo > 0.0 {
+            pairs.push(("albedo", Value::Float(num(m.albedo))));
+            pairs.push(("g", Value::Float(num(m.g))));
+        }
         media.push(table(pairs));
     }
     if !media.is_empty() {

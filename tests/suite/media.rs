@@ -350,3 +350,74 @@ fn vol_grids_round_trip_through_the_recovered_scene() {
     vkinverse::scene::write::write_final(&again, &back, &[]).unwrap();
     assert_eq!(Scene::load(again.join("final/scene.toml")).unwrap().media, back.media);
 }
+
+/// `rounds` gradients of the image sum (a unit adjoint) with respect to every element of
+/// the first parameter, summed, one seed each: their mean and standard error.
+fn gradient_rounds(scene: &Scene, spp: u32, rounds: u64) -> (f64, f64) {
+    let (w, h) = (scene.film.width, scene.film.height);
+    let sums: Vec<f64> = with_gpu(|ctx| {
+        let r = Renderer::new(&device(ctx), scene).unwrap();
+        let adjoint = Image { width: w, height: h, data: vec![[1.0; 3]; (w * h) as usize] };
+        (0..rounds)
+            .map(|seed| r.gradient(&adjoint, &RenderOptions { spp, seed, ..Default::default() }).unwrap()[0].1.data.iter().map(|&g| g as f64).sum())
+            .collect()
+    });
+    let n = sums.len() as f64;
+    let mean = sums.iter().sum::<f64>() / n;
+    let var = sums.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// A scattering medium of albedo 1 under a uniform sky (a furnace): every path ends in the
+/// sky, so the image is the sky's radiance whatever the density, and the density's
+/// gradient is zero. Both within 4 standard errors, over paths of up to 64 collisions
+/// (Russian roulette from the fifth); the gradient's terms are not zero one by one (each
+/// path's weight moves with the density where it was sampled), so a missing collision term
+/// shows as a large negative mean.
+#[test]
+fn a_white_scattering_medium_under_a_uniform_sky_is_a_furnace() {
+    let sky = 0.5f64;
+    let optimise = "[[optimise.params]]\ntarget = \"media.slab.density\"\ninit = 2.0\nrange = [0, 10]\n";
+    let dir = temp_dir("furnace");
+    let toml = format!(
+        "[film]\nwidth = 8\nheight = 8\n[integrator]\nmax_depth = 64\n\
+         [[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\northo_height = 1.0\n\
+         [environment]\nconstant = [{sky}, {sky}, {sky}]\n\
+         [[media]]\nname = \"slab\"\nmin = [-1, -1, -0.5]\nmax = [1, 1, 0.5]\ndensity = 2.0\nalbedo = 1.0\ng = 0.4\n{optimise}"
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    let image = render(&scene, 256);
+    let values: Vec<f64> = image.data.iter().map(|p| p[0] as f64).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let se = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+    assert!((mean - sky).abs() <= 4.0 * se + 1e-6, "furnace: mean {mean} against the sky's {sky} (standard error {se:.2e})");
+    assert!(se < 0.01 * sky, "the test resolves a 4 % error: standard error {se:.2e}");
+    let (g, g_se) = gradient_rounds(&scene, 16, 12);
+    assert!(g.abs() <= 4.0 * g_se, "furnace: the density's gradient {g} ± {g_se:.2e} is not zero");
+    assert!(g_se < 0.5, "the gradient's standard error {g_se} resolves a path's worth of sky");
+}
+
+/// With a vanishing albedo a scattering medium only stops light: the mean image is
+/// e^(−σd) times the sky, and the density's gradient −scale·d·e^(−σd) times it (per pixel
+/// and channel), each within 4 standard errors of the collision sampling's.
+#[test]
+fn a_dark_scattering_medium_transmits_in_closed_form_in_expectation() {
+    let (density, scale, d) = (0.5f64, 2.0f64, 1.0f64);
+    let t = (-density * scale * d).exp();
+    let optimise = "[[optimise.params]]\ntarget = \"media.slab.density\"\ninit = 0.5\nrange = [0, 10]\n";
+    let scene = slab("dark-scattering", d as f32, 8, "density = 0.5\nscale = 2.0\nalbedo = 1e-6", &[], optimise);
+    let image = render(&scene, 64);
+    for c in 0..3 {
+        let want = t * BG[c] as f64;
+        let got = mean(&image)[c];
+        // Each sample is the sky or (nearly) nothing: a Bernoulli of mean e^(−σd).
+        let se = BG[c] as f64 * (t * (1.0 - t) / (64.0 * 64.0)).sqrt();
+        assert!((got - want).abs() <= 4.0 * se, "channel {c}: {got} against {want} (standard error {se:.2e})");
+    }
+    let (g, g_se) = gradient_rounds(&scene, 16, 8);
+    let want: f64 = (0..3).map(|c| 64.0 * -scale * d * t * BG[c] as f64).sum();
+    assert!((g - want).abs() <= 4.0 * g_se, "gradient {g} ± {g_se:.2e} against {want}");
+    assert!(g_se < 0.1 * want.abs(), "the test resolves a 40 % error: {g_se:.2e}");
+}

@@ -837,6 +837,9 @@ fn bad_media_are_named() {
         ("negative", medium("density = -1"), &["media.fog.density", "-1 is negative"]),
         ("colour density", medium("density = [1, 2, 3]"), &["media.fog.density", "one channel"]),
         ("missing grid", medium("density = \"none.npy\""), &["media.fog.density", "none.npy"]),
+        ("albedo", medium("density = 1\nalbedo = 1.5"), &["media.fog.albedo", "outside [0, 1]"]),
+        ("g", medium("density = 1\nalbedo = 0.5\ng = 1"), &["media.fog.g", "outside"]),
+        ("emitting scatterer", medium("density = 1\nalbedo = 0.5\nemission = 2"), &["media.fog.emission", "emits nothing"]),
         ("zero scale", medium("density = 1\nscale = 0"), &["media.fog.scale", "not positive"]),
         (
             "two",
@@ -857,6 +860,11 @@ fn bad_media_are_named() {
             "unknown medium",
             format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"media.smoke.density\"\ninit = 1\nrange = [0, 2]\n"),
             &["no medium named \"smoke\"", "\"fog\""],
+        ),
+        (
+            "scatterer's emission",
+            format!("{}{}", medium("density = 1\nalbedo = 0.5"), "[[optimise.params]]\ntarget = \"media.fog.emission\"\ninit = 1\nrange = [0, 2]\n"),
+            &["optimise.params[0].target", "scatters"],
         ),
     ];
     for (name, scene, needles) in cases {

@@ -13,6 +13,9 @@ use crate::tensor::ParamValue;
 pub struct Media {
     buffer: Buffer,
     present: bool,
+    /// Whether the medium scatters: the scene's trace kernels are then the `_scatter`
+    /// builds ([`crate::render::GpuScene::kernel`]).
+    pub scattering: bool,
 }
 
 /// A grid's reference and depth: the scene's value in the material data, or its slot of θ.
@@ -33,6 +36,7 @@ impl Media {
         let (scene, layout) = (up.scene, up.layout);
         let mut record = MediumRecord::default();
         let present = !scene.media.is_empty();
+        let scattering = scene.media.iter().any(|m| m.albedo > 0.0);
         if let Some(m) = scene.media.first() {
             let (density, density_depth) = grid_ref(up, layout.slot(ParamTarget::MediumDensity { medium: 0 }), &m.density);
             let (emission, emission_depth) = grid_ref(up, layout.slot(ParamTarget::MediumEmission { medium: 0 }), &m.emission);
@@ -55,9 +59,12 @@ impl Media {
                 emission_depth,
                 max_steps: MAX_STEPS,
                 pad: 0,
+                albedo: m.albedo,
+                g: m.g,
+                pad2: [0; 2],
             };
         }
-        Ok(Media { buffer: texel_buffer(up.ctx, "media", &[record])?, present })
+        Ok(Media { buffer: texel_buffer(up.ctx, "media", &[record])?, present, scattering })
     }
 }
 
