@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Compares vkinverse's medium with Mitsuba 3's on an absorbing heterogeneous volume:
+"""Compares vkinverse's medium with Mitsuba 3's on a heterogeneous volume, absorbing or
+(--albedo above 0) scattering:
 
   a. images: a box [-1, 1]^3 of absorbing medium (a smooth random density grid of N^3
      voxels, no emission, no scattering) in front of a constant environment, one
@@ -27,6 +28,12 @@
      kernel (dr.sync_thread()) before the clock stops.
 
     python3 scripts/mitsuba_media_compare.py --grid 32 --res 128,256 --out /tmp/media-cmp
+    python3 scripts/mitsuba_media_compare.py --albedo 0.8 --g 0.3 --out /tmp/media-scatter
+
+With --albedo above 0 the medium scatters (a Henyey-Greenstein phase function of --g on
+both; isotropic at 0) and both trace paths of up to --max-depth segments (Mitsuba:
+scattering events) through it: vkinverse samples collisions by inverting its marched
+transmittance, Mitsuba by delta tracking.
 
 Conventions. Both look the grid up trilinearly between voxel centres, clamped at the
 faces, over the whole box (Mitsuba's gridvolume: filter_type "trilinear", wrap "clamp",
@@ -86,7 +93,7 @@ def density_grid(np, n, seed):
     return d.astype(np.float32)
 
 
-def write_vk_scene(np, folder, n, res, density, scale, spp, init):
+def write_vk_scene(np, folder, n, res, density, args, spp, init):
     """vkinverse's scene: the medium's box with `density` as its .npy grid, emission 0, and
     the density grid as an optimised parameter starting at `init` (a number)."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -98,7 +105,7 @@ width = {res}
 height = {res}
 
 [integrator]
-max_depth = 2
+max_depth = {args.max_depth if args.albedo > 0 else 2}
 
 [[sensors]]
 origin = {s['origin']}
@@ -115,8 +122,10 @@ min = {BOX_MIN}
 max = {BOX_MAX}
 density = "density.npy"
 emission = 0.0
-scale = {scale}
+scale = {args.scale}
 step = 0.5
+albedo = {args.albedo}
+g = {args.g}
 
 [optimise]
 spp = {spp}
@@ -132,7 +141,7 @@ grid = [{n}, {n}, {n}]
     return folder / "scene.toml"
 
 
-def mitsuba_scene(mi, vol_path, res, scale, integrator, spp):
+def mitsuba_scene(mi, vol_path, res, args, integrator, spp):
     s = SENSOR
     size = [b - a for a, b in zip(BOX_MIN, BOX_MAX)]
     to_world = mi.ScalarTransform4f().translate(BOX_MIN).scale(size)
@@ -140,7 +149,7 @@ def mitsuba_scene(mi, vol_path, res, scale, integrator, spp):
         "type": "scene",
         # A path ends at its first real collision (albedo 0); null crossings of the cube's
         # faces and null collisions in the medium do not count against max_depth.
-        "integrator": {"type": integrator, "max_depth": 64, "rr_depth": 1000},
+        "integrator": {"type": integrator, "max_depth": args.max_depth if args.albedo > 0 else 64, "rr_depth": 1000},
         "sensor": {
             "type": "perspective",
             "fov_axis": "y",
@@ -155,8 +164,9 @@ def mitsuba_scene(mi, vol_path, res, scale, integrator, spp):
             "bsdf": {"type": "null"},
             "interior": {
                 "type": "heterogeneous",
-                "albedo": 0.0,
-                "scale": scale,
+                "albedo": args.albedo,
+                "phase": {"type": "hg", "g": args.g} if args.g != 0 else {"type": "isotropic"},
+                "scale": args.scale,
                 "sigma_t": {"type": "gridvolume", "filename": str(vol_path), "filter_type": "trilinear",
                             "wrap_mode": "clamp", "to_world": to_world},
             },
@@ -170,7 +180,7 @@ def read_exr(np, mi, path):
 
 
 def part_a(np, mi, vk, scene_path, vol, res, args, out):
-    mscene = mitsuba_scene(mi, vol, res, args.scale, "volpath", args.spp)
+    mscene = mitsuba_scene(mi, vol, res, args, "volpath", args.spp)
 
     def mitsuba_render(seed):
         t = time.perf_counter()
@@ -250,7 +260,7 @@ def part_b(np, dr, mi, vol, scene_path, reference, args, out):
         vk_times.append(time.perf_counter() - t)
         vk_grads.append(np.asarray(g, dtype=np.float64).reshape(-1))
 
-    mscene = mitsuba_scene(mi, vol, res, args.scale, "prbvolpath", args.grad_spp)
+    mscene = mitsuba_scene(mi, vol, res, args, "prbvolpath", args.grad_spp)
     params = mi.traverse(mscene)
     params[MITSUBA_KEY] = mi.TensorXf(start)
     dr.enable_grad(params[MITSUBA_KEY])
@@ -330,7 +340,7 @@ def part_c(np, dr, mi, vk, scene_path, vol, reference, res, args, out):
     target_path = out / "target.exr"
     mc.run_vk(vk, ["render", scene_path, "--spp", args.vk_spp, "--seed", 7, "--quiet", "-o", target_path])
     target = mi.TensorXf(read_exr(np, mi, target_path).astype(np.float32))
-    mscene = mitsuba_scene(mi, vol, res, args.scale, "prbvolpath", spp)
+    mscene = mitsuba_scene(mi, vol, res, args, "prbvolpath", spp)
     params = mi.traverse(mscene)
     n = reference.shape[0]
     params[MITSUBA_KEY] = mi.TensorXf(np.full((n, n, n, 1), args.opt_init, np.float32))
@@ -379,6 +389,10 @@ def main():
     ap.add_argument("--grid", type=int, default=32, help="voxels along each side of the density grid")
     ap.add_argument("--scale", type=float, default=0.5, help="sigma_t = scale * density")
     ap.add_argument("--seed", type=int, default=1, help="seed of the random density")
+    ap.add_argument("--albedo", type=float, default=0.0, help="the medium's single-scattering albedo (0: absorbing only)")
+    ap.add_argument("--g", type=float, default=0.0, help="Henyey-Greenstein mean cosine of a scattering medium")
+    ap.add_argument("--max-depth", type=int, default=16, help="with --albedo above 0: vkinverse's max_depth (path "
+                    "segments); Mitsuba counts its depth the same way")
     ap.add_argument("--res", default="128,256", help="comma-separated film sizes (square) of parts a and c")
     ap.add_argument("--spp", type=int, default=1024, help="part a: Mitsuba's samples per pixel")
     ap.add_argument("--vk-spp", type=int, default=64, help="vkinverse's samples per pixel of its renders (part a, the "
@@ -411,7 +425,7 @@ def main():
     scenes = {}
     for res in sorted(set(args.res + ([args.grad_res] if "b" in args.parts else []))):
         folder = args.out / f"res-{res}"
-        scenes[res] = (folder, write_vk_scene(np, folder, args.grid, res, reference, args.scale, args.opt_spp, args.opt_init))
+        scenes[res] = (folder, write_vk_scene(np, folder, args.grid, res, reference, args, args.opt_spp, args.opt_init))
     if "a" in args.parts:
         for res in args.res:
             folder, path = scenes[res]

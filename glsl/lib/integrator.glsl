@@ -488,13 +488,15 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // emission gathered, or (scattering) where the ray collides in it sampled. A
         // collision is a path vertex: light samples weighted by the phase function, then
         // a direction sampled from it.
-        if (HAS_MEDIA && !HAS_SCATTERING_MEDIA) {
+#ifndef SCATTERING
+        if (HAS_MEDIA) {
 #ifdef ADJOINT
             medium_segment(o, d, found ? hit.t : 1e30, beta, radiance, remaining, delta, grad_pass);
 #else
             medium_segment(o, d, found ? hit.t : 1e30, beta, radiance);
 #endif
         }
+#endif
 #ifdef SCATTERING
         if (HAS_MEDIA) {
             // The bounce's numbers, in the order a surface draws them (one more for the

@@ -19,15 +19,10 @@
 TEXEL_BUFFER(0, 29) Media;
 // Whether the scene has a medium: without one every function here is compiled out.
 layout(constant_id = 24) const bool HAS_MEDIA = false;
-// Whether the medium scatters (albedo > 0): its rays then sample where they collide
-// (medium_free_flight) instead of gathering its emission (medium_segment). A variant of
-// its own (SCATTERING, the kernels' _scatter builds): the collision and its light samples
-// would double every kernel's compile time.
-#ifdef SCATTERING
-#define HAS_SCATTERING_MEDIA true
-#else
-#define HAS_SCATTERING_MEDIA false
-#endif
+// A medium that scatters (albedo > 0) is rendered by the kernels' SCATTERING builds (the
+// _scatter variants): their rays sample where they collide (medium_free_flight) instead
+// of gathering emission (medium_segment). The other builds leave the collision and its
+// light samples out.
 
 MediumRecord medium_record() {
     uvec4 t0 = texel_load(Media, 0);

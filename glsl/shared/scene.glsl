@@ -121,7 +121,7 @@ struct LightRecord {
 // The scene's medium (src/render/features/media.rs): a box of emitting and absorbing
 // medium whose density and emission are constants (width 0) or grids of width × height ×
 // depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
-// albedo > 0: a scattering medium (HAS_SCATTERING_MEDIA), its phase function
+// albedo > 0: a scattering medium (the SCATTERING builds), its phase function
 // Henyey-Greenstein's of mean cosine g. 96 bytes (6 texels).
 struct MediumRecord {
     vec3 box_min;

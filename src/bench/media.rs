@@ -230,6 +230,8 @@ pub fn synthetic_scene(grid: u32, film: u32) -> Result<Scene> {
         emission: ParamValue { shape: Shape::grid(grid, grid, grid, 3), data: emission },
         scale: 1.0,
         step: DEFAULT_STEP,
+        albedo: 0.0,
+        g: 0.0,
         formats: Default::default(),
     };
     let sensor = Sensor::looking_at(Vec3::new(1.2, 0.9, 3.4), Vec3::ZERO, Vec3::Y, 40.0).map_err(|e| Error::Invalid(e.into()))?;

@@ -12,7 +12,7 @@
 //! shears, with a warning); `moment` and `aov` wrappers render the integrator inside them.
 //!
 //! Read: `<default>` values and `$name` substitution in attributes; `<integrator
-//! type="path|prb|volpath|volpathmis">` `max_depth` (−1, unlimited, becomes 64) and
+//! type="path|prb|volpath|volpathmis|prbvolpath">` `max_depth` (−1, unlimited, becomes 64) and
 //! `rr_depth`, `<integrator type="direct">` (depth 2), each's `hide_emitters`; `<sensor
 //! type="perspective|thinlens|orthographic">` with `fov` and `fov_axis` (perspective and
 //! thin lens), `aperture_radius` and `focus_distance` (thin lens) and `to_world`
@@ -31,7 +31,7 @@
 //! `to_uv` map that moves the texture coordinates of the shapes using it (one per
 //! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
 //! `<ref>`; an absorbing `<medium type="homogeneous|heterogeneous">` inside a `null`-BSDF
-//! box under `volpath` or `volpathmis` ([`media`]). Names: a shape's mesh, bsdf's material
+//! box under `volpath`, `volpathmis` or `prbvolpath` ([`media`]). Names: a shape's mesh, bsdf's material
 //! and emitter's light are its `id` (else `shape<k>`, the enclosing shape's name,
 //! `light<k>`); a medium's is its `id`, else its shape's name.
 //!
@@ -836,10 +836,10 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
         self.integrator_kind = Some(kind.clone());
         match kind.as_str() {
-            // Without media, volpath and volpathmis render what path does; with an absorbing
-            // medium, they attenuate as vkinverse does (path, prb and direct ignore media,
+            // Without media, the volumetric integrators render what path does; with a
+            // medium, they render it as vkinverse does (path, prb and direct ignore media,
             // which is refused).
-            "path" | "prb" | "volpath" | "volpathmis" => {}
+            "path" | "prb" | "volpath" | "volpathmis" | "prbvolpath" => {}
             // Emitters seen and direct illumination: the path tracer at depth 2. Its sample
             // counts per strategy change the noise only.
             "direct" => {
@@ -858,12 +858,12 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
                 return self.rest(&items, node);
             }
-            _ => {
-                return Err(self.err(
-                    node,
-                    format!("integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis and direct are, and moment or aov around one of them)"),
-                ))
-            }
+            _ => return Err(self.err(
+                node,
+                format!(
+                    "integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis, prbvolpath and direct are, and moment or aov around one of them)"
+                ),
+            )),
         }
         match self.take(&mut items, "max_depth") {
             Some(n) => {

@@ -1,10 +1,11 @@
-//! Mitsuba media that vkinverse renders as they are: an absorbing (albedo 0) `homogeneous`
-//! or `heterogeneous` medium, the interior of a shape with a `null` BSDF whose surface is an
-//! axis-aligned box, rendered by `volpath` or `volpathmis`. The medium's box is the shape's
+//! Mitsuba media that vkinverse renders as they are: a `homogeneous` or `heterogeneous`
+//! medium, the interior of a shape with a `null` BSDF whose surface is an axis-aligned box,
+//! rendered by `volpath`, `volpathmis` or `prbvolpath`. The medium's box is the shape's
 //! world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
 //! one-channel `gridvolume` whose `to_world` places it on that box) and its `scale` is
-//! Mitsuba's; it emits nothing. Everything else about a medium is refused in one line that
-//! names the plugin and the property.
+//! Mitsuba's; its `albedo` is one number (equal channels, a constant) and its phase
+//! function `isotropic` or `hg`; it emits nothing. Everything else about a medium is
+//! refused in one line that names the plugin and the property.
 
 use glam::{Mat3, Mat4, Vec3};
 use roxmltree::Node;
@@ -34,30 +35,32 @@ pub(super) struct MediumDef<'a, 'i> {
     node: Node<'a, 'i>,
     sigma_t: Values<'a, 'i>,
     scale: f32,
+    albedo: f32,
+    g: f32,
 }
 
 /// Relative tolerance of the box checks (of the box's largest side).
 const BOX_TOLERANCE: f32 = 1e-4;
 
 impl<'a, 'i> Importer<'a, 'i> {
-    /// A `<medium>` (inside a shape or at the top level with an id): refused unless it only
-    /// absorbs.
+    /// A `<medium>` (inside a shape or at the top level with an id).
     pub(super) fn medium_def(&mut self, node: Node<'a, 'i>) -> Result<MediumDef<'a, 'i>, SceneError> {
         let kind = self.plugin_type(node)?;
         if kind != "homogeneous" && kind != "heterogeneous" {
-            return Err(self.err(node, format!("medium \"{kind}\" is unsupported (absorbing homogeneous and heterogeneous media are)")));
+            return Err(self.err(node, format!("medium \"{kind}\" is unsupported (homogeneous and heterogeneous media are)")));
         }
         let mut items = elements(node);
         // Mitsuba's default albedo is 0.75.
         let albedo = match self.take(&mut items, "albedo") {
             Some(n) => match self.medium_values(n, true)? {
-                Values::Constant(c) => c.into_iter().fold(0.0, f32::max),
-                Values::Grid { grid, .. } => grid.data.iter().copied().fold(0.0, f32::max),
+                Values::Constant(c) if c[0] == c[1] && c[1] == c[2] => c[0],
+                Values::Constant(c) => return Err(self.err(n, format!("albedo {c:?} differs between channels: a medium's albedo is one number here"))),
+                Values::Grid { node, .. } => return Err(self.err(node, "albedo as a grid is unsupported (a constant albedo is)")),
             },
             None => 0.75,
         };
-        if albedo != 0.0 {
-            return Err(self.err(node, format!("{kind} medium with albedo {albedo}: scattering media are not supported; only absorbing ones (albedo 0)")));
+        if !(0.0..=1.0).contains(&albedo) {
+            return Err(self.err(node, format!("albedo {albedo} is outside [0, 1]")));
         }
         let sigma_t = match self.take(&mut items, "sigma_t") {
             Some(n) => {
@@ -82,15 +85,37 @@ impl<'a, 'i> Importer<'a, 'i> {
         if scale <= 0.0 {
             return Err(self.err(node, format!("scale {scale} is not positive")));
         }
-        // With albedo 0 nothing scatters: the phase function is never used, and sampling
-        // emitters or not changes the noise only.
-        self.take_tag(&mut items, "phase");
-        self.take(&mut items, "phase");
+        let phase = match self.take_tag(&mut items, "phase") {
+            Some(phase) => Some(phase),
+            None => self.take(&mut items, "phase"),
+        };
+        let g = match phase {
+            Some(phase) => self.phase(phase)?,
+            None => 0.0,
+        };
+        // Sampling emitters or not changes the noise only.
         if let Some(n) = self.take(&mut items, "sample_emitters") {
             self.boolean(n)?;
         }
         self.rest(&items, node)?;
-        Ok(MediumDef { node, sigma_t, scale })
+        Ok(MediumDef { node, sigma_t, scale, albedo, g })
+    }
+
+    /// A `<phase>`: `isotropic` (g 0) or `hg` (its `g`, Mitsuba's default 0.8); the
+    /// Henyey–Greenstein g of either.
+    fn phase(&mut self, node: Node<'a, 'i>) -> Result<f32, SceneError> {
+        let kind = self.plugin_type(node)?;
+        let mut items = elements(node);
+        let g = match kind.as_str() {
+            "isotropic" => 0.0,
+            "hg" => self.take_float(&mut items, "g", 0.8)?,
+            _ => return Err(self.err(node, format!("phase \"{kind}\" is unsupported (isotropic and hg are)"))),
+        };
+        if g.abs() >= 0.99 {
+            return Err(self.err(node, format!("g {g} is outside (-0.99, 0.99)")));
+        }
+        self.rest(&items, node)?;
+        Ok(g)
     }
 
     /// A medium's property: a `<float>`, an `<rgb>` (or, for a reflectance such as
@@ -238,6 +263,8 @@ impl<'a, 'i> Importer<'a, 'i> {
             emission: ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
             scale: def.scale,
             step: DEFAULT_STEP,
+            albedo: def.albedo,
+            g: def.g,
             formats: [format, GridFormat::Npy],
         });
         Ok(())
@@ -289,12 +316,13 @@ impl<'a, 'i> Importer<'a, 'i> {
         let inset = BOX_TOLERANCE * (max - min).max_element();
         let (inner_min, inner_max) = (min + inset, max - inset);
         match self.integrator_kind.as_deref() {
-            Some("volpath" | "volpathmis") => {}
+            Some("volpath" | "volpathmis" | "prbvolpath") => {}
             other => {
                 let kind = other.unwrap_or("path");
-                return Err(
-                    self.err(node, format!("Mitsuba's {kind} integrator renders no medium: a scene with a medium is imported for volpath or volpathmis"))
-                );
+                return Err(self.err(
+                    node,
+                    format!("Mitsuba's {kind} integrator renders no medium: a scene with a medium is imported for volpath, volpathmis or prbvolpath"),
+                ));
             }
         }
         if let Some(s) = self.out.sensors.iter().find(|s| s.origin.cmpgt(inner_min).all() && s.origin.cmplt(inner_max).all()) {
