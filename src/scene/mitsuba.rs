@@ -858,12 +858,14 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.out.hide_emitters = Some(self.take_bool(&mut items, "hide_emitters", false)?);
                 return self.rest(&items, node);
             }
-            _ => return Err(self.err(
-                node,
-                format!(
+            _ => {
+                return Err(self.err(
+                    node,
+                    format!(
                     "integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis, prbvolpath and direct are, and moment or aov around one of them)"
                 ),
-            )),
+                ))
+            }
         }
         match self.take(&mut items, "max_depth") {
             Some(n) => {

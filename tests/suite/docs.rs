@@ -371,23 +371,32 @@ fn job_files_and_scenes_parse() {
     }
 }
 
-/// The smoke scene (experiments/volume.md): its held-out views show the training scene's
-/// medium from cameras that are not among its training cameras.
+/// The smoke and cloud scenes (experiments/volume.md): their held-out views show the
+/// training scene's medium from cameras that are not among its training cameras.
 #[test]
-fn the_smoke_scenes_held_out_views_are_new_views_of_the_same_medium() {
-    let train = Scene::load(root().join("scenes/smoke/scene.toml")).unwrap();
-    let held = Scene::load(root().join("scenes/smoke/heldout.toml")).unwrap();
-    assert_eq!((train.media.len(), train.meshes.len(), train.sensors.len(), held.sensors.len()), (1, 0, 8, 2));
+fn the_volume_scenes_held_out_views_are_new_views_of_the_same_medium() {
+    held_out_views("smoke", 8, true, &["media.smoke.density", "media.smoke.emission"]);
+    held_out_views("cloud", 5, false, &["media.cloud.density"]);
+    let cloud = Scene::load(root().join("scenes/cloud/scene.toml")).unwrap();
+    assert!(cloud.media[0].albedo > 0.0, "the cloud scatters");
+}
+
+fn held_out_views(name: &str, views: usize, emission_grid: bool, params: &[&str]) {
+    let train = Scene::load(root().join(format!("scenes/{name}/scene.toml"))).unwrap();
+    let held = Scene::load(root().join(format!("scenes/{name}/heldout.toml"))).unwrap();
+    assert_eq!((train.media.len(), train.meshes.len(), train.sensors.len(), held.sensors.len()), (1, 0, views, 2));
     assert_eq!(train.media[0].density.shape.array(), vec![64, 64, 64, 1]);
-    assert_eq!(train.media[0].emission.shape.array(), vec![64, 64, 64, 3]);
+    let emission = train.media[0].emission.shape.array();
+    assert_eq!(emission[emission.len() - 1], 3, "{name}: {emission:?}");
+    assert_eq!(emission.len() == 4, emission_grid, "{name}: {emission:?}");
     let (a, b) = (&train.media[0], &held.media[0]);
-    assert_eq!((&a.name, a.min, a.max, a.scale, a.step), (&b.name, b.min, b.max, b.scale, b.step));
+    assert_eq!((&a.name, a.min, a.max, a.scale, a.step, a.albedo, a.g), (&b.name, b.min, b.max, b.scale, b.step, b.albedo, b.g));
     assert!(a.density == b.density && a.emission == b.emission, "heldout.toml's grids are not scene.toml's");
     assert_eq!((train.film.width, train.film.height), (held.film.width, held.film.height));
     for h in &held.sensors {
         assert!(train.sensors.iter().all(|t| t.origin != h.origin), "a held-out view at {:?} is a training view", h.origin);
     }
     let targets: Vec<&str> = train.optimise.params.iter().map(|p| p.name.as_str()).collect();
-    assert_eq!(targets, ["media.smoke.density", "media.smoke.emission"]);
+    assert_eq!(targets, params);
     assert!(held.optimise.params.is_empty());
 }
