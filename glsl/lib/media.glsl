@@ -102,20 +102,40 @@ vec3 grid3(ValueRef r, uint depth, vec3 q, int state) {
     return v;
 }
 
-// The march of ray (o, d) over [t0, t1]: its steps, their length, and the jitter.
-void medium_steps(MediumRecord m, vec3 o, vec3 d, float t0, float t1, out uint n, out float dt, out float u) {
-    float len = t1 - t0;
-    n = uint(clamp(ceil(len / m.step), 1.0, float(m.max_steps)));
-    dt = len / float(n);
+// A ray's march through the medium: the medium, where the ray enters its box (t0), its
+// steps, their length and the ray's jitter.
+struct March {
+    MediumRecord m;
+    vec3 o;
+    vec3 d;
+    float t0;
+    uint n;
+    float dt;
+    float u;
+};
+
+// The march of ray (o, d) over [0, tmax]: stratified steps with one jitter per ray,
+// hashed from the ray's bits (both parameter states and both replays march the same
+// points). False where the ray misses the box.
+bool medium_march(vec3 o, vec3 d, float tmax, out March mr) {
+    mr.m = medium_record();
+    mr.o = o;
+    mr.d = d;
+    float t1;
+    if (!medium_clip(mr.m, o, d, tmax, mr.t0, t1)) return false;
+    float len = t1 - mr.t0;
+    mr.n = uint(clamp(ceil(len / mr.m.step), 1.0, float(mr.m.max_steps)));
+    mr.dt = len / float(mr.n);
     uvec3 ob = floatBitsToUint(o);
     uvec3 db = floatBitsToUint(d);
-    u = float(pcg4d(uvec4(ob.x ^ db.y, ob.y ^ db.z, ob.z ^ db.x, floatBitsToUint(t1) ^ 0x4d454449u)).x >> 8u) * (1.0 / 16777216.0);
+    mr.u = float(pcg4d(uvec4(ob.x ^ db.y, ob.y ^ db.z, ob.z ^ db.x, floatBitsToUint(t1) ^ 0x4d454449u)).x >> 8u) * (1.0 / 16777216.0);
+    return true;
 }
 
 // Where step k's sample point lies, in the box's unit coordinates.
-vec3 medium_point(MediumRecord m, vec3 o, vec3 d, float t0, float dt, uint k, float u) {
-    vec3 p = o + (t0 + (float(k) + u) * dt) * d;
-    return (p - m.box_min) / (m.box_max - m.box_min);
+vec3 march_point(March mr, uint k) {
+    vec3 p = mr.o + (mr.t0 + (float(k) + mr.u) * mr.dt) * mr.d;
+    return (p - mr.m.box_min) / (mr.m.box_max - mr.m.box_min);
 }
 
 #ifdef ADJOINT
@@ -162,14 +182,12 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
                     , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
 #endif
 ) {
-    MediumRecord m = medium_record();
-    float t0, t1;
-    if (!medium_clip(m, o, d, tmax, t0, t1)) return;
-    uint n;
-    float dt, u;
-    medium_steps(m, o, d, t0, t1, n, dt, u);
-    for (uint k = 0u; k < n; ++k) {
-        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+    March mr;
+    if (!medium_march(o, d, tmax, mr)) return;
+    MediumRecord m = mr.m;
+    float dt = mr.dt;
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
 #ifdef ADJOINT
         float g_sigma = 0.0;
         vec3 g_le = vec3(0.0);
@@ -213,22 +231,20 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
 #endif
 ) {
     ts = 0.0;
-    MediumRecord m = medium_record();
-    float t0, t1;
-    if (!medium_clip(m, o, d, tmax, t0, t1)) return false;
-    uint n;
-    float dt, u;
-    medium_steps(m, o, d, t0, t1, n, dt, u);
+    March mr;
+    if (!medium_march(o, d, tmax, mr)) return false;
+    MediumRecord m = mr.m;
+    float dt = mr.dt;
     // The optical depth at which the ray collides (state 0).
     float target = -log(max(1.0 - u_flight, 1e-30));
     float tau[NSTATES];
     for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
     bool collided = false;
-    uint hit_step = n;
+    uint hit_step = mr.n;
     float offset = 0.0;
     float sigma_hit[NSTATES];
-    for (uint k = 0u; k < n; ++k) {
-        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
         float sigma[NSTATES];
         for (int s = 0; s < NSTATES; ++s) sigma[s] = m.scale * grid1(m.density, m.density_depth, q, s);
         float step_tau = sigma[0] * dt;
@@ -249,7 +265,7 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
         if (collided) w *= s == 0 ? m.albedo : m.albedo * sigma_hit[s] / sigma_hit[0];
         beta[s] *= w;
     }
-    if (collided) ts = t0 + float(hit_step) * dt + offset;
+    if (collided) ts = mr.t0 + float(hit_step) * dt + offset;
 #ifdef ADJOINT
     if (grad_pass) {
         float g_all = 0.0;
@@ -259,9 +275,9 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
             g_all += gs;
             if (collided && sigma_hit[s] > 0.0) g_hit += gs / sigma_hit[s];
         }
-        uint last = collided ? hit_step + 1u : n;
+        uint last = collided ? hit_step + 1u : mr.n;
         for (uint k = 0u; k < last; ++k) {
-            vec3 q = medium_point(m, o, d, t0, dt, k, u);
+            vec3 q = march_point(mr, k);
             float len = collided && k == hit_step ? offset : dt;
             float g = -len * g_all;
             if (collided && k == hit_step) g += g_hit;
@@ -301,16 +317,14 @@ vec3 hg_sample(float g, vec3 d, vec2 u) {
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
-    MediumRecord m = medium_record();
-    float t0, t1;
-    if (!medium_clip(m, o, d, tmax, t0, t1)) return;
-    uint n;
-    float dt, u;
-    medium_steps(m, o, d, t0, t1, n, dt, u);
+    March mr;
+    if (!medium_march(o, d, tmax, mr)) return;
+    MediumRecord m = mr.m;
+    float dt = mr.dt;
     float tau[NSTATES];
     for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
-    for (uint k = 0u; k < n; ++k) {
-        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
         for (int s = 0; s < NSTATES; ++s) tau[s] += m.scale * grid1(m.density, m.density_depth, q, s) * dt;
     }
     for (int s = 0; s < NSTATES; ++s) tr[s] = exp(-tau[s]);
@@ -320,14 +334,12 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
 // Scatters the derivative of the loss through the transmittance of shadow ray (o, d) over
 // [0, tmax], given g = Σ_s sign_s ⟨δ_s, c_s⟩ of the contributions c_s that it carried.
 void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g) {
-    MediumRecord m = medium_record();
-    float t0, t1;
-    if (g == 0.0 || !medium_clip(m, o, d, tmax, t0, t1)) return;
-    uint n;
-    float dt, u;
-    medium_steps(m, o, d, t0, t1, n, dt, u);
-    for (uint k = 0u; k < n; ++k) {
-        vec3 q = medium_point(m, o, d, t0, dt, k, u);
+    March mr;
+    if (g == 0.0 || !medium_march(o, d, tmax, mr)) return;
+    MediumRecord m = mr.m;
+    float dt = mr.dt;
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
         grid_scatter1(m.density, m.density_depth, q, -dt * m.scale * g);
     }
 }

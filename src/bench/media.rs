@@ -260,7 +260,7 @@ fn clip(o: Vec3, d: Vec3) -> Option<(f32, f32)> {
     (t0 < t1).then_some((t0, t1))
 }
 
-/// The kernel's steps over a clip of length `len` (medium_steps).
+/// The kernel's steps over a clip of length `len` (medium_march).
 fn steps(len: f32, step: f32) -> u32 {
     (len / step).ceil().clamp(1.0, MAX_STEPS as f32) as u32
 }
