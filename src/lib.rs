@@ -99,6 +99,7 @@ pub mod settings;
 pub mod vol;
 
 mod cancel;
+mod coarse;
 mod device;
 mod observer;
 mod renderer;

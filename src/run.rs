@@ -33,6 +33,7 @@ use crate::tensor::{ParamValue, Shape};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::rc::Rc;
 use std::time::Instant;
 
 pub use crate::observer::{LogRow, Observer};
@@ -500,7 +501,8 @@ impl<'a> RunOptions<'a> {
 
 /// The loop's state: where it is and what it has logged.
 struct Loop<'a> {
-    engine: &'a Engine,
+    /// The engine of the run's current coarse-to-fine stage (replaced at each upsampling).
+    engine: Rc<Engine>,
     run_dir: Option<&'a RunDir>,
     identity: RunIdentity,
     has_reference: bool,
@@ -557,15 +559,15 @@ impl Loop<'_> {
             identity: self.identity.clone(),
             settings: self.engine.settings.clone(),
         };
-        save_checkpoint(run_dir, self.engine, &state, &self.log, &self.diag, &self.carry)?;
+        save_checkpoint(run_dir, &self.engine, &state, &self.log, &self.diag, &self.carry)?;
         self.committed = Some(self.iteration);
         self.write_logs(&run_dir.path)
     }
 
-    /// Iterates until the settings say stop, `cancel` is set or the observer breaks;
-    /// returns the total optimisation time.
-    fn iterate(&mut self, observer: &mut dyn Observer, cancel: &Cancel) -> Result<f64> {
-        let engine = self.engine;
+    /// Iterates until the settings say stop, `cancel` is set, the observer breaks or the
+    /// iteration count reaches `stop`; returns the total optimisation time.
+    fn iterate(&mut self, observer: &mut dyn Observer, cancel: &Cancel, stop: Option<u32>) -> Result<f64> {
+        let engine = Rc::clone(&self.engine);
         let settings = &engine.settings;
         let mut iteration = engine.iteration()?;
         let start = Instant::now();
@@ -575,7 +577,7 @@ impl Loop<'_> {
         let timed = |untimed: f64| offset + start.elapsed().as_secs_f64() - untimed;
         // How many iterations in a row had a zero gradient in every parameter.
         let mut zero_gradients = 0u32;
-        while !settings.done(self.iteration, timed(untimed)) {
+        while !settings.done(self.iteration, timed(untimed)) && stop.is_none_or(|s| self.iteration < s) {
             if cancel.is_cancelled() {
                 self.interrupted = true;
                 observer.notice(&format!("interrupted: stopping at iteration {} and writing the outputs", self.iteration));
@@ -670,6 +672,12 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         None => None,
     };
     let identity = identity(scene, &crate::render::ParamLayout::new(scene));
+    let upsample = &settings.upsample.0;
+    if !upsample.is_empty() && !crate::coarse::has_grids(scene) {
+        return Err(Error::Invalid("upsample: the scene optimises no grid (a medium's density or emission)".into()));
+    }
+    // The finest stage must fit before any work.
+    crate::coarse::stage_scene(scene, upsample.len(), None)?;
     let resume = match (&run_dir, mode) {
         (Some(dir), Mode::Resume) => Some(read_checkpoint(dir, &identity, settings)?),
         _ => None,
@@ -684,12 +692,14 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         }
         observer.resumed(state.iteration, &state.settings.changes(settings));
     }
-    let engine = Engine::new(device, scene, settings, observer, &options.cancel)?;
+    // A run resumed past an upsampling starts at its checkpoint's stage.
+    let mut stage = settings.upsample.stage(resume.as_ref().map_or(0, |(_, state, ..)| state.iteration));
+    let engine = Engine::new(device, &crate::coarse::stage_scene(scene, stage, None)?, settings, observer, &options.cancel)?;
     engine.warm_up()?;
     let has_reference = scene.sensors.iter().all(|s| s.target_image.is_none());
     let params = engine.scene().layout.slots.iter().map(|s| s.name.clone()).collect();
     let mut run = Loop {
-        engine: &engine,
+        engine: Rc::new(engine),
         run_dir: run_dir.as_ref(),
         identity,
         has_reference,
@@ -706,18 +716,66 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
     };
     match resume {
         Some((dir, state, log, diag, carry)) => {
-            load_state(&dir, &engine)?;
+            load_state(&dir, &run.engine)?;
             (run.iteration, run.time_offset, run.gpu_total, run.log, run.diag, run.carry) = (state.iteration, state.time_s, state.gpu_time_s, log, diag, carry);
             run.committed = Some(state.iteration);
             run.last_loss = run.log.rows.last().and_then(|r| r.loss).unwrap_or(f64::NAN);
         }
         None => {
-            let row = run.row(0.0, None, &engine.theta()?)?;
+            let row = run.row(0.0, None, &run.engine.theta()?)?;
             run.log.rows.push(row);
         }
     }
-    let total_time_s = run.iterate(observer, &options.cancel)?;
-    finish(device, scene, &engine, run, total_time_s)
+    loop {
+        let stop = upsample.get(stage).copied();
+        let total_time_s = run.iterate(observer, &options.cancel, stop)?;
+        if run.interrupted || stop != Some(run.iteration) || settings.done(run.iteration, total_time_s) {
+            let engine = Rc::clone(&run.engine);
+            return finish(device, scene, &engine, run, total_time_s);
+        }
+        // Upsampling: the next stage's engine, warmed up before θ and the optimiser's state
+        // are carried into it; its set-up counts in the run's time.
+        let start = Instant::now();
+        stage += 1;
+        let next = Engine::new(device, &crate::coarse::stage_scene(scene, stage, Some(&run.engine.targets))?, settings, &mut (), &options.cancel)?;
+        next.warm_up()?;
+        carry_state(&run.engine, &next)?;
+        let sizes: Vec<String> = next
+            .scene()
+            .layout
+            .slots
+            .iter()
+            .filter(|s| s.shape.ndim() == 3)
+            .map(|s| format!("{} {:?}", s.name, crate::scene::media::grid_dims(s.shape)))
+            .collect();
+        observer.notice(&format!("iteration {}: grids upsampled to {}", run.iteration, sizes.join(", ")));
+        run.engine = Rc::new(next);
+        run.time_offset = total_time_s + start.elapsed().as_secs_f64();
+    }
+}
+
+/// Carries θ and the optimiser's state (and meta's carried image) from `from` into `to`,
+/// an engine of the same scene at the next coarse-to-fine stage: θ-shaped arrays laid out
+/// anew with their grids resampled, the rest (per-group diagnostics, images) as they are.
+fn carry_state(from: &Engine, to: &Engine) -> Result<()> {
+    let (a, b) = (&from.scene().layout, &to.scene().layout);
+    let per_element = |engine: &Engine, buffer: &Buffer| {
+        let gs = engine.scene();
+        buffer.same(&gs.theta) || engine.optimiser.as_ref().is_some_and(|o| o.per_element(buffer))
+    };
+    for ((old, old_len), (new, new_len)) in state_buffers(from)?.into_iter().zip(state_buffers(to)?) {
+        let mut values: Vec<f32> = old.read()?;
+        values.truncate(old_len);
+        let values = match per_element(from, old) {
+            true => crate::coarse::relayout(&values, a, b, new_len),
+            false => values,
+        };
+        if values.len() != new_len || old.name() != new.name() {
+            return Err(Error::Invalid(format!("upsample: {} holds {} values, {} expected", old.name(), values.len(), new_len)));
+        }
+        new.write(&values)?;
+    }
+    Ok(())
 }
 
 /// Refuses a run directory `dir` in which the run would write a picture over one of the

@@ -302,6 +302,58 @@ settings! {
     /// of the fused single trace (for comparison; with `var=zero`, since two traces cannot
     /// split their pixels for the centred variance estimate).
     fd_two_trace: bool = false, Arity::Switch;
+    /// Coarse to fine: the iterations after which every grid parameter (a medium's
+    /// density or emission) doubles its voxels along each axis, e.g. `100,200` (in TOML
+    /// `[100, 200]`); θ and the optimiser's state are resampled trilinearly and carried on.
+    upsample: Upsample = Upsample::default(), Arity::Value("ITERATIONS");
+}
+
+/// The iterations of the `upsample` setting, strictly increasing, each at least 1.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Upsample(pub Vec<u32>);
+
+impl Upsample {
+    /// The coarse-to-fine stage of a run after `iteration` iterations: how many
+    /// upsamplings came before (the one after iteration u follows u's checkpoint, so a
+    /// checkpoint of iteration u holds stage u's grids before it).
+    pub fn stage(&self, iteration: u32) -> usize {
+        self.0.iter().filter(|&&u| u < iteration).count()
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.0.first() == Some(&0) {
+            return Err("an upsampling comes after an iteration: the first is at least 1".into());
+        }
+        match self.0.windows(2).find(|w| w[0] >= w[1]) {
+            Some(w) => Err(format!("{} then {}: the iterations must increase", w[0], w[1])),
+            None => Ok(()),
+        }
+    }
+}
+
+impl FromStr for Upsample {
+    type Err = String;
+
+    /// `100,200`, `[100, 200]` or `100 200`; empty for none.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let inner = s.trim().trim_start_matches('[').trim_end_matches(']');
+        let its = inner
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse::<u32>().map_err(|e| format!("'{t}': {e}")))
+            .collect::<Result<Vec<_>, _>>()?;
+        let u = Upsample(its);
+        u.check()?;
+        Ok(u)
+    }
+}
+
+impl fmt::Display for Upsample {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let its: Vec<String> = self.0.iter().map(u32::to_string).collect();
+        f.write_str(&its.join(","))
+    }
 }
 
 /// A bad setting: its key (as in TOML) and what is wrong.
@@ -336,6 +388,9 @@ impl Settings {
             if v == Some(0) {
                 return bad(key, "must be at least 1".into());
             }
+        }
+        if let Some(Err(message)) = self.upsample.as_ref().map(Upsample::check) {
+            return bad("upsample", message);
         }
         for (key, v) in [("lr", self.lr), ("time_budget", self.time_budget)] {
             // A NaN budget would never be reached and a negative one ends before the first step.

@@ -229,6 +229,12 @@ impl GpuOptimiser {
         &self.state
     }
 
+    /// Whether `buffer` is one of the state arrays of one value per element of θ (all but
+    /// the diagnostics, one record per group).
+    pub fn per_element(&self, buffer: &Buffer) -> bool {
+        !buffer.same(&self.diag) && self.state.iter().any(|s| s.same(buffer))
+    }
+
     /// Non-finite gradient elements skipped so far.
     pub fn nonfinite_count(&self) -> gpu::Result<u32> {
         Ok(self.nonfinite.read::<u32>()?[0])

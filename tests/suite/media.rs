@@ -488,3 +488,104 @@ fn the_scattering_adjoint_agrees_with_central_differences_in_expectation() {
     assert!(d_mean.abs() <= 4.0 * se, "adjoint {adj} against central differences {fd}: {:.1} standard errors apart", d_mean.abs() / se);
     assert!(se < 0.1 * fd.abs(), "the test resolves a tenth of the derivative: standard error {se:.2e} against {fd:.2e}");
 }
+
+/// Cancels its token once iteration `at` has run.
+struct StopAfter(u32, vkinverse::Cancel);
+
+impl vkinverse::Observer for StopAfter {
+    fn iteration(&mut self, row: &vkinverse::LogRow, _: &[vkinverse::Diagnostics]) -> std::ops::ControlFlow<()> {
+        if row.iteration == self.0 {
+            self.1.cancel();
+        }
+        std::ops::ControlFlow::Continue(())
+    }
+}
+
+/// The slab with a random 5 × 4 × 3 density, optimised as a 16³ grid that doubles to 32³
+/// after iteration 3 (`upsample = [3]`).
+fn coarse_to_fine_scene(name: &str, optimiser: &str) -> Scene {
+    let (density, _) = random_grids();
+    let optimise = format!(
+        "[optimise]\noptimiser = \"{optimiser}\"\nupsample = [3]\n\
+         [[optimise.params]]\ntarget = \"media.slab.density\"\ninit = 1.0\nrange = [0, 10]\ngrid = [16, 16, 16]\n"
+    );
+    slab(name, 1.0, 8, "density = \"d.npy\"\nemission = 0.5\nstep = 0.5", &[("d.npy", density)], &optimise)
+}
+
+/// Runs `scene` for `iterations` into `dir` (a new run, or a resume), stopped after
+/// iteration `stop` if given; its recovered parameters.
+fn coarse_run(scene: &Scene, dir: &Path, iterations: u32, mode: vkinverse::Mode, stop: Option<u32>) -> vkinverse::run::Run {
+    let settings = vkinverse::Settings {
+        iterations: Some(iterations),
+        target_spp: Some(16),
+        spp: Some(1),
+        primal_spp: Some(1),
+        checkpoint_every: Some(1),
+        ..Default::default()
+    }
+    .resolve_for(scene);
+    let cancel = vkinverse::Cancel::new();
+    let mut observer = StopAfter(stop.unwrap_or(0), cancel.clone());
+    let options = vkinverse::RunOptions { out_dir: Some(dir), mode, cancel };
+    with_gpu(|ctx| vkinverse::optimise(&device(ctx), scene, &settings, &options, &mut observer).unwrap().into_run())
+}
+
+/// Coarse to fine: a density optimised as a 16³ grid and upsampled to 32³ after iteration
+/// 3. The recovered grid is 32³. Adam's step after the upsampling starts from the 16³ θ
+/// upsampled trilinearly (each element within one step of it), and from its state carried
+/// over: its root mean square gradient at iteration 4 keeps at least √(1 − k) of the
+/// upsampled one in every element (a state started afresh holds √k·|g| alone). A meta run stopped
+/// at the upsampling, or just after it, resumes to the uninterrupted run's grid bit for
+/// bit.
+#[test]
+fn grids_upsample_from_16_to_32_voxels_with_the_optimisers_state() {
+    let adam = coarse_to_fine_scene("coarse-adam", "adam");
+    let (a, b) = (temp_dir("coarse-adam-3"), temp_dir("coarse-adam-4"));
+    let coarse = coarse_run(&adam, &a, 3, vkinverse::Mode::New, None);
+    let fine = coarse_run(&adam, &b, 4, vkinverse::Mode::New, None);
+    let (c, f) = (&coarse.params[0].1, &fine.params[0].1);
+    assert_eq!((c.shape, f.shape), (vkinverse::Shape::grid(16, 16, 16, 1), vkinverse::Shape::grid(32, 32, 32, 1)));
+    let up = vkinverse::scene::media::resample(c, f.shape);
+    let moved = f.data.iter().zip(&up).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    // Adam's step is at most about lr / (1 − β1) per element.
+    assert!(moved > 0.0 && moved < 0.2, "after the upsampling θ moved {moved} from the upsampled 16³ θ");
+    let r = |dir: &Path, it: &str| npy::read(&dir.join(format!("checkpoint/{it}/adam_r.npy"))).unwrap().data;
+    let (r3, r4) = (r(&a, "0000000003"), r(&b, "0000000004"));
+    let r3_up = vkinverse::scene::media::resample(&vkinverse::ParamValue::new(c.shape, r3[..c.data.len()].to_vec()).unwrap(), f.shape);
+    // Adam keeps the root of the bias-corrected mean square: r_t² = (1 − k)·r_{t−1}² + k·g²
+    // with k = (1 − β2) / (1 − β2^t) (glsl/lib/optim.glsl).
+    let k = 0.001f64 / (1.0 - 0.999f64.powi(4));
+    let keep = (1.0 - k).sqrt() as f32;
+    let below = r4.iter().zip(&r3_up).filter(|(r4, r3)| **r4 < keep * **r3 * (1.0 - 1e-5)).count();
+    assert_eq!(below, 0, "Adam's second moment was not carried over in {below} elements");
+    assert!(r3_up.iter().sum::<f32>() > 0.0, "three steps left a second moment to carry");
+    // Meta, stopped at the upsampling and just after it, then resumed.
+    let meta = coarse_to_fine_scene("coarse-meta", "meta");
+    let whole = coarse_run(&meta, &temp_dir("coarse-meta-whole"), 6, vkinverse::Mode::New, None);
+    assert_eq!(whole.params[0].1.shape, vkinverse::Shape::grid(32, 32, 32, 1));
+    for stop in [3, 4] {
+        let dir = temp_dir(&format!("coarse-meta-{stop}"));
+        let stopped = coarse_run(&meta, &dir, 6, vkinverse::Mode::New, Some(stop));
+        assert_eq!(stopped.summary.iterations, stop);
+        let resumed = coarse_run(&meta, &dir, 6, vkinverse::Mode::Resume, None);
+        assert!(resumed.params == whole.params, "stopped after iteration {stop} and resumed, the run ends elsewhere");
+        assert_eq!(resumed.log.rows.len(), 7);
+    }
+}
+
+/// `upsample` takes increasing iterations from 1, and needs a grid to upsample.
+#[test]
+fn bad_upsampling_is_named() {
+    let mut settings = vkinverse::Settings::default();
+    for (text, needle) in [("0,3", "the first is at least 1"), ("5,3", "5 then 3: the iterations must increase"), ("3,x", "'x'")] {
+        let err = settings.set("upsample", text).unwrap_err();
+        assert!(err.key == "upsample" && err.message.contains(needle), "{text}: {}", err.message);
+    }
+    settings.set("upsample", "[2, 4]").unwrap();
+    assert_eq!(settings.upsample, Some(vkinverse::settings::Upsample(vec![2, 4])));
+    settings.iterations = Some(2);
+    let optimise = "[[optimise.params]]\ntarget = \"media.slab.density\"\ninit = 1.0\nrange = [0, 10]\n";
+    let scene = slab("upsample-constant", 1.0, 4, "density = 0.5", &[], optimise);
+    let err = with_gpu(|ctx| vkinverse::optimise(&device(ctx), &scene, &settings.resolve_for(&scene), &vkinverse::RunOptions::new(None), &mut ()).unwrap_err());
+    assert!(err.to_string().contains("upsample: the scene optimises no grid"), "{err}");
+}
