@@ -233,6 +233,10 @@ struct CheckpointState {
     gpu_time_s: f64,
     identity: RunIdentity,
     settings: RunSettings,
+    /// The coarse-to-fine stage whose grids the checkpoint holds (`upsample`): an
+    /// upsampling after iteration u may come before or after u's checkpoint.
+    #[serde(default)]
+    stage: usize,
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
@@ -503,6 +507,8 @@ impl<'a> RunOptions<'a> {
 struct Loop<'a> {
     /// The engine of the run's current coarse-to-fine stage (replaced at each upsampling).
     engine: Rc<Engine>,
+    /// That stage: how many upsamplings came before.
+    stage: usize,
     run_dir: Option<&'a RunDir>,
     identity: RunIdentity,
     has_reference: bool,
@@ -558,6 +564,7 @@ impl Loop<'_> {
             gpu_time_s: self.gpu_total,
             identity: self.identity.clone(),
             settings: self.engine.settings.clone(),
+            stage: self.stage,
         };
         save_checkpoint(run_dir, &self.engine, &state, &self.log, &self.diag, &self.carry)?;
         self.committed = Some(self.iteration);
@@ -693,13 +700,14 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         observer.resumed(state.iteration, &state.settings.changes(settings));
     }
     // A run resumed past an upsampling starts at its checkpoint's stage.
-    let mut stage = settings.upsample.stage(resume.as_ref().map_or(0, |(_, state, ..)| state.iteration));
+    let stage = resume.as_ref().map_or(0, |(_, state, ..)| state.stage);
     let engine = Engine::new(device, &crate::coarse::stage_scene(scene, stage, None)?, settings, observer, &options.cancel)?;
     engine.warm_up()?;
     let has_reference = scene.sensors.iter().all(|s| s.target_image.is_none());
     let params = engine.scene().layout.slots.iter().map(|s| s.name.clone()).collect();
     let mut run = Loop {
         engine: Rc::new(engine),
+        stage,
         run_dir: run_dir.as_ref(),
         identity,
         has_reference,
@@ -727,7 +735,7 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         }
     }
     loop {
-        let stop = upsample.get(stage).copied();
+        let stop = upsample.get(run.stage).copied();
         let total_time_s = run.iterate(observer, &options.cancel, stop)?;
         if run.interrupted || stop != Some(run.iteration) || settings.done(run.iteration, total_time_s) {
             let engine = Rc::clone(&run.engine);
@@ -736,8 +744,8 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         // Upsampling: the next stage's engine, warmed up before θ and the optimiser's state
         // are carried into it; its set-up counts in the run's time.
         let start = Instant::now();
-        stage += 1;
-        let next = Engine::new(device, &crate::coarse::stage_scene(scene, stage, Some(&run.engine.targets))?, settings, &mut (), &options.cancel)?;
+        run.stage += 1;
+        let next = Engine::new(device, &crate::coarse::stage_scene(scene, run.stage, Some(&run.engine.targets))?, settings, &mut (), &options.cancel)?;
         next.warm_up()?;
         carry_state(&run.engine, &next)?;
         let sizes: Vec<String> = next

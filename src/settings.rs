@@ -314,13 +314,6 @@ settings! {
 pub struct Upsample(pub Vec<u32>);
 
 impl Upsample {
-    /// The coarse-to-fine stage of a run after `iteration` iterations: how many
-    /// upsamplings came before (the one after iteration u follows u's checkpoint, so a
-    /// checkpoint of iteration u holds stage u's grids before it).
-    pub fn stage(&self, iteration: u32) -> usize {
-        self.0.iter().filter(|&&u| u < iteration).count()
-    }
-
     fn check(&self) -> Result<(), String> {
         if self.0.first() == Some(&0) {
             return Err("an upsampling comes after an iteration: the first is at least 1".into());

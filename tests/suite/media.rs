@@ -534,9 +534,9 @@ fn coarse_run(scene: &Scene, dir: &Path, iterations: u32, mode: vkinverse::Mode,
 /// 3. The recovered grid is 32³. Adam's step after the upsampling starts from the 16³ θ
 /// upsampled trilinearly (each element within one step of it), and from its state carried
 /// over: its root mean square gradient at iteration 4 keeps at least √(1 − k) of the
-/// upsampled one in every element (a state started afresh holds √k·|g| alone). A meta run stopped
-/// at the upsampling, or just after it, resumes to the uninterrupted run's grid bit for
-/// bit.
+/// upsampled one in every element (a state started afresh holds √k·|g| alone). A meta run
+/// stopped at the upsampling (its last checkpoint then written after it, at 32³) or just
+/// after it resumes to the uninterrupted run's grid bit for bit.
 #[test]
 fn grids_upsample_from_16_to_32_voxels_with_the_optimisers_state() {
     let adam = coarse_to_fine_scene("coarse-adam", "adam");
