@@ -1,7 +1,8 @@
 //! Mitsuba 3 XML import (a subset, parsed with `roxmltree`).
 //!
 //! Files as Mitsuba reads them: `<include filename>` splices the included scene's children
-//! in (loops refused; errors name the included file and its line); `<path value>` adds a
+//! in (found beside the including file, else in the scene's directory; loops refused;
+//! errors name the included file and its line); `<path value>` adds a
 //! directory where file names are looked for (after the scene's own, before the included
 //! files'); textures, BSDFs, area emitters and samplers with an `id` may be referred to
 //! from anywhere in the file; plugin types are read case-insensitively; spectra (uniform,
@@ -277,8 +278,13 @@ impl Expanded {
         for node in root.children().filter(|n| n.is_element() && n.tag_name().name() == "include") {
             self.push(path, text, at, node.range().start)?;
             let rel = node.attribute("filename").ok_or_else(|| err(node, "<include> needs a filename".into()))?;
+            // Relative to the including file, else (as Mitsuba's file resolver finds it) to
+            // the scene's directory.
             let dir = path.parent().unwrap_or(Path::new(""));
-            let file = dir.join(rel);
+            let file = match (dir.join(rel), stack.first().and_then(|top| top.parent())) {
+                (file, Some(top)) if !file.exists() && top.join(rel).exists() => top.join(rel),
+                (file, _) => file,
+            };
             let canonical = std::fs::canonicalize(&file).map_err(|e| err(node, format!("cannot read {}: {e}", file.display())))?;
             if let Some(i) = stack.iter().position(|p| std::fs::canonicalize(p).is_ok_and(|c| c == canonical)) {
                 let chain: Vec<String> = stack[i..].iter().chain([&file]).map(|p| p.display().to_string()).collect();
