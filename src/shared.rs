@@ -198,9 +198,8 @@ pub struct MediumRecord {
     pub emission_depth: u32,
     pub max_steps: u32,
     pub pad: u32,
-    pub albedo: f32,
+    pub albedo: [f32; 3],
     pub g: f32,
-    pub pad2: [u32; 2],
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

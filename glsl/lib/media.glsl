@@ -40,10 +40,8 @@ MediumRecord medium_record() {
     m.emission_depth = t4.y;
     m.max_steps = t4.z;
     m.pad = 0u;
-    m.albedo = uintBitsToFloat(t5.x);
-    m.g = uintBitsToFloat(t5.y);
-    m.pad2 = 0u;
-    m.pad3 = 0u;
+    m.albedo = uintBitsToFloat(t5.xyz);
+    m.g = uintBitsToFloat(t5.w);
     return m;
 }
 
@@ -262,8 +260,12 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     }
     for (int s = 0; s < NSTATES; ++s) {
         float w = exp(tau[0] - tau[s]);
-        if (collided) w *= s == 0 ? m.albedo : m.albedo * sigma_hit[s] / sigma_hit[0];
-        beta[s] *= w;
+        if (collided) {
+            if (s != 0) w *= sigma_hit[s] / sigma_hit[0];
+            beta[s] *= m.albedo * w;
+        } else {
+            beta[s] *= w;
+        }
     }
     if (collided) ts = mr.t0 + float(hit_step) * dt + offset;
 #ifdef ADJOINT

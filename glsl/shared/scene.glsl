@@ -134,10 +134,8 @@ struct MediumRecord {
     uint emission_depth;
     uint max_steps;   // most steps of one march (a longer one takes longer steps)
     uint pad;
-    float albedo;
+    vec3 albedo;      // per channel
     float g;
-    uint pad2;
-    uint pad3;
 };
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the

@@ -95,7 +95,7 @@ impl GpuScene {
     pub fn with_bvh_layout(ctx: &Arc<Context>, scene: &Scene, bvh_layout: BvhLayout) -> gpu::Result<Self> {
         let layout = ParamLayout::new(scene);
         let mut data = features::values::MaterialData::default();
-        if scene.media.iter().any(|m| m.albedo > 0.0) && bvh_layout != BvhLayout::Cw8 {
+        if scene.media.iter().any(|m| m.scatters()) && bvh_layout != BvhLayout::Cw8 {
             return Err(gpu::GpuError::Unsupported(format!(
                 "a scattering medium renders with the default BVH layout ({}), not {}",
                 BvhLayout::Cw8.name(),

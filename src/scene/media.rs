@@ -4,7 +4,7 @@
 
 use std::collections::HashSet;
 
-use super::file::{GridInput, MediumFile};
+use super::file::{AlbedoInput, GridInput, MediumFile};
 use super::loader::Loader;
 use super::model::{GridFormat, Medium};
 use super::SceneError;
@@ -41,17 +41,21 @@ impl Loader {
             self.positive(&format!("{key}.scale"), scale)?;
             let step = m.step.unwrap_or(DEFAULT_STEP);
             self.positive(&format!("{key}.step"), step)?;
-            let albedo = m.albedo.unwrap_or(0.0);
-            self.finite(&format!("{key}.albedo"), &[albedo])?;
-            if !(0.0..=1.0).contains(&albedo) {
-                return Err(self.out_of_range(&format!("{key}.albedo"), format!("{albedo} is outside [0, 1]")));
+            let albedo = match m.albedo {
+                None => [0.0; 3],
+                Some(AlbedoInput::Scalar(a)) => [a; 3],
+                Some(AlbedoInput::Color(c)) => c,
+            };
+            self.finite(&format!("{key}.albedo"), &albedo)?;
+            if let Some(a) = albedo.iter().find(|a| !(0.0..=1.0).contains(*a)) {
+                return Err(self.out_of_range(&format!("{key}.albedo"), format!("{a} is outside [0, 1]")));
             }
             let g = m.g.unwrap_or(0.0);
             self.finite(&format!("{key}.g"), &[g])?;
             if g.abs() >= 0.99 {
                 return Err(self.out_of_range(&format!("{key}.g"), format!("{g} is outside (-0.99, 0.99)")));
             }
-            if albedo > 0.0 && emission.data.iter().any(|&v| v > 0.0) {
+            if albedo.iter().any(|&a| a > 0.0) && emission.data.iter().any(|&v| v > 0.0) {
                 return Err(self.invalid(
                     &format!("{key}.emission"),
                     "a scattering medium (albedo above 0) emits nothing here; give emission 0, or albedo 0 for an emitting one",

@@ -839,8 +839,8 @@ pub struct Medium {
     /// The ray-marching step, in voxels of the finer of the two grids (a constant counts
     /// as one voxel across the box).
     pub step: f32,
-    /// The part of the extinction that scatters, in [0, 1]: 0 absorbs only.
-    pub albedo: f32,
+    /// The part of the extinction that scatters, per channel, in [0, 1]: 0 absorbs only.
+    pub albedo: [f32; 3],
     /// The phase function's mean cosine, in (−1, 1): 0 isotropic, above 0 forward.
     pub g: f32,
     /// The file formats the density's and the emission's grids came in (`.npy` for a
@@ -878,6 +878,11 @@ impl GridFormat {
 }
 
 impl Medium {
+    /// Whether it scatters (an albedo above 0 in some channel): it then emits nothing.
+    pub fn scatters(&self) -> bool {
+        self.albedo.iter().any(|&a| a > 0.0)
+    }
+
     /// The step in world units along a ray: `step` voxels of the finest grid's smallest voxel side.
     pub fn world_step(&self) -> f32 {
         let mut side = f32::INFINITY;

@@ -93,7 +93,7 @@ impl ParamTarget {
                 return Err(TargetError::Malformed);
             }
             let medium = parts.media.iter().position(|m| m.name == medium_name).ok_or_else(|| undefined("medium", medium_name))?;
-            if property == "emission" && parts.media[medium].albedo > 0.0 {
+            if property == "emission" && parts.media[medium].scatters() {
                 return Err(TargetError::Invalid(format!("medium \"{medium_name}\" scatters (albedo above 0) and emits nothing")));
             }
             return Ok(if property == "density" { ParamTarget::MediumDensity { medium } } else { ParamTarget::MediumEmission { medium } });

@@ -317,8 +317,8 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         }
         pairs.push(("scale", Value::Float(num(m.scale))));
         pairs.push(("step", Value::Float(num(m.step))));
-        if m.albedo > 0.0 {
-            pairs.push(("albedo", Value::Float(num(m.albedo))));
+        if m.scatters() {
+            pairs.push(("albedo", Value::Array(m.albedo.iter().map(|&a| Value::Float(num(a))).collect())));
             pairs.push(("g", Value::Float(num(m.g))));
         }
         media.push(table(pairs));

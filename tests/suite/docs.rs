@@ -378,7 +378,7 @@ fn the_volume_scenes_held_out_views_are_new_views_of_the_same_medium() {
     held_out_views("smoke", 8, true, &["media.smoke.density", "media.smoke.emission"]);
     held_out_views("cloud", 5, false, &["media.cloud.density"]);
     let cloud = Scene::load(root().join("scenes/cloud/scene.toml")).unwrap();
-    assert!(cloud.media[0].albedo > 0.0, "the cloud scatters");
+    assert!(cloud.media[0].scatters(), "the cloud scatters");
 }
 
 fn held_out_views(name: &str, views: usize, emission_grid: bool, params: &[&str]) {

@@ -2325,15 +2325,18 @@ fn absorbing_mitsuba_media_import_as_media_boxes() {
 fn mitsuba_scattering_media_import_with_their_albedo_and_phase() {
     let scene = Scene::load(data("mitsuba/medium-scattering.xml")).unwrap();
     let m = &scene.media[0];
-    assert_eq!((m.albedo, m.g, m.scale), (0.8, 0.0, 2.0));
+    assert_eq!((m.albedo, m.g, m.scale), ([0.8; 3], 0.0, 2.0));
     let dir = temp_dir("mitsuba-medium-scattering");
     std::fs::copy(data("mitsuba/smoke.vol"), dir.join("smoke.vol")).unwrap();
     let text = std::fs::read_to_string(data("mitsuba/medium-scattering.xml")).unwrap().replace("type=\"volpath\"", "type=\"prbvolpath\"");
     for (name, phase, g) in [("hg", "<phase type=\"hg\"><float name=\"g\" value=\"0.4\"/></phase>", 0.4), ("hg-default", "<phase type=\"hg\"/>", 0.8)] {
         let xml = text.replace("<float name=\"scale\" value=\"2\"/>", &format!("<float name=\"scale\" value=\"2\"/>{phase}"));
         let scene = write_and_load(&dir, &format!("{name}.xml"), &xml).unwrap();
-        assert_eq!((scene.media[0].albedo, scene.media[0].g), (0.8, g), "{name}");
+        assert_eq!((scene.media[0].albedo, scene.media[0].g), ([0.8; 3], g), "{name}");
     }
+    // A coloured albedo, as Mitsuba's own test scenes have.
+    let xml = text.replace("<float name=\"albedo\" value=\"0.8\"/>", "<rgb name=\"albedo\" value=\"0.99, 0.5, 0.25\"/>");
+    assert_eq!(write_and_load(&dir, "rgb.xml", &xml).unwrap().media[0].albedo, [0.99, 0.5, 0.25]);
 }
 
 /// What vkinverse cannot render as Mitsuba does is refused in one line naming the plugin:
@@ -2354,7 +2357,7 @@ fn mitsuba_media_that_do_not_fit_are_refused() {
         ("unplaced", text.replace(grid_to_world, ""), &["<volume type=\"gridvolume\" name=\"sigma_t\">", "a grid must fill its medium's box"]),
         ("mirrored", text.replace("<scale x=\"2\"", "<scale x=\"-2\""), &["turns or mirrors it"]),
         ("diffuse", text.replace("<bsdf type=\"null\"/>", "<bsdf type=\"diffuse\"/>"), &["a shape around a medium needs a null BSDF"]),
-        ("rgb-albedo", text.replace("<float name=\"albedo\" value=\"0\"/>", "<rgb name=\"albedo\" value=\"0.2, 0.5, 0.8\"/>"), &["<rgb name=\"albedo\">", "differs between channels"]),
+        ("albedo-above-1", text.replace("<float name=\"albedo\" value=\"0\"/>", "<rgb name=\"albedo\" value=\"0.2, 1.5, 0.8\"/>"), &["albedo 1.5 is outside [0, 1]"]),
         ("hg-g", text.replace("<float name=\"albedo\" value=\"0\"/>", "<float name=\"albedo\" value=\"0\"/><phase type=\"hg\"><float name=\"g\" value=\"1\"/></phase>"), &["<phase type=\"hg\">", "g 1 is outside (-0.99, 0.99)"]),
         ("rgb-sigma", text.replace("<float name=\"scale\" value=\"2\"/>", "<rgb name=\"sigma_t\" value=\"1, 2, 3\"/>"), &["<rgb name=\"sigma_t\">", "differs between channels"]),
         ("nearest", text.replace("<string name=\"filename\"", "<string name=\"filter_type\" value=\"nearest\"/><string name=\"filename\""), &["filter_type \"nearest\" is unsupported (trilinear is)"]),

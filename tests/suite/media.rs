@@ -402,6 +402,38 @@ fn a_white_scattering_medium_under_a_uniform_sky_is_a_furnace() {
     assert!(g_se < 1.0, "the gradient's standard error {g_se} resolves 1 % of the image's sum");
 }
 
+/// A coloured albedo scatters each channel by its own: with albedo [1, 1, 0] under a
+/// uniform sky, red and green are a furnace (the sky), and blue keeps only the light that
+/// crossed without a collision, e^(−σd) of the sky; each within 4 standard errors.
+#[test]
+fn a_coloured_albedo_scatters_each_channel_by_its_own() {
+    let sky = 0.5f64;
+    let dir = temp_dir("coloured-albedo");
+    let toml = format!(
+        "[film]\nwidth = 8\nheight = 8\n[integrator]\nmax_depth = 64\n\
+         [[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\northo_height = 1.0\n\
+         [environment]\nconstant = [{sky}, {sky}, {sky}]\n\
+         [[media]]\nname = \"slab\"\nmin = [-1, -1, -0.5]\nmax = [1, 1, 0.5]\ndensity = 2.0\nalbedo = [1, 1, 0]\ng = 0.4\n"
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    assert_eq!(scene.media[0].albedo, [1.0, 1.0, 0.0]);
+    let spp = 256;
+    let image = render(&scene, spp);
+    let t = (-2.0f64).exp();
+    for (c, want) in [(0, sky), (1, sky), (2, t * sky)] {
+        let values: Vec<f64> = image.data.iter().map(|p| p[c] as f64).collect();
+        let n = values.len() as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        // Red and green: the spread of the pixels; blue: a Bernoulli of mean e^(−σd) per sample.
+        let se = match c {
+            2 => sky * (t * (1.0 - t) / (n * spp as f64)).sqrt(),
+            _ => (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt() + 1e-7,
+        };
+        assert!((mean - want).abs() <= 4.0 * se, "channel {c}: {mean} against {want} (standard error {se:.2e})");
+    }
+}
+
 /// With a vanishing albedo a scattering medium only stops light: the mean image is
 /// e^(−σd) times the sky, and the density's gradient −scale·d·e^(−σd) times it (per pixel
 /// and channel), each within 4 standard errors of the collision sampling's.

@@ -36,7 +36,7 @@ impl Media {
         let (scene, layout) = (up.scene, up.layout);
         let mut record = MediumRecord::default();
         let present = !scene.media.is_empty();
-        let scattering = scene.media.iter().any(|m| m.albedo > 0.0);
+        let scattering = scene.media.iter().any(|m| m.scatters());
         if let Some(m) = scene.media.first() {
             let (density, density_depth) = grid_ref(up, layout.slot(ParamTarget::MediumDensity { medium: 0 }), &m.density);
             let (emission, emission_depth) = grid_ref(up, layout.slot(ParamTarget::MediumEmission { medium: 0 }), &m.emission);
@@ -61,7 +61,6 @@ impl Media {
                 pad: 0,
                 albedo: m.albedo,
                 g: m.g,
-                pad2: [0; 2],
             };
         }
         Ok(Media { buffer: texel_buffer(up.ctx, "media", &[record])?, present, scattering })

@@ -3,7 +3,7 @@
 //! rendered by `volpath`, `volpathmis` or `prbvolpath`. The medium's box is the shape's
 //! world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
 //! one-channel `gridvolume` whose `to_world` places it on that box) and its `scale` is
-//! Mitsuba's; its `albedo` is one number (equal channels, a constant) and its phase
+//! Mitsuba's; its `albedo` is a constant (a number or an RGB colour) and its phase
 //! function `isotropic` or `hg`; it emits nothing. Everything else about a medium is
 //! refused in one line that names the plugin and the property.
 
@@ -35,7 +35,7 @@ pub(super) struct MediumDef<'a, 'i> {
     node: Node<'a, 'i>,
     sigma_t: Values<'a, 'i>,
     scale: f32,
-    albedo: f32,
+    albedo: [f32; 3],
     g: f32,
 }
 
@@ -53,14 +53,13 @@ impl<'a, 'i> Importer<'a, 'i> {
         // Mitsuba's default albedo is 0.75.
         let albedo = match self.take(&mut items, "albedo") {
             Some(n) => match self.medium_values(n, true)? {
-                Values::Constant(c) if c[0] == c[1] && c[1] == c[2] => c[0],
-                Values::Constant(c) => return Err(self.err(n, format!("albedo {c:?} differs between channels: a medium's albedo is one number here"))),
+                Values::Constant(c) => c,
                 Values::Grid { node, .. } => return Err(self.err(node, "albedo as a grid is unsupported (a constant albedo is)")),
             },
-            None => 0.75,
+            None => [0.75; 3],
         };
-        if !(0.0..=1.0).contains(&albedo) {
-            return Err(self.err(node, format!("albedo {albedo} is outside [0, 1]")));
+        if let Some(a) = albedo.iter().find(|a| !(0.0..=1.0).contains(*a)) {
+            return Err(self.err(node, format!("albedo {a} is outside [0, 1]")));
         }
         let sigma_t = match self.take(&mut items, "sigma_t") {
             Some(n) => {
