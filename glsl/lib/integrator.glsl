@@ -330,7 +330,63 @@ void add_light_sample(Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[
 #include "lib/media.glsl"
 #include "lib/delta_lights.glsl"
 
+// Where emitter point pl (at barycentrics bary of `light`, from sample_emitter) reads its
+// emission and alpha, and whether its alpha test cuts it out: such a point emits nothing
+// (the emitter is sampled over its whole area, so the estimate stays unbiased); a blend's
+// choice is keyed by the point.
+vec2 emitter_point_uv(EmitterTri light, vec2 bary, vec3 pl, out bool cut) {
+    vec2 uv = vec2(0.0);
+    // (Two branches, not `HAS_EMISSION_TEXTURES || HAS_ALPHA_MASKS`: the reflection
+    // cannot fold an operation on specialisation constants.)
+    if (HAS_EMISSION_TEXTURES) {
+        uv = triangle_uv(light.prim, bary);
+    } else if (HAS_ALPHA_MASKS) {
+        uv = triangle_uv(light.prim, bary);
+    }
+    cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, uv, uvec4(floatBitsToUint(pl), light.prim));
+    return uv;
+}
+
+// The direction wi, distance and squared distance from o to emitter point pl, and the
+// emitter's cosine towards o (either face of a two-sided one; at most 0 where it faces away).
+float emitter_towards(EmitterTri light, vec3 pl, vec3 o, out vec3 wi, out float dist, out float dist2) {
+    vec3 to_l = pl - o;
+    dist2 = dot(to_l, to_l);
+    dist = sqrt(dist2);
+    wi = to_l / dist;
+    float cos_l = dot(light.ng, -wi);
+    return light.two_sided != 0u ? abs(cos_l) : cos_l;
+}
+
 #ifdef SCATTERING
+// A light sample at a medium vertex p: radiance le[s] arriving along wi from tmax away,
+// with weight w (phase function, MIS, 1 / pdf), through the medium's transmittance; added
+// to each state's radiance. ADJOINT: also taken off remaining[], the transmittance's
+// derivative scattered in the gradient replay, and g[s] = sign_s δ_s β_s w tr_s returned:
+// the derivative of the loss by state s's le.
+void medium_light_sample(vec3 p, vec3 wi, float tmax, float w, vec3 le[NSTATES], vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                         , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass, out vec3 g[NSTATES]
+#endif
+) {
+    float tr[NSTATES];
+    medium_transmittance(p, wi, tmax, tr);
+#ifdef ADJOINT
+    vec3 before[NSTATES] = radiance;
+#endif
+    for (int s = 0; s < NSTATES; ++s) {
+        vec3 c = beta[s] * le[s] * (w * tr[s]);
+        radiance[s] += c;
+#ifdef ADJOINT
+        remaining[s] -= c;
+        g[s] = state_sign(s) * delta[s] * beta[s] * (w * tr[s]);
+#endif
+    }
+#ifdef ADJOINT
+    if (grad_pass) medium_transmittance_grad(p, wi, tmax, medium_sample_weight(before, radiance, delta));
+#endif
+}
+
 // Next-event estimation at a collision p inside a scattering medium, reached along d: one
 // light sample (an emissive triangle, or the environment map when env_nee) and every delta
 // light, each weighted by the phase function hg (of mean cosine g) and the transmittance of
@@ -341,47 +397,30 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
                        , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
 #endif
 ) {
+    vec3 le[NSTATES];
+#ifdef ADJOINT
+    vec3 dle[NSTATES];
+#define MEDIUM_LIGHT_SAMPLE(wi, tmax, w) medium_light_sample(p, wi, tmax, w, le, beta, radiance, remaining, delta, grad_pass, dle)
+#else
+#define MEDIUM_LIGHT_SAMPLE(wi, tmax, w) medium_light_sample(p, wi, tmax, w, le, beta, radiance)
+#endif
     if (NUM_EMITTERS != 0u && !env_nee) {
         vec3 pl;
         vec2 bary;
         EmitterTri light = sample_emitter(u_light, pl, bary);
-        vec3 to_l = pl - p;
-        float dist2 = dot(to_l, to_l);
-        float dist = sqrt(dist2);
-        vec3 wi = to_l / dist;
-        float cos_l = dot(light.ng, -wi);
-        if (light.two_sided != 0u) cos_l = abs(cos_l);
-        vec2 light_uv = vec2(0.0);
-        if (HAS_EMISSION_TEXTURES) {
-            light_uv = triangle_uv(light.prim, bary);
-        } else if (HAS_ALPHA_MASKS) {
-            light_uv = triangle_uv(light.prim, bary);
-        }
-        bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv, uvec4(floatBitsToUint(pl), light.prim));
+        vec3 wi;
+        float dist, dist2;
+        float cos_l = emitter_towards(light, pl, p, wi, dist, dist2);
+        bool cut;
+        vec2 light_uv = emitter_point_uv(light, bary, pl, cut);
         float t_shadow = dist * (1.0 - 1e-4);
         if (!cut && cos_l > 0.0 && light.pdf > 0.0 && !cast_any(p, wi, t_shadow, depth, replay)) {
             float pdf_light = (1.0 - p_env) * light.pdf * dist2 / cos_l;
             float ph = hg_phase(g, d, wi);
-            float w = power_heuristic(pdf_light, ph) * ph / pdf_light;
-            float tr[NSTATES];
-            medium_transmittance(p, wi, t_shadow, tr);
+            for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(light.emission, light_uv, s);
+            MEDIUM_LIGHT_SAMPLE(wi, t_shadow, power_heuristic(pdf_light, ph) * ph / pdf_light);
 #ifdef ADJOINT
-            vec3 before[NSTATES] = radiance;
-            vec3 g_em = vec3(0.0);
-#endif
-            for (int s = 0; s < NSTATES; ++s) {
-                vec3 c = beta[s] * fetch3(light.emission, light_uv, s) * (w * tr[s]);
-                radiance[s] += c;
-#ifdef ADJOINT
-                remaining[s] -= c;
-                g_em += state_sign(s) * delta[s] * beta[s] * (w * tr[s]);
-#endif
-            }
-#ifdef ADJOINT
-            if (grad_pass) {
-                scatter3(light.emission, light_uv, g_em);
-                medium_transmittance_grad(p, wi, t_shadow, medium_sample_weight(before, radiance, delta));
-            }
+            if (grad_pass) scatter3(light.emission, light_uv, state_sum(dle));
 #endif
         }
     }
@@ -391,26 +430,10 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
         float pdf_light = p_env * density;
         if (pdf_light > 0.0 && !cast_any(p, wi, 1e30, depth, replay)) {
             float ph = hg_phase(g, d, wi);
-            float w = power_heuristic(pdf_light, ph) * ph / pdf_light;
-            float tr[NSTATES];
-            medium_transmittance(p, wi, 1e30, tr);
+            for (int s = 0; s < NSTATES; ++s) le[s] = environment_radiance(wi, s);
+            MEDIUM_LIGHT_SAMPLE(wi, 1e30, power_heuristic(pdf_light, ph) * ph / pdf_light);
 #ifdef ADJOINT
-            vec3 before[NSTATES] = radiance;
-            vec3 g_env = vec3(0.0);
-#endif
-            for (int s = 0; s < NSTATES; ++s) {
-                vec3 c = beta[s] * environment_radiance(wi, s) * (w * tr[s]);
-                radiance[s] += c;
-#ifdef ADJOINT
-                remaining[s] -= c;
-                g_env += state_sign(s) * delta[s] * beta[s] * (w * tr[s]);
-#endif
-            }
-#ifdef ADJOINT
-            if (grad_pass) {
-                scatter3(scene_globals().environment, environment_uv(wi), g_env * scene_globals().environment_scale);
-                medium_transmittance_grad(p, wi, 1e30, medium_sample_weight(before, radiance, delta));
-            }
+            if (grad_pass) scatter3(scene_globals().environment, environment_uv(wi), state_sum(dle) * scene_globals().environment_scale);
 #endif
         }
     }
@@ -422,37 +445,40 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
             float tmax, gl;
             delta_light_incidence(l, p, wi, tmax, gl);
             if (gl <= 0.0 || delta_light_blocked(p, wi, tmax)) continue;
-            float ph = hg_phase(g, d, wi);
-            float tr[NSTATES];
-            medium_transmittance(p, wi, tmax, tr);
-#ifdef ADJOINT
-            vec3 before[NSTATES] = radiance;
-            vec3 g_color = vec3(0.0);
-            float g_intensity = 0.0;
-#endif
-            for (int s = 0; s < NSTATES; ++s) {
-                vec3 color = fetch3(l.color, vec2(0.0), s);
-                float intensity = fetch1(l.intensity, vec2(0.0), s);
-                vec3 c = beta[s] * color * (intensity * gl * ph * tr[s]);
-                radiance[s] += c;
-#ifdef ADJOINT
-                remaining[s] -= c;
-                vec3 dle = state_sign(s) * delta[s] * beta[s] * (gl * ph * tr[s]);
-                g_color += dle * intensity;
-                g_intensity += dot(dle, color);
-#endif
-            }
+            for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(l.color, vec2(0.0), s) * (fetch1(l.intensity, vec2(0.0), s) * gl);
+            MEDIUM_LIGHT_SAMPLE(wi, tmax, hg_phase(g, d, wi));
 #ifdef ADJOINT
             if (grad_pass) {
+                // le = colour × intensity × gl.
+                vec3 g_color = vec3(0.0);
+                float g_intensity = 0.0;
+                for (int s = 0; s < NSTATES; ++s) {
+                    g_color += dle[s] * (gl * fetch1(l.intensity, vec2(0.0), s));
+                    g_intensity += dot(dle[s] * gl, fetch3(l.color, vec2(0.0), s));
+                }
                 scatter3(l.color, vec2(0.0), g_color);
                 scatter1(l.intensity, vec2(0.0), g_intensity);
-                medium_transmittance_grad(p, wi, tmax, medium_sample_weight(before, radiance, delta));
             }
 #endif
         }
     }
+#undef MEDIUM_LIGHT_SAMPLE
 }
 #endif
+
+// Whether a path goes on past vertex `depth` with throughput beta: Russian roulette from
+// vertex RR_DEPTH on (Mitsuba's rule: survive with probability min(max(beta), 0.95) of
+// state 0, every state divided by it, u_rr its number), and some state's beta not zero.
+bool path_survives(inout vec3 beta[NSTATES], uint depth, float u_rr) {
+    if (depth >= RR_DEPTH) {
+        float q = min(max_component(beta[0]), 0.95);
+        if (u_rr >= q) return false;
+        for (int s = 0; s < NSTATES; ++s) beta[s] /= q;
+    }
+    bool alive = false;
+    for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
+    return alive;
+}
 
 // Traces the path that starts with ray (o, d) and uses `rng` from bounce 1 on, in every
 // parameter state. Primal: returns each state's radiance in `radiance`. ADJOINT: `L` is
@@ -524,14 +550,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
 #endif
                 vec3 wi = hg_sample(g, d, u_bsdf.xy);
                 prev_bsdf_pdf = hg_phase(g, d, wi);
-                if (depth >= RR_DEPTH) {
-                    float q = min(max_component(beta[0]), 0.95);
-                    if (u_rr >= q) break;
-                    for (int s = 0; s < NSTATES; ++s) beta[s] /= q;
-                }
-                bool alive = false;
-                for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
-                if (!alive) break;
+                if (!path_survives(beta, depth, u_rr)) break;
                 o = p;
                 d = wi;
                 continue;
@@ -643,33 +662,17 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
             vec2 bary;
             EmitterTri light = sample_emitter(u_light, pl, bary);
             float pdf_area = light.pdf;
-            vec3 to_l = pl - p_off;
-            float dist2 = dot(to_l, to_l);
-            float dist = sqrt(dist2);
-            vec3 wi = to_l / dist;
+            vec3 wi;
+            float dist, dist2;
+            float cos_l = emitter_towards(light, pl, p_off, wi, dist, dist2);
             // Through a rough dielectric the shadow ray leaves from the far side.
             vec3 o_l = p_off;
             if (rough && dot(wi, ng) < 0.0) {
                 o_l = ray_origin(p, ng, wi);
-                to_l = pl - o_l;
-                dist2 = dot(to_l, to_l);
-                dist = sqrt(dist2);
-                wi = to_l / dist;
+                cos_l = emitter_towards(light, pl, o_l, wi, dist, dist2);
             }
-            float cos_l = dot(light.ng, -wi);
-            if (light.two_sided != 0u) cos_l = abs(cos_l);
-            vec2 light_uv = vec2(0.0);
-            // (Two branches, not `HAS_EMISSION_TEXTURES || HAS_ALPHA_MASKS`: the reflection
-            // cannot fold an operation on specialisation constants.)
-            if (HAS_EMISSION_TEXTURES) {
-                light_uv = triangle_uv(light.prim, bary);
-            } else if (HAS_ALPHA_MASKS) {
-                light_uv = triangle_uv(light.prim, bary);
-            }
-            // A point where the emitter's alpha test cuts it out emits nothing (the emitter
-            // is sampled over its whole area, so the estimate stays unbiased). A blend's
-            // choice is keyed by the sampled point.
-            bool cut = HAS_ALPHA_MASKS && alpha_cut(tri_shading(light.prim).alpha_material, light_uv, uvec4(floatBitsToUint(pl), light.prim));
+            bool cut;
+            vec2 light_uv = emitter_point_uv(light, bary, pl, cut);
             if (!cut && cos_l > 0.0 && passes_side(wi, ng, ns, rough) && pdf_area > 0.0 && !cast_any(o_l, wi, dist * (1.0 - 1e-4), depth, replay)) {
                 float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
@@ -781,16 +784,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // After a delta lobe, emission found next is not MIS-weighted (no light sample here).
         prev_bsdf_pdf = dielectric ? 0.0 : pdf;
 
-        // Russian roulette from vertex RR_DEPTH on (Mitsuba's rule): survive with probability
-        // min(max(beta), 0.95) of state 0; every state divides by it.
-        if (depth >= RR_DEPTH) {
-            float q = min(max_component(beta[0]), 0.95);
-            if (u_rr >= q) break;
-            for (int s = 0; s < NSTATES; ++s) beta[s] /= q;
-        }
-        bool alive = false;
-        for (int s = 0; s < NSTATES; ++s) alive = alive || any(notEqual(beta[s], vec3(0.0)));
-        if (!alive) break;
+        if (!path_survives(beta, depth, u_rr)) break;
         // A refracted ray leaves from the surface's far side, into or out of the interior.
         bool refracted = (dielectric || rough) && dot(wi, ng) < 0.0;
         if (refracted && mat[0].kind != MATERIAL_THIN_DIELECTRIC) absorption = from_behind ? vec3(0.0) : material_record(sh.material).absorption;
