@@ -242,6 +242,33 @@ class OptimiseTests(unittest.TestCase):
         self.assertLess(error, 0.08, f"recovered {result.params[RED]} of {truth}")
         self.assertLess(error, np.abs(start - truth).max() / 3, f"from {start}")
 
+    def test_python_loss_sums_over_every_sensor(self):
+        # The Cornell box seen by a second camera: a Python loss is called as fn(image,
+        # sensor) on each sensor's render, and the run recovers the wall from both.
+        text = CORNELL.read_text().replace('file = "meshes/', f'file = "{CORNELL.parent}/meshes/')
+        text += "\n[[sensors]]\norigin = [0.6, 1.2, 3.6]\ntarget = [0, 1, 0]\nfov_y = 40\n"
+        path = self.dir / "two.toml"
+        path.write_text(text)
+        scene = vk.Scene(path, film=(24, 24))
+        self.assertEqual(scene.sensors, 2)
+        targets = [np.array(vk.render(scene, spp=128, seed=99, sensor=k)) for k in range(2)]
+        truth = np.array(scene.params[RED])
+        seen = []
+
+        def l1(image, sensor):
+            seen.append(sensor)
+            d = image - targets[sensor]
+            return float(np.abs(d).mean()), (np.sign(d) / d.size).astype(np.float32)
+
+        start = np.frombuffer(scene._native.param_start(RED)[0], np.float32)
+        result = vk.optimise(scene, optimiser="meta", iterations=30, loss=l1, lr=0.05, quiet=True)
+        # Per iteration 3 renders (1 at the first), each of both sensors, in sensor order.
+        self.assertEqual(seen, [0, 1] * (1 + 3 * 29))
+        error = np.abs(result.params[RED] - truth).max()
+        self.assertLess(error, np.abs(start - truth).max() / 2, f"recovered {result.params[RED]} of {truth} from {start}")
+        with self.assertRaisesRegex(ValueError, r"2 sensors: a Python loss is then called as fn\(image, sensor\)"):
+            vk.optimise(scene, optimiser="adam", iterations=1, loss=lambda image: (0.0, image * 0), quiet=True)
+
     def test_python_loss_with_meta_refuses_what_it_cannot_do(self):
         scene = cornell()
 

@@ -356,6 +356,20 @@ def _flat(arrays, names):
     return np.concatenate([np.asarray(arrays[n], dtype=np.float32).ravel() for n in names])
 
 
+def _positional_arity(fn):
+    """How many positional arguments `fn` takes (a large number for *args; 1 where its
+    signature cannot be read)."""
+    import inspect
+
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):
+        return 1
+    if any(p.kind == p.VAR_POSITIONAL for p in params):
+        return 1 << 30
+    return sum(p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) for p in params)
+
+
 def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callback, out_dir, quiet, settings):
     """A run on a Python loss, stepped by the library's optimiser passes on the host
     (``HostOptimiser``; each parameter one group). Per iteration i (seeds derived from
@@ -373,7 +387,8 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     4. the step, clamped to the ranges.
 
     The loss is called once per iteration with Adam, 3 times with the meta-estimator (once
-    at the first). The carried primal image (``carry``) needs the engine's own loss: here
+    at the first); with several sensors, that many times per sensor, as ``fn(image,
+    sensor)``, and the values and gradients of the sensors add up. The carried primal image (``carry``) needs the engine's own loss: here
     the losses read each iteration's own renders (``carry=0``), and a spec that sets
     ``carry`` above 0 is refused."""
     if targets is not None:
@@ -398,6 +413,13 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
     carry = _explicit_carry(spec)
     if carry is not None and carry > 0:
         raise ValueError(f"optimiser {spec!r}: carry = {carry}: the carried primal image needs a built-in loss (a Python loss runs meta with carry=0)")
+    sensors = scene.sensors
+    if sensors > 1 and _positional_arity(loss_fn) < 2:
+        raise ValueError(f"loss: the scene has {sensors} sensors: a Python loss is then called as fn(image, sensor), for each sensor")
+
+    def loss_of(image, k):
+        return loss_fn(image) if sensors == 1 else loss_fn(image, k)
+
     names, theta, lrs, ranges = _start(scene, settings)
     opt = HostOptimiser(spec, [(theta[n].size, lrs[n], *ranges[n]) for n in names], iterations)
     sizes = [theta[n].size for n in names]
@@ -411,14 +433,27 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
         for n, part in zip(names, np.split(values, np.cumsum(sizes)[:-1])):
             scene.params[n] = part.reshape(shapes[n])
 
-    def grad_at(adjoint, spp_, seed_, halves):
-        """The flat gradient of `adjoint` and, with `halves`, its part from a random half of
-        the pixels (drawn from the seed), from the same pass."""
+    def grad_at(adjoint, spp_, seed_, halves, k):
+        """The flat gradient of `adjoint` (of sensor k) and, with `halves`, its part from a
+        random half of the pixels (drawn from the seed), from the same pass."""
         a = _adjoint(scene, adjoint, "the loss's dL/dimage")
         if not halves:
-            return _flat(_named(scene._native.gradient(*a, int(spp_), int(seed_), 0)), names), None
-        full, half = scene._native.gradient_with_half(*a, int(spp_), int(seed_), 0)
+            return _flat(_named(scene._native.gradient(*a, int(spp_), int(seed_), int(k))), names), None
+        full, half = scene._native.gradient_with_half(*a, int(spp_), int(seed_), int(k))
         return _flat(_named(full), names), _flat(_named(half), names)
+
+    def loss_gradient(spp_, seed_, halves):
+        """The loss of every sensor's render (render and gradient passes with one seed) and
+        the flat gradient of the sum, with its half-pixel part."""
+        value, total, total_half = 0.0, None, None
+        for k in range(sensors):
+            v, adjoint = loss_of(render(scene, spp=spp_, seed=seed_, sensor=k), k)
+            g, g_half = grad_at(adjoint, spp_, seed_, halves, k)
+            value += float(v)
+            total = g if total is None else total + g
+            if halves:
+                total_half = g_half if total_half is None else total_half + g_half
+        return value, total, total_half
 
     start, interrupted = time.perf_counter(), False
     try:
@@ -426,18 +461,22 @@ def _optimise_python_loss(scene, loss_fn, optimiser, iterations, targets, callba
             base = 4 * (seed * 1000003 + it)
             halves = opt.needs_halves
             set_all(x)
-            value, adjoint = loss_fn(render(scene, spp=primal_spp, seed=base))
-            f, f_half = grad_at(adjoint, spp, base + 1, halves)
+            value, f, f_half = 0.0, None, None
+            for k in range(sensors):
+                v, adjoint = loss_of(render(scene, spp=primal_spp, seed=base, sensor=k), k)
+                g, g_half = grad_at(adjoint, spp, base + 1, halves, k)
+                value += float(v)
+                f = g if f is None else f + g
+                if halves:
+                    f_half = g_half if f_half is None else f_half + g_half
             fd = fd_half = None
             if opt.needs_fd and x_prev is None:
                 fd = np.zeros_like(f)
                 fd_half = np.zeros_like(f) if halves else None
             elif opt.needs_fd:
-                _, adj_cur = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
-                at_cur, at_cur_half = grad_at(adj_cur, fd_spp, base + 2, halves)
+                _, at_cur, at_cur_half = loss_gradient(fd_spp, base + 2, halves)
                 set_all(x_prev)
-                _, adj_prev = loss_fn(render(scene, spp=fd_spp, seed=base + 2))
-                at_prev, at_prev_half = grad_at(adj_prev, fd_spp, base + 2, halves)
+                _, at_prev, at_prev_half = loss_gradient(fd_spp, base + 2, halves)
                 fd = at_cur - at_prev
                 fd_half = at_cur_half - at_prev_half if halves else None
             x_prev = x

@@ -10,7 +10,8 @@ import numpy.typing as npt
 from ._native import Error as Error
 
 Array = npt.NDArray[np.float32]
-LossFunction = Callable[[Array], Tuple[float, npt.ArrayLike]]
+# fn(image) -> (value, dL/dimage); with several sensors fn(image, sensor).
+LossFunction = Union[Callable[[Array], Tuple[float, npt.ArrayLike]], Callable[[Array, int], Tuple[float, npt.ArrayLike]]]
 
 class ParameterError(KeyError, ValueError): ...
 
