@@ -10,6 +10,7 @@ use crate::render::ParamLayout;
 use crate::scene::media::resample;
 use crate::scene::{Scene, Texture};
 use crate::tensor::{ParamValue, Shape, MAX_GRID_SIDE, MAX_GRID_VOXELS};
+use std::borrow::Cow;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -28,16 +29,26 @@ fn upsampled(shape: Shape, stage: usize) -> Result<Shape> {
     }
 }
 
-/// Whether `scene` has a parameter that upsampling changes (a grid).
-pub fn has_grids(scene: &Scene) -> bool {
-    scene.optimise.params.iter().any(|p| p.shape.ndim() == 3)
+/// Checks, before any work, that `stages` upsamplings of `scene` can be done: it has a grid
+/// parameter to upsample, and its finest grids fit.
+pub fn check(scene: &Scene, stages: usize) -> Result<()> {
+    if stages == 0 {
+        return Ok(());
+    }
+    if !scene.optimise.params.iter().any(|p| p.shape.ndim() == 3) {
+        return Err(Error::Invalid("upsample: the scene optimises no grid (a medium's density or emission)".into()));
+    }
+    scene.optimise.params.iter().try_for_each(|p| upsampled(p.shape, stages).map(|_| ()))
 }
 
 /// `scene` at coarse-to-fine stage `stage` (after `stage` upsamplings): every grid
 /// parameter at 2^stage times its voxels along each axis, its start values resampled.
 /// With `targets`, the sensors' target images are those (the first stage's renders, so
-/// that a later stage renders none).
-pub fn stage_scene(scene: &Scene, stage: usize, targets: Option<&[Image]>) -> Result<Scene> {
+/// that a later stage renders none). Stage 0 without targets is `scene` itself.
+pub fn stage_scene<'s>(scene: &'s Scene, stage: usize, targets: Option<&[Image]>) -> Result<Cow<'s, Scene>> {
+    if stage == 0 && targets.is_none() {
+        return Ok(Cow::Borrowed(scene));
+    }
     let mut out = scene.clone();
     for p in &mut out.optimise.params {
         let shape = upsampled(p.shape, stage)?;
@@ -54,7 +65,7 @@ pub fn stage_scene(scene: &Scene, stage: usize, targets: Option<&[Image]>) -> Re
             }
         }
     }
-    Ok(out)
+    Ok(Cow::Owned(out))
 }
 
 /// A θ-shaped array (θ's floats: each slot at its offset in `from`) laid out as `to`, in

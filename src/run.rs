@@ -680,11 +680,7 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
     };
     let identity = identity(scene, &crate::render::ParamLayout::new(scene));
     let upsample = &settings.upsample.0;
-    if !upsample.is_empty() && !crate::coarse::has_grids(scene) {
-        return Err(Error::Invalid("upsample: the scene optimises no grid (a medium's density or emission)".into()));
-    }
-    // The finest stage must fit before any work.
-    crate::coarse::stage_scene(scene, upsample.len(), None)?;
+    crate::coarse::check(scene, upsample.len())?;
     let resume = match (&run_dir, mode) {
         (Some(dir), Mode::Resume) => Some(read_checkpoint(dir, &identity, settings)?),
         _ => None,
@@ -701,7 +697,7 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
     }
     // A run resumed past an upsampling starts at its checkpoint's stage.
     let stage = resume.as_ref().map_or(0, |(_, state, ..)| state.stage);
-    let engine = Engine::new(device, &crate::coarse::stage_scene(scene, stage, None)?, settings, observer, &options.cancel)?;
+    let engine = Engine::new(device, &*crate::coarse::stage_scene(scene, stage, None)?, settings, observer, &options.cancel)?;
     engine.warm_up()?;
     let has_reference = scene.sensors.iter().all(|s| s.target_image.is_none());
     let params = engine.scene().layout.slots.iter().map(|s| s.name.clone()).collect();
@@ -745,7 +741,7 @@ fn run_optimisation(device: &Device, scene: &Scene, settings: &RunSettings, opti
         // are carried into it; its set-up counts in the run's time.
         let start = Instant::now();
         run.stage += 1;
-        let next = Engine::new(device, &crate::coarse::stage_scene(scene, run.stage, Some(&run.engine.targets))?, settings, &mut (), &options.cancel)?;
+        let next = Engine::new(device, &*crate::coarse::stage_scene(scene, run.stage, Some(&run.engine.targets))?, settings, &mut (), &options.cancel)?;
         next.warm_up()?;
         carry_state(&run.engine, &next)?;
         let sizes: Vec<String> = next

@@ -16,6 +16,16 @@ pub const DEFAULT_STEP: f32 = 0.5;
 /// Most steps a ray takes through one medium: a longer march takes longer steps.
 pub const MAX_STEPS: u32 = 1024;
 
+/// What is wrong with a medium's albedo (each channel in [0, 1]), if anything.
+pub fn albedo_error(albedo: [f32; 3]) -> Option<String> {
+    albedo.iter().find(|a| !(0.0..=1.0).contains(*a)).map(|a| format!("albedo {a} is outside [0, 1]"))
+}
+
+/// What is wrong with a Henyey–Greenstein g (in (−0.99, 0.99)), if anything.
+pub fn g_error(g: f32) -> Option<String> {
+    (g.is_nan() || g.abs() >= 0.99).then(|| format!("g {g} is outside (-0.99, 0.99)"))
+}
+
 impl Loader {
     /// The scene's media, checked: unique names, a box of positive size, finite values
     /// that are not negative, a positive scale and step.
@@ -47,21 +57,22 @@ impl Loader {
                 Some(AlbedoInput::Color(c)) => c,
             };
             self.finite(&format!("{key}.albedo"), &albedo)?;
-            if let Some(a) = albedo.iter().find(|a| !(0.0..=1.0).contains(*a)) {
-                return Err(self.out_of_range(&format!("{key}.albedo"), format!("{a} is outside [0, 1]")));
+            if let Some(message) = albedo_error(albedo) {
+                return Err(self.out_of_range(&format!("{key}.albedo"), message));
             }
             let g = m.g.unwrap_or(0.0);
             self.finite(&format!("{key}.g"), &[g])?;
-            if g.abs() >= 0.99 {
-                return Err(self.out_of_range(&format!("{key}.g"), format!("{g} is outside (-0.99, 0.99)")));
+            if let Some(message) = g_error(g) {
+                return Err(self.out_of_range(&format!("{key}.g"), message));
             }
-            if albedo.iter().any(|&a| a > 0.0) && emission.data.iter().any(|&v| v > 0.0) {
+            let medium = Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, albedo, g, formats: [density_format, emission_format] };
+            if medium.scatters() && medium.emission.data.iter().any(|&v| v > 0.0) {
                 return Err(self.invalid(
                     &format!("{key}.emission"),
                     "a scattering medium (albedo above 0) emits nothing here; give emission 0, or albedo 0 for an emitting one",
                 ));
             }
-            out.push(Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, albedo, g, formats: [density_format, emission_format] });
+            out.push(medium);
         }
         if out.len() > 1 {
             return Err(self.invalid("media", &format!("{} media: a scene holds at most one", out.len())));

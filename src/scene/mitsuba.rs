@@ -31,7 +31,7 @@
 //! type="checkerboard">` (constant colours: a 2 × 2 nearest-filtered image), each with a
 //! `to_uv` map that moves the texture coordinates of the shapes using it (one per
 //! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
-//! `<ref>`; an absorbing `<medium type="homogeneous|heterogeneous">` inside a `null`-BSDF
+//! `<ref>`; a `<medium type="homogeneous|heterogeneous">` inside a `null`-BSDF
 //! box under `volpath`, `volpathmis` or `prbvolpath` ([`media`]). Names: a shape's mesh, bsdf's material
 //! and emitter's light are its `id` (else `shape<k>`, the enclosing shape's name,
 //! `light<k>`); a medium's is its `id`, else its shape's name.

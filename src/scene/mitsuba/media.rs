@@ -11,7 +11,7 @@ use glam::{Mat3, Mat4, Vec3};
 use roxmltree::Node;
 
 use super::{elements, Importer, Items};
-use crate::scene::media::DEFAULT_STEP;
+use crate::scene::media::{albedo_error, g_error, DEFAULT_STEP};
 use crate::scene::model::{GridFormat, Medium};
 use crate::scene::SceneError;
 use crate::tensor::{ParamValue, Shape};
@@ -58,8 +58,8 @@ impl<'a, 'i> Importer<'a, 'i> {
             },
             None => [0.75; 3],
         };
-        if let Some(a) = albedo.iter().find(|a| !(0.0..=1.0).contains(*a)) {
-            return Err(self.err(node, format!("albedo {a} is outside [0, 1]")));
+        if let Some(message) = albedo_error(albedo) {
+            return Err(self.err(node, message));
         }
         let sigma_t = match self.take(&mut items, "sigma_t") {
             Some(n) => {
@@ -110,8 +110,8 @@ impl<'a, 'i> Importer<'a, 'i> {
             "hg" => self.take_float(&mut items, "g", 0.8)?,
             _ => return Err(self.err(node, format!("phase \"{kind}\" is unsupported (isotropic and hg are)"))),
         };
-        if g.abs() >= 0.99 {
-            return Err(self.err(node, format!("g {g} is outside (-0.99, 0.99)")));
+        if let Some(message) = g_error(g) {
+            return Err(self.err(node, message));
         }
         self.rest(&items, node)?;
         Ok(g)
