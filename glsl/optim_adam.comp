@@ -1,20 +1,24 @@
 #version 460
-// Fused Adam pass over one parameter group: one invocation per element loads its state,
-// steps (bias-corrected moments, scheduled rate, step, clamp to [lo, hi]) and clears the
-// gradient for the next iteration's accumulation. Each workgroup writes the diagnostics
-// record of its elements to partials[first_partial + workgroup] (merged by optim_diag).
+// Fused Adam pass over one parameter group: each invocation takes OPTIM_CHUNKS vec4s of
+// the group's elements; for each element it loads its state, steps (bias-corrected
+// moments, scheduled rate, step, clamp to [lo, hi]) and clears the gradient for the next
+// iteration's accumulation. Each workgroup writes the diagnostics record of its elements to partials[first_partial + workgroup] (merged by optim_diag).
 // Non-finite gradients leave the element unchanged and are counted in `nonfinite` (never
 // reset here).
 
 layout(local_size_x = 256) in;
+#extension GL_EXT_control_flow_attributes : require
 #include "lib/common.glsl"
 #include "lib/optim.glsl"
 #include "lib/optim_reduce.glsl"
 
-layout(set = 0, binding = 0, scalar) buffer Theta { float theta[]; };
-layout(set = 0, binding = 1, scalar) buffer Grad { float grad[]; };
-layout(set = 0, binding = 2, scalar) buffer AdamM { float adam_m[]; };
-layout(set = 0, binding = 3, scalar) buffer AdamR { float adam_r[]; };
+// Every per-element array as vec4s (four elements each, the array's element k at
+// [k / 4][k % 4]): the buffers hold whole vec4s past the group's last element
+// (GpuOptimiser::new checks).
+layout(set = 0, binding = 0, std430) buffer Theta { vec4 theta[]; };
+layout(set = 0, binding = 1, std430) buffer Grad { vec4 grad[]; };
+layout(set = 0, binding = 2, std430) buffer AdamM { vec4 adam_m[]; };
+layout(set = 0, binding = 3, std430) buffer AdamR { vec4 adam_r[]; };
 layout(set = 0, binding = 4, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
 layout(set = 0, binding = 5, scalar) buffer NonFinite { uint nonfinite; };
 
@@ -42,29 +46,51 @@ layout(push_constant, scalar) uniform Push {
 } pc;
 
 void main() {
-    uint j = thread_index();
-    uint i = pc.offset + j;
+    uint end = pc.offset + pc.n;  // one past the group's last element
+    uint first = pc.offset / 4u;  // the vec4 of its first element
+    uint chunks = (end + 3u) / 4u - first;
+    // The workgroup's block of vec4s, each invocation taking every 256th of them:
+    // neighbouring invocations touch neighbouring vec4s (coalesced on a GPU).
+    uint c0 = workgroup_index() * gl_WorkGroupSize.x * OPTIM_CHUNKS + gl_LocalInvocationID.x;
     uint t = frame_iteration + 1u;
     DiagRecord rec = diag_empty();
-    if (j < pc.n) {
+    uint skipped = 0u;  // elements left unchanged for a non-finite input
+    if (c0 < chunks) {
         Schedule sched = Schedule(pc.sched_decay, pc.sched_warmup, pc.sched_horizon, pc.sched_every,
                                   pc.sched_floor, pc.sched_gamma);
         AdamParams p = AdamParams(t, pc.lr * schedule_factor(sched, t), pc.beta1, pc.beta2, pc.eps, pc.lo, pc.hi);
-        AdamElem s = AdamElem(adam_m[i], adam_r[i]);
-        float th = theta[i];
-        ElemDiag d;
-        if (adam_update(p, th, grad[i], s, d)) {
-            theta[i] = th;
-            adam_m[i] = s.m;
-            adam_r[i] = s.r;
-            rec = diag_of(d);
-        } else {
-            atomicAdd(nonfinite, 1u);
+        for (uint q = 0u; q < OPTIM_CHUNKS; q++) {
+            uint c = c0 + q * gl_WorkGroupSize.x;
+            if (c >= chunks) break;
+            uint v = first + c;
+            vec4 th = theta[v], g = grad[v], m = adam_m[v], r = adam_r[v];
+            [[unroll]] for (uint l = 0u; l < 4u; l++) {
+                // The first and last vec4 may hold another group's elements (or none):
+                // those are written back as they were read.
+                uint e = 4u * v + l;
+                if (e < pc.offset || e >= end) continue;
+                AdamElem s = AdamElem(m[l], r[l]);
+                float x = th[l];
+                ElemDiag d;
+                if (adam_update(p, x, g[l], s, d)) {
+                    th[l] = x;
+                    m[l] = s.m;
+                    r[l] = s.r;
+                    rec = diag_add(rec, d);
+                } else {
+                    skipped++;
+                }
+                g[l] = 0.0;
+            }
+            theta[v] = th;
+            grad[v] = g;
+            adam_m[v] = m;
+            adam_r[v] = r;
         }
-        grad[i] = 0.0;
     }
+    if (skipped != 0u) atomicAdd(nonfinite, skipped);
     rec = diag_workgroup(rec);
     // A dispatch folded into two dimensions may have workgroups past the group's last one.
-    if (gl_LocalInvocationID.x == 0u && workgroup_index() * gl_WorkGroupSize.x < pc.n)
+    if (gl_LocalInvocationID.x == 0u && workgroup_index() * gl_WorkGroupSize.x * OPTIM_CHUNKS < chunks)
         partials[pc.first_partial + workgroup_index()] = rec;
 }

@@ -1,7 +1,8 @@
 #version 460
-// Fused meta-estimator pass over one parameter group (Balint et al. 2023): one invocation
-// per element loads its state, steps both Moment2 EMAs, the Wiener step's second moment, the
-// meta-estimate and the secant curvature, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
+// Fused meta-estimator pass over one parameter group (Balint et al. 2023): each invocation
+// takes OPTIM_CHUNKS vec4s of the group's elements; for each element it loads its state,
+// steps both Moment2 EMAs, the Wiener step's second moment, the meta-estimate and the
+// secant curvature, takes the step (rule, schedule: lib/optim.glsl), clamps to [lo, hi],
 // records theta_prev <- theta and clears the gradient buffers for the next iteration's
 // accumulation. Each workgroup writes the diagnostics record of its elements to
 // partials[first_partial + workgroup]; optim_diag merges them into diag[group], whose sum
@@ -9,27 +10,31 @@
 // leave the element unchanged (step 0) and are counted in `nonfinite` (never reset here).
 
 layout(local_size_x = 256) in;
+#extension GL_EXT_control_flow_attributes : require
 #include "lib/common.glsl"
 #include "lib/optim.glsl"
 #include "lib/optim_reduce.glsl"
 
-layout(set = 0, binding = 0, scalar) buffer Theta { float theta[]; };
-layout(set = 0, binding = 1, scalar) writeonly buffer ThetaPrev { float theta_prev[]; };
-layout(set = 0, binding = 2, scalar) buffer Grad { float grad[]; };
-layout(set = 0, binding = 3, scalar) buffer FdGrad { float fd_grad[]; };
-// The sums of half of the samples of grad and fd_grad (read and cleared when centred).
-layout(set = 0, binding = 4, scalar) buffer GradHalf { float grad_half[]; };
-layout(set = 0, binding = 5, scalar) buffer FdGradHalf { float fd_grad_half[]; };
-layout(set = 0, binding = 6, scalar) buffer MetaMean { float meta_mean[]; };
-layout(set = 0, binding = 7, scalar) buffer MetaSd { float meta_sd[]; };
-layout(set = 0, binding = 8, scalar) buffer MetaRmsF { float meta_rms_f[]; };
-layout(set = 0, binding = 9, scalar) buffer MetaRmsD { float meta_rms_d[]; };
-layout(set = 0, binding = 10, scalar) buffer MetaWsumD { float meta_wsum_d[]; };
-layout(set = 0, binding = 11, scalar) buffer MetaNEff { float meta_n_eff[]; };
-layout(set = 0, binding = 12, scalar) buffer MetaV { float meta_v[]; };
-layout(set = 0, binding = 13, scalar) buffer MetaCurv { float meta_curv[]; };
-layout(set = 0, binding = 14, scalar) buffer MetaCurvW { float meta_curv_w[]; };
-layout(set = 0, binding = 15, scalar) buffer MetaLast { float meta_last[]; };
+// Every per-element array as vec4s (four elements each, the array's element k at
+// [k / 4][k % 4]): the buffers hold whole vec4s past the group's last element
+// (GpuOptimiser::new checks). GradHalf and FdGradHalf are the sums of half of the samples
+// of grad and fd_grad (read and cleared when centred).
+layout(set = 0, binding = 0, std430) buffer Theta { vec4 theta[]; };
+layout(set = 0, binding = 1, std430) buffer ThetaPrev { vec4 theta_prev[]; };
+layout(set = 0, binding = 2, std430) buffer Grad { vec4 grad[]; };
+layout(set = 0, binding = 3, std430) buffer FdGrad { vec4 fd_grad[]; };
+layout(set = 0, binding = 4, std430) buffer GradHalf { vec4 grad_half[]; };
+layout(set = 0, binding = 5, std430) buffer FdGradHalf { vec4 fd_grad_half[]; };
+layout(set = 0, binding = 6, std430) buffer MetaMean { vec4 meta_mean[]; };
+layout(set = 0, binding = 7, std430) buffer MetaSd { vec4 meta_sd[]; };
+layout(set = 0, binding = 8, std430) buffer MetaRmsF { vec4 meta_rms_f[]; };
+layout(set = 0, binding = 9, std430) buffer MetaRmsD { vec4 meta_rms_d[]; };
+layout(set = 0, binding = 10, std430) buffer MetaWsumD { vec4 meta_wsum_d[]; };
+layout(set = 0, binding = 11, std430) buffer MetaNEff { vec4 meta_n_eff[]; };
+layout(set = 0, binding = 12, std430) buffer MetaV { vec4 meta_v[]; };
+layout(set = 0, binding = 13, std430) buffer MetaCurv { vec4 meta_curv[]; };
+layout(set = 0, binding = 14, std430) buffer MetaCurvW { vec4 meta_curv_w[]; };
+layout(set = 0, binding = 15, std430) buffer MetaLast { vec4 meta_last[]; };
 layout(set = 0, binding = 16, scalar) readonly buffer Diag { DiagRecord diag[]; };
 layout(set = 0, binding = 17, scalar) writeonly buffer DiagPartial { DiagRecord partials[]; };
 layout(set = 0, binding = 18, scalar) buffer NonFinite { uint nonfinite; };
@@ -64,54 +69,92 @@ layout(push_constant, scalar) uniform Push {
 } pc;
 
 void main() {
-    uint j = thread_index();
-    uint i = pc.offset + j;
+    uint end = pc.offset + pc.n;  // one past the group's last element
+    uint first = pc.offset / 4u;  // the vec4 of its first element
+    uint chunks = (end + 3u) / 4u - first;
+    // The workgroup's block of vec4s, each invocation taking every 256th of them:
+    // neighbouring invocations touch neighbouring vec4s (coalesced on a GPU).
+    uint c0 = workgroup_index() * gl_WorkGroupSize.x * OPTIM_CHUNKS + gl_LocalInvocationID.x;
     uint t = frame_iteration + 1u;
     // Every invocation joins the reduction below; out-of-range and skipped ones add nothing.
     DiagRecord rec = diag_empty();
-    if (j < pc.n) {
+    uint skipped = 0u;  // elements left unchanged for a non-finite input
+    if (c0 < chunks) {
         Schedule sched = Schedule(pc.sched_decay, pc.sched_warmup, pc.sched_horizon, pc.sched_every,
                                   pc.sched_floor, pc.sched_gamma);
         bool centred = pc.centred != 0u;
         MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
                                   pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.fd_raw != 0u,
                                   pc.decay_h, pc.sig, pc.settle);
-        MetaElem s = MetaElem(meta_mean[i], meta_sd[i], meta_rms_f[i], meta_rms_d[i], meta_wsum_d[i],
-                              meta_n_eff[i], meta_v[i], meta_curv[i], meta_curv_w[i], meta_last[i]);
-        MetaInput x = MetaInput(grad[i], fd_grad[i], centred ? grad_half[i] : 0.0,
-                                centred ? fd_grad_half[i] : 0.0);
-        float th = theta[i];
-        // theta_prev is the previous iterate for the next finite-difference pass, so it is
-        // written for skipped elements too (their step is 0).
-        theta_prev[i] = th;
-        ElemDiag d;
-        if (meta_update(p, th, x, ssq_total(diag[pc.group].step), s, d)) {
-            theta[i] = th;
-            meta_mean[i] = s.mean;
-            meta_sd[i] = s.sd;
-            meta_rms_f[i] = s.rms_f;
-            meta_rms_d[i] = s.rms_d;
-            meta_wsum_d[i] = s.wsum_d;
-            meta_n_eff[i] = s.n_eff;
-            meta_v[i] = s.v;
-            meta_curv[i] = s.curv;
-            meta_curv_w[i] = s.curv_w;
-            meta_last[i] = s.last;
-            rec = diag_of(d);
-        } else {
-            // The element did not move: the next finite difference spans no step of it.
-            meta_last[i] = 0.0;
-            atomicAdd(nonfinite, 1u);
-        }
-        grad[i] = 0.0;
-        fd_grad[i] = 0.0;
-        if (centred) {
-            grad_half[i] = 0.0;
-            fd_grad_half[i] = 0.0;
+        float dpi2 = ssq_total(diag[pc.group].step);
+        for (uint q = 0u; q < OPTIM_CHUNKS; q++) {
+            uint c = c0 + q * gl_WorkGroupSize.x;
+            if (c >= chunks) break;
+            uint v = first + c;
+            vec4 th = theta[v], th_prev = theta_prev[v], g = grad[v], fd = fd_grad[v];
+            vec4 g_half = centred ? grad_half[v] : vec4(0.0), fd_half = centred ? fd_grad_half[v] : vec4(0.0);
+            vec4 mean = meta_mean[v], sd = meta_sd[v], rms_f = meta_rms_f[v], rms_d = meta_rms_d[v];
+            vec4 wsum_d = meta_wsum_d[v], n_eff = meta_n_eff[v], mv = meta_v[v], curv = meta_curv[v];
+            vec4 curv_w = meta_curv_w[v], last = meta_last[v];
+            [[unroll]] for (uint l = 0u; l < 4u; l++) {
+                // The first and last vec4 may hold another group's elements (or none):
+                // those are written back as they were read.
+                uint e = 4u * v + l;
+                if (e < pc.offset || e >= end) continue;
+                MetaElem s = MetaElem(mean[l], sd[l], rms_f[l], rms_d[l], wsum_d[l], n_eff[l], mv[l], curv[l],
+                                      curv_w[l], last[l]);
+                MetaInput x = MetaInput(g[l], fd[l], g_half[l], fd_half[l]);
+                float y = th[l];
+                // theta_prev is the previous iterate for the next finite-difference pass, so
+                // it is written for skipped elements too (their step is 0).
+                th_prev[l] = y;
+                ElemDiag d;
+                if (meta_update(p, y, x, dpi2, s, d)) {
+                    th[l] = y;
+                    mean[l] = s.mean;
+                    sd[l] = s.sd;
+                    rms_f[l] = s.rms_f;
+                    rms_d[l] = s.rms_d;
+                    wsum_d[l] = s.wsum_d;
+                    n_eff[l] = s.n_eff;
+                    mv[l] = s.v;
+                    curv[l] = s.curv;
+                    curv_w[l] = s.curv_w;
+                    last[l] = s.last;
+                    rec = diag_add(rec, d);
+                } else {
+                    // The element did not move: the next finite difference spans no step of it.
+                    last[l] = 0.0;
+                    skipped++;
+                }
+                g[l] = 0.0;
+                fd[l] = 0.0;
+                g_half[l] = 0.0;
+                fd_half[l] = 0.0;
+            }
+            theta[v] = th;
+            theta_prev[v] = th_prev;
+            grad[v] = g;
+            fd_grad[v] = fd;
+            if (centred) {
+                grad_half[v] = g_half;
+                fd_grad_half[v] = fd_half;
+            }
+            meta_mean[v] = mean;
+            meta_sd[v] = sd;
+            meta_rms_f[v] = rms_f;
+            meta_rms_d[v] = rms_d;
+            meta_wsum_d[v] = wsum_d;
+            meta_n_eff[v] = n_eff;
+            meta_v[v] = mv;
+            meta_curv[v] = curv;
+            meta_curv_w[v] = curv_w;
+            meta_last[v] = last;
         }
     }
+    if (skipped != 0u) atomicAdd(nonfinite, skipped);
     rec = diag_workgroup(rec);
     // A dispatch folded into two dimensions may have workgroups past the group's last one.
-    if (gl_LocalInvocationID.x == 0u && workgroup_index() * gl_WorkGroupSize.x < pc.n)
+    if (gl_LocalInvocationID.x == 0u && workgroup_index() * gl_WorkGroupSize.x * OPTIM_CHUNKS < chunks)
         partials[pc.first_partial + workgroup_index()] = rec;
 }

@@ -390,7 +390,8 @@ impl Engine {
         let targets = targets(&renderer, scene, source, observer)?;
         let ops = BufferOps::new(ctx)?;
         let gs = &renderer.scene;
-        let n = gs.layout.len.max(1);
+        // Whole texels: the optimiser passes step whole vec4s.
+        let n = gpu::texel_padded(gs.layout.len);
         let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Device)?;
         let fd_grad = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Device)?;
         let groups = param_groups(gs, settings);

@@ -163,10 +163,22 @@ struct ElemDiag {
     float curv;
 };
 
-DiagRecord diag_of(ElemDiag e) {
-    return DiagRecord(1.0, e.n_eff, e.n_eff, e.n_eff, e.clipped ? 1.0 : 0.0, e.newton ? 1.0 : 0.0, ssq_of(e.f),
-                      ssq_of(e.df), ssq_of(e.sd_d), ssq_of(e.step), ssq_of(e.mean), ssq_of(e.sd), ssq_of(e.sd_f),
-                      ssq_of(e.curv));
+// One element's diagnostics folded into a record (one division per sum of squares).
+Ssq ssq_add(Ssq a, float x) {
+    // First, so that a field a pass leaves at 0 costs nothing.
+    if (x == 0.0) return a;
+    float m = max(a.scale, abs(x));
+    float inv = 1.0 / m;
+    float ra = a.scale * inv;
+    float rx = abs(x) * inv;
+    return Ssq(m, a.sum * (ra * ra) + rx * rx);
+}
+
+DiagRecord diag_add(DiagRecord a, ElemDiag e) {
+    return DiagRecord(a.count + 1.0, sat(a.n_eff_sum + e.n_eff), min(a.n_eff_min, e.n_eff), max(a.n_eff_max, e.n_eff),
+                      a.clipped + (e.clipped ? 1.0 : 0.0), a.newton + (e.newton ? 1.0 : 0.0), ssq_add(a.f, e.f),
+                      ssq_add(a.df, e.df), ssq_add(a.sd_d, e.sd_d), ssq_add(a.step, e.step), ssq_add(a.mean, e.mean),
+                      ssq_add(a.sd, e.sd), ssq_add(a.sd_f, e.sd_f), ssq_add(a.curv, e.curv));
 }
 
 // ---- Adam --------------------------------------------------------------------------------

@@ -20,7 +20,16 @@ use super::{Optimiser, Range};
 use crate::gpu::{self, BindGroup, Buffer, ComputePipeline, Context, MemoryKind, Recorder};
 use crate::ops::BufferOps;
 use crate::shared;
+use crate::constants::OPTIM_CHUNKS;
 use std::sync::Arc;
+
+/// The vec4s of θ (from element 0) that hold group `g`'s elements.
+fn vec4_chunks(g: &Group) -> u64 {
+    if g.len == 0 {
+        return 0;
+    }
+    ((g.offset + g.len).div_ceil(4) - g.offset / 4) as u64
+}
 
 /// One parameter group: `len` elements of θ from `offset`.
 #[derive(Clone, Copy, Debug)]
@@ -40,7 +49,8 @@ enum Push {
 struct Pass {
     group: BindGroup,
     push: Push,
-    n: u64,
+    /// The vec4s that hold the group's elements.
+    chunks: u64,
     diag_push: DiagPush,
 }
 
@@ -94,11 +104,18 @@ impl GpuOptimiser {
         let n_total = gpu::texel_padded(groups.iter().map(|g| g.offset + g.len).max().unwrap_or(0));
         let zeros = |name: &str| Buffer::zeroed::<f32>(ctx, name, n_total, MemoryKind::Device);
         let nonfinite = Buffer::zeroed::<u32>(ctx, "nonfinite", 1, MemoryKind::Device)?;
-        let local = 256u64; // local_size_x of optim_adam and optim_meta
+        // The passes read and write whole vec4s: every per-element buffer they bind holds the
+        // vec4 of each group's last element.
+        let extent = groups.iter().map(|g| (g.offset + g.len).next_multiple_of(4)).max().unwrap_or(0);
+        for (name, b) in [("theta", Some(theta)), ("grad", Some(grad)), ("fd grad", fd_grad)] {
+            if let Some(b) = b.filter(|b| b.len() < extent as u64 * 4) {
+                return Err(gpu::GpuError::BufferAccess { name: name.into(), what: format!("{} bytes: the optimiser passes step whole vec4s, {} bytes", b.len(), extent * 4) });
+            }
+        }
         let mut slots = Vec::new();
         let mut first = 0u32;
         for (k, g) in groups.iter().enumerate() {
-            let count = (g.len as u64).div_ceil(local) as u32;
+            let count = vec4_chunks(g).div_ceil(256 * OPTIM_CHUNKS as u64) as u32;
             slots.push((GroupSlots { n: g.len as u32, offset: g.offset as u32, group: k as u32, first_partial: first }, count));
             first += count;
         }
@@ -125,7 +142,7 @@ impl GpuOptimiser {
                         ("Frame", frame),
                     ])?;
                     let push = AdamPush::new(h, s.0, g.lr, g.range);
-                    passes.push(Pass { group, push: Push::Adam(push), n: g.len as u64, diag_push: diag_push(*s) });
+                    passes.push(Pass { group, push: Push::Adam(push), chunks: vec4_chunks(g), diag_push: diag_push(*s) });
                 }
                 (pipeline, None, None)
             }
@@ -189,7 +206,7 @@ impl GpuOptimiser {
                         ("Frame", frame),
                     ])?;
                     let push = MetaPush::new(h, s.0, g.lr, g.range);
-                    passes.push(Pass { group, push: Push::Meta(push), n: g.len as u64, diag_push: diag_push(*s) });
+                    passes.push(Pass { group, push: Push::Meta(push), chunks: vec4_chunks(g), diag_push: diag_push(*s) });
                 }
                 (pipeline, Some(theta_prev), halves)
             }
@@ -208,8 +225,8 @@ impl GpuOptimiser {
     pub fn record(&self, rec: &mut Recorder, _ops: &BufferOps) -> gpu::Result<()> {
         for p in &self.passes {
             match &p.push {
-                Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
-                Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.n)?,
+                Push::Adam(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.chunks.div_ceil(OPTIM_CHUNKS as u64))?,
+                Push::Meta(push) => rec.dispatch_linear(&self.pipeline, &p.group, push, p.chunks.div_ceil(OPTIM_CHUNKS as u64))?,
             }
         }
         for p in &self.passes {
@@ -306,9 +323,12 @@ pub fn replay_gpu_streams(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &S
 /// parameters are.
 pub fn replay_gpu_groups(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &Streams, init: &[f32], groups: &[Group]) -> gpu::Result<GpuReplay> {
     streams.check(optimiser).map_err(|e| gpu::GpuError::BufferAccess { name: "replay streams".into(), what: e.to_string() })?;
-    let n = init.len();
+    // Whole vec4s, as the optimiser passes step them.
+    let n = init.len().next_multiple_of(4).max(4);
     let ops = BufferOps::new(ctx)?;
-    let theta = Buffer::from_slice(ctx, "theta", init, MemoryKind::Device)?;
+    let mut padded = init.to_vec();
+    padded.resize(n, 0.0);
+    let theta = Buffer::from_slice(ctx, "theta", &padded, MemoryKind::Device)?;
     let grad = Buffer::zeroed::<f32>(ctx, "grad", n, MemoryKind::Upload)?;
     let fd = Buffer::zeroed::<f32>(ctx, "fd grad", n, MemoryKind::Upload)?;
     let frame = Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?;
@@ -327,7 +347,9 @@ pub fn replay_gpu_groups(ctx: &Arc<Context>, optimiser: &Optimiser, streams: &St
             h.fd_grad.write(&fh[i])?;
         }
         cmd.submit_and_wait()?;
-        out.theta.push(theta.read()?);
+        let mut t: Vec<f32> = theta.read()?;
+        t.truncate(init.len());
+        out.theta.push(t);
         out.diagnostics.push(opt.diagnostics(i as u32 + 1)?);
         out.records.push(opt.records()?);
     }
