@@ -101,6 +101,10 @@ pub const EMITTER_TWO_SIDED: u32 = 1;
 /// `TriShading::emitter_flags` bit: its mesh emits, or its emission is optimised (whatever
 /// `emitter_pdf` says): a camera ray passes through it where emitters are hidden.
 pub const EMITTER_MESH: u32 = 2;
+/// `TriShading::emitter_flags` from this bit up: 1 + the index of the sphere emitter whose
+/// mesh the triangle belongs to (`EmitterSphere`, src/render/features/emitters.rs), 0 for
+/// none. Light samples from outside that sphere pick a direction in its cone.
+pub const EMITTER_SPHERE_SHIFT: u32 = 8;
 
 /// `ValueRef::flags` bit of a material's normal-map slot: it holds a bump map's heights
 /// (one float per texel), its triangles' `tangent` the world-space gradients of u and v.

@@ -250,6 +250,115 @@ EmitterTri sample_emitter(vec3 u, out vec3 p, out vec2 b) {
     return e;
 }
 
+// Sphere emitter k's record (src/render/features/emitters.rs), after the triangles' 5
+// texels each: its centre, radius and the probability of picking any of its triangles.
+struct EmitterSphere {
+    vec3 center;
+    float radius;
+    float pmf;
+};
+
+EmitterSphere emitter_sphere(uint k) {
+    int b = int(NUM_EMITTERS) * 5 + 2 * int(k);
+    uvec4 t0 = texel_load(Emitters, b);
+    return EmitterSphere(uintBitsToFloat(t0.xyz), uintBitsToFloat(t0.w), uintBitsToFloat(texel_load(Emitters, b + 1).x));
+}
+
+// The cap that sphere `s` subtends at o, 1 − cos θmax (written without cancellation), in
+// which light sampling picks its directions; 0 where o is inside the sphere (its triangles
+// are then sampled by area).
+float sphere_cap(EmitterSphere s, vec3 o) {
+    vec3 w = s.center - o;
+    float d2 = dot(w, w);
+    float r2 = s.radius * s.radius;
+    if (d2 <= r2) return 0.0;
+    float sin2 = r2 / d2;
+    return sin2 / (1.0 + sqrt(1.0 - sin2));
+}
+
+// The solid-angle density at o with which light sampling reaches a point of the sphere
+// emitter of a triangle of emitter flags `flags` (TriShading.emitter_flags); 0 where the
+// triangle is of no sphere or o is inside it (its area density applies then).
+float sphere_light_pdf(uint flags, vec3 o) {
+    uint k = flags >> EMITTER_SPHERE_SHIFT;
+    if (k == 0u) return 0.0;
+    EmitterSphere s = emitter_sphere(k - 1u);
+    float cap = sphere_cap(s, o);
+    return cap > 0.0 ? s.pmf / (2.0 * 3.14159265358979 * cap) : 0.0;
+}
+
+// A direction from o uniform in the cone of sphere `s`, of cap `cap` (sphere_cap > 0).
+vec3 sphere_cone_direction(EmitterSphere s, float cap, vec3 o, vec2 u) {
+    float one_minus_cos = u.x * cap;
+    float cos_t = 1.0 - one_minus_cos;
+    float sin_t = sqrt(max(0.0, one_minus_cos * (2.0 - one_minus_cos)));
+    float phi = 2.0 * 3.14159265358979 * u.y;
+    ShadingFrame f = shading_frame(normalize(s.center - o));
+    return shading_to_world(f, vec3(sin_t * cos(phi), sin_t * sin(phi), cos_t));
+}
+
+// Where direction wi from o first meets the scene, if that is a triangle of sphere emitter
+// `k` (1 + its index): the emitter point of a light sample in the sphere's cone, its
+// triangle's record (as sample_emitter's, without the table's cdf) and barycentrics. Its
+// visibility is the closest hit's, so it needs no shadow ray. Not cached for the replay
+// (cast_closest's cache holds the path's own vertices): the gradient pass casts it again.
+bool sphere_light_point(uint k, vec3 o, vec3 wi, out EmitterTri light, out vec3 pl, out vec2 bary) {
+#ifdef COUNT_RAYS
+    atomicAdd(ray_count[workgroup_index()], 1u);
+#endif
+    Hit h;
+    light = EmitterTri(vec3(0.0), vec3(0.0), vec3(0.0), vec3(0.0), 0u, 0.0, 0.0, 0u, ValueRef(0, 0u, 0u, 0u));
+    pl = o;
+    bary = vec2(0.0);
+    if (!trace_closest(o, wi, 1e30, h)) return false;
+    TriShading sh = tri_shading(h.prim);
+    if ((sh.emitter_flags >> EMITTER_SPHERE_SHIFT) != k) return false;
+    light.ng = sh.ng;
+    light.prim = h.prim;
+    light.pdf = sh.emitter_pdf;
+    light.two_sided = sh.emitter_flags & EMITTER_TWO_SIDED;
+    light.emission = sh.emission;
+    pl = o + h.t * wi;
+    bary = vec2(h.u, h.v);
+    return true;
+}
+
+// Next-event estimation's emitter point from surface or medium point p (ng: a surface's
+// geometric normal): sample_emitter's triangle and point, or, where that triangle belongs
+// to a sphere that p is outside of, the point that a direction in the sphere's cone meets
+// (sphere_light_point), from `origin` (p offset to the direction's side of a surface).
+// pdf_sa: the second's density in solid angle at p (0 for an area sample); found: false
+// where the cone's direction met no point of the sphere (the sample is void). A point in
+// the cone is visible from `origin`: it needs no shadow ray.
+struct LightPoint {
+    EmitterTri light;
+    vec3 pl;
+    vec2 bary;
+    float pdf_sa;
+    bool found;
+    vec3 origin;
+};
+
+LightPoint sample_light_point(vec3 u, vec3 p, vec3 ng, bool surface) {
+    LightPoint r;
+    r.light = sample_emitter(u, r.pl, r.bary);
+    r.pdf_sa = 0.0;
+    r.found = true;
+    r.origin = p;
+    uint k = tri_emitter_flags(r.light.prim) >> EMITTER_SPHERE_SHIFT;
+    if (k != 0u) {
+        EmitterSphere s = emitter_sphere(k - 1u);
+        float cap = sphere_cap(s, p);
+        if (cap > 0.0) {
+            vec3 wi = sphere_cone_direction(s, cap, p, u.yz);
+            r.origin = surface ? ray_origin(p, ng, wi) : p;
+            r.found = sphere_light_point(k, r.origin, wi, r.light, r.pl, r.bary);
+            r.pdf_sa = s.pmf / (2.0 * 3.14159265358979 * cap);
+        }
+    }
+    return r;
+}
+
 #ifdef ADJOINT
 // Gradient contributions of one state carry its sign: + for θ_i, − for θ_{i-1} (FD).
 float state_sign(int s) { return s == 0 ? 1.0 : -1.0; }
@@ -405,17 +514,17 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
 #define MEDIUM_LIGHT_SAMPLE(wi, tmax, w) medium_light_sample(p, wi, tmax, w, le, beta, radiance)
 #endif
     if (NUM_EMITTERS != 0u && !env_nee) {
-        vec3 pl;
-        vec2 bary;
-        EmitterTri light = sample_emitter(u_light, pl, bary);
+        LightPoint lp = sample_light_point(u_light, p, vec3(0.0), false);
+        EmitterTri light = lp.light;
+        vec3 pl = lp.pl;
         vec3 wi;
         float dist, dist2;
-        float cos_l = emitter_towards(light, pl, p, wi, dist, dist2);
+        float cos_l = lp.found ? emitter_towards(light, pl, p, wi, dist, dist2) : 0.0;
         bool cut;
-        vec2 light_uv = emitter_point_uv(light, bary, pl, cut);
+        vec2 light_uv = emitter_point_uv(light, lp.bary, pl, cut);
         float t_shadow = dist * (1.0 - 1e-4);
-        if (!cut && cos_l > 0.0 && light.pdf > 0.0 && !cast_any(p, wi, t_shadow, depth, replay)) {
-            float pdf_light = (1.0 - p_env) * light.pdf * dist2 / cos_l;
+        if (!cut && cos_l > 0.0 && light.pdf > 0.0 && (lp.pdf_sa > 0.0 || !cast_any(p, wi, t_shadow, depth, replay))) {
+            float pdf_light = (1.0 - p_env) * (lp.pdf_sa > 0.0 ? lp.pdf_sa : light.pdf * dist2 / cos_l);
             float ph = hg_phase(g, d, wi);
             for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(light.emission, light_uv, s);
             MEDIUM_LIGHT_SAMPLE(wi, t_shadow, power_heuristic(pdf_light, ph) * ph / pdf_light);
@@ -602,8 +711,10 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         if (sh.emitter_pdf > 0.0 && (dot(ng, wo) > 0.0 || (sh.emitter_flags & EMITTER_TWO_SIDED) != 0u)) {
             float mis = 1.0;
             if (prev_bsdf_pdf > 0.0 && NUM_EMITTERS != 0u) {
-                // The light-sampling pdf of this point, in solid angle at the previous vertex.
-                float pdf_light = (1.0 - p_env) * sh.emitter_pdf * hit.t * hit.t / max(abs(dot(ng, wo)), 1e-8);
+                // The light-sampling pdf of this point, in solid angle at the previous vertex
+                // (a sphere's, where it is one and the vertex is outside it).
+                float pdf_sa = sphere_light_pdf(sh.emitter_flags, o);
+                float pdf_light = (1.0 - p_env) * (pdf_sa > 0.0 ? pdf_sa : sh.emitter_pdf * hit.t * hit.t / max(abs(dot(ng, wo)), 1e-8));
                 mis = power_heuristic(prev_bsdf_pdf, pdf_light);
             }
 #ifdef ADJOINT
@@ -658,23 +769,24 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         // Next-event estimation: one point on an emissive triangle, MIS with BSDF sampling
         // (pdfs of state 0).
         if (NUM_EMITTERS != 0u && !env_nee && !dielectric) {
-            vec3 pl;
-            vec2 bary;
-            EmitterTri light = sample_emitter(u_light, pl, bary);
+            LightPoint lp = sample_light_point(u_light, p, ng, true);
+            EmitterTri light = lp.light;
+            vec3 pl = lp.pl;
             float pdf_area = light.pdf;
             vec3 wi;
             float dist, dist2;
-            float cos_l = emitter_towards(light, pl, p_off, wi, dist, dist2);
+            vec3 o_l = lp.pdf_sa > 0.0 ? lp.origin : p_off;
+            float cos_l = lp.found ? emitter_towards(light, pl, o_l, wi, dist, dist2) : 0.0;
             // Through a rough dielectric the shadow ray leaves from the far side.
-            vec3 o_l = p_off;
-            if (rough && dot(wi, ng) < 0.0) {
+            if (lp.pdf_sa == 0.0 && rough && dot(wi, ng) < 0.0) {
                 o_l = ray_origin(p, ng, wi);
                 cos_l = emitter_towards(light, pl, o_l, wi, dist, dist2);
             }
             bool cut;
-            vec2 light_uv = emitter_point_uv(light, bary, pl, cut);
-            if (!cut && cos_l > 0.0 && passes_side(wi, ng, ns, rough) && pdf_area > 0.0 && !cast_any(o_l, wi, dist * (1.0 - 1e-4), depth, replay)) {
-                float pdf_light = (1.0 - p_env) * pdf_area * dist2 / cos_l;
+            vec2 light_uv = emitter_point_uv(light, lp.bary, pl, cut);
+            if (!cut && cos_l > 0.0 && passes_side(wi, ng, ns, rough) && pdf_area > 0.0
+                && (lp.pdf_sa > 0.0 || !cast_any(o_l, wi, dist * (1.0 - 1e-4), depth, replay))) {
+                float pdf_light = (1.0 - p_env) * (lp.pdf_sa > 0.0 ? lp.pdf_sa : pdf_area * dist2 / cos_l);
                 float mis = power_heuristic(pdf_light, bsdf_pdf(mat[0], ns, wo, wi));
                 ValueRef emission = light.emission;
                 vec3 le[NSTATES];

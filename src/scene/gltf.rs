@@ -398,6 +398,7 @@ impl Importer<'_> {
             material,
             emission,
             two_sided_emission: m.double_sided(),
+            sphere: None,
         });
         Ok(())
     }

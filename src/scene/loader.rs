@@ -796,6 +796,7 @@ impl Loader {
                 material,
                 emission,
                 two_sided_emission: m.two_sided,
+                sphere: None,
             });
         }
         Ok(out)

@@ -1564,6 +1564,8 @@ impl<'a, 'i> Importer<'a, 'i> {
         let mut items = elements(node);
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
         let flip_normals = self.take_bool(&mut items, "flip_normals", false)?;
+        // A sphere's centre and radius in its own space.
+        let mut local_sphere = None;
         let (mut positions, mut normals, mut uvs, mut indices, file): (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, PathBuf) = match kind
             .as_str()
         {
@@ -1624,6 +1626,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(node, "the radius is not positive"));
                 }
                 self.warn(node, format!("approximate: tessellated into {} triangles with exact normals", 2 * SPHERE_SEGMENTS * (SPHERE_SEGMENTS / 2 - 1)));
+                local_sphere = Some((center, radius));
                 let (p, n, t, i) = sphere(center, radius);
                 (p, n, t, i, self.path.to_path_buf())
             }
@@ -1720,7 +1723,16 @@ impl<'a, 'i> Importer<'a, 'i> {
             uvs.clear();
         }
         check_triangles(&self.out.meshes, indices.len()).map_err(|e| self.err(node, e))?;
-        self.out.meshes.push(Mesh { name, path: file, positions, normals, uvs, indices, material, emission, two_sided_emission: false });
+        // A sphere stays one where to_world turns, scales uniformly and moves it.
+        let sphere = local_sphere.and_then(|(c, r)| {
+            let m = Mat3::from_mat4(to_world);
+            let s = m.x_axis.length();
+            let similar = s > 0.0
+                && [m.y_axis, m.z_axis].iter().all(|a| (a.length() - s).abs() <= 1e-5 * s)
+                && [m.x_axis.dot(m.y_axis), m.y_axis.dot(m.z_axis), m.z_axis.dot(m.x_axis)].iter().all(|d| d.abs() <= 1e-5 * s * s);
+            similar.then(|| Sphere { center: to_world.transform_point3(c).to_array(), radius: r * s })
+        });
+        self.out.meshes.push(Mesh { name, path: file, positions, normals, uvs, indices, material, emission, two_sided_emission: false, sphere });
         Ok(())
     }
 

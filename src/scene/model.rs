@@ -733,6 +733,7 @@ impl Mesh {
             material,
             emission: ColorValue::Constant([0.0; 3]),
             two_sided_emission: false,
+            sphere: None,
         }
     }
 }
@@ -753,6 +754,16 @@ pub struct Mesh {
     /// `two_sided_emission`: a colour, or a texture read with the mesh's texture coordinates.
     pub emission: ColorValue,
     pub two_sided_emission: bool,
+    /// The sphere that the triangles tessellate (their vertices on it), where the mesh
+    /// stands for one: an emitting one is then sampled by the solid angle it subtends.
+    pub sphere: Option<Sphere>,
+}
+
+/// A sphere in world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sphere {
+    pub center: [f32; 3],
+    pub radius: f32,
 }
 
 /// How a spot light's intensity falls off between its inner and outer cone.

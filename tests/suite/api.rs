@@ -282,3 +282,53 @@ fn textures_too_large_for_the_device_are_named_in_the_error() {
     assert!(!err.contains('\n'), "one line: {err}");
     assert!(err.contains("192.0 MiB of it in 1 texture(s), the largest 4096 x 4096") && err.contains(&max.to_string()), "{err}");
 }
+
+/// A sphere light is sampled by the solid angle it subtends (tests/data/mitsuba/
+/// sphere-light.xml: a sphere of radius 0.1 placed by a scale and a translation, 0.6 above a
+/// diffuse floor, direct light only, hidden from the camera). Against the same mesh sampled
+/// by area: the floor's mean over 48 seeds at 16 spp agrees with area sampling's at 16384
+/// spp within 4 standard errors (about 0.7 % of it), and its per-pixel variance is at least
+/// 5 times lower (measured: 21 times; area sampling wastes the half of its points that face
+/// away).
+#[test]
+fn sphere_lights_are_sampled_by_solid_angle() {
+    let path = format!("{}/tests/data/mitsuba/sphere-light.xml", env!("CARGO_MANIFEST_DIR"));
+    let scene = Scene::load(path).unwrap();
+    let sphere = scene.meshes.iter().find_map(|m| m.sphere).expect("the sphere is kept as one");
+    assert!((sphere.radius - 0.1).abs() < 1e-6 && (glam_vec(sphere.center) - glam_vec([0.3, 0.0, 0.6])).length() < 1e-5, "{sphere:?}");
+    let mut by_area = scene.clone();
+    by_area.meshes.iter_mut().for_each(|m| m.sphere = None);
+    let d = device(Config::default());
+    let seeds = 48;
+    // Per pixel: the mean and the variance of one sample over the seeds, and its largest.
+    let moments = |s: &Scene| -> Vec<(f64, f64, f64)> {
+        let r = Renderer::new(&d, s).unwrap();
+        let images: Vec<Image> = (0..seeds).map(|seed| r.render(&RenderOptions { spp: 16, seed, ..Default::default() }).unwrap()).collect();
+        (0..images[0].data.len())
+            .map(|i| {
+                let v: Vec<f64> = images.iter().map(|im| im.data[i].iter().map(|&c| c as f64).sum::<f64>()).collect();
+                let mean = v.iter().sum::<f64>() / seeds as f64;
+                (mean, v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (seeds - 1) as f64, v.iter().copied().fold(0.0, f64::max))
+            })
+            .collect()
+    };
+    let (cone, area) = (moments(&scene), moments(&by_area));
+    // The floor (the emitter is hidden from the camera).
+    let floor: Vec<usize> = (0..cone.len()).filter(|&i| area[i].0 > 0.0).collect();
+    let sum = |m: &[(f64, f64, f64)], f: fn(&(f64, f64, f64)) -> f64| floor.iter().map(|&i| f(&m[i])).sum::<f64>();
+    let (mean_cone, var_cone, var_area) = (sum(&cone, |p| p.0), sum(&cone, |p| p.1), sum(&area, |p| p.1));
+    // The reference: area sampling at 1024 spp.
+    let reference = Renderer::new(&d, &by_area).unwrap().render(&RenderOptions { spp: 16384, seed: 1000, ..Default::default() }).unwrap();
+    let mean_area: f64 = floor.iter().map(|&i| reference.data[i].iter().map(|&c| c as f64).sum::<f64>()).sum();
+    let se = (var_cone / seeds as f64 + var_area / 16384.0).sqrt();
+    assert!((mean_cone - mean_area).abs() < 4.0 * se, "floor sum: cone {mean_cone} vs area {mean_area} (SE {se})");
+    assert!(var_area > 5.0 * var_cone, "variance: cone {var_cone} vs area {var_area}");
+    eprintln!(
+        "floor sum: cone {mean_cone:.4} area {mean_area:.4} (SE {se:.4}); variance: cone {var_cone:.4e} area {var_area:.4e}, ratio {:.1}",
+        var_area / var_cone
+    );
+}
+
+fn glam_vec(v: [f32; 3]) -> vkinverse::glam::Vec3 {
+    vkinverse::glam::Vec3::from(v)
+}

@@ -2,11 +2,20 @@
 //! material data or, optimised, in θ), and the table that next-event estimation picks an
 //! emitting triangle from. Its parameter: a mesh's emission.
 //!
-//! The table holds the triangles of meshes that emit or whose emission is optimised, picked
-//! in proportion to area × luminance (of a texture, its mean over the texels the triangle's
-//! lookups can reach: none for a triangle that reaches only black texels), or to area alone
-//! when any emission is being optimised (its current value is not known when the table is
-//! built). With an environment map too, each strategy is picked with probability ½.
+//! The table holds the triangles of meshes that emit or whose emission is optimised. A
+//! triangle's weight is its area × luminance (of a texture, its mean over the texels the
+//! triangle's lookups can reach: none for a triangle that reaches only black texels), or its
+//! area alone when any emission is being optimised (its current value is not known when the
+//! table is built). A mesh is picked with probability ½ / meshes + ½ × its share of the
+//! weights, then a triangle of it by weight. With an environment map too, each strategy is picked with probability ½.
+//!
+//! A mesh that tessellates a sphere (`Mesh::sphere`, Mitsuba's `sphere` shape) is sampled by
+//! the solid angle it subtends instead, as Mitsuba samples its spheres: where the table picks
+//! one of its triangles and the shading point lies outside the sphere, the light sample is a
+//! direction uniform in the sphere's cone, and its point is where that direction first meets
+//! the mesh (every point of the inscribed mesh lies in the cone). The sphere's records
+//! follow the triangles' in the buffer: 2 texels each, (centre, radius) and (the probability
+//! of picking any of its triangles, 0, 0, 0).
 
 use super::values::{optimised, sampler_flags};
 use super::{Feature, Upload};
@@ -17,6 +26,10 @@ use crate::scene::{ColorValue, ParamTarget, SceneGeometry, TextureValue as _, Wr
 use crate::shared::{EmitterTri, ValueRef};
 use glam::Vec3;
 
+/// The share of light samples spread evenly over the emitting meshes (the rest follow
+/// their power).
+const UNIFORM_SHARE: f64 = 0.5;
+
 pub struct Emitters {
     buffer: Buffer,
     /// Each mesh's emission.
@@ -25,6 +38,9 @@ pub struct Emitters {
     pub mesh_emits: Vec<bool>,
     /// Each triangle's area-measure density when picked by the table (0: not in it).
     pub triangle_pdf: Vec<f32>,
+    /// Each mesh's sphere emitter: 1 + its index among the records, 0 for none (the
+    /// `EMITTER_SPHERE_SHIFT` bits of its triangles' flags).
+    pub mesh_sphere: Vec<u32>,
     count: u32,
 }
 
@@ -79,7 +95,31 @@ impl Emitters {
                 });
             }
         }
+        // The emitting spheres, in mesh order, and each one's probability of being picked.
+        let mut mesh_sphere = vec![0u32; scene.meshes.len()];
+        let mut spheres: Vec<([f32; 3], f32)> = Vec::new();
+        for (i, m) in scene.meshes.iter().enumerate() {
+            if let (Some(s), true) = (m.sphere, mesh_emits[i]) {
+                spheres.push((s.center, s.radius));
+                mesh_sphere[i] = spheres.len() as u32;
+            }
+        }
+        let mut sphere_pmf = vec![0.0f64; spheres.len()];
         let mut triangle_pdf = vec![0.0; geo.indices.len()];
+        // Each emitting mesh is picked with probability ½ / meshes + ½ × its share of the
+        // weights, then one of its triangles by its weight: a mesh of little power near
+        // what it lights (a small lamp by a wall, under a bright sun) keeps a fair share
+        // of the samples, at most halving the share of the most powerful.
+        let mut per_mesh = vec![0.0f64; scene.meshes.len()];
+        for (em, w) in emitters.iter().zip(&weights) {
+            per_mesh[geo.triangle_mesh[em.prim as usize] as usize] += *w as f64;
+        }
+        let meshes = per_mesh.iter().filter(|&&w| w > 0.0).count() as f64;
+        let all: f64 = per_mesh.iter().sum();
+        for (em, w) in emitters.iter().zip(weights.iter_mut()) {
+            let of_mesh = per_mesh[geo.triangle_mesh[em.prim as usize] as usize];
+            *w = (*w as f64 / of_mesh * (UNIFORM_SHARE / meshes + (1.0 - UNIFORM_SHARE) * of_mesh / all)) as f32;
+        }
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -90,13 +130,21 @@ impl Emitters {
             em.cdf = (acc / total) as f32;
             em.pdf = pdf;
             triangle_pdf[em.prim as usize] = pdf;
+            if let Some(k) = mesh_sphere[geo.triangle_mesh[em.prim as usize] as usize].checked_sub(1) {
+                sphere_pmf[k as usize] += pmf;
+            }
         }
         if let Some(last) = emitters.last_mut() {
             // Guards the binary search against rounding: the last cdf is exactly 1.
             last.cdf = 1.0;
         }
-        let buffer = texel_buffer(up.ctx, "emitters", &emitters)?;
-        Ok(Emitters { buffer, mesh_emission, mesh_emits, triangle_pdf, count: emitters.len() as u32 })
+        let mut texels: Vec<[f32; 4]> = bytemuck::cast_slice(&emitters).to_vec();
+        for ((c, r), pmf) in spheres.iter().zip(&sphere_pmf) {
+            texels.push([c[0], c[1], c[2], *r]);
+            texels.push([*pmf as f32, 0.0, 0.0, 0.0]);
+        }
+        let buffer = texel_buffer(up.ctx, "emitters", &texels)?;
+        Ok(Emitters { buffer, mesh_emission, mesh_emits, triangle_pdf, mesh_sphere, count: emitters.len() as u32 })
     }
 
     /// Emitting triangles in the table (`NUM_EMITTERS`).

@@ -58,7 +58,9 @@ impl Geometry {
                 ng: ng.into(),
                 material,
                 emitter_pdf: emitters.triangle_pdf[t],
-                emitter_flags: two_sided | if emitters.mesh_emits[mesh] { TriShading::EMITTING_MESH } else { 0 },
+                emitter_flags: two_sided
+                    | if emitters.mesh_emits[mesh] { TriShading::EMITTING_MESH } else { 0 }
+                    | emitters.mesh_sphere[mesh] << crate::constants::EMITTER_SPHERE_SHIFT,
                 one_sided: materials.records[material as usize].one_sided,
                 mesh: mesh as u32,
                 emission: emitters.mesh_emission[mesh],
