@@ -828,8 +828,9 @@ impl<'a, 'i> Importer<'a, 'i> {
     fn integrator(&mut self, node: Node<'a, 'i>) -> Result<(), SceneError> {
         let kind = self.plugin_type(node)?;
         let mut items = elements(node);
-        if kind == "moment" || kind == "aov" {
-            // Wrappers that write extra images beside the inner integrator's.
+        if kind == "moment" || kind == "aov" || kind == "stokes" {
+            // Wrappers that write extra images beside the inner integrator's (stokes: the
+            // Stokes vector's other components; its first is the radiance, as rendered).
             self.take(&mut items, "aovs");
             let inner =
                 self.take_tag(&mut items, "integrator").or_else(|| items.iter().position(|n| n.tag_name().name() == "integrator").map(|i| items.remove(i)));
@@ -837,7 +838,8 @@ impl<'a, 'i> Importer<'a, 'i> {
                 self.err(node, format!("an {kind} integrator without a nested integrator is unsupported (its extra images are not rendered)"))
             })?;
             self.rest(&items, node)?;
-            self.warn(node, format!("rendered as the integrator inside it; the {kind} images are not written"));
+            let what = if kind == "stokes" { "the Stokes components beyond the radiance".to_string() } else { format!("the {kind} images") };
+            self.warn(node, format!("rendered as the integrator inside it; {what} are not written"));
             return self.integrator(inner);
         }
         self.integrator_kind = Some(kind.clone());
@@ -868,7 +870,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 return Err(self.err(
                     node,
                     format!(
-                    "integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis, prbvolpath and direct are, and moment or aov around one of them)"
+                    "integrator \"{kind}\" is unsupported (path, prb, volpath, volpathmis, prbvolpath and direct are, and moment, aov or stokes around one of them)"
                 ),
                 ))
             }

@@ -133,6 +133,20 @@ fn wrappers_unwrap_and_directs_weighting_is_named() {
     assert_eq!(s.warnings.len(), 2, "{:?}", s.warnings);
     assert!(s.warnings[0].contains("moment"), "{}", s.warnings[0]);
     assert!(s.warnings[1].contains("emitter_samples (4)") && s.warnings[1].contains("bulb"), "{}", s.warnings[1]);
+    // stokes around path, as Mitsuba's polarisation scenes have it: the radiance is the
+    // Stokes vector's first component.
+    let text = std::fs::read_to_string(data("mitsuba/moment-direct.xml")).unwrap();
+    let (start, end) = (text.find("<integrator").unwrap(), text.rfind("</integrator>").unwrap() + "</integrator>".len());
+    let stokes = format!(
+        "{}<integrator type=\"stokes\"><integrator type=\"path\"><integer name=\"max_depth\" value=\"5\"/></integrator></integrator>{}",
+        &text[..start],
+        &text[end..]
+    );
+    let dir = crate::common::scenes::temp_dir("mitsuba-stokes");
+    std::fs::write(dir.join("s.xml"), stokes).unwrap();
+    let s = Scene::load(dir.join("s.xml")).unwrap();
+    assert_eq!(s.integrator.max_depth, 5, "the path integrator inside");
+    assert!(s.warnings.iter().any(|w| w.contains("Stokes")), "{:?}", s.warnings);
 }
 
 /// References resolve wherever their target is declared; a top-level sampler may be

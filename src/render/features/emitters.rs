@@ -106,20 +106,7 @@ impl Emitters {
         }
         let mut sphere_pmf = vec![0.0f64; spheres.len()];
         let mut triangle_pdf = vec![0.0; geo.indices.len()];
-        // Each emitting mesh is picked with probability ½ / meshes + ½ × its share of the
-        // weights, then one of its triangles by its weight: a mesh of little power near
-        // what it lights (a small lamp by a wall, under a bright sun) keeps a fair share
-        // of the samples, at most halving the share of the most powerful.
-        let mut per_mesh = vec![0.0f64; scene.meshes.len()];
-        for (em, w) in emitters.iter().zip(&weights) {
-            per_mesh[geo.triangle_mesh[em.prim as usize] as usize] += *w as f64;
-        }
-        let meshes = per_mesh.iter().filter(|&&w| w > 0.0).count() as f64;
-        let all: f64 = per_mesh.iter().sum();
-        for (em, w) in emitters.iter().zip(weights.iter_mut()) {
-            let of_mesh = per_mesh[geo.triangle_mesh[em.prim as usize] as usize];
-            *w = (*w as f64 / of_mesh * (UNIFORM_SHARE / meshes + (1.0 - UNIFORM_SHARE) * of_mesh / all)) as f32;
-        }
+        mix_meshes(&mut weights, &emitters, geo, scene.meshes.len());
         let total: f64 = weights.iter().map(|&w| w as f64).sum();
         let mut acc = 0.0f64;
         for (em, w) in emitters.iter_mut().zip(&weights) {
@@ -165,6 +152,24 @@ impl Feature for Emitters {
 
     fn values(&self) -> Vec<ValueRef> {
         self.mesh_emission.clone()
+    }
+}
+
+/// Each emitting mesh is picked with probability ½ / meshes + ½ × its share of the
+/// weights, then one of its triangles by its weight: `weights` (of the triangles of
+/// `emitters`) rescaled so. A mesh of little power near what it lights (a small lamp by a
+/// wall, under a bright sun) keeps a fair share of the samples, at most halving the share
+/// of the most powerful.
+fn mix_meshes(weights: &mut [f32], emitters: &[EmitterTri], geo: &SceneGeometry, meshes: usize) {
+    let mut per_mesh = vec![0.0f64; meshes];
+    for (em, w) in emitters.iter().zip(weights.iter()) {
+        per_mesh[geo.triangle_mesh[em.prim as usize] as usize] += *w as f64;
+    }
+    let count = per_mesh.iter().filter(|&&w| w > 0.0).count() as f64;
+    let all: f64 = per_mesh.iter().sum();
+    for (em, w) in emitters.iter().zip(weights.iter_mut()) {
+        let of_mesh = per_mesh[geo.triangle_mesh[em.prim as usize] as usize];
+        *w = (*w as f64 / of_mesh * (UNIFORM_SHARE / count + (1.0 - UNIFORM_SHARE) * of_mesh / all)) as f32;
     }
 }
 
