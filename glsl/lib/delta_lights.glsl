@@ -62,6 +62,25 @@ bool delta_light_blocked(vec3 o, vec3 d, float tmax) {
     return trace_any(o, d, tmax);
 }
 
+// The radiance that delta light l sends in state s per unit of its geometry term g:
+// colour × intensity.
+vec3 delta_light_le(LightRecord l, int s) { return fetch3(l.color, vec2(0.0), s) * fetch1(l.intensity, vec2(0.0), s); }
+
+#ifdef ADJOINT
+// Scatters the loss's derivatives by each state's light, dle[s] (by colour × intensity ×
+// g, per channel), times g, to delta light l's colour and intensity.
+void scatter_delta_light(LightRecord l, vec3 dle[NSTATES], float g) {
+    vec3 g_color = vec3(0.0);
+    float g_intensity = 0.0;
+    for (int s = 0; s < NSTATES; ++s) {
+        g_color += dle[s] * (g * fetch1(l.intensity, vec2(0.0), s));
+        g_intensity += g * dot(dle[s], fetch3(l.color, vec2(0.0), s));
+    }
+    scatter3(l.color, vec2(0.0), g_color);
+    scatter1(l.intensity, vec2(0.0), g_intensity);
+}
+#endif
+
 // Adds every delta light's direct contribution at a path vertex (point p, geometric and
 // shading normals ng and ns on wo's side, `through` a rough dielectric's surface, which
 // lights on either side reach; material values mat[]) to
@@ -94,13 +113,10 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
         // Every state reads the same parameters: their derivatives are summed before one
         // scatter each (the material's with the vertex's others, MatGrad).
         vec3 k_bsdf[NSTATES];
-        vec3 g_color = vec3(0.0);
-        float g_intensity = 0.0;
+        vec3 dle[NSTATES];
 #endif
         for (int s = 0; s < NSTATES; ++s) {
-            vec3 color = fetch3(l.color, vec2(0.0), s);
-            float intensity = fetch1(l.intensity, vec2(0.0), s);
-            vec3 le = color * (intensity * g * tr[s]);
+            vec3 le = delta_light_le(l, s) * (g * tr[s]);
             vec3 f = bsdf_eval(mat[s], ns, wo, wi);
             vec3 c = beta[s] * f * le;
             radiance[s] += c;
@@ -108,16 +124,13 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
             remaining[s] -= c;
             vec3 k = state_sign(s) * delta[s] * beta[s];
             k_bsdf[s] = k * le;
-            vec3 dle = k * f * (g * tr[s]);  // d(loss)/d(color × intensity), per channel
-            g_color += dle * intensity;
-            g_intensity += dot(dle, color);
+            dle[s] = k * f * tr[s];  // d(loss)/d(color × intensity × g), per channel
 #endif
         }
 #ifdef ADJOINT
         if (grad_pass) {
             add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
-            scatter3(l.color, vec2(0.0), g_color);
-            scatter1(l.intensity, vec2(0.0), g_intensity);
+            scatter_delta_light(l, dle, g);
             if (HAS_MEDIA) medium_transmittance_grad(o, wi, tmax, medium_sample_weight(before, radiance, delta));
         }
 #endif

@@ -554,20 +554,11 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
             float tmax, gl;
             delta_light_incidence(l, p, wi, tmax, gl);
             if (gl <= 0.0 || delta_light_blocked(p, wi, tmax)) continue;
-            for (int s = 0; s < NSTATES; ++s) le[s] = fetch3(l.color, vec2(0.0), s) * (fetch1(l.intensity, vec2(0.0), s) * gl);
+            for (int s = 0; s < NSTATES; ++s) le[s] = delta_light_le(l, s) * gl;
             MEDIUM_LIGHT_SAMPLE(wi, tmax, hg_phase(g, d, wi));
 #ifdef ADJOINT
-            if (grad_pass) {
-                // le = colour × intensity × gl.
-                vec3 g_color = vec3(0.0);
-                float g_intensity = 0.0;
-                for (int s = 0; s < NSTATES; ++s) {
-                    g_color += dle[s] * (gl * fetch1(l.intensity, vec2(0.0), s));
-                    g_intensity += dot(dle[s] * gl, fetch3(l.color, vec2(0.0), s));
-                }
-                scatter3(l.color, vec2(0.0), g_color);
-                scatter1(l.intensity, vec2(0.0), g_intensity);
-            }
+            // (dle: by le = colour × intensity × gl.)
+            if (grad_pass) scatter_delta_light(l, dle, gl);
 #endif
         }
     }
