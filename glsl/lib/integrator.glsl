@@ -122,6 +122,7 @@ layout(set = 0, binding = 41, scalar) readonly buffer IntegratorLimits {
 #define HIDE_EMITTERS ((limit_flags & 2u) != 0u)
 #define ENVIRONMENT_SAMPLED HAS_ENVIRONMENT
 #define CACHE_ALL false
+#define SPHERE_EMITTERS true
 #else
 layout(constant_id = 1) const uint MAX_DEPTH = 6;
 layout(constant_id = 2) const uint RR_DEPTH = 5;
@@ -129,6 +130,9 @@ layout(constant_id = 2) const uint RR_DEPTH = 5;
 // constants use == and != only: spirq, which reflects the SPIR-V, cannot fold other
 // comparisons of them.)
 layout(constant_id = 3) const uint NUM_EMITTERS = 0;
+// Whether an emitter is a sphere sampled by its solid angle (src/render/features/
+// emitters.rs); false compiles those samples out.
+layout(constant_id = 25) const bool SPHERE_EMITTERS = false;
 layout(constant_id = 4) const bool HAS_ENVIRONMENT = false;
 // Whether next-event estimation may sample the environment (a lat-long map: it has a
 // sampling distribution); false compiles that strategy out, which a constant environment
@@ -281,10 +285,16 @@ float sphere_cap(EmitterSphere s, vec3 o) {
 // triangle is of no sphere or o is inside it (its area density applies then).
 float sphere_light_pdf(uint flags, vec3 o) {
     uint k = flags >> EMITTER_SPHERE_SHIFT;
-    if (k == 0u) return 0.0;
-    EmitterSphere s = emitter_sphere(k - 1u);
-    float cap = sphere_cap(s, o);
-    return cap > 0.0 ? s.pmf / (2.0 * 3.14159265358979 * cap) : 0.0;
+    // (SPHERE_EMITTERS in a branch of its own: the reflection cannot fold an operation on
+    // a specialisation constant.)
+    if (SPHERE_EMITTERS) {
+        if (k != 0u) {
+            EmitterSphere s = emitter_sphere(k - 1u);
+            float cap = sphere_cap(s, o);
+            if (cap > 0.0) return s.pmf / (2.0 * 3.14159265358979 * cap);
+        }
+    }
+    return 0.0;
 }
 
 // A direction from o uniform in the cone of sphere `s`, of cap `cap` (sphere_cap > 0).
@@ -345,7 +355,8 @@ LightPoint sample_light_point(vec3 u, vec3 p, vec3 ng, bool surface) {
     r.pdf_sa = 0.0;
     r.found = true;
     r.origin = p;
-    uint k = tri_emitter_flags(r.light.prim) >> EMITTER_SPHERE_SHIFT;
+    uint k = 0u;
+    if (SPHERE_EMITTERS) k = tri_emitter_flags(r.light.prim) >> EMITTER_SPHERE_SHIFT;
     if (k != 0u) {
         EmitterSphere s = emitter_sphere(k - 1u);
         float cap = sphere_cap(s, p);

@@ -7,7 +7,8 @@
 //! triangle's lookups can reach: none for a triangle that reaches only black texels), or its
 //! area alone when any emission is being optimised (its current value is not known when the
 //! table is built). A mesh is picked with probability ½ / meshes + ½ × its share of the
-//! weights, then a triangle of it by weight. With an environment map too, each strategy is picked with probability ½.
+//! weights, then a triangle of it by weight. With an environment map too, each strategy is
+//! picked with probability ½.
 //!
 //! A mesh that tessellates a sphere (`Mesh::sphere`, Mitsuba's `sphere` shape) is sampled by
 //! the solid angle it subtends instead, as Mitsuba samples its spheres: where the table picks
@@ -147,7 +148,12 @@ impl Feature for Emitters {
 
     fn spec(&self) -> Vec<(&'static str, SpecValue)> {
         let textured = self.mesh_emission.iter().any(|r| r.width != 0);
-        vec![("NUM_EMITTERS", SpecValue::U32(self.count)), ("HAS_EMISSION_TEXTURES", SpecValue::Bool(textured))]
+        let spheres = self.mesh_sphere.iter().any(|&k| k != 0);
+        vec![
+            ("NUM_EMITTERS", SpecValue::U32(self.count)),
+            ("HAS_EMISSION_TEXTURES", SpecValue::Bool(textured)),
+            ("SPHERE_EMITTERS", SpecValue::Bool(spheres)),
+        ]
     }
 
     fn values(&self) -> Vec<ValueRef> {
