@@ -80,6 +80,7 @@ fn scene_bench_on_cornell_is_consistent() {
             "ENVIRONMENT_SAMPLED",
             "NUM_EMITTERS",
             "HAS_EMISSION_TEXTURES",
+            "SPHERE_EMITTERS",
             "HAS_NORMALS",
             "HAS_NORMAL_MAPS",
             "HAS_ALPHA_MASKS",
