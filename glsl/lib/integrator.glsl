@@ -280,6 +280,10 @@ float sphere_cap(EmitterSphere s, vec3 o) {
     return sin2 / (1.0 + sqrt(1.0 - sin2));
 }
 
+// The solid-angle density of a light sample in the cone, of cap `cap`, of sphere `s`: the
+// probability of picking the sphere over the cap's solid angle.
+float sphere_cone_pdf(EmitterSphere s, float cap) { return s.pmf / (2.0 * 3.14159265358979 * cap); }
+
 // The solid-angle density at o with which light sampling reaches a point of the sphere
 // emitter of a triangle of emitter flags `flags` (TriShading.emitter_flags); 0 where the
 // triangle is of no sphere or o is inside it (its area density applies then).
@@ -291,7 +295,7 @@ float sphere_light_pdf(uint flags, vec3 o) {
         if (k != 0u) {
             EmitterSphere s = emitter_sphere(k - 1u);
             float cap = sphere_cap(s, o);
-            if (cap > 0.0) return s.pmf / (2.0 * 3.14159265358979 * cap);
+            if (cap > 0.0) return sphere_cone_pdf(s, cap);
         }
     }
     return 0.0;
@@ -364,7 +368,7 @@ LightPoint sample_light_point(vec3 u, vec3 p, vec3 ng, bool surface) {
             vec3 wi = sphere_cone_direction(s, cap, p, u.yz);
             r.origin = surface ? ray_origin(p, ng, wi) : p;
             r.found = sphere_light_point(k, r.origin, wi, r.light, r.pl, r.bary);
-            r.pdf_sa = s.pmf / (2.0 * 3.14159265358979 * cap);
+            r.pdf_sa = sphere_cone_pdf(s, cap);
         }
     }
     return r;
