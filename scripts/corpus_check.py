@@ -47,10 +47,20 @@ def scenes(roots):
     return out
 
 
-def scaled_copy(path, res):
+def scaled_copy(path, res, depth=0):
     """A copy of the XML beside it with every film's width and height scaled so that the
-    longer side is `res` (the values may be `$defaults`: those are resolved first)."""
+    longer side is `res` (the values may be `$defaults`: those are resolved first). A film
+    in an included file is scaled in a copy of that file, which the copy includes instead."""
     text = path.read_text()
+    if depth < 4 and not re.search(r"<film\b", text):
+        def scaled_include(m):
+            included = path.parent / m.group(2)
+            if not included.is_file() or not re.search(r"<film\b", included.read_text(errors="replace")):
+                return m.group(0)
+            copy = scaled_copy(included, res, depth + 1)
+            return m.group(1) + str(Path(m.group(2)).with_name(copy.name)) + m.group(3)
+
+        text = re.sub(r'(<include\s+filename=")([^"]+)(")', scaled_include, text)
     defaults = dict(re.findall(r'<default\s+name="([^"]+)"\s+value="([^"]+)"', text))
 
     def value(v):
