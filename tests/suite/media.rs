@@ -368,6 +368,32 @@ fn gradient_rounds(scene: &Scene, spp: u32, rounds: u64) -> (f64, f64) {
     (mean, (var / n).sqrt())
 }
 
+/// The uniform sky of the scattering slabs below.
+const SKY: f64 = 0.5;
+
+/// A slab of scattering medium (density 2 across a thickness of 1, g 0.4, albedo `albedo`
+/// as TOML) under a uniform sky of `SKY`, seen by an orthographic 8 × 8 camera, depth 64,
+/// with `optimise` appended.
+fn scattering_slab_under_sky(name: &str, albedo: &str, optimise: &str) -> Scene {
+    let dir = temp_dir(name);
+    let toml = format!(
+        "[film]\nwidth = 8\nheight = 8\n[integrator]\nmax_depth = 64\n\
+         [[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\northo_height = 1.0\n\
+         [environment]\nconstant = [{SKY}, {SKY}, {SKY}]\n\
+         [[media]]\nname = \"slab\"\nmin = [-1, -1, -0.5]\nmax = [1, 1, 0.5]\ndensity = 2.0\nalbedo = {albedo}\ng = 0.4\n{optimise}"
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    Scene::load(dir.join("scene.toml")).unwrap()
+}
+
+/// Channel `c`'s mean over the pixels and its standard error from their spread.
+fn channel_mean_and_se(image: &Image, c: usize) -> (f64, f64) {
+    let values: Vec<f64> = image.data.iter().map(|p| p[c] as f64).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    (mean, (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt())
+}
+
 /// A scattering medium of albedo 1 under a uniform sky (a furnace): every path ends in the
 /// sky, so the image is the sky's radiance whatever the density, and the density's
 /// gradient is zero. Both within 4 standard errors, over paths of up to 64 collisions
@@ -376,24 +402,12 @@ fn gradient_rounds(scene: &Scene, spp: u32, rounds: u64) -> (f64, f64) {
 /// shows as a large negative mean.
 #[test]
 fn a_white_scattering_medium_under_a_uniform_sky_is_a_furnace() {
-    let sky = 0.5f64;
     let optimise = "[[optimise.params]]\ntarget = \"media.slab.density\"\ninit = 2.0\nrange = [0, 10]\n";
-    let dir = temp_dir("furnace");
-    let toml = format!(
-        "[film]\nwidth = 8\nheight = 8\n[integrator]\nmax_depth = 64\n\
-         [[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\northo_height = 1.0\n\
-         [environment]\nconstant = [{sky}, {sky}, {sky}]\n\
-         [[media]]\nname = \"slab\"\nmin = [-1, -1, -0.5]\nmax = [1, 1, 0.5]\ndensity = 2.0\nalbedo = 1.0\ng = 0.4\n{optimise}"
-    );
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    let scene = scattering_slab_under_sky("furnace", "1.0", optimise);
     let image = render(&scene, 256);
-    let values: Vec<f64> = image.data.iter().map(|p| p[0] as f64).collect();
-    let n = values.len() as f64;
-    let mean = values.iter().sum::<f64>() / n;
-    let se = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
-    assert!((mean - sky).abs() <= 4.0 * se + 1e-6, "furnace: mean {mean} against the sky's {sky} (standard error {se:.2e})");
-    assert!(se < 0.01 * sky, "the test resolves a 4 % error: standard error {se:.2e}");
+    let (mean, se) = channel_mean_and_se(&image, 0);
+    assert!((mean - SKY).abs() <= 4.0 * se + 1e-6, "furnace: mean {mean} against the sky's {SKY} (standard error {se:.2e})");
+    assert!(se < 0.01 * SKY, "the test resolves a 4 % error: standard error {se:.2e}");
     let (g, g_se) = gradient_rounds(&scene, 16, 12);
     println!("furnace: gradient {g} ± {g_se:.2e}");
     assert!(g.abs() <= 4.0 * g_se, "furnace: the density's gradient {g} ± {g_se:.2e} is not zero");
@@ -407,28 +421,17 @@ fn a_white_scattering_medium_under_a_uniform_sky_is_a_furnace() {
 /// crossed without a collision, e^(−σd) of the sky; each within 4 standard errors.
 #[test]
 fn a_coloured_albedo_scatters_each_channel_by_its_own() {
-    let sky = 0.5f64;
-    let dir = temp_dir("coloured-albedo");
-    let toml = format!(
-        "[film]\nwidth = 8\nheight = 8\n[integrator]\nmax_depth = 64\n\
-         [[sensors]]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\northo_height = 1.0\n\
-         [environment]\nconstant = [{sky}, {sky}, {sky}]\n\
-         [[media]]\nname = \"slab\"\nmin = [-1, -1, -0.5]\nmax = [1, 1, 0.5]\ndensity = 2.0\nalbedo = [1, 1, 0]\ng = 0.4\n"
-    );
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    let scene = scattering_slab_under_sky("coloured-albedo", "[1, 1, 0]", "");
     assert_eq!(scene.media[0].albedo, [1.0, 1.0, 0.0]);
     let spp = 256;
     let image = render(&scene, spp);
     let t = (-2.0f64).exp();
-    for (c, want) in [(0, sky), (1, sky), (2, t * sky)] {
-        let values: Vec<f64> = image.data.iter().map(|p| p[c] as f64).collect();
-        let n = values.len() as f64;
-        let mean = values.iter().sum::<f64>() / n;
+    for (c, want) in [(0, SKY), (1, SKY), (2, t * SKY)] {
+        let (mean, spread) = channel_mean_and_se(&image, c);
         // Red and green: the spread of the pixels; blue: a Bernoulli of mean e^(−σd) per sample.
         let se = match c {
-            2 => sky * (t * (1.0 - t) / (n * spp as f64)).sqrt(),
-            _ => (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt() + 1e-7,
+            2 => SKY * (t * (1.0 - t) / (image.data.len() as f64 * spp as f64)).sqrt(),
+            _ => spread + 1e-7,
         };
         assert!((mean - want).abs() <= 4.0 * se, "channel {c}: {mean} against {want} (standard error {se:.2e})");
     }
