@@ -10,7 +10,7 @@
 //! f(wo, wi) |cos theta_i|.
 
 use crate::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
+    COATING_NONLINEAR, COATING_UNLAYERED,    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
     MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 use glam::DVec3;
@@ -50,10 +50,12 @@ pub struct MaterialF64 {
     pub eta: DVec3,
     pub k: DVec3,
     /// A plastic's coating: its transmittance table (the entries the kernel reads at
-    /// `Material::table`), internal diffuse reflectance and `nonlinear`.
+    /// `Material::table`), internal diffuse reflectance, `nonlinear` and whether it is
+    /// unlayered (`COATING_UNLAYERED`: no 1/η², no internal reflections).
     pub transmittance: Table,
     pub internal: f64,
     pub nonlinear: bool,
+    pub unlayered: bool,
 }
 
 impl From<Material> for MaterialF64 {
@@ -70,7 +72,8 @@ impl From<Material> for MaterialF64 {
             k: DVec3::from(m.k.map(f64::from)),
             transmittance: Table::default(),
             internal: m.internal as f64,
-            nonlinear: m.nonlinear != 0,
+            nonlinear: m.coating & COATING_NONLINEAR != 0,
+            unlayered: m.coating & COATING_UNLAYERED != 0,
         }
     }
 }
@@ -511,6 +514,9 @@ fn conductor_value(m: &MaterialF64, t: &MicrofacetTerms) -> DVec3 {
 
 /// `plastic_transmittance`
 fn plastic_transmittance(m: &MaterialF64, c: f64) -> f64 {
+    if m.unlayered {
+        return 1.0 - dielectric_fresnel(c, m.ior).0;
+    }
     let x = c * (TABLE - 1) as f64;
     let i = (x as i64).min(TABLE as i64 - 2) as usize;
     let w = x - i as f64;
@@ -524,7 +530,8 @@ fn plastic_terms(m: &MaterialF64, wo: DVec3, wi: DVec3, h: DVec3) -> MicrofacetT
 
 /// `plastic_diffuse`
 fn plastic_diffuse(m: &MaterialF64, wo: DVec3, wi: DVec3) -> f64 {
-    wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (PI * m.ior * m.ior)
+    let spread = if m.unlayered { 1.0 } else { m.ior * m.ior };
+    wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (PI * spread)
 }
 
 /// 1 − the internal reflectance's share (`plastic_base`'s denominator).

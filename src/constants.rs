@@ -39,6 +39,13 @@ pub const MATERIAL_PLASTIC_BECKMANN: u32 = 9;
 /// Entries of a plastic's coating transmittance table, at cos θ = i / (size − 1)
 /// (Mitsuba 3's resolution for `roughplastic`).
 pub const PLASTIC_TABLE_SIZE: u32 = 64;
+/// A plastic's `coating` flag: the base's reflectance also scales the light the coating
+/// reflects back into it (Mitsuba 3's `nonlinear`).
+pub const COATING_NONLINEAR: u32 = 1;
+/// A plastic's `coating` flag: the base is seen through two smooth refractions and
+/// nothing more (Mitsuba 3's `pplastic` without polarisation): its table is 1 − F, with no
+/// 1/η² and no internal reflections.
+pub const COATING_UNLAYERED: u32 = 2;
 
 /// `LightRecord::kind` (glsl/shared/scene.glsl) of a point light.
 pub const LIGHT_POINT: u32 = 0;

@@ -18,7 +18,7 @@ pub struct ProbeStruct {
 }
 
 pub use crate::constants::{
-    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
+    COATING_NONLINEAR, COATING_UNLAYERED,    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
     MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 
@@ -46,10 +46,11 @@ pub struct Material {
     pub k: [f32; 3],
     /// A plastic's coating: the index of its transmittance table's first entry
     /// ([`PLASTIC_TABLE_SIZE`] entries, wherever the kernel keeps them), its internal
-    /// diffuse reflectance, and 1 for Mitsuba's `nonlinear`.
+    /// diffuse reflectance, and its flags ([`crate::constants::COATING_NONLINEAR`],
+    /// [`crate::constants::COATING_UNLAYERED`]).
     pub table: u32,
     pub internal: f32,
-    pub nonlinear: u32,
+    pub coating: u32,
 }
 
 /// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
@@ -108,8 +109,8 @@ pub struct MaterialRecord {
     /// data (which follow θ); zero otherwise.
     pub table: u32,
     pub k: [f32; 3],
-    /// A plastic's `nonlinear` (1) or not (0); zero otherwise.
-    pub nonlinear: u32,
+    /// A plastic's coating flags (`Material::coating`); zero otherwise.
+    pub coating: u32,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).

@@ -59,9 +59,13 @@
 // conductor's terms with the real Fresnel term, untinted), and the light it transmits
 // reaches the base, whose reflectance base_color is raised by the coating's internal
 // reflections to base_color / (1 - m.internal) (base_color / (1 - base_color m.internal)
-// with m.nonlinear), and leaves through the coating again:
+// with COATING_NONLINEAR), and leaves through the coating again:
 //   diffuse = base / (pi eta^2) T(cos_o) T(cos_i) cos_i
-// where T is the coating's directional transmittance, tabulated at PLASTIC_TABLE_SIZE
+// An unlayered coating (COATING_UNLAYERED, Mitsuba 3's `pplastic` in RGB) has neither the
+// internal reflections nor the 1 / eta^2: diffuse = base / pi T(cos_o) T(cos_i) cos_i
+// with T = 1 - F, its smooth interface's transmittance (exact, not tabulated), at any
+// roughness.
+// T is the coating's directional transmittance, tabulated at PLASTIC_TABLE_SIZE
 // cosines (bsdf_table) and m.internal its internal diffuse reflectance, both computed on
 // the host as Mitsuba computes them (src/bsdf.rs, coating). base_color can be optimised;
 // roughness and the index cannot (the table depends on them).
@@ -542,8 +546,13 @@ vec3 conductor_value(Material m, MicrofacetTerms t) {
 // ---------------------------------------------------------------------------------------
 
 // The coating's directional transmittance at cos theta c in [0, 1]: its table's entries
-// at i / (PLASTIC_TABLE_SIZE - 1), interpolated linearly (as Mitsuba's lerp_gather).
+// at i / (PLASTIC_TABLE_SIZE - 1), interpolated linearly (as Mitsuba's lerp_gather); an
+// unlayered coating's 1 - F(c), its smooth interface's, exact (it has no table).
 float plastic_transmittance(Material m, float c) {
+    if ((m.coating & COATING_UNLAYERED) != 0u) {
+        float cos_t;
+        return 1.0 - dielectric_fresnel(c, m.ior, cos_t);
+    }
     float x = c * float(PLASTIC_TABLE_SIZE - 1u);
     int i = min(int(x), int(PLASTIC_TABLE_SIZE) - 2);
     return mix(bsdf_table(m.table, i), bsdf_table(m.table, i + 1), x - float(i));
@@ -555,14 +564,21 @@ MicrofacetTerms plastic_terms(Material m, vec3 wo, vec3 wi, vec3 h) {
 }
 
 // The diffuse lobe per unit reflectance of the base as seen through the coating:
-// T(cos_o) T(cos_i) cos_i / (pi eta^2).
+// T(cos_o) T(cos_i) cos_i / (pi eta^2), without the 1 / eta^2 for an unlayered coating.
 float plastic_diffuse(Material m, vec3 wo, vec3 wi) {
-    return wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (BSDF_PI * m.ior * m.ior);
+    float spread = (m.coating & COATING_UNLAYERED) != 0u ? 1.0 : m.ior * m.ior;
+    return wi.z * plastic_transmittance(m, wo.z) * plastic_transmittance(m, wi.z) / (BSDF_PI * spread);
+}
+
+// 1 - the share of the base's light that the coating's internal reflections keep:
+// 1 - r, or 1 - b r with COATING_NONLINEAR (r = 0 for an unlayered coating).
+vec3 plastic_kept(Material m) {
+    return 1.0 - ((m.coating & COATING_NONLINEAR) != 0u ? m.base_color * m.internal : vec3(m.internal));
 }
 
 // The base's reflectance with the coating's internal reflections.
 vec3 plastic_base(Material m) {
-    return m.base_color / (1.0 - (m.nonlinear != 0u ? m.base_color * m.internal : vec3(m.internal)));
+    return m.base_color / plastic_kept(m);
 }
 
 vec3 plastic_value(Material m, vec3 wo, vec3 wi, MicrofacetTerms t) {
@@ -806,8 +822,8 @@ void bsdf_eval_grad(Material m, vec3 n, vec3 wo, vec3 wi, out vec3 d_base_color,
     if (BSDF_PLASTICS && material_is_plastic(m.kind)) {
         // Through the base alone: d (b / (1 - r)) / db = 1 / (1 - r), and with nonlinear
         // d (b / (1 - b r)) / db = 1 / (1 - b r)^2.
-        vec3 kept = 1.0 - (m.nonlinear != 0u ? m.base_color * m.internal : vec3(m.internal));
-        d_base_color = plastic_diffuse(m, wo_l, wi_l) / (m.nonlinear != 0u ? kept * kept : kept);
+        vec3 kept = plastic_kept(m);
+        d_base_color = plastic_diffuse(m, wo_l, wi_l) / ((m.coating & COATING_NONLINEAR) != 0u ? kept * kept : kept);
         return;
     }
     if (m.kind != MATERIAL_PRINCIPLED) {

@@ -71,7 +71,7 @@ MaterialRecord material_record(uint id) {
     r.table = t7.w;
     uvec4 t8 = texel_load(Materials, b + 8);
     r.k = uintBitsToFloat(t8.xyz);
-    r.nonlinear = t8.w;
+    r.coating = t8.w;
     return r;
 }
 
@@ -486,11 +486,11 @@ Material fetch_material(uint id, vec2 uv, int state) {
     if (HAS_PLASTICS) {
         m.table = r.table;
         m.internal = r.internal;
-        m.nonlinear = r.nonlinear;
+        m.coating = r.coating;
     } else {
         m.table = 0u;
         m.internal = 0.0;
-        m.nonlinear = 0u;
+        m.coating = 0u;
     }
     return m;
 }

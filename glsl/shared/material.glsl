@@ -19,7 +19,7 @@
 #include "vkinverse_constants.glsl"
 
 // 64 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
-// ior 24, eta 28, k 40, table 52, internal 56, nonlinear 60.
+// ior 24, eta 28, k 40, table 52, internal 56, coating 60.
 struct Material {
     vec3 base_color;
     float roughness;
@@ -36,11 +36,13 @@ struct Material {
     vec3 k;
     // A plastic's coating (Mitsuba's `roughplastic`): where its transmittance table starts
     // (PLASTIC_TABLE_SIZE entries, read by bsdf_table), its internal diffuse reflectance,
-    // and 1 where the base's reflectance also scales the internal reflections (Mitsuba's
-    // `nonlinear`). Unused by the other kinds.
+    // and its flags: COATING_NONLINEAR where the base's reflectance also scales the
+    // internal reflections (Mitsuba's `nonlinear`), COATING_UNLAYERED where the base is
+    // seen through two smooth refractions alone (Mitsuba's `pplastic`). Unused by the
+    // other kinds.
     uint table;
     float internal;
-    uint nonlinear;
+    uint coating;
 };
 
 // Whether `kind` is smooth glass of either kind (delta lobes, an index of refraction).

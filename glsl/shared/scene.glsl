@@ -52,8 +52,8 @@ struct MaterialRecord {
     // (after θ, from CONST_BASE on); zero otherwise.
     uint table;
     vec3 k;
-    // A plastic's `nonlinear` (Material.nonlinear); zero otherwise.
-    uint nonlinear;
+    // A plastic's coating flags (Material.coating); zero otherwise.
+    uint coating;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).

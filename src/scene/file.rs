@@ -105,7 +105,7 @@ impl MaterialType {
             "ior" => self.has_ior(),
             "absorption" => matches!(self, Self::Dielectric | Self::RoughDielectric),
             "distribution" => self.has_distribution(),
-            "nonlinear" => self == Self::Plastic,
+            "nonlinear" | "layered" => self == Self::Plastic,
             "metal" | "eta" | "k" => self == Self::Conductor,
             _ => false,
         }
@@ -183,6 +183,10 @@ pub struct MaterialFile {
     /// A plastic's `nonlinear` (Mitsuba's): the base's reflectance also scales the light
     /// that the coating reflects back into it, which saturates colours. False by default.
     pub nonlinear: Option<bool>,
+    /// A plastic's coating is layered (true, the default): the light that enters it
+    /// bounces between coating and base. False: the base is seen through two smooth
+    /// refractions and nothing more (Mitsuba's `pplastic`).
+    pub layered: Option<bool>,
     /// A conductor's named metal (its complex index of refraction); "none", a perfect
     /// mirror, by default. Not with `eta` and `k`.
     pub metal: Option<String>,

@@ -507,6 +507,7 @@ impl Importer<'_> {
                 eta: [0.0; 3],
                 k: [0.0; 3],
                 nonlinear: false,
+                layered: true,
             },
         };
         self.out.materials.push(material);

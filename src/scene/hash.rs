@@ -165,6 +165,9 @@ pub fn content_hash(scene: &Scene) -> u64 {
         if m.nonlinear {
             h.tag("nonlinear");
         }
+        if !m.layered {
+            h.tag("unlayered");
+        }
         if m.absorption != [0.0; 3] {
             h.tag("absorption");
             h.f32s(&m.absorption);

@@ -550,6 +550,12 @@ impl Loader {
             if refuses("nonlinear", m.nonlinear.is_some()) {
                 return Err(self.invalid(&format!("{key}.nonlinear"), "is a plastic's (type = \"plastic\")"));
             }
+            if refuses("layered", m.layered.is_some()) {
+                return Err(self.invalid(&format!("{key}.layered"), "is a plastic's (type = \"plastic\")"));
+            }
+            if m.layered == Some(false) && m.nonlinear == Some(true) {
+                return Err(self.invalid(&format!("{key}.nonlinear"), "needs a layered coating (layered = false has no internal reflections to scale)"));
+            }
             let (roughness, metallic) = match m.kind {
                 MaterialKind::Principled => (
                     self.scalar_value(&format!("{key}.roughness"), m.roughness.unwrap_or(ScalarInput::Constant(0.5)))?,
@@ -721,6 +727,7 @@ impl Loader {
                 eta,
                 k,
                 nonlinear: m.nonlinear.unwrap_or(false),
+                layered: m.layered.unwrap_or(true),
             });
         }
         Ok(out)

@@ -23,7 +23,7 @@
 //! `to_world`, `face_normals`, `shape_index` (serialized, versions 3 and 4),
 //! `flip_normals`, `flip_tex_coords` (OBJ), a `<bsdf>` or `<ref>` and an `<emitter
 //! type="area">` (its `radiance` an `rgb` or a bitmap); `<bsdf
-//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|dielectric|thindielectric|roughdielectric">` and the
+//! type="diffuse|twosided|principled|conductor|roughconductor|plastic|roughplastic|pplastic|dielectric|thindielectric|roughdielectric">` and the
 //! wrappers `normalmap`, `bumpmap` and `mask`; `<emitter
 //! type="constant|envmap|point|spot|directional">`; `<texture type="bitmap">` (EXR,
 //! Radiance HDR, PNG, JPEG; `filter_type` bilinear or nearest, `wrap_mode` repeat, clamp
@@ -41,7 +41,8 @@
 //! thindielectric and roughdielectric (glass: [`MaterialKind::Dielectric`],
 //! [`MaterialKind::ThinDielectric`], [`MaterialKind::RoughDielectric`]), roughconductor
 //! ([`MaterialKind::Conductor`], either distribution, a named material's or a given
-//! complex index of refraction), roughplastic ([`MaterialKind::Plastic`]), area
+//! complex index of refraction), roughplastic ([`MaterialKind::Plastic`]), pplastic (a
+//! plastic whose coating is not layered, as Mitsuba's RGB variants render it), area
 //! lights, the constant environment, point and directional lights, the film and camera,
 //! the box, gaussian and tent filters. Approximate, each with a one-line warning: `principled`
 //! (Mitsuba's Disney diffuse lobe becomes Lambert and its dielectric Fresnel term
@@ -1359,7 +1360,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert, and its dielectric Fresnel term as Schlick's of the same index (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, perturbation: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, perturbation: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false, layered: true }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
@@ -1442,7 +1443,23 @@ impl<'a, 'i> Importer<'a, 'i> {
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
                 Material { nonlinear, one_sided, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
             }
-            _ => return Err(self.err(node, format!("bsdf \"{kind}\" is unsupported (diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, dielectric, thindielectric and roughdielectric are)"))),
+            "pplastic" => {
+                // Unpolarised, as Mitsuba's RGB variants render it: a rough reflection plus
+                // the base seen through two smooth refractions.
+                let (alpha, distribution) = self.microfacet_alpha(&mut items, node, true, true)?;
+                self.take_bool(&mut items, "sample_visible", true)?;
+                let eta = self.relative_ior(&mut items, node, "polypropylene")?;
+                if eta == 1.0 {
+                    return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
+                }
+                let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
+                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
+                if tint != [1.0; 3] {
+                    return Err(self.err(node, "pplastic: only specular_reflectance 1 is supported"));
+                }
+                Material { one_sided, layered: false, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
+            }
+            _ => return Err(self.err(node, format!("bsdf \"{kind}\" is unsupported (diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, pplastic, dielectric, thindielectric and roughdielectric are)"))),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);

@@ -359,6 +359,11 @@ pub struct Material {
     /// A plastic's `nonlinear`: its base's reflectance scales the internal reflections
     /// too (never optimised); false for the other kinds.
     pub nonlinear: bool,
+    /// A plastic's coating is layered (true, Mitsuba 3's `roughplastic`): the light that
+    /// enters it is reflected back and forth between coating and base. False: the base is
+    /// seen through two smooth refractions and nothing more (Mitsuba 3's `pplastic`). True
+    /// for the other kinds.
+    pub layered: bool,
 }
 
 /// The distribution of a rough dielectric's, a conductor's or a plastic's microfacet
@@ -399,6 +404,7 @@ impl Material {
             eta: [0.0; 3],
             k: [0.0; 3],
             nonlinear: false,
+            layered: true,
         }
     }
 
@@ -422,6 +428,7 @@ impl Material {
             eta: [0.0; 3],
             k: [0.0; 3],
             nonlinear: false,
+            layered: true,
         }
     }
 }
@@ -452,6 +459,7 @@ impl Material {
             eta,
             k,
             nonlinear: false,
+            layered: true,
         }
     }
 
@@ -476,6 +484,7 @@ impl Material {
             eta: [0.0; 3],
             k: [0.0; 3],
             nonlinear,
+            layered: true,
         }
     }
 }

@@ -203,6 +203,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if m.nonlinear {
             pairs.push(("nonlinear", Value::Boolean(true)));
         }
+        if !m.layered {
+            pairs.push(("layered", Value::Boolean(false)));
+        }
         if m.absorption != [0.0; 3] {
             pairs.push(("absorption", arr(&m.absorption)));
         }

@@ -111,7 +111,9 @@ pub(super) fn write_mitsuba(
                         found.push((bsdf, name, color_xml(name, &m.base_color)?));
                     }
                     ParamTarget::Roughness { .. } if kind == "principled" => found.push((bsdf, "roughness", scalar_xml("roughness", &m.roughness, |x| x)?)),
-                    ParamTarget::Roughness { .. } if kind.starts_with("rough") => found.push((bsdf, "alpha", scalar_xml("alpha", &m.roughness, |x| x * x)?)),
+                    ParamTarget::Roughness { .. } if kind.starts_with("rough") || kind == "pplastic" => {
+                        found.push((bsdf, "alpha", scalar_xml("alpha", &m.roughness, |x| x * x)?))
+                    }
                     ParamTarget::Roughness { .. } => skipped.push(format!("{pname}: the BSDF of \"{}\" is a smooth {kind}", m.name)),
                     _ => found.push((bsdf, "metallic", scalar_xml("metallic", &m.metallic, |x| x)?)),
                 }

@@ -12,8 +12,8 @@ use std::f64::consts::PI;
 use vkinverse::bsdf::{self, MaterialF64, ShadingFrame, ALPHA_MIN};
 use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
 use vkinverse::shared::{
-    Material, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN,
-    MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
+    Material, COATING_NONLINEAR, COATING_UNLAYERED, MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC,
+    MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED, MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 use vkinverse::stats::ln_gamma;
 
@@ -40,17 +40,25 @@ fn coating_tables() -> &'static (Vec<f32>, Vec<f32>) {
     })
 }
 
-/// Plastic `i` of [`COATINGS`] with diffuse reflectance `base`.
-fn plastic(i: usize, base: [f32; 3], nonlinear: bool) -> Material {
+/// A plastic's coating flags from a draw `u` in [0, 1): layered, layered and nonlinear,
+/// or unlayered, a third each.
+fn coating_flags(u: f64) -> u32 {
+    [0, COATING_NONLINEAR, COATING_UNLAYERED][((u * 3.0) as usize).min(2)]
+}
+
+/// Plastic `i` of [`COATINGS`] with diffuse reflectance `base` and coating `flags` (an
+/// unlayered one has no table and no internal reflectance).
+fn plastic(i: usize, base: [f32; 3], flags: u32) -> Material {
     let (kind, roughness, ior) = COATINGS[i];
+    let layered = flags & COATING_UNLAYERED == 0;
     Material {
         base_color: base,
         roughness,
         kind,
         ior,
-        table: (i * bsdf::TABLE) as u32,
-        internal: coating_tables().1[i],
-        nonlinear: nonlinear as u32,
+        table: if layered { (i * bsdf::TABLE) as u32 } else { 0 },
+        internal: if layered { coating_tables().1[i] } else { 0.0 },
+        coating: flags,
         ..Default::default()
     }
 }
@@ -102,7 +110,7 @@ fn struct_layouts_match_reflection() {
         ("k", offset_of!(Material, k)),
         ("table", offset_of!(Material, table)),
         ("internal", offset_of!(Material, internal)),
-        ("nonlinear", offset_of!(Material, nonlinear)),
+        ("coating", offset_of!(Material, coating)),
     ];
     check_layout("bsdf_test", "Material", &material, size_of::<Material>());
     // The sampling variant passes Material in its push constants.
@@ -402,7 +410,7 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
             }
             if kind == MATERIAL_PLASTIC {
                 // One of the coatings, linear or not.
-                material = plastic(rng.next_u64() as usize % COATINGS.len(), base, rng.f64() < 0.5);
+                material = plastic(rng.next_u64() as usize % COATINGS.len(), base, coating_flags(rng.f64()));
             }
             let n = match i % 16 {
                 0 => DVec3::Z,
@@ -695,7 +703,7 @@ fn gpu_samples_follow_bsdf_pdf() {
     // Plastics: each coating, a dark and a bright base.
     for i in 0..COATINGS.len() {
         for base in [[0.05, 0.1, 0.02], base_color] {
-            materials.push(plastic(i, base, i % 2 == 1));
+            materials.push(plastic(i, base, [0, COATING_NONLINEAR, COATING_UNLAYERED, COATING_NONLINEAR][i]));
         }
     }
     // A tilted normal, so that the sampled frame is not the world frame.
@@ -803,8 +811,8 @@ fn white_furnace_albedo_is_at_most_one() {
     }
     // White plastics: their coating's reflection and the base's light that comes back out.
     for i in 0..COATINGS.len() {
-        for nonlinear in [false, true] {
-            cases.push(mirror(plastic(i, [1.0; 3], nonlinear)));
+        for flags in [0, COATING_NONLINEAR, COATING_UNLAYERED] {
+            cases.push(mirror(plastic(i, [1.0; 3], flags)));
         }
     }
     let cos_o = [1.0, 0.7, 0.3, 0.1, 0.01];
@@ -890,7 +898,7 @@ fn eval_grad_matches_finite_differences() {
         // base colour.
         let m = if i % 6 == 1 {
             let b = m.base_color.as_vec3().to_array();
-            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), b, rng.f64() < 0.5))
+            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), b, coating_flags(rng.f64())))
         } else {
             m
         };
@@ -990,7 +998,7 @@ fn principled_conductor_and_plastic_are_reciprocal() {
         let ior = [1.0, 1.2, 1.5, 2.4, 4.0][case % 5];
         let m = if m.kind == MATERIAL_PRINCIPLED { MaterialF64 { ior, ..m } } else { m };
         let m = if m.kind == MATERIAL_PLASTIC {
-            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), m.base_color.as_vec3().to_array(), rng.f64() < 0.5))
+            mirror(plastic(rng.next_u64() as usize % COATINGS.len(), m.base_color.as_vec3().to_array(), coating_flags(rng.f64())))
         } else {
             m
         };
@@ -1102,7 +1110,11 @@ fn sample_pdf_and_weight_match_pdf_and_eval() {
             k: DVec3::new(rng.range(0.0, 8.0), rng.range(0.0, 8.0), rng.range(0.0, 8.0)),
             ..Default::default()
         };
-        let m = if i % 10 == 9 { mirror(plastic(i / 10 % COATINGS.len(), m.base_color.as_vec3().to_array(), i % 20 == 9)) } else { m };
+        let m = if i % 10 == 9 {
+            mirror(plastic(i / 10 % COATINGS.len(), m.base_color.as_vec3().to_array(), [0, COATING_NONLINEAR, COATING_UNLAYERED][i / 10 % 3]))
+        } else {
+            m
+        };
         let n = rng.unit_vector();
         let wo = direction(n, rng.range(0.0, 1.0), rng.range(0.0, 2.0 * PI));
         let u = DVec3::new(rng.f64(), rng.f64(), rng.f64());
@@ -1297,4 +1309,32 @@ fn plastic_coatings_integrate_their_interface() {
     // grazing incidence the visible microfacets face the light more than the surface does,
     // so a rough coating still transmits some (0.37 here), but less.
     assert!(table[0] < 0.5 && (0.9..0.97).contains(&table[63]), "T(0) {} T(1) {}", table[0], table[63]);
+}
+
+/// An unlayered plastic (Mitsuba 3's `pplastic` in RGB) is its rough reflection plus the
+/// base seen through two smooth refractions: f cos θ_i = F D G / (4 cos θ_o) +
+/// ρ (1 − F(cos θ_o)) (1 − F(cos θ_i)) cos θ_i / π, with no 1/η² and no internal
+/// reflections. The reflection is the layered plastic's (checked as the value at base 0);
+/// the diffuse part against the closed form to 1e-12.
+#[test]
+fn an_unlayered_plastic_is_a_reflection_plus_a_doubly_refracted_base() {
+    let base = [0.6f32, 0.3, 0.1];
+    let mut rng = Rng(17);
+    for i in 0..COATINGS.len() {
+        let unlayered = mirror(plastic(i, base, COATING_UNLAYERED));
+        let layered = mirror(plastic(i, base, 0));
+        assert_eq!(unlayered.internal, 0.0);
+        let black = |m: &MaterialF64| MaterialF64 { base_color: DVec3::ZERO, ..*m };
+        for _ in 0..50 {
+            let wo = direction(DVec3::Z, rng.range(0.02, 1.0), rng.range(0.0, 2.0 * PI));
+            let wi = direction(DVec3::Z, rng.range(0.02, 1.0), rng.range(0.0, 2.0 * PI));
+            let spec = bsdf::eval_local(&black(&unlayered), wo, wi);
+            assert_eq!(spec, bsdf::eval_local(&black(&layered), wo, wi), "coating {i}: the reflection is the layered plastic's");
+            let diffuse = bsdf::eval_local(&unlayered, wo, wi) - spec;
+            let eta = unlayered.ior;
+            let through = (1.0 - bsdf::dielectric_fresnel(wo.z, eta).0) * (1.0 - bsdf::dielectric_fresnel(wi.z, eta).0) * wi.z / PI;
+            let expected = v3(base) * through;
+            assert!((diffuse - expected).abs().max_element() <= 1e-12 * expected.max_element(), "coating {i}: {diffuse} against {expected}");
+        }
+    }
 }

@@ -1062,18 +1062,21 @@ fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
 /// ext_ior as the index and `nonlinear`. A smooth plastic is a plastic of roughness 0,
 /// with a warning (its coating's reflection a lobe of the smallest alpha, not a delta),
 /// whose coating is Mitsuba's smooth plastic's: its internal reflectance the fit of Egan
-/// and Hilgeman that Mitsuba uses. A smooth conductor is a conductor of roughness 0 (its
-/// named metal's complex index).
+/// and Hilgeman that Mitsuba uses. A `pplastic` is a plastic whose coating is not layered
+/// (its base seen through two smooth refractions), with the same defaults, and refuses a
+/// tinted specular_reflectance by name. A smooth conductor is a conductor of roughness 0
+/// (its named metal's complex index).
 #[test]
 fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     let dir = temp_dir("mitsuba-plastic");
     let xml = |bsdfs: &str| {
-        let shapes: String = ["p1", "p2", "p3", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
+        let shapes: String = ["p1", "p2", "p3", "p4", "gold"].iter().map(|id| format!(r#"<shape type="rectangle"><ref id="{id}"/></shape>"#)).collect();
         small_mitsuba_scene(&format!("{bsdfs}\n    {shapes}"))
     };
     let plastics = r#"    <bsdf type="plastic" id="p1"><string name="int_ior" value="bk7"/><rgb name="diffuse_reflectance" value="0.2, 0.4, 0.6"/></bsdf>
     <bsdf type="roughplastic" id="p2"><float name="alpha" value="0.25"/><string name="distribution" value="ggx"/><float name="int_ior" value="1.333"/><boolean name="nonlinear" value="true"/><rgb name="diffuse_reflectance" value="0.5, 0.8, 1.0"/></bsdf>
     <bsdf type="twosided" id="p3"><bsdf type="roughplastic"/></bsdf>
+    <bsdf type="pplastic" id="p4"><rgb name="diffuse_reflectance" value="0.05, 0.03, 0.1"/><float name="alpha" value="0.06"/></bsdf>
     <bsdf type="conductor" id="gold"><string name="material" value="Au"/></bsdf>"#;
     std::fs::write(dir.join("plastic.xml"), xml(plastics)).unwrap();
     let s = Scene::load(dir.join("plastic.xml")).unwrap();
@@ -1090,6 +1093,12 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     check("p2", [0.5, 0.8, 1.0], 0.5, Distribution::Ggx, 1.333 / 1.000277, true, true);
     // Mitsuba's defaults: alpha 0.1, Beckmann, polypropylene in air, diffuse 0.5.
     check("p3", [0.5; 3], 0.1f32.sqrt(), Distribution::Beckmann, 1.49 / 1.000277, false, false);
+    check("p4", [0.05, 0.03, 0.1], 0.06f32.sqrt(), Distribution::Beckmann, 1.49 / 1.000277, false, true);
+    assert!(["p1", "p2", "p3"].iter().all(|id| material(id).layered) && !material("p4").layered);
+    let tinted = plastics.replace(r#"<float name="alpha" value="0.06"/>"#, r#"<float name="alpha" value="0.06"/><rgb name="specular_reflectance" value="0"/>"#);
+    std::fs::write(dir.join("tinted.xml"), xml(&tinted)).unwrap();
+    let e = Scene::load(dir.join("tinted.xml")).unwrap_err().to_string();
+    assert!(e.contains("pplastic") && e.contains("specular_reflectance"), "{e}");
 
     // The smooth coating's internal reflectance against Mitsuba's fit for its smooth plastic.
     let eta = 1.5046 / 1.000277;
@@ -1101,9 +1110,13 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     let out = dir.join("run");
     write_final(&out, &s, &[]).unwrap();
     let t = Scene::load(out.join("final/scene.toml")).unwrap();
-    for id in ["p1", "p2", "p3"] {
+    for id in ["p1", "p2", "p3", "p4"] {
         let (m, n) = (material(id), t.materials.iter().find(|m| m.name == id).unwrap());
-        assert_eq!((n.kind, n.distribution, n.ior, n.nonlinear, n.one_sided), (m.kind, m.distribution, m.ior, m.nonlinear, m.one_sided), "{id}");
+        assert_eq!(
+            (n.kind, n.distribution, n.ior, n.nonlinear, n.layered, n.one_sided),
+            (m.kind, m.distribution, m.ior, m.nonlinear, m.layered, m.one_sided),
+            "{id}"
+        );
         assert!(matches!((&n.roughness, &m.roughness), (ScalarValue::Constant(a), ScalarValue::Constant(b)) if (a - b).abs() < 1e-6), "{id}");
     }
 

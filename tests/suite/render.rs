@@ -823,7 +823,7 @@ fn texel_record_layouts_match_reflection() {
             ("eta", offset_of!(MaterialRecord, eta)),
             ("table", offset_of!(MaterialRecord, table)),
             ("k", offset_of!(MaterialRecord, k)),
-            ("nonlinear", offset_of!(MaterialRecord, nonlinear)),
+            ("coating", offset_of!(MaterialRecord, coating)),
         ],
     );
     check(

@@ -5,7 +5,7 @@
 use super::values::{optimised, sampler_flags, MaterialData};
 use super::{Feature, Upload};
 use crate::constants::{
-    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
+    COATING_NONLINEAR, COATING_UNLAYERED,    MATERIAL_CONDUCTOR, MATERIAL_CONDUCTOR_BECKMANN, MATERIAL_DIELECTRIC, MATERIAL_DIFFUSE, MATERIAL_PLASTIC, MATERIAL_PLASTIC_BECKMANN, MATERIAL_PRINCIPLED,
     MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC,
 };
 use crate::gpu::{self, Buffer, SpecValue};
@@ -20,13 +20,14 @@ pub struct Materials {
     kinds: Vec<MaterialKind>,
 }
 
-/// A plastic's coating ([`crate::bsdf::coating`]) for its roughness, distribution and
-/// index; None for the other kinds. Computed once per combination in a process (a few
+/// A layered plastic's coating ([`crate::bsdf::coating`]) for its roughness, distribution
+/// and index; None for the other kinds and an unlayered plastic (whose transmittance the
+/// kernels compute). Computed once per combination in a process (a few
 /// hundred milliseconds each).
 fn plastic_coating(m: &Material) -> Option<([f64; crate::bsdf::TABLE], f64)> {
     type Key = (bool, u32, u32);
     static CACHE: std::sync::Mutex<Vec<(Key, ([f64; crate::bsdf::TABLE], f64))>> = std::sync::Mutex::new(Vec::new());
-    if m.kind != MaterialKind::Plastic {
+    if m.kind != MaterialKind::Plastic || !m.layered {
         return None;
     }
     let ScalarValue::Constant(roughness) = m.roughness else { unreachable!("a plastic's roughness is a constant (the loaders refuse a texture)") };
@@ -117,7 +118,7 @@ impl Materials {
                     eta: m.eta,
                     table,
                     k: m.k,
-                    nonlinear: m.nonlinear as u32,
+                    coating: if m.nonlinear { COATING_NONLINEAR } else { 0 } | if m.layered { 0 } else { COATING_UNLAYERED },
                 }
             })
             .collect();
