@@ -109,6 +109,7 @@ impl Config {
             validation: self.validation,
             timeout: self.timeout,
             unmappable_device_memory: self.unmappable_device_memory,
+            storage_buffer_range_cap: None,
         }
     }
 }

@@ -310,6 +310,7 @@ fn measure_case(device: &crate::device::Device, grid: u32, film: u32, iterations
     let engine = Engine::gradient_only(device, &scene, &st)?;
     let gs = engine.scene();
     let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (gs.theta.len() / 4) as usize, MemoryKind::Device)?;
+    theta_prev.set_storage_extent(gs.theta.storage_extent());
     let fd = engine.fd_sample(&theta_prev, false, None)?;
     // θ_prev as after a step (2 % below θ), not θ itself: with equal states the fused
     // adjoint's derivatives cancel and it scatters nothing, which no later iteration does.

@@ -33,6 +33,8 @@ pub(crate) struct BufferInner {
     allocation: Mutex<Option<Allocation>>,
     name: String,
     len: u64,
+    /// What a storage-buffer binding sees ([`Buffer::set_storage_extent`]).
+    storage_extent: AtomicU64,
     kind: MemoryKind,
 }
 
@@ -41,11 +43,14 @@ pub(crate) struct BufferInner {
 pub struct Buffer(pub(crate) Arc<BufferInner>);
 
 impl Buffer {
-    /// Allocates `len` bytes (contents undefined).
+    /// Allocates `len` bytes (contents undefined): up to the larger of the device's
+    /// storage-buffer range and its texel-buffer range, since a buffer may be bound as
+    /// either. A storage-buffer binding sees at most the storage range
+    /// ([`Buffer::set_storage_extent`]); binding more is an error then.
     pub fn new(ctx: &Arc<Context>, name: &str, len: u64, kind: MemoryKind) -> Result<Self> {
-        let max = ctx.info().max_storage_buffer_range;
+        let max = bindable_bytes(ctx);
         if len > max {
-            return Err(GpuError::BufferTooLarge { name: name.into(), size: len, max });
+            return Err(GpuError::BufferTooLarge { name: name.into(), size: len, max, limit: "storage- and texel-buffer ranges" });
         }
         let physical = len.max(16);
         // Any buffer may also be bound as a texel buffer (read through texel fetches or
@@ -71,8 +76,23 @@ impl Buffer {
             allocation: Mutex::new(Some(allocation)),
             name: name.into(),
             len,
+            storage_extent: AtomicU64::new(len),
             kind,
         })))
+    }
+
+    /// Storage-buffer bindings of this buffer see its first `bytes` only (a whole number of
+    /// 16-byte texels, at least one): the rest is read through texel-buffer views alone,
+    /// which reach further on most devices. Set before the buffer is bound.
+    pub fn set_storage_extent(&self, bytes: u64) {
+        let bytes = bytes.next_multiple_of(16).clamp(16, self.0.len.max(16));
+        self.0.storage_extent.store(bytes, Ordering::Relaxed);
+    }
+
+    /// The bytes a storage-buffer binding of this buffer sees: its length unless
+    /// [`Buffer::set_storage_extent`] said less.
+    pub fn storage_extent(&self) -> u64 {
+        self.0.storage_extent.load(Ordering::Relaxed).min(self.0.len)
     }
 
     /// Allocates a buffer holding `data`.
@@ -160,6 +180,13 @@ impl Buffer {
         ctx.staging.lock().unwrap_or_else(|p| p.into_inner()).readback(ctx, self.0.raw, dst)?;
         Ok(out)
     }
+}
+
+/// The largest buffer the device can bind whole one way or another: the larger of its
+/// storage-buffer range and its texel-buffer range (in 16-byte texels).
+pub(crate) fn bindable_bytes(ctx: &Context) -> u64 {
+    let info = ctx.info();
+    info.max_storage_buffer_range.max(info.max_texel_buffer_elements.saturating_mul(super::TEXEL_BYTES))
 }
 
 /// Creates a buffer and binds a new allocation of `location` memory to it; on failure

@@ -63,6 +63,10 @@ pub struct ContextOptions {
     ///
     /// [`MemoryKind::Device`]: super::MemoryKind::Device
     pub unmappable_device_memory: bool,
+    /// Treat the device's storage-buffer range as at most this many bytes (tests: the split
+    /// of a buffer into the part that storage-buffer bindings see and the part read only
+    /// through texel-buffer views, on a device whose range is larger).
+    pub storage_buffer_range_cap: Option<u64>,
 }
 
 /// The features vkinverse needs, as read from a device.
@@ -277,8 +281,11 @@ impl Context {
             return Err(GpuError::NoDevice);
         }
         let chosen = Self::choose(&devices, options.device.as_deref())?;
-        let info = devices[chosen].clone();
+        let mut info = devices[chosen].clone();
         check_features(&info.name, &info.features)?;
+        if let Some(cap) = options.storage_buffer_range_cap {
+            info.max_storage_buffer_range = info.max_storage_buffer_range.min(cap);
+        }
         let physical = physicals[chosen];
 
         // SAFETY: queries on a valid physical device.

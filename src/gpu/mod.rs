@@ -90,8 +90,8 @@ pub enum GpuError {
     NoValidationLayer,
     #[error("GPU memory allocation for '{name}' failed: {source}")]
     Alloc { name: String, source: gpu_allocator::AllocationError },
-    #[error("buffer '{name}': {size} bytes exceeds the device's storage-buffer range of {max} bytes")]
-    BufferTooLarge { name: String, size: u64, max: u64 },
+    #[error("buffer '{name}': {size} bytes exceeds the device's {limit} of {max} bytes")]
+    BufferTooLarge { name: String, size: u64, max: u64, limit: &'static str },
     #[error("buffer '{name}': {what}")]
     BufferAccess { name: String, what: String },
     #[error("kernel '{0}' is not among the compiled shaders")]

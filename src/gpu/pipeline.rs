@@ -321,7 +321,16 @@ impl BindGroup {
         // Texel buffers are viewed whole, as 16-byte texels; the view must fit the
         // device's limit and cannot end in a partial texel.
         let max_texels = ctx.info().max_texel_buffer_elements;
+        let max_storage = ctx.info().max_storage_buffer_range;
         for b in &bound {
+            if b.kind == BindingKind::StorageBuffer && b.buffer.storage_extent() > max_storage {
+                return Err(GpuError::BufferTooLarge {
+                    name: format!("{}, bound to storage buffer '{}' of kernel '{kernel}'", b.buffer.name(), b.name),
+                    size: b.buffer.storage_extent(),
+                    max: max_storage,
+                    limit: "storage-buffer range",
+                });
+            }
             if b.kind.texel().is_some() {
                 let len = b.buffer.len();
                 if len % TEXEL_BYTES != 0 || len / TEXEL_BYTES > max_texels {
@@ -378,8 +387,11 @@ impl BindGroup {
                 }
             }]);
         }
+        // A storage binding sees the buffer's storage extent (all of it unless the buffer
+        // says less).
+        let range = |b: &Bound| if b.buffer.storage_extent() < b.buffer.len() { b.buffer.storage_extent() } else { vk::WHOLE_SIZE };
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> =
-            bound.iter().map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: vk::WHOLE_SIZE }]).collect();
+            bound.iter().map(|b| [vk::DescriptorBufferInfo { buffer: b.buffer.0.raw, offset: 0, range: range(b) }]).collect();
         let writes: Vec<_> = bound
             .iter()
             .zip(infos.iter().zip(&views))

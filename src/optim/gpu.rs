@@ -108,8 +108,11 @@ impl GpuOptimiser {
         // vec4 of each group's last element.
         let extent = groups.iter().map(|g| (g.offset + g.len).next_multiple_of(4)).max().unwrap_or(0);
         for (name, b) in [("theta", Some(theta)), ("grad", Some(grad)), ("fd grad", fd_grad)] {
-            if let Some(b) = b.filter(|b| b.len() < extent as u64 * 4) {
-                return Err(gpu::GpuError::BufferAccess { name: name.into(), what: format!("{} bytes: the optimiser passes step whole vec4s, {} bytes", b.len(), extent * 4) });
+            if let Some(b) = b.filter(|b| b.storage_extent() < extent as u64 * 4) {
+                return Err(gpu::GpuError::BufferAccess {
+                    name: name.into(),
+                    what: format!("{} bytes bound as a storage buffer: the optimiser passes step whole vec4s, {} bytes", b.storage_extent(), extent * 4),
+                });
             }
         }
         let mut slots = Vec::new();
@@ -156,6 +159,7 @@ impl GpuOptimiser {
                 // iterate through it, and the two-trace sample binds it as θ, material
                 // data included.
                 let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (theta.len() / 4) as usize, MemoryKind::Device)?;
+                theta_prev.set_storage_extent(theta.storage_extent());
                 let halves = if optimiser.needs_halves() { Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? }) } else { None };
                 // Without the centred estimate the kernel never touches the half buffers.
                 let unused = match &halves {

@@ -116,17 +116,26 @@ impl GpuScene {
         // the material data follow it in the same buffer.
         let const_base = gpu::texel_padded(layout.len) as u32;
         let contents = targets::with_constants(const_base, &data.data, layout.initial());
-        // Textures are most of a large scene's data: a buffer beyond the device's range
-        // says how much of it they are.
+        // The kernels read all of it through a texel-buffer view, which reaches further than
+        // a storage-buffer binding on most devices (lavapipe: 2 GiB against 128 MiB); the
+        // optimisers bind θ's part alone as a storage buffer. Textures are most of a large
+        // scene's data: a buffer beyond the texel range says how much of it they are.
         let bytes = (contents.len() * 4) as u64;
-        let max = ctx.info().max_storage_buffer_range;
+        let max = ctx.info().max_texel_buffer_elements.saturating_mul(gpu::TEXEL_BYTES);
         if bytes > max && data.textures > 0 {
             let (w, h) = data.largest_texture;
             let mib = (data.texture_floats * 4) as f64 / (1024.0 * 1024.0);
             let name = format!("theta: the parameters and material data, {mib:.1} MiB of it in {} texture(s), the largest {w} x {h}; smaller textures fit", data.textures);
-            return Err(gpu::GpuError::BufferTooLarge { name, size: bytes, max });
+            return Err(gpu::GpuError::BufferTooLarge { name, size: bytes, max, limit: "texel-buffer range" });
+        }
+        let params = u64::from(const_base) * 4;
+        let max_storage = ctx.info().max_storage_buffer_range;
+        if params > max_storage {
+            let name = format!("theta: the {} optimised parameters (the optimiser passes bind them as one storage buffer)", layout.len);
+            return Err(gpu::GpuError::BufferTooLarge { name, size: params, max: max_storage, limit: "storage-buffer range" });
         }
         let theta = texel_buffer(ctx, "theta", &contents)?;
+        theta.set_storage_extent(params);
         Ok(Self {
             ctx: ctx.clone(),
             width: scene.film.width,

@@ -354,11 +354,38 @@ fn typed_errors() {
         assert!(matches!(e, GpuError::SpecConstantType { .. }), "{e}");
         let e = ComputePipeline::new(ctx, "no_such_kernel", &[]).err().unwrap();
         assert!(matches!(e, GpuError::UnknownKernel(_)), "{e}");
-        let max = ctx.info().max_storage_buffer_range;
+        // A buffer may be as long as the longer of the two ranges it can be bound by.
+        let max = ctx.info().max_storage_buffer_range.max(ctx.info().max_texel_buffer_elements * 16);
         let e = Buffer::new(ctx, "huge", max + 4, MemoryKind::Device).err().unwrap();
         assert!(matches!(e, GpuError::BufferTooLarge { .. }), "{e}");
         let e = a.write(&[0f32; 5]).unwrap_err();
         assert!(matches!(e, GpuError::BufferAccess { .. }), "{e}");
+    });
+}
+
+/// A storage-buffer binding sees at most the device's storage-buffer range: binding a
+/// longer buffer whole is refused, naming the buffer, the kernel's binding and the range;
+/// with its storage extent set within the range the same buffer binds, and the kernel
+/// writes only that extent.
+#[test]
+fn storage_bindings_stay_within_the_storage_range() {
+    let options = ContextOptions { storage_buffer_range_cap: Some(32), ..common::options() };
+    common::with_gpu_options(options, |ctx| {
+        let copy = ComputePipeline::new(ctx, "copy", &[]).unwrap();
+        let src = Buffer::from_slice(ctx, "src", &[1.0f32; 16], MemoryKind::Device).unwrap();
+        let dst = Buffer::from_slice(ctx, "dst", &[0.0f32; 16], MemoryKind::Device).unwrap();
+        let e = copy.bind(&[("Src", &src), ("Dst", &dst)]).err().unwrap();
+        assert!(matches!(e, GpuError::BufferTooLarge { max: 32, .. }), "{e}");
+        assert!(e.to_string().contains("storage buffer 'Src' of kernel 'copy'") && e.to_string().contains("storage-buffer range of 32 bytes"), "{e}");
+        src.set_storage_extent(32);
+        dst.set_storage_extent(32);
+        let group = copy.bind(&[("Src", &src), ("Dst", &dst)]).unwrap();
+        let mut cmd = CommandBuffer::new(ctx, "t").unwrap();
+        cmd.record(|rec| rec.dispatch_linear(&copy, &group, &vkinverse::kernels::CountPush { n: 8 }, 8)).unwrap();
+        cmd.submit_and_wait().unwrap();
+        let out: Vec<f32> = dst.read().unwrap();
+        assert_eq!(&out[..8], &[1.0; 8]);
+        assert_eq!(&out[8..], &[0.0; 8], "nothing beyond the storage extent is written");
     });
 }
 
