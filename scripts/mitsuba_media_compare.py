@@ -29,9 +29,12 @@
 
     python3 scripts/mitsuba_media_compare.py --grid 32 --res 128,256 --out /tmp/media-cmp
     python3 scripts/mitsuba_media_compare.py --albedo 0.8 --g 0.3 --out /tmp/media-scatter
+    python3 scripts/mitsuba_media_compare.py --albedo 0.9 --albedo-grid --g 0.3 --parts a --out /tmp/media-albedo
 
 With --albedo above 0 the medium scatters (a Henyey-Greenstein phase function of --g on
-both; isotropic at 0) and both trace paths of up to --max-depth segments (Mitsuba:
+both; isotropic at 0); with --albedo-grid its albedo is a smooth random RGB grid of
+--grid^3 voxels between 0.3 and --albedo (vkinverse: albedo.npy; Mitsuba: a three-channel
+gridvolume placed as the density's) and both trace paths of up to --max-depth segments (Mitsuba:
 scattering events) through it: vkinverse samples collisions by inverting its marched
 transmittance, Mitsuba by delta tracking.
 
@@ -93,11 +96,25 @@ def density_grid(np, n, seed):
     return d.astype(np.float32)
 
 
+def albedo_grid(np, n, top, seed):
+    """A smooth random RGB albedo of n^3 voxels ([z, y, x, 3]) between 0.3 and `top`: each
+    channel a density_grid of its own seed, normalised to [0, 1] and mapped there."""
+    channels = []
+    for c in range(3):
+        d = density_grid(np, n, seed + 100 + c).astype(np.float64)
+        channels.append(0.3 + (top - 0.3) * (d - d.min()) / max(d.max() - d.min(), 1e-12))
+    return np.stack(channels, axis=-1).astype(np.float32)
+
+
 def write_vk_scene(np, folder, n, res, density, args, spp, init):
     """vkinverse's scene: the medium's box with `density` as its .npy grid, emission 0, and
     the density grid as an optimised parameter starting at `init` (a number)."""
     folder.mkdir(parents=True, exist_ok=True)
     np.save(folder / "density.npy", density.astype(np.float32))
+    albedo = args.albedo
+    if args.albedo_grid:
+        np.save(folder / "albedo.npy", albedo_grid(np, n, args.albedo, args.seed))
+        albedo = '"albedo.npy"'
     s = SENSOR
     toml = f"""# The absorbing medium of scripts/mitsuba_media_compare.py.
 [film]
@@ -124,7 +141,7 @@ density = "density.npy"
 emission = 0.0
 scale = {args.scale}
 step = 0.5
-albedo = {args.albedo}
+albedo = {albedo}
 g = {args.g}
 
 [optimise]
@@ -164,7 +181,8 @@ def mitsuba_scene(mi, vol_path, res, args, integrator, spp):
             "bsdf": {"type": "null"},
             "interior": {
                 "type": "heterogeneous",
-                "albedo": args.albedo,
+                "albedo": ({"type": "gridvolume", "filename": str(vol_path.parent / "albedo.vol"), "filter_type": "trilinear",
+                            "wrap_mode": "clamp", "to_world": to_world} if args.albedo_grid else args.albedo),
                 "phase": {"type": "hg", "g": args.g} if args.g != 0 else {"type": "isotropic"},
                 "scale": args.scale,
                 "sigma_t": {"type": "gridvolume", "filename": str(vol_path), "filter_type": "trilinear",
@@ -390,6 +408,8 @@ def main():
     ap.add_argument("--scale", type=float, default=0.5, help="sigma_t = scale * density")
     ap.add_argument("--seed", type=int, default=1, help="seed of the random density")
     ap.add_argument("--albedo", type=float, default=0.0, help="the medium's single-scattering albedo (0: absorbing only)")
+    ap.add_argument("--albedo-grid", action="store_true", help="an RGB albedo grid between 0.3 and --albedo instead "
+                    "of the constant --albedo")
     ap.add_argument("--g", type=float, default=0.0, help="Henyey-Greenstein mean cosine of a scattering medium")
     ap.add_argument("--max-depth", type=int, default=16, help="with --albedo above 0: vkinverse's max_depth (path "
                     "segments); Mitsuba counts its depth the same way")
@@ -418,6 +438,8 @@ def main():
     reference = density_grid(np, args.grid, args.seed)
     vol = args.out / "density.vol"
     mi.VolumeGrid(reference[..., None]).write(str(vol))
+    if args.albedo_grid:
+        mi.VolumeGrid(albedo_grid(np, args.grid, args.albedo, args.seed)).write(str(args.out / "albedo.vol"))
     results = {"grid": args.grid, "scale": args.scale, "density_max": float(reference.max()),
                "density_mean": float(reference.mean()), "mitsuba": mi.__version__, "a": {}, "c": {}}
     print(f"density grid {args.grid}^3, max {reference.max():.3f}, mean {reference.mean():.3f}, scale {args.scale}; "

@@ -184,8 +184,8 @@ pub struct LightRecord {
     pub outer: f32,
 }
 
-/// Mirror of `MediumRecord`: 96 bytes (6 texels); `max_steps` 0 where the scene has no
-/// medium.
+/// Mirror of `MediumRecord`: 112 bytes (7 texels); `max_steps` 0 where the scene has no
+/// medium; `pad` zero.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MediumRecord {
@@ -198,9 +198,10 @@ pub struct MediumRecord {
     pub density_depth: u32,
     pub emission_depth: u32,
     pub max_steps: u32,
-    pub pad: u32,
-    pub albedo: [f32; 3],
+    pub albedo_depth: u32,
+    pub albedo: ValueRef,
     pub g: f32,
+    pub pad: [u32; 3],
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

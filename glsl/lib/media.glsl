@@ -28,7 +28,7 @@ MediumRecord medium_record() {
     uvec4 t0 = texel_load(Media, 0);
     uvec4 t1 = texel_load(Media, 1);
     uvec4 t4 = texel_load(Media, 4);
-    uvec4 t5 = texel_load(Media, 5);
+    uvec4 t6 = texel_load(Media, 6);
     MediumRecord m;
     m.box_min = uintBitsToFloat(t0.xyz);
     m.step = uintBitsToFloat(t0.w);
@@ -39,9 +39,10 @@ MediumRecord medium_record() {
     m.density_depth = t4.x;
     m.emission_depth = t4.y;
     m.max_steps = t4.z;
-    m.pad = 0u;
-    m.albedo = uintBitsToFloat(t5.xyz);
-    m.g = uintBitsToFloat(t5.w);
+    m.albedo_depth = t4.w;
+    m.albedo = value_ref(texel_load(Media, 5));
+    m.g = uintBitsToFloat(t6.x);
+    m.pad = uvec3(0u);
     return m;
 }
 
@@ -218,11 +219,12 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 // collides, sampled with state 0's densities by inverting the march's transmittance (the
 // medium piecewise constant along the ray: step k holds the density of its sample point).
 // Returns whether it collides, at distance ts, and weighs each state's beta by its own
-// probability of this outcome over state 0's: albedo σ_s(x) e^(−τ_s) / (σ_0(x) e^(−τ_0))
+// probability of this outcome over state 0's: albedo_s(x) σ_s(x) e^(−τ_s) / (σ_0(x) e^(−τ_0))
 // at a collision, e^(τ_0 − τ_s) beyond (in closed form: no ratio of transmittances).
 // ADJOINT, gradient replay: the derivative of each state's log-weight with the sampling
 // held fixed (detached), times Σ_s sign δ_s · remaining_s (everything the path gathers
-// from here on): −scale dt_j per step crossed, and +scale / σ_s(x) at the collision.
+// from here on): −scale dt_j per step crossed, and +scale / σ_s(x) at the collision; and
+// the albedo's, looked up at the collision point: remaining / albedo per channel.
 bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 beta[NSTATES], out float ts
 #ifdef ADJOINT
                         , vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
@@ -258,16 +260,23 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
         }
         for (int s = 0; s < NSTATES; ++s) tau[s] += sigma[s] * dt;
     }
+    // The collision's point: its albedo is looked up there (each state's own).
+    vec3 q_hit = vec3(0.0);
+    vec3 albedo_hit[NSTATES];
+    if (collided) {
+        ts = mr.t0 + float(hit_step) * dt + offset;
+        q_hit = (o + ts * d - m.box_min) / (m.box_max - m.box_min);
+    }
     for (int s = 0; s < NSTATES; ++s) {
         float w = exp(tau[0] - tau[s]);
         if (collided) {
             if (s != 0) w *= sigma_hit[s] / sigma_hit[0];
-            beta[s] *= m.albedo * w;
+            albedo_hit[s] = grid3(m.albedo, m.albedo_depth, q_hit, s);
+            beta[s] *= albedo_hit[s] * w;
         } else {
             beta[s] *= w;
         }
     }
-    if (collided) ts = mr.t0 + float(hit_step) * dt + offset;
 #ifdef ADJOINT
     if (grad_pass) {
         float g_all = 0.0;
@@ -284,6 +293,18 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
             float g = -len * g_all;
             if (collided && k == hit_step) g += g_hit;
             grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+        }
+        // The albedo scales everything the path gathers after the collision: d/dα of each
+        // state's remaining radiance is remaining / α, per channel (0 where α is 0, which
+        // ends the channel's path).
+        if (collided) {
+            vec3 g_albedo = vec3(0.0);
+            for (int s = 0; s < NSTATES; ++s) {
+                bvec3 live = greaterThan(albedo_hit[s], vec3(0.0));
+                vec3 per_albedo = mix(vec3(0.0), remaining[s] / albedo_hit[s], live);
+                g_albedo += state_sign(s) * delta[s] * per_albedo;
+            }
+            grid_scatter3(m.albedo, m.albedo_depth, q_hit, g_albedo);
         }
     }
 #endif

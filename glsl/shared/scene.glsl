@@ -121,8 +121,9 @@ struct LightRecord {
 // The scene's medium (src/render/features/media.rs): a box of emitting and absorbing
 // medium whose density and emission are constants (width 0) or grids of width × height ×
 // depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
-// albedo > 0: a scattering medium (the SCATTERING builds), its phase function
-// Henyey-Greenstein's of mean cosine g. 96 bytes (6 texels).
+// albedo > 0: a scattering medium (the SCATTERING builds), its albedo a constant or a
+// grid as the others, its phase function Henyey-Greenstein's of mean cosine g. 112 bytes
+// (7 texels).
 struct MediumRecord {
     vec3 box_min;
     float step;       // marching step along a ray, world units
@@ -133,9 +134,10 @@ struct MediumRecord {
     uint density_depth;
     uint emission_depth;
     uint max_steps;   // most steps of one march (a longer one takes longer steps)
-    uint pad;
-    vec3 albedo;      // per channel
+    uint albedo_depth;
+    ValueRef albedo;    // 3 channels
     float g;
+    uvec3 pad;
 };
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the

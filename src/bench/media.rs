@@ -230,7 +230,7 @@ pub fn synthetic_scene(grid: u32, film: u32) -> Result<Scene> {
         emission: ParamValue { shape: Shape::grid(grid, grid, grid, 3), data: emission },
         scale: 1.0,
         step: DEFAULT_STEP,
-        albedo: [0.0; 3],
+        albedo: ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
         g: 0.0,
         formats: Default::default(),
     };

@@ -389,14 +389,6 @@ pub struct MediumFile {
     pub emission: Option<GridInput>,
     pub scale: Option<f32>,
     pub step: Option<f32>,
-    pub albedo: Option<AlbedoInput>,
+    pub albedo: Option<GridInput>,
     pub g: Option<f32>,
-}
-
-/// A medium's albedo: one number for every channel, or `[r, g, b]`.
-#[derive(Debug, Deserialize, Clone, Copy)]
-#[serde(untagged, expecting = "expected a number or [r, g, b]")]
-pub enum AlbedoInput {
-    Scalar(f32),
-    Color([f32; 3]),
 }

@@ -219,8 +219,8 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.u64(scene.media.len() as u64);
         for m in &scene.media {
             h.f32s(&[m.min, m.max].concat());
-            h.f32s(&[m.scale, m.step, m.albedo[0], m.albedo[1], m.albedo[2], m.g]);
-            for v in [&m.density, &m.emission] {
+            h.f32s(&[m.scale, m.step, m.g]);
+            for v in [&m.density, &m.emission, &m.albedo] {
                 h.u32s(&v.shape.array().iter().map(|&d| d as u32).collect::<Vec<_>>());
                 h.f32s(&v.data);
             }

@@ -889,7 +889,7 @@ impl Loader {
         if let Some(sides) = p.grid {
             let k = format!("{key}.grid");
             if target.medium().is_none() {
-                return Err(self.invalid(&k, "only a medium's density and emission are grids"));
+                return Err(self.invalid(&k, "only a medium's density, emission and albedo are grids"));
             }
             for s in sides {
                 self.in_range(&k, s, 1, crate::tensor::MAX_GRID_SIDE)?;
@@ -900,6 +900,9 @@ impl Loader {
         }
         if target.medium().is_some() && lo < 0.0 {
             return Err(self.out_of_range(&range_key, format!("a medium's values are not negative; the range starts at {lo}")));
+        }
+        if matches!(target, ParamTarget::MediumAlbedo { .. }) && p.range[1] > 1.0 {
+            return Err(self.out_of_range(&range_key, format!("an albedo lies in [0, 1]; the range ends at {}", p.range[1])));
         }
         let shape = match (p.texture, p.grid, &reference) {
             (Some([w, h]), _, _) => Shape::texture(w, h, channels),

@@ -1,10 +1,10 @@
-//! The `[[media]]` tables: boxes of emitting and absorbing medium, their density and
-//! emission as constants or grids (`.npy`, or Mitsuba's `.vol`), and the trilinear
+//! The `[[media]]` tables: boxes of emitting and absorbing or of scattering medium, their
+//! density, emission and albedo as constants or grids (`.npy`, or Mitsuba's `.vol`), and the trilinear
 //! resampling that turns a grid into a parameter's resolution.
 
 use std::collections::HashSet;
 
-use super::file::{AlbedoInput, GridInput, MediumFile};
+use super::file::{GridInput, MediumFile};
 use super::loader::Loader;
 use super::model::{GridFormat, Medium};
 use super::SceneError;
@@ -16,8 +16,9 @@ pub const DEFAULT_STEP: f32 = 0.5;
 /// Most steps a ray takes through one medium: a longer march takes longer steps.
 pub const MAX_STEPS: u32 = 1024;
 
-/// What is wrong with a medium's albedo (each channel in [0, 1]), if anything.
-pub fn albedo_error(albedo: [f32; 3]) -> Option<String> {
+/// What is wrong with a medium's albedo (each channel of each voxel in [0, 1]), if
+/// anything.
+pub fn albedo_error(albedo: &[f32]) -> Option<String> {
     albedo.iter().find(|a| !(0.0..=1.0).contains(*a)).map(|a| format!("albedo {a} is outside [0, 1]"))
 }
 
@@ -47,25 +48,34 @@ impl Loader {
                 Some(e) => self.grid(&format!("{key}.emission"), e, 3)?,
                 None => (ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] }, GridFormat::Npy),
             };
+            let (albedo, albedo_format) = match &m.albedo {
+                Some(a) => self.grid(&format!("{key}.albedo"), a, 3)?,
+                None => (ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] }, GridFormat::Npy),
+            };
+            if let Some(message) = albedo_error(&albedo.data) {
+                return Err(self.out_of_range(&format!("{key}.albedo"), message));
+            }
             let scale = m.scale.unwrap_or(1.0);
             self.positive(&format!("{key}.scale"), scale)?;
             let step = m.step.unwrap_or(DEFAULT_STEP);
             self.positive(&format!("{key}.step"), step)?;
-            let albedo = match m.albedo {
-                None => [0.0; 3],
-                Some(AlbedoInput::Scalar(a)) => [a; 3],
-                Some(AlbedoInput::Color(c)) => c,
-            };
-            self.finite(&format!("{key}.albedo"), &albedo)?;
-            if let Some(message) = albedo_error(albedo) {
-                return Err(self.out_of_range(&format!("{key}.albedo"), message));
-            }
             let g = m.g.unwrap_or(0.0);
             self.finite(&format!("{key}.g"), &[g])?;
             if let Some(message) = g_error(g) {
                 return Err(self.out_of_range(&format!("{key}.g"), message));
             }
-            let medium = Medium { name: m.name, min: m.min, max: m.max, density, emission, scale, step, albedo, g, formats: [density_format, emission_format] };
+            let medium = Medium {
+                name: m.name,
+                min: m.min,
+                max: m.max,
+                density,
+                emission,
+                scale,
+                step,
+                albedo,
+                g,
+                formats: [density_format, emission_format, albedo_format],
+            };
             if medium.scatters() && medium.emission.data.iter().any(|&v| v > 0.0) {
                 return Err(self.invalid(
                     &format!("{key}.emission"),
@@ -80,9 +90,9 @@ impl Loader {
         Ok(out)
     }
 
-    /// A density (`channels` 1) or emission (3) value: a number (every channel), a colour
-    /// (3 channels only), a `.npy` grid of shape [z, y, x] or [z, y, x, channels], or a
-    /// Mitsuba `.vol` grid of `channels` channels (whose bounding box is not used: the
+    /// A density (`channels` 1), emission or albedo (3) value: a number (every channel), a
+    /// colour (3 channels only), a `.npy` grid of shape [z, y, x] or [z, y, x, channels],
+    /// or a Mitsuba `.vol` grid of `channels` channels (whose bounding box is not used: the
     /// medium's `min` and `max` place it). The format is the file's.
     fn grid(&self, key: &str, input: &GridInput, channels: u32) -> Result<(ParamValue, GridFormat), SceneError> {
         let (value, format) = match input {
@@ -93,7 +103,7 @@ impl Loader {
                 let (path, bytes) = self.read(key, rel)?;
                 let grid = crate::vol::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
                 if grid.channels != channels {
-                    let what = if channels == 1 { "a density has 1" } else { "an emission has 3" };
+                    let what = if channels == 1 { "a density has 1" } else { "an emission or an albedo has 3" };
                     let has = if grid.channels == 1 { "1 channel".to_string() } else { format!("{} channels", grid.channels) };
                     return Err(self.invalid(key, &format!("{} has {has}; {what}", path.display())));
                 }

@@ -860,12 +860,13 @@ pub struct Medium {
     /// as one voxel across the box).
     pub step: f32,
     /// The part of the extinction that scatters, per channel, in [0, 1]: 0 absorbs only.
-    pub albedo: [f32; 3],
+    /// Three channels, constant or a grid.
+    pub albedo: crate::tensor::ParamValue,
     /// The phase function's mean cosine, in (−1, 1): 0 isotropic, above 0 forward.
     pub g: f32,
-    /// The file formats the density's and the emission's grids came in (`.npy` for a
-    /// constant): the recovered scene writes each grid back in its own.
-    pub formats: [GridFormat; 2],
+    /// The file formats the density's, the emission's and the albedo's grids came in
+    /// (`.npy` for a constant): the recovered scene writes each grid back in its own.
+    pub formats: [GridFormat; 3],
 }
 
 /// The file format of a medium's grid.
@@ -900,7 +901,7 @@ impl GridFormat {
 impl Medium {
     /// Whether it scatters (an albedo above 0 in some channel): it then emits nothing.
     pub fn scatters(&self) -> bool {
-        self.albedo.iter().any(|&a| a > 0.0)
+        self.albedo.data.iter().any(|&a| a > 0.0)
     }
 
     /// The step in world units along a ray: `step` voxels of the finest grid's smallest voxel side.
@@ -946,6 +947,10 @@ pub enum ParamTarget {
     },
     /// A medium's emitted radiance: three channels, a constant or a grid.
     MediumEmission {
+        medium: usize,
+    },
+    /// A scattering medium's albedo: three channels in [0, 1], a constant or a grid.
+    MediumAlbedo {
         medium: usize,
     },
 }

@@ -89,14 +89,23 @@ impl ParamTarget {
             return Ok(if property == "color" { ParamTarget::LightColor { light } } else { ParamTarget::LightIntensity { light } });
         }
         if let Some((medium_name, property)) = name.strip_prefix("media.").and_then(|r| r.rsplit_once('.')) {
-            if !matches!(property, "density" | "emission") {
+            if !matches!(property, "density" | "emission" | "albedo") {
                 return Err(TargetError::Malformed);
             }
             let medium = parts.media.iter().position(|m| m.name == medium_name).ok_or_else(|| undefined("medium", medium_name))?;
             if property == "emission" && parts.media[medium].scatters() {
                 return Err(TargetError::Invalid(format!("medium \"{medium_name}\" scatters (albedo above 0) and emits nothing")));
             }
-            return Ok(if property == "density" { ParamTarget::MediumDensity { medium } } else { ParamTarget::MediumEmission { medium } });
+            if property == "albedo" && !parts.media[medium].scatters() {
+                return Err(TargetError::Invalid(format!(
+                    "medium \"{medium_name}\" does not scatter (albedo 0): give it an albedo above 0 to optimise its albedo"
+                )));
+            }
+            return Ok(match property {
+                "density" => ParamTarget::MediumDensity { medium },
+                "emission" => ParamTarget::MediumEmission { medium },
+                _ => ParamTarget::MediumAlbedo { medium },
+            });
         }
         Err(TargetError::Malformed)
     }
@@ -112,13 +121,13 @@ impl ParamTarget {
     /// Whether the target may be optimised as a texture (a light's colour and intensity
     /// are constants).
     pub fn texturable(self) -> bool {
-        !matches!(self, Self::LightColor { .. } | Self::LightIntensity { .. } | Self::MediumDensity { .. } | Self::MediumEmission { .. })
+        !matches!(self, Self::LightColor { .. } | Self::LightIntensity { .. }) && self.medium().is_none()
     }
 
     /// The medium whose density or emission this is, if any (a grid, not a texture).
     pub fn medium(self) -> Option<usize> {
         match self {
-            Self::MediumDensity { medium } | Self::MediumEmission { medium } => Some(medium),
+            Self::MediumDensity { medium } | Self::MediumEmission { medium } | Self::MediumAlbedo { medium } => Some(medium),
             _ => None,
         }
     }
@@ -143,6 +152,7 @@ impl ParamTarget {
             Self::LightIntensity { light } => Reference::Constant(vec![parts.lights[light].intensity]),
             Self::MediumDensity { medium } => Reference::Grid(parts.media[medium].density.clone()),
             Self::MediumEmission { medium } => Reference::Grid(parts.media[medium].emission.clone()),
+            Self::MediumAlbedo { medium } => Reference::Grid(parts.media[medium].albedo.clone()),
         }
     }
 
@@ -154,9 +164,12 @@ impl ParamTarget {
             Self::Roughness { material } => (scene.materials[material].roughness.filter(), scene.materials[material].roughness.wrap()),
             Self::Metallic { material } => (scene.materials[material].metallic.filter(), scene.materials[material].metallic.wrap()),
             Self::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
-            Self::Environment | Self::LightColor { .. } | Self::LightIntensity { .. } | Self::MediumDensity { .. } | Self::MediumEmission { .. } => {
-                (Filter::Bilinear, [Wrap::Repeat; 2])
-            }
+            Self::Environment
+            | Self::LightColor { .. }
+            | Self::LightIntensity { .. }
+            | Self::MediumDensity { .. }
+            | Self::MediumEmission { .. }
+            | Self::MediumAlbedo { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
         }
     }
 
@@ -182,6 +195,7 @@ impl ParamTarget {
             Self::LightIntensity { light } => scene.lights[light].intensity = constant[0],
             Self::MediumDensity { medium } => scene.media[medium].density = value.clone(),
             Self::MediumEmission { medium } => scene.media[medium].emission = value.clone(),
+            Self::MediumAlbedo { medium } => scene.media[medium].albedo = value.clone(),
         }
     }
 }

@@ -290,7 +290,10 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     let mut media = Vec::new();
     for m in &scene.media {
         let mut pairs = vec![("name", Value::String(m.name.clone())), ("min", arr(&m.min)), ("max", arr(&m.max))];
-        for (key, v) in [("density", &m.density), ("emission", &m.emission)] {
+        // A scattering medium's albedo in place of the emission (it emits nothing).
+        let grids =
+            if m.scatters() { [("density", &m.density, 0), ("albedo", &m.albedo, 2)] } else { [("density", &m.density, 0), ("emission", &m.emission, 1)] };
+        for (key, v, k) in grids {
             let value = if v.shape.is_constant() {
                 if v.data.len() == 1 {
                     Value::Float(num(v.data[0]))
@@ -299,7 +302,7 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
                 }
             } else {
                 // Each grid goes back in the format it came in.
-                let format = m.formats[usize::from(key == "emission")];
+                let format = m.formats[k];
                 let rel = format!("grids/{}.{}", file_name(&format!("{}.{key}", m.name)), format.extension());
                 let path = dir.join(&rel);
                 match format {
@@ -321,7 +324,6 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         pairs.push(("scale", Value::Float(num(m.scale))));
         pairs.push(("step", Value::Float(num(m.step))));
         if m.scatters() {
-            pairs.push(("albedo", Value::Array(m.albedo.iter().map(|&a| Value::Float(num(a))).collect())));
             pairs.push(("g", Value::Float(num(m.g))));
         }
         media.push(table(pairs));
@@ -548,7 +550,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                 entry["color"] = json!([num(color[0]), num(color[1]), num(color[2])]);
                 entry["intensity"] = json!(num(intensity));
             }
-            ParamTarget::Environment | ParamTarget::MediumDensity { .. } | ParamTarget::MediumEmission { .. } => {}
+            ParamTarget::Environment | ParamTarget::MediumDensity { .. } | ParamTarget::MediumEmission { .. } | ParamTarget::MediumAlbedo { .. } => {}
         }
     }
     let text = serde_json::to_string_pretty(&root).map_err(|e| write_err(dir, e))?;

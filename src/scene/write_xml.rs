@@ -135,7 +135,9 @@ pub(super) fn write_mitsuba(
                     None => skipped.push(format!("{pname}: no <emitter id=\"{}\"> in this file", l.name)),
                 }
             }
-            ParamTarget::MediumDensity { .. } | ParamTarget::MediumEmission { .. } => skipped.push(format!("{pname}: media are written to scene.toml only")),
+            ParamTarget::MediumDensity { .. } | ParamTarget::MediumEmission { .. } | ParamTarget::MediumAlbedo { .. } => {
+                skipped.push(format!("{pname}: media are written to scene.toml only"))
+            }
             ParamTarget::Environment => {
                 let constant = root.children().find(|n| n.tag_name().name() == "emitter" && n.attribute("type") == Some("constant"));
                 match (constant, &recovered.environment.value) {

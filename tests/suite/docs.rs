@@ -390,7 +390,7 @@ fn held_out_views(name: &str, views: usize, emission_grid: bool, params: &[&str]
     assert_eq!(emission[emission.len() - 1], 3, "{name}: {emission:?}");
     assert_eq!(emission.len() == 4, emission_grid, "{name}: {emission:?}");
     let (a, b) = (&train.media[0], &held.media[0]);
-    assert_eq!((&a.name, a.min, a.max, a.scale, a.step, a.albedo, a.g), (&b.name, b.min, b.max, b.scale, b.step, b.albedo, b.g));
+    assert_eq!((&a.name, a.min, a.max, a.scale, a.step, &a.albedo, a.g), (&b.name, b.min, b.max, b.scale, b.step, &b.albedo, b.g));
     assert!(a.density == b.density && a.emission == b.emission, "heldout.toml's grids are not scene.toml's");
     assert_eq!((train.film.width, train.film.height), (held.film.width, held.film.height));
     for h in &held.sensors {

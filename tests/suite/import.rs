@@ -2333,23 +2333,50 @@ fn absorbing_mitsuba_media_import_as_media_boxes() {
 }
 
 /// A scattering Mitsuba medium imports with its albedo and phase function: isotropic by
-/// default, `hg` with its `g` (Mitsuba's default 0.8), under `prbvolpath` as well.
+/// default, `hg` with its `g` (Mitsuba's default 0.8), under `prbvolpath` as well. An
+/// albedo `gridvolume` that fills the box is a grid: one channel for every channel, or
+/// three; the recovered scene writes it back as `.vol`.
 #[test]
 fn mitsuba_scattering_media_import_with_their_albedo_and_phase() {
     let scene = Scene::load(data("mitsuba/medium-scattering.xml")).unwrap();
     let m = &scene.media[0];
-    assert_eq!((m.albedo, m.g, m.scale), ([0.8; 3], 0.0, 2.0));
+    assert_eq!((m.albedo.data.as_slice(), m.g, m.scale), (&[0.8; 3][..], 0.0, 2.0));
     let dir = temp_dir("mitsuba-medium-scattering");
     std::fs::copy(data("mitsuba/smoke.vol"), dir.join("smoke.vol")).unwrap();
     let text = std::fs::read_to_string(data("mitsuba/medium-scattering.xml")).unwrap().replace("type=\"volpath\"", "type=\"prbvolpath\"");
     for (name, phase, g) in [("hg", "<phase type=\"hg\"><float name=\"g\" value=\"0.4\"/></phase>", 0.4), ("hg-default", "<phase type=\"hg\"/>", 0.8)] {
         let xml = text.replace("<float name=\"scale\" value=\"2\"/>", &format!("<float name=\"scale\" value=\"2\"/>{phase}"));
         let scene = write_and_load(&dir, &format!("{name}.xml"), &xml).unwrap();
-        assert_eq!((scene.media[0].albedo, scene.media[0].g), ([0.8; 3], g), "{name}");
+        assert_eq!((scene.media[0].albedo.data.as_slice(), scene.media[0].g), (&[0.8; 3][..], g), "{name}");
     }
     // A coloured albedo, as Mitsuba's own test scenes have.
     let xml = text.replace("<float name=\"albedo\" value=\"0.8\"/>", "<rgb name=\"albedo\" value=\"0.99, 0.5, 0.25\"/>");
-    assert_eq!(write_and_load(&dir, "rgb.xml", &xml).unwrap().media[0].albedo, [0.99, 0.5, 0.25]);
+    assert_eq!(write_and_load(&dir, "rgb.xml", &xml).unwrap().media[0].albedo.data, [0.99, 0.5, 0.25]);
+    // Albedo grids of one and of three channels, placed as the density's.
+    let grid_to_world = "<transform name=\"to_world\"><scale x=\"2\" y=\"1\" z=\"1.5\"/><translate x=\"-0.75\" y=\"-0.5\" z=\"-0.75\"/></transform>";
+    for channels in [1u32, 3] {
+        let data: Vec<f32> = (0..2 * 3 * 4 * channels).map(|i| (i % 7) as f32 / 7.0).collect();
+        let grid = vkinverse::vol::Grid { size: [2, 3, 4], channels, bbox: [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], data: data.clone() };
+        vkinverse::vol::write(&dir.join(format!("albedo{channels}.vol")), &grid).unwrap();
+        let volume = format!("<volume type=\"gridvolume\" name=\"albedo\"><string name=\"filename\" value=\"albedo{channels}.vol\"/>{grid_to_world}</volume>");
+        let xml = text.replace("<float name=\"albedo\" value=\"0.8\"/>", &volume);
+        let scene = write_and_load(&dir, &format!("albedo{channels}.xml"), &xml).unwrap();
+        let albedo = &scene.media[0].albedo;
+        assert_eq!(albedo.shape.array(), vec![4, 3, 2, 3], "{channels} channel(s)");
+        let expected: Vec<f32> = if channels == 3 { data } else { data.iter().flat_map(|&v| [v; 3]).collect() };
+        assert_eq!(albedo.data, expected);
+        let out = dir.join(format!("run{channels}"));
+        write_final(&out, &scene, &[]).unwrap();
+        let back = Scene::load(out.join("final/scene.toml")).unwrap();
+        assert_eq!(&back.media[0].albedo, albedo, "written back as .vol and read again");
+        assert!(std::fs::read_dir(out.join("final/grids")).unwrap().any(|e| e.unwrap().file_name().to_string_lossy().ends_with("albedo.vol")));
+    }
+    // An albedo grid beyond [0, 1] is refused by name.
+    let grid = vkinverse::vol::Grid { size: [1, 1, 1], channels: 1, bbox: [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], data: vec![1.5] };
+    vkinverse::vol::write(&dir.join("bright.vol"), &grid).unwrap();
+    let volume = format!("<volume type=\"gridvolume\" name=\"albedo\"><string name=\"filename\" value=\"bright.vol\"/>{grid_to_world}</volume>");
+    let xml = text.replace("<float name=\"albedo\" value=\"0.8\"/>", &volume);
+    assert_fails("bright", write_and_load(&dir, "bright.xml", &xml), &["albedo 1.5 is outside [0, 1]"]);
 }
 
 /// What vkinverse cannot render as Mitsuba does is refused in one line naming the plugin:

@@ -854,7 +854,7 @@ fn bad_media_are_named() {
         (
             "grid on a colour",
             format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = 0.5\nrange = [0, 1]\ngrid = [2, 2, 2]\n"),
-            &["optimise.params[0].grid", "only a medium's density and emission are grids"],
+            &["optimise.params[0].grid", "only a medium's density, emission and albedo are grids"],
         ),
         (
             "unknown medium",
@@ -866,6 +866,17 @@ fn bad_media_are_named() {
             format!("{}{}", medium("density = 1\nalbedo = 0.5"), "[[optimise.params]]\ntarget = \"media.fog.emission\"\ninit = 1\nrange = [0, 2]\n"),
             &["optimise.params[0].target", "scatters"],
         ),
+        (
+            "absorber's albedo",
+            format!("{}{}", medium("density = 1"), "[[optimise.params]]\ntarget = \"media.fog.albedo\"\ninit = 0.5\nrange = [0, 1]\n"),
+            &["optimise.params[0].target", "does not scatter"],
+        ),
+        (
+            "albedo range",
+            format!("{}{}", medium("density = 1\nalbedo = 0.5"), "[[optimise.params]]\ntarget = \"media.fog.albedo\"\ninit = 0.5\nrange = [0, 2]\n"),
+            &["optimise.params[0].range", "an albedo lies in [0, 1]"],
+        ),
+        ("albedo grid file", medium("density = 1\nalbedo = \"none.npy\""), &["media.fog.albedo", "none.npy"]),
     ];
     for (name, scene, needles) in cases {
         let err = load_err(&format!("media-{name}"), scene);

@@ -1,6 +1,6 @@
 //! The scene's medium: one record (a box, its scale and marching step, and references to
-//! its density and emission, constants or grids in the material data or θ). Its
-//! parameters: the density and the emission, of any grid size.
+//! its density, emission and albedo, constants or grids in the material data or θ). Its
+//! parameters: the density, the emission and the albedo, of any grid size.
 
 use super::{Feature, Upload};
 use crate::gpu::{self, Buffer, SpecValue};
@@ -40,6 +40,7 @@ impl Media {
         if let Some(m) = scene.media.first() {
             let (density, density_depth) = grid_ref(up, layout.slot(ParamTarget::MediumDensity { medium: 0 }), &m.density);
             let (emission, emission_depth) = grid_ref(up, layout.slot(ParamTarget::MediumEmission { medium: 0 }), &m.emission);
+            let (albedo, albedo_depth) = grid_ref(up, layout.slot(ParamTarget::MediumAlbedo { medium: 0 }), &m.albedo);
             // The step in voxels of the finest grid that renders: the parameters' own
             // where they are optimised.
             let mut stepped = m.clone();
@@ -58,9 +59,10 @@ impl Media {
                 density_depth,
                 emission_depth,
                 max_steps: MAX_STEPS,
-                pad: 0,
-                albedo: m.albedo,
+                albedo_depth,
+                albedo,
                 g: m.g,
+                pad: [0; 3],
             };
         }
         Ok(Media { buffer: texel_buffer(up.ctx, "media", &[record])?, present, scattering })

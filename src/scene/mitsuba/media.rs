@@ -35,7 +35,7 @@ pub(super) struct MediumDef<'a, 'i> {
     node: Node<'a, 'i>,
     sigma_t: Values<'a, 'i>,
     scale: f32,
-    albedo: [f32; 3],
+    albedo: Values<'a, 'i>,
     g: f32,
 }
 
@@ -52,14 +52,13 @@ impl<'a, 'i> Importer<'a, 'i> {
         let mut items = elements(node);
         // Mitsuba's default albedo is 0.75.
         let albedo = match self.take(&mut items, "albedo") {
-            Some(n) => match self.medium_values(n, true)? {
-                Values::Constant(c) => c,
-                Values::Grid { node, .. } => return Err(self.err(node, "albedo as a grid is unsupported (a constant albedo is)")),
-            },
-            None => [0.75; 3],
+            Some(n) => self.medium_values(n, true)?,
+            None => Values::Constant([0.75; 3]),
         };
-        if let Some(message) = albedo_error(albedo) {
-            return Err(self.err(node, message));
+        if let Values::Constant(c) = albedo {
+            if let Some(message) = albedo_error(&c) {
+                return Err(self.err(node, message));
+            }
         }
         let sigma_t = match self.take(&mut items, "sigma_t") {
             Some(n) => {
@@ -221,31 +220,11 @@ impl<'a, 'i> Importer<'a, 'i> {
         self.rest(&items, node)?;
         let world: Vec<Vec3> = positions.iter().map(|&p| to_world.transform_point3(Vec3::from(p))).collect();
         let (min, max) = self.medium_box(node, &world, indices)?;
-        let density = match &def.sigma_t {
-            Values::Constant(c) => ParamValue { shape: Shape::constant(1), data: vec![c[0]] },
-            Values::Grid { grid, to_world, use_grid_bbox, node: at } => {
-                let (lo, hi) = match use_grid_bbox {
-                    true => (Vec3::from_slice(&grid.bbox[..3]), Vec3::from_slice(&grid.bbox[3..])),
-                    false => (Vec3::ZERO, Vec3::ONE),
-                };
-                let linear = Mat3::from_mat4(*to_world);
-                let diagonal = Vec3::new(linear.x_axis.x, linear.y_axis.y, linear.z_axis.z);
-                let off = linear - Mat3::from_diagonal(diagonal);
-                if !(off.abs_diff_eq(Mat3::ZERO, 1e-6 * diagonal.abs().max_element()) && diagonal.min_element() > 0.0) {
-                    return Err(self.err(*at, "the grid's to_world turns or mirrors it (a translation and a positive scale are supported)"));
-                }
-                let (a, b) = (to_world.transform_point3(lo), to_world.transform_point3(hi));
-                let tolerance = BOX_TOLERANCE * (max - min).max_element();
-                if !(lo.cmplt(hi).all() && a.abs_diff_eq(min, tolerance) && b.abs_diff_eq(max, tolerance)) {
-                    return Err(self.err(
-                        *at,
-                        format!("the grid spans {a} to {b} and its shape {min} to {max}: a grid must fill its medium's box (its to_world maps the unit cube onto the box)"),
-                    ));
-                }
-                let [x, y, z] = grid.size;
-                ParamValue { shape: Shape::grid(x, y, z, 1), data: grid.data.clone() }
-            }
-        };
+        let density = self.values_in_box(&def.sigma_t, min, max, 1)?;
+        let albedo = self.values_in_box(&def.albedo, min, max, 3)?;
+        if let Some(message) = albedo_error(&albedo.data) {
+            return Err(self.err(def.node, message));
+        }
         if let Some(v) = density.data.iter().find(|&&v| v < 0.0) {
             return Err(self.err(def.node, format!("sigma_t holds {v}, below 0")));
         }
@@ -253,7 +232,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             return Err(self.err(node, "a second medium: a scene holds at most one"));
         }
         self.medium_shape = Some(node);
-        let format = if matches!(def.sigma_t, Values::Grid { .. }) { GridFormat::Vol } else { GridFormat::Npy };
+        let format = |v: &Values| if matches!(v, Values::Grid { .. }) { GridFormat::Vol } else { GridFormat::Npy };
         self.out.media.push(Medium {
             name: id.unwrap_or_else(|| name.to_string()),
             min: min.to_array(),
@@ -262,11 +241,49 @@ impl<'a, 'i> Importer<'a, 'i> {
             emission: ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
             scale: def.scale,
             step: DEFAULT_STEP,
-            albedo: def.albedo,
+            albedo,
             g: def.g,
-            formats: [format, GridFormat::Npy],
+            formats: [format(&def.sigma_t), GridFormat::Npy, format(&def.albedo)],
         });
         Ok(())
+    }
+
+    /// A medium's property as a value of `channels` channels in its box (`min`, `max`): a
+    /// constant (its first channel where `channels` is 1), or a grid whose `to_world` (on
+    /// the unit cube, or on the file's box with `use_grid_bbox`) fills the box, moved and
+    /// scaled but not turned or mirrored. A one-channel grid gives every channel.
+    fn values_in_box(&self, values: &Values<'a, 'i>, min: Vec3, max: Vec3, channels: u32) -> Result<ParamValue, SceneError> {
+        let (grid, to_world, use_grid_bbox, at) = match values {
+            Values::Constant(c) => return Ok(ParamValue { shape: Shape::constant(channels), data: c[..channels as usize].to_vec() }),
+            Values::Grid { grid, to_world, use_grid_bbox, node } => (grid, to_world, *use_grid_bbox, *node),
+        };
+        let (lo, hi) = match use_grid_bbox {
+            true => (Vec3::from_slice(&grid.bbox[..3]), Vec3::from_slice(&grid.bbox[3..])),
+            false => (Vec3::ZERO, Vec3::ONE),
+        };
+        let linear = Mat3::from_mat4(*to_world);
+        let diagonal = Vec3::new(linear.x_axis.x, linear.y_axis.y, linear.z_axis.z);
+        let off = linear - Mat3::from_diagonal(diagonal);
+        if !(off.abs_diff_eq(Mat3::ZERO, 1e-6 * diagonal.abs().max_element()) && diagonal.min_element() > 0.0) {
+            return Err(self.err(at, "the grid's to_world turns or mirrors it (a translation and a positive scale are supported)"));
+        }
+        let (a, b) = (to_world.transform_point3(lo), to_world.transform_point3(hi));
+        let tolerance = BOX_TOLERANCE * (max - min).max_element();
+        if !(lo.cmplt(hi).all() && a.abs_diff_eq(min, tolerance) && b.abs_diff_eq(max, tolerance)) {
+            return Err(self.err(
+                at,
+                format!(
+                    "the grid spans {a} to {b} and its shape {min} to {max}: a grid must fill its medium's box (its to_world maps the unit cube onto the box)"
+                ),
+            ));
+        }
+        let [x, y, z] = grid.size;
+        let data = match (grid.channels, channels) {
+            (c, want) if c == want => grid.data.clone(),
+            (1, want) => grid.data.iter().flat_map(|&v| std::iter::repeat_n(v, want as usize)).collect(),
+            (c, want) => return Err(self.err(at, format!("the grid has {c} channels; this property has {want} (or 1 for every channel)"))),
+        };
+        Ok(ParamValue { shape: Shape::grid(x, y, z, channels), data })
     }
 
     /// The world bounds of a medium's shape, which must be a closed axis-aligned box: every
