@@ -28,7 +28,8 @@
 //! (texture sets other than 0, non-triangle primitives, required extensions other than
 //! the two above); what does not
 //! change a path-traced image, or only as an approximation the user should know of
-//! (occlusion textures, optional extensions, animation), is a one-line warning.
+//! (occlusion textures, optional extensions, animation, vertex colours), is a one-line
+//! warning.
 //! Samplers' wrapping modes and NEAREST magnification filter are the textures' [`Wrap`]
 //! and [`Filter`]. `alphaMode` `MASK` and `BLEND` are alpha tests ([`AlphaMask`]) on the
 //! base colour's alpha.
@@ -141,18 +142,22 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     } else {
         (bytes.as_slice().into(), None)
     };
-    let root: serde_json::Value = serde_json::from_slice(&json).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+    let mut root: serde_json::Value = serde_json::from_slice(&json).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
     let mut warnings = check_extensions(path, &root)?;
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let buffers = load_buffers(path, &root, &base, bin)?;
     let lengths: Vec<u64> = buffers.iter().map(|b| b.len() as u64).collect();
     super::gltf_check::check(&root, &lengths).map_err(|(at, what)| err(path, at, what))?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
-    let doc = gltf.document;
-    let buffers = buffers.into_iter().map(gltf::buffer::Data).collect();
-    if doc.animations().next().is_some() {
+    // Animations are not rendered: they are left out before the gltf crate reads the
+    // document, so that a channel it cannot read (one whose target names no node, which
+    // glTF 2.0 allows) does not refuse the file.
+    if root.as_object_mut().and_then(|o| o.remove("animations")).is_some_and(|a| a.as_array().is_some_and(|a| !a.is_empty())) {
         warnings.push("animations are ignored: the scene is rendered at rest".into());
     }
+    let json = serde_json::to_vec(&root).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+    let gltf = gltf::Gltf::from_slice(&json).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
+    let doc = gltf.document;
+    let buffers = buffers.into_iter().map(gltf::buffer::Data).collect();
     if doc.skins().next().is_some() {
         warnings.push("skins are ignored: meshes are rendered in their bind pose".into());
     }
@@ -346,6 +351,9 @@ impl Importer<'_> {
         }
         if prim.morph_targets().next().is_some() {
             self.warn(&at, "morph targets are ignored");
+        }
+        if prim.get(&gltf::Semantic::Colors(0)).is_some() {
+            self.warn(format!("{at}.attributes.COLOR_0"), "vertex colours are ignored: the material's base colour alone is rendered");
         }
         let buffers = &self.buffers;
         let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));

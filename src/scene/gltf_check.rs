@@ -104,8 +104,8 @@ fn check_accessor(a: &Value, at: &str, views: &[Value]) -> Result<(), Problem> {
     if count == 0 {
         return bad(".count", "is 0".into());
     }
-    if a.get("sparse").is_some() {
-        return bad(".sparse", "sparse accessors are not supported".into());
+    if let Some(sparse) = a.get("sparse") {
+        check_sparse(sparse, &format!("{at}.sparse"), count, comps * size, views)?;
     }
     let Some(view) = uint(a, "bufferView") else { return Ok(()) };
     let Some(v) = views.get(view as usize) else { return bad(".bufferView", format!("buffer view {view} does not exist")) };
@@ -119,6 +119,39 @@ fn check_accessor(a: &Value, at: &str, views: &[Value]) -> Result<(), Problem> {
     let length = uint(v, "byteLength").unwrap_or(0);
     if end.is_none_or(|end| end > length) {
         return bad("", format!("{count} elements of {element} bytes from byte {offset} run past buffer view {view}'s {length} bytes"));
+    }
+    Ok(())
+}
+
+/// A sparse accessor's substitutions (of an accessor of `count` elements of `element`
+/// bytes): between 1 and `count` of them; their indices unsigned integers and their values
+/// elements, each in a buffer view without a stride that holds all of them.
+fn check_sparse(sparse: &Value, at: &str, count: u64, element: u64, views: &[Value]) -> Result<(), Problem> {
+    let bad = |field: &str, what: String| Err((format!("{at}{field}"), what));
+    let n = uint(sparse, "count").unwrap_or(0);
+    if n == 0 || n > count {
+        return bad(".count", format!("{n} is not between 1 and the accessor's {count} elements"));
+    }
+    for part in ["indices", "values"] {
+        let Some(p) = sparse.get(part) else { return bad(&format!(".{part}"), "is missing".into()) };
+        let bytes = if part == "indices" {
+            match uint(p, "componentType") {
+                Some(t @ (5121 | 5123 | 5125)) => component_bytes(t).unwrap_or(4),
+                t => return bad(&format!(".{part}.componentType"), format!("{} is not an unsigned integer type", t.unwrap_or(0))),
+            }
+        } else {
+            element
+        };
+        let view = uint(p, "bufferView").unwrap_or(u64::MAX);
+        let Some(v) = views.get(view as usize) else { return bad(&format!(".{part}.bufferView"), format!("buffer view {view} does not exist")) };
+        if v.get("byteStride").is_some() {
+            return bad(&format!(".{part}.bufferView"), format!("buffer view {view} has a byteStride (a sparse accessor's views have none)"));
+        }
+        let offset = uint(p, "byteOffset").unwrap_or(0);
+        let length = uint(v, "byteLength").unwrap_or(0);
+        if n.checked_mul(bytes).and_then(|x| x.checked_add(offset)).is_none_or(|end| end > length) {
+            return bad(&format!(".{part}"), format!("{n} elements of {bytes} bytes from byte {offset} run past buffer view {view}'s {length} bytes"));
+        }
     }
     Ok(())
 }
@@ -257,6 +290,38 @@ mod tests {
         assert!(problem(doc(json!({ "images": [{ "bufferView": 9 }] }))).contains("buffer view 9"));
         assert!(problem(doc(json!({ "images": [{ "bufferView": 0 }] }))).contains("no mimeType"));
         assert!(problem(doc(json!({ "textures": [{ "source": 0 }] }))).contains("image 0 does not exist"));
+    }
+
+    /// A sparse accessor passes with substitutions that fit their views; too many, none, a
+    /// float index, a strided view or a view too short for them are refused.
+    #[test]
+    fn sparse_accessors_are_checked_as_their_views_hold_them() {
+        let sparse = |count: u64| json!({ "count": count, "indices": { "bufferView": 1, "componentType": 5125 }, "values": { "bufferView": 0, "byteOffset": 12 } });
+        let with = |s: Value| {
+            let mut d = doc(json!({}));
+            d["accessors"][0]["sparse"] = s;
+            d
+        };
+        check(&with(sparse(2)), &[48]).unwrap();
+        // Without a base view: zeros with the substitutions.
+        let mut d = with(sparse(1));
+        d["accessors"][0].as_object_mut().unwrap().remove("bufferView");
+        check(&d, &[48]).unwrap();
+        assert!(problem(with(sparse(0))).contains("0 is not between 1 and the accessor's 3 elements"));
+        assert!(problem(with(sparse(4))).contains("4 is not between 1"));
+        let mut s = sparse(2);
+        s["indices"]["componentType"] = json!(5126);
+        assert!(problem(with(s)).contains("indices.componentType: 5126 is not an unsigned integer type"));
+        let mut d = with(sparse(3));
+        d["accessors"][0]["sparse"]["values"]["byteOffset"] = json!(0);
+        check(&d, &[48]).unwrap();
+        assert!(problem(with(sparse(3))).contains("3 elements of 12 bytes from byte 12 run past buffer view 0's 36 bytes"));
+        let mut d = with(sparse(2));
+        d["bufferViews"][1]["byteStride"] = json!(4);
+        assert!(problem(d).contains("has a byteStride"));
+        let mut s = sparse(2);
+        s["values"]["bufferView"] = json!(5);
+        assert!(problem(with(s)).contains("buffer view 5 does not exist"));
     }
 
     #[test]

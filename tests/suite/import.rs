@@ -576,6 +576,51 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
     assert!(s.warnings[0].contains("materials[1].extensions.KHR_materials_clearcoat") && !s.warnings[0].contains('\n'), "{}", s.warnings[0]);
 }
 
+/// Core glTF that a sample model uses reads as the file says: a sparse accessor moves the
+/// vertex it names (vertex 2 of a quad, lifted to y = 0.5), an animation channel whose
+/// target names no node (which glTF 2.0 allows) leaves the file readable with the
+/// animation ignored, and vertex colours (COLOR_0), which are not rendered, are named in a
+/// warning.
+#[test]
+fn gltf_sparse_accessors_nodeless_animations_and_vertex_colours() {
+    let dir = temp_dir("gltf-core");
+    let f32s = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let mut bin = f32s(&[-1.0, 0.0, -1.0, 1.0, 0.0, -1.0, 1.0, 0.0, 1.0, -1.0, 0.0, 1.0]); // 0..48 positions
+    bin.extend([0u32, 2, 1, 0, 3, 2].iter().flat_map(|i| i.to_le_bytes())); // 48..72 indices
+    bin.extend(f32s(&[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0])); // 72..120 colours
+    bin.extend(2u32.to_le_bytes()); // 120..124 the sparse index
+    bin.extend(f32s(&[1.0, 0.5, 1.0])); // 124..136 its value
+    std::fs::write(dir.join("quad.bin"), &bin).unwrap();
+    let gltf = r#"{
+  "asset": { "version": "2.0" },
+  "buffers": [{ "uri": "quad.bin", "byteLength": 136 }],
+  "bufferViews": [
+    { "buffer": 0, "byteOffset": 0, "byteLength": 48 },
+    { "buffer": 0, "byteOffset": 48, "byteLength": 24 },
+    { "buffer": 0, "byteOffset": 72, "byteLength": 48 },
+    { "buffer": 0, "byteOffset": 120, "byteLength": 4 },
+    { "buffer": 0, "byteOffset": 124, "byteLength": 12 }
+  ],
+  "accessors": [
+    { "bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [-1, 0, -1], "max": [1, 0.5, 1],
+      "sparse": { "count": 1, "indices": { "bufferView": 3, "componentType": 5125 }, "values": { "bufferView": 4 } } },
+    { "bufferView": 1, "componentType": 5125, "count": 6, "type": "SCALAR" },
+    { "bufferView": 2, "componentType": 5126, "count": 4, "type": "VEC3" }
+  ],
+  "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0, "COLOR_0": 2 }, "indices": 1 }] }],
+  "nodes": [{ "mesh": 0 }],
+  "scenes": [{ "nodes": [0] }],
+  "scene": 0,
+  "animations": [{ "samplers": [{ "input": 1, "output": 2 }], "channels": [{ "sampler": 0, "target": { "id": 0, "path": "rotation" } }] }]
+}"#;
+    std::fs::write(dir.join("quad.gltf"), gltf).unwrap();
+    let s = Scene::load(dir.join("quad.gltf")).unwrap();
+    let p = &s.meshes[0].positions;
+    assert_eq!((p[1], p[2], p[3]), ([1.0, 0.0, -1.0], [1.0, 0.5, 1.0], [-1.0, 0.0, 1.0]), "the sparse value replaces vertex 2 alone");
+    assert!(s.warnings.iter().any(|w| w.contains("animations are ignored")), "{:?}", s.warnings);
+    assert!(s.warnings.iter().any(|w| w.contains("meshes[0].primitives[0].attributes.COLOR_0") && w.contains("vertex colours are ignored")), "{:?}", s.warnings);
+}
+
 #[test]
 fn unsupported_mitsuba_content_is_named_with_its_line() {
     for (file, needles) in [
