@@ -56,6 +56,8 @@ pub struct MaterialF64 {
     pub internal: f64,
     pub nonlinear: bool,
     pub unlayered: bool,
+    /// A plastic's specular tint.
+    pub specular: DVec3,
 }
 
 impl From<Material> for MaterialF64 {
@@ -74,6 +76,7 @@ impl From<Material> for MaterialF64 {
             internal: m.internal as f64,
             nonlinear: m.coating & COATING_NONLINEAR != 0,
             unlayered: m.coating & COATING_UNLAYERED != 0,
+            specular: DVec3::from(m.specular.map(f64::from)),
         }
     }
 }
@@ -542,13 +545,15 @@ fn plastic_kept(m: &MaterialF64) -> DVec3 {
 /// `plastic_value`
 fn plastic_value(m: &MaterialF64, wo: DVec3, wi: DVec3, t: &MicrofacetTerms) -> DVec3 {
     let spec = if t.valid { t.value * dielectric_fresnel(t.oh, m.ior).0 } else { 0.0 };
-    DVec3::splat(spec) + m.base_color / plastic_kept(m) * plastic_diffuse(m, wo, wi)
+    m.specular * spec + m.base_color / plastic_kept(m) * plastic_diffuse(m, wo, wi)
 }
 
 /// `plastic_specular_prob`
 fn plastic_specular_prob(m: &MaterialF64, cos_o: f64) -> f64 {
     let t = plastic_transmittance(m, cos_o);
-    let w = 1.0 / (1.0 + ((m.base_color.x + m.base_color.y + m.base_color.z) / 3.0).max(0.0));
+    let s = ((m.specular.x + m.specular.y + m.specular.z) / 3.0).max(0.0);
+    let d = ((m.base_color.x + m.base_color.y + m.base_color.z) / 3.0).max(0.0);
+    let w = if s + d > 0.0 { s / (s + d) } else { 0.5 };
     let spec = (1.0 - t) * w;
     let total = spec + t * (1.0 - w);
     if total > 0.0 {

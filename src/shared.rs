@@ -22,7 +22,7 @@ pub use crate::constants::{
     MATERIAL_ROUGH_DIELECTRIC, MATERIAL_ROUGH_DIELECTRIC_BECKMANN, MATERIAL_THIN_DIELECTRIC, PLASTIC_TABLE_SIZE,
 };
 
-/// Mirror of `Material` (glsl/shared/material.glsl): 64 bytes, offsets checked against the
+/// Mirror of `Material` (glsl/shared/material.glsl): 80 bytes, offsets checked against the
 /// reflected SPIR-V in tests/suite/bsdf.rs (the kind constants are defined once, in
 /// [`crate::constants`]). The model is defined in glsl/lib/bsdf.glsl and
 /// mirrored in f64 by [`crate::bsdf`].
@@ -51,6 +51,10 @@ pub struct Material {
     pub table: u32,
     pub internal: f32,
     pub coating: u32,
+    /// A plastic's specular tint (Mitsuba's `specular_reflectance`), scaling its coating's
+    /// reflection; unused by the other kinds.
+    pub specular: [f32; 3],
+    pub pad: u32,
 }
 
 /// Mirror of `ValueRef` (glsl/shared/scene.glsl): 16 bytes.
@@ -77,7 +81,7 @@ impl ValueRef {
     pub const SAMPLER: u32 = Self::NEAREST | 0b11_1100;
 }
 
-/// Mirror of `MaterialRecord`: 144 bytes (9 texels).
+/// Mirror of `MaterialRecord`: 160 bytes (10 texels; `pad` is zero).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MaterialRecord {
@@ -111,6 +115,9 @@ pub struct MaterialRecord {
     pub k: [f32; 3],
     /// A plastic's coating flags (`Material::coating`); zero otherwise.
     pub coating: u32,
+    /// A plastic's specular tint (`Material::specular`); zero otherwise.
+    pub specular: [f32; 3],
+    pub pad: u32,
 }
 
 /// Mirror of `TriShading`: 128 bytes (8 texels; `pad` is zero).

@@ -56,7 +56,8 @@
 // "plastic" is a diffuse base under a dielectric coating on microfacets (Mitsuba 3's
 // `roughplastic`, of either distribution, with visible-normal sampling): the coating
 // mirrors with the Fresnel reflectance F(wo.h) of its index m.ior on the microfacets (the
-// conductor's terms with the real Fresnel term, untinted), and the light it transmits
+// conductor's terms with the real Fresnel term, tinted by m.specular, Mitsuba's
+// specular_reflectance), and the light it transmits
 // reaches the base, whose reflectance base_color is raised by the coating's internal
 // reflections to base_color / (1 - m.internal) (base_color / (1 - base_color m.internal)
 // with COATING_NONLINEAR), and leaves through the coating again:
@@ -584,14 +585,17 @@ vec3 plastic_base(Material m) {
 vec3 plastic_value(Material m, vec3 wo, vec3 wi, MicrofacetTerms t) {
     float cos_t;
     float spec = t.valid ? t.value * dielectric_fresnel(t.oh, m.ior, cos_t) : 0.0;
-    return vec3(spec) + plastic_base(m) * plastic_diffuse(m, wo, wi);
+    return m.specular * spec + plastic_base(m) * plastic_diffuse(m, wo, wi);
 }
 
 // The probability of sampling the coating's reflection at cos_o: Mitsuba's, (1 - T) w
-// against T (1 - w) with w = 1 / (1 + mean base_color).
+// against T (1 - w) with w = s / (s + d), s and d the means of the specular tint and of
+// base_color (1 / (1 + d) for an untinted coating).
 float plastic_specular_prob(Material m, float cos_o) {
     float t = plastic_transmittance(m, cos_o);
-    float w = 1.0 / (1.0 + max((m.base_color.r + m.base_color.g + m.base_color.b) / 3.0, 0.0));
+    float s = max((m.specular.r + m.specular.g + m.specular.b) / 3.0, 0.0);
+    float d = max((m.base_color.r + m.base_color.g + m.base_color.b) / 3.0, 0.0);
+    float w = s + d > 0.0 ? s / (s + d) : 0.5;
     float spec = (1.0 - t) * w;
     float total = spec + t * (1.0 - w);
     return total > 0.0 ? spec / total : 1.0;

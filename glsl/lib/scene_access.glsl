@@ -48,10 +48,10 @@ TEXEL_BUFFER(0, 32) ThetaPrev;
 
 ValueRef value_ref(uvec4 t) { return ValueRef(int(t.x), t.y, t.z, t.w); }
 
-// Material `id` (9 texels: three ValueRefs, kind, one_sided, alpha_cutoff and ior, the
-// normal map's and the alpha's ValueRefs, absorption, eta, k).
+// Material `id` (10 texels: three ValueRefs, kind, one_sided, alpha_cutoff and ior, the
+// normal map's and the alpha's ValueRefs, absorption, eta, k, specular).
 MaterialRecord material_record(uint id) {
-    int b = int(id) * 9;
+    int b = int(id) * 10;
     MaterialRecord r;
     r.base_color = value_ref(texel_load(Materials, b));
     r.roughness = value_ref(texel_load(Materials, b + 1));
@@ -72,6 +72,8 @@ MaterialRecord material_record(uint id) {
     uvec4 t8 = texel_load(Materials, b + 8);
     r.k = uintBitsToFloat(t8.xyz);
     r.coating = t8.w;
+    r.specular = uintBitsToFloat(texel_load(Materials, b + 9).xyz);
+    r.pad = 0u;
     return r;
 }
 
@@ -487,11 +489,14 @@ Material fetch_material(uint id, vec2 uv, int state) {
         m.table = r.table;
         m.internal = r.internal;
         m.coating = r.coating;
+        m.specular = r.specular;
     } else {
         m.table = 0u;
         m.internal = 0.0;
         m.coating = 0u;
+        m.specular = vec3(0.0);
     }
+    m.pad = 0u;
     return m;
 }
 

@@ -18,8 +18,8 @@
 // defined in src/constants.rs.
 #include "vkinverse_constants.glsl"
 
-// 64 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
-// ior 24, eta 28, k 40, table 52, internal 56, coating 60.
+// 80 bytes under the scalar block layout: base_color 0, roughness 12, metallic 16, kind 20,
+// ior 24, eta 28, k 40, table 52, internal 56, coating 60, specular 64, pad 76.
 struct Material {
     vec3 base_color;
     float roughness;
@@ -43,6 +43,10 @@ struct Material {
     uint table;
     float internal;
     uint coating;
+    // A plastic's specular tint, per channel (Mitsuba's specular_reflectance): it scales
+    // the coating's reflection. Unused by the other kinds.
+    vec3 specular;
+    uint pad;
 };
 
 // Whether `kind` is smooth glass of either kind (delta lobes, an index of refraction).

@@ -21,7 +21,7 @@ struct ValueRef {
     uint flags;
 };
 
-// One material. 144 bytes (9 texels).
+// One material. 160 bytes (10 texels).
 struct MaterialRecord {
     ValueRef base_color;
     ValueRef roughness;
@@ -54,6 +54,9 @@ struct MaterialRecord {
     vec3 k;
     // A plastic's coating flags (Material.coating); zero otherwise.
     uint coating;
+    // A plastic's specular tint (Material.specular); zero otherwise.
+    vec3 specular;
+    uint pad;
 };
 
 // Per-triangle shading data, indexed by the original triangle id. 128 bytes (8 texels).

@@ -105,7 +105,7 @@ impl MaterialType {
             "ior" => self.has_ior(),
             "absorption" => matches!(self, Self::Dielectric | Self::RoughDielectric),
             "distribution" => self.has_distribution(),
-            "nonlinear" | "layered" => self == Self::Plastic,
+            "nonlinear" | "layered" | "specular" => self == Self::Plastic,
             "metal" | "eta" | "k" => self == Self::Conductor,
             _ => false,
         }
@@ -187,6 +187,9 @@ pub struct MaterialFile {
     /// bounces between coating and base. False: the base is seen through two smooth
     /// refractions and nothing more (Mitsuba's `pplastic`).
     pub layered: Option<bool>,
+    /// A plastic's specular tint `[r, g, b]` in [0, 1] (Mitsuba's `specular_reflectance`);
+    /// 1 by default.
+    pub specular: Option<[f32; 3]>,
     /// A conductor's named metal (its complex index of refraction); "none", a perfect
     /// mirror, by default. Not with `eta` and `k`.
     pub metal: Option<String>,

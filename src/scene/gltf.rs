@@ -516,6 +516,7 @@ impl Importer<'_> {
                 k: [0.0; 3],
                 nonlinear: false,
                 layered: true,
+                specular: [1.0; 3],
             },
         };
         self.out.materials.push(material);

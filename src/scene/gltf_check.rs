@@ -296,7 +296,8 @@ mod tests {
     /// float index, a strided view or a view too short for them are refused.
     #[test]
     fn sparse_accessors_are_checked_as_their_views_hold_them() {
-        let sparse = |count: u64| json!({ "count": count, "indices": { "bufferView": 1, "componentType": 5125 }, "values": { "bufferView": 0, "byteOffset": 12 } });
+        let sparse =
+            |count: u64| json!({ "count": count, "indices": { "bufferView": 1, "componentType": 5125 }, "values": { "bufferView": 0, "byteOffset": 12 } });
         let with = |s: Value| {
             let mut d = doc(json!({}));
             d["accessors"][0]["sparse"] = s;

@@ -168,6 +168,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
         if !m.layered {
             h.tag("unlayered");
         }
+        if m.specular != [1.0; 3] {
+            h.tag("specular");
+            h.f32s(&m.specular);
+        }
         if m.absorption != [0.0; 3] {
             h.tag("absorption");
             h.f32s(&m.absorption);

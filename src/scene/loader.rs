@@ -550,6 +550,15 @@ impl Loader {
             if refuses("nonlinear", m.nonlinear.is_some()) {
                 return Err(self.invalid(&format!("{key}.nonlinear"), "is a plastic's (type = \"plastic\")"));
             }
+            if refuses("specular", m.specular.is_some()) {
+                return Err(self.invalid(&format!("{key}.specular"), "is a plastic's (type = \"plastic\")"));
+            }
+            if let Some(s) = m.specular {
+                self.finite(&format!("{key}.specular"), &s)?;
+                if let Some(v) = s.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+                    return Err(self.out_of_range(&format!("{key}.specular"), format!("{v} is outside [0, 1]")));
+                }
+            }
             if refuses("layered", m.layered.is_some()) {
                 return Err(self.invalid(&format!("{key}.layered"), "is a plastic's (type = \"plastic\")"));
             }
@@ -728,6 +737,7 @@ impl Loader {
                 k,
                 nonlinear: m.nonlinear.unwrap_or(false),
                 layered: m.layered.unwrap_or(true),
+                specular: m.specular.unwrap_or([1.0; 3]),
             });
         }
         Ok(out)

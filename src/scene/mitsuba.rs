@@ -1360,7 +1360,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     self.principled_warned = true;
                     self.warn(node, "approximate: Mitsuba's Disney diffuse lobe is rendered as Lambert, and its dielectric Fresnel term as Schlick's of the same index (glTF metallic-roughness)");
                 }
-                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, perturbation: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false, layered: true }
+                Material { name: name.into(), kind: MaterialKind::Principled, base_color, roughness, metallic, one_sided, perturbation: None, alpha: None, ior, absorption: [0.0; 3], distribution: Distribution::Ggx, eta: [0.0; 3], k: [0.0; 3], nonlinear: false, layered: true, specular: [1.0; 3] }
             }
             "roughconductor" | "conductor" => {
                 let rough = kind == "roughconductor";
@@ -1436,12 +1436,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
                 }
                 let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
-                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
-                if tint != [1.0; 3] {
-                    return Err(self.err(node, "only specular_reflectance 1 is supported"));
-                }
+                let specular = self.plastic_specular(&mut items, node)?;
                 let nonlinear = self.take_bool(&mut items, "nonlinear", false)?;
-                Material { nonlinear, one_sided, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
+                Material { nonlinear, one_sided, specular, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
             }
             "pplastic" => {
                 // Unpolarised, as Mitsuba's RGB variants render it: a rough reflection plus
@@ -1453,17 +1450,29 @@ impl<'a, 'i> Importer<'a, 'i> {
                     return Err(self.err(node, "int_ior and ext_ior are equal: no interface"));
                 }
                 let diffuse = self.color_param(&mut items, "diffuse_reflectance", [0.5; 3])?;
-                let tint = self.take_rgb(&mut items, "specular_reflectance", [1.0; 3])?;
-                if tint != [1.0; 3] {
-                    return Err(self.err(node, "pplastic: only specular_reflectance 1 is supported"));
-                }
-                Material { one_sided, layered: false, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
+                let specular = self.plastic_specular(&mut items, node)?;
+                Material { one_sided, layered: false, specular, ..Material::plastic(name.into(), diffuse, alpha.sqrt(), distribution, eta) }
             }
             _ => return Err(self.err(node, format!("bsdf \"{kind}\" is unsupported (diffuse, twosided, normalmap, bumpmap, mask, principled, conductor, roughconductor, plastic, roughplastic, pplastic, dielectric, thindielectric and roughdielectric are)"))),
         };
         self.rest(&items, node)?;
         self.out.materials.push(material);
         Ok(self.out.materials.len() - 1)
+    }
+
+    /// A plastic's `specular_reflectance`: a constant colour in [0, 1] (Mitsuba's default
+    /// 1); a texture of it is unsupported.
+    fn plastic_specular(&mut self, items: &mut Items<'a, 'i>, node: Node<'a, 'i>) -> Result<[f32; 3], SceneError> {
+        if let Some(n) = items.iter().find(|n| n.attribute("name") == Some("specular_reflectance")) {
+            if n.tag_name().name() == "texture" {
+                return Err(self.err(*n, "a textured specular_reflectance is unsupported (a constant colour is)"));
+            }
+        }
+        let tint = self.take_rgb(items, "specular_reflectance", [1.0; 3])?;
+        if let Some(v) = tint.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+            return Err(self.err(node, format!("specular_reflectance {v} is outside [0, 1]")));
+        }
+        Ok(tint)
     }
 
     /// The alpha of a rough BSDF's `alpha` (`rough`; Mitsuba's default 0.1) and its

@@ -364,6 +364,9 @@ pub struct Material {
     /// seen through two smooth refractions and nothing more (Mitsuba 3's `pplastic`). True
     /// for the other kinds.
     pub layered: bool,
+    /// A plastic's specular tint per channel (Mitsuba's `specular_reflectance`): it scales
+    /// the coating's reflection, 1 by default (never optimised). 1 for the other kinds.
+    pub specular: [f32; 3],
 }
 
 /// The distribution of a rough dielectric's, a conductor's or a plastic's microfacet
@@ -405,6 +408,7 @@ impl Material {
             k: [0.0; 3],
             nonlinear: false,
             layered: true,
+            specular: [1.0; 3],
         }
     }
 
@@ -429,6 +433,7 @@ impl Material {
             k: [0.0; 3],
             nonlinear: false,
             layered: true,
+            specular: [1.0; 3],
         }
     }
 }
@@ -460,6 +465,7 @@ impl Material {
             k,
             nonlinear: false,
             layered: true,
+            specular: [1.0; 3],
         }
     }
 
@@ -485,6 +491,7 @@ impl Material {
             k: [0.0; 3],
             nonlinear,
             layered: true,
+            specular: [1.0; 3],
         }
     }
 }

@@ -206,6 +206,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         if !m.layered {
             pairs.push(("layered", Value::Boolean(false)));
         }
+        if m.specular != [1.0; 3] {
+            pairs.push(("specular", arr(&m.specular)));
+        }
         if m.absorption != [0.0; 3] {
             pairs.push(("absorption", arr(&m.absorption)));
         }

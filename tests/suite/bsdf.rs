@@ -59,6 +59,7 @@ fn plastic(i: usize, base: [f32; 3], flags: u32) -> Material {
         table: if layered { (i * bsdf::TABLE) as u32 } else { 0 },
         internal: if layered { coating_tables().1[i] } else { 0.0 },
         coating: flags,
+        specular: [1.0; 3],
         ..Default::default()
     }
 }
@@ -111,6 +112,8 @@ fn struct_layouts_match_reflection() {
         ("table", offset_of!(Material, table)),
         ("internal", offset_of!(Material, internal)),
         ("coating", offset_of!(Material, coating)),
+        ("specular", offset_of!(Material, specular)),
+        ("pad", offset_of!(Material, pad)),
     ];
     check_layout("bsdf_test", "Material", &material, size_of::<Material>());
     // The sampling variant passes Material in its push constants.
@@ -409,8 +412,11 @@ fn random_cases(count: usize, seed: u64) -> Vec<(Material, BsdfCase)> {
                 };
             }
             if kind == MATERIAL_PLASTIC {
-                // One of the coatings, linear or not.
+                // One of the coatings, linear or not, every other one with a specular tint.
                 material = plastic(rng.next_u64() as usize % COATINGS.len(), base, coating_flags(rng.f64()));
+                if i % 2 == 0 {
+                    material.specular = [0.3, 0.9, 0.0];
+                }
             }
             let n = match i % 16 {
                 0 => DVec3::Z,

@@ -618,7 +618,11 @@ fn gltf_sparse_accessors_nodeless_animations_and_vertex_colours() {
     let p = &s.meshes[0].positions;
     assert_eq!((p[1], p[2], p[3]), ([1.0, 0.0, -1.0], [1.0, 0.5, 1.0], [-1.0, 0.0, 1.0]), "the sparse value replaces vertex 2 alone");
     assert!(s.warnings.iter().any(|w| w.contains("animations are ignored")), "{:?}", s.warnings);
-    assert!(s.warnings.iter().any(|w| w.contains("meshes[0].primitives[0].attributes.COLOR_0") && w.contains("vertex colours are ignored")), "{:?}", s.warnings);
+    assert!(
+        s.warnings.iter().any(|w| w.contains("meshes[0].primitives[0].attributes.COLOR_0") && w.contains("vertex colours are ignored")),
+        "{:?}",
+        s.warnings
+    );
 }
 
 #[test]
@@ -1108,8 +1112,8 @@ fn one_sided_mitsuba_bsdfs_are_black_from_behind() {
 /// with a warning (its coating's reflection a lobe of the smallest alpha, not a delta),
 /// whose coating is Mitsuba's smooth plastic's: its internal reflectance the fit of Egan
 /// and Hilgeman that Mitsuba uses. A `pplastic` is a plastic whose coating is not layered
-/// (its base seen through two smooth refractions), with the same defaults, and refuses a
-/// tinted specular_reflectance by name. A smooth conductor is a conductor of roughness 0
+/// (its base seen through two smooth refractions), with the same defaults. A plastic's
+/// specular_reflectance is its specular tint (1 by default). A smooth conductor is a conductor of roughness 0
 /// (its named metal's complex index).
 #[test]
 fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
@@ -1140,10 +1144,18 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     check("p3", [0.5; 3], 0.1f32.sqrt(), Distribution::Beckmann, 1.49 / 1.000277, false, false);
     check("p4", [0.05, 0.03, 0.1], 0.06f32.sqrt(), Distribution::Beckmann, 1.49 / 1.000277, false, true);
     assert!(["p1", "p2", "p3"].iter().all(|id| material(id).layered) && !material("p4").layered);
-    let tinted = plastics.replace(r#"<float name="alpha" value="0.06"/>"#, r#"<float name="alpha" value="0.06"/><rgb name="specular_reflectance" value="0"/>"#);
+    assert!(["p1", "p2", "p3", "p4"].iter().all(|id| material(id).specular == [1.0; 3]));
+    // A specular tint, on a pplastic (0, as Mitsuba's diffuse-only documentation scene) and
+    // a roughplastic.
+    let tinted =
+        plastics.replace(r#"<float name="alpha" value="0.06"/>"#, r#"<float name="alpha" value="0.06"/><rgb name="specular_reflectance" value="0"/>"#).replace(
+            r#"<boolean name="nonlinear" value="true"/>"#,
+            r#"<boolean name="nonlinear" value="true"/><rgb name="specular_reflectance" value="0.2, 0.5, 0.9"/>"#,
+        );
     std::fs::write(dir.join("tinted.xml"), xml(&tinted)).unwrap();
-    let e = Scene::load(dir.join("tinted.xml")).unwrap_err().to_string();
-    assert!(e.contains("pplastic") && e.contains("specular_reflectance"), "{e}");
+    let t = Scene::load(dir.join("tinted.xml")).unwrap();
+    let tint = |id: &str| t.materials.iter().find(|m| m.name == id).unwrap().specular;
+    assert_eq!((tint("p4"), tint("p2"), tint("p1")), ([0.0; 3], [0.2, 0.5, 0.9], [1.0; 3]));
 
     // The smooth coating's internal reflectance against Mitsuba's fit for its smooth plastic.
     let eta = 1.5046 / 1.000277;
@@ -1158,8 +1170,8 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     for id in ["p1", "p2", "p3", "p4"] {
         let (m, n) = (material(id), t.materials.iter().find(|m| m.name == id).unwrap());
         assert_eq!(
-            (n.kind, n.distribution, n.ior, n.nonlinear, n.layered, n.one_sided),
-            (m.kind, m.distribution, m.ior, m.nonlinear, m.layered, m.one_sided),
+            (n.kind, n.distribution, n.ior, n.nonlinear, n.layered, n.specular, n.one_sided),
+            (m.kind, m.distribution, m.ior, m.nonlinear, m.layered, m.specular, m.one_sided),
             "{id}"
         );
         assert!(matches!((&n.roughness, &m.roughness), (ScalarValue::Constant(a), ScalarValue::Constant(b)) if (a - b).abs() < 1e-6), "{id}");
@@ -1178,8 +1190,8 @@ fn mitsuba_plastics_become_plastics_and_smooth_conductors_rough() {
     // What the mapping cannot render is refused, naming the element.
     for (bsdf, needles) in [
         (
-            r#"<bsdf type="plastic" id="p1"><rgb name="specular_reflectance" value="0.5"/></bsdf>"#,
-            &["<bsdf type=\"plastic\" id=\"p1\">", "specular_reflectance 1"][..],
+            r#"<bsdf type="plastic" id="p1"><rgb name="specular_reflectance" value="1.5"/></bsdf>"#,
+            &["<bsdf type=\"plastic\" id=\"p1\">", "specular_reflectance 1.5 is outside [0, 1]"][..],
         ),
         (r#"<bsdf type="plastic" id="p1"><string name="int_ior" value="unobtainium"/></bsdf>"#, &["int_ior \"unobtainium\" is not one of", "bk7"]),
         (r#"<bsdf type="plastic" id="p1"><float name="int_ior" value="1.000277"/></bsdf>"#, &["int_ior and ext_ior are equal"]),

@@ -824,6 +824,8 @@ fn texel_record_layouts_match_reflection() {
             ("table", offset_of!(MaterialRecord, table)),
             ("k", offset_of!(MaterialRecord, k)),
             ("coating", offset_of!(MaterialRecord, coating)),
+            ("specular", offset_of!(MaterialRecord, specular)),
+            ("pad", offset_of!(MaterialRecord, pad)),
         ],
     );
     check(

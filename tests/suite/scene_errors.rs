@@ -722,7 +722,8 @@ fn conductors_are_checked() {
 /// A plastic: roughness 0.3, GGX, index 1.5 and linear by default; its diffuse
 /// reflectance (`base_color`) required and optimisable; its roughness a number (its
 /// coating's table is computed for it), not optimisable; no metallic; an index other than 1
-/// in [0.25, 4]; `nonlinear` only on a plastic.
+/// in [0.25, 4]; `nonlinear`, `layered` and `specular` (each channel in [0, 1]) only on a
+/// plastic, and `nonlinear` only with a layered coating.
 #[test]
 fn plastics_are_checked() {
     let plastic = |extra: &str| BASE.replace("type = \"principled\"", &format!("type = \"plastic\"{extra}"));
@@ -747,6 +748,14 @@ fn plastics_are_checked() {
     assert_message(&load_err("plastic-eta", &plastic("\neta = [1, 1, 1]\nk = [1, 1, 1]")), &["materials.m.eta", "conductor"]);
     let principled = BASE.replace("type = \"principled\"", "type = \"principled\"\nnonlinear = true");
     assert_message(&load_err("principled-nonlinear", &principled), &["materials.m.nonlinear", "plastic"]);
+    let s = Scene::load(fixture("plastic-unlayered", &plastic("\nlayered = false\nspecular = [0.2, 0.5, 1]"))).unwrap();
+    assert_eq!((s.materials[0].layered, s.materials[0].specular), (false, [0.2, 0.5, 1.0]));
+    assert_message(&load_err("plastic-specular", &plastic("\nspecular = [0.2, 1.5, 1]")), &["materials.m.specular", "1.5 is outside [0, 1]"]);
+    assert_message(&load_err("plastic-unlayered-nonlinear", &plastic("\nlayered = false\nnonlinear = true")), &["materials.m.nonlinear", "layered"]);
+    for key in ["layered = false", "specular = [1, 1, 1]"] {
+        let principled = BASE.replace("type = \"principled\"", &format!("type = \"principled\"\n{key}"));
+        assert_message(&load_err("principled-coating", &principled), &["materials.m.", "plastic"]);
+    }
     let optimised = format!("{}\n[optimise]\n[[optimise.params]]\ntarget = \"materials.m.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\n", plastic(""));
     Scene::load(fixture("plastic-param-base", &optimised)).unwrap();
     for target in ["roughness", "metallic"] {

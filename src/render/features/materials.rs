@@ -118,6 +118,8 @@ impl Materials {
                     eta: m.eta,
                     table,
                     k: m.k,
+                    specular: if m.kind == MaterialKind::Plastic { m.specular } else { [0.0; 3] },
+                    pad: 0,
                     coating: if m.nonlinear { COATING_NONLINEAR } else { 0 } | if m.layered { 0 } else { COATING_UNLAYERED },
                 }
             })
