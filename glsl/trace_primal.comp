@@ -36,12 +36,16 @@
 // variant: trace_primal_count_cw8 COUNT_RAYS BVH_CW8
 // variant: trace_primal_generic_cw8 GENERIC BVH_CW8
 // variant: trace_primal_sampled_cw8 TEXELS_SAMPLED BVH_CW8
-// The four passes of a scene whose medium scatters (SCATTERING, lib/media.glsl), for the
-// compressed layout only (vkinverse::render::GpuScene::kernel).
+// The four passes of a scene whose medium scatters (SCATTERING, lib/media.glsl), and the
+// bench's three builds of trace_primal, for the compressed layout only
+// (vkinverse::render::GpuScene::kernel).
 // variant: trace_primal_scatter_cw8 SCATTERING BVH_CW8
 // variant: trace_adjoint_scatter_cw8 ADJOINT SCATTERING BVH_CW8
 // variant: trace_fd_primal_scatter_cw8 FD SCATTERING BVH_CW8
 // variant: trace_fd_adjoint_scatter_cw8 FD ADJOINT SCATTERING BVH_CW8
+// variant: trace_primal_count_scatter_cw8 COUNT_RAYS SCATTERING BVH_CW8
+// variant: trace_primal_generic_scatter_cw8 GENERIC SCATTERING BVH_CW8
+// variant: trace_primal_sampled_scatter_cw8 TEXELS_SAMPLED SCATTERING BVH_CW8
 layout(local_size_x = 64, local_size_x_id = 0) in;
 #include "lib/common.glsl"
 #include "lib/integrator.glsl"

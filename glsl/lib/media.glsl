@@ -17,8 +17,10 @@
 #define MEDIA_GLSL
 
 TEXEL_BUFFER(0, 29) Media;
-// Whether the scene has a medium: without one every function here is compiled out.
-layout(constant_id = 24) const bool HAS_MEDIA = false;
+// Whether the scene has a medium: without one every function here is compiled out. True
+// by default, as the other features' constants, so that the unspecialised build
+// (trace_primal_generic) renders any scene (a record of max_steps 0 holds no medium).
+layout(constant_id = 24) const bool HAS_MEDIA = true;
 // A medium that scatters (albedo > 0) is rendered by the kernels' SCATTERING builds (the
 // _scatter variants): their rays sample where they collide (medium_free_flight) instead
 // of gathering emission (medium_segment). The other builds leave the collision and its

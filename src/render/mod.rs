@@ -286,8 +286,10 @@ impl GpuScene {
     }
 }
 
-/// The passes that have a build for scattering media (glsl/trace_primal.comp's SCATTERING).
-const SCATTER_KERNELS: [&str; 4] = ["trace_primal", "trace_adjoint", "trace_fd_primal", "trace_fd_adjoint"];
+/// The passes that have a build for scattering media (glsl/trace_primal.comp's
+/// SCATTERING), the bench's builds of trace_primal among them.
+const SCATTER_KERNELS: [&str; 7] =
+    ["trace_primal", "trace_adjoint", "trace_fd_primal", "trace_fd_adjoint", "trace_primal_count", "trace_primal_generic", "trace_primal_sampled"];
 
 /// Samples per pixel per submission: keeps each submission short on slow devices.
 pub const SPP_PER_SUBMISSION: u32 = 4;

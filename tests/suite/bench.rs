@@ -148,6 +148,23 @@ fn scene_bench_on_cornell_is_consistent() {
     }
 }
 
+/// On a scene whose medium scatters, the bench's builds of trace_primal (unspecialised,
+/// counting, texel fetches) are its scattering builds too: each renders the specialised
+/// build's image (before, they left the scattering out and their timings compared
+/// another integrator).
+#[test]
+fn scene_bench_on_a_scattering_medium_compares_like_builds() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cloud/scene.toml");
+    let options = vkinverse::scene::LoadOptions { film: Some(vkinverse::scene::Film { width: 12, height: 12 }), max_depth: None };
+    let scene = Scene::load_with(path, &options).unwrap();
+    assert!(scene.media[0].scatters());
+    let b = with_gpu(|ctx| vkinverse::bench::scene_bench(&common::device(ctx), &scene, 1, 1 << 12, std::time::Duration::ZERO).unwrap());
+    let g = &b.specialisation_gain;
+    assert!(g.generic_image_rel_diff < 1e-4, "generic build renders a different image: {}", g.generic_image_rel_diff);
+    assert!(g.count_image_rel_diff < 1e-4, "counting build renders a different image: {}", g.count_image_rel_diff);
+    assert_eq!(g.sampled_image_rel_diff, 0.0, "texel fetches render a different image");
+}
+
 #[test]
 fn bvh_layout_bench_on_cornell_is_consistent() {
     let scene = Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell/scene.toml")).unwrap();
