@@ -631,17 +631,17 @@ impl Engine {
         let gs = self.scene();
         let saved: Option<Vec<f32>> = match theta {
             Some(values) => {
-                let all: Vec<f32> = gs.theta.read()?;
+                let all = gs.read_theta()?;
                 let mut set = all.clone();
                 set[..values.len()].copy_from_slice(values);
-                gs.theta.write(&set)?;
+                gs.set_theta(set)?;
                 Some(all)
             }
             None => None,
         };
         let measured = self.measure_image_error(spp, seeds);
         if let Some(all) = saved {
-            gs.theta.write(&all)?;
+            gs.set_theta(all)?;
         }
         measured
     }
@@ -667,10 +667,7 @@ impl Engine {
 
     /// θ as the host sees it after the last submission.
     pub fn theta(&self) -> Result<Vec<f32>> {
-        let gs = self.scene();
-        let mut theta: Vec<f32> = gs.theta.read()?;
-        theta.truncate(gs.layout.len);
-        Ok(theta)
+        Ok(self.scene().read_theta()?)
     }
 
     /// The optimiser's pass, for its state.

@@ -262,8 +262,7 @@ fn state_buffers(engine: &Engine) -> Result<Vec<(&Buffer, usize)>> {
 fn save_checkpoint(run_dir: &RunDir, engine: &Engine, state: &CheckpointState, log: &Log, diag: &DiagLog, carry: &CarryLog) -> Result<()> {
     run_dir.commit(&checkpoint_name(state.iteration), |dir| {
         for (b, saved) in state_buffers(engine)? {
-            let mut data: Vec<f32> = b.read()?;
-            data.truncate(saved);
+            let data: Vec<f32> = b.read_prefix(saved)?;
             crate::npy::write(&dir.join(format!("{}.npy", file_name(b.name()))), &crate::npy::Array { shape: vec![data.len()], data })?;
         }
         let log_path = dir.join("log.csv");
@@ -768,8 +767,7 @@ fn carry_state(from: &Engine, to: &Engine) -> Result<()> {
         buffer.same(&gs.theta) || engine.optimiser.as_ref().is_some_and(|o| o.per_element(buffer))
     };
     for ((old, old_len), (new, new_len)) in state_buffers(from)?.into_iter().zip(state_buffers(to)?) {
-        let mut values: Vec<f32> = old.read()?;
-        values.truncate(old_len);
+        let values: Vec<f32> = old.read_prefix(old_len)?;
         let values = match per_element(from, old) {
             true => crate::coarse::relayout(&values, a, b, new_len),
             false => values,

@@ -314,7 +314,7 @@ fn measure_case(device: &crate::device::Device, grid: u32, film: u32, iterations
     let fd = engine.fd_sample(&theta_prev, false, None)?;
     // θ_prev as after a step (2 % below θ), not θ itself: with equal states the fused
     // adjoint's derivatives cancel and it scatters nothing, which no later iteration does.
-    let prev: Vec<f32> = gs.theta.read::<f32>()?.iter().map(|v| 0.98 * v).collect();
+    let prev: Vec<f32> = gs.read_theta()?.iter().map(|v| 0.98 * v).collect();
     theta_prev.write(&prev)?;
 
     let mut profs = [Profiler::new(ctx, Profiler::SCOPES)?, Profiler::new(ctx, Profiler::SCOPES)?];

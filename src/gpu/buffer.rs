@@ -165,7 +165,12 @@ impl Buffer {
 
     /// Reads the first `len() / size_of::<T>()` elements.
     pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
-        let n = self.0.len as usize / std::mem::size_of::<T>();
+        self.read_prefix(self.0.len as usize / std::mem::size_of::<T>())
+    }
+
+    /// Reads the first `n` elements (at most `len() / size_of::<T>()`).
+    pub fn read_prefix<T: bytemuck::Pod>(&self, n: usize) -> Result<Vec<T>> {
+        let n = n.min(self.0.len as usize / std::mem::size_of::<T>());
         let mut out = vec![T::zeroed(); n];
         let nbytes = n * std::mem::size_of::<T>();
         if nbytes == 0 {

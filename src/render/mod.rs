@@ -59,8 +59,6 @@ pub struct GpuScene {
     pub theta: Buffer,
     /// Where the material data start in [`Self::theta`] (the kernels' `CONST_BASE`).
     pub const_base: u32,
-    /// The material data, as uploaded after θ.
-    constants: Vec<f32>,
     /// The iteration counter the kernels mix into their seeds (host-written).
     pub frame: Buffer,
 }
@@ -115,17 +113,20 @@ impl GpuScene {
         // its length is a whole number of texels (the padding is never read or moved), and
         // the material data follow it in the same buffer.
         let const_base = gpu::texel_padded(layout.len) as u32;
-        let contents = targets::with_constants(const_base, &data.data, layout.initial());
+        let mut contents = layout.initial();
+        contents.resize(const_base as usize, 0.0);
+        let (textures, (w, h), texture_floats) = (data.textures, data.largest_texture, data.texture_floats);
+        contents.extend(data.data);
+        contents.resize(contents.len().next_multiple_of(4).max(4), 0.0);
         // The kernels read all of it through a texel-buffer view, which reaches further than
         // a storage-buffer binding on most devices (lavapipe: 2 GiB against 128 MiB); the
         // optimisers bind θ's part alone as a storage buffer. Textures are most of a large
         // scene's data: a buffer beyond the texel range says how much of it they are.
         let bytes = (contents.len() * 4) as u64;
         let max = ctx.info().max_texel_buffer_elements.saturating_mul(gpu::TEXEL_BYTES);
-        if bytes > max && data.textures > 0 {
-            let (w, h) = data.largest_texture;
-            let mib = (data.texture_floats * 4) as f64 / (1024.0 * 1024.0);
-            let name = format!("theta: the parameters and material data, {mib:.1} MiB of it in {} texture(s), the largest {w} x {h}; smaller textures fit", data.textures);
+        if bytes > max && textures > 0 {
+            let mib = (texture_floats * 4) as f64 / (1024.0 * 1024.0);
+            let name = format!("theta: the parameters and material data, {mib:.1} MiB of it in {textures} texture(s), the largest {w} x {h}; smaller textures fit");
             return Err(gpu::GpuError::BufferTooLarge { name, size: bytes, max, limit: "texel-buffer range" });
         }
         let params = u64::from(const_base) * 4;
@@ -134,7 +135,9 @@ impl GpuScene {
             let name = format!("theta: the {} optimised parameters (the optimiser passes bind them as one storage buffer)", layout.len);
             return Err(gpu::GpuError::BufferTooLarge { name, size: params, max: max_storage, limit: "storage-buffer range" });
         }
-        let theta = texel_buffer(ctx, "theta", &contents)?;
+        // (Whole texels already: no padded copy of what may be gigabytes.)
+        let theta = Buffer::from_slice(ctx, "theta", &contents, MemoryKind::Device)?;
+        drop(contents);
         theta.set_storage_extent(params);
         Ok(Self {
             ctx: ctx.clone(),
@@ -154,7 +157,6 @@ impl GpuScene {
             layout,
             theta,
             const_base,
-            constants: data.data,
             frame: Buffer::from_slice(ctx, "frame", &[0u32], MemoryKind::Upload)?,
         })
     }
@@ -198,7 +200,8 @@ impl GpuScene {
         v
     }
 
-    /// Writes θ (padded to the buffer's length).
+    /// Writes θ: `values` (θ's elements), padded to whole texels, at the start of its
+    /// buffer. The material data after them stay as uploaded.
     pub fn set_theta(&self, values: Vec<f32>) -> gpu::Result<()> {
         self.theta.write(&targets::padded(self, values))
     }
@@ -252,9 +255,9 @@ impl GpuScene {
         ("CONST_BASE", SpecValue::U32(self.const_base))
     }
 
-    /// The material data that follow θ in its buffer.
-    pub fn constants(&self) -> &[f32] {
-        &self.constants
+    /// θ's values as its buffer holds them (the first `layout.len` floats).
+    pub fn read_theta(&self) -> gpu::Result<Vec<f32>> {
+        self.theta.read_prefix(self.layout.len)
     }
 
     /// The run-time values of the integrator's limits that the unspecialised variant

@@ -94,15 +94,10 @@ pub fn targets(renderer: &PrimalRenderer, scene: &Scene, source: TargetSource, o
     Ok(out)
 }
 
-/// θ values as θ's buffer holds them: padded to whole texels (one unused texel when nothing
-/// is optimised), then the scene's material data.
-pub fn padded(scene: &GpuScene, v: Vec<f32>) -> Vec<f32> {
-    with_constants(scene.const_base, scene.constants(), v)
-}
-
-/// `theta` padded with zeros to `const_base` floats, then `constants`.
-pub fn with_constants(const_base: u32, constants: &[f32], mut theta: Vec<f32>) -> Vec<f32> {
-    theta.resize(const_base as usize, 0.0);
-    theta.extend_from_slice(constants);
-    theta
+/// θ values as the start of θ's buffer holds them: padded to whole texels (one unused
+/// texel when nothing is optimised). The scene's material data follow them in the buffer
+/// and are never written again: a write of this prefix leaves them as they are.
+pub fn padded(scene: &GpuScene, mut v: Vec<f32>) -> Vec<f32> {
+    v.resize(scene.const_base as usize, 0.0);
+    v
 }
