@@ -651,7 +651,8 @@ fn kernels_read_the_records_the_host_wrote() {
                 let theta_buffer = floats("Theta");
                 let base = gs.const_base as usize;
                 assert!(base >= gs.layout.len && base.is_multiple_of(4), "{name}: CONST_BASE {base} after θ, on a texel");
-                let (data, theta, env) = (gs.constants().to_vec(), theta_buffer[..base].to_vec(), floats("EnvDistribution"));
+                // (The material data end on a whole texel: up to 3 floats of padding.)
+                let (data, theta, env) = (theta_buffer[base..].to_vec(), theta_buffer[..base].to_vec(), floats("EnvDistribution"));
                 let (n_nodes, node_bytes) = match layout {
                     BvhLayout::Binary => (read::<BvhNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhNode>()),
                     BvhLayout::Wide => (read::<BvhWideNode>(buffer("BvhNodes")).len(), std::mem::size_of::<BvhWideNode>()),
