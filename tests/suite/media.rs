@@ -468,47 +468,13 @@ fn a_dark_scattering_medium_transmits_in_closed_form_in_expectation() {
 #[test]
 fn the_scattering_adjoint_agrees_with_central_differences_in_expectation() {
     let dir = temp_dir("random-grid-scattering");
-    let n = 8usize;
-    let density = Array { shape: vec![n, n, n], data: (0..n * n * n).map(|i| 0.2 + 1.8 * hashed(3000 + i as u64)).collect() };
-    npy::write(&dir.join("density.npy"), &density).unwrap();
-    std::fs::write(dir.join("floor.obj"), "v -3 -1 -3\nv 3 -1 -3\nv 3 -1 3\nv -3 -1 3\nf 1 3 2\nf 1 4 3\n").unwrap();
-    let toml = "[film]\nwidth = 12\nheight = 12\n[integrator]\nmax_depth = 4\n\
-                [[sensors]]\norigin = [0.6, 1.4, 4]\ntarget = [0, -0.2, 0]\nfov_y = 40\n\
-                [environment]\nconstant = [0.3, 0.4, 0.5]\n\
-                [[media]]\nname = \"cloud\"\nmin = [-1, -0.8, -1]\nmax = [1, 0.8, 1]\ndensity = \"density.npy\"\nalbedo = 0.8\ng = 0.3\nstep = 0.7\n\
-                [[optimise.params]]\ntarget = \"media.cloud.density\"\ninit = 1.0\nrange = [0, 10]\n\
-                [[materials]]\nname = \"floor\"\ntype = \"diffuse\"\nbase_color = [0.6, 0.5, 0.4]\n\
-                [[meshes]]\nname = \"floor\"\nfile = \"floor.obj\"\nmaterial = \"floor\"\n\
-                [[lights]]\nname = \"bulb\"\ntype = \"point\"\nposition = [1.5, 2, 1]\ncolor = [1, 1, 1]\nintensity = 6\n";
-    std::fs::write(dir.join("scene.toml"), toml).unwrap();
-    let scene = Scene::load(dir.join("scene.toml")).unwrap();
+    let optimise = "[[optimise.params]]\ntarget = \"media.cloud.density\"\ninit = 1.0\nrange = [0, 10]\n";
+    let scene = scattering_cloud(&dir, "0.8", optimise);
+    let density = scene.media[0].density.data.clone();
     // A direction that thickens every voxel by a random amount: a derivative well above
     // the noise.
-    let dirs: Vec<f32> = (0..density.data.len()).map(|i| 0.25 + 0.5 * hashed(60_000 + i as u64)).collect();
-    let adjoint = Image { width: 12, height: 12, data: (0..144).map(|i| [0, 1, 2].map(|c| 0.2 + hashed(95_000 + 3 * i + c))).collect() };
-    let dot_adjoint = |img: &Image| -> f64 { img.data.iter().zip(&adjoint.data).map(|(p, a)| (0..3).map(|c| p[c] as f64 * a[c] as f64).sum::<f64>()).sum() };
-    let h = 0.1f32;
-    let diffs: Vec<(f64, f64)> = with_gpu(|ctx| {
-        let mut r = Renderer::new(&device(ctx), &scene).unwrap();
-        let set = |r: &mut Renderer, t: f32| {
-            let v: Vec<f32> = density.data.iter().zip(&dirs).map(|(b, d)| b + t * d).collect();
-            r.set_param("media.cloud.density", &v).unwrap();
-        };
-        (0..32u64)
-            .map(|seed| {
-                let options = RenderOptions { spp: 4, seed, ..Default::default() };
-                set(&mut r, 0.0);
-                let g = r.gradient(&adjoint, &options).unwrap();
-                let along: f64 = g[0].1.data.iter().zip(&dirs).map(|(&g, &d)| g as f64 * d as f64).sum();
-                let paths = RenderOptions { seed: seed + vkinverse::render::gradient::SEED_ADJOINT as u64, ..options };
-                set(&mut r, h);
-                let plus = dot_adjoint(&r.render(&paths).unwrap());
-                set(&mut r, -h);
-                let minus = dot_adjoint(&r.render(&paths).unwrap());
-                (along, (plus - minus) / (2.0 * h as f64))
-            })
-            .collect()
-    });
+    let dirs: Vec<f32> = (0..density.len()).map(|i| 0.25 + 0.5 * hashed(60_000 + i as u64)).collect();
+    let diffs = adjoint_and_central_difference(&scene, "media.cloud.density", &density, &dirs, 0.1, 32);
     let k = diffs.len() as f64;
     let mean_of = |f: &dyn Fn(&(f64, f64)) -> f64| diffs.iter().map(f).sum::<f64>() / k;
     let (adj, fd) = (mean_of(&|d| d.0), mean_of(&|d| d.1));
@@ -524,8 +490,37 @@ fn the_scattering_adjoint_agrees_with_central_differences_in_expectation() {
     assert!(se < 0.1 * fd.abs(), "the test resolves a tenth of the derivative: standard error {se:.2e} against {fd:.2e}");
 }
 
-/// The scattering scene of the adjoint test above (a random 8³ density, g 0.3, over a
-/// floor, under the sky and a point light, depth 4, no Russian roulette) with albedo
+/// Over `seeds` seeds at 4 spp: the adjoint's derivative of ⟨A, image⟩ along `dirs` at
+/// `param` = `base`, against the central difference (step `h`) of renders of the adjoint
+/// pass's own paths, for a fixed random adjoint image A of the scene's 12 × 12 film.
+fn adjoint_and_central_difference(scene: &Scene, param: &str, base: &[f32], dirs: &[f32], h: f32, seeds: u64) -> Vec<(f64, f64)> {
+    let adjoint = Image { width: 12, height: 12, data: (0..144).map(|i| [0, 1, 2].map(|c| 0.2 + hashed(95_000 + 3 * i + c))).collect() };
+    let dot_adjoint = |img: &Image| -> f64 { img.data.iter().zip(&adjoint.data).map(|(p, a)| (0..3).map(|c| p[c] as f64 * a[c] as f64).sum::<f64>()).sum() };
+    with_gpu(|ctx| {
+        let mut r = Renderer::new(&device(ctx), scene).unwrap();
+        let set = |r: &mut Renderer, t: f32| {
+            let v: Vec<f32> = base.iter().zip(dirs).map(|(b, d)| b + t * d).collect();
+            r.set_param(param, &v).unwrap();
+        };
+        (0..seeds)
+            .map(|seed| {
+                let options = RenderOptions { spp: 4, seed, ..Default::default() };
+                set(&mut r, 0.0);
+                let g = r.gradient(&adjoint, &options).unwrap();
+                let along: f64 = g[0].1.data.iter().zip(dirs).map(|(&g, &d)| g as f64 * d as f64).sum();
+                let paths = RenderOptions { seed: seed + vkinverse::render::gradient::SEED_ADJOINT as u64, ..options };
+                set(&mut r, h);
+                let plus = dot_adjoint(&r.render(&paths).unwrap());
+                set(&mut r, -h);
+                let minus = dot_adjoint(&r.render(&paths).unwrap());
+                (along, (plus - minus) / (2.0 * h as f64))
+            })
+            .collect()
+    })
+}
+
+/// A perspective view of a random 8³ scattering medium (g 0.3) over a diffuse floor, lit by
+/// the sky and a point light, depth 4, no Russian roulette with albedo
 /// `albedo` (TOML) and `optimise` appended, in `dir`.
 fn scattering_cloud(dir: &Path, albedo: &str, optimise: &str) -> Scene {
     let n = 8usize;
@@ -586,31 +581,11 @@ fn the_albedo_adjoint_matches_central_differences_per_seed() {
     let optimise = "[[optimise.params]]\ntarget = \"media.cloud.albedo\"\ninit = 0.5\nrange = [0, 1]\ngrid = [4, 4, 4]\n";
     let scene = scattering_cloud(&dir, "\"albedo.npy\"", optimise);
     let dirs: Vec<f32> = (0..albedo.data.len()).map(|i| 0.25 + 0.5 * hashed(80_000 + i as u64)).collect();
-    let adjoint = Image { width: 12, height: 12, data: (0..144).map(|i| [0, 1, 2].map(|c| 0.2 + hashed(95_000 + 3 * i + c))).collect() };
-    let dot_adjoint = |img: &Image| -> f64 { img.data.iter().zip(&adjoint.data).map(|(p, a)| (0..3).map(|c| p[c] as f64 * a[c] as f64).sum::<f64>()).sum() };
-    let h = 0.02f32;
-    with_gpu(|ctx| {
-        let mut r = Renderer::new(&device(ctx), &scene).unwrap();
-        let set = |r: &mut Renderer, t: f32| {
-            let v: Vec<f32> = albedo.data.iter().zip(&dirs).map(|(b, d)| b + t * d).collect();
-            r.set_param("media.cloud.albedo", &v).unwrap();
-        };
-        for seed in 0..8u64 {
-            let options = RenderOptions { spp: 4, seed, ..Default::default() };
-            set(&mut r, 0.0);
-            let g = r.gradient(&adjoint, &options).unwrap();
-            let along: f64 = g[0].1.data.iter().zip(&dirs).map(|(&g, &d)| g as f64 * d as f64).sum();
-            let paths = RenderOptions { seed: seed + vkinverse::render::gradient::SEED_ADJOINT as u64, ..options };
-            set(&mut r, h);
-            let plus = dot_adjoint(&r.render(&paths).unwrap());
-            set(&mut r, -h);
-            let minus = dot_adjoint(&r.render(&paths).unwrap());
-            let fd = (plus - minus) / (2.0 * h as f64);
-            println!("albedo, seed {seed}: adjoint {along:.6}, central difference {fd:.6}");
-            assert!(fd.abs() > 1.0, "seed {seed}: the derivative {fd} is resolved");
-            assert!((along - fd).abs() <= 1e-3 * fd.abs(), "seed {seed}: adjoint {along} against central difference {fd}");
-        }
-    });
+    for (seed, (along, fd)) in adjoint_and_central_difference(&scene, "media.cloud.albedo", &albedo.data, &dirs, 0.02, 8).into_iter().enumerate() {
+        println!("albedo, seed {seed}: adjoint {along:.6}, central difference {fd:.6}");
+        assert!(fd.abs() > 1.0, "seed {seed}: the derivative {fd} is resolved");
+        assert!((along - fd).abs() <= 1e-3 * fd.abs(), "seed {seed}: adjoint {along} against central difference {fd}");
+    }
 }
 
 /// Cancels its token once iteration `at` has run.
