@@ -27,7 +27,7 @@ use super::scene::Samples;
 use super::{optimiser_bandwidth, OptimiserBandwidth};
 use crate::engine::Engine;
 use crate::error::{Error, Result};
-use crate::gpu::{Buffer, CommandBuffer, MemoryKind, Profiler};
+use crate::gpu::{CommandBuffer, Profiler};
 use crate::scene::media::{DEFAULT_STEP, MAX_STEPS};
 use crate::scene::{ColorValue, Environment, Film, Integrator, Medium, ParamSpec, Scene, SceneParts, Sensor};
 use crate::settings::RunSettings;
@@ -309,8 +309,7 @@ fn measure_case(device: &crate::device::Device, grid: u32, film: u32, iterations
     (st.spp, st.primal_spp, st.fd_spp, st.target_spp, st.fd_stride) = (1, 1, 1, 1, 1);
     let engine = Engine::gradient_only(device, &scene, &st)?;
     let gs = engine.scene();
-    let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (gs.theta.len() / 4) as usize, MemoryKind::Device)?;
-    theta_prev.set_storage_extent(gs.theta.storage_extent());
+    let theta_prev = gs.theta.duplicate("theta prev")?;
     let fd = engine.fd_sample(&theta_prev, false, None)?;
     // θ_prev as after a step (2 % below θ), not θ itself: with equal states the fused
     // adjoint's derivatives cancel and it scatters nothing, which no later iteration does.

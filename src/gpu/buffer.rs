@@ -102,6 +102,17 @@ impl Buffer {
         Ok(buf)
     }
 
+    /// A new device buffer named `name` holding a copy of this one (copied on the device,
+    /// in one submission that is waited for), with the same storage extent.
+    pub fn duplicate(&self, name: &str) -> Result<Self> {
+        let copy = Self::new(&self.0.ctx, name, self.0.len, MemoryKind::Device)?;
+        copy.set_storage_extent(self.storage_extent());
+        let mut cmd = super::CommandBuffer::new(&self.0.ctx, name)?;
+        cmd.record(|rec| rec.copy(self, &copy, self.0.len))?;
+        cmd.submit_and_wait()?;
+        Ok(copy)
+    }
+
     /// Allocates a zero-filled buffer of `n` elements of `T`.
     pub fn zeroed<T: bytemuck::Pod>(ctx: &Arc<Context>, name: &str, n: usize, kind: MemoryKind) -> Result<Self> {
         Self::from_slice(ctx, name, &vec![T::zeroed(); n], kind)

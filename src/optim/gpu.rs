@@ -158,8 +158,9 @@ impl GpuOptimiser {
                 // Shaped like θ's buffer: the finite-difference kernels read the previous
                 // iterate through it, and the two-trace sample binds it as θ, material
                 // data included.
-                let theta_prev = Buffer::zeroed::<f32>(ctx, "theta prev", (theta.len() / 4) as usize, MemoryKind::Device)?;
-                theta_prev.set_storage_extent(theta.storage_extent());
+                // Shaped like θ's buffer, the scene's material data after θ included: the
+                // two-trace finite difference renders θ_{i−1} from it.
+                let theta_prev = theta.duplicate("theta prev")?;
                 let halves = if optimiser.needs_halves() { Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? }) } else { None };
                 // Without the centred estimate the kernel never touches the half buffers.
                 let unused = match &halves {

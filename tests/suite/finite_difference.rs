@@ -36,7 +36,8 @@ fn fd_setup(
     gs.set_theta(theta).unwrap();
     // Read as texels by the trace kernels, shaped like the scene's θ (the material data
     // after it).
-    let theta_prev = vkinverse::render::texel_buffer(ctx, "theta prev", &padded(gs, prev_vals)).unwrap();
+    let theta_prev = gs.theta.duplicate("theta prev").unwrap();
+    theta_prev.write(&padded(gs, prev_vals)).unwrap();
     (scene, renderer, imgs, ops, theta_prev)
 }
 
@@ -619,4 +620,29 @@ fn fused_equals_two_trace_through_a_medium() {
         assert!(a.iter().filter(|v| v.abs() > 1e-7).count() > a.len() / 2, "a 0.05 step changes most elements' gradient");
     }
     eprintln!("fused against two-trace through a medium: largest difference {worst:.1e} of the largest element");
+}
+
+/// The meta optimiser's θ_{i−1} is shaped like θ's buffer, the scene's material data after
+/// θ included, which the two-trace finite difference renders from: past θ it equals θ's
+/// buffer (the door-ajar scene's texture among the data), and an iteration that moves
+/// θ_{i−1} leaves them as they are.
+#[test]
+fn the_previous_theta_holds_the_material_data() {
+    use vkinverse::engine::Engine;
+    use vkinverse::settings::RunSettings;
+    let scene = Scene::load("scenes/ajar/scene.toml").unwrap();
+    let mut settings = RunSettings::of_scene(&scene);
+    settings.optimiser = "meta".parse().unwrap();
+    with_gpu(|ctx| {
+        let engine = Engine::new(&crate::common::device(ctx), &scene, &settings, &mut (), &Default::default()).unwrap();
+        let gs = engine.scene();
+        let base = gs.const_base as usize;
+        let prev = engine.optimiser().unwrap().theta_prev.as_ref().expect("meta keeps θ_{i−1}");
+        let data: Vec<f32> = gs.theta.read().unwrap();
+        assert!(data[base..].iter().filter(|&&v| v != 0.0).count() > 16, "the scene has material data");
+        assert_eq!(prev.read::<f32>().unwrap()[base..], data[base..]);
+        let mut iteration = engine.iteration().unwrap();
+        engine.step(&mut iteration, 0).unwrap();
+        assert_eq!(prev.read::<f32>().unwrap()[base..], data[base..], "an iteration moves θ's part alone");
+    });
 }
