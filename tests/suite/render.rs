@@ -1750,6 +1750,7 @@ fn light_reflects_off_plastics() {
             transmittance: vkinverse::bsdf::Table(transmittance),
             internal,
             nonlinear,
+            specular: DVec3::ONE,
             ..Default::default()
         };
         let reference = floor_reference(fov, |p, d, u| match vkinverse::bsdf::sample(&m, DVec3::Y, -d, u) {
