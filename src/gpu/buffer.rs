@@ -202,7 +202,7 @@ impl Buffer {
 /// storage-buffer range and its texel-buffer range (in 16-byte texels).
 pub(crate) fn bindable_bytes(ctx: &Context) -> u64 {
     let info = ctx.info();
-    info.max_storage_buffer_range.max(info.max_texel_buffer_elements.saturating_mul(super::TEXEL_BYTES))
+    info.max_storage_buffer_range.max(info.max_texel_buffer_bytes())
 }
 
 /// Creates a buffer and binds a new allocation of `location` memory to it; on failure

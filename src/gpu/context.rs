@@ -125,6 +125,13 @@ pub struct DeviceInfo {
     pub descriptor_limits: DescriptorLimits,
 }
 
+impl DeviceInfo {
+    /// The bytes one texel-buffer view may span: `max_texel_buffer_elements` 16-byte texels.
+    pub fn max_texel_buffer_bytes(&self) -> u64 {
+        self.max_texel_buffer_elements.saturating_mul(super::TEXEL_BYTES)
+    }
+}
+
 /// The device's per-stage descriptor limits that vkinverse's kernels run into (Vulkan
 /// guarantees only 4 storage buffers and 4 storage images per stage; desktop drivers allow
 /// thousands). Storage texel buffers count as storage images, uniform texel buffers as

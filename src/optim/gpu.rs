@@ -157,9 +157,7 @@ impl GpuOptimiser {
                 })?;
                 // Shaped like θ's buffer: the finite-difference kernels read the previous
                 // iterate through it, and the two-trace sample binds it as θ, material
-                // data included.
-                // Shaped like θ's buffer, the scene's material data after θ included: the
-                // two-trace finite difference renders θ_{i−1} from it.
+                // data included (copied here; θ's writes leave them as they are).
                 let theta_prev = theta.duplicate("theta prev")?;
                 let halves = if optimiser.needs_halves() { Some(Halves { grad: zeros("grad half")?, fd_grad: zeros("fd grad half")? }) } else { None };
                 // Without the centred estimate the kernel never touches the half buffers.

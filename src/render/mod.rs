@@ -123,7 +123,7 @@ impl GpuScene {
         // optimisers bind θ's part alone as a storage buffer. Textures are most of a large
         // scene's data: a buffer beyond the texel range says how much of it they are.
         let bytes = (contents.len() * 4) as u64;
-        let max = ctx.info().max_texel_buffer_elements.saturating_mul(gpu::TEXEL_BYTES);
+        let max = ctx.info().max_texel_buffer_bytes();
         if bytes > max && textures > 0 {
             let mib = (texture_floats * 4) as f64 / (1024.0 * 1024.0);
             let name = format!("theta: the parameters and material data, {mib:.1} MiB of it in {textures} texture(s), the largest {w} x {h}; smaller textures fit");

@@ -151,10 +151,15 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
     // Animations are not rendered: they are left out before the gltf crate reads the
     // document, so that a channel it cannot read (one whose target names no node, which
     // glTF 2.0 allows) does not refuse the file.
-    if root.as_object_mut().and_then(|o| o.remove("animations")).is_some_and(|a| a.as_array().is_some_and(|a| !a.is_empty())) {
-        warnings.push("animations are ignored: the scene is rendered at rest".into());
-    }
-    let json = serde_json::to_vec(&root).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?;
+    let json = match root.as_object_mut().and_then(|o| o.remove("animations")) {
+        Some(animations) => {
+            if animations.as_array().is_some_and(|a| !a.is_empty()) {
+                warnings.push("animations are ignored: the scene is rendered at rest".into());
+            }
+            serde_json::to_vec(&root).map_err(|e| err(path, "", format!("not valid JSON: {e}")))?.into()
+        }
+        None => json,
+    };
     let gltf = gltf::Gltf::from_slice(&json).map_err(|e| err(path, "", format!("not a valid glTF 2.0 file: {e}")))?;
     let doc = gltf.document;
     let buffers = buffers.into_iter().map(gltf::buffer::Data).collect();

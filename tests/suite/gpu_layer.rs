@@ -355,7 +355,7 @@ fn typed_errors() {
         let e = ComputePipeline::new(ctx, "no_such_kernel", &[]).err().unwrap();
         assert!(matches!(e, GpuError::UnknownKernel(_)), "{e}");
         // A buffer may be as long as the longer of the two ranges it can be bound by.
-        let max = ctx.info().max_storage_buffer_range.max(ctx.info().max_texel_buffer_elements * 16);
+        let max = ctx.info().max_storage_buffer_range.max(ctx.info().max_texel_buffer_bytes());
         let e = Buffer::new(ctx, "huge", max + 4, MemoryKind::Device).err().unwrap();
         assert!(matches!(e, GpuError::BufferTooLarge { .. }), "{e}");
         let e = a.write(&[0f32; 5]).unwrap_err();

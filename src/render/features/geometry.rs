@@ -31,7 +31,7 @@ impl Geometry {
         // The shading records are the largest buffer per triangle: refused before the BVH
         // is built where the device cannot hold them.
         let bytes = (geo.indices.len() * std::mem::size_of::<TriShading>()) as u64;
-        let max = up.ctx.info().max_texel_buffer_elements.saturating_mul(crate::gpu::TEXEL_BYTES);
+        let max = up.ctx.info().max_texel_buffer_bytes();
         if bytes > max {
             return Err(gpu::GpuError::BufferTooLarge {
                 name: format!("shading records of {} triangles", geo.indices.len()),
