@@ -34,6 +34,7 @@ layout(set = 0, binding = 15, scalar) writeonly buffer OutLights { LightRecord o
 // from float i, for every i with i + 2 inside the array (the rest stays zero), so every
 // alignment of a vec3 within a texel is read.
 layout(set = 0, binding = 16, scalar) writeonly buffer OutTriples { vec3 out_triples[]; };
+layout(set = 0, binding = 17, scalar) writeonly buffer OutUv1 { TriUv1 out_uv1[]; };
 
 layout(push_constant, scalar) uniform Push {
     uint materials;
@@ -45,6 +46,7 @@ layout(push_constant, scalar) uniform Push {
     uint env_dist;
     uint sensors;
     uint lights;
+    uint uv1s;
 } pc;
 
 void main() {
@@ -66,5 +68,6 @@ void main() {
     if (i < pc.env_dist) out_floats[pc.material_data + pc.theta + i] = texel_float(EnvDistribution, int(i));
     if (i < pc.sensors) out_sensors[i] = sensor_record(i);
     if (i < pc.lights) out_lights[i] = light_record(i);
+    if (i < pc.uv1s) out_uv1[i] = tri_uv1(i);
     if (i == 0u) out_globals = scene_globals();
 }

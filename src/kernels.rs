@@ -136,8 +136,10 @@ pub struct RecordsPush {
     pub env_dist: u32,
     pub sensors: u32,
     pub lights: u32,
+    /// Triangles with a second-set record (0 where no mesh has a second set).
+    pub uv1s: u32,
 }
-push_block!(RecordsPush { materials, triangles, emitters, nodes, material_data, theta, env_dist, sensors, lights });
+push_block!(RecordsPush { materials, triangles, emitters, nodes, material_data, theta, env_dist, sensors, lights, uv1s });
 
 /// The bsdf_sample_test variant's block: one material and direction per dispatch.
 #[repr(C)]

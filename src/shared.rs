@@ -64,8 +64,9 @@ pub struct ValueRef {
     pub offset: i32,
     pub width: u32,
     pub height: u32,
-    /// [`ValueRef::IN_THETA`], [`ValueRef::NEAREST`] and the wrap modes in u (bits 2–3)
-    /// and v (bits 4–5): 0 repeat, 1 clamp, 2 mirror.
+    /// [`ValueRef::IN_THETA`], [`ValueRef::NEAREST`], the wrap modes in u (bits 2–3)
+    /// and v (bits 4–5): 0 repeat, 1 clamp, 2 mirror, [`ValueRef::BUMP`] and
+    /// [`ValueRef::UV1`].
     pub flags: u32,
 }
 
@@ -77,8 +78,12 @@ impl ValueRef {
     /// A material's normal-map slot holds a bump map's heights (`VALUE_BUMP`).
     pub const BUMP: u32 = crate::constants::VALUE_BUMP;
 
-    /// The sampler bits of the flags (filter and wrap modes).
-    pub const SAMPLER: u32 = Self::NEAREST | 0b11_1100;
+    /// A texture looked up at a surface's second set of texture coordinates
+    /// (`VALUE_UV1`).
+    pub const UV1: u32 = 128;
+
+    /// The sampler bits of the flags (filter, wrap modes and coordinate set).
+    pub const SAMPLER: u32 = Self::NEAREST | 0b11_1100 | Self::UV1;
 }
 
 /// Mirror of `MaterialRecord`: 160 bytes (10 texels; `pad` is zero).
@@ -158,6 +163,17 @@ impl TriShading {
     /// `emitter_flags` bit 1: its mesh emits, or its emission is optimised (whatever
     /// `emitter_pdf` says): a camera ray passes through it where emitters are hidden.
     pub const EMITTING_MESH: u32 = crate::constants::EMITTER_MESH;
+}
+
+/// Mirror of `TriUv1`: 32 bytes (2 texels; `pad` is zero). A triangle's second set of
+/// texture coordinates (glTF's `TEXCOORD_1`) at its vertices.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TriUv1 {
+    pub uv0: [f32; 2],
+    pub uv1: [f32; 2],
+    pub uv2: [f32; 2],
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `EmitterTri`: 80 bytes (5 texels).
@@ -247,9 +263,10 @@ pub struct Globals {
 /// The records kernels read from uniform texel buffers, with their sizes: each a whole
 /// number of 16-byte texels, checked at compile time below and against the GLSL structs
 /// by tests/suite/render.rs.
-pub const TEXEL_RECORDS: [(&str, usize); 7] = [
+pub const TEXEL_RECORDS: [(&str, usize); 8] = [
     ("MaterialRecord", std::mem::size_of::<MaterialRecord>()),
     ("TriShading", std::mem::size_of::<TriShading>()),
+    ("TriUv1", std::mem::size_of::<TriUv1>()),
     ("EmitterTri", std::mem::size_of::<EmitterTri>()),
     ("SensorRecord", std::mem::size_of::<SensorRecord>()),
     ("LightRecord", std::mem::size_of::<LightRecord>()),

@@ -70,11 +70,11 @@ float bsdf_table(uint table, int index) { return texel_float(Theta, int(CONST_BA
 // is the geometric normal. The heights are bilinear in each texel (a nearest-filtered
 // field has no slope, and leaves n), and their derivatives those of the interpolation, as
 // Mitsuba's eval_1_grad.
-vec3 bump_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
+vec3 bump_mapped(TriShading sh, ValueRef r, vec3 n, SurfaceUv uv) {
     if ((r.flags & VALUE_NEAREST) != 0u) return n;
     ivec4 texel;
     vec4 w;
-    footprint(r, uv, texel, w);
+    footprint(r, uv_of(r, uv), texel, w);
     float h00 = value_at(r, texel.x, 0), h10 = value_at(r, texel.y, 0);
     float h01 = value_at(r, texel.z, 0), h11 = value_at(r, texel.w, 0);
     // The interpolation's fractions (footprint's weights are their products); texel rows
@@ -94,7 +94,7 @@ vec3 bump_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
 // n perturbed by the material's normal map (normal_mapped, lib/scene_access.glsl) or bump
 // map (bump_mapped), which share the material record's slot (a bump map's heights flagged
 // VALUE_BUMP); n itself where the material has neither.
-vec3 perturbed_normal(TriShading sh, vec3 n, vec2 uv) {
+vec3 perturbed_normal(TriShading sh, vec3 n, SurfaceUv uv) {
     // (Not `if (!HAS_NORMAL_MAPS) return n;`: the reflection cannot fold the negation of a
     // specialisation constant.)
     if (HAS_NORMAL_MAPS) {
@@ -406,7 +406,7 @@ void add_bsdf_grad(inout MatGrad g, Material m[NSTATES], vec3 ns, vec3 wo, vec3 
 }
 
 // Scatters g into the gradients of material `id`'s parameters at texture coordinate uv.
-void scatter_material(uint id, vec2 uv, MatGrad g) {
+void scatter_material(uint id, SurfaceUv uv, MatGrad g) {
     MaterialRecord mr = material_record(id);
     scatter3(mr.base_color, uv, g.base);
     scatter1(mr.roughness, uv, g.rough);
@@ -458,8 +458,8 @@ void add_light_sample(Material mat[NSTATES], vec3 ns, vec3 wo, vec3 wi, vec3 le[
 // emission and alpha, and whether its alpha test cuts it out: such a point emits nothing
 // (the emitter is sampled over its whole area, so the estimate stays unbiased); a blend's
 // choice is keyed by the point.
-vec2 emitter_point_uv(EmitterTri light, vec2 bary, vec3 pl, out bool cut) {
-    vec2 uv = vec2(0.0);
+SurfaceUv emitter_point_uv(EmitterTri light, vec2 bary, vec3 pl, out bool cut) {
+    SurfaceUv uv = SurfaceUv(vec2(0.0), bary, light.prim);
     // (Two branches, not `HAS_EMISSION_TEXTURES || HAS_ALPHA_MASKS`: the reflection
     // cannot fold an operation on specialisation constants.)
     if (HAS_EMISSION_TEXTURES) {
@@ -536,7 +536,7 @@ void medium_vertex_nee(vec3 p, vec3 d, float g, vec3 u_light, bool env_nee, floa
         float dist, dist2;
         float cos_l = lp.found ? emitter_towards(light, pl, p, wi, dist, dist2) : 0.0;
         bool cut;
-        vec2 light_uv = emitter_point_uv(light, lp.bary, pl, cut);
+        SurfaceUv light_uv = emitter_point_uv(light, lp.bary, pl, cut);
         float t_shadow = dist * (1.0 - 1e-4);
         if (!cut && cos_l > 0.0 && light.pdf > 0.0 && (lp.pdf_sa > 0.0 || !cast_any(p, wi, t_shadow, depth, replay))) {
             float pdf_light = (1.0 - p_env) * (lp.pdf_sa > 0.0 ? lp.pdf_sa : light.pdf * dist2 / cos_l);
@@ -709,7 +709,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
         TriShading sh = tri_shading(hit.prim);
         vec3 wo = -d;
         float w_bary = 1.0 - hit.u - hit.v;
-        vec2 uv = w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2;
+        SurfaceUv uv = SurfaceUv(w_bary * sh.uv0 + hit.u * sh.uv1 + hit.v * sh.uv2, vec2(hit.u, hit.v), hit.prim);
         vec3 ng = sh.ng;
 
         // Emission reached by the previous BSDF sample (or seen by the camera). Emitters
@@ -789,7 +789,7 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 cos_l = emitter_towards(light, pl, o_l, wi, dist, dist2);
             }
             bool cut;
-            vec2 light_uv = emitter_point_uv(light, lp.bary, pl, cut);
+            SurfaceUv light_uv = emitter_point_uv(light, lp.bary, pl, cut);
             if (!cut && cos_l > 0.0 && passes_side(wi, ng, ns, rough) && pdf_area > 0.0
                 && (lp.pdf_sa > 0.0 || !cast_any(o_l, wi, dist * (1.0 - 1e-4), depth, replay))) {
                 float pdf_light = (1.0 - p_env) * (lp.pdf_sa > 0.0 ? lp.pdf_sa : pdf_area * dist2 / cos_l);

@@ -19,6 +19,8 @@
 
 TEXEL_BUFFER(0, 20) Materials;
 TEXEL_BUFFER(0, 21) Shading;
+// The triangles' second sets of texture coordinates (TriUv1; one texel where no mesh has one).
+TEXEL_BUFFER(0, 22) ShadingUv1;
 TEXEL_BUFFER(0, 23) Emitters;
 TEXEL_BUFFER(0, 24) Sensors;
 TEXEL_BUFFER(0, 25) SceneGlobals;
@@ -111,16 +113,25 @@ uint tri_emitter_flags(uint prim) {
     return texel_load(Shading, int(prim) * 8 + 1).y;
 }
 
-// The texture coordinates of triangle `prim` at barycentrics b (the weights of vertices 1
-// and 2): texels 5-6 of its shading record alone.
-vec2 triangle_uv(uint prim, vec2 b) {
+// Where a surface point reads its textures: its first set of texture coordinates, and
+// the triangle and barycentrics (the weights of vertices 1 and 2) that give its second set
+// where a texture asks for it (VALUE_UV1, uv_of).
+struct SurfaceUv {
+    vec2 uv;
+    vec2 bary;
+    uint prim;
+};
+
+// The texture coordinates of triangle `prim` at barycentrics b: texels 5-6 of its shading
+// record alone.
+SurfaceUv triangle_uv(uint prim, vec2 b) {
     int base = int(prim) * 8;
     uvec4 t5 = texel_load(Shading, base + 5);
     uvec4 t6 = texel_load(Shading, base + 6);
     vec2 uv0 = uintBitsToFloat(t5.yz);
     vec2 uv1 = uintBitsToFloat(uvec2(t5.w, t6.x));
     vec2 uv2 = uintBitsToFloat(t6.yz);
-    return uv0 + b.x * (uv1 - uv0) + b.y * (uv2 - uv0);
+    return SurfaceUv(uv0 + b.x * (uv1 - uv0) + b.y * (uv2 - uv0), b, prim);
 }
 
 // Emissive triangle `i` (5 texels: p0 0-2, e1 3-5, e2 6-8, ng 9-11, prim 12, cdf 13,
@@ -220,6 +231,9 @@ layout(constant_id = 13) const bool HAS_NORMALS = true;
 // Whether any material has a normal map: without one the interpolated normal is the
 // shading normal, and neither the maps nor the tangents are read.
 layout(constant_id = 16) const bool HAS_NORMAL_MAPS = true;
+// Whether any texture is looked up at a second set of texture coordinates (VALUE_UV1):
+// without one, binding ShadingUv1 is not read.
+layout(constant_id = 26) const bool HAS_UV1 = true;
 // Whether any mesh's emission is a texture: without one, a light sample's emission is read
 // without its texture coordinates (which cost two texel fetches of its shading record).
 layout(constant_id = 17) const bool HAS_EMISSION_TEXTURES = true;
@@ -325,6 +339,29 @@ float fetch1(ValueRef r, vec2 uv, int state) {
     return v;
 }
 
+// The second-set record of triangle `prim` (2 texels: uv0 0-1, uv1 2-3, uv2 4-5).
+TriUv1 tri_uv1(uint prim) {
+    uvec4 t0 = texel_load(ShadingUv1, int(prim) * 2);
+    uvec4 t1 = texel_load(ShadingUv1, int(prim) * 2 + 1);
+    return TriUv1(uintBitsToFloat(t0.xy), uintBitsToFloat(t0.zw), uintBitsToFloat(t1.xy), t1.zw);
+}
+
+// The coordinates that value r reads at surface point s: the second set for a texture
+// flagged VALUE_UV1 (two texel fetches of ShadingUv1), else the first.
+vec2 uv_of(ValueRef r, SurfaceUv s) {
+    if (HAS_UV1) {
+        if ((r.flags & VALUE_UV1) != 0u) {
+            TriUv1 t = tri_uv1(s.prim);
+            return t.uv0 + s.bary.x * (t.uv1 - t.uv0) + s.bary.y * (t.uv2 - t.uv0);
+        }
+    }
+    return s.uv;
+}
+
+// fetch3 and fetch1 at a surface point, each value at the set of coordinates it reads.
+vec3 fetch3(ValueRef r, SurfaceUv s, int state) { return fetch3(r, uv_of(r, s), state); }
+float fetch1(ValueRef r, SurfaceUv s, int state) { return fetch1(r, uv_of(r, s), state); }
+
 // Whether the alpha test of material `alpha_material` - 1 (a triangle record's
 // alpha_material; 0: no test) cuts the surface out at texture coordinates uv for the ray
 // or sample `key` names: its alpha, looked up bilinearly, is below the material's cutoff,
@@ -332,7 +369,7 @@ float fetch1(ValueRef r, vec2 uv, int state) {
 // the surface is there with probability alpha. The number is a function of the key alone
 // (pcg4d of lib/rng.glsl): the replays of a path, which cast the same rays, make the same
 // choices. The alpha is a material constant: every parameter state sees the same surface.
-bool alpha_cut(uint alpha_material, vec2 uv, uvec4 key) {
+bool alpha_cut(uint alpha_material, SurfaceUv uv, uvec4 key) {
     // (Not `!HAS_ALPHA_MASKS || ...`: the reflection cannot fold the negation of a
     // specialisation constant.)
     if (HAS_ALPHA_MASKS && alpha_material != 0u) {
@@ -437,6 +474,10 @@ void scatter1(ValueRef r, vec2 uv, float g) {
         if (w[k] != 0.0) grad_add(r.offset + texel[k], w[k] * g);
     }
 }
+
+// scatter3 and scatter1 at a surface point (fetch3 and fetch1's coordinates).
+void scatter3(ValueRef r, SurfaceUv s, vec3 g) { scatter3(r, uv_of(r, s), g); }
+void scatter1(ValueRef r, SurfaceUv s, float g) { scatter1(r, uv_of(r, s), g); }
 #endif
 
 // The shading normal at a point of triangle `sh` with texture coordinates uv and
@@ -445,7 +486,7 @@ void scatter1(ValueRef r, vec2 uv, float g) {
 // tangent made orthogonal to n (Gram-Schmidt), the bitangent cross(n, tangent) times the
 // tangent's handedness, and n. n itself where the triangle has no tangent. The map is a
 // material constant: every parameter state sees the same normal.
-vec3 normal_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
+vec3 normal_mapped(TriShading sh, ValueRef r, vec3 n, SurfaceUv uv) {
     vec3 t = sh.tangent.xyz - n * dot(n, sh.tangent.xyz);
     if (sh.tangent.w != 0.0 && dot(t, t) > 1e-12) {
         t = normalize(t);
@@ -457,7 +498,7 @@ vec3 normal_mapped(TriShading sh, ValueRef r, vec3 n, vec2 uv) {
 }
 
 // The material at a surface point, in parameter state `state`.
-Material fetch_material(uint id, vec2 uv, int state) {
+Material fetch_material(uint id, SurfaceUv uv, int state) {
     MaterialRecord r = material_record(id);
     Material m;
     m.base_color = fetch3(r.base_color, uv, state);

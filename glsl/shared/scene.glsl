@@ -12,8 +12,11 @@
 // flags & VALUE_IN_THETA: the floats are elements of θ (they are being optimised);
 // otherwise they are material data, stored in θ's buffer after θ (from CONST_BASE on).
 // flags & VALUE_NEAREST: a texture looked up at its nearest texel instead of bilinearly.
+// flags & VALUE_UV1: a texture looked up at a surface's second set of texture coordinates
+// (glTF's TEXCOORD_1) instead of its first.
 #define VALUE_IN_THETA 1u
 #define VALUE_NEAREST 2u
+#define VALUE_UV1 128u
 struct ValueRef {
     int offset;
     uint width;
@@ -175,5 +178,15 @@ struct Globals {
     // 0: a box pixel filter (camera samples uniform over the pixel); else 1 + where in the
     // material data the filter's sampling table starts (src/render/filter.rs).
     uint filter_table;
+};
+
+// A triangle's second set of texture coordinates (glTF's TEXCOORD_1), at its three
+// vertices; its first set where its mesh has no second. Indexed by the original triangle
+// id, in binding ShadingUv1, where any mesh has a second set. 32 bytes (2 texels).
+struct TriUv1 {
+    vec2 uv0;
+    vec2 uv1;
+    vec2 uv2;
+    uvec2 pad;
 };
 #endif

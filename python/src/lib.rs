@@ -243,6 +243,7 @@ impl NativeScene {
                     image: Arc::new(image),
                     filter: Default::default(),
                     wrap: Default::default(),
+                    uv_set: 0,
                 });
             }
         }

@@ -1,7 +1,7 @@
 //! Warnings about what a scene asks for and will not get when it is rendered, one line
 //! each ([`Scene::render_warnings`]).
 
-use super::model::{ParamTarget, ScalarValue, Scene};
+use super::model::{ParamTarget, Scene, TextureValue as _};
 use glam::Vec3;
 
 impl Scene {
@@ -48,11 +48,10 @@ fn lighting_warnings(scene: &Scene) -> Vec<String> {
     }
     for mesh in &scene.meshes {
         let material = &scene.materials[mesh.material];
-        let textured_alpha = material.alpha.as_ref().is_some_and(|a| matches!(a.value, ScalarValue::Texture(_)));
-        let alpha = textured_alpha.then_some(("alpha texture", " (it is opaque)"));
-        let perturbation = material.perturbation.as_ref().map(|p| (p.what(), ""));
-        for (what, consequence) in [alpha, perturbation].into_iter().flatten() {
-            if mesh.uvs.is_empty() {
+        let alpha = material.alpha.as_ref().and_then(|a| a.value.texture()).map(|t| ("alpha texture", " (it is opaque)", t.uv_set));
+        let perturbation = material.perturbation.as_ref().map(|p| (p.what(), "", p.texture().uv_set));
+        for (what, consequence, set) in [alpha, perturbation].into_iter().flatten() {
+            if !mesh.has_uvs(set) {
                 out.push(format!(
                     "{path}: mesh \"{}\" has no texture coordinates: the {what} of its material \"{}\" is not applied to it{consequence}",
                     mesh.name, material.name

@@ -212,6 +212,8 @@ pub struct BumpMapFile {
     pub filter: Option<String>,
     /// As [`TextureRef::wrap`].
     pub wrap: Option<WrapInput>,
+    /// As [`TextureRef::uv_set`].
+    pub uv_set: Option<u32>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -223,6 +225,8 @@ pub struct NormalMapFile {
     pub filter: Option<String>,
     /// As [`TextureRef::wrap`].
     pub wrap: Option<WrapInput>,
+    /// As [`TextureRef::uv_set`].
+    pub uv_set: Option<u32>,
     /// "uv" (the default: y along increasing v, glTF's) or "cross" (y along
     /// cross(n, tangent) everywhere, Mitsuba's).
     pub bitangent: Option<String>,
@@ -237,6 +241,9 @@ pub struct TextureRef {
     /// "repeat" (the default), "clamp" or "mirror" ([`super::Wrap`]), or one for u and one
     /// for v.
     pub wrap: Option<WrapInput>,
+    /// The set of texture coordinates it is looked up at: 0 (the default: the OBJ's `vt`)
+    /// or 1 (the mesh's `uv1`).
+    pub uv_set: Option<u32>,
 }
 
 /// `wrap = "clamp"` or `wrap = ["clamp", "repeat"]` (u, v).
@@ -279,6 +286,10 @@ pub struct MeshFile {
     /// Emit from both sides instead of the counter-clockwise front only.
     #[serde(default)]
     pub two_sided: bool,
+    /// A second set of texture coordinates (textures with `uv_set = 1` read it): an `.npy`
+    /// file of float32, shape (triangles, 3, 2), the (u, v) of each triangle's corners in
+    /// the OBJ's face order.
+    pub uv1: Option<String>,
 }
 
 #[derive(Debug, Deserialize, Clone, Copy, PartialEq, Eq)]

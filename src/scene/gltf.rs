@@ -84,6 +84,31 @@ fn wrap(texture: &gltf::Texture) -> [Wrap; 2] {
     [mode(s.wrap_s()), mode(s.wrap_t())]
 }
 
+/// The texture of `image` (known by `path`) that glTF texture `texture` samples, looked up at
+/// texture coordinate set `uv_set`.
+fn sampled(path: PathBuf, image: Image, texture: &gltf::Texture, uv_set: u32) -> Texture {
+    Texture { path, image: image.into(), filter: filter(texture), wrap: wrap(texture), uv_set }
+}
+
+/// The texture coordinate set a texture reference reads: its `texCoord`, or its
+/// `KHR_texture_transform`'s `texCoord`, which overrides it.
+fn coord_set(tex_coord: u32, transform: Option<&serde_json::Value>) -> u32 {
+    transform.and_then(|t| t.get("texCoord")).and_then(serde_json::Value::as_u64).map_or(tex_coord, |k| k.min(u64::from(u32::MAX)) as u32)
+}
+
+/// The coordinate set of texture reference `info`.
+fn info_set(info: &gltf::texture::Info) -> u32 {
+    coord_set(info.tex_coord(), info.extension_value("KHR_texture_transform"))
+}
+
+/// What a material's textures ask of a primitive's texture coordinates
+/// ([`Importer::uv_transform`]), per set.
+#[derive(Default)]
+struct UvSets {
+    transform: [Option<UvTransform>; 2],
+    used: [bool; 2],
+}
+
 /// A texture reference's `KHR_texture_transform`: uv ↦ offset + R(rotation) (scale ∘ uv) in
 /// glTF's texture space (v down the image), R turning counter-clockwise.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -365,18 +390,28 @@ impl Importer<'_> {
         let positions: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| self.err(format!("{at}.attributes"), "no POSITION"))?.collect();
         let normals: Vec<[f32; 3]> = reader.read_normals().map(|n| n.collect()).unwrap_or_default();
         // glTF's v points down from the image's top row; the model's points up.
-        let transform = self.uv_transform(&prim.material(), &at)?;
-        let uvs: Vec<[f32; 2]> = reader
-            .read_tex_coords(0)
-            .map(|t| {
-                t.into_f32()
-                    .map(|uv| {
-                        let [u, v] = transform.map_or(uv, |t| t.apply(uv));
-                        [u, 1.0 - v]
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
+        let sets = self.uv_transform(&prim.material(), &at)?;
+        let coords = |set: u32| -> Vec<[f32; 2]> {
+            let transform = sets.transform[set as usize];
+            reader
+                .read_tex_coords(set)
+                .map(|t| {
+                    t.into_f32()
+                        .map(|uv| {
+                            let [u, v] = transform.map_or(uv, |t| t.apply(uv));
+                            [u, 1.0 - v]
+                        })
+                        .collect()
+                })
+                .unwrap_or_default()
+        };
+        let uvs = coords(0);
+        // The second set is read only where a texture reads it, and must be there.
+        let uvs1 = if sets.used[1] { coords(1) } else { Vec::new() };
+        if sets.used[1] && uvs1.is_empty() {
+            let material = material_at(&prim.material(), &at);
+            return Err(self.err(format!("{at}.attributes"), format!("no TEXCOORD_1, which a texture of {material} reads")));
+        }
         let flat: Vec<u32> = match reader.read_indices() {
             Some(i) => i.into_u32().collect(),
             None => (0..positions.len() as u32).collect(),
@@ -388,7 +423,7 @@ impl Importer<'_> {
         if flat.iter().any(|&i| i as usize >= n) {
             return Err(self.err(format!("{at}.indices"), format!("an index is out of bounds ({n} vertices)")));
         }
-        for (what, len) in [("NORMAL", normals.len()), ("TEXCOORD_0", uvs.len())] {
+        for (what, len) in [("NORMAL", normals.len()), ("TEXCOORD_0", uvs.len()), ("TEXCOORD_1", uvs1.len())] {
             if len != 0 && len != n {
                 return Err(self.err(format!("{at}.attributes.{what}"), format!("{len} values for {n} vertices")));
             }
@@ -407,6 +442,7 @@ impl Importer<'_> {
             positions: positions.iter().map(|&p| world.transform_point3(Vec3::from(p)).to_array()).collect(),
             normals: normals.iter().map(|&v| (normal_matrix * Vec3::from(v)).normalize_or_zero().to_array()).collect(),
             uvs,
+            uvs1,
             indices,
             material,
             emission,
@@ -429,7 +465,7 @@ impl Importer<'_> {
             Some(info) if r > 0.0 || g > 0.0 || b > 0.0 => {
                 let (img, path) = self.texture(&info, &format!("{}.emissiveTexture", material_at(m, used_at)))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
+                ColorValue::Texture(sampled(path, Image { data, ..img }, &info.texture(), info_set(&info)))
             }
             _ => ColorValue::Constant([r, g, b]),
         };
@@ -455,7 +491,7 @@ impl Importer<'_> {
             Some(info) => {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))?;
                 let data = img.data.iter().map(|p| [srgb_decode(p[0]) * r, srgb_decode(p[1]) * g, srgb_decode(p[2]) * b]).collect();
-                ColorValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
+                ColorValue::Texture(sampled(path, Image { data, ..img }, &info.texture(), info_set(&info)))
             }
         };
         let (metallic_factor, roughness_factor) = (pbr.metallic_factor(), pbr.roughness_factor());
@@ -463,11 +499,9 @@ impl Importer<'_> {
             None => (ScalarValue::Constant(roughness_factor), ScalarValue::Constant(metallic_factor)),
             Some(info) => {
                 let (img, path) = self.texture(&info, &format!("{at}.pbrMetallicRoughness.metallicRoughnessTexture"))?;
-                let channel = |c: usize, k: f32| Texture {
-                    path: path.clone(),
-                    image: Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), width: img.width, height: img.height }.into(),
-                    filter: filter(&info.texture()),
-                    wrap: wrap(&info.texture()),
+                let channel = |c: usize, k: f32| {
+                    let image = Image { data: img.data.iter().map(|p| [p[c] * k; 3]).collect(), width: img.width, height: img.height };
+                    sampled(path.clone(), image, &info.texture(), info_set(&info))
                 };
                 (ScalarValue::Texture(channel(1, roughness_factor)), ScalarValue::Texture(channel(2, metallic_factor)))
             }
@@ -481,16 +515,13 @@ impl Importer<'_> {
             None => None,
             Some(n) => {
                 let key = format!("{at}.normalTexture");
-                let (image, path) = self.image(n.texture(), n.tex_coord(), &key)?;
+                let set = coord_set(n.tex_coord(), n.extension_value("KHR_texture_transform"));
+                let (image, path) = self.image(n.texture(), set, &key)?;
                 let scale = n.scale();
                 if !scale.is_finite() {
                     return Err(self.err(format!("{key}.scale"), format!("{scale} is not finite")));
                 }
-                Some(Perturbation::Normal(NormalMap {
-                    texture: Texture { path, image: image.into(), filter: filter(&n.texture()), wrap: wrap(&n.texture()) },
-                    scale,
-                    bitangent: Bitangent::Uv,
-                }))
+                Some(Perturbation::Normal(NormalMap { texture: sampled(path, image, &n.texture(), set), scale, bitangent: Bitangent::Uv }))
             }
         };
         let name = match (m.name(), m.index()) {
@@ -532,23 +563,30 @@ impl Importer<'_> {
     }
 
     /// The `KHR_texture_transform` that the textures of material `m` (used at `used_at`)
-    /// share, applied to the texture coordinates of the primitives that use it (None: the
-    /// identity). The model has one set of texture coordinates per mesh: textures of one
-    /// material with different transforms, or a transform that picks another set, are
-    /// refused.
-    fn uv_transform(&self, m: &gltf::Material, used_at: &str) -> Result<Option<UvTransform>, SceneError> {
+    /// reading each set of texture coordinates share, applied to that set of the
+    /// primitives that use it (None: the identity), and which sets its textures read. The
+    /// model has the coordinates per mesh: textures of one material that read one set with
+    /// different transforms are refused.
+    fn uv_transform(&self, m: &gltf::Material, used_at: &str) -> Result<UvSets, SceneError> {
         let at = material_at(m, used_at);
         let pbr = m.pbr_metallic_roughness();
+        let of = |i: gltf::texture::Info| (i.tex_coord(), i.extension_value("KHR_texture_transform").cloned());
         let refs = [
-            ("pbrMetallicRoughness.baseColorTexture", pbr.base_color_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
-            ("pbrMetallicRoughness.metallicRoughnessTexture", pbr.metallic_roughness_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
-            ("normalTexture", m.normal_texture().map(|n| n.extension_value("KHR_texture_transform").cloned())),
-            ("emissiveTexture", m.emissive_texture().map(|i| i.extension_value("KHR_texture_transform").cloned())),
+            ("pbrMetallicRoughness.baseColorTexture", pbr.base_color_texture().map(of)),
+            ("pbrMetallicRoughness.metallicRoughnessTexture", pbr.metallic_roughness_texture().map(of)),
+            ("normalTexture", m.normal_texture().map(|n| (n.tex_coord(), n.extension_value("KHR_texture_transform").cloned()))),
+            ("emissiveTexture", m.emissive_texture().map(of)),
         ];
-        let mut shared: Option<(String, Option<UvTransform>)> = None;
-        for (key, ext) in refs {
-            let Some(ext) = ext else { continue };
-            let key = format!("{at}.{key}.extensions.KHR_texture_transform");
+        let mut sets = UvSets::default();
+        let mut shared: [Option<(String, Option<UvTransform>)>; 2] = [None, None];
+        for (key, reference) in refs {
+            let Some((tex_coord, ext)) = reference else { continue };
+            let set = coord_set(tex_coord, ext.as_ref());
+            let key = format!("{at}.{key}");
+            if set > 1 {
+                return Err(self.err(format!("{key}.texCoord"), format!("texture coordinate set {set} is not supported (TEXCOORD_0 and TEXCOORD_1 are)")));
+            }
+            let key = format!("{key}.extensions.KHR_texture_transform");
             let t = match ext {
                 None => None,
                 Some(v) => {
@@ -566,41 +604,39 @@ impl Importer<'_> {
                         None => 0.0,
                         Some(x) => x.as_f64().filter(|r| r.is_finite()).ok_or_else(|| bad("rotation"))? as f32,
                     };
-                    if let Some(k) = v.get("texCoord") {
-                        if k.as_u64() != Some(0) {
-                            return Err(self.err(format!("{key}.texCoord"), format!("texture coordinate set {k} is not supported (TEXCOORD_0 only)")));
-                        }
+                    if v.get("texCoord").is_some_and(|k| k.as_u64().is_none()) {
+                        return Err(bad("texCoord"));
                     }
                     let t = UvTransform { offset: pair("offset", [0.0; 2])?, rotation, scale: pair("scale", [1.0; 2])? };
                     (t != UvTransform { offset: [0.0; 2], rotation: 0.0, scale: [1.0; 2] }).then_some(t)
                 }
             };
-            match &shared {
-                None => shared = Some((key, t)),
+            sets.used[set as usize] = true;
+            match &shared[set as usize] {
+                None => shared[set as usize] = Some((key, t)),
                 Some((first, s)) if *s != t => {
                     return Err(self.err(
                         &key,
-                        format!(
-                            "differs from {first}: the textures of one material must share one texture transform (one set of texture coordinates per mesh)"
-                        ),
+                        format!("differs from {first}: the textures of one material that read one set of texture coordinates must share one texture transform"),
                     ));
                 }
                 Some(_) => {}
             }
         }
-        Ok(shared.and_then(|(_, t)| t))
+        sets.transform = shared.map(|s| s.and_then(|(_, t)| t));
+        Ok(sets)
     }
 
     /// The image of a texture reference (values as stored) and the path it is known by.
     fn texture(&mut self, info: &gltf::texture::Info, at: &str) -> Result<(Image, PathBuf), SceneError> {
-        self.image(info.texture(), info.tex_coord(), at)
+        self.image(info.texture(), info_set(info), at)
     }
 
     /// The image of `texture` read with texture coordinate set `tex_coord` (values as
     /// stored) and the path it is known by.
     fn image(&mut self, texture: gltf::Texture, tex_coord: u32, at: &str) -> Result<(Image, PathBuf), SceneError> {
-        if tex_coord != 0 {
-            return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {tex_coord} is not supported (TEXCOORD_0 only)")));
+        if tex_coord > 1 {
+            return Err(self.err(format!("{at}.texCoord"), format!("texture coordinate set {tex_coord} is not supported (TEXCOORD_0 and TEXCOORD_1 are)")));
         }
         let source = texture.source();
         let index = source.index();
@@ -769,7 +805,7 @@ impl Importer<'_> {
             Some(info) => match self.texture_alpha(&info, &format!("{at}.pbrMetallicRoughness.baseColorTexture"))? {
                 (Some(img), path) => {
                     let data = img.data.iter().map(|p| [p[0] * factor; 3]).collect();
-                    ScalarValue::Texture(Texture { path, image: Image { data, ..img }.into(), filter: filter(&info.texture()), wrap: wrap(&info.texture()) })
+                    ScalarValue::Texture(sampled(path, Image { data, ..img }, &info.texture(), info_set(&info)))
                 }
                 (None, _) => ScalarValue::Constant(factor),
             },

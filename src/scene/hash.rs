@@ -57,6 +57,9 @@ impl Hasher {
         if t.wrap != [Wrap::Repeat; 2] {
             self.tag(&format!("wrap={}/{}", t.wrap[0].name(), t.wrap[1].name()));
         }
+        if t.uv_set != 0 {
+            self.tag(&format!("uv_set={}", t.uv_set));
+        }
     }
 
     fn color(&mut self, v: &ColorValue) {
@@ -191,6 +194,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
         h.f32s(m.positions.as_flattened());
         h.f32s(m.normals.as_flattened());
         h.f32s(m.uvs.as_flattened());
+        if !m.uvs1.is_empty() {
+            h.tag("uvs1");
+            h.f32s(m.uvs1.as_flattened());
+        }
         h.u32s(m.indices.as_flattened());
         h.u64(m.material as u64);
         // A constant hashes as before textured emission existed (its values alone).

@@ -121,14 +121,24 @@ impl Loader {
         if let Some((x, y)) = image.find_non_finite() {
             return Err(SceneError::NonFinitePixel { scene: self.scene.clone(), key: key.into(), image: path, x, y });
         }
-        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })
+        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2], uv_set: 0 })
     }
 
     /// The texture a scene value names at `key` (`{ texture = …, filter = … }`).
     fn texture_ref(&self, key: &str, t: &file::TextureRef) -> Result<Texture, SceneError> {
         let filter = self.filter(key, t.filter.as_deref())?;
         let wrap = self.wrap(key, t.wrap.as_ref())?;
-        Ok(Texture { filter, wrap, ..self.texture(&format!("{key}.texture"), &t.texture)? })
+        let uv_set = self.uv_set(key, t.uv_set)?;
+        Ok(Texture { filter, wrap, uv_set, ..self.texture(&format!("{key}.texture"), &t.texture)? })
+    }
+
+    /// The set of texture coordinates named at `key`.uv_set: 0 (the default) or 1.
+    fn uv_set(&self, key: &str, set: Option<u32>) -> Result<u32, SceneError> {
+        match set {
+            None => Ok(0),
+            Some(k @ (0 | 1)) => Ok(k),
+            Some(k) => Err(self.invalid(&format!("{key}.uv_set"), &format!("{k} is not 0 or 1"))),
+        }
     }
 
     /// The wrap modes named at `key`.wrap: one for both axes or one each for u and v.
@@ -328,6 +338,12 @@ impl Loader {
     /// has texture coordinates.
     fn check_texture_coordinates(&self, meshes: &[Mesh], materials: &[Material], optimise: &Optimise) -> Result<(), SceneError> {
         for (i, mesh) in meshes.iter().enumerate() {
+            // A texture that reads the second set needs a mesh that has one.
+            let second = materials[mesh.material].textures().chain(mesh.emission.texture()).find(|t| t.uv_set == 1);
+            if let (Some(t), true) = (second, mesh.uvs1.is_empty()) {
+                let message = format!("{} reads texture coordinate set 1 (uv_set = 1), which {} does not have", t.path.display(), mesh.path.display());
+                return Err(self.invalid(&format!("meshes.{}", mesh.name), &message));
+            }
             if !mesh.uvs.is_empty() {
                 continue;
             }
@@ -353,13 +369,13 @@ impl Loader {
         let n = m.positions.len();
         let problem = if m.indices.is_empty() {
             Some("has no triangles".to_string())
-        } else if m.positions.iter().flatten().chain(m.normals.iter().flatten()).chain(m.uvs.iter().flatten()).any(|v| !v.is_finite()) {
+        } else if m.positions.iter().flatten().chain(m.normals.iter().flatten()).chain(m.uvs.iter().chain(&m.uvs1).flatten()).any(|v| !v.is_finite()) {
             Some("has a non-finite vertex value".into())
         } else if let Some(v) = m.positions.iter().flatten().find(|v| v.abs() > MAX_COORDINATE) {
             Some(format!("has a vertex coordinate of {v}, beyond the ±{MAX_COORDINATE:e} the BVH is built for"))
         } else if m.indices.iter().flatten().any(|&i| i as usize >= n) {
             Some("has a vertex index out of bounds".into())
-        } else if !(m.normals.is_empty() || m.normals.len() == n) || !(m.uvs.is_empty() || m.uvs.len() == n) {
+        } else if [m.normals.len(), m.uvs.len(), m.uvs1.len()].iter().any(|&k| k != 0 && k != n) {
             Some("has normals or texture coordinates for some vertices only".into())
         } else {
             None
@@ -673,7 +689,8 @@ impl Loader {
                     let k = format!("{key}.normal_map.texture");
                     let filter = self.filter(&format!("{key}.normal_map"), n.filter.as_deref())?;
                     let wrap = self.wrap(&format!("{key}.normal_map"), n.wrap.as_ref())?;
-                    let texture = Texture { filter, wrap, ..self.texture(&k, &n.texture)? };
+                    let uv_set = self.uv_set(&format!("{key}.normal_map"), n.uv_set)?;
+                    let texture = Texture { filter, wrap, uv_set, ..self.texture(&k, &n.texture)? };
                     self.texels_in_or(&k, &texture, 3, 0.0, 1.0, " (a normal map stores each normal n as (n + 1) / 2)")?;
                     let scale = n.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.normal_map.scale"), &[scale])?;
@@ -688,7 +705,8 @@ impl Loader {
                     let k = format!("{key}.bump_map.texture");
                     let filter = self.filter(&format!("{key}.bump_map"), b.filter.as_deref())?;
                     let wrap = self.wrap(&format!("{key}.bump_map"), b.wrap.as_ref())?;
-                    let texture = Texture { filter, wrap, ..self.texture(&k, &b.texture)? };
+                    let uv_set = self.uv_set(&format!("{key}.bump_map"), b.uv_set)?;
+                    let texture = Texture { filter, wrap, uv_set, ..self.texture(&k, &b.texture)? };
                     let scale = b.scale.unwrap_or(1.0);
                     self.finite(&format!("{key}.bump_map.scale"), &[scale])?;
                     Some(Perturbation::Bump(BumpMap { texture, scale }))
@@ -803,20 +821,41 @@ impl Loader {
                 }
             }
             check_triangles(&out, data.indices.len()).map_err(|e| self.invalid(&format!("{key}.file"), &format!("{}: {e}", path.display())))?;
-            out.push(Mesh {
+            let mut mesh = Mesh {
                 name,
                 path,
                 positions: data.positions,
                 normals: data.normals,
                 uvs: data.uvs,
+                uvs1: Vec::new(),
                 indices: data.indices,
                 material,
                 emission,
                 two_sided_emission: m.two_sided,
                 sphere: None,
-            });
+            };
+            if let Some(rel) = &m.uv1 {
+                let corners = self.corner_uvs(&format!("{key}.uv1"), rel, mesh.indices.len())?;
+                mesh.set_corner_uvs1(&corners);
+            }
+            out.push(mesh);
         }
         Ok(out)
+    }
+
+    /// The per-corner texture coordinates in the `.npy` file `rel` names at `key`: float32
+    /// of shape (triangles, 3, 2), finite.
+    fn corner_uvs(&self, key: &str, rel: &str, triangles: usize) -> Result<Vec<[[f32; 2]; 3]>, SceneError> {
+        let (path, bytes) = self.read(key, rel)?;
+        let array = crate::npy::parse_bytes(&bytes, &path).map_err(|e| self.invalid(key, &e.to_string()))?;
+        if array.shape != [triangles, 3, 2] {
+            let message = format!("{} has shape {:?}, not [{triangles}, 3, 2] (the mesh's triangles, their corners, u and v)", path.display(), array.shape);
+            return Err(self.invalid(key, &message));
+        }
+        if let Some(v) = array.data.iter().find(|v| !v.is_finite()) {
+            return Err(self.invalid(key, &format!("{} holds {v}", path.display())));
+        }
+        Ok(array.data.chunks_exact(6).map(|c| [[c[0], c[1]], [c[2], c[3]], [c[4], c[5]]]).collect())
     }
 
     /// An imported environment obeys the TOML's rule too: finite, non-negative radiance.

@@ -1104,6 +1104,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     image: Image { width: 2, height: 2, data: vec![c0, c1, c1, c0] }.into(),
                     filter: Filter::Nearest,
                     wrap: [Wrap::Repeat; 2],
+                    uv_set: 0,
                 }
             }
             _ => return Err(self.err(node, format!("texture \"{kind}\" is unsupported (bitmap and checkerboard are)"))),
@@ -1149,7 +1150,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         if image.find_non_finite().is_some() {
             return Err(self.err(node, format!("{} has non-finite pixels", path.display())));
         }
-        Ok(Texture { path, image: image.into(), filter, wrap: [wrap; 2] })
+        Ok(Texture { path, image: image.into(), filter, wrap: [wrap; 2], uv_set: 0 })
     }
 
     /// The `to_uv` of a texture image (identity for one without).
@@ -1760,7 +1761,19 @@ impl<'a, 'i> Importer<'a, 'i> {
                 && [m.x_axis.dot(m.y_axis), m.y_axis.dot(m.z_axis), m.z_axis.dot(m.x_axis)].iter().all(|d| d.abs() <= 1e-5 * s * s);
             similar.then(|| Sphere { center: to_world.transform_point3(c).to_array(), radius: r * s })
         });
-        self.out.meshes.push(Mesh { name, path: file, positions, normals, uvs, indices, material, emission, two_sided_emission: false, sphere });
+        self.out.meshes.push(Mesh {
+            name,
+            path: file,
+            positions,
+            normals,
+            uvs,
+            uvs1: Vec::new(),
+            indices,
+            material,
+            emission,
+            two_sided_emission: false,
+            sphere,
+        });
         Ok(())
     }
 
@@ -1803,7 +1816,13 @@ impl<'a, 'i> Importer<'a, 'i> {
                     );
                     // Sampling only: the expected image is the same either way.
                     self.take_bool(&mut items, "mis_compensation", false)?;
-                    ColorValue::Texture(Texture { path, image: envmap_from_mitsuba(&map, rotation).into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2] })
+                    ColorValue::Texture(Texture {
+                        path,
+                        image: envmap_from_mitsuba(&map, rotation).into(),
+                        filter: Filter::Bilinear,
+                        uv_set: 0,
+                        wrap: [Wrap::Repeat; 2],
+                    })
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {

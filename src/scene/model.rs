@@ -211,6 +211,9 @@ pub struct Texture {
     pub filter: Filter,
     /// What lies beyond [0, 1] in u and in v.
     pub wrap: [Wrap; 2],
+    /// The set of texture coordinates the image is looked up at: 0, a mesh's `uvs` (glTF's
+    /// `TEXCOORD_0`, OBJ's), or 1, its `uvs1` (glTF's `TEXCOORD_1`).
+    pub uv_set: u32,
 }
 
 /// What a texture holds beyond [0, 1] along one of its axes (and what its bilinear lookup
@@ -283,6 +286,11 @@ pub trait TextureValue {
     /// The texture's wrap modes in u and v (repeat for a constant).
     fn wrap(&self) -> [Wrap; 2] {
         self.texture().map_or([Wrap::Repeat; 2], |t| t.wrap)
+    }
+
+    /// The texture's set of texture coordinates (0 for a constant).
+    fn uv_set(&self) -> u32 {
+        self.texture().map_or(0, |t| t.uv_set)
     }
 }
 
@@ -717,6 +725,14 @@ impl Material {
             || matches!(self.metallic, ScalarValue::Texture(_))
     }
 
+    /// Every texture the material looks up: its values', its map's and its alpha's.
+    pub fn textures(&self) -> impl Iterator<Item = &Texture> {
+        let alpha = self.alpha.as_ref().and_then(|a| a.value.texture());
+        [self.base_color.texture(), self.roughness.texture(), self.metallic.texture(), self.perturbation.as_ref().map(Perturbation::texture), alpha]
+            .into_iter()
+            .flatten()
+    }
+
     /// The normal map, where one perturbs the shading normal.
     pub fn normal_map(&self) -> Option<&NormalMap> {
         match &self.perturbation {
@@ -745,12 +761,56 @@ impl Mesh {
             positions,
             normals: Vec::new(),
             uvs: Vec::new(),
+            uvs1: Vec::new(),
             indices,
             material,
             emission: ColorValue::Constant([0.0; 3]),
             two_sided_emission: false,
             sphere: None,
         }
+    }
+}
+
+impl Mesh {
+    /// Whether the mesh has texture coordinate set `set` (0: `uvs`, 1: `uvs1`).
+    pub fn has_uvs(&self, set: u32) -> bool {
+        !if set == 1 { &self.uvs1 } else { &self.uvs }.is_empty()
+    }
+
+    /// The second set of texture coordinates at each triangle's corners, in triangle order
+    /// (empty where the mesh has none): what a scene file's `uv1` array holds.
+    pub fn corner_uvs1(&self) -> Vec<[[f32; 2]; 3]> {
+        if self.uvs1.is_empty() {
+            return Vec::new();
+        }
+        self.indices.iter().map(|t| t.map(|i| self.uvs1[i as usize])).collect()
+    }
+
+    /// Gives the mesh the second set of texture coordinates `corners` (one per triangle
+    /// corner, [`Self::corner_uvs1`]), splitting a vertex whose corners differ in it.
+    pub fn set_corner_uvs1(&mut self, corners: &[[[f32; 2]; 3]]) {
+        let mut uvs1: Vec<Option<[f32; 2]>> = vec![None; self.positions.len()];
+        for (t, corner) in self.indices.iter_mut().zip(corners) {
+            for (i, &uv) in t.iter_mut().zip(corner) {
+                match uvs1[*i as usize] {
+                    None => uvs1[*i as usize] = Some(uv),
+                    Some(have) if have == uv => {}
+                    Some(_) => {
+                        let v = *i as usize;
+                        self.positions.push(self.positions[v]);
+                        if !self.normals.is_empty() {
+                            self.normals.push(self.normals[v]);
+                        }
+                        if !self.uvs.is_empty() {
+                            self.uvs.push(self.uvs[v]);
+                        }
+                        *i = (uvs1.len()) as u32;
+                        uvs1.push(Some(uv));
+                    }
+                }
+            }
+        }
+        self.uvs1 = uvs1.into_iter().map(Option::unwrap_or_default).collect();
     }
 }
 
@@ -764,6 +824,9 @@ pub struct Mesh {
     pub positions: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
     pub uvs: Vec<[f32; 2]>,
+    /// A second set of texture coordinates (glTF's `TEXCOORD_1`), per vertex as `uvs`;
+    /// empty where the mesh has none. Textures whose `uv_set` is 1 read it.
+    pub uvs1: Vec<[f32; 2]>,
     pub indices: Vec<[u32; 3]>,
     pub material: usize,
     /// Radiance emitted from the front (counter-clockwise) side, or both sides when
@@ -1054,6 +1117,9 @@ pub struct SceneGeometry {
     pub positions: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
     pub uvs: Vec<[f32; 2]>,
+    /// The second set of texture coordinates, a mesh without one giving its first set;
+    /// empty where no mesh has one.
+    pub uvs1: Vec<[f32; 2]>,
     pub indices: Vec<[u32; 3]>,
     pub triangle_material: Vec<u32>,
     pub triangle_mesh: Vec<u32>,
@@ -1091,6 +1157,7 @@ impl Scene {
     /// Concatenates all meshes, in order, into one [`SceneGeometry`].
     pub fn flatten(&self) -> SceneGeometry {
         let mut g = SceneGeometry::default();
+        let any_uvs1 = self.meshes.iter().any(|m| !m.uvs1.is_empty());
         for (mesh_id, mesh) in self.meshes.iter().enumerate() {
             let base = g.positions.len() as u32;
             let n = mesh.positions.len();
@@ -1100,10 +1167,18 @@ impl Scene {
             } else {
                 g.normals.extend_from_slice(&mesh.normals);
             }
+            let first = g.uvs.len();
             if mesh.uvs.is_empty() {
                 g.uvs.resize(g.uvs.len() + n, [0.0; 2]);
             } else {
                 g.uvs.extend_from_slice(&mesh.uvs);
+            }
+            if any_uvs1 {
+                if mesh.uvs1.is_empty() {
+                    g.uvs1.extend_from_slice(&g.uvs[first..]);
+                } else {
+                    g.uvs1.extend_from_slice(&mesh.uvs1);
+                }
             }
             g.indices.extend(mesh.indices.iter().map(|t| t.map(|i| i + base)));
             let count = mesh.indices.len();

@@ -4,9 +4,7 @@
 //! recovered value is written back into the scene. Which feature reads it from θ on the
 //! device is that feature's (`render::features`); the file formats write the scene back.
 
-use super::model::{
-    ColorValue, Environment, Filter, Light, Material, Medium, Mesh, ParamTarget, Reference, ScalarValue, Scene, Texture, TextureValue as _, Wrap,
-};
+use super::model::{ColorValue, Environment, Filter, Light, Material, Medium, Mesh, ParamTarget, Reference, ScalarValue, Scene, Texture, TextureValue, Wrap};
 use crate::tensor::ParamValue;
 
 /// The parts of a scene that targets name, as a loader has them before the scene exists.
@@ -156,20 +154,23 @@ impl ParamTarget {
         }
     }
 
-    /// The filter and wrap modes of the scene's value, which a recovered texture keeps (the
-    /// environment's are always bilinear and repeating).
-    pub(crate) fn sampler(self, scene: &Scene) -> (Filter, [Wrap; 2]) {
+    /// The filter, wrap modes and coordinate set of the scene's value, which a recovered
+    /// texture keeps (the environment's are always bilinear and repeating).
+    pub(crate) fn sampler(self, scene: &Scene) -> (Filter, [Wrap; 2], u32) {
+        fn of(v: &impl TextureValue) -> (Filter, [Wrap; 2], u32) {
+            (v.filter(), v.wrap(), v.uv_set())
+        }
         match self {
-            Self::BaseColor { material } => (scene.materials[material].base_color.filter(), scene.materials[material].base_color.wrap()),
-            Self::Roughness { material } => (scene.materials[material].roughness.filter(), scene.materials[material].roughness.wrap()),
-            Self::Metallic { material } => (scene.materials[material].metallic.filter(), scene.materials[material].metallic.wrap()),
-            Self::Emission { mesh } => (scene.meshes[mesh].emission.filter(), scene.meshes[mesh].emission.wrap()),
+            Self::BaseColor { material } => of(&scene.materials[material].base_color),
+            Self::Roughness { material } => of(&scene.materials[material].roughness),
+            Self::Metallic { material } => of(&scene.materials[material].metallic),
+            Self::Emission { mesh } => of(&scene.meshes[mesh].emission),
             Self::Environment
             | Self::LightColor { .. }
             | Self::LightIntensity { .. }
             | Self::MediumDensity { .. }
             | Self::MediumEmission { .. }
-            | Self::MediumAlbedo { .. } => (Filter::Bilinear, [Wrap::Repeat; 2]),
+            | Self::MediumAlbedo { .. } => (Filter::Bilinear, [Wrap::Repeat; 2], 0),
         }
     }
 

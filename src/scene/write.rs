@@ -45,15 +45,15 @@ pub(crate) fn file_name(name: &str) -> String {
 }
 
 /// `scene` with every recovered value in place of the scene's own. Recovered textures get
-/// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter and
-/// wrap modes of the scene's value.
+/// the path `textures/<parameter>.exr` (where [`write_final`] puts them) and the filter,
+/// wrap modes and coordinate set of the scene's value.
 pub fn apply(scene: &Scene, values: &[(ParamTarget, ParamValue)]) -> Scene {
     let mut out = scene.clone();
     for (target, value) in values {
         let name = scene.optimise.params.iter().find(|p| p.target == *target).map_or("param".to_string(), |p| p.name.clone());
-        let (filter, wrap) = target.sampler(scene);
-        let texture =
-            value_image(value).map(|image| Texture { path: PathBuf::from(format!("textures/{}.exr", file_name(&name))), image: image.into(), filter, wrap });
+        let (filter, wrap, uv_set) = target.sampler(scene);
+        let path = PathBuf::from(format!("textures/{}.exr", file_name(&name)));
+        let texture = value_image(value).map(|image| Texture { path, image: image.into(), filter, wrap, uv_set });
         target.set(&mut out, value, texture);
     }
     out.content_hash = super::hash::content_hash(&out);
@@ -110,8 +110,8 @@ fn exr(dir: &Path, name: &str, image: &Image) -> Result<String, SceneError> {
 fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     use toml::{Table, Value};
     let table = |pairs: Vec<(&str, Value)>| -> Value { Value::Table(pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect::<Table>()) };
-    // `{ texture = file, filter = …, wrap = … }` (the filter and wrap modes only where they
-    // are not the defaults) with `more` after.
+    // `{ texture = file, filter = …, wrap = …, uv_set = … }` (the filter, wrap modes and
+    // coordinate set only where they are not the defaults) with `more` after.
     let texture_table = |file: String, t: &Texture, more: Vec<(&str, Value)>| -> Value {
         let mut pairs = vec![("texture", Value::String(file))];
         if t.filter != Filter::Bilinear {
@@ -121,6 +121,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
             [Wrap::Repeat, Wrap::Repeat] => {}
             [u, v] if u == v => pairs.push(("wrap", Value::String(u.name().into()))),
             [u, v] => pairs.push(("wrap", Value::Array(vec![Value::String(u.name().into()), Value::String(v.name().into())]))),
+        }
+        if t.uv_set != 0 {
+            pairs.push(("uv_set", Value::Integer(t.uv_set.into())));
         }
         pairs.extend(more);
         table(pairs)
@@ -254,6 +257,15 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         ];
         if m.two_sided_emission {
             pairs.push(("two_sided", Value::Boolean(true)));
+        }
+        // The second set of texture coordinates, per corner in the OBJ's face order (an
+        // OBJ file holds one set).
+        let corners = m.corner_uvs1();
+        if !corners.is_empty() {
+            let rel = format!("meshes/{}.uv1.npy", file_name(&m.name));
+            let array = crate::npy::Array { shape: vec![corners.len(), 3, 2], data: corners.as_flattened().as_flattened().to_vec() };
+            crate::npy::write(&dir.join(&rel), &array).map_err(|e| write_err(&dir.join(&rel), e))?;
+            pairs.push(("uv1", Value::String(rel)));
         }
         meshes.push(table(pairs));
     }
@@ -476,7 +488,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                             None => pbr.get("baseColorFactor").and_then(|f| f.get(3)).and_then(Value::as_f64).unwrap_or(1.0),
                         };
                         pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, alpha]);
-                        pbr["baseColorTexture"] = json!({ "index": index });
+                        pbr["baseColorTexture"] = texture_info(pbr.get("baseColorTexture"), index, t.uv_set);
                     }
                 }
             }
@@ -502,7 +514,8 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                         let pbr = pbr(&mut root, g);
                         pbr["roughnessFactor"] = json!(1.0);
                         pbr["metallicFactor"] = json!(1.0);
-                        pbr["metallicRoughnessTexture"] = json!({ "index": index });
+                        let set = if matches!(rough, ScalarValue::Texture(_)) { rough.uv_set() } else { metal.uv_set() };
+                        pbr["metallicRoughnessTexture"] = texture_info(pbr.get("metallicRoughnessTexture"), index, set);
                     }
                 }
             }
@@ -511,6 +524,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                 let mesh = &scene.meshes[mesh];
                 // glTF's factor and texture are in [0, 1]: a brighter emission moves its peak
                 // into KHR_materials_emissive_strength.
+                let set = mesh.emission.uv_set();
                 let (e, texture) = match &mesh.emission {
                     ColorValue::Constant(c) => (*c, None),
                     ColorValue::Texture(t) => {
@@ -524,7 +538,7 @@ fn write_gltf(dir: &Path, source: &GltfSource, scene: &Scene, values: &[(ParamTa
                 let strength = e.iter().copied().fold(0.0f32, f32::max);
                 let m = &mut root["materials"][g];
                 match texture {
-                    Some(index) => m["emissiveTexture"] = json!({ "index": index }),
+                    Some(index) => m["emissiveTexture"] = texture_info(m.get("emissiveTexture"), index, set),
                     None => {
                         if let Some(obj) = m.as_object_mut() {
                             obj.remove("emissiveTexture");
@@ -641,6 +655,21 @@ fn add_png(
         json!({ "source": image_index, "sampler": sampler })
     };
     Ok(push(root, "textures", texture))
+}
+
+/// A texture reference to texture `index` in place of `old`: `old`'s other properties kept
+/// (its coordinate set and its `KHR_texture_transform`, which the scene's texture
+/// coordinates were read with), else one that reads coordinate set `uv_set`.
+fn texture_info(old: Option<&Value>, index: usize, uv_set: u32) -> Value {
+    match old {
+        Some(v @ Value::Object(_)) => {
+            let mut v = v.clone();
+            v["index"] = json!(index);
+            v
+        }
+        _ if uv_set != 0 => json!({ "index": index, "texCoord": uv_set }),
+        _ => json!({ "index": index }),
+    }
 }
 
 /// Appends `v` to the array `root[key]` (created if absent) and returns its index.

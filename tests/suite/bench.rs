@@ -84,6 +84,7 @@ fn scene_bench_on_cornell_is_consistent() {
             "HAS_NORMALS",
             "HAS_NORMAL_MAPS",
             "HAS_ALPHA_MASKS",
+            "HAS_UV1",
             "BVH_STACK_REGISTERS",
             "HAS_MEDIA"
         ]

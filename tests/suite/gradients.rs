@@ -1038,6 +1038,34 @@ range = [0.0, 50.0]
 /// from everything (emitters are one-sided, and nothing lies behind it), while paths do
 /// reach its back (its material's colour has a gradient) and the box light has one;
 /// (2) a wall colour at max depth 1, where the image is emitters seen directly.
+/// Gradients of textures read at a second set of texture coordinates are those of the
+/// same textures read at a first set that holds the coordinates: the floor's colour
+/// texture and the lamp's emission texture of [`common::scenes::two_uv_sets`], optimised
+/// as 4 × 4 and 16 × 1 textures, against the same scene reading its coordinates as set 0
+/// (same targets, same seed). Read at the decoy set instead, the gradient moves.
+#[test]
+fn gradients_at_a_second_set_of_texture_coordinates_are_those_at_the_first() {
+    use common::scenes::{two_uv_sets, UvCase};
+    let optimise = "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\ntexture = [4, 4]\n\
+                    [[optimise.params]]\ntarget = \"meshes.lamp.emission\"\ninit = [2, 2, 2]\nrange = [0, 8]\ntexture = [16, 1]\n";
+    with_gpu(|ctx| {
+        let grad = |case: UvCase| {
+            let scene = two_uv_sets(&format!("grad-uv-{case:?}"), case, optimise);
+            let mut b = Bench::new(ctx, &scene, Loss::L2, 16, 16, 64);
+            let theta = b.scene().layout.initial();
+            b.estimate(&theta, 0).0
+        };
+        let (a, b, c) = (grad(UvCase::First), grad(UvCase::Second), grad(UvCase::Decoy));
+        assert_eq!(a.len(), 4 * 4 * 3 + 16 * 3);
+        let peak = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let worst = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        eprintln!("gradient peak {peak}, largest difference {worst}");
+        assert!(peak > 0.0 && worst <= 1e-4 * peak, "set 1 against set 0: largest difference {worst} (peak {peak})");
+        let moved = a.iter().zip(&c).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(moved > 0.1 * peak, "the decoy moves the gradient by only {moved} (peak {peak})");
+    });
+}
+
 #[test]
 fn gradient_is_zero_where_the_image_does_not_depend_on_the_parameter() {
     with_gpu(|ctx| {

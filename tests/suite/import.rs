@@ -515,9 +515,106 @@ fn gltf_texture_transforms_move_the_texture_coordinates() {
     });
     let msg = Scene::load(&differ).map(|_| ()).unwrap_err().to_string();
     assert!(msg.contains("materials[0].normalTexture.extensions.KHR_texture_transform") && msg.contains("baseColorTexture") && !msg.contains('\n'), "{msg}");
-    let set = write("set", &|d| d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": { "texCoord": 1 } }));
+    let set = write("set", &|d| d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": { "texCoord": 2 } }));
     let msg = Scene::load(&set).map(|_| ()).unwrap_err().to_string();
-    assert!(msg.contains("KHR_texture_transform.texCoord") && msg.contains("texture coordinate set 1"), "{msg}");
+    assert!(msg.contains("normalTexture.texCoord") && msg.contains("texture coordinate set 2 is not supported"), "{msg}");
+    // The transform's set overrides the reference's: set 1, which the quad lacks.
+    let set = write("set1", &|d| d["materials"][0]["normalTexture"]["extensions"] = serde_json::json!({ "KHR_texture_transform": { "texCoord": 1 } }));
+    let msg = Scene::load(&set).map(|_| ()).unwrap_err().to_string();
+    assert!(msg.contains("no TEXCOORD_1") && msg.contains("materials[0]"), "{msg}");
+}
+
+/// glTF's second set of texture coordinates (`TEXCOORD_1`, read where a texture's
+/// `texCoord` is 1): the normal-mapped quad with a colour texture, both read at its set 1
+/// (the file's own coordinates) while its set 0 is a decoy (turned and squeezed), renders
+/// bit for bit as the quad that reads its own coordinates as set 0, and the decoy read as
+/// set 0 changes the image. The recovered base colour is written back to glTF with its
+/// `texCoord` and to TOML with the mesh's second set as a `uv1` array, and both render as
+/// the parameters did.
+#[test]
+fn gltf_second_texture_coordinates_are_read_rendered_and_written_back() {
+    let dir = temp_dir("gltf-texcoord1");
+    for f in ["bumps.png", "checker.png"] {
+        std::fs::copy(data(&format!("textured/{f}")), dir.join(f)).unwrap();
+    }
+    let base: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(data("textured/normal-mapped.gltf")).unwrap()).unwrap();
+    let plain = Scene::load(data("textured/normal-mapped.gltf")).unwrap();
+    // The decoy: glTF's (u, v) at each vertex turned a quarter and squeezed.
+    let decoy: Vec<u8> = plain.meshes[0]
+        .uvs
+        .iter()
+        .flat_map(|uv| {
+            let (u, v) = (uv[0], 1.0 - uv[1]);
+            [0.2 + 0.5 * v, 0.9 - 0.6 * u]
+        })
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    std::fs::write(dir.join("decoy.bin"), &decoy).unwrap();
+    let write = |name: &str, set: u32, own_set: u32| {
+        let mut d = base.clone();
+        d["images"] = serde_json::json!([{ "uri": "bumps.png" }, { "uri": "checker.png" }]);
+        d["textures"] = serde_json::json!([{ "source": 0 }, { "source": 1 }]);
+        d["materials"][0]["normalTexture"]["texCoord"] = serde_json::json!(set);
+        d["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({ "index": 1, "texCoord": set });
+        d["buffers"].as_array_mut().unwrap().push(serde_json::json!({ "uri": "decoy.bin", "byteLength": decoy.len() }));
+        d["bufferViews"].as_array_mut().unwrap().push(serde_json::json!({ "buffer": 1, "byteOffset": 0, "byteLength": decoy.len() }));
+        d["accessors"].as_array_mut().unwrap().push(serde_json::json!({ "bufferView": 3, "componentType": 5126, "count": 4, "type": "VEC2" }));
+        // The file's own coordinates as set `own_set`, the decoy as the other.
+        let attributes = &mut d["meshes"][0]["primitives"][0]["attributes"];
+        attributes[format!("TEXCOORD_{own_set}")] = serde_json::json!(1);
+        attributes[format!("TEXCOORD_{}", 1 - own_set)] = serde_json::json!(3);
+        let path = dir.join(format!("{name}.gltf"));
+        std::fs::write(&path, serde_json::to_string(&d).unwrap()).unwrap();
+        path
+    };
+    let small = LoadOptions { film: Some(Film { width: 24, height: 24 }), max_depth: Some(2) };
+    let load = |p: &Path| Scene::load_with(p, &small).unwrap();
+    let first = load(&write("first", 0, 0));
+    let second = load(&write("second", 1, 1));
+    let decoyed = load(&write("decoyed", 0, 1));
+    assert!(approximations(&second).is_empty(), "{:?}", second.warnings);
+    let m = &second.meshes[0];
+    assert_eq!(m.uvs1.len(), m.positions.len(), "the second set is read");
+    assert!(m.uvs1.iter().zip(&first.meshes[0].uvs).all(|(a, b)| (a[0] - b[0]).abs() < 1e-6 && (a[1] - b[1]).abs() < 1e-6), "set 1 holds the file's own");
+    let material = &second.materials[m.material];
+    assert!(material.textures().count() == 2 && material.textures().all(|t| t.uv_set == 1), "both textures read set 1");
+    assert!(first.meshes[0].uvs1.is_empty(), "no second set where no texture reads one");
+    with_gpu(|ctx| {
+        assert!(GpuScene::new(ctx, &second).unwrap().has("HAS_UV1") && !GpuScene::new(ctx, &first).unwrap().has("HAS_UV1"));
+        let (a, b, c) = (render(ctx, &first, 0, 16, 7), render(ctx, &second, 0, 16, 7), render(ctx, &decoyed, 0, 16, 7));
+        assert_close(&b, &a, "set 1 against set 0");
+        let diff: f64 = a.data.iter().zip(&c.data).map(|(x, y)| (0..3).map(|k| (x[k] - y[k]).abs() as f64).sum::<f64>()).sum();
+        let total: f64 = a.data.iter().map(|p| p.iter().map(|&v| v as f64).sum::<f64>()).sum();
+        assert!(diff > 0.1 * total, "the decoy read as set 0 changes the image by only {:.4} (relative L1)", diff / total);
+
+        let scene_path = dir.join("opt.toml");
+        std::fs::write(
+            &scene_path,
+            "import = \"second.gltf\"\n[film]\nwidth = 24\nheight = 24\n[integrator]\nmax_depth = 2\n[optimise]\n\
+             [[optimise.params]]\ntarget = \"materials.bumpy.base_color\"\ninit = 0.5\nrange = [0, 1]\ntexture = [2, 2]\n",
+        )
+        .unwrap();
+        let scene = Scene::load(&scene_path).unwrap();
+        let r = PrimalRenderer::new(GpuScene::new(ctx, &scene).unwrap()).unwrap();
+        let layout = r.scene.layout.clone();
+        let theta: Vec<f32> = (0..12).map(|k| 0.05 + 0.07 * k as f32).collect();
+        r.scene.set_theta(theta.clone()).unwrap();
+        let expected = r.render(0, 4, 5, |_, _| {}).unwrap();
+        let out = dir.join("out");
+        write_final(&out, &scene, &layout.recovered(&theta)).unwrap();
+        let toml_text = std::fs::read_to_string(out.join("final/scene.toml")).unwrap();
+        assert!(toml_text.contains("uv1 = ") && toml_text.contains("uv_set = 1"), "{toml_text}");
+        let toml = Scene::load(out.join("final/scene.toml")).unwrap();
+        assert_eq!(toml.meshes[0].corner_uvs1(), scene.meshes[0].corner_uvs1(), "the TOML's second set");
+        assert_close(&render_sensor0(ctx, &toml), &expected, "final/scene.toml");
+        let gltf = Scene::load_with(out.join("final/scene.gltf"), &small).unwrap();
+        let g = &gltf.materials[gltf.meshes[0].material];
+        assert!(g.textures().all(|t| t.uv_set == 1), "the written glTF's textures read set 1");
+        let ColorValue::Texture(t) = &g.base_color else { panic!("the written glTF's base colour texture") };
+        for (got, want) in t.image.data.iter().flatten().zip(&theta) {
+            assert!((got - want).abs() <= 1.2 / 255.0, "written glTF texel {got} vs {want}");
+        }
+    });
 }
 
 /// Every bundled Mitsuba scene (scenes/mitsuba/*.xml, compared with Mitsuba's renders by
@@ -561,8 +658,8 @@ fn unsupported_gltf_content_is_named_with_its_json_path() {
         ("required-extension", &["extensionsRequired[0]", "KHR_draco_mesh_compression"][..]),
         ("required-on-material", &["materials[0].extensions.KHR_materials_clearcoat", "not supported"]),
         ("lines", &["meshes[1].primitives[0].mode", "Lines"]),
-        ("normal-map-texcoord1", &["materials[0].normalTexture.texCoord", "texture coordinate set 1"]),
-        ("texcoord1", &["baseColorTexture.texCoord", "texture coordinate set 1"]),
+        ("normal-map-texcoord1", &["meshes[0].primitives[0].attributes", "no TEXCOORD_1", "materials[0]"]),
+        ("texcoord1", &["meshes[0].primitives[0].attributes", "no TEXCOORD_1", "materials[0]"]),
         ("orthographic-flat", &["cameras[0].orthographic.ymag", "not a positive number"]),
         ("missing-emissive-image", &["images[0]", "none.png"]),
         ("missing-buffer", &["buffers[0]", "errors/nowhere.bin"]),
@@ -810,6 +907,7 @@ fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
         image: Image { width: w, height: h, data }.into(),
         filter: vkinverse::scene::Filter::Bilinear,
         wrap: [vkinverse::scene::Wrap::Repeat; 2],
+        uv_set: 0,
     })
 }
 

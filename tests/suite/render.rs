@@ -607,7 +607,7 @@ fn environment_distribution_matches_its_pdf() {
 fn kernels_read_the_records_the_host_wrote() {
     use vkinverse::bvh::{BvhCwNode, BvhLayout, BvhNode, BvhTriangle, BvhWideNode};
     use vkinverse::gpu::{Buffer, CommandBuffer, ComputePipeline, MemoryKind};
-    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, ValueRef};
+    use vkinverse::shared::{EmitterTri, Globals, LightRecord, MaterialRecord, SensorRecord, TriShading, TriUv1, ValueRef};
     fn read<T: bytemuck::Pod>(b: &Buffer) -> Vec<T> {
         let bytes: Vec<u8> = b.read().unwrap();
         bytes.chunks_exact(std::mem::size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
@@ -623,6 +623,14 @@ fn kernels_read_the_records_the_host_wrote() {
         ("normal map", normal_quad("records-nmap", Shading::Map([0.3, -0.2, 0.93]), true)),
         ("emission texture", lamp_scene("records-emission", true, LAMP_RED, LAMP_BLUE)),
         ("alpha test", cutout_scene("records-alpha", Cutout::Masked, false, 0.5)),
+        (
+            "second uv set",
+            common::scenes::two_uv_sets(
+                "records-uv1",
+                common::scenes::UvCase::Second,
+                "[[optimise.params]]\ntarget = \"materials.floor.base_color\"\ninit = [0.5, 0.5, 0.5]\nrange = [0, 1]\ntexture = [4, 4]\n",
+            ),
+        ),
         (
             "lights",
             delta_lit_scene(
@@ -646,6 +654,8 @@ fn kernels_read_the_records_the_host_wrote() {
                 let globals: Vec<Globals> = read(buffer("SceneGlobals"));
                 let lights: Vec<LightRecord> = read(buffer("Lights"));
                 let lights = &lights[..globals[0].num_lights as usize];
+                let uv1: Vec<TriUv1> = read(buffer("ShadingUv1"));
+                let uv1 = if gs.has("HAS_UV1") { &uv1[..] } else { &[][..] };
                 let floats = |n: &str| -> Vec<f32> { read(buffer(n)) };
                 // θ's buffer: θ padded to CONST_BASE floats, then the material data.
                 let theta_buffer = floats("Theta");
@@ -682,6 +692,7 @@ fn kernels_read_the_records_the_host_wrote() {
                 let o_globals = out::<Globals>(ctx, "out globals", 1);
                 let o_lights = out::<LightRecord>(ctx, "out lights", lights.len());
                 let o_triples = out::<[f32; 3]>(ctx, "out triples", data.len() + theta.len());
+                let o_uv1 = out::<TriUv1>(ctx, "out uv1", uv1.len());
                 let mut b = bound.clone();
                 b.extend([
                     ("OutMaterials", &o_materials),
@@ -695,11 +706,13 @@ fn kernels_read_the_records_the_host_wrote() {
                     ("OutGlobals", &o_globals),
                     ("OutLights", &o_lights),
                     ("OutTriples", &o_triples),
+                    ("OutUv1", &o_uv1),
                 ]);
                 // The frame counter is the scene's but not read here.
                 b.retain(|(n, _)| pipeline.reflection().binding(n).is_some());
                 let group = pipeline.bind(&b).unwrap();
-                let counts = [materials.len(), shading.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len(), lights.len()];
+                let counts =
+                    [materials.len(), shading.len(), emitters.len(), n_nodes, data.len(), theta.len(), env.len(), sensors.len(), lights.len(), uv1.len()];
                 let c = counts.map(|c| c as u32);
                 let push = vkinverse::kernels::RecordsPush {
                     materials: c[0],
@@ -711,6 +724,7 @@ fn kernels_read_the_records_the_host_wrote() {
                     env_dist: c[6],
                     sensors: c[7],
                     lights: c[8],
+                    uv1s: c[9],
                 };
                 let threads = *counts.iter().max().unwrap() as u64;
                 let mut cmd = CommandBuffer::new(ctx, "records").unwrap();
@@ -724,6 +738,13 @@ fn kernels_read_the_records_the_host_wrote() {
                 assert_eq!(read::<SensorRecord>(&o_sensors)[..sensors.len()], sensors[..], "{tag}: sensors");
                 assert_eq!(read::<Globals>(&o_globals), globals, "{tag}: globals");
                 assert_eq!(read::<LightRecord>(&o_lights)[..lights.len()], lights[..], "{tag}: lights");
+                assert_eq!(read::<TriUv1>(&o_uv1)[..uv1.len()], uv1[..], "{tag}: second uv sets");
+                if *name == "second uv set" {
+                    // The second set, per triangle, is the mesh's own (not its first set).
+                    assert_eq!(uv1.len(), shading.len(), "{tag}: one second-set record per triangle");
+                    assert!(uv1.iter().zip(&shading).any(|(a, s)| [a.uv0, a.uv1, a.uv2] != [s.uv0, s.uv1, s.uv2]), "{tag}: the second set differs");
+                    assert!(materials.iter().any(|m| m.base_color.flags & ValueRef::UV1 != 0), "{tag}: a texture reads the second set");
+                }
                 // A triangle's shading record repeats its material's one_sided and its mesh's
                 // emission (one per mesh, the scene's emission value); an emitter's record what
                 // light sampling needs of its triangle's shading record.
@@ -1271,6 +1292,34 @@ fn textured_emitters_are_sampled_by_the_texels_they_reach() {
         let mean = |img: &Image| img.data.iter().map(|p| p[0] as f64).sum::<f64>() / img.data.len() as f64;
         let (x, y) = (mean(&render(&textured)), mean(&render(&split)));
         assert!((x / y - 1.0).abs() < 0.01, "mean {x} against {y}");
+    });
+}
+
+/// Textures read at a mesh's second set of texture coordinates (a colour texture, a
+/// normal map, whose tangent frame is that of its set, and an emission texture, whose
+/// light-sampling table is too) render bit for bit as the same textures read at a first
+/// set that holds those coordinates, and reading the decoy set instead changes the
+/// image: [`common::scenes::two_uv_sets`]. The same seed gives the same paths, and the
+/// second set is interpolated with the same arithmetic as the first.
+#[test]
+fn a_second_set_of_texture_coordinates_renders_as_the_first() {
+    use common::scenes::{two_uv_sets, UvCase};
+    let (first, second, decoy) =
+        (two_uv_sets("uv-first", UvCase::First, ""), two_uv_sets("uv-second", UvCase::Second, ""), two_uv_sets("uv-decoy", UvCase::Decoy, ""));
+    with_gpu(|ctx| {
+        let render = |scene: &Scene| {
+            let gs = GpuScene::new(ctx, scene).unwrap();
+            PrimalRenderer::new(gs).unwrap().render(0, 64, 3, |_, _| {}).unwrap()
+        };
+        assert!(GpuScene::new(ctx, &second).unwrap().has("HAS_UV1"), "the kernels read the second set");
+        assert!(!GpuScene::new(ctx, &first).unwrap().has("HAS_UV1"), "nor where no mesh has one");
+        let (a, b, c) = (render(&first), render(&second), render(&decoy));
+        let peak = a.data.iter().flatten().fold(0.0f32, |m, &v| m.max(v));
+        let worst = a.data.iter().flatten().zip(b.data.iter().flatten()).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(peak > 0.1 && worst <= 1e-5 * peak, "set 1 against set 0: largest difference {worst} (peak {peak})");
+        let diff: f64 = a.data.iter().flatten().zip(c.data.iter().flatten()).map(|(x, y)| (x - y).abs() as f64).sum();
+        let total: f64 = a.data.iter().flatten().map(|&v| v as f64).sum();
+        assert!(diff > 0.1 * total, "the decoy changes the image by only {:.4} (relative L1)", diff / total);
     });
 }
 

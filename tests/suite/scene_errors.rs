@@ -246,6 +246,47 @@ fn emission_textures_are_checked() {
     assert_eq!(vkinverse::render::ParamLayout::new(&s).initial().len(), 12, "2 × 2 texels of 3 channels");
 }
 
+/// A second set of texture coordinates: `uv1` per triangle corner, read by textures with
+/// `uv_set = 1`. A vertex whose corners differ in it is split; a set other than 0 or 1, a
+/// texture reading set 1 on a mesh without one, and a `uv1` array of the wrong shape or
+/// with a non-finite value are one-line errors naming the key (and the file).
+#[test]
+fn second_texture_coordinates_are_checked() {
+    let quad = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nf 1/1 2/2 3/3\nf 1/1 3/3 4/4\n";
+    let scene = |set: &str, uv1: &str| {
+        BASE.replace("base_color = [0.5, 0.5, 0.5]", &format!("base_color = {{ texture = \"tex.exr\"{set} }}"))
+            .replace("file = \"tri.obj\"", &format!("file = \"quad.obj\"{uv1}"))
+    };
+    let write = |name: &str, text: &str, corners: Option<(Vec<usize>, Vec<f32>)>| {
+        let path = fixture(name, text);
+        fs::write(path.with_file_name("quad.obj"), quad).unwrap();
+        if let Some((shape, data)) = corners {
+            vkinverse::npy::write(&path.with_file_name("uv1.npy"), &vkinverse::npy::Array { shape, data }).unwrap();
+        }
+        path
+    };
+    // Vertex 1 (a corner of both triangles) has (0.5, 0.5) in one and (0.9, 0.1) in the other.
+    let corners: Vec<f32> = [[0.5, 0.5], [0.1, 0.2], [0.3, 0.4], [0.9, 0.1], [0.3, 0.4], [0.7, 0.8]].concat();
+    let s = Scene::load(write("uv1", &scene(", uv_set = 1", "\nuv1 = \"uv1.npy\""), Some((vec![2, 3, 2], corners.clone())))).unwrap();
+    let m = &s.meshes[0];
+    assert_eq!((m.positions.len(), m.uvs.len(), m.uvs1.len()), (5, 5, 5), "vertex 1 split in two");
+    assert_eq!(m.corner_uvs1().as_flattened().as_flattened(), &corners[..], "the corners read back");
+    assert_eq!(m.indices[1][0], 4, "the second triangle's first corner is the copy");
+    assert_eq!(m.positions[4], m.positions[0]);
+    let ColorValue::Texture(t) = &s.materials[0].base_color else { panic!("a texture") };
+    assert_eq!(t.uv_set, 1);
+    for (name, set, uv1, array, needles) in [
+        ("uv-set-2", ", uv_set = 2", "", None, &["materials.m.base_color.uv_set", "2 is not 0 or 1"][..]),
+        ("uv1-missing", ", uv_set = 1", "", None, &["meshes.quad", "tex.exr", "texture coordinate set 1", "quad.obj"][..]),
+        ("uv1-shape", "", "\nuv1 = \"uv1.npy\"", Some((vec![2, 2, 3], corners.clone())), &["meshes.quad.uv1", "uv1.npy", "[2, 3, 2]"][..]),
+        ("uv1-nan", "", "\nuv1 = \"uv1.npy\"", Some((vec![2, 3, 2], [&corners[..11], &[f32::NAN]].concat())), &["meshes.quad.uv1", "NaN"][..]),
+        ("uv1-absent", "", "\nuv1 = \"none.npy\"", None, &["meshes.quad.uv1", "none.npy"][..]),
+    ] {
+        let err = Scene::load(write(name, &scene(set, uv1), array)).map(|_| ()).unwrap_err();
+        assert_message(&err, needles);
+    }
+}
+
 #[test]
 fn toml_syntax_error_names_the_line() {
     let err = load_err("syntax", &BASE.replace("height = 8", "height = = 8"));

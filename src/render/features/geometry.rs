@@ -1,6 +1,6 @@
 //! Meshes and the BVH: the triangles of every mesh in one list, the BVH over them (in the
 //! configured node layout), and a shading record per triangle (its material, normals,
-//! texture coordinates, tangent frame for a normal or bump map, alpha test, and the
+//! texture coordinates (and, in a buffer of their own, the second sets), tangent frame for a normal or bump map, alpha test, and the
 //! emission and emitter density the emitters feature gave it).
 
 use super::emitters::Emitters;
@@ -9,17 +9,20 @@ use super::{Feature, Upload};
 use crate::bvh::{self, BvhBuffers, BvhLayout};
 use crate::gpu::{self, Buffer, SpecValue};
 use crate::render::texel_buffer;
-use crate::scene::{Bitangent, Perturbation, ScalarValue, Scene, SceneGeometry};
-use crate::shared::TriShading;
+use crate::scene::{Bitangent, Perturbation, Scene, SceneGeometry, TextureValue as _};
+use crate::shared::{TriShading, TriUv1};
 use glam::{Vec2, Vec3};
 
 pub struct Geometry {
     pub bvh: BvhBuffers,
     shading: Buffer,
+    /// The triangles' second sets of texture coordinates; one zero texel where no mesh has one.
+    uv1: Buffer,
     pub triangles: usize,
     has_normals: bool,
     has_normal_maps: bool,
     has_alpha_masks: bool,
+    has_uv1: bool,
     /// The compressed BVH's traversal stack in an array instead of registers
     /// ([`crate::Config::bvh_stack_array`]).
     pub stack_array: bool,
@@ -51,11 +54,16 @@ impl Geometry {
             let uvs = idx.map(|i| geo.uvs[i as usize]);
             let material = geo.triangle_material[t];
             let m = &scene.materials[material as usize];
+            // A map's tangent frame is that of the coordinates it is looked up at.
+            let map_uvs = match &m.perturbation {
+                Some(p) if p.texture().uv_set == 1 && !geo.uvs1.is_empty() => idx.map(|i| geo.uvs1[i as usize]),
+                _ => uvs,
+            };
             let tangent = match &m.perturbation {
                 None => [0.0; 4],
-                Some(Perturbation::Bump(_)) => uv_gradients([a, b, c], uvs, ng),
+                Some(Perturbation::Bump(_)) => uv_gradients([a, b, c], map_uvs, ng),
                 Some(Perturbation::Normal(n)) => {
-                    let [x, y, z, w] = triangle_tangent([a, b, c], uvs, ng);
+                    let [x, y, z, w] = triangle_tangent([a, b, c], map_uvs, ng);
                     [x, y, z, if n.bitangent == Bitangent::Cross { w.abs() } else { w }]
                 }
             };
@@ -79,13 +87,26 @@ impl Geometry {
                 tangent,
             });
         }
+        let uv1: Vec<TriUv1> = if geo.uvs1.is_empty() {
+            Vec::new()
+        } else {
+            geo.indices
+                .iter()
+                .map(|idx| {
+                    let [uv0, uv1, uv2] = idx.map(|i| geo.uvs1[i as usize]);
+                    TriUv1 { uv0, uv1, uv2, pad: [0; 2] }
+                })
+                .collect()
+        };
         Ok(Geometry {
             bvh,
+            uv1: texel_buffer(up.ctx, "shading uv1", &uv1)?,
             triangles: geo.indices.len(),
             has_normals: shading.iter().flat_map(|s| [s.n0, s.n1, s.n2]).any(|n| n != [0.0; 3]),
             has_normal_maps: shading.iter().any(|s| s.tangent != [0.0; 4]),
             has_alpha_masks: alpha_material.iter().any(|&m| m != 0),
             shading: texel_buffer(up.ctx, "shading", &shading)?,
+            has_uv1: !geo.uvs1.is_empty(),
             stack_array: false,
         })
     }
@@ -95,6 +116,7 @@ impl Feature for Geometry {
     fn bindings(&self) -> Vec<(&'static str, &Buffer)> {
         let mut v: Vec<(&'static str, &Buffer)> = self.bvh.bindings().into_iter().collect();
         v.push(("Shading", &self.shading));
+        v.push(("ShadingUv1", &self.uv1));
         v
     }
 
@@ -103,6 +125,7 @@ impl Feature for Geometry {
             ("HAS_NORMALS", SpecValue::Bool(self.has_normals)),
             ("HAS_NORMAL_MAPS", SpecValue::Bool(self.has_normal_maps)),
             ("HAS_ALPHA_MASKS", SpecValue::Bool(self.has_alpha_masks)),
+            ("HAS_UV1", SpecValue::Bool(self.has_uv1)),
         ];
         if self.bvh.layout == BvhLayout::Cw8 {
             spec.push(("BVH_STACK_REGISTERS", SpecValue::Bool(BvhLayout::stack_in_registers(&self.bvh, self.stack_array))));
@@ -123,7 +146,7 @@ fn alpha_materials(scene: &Scene, geo: &SceneGeometry) -> Vec<u32> {
         .meshes
         .iter()
         .map(|mesh| match &scene.materials[mesh.material].alpha {
-            Some(a) if cuts[mesh.material] => !mesh.uvs.is_empty() || matches!(a.value, ScalarValue::Constant(_)),
+            Some(a) if cuts[mesh.material] => a.value.texture().is_none_or(|t| mesh.has_uvs(t.uv_set)),
             _ => false,
         })
         .collect();

@@ -9,7 +9,7 @@
 //! | [`lights`]: point, spot and directional | `Lights` | `HAS_DELTA_LIGHTS` | colour, intensity |
 //! | [`environment`] | `EnvDistribution` | `HAS_ENVIRONMENT`, `ENVIRONMENT_SAMPLED` | the environment |
 //! | [`emitters`]: area emitters and light sampling | `Emitters` | `NUM_EMITTERS`, `HAS_EMISSION_TEXTURES` | emission |
-//! | [`geometry`]: meshes and the BVH | the BVH's, `Shading` | `HAS_NORMALS`, `HAS_NORMAL_MAPS`, `HAS_ALPHA_MASKS`, `BVH_STACK_REGISTERS` | |
+//! | [`geometry`]: meshes and the BVH | the BVH's, `Shading`, `ShadingUv1` | `HAS_NORMALS`, `HAS_NORMAL_MAPS`, `HAS_ALPHA_MASKS`, `HAS_UV1`, `BVH_STACK_REGISTERS` | |
 //! | [`media`]: a box of emitting and absorbing medium | `Media` | `HAS_MEDIA` | density, emission (grids) |
 //!
 //! Textures (`HAS_TEXTURES`) are looked up wherever a feature's value is one

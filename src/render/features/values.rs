@@ -9,7 +9,7 @@ use crate::scene::{ColorValue, Filter, ScalarValue, Texture, Wrap};
 use crate::shared::ValueRef;
 use std::sync::Arc;
 
-/// The [`ValueRef`] flags of texture `t`'s filter and wrap modes (u, v).
+/// The [`ValueRef`] flags of texture `t`'s filter, wrap modes (u, v) and coordinate set.
 pub fn sampler_flags(t: &Texture) -> u32 {
     let code = |w: Wrap| match w {
         Wrap::Repeat => 0,
@@ -20,7 +20,8 @@ pub fn sampler_flags(t: &Texture) -> u32 {
         Filter::Bilinear => 0,
         Filter::Nearest => ValueRef::NEAREST,
     };
-    filter | code(t.wrap[0]) << 2 | code(t.wrap[1]) << 4
+    let set = if t.uv_set == 1 { ValueRef::UV1 } else { 0 };
+    filter | code(t.wrap[0]) << 2 | code(t.wrap[1]) << 4 | set
 }
 
 /// The material data being built.

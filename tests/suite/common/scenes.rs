@@ -306,3 +306,68 @@ pub fn renders_targets_cached(
     vkinverse::render::targets::targets(&renderer, scene, source, &mut Rendered(&mut any)).unwrap();
     any
 }
+
+/// Which texture coordinates the textures of [`two_uv_sets`] are looked up at.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UvCase {
+    /// The OBJ files' own (`vt`) map them; the meshes have no second set.
+    First,
+    /// The OBJ files' `vt` are a decoy (turned and squeezed); the mapping is each mesh's
+    /// `uv1`, which every texture reads (`uv_set = 1`).
+    Second,
+    /// As `Second`, but the textures read the decoy (set 0).
+    Decoy,
+}
+
+/// A 2 × 2 floor at y = 0 facing up, with a 4 × 4 colour texture and a 2 × 2 normal map
+/// tilted 35° along u, lit by a 1 × 0.5 lamp at y = 1 facing down whose emission is a
+/// 16 × 1 texture (red on the left, blue on the right), seen from above: 32² pixels,
+/// depth 3. `case` says where the textures are read ([`UvCase`]); `optimise` is appended
+/// to the file (after an `[optimise]` table). Every triangle's corners are written
+/// explicitly, so that the per-corner `uv1` arrays follow the OBJ's faces.
+#[track_caller]
+pub fn two_uv_sets(name: &str, case: UvCase, optimise: &str) -> vkinverse::scene::Scene {
+    use vkinverse::image::{write_exr, Image};
+    let dir = temp_dir(name);
+    let decoy = |[u, v]: [f32; 2]| [0.2 + 0.5 * v, 0.9 - 0.6 * u];
+    let set = if case == UvCase::Second { ", uv_set = 1" } else { "" };
+    let mut meshes = String::new();
+    for (mesh, positions, uvs) in [
+        ("floor", [[-1.0, 0.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0]], [[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]]),
+        ("lamp", [[-0.5, 1.0, -0.25], [0.5, 1.0, -0.25], [0.5, 1.0, 0.25], [-0.5, 1.0, 0.25]], [[0.125, 0.5], [0.875, 0.5], [0.875, 0.5], [0.125, 0.5]]),
+    ] {
+        let mut obj = String::new();
+        for p in positions {
+            let _ = writeln!(obj, "v {} {} {}", p[0], p[1], p[2]);
+        }
+        for uv in uvs {
+            let [u, v] = if case == UvCase::First { uv } else { decoy(uv) };
+            let _ = writeln!(obj, "vt {u} {v}");
+        }
+        obj.push_str("f 1/1 2/2 3/3\nf 1/1 3/3 4/4\n");
+        std::fs::write(dir.join(format!("{mesh}.obj")), obj).unwrap();
+        let uv1 = if case == UvCase::First {
+            String::new()
+        } else {
+            let corners: Vec<f32> = [0, 1, 2, 0, 2, 3].iter().flat_map(|&i: &usize| uvs[i]).collect();
+            let array = vkinverse::npy::Array { shape: vec![2, 3, 2], data: corners };
+            vkinverse::npy::write(&dir.join(format!("{mesh}.uv1.npy")), &array).unwrap();
+            format!("uv1 = \"{mesh}.uv1.npy\"\n")
+        };
+        let (material, emission) = if mesh == "floor" { ("floor", "[0, 0, 0]".to_string()) } else { ("black", format!("{{ texture = \"lamp.exr\"{set} }}")) };
+        let _ = write!(meshes, "[[meshes]]\nfile = \"{mesh}.obj\"\nmaterial = \"{material}\"\nemission = {emission}\n{uv1}");
+    }
+    let floor = Image { width: 4, height: 4, data: (0..16).map(|k| [0.2 + 0.05 * k as f32, 0.9 - 0.04 * k as f32, 0.3 + 0.1 * (k % 4) as f32]).collect() };
+    write_exr(&dir.join("floor.exr"), &floor).unwrap();
+    let a = 35f32.to_radians();
+    write_exr(&dir.join("normals.exr"), &Image::filled(2, 2, [(a.sin() + 1.0) / 2.0, 0.5, (a.cos() + 1.0) / 2.0])).unwrap();
+    let lamp = Image { width: 16, height: 1, data: [[[4.0, 0.5, 0.5]; 8], [[0.5, 0.5, 4.0]; 8]].concat() };
+    write_exr(&dir.join("lamp.exr"), &lamp).unwrap();
+    let toml = format!(
+        "[film]\nwidth = 32\nheight = 32\n[integrator]\nmax_depth = 3\n[[sensors]]\norigin = [0, 2.2, 2.2]\ntarget = [0, 0, 0]\nfov_y = 50\n\
+         [[materials]]\nname = \"floor\"\ntype = \"diffuse\"\nbase_color = {{ texture = \"floor.exr\"{set} }}\nnormal_map = {{ texture = \"normals.exr\"{set} }}\n\
+         [[materials]]\nname = \"black\"\ntype = \"diffuse\"\nbase_color = [0, 0, 0]\n{meshes}[optimise]\n{optimise}"
+    );
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    vkinverse::scene::Scene::load(dir.join("scene.toml")).unwrap()
+}
