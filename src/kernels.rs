@@ -141,6 +141,18 @@ pub struct RecordsPush {
 }
 push_block!(RecordsPush { materials, triangles, emitters, nodes, material_data, theta, env_dist, sensors, lights, uv1s });
 
+/// majorant's block: the medium's density slot in θ, the majorant's word in the medium
+/// record and its factor (glsl/majorant.comp).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct MajorantPush {
+    pub offset: u32,
+    pub n: u32,
+    pub word: u32,
+    pub factor: f32,
+}
+push_block!(MajorantPush { offset, n, word, factor });
+
 /// The bsdf_sample_test variant's block: one material and direction per dispatch.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

@@ -224,7 +224,9 @@ pub struct MediumRecord {
     pub albedo_depth: u32,
     pub albedo: ValueRef,
     pub g: f32,
-    pub pad: [u32; 3],
+    /// A scattering medium's majorant extinction (0 for one that does not scatter).
+    pub majorant: f32,
+    pub pad: [u32; 2],
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

@@ -131,7 +131,11 @@ void delta_lights_nee(vec3 p, vec3 ng, vec3 ns, vec3 wo, bool through, Material 
         if (grad_pass) {
             add_bsdf_grad(mg, mat, ns, wo, wi, k_bsdf);
             scatter_delta_light(l, dle, g);
-            if (HAS_MEDIA) medium_transmittance_grad(o, wi, tmax, medium_sample_weight(before, radiance, delta));
+            if (HAS_MEDIA) {
+                float gw[NSTATES];
+                medium_sample_weights(before, radiance, delta, gw);
+                medium_transmittance_grad(o, wi, tmax, gw);
+            }
         }
 #endif
     }

@@ -507,7 +507,11 @@ void medium_light_sample(vec3 p, vec3 wi, float tmax, float w, vec3 le[NSTATES],
 #endif
     }
 #ifdef ADJOINT
-    if (grad_pass) medium_transmittance_grad(p, wi, tmax, medium_sample_weight(before, radiance, delta));
+    if (grad_pass) {
+        float gw[NSTATES];
+        medium_sample_weights(before, radiance, delta, gw);
+        medium_transmittance_grad(p, wi, tmax, gw);
+    }
 #endif
 }
 
@@ -810,7 +814,11 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
                 for (int s = 0; s < NSTATES; ++s) dle[s] *= tr[s];
                 if (grad_pass) scatter3(emission, light_uv, state_sum(dle));
-                if (HAS_MEDIA && grad_pass) medium_transmittance_grad(o_l, wi, t_shadow, medium_sample_weight(before, radiance, delta));
+                if (HAS_MEDIA && grad_pass) {
+                    float gw[NSTATES];
+                    medium_sample_weights(before, radiance, delta, gw);
+                    medium_transmittance_grad(o_l, wi, t_shadow, gw);
+                }
 #else
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance);
 #endif
@@ -837,7 +845,11 @@ void trace_path(inout Rng rng, vec3 o, vec3 d, vec3 L[NSTATES], vec3 delta[NSTAT
                 vec3 before[NSTATES] = radiance;
                 add_light_sample(mat, ns, wo, wi, le, mis / pdf_light, beta, radiance, remaining, delta, grad_pass, dle, mg);
                 for (int s = 0; s < NSTATES; ++s) dle[s] *= tr[s];
-                if (HAS_MEDIA && grad_pass) medium_transmittance_grad(o_e, wi, 1e30, medium_sample_weight(before, radiance, delta));
+                if (HAS_MEDIA && grad_pass) {
+                    float gw[NSTATES];
+                    medium_sample_weights(before, radiance, delta, gw);
+                    medium_transmittance_grad(o_e, wi, 1e30, gw);
+                }
                 if (grad_pass) {
                     vec2 env_uv = environment_uv(wi);
                     float scale = scene_globals().environment_scale;

@@ -13,6 +13,13 @@
 // with no division by a transmittance, so that opaque steps (σ dt of 1e4) stay finite. A
 // shadow ray's contribution c (which includes its transmittance) has dc/dσ_k = −dt c.
 // Each is scattered to the 8 voxels of the step's trilinear lookup.
+//
+// A scattering medium (the SCATTERING builds) is tracked instead, exactly, against its
+// majorant σ̄ (MediumRecord.majorant): tentative collisions at exponential distances of
+// rate σ̄, each real with probability σ(x)/σ̄ (delta tracking: where a path collides) or
+// weighted by 1 − σ(x)/σ̄ (ratio tracking: a shadow ray's transmittance). Their random
+// numbers are hashed from the ray, so every replay and both parameter states see the
+// same tentative points.
 #ifndef MEDIA_GLSL
 #define MEDIA_GLSL
 
@@ -44,7 +51,8 @@ MediumRecord medium_record() {
     m.albedo_depth = t4.w;
     m.albedo = value_ref(texel_load(Media, 5));
     m.g = uintBitsToFloat(t6.x);
-    m.pad = uvec3(0u);
+    m.majorant = uintBitsToFloat(t6.y);
+    m.pad = uvec2(0u);
     return m;
 }
 
@@ -217,101 +225,198 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 }
 
 #ifdef SCATTERING
+// The most tentative collisions one tracking loop takes (σ̄ times the box's diagonal is
+// far below this in any scene that renders in reasonable time; a loop cut here is biased).
+const uint TRACKING_MAX = 65536u;
+
+// The extinction of state s at q for tracking: scale × density, kept below 0.99 σ̄ (the
+// host sets σ̄ 20 % above what the density can take, so the bound never binds), so that
+// the null collisions' weights (σ̄ − σ_1)/(σ̄ − σ_0) stay finite.
+float tracked_sigma(MediumRecord m, vec3 q, int s) {
+    return min(m.scale * grid1(m.density, m.density_depth, q, s), 0.99 * m.majorant);
+}
+
+// The i-th pair of uniform numbers in [0, 1) of tracking stream `key`.
+vec2 tracking_uniforms(uvec4 key, uint i) {
+    uvec4 h = pcg4d(uvec4(key.x, key.y, key.z ^ i, key.w + i * 0x9e3779b9u));
+    return vec2(h.xy >> 8u) * (1.0 / 16777216.0);
+}
+
+// The tracking stream of ray (o, d) with salt `salt`.
+uvec4 tracking_key(vec3 o, vec3 d, uint salt) {
+    uvec3 ob = floatBitsToUint(o);
+    uvec3 db = floatBitsToUint(d);
+    return uvec4(ob.x ^ db.y, ob.y ^ db.z, ob.z ^ db.x, salt);
+}
+
+#ifdef ADJOINT
+// Scatters g ∫ dσ over [ta, tb] of ray (o, d), the integral estimated at n stratified
+// points (one offset hashed from `key`, apart from its tracking numbers): each point
+// scatters g (tb − ta) / n. Unbiased for any n.
+void medium_integral_grad(MediumRecord m, vec3 o, vec3 d, float ta, float tb, uint n, uvec4 key, float g) {
+    if (g == 0.0 || !(tb > ta)) return;
+    float len = (tb - ta) / float(n);
+    float u = tracking_uniforms(uvec4(key.xyz, key.w ^ 0x494e5447u), TRACKING_MAX).x;
+    vec3 extent = m.box_max - m.box_min;
+    for (uint k = 0u; k < n; ++k) {
+        vec3 q = (o + (ta + (float(k) + u) * len) * d - m.box_min) / extent;
+        grid_scatter1(m.density, m.density_depth, q, g * len);
+    }
+}
+#endif
+
 // A scattering medium along [0, tmax] of a path's ray (o, d): where the ray first
-// collides, sampled with state 0's densities by inverting the march's transmittance (the
-// medium piecewise constant along the ray: step k holds the density of its sample point).
-// Returns whether it collides, at distance ts, and weighs each state's beta by its own
-// probability of this outcome over state 0's: albedo_s(x) σ_s(x) e^(−τ_s) / (σ_0(x) e^(−τ_0))
-// at a collision, e^(τ_0 − τ_s) beyond (in closed form: no ratio of transmittances).
-// ADJOINT, gradient replay: the derivative of each state's log-weight with the sampling
-// held fixed (detached), times Σ_s sign δ_s · remaining_s (everything the path gathers
-// from here on): −scale dt_j per step crossed, and +scale / σ_s(x) at the collision; and
-// the albedo's, looked up at the collision point: remaining / albedo per channel.
+// collides, delta-tracked with state 0's extinction (the stream's salt is the path's
+// u_flight). Returns whether it collides, at distance ts, and weighs each state's beta by
+// its own probability of this outcome over state 0's: per null collision
+// (σ̄ − σ_s)/(σ̄ − σ_0), and at the real one albedo_s σ_s / σ_0 (σ_0 at most 0.99 σ̄: no
+// division by a vanishing number).
+// ADJOINT, gradient replay: the derivative of each state's log-probability of the flight
+// (σ_s(x) e^(−∫σ_s)) with the sampling held fixed (detached), times g_s = sign_s δ_s ·
+// remaining_s (everything the path gathers from here on): +1/σ_s at the collision, and
+// −∫ dσ along the flight at stratified points (medium_integral_grad; the null collisions'
+// −1/(σ̄ − σ) would estimate it too, with a variance that grows as σ̄ approaches σ); each
+// times the scale and scattered to the point's 8 voxels. And the albedo's, looked up at
+// the collision point: remaining / albedo per channel.
 bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 beta[NSTATES], out float ts
 #ifdef ADJOINT
                         , vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
 #endif
 ) {
     ts = 0.0;
-    March mr;
-    if (!medium_march(o, d, tmax, mr)) return false;
-    MediumRecord m = mr.m;
-    float dt = mr.dt;
-    // The optical depth at which the ray collides (state 0).
-    float target = -log(max(1.0 - u_flight, 1e-30));
-    float tau[NSTATES];
-    for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (!medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return false;
+    float mj = m.majorant;
+#ifdef ADJOINT
+    float gs[NSTATES];
+    for (int s = 0; s < NSTATES; ++s) gs[s] = grad_pass ? state_sign(s) * dot(delta[s], remaining[s]) : 0.0;
+#endif
+    uvec4 key = tracking_key(o, d, floatBitsToUint(u_flight));
+    vec3 extent = m.box_max - m.box_min;
+    float w[NSTATES];
+    for (int s = 0; s < NSTATES; ++s) w[s] = 1.0;
     bool collided = false;
-    uint hit_step = mr.n;
-    float offset = 0.0;
-    float sigma_hit[NSTATES];
-    for (uint k = 0u; k < mr.n; ++k) {
-        vec3 q = march_point(mr, k);
+    float t = t0;
+    vec3 q_hit = vec3(0.0);
+    uint tentative = 0u;
+    for (uint i = 0u; i < TRACKING_MAX; ++i) {
+        vec2 u = tracking_uniforms(key, i);
+        t -= log(1.0 - u.x) / mj;
+        if (t >= t1) break;
+        vec3 q = (o + t * d - m.box_min) / extent;
         float sigma[NSTATES];
-        for (int s = 0; s < NSTATES; ++s) sigma[s] = m.scale * grid1(m.density, m.density_depth, q, s);
-        float step_tau = sigma[0] * dt;
-        if (tau[0] + step_tau >= target && sigma[0] > 0.0) {
-            offset = (target - tau[0]) / sigma[0];
-            for (int s = 0; s < NSTATES; ++s) {
-                tau[s] += sigma[s] * offset;
-                sigma_hit[s] = sigma[s];
-            }
+        for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s);
+        if (u.y * mj < sigma[0]) {
+            for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
             collided = true;
-            hit_step = k;
+            ts = t;
+            q_hit = q;
+            tentative = i + 1u;
+#ifdef ADJOINT
+            if (grad_pass) {
+                float g = 0.0;
+                for (int s = 0; s < NSTATES; ++s) {
+                    if (sigma[s] > 0.0) g += gs[s] / sigma[s];
+                }
+                grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+            }
+#endif
             break;
         }
-        for (int s = 0; s < NSTATES; ++s) tau[s] += sigma[s] * dt;
+        for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
+        tentative = i + 1u;
     }
-    // The collision's point: its albedo is looked up there (each state's own).
-    vec3 q_hit = vec3(0.0);
+#ifdef ADJOINT
+    // The transmittance's part: −∫ dσ over the flight, estimated at as many stratified
+    // points as the flight had tentative collisions (one offset, from a stream of its
+    // own: independent of the tracking, so the product stays unbiased).
+    if (grad_pass) {
+        float g_all = 0.0;
+        for (int s = 0; s < NSTATES; ++s) g_all += gs[s];
+        medium_integral_grad(m, o, d, t0, collided ? ts : t1, max(tentative, 1u), key, -g_all * m.scale);
+    }
+#endif
+    // The collision's albedo, each state's own, scales its beta.
     vec3 albedo_hit[NSTATES];
-    if (collided) {
-        ts = mr.t0 + float(hit_step) * dt + offset;
-        q_hit = (o + ts * d - m.box_min) / (m.box_max - m.box_min);
-    }
     for (int s = 0; s < NSTATES; ++s) {
-        float w = exp(tau[0] - tau[s]);
         if (collided) {
-            if (s != 0) w *= sigma_hit[s] / sigma_hit[0];
             albedo_hit[s] = grid3(m.albedo, m.albedo_depth, q_hit, s);
-            beta[s] *= albedo_hit[s] * w;
+            beta[s] *= albedo_hit[s] * w[s];
         } else {
-            beta[s] *= w;
+            beta[s] *= w[s];
         }
     }
 #ifdef ADJOINT
-    if (grad_pass) {
-        float g_all = 0.0;
-        float g_hit = 0.0;
+    // The albedo scales everything the path gathers after the collision: d/dα of each
+    // state's remaining radiance is remaining / α, per channel (0 where α is 0, which
+    // ends the channel's path).
+    if (grad_pass && collided) {
+        vec3 g_albedo = vec3(0.0);
         for (int s = 0; s < NSTATES; ++s) {
-            float gs = state_sign(s) * dot(delta[s], remaining[s]);
-            g_all += gs;
-            if (collided && sigma_hit[s] > 0.0) g_hit += gs / sigma_hit[s];
+            bvec3 live = greaterThan(albedo_hit[s], vec3(0.0));
+            vec3 per_albedo = mix(vec3(0.0), remaining[s] / albedo_hit[s], live);
+            g_albedo += state_sign(s) * delta[s] * per_albedo;
         }
-        uint last = collided ? hit_step + 1u : mr.n;
-        for (uint k = 0u; k < last; ++k) {
-            vec3 q = march_point(mr, k);
-            float len = collided && k == hit_step ? offset : dt;
-            float g = -len * g_all;
-            if (collided && k == hit_step) g += g_hit;
-            grid_scatter1(m.density, m.density_depth, q, g * m.scale);
-        }
-        // The albedo scales everything the path gathers after the collision: d/dα of each
-        // state's remaining radiance is remaining / α, per channel (0 where α is 0, which
-        // ends the channel's path).
-        if (collided) {
-            vec3 g_albedo = vec3(0.0);
-            for (int s = 0; s < NSTATES; ++s) {
-                bvec3 live = greaterThan(albedo_hit[s], vec3(0.0));
-                vec3 per_albedo = mix(vec3(0.0), remaining[s] / albedo_hit[s], live);
-                g_albedo += state_sign(s) * delta[s] * per_albedo;
-            }
-            grid_scatter3(m.albedo, m.albedo_depth, q_hit, g_albedo);
-        }
+        grid_scatter3(m.albedo, m.albedo_depth, q_hit, g_albedo);
     }
 #endif
     return collided;
 }
+
+// Salt of a shadow ray's ratio-tracking stream (with the ray's bits and its end).
+const uint SHADOW_SALT = 0x52415449u;
+
+// Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box), by
+// ratio tracking: the product of 1 − σ_s/σ̄ over tentative collisions at rate σ̄ (shared
+// by the states: one stream per ray, hashed from its bits and end).
+void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
+    for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (!medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return;
+    float mj = m.majorant;
+    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+    vec3 extent = m.box_max - m.box_min;
+    float t = t0;
+    for (uint i = 0u; i < TRACKING_MAX; ++i) {
+        t -= log(1.0 - tracking_uniforms(key, i).x) / mj;
+        if (t >= t1) break;
+        vec3 q = (o + t * d - m.box_min) / extent;
+        float most = 0.0;
+        for (int s = 0; s < NSTATES; ++s) {
+            tr[s] *= 1.0 - tracked_sigma(m, q, s) / mj;
+            most = max(most, tr[s]);
+        }
+        // Nothing left to carry (the factors are at least 0.01: only after thousands).
+        if (most == 0.0) break;
+    }
+}
+
+#ifdef ADJOINT
+// Scatters the derivative of the loss through the ratio-tracked transmittance of shadow
+// ray (o, d) over [0, tmax], given g_s = sign_s ⟨δ_s, c_s⟩ of the contributions c_s that
+// it carried: dc_s = −c_s ∫ dσ_s, the integral estimated at as many stratified points as
+// the tracking had tentative collisions (medium_integral_grad), independent of them.
+void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
+    float g_all = 0.0;
+    for (int s = 0; s < NSTATES; ++s) g_all += g[s];
+    MediumRecord m = medium_record();
+    float t0, t1;
+    if (g_all == 0.0 || !medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return;
+    float mj = m.majorant;
+    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+    // The tentative collisions' count: distances alone, no lookups.
+    uint n = 0u;
+    float t = t0;
+    for (uint i = 0u; i < TRACKING_MAX; ++i) {
+        t -= log(1.0 - tracking_uniforms(key, i).x) / mj;
+        if (t >= t1) break;
+        n = i + 1u;
+    }
+    medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, -g_all * m.scale);
+}
+#endif
 
 // The Henyey-Greenstein phase function of mean cosine g between the propagation
 // directions d (in) and wi (out), per steradian.
@@ -339,6 +444,7 @@ vec3 hg_sample(float g, vec3 d, vec2 u) {
 }
 #endif
 
+#ifndef SCATTERING
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
@@ -357,8 +463,11 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
 
 #ifdef ADJOINT
 // Scatters the derivative of the loss through the transmittance of shadow ray (o, d) over
-// [0, tmax], given g = Σ_s sign_s ⟨δ_s, c_s⟩ of the contributions c_s that it carried.
-void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g) {
+// [0, tmax], given g_s = sign_s ⟨δ_s, c_s⟩ of the contributions c_s that it carried (all
+// states share the march: their sum).
+void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float gs[NSTATES]) {
+    float g = 0.0;
+    for (int s = 0; s < NSTATES; ++s) g += gs[s];
     March mr;
     if (g == 0.0 || !medium_march(o, d, tmax, mr)) return;
     MediumRecord m = mr.m;
@@ -369,12 +478,14 @@ void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g) {
     }
 }
 
-// Σ_s sign_s ⟨δ_s, after_s − before_s⟩: what medium_transmittance_grad needs of a light
-// sample that added after − before to each state's radiance.
-float medium_sample_weight(vec3 before[NSTATES], vec3 after[NSTATES], vec3 delta[NSTATES]) {
-    float g = 0.0;
-    for (int s = 0; s < NSTATES; ++s) g += state_sign(s) * dot(delta[s], after[s] - before[s]);
-    return g;
+#endif
+#endif
+
+#ifdef ADJOINT
+// sign_s ⟨δ_s, after_s − before_s⟩ per state: what medium_transmittance_grad needs of a
+// light sample that added after − before to each state's radiance.
+void medium_sample_weights(vec3 before[NSTATES], vec3 after[NSTATES], vec3 delta[NSTATES], out float g[NSTATES]) {
+    for (int s = 0; s < NSTATES; ++s) g[s] = state_sign(s) * dot(delta[s], after[s] - before[s]);
 }
 #endif
 #endif

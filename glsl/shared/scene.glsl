@@ -128,7 +128,8 @@ struct LightRecord {
 // medium whose density and emission are constants (width 0) or grids of width × height ×
 // depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
 // albedo > 0: a scattering medium (the SCATTERING builds), its albedo a constant or a
-// grid as the others, its phase function Henyey-Greenstein's of mean cosine g. 112 bytes
+// grid as the others, its phase function Henyey-Greenstein's of mean cosine g, tracked
+// against its majorant. 112 bytes
 // (7 texels).
 struct MediumRecord {
     vec3 box_min;
@@ -143,7 +144,11 @@ struct MediumRecord {
     uint albedo_depth;
     ValueRef albedo;    // 3 channels
     float g;
-    uvec3 pad;
+    // A scattering medium's majorant: an extinction above any the density can take (its
+    // parameter's range, or its values), against which its free flights are delta-tracked
+    // and its shadow rays ratio-tracked (lib/media.glsl). 0 for one that does not scatter.
+    float majorant;
+    uvec2 pad;
 };
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the

@@ -232,6 +232,7 @@ pub fn synthetic_scene(grid: u32, film: u32) -> Result<Scene> {
         step: DEFAULT_STEP,
         albedo: ParamValue { shape: Shape::constant(3), data: vec![0.0; 3] },
         g: 0.0,
+        majorant: None,
         formats: Default::default(),
     };
     let sensor = Sensor::looking_at(Vec3::new(1.2, 0.9, 3.4), Vec3::ZERO, Vec3::Y, 40.0).map_err(|e| Error::Invalid(e.into()))?;

@@ -316,6 +316,11 @@ pub(crate) struct BindGroupInner {
 }
 
 impl BindGroup {
+    /// The buffer bound at `binding`, if any.
+    pub fn bound(&self, binding: u32) -> Option<&Buffer> {
+        self.0.buffers.iter().find(|(b, _, _)| *b == binding).map(|(_, buf, _)| buf)
+    }
+
     fn new(ctx: &Arc<Context>, layout: vk::DescriptorSetLayout, kernel: &str, bound: Vec<Bound>) -> Result<Self> {
         let dev = &ctx.device;
         // Texel buffers are viewed whole, as 16-byte texels; the view must fit the

@@ -318,6 +318,11 @@ pub fn spp_per_dispatch(max_depth: u32) -> u32 {
 /// [`spp_per_dispatch`]`(scene.max_depth)` samples, each adding to what the previous one
 /// accumulated (the recorder puts the barrier between them).
 pub fn record_samples(rec: &mut Recorder, scene: &GpuScene, pipeline: &ComputePipeline, group: &BindGroup, push: TracePush, spp: u32) -> gpu::Result<()> {
+    // A tracked medium's majorant, from the θ (and previous θ) these samples read.
+    let bound = |name: &str| pipeline.reflection().binding(name).and_then(|b| group.bound(b.binding));
+    if let Some(theta) = bound("Theta") {
+        scene.features.media.record_majorant(rec, theta, bound("ThetaPrev").unwrap_or(theta))?;
+    }
     let step = spp_per_dispatch(scene.max_depth);
     let mut done = 0;
     while done < spp {

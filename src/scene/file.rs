@@ -405,4 +405,6 @@ pub struct MediumFile {
     pub step: Option<f32>,
     pub albedo: Option<GridInput>,
     pub g: Option<f32>,
+    /// A scattering medium's density bound for tracking ([`super::Medium::majorant`]).
+    pub majorant: Option<f32>,
 }

@@ -231,6 +231,10 @@ pub fn content_hash(scene: &Scene) -> u64 {
         for m in &scene.media {
             h.f32s(&[m.min, m.max].concat());
             h.f32s(&[m.scale, m.step, m.g]);
+            if let Some(b) = m.majorant {
+                h.tag("majorant");
+                h.f32s(&[b]);
+            }
             for v in [&m.density, &m.emission, &m.albedo] {
                 h.u32s(&v.shape.array().iter().map(|&d| d as u32).collect::<Vec<_>>());
                 h.f32s(&v.data);

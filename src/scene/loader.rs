@@ -295,6 +295,16 @@ impl Loader {
         let parts = Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media };
         let optimise = self.optimise(raw.optimise.unwrap_or_default(), &parts)?;
         self.check_texture_coordinates(&meshes, &materials, &optimise)?;
+        // A fixed majorant bounds the density wherever the optimisation may take it.
+        for (i, m) in media.iter().enumerate() {
+            let param = optimise.params.iter().find(|p| p.target == ParamTarget::MediumDensity { medium: i });
+            if let (Some(b), Some(p)) = (m.majorant, param) {
+                if p.range[1] > b {
+                    let message = format!("{b} is below the range top {} of {}", p.range[1], p.name);
+                    return Err(self.out_of_range(&format!("media.{}.majorant", m.name), message));
+                }
+            }
+        }
         let mut scene = Scene {
             path: self.scene,
             source: imported.source,

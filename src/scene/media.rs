@@ -64,6 +64,12 @@ impl Loader {
             if let Some(message) = g_error(g) {
                 return Err(self.out_of_range(&format!("{key}.g"), message));
             }
+            if let Some(b) = m.majorant {
+                self.positive(&format!("{key}.majorant"), b)?;
+                if let Some(v) = density.data.iter().find(|&&v| v > b) {
+                    return Err(self.out_of_range(&format!("{key}.majorant"), format!("{b} is below the density's {v}")));
+                }
+            }
             let medium = Medium {
                 name: m.name,
                 min: m.min,
@@ -74,6 +80,7 @@ impl Loader {
                 step,
                 albedo,
                 g,
+                majorant: m.majorant,
                 formats: [density_format, emission_format, albedo_format],
             };
             if medium.scatters() && medium.emission.data.iter().any(|&v| v > 0.0) {

@@ -934,6 +934,10 @@ pub struct Medium {
     pub albedo: crate::tensor::ParamValue,
     /// The phase function's mean cosine, in (−1, 1): 0 isotropic, above 0 forward.
     pub g: f32,
+    /// A scattering medium's density bound for tracking, fixed (at least the density's
+    /// values and its parameter's range top); None: the density's largest value, taken
+    /// again before each pass from the parameters it renders.
+    pub majorant: Option<f32>,
     /// The file formats the density's, the emission's and the albedo's grids came in
     /// (`.npy` for a constant): the recovered scene writes each grid back in its own.
     pub formats: [GridFormat; 3],

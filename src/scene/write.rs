@@ -340,6 +340,9 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
         pairs.push(("step", Value::Float(num(m.step))));
         if m.scatters() {
             pairs.push(("g", Value::Float(num(m.g))));
+            if let Some(b) = m.majorant {
+                pairs.push(("majorant", Value::Float(num(b))));
+            }
         }
         media.push(table(pairs));
     }

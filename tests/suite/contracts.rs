@@ -30,6 +30,7 @@ fn mirror(kernel: &str) -> Option<Layout> {
         "loss" => layout::<LossPush>(),
         "carry_weight" => layout::<CarryWeightPush>(),
         "records_test" => layout::<RecordsPush>(),
+        "majorant" => layout::<MajorantPush>(),
         "bsdf_sample_test" => layout::<BsdfSamplePush>(),
         "rng_test" => layout::<RngTestPush>(),
         "optim_adam" => layout::<AdamPush>(),

@@ -287,6 +287,22 @@ fn second_texture_coordinates_are_checked() {
     }
 }
 
+/// A medium's fixed `majorant` bounds its density: below a voxel's value or below the
+/// range top of its density parameter, it is refused naming the key; at or above, the
+/// scene loads with it.
+#[test]
+fn a_fixed_majorant_bounds_the_density() {
+    let medium = |majorant: &str, optimise: &str| {
+        format!("{BASE}\n[[media]]\nname = \"fog\"\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\ndensity = 2.0\nalbedo = 0.5\n{majorant}\n{optimise}")
+    };
+    let param = "[optimise]\n[[optimise.params]]\ntarget = \"media.fog.density\"\ninit = 1\nrange = [0, 8]\n";
+    let s = Scene::load(fixture("majorant", &medium("majorant = 8", param))).unwrap();
+    assert_eq!(s.media[0].majorant, Some(8.0));
+    assert_message(&load_err("majorant-density", &medium("majorant = 1.5", "")), &["media.fog.majorant", "1.5 is below the density's 2"]);
+    assert_message(&load_err("majorant-range", &medium("majorant = 4", param)), &["media.fog.majorant", "below the range top 8", "media.fog.density"]);
+    assert_message(&load_err("majorant-zero", &medium("majorant = 0", "")), &["media.fog.majorant"]);
+}
+
 #[test]
 fn toml_syntax_error_names_the_line() {
     let err = load_err("syntax", &BASE.replace("height = 8", "height = = 8"));

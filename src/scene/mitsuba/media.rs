@@ -243,6 +243,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             step: DEFAULT_STEP,
             albedo,
             g: def.g,
+            majorant: None,
             formats: [format(&def.sigma_t), GridFormat::Npy, format(&def.albedo)],
         });
         Ok(())
