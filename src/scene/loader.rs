@@ -295,16 +295,7 @@ impl Loader {
         let parts = Parts { materials: &materials, meshes: &meshes, lights: &lights, environment: &environment, media: &media };
         let optimise = self.optimise(raw.optimise.unwrap_or_default(), &parts)?;
         self.check_texture_coordinates(&meshes, &materials, &optimise)?;
-        // A fixed majorant bounds the density wherever the optimisation may take it.
-        for (i, m) in media.iter().enumerate() {
-            let param = optimise.params.iter().find(|p| p.target == ParamTarget::MediumDensity { medium: i });
-            if let (Some(b), Some(p)) = (m.majorant, param) {
-                if p.range[1] > b {
-                    let message = format!("{b} is below the range top {} of {}", p.range[1], p.name);
-                    return Err(self.out_of_range(&format!("media.{}.majorant", m.name), message));
-                }
-            }
-        }
+        self.check_majorants(&media, &optimise)?;
         let mut scene = Scene {
             path: self.scene,
             source: imported.source,
@@ -342,6 +333,21 @@ impl Loader {
             return Err(self.invalid("media", &format!("{} media, the imported file's and the scene's: a scene holds at most one", media.len())));
         }
         Ok(media)
+    }
+
+    /// A fixed majorant bounds the density wherever the optimisation may take it: at least
+    /// the range top of the density's parameter.
+    fn check_majorants(&self, media: &[Medium], optimise: &Optimise) -> Result<(), SceneError> {
+        for (i, m) in media.iter().enumerate() {
+            let param = optimise.params.iter().find(|p| p.target == ParamTarget::MediumDensity { medium: i });
+            if let (Some(b), Some(p)) = (m.majorant, param) {
+                if p.range[1] > b {
+                    let message = format!("{b} is below the range top {} of {}", p.range[1], p.name);
+                    return Err(self.out_of_range(&format!("media.{}.majorant", m.name), message));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// A mesh whose material is textured (or optimised as a texture), or whose emission is,
