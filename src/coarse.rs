@@ -61,7 +61,7 @@ pub fn stage_scene<'s>(scene: &'s Scene, stage: usize, targets: Option<&[Image]>
         for (k, (sensor, image)) in out.sensors.iter_mut().zip(targets).enumerate() {
             if sensor.target_image.is_none() {
                 let path = PathBuf::from(format!("<sensor {k}'s rendered target>"));
-                sensor.target_image = Some(Texture { path, image: Arc::new(image.clone()), filter: Default::default(), wrap: Default::default(), uv_set: 0 });
+                sensor.target_image = Some(Texture::new(path, Arc::new(image.clone())));
             }
         }
     }

@@ -238,13 +238,7 @@ impl NativeScene {
                 if (w, h) != (&scene.film.width, &scene.film.height) {
                     return Err(PyValueError::new_err(format!("targets[{i}]: {h} x {w}, the film is {} x {}", scene.film.height, scene.film.width)));
                 }
-                scene.sensors[i].target_image = Some(Texture {
-                    path: PathBuf::from(format!("<targets[{i}]>")),
-                    image: Arc::new(image),
-                    filter: Default::default(),
-                    wrap: Default::default(),
-                    uv_set: 0,
-                });
+                scene.sensors[i].target_image = Some(Texture::new(PathBuf::from(format!("<targets[{i}]>")), Arc::new(image)));
             }
         }
         let run_settings = layer.resolve_for(&scene);

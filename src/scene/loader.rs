@@ -121,7 +121,7 @@ impl Loader {
         if let Some((x, y)) = image.find_non_finite() {
             return Err(SceneError::NonFinitePixel { scene: self.scene.clone(), key: key.into(), image: path, x, y });
         }
-        Ok(Texture { path, image: image.into(), filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2], uv_set: 0 })
+        Ok(Texture::new(path, image.into()))
     }
 
     /// The texture a scene value names at `key` (`{ texture = …, filter = … }`).

@@ -1816,13 +1816,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                     );
                     // Sampling only: the expected image is the same either way.
                     self.take_bool(&mut items, "mis_compensation", false)?;
-                    ColorValue::Texture(Texture {
-                        path,
-                        image: envmap_from_mitsuba(&map, rotation).into(),
-                        filter: Filter::Bilinear,
-                        uv_set: 0,
-                        wrap: [Wrap::Repeat; 2],
-                    })
+                    ColorValue::Texture(Texture::new(path, envmap_from_mitsuba(&map, rotation).into()))
                 };
                 let scale = self.take_float(&mut items, "scale", 1.0)?;
                 if scale < 0.0 {

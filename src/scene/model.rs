@@ -216,6 +216,14 @@ pub struct Texture {
     pub uv_set: u32,
 }
 
+impl Texture {
+    /// `image`, known by `path`, read bilinearly, repeating, at the first set of texture
+    /// coordinates.
+    pub fn new(path: PathBuf, image: std::sync::Arc<Image>) -> Self {
+        Texture { path, image, filter: Filter::Bilinear, wrap: [Wrap::Repeat; 2], uv_set: 0 }
+    }
+}
+
 /// What a texture holds beyond [0, 1] along one of its axes (and what its bilinear lookup
 /// blends in beyond its edge texels' centres).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -1127,6 +1135,18 @@ pub struct SceneGeometry {
     pub indices: Vec<[u32; 3]>,
     pub triangle_material: Vec<u32>,
     pub triangle_mesh: Vec<u32>,
+}
+
+impl SceneGeometry {
+    /// The texture coordinates that texture coordinate set `set` reads, per vertex: the
+    /// second set where it is 1 and any mesh has one, else the first.
+    pub fn uvs_of(&self, set: u32) -> &[[f32; 2]] {
+        if set == 1 && !self.uvs1.is_empty() {
+            &self.uvs1
+        } else {
+            &self.uvs
+        }
+    }
 }
 
 impl Scene {

@@ -260,7 +260,7 @@ fn textured_scene(side: u32, param: &str) -> Scene {
         let (x, y) = ((i as u32 % side) as f32 / side as f32, (i as u32 / side) as f32 / side as f32);
         *p = [x, y, 0.25 + 0.5 * (x * y)];
     }
-    let texture = Texture { path: "big.exr".into(), image: Arc::new(image), filter: Default::default(), wrap: Default::default(), uv_set: 0 };
+    let texture = Texture::new("big.exr".into(), Arc::new(image));
     let quad = |y: f32, s: f32| vec![[-s, y, -s], [s, y, -s], [s, y, s], [-s, y, s]];
     let mut floor = Mesh::new("floor", quad(0.0, 1.0), vec![[0, 2, 1], [0, 3, 2]], 0);
     floor.uvs = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];

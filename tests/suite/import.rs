@@ -902,13 +902,7 @@ fn written_back_gltf_and_toml_render_as_the_final_parameters() {
 
 fn scene_texture(values: &[f32], w: u32, h: u32) -> ColorValue {
     let data = values.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    ColorValue::Texture(vkinverse::scene::Texture {
-        path: "recovered".into(),
-        image: Image { width: w, height: h, data }.into(),
-        filter: vkinverse::scene::Filter::Bilinear,
-        wrap: [vkinverse::scene::Wrap::Repeat; 2],
-        uv_set: 0,
-    })
+    ColorValue::Texture(vkinverse::scene::Texture::new("recovered".into(), Image { width: w, height: h, data }.into()))
 }
 
 /// `img` equals `expected` to float rounding, pixel by pixel.

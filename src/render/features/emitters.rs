@@ -77,7 +77,7 @@ impl Emitters {
                 _ if optimised_emission => 1.0,
                 ColorValue::Constant(c) => luminance(*c).max(1e-6),
                 ColorValue::Texture(tex) => {
-                    let set = if tex.uv_set == 1 && !geo.uvs1.is_empty() { &geo.uvs1 } else { &geo.uvs };
+                    let set = geo.uvs_of(tex.uv_set);
                     let uvs = idx.map(|i| set[i as usize]);
                     per_image(&mut luminance_tables, &tex.image, || LuminanceTable::new(&tex.image)).footprint_mean(uvs, tex.wrap)
                 }

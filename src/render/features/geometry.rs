@@ -56,8 +56,8 @@ impl Geometry {
             let m = &scene.materials[material as usize];
             // A map's tangent frame is that of the coordinates it is looked up at.
             let map_uvs = match &m.perturbation {
-                Some(p) if p.texture().uv_set == 1 && !geo.uvs1.is_empty() => idx.map(|i| geo.uvs1[i as usize]),
-                _ => uvs,
+                Some(p) => idx.map(|i| geo.uvs_of(p.texture().uv_set)[i as usize]),
+                None => uvs,
             };
             let tangent = match &m.perturbation {
                 None => [0.0; 4],
