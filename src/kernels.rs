@@ -141,17 +141,27 @@ pub struct RecordsPush {
 }
 push_block!(RecordsPush { materials, triangles, emitters, nodes, material_data, theta, env_dist, sensors, lights, uv1s });
 
-/// majorant's block: the medium's density slot in θ, the majorant's word in the medium
-/// record and its factor (glsl/majorant.comp).
+/// majorant's block: the medium's density slot in θ (its first element and its voxels per
+/// axis), the majorant grid's cells per axis, the grid's first word and the record's
+/// majorant word (`majorant_cells` follows it) in the medium's buffer, the factor (the
+/// margin times the medium's scale), the cost of walking the grid per unit length (in
+/// tentative collisions: `walks_grid`), the stage (0 writes the cells, 1 their largest
+/// and whether the kernels walk them) and the parameter states read (2 where the previous θ
+/// is another buffer than θ) (glsl/majorant.comp).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MajorantPush {
     pub offset: u32,
-    pub n: u32,
-    pub word: u32,
+    pub dims: [u32; 3],
+    pub cells: [u32; 3],
+    pub grid_word: u32,
+    pub record_word: u32,
     pub factor: f32,
+    pub walk_cost: f32,
+    pub stage: u32,
+    pub states: u32,
 }
-push_block!(MajorantPush { offset, n, word, factor });
+push_block!(MajorantPush { offset, dims, cells, grid_word, record_word, factor, walk_cost, stage, states });
 
 /// The bsdf_sample_test variant's block: one material and direction per dispatch.
 #[repr(C)]

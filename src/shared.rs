@@ -208,7 +208,9 @@ pub struct LightRecord {
 }
 
 /// Mirror of `MediumRecord`: 112 bytes (7 texels); `max_steps` 0 where the scene has no
-/// medium; `pad` zero.
+/// medium; `pad` zero. A majorant grid of `majorant_cells` (x | y << 10 | z << 20; 0 for
+/// none) follows it in the medium's buffer, one texel per cell (the majorant in its first
+/// word), x fastest.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MediumRecord {
@@ -224,9 +226,11 @@ pub struct MediumRecord {
     pub albedo_depth: u32,
     pub albedo: ValueRef,
     pub g: f32,
-    /// A scattering medium's majorant extinction (0 for one that does not scatter).
+    /// A scattering medium's majorant extinction where it has no majorant grid (0 for one
+    /// that does not scatter).
     pub majorant: f32,
-    pub pad: [u32; 2],
+    pub majorant_cells: u32,
+    pub pad: u32,
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

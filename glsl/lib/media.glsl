@@ -15,11 +15,14 @@
 // Each is scattered to the 8 voxels of the step's trilinear lookup.
 //
 // A scattering medium (the SCATTERING builds) is tracked instead, exactly, against its
-// majorant σ̄ (MediumRecord.majorant): tentative collisions at exponential distances of
-// rate σ̄, each real with probability σ(x)/σ̄ (delta tracking: where a path collides) or
-// weighted by 1 − σ(x)/σ̄ (ratio tracking: a shadow ray's transmittance). Their random
-// numbers are hashed from the ray, so every replay and both parameter states see the
-// same tentative points.
+// majorant σ̄: tentative collisions at exponential distances of rate σ̄, each real with
+// probability σ(x)/σ̄ (delta tracking: where a path collides) or weighted by 1 − σ(x)/σ̄
+// (ratio tracking: a shadow ray's transmittance). σ̄ is piecewise constant: a grid of
+// cells over the box, each bounding the extinction that its lookups can see, walked cell
+// by cell along the ray (a 3-D DDA: the optical depth to the next tentative collision is
+// spent cell by cell; an empty cell costs no lookup), or one value over the box
+// (MediumRecord.majorant) where the medium has no grid. The random numbers are hashed
+// from the ray, so every replay and both parameter states see the same tentative points.
 #ifndef MEDIA_GLSL
 #define MEDIA_GLSL
 
@@ -28,6 +31,9 @@ TEXEL_BUFFER(0, 29) Media;
 // by default, as the other features' constants, so that the unspecialised build
 // (trace_primal_generic) renders any scene (a record of max_steps 0 holds no medium).
 layout(constant_id = 24) const bool HAS_MEDIA = true;
+// Whether a scattering medium has a majorant grid (its kernels walk it where the record's
+// majorant_cells is not 0): without one the walk is compiled out.
+layout(constant_id = 27) const bool MAJORANT_GRID = true;
 // A medium that scatters (albedo > 0) is rendered by the kernels' SCATTERING builds (the
 // _scatter variants): their rays sample where they collide (medium_free_flight) instead
 // of gathering emission (medium_segment). The other builds leave the collision and its
@@ -52,7 +58,8 @@ MediumRecord medium_record() {
     m.albedo = value_ref(texel_load(Media, 5));
     m.g = uintBitsToFloat(t6.x);
     m.majorant = uintBitsToFloat(t6.y);
-    m.pad = uvec2(0u);
+    m.majorant_cells = t6.z;
+    m.pad = 0u;
     return m;
 }
 
@@ -229,11 +236,124 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 // far below this in any scene that renders in reasonable time; a loop cut here is biased).
 const uint TRACKING_MAX = 65536u;
 
-// The extinction of state s at q for tracking: scale × density, kept below 0.99 σ̄ (the
-// host sets σ̄ 20 % above what the density can take, so the bound never binds), so that
-// the null collisions' weights (σ̄ − σ_1)/(σ̄ − σ_0) stay finite.
-float tracked_sigma(MediumRecord m, vec3 q, int s) {
-    return min(m.scale * grid1(m.density, m.density_depth, q, s), 0.99 * m.majorant);
+// The extinction of state s at q for tracking: scale × density, kept below 0.99 times
+// the majorant mj of q's cell (which lies 20 % above what the density can take there, so
+// the bound never binds), so that the null collisions' weights (σ̄ − σ_1)/(σ̄ − σ_0) stay
+// finite.
+float tracked_sigma(MediumRecord m, vec3 q, int s, float mj) {
+    return min(m.scale * grid1(m.density, m.density_depth, q, s), 0.99 * mj);
+}
+
+// The majorant's cells along a ray: where it is, and where it crosses the next cell
+// boundary on each axis (the rest, recomputed from the record and the ray where needed,
+// so that little stays live through the tracking loops).
+struct MajorantWalk {
+    ivec3 cell;
+    vec3 t_next;
+    float t_end; // the ray's end in the box
+};
+
+// The majorant grid's cells per axis (0 where the medium has none).
+ivec3 majorant_cells(MediumRecord m) {
+    return ivec3(m.majorant_cells & 1023u, (m.majorant_cells >> 10) & 1023u, m.majorant_cells >> 20);
+}
+
+// Ray direction d in cell coordinates per unit length, with no zero component (a
+// vanishing one crosses no boundary: its next one stays at 3e38).
+vec3 walk_rate(MediumRecord m, vec3 d) {
+    vec3 b = d * (vec3(majorant_cells(m)) / (m.box_max - m.box_min));
+    return mix(b, vec3(1e-30), equal(b, vec3(0.0)));
+}
+
+// The walk of ray (o, d) from t0, where it enters the box, to t1.
+MajorantWalk majorant_walk(MediumRecord m, vec3 o, vec3 d, float t0, float t1) {
+    MajorantWalk w;
+    w.t_end = t1;
+    w.cell = ivec3(0);
+    w.t_next = vec3(3.0e38);
+    if (MAJORANT_GRID) {
+        if (m.majorant_cells != 0u) {
+            // Cell coordinates along the ray: a + t b. Per axis (with no indexing by a
+            // variable, which lavapipe spills to memory): the next boundary ahead.
+            ivec3 cells = majorant_cells(m);
+            vec3 a = (o - m.box_min) * (vec3(cells) / (m.box_max - m.box_min));
+            vec3 b = walk_rate(m, d);
+            w.cell = clamp(ivec3(floor(a + t0 * b)), ivec3(0), cells - 1);
+            vec3 ahead = vec3(w.cell) + vec3(greaterThan(b, vec3(0.0)));
+            w.t_next = min((ahead - a) / b, vec3(3.0e38));
+        }
+    }
+    return w;
+}
+
+// The majorant of the walk's cell.
+float walk_majorant(MediumRecord m, MajorantWalk w) {
+    ivec3 cells = majorant_cells(m);
+    int j = (w.cell.z * cells.y + w.cell.y) * cells.x + w.cell.x;
+    return uintBitsToFloat(texel_load(Media, MEDIUM_RECORD_TEXELS + j).x);
+}
+
+// Where the ray leaves the walk's cell (the ray's end at the last).
+float walk_cell_end(MajorantWalk w) {
+    return min(min(w.t_next.x, w.t_next.y), min(w.t_next.z, w.t_end));
+}
+
+// Into the next cell along ray direction d. A step out of the grid (rounding, at the
+// box's faces) stays in the last cell on that axis.
+void walk_advance(MediumRecord m, vec3 d, inout MajorantWalk w) {
+    vec3 b = walk_rate(m, d);
+    bvec3 first = bvec3(w.t_next.x <= w.t_next.y && w.t_next.x <= w.t_next.z, false, false);
+    first.y = !first.x && w.t_next.y <= w.t_next.z;
+    first.z = !first.x && !first.y;
+    w.cell += ivec3(first) * ivec3(sign(b));
+    w.t_next += vec3(first) * min(1.0 / abs(b), vec3(3.0e38));
+    ivec3 cells = majorant_cells(m);
+    bvec3 out_of_grid = bvec3(ivec3(lessThan(w.cell, ivec3(0))) | ivec3(greaterThanEqual(w.cell, cells)));
+    w.cell = clamp(w.cell, ivec3(0), cells - 1);
+    w.t_next = mix(w.t_next, vec3(3.0e38), out_of_grid);
+}
+
+// The next tentative collision along the walk from t: spends the optical depth tau of
+// the majorant cell by cell, and returns true with t at the collision and mj its cell's
+// majorant, or false at the ray's end.
+bool next_tentative(MediumRecord m, vec3 d, inout MajorantWalk w, inout float t, float tau, out float mj) {
+    if (MAJORANT_GRID) {
+        if (m.majorant_cells != 0u) {
+            for (uint i = 0u; i < TRACKING_MAX; ++i) {
+                mj = walk_majorant(m, w);
+                float te = walk_cell_end(w);
+                float room = mj * max(te - t, 0.0);
+                if (tau < room) {
+                    t += tau / mj;
+                    return true;
+                }
+                if (te >= w.t_end) return false;
+                tau -= room;
+                t = te;
+                walk_advance(m, d, w);
+            }
+            return false;
+        }
+    }
+    // One majorant over the box: no cells to walk (none at all where it is 0).
+    mj = m.majorant;
+    if (!(mj > 0.0)) return false;
+    t += tau / mj;
+    return t < w.t_end;
+}
+
+// Whether ray (o, d) over [0, tmax] crosses the tracked medium: its clip [t0, t1] and walk.
+// A medium of no density anywhere is crossed too: it stops nothing, but its density's
+// derivatives along the ray are not 0.
+bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, out float t0, out float t1, out MajorantWalk w) {
+    if (!medium_clip(m, o, d, tmax, t0, t1)) return false;
+    w = majorant_walk(m, o, d, t0, t1);
+    return true;
+}
+
+// The exponential optical depth of tracking draw u.
+float tracking_depth(vec2 u) {
+    return -log(1.0 - u.x);
 }
 
 // The i-th pair of uniform numbers in [0, 1) of tracking stream `key`.
@@ -286,8 +406,8 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     ts = 0.0;
     MediumRecord m = medium_record();
     float t0, t1;
-    if (!medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return false;
-    float mj = m.majorant;
+    MajorantWalk walk;
+    if (!medium_tracked(m, o, d, tmax, t0, t1, walk)) return false;
 #ifdef ADJOINT
     float gs[NSTATES];
     for (int s = 0; s < NSTATES; ++s) gs[s] = grad_pass ? state_sign(s) * dot(delta[s], remaining[s]) : 0.0;
@@ -302,17 +422,17 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     uint tentative = 0u;
     for (uint i = 0u; i < TRACKING_MAX; ++i) {
         vec2 u = tracking_uniforms(key, i);
-        t -= log(1.0 - u.x) / mj;
-        if (t >= t1) break;
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(u), mj)) break;
         vec3 q = (o + t * d - m.box_min) / extent;
         float sigma[NSTATES];
-        for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s);
+        for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s, mj);
+        tentative = i + 1u;
         if (u.y * mj < sigma[0]) {
             for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
             collided = true;
             ts = t;
             q_hit = q;
-            tentative = i + 1u;
 #ifdef ADJOINT
             if (grad_pass) {
                 float g = 0.0;
@@ -325,7 +445,6 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
             break;
         }
         for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
-        tentative = i + 1u;
     }
 #ifdef ADJOINT
     // The transmittance's part: −∫ dσ over the flight, estimated at as many stratified
@@ -374,18 +493,18 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
     MediumRecord m = medium_record();
     float t0, t1;
-    if (!medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return;
-    float mj = m.majorant;
+    MajorantWalk walk;
+    if (!medium_tracked(m, o, d, tmax, t0, t1, walk)) return;
     uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
     vec3 extent = m.box_max - m.box_min;
     float t = t0;
     for (uint i = 0u; i < TRACKING_MAX; ++i) {
-        t -= log(1.0 - tracking_uniforms(key, i).x) / mj;
-        if (t >= t1) break;
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) break;
         vec3 q = (o + t * d - m.box_min) / extent;
         float most = 0.0;
         for (int s = 0; s < NSTATES; ++s) {
-            tr[s] *= 1.0 - tracked_sigma(m, q, s) / mj;
+            tr[s] *= 1.0 - tracked_sigma(m, q, s, mj) / mj;
             most = max(most, tr[s]);
         }
         // Nothing left to carry (the factors are at least 0.01: only after thousands).
@@ -403,15 +522,15 @@ void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) g_all += g[s];
     MediumRecord m = medium_record();
     float t0, t1;
-    if (g_all == 0.0 || !medium_clip(m, o, d, tmax, t0, t1) || !(m.majorant > 0.0)) return;
-    float mj = m.majorant;
+    MajorantWalk walk;
+    if (g_all == 0.0 || !medium_tracked(m, o, d, tmax, t0, t1, walk)) return;
     uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
-    // The tentative collisions' count: distances alone, no lookups.
+    // The tentative collisions' count: distances alone, no density lookups.
     uint n = 0u;
     float t = t0;
     for (uint i = 0u; i < TRACKING_MAX; ++i) {
-        t -= log(1.0 - tracking_uniforms(key, i).x) / mj;
-        if (t >= t1) break;
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) break;
         n = i + 1u;
     }
     medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, -g_all * m.scale);

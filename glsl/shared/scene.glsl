@@ -146,10 +146,18 @@ struct MediumRecord {
     float g;
     // A scattering medium's majorant: an extinction above any the density can take (its
     // parameter's range, or its values), against which its free flights are delta-tracked
-    // and its shadow rays ratio-tracked (lib/media.glsl). 0 for one that does not scatter.
+    // and its shadow rays ratio-tracked (lib/media.glsl), where it has no majorant grid.
+    // 0 for one that does not scatter.
     float majorant;
-    uvec2 pad;
+    // The majorant grid's cells per axis, x | y << 10 | z << 20 (0: none, the majorant
+    // above holds everywhere). Its cells follow the record in the medium's buffer, one
+    // texel each (the majorant in its first word), x fastest: each bounds the extinction
+    // wherever a point of its part of the box looks the density up.
+    uint majorant_cells;
+    uint pad;
 };
+// The texels of a MediumRecord: its majorant grid starts after them.
+const int MEDIUM_RECORD_TEXELS = 7;
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the
 // plane through origin spanned by right and up (half the view's height along up, that

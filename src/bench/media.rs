@@ -170,8 +170,9 @@ pub fn media_bench(device: &crate::device::Device, options: &MediaOptions) -> Re
     })
 }
 
-/// A number in [0, 1) from a counter (splitmix64), for the synthetic grids.
-fn hashed(i: u64) -> f32 {
+/// A number in [0, 1) from a counter (splitmix64), for the synthetic grids (and the
+/// unit tests' data).
+pub(crate) fn hashed(i: u64) -> f32 {
     let mut x = i.wrapping_add(0x9E37_79B9_7F4A_7C15);
     x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);

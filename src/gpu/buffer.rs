@@ -43,6 +43,11 @@ pub(crate) struct BufferInner {
 pub struct Buffer(pub(crate) Arc<BufferInner>);
 
 impl Buffer {
+    /// The buffer's number, unique in the process (its clones share it).
+    pub fn id(&self) -> u64 {
+        self.0.id
+    }
+
     /// Allocates `len` bytes (contents undefined): up to the larger of the device's
     /// storage-buffer range and its texel-buffer range, since a buffer may be bound as
     /// either. A storage-buffer binding sees at most the storage range

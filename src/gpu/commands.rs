@@ -40,6 +40,8 @@ struct Track {
     visible_to: Vec<Access>,
     /// The unordered batch of the last access, if it was in one.
     batch: Option<u32>,
+    /// The recording's access count at the last write ([`Recorder::last_write`]).
+    written_at: Option<u64>,
 }
 
 impl Track {
@@ -58,7 +60,14 @@ struct State {
     batches: u32,
     /// Barriers recorded (derived or hand-written), for tests and benchmarks.
     barriers: u32,
+    /// Buffer accesses tracked so far.
+    accesses: u64,
+    /// This recording's number, unique in the process ([`Recorder::recording`]).
+    recording: u64,
 }
+
+/// The next recording's number.
+static NEXT_RECORDING: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// Records commands into a [`CommandBuffer`]; see the module doc for the derived barriers.
 pub struct Recorder<'a> {
@@ -120,6 +129,8 @@ impl Recorder<'_> {
 
     fn track(&mut self, buf: &Buffer, access: Access) {
         let batch = self.batch;
+        self.state.accesses += 1;
+        let at = access.writes().then_some(self.state.accesses);
         match self.state.tracked.get_mut(&buf.0.id) {
             Some(t) => {
                 // Reads after a barrier leave it in force for further reads; a write
@@ -127,16 +138,29 @@ impl Recorder<'_> {
                 if access.writes() {
                     t.visible_to.clear();
                     t.written = Some(access);
+                    t.written_at = at;
                 }
                 t.last = access;
                 t.batch = batch;
             }
             None => {
                 let written = access.writes().then_some(access);
-                self.state.tracked.insert(buf.0.id, Track { last: access, written, visible_to: Vec::new(), batch });
+                self.state.tracked.insert(buf.0.id, Track { last: access, written, visible_to: Vec::new(), batch, written_at: at });
                 self.keep.buffers.push(buf.clone());
             }
         }
+    }
+
+    /// This recording's number, unique in the process: with [`Self::last_write`], what a
+    /// pass needs to tell whether its inputs changed since it last ran in the recording.
+    pub fn recording(&self) -> u64 {
+        self.state.recording
+    }
+
+    /// When this recording last wrote `buf`, as a count of the accesses it had tracked then
+    /// (later writes count higher); None where it has not written it.
+    pub fn last_write(&self, buf: &Buffer) -> Option<u64> {
+        self.state.tracked.get(&buf.0.id).and_then(|t| t.written_at)
     }
 
     /// Records one barrier per `(buffer, previous access, next access)`. In debug builds
@@ -157,8 +181,11 @@ impl Recorder<'_> {
                     t.batch = None;
                 }
                 None => {
+                    // A write declared here counts as made now (its time is not known).
                     let written = from.writes().then_some(*from);
-                    self.state.tracked.insert(buf.0.id, Track { last: *from, written, visible_to: vec![*to], batch: None });
+                    self.state.accesses += 1;
+                    let written_at = from.writes().then_some(self.state.accesses);
+                    self.state.tracked.insert(buf.0.id, Track { last: *from, written, visible_to: vec![*to], batch: None, written_at });
                     self.keep.buffers.push((*buf).clone());
                 }
             }
@@ -498,7 +525,7 @@ impl CommandBuffer {
             dev.begin_command_buffer(self.cmd, &vk::CommandBufferBeginInfo::default()).map_err(vk_err("vkBeginCommandBuffer"))?;
         }
         self.keep = Kept::default();
-        let mut state = State::default();
+        let mut state = State { recording: NEXT_RECORDING.fetch_add(1, std::sync::atomic::Ordering::Relaxed), ..State::default() };
         if let Some(p) = profiler.as_deref_mut() {
             p.reset_raw(dev, self.cmd);
         }

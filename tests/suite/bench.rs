@@ -86,7 +86,8 @@ fn scene_bench_on_cornell_is_consistent() {
             "HAS_ALPHA_MASKS",
             "HAS_UV1",
             "BVH_STACK_REGISTERS",
-            "HAS_MEDIA"
+            "HAS_MEDIA",
+            "MAJORANT_GRID"
         ]
     );
     let g = &b.specialisation_gain;

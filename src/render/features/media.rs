@@ -7,7 +7,7 @@ use crate::gpu::{self, Buffer, ComputePipeline, Recorder, SpecValue};
 use crate::kernels::MajorantPush;
 use crate::render::{texel_buffer, ParamSlot};
 use crate::scene::media::{grid_dims, MAX_STEPS};
-use crate::scene::ParamTarget;
+use crate::scene::{Medium, ParamTarget};
 use crate::shared::{MediumRecord, ValueRef};
 use crate::tensor::ParamValue;
 
@@ -24,8 +24,101 @@ pub struct Media {
     /// builds ([`crate::render::GpuScene::kernel`]).
     pub scattering: bool,
     /// A scattering medium whose density is optimised: the pass that sets its majorant
-    /// from θ before each pass that tracks it ([`Media::record_majorant`]).
+    /// grid from θ before each pass that tracks it ([`Media::record_majorant`]).
     majorant: Option<(ComputePipeline, MajorantPush)>,
+    /// The majorant grid's cells per axis (zeros where the medium has none).
+    pub cells: [u32; 3],
+    /// The last majorant pass recorded: its recording, the θ and previous θ it read, and
+    /// when it wrote the record ([`Media::record_majorant`]).
+    last_pass: std::cell::Cell<Option<LastPass>>,
+}
+
+/// See [`Media::last_pass`].
+#[derive(Clone, Copy, PartialEq)]
+struct LastPass {
+    recording: u64,
+    theta: u64,
+    theta_prev: u64,
+    wrote: Option<u64>,
+}
+
+/// A majorant cell's side, in voxels of the density grid: each cell bounds the
+/// extinction over 8³ voxels (and the lookups' neighbours), so that tracking takes few
+/// tentative collisions where the medium is thin and none where it is empty. Finer cells
+/// cost more steps from cell to cell than they save on the bundled cloud.
+pub const MAJORANT_CELL_VOXELS: u32 = 8;
+
+/// The majorant grid's cells per axis over a density grid of `dims` voxels.
+pub fn majorant_cells(dims: [u32; 3]) -> [u32; 3] {
+    dims.map(|n| n.div_ceil(MAJORANT_CELL_VOXELS).max(1))
+}
+
+/// The voxels, first and last along one axis, that a trilinear lookup anywhere in cell
+/// `c` of `cells` weighs, in a grid of `n` voxels: the cell spans voxel coordinates
+/// [c n / cells, (c + 1) n / cells], and a lookup at x weighs the voxels whose centres
+/// bracket it, floor(x − ½) and the next (clamped to the grid). In integers, as
+/// glsl/majorant.comp computes it.
+pub fn cell_voxels(c: u32, cells: u32, n: u32) -> (u32, u32) {
+    let (c, cells, n) = (c as i64, cells as i64, n as i64);
+    let lo = ((2 * c * n - cells) / (2 * cells)).max(0);
+    let hi = ((2 * (c + 1) * n - cells) / (2 * cells) + 1).min(n - 1);
+    (lo as u32, hi as u32)
+}
+
+/// The threads of a workgroup of the majorant pass (glsl/majorant.comp).
+const MAJORANT_REDUCE_THREADS: u32 = 64;
+
+/// The record's `majorant_cells` word for a grid of `cells`.
+pub fn pack_cells(cells: [u32; 3]) -> u32 {
+    cells[0] | cells[1] << 10 | cells[2] << 20
+}
+
+/// The majorant cells a ray crosses per unit length, on average over directions: half of
+/// the cells per unit length along each axis, summed (the mean |cos| to an axis is ½).
+pub fn crossings_per_length(cells: [u32; 3], min: [f32; 3], max: [f32; 3]) -> f32 {
+    (0..3).map(|a| 0.5 * cells[a] as f32 / (max[a] - min[a])).sum()
+}
+
+/// What a step from one majorant cell to the next costs, in tentative collisions (their
+/// lookups), roughly. Walking the bundled cloud's grid took 1.28× the time of one
+/// majorant at a constant density (nothing to save), 0.94× at its true density and 0.65×
+/// at 5 times it.
+pub const CELL_STEP_COST: f32 = 0.5;
+
+/// Whether tracking walks majorant grid `grid` cell by cell rather than taking its largest
+/// cell over the whole box: where the tentative collisions it saves per unit length (its
+/// largest cell above its mean cell) outweigh its steps' cost there (`walk_cost`:
+/// [`CELL_STEP_COST`] × [`crossings_per_length`]). A grid of equal cells saves nothing (a
+/// constant density, the start of most optimisations); a sparse or thick medium saves
+/// many. The majorant pass decides the same.
+pub fn walks_grid(grid: &[f32], walk_cost: f32) -> bool {
+    let most = grid.iter().copied().fold(0.0f32, f32::max);
+    let mean = grid.iter().sum::<f32>() / grid.len().max(1) as f32;
+    most - mean >= walk_cost
+}
+
+/// The majorant grid of a density grid of `dims` voxels (x fastest): per cell,
+/// `factor` times the largest density that its lookups weigh.
+pub fn majorant_grid(density: &[f32], dims: [u32; 3], factor: f32) -> Vec<f32> {
+    let cells = majorant_cells(dims);
+    let mut out = Vec::with_capacity(cells.iter().product::<u32>() as usize);
+    for cz in 0..cells[2] {
+        for cy in 0..cells[1] {
+            for cx in 0..cells[0] {
+                let [(x0, x1), (y0, y1), (z0, z1)] = [(cx, 0), (cy, 1), (cz, 2)].map(|(c, a)| cell_voxels(c, cells[a], dims[a]));
+                let mut most = 0.0f32;
+                for z in z0..=z1 {
+                    for y in y0..=y1 {
+                        for x in x0..=x1 {
+                            most = most.max(density[((z * dims[1] + y) * dims[0] + x) as usize]);
+                        }
+                    }
+                }
+                out.push(factor * most);
+            }
+        }
+    }
+    out
 }
 
 /// A grid's reference and depth: the scene's value in the material data, or its slot of θ.
@@ -41,13 +134,70 @@ fn grid_ref(up: &mut Upload, slot: Option<&ParamSlot>, value: &ParamValue) -> (V
     (ValueRef { width: x, height: y, ..r }, z)
 }
 
+/// How a scattering medium is tracked: against one majorant over its box, or a grid of
+/// them (a density grid that no fixed `majorant` key bounds), set from θ by a pass where
+/// the density is optimised.
+struct Tracking {
+    /// The majorant over the box (the grid's largest cell where it has one): 0 for a
+    /// medium that does not scatter.
+    majorant: f32,
+    cells: [u32; 3],
+    grid: Vec<f32>,
+    /// Whether the kernels walk the grid (`walks_grid`), until the pass decides again.
+    walk: bool,
+    pass: Option<(ComputePipeline, MajorantPush)>,
+}
+
+impl Tracking {
+    fn build(up: &Upload, m: &Medium, density_slot: Option<&ParamSlot>) -> gpu::Result<Tracking> {
+        // Above the most the extinction can be: the fixed bound, the density parameter's
+        // range, or the density's values.
+        let factor = MAJORANT_MARGIN * m.scale;
+        let density_bound = match (m.majorant, density_slot) {
+            (Some(b), _) => b,
+            (None, Some(slot)) => slot.range[1],
+            (None, None) => m.density.data.iter().copied().fold(0.0f32, f32::max),
+        };
+        let majorant = if m.scatters() { factor * density_bound.max(0.0) } else { 0.0 };
+        let none = Tracking { majorant, cells: [0; 3], grid: Vec::new(), walk: false, pass: None };
+        let shape = match (m.scatters(), m.majorant, density_slot) {
+            (true, None, Some(slot)) => slot.shape,
+            (true, None, None) if !m.density.shape.is_constant() => m.density.shape,
+            _ => return Ok(none),
+        };
+        let dims = grid_dims(shape).map(|d| d as u32);
+        let cells = majorant_cells(dims);
+        let walk_cost = CELL_STEP_COST * crossings_per_length(cells, m.min, m.max);
+        let Some(slot) = density_slot else {
+            let grid = majorant_grid(&m.density.data, dims, factor);
+            let walk = walks_grid(&grid, walk_cost);
+            return Ok(Tracking { majorant: grid.iter().copied().fold(0.0, f32::max), cells, walk, grid, pass: None });
+        };
+        // An optimised density moves: its grid follows θ (the range's bound, over the box,
+        // holds until the first pass sets it).
+        let push = MajorantPush {
+            offset: slot.offset as u32,
+            dims,
+            cells,
+            grid_word: (std::mem::size_of::<MediumRecord>() / 4) as u32,
+            record_word: (std::mem::offset_of!(MediumRecord, majorant) / 4) as u32,
+            factor,
+            walk_cost,
+            stage: 0,
+            states: 2,
+        };
+        let pass = Some((ComputePipeline::new(up.ctx, "majorant", &[])?, push));
+        Ok(Tracking { majorant, cells, grid: vec![majorant; cells.iter().product::<u32>() as usize], walk: false, pass })
+    }
+}
+
 impl Media {
     pub fn build(up: &mut Upload) -> gpu::Result<Media> {
         let (scene, layout) = (up.scene, up.layout);
         let mut record = MediumRecord::default();
         let present = !scene.media.is_empty();
         let scattering = scene.media.iter().any(|m| m.scatters());
-        let mut majorant_pass = None;
+        let (mut cells, mut grid, mut majorant_pass) = ([0u32; 3], Vec::new(), None);
         if let Some(m) = scene.media.first() {
             let (density, density_depth) = grid_ref(up, layout.slot(ParamTarget::MediumDensity { medium: 0 }), &m.density);
             let (emission, emission_depth) = grid_ref(up, layout.slot(ParamTarget::MediumEmission { medium: 0 }), &m.emission);
@@ -60,25 +210,7 @@ impl Media {
                     v.shape = slot.shape;
                 }
             }
-            // A scattering medium is tracked against a majorant above the most its
-            // extinction can be: its density parameter's range, or its values.
-            let density_bound = match (m.majorant, layout.slot(ParamTarget::MediumDensity { medium: 0 })) {
-                (Some(b), _) => b,
-                (None, Some(slot)) => slot.range[1],
-                (None, None) => m.density.data.iter().copied().fold(0.0f32, f32::max),
-            };
-            let majorant = if m.scatters() { MAJORANT_MARGIN * m.scale * density_bound.max(0.0) } else { 0.0 };
-            // An optimised density moves: its majorant follows θ (the range above holds
-            // until the first pass sets it).
-            if let (true, None, Some(slot)) = (m.scatters(), m.majorant, layout.slot(ParamTarget::MediumDensity { medium: 0 })) {
-                let push = MajorantPush {
-                    offset: slot.offset as u32,
-                    n: slot.len as u32,
-                    word: (std::mem::offset_of!(MediumRecord, majorant) / 4) as u32,
-                    factor: MAJORANT_MARGIN * m.scale,
-                };
-                majorant_pass = Some((ComputePipeline::new(up.ctx, "majorant", &[])?, push));
-            }
+            let tracking = Tracking::build(up, m, layout.slot(ParamTarget::MediumDensity { medium: 0 }))?;
             record = MediumRecord {
                 box_min: m.min,
                 step: stepped.world_step(),
@@ -92,14 +224,18 @@ impl Media {
                 albedo_depth,
                 albedo,
                 g: m.g,
-                majorant,
-                pad: [0; 2],
+                majorant: tracking.majorant,
+                majorant_cells: if tracking.walk { pack_cells(tracking.cells) } else { 0 },
+                pad: 0,
             };
+            (cells, grid, majorant_pass) = (tracking.cells, tracking.grid, tracking.pass);
         }
-        Ok(Media { buffer: texel_buffer(up.ctx, "media", &[record])?, present, scattering, majorant: majorant_pass })
+        let mut words: Vec<u32> = bytemuck::cast_slice(&[record]).to_vec();
+        words.extend(grid.iter().flat_map(|v| [v.to_bits(), 0, 0, 0]));
+        Ok(Media { buffer: texel_buffer(up.ctx, "media", &words)?, present, scattering, majorant: majorant_pass, cells, last_pass: Default::default() })
     }
 
-    /// Records the pass that sets a scattering medium's majorant from the density in
+    /// Records the pass that sets a scattering medium's majorant grid from the density in
     /// `theta` and `theta_prev` (the buffers a tracking pass binds as its θ and previous
     /// θ: the same one twice for a single state), where the density is optimised. Every
     /// pass that tracks the medium follows one (`render::record_samples`), so that the
@@ -107,8 +243,24 @@ impl Media {
     /// against the same one.
     pub fn record_majorant(&self, rec: &mut Recorder, theta: &Buffer, theta_prev: &Buffer) -> gpu::Result<()> {
         let Some((pipeline, push)) = &self.majorant else { return Ok(()) };
+        // Once per θ: a pass that the recording has already made for these buffers, with
+        // neither written since and the record untouched, would write what it wrote (the
+        // sensors of one iteration share it).
+        let (id, id_prev) = (theta.id(), theta_prev.id());
+        if let Some(last) = self.last_pass.get() {
+            let unchanged = |b: &Buffer| rec.last_write(b) < last.wrote;
+            if last == (LastPass { recording: rec.recording(), theta: id, theta_prev: id_prev, wrote: rec.last_write(&self.buffer) }) && unchanged(theta) && unchanged(theta_prev) {
+                return Ok(());
+            }
+        }
         let group = pipeline.bind(&[("Theta", theta), ("ThetaPrev", theta_prev), ("Record", &self.buffer)])?;
-        rec.dispatch(pipeline, &group, push, [1, 1, 1])
+        let push = MajorantPush { states: if id == id_prev { 1 } else { 2 }, ..*push };
+        rec.dispatch_linear(pipeline, &group, &push, self.cells.iter().map(|&c| c as u64).product())?;
+        // The second stage reads the cells the first wrote: their largest, and whether the
+        // kernels walk them.
+        rec.dispatch(pipeline, &group, &MajorantPush { stage: 1, ..push }, [MAJORANT_REDUCE_THREADS, 1, 1])?;
+        self.last_pass.set(Some(LastPass { recording: rec.recording(), theta: id, theta_prev: id_prev, wrote: rec.last_write(&self.buffer) }));
+        Ok(())
     }
 }
 
@@ -118,6 +270,66 @@ impl Feature for Media {
     }
 
     fn spec(&self) -> Vec<(&'static str, SpecValue)> {
-        vec![("HAS_MEDIA", SpecValue::Bool(self.present))]
+        vec![("HAS_MEDIA", SpecValue::Bool(self.present)), ("MAJORANT_GRID", SpecValue::Bool(self.cells != [0; 3]))]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::media::hashed;
+    use crate::scene::media::trilinear;
+    use crate::tensor::Shape;
+
+    /// Each cell of a majorant grid bounds every trilinear lookup in its part of the box,
+    /// faces included, for grids whose sides the cells divide and grids they do not.
+    #[test]
+    fn each_majorant_cell_bounds_the_lookups_in_it() {
+        for (case, dims) in [[4u32, 4, 4], [20, 14, 9], [1, 3, 17], [27, 1, 2], [32, 32, 32]].into_iter().enumerate() {
+            let n = dims.iter().product::<u32>();
+            // Sparse values: most voxels 0, so that a cell missing a neighbour shows.
+            let data: Vec<f32> = (0..n as u64).map(|i| if hashed(i + 1000 * case as u64) < 0.2 { 1.0 + hashed(i + 77) } else { 0.0 }).collect();
+            let value = ParamValue { shape: Shape::grid(dims[0], dims[1], dims[2], 1), data: data.clone() };
+            let cells = majorant_cells(dims);
+            let grid = majorant_grid(&data, dims, 1.0);
+            assert_eq!(grid.len() as u32, cells.iter().product::<u32>());
+            let fractions = [0.0f32, 1e-3, 0.25, 0.5, 0.75, 0.999, 1.0];
+            for cz in 0..cells[2] {
+                for cy in 0..cells[1] {
+                    for cx in 0..cells[0] {
+                        let bound = grid[((cz * cells[1] + cy) * cells[0] + cx) as usize];
+                        for fz in fractions {
+                            for fy in fractions {
+                                for fx in fractions {
+                                    let q = [(cx, fx, 0), (cy, fy, 1), (cz, fz, 2)].map(|(c, f, a)| (c as f32 + f) / cells[a] as f32);
+                                    let v = trilinear(&value, dims.map(|d| d as usize), q)[0];
+                                    assert!(v <= bound * (1.0 + 1e-6), "{dims:?}, cell {:?}: {v} at {q:?} above its bound {bound}", [cx, cy, cz]);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// A majorant grid is tight where the density is sparse: a single voxel lights the
+    /// cells whose lookups reach it (at most 2 per axis) and no others.
+    #[test]
+    fn a_single_voxel_lights_only_the_cells_around_it() {
+        let dims = [40u32, 32, 24];
+        assert_eq!(majorant_cells(dims), [5, 4, 3]);
+        for voxel in [[0u32, 0, 0], [7, 4, 4], [8, 31, 23], [16, 15, 8]] {
+            let mut data = vec![0.0f32; dims.iter().product::<u32>() as usize];
+            data[((voxel[2] * dims[1] + voxel[1]) * dims[0] + voxel[0]) as usize] = 2.0;
+            let grid = majorant_grid(&data, dims, 1.5);
+            let lit = grid.iter().filter(|&&v| v > 0.0).count();
+            assert!((1..=8).contains(&lit), "{voxel:?}: {lit} cells lit");
+            assert!(grid.iter().all(|&v| v == 0.0 || v == 3.0), "{voxel:?}: {grid:?}");
+        }
+        assert_eq!(cell_voxels(0, 4, 16), (0, 4));
+        assert_eq!(cell_voxels(1, 4, 16), (3, 8));
+        assert_eq!(cell_voxels(3, 4, 16), (11, 15));
+        assert_eq!(majorant_cells([64, 9, 1]), [8, 2, 1]);
     }
 }
