@@ -8,7 +8,7 @@
 //! in `bench/media.rs`.
 
 mod layouts;
-pub(crate) mod media;
+mod media;
 mod scene;
 
 pub use layouts::{layout_bench, LayoutBench, LayoutTimes};

@@ -192,6 +192,16 @@ fn beta_fraction(x: f64, a: f64, b: f64) -> f64 {
     h
 }
 
+/// A number in [0, 1) from a counter (splitmix64): deterministic data for synthetic
+/// scenes and tests.
+pub fn unit_hash(i: u64) -> f32 {
+    let mut x = i.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^= x >> 31;
+    (x >> 40) as f32 / (1u64 << 24) as f32
+}
+
 /// Median of a non-empty list (0 for an empty one).
 pub fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {

@@ -31,6 +31,7 @@ use crate::gpu::{CommandBuffer, Profiler};
 use crate::scene::media::{DEFAULT_STEP, MAX_STEPS};
 use crate::scene::{ColorValue, Environment, Film, Integrator, Medium, ParamSpec, Scene, SceneParts, Sensor};
 use crate::settings::RunSettings;
+use crate::stats::unit_hash as hashed;
 use crate::tensor::{ParamValue, Shape};
 use glam::{Vec2, Vec3};
 use serde::Serialize;
@@ -168,16 +169,6 @@ pub fn media_bench(device: &crate::device::Device, options: &MediaOptions) -> Re
         cases,
         optimisers,
     })
-}
-
-/// A number in [0, 1) from a counter (splitmix64), for the synthetic grids (and the
-/// unit tests' data).
-pub(crate) fn hashed(i: u64) -> f32 {
-    let mut x = i.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    x ^= x >> 31;
-    (x >> 40) as f32 / (1u64 << 24) as f32
 }
 
 /// Gaussian blobs of the synthetic medium: centre, radius, density and emitted colour, in

@@ -277,7 +277,7 @@ impl Feature for Media {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::media::hashed;
+    use crate::stats::unit_hash as hashed;
     use crate::scene::media::trilinear;
     use crate::tensor::Shape;
 
