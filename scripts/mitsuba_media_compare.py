@@ -30,6 +30,12 @@
     python3 scripts/mitsuba_media_compare.py --grid 32 --res 128,256 --out /tmp/media-cmp
     python3 scripts/mitsuba_media_compare.py --albedo 0.8 --g 0.3 --out /tmp/media-scatter
     python3 scripts/mitsuba_media_compare.py --albedo 0.9 --albedo-grid --g 0.3 --parts a --out /tmp/media-albedo
+    python3 scripts/mitsuba_media_compare.py --shape sphere --albedo 0.8 --g 0.3 --out /tmp/media-sphere
+
+With --shape sphere the medium fills the sphere inscribed in the box instead of the box:
+Mitsuba's `sphere` shape (exact) with the null BSDF, and vkinverse's `[[media]]` box with
+`mesh` a UV sphere of --sphere-segments around (as Mitsuba's importer tessellates it).
+The grid spans the box on both.
 
 With --albedo above 0 the medium scatters (a Henyey-Greenstein phase function of --g on
 both; isotropic at 0); with --albedo-grid its albedo is a smooth random RGB grid of
@@ -75,8 +81,33 @@ ENVIRONMENT = [0.4, 0.5, 0.6]
 SENSOR = {"origin": [1.2, 0.9, 3.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_y": 40.0}
 NAME = "cloud"
 PARAM = f"media.{NAME}.density"
-# Mitsuba's parameter that holds the grid (the cube's interior medium's sigma_t).
-MITSUBA_KEY = "cube.interior_medium.sigma_t.data"
+# Mitsuba's parameter that holds the grid (the container's interior medium's sigma_t).
+MITSUBA_KEY = "container.interior_medium.sigma_t.data"
+
+
+def sphere_obj(segments):
+    """A UV sphere of radius 1 at the origin as OBJ text: `segments` around, half as many
+    from pole to pole, fans at the poles, wound out."""
+    import math
+    nu, nv = segments, segments // 2
+    lines = []
+    for j in range(nv + 1):
+        th = math.pi * j / nv
+        for i in range(nu + 1):
+            ph = 2 * math.pi * i / nu
+            lines.append(f"v {math.sin(th) * math.cos(ph):.9g} {math.sin(th) * math.sin(ph):.9g} {math.cos(th):.9g}")
+
+    def at(i, j):
+        return j * (nu + 1) + i + 1
+
+    for j in range(nv):
+        for i in range(nu):
+            a, b, c, d = at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)
+            if j > 0:
+                lines.append(f"f {a} {d} {b}")
+            if j + 1 < nv:
+                lines.append(f"f {b} {d} {c}")
+    return "\n".join(lines) + "\n"
 
 
 def density_grid(np, n, seed):
@@ -116,6 +147,10 @@ def write_vk_scene(np, folder, n, res, density, args, spp, init):
         np.save(folder / "albedo.npy", albedo_grid(np, n, args.albedo, args.seed))
         albedo = '"albedo.npy"'
     s = SENSOR
+    mesh = ""
+    if args.shape == "sphere":
+        (folder / "sphere.obj").write_text(sphere_obj(args.sphere_segments))
+        mesh = 'mesh = "sphere.obj"'
     toml = f"""# The absorbing medium of scripts/mitsuba_media_compare.py.
 [film]
 width = {res}
@@ -137,6 +172,7 @@ constant = {ENVIRONMENT}
 name = "{NAME}"
 min = {BOX_MIN}
 max = {BOX_MAX}
+{mesh}
 density = "density.npy"
 emission = 0.0
 scale = {args.scale}
@@ -175,9 +211,9 @@ def mitsuba_scene(mi, vol_path, res, args, integrator, spp):
             "sampler": {"type": "independent", "sample_count": spp},
             "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb", "rfilter": {"type": "box"}},
         },
-        # Mitsuba's cube spans [-1, 1]^3, the box.
-        "cube": {
-            "type": "cube",
+        # Mitsuba's cube spans [-1, 1]^3, the box; its sphere is the one inscribed in it.
+        "container": {
+            "type": args.shape,
             "bsdf": {"type": "null"},
             "interior": {
                 "type": "heterogeneous",
@@ -427,6 +463,9 @@ def main():
                     "of its gradient")
     ap.add_argument("--opt-init", type=float, default=1.0, help="part c: the density's start value")
     ap.add_argument("--lr", type=float, default=0.05, help="part c: Adam's learning rate")
+    ap.add_argument("--shape", choices=["cube", "sphere"], default="cube", help="the medium's container: the box, or the "
+                    "sphere inscribed in it")
+    ap.add_argument("--sphere-segments", type=int, default=96, help="with --shape sphere: vkinverse's tessellation")
     ap.add_argument("--parts", default="abc", help="which comparisons to run (subset of abc)")
     ap.add_argument("--vkinverse", help="vkinverse binary (default: $CARGO_TARGET_DIR or target/ release build)")
     ap.add_argument("--out", type=Path, required=True)

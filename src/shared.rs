@@ -208,9 +208,9 @@ pub struct LightRecord {
 }
 
 /// Mirror of `MediumRecord`: 112 bytes (7 texels); `max_steps` 0 where the scene has no
-/// medium; `pad` zero. A majorant grid of `majorant_cells` (x | y << 10 | z << 20; 0 for
-/// none) follows it in the medium's buffer, one texel per cell (the majorant in its first
-/// word), x fastest.
+/// medium. The `boundary_texels` of its closed mesh follow it in the medium's buffer (a
+/// texel of its BVH's node and triangle counts, the nodes, the triangles), then a majorant grid of `majorant_cells` (x | y << 10 |
+/// z << 20; 0 for none), one texel per cell (the majorant in its first word), x fastest.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct MediumRecord {
@@ -230,7 +230,9 @@ pub struct MediumRecord {
     /// that does not scatter).
     pub majorant: f32,
     pub majorant_cells: u32,
-    pub pad: u32,
+    /// The texels of the closed mesh that bounds the medium in its box (0: none): a
+    /// texel of counts, the BVH's nodes and its triangles.
+    pub boundary_texels: u32,
 }
 
 /// Mirror of `SensorRecord`: 80 bytes (`pad` is zero; `ortho_half_height` 0 but for an

@@ -1,5 +1,7 @@
 // The scene's medium (src/render/features/media.rs): a box that absorbs and emits light,
-// with no scattering. Along a ray it is marched in steps of equal length, stratified with
+// with no scattering, or the part of the box inside a closed mesh (its boundary): a ray
+// crosses it in parts, between where it enters the boundary and where it leaves it (by
+// the winding of the triangles it crosses), each marched or tracked as below. Along a ray it is marched in steps of equal length, stratified with
 // one jitter per ray: step k of length dt at density σ_k keeps a_k = exp(−σ_k dt) of what
 // lies behind it and adds L_e,k (1 − a_k), each times the transmittance of the steps
 // before it. The jitter is a hash of the ray's bits, so that the primal and gradient
@@ -34,6 +36,9 @@ layout(constant_id = 24) const bool HAS_MEDIA = true;
 // Whether a scattering medium has a majorant grid (its kernels walk it where the record's
 // majorant_cells is not 0): without one the walk is compiled out.
 layout(constant_id = 27) const bool MAJORANT_GRID = true;
+// Whether the medium has a boundary mesh: without one the boundary's search is compiled
+// out, and a ray crosses the medium in one part (its box's).
+layout(constant_id = 28) const bool MEDIUM_BOUNDARY = true;
 // A medium that scatters (albedo > 0) is rendered by the kernels' SCATTERING builds (the
 // _scatter variants): their rays sample where they collide (medium_free_flight) instead
 // of gathering emission (medium_segment). The other builds leave the collision and its
@@ -59,22 +64,111 @@ MediumRecord medium_record() {
     m.g = uintBitsToFloat(t6.x);
     m.majorant = uintBitsToFloat(t6.y);
     m.majorant_cells = t6.z;
-    m.pad = 0u;
+    m.boundary_texels = t6.w;
     return m;
 }
 
-// The part [t0, t1] of ray (o, d) over [0, tmax] that lies in the medium's box; false
-// where none does.
-bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, out float t0, out float t1) {
+// The most parts of the medium that one ray crosses: one without a boundary; with one, a
+// ray through more separate insides than this (a mesh of many shells or folds) leaves the
+// rest out.
+const uint MEDIUM_MAX_PARTS = 16u;
+
+uint medium_parts() {
+    if (MEDIUM_BOUNDARY) return MEDIUM_MAX_PARTS;
+    return 1u;
+}
+
+// The texel where the majorant grid starts: after the record and the boundary.
+int majorant_grid_texel(MediumRecord m) {
+    return MEDIUM_RECORD_TEXELS + int(m.boundary_texels);
+}
+
+// Entries of the boundary BVH's traversal stack: its builder keeps inner nodes at depth
+// 16 at most (src/render/features/media.rs), and the stack holds one per level.
+const int BOUNDARY_STACK = 18;
+
+// Whether ray (o, inv_dir) passes through box [lo, hi] between from and tmax (the exit
+// widened as the scene BVH's, bvh_box_entry).
+bool boundary_box_hit(vec3 lo, vec3 hi, vec3 o, vec3 inv_dir, float from, float tmax) {
+    vec3 t0 = (lo - o) * inv_dir;
+    vec3 t1 = (hi - o) * inv_dir;
+    vec3 tn = min(t0, t1);
+    vec3 tf = max(t0, t1);
+    float enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
+    float exit = min(min(tf.x, tf.y), min(tf.z, tmax)) * BVH_EXIT_SCALE;
+    return enter <= exit && exit >= from;
+}
+
+// The two nearest crossings of the boundary after `from` along ray (o, d) (3e38 where
+// there are fewer), and whether the ray enters it at the first: its BVH's boxes that the
+// ray passes through between `from` and the second are opened, their triangles
+// intersected as the scene's (bvh_hit_triangle).
+void boundary_crossings(vec3 o, vec3 d, float from, out float first, out float second, out bool enters) {
+    first = 3.0e38;
+    second = 3.0e38;
+    enters = false;
+    int nodes = MEDIUM_RECORD_TEXELS + 1;
+    int triangles = nodes + 4 * int(texel_load(Media, MEDIUM_RECORD_TEXELS).x);
+    vec3 inv_dir = 1.0 / bvh_safe_dir(d);
+    uint stack[BOUNDARY_STACK];
+    int sp = 0;
+    stack[sp++] = 0u;
+    while (sp > 0) {
+        int b = nodes + 4 * int(stack[--sp]);
+        for (int side = 0; side < 2; ++side) {
+            uvec4 lo = texel_load(Media, b + 2 * side);
+            uvec4 hi = texel_load(Media, b + 2 * side + 1);
+            if (!boundary_box_hit(uintBitsToFloat(lo.xyz), uintBitsToFloat(hi.xyz), o, inv_dir, from, second)) continue;
+            if (hi.w == BVH_INNER) {
+                if (sp < BOUNDARY_STACK) stack[sp++] = lo.w;
+                continue;
+            }
+            for (uint i = lo.w; i < lo.w + hi.w; ++i) {
+                BvhTriangle tri;
+                uvec3 rest;
+                texel_vec3x3(Media, triangles + 3 * int(i), tri.v0, tri.e1, tri.e2, rest);
+                float t, u, v;
+                if (!bvh_hit_triangle(tri, o, d, second, t, u, v) || !(t > from)) continue;
+                if (t < first) {
+                    second = first;
+                    first = t;
+                    enters = dot(cross(tri.e1, tri.e2), d) < 0.0;
+                } else {
+                    second = t;
+                }
+            }
+        }
+    }
+}
+
+// Inside the boundary: where the ray crosses it first after `from` it leaves (the
+// triangle faces along d), or between where it enters and where it crosses next.
+bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1) {
     // A zero direction component gets a tiny one of its sign (no 0 · ∞).
     vec3 dd = mix(d, vec3(1e-30), equal(d, vec3(0.0)));
     vec3 ta = (m.box_min - o) / dd;
     vec3 tb = (m.box_max - o) / dd;
     vec3 lo = min(ta, tb);
     vec3 hi = max(ta, tb);
-    t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
+    t0 = max(max(lo.x, lo.y), max(lo.z, from));
     t1 = min(min(hi.x, hi.y), min(hi.z, tmax));
-    return m.max_steps != 0u && t0 < t1;
+    if (m.max_steps == 0u || !(t0 < t1)) return false;
+    if (MEDIUM_BOUNDARY) {
+        if (m.boundary_texels != 0u) {
+            float first, second;
+            bool enters;
+            boundary_crossings(o, d, from, first, second, enters);
+            // No crossing ahead: outside for good.
+            if (first == 3.0e38) return false;
+            if (enters) {
+                t0 = max(t0, first);
+                t1 = min(t1, second);
+            } else {
+                t1 = min(t1, first);
+            }
+        }
+    }
+    return t0 < t1;
 }
 
 // The 8 taps of a trilinear lookup at q (unit coordinates in the box) in a grid of
@@ -118,27 +212,29 @@ vec3 grid3(ValueRef r, uint depth, vec3 q, int state) {
     return v;
 }
 
-// A ray's march through the medium: the medium, where the ray enters its box (t0), its
-// steps, their length and the ray's jitter.
+// A ray's march through one part of the medium: the medium, where the ray enters the part
+// (t0) and leaves it (t1), its steps, their length and the ray's jitter.
 struct March {
     MediumRecord m;
     vec3 o;
     vec3 d;
     float t0;
+    float t1;
     uint n;
     float dt;
     float u;
 };
 
-// The march of ray (o, d) over [0, tmax]: stratified steps with one jitter per ray,
-// hashed from the ray's bits (both parameter states and both replays march the same
-// points). False where the ray misses the box.
-bool medium_march(vec3 o, vec3 d, float tmax, out March mr) {
+// The march of ray (o, d) over [0, tmax] through its first part of the medium after
+// `from` (medium_clip): stratified steps with one jitter per part, hashed from the ray's
+// bits and the part's end (both parameter states and both replays march the same
+// points). False where there is none.
+bool medium_march(vec3 o, vec3 d, float tmax, float from, out March mr) {
     mr.m = medium_record();
     mr.o = o;
     mr.d = d;
-    float t1;
-    if (!medium_clip(mr.m, o, d, tmax, mr.t0, t1)) return false;
+    if (!medium_clip(mr.m, o, d, tmax, from, mr.t0, mr.t1)) return false;
+    float t1 = mr.t1;
     float len = t1 - mr.t0;
     mr.n = uint(clamp(ceil(len / mr.m.step), 1.0, float(mr.m.max_steps)));
     mr.dt = len / float(mr.n);
@@ -199,35 +295,38 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 #endif
 ) {
     March mr;
-    if (!medium_march(o, d, tmax, mr)) return;
-    MediumRecord m = mr.m;
-    float dt = mr.dt;
-    for (uint k = 0u; k < mr.n; ++k) {
-        vec3 q = march_point(mr, k);
+    mr.t1 = 0.0;
+    for (uint part = 0u; part < medium_parts(); ++part) {
+        if (!medium_march(o, d, tmax, mr.t1, mr)) return;
+        MediumRecord m = mr.m;
+        float dt = mr.dt;
+        for (uint k = 0u; k < mr.n; ++k) {
+            vec3 q = march_point(mr, k);
 #ifdef ADJOINT
-        float g_sigma = 0.0;
-        vec3 g_le = vec3(0.0);
+            float g_sigma = 0.0;
+            vec3 g_le = vec3(0.0);
 #endif
-        for (int s = 0; s < NSTATES; ++s) {
-            float sigma = m.scale * grid1(m.density, m.density_depth, q, s);
-            vec3 le = grid3(m.emission, m.emission_depth, q, s);
-            float a = exp(-sigma * dt);
-            vec3 c = beta[s] * le * (1.0 - a);
-            radiance[s] += c;
+            for (int s = 0; s < NSTATES; ++s) {
+                float sigma = m.scale * grid1(m.density, m.density_depth, q, s);
+                vec3 le = grid3(m.emission, m.emission_depth, q, s);
+                float a = exp(-sigma * dt);
+                vec3 c = beta[s] * le * (1.0 - a);
+                radiance[s] += c;
 #ifdef ADJOINT
-            vec3 kd = state_sign(s) * delta[s];
-            g_sigma += dot(kd, dt * (beta[s] * le - remaining[s]));
-            g_le += kd * beta[s] * (1.0 - a);
-            remaining[s] -= c;
+                vec3 kd = state_sign(s) * delta[s];
+                g_sigma += dot(kd, dt * (beta[s] * le - remaining[s]));
+                g_le += kd * beta[s] * (1.0 - a);
+                remaining[s] -= c;
 #endif
-            beta[s] *= a;
+                beta[s] *= a;
+            }
+#ifdef ADJOINT
+            if (grad_pass) {
+                grid_scatter1(m.density, m.density_depth, q, g_sigma * m.scale);
+                grid_scatter3(m.emission, m.emission_depth, q, g_le);
+            }
+#endif
         }
-#ifdef ADJOINT
-        if (grad_pass) {
-            grid_scatter1(m.density, m.density_depth, q, g_sigma * m.scale);
-            grid_scatter3(m.emission, m.emission_depth, q, g_le);
-        }
-#endif
     }
 }
 
@@ -290,7 +389,7 @@ MajorantWalk majorant_walk(MediumRecord m, vec3 o, vec3 d, float t0, float t1) {
 float walk_majorant(MediumRecord m, MajorantWalk w) {
     ivec3 cells = majorant_cells(m);
     int j = (w.cell.z * cells.y + w.cell.y) * cells.x + w.cell.x;
-    return uintBitsToFloat(texel_load(Media, MEDIUM_RECORD_TEXELS + j).x);
+    return uintBitsToFloat(texel_load(Media, majorant_grid_texel(m) + j).x);
 }
 
 // Where the ray leaves the walk's cell (the ray's end at the last).
@@ -342,11 +441,11 @@ bool next_tentative(MediumRecord m, vec3 d, inout MajorantWalk w, inout float t,
     return t < w.t_end;
 }
 
-// Whether ray (o, d) over [0, tmax] crosses the tracked medium: its clip [t0, t1] and walk.
-// A medium of no density anywhere is crossed too: it stops nothing, but its density's
-// derivatives along the ray are not 0.
-bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, out float t0, out float t1, out MajorantWalk w) {
-    if (!medium_clip(m, o, d, tmax, t0, t1)) return false;
+// Whether ray (o, d) over [0, tmax] crosses a part of the tracked medium after `from`: the
+// part [t0, t1] (medium_clip) and its walk. A medium of no density anywhere is crossed
+// too: it stops nothing, but its density's derivatives along the ray are not 0.
+bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1, out MajorantWalk w) {
+    if (!medium_clip(m, o, d, tmax, from, t0, t1)) return false;
     w = majorant_walk(m, o, d, t0, t1);
     return true;
 }
@@ -405,9 +504,6 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
 ) {
     ts = 0.0;
     MediumRecord m = medium_record();
-    float t0, t1;
-    MajorantWalk walk;
-    if (!medium_tracked(m, o, d, tmax, t0, t1, walk)) return false;
 #ifdef ADJOINT
     float gs[NSTATES];
     for (int s = 0; s < NSTATES; ++s) gs[s] = grad_pass ? state_sign(s) * dot(delta[s], remaining[s]) : 0.0;
@@ -417,45 +513,57 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     float w[NSTATES];
     for (int s = 0; s < NSTATES; ++s) w[s] = 1.0;
     bool collided = false;
-    float t = t0;
     vec3 q_hit = vec3(0.0);
-    uint tentative = 0u;
-    for (uint i = 0u; i < TRACKING_MAX; ++i) {
-        vec2 u = tracking_uniforms(key, i);
-        float mj;
-        if (!next_tentative(m, d, walk, t, tracking_depth(u), mj)) break;
-        vec3 q = (o + t * d - m.box_min) / extent;
-        float sigma[NSTATES];
-        for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s, mj);
-        tentative = i + 1u;
-        if (u.y * mj < sigma[0]) {
-            for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
-            collided = true;
-            ts = t;
-            q_hit = q;
-#ifdef ADJOINT
-            if (grad_pass) {
-                float g = 0.0;
-                for (int s = 0; s < NSTATES; ++s) {
-                    if (sigma[s] > 0.0) g += gs[s] / sigma[s];
-                }
-                grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+    // The stream's position, over the parts (a part's last draw, past its end, is not
+    // drawn again: memoryless, the next part starts afresh).
+    uint i = 0u;
+    float t1 = 0.0;
+    for (uint part = 0u; part < medium_parts() && !collided; ++part) {
+        float from = t1, t0;
+        MajorantWalk walk;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        float t = t0;
+        uint tentative = 0u;
+        for (; i < TRACKING_MAX; ++i) {
+            vec2 u = tracking_uniforms(key, i);
+            float mj;
+            if (!next_tentative(m, d, walk, t, tracking_depth(u), mj)) {
+                ++i;
+                break;
             }
-#endif
-            break;
-        }
-        for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
-    }
+            vec3 q = (o + t * d - m.box_min) / extent;
+            float sigma[NSTATES];
+            for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s, mj);
+            ++tentative;
+            if (u.y * mj < sigma[0]) {
+                for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
+                collided = true;
+                ts = t;
+                q_hit = q;
 #ifdef ADJOINT
-    // The transmittance's part: −∫ dσ over the flight, estimated at as many stratified
-    // points as the flight had tentative collisions (one offset, from a stream of its
-    // own: independent of the tracking, so the product stays unbiased).
-    if (grad_pass) {
-        float g_all = 0.0;
-        for (int s = 0; s < NSTATES; ++s) g_all += gs[s];
-        medium_integral_grad(m, o, d, t0, collided ? ts : t1, max(tentative, 1u), key, -g_all * m.scale);
-    }
+                if (grad_pass) {
+                    float g = 0.0;
+                    for (int s = 0; s < NSTATES; ++s) {
+                        if (sigma[s] > 0.0) g += gs[s] / sigma[s];
+                    }
+                    grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+                }
 #endif
+                break;
+            }
+            for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
+        }
+#ifdef ADJOINT
+        // The transmittance's part: −∫ dσ over the flight in this part, estimated at as
+        // many stratified points as it had tentative collisions here (one offset, from a
+        // stream of its own: independent of the tracking, so the product stays unbiased).
+        if (grad_pass) {
+            float g_all = 0.0;
+            for (int s = 0; s < NSTATES; ++s) g_all += gs[s];
+            medium_integral_grad(m, o, d, t0, collided ? ts : t1, max(tentative, 1u), key, -g_all * m.scale);
+        }
+#endif
+    }
     // The collision's albedo, each state's own, scales its beta.
     vec3 albedo_hit[NSTATES];
     for (int s = 0; s < NSTATES; ++s) {
@@ -492,23 +600,33 @@ const uint SHADOW_SALT = 0x52415449u;
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
     MediumRecord m = medium_record();
-    float t0, t1;
-    MajorantWalk walk;
-    if (!medium_tracked(m, o, d, tmax, t0, t1, walk)) return;
-    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
     vec3 extent = m.box_max - m.box_min;
-    float t = t0;
-    for (uint i = 0u; i < TRACKING_MAX; ++i) {
-        float mj;
-        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) break;
-        vec3 q = (o + t * d - m.box_min) / extent;
-        float most = 0.0;
-        for (int s = 0; s < NSTATES; ++s) {
-            tr[s] *= 1.0 - tracked_sigma(m, q, s, mj) / mj;
-            most = max(most, tr[s]);
+    uvec4 key;
+    uint i = 0u;
+    float most = 1.0;
+    float t1 = 0.0;
+    for (uint part = 0u; part < medium_parts() && most > 0.0; ++part) {
+        float from = t1, t0;
+        MajorantWalk walk;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        // One stream per ray, keyed by its first part's end.
+        if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+        float t = t0;
+        for (; i < TRACKING_MAX; ++i) {
+            float mj;
+            if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) {
+                ++i;
+                break;
+            }
+            vec3 q = (o + t * d - m.box_min) / extent;
+            most = 0.0;
+            for (int s = 0; s < NSTATES; ++s) {
+                tr[s] *= 1.0 - tracked_sigma(m, q, s, mj) / mj;
+                most = max(most, tr[s]);
+            }
+            // Nothing left to carry (the factors are at least 0.01: only after thousands).
+            if (most == 0.0) break;
         }
-        // Nothing left to carry (the factors are at least 0.01: only after thousands).
-        if (most == 0.0) break;
     }
 }
 
@@ -520,20 +638,29 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
 void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
     float g_all = 0.0;
     for (int s = 0; s < NSTATES; ++s) g_all += g[s];
+    if (g_all == 0.0) return;
     MediumRecord m = medium_record();
-    float t0, t1;
-    MajorantWalk walk;
-    if (g_all == 0.0 || !medium_tracked(m, o, d, tmax, t0, t1, walk)) return;
-    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
-    // The tentative collisions' count: distances alone, no density lookups.
-    uint n = 0u;
-    float t = t0;
-    for (uint i = 0u; i < TRACKING_MAX; ++i) {
-        float mj;
-        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) break;
-        n = i + 1u;
+    uvec4 key;
+    uint i = 0u;
+    float t1 = 0.0;
+    for (uint part = 0u; part < medium_parts(); ++part) {
+        float from = t1, t0;
+        MajorantWalk walk;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+        // The part's tentative collisions, counted: distances alone, no density lookups.
+        uint n = 0u;
+        float t = t0;
+        for (; i < TRACKING_MAX; ++i) {
+            float mj;
+            if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) {
+                ++i;
+                break;
+            }
+            ++n;
+        }
+        medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, -g_all * m.scale);
     }
-    medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, -g_all * m.scale);
 }
 #endif
 
@@ -567,15 +694,18 @@ vec3 hg_sample(float g, vec3 d, vec2 u) {
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
-    March mr;
-    if (!medium_march(o, d, tmax, mr)) return;
-    MediumRecord m = mr.m;
-    float dt = mr.dt;
     float tau[NSTATES];
     for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
-    for (uint k = 0u; k < mr.n; ++k) {
-        vec3 q = march_point(mr, k);
-        for (int s = 0; s < NSTATES; ++s) tau[s] += m.scale * grid1(m.density, m.density_depth, q, s) * dt;
+    March mr;
+    mr.t1 = 0.0;
+    for (uint part = 0u; part < medium_parts(); ++part) {
+        if (!medium_march(o, d, tmax, mr.t1, mr)) break;
+        MediumRecord m = mr.m;
+        float dt = mr.dt;
+        for (uint k = 0u; k < mr.n; ++k) {
+            vec3 q = march_point(mr, k);
+            for (int s = 0; s < NSTATES; ++s) tau[s] += m.scale * grid1(m.density, m.density_depth, q, s) * dt;
+        }
     }
     for (int s = 0; s < NSTATES; ++s) tr[s] = exp(-tau[s]);
 }
@@ -587,13 +717,17 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
 void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float gs[NSTATES]) {
     float g = 0.0;
     for (int s = 0; s < NSTATES; ++s) g += gs[s];
+    if (g == 0.0) return;
     March mr;
-    if (g == 0.0 || !medium_march(o, d, tmax, mr)) return;
-    MediumRecord m = mr.m;
-    float dt = mr.dt;
-    for (uint k = 0u; k < mr.n; ++k) {
-        vec3 q = march_point(mr, k);
-        grid_scatter1(m.density, m.density_depth, q, -dt * m.scale * g);
+    mr.t1 = 0.0;
+    for (uint part = 0u; part < medium_parts(); ++part) {
+        if (!medium_march(o, d, tmax, mr.t1, mr)) return;
+        MediumRecord m = mr.m;
+        float dt = mr.dt;
+        for (uint k = 0u; k < mr.n; ++k) {
+            vec3 q = march_point(mr, k);
+            grid_scatter1(m.density, m.density_depth, q, -dt * m.scale * g);
+        }
     }
 }
 

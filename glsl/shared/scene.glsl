@@ -125,7 +125,8 @@ struct LightRecord {
 };
 
 // The scene's medium (src/render/features/media.rs): a box of emitting and absorbing
-// medium whose density and emission are constants (width 0) or grids of width × height ×
+// medium (where boundary_triangles is not 0, the part of the box inside a closed mesh)
+// whose density and emission are constants (width 0) or grids of width × height ×
 // depth voxels, x fastest, looked up trilinearly between voxel centres. max_steps 0: none.
 // albedo > 0: a scattering medium (the SCATTERING builds), its albedo a constant or a
 // grid as the others, its phase function Henyey-Greenstein's of mean cosine g, tracked
@@ -154,9 +155,15 @@ struct MediumRecord {
     // texel each (the majorant in its first word), x fastest: each bounds the extinction
     // wherever a point of its part of the box looks the density up.
     uint majorant_cells;
-    uint pad;
+    // The texels of the closed mesh that bounds the medium in its box (0: none, the whole
+    // box holds it). They follow the record in the medium's buffer: a texel (its BVH's
+    // node count, its triangle count), the binary BVH's nodes (BvhNode, 4 texels each,
+    // root first) and its triangles (BvhTriangle, 3 texels each, in leaf order, world
+    // space, wound so that cross(e1, e2) points out). The majorant grid follows them.
+    uint boundary_texels;
 };
-// The texels of a MediumRecord: its majorant grid starts after them.
+// The texels of a MediumRecord: its boundary's triangles, then its majorant grid, start
+// after them.
 const int MEDIUM_RECORD_TEXELS = 7;
 
 // A pinhole camera; an orthographic one where ortho_half_height > 0: its rays leave the

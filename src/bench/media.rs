@@ -226,6 +226,7 @@ pub fn synthetic_scene(grid: u32, film: u32) -> Result<Scene> {
         g: 0.0,
         majorant: None,
         formats: Default::default(),
+        boundary: None,
     };
     let sensor = Sensor::looking_at(Vec3::new(1.2, 0.9, 3.4), Vec3::ZERO, Vec3::Y, 40.0).map_err(|e| Error::Invalid(e.into()))?;
     let param = |target: &str, init: f32| ParamSpec { grid: Some([grid; 3]), ..ParamSpec::new(target, &[init], [0.0, 100.0]) };

@@ -392,13 +392,17 @@ pub enum GridInput {
     File(String),
 }
 
-/// `[[media]]`: a box of emitting and absorbing medium.
+/// `[[media]]`: a box of emitting and absorbing or scattering medium, or the part of one
+/// inside a closed mesh.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MediumFile {
     pub name: String,
-    pub min: [f32; 3],
-    pub max: [f32; 3],
+    /// The box's corners: the mesh's bounds where there is a mesh and they are left out.
+    pub min: Option<[f32; 3]>,
+    pub max: Option<[f32; 3]>,
+    /// A closed OBJ mesh that bounds the medium ([`super::MediumBoundary`]).
+    pub mesh: Option<String>,
     pub density: GridInput,
     pub emission: Option<GridInput>,
     pub scale: Option<f32>,

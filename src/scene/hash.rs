@@ -239,6 +239,12 @@ pub fn content_hash(scene: &Scene) -> u64 {
                 h.u32s(&v.shape.array().iter().map(|&d| d as u32).collect::<Vec<_>>());
                 h.f32s(&v.data);
             }
+            // Only where there is one, so that the hashes of boxes stay as they were.
+            if let Some(b) = &m.boundary {
+                h.tag("boundary");
+                h.f32s(&b.positions.concat());
+                h.u32s(&b.indices.concat());
+            }
         }
     }
     // Only a texture optimised at another resolution than the scene's changes the

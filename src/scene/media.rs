@@ -1,12 +1,13 @@
-//! The `[[media]]` tables: boxes of emitting and absorbing or of scattering medium, their
-//! density, emission and albedo as constants or grids (`.npy`, or Mitsuba's `.vol`), and the trilinear
-//! resampling that turns a grid into a parameter's resolution.
+//! The `[[media]]` tables: boxes of emitting and absorbing or of scattering medium (or
+//! their parts inside a closed mesh), their density, emission and albedo as constants or
+//! grids (`.npy`, or Mitsuba's `.vol`), and the trilinear resampling that turns a grid
+//! into a parameter's resolution.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use super::file::{GridInput, MediumFile};
 use super::loader::Loader;
-use super::model::{GridFormat, Medium};
+use super::model::{GridFormat, Medium, MediumBoundary};
 use super::SceneError;
 use crate::tensor::{ParamValue, Shape};
 
@@ -15,6 +16,111 @@ pub use crate::tensor::{MAX_GRID_SIDE, MAX_GRID_VOXELS};
 pub const DEFAULT_STEP: f32 = 0.5;
 /// Most steps a ray takes through one medium: a longer march takes longer steps.
 pub const MAX_STEPS: u32 = 1024;
+
+/// Most triangles of a medium's boundary mesh.
+pub const MAX_BOUNDARY_TRIANGLES: usize = 1 << 20;
+
+impl MediumBoundary {
+    /// A closed mesh from triangles in world space, checked: vertices closer than a
+    /// millionth of its bounds' diagonal are one, triangles that collapse are dropped, and
+    /// then every edge must border exactly two triangles that cross it in opposite
+    /// directions (a closed surface, wound alike). A mesh wound inward (its signed volume
+    /// below 0) is turned out. The error says what is wrong, in words.
+    pub fn new(positions: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<MediumBoundary, String> {
+        if indices.len() > MAX_BOUNDARY_TRIANGLES {
+            return Err(format!("{} triangles; a medium's boundary has at most {MAX_BOUNDARY_TRIANGLES}", indices.len()));
+        }
+        let at = |i: u32| positions.get(i as usize).copied().ok_or_else(|| format!("index {i} is beyond its {} vertices", positions.len()));
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for &p in indices.iter().flatten() {
+            let p = at(p)?;
+            if p.iter().any(|v| !v.is_finite()) {
+                return Err(format!("vertex {p:?} is not finite"));
+            }
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let diagonal = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f32>().sqrt();
+        if !diagonal.is_finite() || diagonal <= 0.0 {
+            return Err("it has no triangles with extent".to_string());
+        }
+        // Weld: one vertex per cell of a millionth of the diagonal.
+        let cell = 1e-6 * diagonal;
+        let mut ids: HashMap<[i64; 3], u32> = HashMap::new();
+        let mut welded: Vec<[f32; 3]> = Vec::new();
+        let mut tris: Vec<[u32; 3]> = Vec::with_capacity(indices.len());
+        for t in indices {
+            let mut w = [0u32; 3];
+            for (k, &i) in t.iter().enumerate() {
+                let p = at(i)?;
+                let key = [0, 1, 2].map(|a| ((p[a] - lo[a]) / cell).round() as i64);
+                w[k] = *ids.entry(key).or_insert_with(|| {
+                    welded.push(p);
+                    welded.len() as u32 - 1
+                });
+            }
+            if w[0] != w[1] && w[1] != w[2] && w[2] != w[0] {
+                tris.push(w);
+            }
+        }
+        // Every directed edge once, and its reverse once.
+        let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(3 * tris.len());
+        for t in &tris {
+            for k in 0..3 {
+                *edges.entry((t[k], t[(k + 1) % 3])).or_default() += 1;
+            }
+        }
+        let mut worst: Option<(u32, u32, String)> = None;
+        for (&(a, b), &n) in &edges {
+            let why = if n > 1 {
+                format!("{n} triangles cross it in the same direction (wound unlike, or more than two meet there)")
+            } else if !edges.contains_key(&(b, a)) {
+                "it borders one triangle (the mesh is not closed)".to_string()
+            } else {
+                continue;
+            };
+            // The same edge named whichever the hash map's order.
+            if worst.as_ref().is_none_or(|w| (a.min(b), a.max(b)) < (w.0.min(w.1), w.0.max(w.1))) {
+                worst = Some((a, b, why));
+            }
+        }
+        if let Some((a, b, why)) = worst {
+            return Err(format!("the edge from {:?} to {:?}: {why}", welded[a as usize], welded[b as usize]));
+        }
+        let volume: f64 = tris
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| glam::DVec3::from(welded[i as usize].map(f64::from)));
+                a.dot(b.cross(c)) / 6.0
+            })
+            .sum();
+        if volume == 0.0 {
+            return Err("it encloses no volume".to_string());
+        }
+        if volume < 0.0 {
+            for t in &mut tris {
+                t.swap(1, 2);
+            }
+        }
+        Ok(MediumBoundary { positions: welded, indices: tris })
+    }
+
+    /// Its bounds: the corners of the box around its vertices.
+    pub fn bounds(&self) -> ([f32; 3], [f32; 3]) {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in &self.positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        (lo, hi)
+    }
+}
 
 /// What is wrong with a medium's albedo (each channel of each voxel in [0, 1]), if
 /// anything.
@@ -37,11 +143,28 @@ impl Loader {
             let key = format!("media[{i}]");
             self.check_name(&format!("{key}.name"), &m.name, &mut seen)?;
             let key = format!("media.{}", m.name);
-            self.finite(&format!("{key}.min"), &m.min)?;
-            self.finite(&format!("{key}.max"), &m.max)?;
-            if let Some(axis) = (0..3).find(|&a| m.min[a] >= m.max[a]) {
+            let boundary = match &m.mesh {
+                Some(rel) => {
+                    let mesh_key = format!("{key}.mesh");
+                    let (path, bytes) = self.read(&mesh_key, rel)?;
+                    let obj = super::obj::load(&path, &bytes)?;
+                    let b = MediumBoundary::new(&obj.positions, &obj.indices).map_err(|e| self.invalid(&mesh_key, &format!("{}: {e}", path.display())))?;
+                    Some(b)
+                }
+                None => None,
+            };
+            let (min, max) = match (m.min, m.max, &boundary) {
+                (Some(min), Some(max), _) => (min, max),
+                (None, None, Some(b)) => b.bounds(),
+                (None, _, None) => return Err(self.invalid(&format!("{key}.min"), "missing: a medium is a box (min and max), or the inside of a mesh")),
+                (Some(_), None, _) => return Err(self.invalid(&format!("{key}.max"), "missing: give both min and max, or neither (the mesh's bounds)")),
+                (None, Some(_), Some(_)) => return Err(self.invalid(&format!("{key}.min"), "missing: give both min and max, or neither (the mesh's bounds)")),
+            };
+            self.finite(&format!("{key}.min"), &min)?;
+            self.finite(&format!("{key}.max"), &max)?;
+            if let Some(axis) = (0..3).find(|&a| min[a] >= max[a]) {
                 let name = ["x", "y", "z"][axis];
-                return Err(self.out_of_range(&format!("{key}.max"), format!("{name} {} is not above min's {}", m.max[axis], m.min[axis])));
+                return Err(self.out_of_range(&format!("{key}.max"), format!("{name} {} is not above min's {}", max[axis], min[axis])));
             }
             let (density, density_format) = self.grid(&format!("{key}.density"), &m.density, 1)?;
             let (emission, emission_format) = match &m.emission {
@@ -72,8 +195,8 @@ impl Loader {
             }
             let medium = Medium {
                 name: m.name,
-                min: m.min,
-                max: m.max,
+                min,
+                max,
                 density,
                 emission,
                 scale,
@@ -82,6 +205,7 @@ impl Loader {
                 g,
                 majorant: m.majorant,
                 formats: [density_format, emission_format, albedo_format],
+                boundary,
             };
             if medium.scatters() && medium.emission.data.iter().any(|&v| v > 0.0) {
                 return Err(self.invalid(

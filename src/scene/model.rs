@@ -915,7 +915,8 @@ pub struct Environment {
     pub scale: f32,
 }
 
-/// An axis-aligned box filled with a medium: a ray through it keeps exp(−∫σ) of what lies
+/// An axis-aligned box filled with a medium (or the part of it inside a closed mesh,
+/// `boundary`): a ray through it keeps exp(−∫σ) of what lies
 /// behind, where σ = `scale` × density. With `albedo` 0 it absorbs and emits (a ray gains
 /// ∫ σ·L_e·exp(−∫σ)); with `albedo` above 0 it scatters that part of what it stops by a
 /// Henyey–Greenstein phase function of asymmetry `g`, and emits nothing. Density and
@@ -949,6 +950,18 @@ pub struct Medium {
     /// The file formats the density's, the emission's and the albedo's grids came in
     /// (`.npy` for a constant): the recovered scene writes each grid back in its own.
     pub formats: [GridFormat; 3],
+    /// The closed mesh that bounds the medium in its box: the medium is the part of the
+    /// box inside it. None: the whole box.
+    pub boundary: Option<MediumBoundary>,
+}
+
+/// A closed mesh around a medium, in world space: every edge borders two triangles, wound
+/// alike, so that `(v1 − v0) × (v2 − v0)` points out (checked and turned so by
+/// [`MediumBoundary::new`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MediumBoundary {
+    pub positions: Vec<[f32; 3]>,
+    pub indices: Vec<[u32; 3]>,
 }
 
 /// The file format of a medium's grid.

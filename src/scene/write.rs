@@ -305,6 +305,12 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     let mut media = Vec::new();
     for m in &scene.media {
         let mut pairs = vec![("name", Value::String(m.name.clone())), ("min", arr(&m.min)), ("max", arr(&m.max))];
+        if let Some(b) = &m.boundary {
+            // The boundary as the scene holds it: welded, wound out, in world space.
+            let rel = format!("meshes/{}.boundary.obj", file_name(&m.name));
+            image::write_bytes_atomic(&dir.join(&rel), boundary_obj_text(b).as_bytes()).map_err(|e| write_err(&dir.join(&rel), e))?;
+            pairs.push(("mesh", Value::String(rel)));
+        }
         // A scattering medium's albedo in place of the emission (it emits nothing).
         let grids =
             if m.scatters() { [("density", &m.density, 0), ("albedo", &m.albedo, 2)] } else { [("density", &m.density, 0), ("emission", &m.emission, 1)] };
@@ -351,6 +357,19 @@ fn toml_text(scene: &Scene, dir: &Path) -> Result<String, SceneError> {
     }
     let text = toml::to_string(&root).map_err(|e| write_err(dir, e))?;
     Ok(format!("# The recovered scene: the optimised values in place of the scene's own.\n{text}"))
+}
+
+/// A medium's boundary as OBJ text, positions shortest-exact.
+fn boundary_obj_text(b: &MediumBoundary) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    for p in &b.positions {
+        let _ = writeln!(s, "v {} {} {}", p[0], p[1], p[2]);
+    }
+    for t in &b.indices {
+        let _ = writeln!(s, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    s
 }
 
 /// A mesh as OBJ text, positions, texture coordinates and normals shortest-exact.

@@ -87,7 +87,8 @@ fn scene_bench_on_cornell_is_consistent() {
             "HAS_UV1",
             "BVH_STACK_REGISTERS",
             "HAS_MEDIA",
-            "MAJORANT_GRID"
+            "MAJORANT_GRID",
+            "MEDIUM_BOUNDARY"
         ]
     );
     let g = &b.specialisation_gain;

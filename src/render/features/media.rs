@@ -1,13 +1,14 @@
 //! The scene's medium: one record (a box, its scale and marching step, and references to
-//! its density, emission and albedo, constants or grids in the material data or θ). Its
-//! parameters: the density, the emission and the albedo, of any grid size.
+//! its density, emission and albedo, constants or grids in the material data or θ), the
+//! BVH of its boundary mesh where it has one, and its majorant grid. Its parameters: the
+//! density, the emission and the albedo, of any grid size.
 
 use super::{Feature, Upload};
 use crate::gpu::{self, Buffer, ComputePipeline, Recorder, SpecValue};
 use crate::kernels::MajorantPush;
 use crate::render::{texel_buffer, ParamSlot};
 use crate::scene::media::{grid_dims, MAX_STEPS};
-use crate::scene::{Medium, ParamTarget};
+use crate::scene::{Medium, MediumBoundary, ParamTarget};
 use crate::shared::{MediumRecord, ValueRef};
 use crate::tensor::ParamValue;
 
@@ -28,6 +29,8 @@ pub struct Media {
     majorant: Option<(ComputePipeline, MajorantPush)>,
     /// The majorant grid's cells per axis (zeros where the medium has none).
     pub cells: [u32; 3],
+    /// Whether the medium has a boundary mesh (`MEDIUM_BOUNDARY`).
+    boundary: bool,
     /// The last majorant pass recorded: its recording, the θ and previous θ it read, and
     /// when it wrote the record ([`Media::record_majorant`]).
     last_pass: std::cell::Cell<Option<LastPass>>,
@@ -63,6 +66,20 @@ pub fn cell_voxels(c: u32, cells: u32, n: u32) -> (u32, u32) {
     let lo = ((2 * c * n - cells) / (2 * cells)).max(0);
     let hi = ((2 * (c + 1) * n - cells) / (2 * cells) + 1).min(n - 1);
     (lo as u32, hi as u32)
+}
+
+/// The deepest inner node of a boundary's BVH: its traversal's stack
+/// (`BOUNDARY_STACK` in glsl/lib/media.glsl) holds one entry per level.
+pub const BOUNDARY_BVH_DEPTH: u32 = 16;
+
+/// A boundary mesh as the kernels read it, in 32-bit words (whole texels): a texel of its
+/// BVH's node and triangle counts, the nodes, then the triangles in leaf order.
+pub fn boundary_words(b: &MediumBoundary) -> Vec<u32> {
+    let bvh = crate::bvh::build_with_depth_limit(&b.positions, &b.indices, BOUNDARY_BVH_DEPTH);
+    let mut words = vec![bvh.nodes.len() as u32, bvh.triangles.len() as u32, 0, 0];
+    words.extend_from_slice(bytemuck::cast_slice(&bvh.nodes));
+    words.extend_from_slice(bytemuck::cast_slice(&bvh.triangles));
+    words
 }
 
 /// The threads of a workgroup of the majorant pass (glsl/majorant.comp).
@@ -149,7 +166,8 @@ struct Tracking {
 }
 
 impl Tracking {
-    fn build(up: &Upload, m: &Medium, density_slot: Option<&ParamSlot>) -> gpu::Result<Tracking> {
+    /// `grid_word`: where the majorant grid starts in the medium's buffer, in words.
+    fn build(up: &Upload, m: &Medium, density_slot: Option<&ParamSlot>, grid_word: u32) -> gpu::Result<Tracking> {
         // Above the most the extinction can be: the fixed bound, the density parameter's
         // range, or the density's values.
         let factor = MAJORANT_MARGIN * m.scale;
@@ -179,7 +197,7 @@ impl Tracking {
             offset: slot.offset as u32,
             dims,
             cells,
-            grid_word: (std::mem::size_of::<MediumRecord>() / 4) as u32,
+            grid_word,
             record_word: (std::mem::offset_of!(MediumRecord, majorant) / 4) as u32,
             factor,
             walk_cost,
@@ -198,6 +216,7 @@ impl Media {
         let present = !scene.media.is_empty();
         let scattering = scene.media.iter().any(|m| m.scatters());
         let (mut cells, mut grid, mut majorant_pass) = ([0u32; 3], Vec::new(), None);
+        let mut boundary = Vec::new();
         if let Some(m) = scene.media.first() {
             let (density, density_depth) = grid_ref(up, layout.slot(ParamTarget::MediumDensity { medium: 0 }), &m.density);
             let (emission, emission_depth) = grid_ref(up, layout.slot(ParamTarget::MediumEmission { medium: 0 }), &m.emission);
@@ -210,7 +229,9 @@ impl Media {
                     v.shape = slot.shape;
                 }
             }
-            let tracking = Tracking::build(up, m, layout.slot(ParamTarget::MediumDensity { medium: 0 }))?;
+            boundary = m.boundary.as_ref().map(boundary_words).unwrap_or_default();
+            let grid_word = (std::mem::size_of::<MediumRecord>() + 4 * boundary.len()) / 4;
+            let tracking = Tracking::build(up, m, layout.slot(ParamTarget::MediumDensity { medium: 0 }), grid_word as u32)?;
             record = MediumRecord {
                 box_min: m.min,
                 step: stepped.world_step(),
@@ -226,13 +247,15 @@ impl Media {
                 g: m.g,
                 majorant: tracking.majorant,
                 majorant_cells: if tracking.walk { pack_cells(tracking.cells) } else { 0 },
-                pad: 0,
+                boundary_texels: (boundary.len() / 4) as u32,
             };
             (cells, grid, majorant_pass) = (tracking.cells, tracking.grid, tracking.pass);
         }
         let mut words: Vec<u32> = bytemuck::cast_slice(&[record]).to_vec();
+        words.extend_from_slice(&boundary);
         words.extend(grid.iter().flat_map(|v| [v.to_bits(), 0, 0, 0]));
-        Ok(Media { buffer: texel_buffer(up.ctx, "media", &words)?, present, scattering, majorant: majorant_pass, cells, last_pass: Default::default() })
+        let buffer = texel_buffer(up.ctx, "media", &words)?;
+        Ok(Media { buffer, present, scattering, majorant: majorant_pass, cells, boundary: !boundary.is_empty(), last_pass: Default::default() })
     }
 
     /// Records the pass that sets a scattering medium's majorant grid from the density in
@@ -270,7 +293,11 @@ impl Feature for Media {
     }
 
     fn spec(&self) -> Vec<(&'static str, SpecValue)> {
-        vec![("HAS_MEDIA", SpecValue::Bool(self.present)), ("MAJORANT_GRID", SpecValue::Bool(self.cells != [0; 3]))]
+        vec![
+            ("HAS_MEDIA", SpecValue::Bool(self.present)),
+            ("MAJORANT_GRID", SpecValue::Bool(self.cells != [0; 3])),
+            ("MEDIUM_BOUNDARY", SpecValue::Bool(self.boundary)),
+        ]
     }
 }
 

@@ -10,7 +10,7 @@
 //! | [`environment`] | `EnvDistribution` | `HAS_ENVIRONMENT`, `ENVIRONMENT_SAMPLED` | the environment |
 //! | [`emitters`]: area emitters and light sampling | `Emitters` | `NUM_EMITTERS`, `HAS_EMISSION_TEXTURES` | emission |
 //! | [`geometry`]: meshes and the BVH | the BVH's, `Shading`, `ShadingUv1` | `HAS_NORMALS`, `HAS_NORMAL_MAPS`, `HAS_ALPHA_MASKS`, `HAS_UV1`, `BVH_STACK_REGISTERS` | |
-//! | [`media`]: a box of emitting and absorbing medium | `Media` | `HAS_MEDIA`, `MAJORANT_GRID` | density, emission (grids) |
+//! | [`media`]: a box of emitting and absorbing or scattering medium, bounded by a closed mesh or not | `Media` | `HAS_MEDIA`, `MAJORANT_GRID`, `MEDIUM_BOUNDARY` | density, emission, albedo (grids) |
 //!
 //! Textures (`HAS_TEXTURES`) are looked up wherever a feature's value is one
 //! ([`values`]). A new feature is a module here that implements [`Feature`], the GLSL it

@@ -1,7 +1,7 @@
 //! Mitsuba media that vkinverse renders as they are: a `homogeneous` or `heterogeneous`
-//! medium, the interior of a shape with a `null` BSDF whose surface is an axis-aligned box,
-//! rendered by `volpath`, `volpathmis` or `prbvolpath`. The medium's box is the shape's
-//! world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
+//! medium, the interior of a closed shape with a `null` BSDF (an axis-aligned box, or any
+//! closed mesh: the medium's boundary), rendered by `volpath`, `volpathmis` or
+//! `prbvolpath`. The medium's box is the shape's world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
 //! one-channel `gridvolume` whose `to_world` places it on that box) and its `scale` is
 //! Mitsuba's; its `albedo` is a constant (a number or an RGB colour) and its phase
 //! function `isotropic` or `hg`; it emits nothing. Everything else about a medium is
@@ -12,7 +12,7 @@ use roxmltree::Node;
 
 use super::{elements, Importer, Items};
 use crate::scene::media::{albedo_error, g_error, DEFAULT_STEP};
-use crate::scene::model::{GridFormat, Medium};
+use crate::scene::model::{GridFormat, Medium, MediumBoundary};
 use crate::scene::SceneError;
 use crate::tensor::{ParamValue, Shape};
 
@@ -180,7 +180,8 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// A shape with an interior medium (`interior`: a `<medium>` or a `<ref>` to one):
-    /// the medium in the shape's box, and no mesh (its null BSDF shows nothing).
+    /// the medium in the shape's bounds, bounded by the shape where it is not an
+    /// axis-aligned box, and no mesh (its null BSDF shows nothing).
     /// `positions` are the shape's, before `to_world`.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn medium_shape(
@@ -219,7 +220,16 @@ impl<'a, 'i> Importer<'a, 'i> {
         }
         self.rest(&items, node)?;
         let world: Vec<Vec3> = positions.iter().map(|&p| to_world.transform_point3(Vec3::from(p))).collect();
-        let (min, max) = self.medium_box(node, &world, indices)?;
+        // An axis-aligned box is the medium's box; any other closed shape bounds it.
+        let ((min, max), boundary) = match Self::medium_box(&world, indices) {
+            Some(bounds) => (bounds, None),
+            None => {
+                let flat: Vec<[f32; 3]> = world.iter().map(|p| p.to_array()).collect();
+                let b = MediumBoundary::new(&flat, indices).map_err(|why| self.err(node, format!("the shape around a medium must be closed: {why}")))?;
+                let (lo, hi) = b.bounds();
+                ((Vec3::from(lo), Vec3::from(hi)), Some(b))
+            }
+        };
         let density = self.values_in_box(&def.sigma_t, min, max, 1)?;
         let albedo = self.values_in_box(&def.albedo, min, max, 3)?;
         if let Some(message) = albedo_error(&albedo.data) {
@@ -245,6 +255,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             g: def.g,
             majorant: None,
             formats: [format(&def.sigma_t), GridFormat::Npy, format(&def.albedo)],
+            boundary,
         });
         Ok(())
     }
@@ -287,22 +298,19 @@ impl<'a, 'i> Importer<'a, 'i> {
         Ok(ParamValue { shape: Shape::grid(x, y, z, channels), data })
     }
 
-    /// The world bounds of a medium's shape, which must be a closed axis-aligned box: every
+    /// The world bounds of a medium's shape where it is a closed axis-aligned box: every
     /// vertex on a corner of the bounds, the faces' area the box's.
-    fn medium_box(&self, node: Node<'a, 'i>, world: &[Vec3], indices: &[[u32; 3]]) -> Result<(Vec3, Vec3), SceneError> {
-        let not_a_box = |why: String| {
-            self.err(node, format!("the shape around a medium must be an axis-aligned box (a cube or a box mesh, turned by multiples of 90° at most): {why}"))
-        };
+    fn medium_box(world: &[Vec3], indices: &[[u32; 3]]) -> Option<(Vec3, Vec3)> {
         let min = world.iter().copied().fold(Vec3::INFINITY, Vec3::min);
         let max = world.iter().copied().fold(Vec3::NEG_INFINITY, Vec3::max);
         let side = max - min;
         if side.is_nan() || side.min_element() <= 0.0 {
-            return Err(not_a_box(format!("its bounds {min} to {max} are flat")));
+            return None;
         }
         let tolerance = BOX_TOLERANCE * side.max_element();
         let on_corner = |p: Vec3| (0..3).all(|a| (p[a] - min[a]).abs() <= tolerance || (p[a] - max[a]).abs() <= tolerance);
-        if let Some(p) = world.iter().find(|&&p| !on_corner(p)) {
-            return Err(not_a_box(format!("vertex {p} is not a corner of its bounds")));
+        if !world.iter().all(|&p| on_corner(p)) {
+            return None;
         }
         let area: f32 = indices
             .iter()
@@ -312,10 +320,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             })
             .sum();
         let want = 2.0 * (side.x * side.y + side.y * side.z + side.z * side.x);
-        if (area - want).abs() > 1e-3 * want {
-            return Err(not_a_box(format!("its faces' area {area} is not its bounds' {want}")));
-        }
-        Ok((min, max))
+        ((area - want).abs() <= 1e-3 * want).then_some((min, max))
     }
 
     /// What a scene with a medium must also be for Mitsuba to render the medium as vkinverse
