@@ -99,13 +99,15 @@ bool boundary_box_hit(vec3 lo, vec3 hi, vec3 o, vec3 inv_dir, float from, float 
     return enter <= exit && exit >= from;
 }
 
-// The two nearest crossings of the boundary after `from` along ray (o, d) (3e38 where
+// The three nearest crossings of the boundary after `from` along ray (o, d) (3e38 where
 // there are fewer), and whether the ray enters it at the first: its BVH's boxes that the
-// ray passes through between `from` and the second are opened, their triangles
-// intersected as the scene's (bvh_hit_triangle).
-void boundary_crossings(vec3 o, vec3 d, float from, out float first, out float second, out bool enters) {
+// ray passes through between `from` and the third are opened, their triangles
+// intersected as the scene's (bvh_hit_triangle). The third tells whether another part
+// follows the first (through a convex boundary none does: one search per ray).
+void boundary_crossings(vec3 o, vec3 d, float from, out float first, out float second, out float third, out bool enters) {
     first = 3.0e38;
     second = 3.0e38;
+    third = 3.0e38;
     enters = false;
     int nodes = MEDIUM_RECORD_TEXELS + 1;
     int triangles = nodes + 4 * int(texel_load(Media, MEDIUM_RECORD_TEXELS).x);
@@ -118,7 +120,7 @@ void boundary_crossings(vec3 o, vec3 d, float from, out float first, out float s
         for (int side = 0; side < 2; ++side) {
             uvec4 lo = texel_load(Media, b + 2 * side);
             uvec4 hi = texel_load(Media, b + 2 * side + 1);
-            if (!boundary_box_hit(uintBitsToFloat(lo.xyz), uintBitsToFloat(hi.xyz), o, inv_dir, from, second)) continue;
+            if (!boundary_box_hit(uintBitsToFloat(lo.xyz), uintBitsToFloat(hi.xyz), o, inv_dir, from, third)) continue;
             if (hi.w == BVH_INNER) {
                 if (sp < BOUNDARY_STACK) stack[sp++] = lo.w;
                 continue;
@@ -128,22 +130,30 @@ void boundary_crossings(vec3 o, vec3 d, float from, out float first, out float s
                 uvec3 rest;
                 texel_vec3x3(Media, triangles + 3 * int(i), tri.v0, tri.e1, tri.e2, rest);
                 float t, u, v;
-                if (!bvh_hit_triangle(tri, o, d, second, t, u, v) || !(t > from)) continue;
+                if (!bvh_hit_triangle(tri, o, d, third, t, u, v) || !(t > from)) continue;
                 if (t < first) {
+                    third = second;
                     second = first;
                     first = t;
                     enters = dot(cross(tri.e1, tri.e2), d) < 0.0;
-                } else {
+                } else if (t < second) {
+                    third = second;
                     second = t;
+                } else {
+                    third = t;
                 }
             }
         }
     }
 }
 
+// The first part [t0, t1] after `from` of ray (o, d) over [0, tmax] that holds the
+// medium: in its box and, where it has a boundary, inside it; false where none does.
+// `more`: whether another part follows, after t1 (call again with from = t1).
+//
 // Inside the boundary: where the ray crosses it first after `from` it leaves (the
 // triangle faces along d), or between where it enters and where it crosses next.
-bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1) {
+bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1, out bool more) {
     // A zero direction component gets a tiny one of its sign (no 0 · ∞).
     vec3 dd = mix(d, vec3(1e-30), equal(d, vec3(0.0)));
     vec3 ta = (m.box_min - o) / dd;
@@ -152,20 +162,20 @@ bool medium_clip(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out flo
     vec3 hi = max(ta, tb);
     t0 = max(max(lo.x, lo.y), max(lo.z, from));
     t1 = min(min(hi.x, hi.y), min(hi.z, tmax));
+    more = false;
     if (m.max_steps == 0u || !(t0 < t1)) return false;
     if (MEDIUM_BOUNDARY) {
         if (m.boundary_texels != 0u) {
-            float first, second;
+            float first, second, third;
             bool enters;
-            boundary_crossings(o, d, from, first, second, enters);
+            boundary_crossings(o, d, from, first, second, third, enters);
             // No crossing ahead: outside for good.
             if (first == 3.0e38) return false;
-            if (enters) {
-                t0 = max(t0, first);
-                t1 = min(t1, second);
-            } else {
-                t1 = min(t1, first);
-            }
+            // Where the part ends, and the crossing after that (where another part
+            // begins), if it comes before the box's end.
+            more = (enters ? third : second) < t1;
+            if (enters) t0 = max(t0, first);
+            t1 = min(t1, enters ? second : first);
         }
     }
     return t0 < t1;
@@ -220,6 +230,7 @@ struct March {
     vec3 d;
     float t0;
     float t1;
+    bool more; // whether another part follows (medium_clip)
     uint n;
     float dt;
     float u;
@@ -233,7 +244,7 @@ bool medium_march(vec3 o, vec3 d, float tmax, float from, out March mr) {
     mr.m = medium_record();
     mr.o = o;
     mr.d = d;
-    if (!medium_clip(mr.m, o, d, tmax, from, mr.t0, mr.t1)) return false;
+    if (!medium_clip(mr.m, o, d, tmax, from, mr.t0, mr.t1, mr.more)) return false;
     float t1 = mr.t1;
     float len = t1 - mr.t0;
     mr.n = uint(clamp(ceil(len / mr.m.step), 1.0, float(mr.m.max_steps)));
@@ -296,7 +307,8 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 ) {
     March mr;
     mr.t1 = 0.0;
-    for (uint part = 0u; part < medium_parts(); ++part) {
+    mr.more = true;
+    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
         if (!medium_march(o, d, tmax, mr.t1, mr)) return;
         MediumRecord m = mr.m;
         float dt = mr.dt;
@@ -444,8 +456,8 @@ bool next_tentative(MediumRecord m, vec3 d, inout MajorantWalk w, inout float t,
 // Whether ray (o, d) over [0, tmax] crosses a part of the tracked medium after `from`: the
 // part [t0, t1] (medium_clip) and its walk. A medium of no density anywhere is crossed
 // too: it stops nothing, but its density's derivatives along the ray are not 0.
-bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1, out MajorantWalk w) {
-    if (!medium_clip(m, o, d, tmax, from, t0, t1)) return false;
+bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out float t0, out float t1, out bool more, out MajorantWalk w) {
+    if (!medium_clip(m, o, d, tmax, from, t0, t1, more)) return false;
     w = majorant_walk(m, o, d, t0, t1);
     return true;
 }
@@ -518,10 +530,11 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     // drawn again: memoryless, the next part starts afresh).
     uint i = 0u;
     float t1 = 0.0;
-    for (uint part = 0u; part < medium_parts() && !collided; ++part) {
+    bool more = true;
+    for (uint part = 0u; part < medium_parts() && more && !collided; ++part) {
         float from = t1, t0;
         MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
         float t = t0;
         uint tentative = 0u;
         for (; i < TRACKING_MAX; ++i) {
@@ -605,10 +618,11 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     uint i = 0u;
     float most = 1.0;
     float t1 = 0.0;
-    for (uint part = 0u; part < medium_parts() && most > 0.0; ++part) {
+    bool more = true;
+    for (uint part = 0u; part < medium_parts() && more && most > 0.0; ++part) {
         float from = t1, t0;
         MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
         // One stream per ray, keyed by its first part's end.
         if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
         float t = t0;
@@ -643,10 +657,11 @@ void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
     uvec4 key;
     uint i = 0u;
     float t1 = 0.0;
-    for (uint part = 0u; part < medium_parts(); ++part) {
+    bool more = true;
+    for (uint part = 0u; part < medium_parts() && more; ++part) {
         float from = t1, t0;
         MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, walk)) break;
+        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
         if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
         // The part's tentative collisions, counted: distances alone, no density lookups.
         uint n = 0u;
@@ -698,7 +713,8 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
     March mr;
     mr.t1 = 0.0;
-    for (uint part = 0u; part < medium_parts(); ++part) {
+    mr.more = true;
+    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
         if (!medium_march(o, d, tmax, mr.t1, mr)) break;
         MediumRecord m = mr.m;
         float dt = mr.dt;
@@ -720,7 +736,8 @@ void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float gs[NSTATES]) {
     if (g == 0.0) return;
     March mr;
     mr.t1 = 0.0;
-    for (uint part = 0u; part < medium_parts(); ++part) {
+    mr.more = true;
+    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
         if (!medium_march(o, d, tmax, mr.t1, mr)) return;
         MediumRecord m = mr.m;
         float dt = mr.dt;
