@@ -68,15 +68,10 @@ MediumRecord medium_record() {
     return m;
 }
 
-// The most parts of the medium that one ray crosses: one without a boundary; with one, a
-// ray through more separate insides than this (a mesh of many shells or folds) leaves the
+// The most parts of the medium that one ray crosses, where it has a boundary: a ray
+// through more separate insides than this (a mesh of many shells or folds) leaves the
 // rest out.
 const uint MEDIUM_MAX_PARTS = 16u;
-
-uint medium_parts() {
-    if (MEDIUM_BOUNDARY) return MEDIUM_MAX_PARTS;
-    return 1u;
-}
 
 // The texel where the majorant grid starts: after the record and the boundary.
 int majorant_grid_texel(MediumRecord m) {
@@ -255,6 +250,14 @@ bool medium_march(vec3 o, vec3 d, float tmax, float from, out March mr) {
     return true;
 }
 
+// The march of ray (o, d) over [0, tmax] through the part of the medium after march mr's
+// part, where one follows (a boundary's): false where none does.
+bool march_next_part(vec3 o, vec3 d, float tmax, inout March mr) {
+    if (!mr.more) return false;
+    float from = mr.t1;
+    return medium_march(o, d, tmax, from, mr);
+}
+
 // Where step k's sample point lies, in the box's unit coordinates.
 vec3 march_point(March mr, uint k) {
     vec3 p = mr.o + (mr.t0 + (float(k) + mr.u) * mr.dt) * mr.d;
@@ -297,6 +300,43 @@ void grid_scatter3(ValueRef r, uint depth, vec3 q, vec3 g) {
 }
 #endif
 
+// One part of medium_segment: march mr's steps.
+void segment_part(March mr, inout vec3 beta[NSTATES], inout vec3 radiance[NSTATES]
+#ifdef ADJOINT
+                  , inout vec3 remaining[NSTATES], vec3 delta[NSTATES], bool grad_pass
+#endif
+) {
+    MediumRecord m = mr.m;
+    float dt = mr.dt;
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
+#ifdef ADJOINT
+        float g_sigma = 0.0;
+        vec3 g_le = vec3(0.0);
+#endif
+        for (int s = 0; s < NSTATES; ++s) {
+            float sigma = m.scale * grid1(m.density, m.density_depth, q, s);
+            vec3 le = grid3(m.emission, m.emission_depth, q, s);
+            float a = exp(-sigma * dt);
+            vec3 c = beta[s] * le * (1.0 - a);
+            radiance[s] += c;
+#ifdef ADJOINT
+            vec3 kd = state_sign(s) * delta[s];
+            g_sigma += dot(kd, dt * (beta[s] * le - remaining[s]));
+            g_le += kd * beta[s] * (1.0 - a);
+            remaining[s] -= c;
+#endif
+            beta[s] *= a;
+        }
+#ifdef ADJOINT
+        if (grad_pass) {
+            grid_scatter1(m.density, m.density_depth, q, g_sigma * m.scale);
+            grid_scatter3(m.emission, m.emission_depth, q, g_le);
+        }
+#endif
+    }
+}
+
 // The medium along [0, tmax] of a path's ray (o, d): each state's emission gathered into
 // radiance (times beta) and beta attenuated. ADJOINT: also takes the emission off
 // remaining[] and, in the gradient replay, scatters the derivatives above.
@@ -306,37 +346,19 @@ void medium_segment(vec3 o, vec3 d, float tmax, inout vec3 beta[NSTATES], inout 
 #endif
 ) {
     March mr;
-    mr.t1 = 0.0;
-    mr.more = true;
-    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
-        if (!medium_march(o, d, tmax, mr.t1, mr)) return;
-        MediumRecord m = mr.m;
-        float dt = mr.dt;
-        for (uint k = 0u; k < mr.n; ++k) {
-            vec3 q = march_point(mr, k);
+    if (!medium_march(o, d, tmax, 0.0, mr)) return;
 #ifdef ADJOINT
-            float g_sigma = 0.0;
-            vec3 g_le = vec3(0.0);
+    segment_part(mr, beta, radiance, remaining, delta, grad_pass);
+#else
+    segment_part(mr, beta, radiance);
 #endif
-            for (int s = 0; s < NSTATES; ++s) {
-                float sigma = m.scale * grid1(m.density, m.density_depth, q, s);
-                vec3 le = grid3(m.emission, m.emission_depth, q, s);
-                float a = exp(-sigma * dt);
-                vec3 c = beta[s] * le * (1.0 - a);
-                radiance[s] += c;
+    // The boundary's further parts (compiled out without one: one part, one loop).
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && march_next_part(o, d, tmax, mr); ++part) {
 #ifdef ADJOINT
-                vec3 kd = state_sign(s) * delta[s];
-                g_sigma += dot(kd, dt * (beta[s] * le - remaining[s]));
-                g_le += kd * beta[s] * (1.0 - a);
-                remaining[s] -= c;
-#endif
-                beta[s] *= a;
-            }
-#ifdef ADJOINT
-            if (grad_pass) {
-                grid_scatter1(m.density, m.density_depth, q, g_sigma * m.scale);
-                grid_scatter3(m.emission, m.emission_depth, q, g_le);
-            }
+            segment_part(mr, beta, radiance, remaining, delta, grad_pass);
+#else
+            segment_part(mr, beta, radiance);
 #endif
         }
     }
@@ -496,10 +518,60 @@ void medium_integral_grad(MediumRecord m, vec3 o, vec3 d, float ta, float tb, ui
 }
 #endif
 
+// Delta tracking over one part [t0, t1] of a flight (medium_free_flight), its draws from
+// `draw` on in stream `key` (draw is left after the part's: memoryless, the next part
+// starts afresh): whether it collides, at ts and q_hit (unit coordinates), with each
+// state's weight w multiplied as there. ADJOINT: the collision's term, and the part's
+// −∫ dσ at as many stratified points as it had tentative collisions.
+bool flight_part(MediumRecord m, vec3 o, vec3 d, float t0, float t1, MajorantWalk walk, uvec4 key, inout uint draw, inout float w[NSTATES], inout float ts, inout vec3 q_hit
+#ifdef ADJOINT
+                 , float gs[NSTATES], float g_all, bool grad_pass
+#endif
+) {
+    vec3 extent = m.box_max - m.box_min;
+    bool collided = false;
+    float t = t0;
+    uint tentative = 0u;
+    for (uint i = 0u; i < TRACKING_MAX; ++i) {
+        vec2 u = tracking_uniforms(key, draw + i);
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(u), mj)) break;
+        vec3 q = (o + t * d - m.box_min) / extent;
+        float sigma[NSTATES];
+        for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s, mj);
+        tentative = i + 1u;
+        if (u.y * mj < sigma[0]) {
+            for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
+            collided = true;
+            ts = t;
+            q_hit = q;
+#ifdef ADJOINT
+            if (grad_pass) {
+                float g = 0.0;
+                for (int s = 0; s < NSTATES; ++s) {
+                    if (sigma[s] > 0.0) g += gs[s] / sigma[s];
+                }
+                grid_scatter1(m.density, m.density_depth, q, g * m.scale);
+            }
+#endif
+            break;
+        }
+        for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
+    }
+#ifdef ADJOINT
+    // The transmittance's part: −∫ dσ over the flight, estimated at as many stratified
+    // points as it had tentative collisions (one offset, from a stream of its own:
+    // independent of the tracking, so the product stays unbiased).
+    if (grad_pass) medium_integral_grad(m, o, d, t0, collided ? ts : t1, max(tentative, 1u), key, -g_all * m.scale);
+#endif
+    draw += tentative + 1u;
+    return collided;
+}
+
 // A scattering medium along [0, tmax] of a path's ray (o, d): where the ray first
 // collides, delta-tracked with state 0's extinction (the stream's salt is the path's
-// u_flight). Returns whether it collides, at distance ts, and weighs each state's beta by
-// its own probability of this outcome over state 0's: per null collision
+// u_flight), part by part. Returns whether it collides, at distance ts, and weighs each
+// state's beta by its own probability of this outcome over state 0's: per null collision
 // (σ̄ − σ_s)/(σ̄ − σ_0), and at the real one albedo_s σ_s / σ_0 (σ_0 at most 0.99 σ̄: no
 // division by a vanishing number).
 // ADJOINT, gradient replay: the derivative of each state's log-probability of the flight
@@ -516,67 +588,39 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
 ) {
     ts = 0.0;
     MediumRecord m = medium_record();
+    float t0, t1;
+    bool more;
+    MajorantWalk walk;
+    if (!medium_tracked(m, o, d, tmax, 0.0, t0, t1, more, walk)) return false;
 #ifdef ADJOINT
     float gs[NSTATES];
-    for (int s = 0; s < NSTATES; ++s) gs[s] = grad_pass ? state_sign(s) * dot(delta[s], remaining[s]) : 0.0;
+    float g_all = 0.0;
+    for (int s = 0; s < NSTATES; ++s) {
+        gs[s] = grad_pass ? state_sign(s) * dot(delta[s], remaining[s]) : 0.0;
+        g_all += gs[s];
+    }
 #endif
     uvec4 key = tracking_key(o, d, floatBitsToUint(u_flight));
-    vec3 extent = m.box_max - m.box_min;
     float w[NSTATES];
     for (int s = 0; s < NSTATES; ++s) w[s] = 1.0;
-    bool collided = false;
     vec3 q_hit = vec3(0.0);
-    // The stream's position, over the parts (a part's last draw, past its end, is not
-    // drawn again: memoryless, the next part starts afresh).
-    uint i = 0u;
-    float t1 = 0.0;
-    bool more = true;
-    for (uint part = 0u; part < medium_parts() && more && !collided; ++part) {
-        float from = t1, t0;
-        MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
-        float t = t0;
-        uint tentative = 0u;
-        for (; i < TRACKING_MAX; ++i) {
-            vec2 u = tracking_uniforms(key, i);
-            float mj;
-            if (!next_tentative(m, d, walk, t, tracking_depth(u), mj)) {
-                ++i;
-                break;
-            }
-            vec3 q = (o + t * d - m.box_min) / extent;
-            float sigma[NSTATES];
-            for (int s = 0; s < NSTATES; ++s) sigma[s] = tracked_sigma(m, q, s, mj);
-            ++tentative;
-            if (u.y * mj < sigma[0]) {
-                for (int s = 1; s < NSTATES; ++s) w[s] *= sigma[s] / sigma[0];
-                collided = true;
-                ts = t;
-                q_hit = q;
+    uint draw = 0u;
 #ifdef ADJOINT
-                if (grad_pass) {
-                    float g = 0.0;
-                    for (int s = 0; s < NSTATES; ++s) {
-                        if (sigma[s] > 0.0) g += gs[s] / sigma[s];
-                    }
-                    grid_scatter1(m.density, m.density_depth, q, g * m.scale);
-                }
+#define FLIGHT_PART() flight_part(m, o, d, t0, t1, walk, key, draw, w, ts, q_hit, gs, g_all, grad_pass)
+#else
+#define FLIGHT_PART() flight_part(m, o, d, t0, t1, walk, key, draw, w, ts, q_hit)
 #endif
-                break;
-            }
-            for (int s = 1; s < NSTATES; ++s) w[s] *= (mj - sigma[s]) / (mj - sigma[0]);
+    // The first part, then the boundary's others (compiled out without one: a loop
+    // around the tracking loop, even run once, costs a box 7 % of its instructions).
+    bool collided = FLIGHT_PART();
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && !collided && more; ++part) {
+            float from = t1;
+            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
+            collided = FLIGHT_PART();
         }
-#ifdef ADJOINT
-        // The transmittance's part: −∫ dσ over the flight in this part, estimated at as
-        // many stratified points as it had tentative collisions here (one offset, from a
-        // stream of its own: independent of the tracking, so the product stays unbiased).
-        if (grad_pass) {
-            float g_all = 0.0;
-            for (int s = 0; s < NSTATES; ++s) g_all += gs[s];
-            medium_integral_grad(m, o, d, t0, collided ? ts : t1, max(tentative, 1u), key, -g_all * m.scale);
-        }
-#endif
     }
+#undef FLIGHT_PART
     // The collision's albedo, each state's own, scales its beta.
     vec3 albedo_hit[NSTATES];
     for (int s = 0; s < NSTATES; ++s) {
@@ -607,44 +651,69 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
 // Salt of a shadow ray's ratio-tracking stream (with the ray's bits and its end).
 const uint SHADOW_SALT = 0x52415449u;
 
+// Ratio tracking over one part, from t0, of shadow ray (o, d) (medium_transmittance), its
+// draws from `draw` on in stream `key` (left after the part's): each state's tr
+// multiplied by its factors. False once nothing is left to carry.
+bool ratio_part(MediumRecord m, vec3 o, vec3 d, float t0, MajorantWalk walk, uvec4 key, inout uint draw, inout float tr[NSTATES]) {
+    vec3 extent = m.box_max - m.box_min;
+    float t = t0;
+    uint i = 0u;
+    for (; i < TRACKING_MAX; ++i) {
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, draw + i)), mj)) break;
+        vec3 q = (o + t * d - m.box_min) / extent;
+        float most = 0.0;
+        for (int s = 0; s < NSTATES; ++s) {
+            tr[s] *= 1.0 - tracked_sigma(m, q, s, mj) / mj;
+            most = max(most, tr[s]);
+        }
+        // Nothing left to carry (the factors are at least 0.01: only after thousands).
+        if (most == 0.0) return false;
+    }
+    draw += i + 1u;
+    return true;
+}
+
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box), by
 // ratio tracking: the product of 1 − σ_s/σ̄ over tentative collisions at rate σ̄ (shared
 // by the states: one stream per ray, hashed from its bits and end).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
     MediumRecord m = medium_record();
-    vec3 extent = m.box_max - m.box_min;
-    uvec4 key;
-    uint i = 0u;
-    float most = 1.0;
-    float t1 = 0.0;
-    bool more = true;
-    for (uint part = 0u; part < medium_parts() && more && most > 0.0; ++part) {
-        float from = t1, t0;
-        MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
-        // One stream per ray, keyed by its first part's end.
-        if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
-        float t = t0;
-        for (; i < TRACKING_MAX; ++i) {
-            float mj;
-            if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) {
-                ++i;
-                break;
-            }
-            vec3 q = (o + t * d - m.box_min) / extent;
-            most = 0.0;
-            for (int s = 0; s < NSTATES; ++s) {
-                tr[s] *= 1.0 - tracked_sigma(m, q, s, mj) / mj;
-                most = max(most, tr[s]);
-            }
-            // Nothing left to carry (the factors are at least 0.01: only after thousands).
-            if (most == 0.0) break;
+    float t0, t1;
+    bool more;
+    MajorantWalk walk;
+    if (!medium_tracked(m, o, d, tmax, 0.0, t0, t1, more, walk)) return;
+    // One stream per ray, keyed by its first part's end, over all its parts.
+    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+    uint draw = 0u;
+    // The first part, then the boundary's others (as in medium_free_flight).
+    bool left = ratio_part(m, o, d, t0, walk, key, draw, tr);
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && left && more; ++part) {
+            float from = t1;
+            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
+            left = ratio_part(m, o, d, t0, walk, key, draw, tr);
         }
     }
 }
 
 #ifdef ADJOINT
+// Scatters g ∫ dσ over one part [t0, t1] of shadow ray (o, d) (medium_transmittance_grad)
+// at as many stratified points as its ratio tracking had tentative collisions, counted
+// from the same draws (distances alone, no density lookups); draw is left after them.
+void integral_grad_part(MediumRecord m, vec3 o, vec3 d, float t0, float t1, MajorantWalk walk, uvec4 key, inout uint draw, float g) {
+    uint n = 0u;
+    float t = t0;
+    for (uint i = 0u; i < TRACKING_MAX; ++i) {
+        float mj;
+        if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, draw + i)), mj)) break;
+        n = i + 1u;
+    }
+    medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, g);
+    draw += n + 1u;
+}
+
 // Scatters the derivative of the loss through the ratio-tracked transmittance of shadow
 // ray (o, d) over [0, tmax], given g_s = sign_s ⟨δ_s, c_s⟩ of the contributions c_s that
 // it carried: dc_s = −c_s ∫ dσ_s, the integral estimated at as many stratified points as
@@ -652,29 +721,21 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
 void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
     float g_all = 0.0;
     for (int s = 0; s < NSTATES; ++s) g_all += g[s];
-    if (g_all == 0.0) return;
     MediumRecord m = medium_record();
-    uvec4 key;
-    uint i = 0u;
-    float t1 = 0.0;
-    bool more = true;
-    for (uint part = 0u; part < medium_parts() && more; ++part) {
-        float from = t1, t0;
-        MajorantWalk walk;
-        if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
-        if (part == 0u) key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
-        // The part's tentative collisions, counted: distances alone, no density lookups.
-        uint n = 0u;
-        float t = t0;
-        for (; i < TRACKING_MAX; ++i) {
-            float mj;
-            if (!next_tentative(m, d, walk, t, tracking_depth(tracking_uniforms(key, i)), mj)) {
-                ++i;
-                break;
-            }
-            ++n;
+    float t0, t1;
+    bool more;
+    MajorantWalk walk;
+    if (g_all == 0.0 || !medium_tracked(m, o, d, tmax, 0.0, t0, t1, more, walk)) return;
+    uvec4 key = tracking_key(o, d, floatBitsToUint(t1) ^ SHADOW_SALT);
+    uint draw = 0u;
+    // The first part, then the boundary's others (as in medium_free_flight).
+    integral_grad_part(m, o, d, t0, t1, walk, key, draw, -g_all * m.scale);
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && more; ++part) {
+            float from = t1;
+            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
+            integral_grad_part(m, o, d, t0, t1, walk, key, draw, -g_all * m.scale);
         }
-        medium_integral_grad(m, o, d, t0, t1, max(n, 1u), key, -g_all * m.scale);
     }
 }
 #endif
@@ -706,45 +767,45 @@ vec3 hg_sample(float g, vec3 d, vec2 u) {
 #endif
 
 #ifndef SCATTERING
+// Adds each state's optical depth over march mr's part to tau.
+void optical_depth_part(March mr, inout float tau[NSTATES]) {
+    for (uint k = 0u; k < mr.n; ++k) {
+        vec3 q = march_point(mr, k);
+        for (int s = 0; s < NSTATES; ++s) tau[s] += mr.m.scale * grid1(mr.m.density, mr.m.density_depth, q, s) * mr.dt;
+    }
+}
+
 // Each state's transmittance along [0, tmax] of shadow ray (o, d) (1 outside the box).
 void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     for (int s = 0; s < NSTATES; ++s) tr[s] = 1.0;
+    March mr;
+    if (!medium_march(o, d, tmax, 0.0, mr)) return;
     float tau[NSTATES];
     for (int s = 0; s < NSTATES; ++s) tau[s] = 0.0;
-    March mr;
-    mr.t1 = 0.0;
-    mr.more = true;
-    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
-        if (!medium_march(o, d, tmax, mr.t1, mr)) break;
-        MediumRecord m = mr.m;
-        float dt = mr.dt;
-        for (uint k = 0u; k < mr.n; ++k) {
-            vec3 q = march_point(mr, k);
-            for (int s = 0; s < NSTATES; ++s) tau[s] += m.scale * grid1(m.density, m.density_depth, q, s) * dt;
-        }
+    optical_depth_part(mr, tau);
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && march_next_part(o, d, tmax, mr); ++part) optical_depth_part(mr, tau);
     }
     for (int s = 0; s < NSTATES; ++s) tr[s] = exp(-tau[s]);
 }
 
 #ifdef ADJOINT
+// Scatters g times the derivative of the optical depth over march mr's part.
+void optical_depth_grad_part(March mr, float g) {
+    for (uint k = 0u; k < mr.n; ++k) grid_scatter1(mr.m.density, mr.m.density_depth, march_point(mr, k), -mr.dt * mr.m.scale * g);
+}
+
 // Scatters the derivative of the loss through the transmittance of shadow ray (o, d) over
 // [0, tmax], given g_s = sign_s ⟨δ_s, c_s⟩ of the contributions c_s that it carried (all
 // states share the march: their sum).
 void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float gs[NSTATES]) {
     float g = 0.0;
     for (int s = 0; s < NSTATES; ++s) g += gs[s];
-    if (g == 0.0) return;
     March mr;
-    mr.t1 = 0.0;
-    mr.more = true;
-    for (uint part = 0u; part < medium_parts() && mr.more; ++part) {
-        if (!medium_march(o, d, tmax, mr.t1, mr)) return;
-        MediumRecord m = mr.m;
-        float dt = mr.dt;
-        for (uint k = 0u; k < mr.n; ++k) {
-            vec3 q = march_point(mr, k);
-            grid_scatter1(m.density, m.density_depth, q, -dt * m.scale * g);
-        }
+    if (g == 0.0 || !medium_march(o, d, tmax, 0.0, mr)) return;
+    optical_depth_grad_part(mr, g);
+    if (MEDIUM_BOUNDARY) {
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && march_next_part(o, d, tmax, mr); ++part) optical_depth_grad_part(mr, g);
     }
 }
 
