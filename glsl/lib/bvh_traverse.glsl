@@ -126,15 +126,22 @@ const float BVH_EXIT_SCALE = 1.00000048;
 // The entry distance of a missed box.
 const float BVH_MISS = 1.0 / 0.0;
 
-// Entry distance of the ray into the box [lo, hi] within [0, tmax], or BVH_MISS (+inf).
-float bvh_box_entry(vec3 lo, vec3 hi, vec3 origin, vec3 inv_dir, float tmax) {
+// Entry and exit distances of the ray through the box [lo, hi] within [0, tmax], the exit
+// widened (above): the ray misses it where the entry lies beyond the exit.
+vec2 bvh_box_span(vec3 lo, vec3 hi, vec3 origin, vec3 inv_dir, float tmax) {
     vec3 t0 = (lo - origin) * inv_dir;
     vec3 t1 = (hi - origin) * inv_dir;
     vec3 tn = min(t0, t1);
     vec3 tf = max(t0, t1);
     float enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
     float exit = min(min(tf.x, tf.y), min(tf.z, tmax)) * BVH_EXIT_SCALE;
-    return enter <= exit ? enter : BVH_MISS;
+    return vec2(enter, exit);
+}
+
+// Entry distance of the ray into the box [lo, hi] within [0, tmax], or BVH_MISS (+inf).
+float bvh_box_entry(vec3 lo, vec3 hi, vec3 origin, vec3 inv_dir, float tmax) {
+    vec2 span = bvh_box_span(lo, hi, origin, inv_dir, tmax);
+    return span.x <= span.y ? span.x : BVH_MISS;
 }
 
 // Möller & Trumbore 1997, "Fast, minimum storage ray-triangle intersection", with the

@@ -82,16 +82,11 @@ int majorant_grid_texel(MediumRecord m) {
 // 16 at most (src/render/features/media.rs), and the stack holds one per level.
 const int BOUNDARY_STACK = 18;
 
-// Whether ray (o, inv_dir) passes through box [lo, hi] between from and tmax (the exit
-// widened as the scene BVH's, bvh_box_entry).
+// Whether ray (o, inv_dir) passes through box [lo, hi] between from and tmax (the scene
+// BVH's slab test).
 bool boundary_box_hit(vec3 lo, vec3 hi, vec3 o, vec3 inv_dir, float from, float tmax) {
-    vec3 t0 = (lo - o) * inv_dir;
-    vec3 t1 = (hi - o) * inv_dir;
-    vec3 tn = min(t0, t1);
-    vec3 tf = max(t0, t1);
-    float enter = max(max(tn.x, tn.y), max(tn.z, 0.0));
-    float exit = min(min(tf.x, tf.y), min(tf.z, tmax)) * BVH_EXIT_SCALE;
-    return enter <= exit && exit >= from;
+    vec2 span = bvh_box_span(lo, hi, o, inv_dir, tmax);
+    return span.x <= span.y && span.y >= from;
 }
 
 // The three nearest crossings of the boundary after `from` along ray (o, d) (3e38 where
