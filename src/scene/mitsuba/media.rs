@@ -1,8 +1,9 @@
 //! Mitsuba media that vkinverse renders as they are: a `homogeneous` or `heterogeneous`
 //! medium, the interior of a closed shape with a `null` BSDF (an axis-aligned box, or any
 //! closed mesh: the medium's boundary), rendered by `volpath`, `volpathmis` or
-//! `prbvolpath`. The medium's box is the shape's world bounds; its density is `sigma_t` (a number, an equal `rgb`, a `constvolume` or a
-//! one-channel `gridvolume` whose `to_world` places it on that box) and its `scale` is
+//! `prbvolpath`. The medium's box is the shape's world bounds; its density is `sigma_t`
+//! (a number, an equal `rgb`, a `constvolume` or a one-channel `gridvolume` whose
+//! `to_world` places it on that box) and its `scale` is
 //! Mitsuba's; its `albedo` is a constant (a number or an RGB colour) and its phase
 //! function `isotropic` or `hg`; it emits nothing. Everything else about a medium is
 //! refused in one line that names the plugin and the property.
