@@ -1,8 +1,8 @@
 // The scene's medium (src/render/features/media.rs): a box that absorbs and emits light,
 // with no scattering, or the part of the box inside a closed mesh (its boundary): a ray
 // crosses it in parts, between where it enters the boundary and where it leaves it (by
-// the winding of the triangles it crosses), each marched or tracked as below. Along a ray it is marched in steps of equal length, stratified with
-// one jitter per ray: step k of length dt at density σ_k keeps a_k = exp(−σ_k dt) of what
+// the winding of the triangles it crosses), each marched or tracked as below. Along a
+// ray it is marched in steps of equal length, stratified with one jitter per ray: step k of length dt at density σ_k keeps a_k = exp(−σ_k dt) of what
 // lies behind it and adds L_e,k (1 − a_k), each times the transmittance of the steps
 // before it. The jitter is a hash of the ray's bits, so that the primal and gradient
 // replays of a path, and both parameter states of the finite-difference kernels, march
@@ -479,6 +479,15 @@ bool medium_tracked(MediumRecord m, vec3 o, vec3 d, float tmax, float from, out 
     return true;
 }
 
+// The part of the tracked medium after part [t0, t1] of ray (o, d), where one follows (a
+// boundary's): the part, its `more` and its walk in place of the last's; false where none
+// does.
+bool tracked_next_part(MediumRecord m, vec3 o, vec3 d, float tmax, inout float t0, inout float t1, inout bool more, inout MajorantWalk w) {
+    if (!more) return false;
+    float from = t1;
+    return medium_tracked(m, o, d, tmax, from, t0, t1, more, w);
+}
+
 // The exponential optical depth of tracking draw u.
 float tracking_depth(vec2 u) {
     return -log(1.0 - u.x);
@@ -609,11 +618,7 @@ bool medium_free_flight(vec3 o, vec3 d, float tmax, float u_flight, inout vec3 b
     // around the tracking loop, even run once, costs a box 7 % of its instructions).
     bool collided = FLIGHT_PART();
     if (MEDIUM_BOUNDARY) {
-        for (uint part = 1u; part < MEDIUM_MAX_PARTS && !collided && more; ++part) {
-            float from = t1;
-            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
-            collided = FLIGHT_PART();
-        }
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && !collided && tracked_next_part(m, o, d, tmax, t0, t1, more, walk); ++part) collided = FLIGHT_PART();
     }
 #undef FLIGHT_PART
     // The collision's albedo, each state's own, scales its beta.
@@ -685,9 +690,7 @@ void medium_transmittance(vec3 o, vec3 d, float tmax, out float tr[NSTATES]) {
     // The first part, then the boundary's others (as in medium_free_flight).
     bool left = ratio_part(m, o, d, t0, walk, key, draw, tr);
     if (MEDIUM_BOUNDARY) {
-        for (uint part = 1u; part < MEDIUM_MAX_PARTS && left && more; ++part) {
-            float from = t1;
-            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && left && tracked_next_part(m, o, d, tmax, t0, t1, more, walk); ++part) {
             left = ratio_part(m, o, d, t0, walk, key, draw, tr);
         }
     }
@@ -726,9 +729,7 @@ void medium_transmittance_grad(vec3 o, vec3 d, float tmax, float g[NSTATES]) {
     // The first part, then the boundary's others (as in medium_free_flight).
     integral_grad_part(m, o, d, t0, t1, walk, key, draw, -g_all * m.scale);
     if (MEDIUM_BOUNDARY) {
-        for (uint part = 1u; part < MEDIUM_MAX_PARTS && more; ++part) {
-            float from = t1;
-            if (!medium_tracked(m, o, d, tmax, from, t0, t1, more, walk)) break;
+        for (uint part = 1u; part < MEDIUM_MAX_PARTS && tracked_next_part(m, o, d, tmax, t0, t1, more, walk); ++part) {
             integral_grad_part(m, o, d, t0, t1, walk, key, draw, -g_all * m.scale);
         }
     }
