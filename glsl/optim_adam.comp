@@ -58,7 +58,7 @@ void main() {
     if (c0 < chunks) {
         Schedule sched = Schedule(pc.sched_decay, pc.sched_warmup, pc.sched_horizon, pc.sched_every,
                                   pc.sched_floor, pc.sched_gamma);
-        AdamParams p = AdamParams(t, pc.lr * schedule_factor(sched, t), pc.beta1, pc.beta2, pc.eps, pc.lo, pc.hi);
+        AdamParams p = adam_params(t, pc.lr * schedule_factor(sched, t), pc.beta1, pc.beta2, pc.eps, pc.lo, pc.hi);
         for (uint q = 0u; q < OPTIM_CHUNKS; q++) {
             uint c = c0 + q * gl_WorkGroupSize.x;
             if (c >= chunks) break;

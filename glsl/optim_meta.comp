@@ -83,9 +83,9 @@ void main() {
         Schedule sched = Schedule(pc.sched_decay, pc.sched_warmup, pc.sched_horizon, pc.sched_every,
                                   pc.sched_floor, pc.sched_gamma);
         bool centred = pc.centred != 0u;
-        MetaParams p = MetaParams(t, pc.lr * schedule_factor(sched, t), pc.decay_f, pc.decay_d, pc.eps,
-                                  pc.lo, pc.hi, pc.step_rule, pc.beta2, centred, pc.fd_raw != 0u,
-                                  pc.decay_h, pc.sig, pc.settle);
+        MetaParams p = MetaParams(ema_of(pc.decay_f, t), ema_of(pc.beta2, t), pc.lr * schedule_factor(sched, t),
+                                  pc.decay_d, pc.eps, pc.lo, pc.hi, pc.step_rule, centred, pc.fd_raw != 0u,
+                                  sqrt(pc.decay_h), pc.sig, pc.settle);
         float dpi2 = ssq_total(diag[pc.group].step);
         for (uint q = 0u; q < OPTIM_CHUNKS; q++) {
             uint c = c0 + q * gl_WorkGroupSize.x;

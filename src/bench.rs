@@ -88,6 +88,10 @@ pub struct OptimiserBandwidth {
 /// Bytes per parameter of each pass: the arrays of glsl/optim_meta.comp and
 /// glsl/optim_adam.comp, each read or written once per element (the per-workgroup ‖Δπ‖²
 /// partial sums, one float per 256 parameters, are left out).
+/// The step number (from 1) at which the optimiser passes are timed: mid-run, where the
+/// bias corrections' powers take several factors.
+pub const BENCH_OPTIMISER_STEP: u32 = 100;
+
 const OPTIMISER_BYTES: [(&str, u64); 4] = [
     // with the defaults (the centred variance): reads θ, grad, fd_grad, their two
     // half-sample sums and the 12 meta state arrays (src/optim/gpu.rs); writes θ_prev, θ,
@@ -99,20 +103,26 @@ const OPTIMISER_BYTES: [(&str, u64); 4] = [
     ("copy_vec4", 4 * 2),
 ];
 
-/// Times the fused meta and Adam passes (default hyperparameters, unbounded range, zero
-/// gradients) and the copy kernels (scalar and float4) over `elements` parameters (rounded
-/// up to a multiple of 4, the float4 copy's unit), `iterations` times each.
+/// Times the fused meta and Adam passes (default hyperparameters, unbounded range, at step
+/// [`BENCH_OPTIMISER_STEP`]) and the copy kernels (scalar and float4) over `elements`
+/// parameters (rounded up to a multiple of 4, the float4 copy's unit), `iterations` times
+/// each. The gradients are fixed pseudo-random values in [−1, 1], copied into the gradient
+/// buffers before each pass (outside its timing: the passes clear them), so that every
+/// element takes the full update with nonzero diagnostics, as in a run.
 pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -> Result<OptimiserBandwidth> {
     let n = elements.max(1).next_multiple_of(4) as usize;
     let iterations = iterations.max(1);
     let ops = BufferOps::new(ctx)?;
     let theta = Buffer::zeroed::<f32>(ctx, "bench theta", n, MemoryKind::Device)?;
-    // Zero gradients: every element takes the full update path (a finite gradient) and
-    // the values stay put, so each iteration does the same work.
+    let values = |seed: u64| -> Vec<f32> {
+        (0..n as u64).map(|i| crate::stats::unit_hash(i.wrapping_mul(2).wrapping_add(seed)) * 2.0 - 1.0).collect()
+    };
+    let grad_src = Buffer::from_slice(ctx, "bench grad values", &values(1), MemoryKind::Device)?;
+    let fd_src = Buffer::from_slice(ctx, "bench fd grad values", &values(2), MemoryKind::Device)?;
     let grad = Buffer::zeroed::<f32>(ctx, "bench grad", n, MemoryKind::Device)?;
     let fd_grad = Buffer::zeroed::<f32>(ctx, "bench fd grad", n, MemoryKind::Device)?;
     let copy_dst = Buffer::new(ctx, "bench theta copy", n as u64 * 4, MemoryKind::Device)?;
-    let frame = Buffer::from_slice(ctx, "bench frame", &[0u32], MemoryKind::Upload)?;
+    let frame = Buffer::from_slice(ctx, "bench frame", &[BENCH_OPTIMISER_STEP - 1], MemoryKind::Upload)?;
     let groups = [Group { offset: 0, len: n, lr: 0.02, range: Range::UNBOUNDED }];
     let buffers = OptimiserBuffers { theta: &theta, grad: &grad, fd_grad: Some(&fd_grad), frame: &frame, groups: &groups };
     let meta = GpuOptimiser::new(ctx, &Optimiser::Meta(Default::default()), &buffers)?;
@@ -125,7 +135,11 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
     let mut cmd = CommandBuffer::new(ctx, "optimiser bench")?;
     cmd.record(|rec| {
         profiler.reset(rec);
+        let bytes = n as u64 * 4;
+        rec.copy(&grad_src, &grad, bytes)?;
+        rec.copy(&fd_src, &fd_grad, bytes)?;
         profiler.scope(rec, "optim_meta", |rec, _| meta.record(rec, &ops))?;
+        rec.copy(&grad_src, &grad, bytes)?;
         profiler.scope(rec, "optim_adam", |rec, _| adam.record(rec, &ops))?;
         // copy reads θ, which both passes wrote.
         rec.transition(&[(&theta, Access::ComputeRead), (&copy_dst, Access::ComputeWrite)])?;
@@ -159,8 +173,8 @@ impl OptimiserBandwidth {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "optimiser passes on {} parameters (zero gradients), median of {} runs; bytes = state arrays read + written",
-            self.elements, self.iterations
+            "optimiser passes on {} parameters (random gradients, step {}), median of {} runs; bytes = state arrays read + written",
+            self.elements, BENCH_OPTIMISER_STEP, self.iterations
         );
         let _ = writeln!(s, "{:<16} {:>12} {:>10} {:>10} {:>12} {:>10} {:>10}", "pass", "bytes/param", "median ms", "GB/s", "Mparams/s", "vs copy", "vs vec4");
         for p in &self.passes {

@@ -89,7 +89,7 @@ pub const STEP_NEWTON: u32 = 1;
 /// vec4s (four consecutive parameters each, from a multiple of 4 in θ) each invocation of
 /// the fused optimiser passes (`optim_adam`, `optim_meta`) steps: one diagnostics record,
 /// and one share of the workgroup's reduction, per 4 × this many parameters.
-pub const OPTIM_CHUNKS: u32 = 4;
+pub const OPTIM_CHUNKS: u32 = 16;
 
 /// `Decay::code` (src/optim/schedule.rs) of the learning-rate schedules: constant.
 pub const SCHEDULE_CONSTANT: u32 = 0;

@@ -84,6 +84,19 @@ float ema_weight(float beta, uint t) {
     return q / one_minus_pow(q, max(t, 1u));
 }
 
+// An RMS EMA's weights at step t, uniform over a pass (computed once per invocation): the
+// step's weight k = ema_weight(beta, t) as the factors of hypot(keep * rms, take * x),
+// keep = sqrt(1 - k) and take = sqrt(k).
+struct Ema {
+    float keep;
+    float take;
+};
+
+Ema ema_of(float beta, uint t) {
+    float k = ema_weight(beta, t);
+    return Ema(sqrt(1.0 - k), sqrt(k));
+}
+
 // s_a^2 / (s_a^2 + s_b^2) from standard deviations, scaled by the larger; s_a or s_b > 0.
 float inverse_variance_weight(float s_a, float s_b) {
     float big = max(s_a, s_b);
@@ -190,24 +203,24 @@ struct AdamElem {
 };
 
 struct AdamParams {
-    uint t;      // step number, from 1
-    float lr;
-    float beta1;
-    float beta2;
+    float k1;    // the first moment's weight of step t, ema_weight(beta1, t)
+    Ema r;       // the RMS's weights of step t (beta2)
+    float lr;    // the scheduled rate of step t
     float eps;
     float lo;
     float hi;
 };
 
-// One Adam step of one element (lr: the scheduled rate of step t). False for a non-finite
-// gradient: nothing is changed.
+AdamParams adam_params(uint t, float lr, float beta1, float beta2, float eps, float lo, float hi) {
+    return AdamParams(ema_weight(beta1, t), ema_of(beta2, t), lr, eps, lo, hi);
+}
+
+// One Adam step of one element. False for a non-finite gradient: nothing is changed.
 bool adam_update(AdamParams p, inout float theta, float g, inout AdamElem s, out ElemDiag d) {
     d = ElemDiag(0.0, false, false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     if (!is_finite(g)) return false;
-    float k1 = ema_weight(p.beta1, p.t);
-    float k2 = ema_weight(p.beta2, p.t);
-    float m = (1.0 - k1) * s.m + k1 * g;
-    float r = hypot_safe(sqrt(1.0 - k2) * s.r, sqrt(k2) * g);
+    float m = (1.0 - p.k1) * s.m + p.k1 * g;
+    float r = hypot_safe(p.r.keep * s.r, p.r.take * g);
     float step = sat(-p.lr * (m / (r + p.eps)));
     float next = min(max(sat(theta + step), p.lo), p.hi);
     d = ElemDiag(0.0, false, false, g, 0.0, 0.0, next - theta, m, 0.0, r, 0.0);
@@ -233,18 +246,17 @@ struct MetaElem {
 };
 
 struct MetaParams {
-    uint t;      // step number, from 1
+    Ema f;       // the Moment2 of <F>'s weights of step t (decay_f)
+    Ema v;       // the Wiener step's normaliser's weights of step t (beta2)
     float lr;    // the scheduled rate of step t
-    float decay_f;
     float decay_d;
     float eps;
     float lo;
     float hi;
     uint step_rule; // STEP_*
-    float beta2;    // the decay of the Wiener step's normaliser v
     bool centred;   // variance EMAs of centred half-sample differences instead of squares
     bool fd_raw;    // Moment2 of dF itself instead of dF/|dpi| (then times |dpi|^2)
-    float decay_h;  // STEP_NEWTON: the curvature fit's forgetting per sample
+    float keep_h;   // STEP_NEWTON: sqrt of the curvature fit's forgetting per sample
     float sig;      // STEP_NEWTON: significance (in standard deviations) Newton's step needs
     float settle;   // STEP_NEWTON: the Wiener step's fraction of lr where Newton's is smaller
 };
@@ -273,10 +285,8 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     // What the two Moment2 EMAs average the squares of.
     float sample_f = p.centred ? centred_sample(f, x.f_half) : f;
     float sample_d = p.centred ? centred_sample(df, x.df_half) : df;
-    float kf = ema_weight(p.decay_f, p.t);
-    float rms_f = hypot_safe(sqrt(1.0 - kf) * s.rms_f, sqrt(kf) * sample_f);
-    float k2 = ema_weight(p.beta2, p.t);
-    float v = hypot_safe(sqrt(1.0 - k2) * s.v, sqrt(k2) * f);
+    float rms_f = hypot_safe(p.f.keep * s.rms_f, p.f.take * sample_f);
+    float v = hypot_safe(p.v.keep * s.v, p.v.take * f);
 
     // dF terms: VD = Moment2(dF/|dpi|) * |dpi|^2 (or Moment2(dF) with fd_raw), kept as the
     // standard deviation sd_d.
@@ -311,7 +321,7 @@ bool meta_update(MetaParams p, inout float theta, MetaInput x, float dpi2, inout
     float curv = s.curv;
     float curv_w = s.curv_w;
     if (dpi2 > 0.0 && is_finite(dpi2) && s.last != 0.0) {
-        curv_w = hypot_safe(sqrt(p.decay_h) * s.curv_w, s.last);
+        curv_w = hypot_safe(p.keep_h * s.curv_w, s.last);
         float kw = abs(s.last) / curv_w;
         float k = kw * kw;
         float secant = sat(df / s.last);

@@ -108,6 +108,23 @@ pub fn ema_weight<R: Real>(beta: R, t: u32) -> R {
     q / one_minus_pow(q, t.max(1))
 }
 
+/// An RMS EMA's weights at step t, uniform over a pass: the step's weight
+/// k = [`ema_weight`]`(β, t)` as the factors of hypot(keep·rms, take·x).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ema<R> {
+    /// √(1 − k).
+    pub keep: R,
+    /// √k.
+    pub take: R,
+}
+
+impl<R: Real> Ema<R> {
+    pub fn of(beta: R, t: u32) -> Self {
+        let k = ema_weight(beta, t);
+        Ema { keep: (R::ONE - k).sqrt(), take: k.sqrt() }
+    }
+}
+
 /// Inverse-variance weight s_a²/(s_a² + s_b²) from standard deviations, scaled by the larger
 /// so that neither square overflows. Needs s_a > 0 or s_b > 0.
 fn inverse_variance_weight<R: Real>(s_a: R, s_b: R) -> R {
@@ -411,10 +428,11 @@ pub struct AdamElem<R> {
 /// `lr` is the scheduled rate of step t.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdamParams<R> {
-    pub t: u32,
+    /// The first moment's weight of step t, [`ema_weight`]`(β1, t)`.
+    pub k1: R,
+    /// The RMS's weights of step t (β2).
+    pub r: Ema<R>,
     pub lr: R,
-    pub beta1: R,
-    pub beta2: R,
     pub eps: R,
     pub lo: R,
     pub hi: R,
@@ -423,10 +441,9 @@ pub struct AdamParams<R> {
 impl<R: Real> AdamParams<R> {
     pub fn new(h: &AdamHyper, t: u32, lr: f64, range: Range) -> Self {
         AdamParams {
-            t,
+            k1: ema_weight(R::of(h.beta1), t),
+            r: Ema::of(R::of(h.beta2), t),
             lr: R::of(lr * h.schedule.factor(t)),
-            beta1: R::of(h.beta1),
-            beta2: R::of(h.beta2),
             eps: R::of(h.eps),
             lo: R::of(range.lo),
             hi: R::of(range.hi),
@@ -440,10 +457,8 @@ pub fn adam_update<R: Real>(p: &AdamParams<R>, theta: R, g: R, s: AdamElem<R>) -
     if !g.is_finite() {
         return None;
     }
-    let k1 = ema_weight(p.beta1, p.t);
-    let k2 = ema_weight(p.beta2, p.t);
-    let m = (R::ONE - k1) * s.m + k1 * g;
-    let r = hypot((R::ONE - k2).sqrt() * s.r, k2.sqrt() * g);
+    let m = (R::ONE - p.k1) * s.m + p.k1 * g;
+    let r = hypot(p.r.keep * s.r, p.r.take * g);
     let step = sat(-p.lr * (m / (r + p.eps)));
     let next = sat(theta + step).max(p.lo).min(p.hi);
     let diag = ElemDiag { f: g, step: next - theta, mean: m, sd_f: r, ..Default::default() };
@@ -482,21 +497,22 @@ pub struct MetaElem<R> {
 /// `lr` is the scheduled rate of step t.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MetaParams<R> {
-    pub t: u32,
+    /// The weights of step t of ⟨F⟩'s Moment2 (decay_f).
+    pub f: Ema<R>,
+    /// The weights of step t of the Wiener step's normaliser √v̂ ([`META_BETA2`]).
+    pub v: Ema<R>,
     pub lr: R,
-    pub decay_f: R,
     pub decay_d: R,
     pub eps: R,
     pub lo: R,
     pub hi: R,
     pub step: StepRule,
-    /// The decay of the Wiener step's normaliser √v̂ ([`META_BETA2`]).
-    pub beta2: R,
     pub centred: bool,
     /// Moment2 of ⟨ΔF⟩ itself rather than of ⟨ΔF⟩/‖Δπ‖ ([`super::FdVariance::Raw`]).
     pub fd_raw: bool,
-    /// `step = newton`: the curvature fit's forgetting, significance and settle fraction.
-    pub decay_h: R,
+    /// `step = newton`: the square root of the curvature fit's forgetting, the significance
+    /// and the settle fraction.
+    pub keep_h: R,
     pub sig: R,
     pub settle: R,
 }
@@ -506,18 +522,17 @@ impl<R: Real> MetaParams<R> {
     /// significance, [`MetaHyper::sig_for`]).
     pub fn new(h: &MetaHyper, k: usize, t: u32, lr: f64, range: Range) -> Self {
         MetaParams {
-            t,
+            f: Ema::of(R::of(h.decay_f), t),
+            v: Ema::of(R::of(META_BETA2), t),
             lr: R::of(lr * h.schedule.factor(t)),
-            decay_f: R::of(h.decay_f),
             decay_d: R::of(h.decay_d),
             eps: R::of(h.eps),
             lo: R::of(range.lo),
             hi: R::of(range.hi),
             step: h.step,
-            beta2: R::of(META_BETA2),
             centred: h.variance == VarianceEstimate::Centred,
             fd_raw: h.fdvar == super::FdVariance::Raw,
-            decay_h: R::of(h.decay_h),
+            keep_h: R::of(h.decay_h).sqrt(),
             sig: R::of(h.sig_for(k)),
             settle: R::of(h.settle),
         }
@@ -549,10 +564,8 @@ pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: 
     let one = R::ONE;
     // What the two Moment2 EMAs average the squares of.
     let (sample_f, sample_d) = if p.centred { (centred_sample(f, x.f_half), centred_sample(df, x.df_half)) } else { (f, df) };
-    let kf = ema_weight(p.decay_f, p.t);
-    let rms_f = hypot((one - kf).sqrt() * s.rms_f, kf.sqrt() * sample_f);
-    let k2 = ema_weight(p.beta2, p.t);
-    let v = hypot((one - k2).sqrt() * s.v, k2.sqrt() * f);
+    let rms_f = hypot(p.f.keep * s.rms_f, p.f.take * sample_f);
+    let v = hypot(p.v.keep * s.v, p.v.take * f);
 
     // ΔF terms: VD = Moment2(ΔF/‖Δπ‖)·‖Δπ‖² (or Moment2(ΔF) with fd_raw), kept as the
     // standard deviation sd_d.
@@ -584,7 +597,7 @@ pub fn meta_update<R: Real>(p: &MetaParams<R>, theta: R, x: MetaInput<R>, dpi2: 
     // of ΔF/Δθ weighted by Δθ², each earlier weight forgotten by decay_h.
     let (mut curv, mut curv_w) = (s.curv, s.curv_w);
     if dpi2 > R::ZERO && dpi2.is_finite() && s.last != R::ZERO {
-        curv_w = hypot(p.decay_h.sqrt() * s.curv_w, s.last);
+        curv_w = hypot(p.keep_h * s.curv_w, s.last);
         let kw = s.last.abs() / curv_w;
         let k = kw * kw;
         let secant = sat(df / s.last);
