@@ -114,9 +114,7 @@ pub fn optimiser_bandwidth(ctx: &Arc<Context>, elements: u64, iterations: u32) -
     let iterations = iterations.max(1);
     let ops = BufferOps::new(ctx)?;
     let theta = Buffer::zeroed::<f32>(ctx, "bench theta", n, MemoryKind::Device)?;
-    let values = |seed: u64| -> Vec<f32> {
-        (0..n as u64).map(|i| crate::stats::unit_hash(i.wrapping_mul(2).wrapping_add(seed)) * 2.0 - 1.0).collect()
-    };
+    let values = |seed: u64| -> Vec<f32> { (0..n as u64).map(|i| crate::stats::unit_hash(i.wrapping_mul(2).wrapping_add(seed)) * 2.0 - 1.0).collect() };
     let grad_src = Buffer::from_slice(ctx, "bench grad values", &values(1), MemoryKind::Device)?;
     let fd_src = Buffer::from_slice(ctx, "bench fd grad values", &values(2), MemoryKind::Device)?;
     let grad = Buffer::zeroed::<f32>(ctx, "bench grad", n, MemoryKind::Device)?;

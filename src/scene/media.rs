@@ -120,6 +120,36 @@ impl MediumBoundary {
         }
         (lo, hi)
     }
+
+    /// Whether `p` lies inside the mesh: the triangles that a ray from `p` crosses, counted
+    /// +1 where it leaves through a triangle's front (the outward side) and −1 where it
+    /// enters, sum to 1 inside and 0 outside. The ray's direction is skewed off every axis
+    /// and diagonal, so that it meets edges and vertices only by accident.
+    pub fn contains(&self, p: [f32; 3]) -> bool {
+        let o = glam::DVec3::from(p.map(f64::from));
+        let d = glam::DVec3::new(0.5183, 0.6427, 0.5641).normalize();
+        let at = |i: u32| glam::DVec3::from(self.positions[i as usize].map(f64::from));
+        let mut winding = 0i64;
+        for t in &self.indices {
+            let (a, b, c) = (at(t[0]), at(t[1]), at(t[2]));
+            let (e1, e2) = (b - a, c - a);
+            let q = d.cross(e2);
+            let det = e1.dot(q);
+            if det == 0.0 {
+                continue;
+            }
+            let s = o - a;
+            let u = s.dot(q) / det;
+            let r = s.cross(e1);
+            let v = d.dot(r) / det;
+            let dist = e2.dot(r) / det;
+            if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && dist > 0.0 {
+                // det > 0: the ray runs against the front's normal e1 × e2, so it enters.
+                winding += if det > 0.0 { -1 } else { 1 };
+            }
+        }
+        winding > 0
+    }
 }
 
 /// What is wrong with a medium's albedo (each channel of each voxel in [0, 1]), if

@@ -154,6 +154,10 @@ struct Importer<'a, 'i> {
     null_used: Vec<String>,
     /// The shape whose interior is the scene's medium.
     medium_shape: Option<Node<'a, 'i>>,
+    /// The shapes inside a medium (their `exterior`), checked against it at the end.
+    in_medium: Vec<media::InMedium<'a, 'i>>,
+    /// Each sensor's medium (its `medium`), in the order of `out.sensors`.
+    sensor_media: Vec<media::SensorMedium<'a, 'i>>,
 }
 
 /// Deepest nesting of elements read: far beyond a scene's (a shape in a BSDF in a twosided
@@ -219,6 +223,8 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         null_bsdfs: HashMap::new(),
         null_used: Vec::new(),
         medium_shape: None,
+        in_medium: Vec::new(),
+        sensor_media: Vec::new(),
     };
     imp.scene(doc.root_element())?;
     imp.check_media()?;
@@ -965,12 +971,17 @@ impl<'a, 'i> Importer<'a, 'i> {
             self.take(&mut items, "fov_axis").map(|n| self.string(n)).transpose()?.unwrap_or_else(|| default_axis.into())
         };
         let to_world = self.take_transform(&mut items, "to_world")?.unwrap_or(Mat4::IDENTITY);
+        let mut near_clip = None;
         for clip in ["near_clip", "far_clip"] {
             if let Some(n) = self.take(&mut items, clip) {
-                self.float(n)?;
+                let v = self.float(n)?;
                 self.warn(n, "ignored: nothing is clipped");
+                if clip == "near_clip" {
+                    near_clip = Some(v);
+                }
             }
         }
+        let medium = self.take(&mut items, "medium").map(|n| self.medium_ref(n, "medium")).transpose()?;
         let film = match self.take_tag(&mut items, "film") {
             Some(f) => self.film(f)?,
             None => Film { width: 768, height: 576 },
@@ -1023,6 +1034,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             sensor = Sensor { fov_y: 0.0, ..sensor }.orthographic(2.0 * sy / aspect);
         }
         self.out.sensors.push(sensor);
+        self.sensor_media.push(media::SensorMedium { node, id: medium, near_clip });
         Ok(())
     }
 
@@ -1680,12 +1692,23 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             _ => return Err(self.err(node, format!("shape \"{kind}\" is unsupported (obj, ply, serialized, rectangle, cube, sphere, disk and cylinder are)"))),
         };
-        if let Some(exterior) = self.take(&mut items, "exterior") {
-            return Err(self.err(exterior, "an exterior medium is unsupported (a shape's interior medium, with a null BSDF, is)"));
-        }
-        if let Some(interior) = self.take(&mut items, "interior") {
-            return self.medium_shape(node, &name, interior, to_world, &positions, &indices, items);
-        }
+        let exterior = self.take(&mut items, "exterior").map(|n| self.medium_ref(n, "exterior")).transpose()?;
+        let interior = self.take(&mut items, "interior");
+        let in_medium = match (exterior, interior) {
+            (None, Some(interior)) => return self.medium_shape(node, &name, interior, to_world, &positions, &indices, items),
+            (None, None) => None,
+            (Some(outside), None) => Some(media::InMedium { mesh: self.out.meshes.len(), node, id: outside, filled: false }),
+            (Some(outside), Some(interior)) => {
+                let inside = self.medium_ref(interior, "interior")?;
+                if inside != outside {
+                    return Err(self.err(
+                        interior,
+                        format!("a surface between two media (\"{outside}\" outside, \"{inside}\" inside) is unsupported: a scene holds one medium"),
+                    ));
+                }
+                Some(media::InMedium { mesh: self.out.meshes.len(), node, id: outside, filled: true })
+            }
+        };
         // A <ref> may name an area emitter declared at the top level.
         let mut emitter_ref = None;
         while let Some(i) = items.iter().position(|n| n.tag_name().name() == "ref" && n.attribute("id").is_some_and(|id| self.area_emitters.contains_key(id))) {
@@ -1774,6 +1797,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             two_sided_emission: false,
             sphere,
         });
+        self.in_medium.extend(in_medium);
         Ok(())
     }
 

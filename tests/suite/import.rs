@@ -2579,10 +2579,123 @@ fn mitsuba_scattering_media_import_with_their_albedo_and_phase() {
     assert_fails("bright", write_and_load(&dir, "bright.xml", &xml), &["albedo 1.5 is outside [0, 1]"]);
 }
 
+/// A fog that the camera and the surfaces stand in: the sensor names the medium as its
+/// `medium`, a floor and a glass ball inside it name it as their `exterior` (the ball as
+/// its `interior` too). The scene imports, and a pixel that looks through the absorbing
+/// fog at the sky sees L·e^(−σ·d), d the way to the box's face. A surface that names no
+/// medium keeps the ray's medium in Mitsuba, as in vkinverse. Where a sensor or a surface
+/// says otherwise than where it stands, Mitsuba's volpath would see the medium where
+/// vkinverse does not, or the reverse: each such case is refused in one line that says
+/// what to write. With fog in a sphere, the sphere, not its box, says where the
+/// sensor stands.
+#[test]
+fn mitsuba_fog_around_the_camera_and_its_surfaces_imports() {
+    let dir = temp_dir("mitsuba-fog");
+    let text = r#"<scene version="3.0.0">
+    <integrator type="volpath"><integer name="max_depth" value="3"/></integrator>
+    <medium type="homogeneous" id="fog"><float name="sigma_t" value="0.5"/><float name="albedo" value="0"/></medium>
+    <medium type="homogeneous" id="haze"><float name="sigma_t" value="0.1"/></medium>
+    <sensor type="perspective">
+        <float name="fov" value="0.5"/>
+        <transform name="to_world"><lookat origin="0, 0, 1" target="0, 0, -1" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/><rfilter type="box"/></film>
+        <ref name="medium" id="fog"/>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="1, 2, 4"/></emitter>
+    <shape type="cube"><transform name="to_world"><scale value="2"/></transform><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+    <shape type="rectangle" id="floor">
+        <transform name="to_world"><rotate x="1" angle="-90"/><scale value="0.5"/><translate y="-1" z="1.2"/></transform>
+        <bsdf type="diffuse"/>
+        <ref name="exterior" id="fog"/>
+    </shape>
+    <shape type="sphere" id="ball">
+        <point name="center" x="0" y="0" z="1.5"/><float name="radius" value="0.2"/>
+        <bsdf type="dielectric"/>
+        <ref name="exterior" id="fog"/>
+        <ref name="interior" id="fog"/>
+    </shape>
+</scene>
+"#;
+    let scene = write_and_load(&dir, "fog.xml", text).unwrap();
+    assert_eq!((scene.media[0].min, scene.media[0].max), ([-2.0; 3], [2.0; 3]));
+    assert_eq!(scene.meshes.len(), 2);
+    with_gpu(|ctx| {
+        let image = render_media(ctx, &scene);
+        // From z = 1 to the face at z = -2, along rays within 0.25 degrees of the axis.
+        let t = (-0.5f64 * 3.0).exp();
+        for p in &image.data {
+            for (c, l) in [1.0, 2.0, 4.0].iter().enumerate() {
+                assert!((p[c] as f64 - l * t).abs() < 1e-4 * l * t, "{p:?} against {}", l * t);
+            }
+        }
+    });
+    let sensor_ref = "<ref name=\"medium\" id=\"fog\"/>";
+    let floor_ref = "<bsdf type=\"diffuse\"/>\n        <ref name=\"exterior\" id=\"fog\"/>";
+    let ball_interior = "<ref name=\"interior\" id=\"fog\"/>\n    </shape>\n</scene>";
+    let cases: Vec<(&str, String, &[&str])> = vec![
+        ("sensor-unnamed", text.replace(sensor_ref, ""), &["the sensor at", "is inside medium \"fog\"", "<ref name=\"medium\" id=\"fog\"/>"]),
+        ("sensor-outside", text.replace("origin=\"0, 0, 1\"", "origin=\"0, 0, 3\""), &["names medium \"fog\" as its own but is not inside it"]),
+        ("sensor-haze", text.replace(sensor_ref, "<ref name=\"medium\" id=\"haze\"/>"), &["the sensor's medium \"haze\" fills no shape"]),
+        (
+            "floor-out",
+            text.replace("<scale value=\"0.5\"/>", "<scale value=\"3\"/>"),
+            &["shape \"floor\" names medium \"fog\" as its exterior but reaches out of it"],
+        ),
+        (
+            "ball-empty",
+            text.replace(ball_interior, "</shape>\n</scene>"),
+            &["shape \"ball\" lets light into its inside", "<ref name=\"interior\" id=\"fog\"/>"],
+        ),
+        ("ball-haze", text.replace(ball_interior, "<ref name=\"interior\" id=\"haze\"/>\n    </shape>\n</scene>"), &["a surface between two media"]),
+        (
+            "inline",
+            text.replace("<ref name=\"exterior\" id=\"fog\"/>\n    </shape>", "<medium type=\"homogeneous\" name=\"exterior\"/>\n    </shape>"),
+            &["the medium named \"exterior\" must be a <ref>"],
+        ),
+        ("unknown", text.replace(sensor_ref, "<ref name=\"medium\" id=\"smog\"/>"), &["no <medium> with id \"smog\""]),
+    ];
+    // A surface that names no medium keeps the ray's medium in Mitsuba: the floor
+    // imports as it is, with or without its exterior.
+    let unnamed = write_and_load(&dir, "floor-unnamed.xml", &text.replace(floor_ref, "<bsdf type=\"diffuse\"/>")).unwrap();
+    assert_eq!(unnamed.meshes[0].positions, scene.meshes[0].positions);
+    for (name, xml, needles) in cases {
+        assert_ne!(xml, text, "{name}: the case changes nothing");
+        assert_fails(name, write_and_load(&dir, &format!("{name}.xml"), &xml), needles);
+    }
+    // Fog in a sphere: a sensor in the sphere's box but outside the sphere stands outside
+    // the medium, one inside the sphere in it.
+    let sphere_fog = |origin: &str, named: bool| {
+        format!(
+            r#"<scene version="3.0.0">
+    <integrator type="volpath"/>
+    <medium type="homogeneous" id="fog"><float name="sigma_t" value="0.5"/></medium>
+    <sensor type="perspective">
+        <transform name="to_world"><lookat origin="{origin}" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="4"/><integer name="height" value="4"/></film>
+        {}
+    </sensor>
+    <shape type="sphere"><float name="radius" value="1.2"/><bsdf type="null"/><ref name="interior" id="fog"/></shape>
+</scene>
+"#,
+            if named { "<ref name=\"medium\" id=\"fog\"/>" } else { "" }
+        )
+    };
+    write_and_load(&dir, "corner.xml", &sphere_fog("1, 1, 1", false)).unwrap();
+    write_and_load(&dir, "centre.xml", &sphere_fog("0.2, 0.2, 0.8", true)).unwrap();
+    assert_fails("centre-unnamed", write_and_load(&dir, "centre-unnamed.xml", &sphere_fog("0.2, 0.2, 0.8", false)), &["is inside medium \"fog\""]);
+    assert_fails("corner-named", write_and_load(&dir, "corner-named.xml", &sphere_fog("1, 1, 1", true)), &["is not inside it"]);
+    // Without the fog's shape, the medium that the sensor names fills nothing.
+    let boxless = text.replace(
+        "<shape type=\"cube\"><transform name=\"to_world\"><scale value=\"2\"/></transform><bsdf type=\"null\"/><ref name=\"interior\" id=\"fog\"/></shape>",
+        "",
+    );
+    assert_fails("boxless", write_and_load(&dir, "boxless.xml", &boxless), &["medium \"fog\" fills no shape"]);
+}
+
 /// What vkinverse cannot render as Mitsuba does is refused in one line naming the plugin:
 /// a medium in a shape that is not closed or has no null BSDF, a grid that does not fill
 /// its shape's bounds (a turned cube's), an albedo of several values, a phase function other than isotropic and hg, an
-/// integrator that renders no media, surfaces inside the medium.
+/// integrator that renders no media, a camera inside the medium that does not name it.
 #[test]
 fn mitsuba_media_that_do_not_fit_are_refused() {
     let dir = temp_dir("mitsuba-medium-refused");
@@ -2601,9 +2714,8 @@ fn mitsuba_media_that_do_not_fit_are_refused() {
         ("hg-g", text.replace("<float name=\"albedo\" value=\"0\"/>", "<float name=\"albedo\" value=\"0\"/><phase type=\"hg\"><float name=\"g\" value=\"1\"/></phase>"), &["<phase type=\"hg\">", "g 1 is outside (-0.99, 0.99)"]),
         ("rgb-sigma", text.replace("<float name=\"scale\" value=\"2\"/>", "<rgb name=\"sigma_t\" value=\"1, 2, 3\"/>"), &["<rgb name=\"sigma_t\">", "differs between channels"]),
         ("nearest", text.replace("<string name=\"filename\"", "<string name=\"filter_type\" value=\"nearest\"/><string name=\"filename\""), &["filter_type \"nearest\" is unsupported (trilinear is)"]),
-        ("exterior", text.replace("name=\"interior\"", "name=\"exterior\""), &["an exterior medium is unsupported"]),
-        ("inside", text.replace("<translate y=\"-1\"/>", "<translate y=\"0.25\"/>"), &["shape \"floor\" reaches into the medium's box"]),
-        ("camera-inside", text.replace("origin=\"0.5, 1, 4\"", "origin=\"0.5, 0, 0\""), &["a sensor at", "inside the medium's box"]),
+        ("exterior", text.replace("name=\"interior\"", "name=\"exterior\""), &["the medium named \"exterior\" must be a <ref>"]),
+        ("camera-inside", text.replace("origin=\"0.5, 1, 4\"", "origin=\"0.5, 0, 0\""), &["the sensor at", "is inside medium \"smoke\"", "<ref name=\"medium\""]),
         ("second", text.replace("<!-- /medium -->", "<shape type=\"cube\"><transform name=\"to_world\"><translate x=\"5\"/></transform><bsdf type=\"null\"/><medium type=\"homogeneous\" name=\"interior\"><float name=\"albedo\" value=\"0\"/></medium></shape>"), &["a second medium: a scene holds at most one"]),
         ("null-alone", text.replace("<bsdf type=\"diffuse\"><rgb name=\"reflectance\" value=\"0.6, 0.5, 0.4\"/></bsdf>", "<bsdf type=\"null\"/>"), &["bsdf \"null\" is unsupported"]),
     ];

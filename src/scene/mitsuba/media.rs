@@ -43,6 +43,23 @@ pub(super) struct MediumDef<'a, 'i> {
 /// Relative tolerance of the box checks (of the box's largest side).
 const BOX_TOLERANCE: f32 = 1e-4;
 
+/// A visible shape that names a medium as its `exterior`: it stands inside the medium
+/// (checked at the end), and `filled` where its `interior` is the same medium.
+pub(super) struct InMedium<'a, 'i> {
+    /// Its index in the imported meshes.
+    pub mesh: usize,
+    pub node: Node<'a, 'i>,
+    pub id: String,
+    pub filled: bool,
+}
+
+/// A sensor's `medium` (the medium its rays start in), and its `near_clip` where given.
+pub(super) struct SensorMedium<'a, 'i> {
+    pub node: Node<'a, 'i>,
+    pub id: Option<String>,
+    pub near_clip: Option<f32>,
+}
+
 impl<'a, 'i> Importer<'a, 'i> {
     /// A `<medium>` (inside a shape or at the top level with an id).
     pub(super) fn medium_def(&mut self, node: Node<'a, 'i>) -> Result<MediumDef<'a, 'i>, SceneError> {
@@ -178,6 +195,19 @@ impl<'a, 'i> Importer<'a, 'i> {
         let (path, bytes) = self.read_file(node, &rel)?;
         let grid = crate::vol::parse_bytes(&bytes, &path).map_err(|e| self.err(node, e.to_string()))?;
         Ok(Values::Grid { grid, to_world, use_grid_bbox, node })
+    }
+
+    /// The id of the top-level medium that a shape's `exterior` or `interior`, or a
+    /// sensor's `medium`, names with a `<ref>`.
+    pub(super) fn medium_ref(&self, node: Node<'a, 'i>, role: &str) -> Result<String, SceneError> {
+        if node.tag_name().name() != "ref" {
+            return Err(self.err(node, format!("the medium named \"{role}\" must be a <ref> to the medium inside a null-BSDF shape")));
+        }
+        let id = self.required(node, "id")?;
+        if !self.media.contains_key(&id) && !self.out.media.iter().any(|m| m.name == id) {
+            return Err(self.err(node, format!("no <medium> with id \"{id}\"")));
+        }
+        Ok(id)
     }
 
     /// A shape with an interior medium (`interior`: a `<medium>` or a `<ref>` to one):
@@ -325,8 +355,13 @@ impl<'a, 'i> Importer<'a, 'i> {
     }
 
     /// What a scene with a medium must also be for Mitsuba to render the medium as vkinverse
-    /// does: a volumetric integrator, no camera inside the box and no surface inside it (at
-    /// a surface inside a medium, Mitsuba's volpath leaves the medium).
+    /// does: a volumetric integrator; a sensor inside the medium names it as its `medium`
+    /// (and one outside names none). A surface that names no medium keeps the ray's medium
+    /// in Mitsuba, as the position does in vkinverse: it may stand anywhere. One that names
+    /// the medium as its `exterior` gives it to the rays it reflects, so it must stand
+    /// inside it, and name it as its `interior` too where light passes into its inside.
+    /// Where a shape or sensor says otherwise, Mitsuba's volpath would see no medium where
+    /// vkinverse sees one, or the reverse.
     pub(super) fn check_media(&mut self) -> Result<(), SceneError> {
         let unused: Vec<String> = self.null_bsdfs.keys().filter(|id| !self.null_used.contains(id)).cloned().collect();
         if let Some(id) = unused.into_iter().min() {
@@ -334,7 +369,13 @@ impl<'a, 'i> Importer<'a, 'i> {
             let node = self.null_bsdfs[&id];
             self.bsdf(node, &id)?;
         }
-        let (Some(node), Some(m)) = (self.medium_shape, self.out.media.first()) else { return Ok(()) };
+        let (Some(node), Some(m)) = (self.medium_shape, self.out.media.first()) else {
+            let named = self.sensor_media.iter().find_map(|s| s.id.clone().map(|id| (s.node, id)));
+            if let Some((at, id)) = named.or_else(|| self.in_medium.first().map(|s| (s.node, s.id.clone()))) {
+                return Err(self.err(at, format!("medium \"{id}\" fills no shape: a medium must be the interior of a closed shape with a null BSDF")));
+            }
+            return Ok(());
+        };
         let (min, max) = (Vec3::from(m.min), Vec3::from(m.max));
         let inset = BOX_TOLERANCE * (max - min).max_element();
         let (inner_min, inner_max) = (min + inset, max - inset);
@@ -348,21 +389,57 @@ impl<'a, 'i> Importer<'a, 'i> {
                 ));
             }
         }
-        if let Some(s) = self.out.sensors.iter().find(|s| s.origin.cmpgt(inner_min).all() && s.origin.cmplt(inner_max).all()) {
-            return Err(self.err(node, format!("a sensor at {} is inside the medium's box (a sensor's own medium is unsupported)", s.origin)));
+        let (id, boundary) = (m.name.clone(), m.boundary.clone());
+        // Inside the medium (a point clear of its box's faces, and inside its mesh), and
+        // clear of it (outside the box by the tolerance, or outside the mesh).
+        let inside = |p: Vec3| p.cmpgt(inner_min).all() && p.cmplt(inner_max).all() && boundary.as_ref().is_none_or(|b| b.contains(p.to_array()));
+        let outside = |p: Vec3| !(p.cmpge(min - inset).all() && p.cmple(max + inset).all()) || boundary.as_ref().is_some_and(|b| !b.contains(p.to_array()));
+        let mut warnings = Vec::new();
+        for (s, sm) in self.out.sensors.iter().zip(&self.sensor_media) {
+            let at = s.origin;
+            match &sm.id {
+                Some(named) if *named != id => {
+                    return Err(self.err(sm.node, format!("the sensor's medium \"{named}\" fills no shape (the scene's medium is \"{id}\")")));
+                }
+                Some(_) if !inside(at) => {
+                    return Err(self.err(sm.node, format!("the sensor at {at} names medium \"{id}\" as its own but is not inside it")));
+                }
+                None if !outside(at) => {
+                    return Err(self.err(
+                        sm.node,
+                        format!("the sensor at {at} is inside medium \"{id}\" (or on its boundary): give it <ref name=\"medium\" id=\"{id}\"/>, its rays start in the medium"),
+                    ));
+                }
+                Some(_) => {
+                    if let Some(near) = sm.near_clip.filter(|&n| n > 0.0) {
+                        warnings.push((
+                            sm.node,
+                            format!("Mitsuba starts this sensor's rays at near_clip = {near}, past the medium's first {near}; vkinverse at the sensor"),
+                        ));
+                    }
+                }
+                None => {}
+            }
         }
-        for mesh in &self.out.meshes {
-            let inside = mesh.indices.iter().any(|t| {
-                let corners = t.map(|i| mesh.positions.get(i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p)));
-                let lo = corners.iter().copied().fold(Vec3::INFINITY, Vec3::min);
-                let hi = corners.iter().copied().fold(Vec3::NEG_INFINITY, Vec3::max);
-                hi.cmpgt(inner_min).all() && lo.cmplt(inner_max).all()
-            });
-            if inside {
+        for (node, w) in warnings {
+            self.warn(node, w);
+        }
+        for s in &self.in_medium {
+            let mesh = &self.out.meshes[s.mesh];
+            if s.id != id {
+                return Err(
+                    self.err(s.node, format!("shape \"{}\": its exterior medium \"{}\" fills no shape (the scene's medium is \"{id}\")", mesh.name, s.id))
+                );
+            }
+            let vertex = |i: &u32| mesh.positions.get(*i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p));
+            if let Some(p) = mesh.indices.iter().flatten().map(vertex).find(|&p| !inside(p)) {
+                return Err(self.err(s.node, format!("shape \"{}\" names medium \"{id}\" as its exterior but reaches out of it (at {p})", mesh.name)));
+            }
+            if self.out.materials[mesh.material].kind.is_dielectric() && !s.filled {
                 return Err(self.err(
-                    node,
+                    s.node,
                     format!(
-                        "shape \"{}\" reaches into the medium's box: Mitsuba's volpath leaves a medium at a surface inside it, so this is unsupported",
+                        "shape \"{}\" lets light into its inside, where Mitsuba has no medium and vkinverse has \"{id}\": give it <ref name=\"interior\" id=\"{id}\"/> too",
                         mesh.name
                     ),
                 ));
