@@ -31,8 +31,9 @@
 //! type="checkerboard">` (constant colours: a 2 × 2 nearest-filtered image), each with a
 //! `to_uv` map that moves the texture coordinates of the shapes using it (one per
 //! shape); `<transform>` with `lookat`, `matrix`, `translate`, `rotate`, `scale`; `id` and
-//! `<ref>`; a `<medium type="homogeneous|heterogeneous">` inside a `null`-BSDF
-//! box under `volpath`, `volpathmis` or `prbvolpath` ([`media`]). Names: a shape's mesh, bsdf's material
+//! `<ref>`; a `<medium type="homogeneous|heterogeneous">` inside a closed shape (with a
+//! `null` BSDF or a visible one) under `volpath`, `volpathmis` or `prbvolpath`, with the
+//! sensors and surfaces that stand in it ([`media`]). Names: a shape's mesh, bsdf's material
 //! and emitter's light are its `id` (else `shape<k>`, the enclosing shape's name,
 //! `light<k>`); a medium's is its `id`, else its shape's name.
 //!
@@ -1695,7 +1696,15 @@ impl<'a, 'i> Importer<'a, 'i> {
         let exterior = self.take(&mut items, "exterior").map(|n| self.medium_ref(n, "exterior")).transpose()?;
         let interior = self.take(&mut items, "interior");
         let in_medium = match (exterior, interior) {
-            (None, Some(interior)) => return self.medium_shape(node, &name, interior, to_world, &positions, &indices, items),
+            (None, Some(interior)) => match self.medium_shape(node, &name, interior, to_world, &positions, &indices, items)? {
+                // A null BSDF: the shape is the medium's and nothing else.
+                None => return Ok(()),
+                // Another BSDF: a surface around the medium, made below.
+                Some(rest) => {
+                    items = rest;
+                    None
+                }
+            },
             (None, None) => None,
             (Some(outside), None) => Some(media::InMedium { mesh: self.out.meshes.len(), node, id: outside, filled: false }),
             (Some(outside), Some(interior)) => {

@@ -1,7 +1,8 @@
 //! Mitsuba media that vkinverse renders as they are: a `homogeneous` or `heterogeneous`
-//! medium, the interior of a closed shape with a `null` BSDF (an axis-aligned box, or any
-//! closed mesh: the medium's boundary), rendered by `volpath`, `volpathmis` or
-//! `prbvolpath`. The medium's box is the shape's world bounds; its density is `sigma_t`
+//! medium, the interior of a closed shape (an axis-aligned box, or any closed mesh: the
+//! medium's boundary) with a `null` BSDF or a visible one (glass filled with smoke),
+//! rendered by `volpath`, `volpathmis` or `prbvolpath`, with the sensors and surfaces
+//! inside it that say so (their `medium`, their `exterior`). The medium's box is the shape's world bounds; its density is `sigma_t`
 //! (a number, an equal `rgb`, a `constvolume` or a one-channel `gridvolume` whose
 //! `to_world` places it on that box) and its `scale` is
 //! Mitsuba's; its `albedo` is a constant (a number or an RGB colour) and its phase
@@ -212,8 +213,9 @@ impl<'a, 'i> Importer<'a, 'i> {
 
     /// A shape with an interior medium (`interior`: a `<medium>` or a `<ref>` to one):
     /// the medium in the shape's bounds, bounded by the shape where it is not an
-    /// axis-aligned box, and no mesh (its null BSDF shows nothing).
-    /// `positions` are the shape's, before `to_world`.
+    /// axis-aligned box. With a null BSDF the shape is no mesh (it shows nothing): None.
+    /// With another BSDF (glass filled with smoke) it is also a surface, made from the
+    /// `items` returned. `positions` are the shape's, before `to_world`.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn medium_shape(
         &mut self,
@@ -223,8 +225,8 @@ impl<'a, 'i> Importer<'a, 'i> {
         to_world: Mat4,
         positions: &[[f32; 3]],
         indices: &[[u32; 3]],
-        mut items: Items<'a, 'i>,
-    ) -> Result<(), SceneError> {
+        items: Items<'a, 'i>,
+    ) -> Result<Option<Items<'a, 'i>>, SceneError> {
         let (def, id) = match interior.tag_name().name() {
             "medium" => (self.medium_def(interior)?, self.attr(interior, "id")?),
             "ref" => {
@@ -234,7 +236,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             _ => return Err(self.err(interior, "expected a <medium> or a <ref> to one")),
         };
-        let null = match (self.take_tag(&mut items, "bsdf"), self.take_tag(&mut items, "ref").or_else(|| self.take(&mut items, "bsdf"))) {
+        // The BSDF, looked at in a copy of the items: a surface keeps them all.
+        let mut rest = items.clone();
+        let null = match (self.take_tag(&mut rest, "bsdf"), self.take_tag(&mut rest, "ref").or_else(|| self.take(&mut rest, "bsdf"))) {
             (Some(b), None) => self.plugin_type(b)? == "null" && elements(b).is_empty(),
             (None, Some(r)) => {
                 let id = self.required(r, "id")?;
@@ -246,10 +250,9 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             _ => false,
         };
-        if !null {
-            return Err(self.err(node, "a shape around a medium needs a null BSDF (a visible surface around a medium is unsupported)"));
+        if null {
+            self.rest(&rest, node)?;
         }
-        self.rest(&items, node)?;
         let world: Vec<Vec3> = positions.iter().map(|&p| to_world.transform_point3(Vec3::from(p))).collect();
         // An axis-aligned box is the medium's box; any other closed shape bounds it.
         let ((min, max), boundary) = match Self::medium_box(&world, indices) {
@@ -288,7 +291,7 @@ impl<'a, 'i> Importer<'a, 'i> {
             formats: [format(&def.sigma_t), GridFormat::Npy, format(&def.albedo)],
             boundary,
         });
-        Ok(())
+        Ok((!null).then_some(items))
     }
 
     /// A medium's property as a value of `channels` channels in its box (`min`, `max`): a
@@ -419,6 +422,30 @@ impl<'a, 'i> Importer<'a, 'i> {
                     }
                 }
                 None => {}
+            }
+        }
+        // A surface on a face of the medium's box: Mitsuba's rays, offset off the surface,
+        // may pass the coincident face without entering or leaving the medium.
+        if boundary.is_none() {
+            for mesh in &self.out.meshes {
+                let on_face = mesh.indices.iter().any(|t| {
+                    let p = t.map(|i| mesh.positions.get(i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p)));
+                    let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+                    (0..3).any(|a| {
+                        let overlaps = (0..3).filter(|&b| b != a).all(|b| hi[b] > min[b] + inset && lo[b] < max[b] - inset);
+                        let flat_on = |face: f32| p.iter().all(|q| (q[a] - face).abs() <= inset);
+                        overlaps && (flat_on(min[a]) || flat_on(max[a]))
+                    })
+                });
+                if on_face {
+                    warnings.push((
+                        node,
+                        format!(
+                            "shape \"{}\" lies on a face of the box of medium \"{id}\": Mitsuba's rays may cross that face there without entering or leaving the medium, so its renders near the face can differ; move the shape off the face",
+                            mesh.name
+                        ),
+                    ));
+                }
             }
         }
         for (node, w) in warnings {
