@@ -14,7 +14,7 @@ use roxmltree::Node;
 
 use super::{elements, Importer, Items};
 use crate::scene::media::{albedo_error, g_error, DEFAULT_STEP};
-use crate::scene::model::{GridFormat, Medium, MediumBoundary};
+use crate::scene::model::{GridFormat, Medium, MediumBoundary, Mesh};
 use crate::scene::SceneError;
 use crate::tensor::{ParamValue, Shape};
 
@@ -59,6 +59,32 @@ pub(super) struct SensorMedium<'a, 'i> {
     pub node: Node<'a, 'i>,
     pub id: Option<String>,
     pub near_clip: Option<f32>,
+}
+
+/// Where the scene's medium is: its box, the box checks' tolerance, and its mesh.
+struct Region {
+    id: String,
+    min: Vec3,
+    max: Vec3,
+    inset: f32,
+    boundary: Option<MediumBoundary>,
+}
+
+impl Region {
+    fn of(m: &Medium) -> Region {
+        let (min, max) = (Vec3::from(m.min), Vec3::from(m.max));
+        Region { id: m.name.clone(), min, max, inset: BOX_TOLERANCE * (max - min).max_element(), boundary: m.boundary.clone() }
+    }
+
+    /// Inside the medium: clear of its box's faces, and inside its mesh.
+    fn inside(&self, p: Vec3) -> bool {
+        p.cmpgt(self.min + self.inset).all() && p.cmplt(self.max - self.inset).all() && self.boundary.as_ref().is_none_or(|b| b.contains(p.to_array()))
+    }
+
+    /// Clear of the medium: outside its box by the tolerance, or outside its mesh.
+    fn outside(&self, p: Vec3) -> bool {
+        !(p.cmpge(self.min - self.inset).all() && p.cmple(self.max + self.inset).all()) || self.boundary.as_ref().is_some_and(|b| !b.contains(p.to_array()))
+    }
 }
 
 impl<'a, 'i> Importer<'a, 'i> {
@@ -379,9 +405,6 @@ impl<'a, 'i> Importer<'a, 'i> {
             }
             return Ok(());
         };
-        let (min, max) = (Vec3::from(m.min), Vec3::from(m.max));
-        let inset = BOX_TOLERANCE * (max - min).max_element();
-        let (inner_min, inner_max) = (min + inset, max - inset);
         match self.integrator_kind.as_deref() {
             Some("volpath" | "volpathmis" | "prbvolpath") => {}
             other => {
@@ -392,22 +415,32 @@ impl<'a, 'i> Importer<'a, 'i> {
                 ));
             }
         }
-        let (id, boundary) = (m.name.clone(), m.boundary.clone());
-        // Inside the medium (a point clear of its box's faces, and inside its mesh), and
-        // clear of it (outside the box by the tolerance, or outside the mesh).
-        let inside = |p: Vec3| p.cmpgt(inner_min).all() && p.cmplt(inner_max).all() && boundary.as_ref().is_none_or(|b| b.contains(p.to_array()));
-        let outside = |p: Vec3| !(p.cmpge(min - inset).all() && p.cmple(max + inset).all()) || boundary.as_ref().is_some_and(|b| !b.contains(p.to_array()));
+        let region = Region::of(m);
+        let mut warnings = self.check_sensors(&region)?;
+        if region.boundary.is_none() {
+            warnings.extend(self.face_warnings(&region).into_iter().map(|w| (node, w)));
+        }
+        for (node, w) in warnings {
+            self.warn(node, w);
+        }
+        self.check_in_medium(&region)
+    }
+
+    /// Each sensor against the medium: inside it, it names it as its `medium`; outside,
+    /// it names none. The warnings of those inside with a `near_clip`.
+    fn check_sensors(&self, region: &Region) -> Result<Vec<(Node<'a, 'i>, String)>, SceneError> {
+        let id = &region.id;
         let mut warnings = Vec::new();
         for (s, sm) in self.out.sensors.iter().zip(&self.sensor_media) {
             let at = s.origin;
             match &sm.id {
-                Some(named) if *named != id => {
+                Some(named) if named != id => {
                     return Err(self.err(sm.node, format!("the sensor's medium \"{named}\" fills no shape (the scene's medium is \"{id}\")")));
                 }
-                Some(_) if !inside(at) => {
+                Some(_) if !region.inside(at) => {
                     return Err(self.err(sm.node, format!("the sensor at {at} names medium \"{id}\" as its own but is not inside it")));
                 }
-                None if !outside(at) => {
+                None if !region.outside(at) => {
                     return Err(self.err(
                         sm.node,
                         format!("the sensor at {at} is inside medium \"{id}\" (or on its boundary): give it <ref name=\"medium\" id=\"{id}\"/>, its rays start in the medium"),
@@ -424,42 +457,44 @@ impl<'a, 'i> Importer<'a, 'i> {
                 None => {}
             }
         }
-        // A surface on a face of the medium's box: Mitsuba's rays, offset off the surface,
-        // may pass the coincident face without entering or leaving the medium.
-        if boundary.is_none() {
-            for mesh in &self.out.meshes {
-                let on_face = mesh.indices.iter().any(|t| {
-                    let p = t.map(|i| mesh.positions.get(i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p)));
-                    let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
-                    (0..3).any(|a| {
-                        let overlaps = (0..3).filter(|&b| b != a).all(|b| hi[b] > min[b] + inset && lo[b] < max[b] - inset);
-                        let flat_on = |face: f32| p.iter().all(|q| (q[a] - face).abs() <= inset);
-                        overlaps && (flat_on(min[a]) || flat_on(max[a]))
-                    })
-                });
-                if on_face {
-                    warnings.push((
-                        node,
-                        format!(
-                            "shape \"{}\" lies on a face of the box of medium \"{id}\": Mitsuba's rays may cross that face there without entering or leaving the medium, so its renders near the face can differ; move the shape off the face",
-                            mesh.name
-                        ),
-                    ));
-                }
-            }
-        }
-        for (node, w) in warnings {
-            self.warn(node, w);
-        }
+        Ok(warnings)
+    }
+
+    /// A warning for each surface on a face of the medium's box: Mitsuba's rays, offset
+    /// off the surface, may pass the coincident face without entering or leaving the
+    /// medium.
+    fn face_warnings(&self, region: &Region) -> Vec<String> {
+        let (min, max, inset) = (region.min, region.max, region.inset);
+        let on_face = |mesh: &Mesh| {
+            mesh.indices.iter().any(|t| {
+                let p = t.map(|i| mesh.positions.get(i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p)));
+                let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+                (0..3).any(|a| {
+                    let overlaps = (0..3).filter(|&b| b != a).all(|b| hi[b] > min[b] + inset && lo[b] < max[b] - inset);
+                    let flat_on = |face: f32| p.iter().all(|q| (q[a] - face).abs() <= inset);
+                    overlaps && (flat_on(min[a]) || flat_on(max[a]))
+                })
+            })
+        };
+        self.out.meshes.iter().filter(|m| on_face(m)).map(|mesh| format!(
+            "shape \"{}\" lies on a face of the box of medium \"{}\": Mitsuba's rays may cross that face there without entering or leaving the medium, so its renders near the face can differ; move the shape off the face",
+            mesh.name, region.id
+        )).collect()
+    }
+
+    /// Each shape that names the medium as its `exterior` stands inside it, and names it
+    /// as its `interior` too where light passes into its inside (glass).
+    fn check_in_medium(&self, region: &Region) -> Result<(), SceneError> {
+        let id = &region.id;
         for s in &self.in_medium {
             let mesh = &self.out.meshes[s.mesh];
-            if s.id != id {
+            if s.id != *id {
                 return Err(
                     self.err(s.node, format!("shape \"{}\": its exterior medium \"{}\" fills no shape (the scene's medium is \"{id}\")", mesh.name, s.id))
                 );
             }
             let vertex = |i: &u32| mesh.positions.get(*i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p));
-            if let Some(p) = mesh.indices.iter().flatten().map(vertex).find(|&p| !inside(p)) {
+            if let Some(p) = mesh.indices.iter().flatten().map(vertex).find(|&p| !region.inside(p)) {
                 return Err(self.err(s.node, format!("shape \"{}\" names medium \"{id}\" as its exterior but reaches out of it (at {p})", mesh.name)));
             }
             if self.out.materials[mesh.material].kind.is_dielectric() && !s.filled {
