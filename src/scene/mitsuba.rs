@@ -155,6 +155,8 @@ struct Importer<'a, 'i> {
     null_used: Vec<String>,
     /// The shape whose interior is the scene's medium.
     medium_shape: Option<Node<'a, 'i>>,
+    /// The mesh of the visible shape whose interior is the medium (glass around it).
+    medium_surface: Option<usize>,
     /// The shapes inside a medium (their `exterior`), checked against it at the end.
     in_medium: Vec<media::InMedium<'a, 'i>>,
     /// Each sensor's medium (its `medium`), in the order of `out.sensors`.
@@ -224,6 +226,7 @@ pub(super) fn import(path: &Path) -> Result<Imported, SceneError> {
         null_bsdfs: HashMap::new(),
         null_used: Vec::new(),
         medium_shape: None,
+        medium_surface: None,
         in_medium: Vec::new(),
         sensor_media: Vec::new(),
     };
@@ -1702,6 +1705,7 @@ impl<'a, 'i> Importer<'a, 'i> {
                 // Another BSDF: a surface around the medium, made below.
                 Some(rest) => {
                     items = rest;
+                    self.medium_surface = Some(self.out.meshes.len());
                     None
                 }
             },

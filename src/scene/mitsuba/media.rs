@@ -2,7 +2,8 @@
 //! medium, the interior of a closed shape (an axis-aligned box, or any closed mesh: the
 //! medium's boundary) with a `null` BSDF or a visible one (glass filled with smoke),
 //! rendered by `volpath`, `volpathmis` or `prbvolpath`, with the sensors and surfaces
-//! inside it that say so (their `medium`, their `exterior`). The medium's box is the shape's world bounds; its density is `sigma_t`
+//! inside it that say so (their `medium`, their `exterior`). The medium's box is the
+//! shape's world bounds; its density is `sigma_t`
 //! (a number, an equal `rgb`, a `constvolume` or a one-channel `gridvolume` whose
 //! `to_world` places it on that box) and its `scale` is
 //! Mitsuba's; its `albedo` is a constant (a number or an RGB colour) and its phase
@@ -228,7 +229,7 @@ impl<'a, 'i> Importer<'a, 'i> {
     /// sensor's `medium`, names with a `<ref>`.
     pub(super) fn medium_ref(&self, node: Node<'a, 'i>, role: &str) -> Result<String, SceneError> {
         if node.tag_name().name() != "ref" {
-            return Err(self.err(node, format!("the medium named \"{role}\" must be a <ref> to the medium inside a null-BSDF shape")));
+            return Err(self.err(node, format!("the medium named \"{role}\" must be a <ref> to the medium inside a closed shape")));
         }
         let id = self.required(node, "id")?;
         if !self.media.contains_key(&id) && !self.out.media.iter().any(|m| m.name == id) {
@@ -401,7 +402,7 @@ impl<'a, 'i> Importer<'a, 'i> {
         let (Some(node), Some(m)) = (self.medium_shape, self.out.media.first()) else {
             let named = self.sensor_media.iter().find_map(|s| s.id.clone().map(|id| (s.node, id)));
             if let Some((at, id)) = named.or_else(|| self.in_medium.first().map(|s| (s.node, s.id.clone()))) {
-                return Err(self.err(at, format!("medium \"{id}\" fills no shape: a medium must be the interior of a closed shape with a null BSDF")));
+                return Err(self.err(at, format!("medium \"{id}\" fills no shape: a medium must be the interior of a closed shape")));
             }
             return Ok(());
         };
@@ -476,7 +477,9 @@ impl<'a, 'i> Importer<'a, 'i> {
                 })
             })
         };
-        self.out.meshes.iter().filter(|m| on_face(m)).map(|mesh| format!(
+        // The medium's own surface (glass around it) is its boundary, not beside it.
+        let own = |k: usize| self.medium_surface == Some(k);
+        self.out.meshes.iter().enumerate().filter(|&(k, m)| !own(k) && on_face(m)).map(|(_, mesh)| format!(
             "shape \"{}\" lies on a face of the box of medium \"{}\": Mitsuba's rays may cross that face there without entering or leaving the medium, so its renders near the face can differ; move the shape off the face",
             mesh.name, region.id
         )).collect()
