@@ -65,7 +65,8 @@ def scaled_copy(path, res, depth=0):
 
     def value(v):
         v = defaults.get(v[1:], v) if v.startswith("$") else v
-        return int(float(v))
+        # A default that another file sets (one that includes this one): scaled to res.
+        return res if v.startswith("$") else int(float(v))
 
     film = re.search(r"<film\b.*?</film>", text, re.S)
     if film:
