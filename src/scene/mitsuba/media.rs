@@ -497,7 +497,10 @@ impl<'a, 'i> Importer<'a, 'i> {
                 );
             }
             let vertex = |i: &u32| mesh.positions.get(*i as usize).map_or(Vec3::ZERO, |&p| Vec3::from(p));
-            if let Some(p) = mesh.indices.iter().flatten().map(vertex).find(|&p| !region.inside(p)) {
+            // Each vertex once: a mesh's triangles share each about six times, and a test
+            // against a mesh boundary reads every boundary triangle.
+            let mut seen = std::collections::HashSet::new();
+            if let Some(p) = mesh.indices.iter().flatten().filter(|&&i| seen.insert(i)).map(vertex).find(|&p| !region.inside(p)) {
                 return Err(self.err(s.node, format!("shape \"{}\" names medium \"{id}\" as its exterior but reaches out of it (at {p})", mesh.name)));
             }
             if self.out.materials[mesh.material].kind.is_dielectric() && !s.filled {
